@@ -1,0 +1,14 @@
+"""microlie: Lie theory for state estimation.
+
+Groups SO(2), SE(2), SO(3), SE(3), Sim(3) with every operation and its analytic Jacobian,
+batched over NumPy, PyTorch and JAX arrays.
+
+Conventions: tangent vectors are translation first (SE(3): ``(rho, phi)``), quaternions are
+``(x, y, z, w)``, ``plus``/``minus`` are right (``X Exp(tau)``, ``Log(X^-1 Y)``), and every
+Jacobian is a right Jacobian unless ``side="left"`` is passed.
+"""
+
+from .groups import SE2, SE3, SO2, SO3, LieGroup, Sim3
+
+__version__ = "0.1.0"
+__all__ = ["LieGroup", "SO2", "SE2", "SO3", "SE3", "Sim3", "__version__"]

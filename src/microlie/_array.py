@@ -1,0 +1,300 @@
+"""The one module that knows about array backends.
+
+Group mathematics in :mod:`microlie.groups` is written on *components*: a quaternion is four
+separate arrays ``(x, y, z, w)`` of the batch shape, a 3x3 matrix is a tuple of three row
+tuples. The functions receive an ``ops`` object that supplies the few elementary functions
+they need (``sin``, ``sqrt``, ``atan2``, ``where`` ...). Two kinds of ``ops`` exist:
+
+* :class:`ArrayOps` wraps an array namespace (NumPy, PyTorch or JAX through
+  ``array-api-compat``); components are arrays and ``where`` is an element-wise selection, so
+  the same code vectorises, jits and differentiates.
+* :data:`SCALAR` evaluates the same functions on Python floats. A single NumPy element (no
+  batch axes) takes this path: it is an order of magnitude faster than NumPy calls on
+  length-1 arrays. ``where`` then picks one value, exactly as the array version would.
+
+Nothing here imports PyTorch or JAX: their namespaces are looked up only when a caller's array
+is one of theirs.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+Array = Any  # a NumPy, PyTorch or JAX array
+
+
+class _ScalarOps:
+    """Elementary functions on Python floats (the single-element NumPy path)."""
+
+    is_scalar = True
+    sin = staticmethod(math.sin)
+    cos = staticmethod(math.cos)
+    tan = staticmethod(math.tan)
+    sqrt = staticmethod(math.sqrt)
+    atan2 = staticmethod(math.atan2)
+    exp = staticmethod(math.exp)
+    expm1 = staticmethod(math.expm1)
+    log = staticmethod(math.log)
+    abs = staticmethod(abs)
+
+    @staticmethod
+    def where(cond: bool, a: float, b: float) -> float:
+        return a if cond else b
+
+    @staticmethod
+    def sign1(x: float) -> float:
+        """+1 for x >= 0, -1 otherwise (never 0)."""
+        return 1.0 if x >= 0 else -1.0
+
+    @staticmethod
+    def zeros_like(x: float) -> float:
+        return 0.0
+
+    @staticmethod
+    def ones_like(x: float) -> float:
+        return 1.0
+
+
+SCALAR = _ScalarOps()
+
+
+class ArrayOps:
+    """Elementary functions of one array namespace."""
+
+    is_scalar = False
+
+    def __init__(self, xp: Any) -> None:
+        self.xp = xp
+        self.sin = xp.sin
+        self.cos = xp.cos
+        self.tan = xp.tan
+        self.sqrt = xp.sqrt
+        self.atan2 = xp.atan2
+        self.exp = xp.exp
+        self.expm1 = xp.expm1
+        self.log = xp.log
+        self.abs = xp.abs
+        self.where = xp.where
+
+    def sign1(self, x: Array) -> Array:
+        return self.xp.where(x >= 0, 1.0, -1.0) * self.xp.ones_like(x)
+
+    def zeros_like(self, x: Array) -> Array:
+        return self.xp.zeros_like(x)
+
+    def ones_like(self, x: Array) -> Array:
+        return self.xp.ones_like(x)
+
+
+class _NumpyOps(ArrayOps):
+    """NumPy without the ``array-api-compat`` wrappers (fewer Python calls per op)."""
+
+    def __init__(self) -> None:
+        super().__init__(np)
+        self.atan2 = np.arctan2
+        self.where = np.where
+
+
+NUMPY = _NumpyOps()
+_OPS_CACHE: dict[int, ArrayOps] = {}
+
+
+def namespace(*arrays: Array) -> Any:
+    """The array namespace shared by ``arrays`` (NumPy for anything that is not torch/JAX)."""
+    foreign = [a for a in arrays if not isinstance(a, (np.ndarray, np.generic, float, int))]
+    if not foreign:
+        return np
+    from array_api_compat import array_namespace
+
+    return array_namespace(*foreign)
+
+
+def ops_for(*arrays: Array) -> ArrayOps:
+    """The :class:`ArrayOps` for the caller's arrays."""
+    xp = namespace(*arrays)
+    if xp is np:
+        return NUMPY
+    ops = _OPS_CACHE.get(id(xp))
+    if ops is None:
+        ops = _OPS_CACHE[id(xp)] = ArrayOps(xp)
+        _register_pytrees(xp)
+    return ops
+
+
+def is_numpy(x: Array) -> bool:
+    return isinstance(x, np.ndarray)
+
+
+def is_jax(x: Array) -> bool:
+    mod = type(x).__module__
+    return mod.startswith("jax") or mod.startswith("jaxlib")
+
+
+def is_torch(x: Array) -> bool:
+    return type(x).__module__.startswith("torch")
+
+
+def is_traced(x: Array) -> bool:
+    """True for a JAX tracer (values unknown: no value checks possible)."""
+    if not is_jax(x):
+        return False
+    import jax
+
+    return isinstance(x, jax.core.Tracer)
+
+
+def as_float_array(x: Any, like: Array | None = None, dtype: Any = None) -> Array:
+    """``x`` as a floating array of the backend of ``like`` (or of ``x`` itself).
+
+    Lists, tuples and integer arrays become float64 (or ``dtype``); floating arrays keep their
+    dtype and backend.
+    """
+    if like is not None and not is_numpy(like) and is_numpy_like(x):
+        xp = namespace(like)
+        return xp.asarray(np.asarray(x, dtype=np.float64), dtype=like.dtype, device=_device(like))
+    if is_numpy_like(x):
+        arr = np.asarray(x)
+        if dtype is not None:
+            return arr.astype(dtype, copy=False)
+        if arr.dtype.kind != "f" or arr.dtype.itemsize < 4:
+            arr = arr.astype(np.float64)
+        elif arr.dtype == np.float16 or arr.dtype.itemsize > 8:
+            arr = arr.astype(np.float64)
+        return arr
+    xp = namespace(x)
+    if dtype is not None:
+        return xp.asarray(x, dtype=dtype)
+    if not xp.isdtype(x.dtype, "real floating"):
+        return xp.asarray(x, dtype=xp.float64 if _has_f64(xp) else xp.float32)
+    return x
+
+
+def is_numpy_like(x: Any) -> bool:
+    return isinstance(x, (np.ndarray, np.generic, list, tuple, float, int))
+
+
+def _has_f64(xp: Any) -> bool:
+    if "jax" in getattr(xp, "__name__", ""):
+        import jax
+
+        return bool(jax.config.read("jax_enable_x64"))
+    return True
+
+
+def _device(x: Array) -> Any:
+    from array_api_compat import device
+
+    return device(x)
+
+
+def components(x: Array) -> list[Array]:
+    """Split the last axis of ``x`` into a list of arrays (views where the backend allows)."""
+    return [x[..., i] for i in range(x.shape[-1])]
+
+
+def scalar_components(x: np.ndarray) -> list[float]:
+    return x.tolist()
+
+
+def pack(ops: Any, comps: Sequence[Any], like: Array) -> Array:
+    """Stack components along a new last axis, in the backend and dtype of ``like``."""
+    if ops.is_scalar:
+        return np.array(comps, dtype=like.dtype)
+    xp = ops.xp
+    arrays = _broadcast(xp, comps, like)
+    return xp.stack(arrays, axis=-1)
+
+
+def pack_matrix(ops: Any, rows: Sequence[Sequence[Any]], like: Array) -> Array:
+    """Stack a nested tuple of components into an array of shape ``(*batch, rows, cols)``."""
+    if ops.is_scalar:
+        return np.array(rows, dtype=like.dtype)
+    xp = ops.xp
+    flat = [c for row in rows for c in row]
+    arrays = _broadcast(xp, flat, like)
+    n_cols = len(rows[0])
+    out = xp.stack(arrays, axis=-1)
+    return xp.reshape(out, (*out.shape[:-1], len(rows), n_cols))
+
+
+def _broadcast(xp: Any, comps: Sequence[Any], like: Array) -> list[Array]:
+    shape = None
+    uniform = True
+    for c in comps:
+        s = getattr(c, "shape", None)
+        if s is None or getattr(c, "ndim", 0) == 0 and not hasattr(c, "dtype"):
+            uniform = False
+            continue
+        if shape is None:
+            shape = tuple(s)
+        elif tuple(s) != shape:
+            uniform = False
+    if uniform and shape is not None:
+        return list(comps)
+    arrays = [
+        c if hasattr(c, "shape") else xp.asarray(c, dtype=like.dtype, device=_device(like))
+        for c in comps
+    ]
+    return list(xp.broadcast_arrays(*arrays))
+
+
+def check_finite(x: Array, what: str) -> None:
+    """Raise ``ValueError`` if ``x`` holds NaN or inf (skipped under a JAX trace)."""
+    if is_numpy(x):
+        if not np.isfinite(x).all():
+            raise ValueError(f"{what} contains NaN or infinite values")
+        return
+    if is_traced(x):
+        return
+    xp = namespace(x)
+    if not bool(xp.all(xp.isfinite(x))):
+        raise ValueError(f"{what} contains NaN or infinite values")
+
+
+def check_last_dim(x: Array, n: int | tuple[int, ...], what: str) -> None:
+    shape = tuple(x.shape)
+    want = (n,) if isinstance(n, int) else n
+    if len(shape) < len(want) or shape[len(shape) - len(want):] != want:
+        dims = "x".join(str(d) for d in want)
+        raise ValueError(f"{what} must have shape (..., {dims.replace('x', ', ')}), got {shape}")
+
+
+_PYTREE_CLASSES: list[type] = []
+_PYTREES_DONE = False
+
+
+def register_pytree_class(cls: type) -> None:
+    """Remember ``cls`` so that it becomes a JAX pytree once JAX is in use."""
+    _PYTREE_CLASSES.append(cls)
+    if "jax" in sys.modules:
+        _register_one(cls)
+
+
+def _register_pytrees(xp: Any) -> None:
+    global _PYTREES_DONE
+    if _PYTREES_DONE or "jax" not in getattr(xp, "__name__", ""):
+        return
+    _PYTREES_DONE = True
+    for cls in _PYTREE_CLASSES:
+        _register_one(cls)
+
+
+_REGISTERED: set[type] = set()
+
+
+def _register_one(cls: type) -> None:
+    if cls in _REGISTERED:
+        return
+    import jax
+
+    jax.tree_util.register_pytree_node(
+        cls,
+        lambda x: ((x.params,), None),
+        lambda _, children: cls._wrap(children[0]),
+    )
+    _REGISTERED.add(cls)

@@ -1,0 +1,465 @@
+"""The base class: every derived operation and its Jacobians, written once.
+
+A group subclass supplies a handful of primitives on components (see :mod:`microlie._array`):
+``_exp``, ``_log``, ``_compose``, ``_inverse``, ``_act`` (with ``_act_jac``), ``_adjoint``,
+``_jr``, ``_jr_inv``, ``_matrix``, ``_from_matrix``, and its Lie algebra generators. Everything
+else (plus, minus, between, interpolation, left Jacobians, the Lie bracket, hat and vee) is
+derived here.
+
+Conventions (``../shared/MATH.md`` section 1): right plus/minus by default, every Jacobian is a
+right Jacobian (perturbation on the right of each input and of the output) unless
+``side="left"`` is passed, tangent vectors are translation first.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .. import _array as A
+from .._array import SCALAR, Array, ops_for, pack, pack_matrix
+
+
+def _split(*arrays: Array) -> tuple[Any, list]:
+    """Choose the ops for ``arrays`` and split each into components."""
+    if all(type(a) is np.ndarray and a.ndim == 1 for a in arrays):
+        return SCALAR, [a.tolist() for a in arrays]
+    o = ops_for(*arrays)
+    return o, [A.components(a) for a in arrays]
+
+
+def _check_side(side: str) -> None:
+    if side not in ("right", "left"):
+        raise ValueError(f"side must be 'right' or 'left', got {side!r}")
+
+
+def _eye(n: int, like: Array, batch_shape: tuple) -> Array:
+    if A.is_numpy(like):
+        return np.broadcast_to(np.eye(n, dtype=like.dtype), (*batch_shape, n, n))
+    xp = A.namespace(like)
+    e = xp.eye(n, dtype=like.dtype, device=A._device(like))
+    return xp.broadcast_to(e, (*batch_shape, n, n))
+
+
+def _batch_shape_of(*arrays: Array) -> tuple:
+    return tuple(np.broadcast_shapes(*(tuple(a.shape) for a in arrays)))
+
+
+class LieGroup:
+    """A batch of elements of a matrix Lie group, wrapping one parameter array.
+
+    ``X.params`` has shape ``(*batch, param_dim)``; every operation broadcasts over the leading
+    batch axes. Elements are immutable.
+    """
+
+    dof: ClassVar[int]
+    param_dim: ClassVar[int]
+    matrix_dim: ClassVar[int]
+    point_dim: ClassVar[int]
+    _identity_params: ClassVar[tuple[float, ...]]
+    _generators: ClassVar[np.ndarray]
+
+    __slots__ = ("params",)
+    params: Array
+
+    # ------------------------------------------------------------------ construction
+    def __init__(self, params: Any, *, normalize: bool = False) -> None:
+        p = A.as_float_array(params)
+        A.check_last_dim(p, self.param_dim, f"{type(self).__name__} parameters")
+        A.check_finite(p, f"{type(self).__name__} parameters")
+        p = type(self)._validate_params(p, normalize)
+        object.__setattr__(self, "params", p)
+
+    @classmethod
+    def _wrap(cls, params: Array) -> LieGroup:
+        obj = object.__new__(cls)
+        object.__setattr__(obj, "params", params)
+        return obj
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        A.register_pytree_class(cls)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"{type(self).__name__} elements are immutable")
+
+    def __reduce__(self):
+        return (type(self)._wrap, (self.params,))
+
+    @classmethod
+    def _validate_params(cls, p: Array, normalize: bool) -> Array:
+        """Check (or, with ``normalize``, project) raw parameters. Subclasses override."""
+        return p
+
+    @classmethod
+    def identity(cls, batch_shape: tuple[int, ...] | int = (), dtype: Any = None,
+                 like: Array | None = None) -> LieGroup:
+        """The identity element, repeated over ``batch_shape``."""
+        batch_shape = (batch_shape,) if isinstance(batch_shape, int) else tuple(batch_shape)
+        p = np.broadcast_to(np.asarray(cls._identity_params, dtype=dtype or np.float64),
+                            (*batch_shape, cls.param_dim)).copy()
+        return cls._wrap(A.as_float_array(p, like=like))
+
+    @classmethod
+    def random(cls, batch_shape: tuple[int, ...] | int = (), rng: Any = None,
+               dtype: Any = None) -> LieGroup:
+        """Random elements (uniform rotations; standard normal translations and log-scales)."""
+        rng = np.random.default_rng(rng)
+        batch_shape = (batch_shape,) if isinstance(batch_shape, int) else tuple(batch_shape)
+        p = cls._random_params(rng, batch_shape)
+        return cls._wrap(p.astype(dtype or np.float64))
+
+    @classmethod
+    def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ container protocol
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(self.params.shape[:-1])
+
+    @property
+    def dtype(self) -> Any:
+        return self.params.dtype
+
+    def __len__(self) -> int:
+        if not self.batch_shape:
+            raise TypeError(f"a single {type(self).__name__} element has no length")
+        return self.batch_shape[0]
+
+    def __getitem__(self, index: Any) -> LieGroup:
+        if not self.batch_shape:
+            raise IndexError(f"a single {type(self).__name__} element cannot be indexed")
+        if not isinstance(index, tuple):
+            index = (index,)
+        return type(self)._wrap(self.params[(*index, slice(None))])
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(params={self.params!r})"
+
+    # ------------------------------------------------------------------ primitives to supply
+    @staticmethod
+    def _exp(o, tau): raise NotImplementedError  # noqa: E704
+
+    @staticmethod
+    def _log(o, p): raise NotImplementedError  # noqa: E704
+
+    @staticmethod
+    def _compose(o, p, q): raise NotImplementedError  # noqa: E704
+
+    @staticmethod
+    def _inverse(o, p): raise NotImplementedError  # noqa: E704
+
+    @staticmethod
+    def _act(o, p, v): raise NotImplementedError  # noqa: E704
+
+    @staticmethod
+    def _act_jac(o, p, v): raise NotImplementedError  # noqa: E704
+
+    @staticmethod
+    def _adjoint(o, p): raise NotImplementedError  # noqa: E704
+
+    @staticmethod
+    def _matrix(o, p): raise NotImplementedError  # noqa: E704
+
+    @classmethod
+    def _jr(cls, o, tau):
+        return None  # None: use the generic series (see ``jr``)
+
+    @classmethod
+    def _jr_inv(cls, o, tau):
+        return None  # None: invert ``jr`` numerically
+
+    # ------------------------------------------------------------------ tangent space
+    @classmethod
+    def _tangent(cls, tau: Any, like: Array | None = None) -> Array:
+        t = A.as_float_array(tau, like=like)
+        A.check_last_dim(t, cls.dof, f"{cls.__name__} tangent vector")
+        A.check_finite(t, f"{cls.__name__} tangent vector")
+        return t
+
+    @classmethod
+    def _const(cls, value: np.ndarray, like: Array) -> Array:
+        if A.is_numpy(like):
+            return value.astype(like.dtype, copy=False)
+        xp = A.namespace(like)
+        return xp.asarray(value, dtype=like.dtype, device=A._device(like))
+
+    @classmethod
+    def hat(cls, tau: Any) -> Array:
+        """The Lie algebra matrix of ``tau``: shape ``(*batch, n, n)``."""
+        t = cls._tangent(tau)
+        g = cls._const(cls._generators, t)
+        return (t[..., :, None, None] * g).sum(-3) if A.is_numpy(t) else \
+            A.namespace(t).sum(t[..., :, None, None] * g, axis=-3)
+
+    @classmethod
+    def vee(cls, M: Any) -> Array:
+        """The tangent vector of a Lie algebra matrix (inverse of :meth:`hat`)."""
+        m = A.as_float_array(M)
+        n = cls.matrix_dim
+        A.check_last_dim(m, (n, n), f"{cls.__name__} Lie algebra matrix")
+        gp = cls._const(np.linalg.pinv(cls._generators.reshape(cls.dof, n * n)), m)
+        flat = m.reshape(*m.shape[:-2], n * n) if A.is_numpy(m) else \
+            A.namespace(m).reshape(m, (*m.shape[:-2], n * n))
+        return flat @ gp
+
+    @classmethod
+    def bracket(cls, a: Any, b: Any) -> Array:
+        """Lie bracket ``[a, b] = vee(hat(a) hat(b) - hat(b) hat(a)) = ad(a) b``."""
+        ha, hb = cls.hat(a), cls.hat(b)
+        return cls.vee(ha @ hb - hb @ ha)
+
+    @classmethod
+    def ad(cls, tau: Any) -> Array:
+        """The small adjoint matrix ``ad_tau`` (``ad(a) @ b == bracket(a, b)``)."""
+        t = cls._tangent(tau)
+        h = cls.hat(t)
+        g = cls._const(cls._generators, t)
+        cols = h[..., None, :, :] @ g - g @ h[..., None, :, :]  # (*batch, dof, n, n)
+        v = cls.vee(cols)  # (*batch, dof(column), dof(row))
+        return _swap_last(v)
+
+    @classmethod
+    def jr(cls, tau: Any) -> Array:
+        """Right Jacobian ``Jr(tau)``: ``Exp(tau + d) ~= Exp(tau) Exp(Jr(tau) d)``."""
+        t = cls._tangent(tau)
+        o, (c,) = _split(t)
+        m = cls._jr(o, c)
+        if m is None:
+            return cls._jr_series(t)
+        return pack_matrix(o, m, t)
+
+    @classmethod
+    def jl(cls, tau: Any) -> Array:
+        """Left Jacobian ``Jl(tau) = Jr(-tau)``: ``Exp(tau + d) ~= Exp(Jl(tau) d) Exp(tau)``."""
+        return cls.jr(-cls._tangent(tau))
+
+    @classmethod
+    def jr_inv(cls, tau: Any) -> Array:
+        """Inverse of the right Jacobian."""
+        t = cls._tangent(tau)
+        o, (c,) = _split(t)
+        m = cls._jr_inv(o, c)
+        if m is None:
+            return _inv(cls.jr(t))
+        return pack_matrix(o, m, t)
+
+    @classmethod
+    def jl_inv(cls, tau: Any) -> Array:
+        """Inverse of the left Jacobian, ``Jl^-1(tau) = Jr^-1(-tau)``."""
+        return cls.jr_inv(-cls._tangent(tau))
+
+    @classmethod
+    def _jr_series(cls, t: Array, halvings: int = 2, terms: int = 22) -> Array:
+        """Generic ``Jr(tau) = int_0^1 Ad_Exp(-s tau) ds`` for groups without a closed form.
+
+        Uses ``Jr(tau) = (I + Ad_Exp(-tau/2)) Jr(tau/2) / 2`` ``halvings`` times, then the
+        series ``sum_k (-ad)^k / (k+1)!`` on ``tau / 2**halvings`` (Horner form).
+        """
+        batch = tuple(t.shape[:-1])
+        eye = _eye(cls.dof, t, batch)
+        small = t / 2.0**halvings
+        neg_ad = -cls.ad(small)
+        acc = eye * (1.0 / _fact(terms + 1))
+        for k in range(terms, 0, -1):
+            acc = eye * (1.0 / _fact(k)) + neg_ad @ acc
+        jr = acc
+        for level in range(halvings - 1, -1, -1):
+            half = t / 2.0 ** (level + 1)
+            ad_half = cls.exp(-half).adjoint()
+            jr = 0.5 * ((eye + ad_half) @ jr)
+        return jr
+
+    # ------------------------------------------------------------------ Exp / Log
+    @classmethod
+    def exp(cls, tau: Any, jac: bool = False, side: str = "right"):
+        """``Exp(tau) = exp(hat(tau))``. With ``jac=True`` also ``d Exp / d tau``
+        (``Jr(tau)`` for ``side="right"``, ``Jl(tau)`` for ``side="left"``)."""
+        t = cls._tangent(tau)
+        o, (c,) = _split(t)
+        X = cls._wrap(pack(o, cls._exp(o, c), t))
+        if not jac:
+            return X
+        _check_side(side)
+        if side == "left":
+            return X, cls.jl(t)
+        m = cls._jr(o, c)
+        return X, (cls._jr_series(t) if m is None else pack_matrix(o, m, t))
+
+    def log(self, jac: bool = False, side: str = "right"):
+        """``Log(X) = vee(log(X))``. With ``jac=True`` also ``d Log / d X``
+        (``Jr^-1(Log X)`` right, ``Jl^-1(Log X)`` left)."""
+        o, (p,) = _split(self.params)
+        tau = pack(o, self._log(o, p), self.params)
+        if not jac:
+            return tau
+        _check_side(side)
+        return tau, (self.jr_inv(tau) if side == "right" else self.jl_inv(tau))
+
+    # ------------------------------------------------------------------ group operations
+    def inverse(self, jac: bool = False, side: str = "right"):
+        """``X^-1``. Jacobian: ``-Ad_X`` (right), ``-Ad_X^-1`` (left)."""
+        o, (p,) = _split(self.params)
+        Xi = self._wrap(pack(o, self._inverse(o, p), self.params))
+        if not jac:
+            return Xi
+        _check_side(side)
+        return Xi, -(self.adjoint() if side == "right" else Xi.adjoint())
+
+    def compose(self, other: LieGroup, jac: bool = False, side: str = "right"):
+        """``X Y``. Jacobians (right): ``Ad_Y^-1`` and ``I``; (left): ``I`` and ``Ad_X``."""
+        self._same_group(other)
+        o, (p, q) = _split(self.params, other.params)
+        Z = self._wrap(pack(o, self._compose(o, p, q), self.params))
+        if not jac:
+            return Z
+        _check_side(side)
+        batch = Z.batch_shape
+        eye = _eye(self.dof, Z.params, batch)
+        if side == "right":
+            return Z, _bcast(other.inverse().adjoint(), batch), eye
+        return Z, eye, _bcast(self.adjoint(), batch)
+
+    def __matmul__(self, other: LieGroup) -> LieGroup:
+        if not isinstance(other, LieGroup):
+            return NotImplemented
+        return self.compose(other)
+
+    def between(self, other: LieGroup, jac: bool = False, side: str = "right"):
+        """``X^-1 Y``. Jacobians (right): ``-Ad_(Y^-1 X)`` and ``I``."""
+        self._same_group(other)
+        if not jac:
+            return self.inverse().compose(other)
+        Xi, Ji = self.inverse(jac=True)
+        Z, J1, J2 = Xi.compose(other, jac=True)
+        return self._left(side, Z, [(J1 @ Ji, self), (J2, other)])
+
+    def act(self, points: Any, jac: bool = False, side: str = "right"):
+        """Act on points ``(..., point_dim)``: ``X . p``. Jacobians: ``d/dX`` (right, or left with
+        ``side="left"``) and ``d/dp``."""
+        v = A.as_float_array(points, like=self.params)
+        A.check_last_dim(v, self.point_dim, "points")
+        A.check_finite(v, "points")
+        o, (p, c) = _split(self.params, v)
+        out = pack(o, self._act(o, p, c), v)
+        if not jac:
+            return out
+        _check_side(side)
+        jx, jv = self._act_jac(o, p, c)
+        like = out
+        JX, JV = pack_matrix(o, jx, like), pack_matrix(o, jv, like)
+        batch = tuple(out.shape[:-1])
+        JX, JV = _bcast(JX, batch), _bcast(JV, batch)
+        if side == "left":
+            JX = JX @ _bcast(self.inverse().adjoint(), batch)
+        return out, JX, JV
+
+    def adjoint(self) -> Array:
+        """The adjoint matrix ``Ad_X``: ``X Exp(tau) = Exp(Ad_X tau) X``."""
+        o, (p,) = _split(self.params)
+        return pack_matrix(o, self._adjoint(o, p), self.params)
+
+    def matrix(self) -> Array:
+        """The homogeneous matrix of the element, shape ``(*batch, n, n)``."""
+        o, (p,) = _split(self.params)
+        return pack_matrix(o, self._matrix(o, p), self.params)
+
+    # ------------------------------------------------------------------ plus / minus
+    def plus(self, tau: Any, jac: bool = False, side: str = "right"):
+        """Right plus ``X (+) tau = X Exp(tau)``. Jacobians (right): ``Ad_Exp(tau)^-1``, ``Jr(tau)``."""
+        t = self._tangent(tau, like=self.params)
+        if not jac:
+            return self.compose(self.exp(t))
+        E, Je = self.exp(t, jac=True)
+        Z, J1, J2 = self.compose(E, jac=True)
+        return self._left(side, Z, [(J1, self), (J2 @ Je, None)])
+
+    def minus(self, other: LieGroup, jac: bool = False, side: str = "right"):
+        """Right minus ``Y (-) X = Log(X^-1 Y)`` for ``Y.minus(X)``. Jacobians (right) with
+        respect to ``Y`` and ``X``: ``Jr^-1(tau)``, ``-Jl^-1(tau)``."""
+        self._same_group(other)
+        if not jac:
+            return other.between(self).log()
+        D, Jx, Jy = other.between(self, jac=True)
+        tau, Jlog = D.log(jac=True)
+        return self._left(side, tau, [(Jlog @ Jy, self), (Jlog @ Jx, other)])
+
+    def lplus(self, tau: Any, jac: bool = False, side: str = "right"):
+        """Left plus ``tau (+) X = Exp(tau) X``."""
+        t = self._tangent(tau, like=self.params)
+        if not jac:
+            return self.exp(t).compose(self)
+        E, Je = self.exp(t, jac=True)
+        Z, J1, J2 = E.compose(self, jac=True)
+        return self._left(side, Z, [(J2, self), (J1 @ Je, None)])
+
+    def lminus(self, other: LieGroup, jac: bool = False, side: str = "right"):
+        """Left minus ``Y (-) X = Log(Y X^-1)`` for ``Y.lminus(X)``."""
+        self._same_group(other)
+        if not jac:
+            return self.compose(other.inverse()).log()
+        Xi, Ji = other.inverse(jac=True)
+        D, J1, J2 = self.compose(Xi, jac=True)
+        tau, Jlog = D.log(jac=True)
+        return self._left(side, tau, [(Jlog @ J1, self), (Jlog @ J2 @ Ji, other)])
+
+    def interpolate(self, other: LieGroup, t: Any) -> LieGroup:
+        """``X (+) t (Y (-) X)``: ``t = 0`` gives ``X``, ``t = 1`` gives ``Y``; ``t`` broadcasts
+        against the batch."""
+        d = other.minus(self)
+        tt = A.as_float_array(t, like=d)
+        return self.plus(tt[..., None] * d)
+
+    # ------------------------------------------------------------------ helpers
+    def _same_group(self, other: Any) -> None:
+        if type(other) is not type(self):
+            raise TypeError(f"expected a {type(self).__name__}, got {type(other).__name__}")
+
+    def _left(self, side: str, out: Any, jacs: list) -> tuple:
+        """Return ``(out, J...)``; for ``side="left"`` turn each right Jacobian into a left one:
+        ``J_left = Ad_out J_right Ad_in^-1`` (no adjoint for vector spaces)."""
+        _check_side(side)
+        if side == "right":
+            return (out, *(j for j, _ in jacs))
+        res = []
+        ad_out = out.adjoint() if isinstance(out, LieGroup) else None
+        for j, inp in jacs:
+            if ad_out is not None:
+                j = ad_out @ j
+            if inp is not None:
+                j = j @ inp.inverse().adjoint()
+            res.append(j)
+        return (out, *res)
+
+
+def _fact(n: int) -> float:
+    from math import factorial
+
+    return float(factorial(n))
+
+
+def _bcast(m: Array, batch: tuple) -> Array:
+    if tuple(m.shape[:-2]) == batch:
+        return m
+    if A.is_numpy(m):
+        return np.broadcast_to(m, (*batch, *m.shape[-2:]))
+    return A.namespace(m).broadcast_to(m, (*batch, *m.shape[-2:]))
+
+
+def _swap_last(m: Array) -> Array:
+    if A.is_numpy(m):
+        return np.swapaxes(m, -1, -2)
+    xp = A.namespace(m)
+    return xp.matrix_transpose(m) if hasattr(xp, "matrix_transpose") else m.transpose(-1, -2)
+
+
+def _inv(m: Array) -> Array:
+    if A.is_numpy(m):
+        return np.linalg.inv(m)
+    return A.namespace(m).linalg.inv(m)

@@ -1,0 +1,213 @@
+"""SE(3): rigid motions, stored as ``(tx, ty, tz, qx, qy, qz, qw)``.
+
+Tangent vectors are ``tau = (rho, phi)``: translation part first, then the rotation vector.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .. import _array as A
+from .._array import Array
+from . import _math as M
+from . import so3
+from .base import LieGroup
+from .so3 import SO3
+
+
+def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
+    """The block ``Q(rho, phi)`` of the left Jacobian of SE(3) (MATH.md section 4).
+
+    Written with ``hat(a) hat(b) = b a^T - (a.b) I``, which reduces the products of the
+    textbook formula to ``Q = P/2 + c1 (rho phi^T + phi rho^T - 2d I - d F)
+    + c2 (hat(phi x (phi x rho)) + d F) - 2 c3 d F^2`` with ``d = rho . phi``.
+    """
+    t2 = M.norm2(*phi)
+    c1 = so3.coef_b(o, t2)
+    small = t2 < M.SMALL2
+    t2s = o.where(small, 1.0, t2)
+    t = o.sqrt(t2s)
+    st, ct = o.sin(t), o.cos(t)
+    t4 = t2s * t2s
+    c2 = o.where(small, M.horner(t2, M.C_COS4), (t2s + 2.0 * ct - 2.0) / (2.0 * t4))
+    c3 = o.where(small, M.horner(t2, M.C_SIN5), (2.0 * t - 3.0 * st + t * ct) / (2.0 * t4 * t))
+    d = M.dot(rho, phi)
+    F = M.hat3(phi)
+    F2 = so3.hat_sq(phi, t2)
+    P = M.hat3(rho)
+    G = M.hat3(M.cross(phi, M.cross(phi, rho)))
+    out = []
+    for i in range(3):
+        row = []
+        for j in range(3):
+            sym = rho[i] * phi[j] + phi[i] * rho[j] - (2.0 * d if i == j else 0.0)
+            row.append(
+                0.5 * P[i][j] + c1 * (sym - d * F[i][j]) + c2 * (G[i][j] + d * F[i][j])
+                - 2.0 * c3 * d * F2[i][j]
+            )
+        out.append(tuple(row))
+    return tuple(out)
+
+
+def v_times(o: Any, phi: tuple, t2: Any, a: Any, v: tuple) -> tuple:
+    """``V(phi) v = v + a (phi x v) + b phi x (phi x v)`` with ``a = (1 - cos t)/t^2``."""
+    b = so3.coef_b(o, t2)
+    c = M.cross(phi, v)
+    d = M.cross(phi, c)
+    return tuple(v[i] + a * c[i] + b * d[i] for i in range(3))
+
+
+class SE3(LieGroup):
+    """Rigid motions in 3-D. Parameters ``(tx, ty, tz, qx, qy, qz, qw)``.
+
+    Tangent ``tau = (rho, phi)`` (translation first, MATH.md section 4). ``X.act(p) = R p + t``.
+    Right plus/minus and right Jacobians by default; ``side="left"`` for left ones.
+
+    >>> import numpy as np
+    >>> from microlie import SE3
+    >>> T = SE3.exp(np.array([1.0, 0.0, 0.0, 0.0, 0.0, np.pi / 2]))
+    >>> np.round(T.translation(), 6)
+    array([0.63662 , 0.63662 , 0.      ])
+    """
+
+    dof = 6
+    param_dim = 7
+    matrix_dim = 4
+    point_dim = 3
+    _identity_params = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+    _generators = np.concatenate([
+        np.eye(4)[:3, :, None] * np.eye(4)[3][None, None, :],  # rho_i: entry (i, 3)
+        np.pad(SO3._generators, ((0, 0), (0, 1), (0, 1))),
+    ])
+
+    @classmethod
+    def _validate_params(cls, p: Array, normalize: bool) -> Array:
+        xp = A.namespace(p)
+        q = so3.checked_unit_quat(p[..., 3:], normalize, "SE3")
+        return xp.concat([p[..., :3], q], axis=-1)
+
+    @classmethod
+    def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
+        return np.concatenate(
+            [rng.standard_normal((*batch_shape, 3)), SO3._random_params(rng, batch_shape)], -1)
+
+    @staticmethod
+    def _exp(o, tau):
+        rho, phi = tau[:3], tau[3:]
+        t2 = M.norm2(*phi)
+        k = so3.half_sinc(o, t2)
+        t = v_times(o, phi, t2, 2.0 * k * k, rho)
+        return (*t, k * phi[0], k * phi[1], k * phi[2], so3.half_cos(o, t2))
+
+    @staticmethod
+    def _log(o, p):
+        t, q = p[:3], p[3:]
+        phi = so3.quat_log(o, q)
+        t2 = M.norm2(*phi)
+        c = so3.coef_c(o, t2)
+        a = M.cross(phi, t)
+        b = M.cross(phi, a)
+        return (*(t[i] - 0.5 * a[i] + c * b[i] for i in range(3)), *phi)
+
+    @staticmethod
+    def _compose(o, p, q):
+        r = so3.quat_rotate(p[3:], q[:3])
+        return (p[0] + r[0], p[1] + r[1], p[2] + r[2], *so3.quat_mul(p[3:], q[3:]))
+
+    @staticmethod
+    def _inverse(o, p):
+        qi = so3.quat_conj(p[3:])
+        t = so3.quat_rotate(qi, p[:3])
+        return (-t[0], -t[1], -t[2], *qi)
+
+    @staticmethod
+    def _act(o, p, v):
+        r = so3.quat_rotate(p[3:], v)
+        return (r[0] + p[0], r[1] + p[1], r[2] + p[2])
+
+    @staticmethod
+    def _act_jac(o, p, v):
+        R = so3.quat_to_matrix(p[3:])
+        return M.blocks([[R, M.neg(M.matmul(R, M.hat3(v)))]]), R
+
+    @staticmethod
+    def _adjoint(o, p):
+        R = so3.quat_to_matrix(p[3:])
+        return M.blocks([[R, M.matmul(M.hat3(p[:3]), R)], [M.zeros(3, 3, p[0]), R]])
+
+    @staticmethod
+    def _matrix(o, p):
+        R = so3.quat_to_matrix(p[3:])
+        z = 0.0 * p[0]
+        return tuple((*R[i], p[i]) for i in range(3)) + ((z, z, z, z + 1.0),)
+
+    @classmethod
+    def _jr(cls, o, tau):
+        rho, phi = tau[:3], tau[3:]
+        J = so3.jr(o, phi)
+        Q = q_block(o, tuple(-x for x in rho), tuple(-x for x in phi))
+        return M.blocks([[J, Q], [M.zeros(3, 3, rho[0]), J]])
+
+    @classmethod
+    def _jr_inv(cls, o, tau):
+        rho, phi = tau[:3], tau[3:]
+        Ji = so3.jr_inv(o, phi)
+        Q = q_block(o, tuple(-x for x in rho), tuple(-x for x in phi))
+        return M.blocks([[Ji, M.neg(M.matmul(Ji, M.matmul(Q, Ji)))],
+                         [M.zeros(3, 3, rho[0]), Ji]])
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def from_rotation_translation(cls, rotation: SO3 | Any, translation: Any) -> SE3:
+        """From a rotation (an :class:`SO3` or rotation matrices ``(..., 3, 3)``) and
+        translations ``(..., 3)``; both broadcast."""
+        R = rotation if isinstance(rotation, SO3) else SO3.from_matrix(rotation)
+        t = A.as_float_array(translation, like=R.params)
+        A.check_last_dim(t, 3, "translation")
+        A.check_finite(t, "translation")
+        xp = A.namespace(t)
+        q, t = _broadcast_last(xp, R.params, t)
+        return cls._wrap(xp.concat([t, q], axis=-1))
+
+    @classmethod
+    def from_matrix(cls, matrix: Any, normalize: bool = False) -> SE3:
+        """From homogeneous matrices ``(..., 4, 4)`` (last row ``0 0 0 1``)."""
+        T = A.as_float_array(matrix)
+        A.check_last_dim(T, (4, 4), "SE3 matrix")
+        A.check_finite(T, "SE3 matrix")
+        check_bottom_row(T, "SE3.from_matrix")
+        R = SO3.from_matrix(T[..., :3, :3], normalize=normalize)
+        return cls.from_rotation_translation(R, T[..., :3, 3])
+
+    def rotation(self) -> SO3:
+        """The rotation part as an :class:`SO3`."""
+        return SO3._wrap(self.params[..., 3:])
+
+    def translation(self) -> Array:
+        """The translation part ``(..., 3)``."""
+        return self.params[..., :3]
+
+    def normalize(self) -> SE3:
+        """Renormalise the quaternion."""
+        return type(self)(self.params, normalize=True)
+
+
+def _broadcast_last(xp: Any, a: Array, b: Array) -> tuple[Array, Array]:
+    """Broadcast the batch axes of ``a`` and ``b`` (their last axes may differ)."""
+    batch = tuple(np.broadcast_shapes(tuple(a.shape[:-1]), tuple(b.shape[:-1])))
+    return (xp.broadcast_to(a, (*batch, a.shape[-1])), xp.broadcast_to(b, (*batch, b.shape[-1])))
+
+
+def check_bottom_row(T: Array, what: str) -> None:
+    if A.is_traced(T):
+        return
+    xp = A.namespace(T)
+    n = T.shape[-1]
+    want = np.zeros(n)
+    want[-1] = 1.0
+    err = float(xp.max(xp.abs(T[..., -1, :] - xp.asarray(want, dtype=T.dtype)))) \
+        if int(np.prod(tuple(T.shape[:-2]))) else 0.0
+    if err > 1e-9:
+        raise ValueError(f"{what}: the last row of a homogeneous matrix must be 0 ... 0 1")

@@ -1,0 +1,136 @@
+"""SO(2): planar rotations, stored as unit complex numbers ``(cos theta, sin theta)``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .. import _array as A
+from .._array import Array
+from .base import LieGroup
+
+
+def checked_unit_complex(p: Array, normalize: bool, what: str) -> Array:
+    """``p / |p|`` after checking ``|p| = 1`` within tolerance (or ``normalize``)."""
+    from .so3 import checked_unit_quat
+
+    return checked_unit_quat(p, normalize, what)
+
+
+class SO2(LieGroup):
+    """Planar rotations. Parameters ``(cos theta, sin theta)``; tangent ``(theta,)``.
+
+    ``Jr = Jl = 1`` and ``Ad = 1`` (the group is commutative).
+
+    >>> import numpy as np
+    >>> from microlie import SO2
+    >>> R = SO2.from_angle(np.pi / 2)
+    >>> np.round(R.act(np.array([1.0, 0.0])), 12)
+    array([0., 1.])
+    """
+
+    dof = 1
+    param_dim = 2
+    matrix_dim = 2
+    point_dim = 2
+    _identity_params = (1.0, 0.0)
+    _generators = np.array([[[0.0, -1.0], [1.0, 0.0]]])
+
+    @classmethod
+    def _validate_params(cls, p: Array, normalize: bool) -> Array:
+        return checked_unit_complex(p, normalize, "SO2")
+
+    @classmethod
+    def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
+        a = rng.uniform(-np.pi, np.pi, batch_shape)
+        return np.stack([np.cos(a), np.sin(a)], -1)
+
+    @staticmethod
+    def _exp(o, tau):
+        return (o.cos(tau[0]), o.sin(tau[0]))
+
+    @staticmethod
+    def _log(o, p):
+        return (o.atan2(p[1], p[0]),)
+
+    @staticmethod
+    def _compose(o, p, q):
+        return (p[0] * q[0] - p[1] * q[1], p[1] * q[0] + p[0] * q[1])
+
+    @staticmethod
+    def _inverse(o, p):
+        return (p[0], -p[1])
+
+    @staticmethod
+    def _act(o, p, v):
+        c, s = p
+        return (c * v[0] - s * v[1], s * v[0] + c * v[1])
+
+    @staticmethod
+    def _act_jac(o, p, v):
+        c, s = p
+        x, y = c * v[0] - s * v[1], s * v[0] + c * v[1]
+        return ((-y,), (x,)), ((c, -s), (s, c))
+
+    @staticmethod
+    def _adjoint(o, p):
+        return ((0.0 * p[0] + 1.0,),)
+
+    @staticmethod
+    def _matrix(o, p):
+        c, s = p
+        return ((c, -s), (s, c))
+
+    @classmethod
+    def _jr(cls, o, tau):
+        return ((0.0 * tau[0] + 1.0,),)
+
+    @classmethod
+    def _jr_inv(cls, o, tau):
+        return ((0.0 * tau[0] + 1.0,),)
+
+    @classmethod
+    def from_angle(cls, theta: Any) -> SO2:
+        """From angles (radians) of any shape."""
+        t = A.as_float_array(theta)
+        return cls.exp(t[..., None])
+
+    def angle(self) -> Array:
+        """The angle in ``(-pi, pi]``, shape ``batch_shape``."""
+        return self.log()[..., 0]
+
+    @classmethod
+    def from_matrix(cls, matrix: Any, normalize: bool = False) -> SO2:
+        """From rotation matrices ``(..., 2, 2)`` (orthogonal, determinant +1)."""
+        R = A.as_float_array(matrix)
+        A.check_last_dim(R, (2, 2), "SO2 matrix")
+        A.check_finite(R, "SO2 matrix")
+        return cls._wrap(rotation2_params(R, normalize, "SO2.from_matrix"))
+
+    def normalize(self) -> SO2:
+        return type(self)(self.params, normalize=True)
+
+
+def rotation2_params(R: Array, normalize: bool, what: str) -> Array:
+    """``(cos, sin)`` of 2x2 rotation matrices, checked (or projected with ``normalize``)."""
+    xp = A.namespace(R)
+    # the nearest rotation to [[a, b], [c, d]] has (cos, sin) along (a + d, c - b)
+    cs = xp.stack([R[..., 0, 0] + R[..., 1, 1], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+    if not normalize and not A.is_traced(R) and int(np.prod(tuple(R.shape[:-2]))):
+        from .so3 import unit_tolerance
+
+        Rt = xp.stack([R[..., 0, :], R[..., 1, :]], axis=-2)
+        RtR = xp.swapaxes(Rt, -1, -2) @ Rt if hasattr(xp, "swapaxes") else Rt.mT @ Rt
+        err = float(xp.max(xp.abs(RtR - xp.eye(2, dtype=R.dtype))))
+        tol = unit_tolerance(R.dtype)
+        if err > tol:
+            raise ValueError(f"{what}: matrix is not orthogonal (max |R^T R - I| = {err:.3g}, "
+                             f"tolerance {tol:g}); pass normalize=True to project it")
+        det = R[..., 0, 0] * R[..., 1, 1] - R[..., 0, 1] * R[..., 1, 0]
+        if bool(xp.any(det < 0)):
+            raise ValueError(f"{what}: matrix has determinant -1 (a reflection, not a rotation)")
+    n = xp.sqrt(xp.sum(cs * cs, axis=-1, keepdims=True))
+    if not A.is_traced(n) and bool(xp.any(n == 0)):
+        raise ValueError(f"{what}: matrix has no nearest rotation (zero rotation part)")
+    return cs / n

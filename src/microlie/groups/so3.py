@@ -1,0 +1,421 @@
+"""SO(3): 3-D rotations, stored as unit quaternions ``(qx, qy, qz, qw)``.
+
+Tangent vectors are rotation vectors ``phi`` (axis times angle, radians).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .. import _array as A
+from .._array import Array
+from . import _math as M
+from .base import LieGroup, _split
+
+# ---------------------------------------------------------------------------- coefficients
+
+
+def half_sinc(o: Any, t2: Any) -> Any:
+    """``sin(t/2) / t`` as a function of ``t2 = t^2``."""
+    small = t2 < M.TINY2
+    t = o.sqrt(o.where(small, 1.0, t2))
+    return o.where(small, M.horner(t2, M.HALF_SINC), o.sin(0.5 * t) / t)
+
+
+def half_cos(o: Any, t2: Any) -> Any:
+    """``cos(t/2)`` as a function of ``t2`` (no infinite slope of sqrt at 0)."""
+    small = t2 < M.TINY2
+    t = o.sqrt(o.where(small, 1.0, t2))
+    return o.where(small, M.horner(t2, M.HALF_COS), o.cos(0.5 * t))
+
+
+def coef_a(o: Any, t2: Any) -> Any:
+    """``(1 - cos t) / t^2 = 2 (sin(t/2) / t)^2``."""
+    k = half_sinc(o, t2)
+    return 2.0 * k * k
+
+
+def coef_b(o: Any, t2: Any) -> Any:
+    """``(t - sin t) / t^3``."""
+    small = t2 < M.SMALL2
+    t2s = o.where(small, 1.0, t2)
+    t = o.sqrt(t2s)
+    return o.where(small, M.horner(t2, M.C_T_SIN), (t - o.sin(t)) / (t2s * t))
+
+
+def coef_c(o: Any, t2: Any) -> Any:
+    """``(1 - (t/2) cot(t/2)) / t^2``, the ``hat(phi)^2`` coefficient of ``Jr^-1``."""
+    small = t2 < M.SMALL2
+    t2s = o.where(small, 1.0, t2)
+    h = 0.5 * o.sqrt(t2s)
+    return o.where(small, M.horner(t2, M.C_COT), (1.0 - h * o.cos(h) / o.sin(h)) / t2s)
+
+
+# ---------------------------------------------------------------------------- quaternions
+
+
+def quat_exp(o: Any, w: tuple) -> tuple:
+    t2 = M.norm2(*w)
+    k = half_sinc(o, t2)
+    return (k * w[0], k * w[1], k * w[2], half_cos(o, t2))
+
+
+def quat_log(o: Any, q: tuple) -> tuple:
+    """Rotation vector of a unit quaternion, accurate at 0 and at pi.
+
+    ``theta = 2 atan2(|v|, |w|)``; the sign of ``w`` picks the representative with ``w >= 0``.
+    """
+    s = o.sign1(q[3])
+    x, y, z, w = s * q[0], s * q[1], s * q[2], s * q[3]
+    n2 = x * x + y * y + z * z
+    small = n2 < M.TINY2
+    n = o.sqrt(o.where(small, 1.0, n2))
+    # 2 atan(n / w) / n, and for tiny n its series 2/w (1 - u^2/3 + u^4/5), u = n / w
+    ws = o.where(small, w, 1.0)
+    u2 = n2 / (ws * ws)
+    k = o.where(small, (2.0 / ws) * (1.0 - u2 / 3.0 + u2 * u2 / 5.0), 2.0 * o.atan2(n, w) / n)
+    return (k * x, k * y, k * z)
+
+
+def quat_mul(a: tuple, b: tuple) -> tuple:
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    )
+
+
+def quat_conj(q: tuple) -> tuple:
+    return (-q[0], -q[1], -q[2], q[3])
+
+
+def quat_rotate(q: tuple, v: tuple) -> tuple:
+    """``R(q) v = v + 2 w (u x v) + 2 u x (u x v)`` for a unit quaternion ``(u, w)``."""
+    u = q[:3]
+    c = M.cross(u, v)
+    c = (c[0] + c[0], c[1] + c[1], c[2] + c[2])
+    d = M.cross(u, c)
+    w = q[3]
+    return (v[0] + w * c[0] + d[0], v[1] + w * c[1] + d[1], v[2] + w * c[2] + d[2])
+
+
+def quat_to_matrix(q: tuple) -> tuple:
+    x, y, z, w = q
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    return (
+        (1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)),
+        (2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)),
+        (2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)),
+    )
+
+
+def matrix_to_quat(o: Any, R: tuple) -> tuple:
+    """Unit quaternion of a rotation matrix (Shepperd: the largest component first)."""
+    r00, r11, r22 = R[0][0], R[1][1], R[2][2]
+    tr = r00 + r11 + r22
+    cands = []
+    for d in (1.0 + tr, 1.0 + r00 - r11 - r22, 1.0 - r00 + r11 - r22, 1.0 - r00 - r11 + r22):
+        s = 2.0 * o.sqrt(o.where(d < 0.25, 1.0, d))  # s = 4 * (largest component)
+        cands.append(s)
+    sw, sx, sy, sz = cands
+    qw = (
+        (R[2][1] - R[1][2]) / sw, (R[0][2] - R[2][0]) / sw, (R[1][0] - R[0][1]) / sw, 0.25 * sw)
+    qx = (0.25 * sx, (R[0][1] + R[1][0]) / sx, (R[0][2] + R[2][0]) / sx, (R[2][1] - R[1][2]) / sx)
+    qy = ((R[0][1] + R[1][0]) / sy, 0.25 * sy, (R[1][2] + R[2][1]) / sy, (R[0][2] - R[2][0]) / sy)
+    qz = ((R[0][2] + R[2][0]) / sz, (R[1][2] + R[2][1]) / sz, 0.25 * sz, (R[1][0] - R[0][1]) / sz)
+    use_w = (tr >= r00) & (tr >= r11) & (tr >= r22) if not o.is_scalar else \
+        (tr >= r00 and tr >= r11 and tr >= r22)
+    use_x = (r00 >= r11) & (r00 >= r22) if not o.is_scalar else (r00 >= r11 and r00 >= r22)
+    use_y = r11 >= r22
+    q = tuple(
+        o.where(use_w, a, o.where(use_x, b, o.where(use_y, c, d)))
+        for a, b, c, d in zip(qw, qx, qy, qz)
+    )
+    n = o.sqrt(M.norm2(*q))
+    return tuple(c / n for c in q)
+
+
+# ---------------------------------------------------------------------------- Jacobians
+
+
+def hat_sq(w: tuple, t2: Any) -> tuple:
+    """``hat(w)^2 = w w^T - |w|^2 I``."""
+    return tuple(
+        tuple(w[i] * w[j] - (t2 if i == j else 0.0) for j in range(3)) for i in range(3)
+    )
+
+
+def jr(o: Any, w: tuple) -> tuple:
+    t2 = M.norm2(*w)
+    return M.eye3_plus(-coef_a(o, t2), M.hat3(w), coef_b(o, t2), hat_sq(w, t2))
+
+
+def jr_inv(o: Any, w: tuple) -> tuple:
+    t2 = M.norm2(*w)
+    return M.eye3_plus(0.5, M.hat3(w), coef_c(o, t2), hat_sq(w, t2))
+
+
+def jl(o: Any, w: tuple) -> tuple:
+    return jr(o, tuple(-c for c in w))
+
+
+def jl_inv(o: Any, w: tuple) -> tuple:
+    return jr_inv(o, tuple(-c for c in w))
+
+
+# ---------------------------------------------------------------------------- validation
+
+
+def unit_tolerance(dtype: Any) -> float:
+    """How far from 1 a quaternion norm (or from I a R^T R) may be before it is an error."""
+    return 1e-6 if np.dtype(str(dtype).replace("torch.", "")).itemsize >= 8 else 1e-4
+
+
+def checked_unit_quat(q: Array, normalize: bool, what: str) -> Array:
+    """``q / |q|`` after checking that ``|q|`` is 1 within tolerance (or ``normalize``)."""
+    xp = A.namespace(q)
+    n = xp.sqrt(xp.sum(q * q, axis=-1, keepdims=True))
+    if not A.is_traced(q):
+        if normalize:
+            if bool(xp.any(n == 0)):
+                raise ValueError(f"{what}: a zero quaternion cannot be normalized")
+        else:
+            dev = float(xp.max(xp.abs(n - 1.0))) if _numel(n) else 0.0
+            tol = unit_tolerance(q.dtype)
+            if dev > tol:
+                raise ValueError(
+                    f"{what}: quaternion norm differs from 1 by {dev:.3g} (tolerance {tol:g}); "
+                    "pass normalize=True to normalize it"
+                )
+    return q / n
+
+
+def checked_rotation_matrix(R: Array, normalize: bool, what: str) -> Array:
+    """Check ``R^T R = I`` and ``det R = +1`` within tolerance, or project with ``normalize``."""
+    xp = A.namespace(R)
+    if normalize:
+        U, _, Vt = xp.linalg.svd(R)
+        d = xp.linalg.det(U @ Vt)
+        sign = xp.stack([xp.ones_like(d), xp.ones_like(d), d], axis=-1)
+        return (U * sign[..., None, :]) @ Vt
+    if A.is_traced(R) or _numel(R) == 0:
+        return R
+    eye = xp.eye(3, dtype=R.dtype)
+    RtR = xp.matrix_transpose(R) @ R if hasattr(xp, "matrix_transpose") else \
+        xp.swapaxes(R, -1, -2) @ R
+    err = float(xp.max(xp.abs(RtR - eye)))
+    tol = unit_tolerance(R.dtype)
+    if err > tol:
+        raise ValueError(
+            f"{what}: matrix is not orthogonal (max |R^T R - I| = {err:.3g}, tolerance {tol:g}); "
+            "pass normalize=True to project it onto SO(3)"
+        )
+    det = xp.linalg.det(R)
+    if bool(xp.any(det < 0)):
+        raise ValueError(f"{what}: matrix has determinant -1 (a reflection, not a rotation)")
+    return R
+
+
+# ---------------------------------------------------------------------------- the class
+
+
+class SO3(LieGroup):
+    """3-D rotations. Parameters: unit quaternion ``(qx, qy, qz, qw)`` (scalar last).
+
+    Tangent: rotation vector ``phi`` (3,). ``Exp(phi)`` is Rodrigues' formula; ``Log`` is accurate
+    at 0 and up to and including ``theta = pi``. Right plus/minus and right Jacobians by default.
+
+    >>> import numpy as np
+    >>> from microlie import SO3
+    >>> R = SO3.exp(np.array([0.0, 0.0, np.pi / 2]))
+    >>> np.round(R.act(np.array([1.0, 0.0, 0.0])), 12)
+    array([0., 1., 0.])
+    """
+
+    dof = 3
+    param_dim = 4
+    matrix_dim = 3
+    point_dim = 3
+    _identity_params = (0.0, 0.0, 0.0, 1.0)
+    _generators = np.array([
+        [[0, 0, 0], [0, 0, -1], [0, 1, 0]],
+        [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
+        [[0, -1, 0], [1, 0, 0], [0, 0, 0]],
+    ], dtype=float)
+
+    @classmethod
+    def _validate_params(cls, p: Array, normalize: bool) -> Array:
+        return checked_unit_quat(p, normalize, "SO3")
+
+    @classmethod
+    def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
+        q = rng.standard_normal((*batch_shape, 4))
+        return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+    _exp = staticmethod(quat_exp)
+    _log = staticmethod(quat_log)
+
+    @staticmethod
+    def _compose(o, p, q):
+        return quat_mul(p, q)
+
+    @staticmethod
+    def _inverse(o, p):
+        return quat_conj(p)
+
+    @staticmethod
+    def _act(o, p, v):
+        return quat_rotate(p, v)
+
+    @staticmethod
+    def _act_jac(o, p, v):
+        R = quat_to_matrix(p)
+        return M.neg(M.matmul(R, M.hat3(v))), R
+
+    @staticmethod
+    def _adjoint(o, p):
+        return quat_to_matrix(p)
+
+    @staticmethod
+    def _matrix(o, p):
+        return quat_to_matrix(p)
+
+    @classmethod
+    def _jr(cls, o, tau):
+        return jr(o, tau)
+
+    @classmethod
+    def _jr_inv(cls, o, tau):
+        return jr_inv(o, tau)
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def from_matrix(cls, matrix: Any, normalize: bool = False) -> SO3:
+        """From rotation matrices ``(..., 3, 3)``. A matrix that is not orthogonal with
+        determinant +1 (within tolerance) raises ``ValueError`` unless ``normalize=True``, which
+        projects it onto the nearest rotation (SVD)."""
+        R = A.as_float_array(matrix)
+        A.check_last_dim(R, (3, 3), "SO3 matrix")
+        A.check_finite(R, "SO3 matrix")
+        R = checked_rotation_matrix(R, normalize, "SO3.from_matrix")
+        return cls._wrap(_quat_from_matrix_array(R))
+
+    @classmethod
+    def from_quat(cls, quat: Any, scalar_first: bool = False, normalize: bool = False) -> SO3:
+        """From quaternions ``(x, y, z, w)`` (or ``(w, x, y, z)`` with ``scalar_first=True``).
+
+        A norm that differs from 1 by more than the tolerance raises ``ValueError`` unless
+        ``normalize=True``. ``q`` and ``-q`` are the same rotation.
+        """
+        q = A.as_float_array(quat)
+        A.check_last_dim(q, 4, "quaternion")
+        A.check_finite(q, "quaternion")
+        if scalar_first:
+            q = _roll_quat(q, to_scalar_last=True)
+        return cls._wrap(checked_unit_quat(q, normalize, "SO3.from_quat"))
+
+    def as_quat(self, scalar_first: bool = False, canonical: bool = False) -> Array:
+        """The quaternion ``(x, y, z, w)`` (``(w, x, y, z)`` with ``scalar_first``); with
+        ``canonical=True`` the representative with ``w >= 0``."""
+        q = self.params
+        if canonical:
+            xp = A.namespace(q)
+            q = q * xp.where(q[..., 3:] < 0, -1.0, 1.0)
+        return _roll_quat(q, to_scalar_last=False) if scalar_first else q
+
+    @classmethod
+    def from_rotvec(cls, rotvec: Any, degrees: bool = False) -> SO3:
+        """From rotation vectors (axis times angle); same as :meth:`exp`."""
+        v = A.as_float_array(rotvec)
+        return cls.exp(v * (np.pi / 180.0) if degrees else v)
+
+    def as_rotvec(self, degrees: bool = False) -> Array:
+        """Rotation vectors (axis times angle, angle in [0, pi]); same as :meth:`log`."""
+        v = self.log()
+        return v * (180.0 / np.pi) if degrees else v
+
+    @classmethod
+    def from_euler(cls, seq: str, angles: Any, degrees: bool = False) -> SO3:
+        """From Euler angles, SciPy's convention: ``seq`` of three letters from ``xyz``
+        (extrinsic, rotations about the fixed axes, applied left to right) or ``XYZ``
+        (intrinsic, about the moving axes). ``angles`` has shape ``(..., 3)``."""
+        if len(seq) != 3 or not (set(seq) <= set("xyz") or set(seq) <= set("XYZ")):
+            raise ValueError(f"seq must be 3 letters, all from 'xyz' or all from 'XYZ', got {seq!r}")
+        a = A.as_float_array(angles)
+        A.check_last_dim(a, 3, "Euler angles")
+        if degrees:
+            a = a * (np.pi / 180.0)
+        out = None
+        for i, axis in enumerate(seq):
+            idx = "xyz".index(axis.lower())
+            onehot = np.zeros(3)
+            onehot[idx] = 1.0
+            e = a[..., i:i + 1] * cls._const(onehot, a)
+            Ri = cls.exp(e)
+            if out is None:
+                out = Ri
+            elif seq.isupper():
+                out = out @ Ri
+            else:
+                out = Ri @ out
+        return out
+
+    def as_euler(self, seq: str, degrees: bool = False) -> Array:
+        """Euler angles (SciPy's convention and ranges) for NumPy arrays (through
+        ``scipy.spatial.transform.Rotation``). For all backends use :meth:`as_rpy`."""
+        if not A.is_numpy(self.params):
+            raise TypeError("as_euler supports NumPy arrays only; use as_rpy() for other backends")
+        from scipy.spatial.transform import Rotation
+
+        q = self.params.reshape(-1, 4)
+        e = Rotation.from_quat(q).as_euler(seq, degrees=degrees)
+        return e.reshape(*self.batch_shape, 3)
+
+    @classmethod
+    def from_rpy(cls, roll: Any, pitch: Any, yaw: Any) -> SO3:
+        """``R = Rz(yaw) Ry(pitch) Rx(roll)`` (roll about x first, in the fixed frame)."""
+        a = A.as_float_array(roll)
+        xp = A.namespace(a)
+        return cls.from_euler("xyz", xp.stack(xp.broadcast_arrays(
+            a, A.as_float_array(pitch, like=a), A.as_float_array(yaw, like=a)), axis=-1))
+
+    def as_rpy(self) -> Array:
+        """``(roll, pitch, yaw)`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``, pitch in
+        ``[-pi/2, pi/2]``."""
+        o, (p,) = _split(self.params)
+        R = quat_to_matrix(p)
+        roll = o.atan2(R[2][1], R[2][2])
+        pitch = o.atan2(-R[2][0], o.sqrt(R[0][0] * R[0][0] + R[1][0] * R[1][0]))
+        yaw = o.atan2(R[1][0], R[0][0])
+        return A.pack(o, (roll, pitch, yaw), self.params)
+
+    def normalize(self) -> SO3:
+        """Renormalise the quaternion (to remove drift after long chains of products)."""
+        return type(self)._wrap(checked_unit_quat(self.params, True, "SO3.normalize"))
+
+
+def _roll_quat(q: Array, to_scalar_last: bool) -> Array:
+    xp = A.namespace(q)
+    if to_scalar_last:
+        return xp.concat([q[..., 1:], q[..., :1]], axis=-1)
+    return xp.concat([q[..., 3:], q[..., :3]], axis=-1)
+
+
+def _quat_from_matrix_array(R: Array) -> Array:
+    """Unit quaternions ``(..., 4)`` of rotation matrices ``(..., 3, 3)``."""
+    if type(R) is np.ndarray and R.ndim == 2:
+        o, rows = A.SCALAR, R.tolist()
+    else:
+        o = A.ops_for(R)
+        rows = [[R[..., i, j] for j in range(3)] for i in range(3)]
+    return A.pack(o, matrix_to_quat(o, rows), R)
+
+
+def _numel(x: Array) -> int:
+    return int(np.prod(tuple(x.shape)))

@@ -1,0 +1,384 @@
+"""Absolute and relative pose errors, the KITTI odometry metric, and error statistics.
+
+Conventions (``../shared/MATH.md`` section 9). For paired poses ``Q_i`` (reference) and
+``P_i`` (estimate):
+
+* APE error pose ``E_i = Q_i^-1 P_i``; RPE error pose for a pair ``(i, j)``
+  ``E_ij = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)``.
+* Pose relations (what is measured on ``E``):
+
+  ======================  ====================================================  ======
+  relation                value                                                 unit
+  ======================  ====================================================  ======
+  ``trans``               translation norm ``|t(E)|`` (APE: ``|p_est - p_ref|``)  m
+  ``rot`` / ``angle_deg`` rotation angle of ``R(E)`` in degrees                 deg
+  ``angle_rad``           rotation angle of ``R(E)`` in radians                 rad
+  ``rot_part``            ``|R(E) - I|_F``                                      -
+  ``full``                ``|E - I|_F`` on the 4x4 matrix (evo's "full")        -
+  ``se3``                 ``|Log(E)|`` with ``Log`` the SE(3) logarithm         mixed
+  ``point_distance``      APE: as ``trans``; RPE: ``| |dp_ref| - |dp_est| |``   m
+  ======================  ====================================================  ======
+
+  For every relation except ``se3`` the value is the same whether ``E`` is ``Q^-1 P`` or
+  ``P^-1 Q``, so these agree with evo's numbers.
+* Statistics: rmse, mean, median, std (population, ``ddof=0``), min, max, sse (sum of squares).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from microlie import SE3
+
+from .trajectory import Trajectory
+
+__all__ = [
+    "RELATIONS",
+    "statistics",
+    "ape",
+    "rpe",
+    "pose_pairs",
+    "PoseError",
+    "kitti_odometry",
+    "KittiResult",
+    "KITTI_LENGTHS",
+]
+
+RELATIONS = ("trans", "rot", "angle_deg", "angle_rad", "rot_part", "full", "se3", "point_distance")
+_ALIASES = {"trans_part": "trans", "translation": "trans", "rotation": "rot"}
+KITTI_LENGTHS = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
+
+
+def statistics(errors: np.ndarray) -> dict[str, float]:
+    """rmse, mean, median, std (population), min, max and sse of a 1-D error array."""
+    e = np.asarray(errors, dtype=np.float64)
+    if e.ndim != 1 or e.size == 0:
+        raise ValueError("statistics need a non-empty 1-D error array")
+    sq = e * e
+    return {
+        "rmse": float(np.sqrt(np.mean(sq))),
+        "mean": float(np.mean(e)),
+        "median": float(np.median(e)),
+        "std": float(np.std(e)),
+        "min": float(np.min(e)),
+        "max": float(np.max(e)),
+        "sse": float(np.sum(sq)),
+    }
+
+
+def _relation(relation: str, angle_unit: str) -> str:
+    rel = _ALIASES.get(relation, relation)
+    if rel not in RELATIONS:
+        raise ValueError(f"unknown pose relation {relation!r}; expected one of {RELATIONS}")
+    if angle_unit not in ("deg", "rad"):
+        raise ValueError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
+    if rel == "rot":
+        rel = "angle_deg" if angle_unit == "deg" else "angle_rad"
+    return rel
+
+
+_UNITS = {
+    "trans": "m",
+    "point_distance": "m",
+    "angle_deg": "deg",
+    "angle_rad": "rad",
+    "rot_part": "",
+    "full": "",
+    "se3": "",
+}
+
+
+def _pose_error_values(e: SE3, rel: str) -> np.ndarray:
+    """The chosen scalar of a batch of error poses ``E``."""
+    if rel == "trans":
+        t = np.asarray(e.translation())
+        return np.sqrt(np.einsum("ij,ij->i", t, t))
+    if rel in ("angle_deg", "angle_rad"):
+        phi = np.asarray(e.rotation().log())
+        ang = np.sqrt(np.einsum("ij,ij->i", phi, phi))
+        return np.rad2deg(ang) if rel == "angle_deg" else ang
+    if rel == "se3":
+        xi = np.asarray(e.log())
+        return np.sqrt(np.einsum("ij,ij->i", xi, xi))
+    m = np.asarray(e.matrix())
+    if rel == "rot_part":
+        d = m[:, :3, :3] - np.eye(3)
+    else:  # full
+        d = m - np.eye(4)
+    return np.sqrt(np.einsum("ijk,ijk->i", d, d))
+
+
+@dataclass
+class PoseError:
+    """Errors of one metric run.
+
+    Attributes:
+        metric: ``"ape"`` or ``"rpe"``.
+        relation: the pose relation measured (see module docstring).
+        unit: unit of ``errors`` (``"m"``, ``"deg"``, ``"rad"`` or ``""``).
+        errors: ``(M,)`` error values.
+        stats: :func:`statistics` of ``errors``.
+        pairs: ``(M, 2)`` index pairs (RPE) or ``None`` (APE, index ``i`` itself).
+        ref, est: the paired (and, for APE, aligned) trajectories the errors refer to.
+        info: free-form description (alignment, delta, ...), JSON serialisable.
+    """
+
+    metric: str
+    relation: str
+    unit: str
+    errors: np.ndarray
+    stats: dict[str, float]
+    pairs: np.ndarray | None = None
+    ref: Trajectory | None = None
+    est: Trajectory | None = None
+    info: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """A JSON-ready summary (no arrays)."""
+        return {
+            "metric": self.metric,
+            "relation": self.relation,
+            "unit": self.unit,
+            "num_errors": int(self.errors.size),
+            "stats": dict(self.stats),
+            **({"info": self.info} if self.info else {}),
+        }
+
+
+def _check_paired(ref: Trajectory, est: Trajectory) -> None:
+    if len(ref) != len(est):
+        raise ValueError(
+            f"reference and estimate must be paired pose by pose ({len(ref)} vs {len(est)} "
+            "poses): associate them first"
+        )
+
+
+def ape(
+    ref: Trajectory, est: Trajectory, relation: str = "trans", *, angle_unit: str = "deg"
+) -> PoseError:
+    """Absolute pose error of paired (and, if wanted, already aligned) trajectories.
+
+    Example:
+        >>> res = ape(ref, est_aligned, "trans")  # doctest: +SKIP
+        >>> res.stats["rmse"]  # doctest: +SKIP
+    """
+    _check_paired(ref, est)
+    rel = _relation(relation, angle_unit)
+    if rel in ("trans", "point_distance"):
+        d = est.positions - ref.positions
+        err = np.sqrt(np.einsum("ij,ij->i", d, d))
+    else:
+        err = _pose_error_values(ref.poses.between(est.poses), rel)
+    return PoseError("ape", rel, _UNITS[rel], err, statistics(err), None, ref, est)
+
+
+def pose_pairs(
+    traj: Trajectory,
+    delta: float,
+    unit: str = "frames",
+    *,
+    all_pairs: bool = False,
+    rel_tol: float = 0.1,
+) -> np.ndarray:
+    """Index pairs ``(i, j)`` of ``traj`` separated by ``delta`` frames or metres.
+
+    * frames, consecutive: ``(0, d), (d, 2d), ...``; all pairs: ``(i, i + d)`` for every ``i``.
+    * metres, consecutive: walk along the path summing the step lengths; each time the sum
+      reaches ``delta`` the current index closes a pair and the sum restarts at 0.
+    * metres, all pairs: for every ``i`` the ``j > i`` whose travelled distance from ``i`` is
+      closest to ``delta`` (first such ``j`` on ties), kept if within ``rel_tol * delta``.
+
+    Returns an ``(M, 2)`` integer array; raises ``ValueError`` if it would be empty.
+    """
+    n = len(traj)
+    if delta <= 0:
+        raise ValueError(f"delta must be positive, got {delta}")
+    if unit in ("frames", "f"):
+        if float(delta) != int(delta):
+            raise ValueError(f"a frame delta must be an integer, got {delta}")
+        d = int(delta)
+        if all_pairs:
+            i = np.arange(max(n - d, 0))
+            pairs = np.stack([i, i + d], axis=1)
+        else:
+            ids = np.arange(0, n, d)
+            pairs = np.stack([ids[:-1], ids[1:]], axis=1)
+    elif unit in ("m", "meters", "metres"):
+        steps = traj.step_lengths()
+        if all_pairs:
+            pairs = _all_pairs_by_distance(np.concatenate([[0.0], np.cumsum(steps)]),
+                                           float(delta), float(delta) * rel_tol)
+        else:
+            ids = [0]
+            acc = 0.0
+            for k, s in enumerate(steps.tolist(), start=1):
+                acc += s
+                if acc >= delta:
+                    ids.append(k)
+                    acc = 0.0
+            a = np.asarray(ids)
+            pairs = np.stack([a[:-1], a[1:]], axis=1)
+    else:
+        raise ValueError(f"unknown delta unit {unit!r}; expected 'frames' or 'm'")
+    pairs = pairs.astype(np.intp).reshape(-1, 2)
+    if pairs.shape[0] == 0:
+        raise ValueError(
+            f"delta = {delta} {unit} gives no pose pairs in a trajectory of {n} poses "
+            f"({traj.path_length:.3f} m): use a smaller delta"
+        )
+    return pairs
+
+
+def _all_pairs_by_distance(dist: np.ndarray, delta: float, tol: float) -> np.ndarray:
+    """For each i, the j > i minimising ``|(dist[j] - dist[i]) - delta|`` (first on ties)."""
+    n = dist.size
+    if n < 2:
+        return np.zeros((0, 2), dtype=np.intp)
+    i = np.arange(n - 1)
+    # Candidate neighbourhood from a binary search; the exact criterion is then evaluated on
+    # a few indices around it so that rounding cannot move the choice.
+    k = np.searchsorted(dist, dist[i] + delta, side="left")
+    cand = k[:, None] + np.arange(-2, 2)[None, :]
+    cand = np.clip(cand, (i + 1)[:, None], n - 1)
+    cost = np.abs((dist[cand] - dist[i][:, None]) - delta)
+    best = np.argmin(cost, axis=1)
+    j = cand[i, best]
+    c = cost[i, best]
+    # First index on ties: walk back over equal distances (plateaus, i.e. standing still).
+    first_equal = np.searchsorted(dist, dist[j], side="left")
+    j = np.maximum(first_equal, i + 1)
+    keep = c <= tol
+    return np.stack([i[keep], j[keep]], axis=1)
+
+
+def rpe(
+    ref: Trajectory,
+    est: Trajectory,
+    relation: str = "trans",
+    delta: float = 1,
+    unit: str = "frames",
+    *,
+    all_pairs: bool = False,
+    rel_tol: float = 0.1,
+    pairs_from: str = "est",
+    angle_unit: str = "deg",
+) -> PoseError:
+    """Relative pose error over pose pairs ``delta`` frames or metres apart.
+
+    Args:
+        relation: see the module docstring (``point_distance`` compares the lengths of the
+            displacements only).
+        delta, unit: pair separation, ``unit`` in ``{"frames", "m"}``.
+        all_pairs: every admissible pair instead of consecutive, non-overlapping ones.
+        rel_tol: relative tolerance on the distance in all-pairs metre mode.
+        pairs_from: choose pairs on the ``"est"`` (evo's default) or ``"ref"`` trajectory.
+    """
+    _check_paired(ref, est)
+    rel = _relation(relation, angle_unit)
+    if pairs_from not in ("est", "ref"):
+        raise ValueError(f"pairs_from must be 'est' or 'ref', got {pairs_from!r}")
+    pairs = pose_pairs(est if pairs_from == "est" else ref, delta, unit,
+                       all_pairs=all_pairs, rel_tol=rel_tol)
+    i, j = pairs[:, 0], pairs[:, 1]
+    if rel == "point_distance":
+        dr = ref.positions[j] - ref.positions[i]
+        de = est.positions[j] - est.positions[i]
+        err = np.abs(np.sqrt(np.einsum("ij,ij->i", dr, dr)) - np.sqrt(np.einsum("ij,ij->i", de, de)))
+    else:
+        q_rel = ref.poses[i].between(ref.poses[j])
+        p_rel = est.poses[i].between(est.poses[j])
+        err = _pose_error_values(q_rel.between(p_rel), rel)
+    info = {"delta": delta, "delta_unit": "frames" if unit in ("frames", "f") else "m",
+            "all_pairs": all_pairs, "pairs_from": pairs_from}
+    return PoseError("rpe", rel, _UNITS[rel], err, statistics(err), pairs, ref, est, info)
+
+
+@dataclass
+class KittiResult:
+    """KITTI odometry metric (Geiger et al., CVPR 2012; the devkit's ``evaluate_odometry``).
+
+    Attributes:
+        t_err: average translational error in percent (``100 * |t(E)| / length``).
+        r_err: average rotational error in degrees per metre (``angle(E) / length``).
+        per_length: ``{length: (t_err %, r_err deg/m, number of segments)}``.
+        segments: ``(K, 4)`` rows ``(first index, length, t_err ratio, r_err rad/m)``.
+    """
+
+    t_err: float
+    r_err: float
+    per_length: dict[float, tuple[float, float, int]]
+    segments: np.ndarray
+
+    def to_dict(self) -> dict:
+        return {
+            "metric": "kitti",
+            "t_err_percent": self.t_err,
+            "r_err_deg_per_m": self.r_err,
+            "r_err_deg_per_100m": 100.0 * self.r_err,
+            "num_segments": int(self.segments.shape[0]),
+            "per_length": {
+                f"{k:g}": {"t_err_percent": v[0], "r_err_deg_per_m": v[1], "segments": v[2]}
+                for k, v in self.per_length.items()
+            },
+        }
+
+
+def kitti_odometry(
+    ref: Trajectory,
+    est: Trajectory,
+    lengths: Sequence[float] = KITTI_LENGTHS,
+    step: int = 10,
+) -> KittiResult:
+    """The KITTI odometry segment metric on paired trajectories.
+
+    For every start index ``f = 0, step, 2 step, ...`` and every length ``L``, the end index is
+    the first ``l`` with ``d(l) > d(f) + L`` (``d``: distance travelled along the reference).
+    The segment error is ``E = (P_f^-1 P_l)^-1 (Q_f^-1 Q_l)``; it contributes
+    ``|t(E)| / L`` and ``angle(E) / L``. Results are the plain means over all segments, in %
+    and deg/m. Segments running past the end are skipped.
+    """
+    _check_paired(ref, est)
+    dist = ref.distances()
+    n = len(ref)
+    firsts = np.arange(0, n, step)
+    rows_f, rows_l, rows_len = [], [], []
+    for length in lengths:
+        last = np.searchsorted(dist, dist[firsts] + length, side="right")
+        ok = last < n
+        rows_f.append(firsts[ok])
+        rows_l.append(last[ok])
+        rows_len.append(np.full(int(ok.sum()), float(length)))
+    f = np.concatenate(rows_f)
+    ln = np.concatenate(rows_l)
+    seg_len = np.concatenate(rows_len)
+    if f.size == 0:
+        raise ValueError(
+            f"no KITTI segment fits: the reference path is {dist[-1]:.1f} m, the shortest "
+            f"segment {min(lengths):g} m"
+        )
+    # sort by (first, length) like the devkit's loop order
+    order = np.lexsort((seg_len, f))
+    f, ln, seg_len = f[order], ln[order], seg_len[order]
+    d_gt = ref.poses[f].between(ref.poses[ln])
+    d_est = est.poses[f].between(est.poses[ln])
+    e = d_est.between(d_gt)
+    t = np.asarray(e.translation())
+    t_err = np.sqrt(np.einsum("ij,ij->i", t, t)) / seg_len
+    phi = np.asarray(e.rotation().log())
+    r_err = np.sqrt(np.einsum("ij,ij->i", phi, phi)) / seg_len
+    per_length = {}
+    for length in lengths:
+        m = seg_len == float(length)
+        if m.any():
+            per_length[float(length)] = (
+                float(100.0 * t_err[m].mean()),
+                float(np.rad2deg(r_err[m].mean())),
+                int(m.sum()),
+            )
+    segments = np.column_stack([f, seg_len, t_err, r_err])
+    return KittiResult(
+        float(100.0 * t_err.mean()), float(np.rad2deg(r_err.mean())), per_length, segments
+    )

@@ -1,0 +1,121 @@
+"""Timestamp association of two trajectories.
+
+The rule (the one evo uses, so that pair sets and therefore statistics agree):
+
+* The trajectory with fewer poses is the *query* side (the first one on a tie of lengths is the
+  *target* side); the time offset is added to the stamps of the second trajectory (in practice
+  it is added to the target stamps with the sign that achieves this).
+* Each query stamp is matched to the nearest target stamp if ``|difference| <= max_diff``;
+  on a tie the earlier target stamp wins. Query stamps are never dropped for being matched
+  twice: two query poses may share one target pose.
+* Duplicate timestamps are not an error. With sorted target stamps a query stamp equal to a
+  repeated target stamp is matched to the *last* pose carrying that stamp; with unsorted target
+  stamps the *first* pose at the smallest difference wins. Use
+  :meth:`Trajectory.duplicate_timestamps` to report them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .trajectory import Trajectory
+
+__all__ = ["match_timestamps", "associate", "Association"]
+
+
+def match_timestamps(
+    query: np.ndarray, target: np.ndarray, max_diff: float = 0.01, offset: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(iq, it)`` pairing each query stamp with its nearest ``target + offset`` stamp.
+
+    Pairs farther apart than ``max_diff`` (seconds) are left out; ``iq`` is increasing.
+    """
+    q = np.asarray(query, dtype=np.float64)
+    t = np.asarray(target, dtype=np.float64) + offset
+    if t.size == 0 or q.size == 0:
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
+    if np.all(np.diff(t) >= 0):
+        n = t.size
+        inside = (q >= t[0] - max_diff) & (q <= t[-1] + max_diff)
+        iq = np.flatnonzero(inside)
+        qs = q[iq]
+        up = np.minimum(np.searchsorted(t, qs, side="right"), n - 1)
+        d_up = t[up] - qs
+        d_lo = np.where(up > 0, qs - t[np.maximum(up - 1, 0)], np.inf)
+        take_up = (d_up <= max_diff) & (d_up < d_lo)
+        take_lo = ~take_up & (d_lo <= max_diff) & (d_lo <= d_up)
+        keep = take_up | take_lo
+        it = np.where(take_up, up, up - 1)
+        return iq[keep], it[keep].astype(np.intp)
+    # Unsorted target: brute force in blocks (first index of the smallest difference).
+    iq_all, it_all = [], []
+    block = max(1, 2_000_000 // t.size)
+    for s in range(0, q.size, block):
+        d = np.abs(t[None, :] - q[s : s + block, None])
+        j = np.argmin(d, axis=1)
+        ok = d[np.arange(j.size), j] <= max_diff
+        iq_all.append(np.arange(s, s + j.size)[ok])
+        it_all.append(j[ok])
+    return np.concatenate(iq_all).astype(np.intp), np.concatenate(it_all).astype(np.intp)
+
+
+@dataclass(frozen=True)
+class Association:
+    """Result of :func:`associate`: the index pairs and some counts for reporting."""
+
+    index_first: np.ndarray
+    index_second: np.ndarray
+    max_pairs: int
+    duplicates_first: int
+    duplicates_second: int
+
+    @property
+    def num_pairs(self) -> int:
+        return int(self.index_first.size)
+
+
+def associate(
+    first: Trajectory,
+    second: Trajectory,
+    max_diff: float = 0.01,
+    offset: float = 0.0,
+    *,
+    return_info: bool = False,
+) -> tuple[Trajectory, Trajectory] | tuple[Trajectory, Trajectory, Association]:
+    """Reduce two timestamped trajectories to their pose pairs with matching stamps.
+
+    Args:
+        first, second: usually (reference, estimate).
+        max_diff: largest accepted time difference, seconds.
+        offset: added to the timestamps of ``second`` for the matching only.
+        return_info: also return an :class:`Association` with the indices and duplicate counts.
+
+    Raises:
+        ValueError: a trajectory has no timestamps, or no pair is found.
+    """
+    if first.timestamps is None or second.timestamps is None:
+        raise ValueError("association needs timestamps on both trajectories")
+    second_longer = len(second) > len(first)
+    if second_longer:
+        i1, i2 = match_timestamps(first.timestamps, second.timestamps, max_diff, offset)
+    else:
+        i2, i1 = match_timestamps(second.timestamps, first.timestamps, max_diff, -offset)
+    if i1.size == 0:
+        raise ValueError(
+            f"no matching timestamps between {first.name or 'first trajectory'} and "
+            f"{second.name or 'second trajectory'} (max. difference {max_diff} s, "
+            f"offset {offset} s)"
+        )
+    a, b = first.subset(i1), second.subset(i2)
+    if not return_info:
+        return a, b
+    info = Association(
+        i1,
+        i2,
+        min(len(first), len(second)),
+        int(first.duplicate_timestamps().size),
+        int(second.duplicate_timestamps().size),
+    )
+    return a, b, info
