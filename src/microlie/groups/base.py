@@ -372,7 +372,9 @@ class LieGroup:
 
     # ------------------------------------------------------------------ plus / minus
     def plus(self, tau: Any, jac: bool = False, side: str = "right"):
-        """Right plus ``X (+) tau = X Exp(tau)``. Jacobians (right): ``Ad_Exp(tau)^-1``, ``Jr(tau)``."""
+        """Right plus ``X (+) tau = X Exp(tau)``.
+
+        Jacobians (right): ``Ad_Exp(tau)^-1`` and ``Jr(tau)``."""
         t = self._tangent(tau, like=self.params)
         if not jac:
             return self.compose(self.exp(t))

@@ -39,7 +39,7 @@ def w_coefficients(o: Any, sigma: Any, t2: Any) -> tuple[Any, Any, Any]:
     a = o.where(small, 1.0 + sigma * (0.5 + sigma * (1.0 / 6.0 + sigma / 24.0)), o.expm1(ss) / ss)
     b = 0.0 * sigma
     c = 0.0 * sigma
-    for s, w in zip(_NODES, _WEIGHTS):
+    for s, w in zip(_NODES, _WEIGHTS, strict=True):
         u2 = (s * s) * t2
         hs = so3.half_sinc(o, u2)  # sin(s t / 2) / (s t)
         hc = so3.half_cos(o, u2)

@@ -135,7 +135,7 @@ def matrix_to_quat(o: Any, R: tuple) -> tuple:
     use_y = r11 >= r22
     q = tuple(
         o.where(use_w, a, o.where(use_x, b, o.where(use_y, c, d)))
-        for a, b, c, d in zip(qw, qx, qy, qz)
+        for a, b, c, d in zip(qw, qx, qy, qz, strict=True)
     )
     n = o.sqrt(M.norm2(*q))
     return tuple(c / n for c in q)
@@ -346,7 +346,8 @@ class SO3(LieGroup):
         (extrinsic, rotations about the fixed axes, applied left to right) or ``XYZ``
         (intrinsic, about the moving axes). ``angles`` has shape ``(..., 3)``."""
         if len(seq) != 3 or not (set(seq) <= set("xyz") or set(seq) <= set("XYZ")):
-            raise ValueError(f"seq must be 3 letters, all from 'xyz' or all from 'XYZ', got {seq!r}")
+            raise ValueError(
+                f"seq must be 3 letters, all from 'xyz' or all from 'XYZ', got {seq!r}")
         a = A.as_float_array(angles)
         A.check_last_dim(a, 3, "Euler angles")
         if degrees:
