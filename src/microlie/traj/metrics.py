@@ -265,6 +265,7 @@ def rpe(
     rel_tol: float = 0.1,
     pairs_from: str = "est",
     angle_unit: str = "deg",
+    pairs: np.ndarray | None = None,
 ) -> PoseError:
     """Relative pose error over pose pairs ``delta`` frames or metres apart.
 
@@ -275,13 +276,19 @@ def rpe(
         all_pairs: every admissible pair instead of consecutive, non-overlapping ones.
         rel_tol: relative tolerance on the distance in all-pairs metre mode.
         pairs_from: choose pairs on the ``"est"`` (evo's default) or ``"ref"`` trajectory.
+        pairs: explicit ``(M, 2)`` index pairs; then ``delta``/``unit``/``all_pairs`` are unused.
     """
     _check_paired(ref, est)
     rel = _relation(relation, angle_unit)
     if pairs_from not in ("est", "ref"):
         raise ValueError(f"pairs_from must be 'est' or 'ref', got {pairs_from!r}")
-    pairs = pose_pairs(est if pairs_from == "est" else ref, delta, unit,
-                       all_pairs=all_pairs, rel_tol=rel_tol)
+    if pairs is None:
+        pairs = pose_pairs(est if pairs_from == "est" else ref, delta, unit,
+                           all_pairs=all_pairs, rel_tol=rel_tol)
+    else:
+        pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
+        if pairs.size == 0 or pairs.min() < 0 or pairs.max() >= len(ref):
+            raise ValueError("explicit pairs must be non-empty indices into the trajectories")
     i, j = pairs[:, 0], pairs[:, 1]
     if rel == "point_distance":
         dr = ref.positions[j] - ref.positions[i]
