@@ -50,14 +50,15 @@ def plot_trajectories(
 ) -> Any:
     """Overview figure of one or more trajectories (the first is drawn as the reference)."""
     plt = require_matplotlib()
-    labels = list(labels) if labels is not None else [t.name or f"traj {i}" for i, t in
-                                                      enumerate(trajs)]
+    if labels is None:
+        labels = [t.name or f"traj {i}" for i, t in enumerate(trajs)]
+    labels = [Path(str(lab)).name for lab in labels]
     fig = plt.figure(figsize=FIGSIZE, dpi=DPI)
-    gs = fig.add_gridspec(3, 4)
-    ax_top = fig.add_subplot(gs[:, 0])
-    ax_3d = fig.add_subplot(gs[:, 1], projection="3d")
-    ax_xyz = [fig.add_subplot(gs[k, 2]) for k in range(3)]
-    ax_rpy = [fig.add_subplot(gs[k, 3]) for k in range(3)]
+    gs = fig.add_gridspec(6, 4)
+    ax_top = fig.add_subplot(gs[0:3, 0:2])
+    ax_3d = fig.add_subplot(gs[3:6, 0:2], projection="3d")
+    ax_xyz = [fig.add_subplot(gs[2 * k:2 * k + 2, 2]) for k in range(3)]
+    ax_rpy = [fig.add_subplot(gs[2 * k:2 * k + 2, 3]) for k in range(3)]
     for i, (t, lab) in enumerate(zip(trajs, labels)):
         p = t.positions
         style = {"ls": "--", "color": "0.3"} if i == 0 and len(trajs) > 1 else {}
@@ -70,7 +71,7 @@ def plot_trajectories(
             ax_rpy[k].plot(x, rpy[:, k], lw=1, **style)
     ax_top.set_xlabel("x (m)")
     ax_top.set_ylabel("y (m)")
-    ax_top.set_aspect("equal", adjustable="datalim")
+    ax_top.set_aspect("equal", adjustable="box")
     ax_top.set_title("top view")
     ax_top.legend(fontsize="small")
     ax_3d.set_xlabel("x")
