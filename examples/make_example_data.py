@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from microlie import SE3, SO3
-from microlie.traj import Trajectory, write_tum
+from microlie.traj import Trajectory
 
 OUT = Path(__file__).resolve().parents[1] / "src" / "microlie" / "data"
 

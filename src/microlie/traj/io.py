@@ -71,7 +71,7 @@ def _to_matrix(
     """Convert split rows to a float matrix, raising a ValueError naming file and line."""
     if not rows:
         raise ValueError(f"{path}: no data lines found (expected {what})")
-    for k, r in zip(numbers, rows):
+    for k, r in zip(numbers, rows, strict=True):
         bad = len(r) < ncols if at_least else len(r) != ncols
         if bad:
             need = f"at least {ncols}" if at_least else str(ncols)
