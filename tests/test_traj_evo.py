@@ -140,7 +140,7 @@ def _legacy_path_pairs(traj: T.Trajectory, delta: float) -> np.ndarray:
         if acc >= delta:
             ids.append(k)
             acc = 0.0
-    return np.array(list(zip(ids, ids[1:])))
+    return np.array(list(zip(ids[:-1], ids[1:], strict=True)))
 
 
 @pytest.mark.parametrize("est_name, archive", [("KITTI_00_ORB.txt", "orb_rpe"),

@@ -90,8 +90,8 @@ def test_tum_kitti_round_trip(tmp_path):
     p = rng.normal(size=(20, 3))
     stamps = 1e9 + np.arange(20) * 0.1
     f = tmp_path / "a.txt"
-    f.write_text("".join(f"{s!r} {' '.join(map(repr, pi.tolist()))} {' '.join(map(repr, qi.tolist()))}\n"
-                         for s, pi, qi in zip(stamps.tolist(), p, q)))
+    lines = [" ".join(map(repr, row)) for row in np.column_stack([stamps, p, q]).tolist()]
+    f.write_text("\n".join(lines) + "\n")
     t = read_tum(f)
     write_tum(tmp_path / "b.txt", t)
     t2 = read_tum(tmp_path / "b.txt")

@@ -83,7 +83,7 @@ def _to_matrix(
     try:
         mat = np.array(rows, dtype=np.float64)
     except ValueError:
-        for k, r in zip(numbers, rows):
+        for k, r in zip(numbers, rows, strict=True):
             for j, f in enumerate(r):
                 try:
                     float(f)

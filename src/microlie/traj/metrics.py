@@ -293,7 +293,8 @@ def rpe(
     if rel == "point_distance":
         dr = ref.positions[j] - ref.positions[i]
         de = est.positions[j] - est.positions[i]
-        err = np.abs(np.sqrt(np.einsum("ij,ij->i", dr, dr)) - np.sqrt(np.einsum("ij,ij->i", de, de)))
+        len_r = np.sqrt(np.einsum("ij,ij->i", dr, dr))
+        err = np.abs(len_r - np.sqrt(np.einsum("ij,ij->i", de, de)))
     else:
         q_rel = ref.poses[i].between(ref.poses[j])
         p_rel = est.poses[i].between(est.poses[j])

@@ -59,7 +59,7 @@ def plot_trajectories(
     ax_3d = fig.add_subplot(gs[3:6, 0:2], projection="3d")
     ax_xyz = [fig.add_subplot(gs[2 * k:2 * k + 2, 2]) for k in range(3)]
     ax_rpy = [fig.add_subplot(gs[2 * k:2 * k + 2, 3]) for k in range(3)]
-    for i, (t, lab) in enumerate(zip(trajs, labels)):
+    for i, (t, lab) in enumerate(zip(trajs, labels, strict=True)):
         p = t.positions
         style = {"ls": "--", "color": "0.3"} if i == 0 and len(trajs) > 1 else {}
         ax_top.plot(p[:, 0], p[:, 1], label=lab, lw=1, **style)
