@@ -44,7 +44,7 @@ def umeyama(
     var_x = np.einsum("ij,ij->", xc, xc) / n
     cov = (yc.T @ xc) / n
     u, d, vt = np.linalg.svd(cov)
-    if np.count_nonzero(d > np.finfo(np.float64).eps) < 2:
+    if not d[1] > 1e-12 * d[0]:  # rank < 2 (up to rounding): rotation undetermined
         raise ValueError("degenerate point sets: Umeyama alignment is not determined")
     sign = np.ones(3)
     if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
