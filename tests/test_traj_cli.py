@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import data_file, require
-from scipy.spatial.transform import Rotation
 
 from microlie.cli import main
 from microlie.data import example_paths
