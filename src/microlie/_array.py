@@ -82,7 +82,8 @@ class ArrayOps:
         self.where = xp.where
 
     def sign1(self, x: Array) -> Array:
-        return self.xp.where(x >= 0, 1.0, -1.0) * self.xp.ones_like(x)
+        one = self.xp.ones_like(x)
+        return self.xp.where(x >= 0, one, -one)
 
     def zeros_like(self, x: Array) -> Array:
         return self.xp.zeros_like(x)

@@ -1,0 +1,148 @@
+"""Shared test fixtures: the groups, the array backends and finite differences.
+
+In CI (``CI=true``) a missing optional dependency or data file is an error, never a skip.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from microlie import SE2, SE3, SO2, SO3, LieGroup, Sim3
+
+IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
+GROUPS = [SO2, SE2, SO3, SE3, Sim3]  # adding a group to the generic suite is one entry here
+BACKENDS = ["numpy", "torch", "jax"]
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+
+
+def require(module: str):
+    """Import an optional module; skip locally, fail in CI, when it is missing."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        if IN_CI:
+            pytest.fail(f"{module} is required in CI but is not installed")
+        pytest.skip(f"{module} not installed")
+
+
+def data_file(rel: str) -> Path:
+    """A file of ../shared/data; skip locally, fail in CI, when it is missing."""
+    p = DATA / rel
+    if not p.exists():
+        if IN_CI:
+            pytest.fail(f"shared data file {p} is missing")
+        pytest.skip(f"shared data file {p} is missing")
+    return p
+
+
+def _jax():
+    jax = require("jax")
+    jax.config.update("jax_enable_x64", True)
+    return jax
+
+
+def to_backend(x: np.ndarray, backend: str, dtype=np.float64):
+    x = np.asarray(x, dtype=dtype)
+    if backend == "numpy":
+        return x
+    if backend == "torch":
+        torch = require("torch")
+        return torch.tensor(x)
+    if backend == "jax":
+        _jax()
+        import jax.numpy as jnp
+
+        return jnp.asarray(x)
+    raise ValueError(backend)
+
+
+def to_numpy(x) -> np.ndarray:
+    if isinstance(x, LieGroup):
+        x = x.params
+    if hasattr(x, "detach"):
+        x = x.detach().cpu().numpy()
+    return np.asarray(x)
+
+
+def element(G, params: np.ndarray, backend: str, dtype=np.float64) -> LieGroup:
+    return G(to_backend(params, backend, dtype))
+
+
+@pytest.fixture(params=GROUPS, ids=lambda g: g.__name__)
+def group(request):
+    return request.param
+
+
+@pytest.fixture(params=BACKENDS)
+def backend(request):
+    if request.param == "torch":
+        require("torch")
+    if request.param == "jax":
+        _jax()
+    return request.param
+
+
+# ------------------------------------------------------------------------ tangent vectors
+
+ROT_SLICE = {SO2: slice(0, 1), SE2: slice(2, 3), SO3: slice(0, 3), SE3: slice(3, 6),
+             Sim3: slice(3, 6)}
+
+
+def tangent_with_angle(G, rng: np.random.Generator, theta: float, size=None) -> np.ndarray:
+    """A random tangent vector of ``G`` whose rotation angle is exactly ``theta``."""
+    shape = () if size is None else (size,) if isinstance(size, int) else tuple(size)
+    tau = rng.standard_normal((*shape, G.dof))
+    sl = ROT_SLICE[G]
+    rot = tau[..., sl]
+    n = rot.shape[-1]
+    if n == 1:
+        tau[..., sl] = theta * np.sign(rot + 1e-300)
+    else:
+        axis = rot / np.linalg.norm(rot, axis=-1, keepdims=True)
+        tau[..., sl] = theta * axis
+    return tau
+
+
+def rotation_angle(G, tau: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(tau[..., ROT_SLICE[G]], axis=-1)
+
+
+# ------------------------------------------------------------------------ finite differences
+
+def fd_jacobian(f, args: list, i: int, side: str = "right", h: float = 1e-6) -> np.ndarray:
+    """Central finite-difference Jacobian of ``f(*args)`` with respect to ``args[i]``.
+
+    Group arguments are perturbed with ``plus`` (right) or ``lplus`` (left), vector arguments
+    additively; group outputs are differenced with ``minus`` / ``lminus``. Independent of the
+    analytic Jacobians: only ``Exp``/``Log`` and composition are used.
+    """
+    x = args[i]
+    y0 = f(*args)
+    dim = x.dof if isinstance(x, LieGroup) else np.asarray(x).shape[-1]
+    cols = []
+    for k in range(dim):
+        e = np.zeros(dim)
+        e[k] = h
+        outs = []
+        for sgn in (1.0, -1.0):
+            a = list(args)
+            if isinstance(x, LieGroup):
+                d = x.exp(sgn * e)
+                a[i] = x @ d if side == "right" else d @ x
+            else:
+                a[i] = x + sgn * e
+            outs.append(f(*a))
+        if isinstance(y0, LieGroup):
+            if side == "right":
+                dp, dm = y0.inverse() @ outs[0], y0.inverse() @ outs[1]
+            else:
+                dp, dm = outs[0] @ y0.inverse(), outs[1] @ y0.inverse()
+            cols.append((dp.log() - dm.log()) / (2 * h))
+        else:
+            cols.append((np.asarray(outs[0]) - np.asarray(outs[1])) / (2 * h))
+    return np.stack(cols, axis=-1)
