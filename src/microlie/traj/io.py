@@ -20,6 +20,7 @@ are projected onto SO(3) (nearest rotation in the Frobenius norm, via SVD) befor
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +102,73 @@ def _to_matrix(
     return mat
 
 
+def _tokens_per_line(body: str, n: int) -> np.ndarray:
+    """Number of whitespace-separated tokens on each of the ``n`` lines of ``body``."""
+    b = np.frombuffer(body.encode("utf-8"), dtype=np.uint8)
+    newline = b == 10
+    ws = newline | (b == 32) | (b == 9) | (b == 13)
+    start = ~ws
+    start[1:] &= ws[:-1]
+    line_of = np.searchsorted(np.flatnonzero(newline), np.flatnonzero(start))
+    return np.bincount(line_of, minlength=n)[:n]
+
+
+def _fast_matrix(
+    lines: list[str], ncols: int, comma: bool, at_least: bool
+) -> np.ndarray | None:
+    """Parse well-formed data lines in C (``np.fromstring``); ``None`` if anything is off.
+
+    Only a fast path: on ``None`` the caller re-parses line by line to name the bad line.
+    """
+    n = len(lines)
+    if n == 0:
+        return None
+    body = "\n".join(lines)
+    if comma:
+        body = body.replace(",", " ")
+        width = int(_tokens_per_line(lines[0], 1)[0])
+        if width < ncols or (width != ncols and not at_least):
+            return None
+    else:
+        width = ncols
+    if not np.all(_tokens_per_line(body, n) == width):
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            vals = np.fromstring(body, sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
+    if vals.size != n * width:
+        return None
+    mat = vals.reshape(n, width)[:, :ncols]
+    if not np.isfinite(mat).all():
+        return None
+    return mat
+
+
+def _read_matrix(
+    path: PathLike, ncols: int, *, comma: bool = False, at_least: bool = False, what: str = ""
+) -> tuple[list[int], np.ndarray]:
+    """(1-based line numbers of the data lines, float matrix) of a numeric text file."""
+    text = Path(path).read_text(encoding="utf-8-sig")
+    all_lines = text.splitlines()
+    if "#" in text or "%" in text:
+        numbers = [k for k, ln in enumerate(all_lines, start=1)
+                   if (s := ln.lstrip()) and s[0] not in "#%"]
+        data = [all_lines[k - 1] for k in numbers]
+    else:
+        numbers = list(range(1, len(all_lines) + 1))
+        data = all_lines
+    if not comma and "," in text:
+        data = [ln.replace(",", " ") for ln in data]
+    mat = _fast_matrix(data, ncols, comma, at_least)
+    if mat is None:
+        numbers, rows = _data_lines(path, comma)
+        mat = _to_matrix(path, numbers, rows, ncols, at_least=at_least, what=what)
+    return numbers, mat
+
+
 def _check_quat(path: PathLike, numbers: list[int], q: np.ndarray, tol: float) -> None:
     norms = np.linalg.norm(q, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > tol)
@@ -118,8 +186,7 @@ def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None)
     Example:
         >>> traj = read_tum("groundtruth.txt")  # doctest: +SKIP
     """
-    numbers, rows = _data_lines(path, comma=False)
-    mat = _to_matrix(path, numbers, rows, 8, what="timestamp tx ty tz qx qy qz qw")
+    numbers, mat = _read_matrix(path, 8, what="timestamp tx ty tz qx qy qz qw")
     q = mat[:, 4:8]
     _check_quat(path, numbers, q, quat_tol)
     return Trajectory.from_arrays(
@@ -129,8 +196,7 @@ def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None)
 
 def read_timestamps(path: PathLike) -> np.ndarray:
     """Read one timestamp (seconds) per line, e.g. KITTI's ``times.txt``."""
-    numbers, rows = _data_lines(path, comma=False)
-    return _to_matrix(path, numbers, rows, 1, what="timestamp")[:, 0]
+    return _read_matrix(path, 1, what="timestamp")[1][:, 0]
 
 
 def _nearest_rotation(m: np.ndarray) -> np.ndarray:
@@ -154,8 +220,7 @@ def read_kitti(
     the trajectory has no timestamps and is compared index by index. Rotations must satisfy
     ``|R^T R - I| <= rot_tol`` and ``det R > 0``; they are then projected onto SO(3).
     """
-    numbers, rows = _data_lines(path, comma=False)
-    mat = _to_matrix(path, numbers, rows, 12, what="row-major 3x4 [R|t]")
+    numbers, mat = _read_matrix(path, 12, what="row-major 3x4 [R|t]")
     m = mat.reshape(-1, 3, 4)
     r = m[:, :, :3]
     t = m[:, :, 3]
@@ -191,9 +256,8 @@ def read_euroc(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = Non
     Timestamps are converted from nanoseconds to seconds (``t_ns / 1e9`` in float64, as the
     other tools do, so associations agree). The quaternion is scalar-*first* in this format.
     """
-    numbers, rows = _data_lines(path, comma=True)
-    mat = _to_matrix(
-        path, numbers, rows, 8, at_least=True, what="timestamp[ns], px, py, pz, qw, qx, qy, qz"
+    numbers, mat = _read_matrix(
+        path, 8, comma=True, at_least=True, what="timestamp[ns], px, py, pz, qw, qx, qy, qz"
     )
     q_wxyz = mat[:, 4:8]
     _check_quat(path, numbers, q_wxyz, quat_tol)

@@ -1,0 +1,241 @@
+"""Trajectory evaluation: microlie vs evo, side by side in one run.
+
+evo is GPL-3 and only *run* here (never imported by microlie). Run in an environment that has
+both::
+
+    python3 -m venv /work/evo-venv && /work/evo-venv/bin/pip install evo==1.38.1
+    /work/evo-venv/bin/pip install -e .
+    /work/evo-venv/bin/python benchmarks/trajectory.py [--n 100000] [--no-write]
+
+Cases: a synthetic 1e5-pose pair (TUM files written to a temporary directory) and the fr2/desk
+files of ../shared/data. For each case both tools compute the same numbers (checked: the
+statistics must agree to 1e-9 relative, otherwise the script fails):
+
+* "metric": association + alignment + error + statistics on trajectories already in memory;
+* "end to end": the same, starting from reading the two files.
+
+Times are the best of several repeats (``time.perf_counter``; evo's in-place alignment is
+given a fresh copy outside the timed region). The table goes into the "## Trajectory
+evaluation" section of BENCHMARKS.md (other sections are left alone).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import gc
+import os
+import platform
+import re
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO / ".." / "shared" / "data" / "trajectory" / "evo"
+SECTION = "## Trajectory evaluation"
+
+
+def best_time(fn: Callable[[], object], setup: Callable[[], object] | None = None,
+              repeat: int = 5, min_total: float = 0.3) -> float:
+    """Best wall time of ``fn(setup())`` (or ``fn()``), repeated at least ``repeat`` times."""
+    best = float("inf")
+    t_start = time.perf_counter()
+    k = 0
+    while k < repeat or (time.perf_counter() - t_start < min_total and k < 50):
+        arg = setup() if setup else None
+        gc.collect()
+        gc.disable()
+        try:
+            t0 = time.perf_counter()
+            fn(arg) if setup else fn()
+            dt = time.perf_counter() - t0
+        finally:
+            gc.enable()
+        best = min(best, dt)
+        k += 1
+    return best
+
+
+def synthetic_pair(n: int, folder: Path) -> tuple[Path, Path]:
+    """A smooth random 3-D path at 30 Hz and a drifting, noisy estimate at shifted stamps."""
+    from microlie import SE3
+    from microlie.traj import Trajectory, write_tum
+
+    rng = np.random.default_rng(42)
+    stamps = 1.6e9 + np.arange(n) / 30.0
+    vel = np.cumsum(rng.normal(scale=0.01, size=(n, 3)), axis=0)
+    vel -= vel.mean(axis=0)
+    pos = np.cumsum(vel, axis=0) * 0.05
+    omega = np.cumsum(rng.normal(scale=0.002, size=(n, 3)), axis=0)
+    rot = SE3.exp(np.concatenate([np.zeros((n, 3)), np.cumsum(omega, axis=0) * 0.01], axis=1))
+    gt = Trajectory(SE3.from_rotation_translation(rot.rotation(), pos), stamps)
+    drift = SE3.exp(np.cumsum(rng.normal(scale=[2e-4] * 3 + [5e-5] * 3, size=(n, 6)), axis=0))
+    noise = SE3.exp(rng.normal(scale=[3e-3] * 3 + [1e-3] * 3, size=(n, 6)))
+    est = Trajectory(gt.poses @ drift @ noise, stamps + 0.002)
+    a, b = folder / "synthetic_gt.tum", folder / "synthetic_est.tum"
+    write_tum(a, gt)
+    write_tum(b, est)
+    return a, b
+
+
+# ----------------------------------------------------------------------------- the two tools
+def ours_read(path: Path):
+    from microlie.traj import read_tum
+
+    return read_tum(path)
+
+
+def ours_metric(kind: str, ref, est):
+    from microlie.traj import evaluate_ape, evaluate_rpe
+
+    if kind == "ape":
+        return evaluate_ape(ref, est, align="se3")
+    if kind == "rpe":
+        return evaluate_rpe(ref, est, delta=1, unit="frames")
+    return evaluate_rpe(ref, est, relation="angle_deg", delta=1.0, unit="m")
+
+
+def evo_read(path: Path):
+    from evo.tools import file_interface
+
+    t = file_interface.read_tum_trajectory_file(str(path))
+    return t
+
+
+def evo_metric(kind: str, ref, est) -> dict:
+    from evo.core import metrics, sync
+
+    ref, est = sync.associate_trajectories(ref, est, max_diff=0.01)
+    if kind == "ape":
+        est.align(ref)
+        m = metrics.APE(metrics.PoseRelation.translation_part)
+    elif kind == "rpe":
+        m = metrics.RPE(metrics.PoseRelation.translation_part, 1, metrics.Unit.frames)
+    else:
+        m = metrics.RPE(metrics.PoseRelation.rotation_angle_deg, 1.0, metrics.Unit.meters)
+    m.process_data((ref, est))
+    return m.get_all_statistics()
+
+
+def check_same(a: dict, b: dict, what: str) -> float:
+    worst = 0.0
+    for k, v in b.items():
+        err = abs(a[k] - v) / max(abs(v), 1e-300)
+        if abs(a[k] - v) > 1e-9 * abs(v) + 1e-12:
+            raise SystemExit(f"{what}: {k} differs: microlie {a[k]!r} vs evo {v!r}")
+        worst = max(worst, err)
+    return worst
+
+
+KINDS = {
+    "ape": "APE trans, SE(3) Umeyama",
+    "rpe": "RPE trans, delta 1 frame",
+    "rpe_m": "RPE angle (deg), delta 1 m",
+}
+
+
+def run_case(label: str, gt: Path, est: Path) -> list[dict]:
+    rows = []
+    o_ref, o_est = ours_read(gt), ours_read(est)
+    e_ref, e_est = evo_read(gt), evo_read(est)
+    # evo computes poses lazily from quaternions on first use: do it once before timing the
+    # in-memory metric (it is counted in the end-to-end column)
+    _ = e_ref.poses_se3, e_est.poses_se3
+    for kind, title in KINDS.items():
+        res = ours_metric(kind, o_ref, o_est)
+        s_ours = res.stats
+        s_evo = evo_metric(kind, copy.deepcopy(e_ref), copy.deepcopy(e_est))
+        worst = check_same(s_ours, s_evo, f"{label} {kind}")
+        t_ours = best_time(lambda k=kind: ours_metric(k, o_ref, o_est))
+        t_evo = best_time(lambda pair, k=kind: evo_metric(k, *pair),
+                          setup=lambda: (copy.deepcopy(e_ref), copy.deepcopy(e_est)), repeat=3)
+        t_ours_e2e = best_time(lambda k=kind: ours_metric(k, ours_read(gt), ours_read(est)))
+        t_evo_e2e = best_time(lambda k=kind: evo_metric(k, evo_read(gt), evo_read(est)),
+                              repeat=3)
+        row = dict(case=label, metric=title, poses=f"{len(o_ref)} / {len(o_est)}",
+                   pairs=res.info["pairs"], errors=res.errors.size, rel=worst,
+                   ours=t_ours, evo=t_evo, ours_e2e=t_ours_e2e, evo_e2e=t_evo_e2e)
+        rows.append(row)
+        print(f"{label:22s} {title:28s} metric: microlie {t_ours * 1e3:8.2f} ms  evo "
+              f"{t_evo * 1e3:9.2f} ms  x{t_evo / t_ours:6.1f} | end to end: microlie "
+              f"{t_ours_e2e * 1e3:8.2f} ms  evo {t_evo_e2e * 1e3:9.2f} ms  "
+              f"x{t_evo_e2e / t_ours_e2e:6.1f} | max rel. diff {worst:.1e}", flush=True)
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    import evo
+
+    import microlie
+
+    lines = [
+        SECTION,
+        "",
+        f"`benchmarks/trajectory.py`, microlie {microlie.__version__} vs evo "
+        f"{evo.__version__.lstrip('v')}, measured in the same run on {platform.machine()} "
+        f"({os.cpu_count()} CPUs), Python {platform.python_version()}, NumPy {np.__version__}. "
+        "Best of several repeats. \"Metric\": association + alignment + errors + statistics "
+        "on trajectories in memory; \"end to end\": the same starting from the two TUM files. "
+        "Both tools' statistics agree to the stated relative difference in every row.",
+        "",
+        "| trajectory | metric | poses GT / est | pairs | microlie metric | evo metric | "
+        "speed-up | microlie end to end | evo end to end | speed-up | max rel. diff |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['case']} | {r['metric']} | {r['poses']} | {r['pairs']} | "
+            f"{r['ours'] * 1e3:.2f} ms | "
+            f"{r['evo'] * 1e3:.1f} ms | **{r['evo'] / r['ours']:.0f}x** | "
+            f"{r['ours_e2e'] * 1e3:.1f} ms | {r['evo_e2e'] * 1e3:.1f} ms | "
+            f"**{r['evo_e2e'] / r['ours_e2e']:.1f}x** | {r['rel']:.0e} |"
+        )
+    lines += ["", "Regenerate: `/work/evo-venv/bin/python benchmarks/trajectory.py` "
+              "(evo and microlie installed in one environment).", ""]
+    return "\n".join(lines)
+
+
+def write_section(text: str) -> None:
+    path = REPO / "BENCHMARKS.md"
+    old = path.read_text() if path.exists() else "# Benchmarks\n\n"
+    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
+    if pattern.search(old):
+        new = pattern.sub(lambda _: text + "\n", old)
+    else:
+        new = old.rstrip("\n") + "\n\n" + text + "\n"
+    path.write_text(new)
+    print(f"wrote section {SECTION!r} of {path}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=100_000, help="synthetic trajectory length")
+    ap.add_argument("--no-write", action="store_true", help="do not touch BENCHMARKS.md")
+    args = ap.parse_args()
+    try:
+        import evo  # noqa: F401
+    except ImportError:
+        sys.exit("evo is not installed in this environment (see the module docstring)")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        gt, est = synthetic_pair(args.n, Path(tmp))
+        rows += run_case(f"synthetic {args.n:.0e}".replace("e+0", "e"), gt, est)
+    fr2_gt, fr2_est = DATA / "fr2_desk_groundtruth.txt", DATA / "fr2_desk_ORB.txt"
+    if fr2_gt.exists():
+        rows += run_case("fr2/desk (TUM)", fr2_gt, fr2_est)
+    else:
+        print(f"skipping fr2/desk: {fr2_gt} not found")
+    text = table(rows)
+    print()
+    print(text)
+    if not args.no_write:
+        write_section(text)
+
+
+if __name__ == "__main__":
+    main()
