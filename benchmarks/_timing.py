@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import gc
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass
 
 
@@ -28,7 +28,8 @@ class Timing:
         return self.best_s * 1e6
 
 
-def _run(fn: Callable[[], object], number: int) -> float:
+def run_loop(fn: Callable[[], object], number: int) -> float:
+    """Seconds for ``number`` back-to-back calls of ``fn`` (garbage collector off)."""
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
@@ -50,7 +51,7 @@ def calibrate(fn: Callable[[], object], target_s: float = 0.05, max_number: int 
             n = number * mult
             if n >= max_number:
                 return max_number
-            if _run(fn, n) >= target_s:
+            if run_loop(fn, n) >= target_s:
                 return n
         number *= 10
 
@@ -73,5 +74,27 @@ def best_of(
         fn()
     if number is None:
         number = calibrate(fn, target_s)
-    best = min(_run(fn, number) for _ in range(repeat))
+    best = min(run_loop(fn, number) for _ in range(repeat))
     return Timing(best / number, number, repeat)
+
+
+def best_interleaved(
+    fns: Mapping[Hashable, Callable[[], object]], plan: Mapping[Hashable, tuple[int, int]]
+) -> dict[Hashable, float | Exception]:
+    """Best seconds per call of several callables, measured round-robin.
+
+    ``plan[key] = (number, repeat)``. In each round every callable still due runs ``number``
+    calls, so a burst of load from another process hits all of them alike instead of the one
+    that happened to be running; each keeps its best round. A callable that raises gets the
+    exception as its result and drops out.
+    """
+    best: dict[Hashable, float | Exception] = {key: float("inf") for key in plan}
+    for rnd in range(max((rep for _, rep in plan.values()), default=0)):
+        for key, (number, repeat) in plan.items():
+            if rnd >= repeat or isinstance(best[key], Exception):
+                continue
+            try:
+                best[key] = min(best[key], run_loop(fns[key], number) / number)
+            except Exception as e:  # reported by the caller
+                best[key] = e
+    return best

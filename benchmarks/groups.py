@@ -199,18 +199,37 @@ def _check_one(peers_mod, lib, op, batch_inputs) -> str:
     return ""
 
 
-def time_case(timing_mod, case, regime: str, args) -> float:
-    if regime == "single":
-        repeat = args.repeat or (3 if args.quick else 7)
-        t = timing_mod.best_of(case.fn, repeat=repeat, target_s=0.005 if args.quick else 0.05)
-        return t.us()
-    # batch: one call per repeat; warm-up call decides between 5 (fast) and 3 (slow) repeats
-    t0 = time.perf_counter()
-    case.fn()
-    first = time.perf_counter() - t0
-    repeat = args.repeat or (2 if args.quick else (5 if first < 1.0 else 3))
-    t = timing_mod.best_of(case.fn, repeat=repeat, number=1, warmup=0)
-    return t.per_element_ns(case.n)
+def time_cases(timing_mod, cases: dict, regime: str, args) -> dict:
+    """Time prepared cases of one (group, op, regime) round-robin; name -> value or Exception.
+
+    single: loop count calibrated per case to ~50 ms (5 ms with --quick), 7 rounds (3);
+    batch: one call per round, 5 rounds, or 3 when the warm-up call took over a second (2).
+    Value: µs per call (single) or ns per element (batch).
+    """
+    plan, out = {}, {}
+    for name, case in cases.items():
+        try:
+            t0 = time.perf_counter()
+            case.fn()  # warm-up (caches, allocator, lazy imports; JIT compiled at preparation)
+            first = time.perf_counter() - t0
+            if regime == "single":
+                number = timing_mod.calibrate(case.fn, 0.005 if args.quick else 0.05)
+                repeat = args.repeat or (3 if args.quick else 7)
+            else:
+                number = 1
+                repeat = args.repeat or (2 if args.quick else (5 if first < 1.0 else 3))
+            plan[name] = (number, repeat)
+        except Exception as e:
+            out[name] = e
+    fns = {name: cases[name].fn for name in plan}
+    for name, best in timing_mod.best_interleaved(fns, plan).items():
+        if isinstance(best, Exception):
+            out[name] = best
+        elif regime == "single":
+            out[name] = best * 1e6
+        else:
+            out[name] = best / cases[name].n * 1e9
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -294,7 +313,14 @@ def render(results, libs, skipped, groups, ops, regimes, args, header_lines) -> 
     return "\n".join(out)
 
 
-def environment_lines(libs, args) -> list[str]:
+def _load() -> float:
+    try:
+        return os.getloadavg()[0]
+    except OSError:
+        return float("nan")
+
+
+def environment_lines(libs, args, load_start: float) -> list[str]:
     import numpy as np
 
     cpu = platform.processor() or "?"
@@ -328,9 +354,12 @@ def environment_lines(libs, args) -> list[str]:
         + (f", OPENBLAS_CORETYPE={coretype}" if coretype else ""),
         f"- threads: {args.threads} (BLAS/OpenMP env, torch.set_num_threads, XLA flags); "
         "float64 everywhere",
-        f"- single: µs per call, best of {args.repeat or (3 if args.quick else 7)} repeats of a "
+        f"- single: µs per call, best of {args.repeat or (3 if args.quick else 7)} rounds of a "
         "calibrated loop; batch: ns per element for one call on N elements, best of "
-        f"{args.repeat or ('2' if args.quick else '3-5')} repeats",
+        f"{args.repeat or ('2' if args.quick else '3-5')} rounds; libraries alternate "
+        "round-robin within each row",
+        f"- load average (1 min) at start / end: {load_start:.2f} / {_load():.2f} "
+        "(other processes share the cores: compare numbers within one run)",
         "- versions: " + ", ".join(f"{lib.name} {lib.version()}" for lib in libs),
     ]
     if args.quick:
@@ -341,6 +370,7 @@ def environment_lines(libs, args) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     pin_threads(args.threads)
+    load_start = _load()
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import _timing
@@ -404,6 +434,7 @@ def main(argv: list[str] | None = None) -> int:
         for op in ops:
             for regime in regimes:
                 inp = single if regime == "single" else inputs
+                cases = {}
                 for lib in libs:
                     key = (lib.name, group, op, regime)
                     why = status[(lib.name, group, op)]
@@ -411,19 +442,34 @@ def main(argv: list[str] | None = None) -> int:
                         results[key] = Cell(na=why)
                         continue
                     try:
-                        case = lib.case(op, inp)
-                        value = time_case(_timing, case, regime, args)
+                        cases[lib.name] = lib.case(op, inp)
                     except Exception as e:
-                        results[key] = Cell(na=f"ERROR while timing: {type(e).__name__}: {e}")
-                        log(f"  {lib.name:12s} {group} {op:8s} {regime:6s} ERROR {e}")
+                        results[key] = Cell(na=f"ERROR preparing: {type(e).__name__}: {e}")
+                timed = time_cases(_timing, cases, regime, args)
+                unit = "us/call" if regime == "single" else "ns/elem"
+                for lib in libs:
+                    if lib.name not in timed:
                         continue
+                    key, value = (lib.name, group, op, regime), timed[lib.name]
+                    if isinstance(value, Exception):
+                        msg = f"ERROR while timing: {type(value).__name__}: {value}"
+                        results[key] = Cell(na=msg)
+                        log(f"  {lib.name:12s} {group} {op:8s} {regime:6s} {msg}")
+                        continue
+                    case = cases[lib.name]
                     results[key] = Cell(value=value, n=case.n, note=case.note)
-                    unit = "us/call" if regime == "single" else "ns/elem"
                     log(f"  {lib.name:12s} {group} {op:8s} {regime:6s} {fmt_num(value):>8s} {unit}")
-                    del case
+                del cases, timed
 
     report = render(
-        results, libs, skipped, groups, ops, regimes, args, environment_lines(libs, args)
+        results,
+        libs,
+        skipped,
+        groups,
+        ops,
+        regimes,
+        args,
+        environment_lines(libs, args, load_start),
     )
     print(report)
     if args.out:
