@@ -1,0 +1,788 @@
+"""Uncertainty on Lie groups: Gaussians, covariance propagation, left and right frames.
+
+A :class:`Gaussian` on a group is a mean element ``Xbar``, a tangent covariance ``P`` of shape
+``(*batch, dof, dof)`` and an explicit **frame** that says on which side the error multiplies
+(``../shared/MATH.md`` section 7):
+
+* ``frame="right"`` (local, body): ``X = Xbar (+) eps = Xbar Exp(eps)``,  ``eps ~ N(0, P)``;
+* ``frame="left"`` (global, world): ``X = eps (+) Xbar = Exp(eps) Xbar``, ``eps ~ N(0, P)``.
+
+The two describe the same distribution when ``P_left = Ad_Xbar P_right Ad_Xbar^T``
+(:meth:`Gaussian.to_frame`; exact, no linearisation). Every propagation is first order
+(eq. 16): ``P_y = J P J^T`` with ``J`` the Jacobian of the *same* side as the frame; results keep
+the frame of the Gaussian the method is called on, and the other operand of a binary operation
+is converted to that frame first. Tangent vectors are translation first.
+
+Vector-valued results (a point moved by an uncertain pose, the logarithm of an uncertain
+element) are :class:`VectorGaussian` objects: a mean ``(*batch, n)`` and a covariance
+``(*batch, n, n)`` in ``R^n``, where there is no frame to choose.
+
+>>> import numpy as np
+>>> from microlie import SE2
+>>> from microlie.uncertainty import Gaussian
+>>> step = SE2.from_xy_theta(1.0, 0.0, 0.1)
+>>> X = Gaussian(SE2.identity(), np.diag([0.01, 0.01, 0.001]), frame="right")
+>>> Q = Gaussian(step, np.diag([0.02, 0.01, 0.002]), frame="right")
+>>> Z = X.compose(Q)                      # eq. (17): Ad_Q^-1 P_X Ad_Q^-T + P_Q
+>>> Z.frame, Z.cov.shape
+('right', (3, 3))
+>>> bool(np.allclose(Z.to_frame("left").to_frame("right").cov, Z.cov))
+True
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Mapping, Sequence
+from typing import Any, Literal
+
+import numpy as np
+
+from . import _array as A
+from ._array import Array
+from .groups.base import LieGroup
+
+__all__ = ["Gaussian", "VectorGaussian", "propagate", "FRAMES"]
+
+Frame = Literal["right", "left"]
+FRAMES: tuple[str, str] = ("right", "left")
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+# ---------------------------------------------------------------------------- array helpers
+
+
+def _check_frame(frame: Any, what: str = "frame") -> str:
+    if frame not in FRAMES:
+        raise ValueError(f"{what} must be 'right' or 'left', got {frame!r}")
+    return frame
+
+
+def _xp(x: Array) -> Any:
+    return A.namespace(x)
+
+
+def _mT(m: Array) -> Array:
+    """Transpose the last two axes."""
+    if A.is_numpy(m):
+        return np.swapaxes(m, -1, -2)
+    xp = _xp(m)
+    return xp.matrix_transpose(m) if hasattr(xp, "matrix_transpose") else m.transpose(-1, -2)
+
+
+def _sym(m: Array) -> Array:
+    return 0.5 * (m + _mT(m))
+
+
+def _eye(n: int, like: Array) -> Array:
+    if A.is_numpy(like):
+        return np.eye(n, dtype=like.dtype)
+    return _xp(like).eye(n, dtype=like.dtype, device=A._device(like))
+
+
+def _solve(a: Array, b: Array) -> Array:
+    """Solve ``a x = b`` for matrices ``b`` ``(..., n, k)`` (broadcasting the batch)."""
+    if A.is_numpy(a) and A.is_numpy(b):
+        return np.linalg.solve(a, b)
+    xp = A.namespace(a, b)
+    batch = tuple(np.broadcast_shapes(tuple(a.shape[:-2]), tuple(b.shape[:-2])))
+    a = xp.broadcast_to(a, (*batch, *a.shape[-2:]))
+    b = xp.broadcast_to(b, (*batch, *b.shape[-2:]))
+    return xp.linalg.solve(a, b)
+
+
+def _broadcast_to(x: Array, shape: tuple) -> Array:
+    if tuple(x.shape) == tuple(shape):
+        return x
+    if A.is_numpy(x):
+        return np.broadcast_to(x, shape)
+    return _xp(x).broadcast_to(x, shape)
+
+
+def _to_numpy(x: Array) -> np.ndarray:
+    if hasattr(x, "detach"):
+        x = x.detach().cpu()
+    return np.asarray(x)
+
+
+def _matrix_sqrt(P: Array) -> Array:
+    """``S`` with ``S S^T = P`` for symmetric positive semi-definite ``P`` (via ``eigh``)."""
+    if A.is_numpy(P):
+        w, V = np.linalg.eigh(P)
+        return V * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
+    xp = _xp(P)
+    w, V = xp.linalg.eigh(P)
+    return V * xp.sqrt(xp.clip(w, 0.0, None))[..., None, :]
+
+
+def _slogdet(P: Array) -> Array:
+    if A.is_numpy(P):
+        return np.linalg.slogdet(P)[1]
+    return _xp(P).linalg.slogdet(P)[1]
+
+
+def _as_array(x: Any, like: Array, what: str) -> Array:
+    """``x`` as a float array of the backend of ``like`` (clear error on a backend mix)."""
+    arr = A.as_float_array(x, like=like)
+    if A.namespace(arr) is not A.namespace(like):
+        raise ValueError(f"{what} is a {type(arr).__module__} array but the mean is a "
+                         f"{type(like).__module__} array: use one array backend")
+    return arr
+
+
+def check_covariance(P: Array, n: int, what: str = "covariance") -> None:
+    """Raise ``ValueError`` unless ``P`` is ``(..., n, n)``, finite, symmetric and PSD.
+
+    Symmetry and positive semi-definiteness are checked to ``sqrt(eps)`` of the dtype relative to
+    the largest entry or eigenvalue of each matrix (skipped under a JAX trace).
+    """
+    A.check_last_dim(P, (n, n), what)
+    A.check_finite(P, what)
+    if A.is_traced(P) or int(np.prod(tuple(P.shape[:-2]))) == 0:
+        return
+    M = _to_numpy(P)
+    tol = math.sqrt(float(np.finfo(M.dtype).eps))
+    M = M.astype(np.float64)
+    scale = np.abs(M).max(axis=(-1, -2))
+    asym = np.abs(M - np.swapaxes(M, -1, -2)).max(axis=(-1, -2))
+    if np.any(asym > tol * scale):
+        raise ValueError(f"{what} is not symmetric (max |P - P^T| = {asym.max():.3g})")
+    w = np.linalg.eigvalsh(0.5 * (M + np.swapaxes(M, -1, -2)))
+    if np.any(w[..., 0] < -tol * np.maximum(np.abs(w).max(axis=-1), 1e-300)):
+        raise ValueError(f"{what} is not positive semi-definite (smallest eigenvalue "
+                         f"{w[..., 0].min():.3g})")
+
+
+# ---------------------------------------------------------------------------- vector Gaussian
+
+
+class VectorGaussian:
+    """A Gaussian in ``R^n``: ``mean`` ``(*batch, n)`` and ``cov`` ``(*batch, n, n)``.
+
+    The result of pushing a group Gaussian into a vector space (:meth:`Gaussian.act`,
+    :meth:`Gaussian.log`, :func:`propagate` with an array value); also the input type of
+    :meth:`Gaussian.from_tangent` and :meth:`Gaussian.plus`. There is no frame in ``R^n``.
+
+    >>> import numpy as np
+    >>> v = VectorGaussian(np.zeros(2), np.diag([4.0, 1.0]))
+    >>> float(v.mahalanobis(np.array([2.0, 0.0])))
+    1.0
+    """
+
+    __slots__ = ("mean", "cov")
+    mean: Array
+    cov: Array
+
+    def __init__(self, mean: Any, cov: Any, *, validate: bool = True) -> None:
+        m = A.as_float_array(mean)
+        if m.ndim < 1:
+            raise ValueError("the mean of a VectorGaussian must have shape (..., n)")
+        A.check_finite(m, "VectorGaussian mean")
+        P = _as_array(cov, m, "VectorGaussian covariance")
+        if validate:
+            check_covariance(P, m.shape[-1], "VectorGaussian covariance")
+        self._init(*_broadcast_pair(m, P))
+
+    @classmethod
+    def _make(cls, mean: Array, cov: Array) -> VectorGaussian:
+        obj = object.__new__(cls)
+        obj._init(mean, cov)
+        return obj
+
+    def _init(self, mean: Array, cov: Array) -> None:
+        object.__setattr__(self, "mean", mean)
+        object.__setattr__(self, "cov", cov)
+        if A.is_jax(mean):
+            _register_jax(mean)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("VectorGaussian objects are immutable")
+
+    def __reduce__(self):
+        return (VectorGaussian._make, (self.mean, self.cov))
+
+    @property
+    def dim(self) -> int:
+        return int(self.mean.shape[-1])
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(self.mean.shape[:-1])
+
+    def __getitem__(self, index: Any) -> VectorGaussian:
+        index = index if isinstance(index, tuple) else (index,)
+        return VectorGaussian._make(self.mean[(*index, slice(None))],
+                                    self.cov[(*index, slice(None), slice(None))])
+
+    def __repr__(self) -> str:
+        return f"VectorGaussian(dim={self.dim}, batch_shape={self.batch_shape})"
+
+    def std(self) -> Array:
+        """Marginal standard deviations, ``sqrt(diag(cov))``."""
+        return _diag(self.cov) ** 0.5
+
+    def marginal(self, indices: Sequence[int]) -> VectorGaussian:
+        """The marginal over the coordinates ``indices`` (e.g. ``(0, 1)`` for x and y)."""
+        idx = list(indices)
+        m = self.mean[..., idx] if A.is_numpy(self.mean) else \
+            _xp(self.mean).stack([self.mean[..., i] for i in idx], axis=-1)
+        rows = [[self.cov[..., i, j] for j in idx] for i in idx]
+        if A.is_numpy(self.cov):
+            P = self.cov[..., idx, :][..., :, idx]
+        else:
+            xp = _xp(self.cov)
+            P = xp.stack([xp.stack(r, axis=-1) for r in rows], axis=-2)
+        return VectorGaussian._make(m, P)
+
+    def sample(self, n: int | tuple[int, ...], rng: Any = None) -> Array:
+        """``n`` samples, shape ``(*n, *batch, dim)``, drawn with a NumPy generator.
+
+        >>> v = VectorGaussian(np.zeros(3), np.eye(3))
+        >>> v.sample(5, rng=0).shape
+        (5, 3)
+        """
+        z = _standard_normal(n, (*self.batch_shape, self.dim), rng, self.mean)
+        return self.mean + (_matrix_sqrt(self.cov) @ z[..., None])[..., 0]
+
+    def mahalanobis(self, x: Any, squared: bool = False) -> Array:
+        """Mahalanobis distance ``sqrt((x - m)^T P^-1 (x - m))`` (``squared=True``: without
+        the square root, chi-square with ``dim`` degrees of freedom under the model)."""
+        d = _as_array(x, self.mean, "x") - self.mean
+        return _mahalanobis(d, self.cov, squared)
+
+    def log_density(self, x: Any) -> Array:
+        """``log N(x; mean, cov)`` (the covariance must be positive definite)."""
+        d = _as_array(x, self.mean, "x") - self.mean
+        return _log_normal(d, self.cov)
+
+    def ellipse(self, nsigma: float = 2.0, num: int = 64, dims: tuple[int, int] = (0, 1)
+                ) -> Array:
+        """Points ``(*batch, num, 2)`` on the ``nsigma`` contour of the 2-D marginal over
+        ``dims`` (for plotting; no matplotlib needed).
+
+        >>> VectorGaussian(np.zeros(2), np.eye(2)).ellipse(1.0, num=4).round(12).tolist()
+        [[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [-0.0, -1.0]]
+        """
+        g = self.marginal(dims)
+        t = np.linspace(0.0, 2.0 * np.pi, num, endpoint=False)
+        circle = A.as_float_array(np.stack([np.cos(t), np.sin(t)], -1), like=g.mean)
+        S = _matrix_sqrt(g.cov)
+        return g.mean[..., None, :] + nsigma * (circle @ _mT(S))
+
+
+# ---------------------------------------------------------------------------- group Gaussian
+
+
+class Gaussian:
+    """A Gaussian on a Lie group with an explicit error frame.
+
+    ``frame="right"``: ``X = mean Exp(eps)`` (local error); ``frame="left"``:
+    ``X = Exp(eps) mean`` (global error); ``eps ~ N(0, cov)`` with ``cov`` of shape
+    ``(*batch, dof, dof)``, tangent translation first. ``mean`` and ``cov`` broadcast over the
+    leading batch axes; any array backend of the core works (NumPy, PyTorch, JAX).
+
+    The covariance is checked (shape, finite, symmetric and positive semi-definite to
+    ``sqrt(eps)``; ``validate=False`` skips the last two). ``frame`` has no default on purpose.
+
+    >>> import numpy as np
+    >>> from microlie import SE3
+    >>> X = Gaussian(SE3.identity(), 0.01 * np.eye(6), frame="right")
+    >>> X.to_frame("left").frame
+    'left'
+    """
+
+    __slots__ = ("mean", "cov", "frame")
+    mean: LieGroup
+    cov: Array
+    frame: str
+
+    def __init__(self, mean: LieGroup, cov: Any, *, frame: Frame,
+                 validate: bool = True) -> None:
+        if not isinstance(mean, LieGroup):
+            raise TypeError(f"the mean must be a group element, got {type(mean).__name__}")
+        _check_frame(frame)
+        P = _as_array(cov, mean.params, f"{type(mean).__name__} Gaussian covariance")
+        what = f"{type(mean).__name__} Gaussian covariance"
+        if validate:
+            check_covariance(P, mean.dof, what)
+        else:
+            A.check_last_dim(P, (mean.dof, mean.dof), what)
+        params, P = _broadcast_pair(mean.params, P)
+        self._init(type(mean)._wrap(params), P, frame)
+
+    @classmethod
+    def _make(cls, mean: LieGroup, cov: Array, frame: str) -> Gaussian:
+        obj = object.__new__(cls)
+        obj._init(mean, cov, frame)
+        return obj
+
+    def _init(self, mean: LieGroup, cov: Array, frame: str) -> None:
+        object.__setattr__(self, "mean", mean)
+        object.__setattr__(self, "cov", cov)
+        object.__setattr__(self, "frame", frame)
+        if A.is_jax(cov):
+            _register_jax(cov)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("Gaussian objects are immutable")
+
+    def __reduce__(self):
+        return (Gaussian._make, (self.mean, self.cov, self.frame))
+
+    @classmethod
+    def from_std(cls, mean: LieGroup, std: Any, *, frame: Frame) -> Gaussian:
+        """A Gaussian with diagonal covariance ``diag(std**2)`` (``std`` ``(..., dof)``, tangent
+        order translation first).
+
+        >>> from microlie import SE2
+        >>> Gaussian.from_std(SE2.identity(), [0.1, 0.1, 0.01], frame="left").cov.diagonal()
+        array([0.01  , 0.01  , 0.0001])
+        """
+        s = _as_array(std, mean.params, "std")
+        A.check_last_dim(s, mean.dof, "std")
+        if A.is_numpy(s):
+            P = s[..., :, None] ** 2 * np.eye(mean.dof, dtype=s.dtype)
+        else:
+            P = s[..., :, None] ** 2 * _eye(mean.dof, s)
+        return cls(mean, P, frame=frame)
+
+    # ------------------------------------------------------------------ container protocol
+    @property
+    def group(self) -> type[LieGroup]:
+        return type(self.mean)
+
+    @property
+    def dof(self) -> int:
+        return self.mean.dof
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return self.mean.batch_shape
+
+    def __len__(self) -> int:
+        return len(self.mean)
+
+    def __getitem__(self, index: Any) -> Gaussian:
+        index = index if isinstance(index, tuple) else (index,)
+        return Gaussian._make(self.mean[index], self.cov[(*index, slice(None), slice(None))],
+                              self.frame)
+
+    def __repr__(self) -> str:
+        return (f"Gaussian({self.group.__name__}, frame={self.frame!r}, "
+                f"batch_shape={self.batch_shape})")
+
+    # ------------------------------------------------------------------ frames
+    def frame_map(self, frame: Frame) -> Array:
+        """The matrix ``T`` taking this Gaussian's error to the error in ``frame``
+        (``eps_frame = T eps_self``): ``Ad_mean`` right to left, ``Ad_mean^-1`` left to right,
+        identity for the same frame."""
+        _check_frame(frame)
+        if frame == self.frame:
+            return _broadcast_to(_eye(self.dof, self.cov), tuple(self.cov.shape))
+        if frame == "left":
+            return self.mean.adjoint()
+        return self.mean.inverse().adjoint()
+
+    def to_frame(self, frame: Frame) -> Gaussian:
+        """The same distribution with its error in ``frame``: ``P_left = Ad P_right Ad^T`` and
+        ``P_right = Ad^-1 P_left Ad^-T`` (``Ad = Ad_mean``). Exact: ``mean Exp(e) =
+        Exp(Ad e) mean`` holds for every ``e``.
+
+        >>> from microlie import SO3
+        >>> X = Gaussian(SO3.exp([0.0, 0.0, np.pi / 2]), np.diag([1.0, 0.0, 0.0]), frame="right")
+        >>> X.to_frame("left").cov.round(12) + 0.0   # body x-axis error = world y-axis error
+        array([[0., 0., 0.],
+               [0., 1., 0.],
+               [0., 0., 0.]])
+        """
+        if _check_frame(frame) == self.frame:
+            return self
+        T = self.frame_map(frame)
+        return Gaussian._make(self.mean, _sym(T @ self.cov @ _mT(T)), frame)
+
+    # ------------------------------------------------------------------ errors and samples
+    def error(self, X: LieGroup) -> Array:
+        """The tangent error of ``X`` in this frame: ``Log(mean^-1 X)`` (right) or
+        ``Log(X mean^-1)`` (left); the inverse of :meth:`retract`."""
+        self._same_group(X)
+        return X.minus(self.mean) if self.frame == "right" else X.lminus(self.mean)
+
+    def retract(self, eps: Any) -> LieGroup:
+        """The element with error ``eps`` in this frame: ``mean Exp(eps)`` (right) or
+        ``Exp(eps) mean`` (left)."""
+        return self.mean.plus(eps) if self.frame == "right" else self.mean.lplus(eps)
+
+    def sample(self, n: int | tuple[int, ...], rng: Any = None) -> LieGroup:
+        """``n`` samples ``retract(eps_i)``, ``eps_i ~ N(0, cov)``; batch ``(*n, *batch)``.
+
+        >>> from microlie import SO3
+        >>> Gaussian(SO3.identity(), 0.01 * np.eye(3), frame="left").sample(4, rng=0).batch_shape
+        (4,)
+        """
+        z = _standard_normal(n, (*self.batch_shape, self.dof), rng, self.cov)
+        return self.retract((_matrix_sqrt(self.cov) @ z[..., None])[..., 0])
+
+    def mahalanobis(self, X: LieGroup, squared: bool = False) -> Array:
+        """Mahalanobis distance of ``X`` from the mean, ``sqrt(e^T P^-1 e)`` with ``e =``
+        :meth:`error` ``(X)`` in this frame (frame-independent, since the frames differ by the
+        exact linear map ``Ad``)."""
+        return _mahalanobis(self.error(X), self.cov, squared)
+
+    def log_density(self, X: LieGroup, haar: bool = False) -> Array:
+        """Log-density of ``X``: ``log N(e; 0, P)`` with ``e =`` :meth:`error` ``(X)``.
+
+        This is the density of the tangent error (a "concentrated Gaussian"). With ``haar=True``
+        it becomes a density on the group with respect to the Haar measure (left-invariant for a
+        right error, right-invariant for a left error, normalised to the Lebesgue measure of the
+        tangent space at the identity): ``- log |det Jr(e)|`` (right) or ``- log |det Jl(e)|``
+        (left) is added. Frame-independent up to that measure.
+        """
+        e = self.error(X)
+        out = _log_normal(e, self.cov)
+        if haar:
+            J = self.group.jr(e) if self.frame == "right" else self.group.jl(e)
+            out = out - _slogdet(J)
+        return out
+
+    # ------------------------------------------------------------------ propagation
+    def propagate(self, value: LieGroup | Array, jacobian: Any, *, side: Frame
+                  ) -> Gaussian | VectorGaussian:
+        """Linearised distribution of ``value = f(X)`` (eq. 16): ``P_y = J P J^T``.
+
+        ``jacobian`` is ``d f / d X`` with perturbations on ``side`` for the input and, for a
+        group-valued ``f``, the output (``side="right"``: ``f(X Exp(e)) = f(X) Exp(J e)``;
+        ``side="left"``: ``f(Exp(e) X) = Exp(J e) f(X)``). This Gaussian is converted to
+        ``side`` first, and a group result is returned in frame ``side``. See :func:`propagate`
+        for several inputs.
+
+        >>> from microlie import SO3
+        >>> X = Gaussian(SO3.exp([0.1, 0.2, 0.3]), 1e-3 * np.eye(3), frame="right")
+        >>> Y, J = X.mean.inverse(jac=True)         # right Jacobian of the inverse: -Ad_X
+        >>> X.propagate(Y, J, side="right").frame
+        'right'
+        """
+        return propagate(value, [self], [jacobian], side=side)
+
+    def inverse(self) -> Gaussian:
+        """Distribution of ``X^-1`` in this frame. Right: ``P = Ad_X P Ad_X^T``; left:
+        ``P = Ad_X^-1 P Ad_X^-T`` (both exact: the error maps linearly)."""
+        Y, J = self.mean.inverse(jac=True, side=self.frame)
+        return propagate(Y, [self], [J], side=self.frame)
+
+    def compose(self, other: Gaussian | LieGroup, cross_cov: Any = None) -> Gaussian:
+        """Distribution of ``X Y`` (``other`` is ``Y``), in this Gaussian's frame (eq. 17).
+
+        Right frame: ``P_Z = Ad_Y^-1 P_X Ad_Y^-T + P_Y``; left frame:
+        ``P_Z = P_X + Ad_X P_Y Ad_X^T``. ``other`` in the other frame is converted first; a
+        plain element is exact (zero covariance). ``cross_cov = E[eps_X eps_Y^T]`` with each
+        error in its own Gaussian's frame adds ``J_X C J_Y^T + J_Y C^T J_X^T``.
+        """
+        Y = self._operand(other)
+        Z, JX, JY = self.mean.compose(Y.mean, jac=True, side=self.frame)
+        return self._binary(Z, JX, JY, Y, cross_cov)
+
+    def between(self, other: Gaussian | LieGroup, cross_cov: Any = None) -> Gaussian:
+        """Distribution of ``X^-1 Y`` (``other`` is ``Y``), in this Gaussian's frame. Right:
+        ``J_X = -Ad_(Y^-1 X)``, ``J_Y = I``. ``cross_cov`` as in :meth:`compose` (for two poses
+        with a joint covariance, this is their relative-pose uncertainty)."""
+        Y = self._operand(other)
+        Z, JX, JY = self.mean.between(Y.mean, jac=True, side=self.frame)
+        return self._binary(Z, JX, JY, Y, cross_cov)
+
+    def act(self, points: Any, points_cov: Any = None, cross_cov: Any = None
+            ) -> VectorGaussian:
+        """Distribution of the moved points ``X . p`` in ``R^n`` (world coordinates).
+
+        ``points`` ``(..., point_dim)`` or a :class:`VectorGaussian` (or give ``points_cov``);
+        ``cross_cov = E[eps_X dp^T]`` (``eps_X`` in this frame). Without point noise
+        ``P_p' = J_X P J_X^T`` with ``J_X`` the point Jacobian of this frame's side
+        (SE(3) right: ``[R, -R hat(p)]``; left: ``[I, -hat(X p)]``).
+        """
+        pts = self._vector(points, points_cov, self.group.point_dim, "points")
+        out, JX, Jp = self.mean.act(pts.mean, jac=True, side=self.frame)
+        inputs, jacs = [self], [JX]
+        if not _is_zero(pts):
+            inputs.append(pts)
+            jacs.append(Jp)
+        return propagate(out, inputs, jacs, side=self.frame,
+                         cross_cov=None if cross_cov is None else {(0, 1): cross_cov})
+
+    def log(self) -> VectorGaussian:
+        """Distribution of ``Log(X)`` in ``R^dof``: ``J = Jr^-1(Log mean)`` (right frame) or
+        ``Jl^-1(Log mean)`` (left frame)."""
+        tau, J = self.mean.log(jac=True, side=self.frame)
+        return propagate(tau, [self], [J], side=self.frame)
+
+    @classmethod
+    def from_tangent(cls, group: type[LieGroup], mean: Any, cov: Any = None, *,
+                     frame: Frame) -> Gaussian:
+        """Distribution of ``Exp(tau)`` for ``tau ~ N(mean, cov)`` (``mean`` may be a
+        :class:`VectorGaussian`, then ``cov`` is omitted): mean ``Exp(mean)``, covariance
+        ``Jr P Jr^T`` (right frame) or ``Jl P Jl^T`` (left frame), at ``mean``.
+
+        >>> from microlie import SO3
+        >>> g = Gaussian.from_tangent(SO3, [0.0, 0.0, 0.0], 1e-2 * np.eye(3), frame="right")
+        >>> bool(np.allclose(g.cov, 1e-2 * np.eye(3)))     # Jr(0) = I
+        True
+        """
+        _check_frame(frame)
+        t = _vector_input(mean, cov, group.dof, "tangent", None)
+        X, J = group.exp(t.mean, jac=True, side=frame)
+        return propagate(X, [t], [J], side=frame)
+
+    def plus(self, tau: Any, tau_cov: Any = None, cross_cov: Any = None) -> Gaussian:
+        """Distribution of ``X (+) tau = X Exp(tau)`` with tangent noise ``tau ~ N(tau, tau_cov)``
+        (a motion model step), in this frame. Right: ``P = Ad_Exp(tau)^-1 P Ad^-T
+        + Jr(tau) Q Jr(tau)^T``. ``tau`` may be a :class:`VectorGaussian`; ``cross_cov =
+        E[eps_X dtau^T]``."""
+        t = self._vector(tau, tau_cov, self.dof, "tau")
+        Z, JX, Jt = self.mean.plus(t.mean, jac=True, side=self.frame)
+        return self._binary(Z, JX, Jt, t, cross_cov)
+
+    def lplus(self, tau: Any, tau_cov: Any = None, cross_cov: Any = None) -> Gaussian:
+        """Distribution of ``tau (+) X = Exp(tau) X`` with tangent noise ``tau ~ N(tau,
+        tau_cov)`` (a step applied in the world frame), in this frame. Left:
+        ``P = Ad_Exp(tau) P Ad_Exp(tau)^T + Jl(tau) Q Jl(tau)^T``. Arguments as :meth:`plus`."""
+        t = self._vector(tau, tau_cov, self.dof, "tau")
+        Z, JX, Jt = self.mean.lplus(t.mean, jac=True, side=self.frame)
+        return self._binary(Z, JX, Jt, t, cross_cov)
+
+    # ------------------------------------------------------------------ estimation
+    def update(self, residual: Any, H: Any, R: Any, *, reset: bool = True) -> Gaussian:
+        """Error-state Kalman update with a linear(ised) measurement of the error.
+
+        Model: ``residual = z - h(mean) ~= H eps + v``, ``v ~ N(0, R)``, ``eps`` this Gaussian's
+        error in its frame (so ``H`` is the Jacobian of ``h`` on this frame's side). Computes
+        ``K = P H^T (H P H^T + R)^-1``, ``d = K residual``, the Joseph-form covariance
+        ``(I - K H) P (I - K H)^T + K R K^T``, and the new mean ``retract(d)``. With ``reset``
+        the covariance is moved to the new mean's error: ``Jr(d) P Jr(d)^T`` (right) or
+        ``Jl(d) P Jl(d)^T`` (left), since ``mean Exp(d + x) ~= mean Exp(d) Exp(Jr(d) x)``.
+        """
+        P = self.cov
+        r = _as_array(residual, P, "residual")
+        Hm = _as_array(H, P, "H")
+        Rm = _as_array(R, P, "R")
+        m = int(r.shape[-1])
+        A.check_last_dim(Hm, (m, self.dof), "H")
+        A.check_last_dim(Rm, (m, m), "R")
+        PHt = P @ _mT(Hm)
+        S = Hm @ PHt + Rm
+        K = _mT(_solve(_sym(S), _mT(PHt)))
+        d = (K @ r[..., None])[..., 0]
+        IKH = _eye(self.dof, P) - K @ Hm
+        Pn = IKH @ P @ _mT(IKH) + K @ Rm @ _mT(K)
+        if reset:
+            J = self.group.jr(d) if self.frame == "right" else self.group.jl(d)
+            Pn = J @ Pn @ _mT(J)
+        return Gaussian._make(self.retract(d), _sym(Pn), self.frame)
+
+    def fuse(self, other: Gaussian, *, reset: bool = True) -> Gaussian:
+        """Fuse two independent Gaussians on the same element (the update of an error-state
+        filter with ``H = I``), in this Gaussian's frame.
+
+        ``other`` is converted to this frame and relinearised onto this mean: with
+        ``d = other.mean (-) mean`` (right minus, or left minus for a left frame),
+        ``X = other.mean Exp(e2)`` gives ``e ~= d + Jr^-1(d) e2`` (left: ``Jl^-1``), i.e. a
+        measurement ``d`` of ``e`` with covariance ``Jr^-1(d) P2 Jr^-T(d)``; then
+        :meth:`update` with ``H = I``. First order in ``e2`` and ``d``: accurate when the two
+        means agree to within a few standard deviations and the covariances are small.
+
+        >>> from microlie import SE2
+        >>> a = Gaussian(SE2.identity(), np.eye(3), frame="right")
+        >>> bool(np.allclose(a.fuse(a).cov, 0.5 * np.eye(3)))
+        True
+        """
+        if not isinstance(other, Gaussian):
+            raise TypeError(f"fuse needs a Gaussian, got {type(other).__name__}")
+        self._same_group(other.mean)
+        o = other.to_frame(self.frame)
+        d = o.mean.minus(self.mean) if self.frame == "right" else o.mean.lminus(self.mean)
+        Ji = self.group.jr_inv(d) if self.frame == "right" else self.group.jl_inv(d)
+        R = _sym(Ji @ o.cov @ _mT(Ji))
+        return self.update(d, _eye(self.dof, self.cov), R, reset=reset)
+
+    # ------------------------------------------------------------------ helpers
+    def _same_group(self, X: Any) -> None:
+        if type(X) is not self.group:
+            raise TypeError(f"expected a {self.group.__name__}, got {type(X).__name__}")
+
+    def _operand(self, other: Any) -> Gaussian:
+        if isinstance(other, LieGroup):
+            self._same_group(other)
+            return Gaussian._make(other, None, self.frame)  # exact element: no covariance
+        if not isinstance(other, Gaussian):
+            raise TypeError(f"expected a Gaussian or a {self.group.__name__}, "
+                            f"got {type(other).__name__}")
+        self._same_group(other.mean)
+        _same_backend(self.cov, other.cov)
+        return other
+
+    def _vector(self, x: Any, cov: Any, n: int, what: str) -> VectorGaussian:
+        v = _vector_input(x, cov, n, what, self.cov)
+        _same_backend(self.cov, v.mean)
+        return v
+
+    def _binary(self, Z: Any, J1: Array, J2: Array, other: Any, cross_cov: Any):
+        if _is_zero(other):
+            if cross_cov is not None:
+                raise ValueError("cross_cov given but the other operand has no covariance")
+            return propagate(Z, [self], [J1], side=self.frame)
+        return propagate(Z, [self, other], [J1, J2], side=self.frame,
+                         cross_cov=None if cross_cov is None else {(0, 1): cross_cov})
+
+
+# ---------------------------------------------------------------------------- propagation
+
+
+def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian],
+              jacobians: Sequence[Any], *, side: Frame,
+              cross_cov: Mapping[tuple[int, int], Any] | None = None
+              ) -> Gaussian | VectorGaussian:
+    """Linearised distribution of ``value = f(x_0, x_1, ...)`` (eq. 16, several inputs).
+
+    ``P = sum_i J_i P_i J_i^T + sum_(i,j) (J_i C_ij J_j^T + J_j C_ij^T J_i^T)``.
+
+    * ``jacobians[i]`` is ``d f / d x_i``, shape ``(*batch, m, dim_i)``; for group inputs and a
+      group output the perturbations are on ``side`` (right: ``X Exp(e)``; left: ``Exp(e) X``).
+      Group inputs in the other frame are converted exactly (``J_i Ad`` is used).
+    * ``cross_cov[(i, j)] = E[e_i e_j^T]`` (``i != j``), each error in its own input's frame;
+      inputs are independent otherwise.
+    * A group ``value`` gives a :class:`Gaussian` in frame ``side``; an array gives a
+      :class:`VectorGaussian`.
+
+    >>> from microlie import SE2
+    >>> X = Gaussian(SE2.identity(), 0.01 * np.eye(3), frame="right")
+    >>> Y = Gaussian(SE2.from_xy_theta(1.0, 0.0, 0.5), 0.02 * np.eye(3), frame="right")
+    >>> Z, JX, JY = X.mean.compose(Y.mean, jac=True)
+    >>> bool(np.allclose(propagate(Z, [X, Y], [JX, JY], side="right").cov, X.compose(Y).cov))
+    True
+    """
+    _check_frame(side, "side")
+    inputs, jacobians = list(inputs), list(jacobians)
+    if len(inputs) != len(jacobians) or not inputs:
+        raise ValueError(f"need one Jacobian per input, got {len(jacobians)} Jacobians for "
+                         f"{len(inputs)} inputs")
+    like = next((g.cov for g in inputs if getattr(g, "cov", None) is not None), None)
+    if like is None:
+        raise ValueError("no input has a covariance")
+    if isinstance(value, LieGroup):
+        m = value.dof
+        ref = value.params
+    else:
+        value = _as_array(value, like, "value")
+        m = int(value.shape[-1])
+        ref = value
+    eff = []
+    for i, (g, J) in enumerate(zip(inputs, jacobians, strict=True)):
+        if not isinstance(g, (Gaussian, VectorGaussian)):
+            raise TypeError(f"input {i} must be a Gaussian or VectorGaussian, "
+                            f"got {type(g).__name__}")
+        n = g.dof if isinstance(g, Gaussian) else g.dim
+        J = _as_array(J, ref, f"Jacobian {i}")
+        A.check_last_dim(J, (m, n), f"Jacobian {i}")
+        if isinstance(g, Gaussian) and g.frame != side:
+            J = J @ g.frame_map(side)
+        eff.append(J)
+    P = None
+    for g, J in zip(inputs, eff, strict=True):
+        if g.cov is None:
+            continue
+        term = J @ g.cov @ _mT(J)
+        P = term if P is None else P + term
+    for (i, j), C in (cross_cov or {}).items():
+        if i == j or not (0 <= i < len(inputs) and 0 <= j < len(inputs)):
+            raise ValueError(f"cross_cov key {(i, j)} must name two different inputs")
+        ni, nj = eff[i].shape[-1], eff[j].shape[-1]
+        Cm = _as_array(C, ref, f"cross_cov[{(i, j)}]")
+        A.check_last_dim(Cm, (ni, nj), f"cross_cov[{(i, j)}]")
+        A.check_finite(Cm, f"cross_cov[{(i, j)}]")
+        term = eff[i] @ Cm @ _mT(eff[j])
+        P = P + term + _mT(term)
+    if P is None:
+        raise ValueError("no input has a covariance")
+    P = _sym(P)
+    if isinstance(value, LieGroup):
+        params, P = _broadcast_pair(value.params, P)
+        return Gaussian._make(type(value)._wrap(params), P, side)
+    mean, P = _broadcast_pair(value, P)
+    return VectorGaussian._make(mean, P)
+
+
+# ---------------------------------------------------------------------------- internals
+
+
+def _broadcast_pair(v: Array, P: Array) -> tuple[Array, Array]:
+    """Broadcast the batch axes of a vector ``(..., k)`` and a matrix ``(..., n, n)``."""
+    batch = tuple(np.broadcast_shapes(tuple(v.shape[:-1]), tuple(P.shape[:-2])))
+    return (_broadcast_to(v, (*batch, v.shape[-1])), _broadcast_to(P, (*batch, *P.shape[-2:])))
+
+
+def _same_backend(a: Array, b: Array) -> None:
+    if a is not None and b is not None and A.namespace(a) is not A.namespace(b):
+        raise ValueError(f"cannot mix array backends: {type(a).__module__} and "
+                         f"{type(b).__module__} (convert one Gaussian first)")
+
+
+def _diag(P: Array) -> Array:
+    if A.is_numpy(P):
+        return np.diagonal(P, axis1=-2, axis2=-1)
+    return _xp(P).stack([P[..., i, i] for i in range(P.shape[-1])], axis=-1)
+
+
+def _is_zero(g: Any) -> bool:
+    return g.cov is None
+
+
+def _vector_input(x: Any, cov: Any, n: int, what: str, like: Array | None) -> VectorGaussian:
+    """A :class:`VectorGaussian` from a VectorGaussian, or from a mean and an optional cov (no
+    cov: an exact value, marked by ``cov=None``)."""
+    if isinstance(x, VectorGaussian):
+        if cov is not None:
+            raise ValueError(f"{what}: give a VectorGaussian or a mean and a covariance, not both")
+        A.check_last_dim(x.mean, n, what)
+        return x
+    m = A.as_float_array(x) if like is None else _as_array(x, like, what)
+    A.check_last_dim(m, n, what)
+    A.check_finite(m, what)
+    if cov is None:
+        return VectorGaussian._make(m, None)
+    return VectorGaussian(m, cov)
+
+
+def _standard_normal(n: int | tuple[int, ...], shape: tuple, rng: Any, like: Array) -> Array:
+    size = (n,) if isinstance(n, (int, np.integer)) else tuple(n)
+    z = np.random.default_rng(rng).standard_normal((*size, *shape))
+    return A.as_float_array(z, like=like) if not A.is_numpy(like) else z.astype(like.dtype)
+
+
+def _mahalanobis(e: Array, P: Array, squared: bool) -> Array:
+    sol = _solve(P, e[..., None])[..., 0]
+    d2 = (e * sol).sum(-1) if A.is_numpy(e) else _xp(e).sum(e * sol, axis=-1)
+    return d2 if squared else d2**0.5
+
+
+def _log_normal(e: Array, P: Array) -> Array:
+    n = e.shape[-1]
+    return -0.5 * (_mahalanobis(e, P, True) + n * _LOG_2PI + _slogdet(P))
+
+
+_JAX_REGISTERED = False
+
+
+def _register_jax(like: Array) -> None:
+    """Make :class:`Gaussian` and :class:`VectorGaussian` JAX pytrees (once JAX is in use)."""
+    global _JAX_REGISTERED
+    if _JAX_REGISTERED or "jax" not in sys.modules:
+        return
+    import jax
+
+    A.ops_for(like)  # also registers the group classes (the core does it on first use only)
+
+    _JAX_REGISTERED = True
+    jax.tree_util.register_pytree_node(
+        Gaussian, lambda g: ((g.mean, g.cov), g.frame),
+        lambda frame, ch: Gaussian._make(ch[0], ch[1], frame))
+    jax.tree_util.register_pytree_node(
+        VectorGaussian, lambda g: ((g.mean, g.cov), None),
+        lambda _, ch: VectorGaussian._make(ch[0], ch[1]))
