@@ -40,8 +40,12 @@ DATA = REPO / ".." / "shared" / "data" / "trajectory" / "evo"
 SECTION = "## Trajectory evaluation"
 
 
-def best_time(fn: Callable[[], object], setup: Callable[[], object] | None = None,
-              repeat: int = 5, min_total: float = 0.3) -> float:
+def best_time(
+    fn: Callable[[], object],
+    setup: Callable[[], object] | None = None,
+    repeat: int = 5,
+    min_total: float = 0.3,
+) -> float:
     """Best wall time of ``fn(setup())`` (or ``fn()``), repeated at least ``repeat`` times."""
     best = float("inf")
     t_start = time.perf_counter()
@@ -64,7 +68,7 @@ def best_time(fn: Callable[[], object], setup: Callable[[], object] | None = Non
 def synthetic_pair(n: int, folder: Path) -> tuple[Path, Path]:
     """A smooth random 3-D path at 30 Hz and a drifting, noisy estimate at shifted stamps."""
     from microlie import SE3
-    from microlie.traj import Trajectory, write_tum
+    from microlie.traj import Trajectory
 
     rng = np.random.default_rng(42)
     stamps = 1.6e9 + np.arange(n) / 30.0
@@ -78,8 +82,11 @@ def synthetic_pair(n: int, folder: Path) -> tuple[Path, Path]:
     noise = SE3.exp(rng.normal(scale=[3e-3] * 3 + [1e-3] * 3, size=(n, 6)))
     est = Trajectory(gt.poses @ drift @ noise, stamps + 0.002)
     a, b = folder / "synthetic_gt.tum", folder / "synthetic_est.tum"
-    write_tum(a, gt)
-    write_tum(b, est)
+    # the precision SLAM systems write (e.g. ORB-SLAM: 6-decimal stamps, 9-decimal values)
+    fmt = ["%.6f"] + ["%.9f"] * 7
+    for path, t in ((a, gt), (b, est)):
+        np.savetxt(path, np.column_stack([t.timestamps, t.positions, t.quat_xyzw]), fmt=fmt,
+                   header="timestamp tx ty tz qx qy qz qw")
     return a, b
 
 
@@ -152,19 +159,33 @@ def run_case(label: str, gt: Path, est: Path) -> list[dict]:
         s_evo = evo_metric(kind, copy.deepcopy(e_ref), copy.deepcopy(e_est))
         worst = check_same(s_ours, s_evo, f"{label} {kind}")
         t_ours = best_time(lambda k=kind: ours_metric(k, o_ref, o_est))
-        t_evo = best_time(lambda pair, k=kind: evo_metric(k, *pair),
-                          setup=lambda: (copy.deepcopy(e_ref), copy.deepcopy(e_est)), repeat=3)
+        t_evo = best_time(
+            lambda pair, k=kind: evo_metric(k, *pair),
+            setup=lambda: (copy.deepcopy(e_ref), copy.deepcopy(e_est)),
+            repeat=3,
+        )
         t_ours_e2e = best_time(lambda k=kind: ours_metric(k, ours_read(gt), ours_read(est)))
-        t_evo_e2e = best_time(lambda k=kind: evo_metric(k, evo_read(gt), evo_read(est)),
-                              repeat=3)
-        row = dict(case=label, metric=title, poses=f"{len(o_ref)} / {len(o_est)}",
-                   pairs=res.info["pairs"], errors=res.errors.size, rel=worst,
-                   ours=t_ours, evo=t_evo, ours_e2e=t_ours_e2e, evo_e2e=t_evo_e2e)
+        t_evo_e2e = best_time(lambda k=kind: evo_metric(k, evo_read(gt), evo_read(est)), repeat=3)
+        row = dict(
+            case=label,
+            metric=title,
+            poses=f"{len(o_ref)} / {len(o_est)}",
+            pairs=res.info["pairs"],
+            errors=res.errors.size,
+            rel=worst,
+            ours=t_ours,
+            evo=t_evo,
+            ours_e2e=t_ours_e2e,
+            evo_e2e=t_evo_e2e,
+        )
         rows.append(row)
-        print(f"{label:22s} {title:28s} metric: microlie {t_ours * 1e3:8.2f} ms  evo "
-              f"{t_evo * 1e3:9.2f} ms  x{t_evo / t_ours:6.1f} | end to end: microlie "
-              f"{t_ours_e2e * 1e3:8.2f} ms  evo {t_evo_e2e * 1e3:9.2f} ms  "
-              f"x{t_evo_e2e / t_ours_e2e:6.1f} | max rel. diff {worst:.1e}", flush=True)
+        print(
+            f"{label:22s} {title:28s} metric: microlie {t_ours * 1e3:8.2f} ms  evo "
+            f"{t_evo * 1e3:9.2f} ms  x{t_evo / t_ours:6.1f} | end to end: microlie "
+            f"{t_ours_e2e * 1e3:8.2f} ms  evo {t_evo_e2e * 1e3:9.2f} ms  "
+            f"x{t_evo_e2e / t_ours_e2e:6.1f} | max rel. diff {worst:.1e}",
+            flush=True,
+        )
     return rows
 
 
@@ -179,8 +200,8 @@ def table(rows: list[dict]) -> str:
         f"`benchmarks/trajectory.py`, microlie {microlie.__version__} vs evo "
         f"{evo.__version__.lstrip('v')}, measured in the same run on {platform.machine()} "
         f"({os.cpu_count()} CPUs), Python {platform.python_version()}, NumPy {np.__version__}. "
-        "Best of several repeats. \"Metric\": association + alignment + errors + statistics "
-        "on trajectories in memory; \"end to end\": the same starting from the two TUM files. "
+        'Best of several repeats. "Metric": association + alignment + errors + statistics '
+        'on trajectories in memory; "end to end": the same starting from the two TUM files. '
         "Both tools' statistics agree to the stated relative difference in every row.",
         "",
         "| trajectory | metric | poses GT / est | pairs | microlie metric | evo metric | "
@@ -195,8 +216,12 @@ def table(rows: list[dict]) -> str:
             f"{r['ours_e2e'] * 1e3:.1f} ms | {r['evo_e2e'] * 1e3:.1f} ms | "
             f"**{r['evo_e2e'] / r['ours_e2e']:.1f}x** | {r['rel']:.0e} |"
         )
-    lines += ["", "Regenerate: `/work/evo-venv/bin/python benchmarks/trajectory.py` "
-              "(evo and microlie installed in one environment).", ""]
+    lines += [
+        "",
+        "Regenerate: `/work/evo-venv/bin/python benchmarks/trajectory.py` "
+        "(evo and microlie installed in one environment).",
+        "",
+    ]
     return "\n".join(lines)
 
 

@@ -20,6 +20,7 @@ are projected onto SO(3) (nearest rotation in the Frobenius norm, via SVD) befor
 from __future__ import annotations
 
 import os
+import re
 import warnings
 from pathlib import Path
 
@@ -113,20 +114,23 @@ def _tokens_per_line(body: str, n: int) -> np.ndarray:
     return np.bincount(line_of, minlength=n)[:n]
 
 
-def _fast_matrix(
-    lines: list[str], ncols: int, comma: bool, at_least: bool
-) -> np.ndarray | None:
-    """Parse well-formed data lines in C (``np.fromstring``); ``None`` if anything is off.
+_COMMENT_LINE = re.compile(r"^[ \t]*[#%][^\n]*(?:\n|$)", re.M)
+
+
+def _fast_matrix(body: str, ncols: int, comma: bool, at_least: bool) -> np.ndarray | None:
+    """Parse the data lines ``body`` (comments removed) in C; ``None`` if anything is off.
 
     Only a fast path: on ``None`` the caller re-parses line by line to name the bad line.
     """
-    n = len(lines)
-    if n == 0:
+    body = body.rstrip("\r\n")
+    if not body:
         return None
-    body = "\n".join(lines)
-    if comma:
+    n = body.count("\n") + 1
+    if comma or "," in body:
         body = body.replace(",", " ")
-        width = int(_tokens_per_line(lines[0], 1)[0])
+    if comma:
+        first = body[: body.find("\n")] if n > 1 else body
+        width = len(first.split())
         if width < ncols or (width != ncols and not at_least):
             return None
     else:
@@ -147,29 +151,33 @@ def _fast_matrix(
     return mat
 
 
+class _LineNumbers:
+    """1-based file line numbers of the data rows, computed only when an error is reported."""
+
+    def __init__(self, path: PathLike, comma: bool, known: list[int] | None = None) -> None:
+        self._path, self._comma, self._known = path, comma, known
+
+    def __getitem__(self, i: int) -> int:
+        if self._known is None:
+            self._known = _data_lines(self._path, self._comma)[0]
+        return self._known[i]
+
+
 def _read_matrix(
     path: PathLike, ncols: int, *, comma: bool = False, at_least: bool = False, what: str = ""
-) -> tuple[list[int], np.ndarray]:
-    """(1-based line numbers of the data lines, float matrix) of a numeric text file."""
+) -> tuple[_LineNumbers, np.ndarray]:
+    """(line numbers of the data rows, float matrix) of a numeric text file."""
     text = Path(path).read_text(encoding="utf-8-sig")
-    all_lines = text.splitlines()
-    if "#" in text or "%" in text:
-        numbers = [k for k, ln in enumerate(all_lines, start=1)
-                   if (s := ln.lstrip()) and s[0] not in "#%"]
-        data = [all_lines[k - 1] for k in numbers]
-    else:
-        numbers = list(range(1, len(all_lines) + 1))
-        data = all_lines
-    if not comma and "," in text:
-        data = [ln.replace(",", " ") for ln in data]
-    mat = _fast_matrix(data, ncols, comma, at_least)
-    if mat is None:
-        numbers, rows = _data_lines(path, comma)
-        mat = _to_matrix(path, numbers, rows, ncols, at_least=at_least, what=what)
-    return numbers, mat
+    body = _COMMENT_LINE.sub("", text) if ("#" in text or "%" in text) else text
+    mat = _fast_matrix(body, ncols, comma, at_least)
+    if mat is not None:
+        return _LineNumbers(path, comma), mat
+    numbers, rows = _data_lines(path, comma)
+    mat = _to_matrix(path, numbers, rows, ncols, at_least=at_least, what=what)
+    return _LineNumbers(path, comma, numbers), mat
 
 
-def _check_quat(path: PathLike, numbers: list[int], q: np.ndarray, tol: float) -> None:
+def _check_quat(path: PathLike, numbers: _LineNumbers, q: np.ndarray, tol: float) -> None:
     norms = np.linalg.norm(q, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > tol)
     if bad.size:
