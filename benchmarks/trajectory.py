@@ -201,7 +201,9 @@ def table(rows: list[dict]) -> str:
         f"{evo.__version__.lstrip('v')}, measured in the same run on {platform.machine()} "
         f"({os.cpu_count()} CPUs), Python {platform.python_version()}, NumPy {np.__version__}. "
         'Best of several repeats. "Metric": association + alignment + errors + statistics '
-        'on trajectories in memory; "end to end": the same starting from the two TUM files. '
+        'on trajectories in memory; "end to end": the same starting from the two TUM files '
+        "(synthetic files written with 6-decimal stamps and 9-decimal values, as SLAM "
+        "systems write them). "
         "Both tools' statistics agree to the stated relative difference in every row.",
         "",
         "| trajectory | metric | poses GT / est | pairs | microlie metric | evo metric | "
