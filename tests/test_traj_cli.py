@@ -180,3 +180,16 @@ def test_console_script_entry_point():
                           check=True)
     code, out, _ = run("ape", "--example", "--align", "se3", "--json")
     assert json.loads(proc.stdout)["stats"] == json.loads(out)["stats"]
+
+
+def test_kitti_with_timestamp_files_associates_by_time():
+    gt = data_file(EVO + "KITTI_00_gt.txt")
+    est = data_file(EVO + "KITTI_00_ORB.txt")
+    times = data_file(EVO + "KITTI_00_gt_times.txt")
+    code, out, _ = run("ape", str(gt), str(est), "-f", "kitti", "--gt-times", str(times),
+                       "--est-times", str(times), "-a", "se3", "--json")
+    assert code == 0
+    d = json.loads(out)
+    assert d["info"]["pairs"] == 4541
+    ref = CASES["ape_kitti_orb_se3"]["stats"]
+    assert all(close(d["stats"][k], v) for k, v in ref.items())

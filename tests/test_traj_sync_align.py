@@ -164,3 +164,23 @@ def test_align_first_n_only():
     np.testing.assert_allclose(found.params, g.params, atol=1e-11)
     with pytest.raises(ValueError, match="unknown alignment"):
         T.align(est, gt, "affine")
+
+
+def test_georeferenced_large_coordinates_alignment():
+    """evo issue 687's file: UTM-sized coordinates (~5e6 m). Umeyama centres the points, so a
+    known rigid transform is undone to micrometre level (float64 spacing at 5e6 m is 1e-9 m)."""
+    from conftest import data_file
+
+    gt = T.read_tum(data_file("trajectory/evo/georeferenced.tum"))
+    g = SE3.from_rotation_translation(SO3.from_rotvec([0.01, -0.02, 0.3]),
+                                      np.array([-4.5e5, -5.4e6, 10.0]))
+    est = gt.transform(g)  # now near the origin
+    res = T.evaluate_ape(gt, est, align="se3")
+    assert res.errors.size == len(gt)
+    assert res.stats["max"] < 1e-6
+    unaligned = T.evaluate_ape(gt, est, align="none")
+    p = gt.positions
+    np.testing.assert_allclose(
+        unaligned.errors,
+        np.linalg.norm(p @ Rotation.from_rotvec([0.01, -0.02, 0.3]).as_matrix().T
+                       + [-4.5e5, -5.4e6, 10.0] - p, axis=1), rtol=1e-9)
