@@ -182,6 +182,8 @@ class VectorGaussian:
         P = _as_array(cov, m, "VectorGaussian covariance")
         if validate:
             check_covariance(P, m.shape[-1], "VectorGaussian covariance")
+        else:
+            A.check_last_dim(P, (m.shape[-1], m.shape[-1]), "VectorGaussian covariance")
         self._init(*_broadcast_pair(m, P))
 
     @classmethod
@@ -225,14 +227,12 @@ class VectorGaussian:
     def marginal(self, indices: Sequence[int]) -> VectorGaussian:
         """The marginal over the coordinates ``indices`` (e.g. ``(0, 1)`` for x and y)."""
         idx = list(indices)
-        m = self.mean[..., idx] if A.is_numpy(self.mean) else \
-            _xp(self.mean).stack([self.mean[..., i] for i in idx], axis=-1)
-        rows = [[self.cov[..., i, j] for j in idx] for i in idx]
-        if A.is_numpy(self.cov):
-            P = self.cov[..., idx, :][..., :, idx]
-        else:
-            xp = _xp(self.cov)
-            P = xp.stack([xp.stack(r, axis=-1) for r in rows], axis=-2)
+        if A.is_numpy(self.mean):
+            return VectorGaussian._make(self.mean[..., idx], self.cov[..., idx, :][..., :, idx])
+        xp = _xp(self.mean)
+        m = xp.stack([self.mean[..., i] for i in idx], axis=-1)
+        P = xp.stack([xp.stack([self.cov[..., i, j] for j in idx], axis=-1) for i in idx],
+                     axis=-2)
         return VectorGaussian._make(m, P)
 
     def sample(self, n: int | tuple[int, ...], rng: Any = None) -> Array:
@@ -610,6 +610,7 @@ class Gaussian:
     def _operand(self, other: Any) -> Gaussian:
         if isinstance(other, LieGroup):
             self._same_group(other)
+            _same_backend(self.cov, other.params)
             return Gaussian._make(other, None, self.frame)  # exact element: no covariance
         if not isinstance(other, Gaussian):
             raise TypeError(f"expected a Gaussian or a {self.group.__name__}, "

@@ -15,14 +15,14 @@ from . import _math as M
 from .base import LieGroup
 from .se3 import _broadcast_last, check_bottom_row
 from .so2 import SO2, checked_unit_complex, rotation2_params
-from .so3 import coef_a, coef_b, half_cos, half_sinc
+from .so3 import coef_b, half_angle
 
 
 def half_cot(o: Any, h: Any) -> Any:
     """``h cot h`` (``h`` in ``[-pi/2, pi/2]``), 1 at ``h = 0``."""
     h2 = h * h
     small = h2 < M.TINY2
-    hs = o.where(small, 1.0, h)
+    hs = h + small
     return o.where(small, M.horner(h2, M.X_COT), hs * o.cos(hs) / o.sin(hs))
 
 
@@ -53,7 +53,8 @@ class SE2(LieGroup):
     @classmethod
     def _validate_params(cls, p: Array, normalize: bool) -> Array:
         xp = A.namespace(p)
-        return xp.concat([p[..., :2], checked_unit_complex(p[..., 2:], normalize, "SE2")], -1)
+        return xp.concat([p[..., :2], checked_unit_complex(p[..., 2:], normalize, "SE2")],
+                         axis=-1)
 
     @classmethod
     def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
@@ -64,7 +65,7 @@ class SE2(LieGroup):
     def _exp(o, tau):
         r1, r2, th = tau
         t2 = th * th
-        hs, hc = half_sinc(o, t2), half_cos(o, t2)
+        hs, hc = half_angle(o, t2)
         a = 2.0 * hs * hc  # sin(t)/t
         b = 2.0 * th * hs * hs  # (1 - cos t)/t
         return (a * r1 - b * r2, b * r1 + a * r2, o.cos(th), o.sin(th))
@@ -115,11 +116,11 @@ class SE2(LieGroup):
     def _jr(cls, o, tau):
         r1, r2, th = tau
         t2 = th * th
-        hs, hc = half_sinc(o, t2), half_cos(o, t2)
+        hs, hc = half_angle(o, t2)
         a = 2.0 * hs * hc  # sin(t)/t
         b = 2.0 * th * hs * hs  # (1 - cos t)/t
-        d1 = th * coef_b(o, t2)  # (t - sin t)/t^2
-        d2 = coef_a(o, t2)  # (1 - cos t)/t^2
+        d1 = th * coef_b(o, t2, hs, hc)  # (t - sin t)/t^2
+        d2 = 2.0 * hs * hs  # (1 - cos t)/t^2
         z = 0.0 * th
         return ((a, b, r1 * d1 - r2 * d2), (-b, a, r1 * d2 + r2 * d1), (z, z, z + 1.0))
 
@@ -129,8 +130,9 @@ class SE2(LieGroup):
         t2 = th * th
         h = 0.5 * th
         k = half_cot(o, h)
-        d1 = th * coef_b(o, t2)
-        d2 = coef_a(o, t2)
+        hs, hc = half_angle(o, t2)
+        d1 = th * coef_b(o, t2, hs, hc)
+        d2 = 2.0 * hs * hs
         v1, v2 = r1 * d1 - r2 * d2, r1 * d2 + r2 * d1
         z = 0.0 * th
         return ((k, -h, -(k * v1 - h * v2)), (h, k, -(h * v1 + k * v2)), (z, z, z + 1.0))

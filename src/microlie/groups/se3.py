@@ -25,9 +25,10 @@ def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
     + c2 (hat(phi x (phi x rho)) + d F) - 2 c3 d F^2`` with ``d = rho . phi``.
     """
     t2 = M.norm2(*phi)
-    c1 = so3.coef_b(o, t2)
+    k, ch = so3.half_angle(o, t2)
+    c1 = so3.coef_b(o, t2, k, ch)
     small = t2 < M.SMALL2
-    t2s = o.where(small, 1.0, t2)
+    t2s = t2 + small
     t = o.sqrt(t2s)
     st, ct = o.sin(t), o.cos(t)
     t4 = t2s * t2s
@@ -51,9 +52,11 @@ def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
     return tuple(out)
 
 
-def v_times(o: Any, phi: tuple, t2: Any, a: Any, v: tuple) -> tuple:
-    """``V(phi) v = v + a (phi x v) + b phi x (phi x v)`` with ``a = (1 - cos t)/t^2``."""
-    b = so3.coef_b(o, t2)
+def v_times(o: Any, phi: tuple, t2: Any, k: Any, ch: Any, v: tuple) -> tuple:
+    """``V(phi) v = v + a (phi x v) + b phi x (phi x v)`` (``V = Jl_SO3``), given
+    ``half_angle``'s ``k, ch``: ``a = (1 - cos t)/t^2 = 2 k^2``, ``b = (t - sin t)/t^3``."""
+    a = 2.0 * k * k
+    b = so3.coef_b(o, t2, k, ch)
     c = M.cross(phi, v)
     d = M.cross(phi, c)
     return tuple(v[i] + a * c[i] + b * d[i] for i in range(3))
@@ -97,16 +100,17 @@ class SE3(LieGroup):
     def _exp(o, tau):
         rho, phi = tau[:3], tau[3:]
         t2 = M.norm2(*phi)
-        k = so3.half_sinc(o, t2)
-        t = v_times(o, phi, t2, 2.0 * k * k, rho)
-        return (*t, k * phi[0], k * phi[1], k * phi[2], so3.half_cos(o, t2))
+        k, ch = so3.half_angle(o, t2)
+        t = v_times(o, phi, t2, k, ch, rho)
+        return (*t, k * phi[0], k * phi[1], k * phi[2], ch)
 
     @staticmethod
     def _log(o, p):
         t, q = p[:3], p[3:]
-        phi = so3.quat_log(o, q)
+        phi, kl, aw = so3.quat_log_parts(o, q)
         t2 = M.norm2(*phi)
-        c = so3.coef_c(o, t2)
+        # half-angle functions straight from the quaternion: sin(t/2)/t = 1/kl, cos(t/2) = |w|
+        c = so3.coef_c(o, t2, 1.0 / kl, aw)
         a = M.cross(phi, t)
         b = M.cross(phi, a)
         return (*(t[i] - 0.5 * a[i] + c * b[i] for i in range(3)), *phi)

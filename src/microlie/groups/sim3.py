@@ -35,14 +35,13 @@ def w_coefficients(o: Any, sigma: Any, t2: Any) -> tuple[Any, Any, Any]:
     ``c = int e^(s sigma) (1 - cos(s t))/t^2 ds`` (MATH.md section 5), by quadrature.
     """
     small = o.abs(sigma) < 1e-5
-    ss = o.where(small, 1.0, sigma)
+    ss = sigma + small
     a = o.where(small, 1.0 + sigma * (0.5 + sigma * (1.0 / 6.0 + sigma / 24.0)), o.expm1(ss) / ss)
     b = 0.0 * sigma
     c = 0.0 * sigma
     for s, w in zip(_NODES, _WEIGHTS, strict=True):
         u2 = (s * s) * t2
-        hs = so3.half_sinc(o, u2)  # sin(s t / 2) / (s t)
-        hc = so3.half_cos(o, u2)
+        hs, hc = so3.half_angle(o, u2)  # sin(s t / 2) / (s t), cos(s t / 2)
         e = w * o.exp(s * sigma)
         b = b + e * (2.0 * s) * hs * hc
         c = c + e * (2.0 * s * s) * hs * hs
@@ -77,6 +76,7 @@ class Sim3(LieGroup):
 
     dof = 7
     param_dim = 8
+    _has_closed_jr = False
     matrix_dim = 4
     point_dim = 3
     _identity_params = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0)

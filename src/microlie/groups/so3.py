@@ -12,54 +12,46 @@ import numpy as np
 from .. import _array as A
 from .._array import Array
 from . import _math as M
-from .base import LieGroup, _split
+from .base import LieGroup, compute
 
 # ---------------------------------------------------------------------------- coefficients
 
 
-def half_sinc(o: Any, t2: Any) -> Any:
-    """``sin(t/2) / t`` as a function of ``t2 = t^2``."""
+def half_angle(o: Any, t2: Any) -> tuple[Any, Any]:
+    """``(sin(t/2) / t, cos(t/2))`` as functions of ``t2 = t^2``.
+
+    Below ``TINY2`` the second-order Taylor polynomials (exact to rounding there) replace the
+    closed forms, whose square root has an infinite slope at 0; ``t2 + small`` is the safe
+    substitute that keeps the discarded branch finite.
+    """
     small = t2 < M.TINY2
-    t = o.sqrt(o.where(small, 1.0, t2))
-    return o.where(small, M.horner(t2, M.HALF_SINC), o.sin(0.5 * t) / t)
+    t = o.sqrt(t2 + small)
+    h = 0.5 * t
+    k = o.where(small, 0.5 - t2 * (1.0 / 48.0), o.sin(h) / t)
+    ch = o.where(small, 1.0 - 0.125 * t2, o.cos(h))
+    return k, ch
 
 
-def half_cos(o: Any, t2: Any) -> Any:
-    """``cos(t/2)`` as a function of ``t2`` (no infinite slope of sqrt at 0)."""
-    small = t2 < M.TINY2
-    t = o.sqrt(o.where(small, 1.0, t2))
-    return o.where(small, M.horner(t2, M.HALF_COS), o.cos(0.5 * t))
-
-
-def coef_a(o: Any, t2: Any) -> Any:
-    """``(1 - cos t) / t^2 = 2 (sin(t/2) / t)^2``."""
-    k = half_sinc(o, t2)
-    return 2.0 * k * k
-
-
-def coef_b(o: Any, t2: Any) -> Any:
-    """``(t - sin t) / t^3``."""
+def coef_b(o: Any, t2: Any, k: Any, ch: Any) -> Any:
+    """``(t - sin t) / t^3 = (1 - 2 k ch) / t^2`` given ``half_angle``'s ``k, ch``."""
     small = t2 < M.SMALL2
-    t2s = o.where(small, 1.0, t2)
-    t = o.sqrt(t2s)
-    return o.where(small, M.horner(t2, M.C_T_SIN), (t - o.sin(t)) / (t2s * t))
+    return o.where(small, M.horner(t2, M.C_T_SIN), (1.0 - 2.0 * k * ch) / (t2 + small))
 
 
-def coef_c(o: Any, t2: Any) -> Any:
-    """``(1 - (t/2) cot(t/2)) / t^2``, the ``hat(phi)^2`` coefficient of ``Jr^-1``."""
+def coef_c(o: Any, t2: Any, k: Any, ch: Any) -> Any:
+    """``(1 - (t/2) cot(t/2)) / t^2 = (1 - ch / (2 k)) / t^2``, the ``hat(phi)^2`` coefficient
+    of ``Jr^-1``, given ``half_angle``'s ``k, ch``."""
     small = t2 < M.SMALL2
-    t2s = o.where(small, 1.0, t2)
-    h = 0.5 * o.sqrt(t2s)
-    return o.where(small, M.horner(t2, M.C_COT), (1.0 - h * o.cos(h) / o.sin(h)) / t2s)
+    ks = k + small  # k > 0 on the branch that is kept
+    return o.where(small, M.horner(t2, M.C_COT), (1.0 - ch / (2.0 * ks)) / (t2 + small))
 
 
 # ---------------------------------------------------------------------------- quaternions
 
 
 def quat_exp(o: Any, w: tuple) -> tuple:
-    t2 = M.norm2(*w)
-    k = half_sinc(o, t2)
-    return (k * w[0], k * w[1], k * w[2], half_cos(o, t2))
+    k, ch = half_angle(o, M.norm2(*w))
+    return (k * w[0], k * w[1], k * w[2], ch)
 
 
 def quat_log(o: Any, q: tuple) -> tuple:
@@ -67,16 +59,22 @@ def quat_log(o: Any, q: tuple) -> tuple:
 
     ``theta = 2 atan2(|v|, |w|)``; the sign of ``w`` picks the representative with ``w >= 0``.
     """
-    s = o.sign1(q[3])
-    x, y, z, w = s * q[0], s * q[1], s * q[2], s * q[3]
+    phi, _, _ = quat_log_parts(o, q)
+    return phi
+
+
+def quat_log_parts(o: Any, q: tuple) -> tuple:
+    """``(phi, kl, aw)``: the rotation vector, ``kl = theta / |v|`` and ``aw = |w|``
+    (``cos(theta/2)``), for callers that need the half-angle functions too."""
+    x, y, z, w = q
+    aw = o.abs(w)
     n2 = x * x + y * y + z * z
     small = n2 < M.TINY2
-    n = o.sqrt(o.where(small, 1.0, n2))
-    # 2 atan(n / w) / n, and for tiny n its series 2/w (1 - u^2/3 + u^4/5), u = n / w
-    ws = o.where(small, w, 1.0)
-    u2 = n2 / (ws * ws)
-    k = o.where(small, (2.0 / ws) * (1.0 - u2 / 3.0 + u2 * u2 / 5.0), 2.0 * o.atan2(n, w) / n)
-    return (k * x, k * y, k * z)
+    n = o.sqrt(n2 + small)
+    # 2 atan2(n, |w|) / n; for a unit quaternion and tiny n it is 2 asin(n) / n = 2 + n^2/3
+    kl = o.where(small, 2.0 + n2 * (1.0 / 3.0), 2.0 * o.atan2(n, aw) / n)
+    ks = kl - 2.0 * (kl * (w < 0))  # w < 0: use -q
+    return (ks * x, ks * y, ks * z), kl, aw
 
 
 def quat_mul(a: tuple, b: tuple) -> tuple:
@@ -152,13 +150,17 @@ def hat_sq(w: tuple, t2: Any) -> tuple:
 
 
 def jr(o: Any, w: tuple) -> tuple:
+    """``Jr(w) = I - (1 - cos t)/t^2 hat(w) + (t - sin t)/t^3 hat(w)^2``."""
     t2 = M.norm2(*w)
-    return M.eye3_plus(-coef_a(o, t2), M.hat3(w), coef_b(o, t2), hat_sq(w, t2))
+    k, ch = half_angle(o, t2)
+    return M.eye3_plus(-2.0 * k * k, M.hat3(w), coef_b(o, t2, k, ch), hat_sq(w, t2))
 
 
 def jr_inv(o: Any, w: tuple) -> tuple:
+    """``Jr^-1(w) = I + hat(w)/2 + (1 - (t/2) cot(t/2))/t^2 hat(w)^2``."""
     t2 = M.norm2(*w)
-    return M.eye3_plus(0.5, M.hat3(w), coef_c(o, t2), hat_sq(w, t2))
+    k, ch = half_angle(o, t2)
+    return M.eye3_plus(0.5, M.hat3(w), coef_c(o, t2, k, ch), hat_sq(w, t2))
 
 
 def jl(o: Any, w: tuple) -> tuple:
@@ -389,12 +391,7 @@ class SO3(LieGroup):
     def as_rpy(self) -> Array:
         """``(roll, pitch, yaw)`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``, pitch in
         ``[-pi/2, pi/2]``."""
-        o, (p,) = _split(self.params)
-        R = quat_to_matrix(p)
-        roll = o.atan2(R[2][1], R[2][2])
-        pitch = o.atan2(-R[2][0], o.sqrt(R[0][0] * R[0][0] + R[1][0] * R[1][0]))
-        yaw = o.atan2(R[1][0], R[0][0])
-        return A.pack(o, (roll, pitch, yaw), self.params)
+        return compute(_rpy, (self.params,), self.params)
 
     def normalize(self) -> SO3:
         """Renormalise the quaternion (to remove drift after long chains of products)."""
@@ -408,14 +405,19 @@ def _roll_quat(q: Array, to_scalar_last: bool) -> Array:
     return xp.concat([q[..., 3:], q[..., :3]], axis=-1)
 
 
+def _rpy(o: Any, p: tuple) -> tuple:
+    R = quat_to_matrix(p)
+    roll = o.atan2(R[2][1], R[2][2])
+    pitch = o.atan2(-R[2][0], o.sqrt(R[0][0] * R[0][0] + R[1][0] * R[1][0]))
+    yaw = o.atan2(R[1][0], R[0][0])
+    return (roll, pitch, yaw)
+
+
 def _quat_from_matrix_array(R: Array) -> Array:
     """Unit quaternions ``(..., 4)`` of rotation matrices ``(..., 3, 3)``."""
-    if type(R) is np.ndarray and R.ndim == 2:
-        o, rows = A.SCALAR, R.tolist()
-    else:
-        o = A.ops_for(R)
-        rows = [[R[..., i, j] for j in range(3)] for i in range(3)]
-    return A.pack(o, matrix_to_quat(o, rows), R)
+    flat = R.reshape(*R.shape[:-2], 9) if A.is_numpy(R) else \
+        A.namespace(R).reshape(R, (*R.shape[:-2], 9))
+    return compute(lambda o, m: matrix_to_quat(o, (m[0:3], m[3:6], m[6:9])), (flat,), R)
 
 
 def _numel(x: Array) -> int:
