@@ -20,7 +20,6 @@ are projected onto SO(3) (nearest rotation in the Frobenius norm, via SVD) befor
 from __future__ import annotations
 
 import os
-import re
 import warnings
 from pathlib import Path
 
@@ -114,7 +113,21 @@ def _tokens_per_line(body: str, n: int) -> np.ndarray:
     return np.bincount(line_of, minlength=n)[:n]
 
 
-_COMMENT_LINE = re.compile(r"^[ \t]*[#%][^\n]*(?:\n|$)", re.M)
+def _strip_comments(text: str) -> str:
+    """Drop comment lines (``#`` or ``%`` first); header comments are the fast, usual case."""
+    start = 0
+    while True:
+        probe = text[start:start + 1024].lstrip(" \t")
+        if not probe.startswith(("#", "%")):
+            break
+        nl = text.find("\n", start)
+        if nl < 0:
+            return ""
+        start = nl + 1
+    body = text[start:]
+    if "#" not in body and "%" not in body:
+        return body
+    return "\n".join(ln for ln in body.splitlines() if not ln.lstrip().startswith(("#", "%")))
 
 
 def _fast_matrix(body: str, ncols: int, comma: bool, at_least: bool) -> np.ndarray | None:
@@ -168,7 +181,7 @@ def _read_matrix(
 ) -> tuple[_LineNumbers, np.ndarray]:
     """(line numbers of the data rows, float matrix) of a numeric text file."""
     text = Path(path).read_text(encoding="utf-8-sig")
-    body = _COMMENT_LINE.sub("", text) if ("#" in text or "%" in text) else text
+    body = _strip_comments(text)
     mat = _fast_matrix(body, ncols, comma, at_least)
     if mat is not None:
         return _LineNumbers(path, comma), mat
