@@ -14,6 +14,7 @@ samples of the exact process: where the heading uncertainty is large the cloud b
 Usage::
 
     python examples/uncertainty_path.py [out/uncertainty_path.png] [--samples 5000] [--steps 30]
+                                        [--seed 0] [--dpi 90]
 
 Needs matplotlib (``pip install 'microlie[plot]'``).
 """
@@ -59,7 +60,7 @@ def require_pyplot():
     return plt
 
 
-def plot(gaussians, clouds, out: Path, every: int = 5) -> None:
+def plot(gaussians, clouds, out: Path, every: int = 5, dpi: int = 90) -> None:
     plt = require_pyplot()
     origin = np.zeros(2)
     positions = [g.act(origin) for g in gaussians]  # world-frame point Gaussians
@@ -97,7 +98,7 @@ def plot(gaussians, clouds, out: Path, every: int = 5) -> None:
     ax2.legend(fontsize=8)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=90)
+    fig.savefig(out, dpi=dpi)
     plt.close(fig)
 
 
@@ -108,6 +109,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--samples", type=int, default=5000, help="Monte Carlo particles")
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--dpi", type=int, default=90, help="resolution of the PNG")
     args = ap.parse_args(argv)
     gaussians, clouds = simulate(args.steps, args.samples, args.seed)
     print(f"{'step':>4s} {'std x lin':>10s} {'std x MC':>9s} {'std y lin':>10s} {'std y MC':>9s}")
@@ -115,7 +117,7 @@ def main(argv: list[str] | None = None) -> None:
         lin = gaussians[k].act(np.zeros(2)).std()
         mc = clouds[k].translation().std(axis=0)
         print(f"{k:4d} {lin[0]:10.4f} {mc[0]:9.4f} {lin[1]:10.4f} {mc[1]:9.4f}")
-    plot(gaussians, clouds, args.out)
+    plot(gaussians, clouds, args.out, dpi=args.dpi)
     print(f"wrote {args.out}")
 
 
