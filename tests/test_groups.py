@@ -204,7 +204,7 @@ def test_every_jacobian_against_finite_differences(G, where, side, seed):
         else:
             f = lambda *a, op=op: getattr(a[0], op)(*a[1:])  # noqa: E731
             res = getattr(args[0], op)(*args[1:], jac=True, side=side)
-        value, jacs = res[0], res[1:]
+        jacs = res[1:]
         assert len(jacs) == len(args)
         for i, J in enumerate(jacs):
             J_fd = fd_jacobian(f, args, i, side=side)

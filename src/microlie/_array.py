@@ -112,7 +112,9 @@ def namespace(*arrays: Array) -> Any:
         return np
     from array_api_compat import array_namespace
 
-    return array_namespace(*foreign)
+    xp = array_namespace(*foreign)
+    _register_pytrees(xp)
+    return xp
 
 
 def ops_for(*arrays: Array) -> ArrayOps:
@@ -155,6 +157,9 @@ def as_float_array(x: Any, like: Array | None = None, dtype: Any = None) -> Arra
     Lists, tuples and integer arrays become float64 (or ``dtype``); floating arrays keep their
     dtype and backend.
     """
+    if type(x) is np.ndarray and (like is None or type(like) is np.ndarray) and dtype is None \
+            and x.dtype in _NP_FLOATS:
+        return x
     if like is not None and not is_numpy(like) and is_numpy_like(x):
         xp = namespace(like)
         return xp.asarray(np.asarray(x, dtype=np.float64), dtype=like.dtype, device=_device(like))
@@ -173,6 +178,9 @@ def as_float_array(x: Any, like: Array | None = None, dtype: Any = None) -> Arra
     if not xp.isdtype(x.dtype, "real floating"):
         return xp.asarray(x, dtype=xp.float64 if _has_f64(xp) else xp.float32)
     return x
+
+
+_NP_FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 
 
 def is_numpy_like(x: Any) -> bool:
@@ -247,7 +255,9 @@ def _broadcast(xp: Any, comps: Sequence[Any], like: Array) -> list[Array]:
 def check_finite(x: Array, what: str) -> None:
     """Raise ``ValueError`` if ``x`` holds NaN or inf (skipped under a JAX trace)."""
     if is_numpy(x):
-        if not np.isfinite(x).all():
+        # one BLAS reduction: NaN/inf make it non-finite (so can overflow of huge values, in
+        # which case the exact test decides)
+        if x.size and not math.isfinite(np.vdot(x, x)) and not np.isfinite(x).all():
             raise ValueError(f"{what} contains NaN or infinite values")
         return
     if is_traced(x):

@@ -43,6 +43,12 @@ def compute(fn: Any, arrays: tuple, like: Array, matrix: bool = False) -> Array:
         out = _compute_chunked(fn, arrays, like, matrix)
         if out is not None:
             return out
+    foreign = next((a for a in arrays if type(a) is not np.ndarray), None)
+    if foreign is not None and any(type(a) is np.ndarray for a in arrays):
+        # NumPy constants meet torch/JAX arrays: move them to the caller's backend
+        arrays = tuple(A.as_float_array(a, like=foreign) if type(a) is np.ndarray else a
+                       for a in arrays)
+        like = foreign
     o = ops_for(*arrays)
     r = fn(o, *[A.components(a) for a in arrays])
     return pack_matrix(o, r, like) if matrix else pack(o, r, like)
@@ -110,12 +116,12 @@ class LieGroup:
         A.check_last_dim(p, self.param_dim, f"{type(self).__name__} parameters")
         A.check_finite(p, f"{type(self).__name__} parameters")
         p = type(self)._validate_params(p, normalize)
-        object.__setattr__(self, "params", p)
+        _set_params(self, p)
 
     @classmethod
     def _wrap(cls, params: Array) -> LieGroup:
         obj = object.__new__(cls)
-        object.__setattr__(obj, "params", params)
+        _set_params(obj, params)
         return obj
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -466,6 +472,9 @@ class LieGroup:
                 j = j @ inp.inverse().adjoint()
             res.append(j)
         return (out, *res)
+
+
+_set_params = LieGroup.__dict__["params"].__set__
 
 
 def _fact(n: int) -> float:
