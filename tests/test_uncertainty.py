@@ -664,6 +664,18 @@ def test_batched_equals_loop(G):
         samples = gx.sample(3, rng=0)
         assert samples.batch_shape == (3, 4)
         assert gx.mahalanobis(samples).shape == (3, 4)
+        near = Gaussian(X.plus(0.1 * rng.standard_normal((4, G.dof))), Q, frame=frame)
+        H, R = rng.standard_normal((2, G.dof)), np.eye(2)
+        r = rng.standard_normal((4, 2))
+        batched = {"inverse": gx.inverse(), "log": gx.log(), "fuse": gx.fuse(near),
+                   "update": gx.update(r, H, R)}
+        for i in range(4):
+            g = gx[i]
+            singles = {"inverse": g.inverse(), "log": g.log(), "fuse": g.fuse(near[i]),
+                       "update": g.update(r[i], H, R)}
+            for name, one in singles.items():
+                np.testing.assert_allclose(batched[name][i].cov, one.cov, rtol=1e-12,
+                                           atol=1e-15, err_msg=name)
 
 
 def test_torch_backend_and_autograd():
@@ -679,6 +691,16 @@ def test_torch_backend_and_autograd():
     np.testing.assert_allclose(out.cov.detach().numpy(), ref.cov, rtol=1e-12)
     out.cov.trace().backward()  # d tr(P_Z) / d P_X = I in the left frame (J_X = I)
     np.testing.assert_allclose(Pt.grad.numpy(), np.eye(6), atol=1e-12)
+    near = Gaussian(SE3(torch.tensor(X.plus(0.1 * np.ones(6)).params)), torch.tensor(Q),
+                    frame="right")
+    ref_f = Gaussian(X, P, frame="left").fuse(Gaussian(X.plus(0.1 * np.ones(6)), Q,
+                                                       frame="right"))
+    fused = gx.fuse(near)
+    np.testing.assert_allclose(fused.cov.detach().numpy(), ref_f.cov, rtol=1e-10)
+    np.testing.assert_allclose(fused.mean.params.detach().numpy(), ref_f.mean.params,
+                               atol=1e-12)
+    want = Gaussian(X, P, frame="left").log_density(X.plus(0.1 * np.ones(6)), haar=True)
+    np.testing.assert_allclose(gx.log_density(near.mean, haar=True).item(), want, rtol=1e-10)
     v = gx.act(torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
     assert isinstance(v.cov, torch.Tensor) and v.cov.shape == (3, 3)
     assert gx.sample(5, rng=0).params.shape == (5, 7)

@@ -282,8 +282,9 @@ class Gaussian:
     ``(*batch, dof, dof)``, tangent translation first. ``mean`` and ``cov`` broadcast over the
     leading batch axes; any array backend of the core works (NumPy, PyTorch, JAX).
 
-    The covariance is checked (shape, finite, symmetric and positive semi-definite to
-    ``sqrt(eps)``; ``validate=False`` skips the last two). ``frame`` has no default on purpose.
+    The covariance is checked: shape, finite, symmetric and positive semi-definite to
+    ``sqrt(eps)`` of its dtype (``ValueError``; ``validate=False`` keeps only the shape check).
+    ``frame`` has no default on purpose.
 
     >>> import numpy as np
     >>> from microlie import SE3
