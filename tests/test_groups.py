@@ -193,23 +193,36 @@ OPS = ["inverse", "compose", "between", "act", "exp", "log", "plus", "minus", "l
 @pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
 @pytest.mark.parametrize("where", list(HARD_ANGLES))
 @pytest.mark.parametrize("side", ["right", "left"])
-@settings(max_examples=4, deadline=None)
+@pytest.mark.parametrize("bk", ["numpy", "torch", "jax"])
+@settings(max_examples=3, deadline=None)
 @given(seed=seeds())
-def test_every_jacobian_against_finite_differences(G, where, side, seed):
+def test_every_jacobian_against_finite_differences(G, where, side, bk, seed):
+    """Analytic Jacobians (computed on each backend, float64) against central finite
+    differences on the group (NumPy): relative error <= 1e-6."""
+    backend_fixture_check(bk)
     rng = np.random.default_rng(seed)
     for op, args in _builders(G, rng, HARD_ANGLES[where]).items():
+        bargs = [element(G, x.params, bk) if isinstance(x, LieGroup) else to_backend(x, bk)
+                 for x in args]
         if op == "exp":
             f = lambda t: G.exp(t)  # noqa: E731
-            res = G.exp(args[0], jac=True, side=side)
+            res = G.exp(bargs[0], jac=True, side=side)
         else:
             f = lambda *a, op=op: getattr(a[0], op)(*a[1:])  # noqa: E731
-            res = getattr(args[0], op)(*args[1:], jac=True, side=side)
-        jacs = res[1:]
+            res = getattr(bargs[0], op)(*bargs[1:], jac=True, side=side)
+        jacs = [to_numpy(J) for J in res[1:]]
         assert len(jacs) == len(args)
         for i, J in enumerate(jacs):
             J_fd = fd_jacobian(f, args, i, side=side)
             err = np.abs(J - J_fd).max() / max(1.0, np.abs(J_fd).max())
             assert err <= 1e-6, f"{G.__name__}.{op} d/darg{i} ({side}, {where}): {err:.2e}"
+
+
+def backend_fixture_check(bk):
+    if bk == "torch":
+        require("torch")
+    elif bk == "jax":
+        require("jax").config.update("jax_enable_x64", True)
 
 
 def test_jacobians_on_backends_match_numpy(group, backend):
@@ -242,11 +255,13 @@ PREC_ANGLES = [0.0, 1e-300, 1e-12, 1e-8, 1e-4, 0.1, 1.0, 3.0, np.pi - 1e-6, np.p
 
 
 @pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
-def test_log_exp_roundtrip_float64(G):
+@pytest.mark.parametrize("bk", ["numpy", "torch", "jax"])
+def test_log_exp_roundtrip_float64(G, bk):
+    backend_fixture_check(bk)
     rng = np.random.default_rng(6)
     for theta in PREC_ANGLES:
         tau = tangent_with_angle(G, rng, theta, 50)
-        back = G.exp(tau).log()
+        back = to_numpy(G.exp(to_backend(tau, bk)).log())
         assert np.abs(back - tau).max() <= 1e-12, (theta, np.abs(back - tau).max())
         # single elements take the scalar path: same precision
         for t in tau[:5]:
@@ -298,6 +313,19 @@ def test_exactly_pi_has_valid_log(G):
     L = X.log()
     assert np.isclose(rotation_angle_of(G, L), np.pi, atol=1e-15)
     np.testing.assert_allclose(G.exp(L).matrix(), X.matrix(), atol=1e-14)
+
+
+@pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
+@pytest.mark.parametrize("bk", ["numpy", "torch", "jax"])
+def test_roundtrips_float32_on_backends(G, bk):
+    backend_fixture_check(bk)
+    rng = np.random.default_rng(18)
+    for theta in [*PREC_ANGLES[:-2], np.pi - 1e-6]:
+        tau = tangent_with_angle(G, rng, theta, 50).astype(np.float32)
+        tau = tau[rotation_angle_of(G, tau.astype(np.float64)) <= np.pi]
+        back = G.exp(to_backend(tau, bk, np.float32)).log()
+        assert str(back.dtype).endswith("float32")
+        assert np.abs(to_numpy(back) - tau).max() <= 1e-5
 
 
 @pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
