@@ -26,9 +26,13 @@ def half_angle(o: Any, t2: Any) -> tuple[Any, Any]:
     """
     small = t2 < M.TINY2
     t = o.sqrt(t2 + small)
-    h = 0.5 * t
-    k = o.where(small, 0.5 - t2 * (1.0 / 48.0), o.sin(h) / t)
-    ch = o.where(small, 1.0 - 0.125 * t2, o.cos(h))
+    # sin(t/2) and cos(t/2) from u = tan(t/4): one vectorised tan instead of sin and cos
+    # (several times cheaper in NumPy); exact for every t, with no pole below t = 2 pi
+    u = o.tan(0.25 * t)
+    u2 = u * u
+    r = 1.0 / (1.0 + u2)
+    k = o.where(small, 0.5 - t2 * (1.0 / 48.0), (2.0 * r) * u / t)
+    ch = o.where(small, 1.0 - 0.125 * t2, (1.0 - u2) * r)
     return k, ch
 
 
