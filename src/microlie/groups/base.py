@@ -37,9 +37,16 @@ CHUNK = 8192
 def compute(fn: Any, arrays: tuple, like: Array, matrix: bool = False) -> Array:
     """Evaluate the component function ``fn(ops, *components)`` on ``arrays`` and stack the
     result (a vector, or with ``matrix=True`` a nested tuple of rows) in ``like``'s backend."""
-    if all(type(a) is np.ndarray for a in arrays):
-        if all(a.ndim == 1 for a in arrays):
-            return np.array(fn(SCALAR, *[a.tolist() for a in arrays]), dtype=like.dtype)
+    all_numpy = single = True
+    for a in arrays:
+        if type(a) is not np.ndarray:
+            all_numpy = single = False
+            break
+        if a.ndim != 1:
+            single = False
+    if single:  # single NumPy elements: plain Python floats, far faster than tiny arrays
+        return np.array(fn(SCALAR, *[a.tolist() for a in arrays]), dtype=like.dtype)
+    if all_numpy:
         out = _compute_chunked(fn, arrays, like, matrix)
         if out is not None:
             return out
@@ -160,6 +167,11 @@ class LieGroup:
     @classmethod
     def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
         raise NotImplementedError
+
+    def normalize(self) -> LieGroup:
+        """Project the parameters back onto the group (e.g. renormalise a quaternion that
+        drifted over a long chain of products)."""
+        return type(self)(self.params, normalize=True)
 
     # ------------------------------------------------------------------ container protocol
     @property

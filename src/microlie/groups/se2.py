@@ -12,9 +12,8 @@ import numpy as np
 from .. import _array as A
 from .._array import Array
 from . import _math as M
-from .base import LieGroup
-from .se3 import _broadcast_last, check_bottom_row
-from .so2 import SO2, checked_unit_complex, rotation2_params
+from ._pose import Pose
+from .so2 import SO2
 from .so3 import coef_b, half_angle
 
 
@@ -26,7 +25,7 @@ def half_cot(o: Any, h: Any) -> Any:
     return o.where(small, M.horner(h2, M.X_COT), hs * o.cos(hs) / o.sin(hs))
 
 
-class SE2(LieGroup):
+class SE2(Pose):
     """Planar rigid motions. Parameters ``(x, y, cos theta, sin theta)``.
 
     Tangent ``(rho_x, rho_y, theta)`` (translation first, as manif and GTSAM's Pose2).
@@ -44,17 +43,13 @@ class SE2(LieGroup):
     matrix_dim = 3
     point_dim = 2
     _identity_params = (0.0, 0.0, 1.0, 0.0)
+    _rotation = SO2
     _generators = np.array([
         [[0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]],
         [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]],
         [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]],
     ])
 
-    @classmethod
-    def _validate_params(cls, p: Array, normalize: bool) -> Array:
-        xp = A.namespace(p)
-        return xp.concat([p[..., :2], checked_unit_complex(p[..., 2:], normalize, "SE2")],
-                         axis=-1)
 
     @classmethod
     def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
@@ -147,37 +142,8 @@ class SE2(LieGroup):
                                        A.as_float_array(theta, like=xx))
         return cls._wrap(xp.stack([x, y, xp.cos(th), xp.sin(th)], axis=-1))
 
-    @classmethod
-    def from_rotation_translation(cls, rotation: SO2 | Any, translation: Any) -> SE2:
-        """From a rotation (:class:`SO2` or 2x2 matrices) and translations ``(..., 2)``."""
-        R = rotation if isinstance(rotation, SO2) else SO2.from_matrix(rotation)
-        t = A.as_float_array(translation, like=R.params)
-        A.check_last_dim(t, 2, "translation")
-        A.check_finite(t, "translation")
-        xp = A.namespace(t)
-        cs, t = _broadcast_last(xp, R.params, t)
-        return cls._wrap(xp.concat([t, cs], axis=-1))
-
-    @classmethod
-    def from_matrix(cls, matrix: Any, normalize: bool = False) -> SE2:
-        """From homogeneous matrices ``(..., 3, 3)`` (last row ``0 0 1``)."""
-        T = A.as_float_array(matrix)
-        A.check_last_dim(T, (3, 3), "SE2 matrix")
-        A.check_finite(T, "SE2 matrix")
-        check_bottom_row(T, "SE2.from_matrix")
-        cs = rotation2_params(T[..., :2, :2], normalize, "SE2.from_matrix")
-        return cls.from_rotation_translation(SO2._wrap(cs), T[..., :2, 2])
-
-    def rotation(self) -> SO2:
-        return SO2._wrap(self.params[..., 2:])
-
-    def translation(self) -> Array:
-        return self.params[..., :2]
-
     def angle(self) -> Array:
         """The heading in ``(-pi, pi]``, shape ``batch_shape``."""
         xp = A.namespace(self.params)
         return xp.atan2(self.params[..., 3], self.params[..., 2])
 
-    def normalize(self) -> SE2:
-        return type(self)(self.params, normalize=True)

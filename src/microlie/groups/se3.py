@@ -9,11 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from .. import _array as A
-from .._array import Array
 from . import _math as M
 from . import so3
-from .base import LieGroup
+from ._pose import Pose
 from .so3 import SO3
 
 
@@ -62,7 +60,7 @@ def v_times(o: Any, phi: tuple, t2: Any, k: Any, ch: Any, v: tuple) -> tuple:
     return tuple(v[i] + a * c[i] + b * d[i] for i in range(3))
 
 
-class SE3(LieGroup):
+class SE3(Pose):
     """Rigid motions in 3-D. Parameters ``(tx, ty, tz, qx, qy, qz, qw)``.
 
     Tangent ``tau = (rho, phi)`` (translation first, MATH.md section 4). ``X.act(p) = R p + t``.
@@ -80,16 +78,12 @@ class SE3(LieGroup):
     matrix_dim = 4
     point_dim = 3
     _identity_params = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+    _rotation = SO3
     _generators = np.concatenate([
         np.eye(4)[:3, :, None] * np.eye(4)[3][None, None, :],  # rho_i: entry (i, 3)
         np.pad(SO3._generators, ((0, 0), (0, 1), (0, 1))),
     ])
 
-    @classmethod
-    def _validate_params(cls, p: Array, normalize: bool) -> Array:
-        xp = A.namespace(p)
-        q = so3.checked_unit_quat(p[..., 3:], normalize, "SE3")
-        return xp.concat([p[..., :3], q], axis=-1)
 
     @classmethod
     def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
@@ -161,57 +155,3 @@ class SE3(LieGroup):
         Q = q_block(o, tuple(-x for x in rho), tuple(-x for x in phi))
         return M.blocks([[Ji, M.neg(M.matmul(Ji, M.matmul(Q, Ji)))],
                          [M.zeros(3, 3, rho[0]), Ji]])
-
-    # ------------------------------------------------------------------ constructors
-    @classmethod
-    def from_rotation_translation(cls, rotation: SO3 | Any, translation: Any) -> SE3:
-        """From a rotation (an :class:`SO3` or rotation matrices ``(..., 3, 3)``) and
-        translations ``(..., 3)``; both broadcast."""
-        R = rotation if isinstance(rotation, SO3) else SO3.from_matrix(rotation)
-        t = A.as_float_array(translation, like=R.params)
-        A.check_last_dim(t, 3, "translation")
-        A.check_finite(t, "translation")
-        xp = A.namespace(t)
-        q, t = _broadcast_last(xp, R.params, t)
-        return cls._wrap(xp.concat([t, q], axis=-1))
-
-    @classmethod
-    def from_matrix(cls, matrix: Any, normalize: bool = False) -> SE3:
-        """From homogeneous matrices ``(..., 4, 4)`` (last row ``0 0 0 1``)."""
-        T = A.as_float_array(matrix)
-        A.check_last_dim(T, (4, 4), "SE3 matrix")
-        A.check_finite(T, "SE3 matrix")
-        check_bottom_row(T, "SE3.from_matrix")
-        R = SO3.from_matrix(T[..., :3, :3], normalize=normalize)
-        return cls.from_rotation_translation(R, T[..., :3, 3])
-
-    def rotation(self) -> SO3:
-        """The rotation part as an :class:`SO3`."""
-        return SO3._wrap(self.params[..., 3:])
-
-    def translation(self) -> Array:
-        """The translation part ``(..., 3)``."""
-        return self.params[..., :3]
-
-    def normalize(self) -> SE3:
-        """Renormalise the quaternion."""
-        return type(self)(self.params, normalize=True)
-
-
-def _broadcast_last(xp: Any, a: Array, b: Array) -> tuple[Array, Array]:
-    """Broadcast the batch axes of ``a`` and ``b`` (their last axes may differ)."""
-    batch = tuple(np.broadcast_shapes(tuple(a.shape[:-1]), tuple(b.shape[:-1])))
-    return (xp.broadcast_to(a, (*batch, a.shape[-1])), xp.broadcast_to(b, (*batch, b.shape[-1])))
-
-
-def check_bottom_row(T: Array, what: str) -> None:
-    if A.is_traced(T):
-        return
-    xp = A.namespace(T)
-    n = T.shape[-1]
-    want = np.zeros(n)
-    want[-1] = 1.0
-    err = float(xp.max(xp.abs(T[..., -1, :] - xp.asarray(want, dtype=T.dtype)))) \
-        if int(np.prod(tuple(T.shape[:-2]))) else 0.0
-    if err > 1e-9:
-        raise ValueError(f"{what}: the last row of a homogeneous matrix must be 0 ... 0 1")

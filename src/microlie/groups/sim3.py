@@ -15,8 +15,8 @@ from .. import _array as A
 from .._array import Array
 from . import _math as M
 from . import so3
-from .base import LieGroup
-from .se3 import _broadcast_last, check_bottom_row
+from ._pose import Pose, concat_last
+from .se3 import SE3
 from .so3 import SO3
 
 # Gauss-Legendre nodes and weights on [0, 1]. The coefficients of W are integrals of smooth
@@ -59,7 +59,7 @@ def w_matrix(o: Any, phi: tuple, sigma: Any) -> tuple:
     )
 
 
-class Sim3(LieGroup):
+class Sim3(Pose):
     """Similarity transforms in 3-D. Parameters ``(tx, ty, tz, qx, qy, qz, qw, s)``.
 
     Tangent ``(rho, phi, sigma)``, ``s = exp(sigma)``; ``X.act(p) = s R p + t``. Right plus/minus
@@ -80,6 +80,7 @@ class Sim3(LieGroup):
     matrix_dim = 4
     point_dim = 3
     _identity_params = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0)
+    _rotation = SO3
     _generators = np.concatenate([
         np.eye(4)[:3, :, None] * np.eye(4)[3][None, None, :],
         np.pad(SO3._generators, ((0, 0), (0, 1), (0, 1))),
@@ -88,12 +89,8 @@ class Sim3(LieGroup):
 
     @classmethod
     def _validate_params(cls, p: Array, normalize: bool) -> Array:
-        xp = A.namespace(p)
-        q = so3.checked_unit_quat(p[..., 3:7], normalize, "Sim3")
-        s = p[..., 7:]
-        if not A.is_traced(s) and bool(xp.any(s <= 0)):
-            raise ValueError("Sim3: scale must be positive")
-        return xp.concat([p[..., :3], q, s], axis=-1)
+        check_positive_scale(p[..., 7])
+        return super()._validate_params(p, normalize)
 
     @classmethod
     def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
@@ -170,46 +167,35 @@ class Sim3(LieGroup):
     def from_rotation_translation_scale(cls, rotation: SO3 | Any, translation: Any,
                                         scale: Any) -> Sim3:
         """From a rotation (:class:`SO3` or matrices), translations ``(..., 3)`` and positive
-        scales ``(...)``."""
-        R = rotation if isinstance(rotation, SO3) else SO3.from_matrix(rotation)
-        t = A.as_float_array(translation, like=R.params)
-        s = A.as_float_array(scale, like=R.params)
-        A.check_last_dim(t, 3, "translation")
-        A.check_finite(t, "translation")
+        scales ``(...)``; the batch axes broadcast."""
+        T = SE3.from_rotation_translation(rotation, translation)
+        s = A.as_float_array(scale, like=T.params)
         A.check_finite(s, "scale")
-        xp = A.namespace(t)
-        if not A.is_traced(s) and bool(xp.any(s <= 0)):
-            raise ValueError("Sim3: scale must be positive")
-        q, t = _broadcast_last(xp, R.params, t)
-        q, s = _broadcast_last(xp, q, s[..., None])
-        t, _ = _broadcast_last(xp, t, s)
-        return cls._wrap(xp.concat([t, q, s], axis=-1))
+        check_positive_scale(s)
+        return cls._wrap(concat_last(T.params, s[..., None]))
+
+    @classmethod
+    def from_rotation_translation(cls, rotation: Any, translation: Any) -> Sim3:
+        """From a rotation and translations, with scale 1."""
+        return cls.from_rotation_translation_scale(rotation, translation, 1.0)
 
     @classmethod
     def from_matrix(cls, matrix: Any, normalize: bool = False) -> Sim3:
         """From matrices ``[[s R, t], [0, 1]]`` ``(..., 4, 4)``; ``s = det(sR)^(1/3)``."""
-        T = A.as_float_array(matrix)
-        A.check_last_dim(T, (4, 4), "Sim3 matrix")
-        A.check_finite(T, "Sim3 matrix")
-        check_bottom_row(T, "Sim3.from_matrix")
-        xp = A.namespace(T)
-        sR = T[..., :3, :3]
+        sR, t = cls._split_matrix(matrix, normalize)
+        xp = A.namespace(sR)
         det = xp.linalg.det(sR)
         if not A.is_traced(det) and bool(xp.any(det <= 0)):
             raise ValueError("Sim3.from_matrix: the 3x3 block must have a positive determinant")
         s = det ** (1.0 / 3.0)
         R = SO3.from_matrix(sR / s[..., None, None], normalize=normalize)
-        return cls.from_rotation_translation_scale(R, T[..., :3, 3], s)
-
-    def rotation(self) -> SO3:
-        return SO3._wrap(self.params[..., 3:7])
-
-    def translation(self) -> Array:
-        return self.params[..., :3]
+        return cls.from_rotation_translation_scale(R, t, s)
 
     def scale(self) -> Array:
         """The scale ``s > 0`` (shape ``batch_shape``)."""
         return self.params[..., 7]
 
-    def normalize(self) -> Sim3:
-        return type(self)(self.params, normalize=True)
+
+def check_positive_scale(s: Array) -> None:
+    if not A.is_traced(s) and bool(A.namespace(s).any(s <= 0)):
+        raise ValueError("Sim3: scale must be positive")

@@ -9,13 +9,7 @@ import numpy as np
 from .. import _array as A
 from .._array import Array
 from .base import LieGroup
-
-
-def checked_unit_complex(p: Array, normalize: bool, what: str) -> Array:
-    """``p / |p|`` after checking ``|p| = 1`` within tolerance (or ``normalize``)."""
-    from .so3 import checked_unit_quat
-
-    return checked_unit_quat(p, normalize, what)
+from .so3 import checked_unit_quat, unit_tolerance
 
 
 class SO2(LieGroup):
@@ -39,7 +33,7 @@ class SO2(LieGroup):
 
     @classmethod
     def _validate_params(cls, p: Array, normalize: bool) -> Array:
-        return checked_unit_complex(p, normalize, "SO2")
+        return checked_unit_quat(p, normalize, "SO2", kind="complex number (cos, sin)")
 
     @classmethod
     def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
@@ -108,9 +102,6 @@ class SO2(LieGroup):
         A.check_finite(R, "SO2 matrix")
         return cls._wrap(rotation2_params(R, normalize, "SO2.from_matrix"))
 
-    def normalize(self) -> SO2:
-        return type(self)(self.params, normalize=True)
-
 
 def rotation2_params(R: Array, normalize: bool, what: str) -> Array:
     """``(cos, sin)`` of 2x2 rotation matrices, checked (or projected with ``normalize``)."""
@@ -118,8 +109,6 @@ def rotation2_params(R: Array, normalize: bool, what: str) -> Array:
     # the nearest rotation to [[a, b], [c, d]] has (cos, sin) along (a + d, c - b)
     cs = xp.stack([R[..., 0, 0] + R[..., 1, 1], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
     if not normalize and not A.is_traced(R) and int(np.prod(tuple(R.shape[:-2]))):
-        from .so3 import unit_tolerance
-
         Rt = xp.stack([R[..., 0, :], R[..., 1, :]], axis=-2)
         RtR = xp.swapaxes(Rt, -1, -2) @ Rt if hasattr(xp, "swapaxes") else Rt.mT @ Rt
         err = float(xp.max(xp.abs(RtR - xp.eye(2, dtype=R.dtype))))

@@ -183,20 +183,22 @@ def unit_tolerance(dtype: Any) -> float:
     return 1e-6 if np.dtype(str(dtype).replace("torch.", "")).itemsize >= 8 else 1e-4
 
 
-def checked_unit_quat(q: Array, normalize: bool, what: str) -> Array:
-    """``q / |q|`` after checking that ``|q|`` is 1 within tolerance (or ``normalize``)."""
+def checked_unit_quat(q: Array, normalize: bool, what: str, kind: str = "quaternion") -> Array:
+    """``q / |q|`` after checking that ``|q|`` is 1 within tolerance (or ``normalize``).
+
+    Also serves SO(2)'s unit complex numbers (``kind``)."""
     xp = A.namespace(q)
     n = xp.sqrt(xp.sum(q * q, axis=-1, keepdims=True))
     if not A.is_traced(q):
         if normalize:
             if bool(xp.any(n == 0)):
-                raise ValueError(f"{what}: a zero quaternion cannot be normalized")
+                raise ValueError(f"{what}: a zero {kind} cannot be normalized")
         else:
             dev = float(xp.max(xp.abs(n - 1.0))) if _numel(n) else 0.0
             tol = unit_tolerance(q.dtype)
             if dev > tol:
                 raise ValueError(
-                    f"{what}: quaternion norm differs from 1 by {dev:.3g} (tolerance {tol:g}); "
+                    f"{what}: {kind} norm differs from 1 by {dev:.3g} (tolerance {tol:g}); "
                     "pass normalize=True to normalize it"
                 )
     return q / n
@@ -396,10 +398,6 @@ class SO3(LieGroup):
         """``(roll, pitch, yaw)`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``, pitch in
         ``[-pi/2, pi/2]``."""
         return compute(_rpy, (self.params,), self.params)
-
-    def normalize(self) -> SO3:
-        """Renormalise the quaternion (to remove drift after long chains of products)."""
-        return type(self)._wrap(checked_unit_quat(self.params, True, "SO3.normalize"))
 
 
 def _roll_quat(q: Array, to_scalar_last: bool) -> Array:
