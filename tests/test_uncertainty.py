@@ -25,8 +25,6 @@ Every propagated covariance is checked against an independent reference:
 
 from __future__ import annotations
 
-import importlib
-import os
 import pickle
 import runpy
 import sys
@@ -34,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import require as _require
 from scipy.stats import multivariate_normal
 
 from microlie import SE2, SE3, SO2, SO3, LieGroup, Sim3
 from microlie.uncertainty import Gaussian, VectorGaussian, propagate
 
-IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
 MC_GROUPS = [SO3, SE3, Sim3, SE2]
 ALL_GROUPS = [SO2, SE2, SO3, SE3, Sim3]
 FRAMES = ["right", "left"]
@@ -48,16 +46,6 @@ SIGMA = 0.02  # scale of the input covariances in the small-sigma tests
 N_SE = 5.0  # standard errors allowed
 LIN = 10.0  # linearisation allowance: LIN * s^2 of the scale
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _require(module: str):
-    """Import an optional module: skip locally when missing, fail in CI (nothing skips there)."""
-    try:
-        return importlib.import_module(module)
-    except ImportError:
-        if IN_CI:
-            pytest.fail(f"{module} is required in CI but is not installed")
-        pytest.skip(f"{module} not installed")
 
 
 # ------------------------------------------------------------------------ independent helpers
