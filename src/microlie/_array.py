@@ -257,7 +257,11 @@ def check_finite(x: Array, what: str) -> None:
     if is_numpy(x):
         # one BLAS reduction: NaN/inf make it non-finite (so can overflow of huge values, in
         # which case the exact test decides)
-        if x.size and not math.isfinite(np.vdot(x, x)) and not np.isfinite(x).all():
+        if x.ndim == 1 and x.size <= 16:  # one element: a Python sum is the cheapest test
+            bad = not math.isfinite(sum(x.tolist())) and not np.isfinite(x).all()
+        else:
+            bad = x.size and not math.isfinite(np.vdot(x, x)) and not np.isfinite(x).all()
+        if bad:
             raise ValueError(f"{what} contains NaN or infinite values")
         return
     if is_traced(x):
@@ -268,6 +272,8 @@ def check_finite(x: Array, what: str) -> None:
 
 
 def check_last_dim(x: Array, n: int | tuple[int, ...], what: str) -> None:
+    if type(n) is int and x.shape[-1:] == (n,):
+        return
     shape = tuple(x.shape)
     want = (n,) if isinstance(n, int) else n
     if len(shape) < len(want) or shape[len(shape) - len(want):] != want:

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from microlie import SE3
+
 from .trajectory import Trajectory
 
 __all__ = [
@@ -102,66 +104,111 @@ def _to_matrix(
     return mat
 
 
-def _tokens_per_line(body: str, n: int) -> np.ndarray:
-    """Number of whitespace-separated tokens on each of the ``n`` lines of ``body``."""
-    b = np.frombuffer(body.encode("utf-8"), dtype=np.uint8)
-    newline = b == 10
-    ws = newline | (b == 32) | (b == 9) | (b == 13)
-    start = ~ws
-    start[1:] &= ws[:-1]
-    line_of = np.searchsorted(np.flatnonzero(newline), np.flatnonzero(start))
-    return np.bincount(line_of, minlength=n)[:n]
+def _header_lines(text: str) -> tuple[int, int]:
+    """(number of leading comment / blank lines, offset of the first data line) of ``text``.
 
-
-def _strip_comments(text: str) -> str:
-    """Drop comment lines (``#`` or ``%`` first); header comments are the fast, usual case."""
-    start = 0
-    while True:
-        probe = text[start:start + 1024].lstrip(" \t")
-        if not probe.startswith(("#", "%")):
-            break
-        nl = text.find("\n", start)
-        if nl < 0:
-            return ""
-        start = nl + 1
-    body = text[start:]
-    if "#" not in body and "%" not in body:
-        return body
-    return "\n".join(ln for ln in body.splitlines() if not ln.lstrip().startswith(("#", "%")))
-
-
-def _fast_matrix(body: str, ncols: int, comma: bool, at_least: bool) -> np.ndarray | None:
-    """Parse the data lines ``body`` (comments removed) in C; ``None`` if anything is off.
-
-    Only a fast path: on ``None`` the caller re-parses line by line to name the bad line.
+    Lines end at ``\n`` here; only used when ``text`` has no other line break.
     """
-    body = body.rstrip("\r\n")
-    if not body:
-        return None
-    n = body.count("\n") + 1
-    if comma or "," in body:
-        body = body.replace(",", " ")
-    if comma:
-        first = body[: body.find("\n")] if n > 1 else body
-        width = len(first.split())
-        if width < ncols or (width != ncols and not at_least):
-            return None
+    offset = count = 0
+    while True:
+        nl = text.find("\n", offset)
+        s = text[offset : nl if nl >= 0 else len(text)].strip()
+        if s and not s.startswith(("#", "%")):
+            return count, offset
+        if nl < 0:
+            return count + 1, len(text)
+        offset, count = nl + 1, count + 1
+
+
+# What sends a file from the direct path to the line-list path: line breaks of
+# ``str.splitlines`` other than ``\n`` anywhere (the careful path splits lines with it;
+# \x85, \u2028 and \u2029 are excluded by ``isascii``), and comments below the header.
+_BREAKS = ("\r", "\x0b", "\x0c", "\x1c", "\x1d", "\x1e")
+
+
+def _data_block(text: str) -> list[str]:
+    """The lines of ``text`` without comment lines (``#`` or ``%`` first, after indentation).
+
+    Lines are split exactly as :func:`_data_lines` splits them (``str.splitlines``), so that
+    the fast path sees the same lines as the careful one. Header comments are the usual case
+    and cost nothing; comment lines further down are filtered in Python.
+    """
+    lines = text.splitlines()
+    k = 0
+    for k, line in enumerate(lines):  # noqa: B007 - k is used after the loop
+        s = line.lstrip()
+        if s and not s.startswith(("#", "%")):
+            break
     else:
-        width = ncols
-    if not np.all(_tokens_per_line(body, n) == width):
+        return []
+    head = lines[:k]
+    n_hash = sum(ln.count("#") for ln in head)
+    n_pct = sum(ln.count("%") for ln in head)
+    if text.count("#") == n_hash and text.count("%") == n_pct:
+        return lines[k:]
+    return [ln for ln in lines[k:] if not ln.lstrip().startswith(("#", "%"))]
+
+
+def _loadtxt(
+    source: PathLike | list[str], ncols: int, comma: bool, at_least: bool, skiprows: int = 0
+) -> np.ndarray | None:
+    """Parse data lines (a file after ``skiprows`` header lines, or a list) in C.
+
+    Returns ``None`` if anything is off; only a fast path: the caller then re-parses line by
+    line to name the bad line. :func:`numpy.loadtxt` converts numbers with Python's own
+    ``float`` parser (so values are bit-identical to the careful path) and accepts a subset
+    of what the careful path accepts (no ``1_000``, no non-ASCII digits; blank lines are
+    skipped by both), so anything it rejects is re-read and reported line by line.
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data": handled below
+            mat = np.loadtxt(
+                source,
+                dtype=np.float64,
+                comments=None,
+                delimiter="," if comma else None,
+                usecols=range(ncols) if at_least else None,
+                ndmin=2,
+                quotechar=None,
+                skiprows=skiprows,
+                encoding="utf-8-sig",
+            )
+    except ValueError:
         return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        try:
-            vals = np.fromstring(body, sep=" ")
-        except (ValueError, DeprecationWarning):
-            return None
-    if vals.size != n * width:
-        return None
-    mat = vals.reshape(n, width)[:, :ncols]
-    if not np.isfinite(mat).all():
+    if mat.shape[0] == 0 or mat.shape[1] != ncols or not np.isfinite(mat).all():
         return None
     return mat
+
+
+def _fast_matrix(
+    path: PathLike, text: str, ncols: int, comma: bool, at_least: bool
+) -> np.ndarray | None:
+    """The float matrix of the data lines of ``text`` (the contents of ``path``), or ``None``.
+
+    1. The usual file (ASCII, comments only in the header, ``\n`` line ends and, unless
+       ``comma``, no commas) is parsed by ``loadtxt`` straight from the file.
+    2. Otherwise the lines, split as the careful path splits them and without comment lines,
+       are handed to ``loadtxt`` as a list.
+    """
+    skip, offset = _header_lines(text)
+    if offset >= len(text):
+        return None
+    below_header = ("#", "%") if comma else ("#", "%", ",")
+    if (
+        text.isascii()
+        and not any(c in text for c in _BREAKS)
+        and not any(text.find(c, offset) >= 0 for c in below_header)
+    ):
+        return _loadtxt(path, ncols, comma, at_least, skip)
+    lines = _data_block(text)
+    if not comma and "," in text:
+        # commas separate fields like spaces (see _data_lines); a line of commas only has
+        # no fields (an error the careful path reports), it must not become a blank line
+        if any("," in ln and not ln.replace(",", "").strip() for ln in lines):
+            return None
+        lines = [ln.replace(",", " ") for ln in lines]
+    return _loadtxt(lines, ncols, comma, at_least) if lines else None
 
 
 class _LineNumbers:
@@ -181,8 +228,7 @@ def _read_matrix(
 ) -> tuple[_LineNumbers, np.ndarray]:
     """(line numbers of the data rows, float matrix) of a numeric text file."""
     text = Path(path).read_text(encoding="utf-8-sig")
-    body = _strip_comments(text)
-    mat = _fast_matrix(body, ncols, comma, at_least)
+    mat = _fast_matrix(path, text, ncols, comma, at_least)
     if mat is not None:
         return _LineNumbers(path, comma), mat
     numbers, rows = _data_lines(path, comma)
@@ -190,15 +236,34 @@ def _read_matrix(
     return _LineNumbers(path, comma, numbers), mat
 
 
-def _check_quat(path: PathLike, numbers: _LineNumbers, q: np.ndarray, tol: float) -> None:
-    norms = np.linalg.norm(q, axis=1)
-    bad = np.flatnonzero(np.abs(norms - 1.0) > tol)
+def _quat_trajectory(
+    path: PathLike,
+    numbers: _LineNumbers,
+    stamps: np.ndarray,
+    positions: np.ndarray,
+    q_xyzw: np.ndarray,
+    tol: float,
+    name: str | None,
+) -> Trajectory:
+    """Check ``|q| = 1`` within ``tol`` (naming the line) and build the normalised poses.
+
+    The rows are already known to be finite (the readers check every field), so the SE(3)
+    parameters ``[t, q / |q|]`` are assembled here in one pass and wrapped without the
+    group constructors' checks; the values are bit-identical to
+    ``Trajectory.from_arrays(positions, q_xyzw)`` (same ``q / sqrt(sum(q * q))``).
+    """
+    norms = np.sqrt(np.sum(q_xyzw * q_xyzw, axis=-1, keepdims=True))
+    bad = np.flatnonzero(~(np.abs(norms[:, 0] - 1.0) <= tol) | (norms[:, 0] == 0.0))
     if bad.size:
         i = bad[0]
         raise ValueError(
-            f"{path}:{numbers[i]}: quaternion is not unit norm (|q| = {norms[i]:.6g}, "
+            f"{path}:{numbers[i]}: quaternion is not unit norm (|q| = {norms[i, 0]:.6g}, "
             f"tolerance {tol:g})"
         )
+    params = np.empty((q_xyzw.shape[0], 7))
+    params[:, :3] = positions
+    np.divide(q_xyzw, norms, out=params[:, 3:])
+    return Trajectory(SE3._wrap(params), np.ascontiguousarray(stamps), name)
 
 
 def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None) -> Trajectory:
@@ -208,10 +273,8 @@ def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None)
         >>> traj = read_tum("groundtruth.txt")  # doctest: +SKIP
     """
     numbers, mat = _read_matrix(path, 8, what="timestamp tx ty tz qx qy qz qw")
-    q = mat[:, 4:8]
-    _check_quat(path, numbers, q, quat_tol)
-    return Trajectory.from_arrays(
-        mat[:, 1:4], q, timestamps=mat[:, 0], name=name or str(path)
+    return _quat_trajectory(
+        path, numbers, mat[:, 0], mat[:, 1:4], mat[:, 4:8], quat_tol, name or str(path)
     )
 
 
@@ -280,11 +343,9 @@ def read_euroc(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = Non
     numbers, mat = _read_matrix(
         path, 8, comma=True, at_least=True, what="timestamp[ns], px, py, pz, qw, qx, qy, qz"
     )
-    q_wxyz = mat[:, 4:8]
-    _check_quat(path, numbers, q_wxyz, quat_tol)
-    q_xyzw = np.roll(q_wxyz, -1, axis=1)
-    return Trajectory.from_arrays(
-        mat[:, 1:4], q_xyzw, timestamps=mat[:, 0] / 1e9, name=name or str(path)
+    q_xyzw = np.roll(mat[:, 4:8], -1, axis=1)
+    return _quat_trajectory(
+        path, numbers, mat[:, 0] / 1e9, mat[:, 1:4], q_xyzw, quat_tol, name or str(path)
     )
 
 
