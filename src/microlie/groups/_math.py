@@ -117,14 +117,6 @@ def neg(a: tuple) -> tuple:
     return tuple(tuple(-x for x in row) for row in a)
 
 
-def eye3_plus(a: Any, f: tuple, b: Any, f2: tuple) -> tuple:
-    """``I + a F + b F2`` for 3x3 component matrices ``F``, ``F2``."""
-    return tuple(
-        tuple((1.0 if i == j else 0.0) + a * f[i][j] + b * f2[i][j] for j in range(3))
-        for i in range(3)
-    )
-
-
 def blocks(rows: list[list[tuple]]) -> tuple:
     """Assemble a block matrix from a grid of component matrices."""
     out = []

@@ -155,18 +155,30 @@ def hat_sq(w: tuple, t2: Any) -> tuple:
     )
 
 
+def i_hat_sq(a: Any, b: Any, w: tuple, t2: Any) -> tuple:
+    """``I + a hat(w) + b hat(w)^2``, written out."""
+    x, y, z = w
+    bx, by, bz = b * x, b * y, b * z
+    d = 1.0 - b * t2
+    ax, ay, az = a * x, a * y, a * z
+    xy, xz, yz = bx * y, bx * z, by * z
+    return ((d + bx * x, xy - az, xz + ay),
+            (xy + az, d + by * y, yz - ax),
+            (xz - ay, yz + ax, d + bz * z))
+
+
 def jr(o: Any, w: tuple) -> tuple:
     """``Jr(w) = I - (1 - cos t)/t^2 hat(w) + (t - sin t)/t^3 hat(w)^2``."""
     t2 = M.norm2(*w)
     k, ch = half_angle(o, t2)
-    return M.eye3_plus(-2.0 * k * k, M.hat3(w), coef_b(o, t2, k, ch), hat_sq(w, t2))
+    return i_hat_sq(-2.0 * k * k, coef_b(o, t2, k, ch), w, t2)
 
 
 def jr_inv(o: Any, w: tuple) -> tuple:
     """``Jr^-1(w) = I + hat(w)/2 + (1 - (t/2) cot(t/2))/t^2 hat(w)^2``."""
     t2 = M.norm2(*w)
     k, ch = half_angle(o, t2)
-    return M.eye3_plus(0.5, M.hat3(w), coef_c(o, t2, k, ch), hat_sq(w, t2))
+    return i_hat_sq(0.5, coef_c(o, t2, k, ch), w, t2)
 
 
 def jl(o: Any, w: tuple) -> tuple:
