@@ -157,12 +157,14 @@ class LieGroup:
 
     @classmethod
     def random(cls, batch_shape: tuple[int, ...] | int = (), rng: Any = None,
-               dtype: Any = None) -> LieGroup:
-        """Random elements (uniform rotations; standard normal translations and log-scales)."""
+               dtype: Any = None, like: Array | None = None) -> LieGroup:
+        """Random elements: uniform rotations, standard normal translations, scales
+        ``exp(N(0, 1/4))``. ``rng`` is a seed or ``numpy.random.Generator``; ``like`` puts the
+        result in another array's backend, dtype and device."""
         rng = np.random.default_rng(rng)
         batch_shape = (batch_shape,) if isinstance(batch_shape, int) else tuple(batch_shape)
-        p = cls._random_params(rng, batch_shape)
-        return cls._wrap(p.astype(dtype or np.float64))
+        p = cls._random_params(rng, batch_shape).astype(dtype or np.float64)
+        return cls._wrap(p if like is None else A.as_float_array(p, like=like))
 
     @classmethod
     def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
