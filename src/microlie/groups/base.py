@@ -57,8 +57,34 @@ def compute(fn: Any, arrays: tuple, like: Array, matrix: bool = False) -> Array:
                        for a in arrays)
         like = foreign
     o = ops_for(*arrays)
+    if A.is_torch(like) and like.device.type == "cpu":
+        out = _compute_chunked_torch(o, fn, arrays, like, matrix)
+        if out is not None:
+            return out
     r = fn(o, *[A.components(a) for a in arrays])
     return pack_matrix(o, r, like) if matrix else pack(o, r, like)
+
+
+TORCH_CHUNK = 16384  # torch's per-call overhead is higher than NumPy's: larger chunks
+
+
+def _compute_chunked_torch(o: Any, fn: Any, arrays: tuple, like: Array, matrix: bool) -> Any:
+    """Large CPU tensors in chunks (cache-resident temporaries), joined with ``cat`` so that
+    autograd sees ordinary operations."""
+    batch = tuple(np.broadcast_shapes(*(tuple(a.shape[:-1]) for a in arrays)))
+    n = int(np.prod(batch))
+    if n < 2 * TORCH_CHUNK or any(a.ndim > 1 and tuple(a.shape[:-1]) != batch for a in arrays):
+        return None
+    xp = o.xp
+    flats = [xp.reshape(a, (n, a.shape[-1])) if a.ndim > 1 else a for a in arrays]
+    parts = []
+    for s in range(0, n, TORCH_CHUNK):
+        comps = [list(f[s:s + TORCH_CHUNK].T.contiguous()) if f.ndim > 1 else A.components(f)
+                 for f in flats]
+        r = fn(o, *comps)
+        parts.append(pack_matrix(o, r, like) if matrix else pack(o, r, like))
+    out = xp.concat(parts, axis=0)
+    return xp.reshape(out, (*batch, *out.shape[1:]))
 
 
 def _compute_chunked(fn: Any, arrays: tuple, like: np.ndarray, matrix: bool) -> Any:

@@ -172,7 +172,8 @@ def _loadtxt(
                 ndmin=2,
                 quotechar=None,
                 skiprows=skiprows,
-                encoding="utf-8-sig",
+                # the direct path only takes ASCII files; a BOM makes it fail -> list path
+                encoding="ascii",
             )
     except ValueError:
         return None
