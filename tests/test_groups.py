@@ -565,3 +565,25 @@ def test_sim3_exp_wide_scale_range(sigma, theta):
     X = Sim3.exp(z)
     np.testing.assert_allclose(X.matrix(), ref, rtol=1e-14, atol=1e-14 * np.abs(ref).max())
     np.testing.assert_allclose(X.log(), z, atol=1e-11)
+
+
+def test_large_batches_take_the_chunked_path_and_agree(group, backend):
+    """Batches above the chunk size (NumPy and CPU torch evaluate them in cache-sized chunks)
+    give the same numbers as single elements."""
+    from microlie.groups import base
+
+    G = group
+    n = 2 * max(base.CHUNK, base.TORCH_CHUNK) + 17
+    rng = np.random.default_rng(24)
+    X, Y = G.random(n, rng=rng), G.random(n, rng=rng)
+    tau = rng.standard_normal((n, G.dof))
+    Xb, Yb, tb = element(G, X.params, backend), element(G, Y.params, backend), \
+        to_backend(tau, backend)
+    res = {"compose": to_numpy(Xb @ Yb), "log": to_numpy(Xb.log()), "exp": to_numpy(G.exp(tb)),
+           "jr": to_numpy(G.jr(tb[:40000]))}
+    for i in (0, base.CHUNK - 1, base.CHUNK, base.TORCH_CHUNK + 3, n - 1):
+        np.testing.assert_allclose(res["compose"][i], (X[i] @ Y[i]).params, atol=1e-14)
+        np.testing.assert_allclose(res["log"][i], X[i].log(), atol=1e-14)
+        np.testing.assert_allclose(res["exp"][i], G.exp(tau[i]).params, atol=1e-14)
+        if i < 40000:
+            np.testing.assert_allclose(res["jr"][i], G.jr(tau[i]), atol=1e-13)
