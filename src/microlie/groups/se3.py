@@ -70,7 +70,7 @@ class SE3(Pose):
     >>> from microlie import SE3
     >>> T = SE3.exp(np.array([1.0, 0.0, 0.0, 0.0, 0.0, np.pi / 2]))
     >>> np.round(T.translation(), 6)
-    array([0.63662 , 0.63662 , 0.      ])
+    array([0.63662, 0.63662, 0.     ])
     """
 
     dof = 6
