@@ -4,7 +4,13 @@
     python benchmarks/groups.py --quick              # smoke test (small N, few repeats)
     python benchmarks/groups.py --peers scipy gtsam  # a subset of peers
     python benchmarks/groups.py --peers-only         # peers without microlie
+    python benchmarks/groups.py --backends jax,torch --peers jaxlie-jit pypose
     python benchmarks/groups.py --out results.md     # also write the markdown table
+
+microlie runs on each of its array backends (``--backends``, default all that import):
+``microlie`` (NumPy), ``microlie-jax-jit`` (``jax.jit`` on float64 JAX arrays) and
+``microlie-torch`` (float64 CPU tensors, autograd off). A second table compares the last two with
+the peer on the same array library (jaxlie-jit, PyPose).
 
 Two regimes per op: ``single`` (one element, microseconds per call, many loops, best of
 several repeats) and ``batch`` (N elements in one call, nanoseconds per element, best of 3-5
@@ -13,7 +19,9 @@ a smaller N (``--loop-n``), marked in the table.
 
 Before anything is timed, every library's output for every op is compared with scipy on a few
 inputs (microlie also on edge cases: zero, tiny and near-pi angles); a library/op that does not
-match is not timed, is marked in the table, and the exit status is 1.
+match is not timed, is marked in the table, and the exit status is 1. microlie on JAX and PyTorch
+must also give the same numbers as microlie on NumPy, on the check inputs and on the very output
+of each timed case (N elements).
 
 Thread counts are pinned (``--threads``, default 1) before NumPy, torch or JAX are imported, so
 every library runs on the same single core budget.
@@ -45,6 +53,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="peers to run (space or comma separated); default: all of "
         "scipy jaxlie jaxlie-jit pypose spatialmath gtsam",
     )
+    p.add_argument(
+        "--backends",
+        nargs="+",
+        default=None,
+        metavar="BACKEND",
+        help="microlie's array backends to run (space or comma separated): numpy (microlie), "
+        "jax (microlie-jax-jit), torch (microlie-torch); default: all that import",
+    )
     p.add_argument("--peers-only", action="store_true", help="do not run microlie")
     p.add_argument("--groups", nargs="+", default=None, help="subset of SO3 SE3")
     p.add_argument("--ops", nargs="+", default=None, help="subset of exp log compose act exp_jac")
@@ -68,6 +84,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         args.loop_n = args.loop_n or 200
     args.n = args.n or DEFAULT_N
     args.loop_n = args.loop_n or 10_000
+    if args.peers_only:
+        args.backends = []
+    elif args.backends is None:
+        args.backends_explicit, args.backends = False, list(BACKENDS)
+    else:
+        args.backends = [b for item in args.backends for b in item.split(",") if b]
+        for bad in set(args.backends) - set(BACKENDS):
+            p.error(f"unknown backend {bad!r}; known: {', '.join(BACKENDS)}")
+    args.backends_explicit = getattr(args, "backends_explicit", True)
     return args
 
 
@@ -101,7 +126,28 @@ class Cell:
     na: str = ""  # why there is no value (unsupported, failed check, error)
 
 
-def _load_microlie_peer(peers_mod):
+BACKENDS = ("numpy", "jax", "torch")
+# library name of microlie on each backend (the NumPy one keeps the plain name)
+BACKEND_LIB = {"numpy": "microlie", "jax": "microlie-jax-jit", "torch": "microlie-torch"}
+# the peer each non-NumPy backend is compared with (same array library, same execution model)
+BACKEND_PEER = {"jax": "jaxlie-jit", "torch": "pypose"}
+# microlie-jax / microlie-torch must equal microlie-numpy to this relative tolerance
+BACKEND_TOL = 1e-12
+# microlie is checked on this many elements (edge cases first): more than 2 x 8192, so that
+# microlie's NumPy path runs in chunks (it does from 16,384 elements on), a last partial one too
+CHECK_N_MICROLIE = 20_000
+
+
+def _microlie_peer(peers_mod, backend: str):
+    """microlie through its public API on one array backend, as a peer object.
+
+    numpy: NumPy float64 arrays. torch: CPU float64 tensors, ``torch.set_num_threads(threads)``,
+    autograd disabled (like PyPose). jax: float64 (``jax_enable_x64``) arrays, every op wrapped
+    in ``jax.jit`` (elements are pytrees: they go in and come out of the jitted function),
+    compiled and warmed up while the case is prepared, every call ends in
+    ``block_until_ready``. Elements are built from their parameters (``G(params)``) outside the
+    timed region.
+    """
     import operator
     from functools import partial
 
@@ -110,43 +156,125 @@ def _load_microlie_peer(peers_mod):
     Case, Peer, params_to_matrix = peers_mod.Case, peers_mod.Peer, peers_mod.params_to_matrix
 
     class MicroliePeer(Peer):
-        """microlie itself, through its public API, with NumPy float64 arrays."""
-
-        name = "microlie"
+        name = BACKEND_LIB[backend]
+        microlie_backend = backend
 
         def setup(self) -> None:
+            if backend == "torch":
+                import torch
+
+                torch.set_num_threads(self.threads)
+                torch.set_grad_enabled(False)  # as for PyPose: no autograd graph, no_grad
+                self.torch = torch
+            elif backend == "jax":
+                import jax
+
+                jax.config.update("jax_enable_x64", True)
+                import jax.numpy as jnp
+
+                self.jax, self.jnp = jax, jnp
             import microlie
 
             self.mod = microlie
 
         def version(self) -> str:
-            return getattr(self.mod, "__version__", None) or peers_mod._dist_version("microlie")
+            v = getattr(self.mod, "__version__", None) or peers_mod._dist_version("microlie")
+            if backend == "numpy":
+                return v
+            return f"{v} ({backend} {peers_mod._dist_version(backend)})"
+
+        def _arr(self, a):
+            """A NumPy input array in this backend (float64, contiguous)."""
+            a = np.ascontiguousarray(a, dtype=np.float64)
+            if backend == "torch":
+                return self.torch.from_numpy(a.copy())
+            if backend == "jax":
+                return self.jax.device_put(self.jnp.asarray(a))
+            return a
 
         def _elem(self, inp, which):
-            R = self.mod.SO3.from_quat(inp.quat(which))
-            if inp.group == "SO3":
-                return R
-            return self.mod.SE3.from_rotation_translation(R, inp.trans(which).copy())
+            return getattr(self.mod, inp.group)(self._arr(getattr(inp, which)))
+
+        def _make(self, f, args, n, to_canonical):
+            """Case for ``f(*args)``: called directly, or jitted + blocked on JAX."""
+            if backend != "jax":
+                return Case(partial(f, *args), n, to_canonical)
+            jax = self.jax
+            jf = jax.jit(f)
+            jax.block_until_ready(jf(*args))  # compile + warm up outside the timed region
+            return Case(partial(peers_mod._call_and_block, jax.block_until_ready, jf, args),
+                        n, to_canonical)
 
         def case(self, op, inp):
             group = inp.group
             G = getattr(self.mod, group)
             to_m = lambda X: params_to_matrix(group, np.asarray(X.params))
+            jit = backend == "jax"
             if op == "exp":
-                return Case(partial(G.exp, inp.tau), inp.n, to_m)
+                f = _exp(G) if jit else G.exp
+                return self._make(f, (self._arr(inp.tau),), inp.n, to_m)
             if op == "log":
-                return Case(self._elem(inp, "x").log, inp.n, np.asarray)
+                X = self._elem(inp, "x")
+                f = _log if jit else X.log
+                return self._make(f, (X,) if jit else (), inp.n, np.asarray)
             if op == "compose":
                 a, b = self._elem(inp, "x"), self._elem(inp, "y")
-                return Case(partial(operator.matmul, a, b), inp.n, to_m)
+                return self._make(operator.matmul, (a, b), inp.n, to_m)
             if op == "act":
-                return Case(partial(self._elem(inp, "x").act, inp.points), inp.n, np.asarray)
+                X, pts = self._elem(inp, "x"), self._arr(inp.points)
+                f = _act if jit else X.act
+                return self._make(f, (X, pts) if jit else (pts,), inp.n, np.asarray)
             if op == "exp_jac":
                 conv = lambda out: (to_m(out[0]), np.asarray(out[1]))
-                return Case(partial(G.exp, inp.tau, jac=True), inp.n, conv)
+                f = _exp_jac(G) if jit else partial(G.exp, jac=True)
+                return self._make(f, (self._arr(inp.tau),), inp.n, conv)
             raise ValueError(op)
 
     return MicroliePeer()
+
+
+# module-level functions for jax.jit (a stable identity per op; elements are pytree arguments)
+def _log(X):
+    return X.log()
+
+
+def _act(X, points):
+    return X.act(points)
+
+
+def _exp(G):
+    return _JITTABLE.setdefault((G, "exp"), lambda tau: G.exp(tau))
+
+
+def _exp_jac(G):
+    return _JITTABLE.setdefault((G, "exp_jac"), lambda tau: G.exp(tau, jac=True))
+
+
+_JITTABLE: dict = {}
+
+
+def to_raw(out):
+    """A microlie output (element, array or tuple of them, any backend) as NumPy arrays."""
+    import numpy as np
+
+    if isinstance(out, tuple):
+        return tuple(to_raw(o) for o in out)
+    if hasattr(out, "params"):
+        return np.asarray(out.params)
+    return np.asarray(out)
+
+
+def raw_mismatch(got, want) -> float:
+    """Largest ``|got - want| / (1 + max|want|)`` over the parts of two raw outputs."""
+    import numpy as np
+
+    if isinstance(want, tuple):
+        return max(raw_mismatch(g, w) for g, w in zip(got, want, strict=True))
+    if got.shape != want.shape or got.dtype != want.dtype:
+        raise AssertionError(f"{got.dtype}{got.shape} != microlie-numpy {want.dtype}{want.shape}")
+    if want.size == 0:
+        return 0.0
+    return float(np.max(np.abs(got - want)) / (1.0 + np.max(np.abs(want))))
 
 
 def edge_inputs(peers_mod, group: str, n: int, seed: int):
@@ -167,16 +295,24 @@ def edge_inputs(peers_mod, group: str, n: int, seed: int):
     return peers_mod.Inputs(group, tau, x, base.y, base.points)
 
 
-def check_all(peers_mod, libs, groups, ops, seed) -> dict:
-    """Compare every library/op with scipy; returns {(lib, group, op): '' | reason}."""
+def check_all(peers_mod, libs, groups, ops, seed, ref_micro=None) -> dict:
+    """Compare every library/op with scipy; returns {(lib, group, op): '' | reason}.
+
+    microlie on JAX / PyTorch must moreover give the same numbers as microlie on NumPy
+    (``ref_micro``) on the same inputs, edge cases included (:data:`BACKEND_TOL`).
+    """
     status = {}
     for group in groups:
         plain = peers_mod.make_inputs(group, 32, seed + 1)
-        edged = edge_inputs(peers_mod, group, 32, seed + 1)
+        edged = edge_inputs(peers_mod, group, CHECK_N_MICROLIE, seed + 1)
         for op in ops:
             for lib in libs:
-                inputs = edged if lib.name == "microlie" else plain
-                status[(lib.name, group, op)] = _check_one(peers_mod, lib, op, inputs)
+                backend = getattr(lib, "microlie_backend", None)
+                inputs = edged if backend else plain
+                why = _check_one(peers_mod, lib, op, inputs)
+                if not why and backend not in (None, "numpy"):
+                    why = _check_same_as_numpy(lib, ref_micro, op, inputs)
+                status[(lib.name, group, op)] = why
     return status
 
 
@@ -196,6 +332,28 @@ def _check_one(peers_mod, lib, op, batch_inputs) -> str:
         if not err <= tol:
             regime = "batch" if inp.batched else "single"
             return f"FAILED check vs scipy ({regime}): max error {err:.2e} > {tol:.0e}"
+    return ""
+
+
+def _check_same_as_numpy(lib, ref_micro, op, batch_inputs) -> str:
+    for inp in (batch_inputs.single(-1), batch_inputs.single(0), batch_inputs):
+        regime = "batch" if inp.batched else "single"
+        why = compare_with_numpy(lib, ref_micro, op, inp, lib.case(op, inp).fn())
+        if why:
+            return f"{why} ({regime}, {inp.n} elements)"
+    return ""
+
+
+def compare_with_numpy(lib, ref_micro, op, inp, out) -> str:
+    """'' if ``out`` (``lib``'s output of ``op`` on ``inp``) equals microlie-numpy's output."""
+    try:
+        got = to_raw(out)
+        want = to_raw(ref_micro.case(op, inp).fn())
+        err = raw_mismatch(got, want)
+    except Exception as e:
+        return f"ERROR comparing with microlie-numpy: {type(e).__name__}: {e}"
+    if not err <= BACKEND_TOL:
+        return f"FAILED: differs from microlie-numpy by {err:.2e} > {BACKEND_TOL:.0e}"
     return ""
 
 
@@ -246,9 +404,12 @@ def fmt_num(x: float) -> str:
 
 
 def render(results, libs, skipped, groups, ops, regimes, args, header_lines) -> str:
+    """The markdown report: microlie (NumPy) vs every peer, then microlie on JAX / PyTorch vs
+    the peer on the same array library (when those backends ran)."""
     names = [lib.name for lib in libs]
+    backend_names = [BACKEND_LIB[b] for b in ("jax", "torch") if BACKEND_LIB[b] in names]
     have_micro = "microlie" in names
-    peer_names = [n for n in names if n != "microlie"]
+    peer_names = [n for n in names if n != "microlie" and n not in backend_names]
     notes: dict[str, int] = {}
 
     def mark(text: str) -> str:
@@ -264,40 +425,77 @@ def render(results, libs, skipped, groups, ops, regimes, args, header_lines) -> 
             return f"{short} {mark(c.na)}"
         return fmt_num(c.value) + (f" {mark(c.note)}" if c.note else "")
 
-    cols = ["group", "op", "regime"]
-    if have_micro:
-        cols.append("microlie")
-    for pn in peer_names:
-        cols.append(pn)
-        if have_micro:
-            cols.append(f"µ/{pn}")
-    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
     regime_label = {
         "single": "single (µs/call)",
         "batch": f"batch N={args.n:,} (ns/elem)",
     }
-    for group in groups:
-        for op in ops:
-            for regime in regimes:
-                row = [group, op, regime_label[regime]]
-                mc = results.get(("microlie", group, op, regime))
-                if have_micro:
-                    row.append(cell(mc))
-                for pn in peer_names:
-                    pc = results.get((pn, group, op, regime))
-                    row.append(cell(pc))
-                    if have_micro:
-                        ok = mc and pc and mc.value is not None and pc.value is not None
-                        row.append(f"{mc.value / pc.value:.2f}" if ok else "")
-                lines.append("| " + " | ".join(row) + " |")
+
+    def table(columns) -> list[str]:
+        """columns: ("lib", name) or ("ratio", numerator lib, denominator lib, header)."""
+        heads = ["group", "op", "regime"] + [c[1] if c[0] == "lib" else c[3] for c in columns]
+        lines = ["| " + " | ".join(heads) + " |", "|" + "|".join("---" for _ in heads) + "|"]
+        for group in groups:
+            for op in ops:
+                for regime in regimes:
+                    row = [group, op, regime_label[regime]]
+                    for col in columns:
+                        if col[0] == "lib":
+                            row.append(cell(results.get((col[1], group, op, regime))))
+                            continue
+                        num = results.get((col[1], group, op, regime))
+                        den = results.get((col[2], group, op, regime))
+                        ok = num and den and num.value is not None and den.value is not None
+                        row.append(f"{num.value / den.value:.2f}" if ok else "")
+                    lines.append("| " + " | ".join(row) + " |")
+        return lines
+
+    main_cols: list[tuple] = [("lib", "microlie")] if have_micro else []
+    for pn in peer_names:
+        main_cols.append(("lib", pn))
+        if have_micro:
+            main_cols.append(("ratio", "microlie", pn, f"µ/{pn}"))
 
     out = list(header_lines)
     out.append("")
-    out.extend(lines)
-    out.append("")
-    if have_micro:
-        out.append("µ/peer = microlie time / peer time: below 1 means microlie is faster.")
+    if main_cols:
+        out.append("## microlie (NumPy) vs peers" if have_micro else "## Peers")
         out.append("")
+        out.extend(table(main_cols))
+        out.append("")
+        if have_micro and peer_names:
+            out.append("µ/peer = microlie time / peer time: below 1 means microlie is faster.")
+            out.append("")
+    if backend_names:
+        back_cols: list[tuple] = [("lib", "microlie")] if have_micro else []
+        ratio_lines = []
+        for b in ("jax", "torch"):
+            mine, peer = BACKEND_LIB[b], BACKEND_PEER[b]
+            if mine not in backend_names:
+                continue
+            back_cols.append(("lib", mine))
+            if peer in names:
+                back_cols += [("lib", peer), ("ratio", mine, peer, f"{mine} / {peer}")]
+                ratio_lines.append(f"{mine} / {peer}")
+        out.append("## microlie on JAX and PyTorch vs the peer on the same array library")
+        out.append("")
+        out.append(
+            "microlie-jax-jit: `jax.jit` of microlie's op on float64 JAX arrays (elements are "
+            "pytree arguments/results), compiled before timing, `block_until_ready`; "
+            "microlie-torch: microlie's op on float64 CPU tensors, `torch.set_num_threads("
+            f"{args.threads})`, autograd disabled (as for PyPose). "
+            + ("The microlie column is the NumPy backend, for reference. " if have_micro else "")
+            + "Both give the same numbers as microlie on NumPy (relative difference <= "
+            f"{BACKEND_TOL:.0e}), checked on the check inputs and on the timed output itself."
+        )
+        out.append("")
+        out.extend(table(back_cols))
+        out.append("")
+        if ratio_lines:
+            out.append(
+                ", ".join(ratio_lines) + ": microlie time / peer time on the same array library; "
+                "below 1 means microlie is faster."
+            )
+            out.append("")
     if notes:
         out.append("Notes:")
         out.append("")
@@ -305,7 +503,7 @@ def render(results, libs, skipped, groups, ops, regimes, args, header_lines) -> 
             out.append(f"- [{i}] {text}")
         out.append("")
     if skipped:
-        out.append("Skipped peers (not importable here):")
+        out.append("Skipped (not importable here):")
         out.append("")
         for name, why in skipped.items():
             out.append(f"- {name}: {why}")
@@ -320,7 +518,25 @@ def _load() -> float:
         return float("nan")
 
 
-def environment_lines(libs, args, load_start: float) -> list[str]:
+def microlie_source() -> str:
+    """The git commit of the microlie that is imported, '+ uncommitted changes' if src/ is dirty."""
+    import subprocess
+
+    try:
+        import microlie
+
+        src = os.path.dirname(os.path.abspath(microlie.__file__))
+        git = ["git", "-C", src]
+        sha = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True,
+                             text=True, check=True).stdout.strip()
+        dirty = subprocess.run([*git, "status", "--porcelain", "--", "."], capture_output=True,
+                               text=True, check=True).stdout.strip()
+    except Exception:  # not a git checkout (installed wheel) or no git: nothing to report
+        return ""
+    return f"git {sha}" + (" + uncommitted changes in src/microlie" if dirty else "")
+
+
+def environment_lines(libs, args, loads: list[float]) -> list[str]:
     import numpy as np
 
     cpu = platform.processor() or "?"
@@ -358,10 +574,13 @@ def environment_lines(libs, args, load_start: float) -> list[str]:
         "calibrated loop; batch: ns per element for one call on N elements, best of "
         f"{args.repeat or ('2' if args.quick else '3-5')} rounds; libraries alternate "
         "round-robin within each row",
-        f"- load average (1 min) at start / end: {load_start:.2f} / {_load():.2f} "
-        "(other processes share the cores: compare numbers within one run)",
+        f"- load average (1 min): {loads[0]:.2f} at start, {min(loads):.2f}-{max(loads):.2f} "
+        f"while timing (sampled after each row), {_load():.2f} at end; {os.cpu_count()} cores "
+        "shared with other processes: compare numbers within one run",
         "- versions: " + ", ".join(f"{lib.name} {lib.version()}" for lib in libs),
     ]
+    if getattr(args, "microlie_source", ""):
+        lines.append(f"- microlie source (when imported): {args.microlie_source}")
     if args.quick:
         lines.append("- **--quick run: small N, few repeats; numbers are only a smoke test**")
     return lines
@@ -370,7 +589,7 @@ def environment_lines(libs, args, load_start: float) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     pin_threads(args.threads)
-    load_start = _load()
+    loads = [_load()]
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import _timing
@@ -390,16 +609,19 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"unknown op {bad!r}")
 
     libs, skipped = [], {}
-    if not args.peers_only:
-        micro = _load_microlie_peer(peers_mod)
+    ref_micro = None  # microlie on NumPy: timed if selected, the reference for the other backends
+    if args.backends:
+        ref_micro = _microlie_peer(peers_mod, "numpy")
         try:
-            micro.setup()
+            ref_micro.setup()
         except ImportError as e:
             raise SystemExit(
                 f"microlie is not importable ({e}); install it (pip install -e .) "
                 "or run with --peers-only"
             ) from None
-        libs.append(micro)
+        args.microlie_source = microlie_source()  # now: src/ may change while the run goes on
+        if "numpy" in args.backends:
+            libs.append(ref_micro)
     for name in requested:
         peer = peers_mod.make_peer(name)
         peer.threads, peer.loop_n = args.threads, args.loop_n
@@ -412,11 +634,25 @@ def main(argv: list[str] | None = None) -> int:
             log(f"skipping peer {name}: {skipped[name]}")
             continue
         libs.append(peer)
+    for backend in args.backends:
+        if backend == "numpy":
+            continue
+        lib = _microlie_peer(peers_mod, backend)
+        lib.threads = args.threads
+        try:
+            lib.setup()
+        except ImportError as e:
+            if args.backends_explicit:
+                raise SystemExit(f"backend {backend} requested but not importable: {e}") from None
+            skipped[lib.name] = f"{type(e).__name__}: {e}"
+            log(f"skipping backend {backend}: {skipped[lib.name]}")
+            continue
+        libs.append(lib)
     log("libraries: " + ", ".join(f"{lib.name} {lib.version()}" for lib in libs))
 
     # 1. sanity check: never time a wrong implementation
     t0 = time.perf_counter()
-    status = check_all(peers_mod, libs, groups, ops, args.seed)
+    status = check_all(peers_mod, libs, groups, ops, args.seed, ref_micro)
     log(f"sanity check vs scipy: {len(status)} lib/op pairs in {time.perf_counter() - t0:.1f} s")
     failures = {k: v for k, v in status.items() if v and not v.startswith("N/A")}
     for (lib, group, op), why in failures.items():
@@ -442,10 +678,21 @@ def main(argv: list[str] | None = None) -> int:
                         results[key] = Cell(na=why)
                         continue
                     try:
-                        cases[lib.name] = lib.case(op, inp)
+                        case = lib.case(op, inp)
                     except Exception as e:
                         results[key] = Cell(na=f"ERROR preparing: {type(e).__name__}: {e}")
+                        continue
+                    if getattr(lib, "microlie_backend", "numpy") != "numpy":
+                        # the very output that is about to be timed must equal microlie-numpy's
+                        why = compare_with_numpy(lib, ref_micro, op, inp, case.fn())
+                        if why:
+                            failures[(lib.name, group, op)] = why
+                            results[key] = Cell(na=f"{why} (timed inputs, N={inp.n:,})")
+                            log(f"  !! {lib.name} {group}.{op} {regime}: {why}")
+                            continue
+                    cases[lib.name] = case
                 timed = time_cases(_timing, cases, regime, args)
+                loads.append(_load())
                 unit = "us/call" if regime == "single" else "ns/elem"
                 for lib in libs:
                     if lib.name not in timed:
@@ -469,7 +716,7 @@ def main(argv: list[str] | None = None) -> int:
         ops,
         regimes,
         args,
-        environment_lines(libs, args, load_start),
+        environment_lines(libs, args, loads),
     )
     print(report)
     if args.out:
@@ -493,10 +740,11 @@ def main(argv: list[str] | None = None) -> int:
             for k, c in results.items()
         ]
         with open(args.json, "w") as f:
-            json.dump({"n": args.n, "threads": args.threads, "results": raw}, f, indent=1)
-    micro_failed = any(k[0] == "microlie" for k in failures)
+            meta = {"n": args.n, "threads": args.threads, "backends": args.backends, "loads": loads}
+            json.dump({**meta, "results": raw}, f, indent=1)
+    micro_failed = sorted({k[0] for k in failures if k[0].startswith("microlie")})
     if micro_failed:
-        log("microlie FAILED the sanity check for some ops: those were not timed")
+        log(f"{', '.join(micro_failed)} FAILED the sanity check for some ops: those were not timed")
     return 1 if failures else 0
 
 
