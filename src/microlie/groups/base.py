@@ -79,8 +79,7 @@ def _compute_chunked_torch(o: Any, fn: Any, arrays: tuple, like: Array, matrix: 
     flats = [xp.reshape(a, (n, a.shape[-1])) if a.ndim > 1 else a for a in arrays]
     parts = []
     for s in range(0, n, TORCH_CHUNK):
-        comps = [list(f[s:s + TORCH_CHUNK].T.contiguous()) if f.ndim > 1 else A.components(f)
-                 for f in flats]
+        comps = [A.components(f[s:s + TORCH_CHUNK] if f.ndim > 1 else f) for f in flats]
         r = fn(o, *comps)
         parts.append(pack_matrix(o, r, like) if matrix else pack(o, r, like))
     out = xp.concat(parts, axis=0)
