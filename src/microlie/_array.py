@@ -143,7 +143,10 @@ def is_torch(x: Array) -> bool:
 
 
 def is_traced(x: Array) -> bool:
-    """True for a JAX tracer (values unknown: no value checks possible)."""
+    """True for a JAX tracer or a torch tensor under ``torch.compile`` (values unknown: no
+    value checks possible)."""
+    if is_torch(x):
+        return _torch_compiling(x)
     if not is_jax(x):
         return False
     import jax
@@ -267,8 +270,18 @@ def check_finite(x: Array, what: str) -> None:
     if is_traced(x):
         return
     xp = namespace(x)
-    if not bool(xp.all(xp.isfinite(x))):
+    # one reduction first (NaN/inf propagate through a sum); the exact test only if it fails
+    if not math.isfinite(float(xp.sum(x))) and not bool(xp.all(xp.isfinite(x))):
         raise ValueError(f"{what} contains NaN or infinite values")
+
+
+def _torch_compiling(x: Array) -> bool:
+    """True while ``torch.compile`` traces (values unknown, and a check would break the graph)."""
+    if not is_torch(x):
+        return False
+    import torch
+
+    return bool(torch.compiler.is_compiling())
 
 
 def check_last_dim(x: Array, n: int | tuple[int, ...], what: str) -> None:
