@@ -270,6 +270,8 @@ def check_finite(x: Array, what: str) -> None:
     if is_traced(x):
         return
     xp = namespace(x)
+    if is_torch(x):
+        x = x.detach()
     # one reduction first (NaN/inf propagate through a sum); the exact test only if it fails
     if not math.isfinite(float(xp.sum(x))) and not bool(xp.all(xp.isfinite(x))):
         raise ValueError(f"{what} contains NaN or infinite values")
