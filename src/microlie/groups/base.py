@@ -391,7 +391,8 @@ class LieGroup:
 
     def compose(self, other: LieGroup, jac: bool = False, side: str = "right"):
         """``X Y``. Jacobians (right): ``Ad_Y^-1`` and ``I``; (left): ``I`` and ``Ad_X``."""
-        self._same_group(other)
+        if type(other) is not type(self):
+            self._same_group(other)
         Z = self._wrap(compute(self._compose, (self.params, other.params), self.params))
         if not jac:
             return Z

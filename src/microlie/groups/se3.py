@@ -111,8 +111,9 @@ class SE3(Pose):
 
     @staticmethod
     def _compose(o, p, q):
-        r = so3.quat_rotate(p[3:], q[:3])
-        return (p[0] + r[0], p[1] + r[1], p[2] + r[2], *so3.quat_mul(p[3:], q[3:]))
+        a = p[3:]
+        r = so3.quat_rotate(a, q)  # reads q[0:3], the translation of q
+        return (p[0] + r[0], p[1] + r[1], p[2] + r[2], *so3.quat_mul(a, q[3:]))
 
     @staticmethod
     def _inverse(o, p):

@@ -99,13 +99,14 @@ def quat_conj(q: tuple) -> tuple:
 def quat_rotate(q: tuple, v: tuple) -> tuple:
     """``R(q) v = v + 2 w (u x v) + 2 u x (u x v)`` for a unit quaternion ``(u, w)``."""
     x, y, z, w = q
+    v0, v1, v2 = v[0], v[1], v[2]  # v may carry more components (only the first 3 are used)
     x2, y2, z2 = x + x, y + y, z + z
-    c0 = y2 * v[2] - z2 * v[1]  # c = 2 u x v
-    c1 = z2 * v[0] - x2 * v[2]
-    c2 = x2 * v[1] - y2 * v[0]
-    return (v[0] + w * c0 + (y * c2 - z * c1),  # v + w c + u x c
-            v[1] + w * c1 + (z * c0 - x * c2),
-            v[2] + w * c2 + (x * c1 - y * c0))
+    c0 = y2 * v2 - z2 * v1  # c = 2 u x v
+    c1 = z2 * v0 - x2 * v2
+    c2 = x2 * v1 - y2 * v0
+    return (v0 + w * c0 + (y * c2 - z * c1),  # v + w c + u x c
+            v1 + w * c1 + (z * c0 - x * c2),
+            v2 + w * c2 + (x * c1 - y * c0))
 
 
 def quat_to_matrix(q: tuple) -> tuple:
