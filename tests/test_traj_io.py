@@ -217,3 +217,64 @@ def test_quaternion_tolerance_is_configurable(tmp_path):
         read_tum(f)
     t = read_tum(f, quat_tol=0.05)  # accepted and normalised
     np.testing.assert_allclose(t.quat_xyzw[0], [0, 0, 0, 1], atol=1e-15)
+
+
+# ----------------------------------------------------------------------------- fast path
+@pytest.mark.parametrize(
+    "text, comma",
+    [
+        ("# h\n1 2 3\n4 5 6\n", False),  # direct from the file
+        ("\ufeff# h\n1 2 3\n", False),  # BOM: line list
+        ("1 2 3\r\n4 5 6\r\n", False),  # CRLF
+        ("1 2 3\n# middle\n\n4 5 6\n", False),  # comment below the header
+        ("1,2,3\n4 , 5,6\n", False),  # commas as separators
+        ("1 2 3\n,\n4 5 6\n", False),  # a line of commas has no fields: error on line 2
+        ("# a\x0b1 2 3\n4 5 6\n", False),  # \x0b ends a line for str.splitlines
+        ("1 2 3\n1_0 2 3\n", False),  # float() accepts underscores, loadtxt does not
+        ("1 2 3\n4 5 6 # trailing\n", False),  # only whole-line comments
+        ("1 2 3\n\u0661 2 3\n", False),  # non-ASCII digit (float() accepts it)
+        ("1 2 3\n  \t \n4 5 6", False),  # whitespace-only line, no final newline
+        ("#t,x,y\n1,2,3,9\n4,5,6\n", True),  # extra columns ignored
+        ("1,2,3\n   \n4,5,6\n", True),
+        ("1 2 3\n4 5 6\n", True),  # spaces do not separate CSV fields
+        ("1,,3\n", True),
+    ],
+)
+def test_fast_path_agrees_with_careful_parser(tmp_path, text, comma):
+    from microlie.traj import io
+
+    f = tmp_path / "m.txt"
+    f.write_bytes(text.encode("utf-8"))
+
+    def careful():
+        numbers, rows = io._data_lines(f, comma)
+        return io._to_matrix(f, numbers, rows, 3, at_least=comma, what="x")
+
+    def fast():
+        return io._read_matrix(f, 3, comma=comma, at_least=comma, what="x")[1]
+
+    results = []
+    for fn in (careful, fast):
+        try:
+            results.append(fn())
+        except ValueError as e:
+            results.append(str(e))
+    if isinstance(results[0], str):
+        assert results[1] == results[0]
+    else:
+        np.testing.assert_array_equal(results[1], results[0])
+
+
+def test_euroc_rejects_space_separated_lines(tmp_path):
+    # a TUM file given as EuRoC: every line is one CSV field
+    _expect(read_euroc, tmp_path, TUM_OK, r"bad.csv:1: expected at least 8 fields .* found 1",
+            name="bad.csv")
+
+
+def test_read_tum_matches_from_arrays():
+    path = data_file(EVO + "fr2_desk_ORB.txt")
+    raw = np.loadtxt(path)
+    from microlie.traj import Trajectory
+
+    ref = Trajectory.from_arrays(raw[:, 1:4], raw[:, 4:8], raw[:, 0])
+    np.testing.assert_array_equal(read_tum(path).poses.params, ref.poses.params)
