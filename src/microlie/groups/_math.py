@@ -9,7 +9,7 @@ gradient can become NaN.
 from __future__ import annotations
 
 from fractions import Fraction
-from math import factorial
+from math import comb, factorial
 from typing import Any
 
 # Below this squared angle the closed forms that do not cancel (sin t / t, cos t) switch to a
@@ -46,18 +46,14 @@ C_SIN5 = _series(lambda k: Fraction((-1) ** k * (k + 1), factorial(2 * k + 5)), 
 
 
 def _bernoulli(n: int) -> list[Fraction]:
-    b = [Fraction(0)] * (n + 1)
-    for m in range(n + 1):
-        a = [Fraction(0)] * (m + 1)
-        for j in range(m + 1):
-            a[j] = Fraction(1, j + 1)
-            for jj in range(j, 0, -1):
-                a[jj - 1] = jj * (a[jj - 1] - a[jj])
-        b[m] = a[0]
+    """Bernoulli numbers B_0..B_n (B_1 = -1/2), from sum_k C(m+1, k) B_k = 0."""
+    b = [Fraction(1)]
+    for m in range(1, n + 1):
+        b.append(-sum(comb(m + 1, k) * b[k] for k in range(m)) / (m + 1))
     return b
 
 
-_B = _bernoulli(30)
+_B = _bernoulli(24)
 # (1 - (t/2) cot(t/2)) / t^2 = sum_{n>=1} |B_2n| t^(2n-2) / (2n)!
 C_COT = _series(lambda k: abs(_B[2 * k + 2]) / factorial(2 * k + 2), 12)
 # (h cot h) in powers of h^2: 1 - h^2/3 - h^4/45 ...  (x cot x = sum (-4)^n B_2n x^2n/(2n)!)
