@@ -271,7 +271,10 @@ def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None)
     """Read a TUM trajectory ``timestamp tx ty tz qx qy qz qw`` (quaternion scalar last).
 
     Example:
-        >>> traj = read_tum("groundtruth.txt")  # doctest: +SKIP
+        >>> from microlie.data import example_paths
+        >>> traj = read_tum(example_paths()[0])
+        >>> len(traj), traj.poses.params.shape
+        (150, (150, 7))
     """
     numbers, mat = _read_matrix(path, 8, what="timestamp tx ty tz qx qy qz qw")
     return _quat_trajectory(
