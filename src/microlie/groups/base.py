@@ -96,7 +96,7 @@ def _compute_chunked(fn: Any, arrays: tuple, like: np.ndarray, matrix: bool) -> 
     shape = None
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
-        comps = [list(f[s:e].T.copy()) if isinstance(f, np.ndarray) else f for f in flats]
+        comps = [A.components(f[s:e]) if isinstance(f, np.ndarray) else f for f in flats]
         r = fn(NUMPY, *comps)
         if matrix:
             shape = (len(r), len(r[0]))
