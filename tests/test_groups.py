@@ -14,6 +14,7 @@ from conftest import (
     element,
     fd_jacobian,
     require,
+    rotation_angle,
     tangent_with_angle,
     to_backend,
     to_numpy,
@@ -33,8 +34,7 @@ def seeds():
 
 def random_tangent(G, rng, scale=1.0, size=None):
     theta = rng.uniform(0.0, np.pi - 1e-3) * min(scale, 1.0)
-    return tangent_with_angle(G, rng, theta, size) * np.where(
-        np.arange(G.dof) < 0, 1.0, 1.0)
+    return tangent_with_angle(G, rng, theta, size)
 
 
 # ------------------------------------------------------------------------ axioms
@@ -73,16 +73,10 @@ def test_exp_log_against_scipy_expm_logm(G, seed):
     tau = random_tangent(G, rng)
     X = G.exp(tau)
     np.testing.assert_allclose(X.matrix(), expm(G.hat(tau)), atol=1e-12, rtol=1e-12)
-    if np.all(rotation_margin(G, tau) > 1e-2):
+    if np.all(np.pi - rotation_angle(G, tau) > 1e-2):
         L = np.real(logm(X.matrix()))
         np.testing.assert_allclose(G.hat(X.log()), L, atol=1e-9)
     np.testing.assert_allclose(G.vee(G.hat(tau)), tau, atol=1e-15)
-
-
-def rotation_margin(G, tau):
-    from conftest import rotation_angle
-
-    return np.pi - rotation_angle(G, tau)
 
 
 def test_exp_log_backends_and_dtypes(group, backend):
@@ -181,15 +175,6 @@ def _builders(G, rng, theta):
     }
 
 
-def _call(op, args, **kw):
-    if op == "exp":
-        return type(args[0]).exp(args[0], **kw) if isinstance(args[0], LieGroup) else None
-    return getattr(args[0], op)(*args[1:], **kw)
-
-
-OPS = ["inverse", "compose", "between", "act", "exp", "log", "plus", "minus", "lplus", "lminus"]
-
-
 @pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
 @pytest.mark.parametrize("where", list(HARD_ANGLES))
 @pytest.mark.parametrize("side", ["right", "left"])
@@ -278,7 +263,7 @@ def test_exp_log_roundtrip_float64(G):
         X = G.exp(tau)
         L = X.log()
         assert np.all(np.isfinite(L))
-        assert np.all(rotation_angle_of(G, L) <= np.pi + 1e-15)
+        assert np.all(rotation_angle(G, L) <= np.pi + 1e-15)
         assert _matrix_error(G.exp(L), X) <= 1e-14
 
 
@@ -287,12 +272,6 @@ def _matrix_error(X, Y):
     entries larger than 1 (poses), absolute for rotations."""
     a, b = X.matrix(), Y.matrix()
     return np.max(np.abs(a - b) / np.maximum(1.0, np.abs(b).max(axis=(-1, -2), keepdims=True)))
-
-
-def rotation_angle_of(G, tau):
-    from conftest import rotation_angle
-
-    return rotation_angle(G, tau)
 
 
 @pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
@@ -311,7 +290,7 @@ def test_exactly_pi_has_valid_log(G):
     else:
         X = SE2.from_matrix(np.array([[-1.0, 0, 1], [0, -1.0, 2], [0, 0, 1]]))
     L = X.log()
-    assert np.isclose(rotation_angle_of(G, L), np.pi, atol=1e-15)
+    assert np.isclose(rotation_angle(G, L), np.pi, atol=1e-15)
     np.testing.assert_allclose(G.exp(L).matrix(), X.matrix(), atol=1e-14)
 
 
@@ -322,7 +301,7 @@ def test_roundtrips_float32_on_backends(G, bk):
     rng = np.random.default_rng(18)
     for theta in [*PREC_ANGLES[:-2], np.pi - 1e-6]:
         tau = tangent_with_angle(G, rng, theta, 50).astype(np.float32)
-        tau = tau[rotation_angle_of(G, tau.astype(np.float64)) <= np.pi]
+        tau = tau[rotation_angle(G, tau.astype(np.float64)) <= np.pi]
         back = G.exp(to_backend(tau, bk, np.float32)).log()
         assert str(back.dtype).endswith("float32")
         assert np.abs(to_numpy(back) - tau).max() <= 1e-5
@@ -335,7 +314,7 @@ def test_roundtrips_float32(G):
     for theta in [*PREC_ANGLES[:-2], np.pi - 1e-6]:
         tau = tangent_with_angle(G, rng, theta, 50).astype(np.float32)
         # the float32 rounding of the vector may change its angle: keep it at most pi
-        tau = tau[rotation_angle_of(G, tau.astype(np.float64)) <= np.pi]
+        tau = tau[rotation_angle(G, tau.astype(np.float64)) <= np.pi]
         back = G.exp(tau).log()
         assert back.dtype == np.float32
         assert np.abs(back - tau).max() <= 1e-5, (theta, np.abs(back - tau).max())

@@ -13,21 +13,13 @@ right Jacobian (perturbation on the right of each input and of the output) unles
 
 from __future__ import annotations
 
+from math import factorial
 from typing import Any, ClassVar
 
 import numpy as np
 
 from .. import _array as A
 from .._array import NUMPY, SCALAR, Array, ops_for, pack, pack_matrix
-
-
-def _split(*arrays: Array) -> tuple[Any, list]:
-    """Choose the ops for ``arrays`` and split each into components (no chunking)."""
-    if all(type(a) is np.ndarray and a.ndim == 1 for a in arrays):
-        return SCALAR, [a.tolist() for a in arrays]
-    o = ops_for(*arrays)
-    return o, [A.components(a) for a in arrays]
-
 
 # Large NumPy batches are evaluated in chunks of this many elements, so that the dozens of
 # element-wise temporaries of one formula stay in the CPU cache (about twice as fast at 1e6).
@@ -349,9 +341,9 @@ class LieGroup:
         eye = _eye(cls.dof, t, batch)
         small = t / 2.0**halvings
         neg_ad = -cls.ad(small)
-        acc = eye * (1.0 / _fact(terms + 1))
+        acc = eye * (1.0 / factorial(terms + 1))
         for k in range(terms, 0, -1):
-            acc = eye * (1.0 / _fact(k)) + neg_ad @ acc
+            acc = eye * (1.0 / factorial(k)) + neg_ad @ acc
         jr = acc
         for level in range(halvings - 1, -1, -1):
             half = t / 2.0 ** (level + 1)
@@ -515,12 +507,6 @@ class LieGroup:
 
 
 _set_params = LieGroup.__dict__["params"].__set__
-
-
-def _fact(n: int) -> float:
-    from math import factorial
-
-    return float(factorial(n))
 
 
 def _bcast(m: Array, batch: tuple) -> Array:
