@@ -46,8 +46,14 @@ from pathlib import Path
 import numpy as np
 
 from ..groups import SE2, SE3, LieGroup
-from .pose_graph import (EdgeTag, PoseGraph, VertexTag, parse_pose_graph, symmetric_from_upper,
-                         unit_quaternions)
+from .pose_graph import (
+    EdgeTag,
+    PoseGraph,
+    VertexTag,
+    parse_pose_graph,
+    symmetric_from_upper,
+    unit_quaternions,
+)
 
 __all__ = ["read_g2o", "write_g2o"]
 

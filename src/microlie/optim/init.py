@@ -17,7 +17,7 @@ when the file has vertices and is the identity otherwise.
 >>> import numpy as np
 >>> from microlie import SE2
 >>> from microlie.optim.pose_graph import PoseGraph
->>> Z = SE2.from_xy_theta([1.0, 1.0, 0.0], [0.0, 0.0, 1.0], [np.pi / 2, np.pi / 2, 0.0])
+>>> Z = SE2.from_xy_theta([1.0, 1.0, 1.0], [0.0, 0.0, 1.0], [np.pi / 2, np.pi / 2, np.pi])
 >>> g = PoseGraph(SE2, ids=np.arange(3), poses=None, i=np.array([0, 1, 0]),
 ...               j=np.array([1, 2, 2]), measurements=Z, information=np.tile(np.eye(3), (3, 1, 1)))
 >>> np.round(odometry(g).translation(), 12).tolist()
@@ -34,7 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..groups import LieGroup
+from ..groups import SE2, SE3, LieGroup
 from .pose_graph import PoseGraph
 
 __all__ = ["initialize", "from_file", "odometry", "chordal", "INIT_METHODS"]
@@ -142,13 +142,13 @@ def chordal(graph: PoseGraph) -> LieGroup:
     """Chordal initialisation: rotations by linear least squares and projection to SO(n),
     then translations by linear least squares with the rotations fixed (see the module
     docstring). The anchor vertex keeps its file pose (identity without vertices)."""
-    G = graph.group
     d = graph.dim
     n = graph.num_vertices
     ii, jj = graph.edge_index()
     k0 = _anchor(graph)
     keep = np.delete(np.arange(n), k0)
     Z = graph.measurements
+    assert isinstance(Z, (SE2, SE3))
     Rz = np.asarray(Z.rotation().matrix())  # (E, d, d)
     tz = np.asarray(Z.translation())
     info = graph.information
@@ -190,12 +190,13 @@ def chordal(graph: PoseGraph) -> LieGroup:
     T[:, :d, :d] = R
     T[:, :d, d] = t
     T[:, d, d] = 1.0
-    X = G.from_matrix(T, normalize=True)
+    X = (SE2 if d == 2 else SE3).from_matrix(T, normalize=True)
     return _anchored(graph, X, k0)
 
 
 def _project_so(M: np.ndarray) -> np.ndarray:
-    """The nearest rotation matrix (Frobenius) to each ``(d, d)`` matrix: ``U diag(1.., det) V^T``."""
+    """The nearest rotation (Frobenius norm) to each ``(d, d)`` matrix: ``U diag(1, .., det)
+    V^T``."""
     U, _, Vt = np.linalg.svd(M)
     det = np.linalg.det(U @ Vt)
     D = np.ones(M.shape[:-1])

@@ -73,8 +73,11 @@ def read_toro(path: str | Path) -> PoseGraph:
 def _toro_values(X: LieGroup) -> np.ndarray:
     if isinstance(X, SE2):
         return _pose_values(X)
+    assert isinstance(X, SE3)
     p = np.asarray(X.params, dtype=np.float64)
-    return np.concatenate([p[:, :3], np.asarray(X.rotation().as_rpy())], axis=1)
+    R = X.rotation()
+    assert isinstance(R, SO3)
+    return np.concatenate([p[:, :3], np.asarray(R.as_rpy())], axis=1)
 
 
 def write_toro(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None) -> None:
