@@ -16,6 +16,9 @@ linear_solver="auto"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a :class:`Resu
 :class:`~microlie.Gaussian` marginals in the right-perturbation frame. Conventions: every
 variable is perturbed on the right (``X Exp(delta)``), every Jacobian is a right Jacobian,
 tangents are translation first.
+
+Pose-graph files: :mod:`microlie.optim.g2o`, :mod:`microlie.optim.toro` (both return a
+:class:`microlie.optim.pose_graph.PoseGraph`); initialisation: :mod:`microlie.optim.init`.
 """
 
 from .factors import BetweenFactor, CustomFactor, Factor, PriorFactor
