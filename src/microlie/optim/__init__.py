@@ -22,17 +22,25 @@ Pose-graph files: :mod:`microlie.optim.g2o`, :mod:`microlie.optim.toro` (both re
 """
 
 from .factors import BetweenFactor, CustomFactor, Factor, PriorFactor
-from .graph import FactorGraph
+from .graph import FactorGraph, from_pose_graph
 from .linear import LinearSolver, SingularSystemError, available_solvers, make_solver
-from .noise import Covariance, Diagonal, Information, Isotropic, NoiseModel, SqrtInformation, Unit
+from .noise import (
+    Covariance,
+    Diagonal,
+    Information,
+    Isotropic,
+    NoiseModel,
+    SqrtInformation,
+    Unit,
+)
 from .problem import GaugeError, Problem
 from .robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
 from .solvers import IterationRecord, Result
 from .variables import Values, Variables
 
-__all__ = ["FactorGraph", "Variables", "Values", "Factor", "PriorFactor", "BetweenFactor",
-           "CustomFactor", "NoiseModel", "Information", "SqrtInformation", "Covariance",
-           "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
+__all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "PriorFactor",
+           "BetweenFactor", "CustomFactor", "NoiseModel", "Information", "SqrtInformation",
+           "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
            "LinearSolver", "SingularSystemError", "GaugeError", "Problem", "available_solvers",
            "make_solver"]

@@ -212,7 +212,7 @@ class CustomFactor(Factor):
                 raise ValueError(f"CustomFactor: data[{k}] must have {self.count} rows, got "
                                  f"shape {a.shape}")
             self.data.append(a)
-        self._ad = None
+        self._ad: Callable[[list[Any]], Any] | None = None
 
     def _residual(self, values: list[Any]) -> np.ndarray:
         r = np.asarray(self.fn(*values, *self.data), dtype=np.float64)
@@ -230,7 +230,7 @@ class CustomFactor(Factor):
             if not jac:
                 return r
             Js = [np.asarray(J, dtype=np.float64) for J in out[1]]
-            for (var, _), J in zip(self.args, Js):
+            for (var, _), J in zip(self.args, Js, strict=False):
                 if J.shape != (self.count, self.dim, var.dof):
                     raise ValueError(f"CustomFactor: Jacobian of shape {J.shape}, expected "
                                      f"({self.count}, {self.dim}, {var.dof})")
@@ -265,7 +265,7 @@ class CustomFactor(Factor):
 
 def _parts(factor: CustomFactor, values: list[Any]) -> list[np.ndarray]:
     return [np.asarray(v if var.group is None else v.params)
-            for (var, _), v in zip(factor.args, values)]
+            for (var, _), v in zip(factor.args, values, strict=False)]
 
 
 def _make_jax(factor: CustomFactor) -> Callable[[list[Any]], Any]:
@@ -277,7 +277,7 @@ def _make_jax(factor: CustomFactor) -> Callable[[list[Any]], Any]:
 
     def single(deltas, params, data):
         vals = []
-        for G, d, p in zip(groups, deltas, params):
+        for G, d, p in zip(groups, deltas, params, strict=False):
             vals.append(p + d if G is None else element(G, p).plus(d))
         return jnp.asarray(factor.fn(*vals, *data)).reshape(factor.dim)
 
@@ -303,7 +303,7 @@ def _make_torch(factor: CustomFactor) -> Callable[[list[Any]], Any]:
 
     def single(deltas, params, data):
         vals = []
-        for G, d, p in zip(groups, deltas, params):
+        for G, d, p in zip(groups, deltas, params, strict=False):
             vals.append(p + d if G is None else element(G, p).plus(d))
         r = factor.fn(*vals, *data)
         return torch.as_tensor(r).reshape(factor.dim)

@@ -18,9 +18,9 @@ import importlib.util
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+import scipy.linalg as sla  # type: ignore[import-untyped]
+import scipy.sparse as sp  # type: ignore[import-untyped]
+import scipy.sparse.linalg as spla  # type: ignore[import-untyped]
 
 __all__ = ["LinearSolver", "SingularSystemError", "make_solver", "available_solvers",
            "SOLVERS"]
@@ -93,7 +93,7 @@ class QdldlSolver(LinearSolver):
 
     def analyse(self, indptr, indices, n):
         super().analyse(indptr, indices, n)
-        import qdldl
+        import qdldl  # type: ignore[import-not-found]
 
         self._mod = qdldl
         self._solver: Any = None
@@ -122,7 +122,7 @@ class PardisoSolver(LinearSolver):
 
     def analyse(self, indptr, indices, n):
         super().analyse(indptr, indices, n)
-        import pypardiso
+        import pypardiso  # type: ignore[import-not-found]
 
         self._ps = pypardiso.PyPardisoSolver(mtype=2)
         self._A = sp.csr_matrix((np.zeros(self._lower.size), self.lower_indices,

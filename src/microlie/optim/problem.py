@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+import scipy.sparse as sp  # type: ignore[import-untyped]
+from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
 
 from .factors import Factor
 from .robust import corrected_weights
@@ -87,7 +87,7 @@ class Problem:
             return
         rows, cols = [], []
         anchored = np.zeros(nn, dtype=bool)
-        for f, nodes in zip(self.factors, self.fargs):
+        for nodes in self.fargs:
             stack = np.stack(nodes)  # (K, m)
             free = stack >= 0
             nfree = free.sum(0)
@@ -123,7 +123,7 @@ class Problem:
             self.gauge_fixed.append(self._node_var(node))
 
     def _node_var(self, node: int) -> tuple[Variables, int]:
-        for v, nodes in zip(self.variables, self.node_of):
+        for v, nodes in zip(self.variables, self.node_of, strict=False):
             hit = np.flatnonzero(nodes == node)
             if hit.size:
                 return v, int(hit[0])
@@ -152,7 +152,7 @@ class Problem:
         nnz = int(pbase[-1])
         rows = np.empty(nnz, np.int64)
         cols = np.empty(nnz, np.int64)
-        for a_dof, b_dof in set(zip(du.tolist(), dv.tolist())):
+        for a_dof, b_dof in set(zip(du.tolist(), dv.tolist(), strict=False)):
             sel = np.flatnonzero((du == a_dof) & (dv == b_dof))
             ra, cb = np.divmod(np.arange(a_dof * b_dof), b_dof)
             slots = pbase[sel][:, None] + np.arange(a_dof * b_dof)
@@ -170,14 +170,14 @@ class Problem:
         dpos = [pos[pbase[pdiag][self.node_dof == d][:, None] + np.arange(d) * (d + 1)]
                 for d in np.unique(self.node_dof)]
         diag = np.empty(self.size, np.int64)
-        for d, dp in zip(np.unique(self.node_dof), dpos):
+        for d, dp in zip(np.unique(self.node_dof), dpos, strict=False):
             offs = self.node_off[:-1][self.node_dof == d][:, None] + np.arange(d)
             diag[offs.ravel()] = dp.ravel()
         self.diag_pos = diag
         # scatter indices per factor
         hdest, gdest = [], []
         self.fpairs = []
-        for f, nodes in zip(self.factors, self.fargs):
+        for f, nodes in zip(self.factors, self.fargs, strict=False):
             dofs = [var.dof for var, _ in f.args]
             pairs = []
             for k in range(len(nodes)):
@@ -243,7 +243,7 @@ class Problem:
         hw, gw = [], []
         cost = rcost = 0.0
         t_lin = t_prod = 0.0
-        for f, pairs in zip(self.factors, self.fpairs):
+        for f, pairs in zip(self.factors, self.fpairs, strict=False):
             ta = time.perf_counter()
             r, Js = f.evaluate(self.gather(f, states), True)
             r = np.asarray(r, dtype=np.float64)
@@ -262,7 +262,7 @@ class Problem:
                 sq = np.sqrt(np.maximum(f.loss.evaluate(s)[1], 0.0))
                 eA = [np.einsum("mi,mij->mj", e, A) for A in As]
                 As = [sq[:, None, None] * (A - (aos[:, None] * e)[:, :, None] * ea[:, None, :])
-                      for A, ea in zip(As, eA)]
+                      for A, ea in zip(As, eA, strict=False)]
                 e = scale[:, None] * e
             else:
                 rcost += 0.5 * float(s.sum())
@@ -289,7 +289,7 @@ class Problem:
 
     def retract(self, states: list[np.ndarray], dx: np.ndarray) -> list[np.ndarray]:
         out = []
-        for v, nodes, p in zip(self.variables, self.node_of, states):
+        for v, nodes, p in zip(self.variables, self.node_of, states, strict=False):
             free = np.flatnonzero(nodes >= 0)
             if free.size == 0:
                 out.append(p)

@@ -160,6 +160,8 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
             new, new_c, new_rc = _try(problem, cur, dx, tm)
             if new_rc < cur_rc:
                 accepted = True
+            elif new_rc - cur_rc <= max(o.abs_tol, o.rel_tol * cur_rc):
+                stop = "converged: the Gauss-Newton step no longer decreases the cost"
             else:
                 stop = "the Gauss-Newton step did not decrease the cost"
         else:  # dogleg
@@ -192,11 +194,12 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
             lam = radius
         if not accepted:
             message = stop or "no decrease"
-            converged = True if o.solver != "gn" else False
+            converged = o.solver != "gn" or message.startswith("converged")
             history.append(IterationRecord(it, cur_rc, 0.0, lam, time.perf_counter() - t_start,
                                            solves))
             it -= 1
             break
+        assert dx is not None
         step_norm = float(np.linalg.norm(dx))
         old_rc = cur_rc
         cur, cur_rc = new, new_rc
