@@ -15,7 +15,7 @@ Example:
 """
 
 from .align import ALIGNMENTS, align, umeyama
-from .evaluate import evaluate_ape, evaluate_kitti, evaluate_rpe, prepare
+from .evaluate import describe_alignment, evaluate_ape, evaluate_kitti, evaluate_rpe, prepare
 from .io import (
     FORMATS,
     read_euroc,
@@ -34,14 +34,21 @@ from .metrics import (
     ape,
     kitti_odometry,
     pose_pairs,
+    relation_label,
     rpe,
     statistics,
 )
-from .sync import Association, associate, match_timestamps
-from .trajectory import Trajectory
+from .sync import INTERPOLATIONS, Association, associate, interpolate, match_timestamps
+from .trajectory import PLANES, TimestampWarning, Trajectory
 
 __all__ = [
     "Trajectory",
+    "TimestampWarning",
+    "PLANES",
+    "interpolate",
+    "INTERPOLATIONS",
+    "relation_label",
+    "describe_alignment",
     "read_tum",
     "write_tum",
     "read_kitti",
