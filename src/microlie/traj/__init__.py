@@ -23,7 +23,9 @@ from .io import (
     read_timestamps,
     read_trajectory,
     read_tum,
+    write_euroc,
     write_kitti,
+    write_trajectory,
     write_tum,
 )
 from .metrics import (
@@ -38,12 +40,14 @@ from .metrics import (
     rpe,
     statistics,
 )
+from .results import Result, load_result, save_result
 from .sync import INTERPOLATIONS, Association, associate, interpolate, match_timestamps
-from .trajectory import PLANES, TimestampWarning, Trajectory
+from .trajectory import PLANES, TimestampWarning, Trajectory, merge
 
 __all__ = [
     "Trajectory",
     "TimestampWarning",
+    "merge",
     "PLANES",
     "interpolate",
     "INTERPOLATIONS",
@@ -53,6 +57,11 @@ __all__ = [
     "write_tum",
     "read_kitti",
     "write_kitti",
+    "write_euroc",
+    "write_trajectory",
+    "save_result",
+    "load_result",
+    "Result",
     "read_euroc",
     "read_timestamps",
     "read_trajectory",

@@ -16,11 +16,11 @@ The steps, in evo's order (so that the same options give the same numbers):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
-from microlie import SE3, Sim3
+from microlie import SE3, SO3, Sim3
 
 from .align import align as _align
 from .metrics import KITTI_LENGTHS, KittiResult, PoseError, ape, kitti_odometry, rpe
@@ -51,9 +51,8 @@ def prepare(
     if t_start is not None or t_end is not None:
         ref = ref.crop(t_start, t_end)
     if ref.timestamps is not None and est.timestamps is not None:
-        r, e, info = associate(ref, est, max_diff, offset, interpolate=interpolate,
-                               return_info=True)
-        return r, e, info
+        found = associate(ref, est, max_diff, offset, interpolate=interpolate, return_info=True)
+        return cast(tuple[Trajectory, Trajectory, Association], found)
     if interpolate is not None:
         raise ValueError("interpolation needs timestamps on both trajectories")
     if len(ref) != len(est):
@@ -71,7 +70,7 @@ def describe_alignment(g: SE3 | Sim3 | None) -> dict[str, Any]:
         return {}
     scale = float(np.asarray(g.scale())) if isinstance(g, Sim3) else 1.0
     return {
-        "rotation_quat_xyzw": np.asarray(g.rotation().as_quat()).tolist(),
+        "rotation_quat_xyzw": np.asarray(cast(SO3, g.rotation()).as_quat()).tolist(),
         "translation": np.asarray(g.translation()).tolist(),
         "scale": scale,
         "matrix": np.asarray(g.matrix()).tolist(),

@@ -22,6 +22,7 @@ The rule (the one evo uses, so that pair sets and therefore statistics agree):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -66,14 +67,14 @@ def interpolate(traj: Trajectory, stamps: np.ndarray, method: str = "se3") -> Tr
     dt = t[k] - t[k - 1]
     f = np.where(dt > 0, (s - t[k - 1]) / np.where(dt > 0, dt, 1.0), 0.0)
     f = np.clip(f, 0.0, 1.0)
-    a, b = traj.poses[k - 1], traj.poses[k]
+    a, b = cast(SE3, traj.poses[k - 1]), cast(SE3, traj.poses[k])
     if method == "se3":
         poses = a.interpolate(b, f)
     else:
         pa, pb = traj.positions[k - 1], traj.positions[k]
         rot = a.rotation().interpolate(b.rotation(), f)
         poses = SE3.from_rotation_translation(rot, pa + f[:, None] * (pb - pa))
-    return Trajectory(poses, s, traj.name)
+    return Trajectory(cast(SE3, poses), s, traj.name)
 
 
 def match_timestamps(

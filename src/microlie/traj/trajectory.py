@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from microlie import SE3, SO3, Sim3
 
-__all__ = ["Trajectory", "TimestampWarning", "PLANES"]
+__all__ = ["Trajectory", "TimestampWarning", "PLANES", "merge"]
 
 PLANES = ("xy", "xz", "yz")
 
@@ -39,8 +39,8 @@ class Trajectory:
     Example:
         >>> import numpy as np
         >>> from microlie.traj import Trajectory
-        >>> t = Trajectory.from_arrays(np.arange(12.0).reshape(4, 3), np.tile([0, 0, 0, 1.0], (4, 1)),
-        ...                            timestamps=[0.0, 0.1, 0.1, 0.3])
+        >>> q = np.tile([0, 0, 0, 1.0], (4, 1))
+        >>> t = Trajectory.from_arrays(np.arange(12.0).reshape(4, 3), q, [0.0, 0.1, 0.1, 0.3])
         >>> len(t[1:3]), len(t[t.timestamps > 0.05])
         (2, 3)
         >>> t.check()
@@ -203,7 +203,7 @@ class Trajectory:
         if sel.size == 0:
             raise ValueError("the selection is empty (a trajectory needs at least one pose)")
         stamps = None if self.timestamps is None else self.timestamps[sel]
-        return Trajectory(self.poses[sel], stamps, self.name)
+        return Trajectory(cast(SE3, self.poses[sel]), stamps, self.name)
 
     def subset(self, index: Sequence[int] | np.ndarray | slice) -> Trajectory:
         """The poses (and timestamps) at ``index``; the same as ``traj[index]``."""
@@ -262,7 +262,7 @@ class Trajectory:
         phi[:, k] = theta
         p = self.positions.copy()
         p[:, k] = 0.0
-        poses = SE3.from_rotation_translation(SO3.exp(phi), p)
+        poses = cast(SE3, SE3.from_rotation_translation(SO3.exp(phi), p))
         return Trajectory(poses, self.timestamps, self.name)
 
     def transform(self, g: SE3 | Sim3) -> Trajectory:
@@ -287,3 +287,25 @@ class Trajectory:
     def with_name(self, name: str | None) -> Trajectory:
         """The same trajectory under another name."""
         return Trajectory(self.poses, self.timestamps, name)
+
+
+def merge(trajs: Sequence[Trajectory], name: str = "merged") -> Trajectory:
+    """One trajectory of all poses of ``trajs``, sorted by timestamp (stable: on equal stamps
+    the earlier trajectory's pose comes first).
+
+    Example:
+        >>> import numpy as np
+        >>> from microlie.traj import Trajectory, merge
+        >>> a = Trajectory.from_arrays(np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)), [0, 2])
+        >>> b = Trajectory.from_arrays(np.ones((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)), [1, 3])
+        >>> merge([a, b]).timestamps
+        array([0., 1., 2., 3.])
+    """
+    if not trajs:
+        raise ValueError("nothing to merge")
+    if any(t.timestamps is None for t in trajs):
+        raise ValueError("merging needs timestamps on every trajectory")
+    stamps = np.concatenate([t.timestamps for t in trajs if t.timestamps is not None])
+    order = np.argsort(stamps, kind="stable")
+    params = np.concatenate([np.asarray(t.poses.params) for t in trajs])[order]
+    return Trajectory(SE3(params), stamps[order], name)
