@@ -35,7 +35,7 @@ def _messages(store, rows: np.ndarray, ros1: bool):
         if ros1:
             hdr["seq"] = k
 
-        def header(frame="map"):
+        def header(frame="map", hdr=hdr):
             return ty["std_msgs/msg/Header"](**{**hdr, "frame_id": frame})
 
         point = ty["geometry_msgs/msg/Point"](x=x, y=y, z=z)
@@ -54,7 +54,7 @@ def _messages(store, rows: np.ndarray, ros1: bool):
         yield "/odom", ns, ty["nav_msgs/msg/Odometry"](header=header(), child_frame_id="base",
                                                        pose=cov, twist=twist)
 
-        def tf(parent, child, tx):
+        def tf(parent, child, tx, quat=quat, header=header):
             return ty["geometry_msgs/msg/TransformStamped"](
                 header=header(parent), child_frame_id=child,
                 transform=ty["geometry_msgs/msg/Transform"](
