@@ -208,8 +208,7 @@ class BundleResult:
         idx = np.concatenate([np.arange(c * d, (c + 1) * d) for c in cameras])
         keep = np.ones(S.shape[0], bool)
         if self._normal is not None and self._normal.fixed_cameras is not None:
-            for c in np.nonzero(self._normal.fixed_cameras)[0]:
-                keep[c * d:(c + 1) * d] = False
+            keep = ~self._normal.fixed_cameras.reshape(-1)
         Sk = S[np.ix_(keep, keep)]
         pos = -np.ones(S.shape[0], int)
         pos[keep] = np.arange(keep.sum())
@@ -280,13 +279,30 @@ def _as_mask(idx: Sequence[int] | np.ndarray | None, n: int, what: str) -> np.nd
     return m if m.any() else None
 
 
+def _camera_mask(pose: np.ndarray | None, intr: np.ndarray | None, n: int, d: int
+                 ) -> np.ndarray | None:
+    if pose is None and intr is None:
+        return None
+    m = np.zeros((n, d), bool)
+    if pose is not None:
+        m[pose, :6] = True
+    if intr is not None:
+        m[intr, 6:] = True
+    return m
+
+
 def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: str = "evaluate",
           fix_cameras: Sequence[int] | None = None, fix_points: Sequence[int] | None = None,
+          fix_intrinsics: Sequence[int] | bool | None = None,
           linear_solver: LinearSolverKind = "auto", max_iterations: int = 100,
           function_tolerance: float = 1e-6, gradient_tolerance: float = 1e-10,
           parameter_tolerance: float = 1e-8, initial_radius: float = 1e4,
           jacobi_scaling: bool = True, verbose: bool = False) -> BundleResult:
     """Levenberg-Marquardt bundle adjustment (Ceres' rules, module docstring).
+
+    ``fix_cameras``: cameras whose *pose* is held (the gauge: one camera holds 6 of BAL's 7
+    degrees of freedom; the scale stays free and the damping handles it). ``fix_intrinsics``:
+    cameras whose intrinsics are held (``True``: all). ``fix_points``: held points.
 
     ``robust``: a loss of :mod:`microlie.optim.robust` or a spec such as ``"huber:1.0"`` (scale
     in pixels) applied to each observation's squared residual norm. ``behind``: ``"evaluate"``
@@ -306,7 +322,12 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         raise ValueError("initial_radius must be positive")
     model = problem.model
     nc, npt, d = problem.n_cameras, problem.n_points, problem.cam_dim
-    fc = _as_mask(fix_cameras, nc, "fix_cameras")
+    if fix_intrinsics is True:
+        fix_intrinsics = np.arange(nc)
+    elif fix_intrinsics is False:
+        fix_intrinsics = None
+    fc = _camera_mask(_as_mask(fix_cameras, nc, "fix_cameras"),
+                      _as_mask(fix_intrinsics, nc, "fix_intrinsics"), nc, d)
     fp = _as_mask(fix_points, npt, "fix_points")
     # observations sorted by point, once
     order = np.lexsort((problem.camera_index, problem.point_index))
@@ -375,7 +396,7 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             g = g / np.concatenate([scale_c.reshape(-1), scale_p.reshape(-1)])
         gmask = np.ones(len(g), bool)
         if fc is not None:
-            gmask[: nc * d].reshape(nc, d)[fc] = False
+            gmask[: nc * d] &= ~fc.reshape(-1)
         if fp is not None:
             gmask[nc * d:].reshape(npt, 3)[fp] = False
         gmax = float(np.max(np.abs(g[gmask]))) if gmask.any() else 0.0

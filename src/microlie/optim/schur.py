@@ -108,7 +108,11 @@ def _chol3_inv(v: np.ndarray) -> tuple[np.ndarray, ...]:
 @dataclass
 class NormalEquations:
     """One linearisation: residuals ``r`` ``(n, 2)`` and Jacobians ``Jc`` ``(n, 2, d)``,
-    ``Jp`` ``(n, 2, 3)`` (observations sorted by point, already weighted and scaled)."""
+    ``Jp`` ``(n, 2, 3)`` (observations sorted by point, already weighted and scaled).
+
+    ``fixed_cameras`` is a ``(n_cameras, d)`` mask of held camera unknowns (a camera's pose,
+    its intrinsics or both), ``fixed_points`` a ``(n_points,)`` mask of held points; held
+    unknowns get a zero step."""
 
     structure: SchurStructure
     r: np.ndarray
@@ -121,6 +125,11 @@ class NormalEquations:
     def __post_init__(self) -> None:
         st, Jc, Jp, r = self.structure, self.Jc, self.Jp, self.r
         d = st.cam_dim
+        # held variables: their columns are removed (zeroed here, unit diagonal in the solve)
+        if self.fixed_cameras is not None and self.fixed_cameras.any():
+            Jc = self.Jc = np.where(self.fixed_cameras[st.cam][:, None, :], 0.0, Jc)
+        if self.fixed_points is not None and self.fixed_points.any():
+            Jp = self.Jp = np.where(self.fixed_points[st.pt][:, None, None], 0.0, Jp)
         # point blocks V (6 components), gradients, diagonals
         JpT = np.ascontiguousarray(Jp.transpose(1, 2, 0))        # (2, 3, n)
         self._jp = JpT
@@ -251,7 +260,7 @@ class NormalEquations:
         rhs = rhs.reshape(-1)
         fc = self.fixed_cameras
         if fc is not None and fc.any():
-            idx = (np.nonzero(fc)[0][:, None] * d + np.arange(d)).ravel()
+            idx = np.nonzero(fc.reshape(-1))[0]
             S[idx, :] = 0.0
             S[:, idx] = 0.0
             S[idx, idx] = 1.0
@@ -322,7 +331,7 @@ class NormalEquations:
         st, d = self.structure, self.structure.cam_dim
         idx = []
         if self.fixed_cameras is not None and self.fixed_cameras.any():
-            idx.append((np.nonzero(self.fixed_cameras)[0][:, None] * d + np.arange(d)).ravel())
+            idx.append(np.nonzero(self.fixed_cameras.reshape(-1))[0])
         if self.fixed_points is not None and self.fixed_points.any():
             idx.append((st.n_cameras * d + np.nonzero(self.fixed_points)[0][:, None] * 3
                         + np.arange(3)).ravel())
