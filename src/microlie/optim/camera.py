@@ -208,12 +208,13 @@ class Reprojection:
 
 def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray, cam: np.ndarray,
                      pt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``P = R[cam] X[pt] + t[cam]`` for every observation; also returns the gathered ``R`` and
-    ``Q = R X`` (used by the Jacobians)."""
+    """``P = R[cam] X[pt] + t[cam]`` for every observation; also returns the gathered ``R``
+    and ``X`` (used by the Jacobians)."""
     Rc = R[cam]
     Xo = X[pt]
-    Q = np.einsum("nij,nj->ni", Rc, Xo)
-    return Q + t[cam], Rc, Q
+    P = np.matmul(Rc, Xo[:, :, None])[:, :, 0]
+    P += t[cam]
+    return P, Rc, Xo
 
 
 def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X: np.ndarray,
@@ -223,12 +224,12 @@ def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X
 
     ``R`` ``(n_cameras, 3, 3)`` and ``t`` ``(n_cameras, 3)`` map world to camera, ``K`` is
     ``(n_cameras, k)``, ``X`` ``(n_points, 3)``. Jacobians: ``d r / d dt = A``,
-    ``d r / d dphi = -A [R X]_x R`` (right perturbation ``R Exp(dphi)``),
+    ``d r / d dphi = -A R [X]_x`` (right perturbation ``R Exp(dphi)``),
     ``d r / d X = A R`` with ``A = d uv / d P``.
     """
     if behind not in BEHIND:
         raise ValueError(f"behind must be one of {BEHIND}, got {behind!r}")
-    P, Rc, Q = transform_points(R, t, X, cam, pt)
+    P, Rc, Xo = transform_points(R, t, X, cam, pt)
     with np.errstate(divide="ignore", invalid="ignore"):   # P_z = 0 gives inf: cost inf
         uv, JP, JK = model.project(P, K[cam])
     res = uv - observed
@@ -240,11 +241,15 @@ def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X
     n, k = len(cam), model.n_intrinsics
     Jc = np.empty((n, 2, 6 + k))
     Jc[:, :, 0:3] = JP
-    # d P / d dphi = -R [X]_x = -[Q]_x R (Q = R X); row i of A [Q]_x is A_i x Q
-    AQ = np.cross(JP, Q[:, None, :])
-    Jc[:, :, 3:6] = -np.matmul(AQ, Rc)
+    Jp = np.matmul(JP, Rc)                     # d r / d X = A R
+    # d r / d dphi = -A R [X]_x = -Jp [X]_x: row i is X x Jp_i
+    x0, x1, x2 = Xo[:, 0], Xo[:, 1], Xo[:, 2]
+    for i in range(2):
+        j0, j1, j2 = Jp[:, i, 0], Jp[:, i, 1], Jp[:, i, 2]
+        Jc[:, i, 3] = x1 * j2 - x2 * j1
+        Jc[:, i, 4] = x2 * j0 - x0 * j2
+        Jc[:, i, 5] = x0 * j1 - x1 * j0
     Jc[:, :, 6:] = JK
-    Jp = np.matmul(JP, Rc)
     if behind == "drop":
         bad = ~valid
         res[bad] = 0.0

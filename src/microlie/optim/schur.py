@@ -145,21 +145,19 @@ class NormalEquations:
             V[nonempty] = np.add.reduceat(prods, seg[nonempty], axis=0)
             gp[nonempty] = np.add.reduceat(gp_obs, seg[nonempty], axis=0)
         self.V, self.gp = V, gp
-        # camera side, sorted by camera: (d, 2n) for the products
-        Jcc = Jc[st.by_cam]
-        self._jc_by_cam = Jcc
-        self._jcT_by_cam = np.ascontiguousarray(Jcc.transpose(2, 0, 1).reshape(d, -1))
-        self._r_by_cam = r[st.by_cam].reshape(-1)
-        self._jaT = np.ascontiguousarray(Jc[st.pair_a].transpose(2, 0, 1).reshape(d, -1))
-        self._jb = Jc[st.pair_b]
+        # camera side, sorted by camera: U_c = Jc^T Jc, g_c = Jc^T r, diag(U_c)
+        Jcc = Jc[st.by_cam].reshape(-1, d)                          # (2n, d)
+        rc = r[st.by_cam].reshape(-1)
         b = st.cam_bounds
-        self.gc = np.zeros((st.n_cameras, d))
-        self.diag_c = np.zeros((st.n_cameras, d))
-        for c in range(st.n_cameras):
+        nc = st.n_cameras
+        self.U = np.zeros((nc, d, d))
+        self.gc = np.zeros((nc, d))
+        for c in range(nc):
             s, e = 2 * b[c], 2 * b[c + 1]
-            self.gc[c] = self._jcT_by_cam[:, s:e] @ self._r_by_cam[s:e]
-            self.diag_c[c] = np.einsum("ij,ij->i", self._jcT_by_cam[:, s:e],
-                                       self._jcT_by_cam[:, s:e])
+            blk = Jcc[s:e]
+            self.U[c] = blk.T @ blk
+            self.gc[c] = blk.T @ rc[s:e]
+        self.diag_c = np.diagonal(self.U, axis1=1, axis2=2).copy()
         self.diag_p = V[:, [0, 3, 5]].copy()
         self.gradient = np.concatenate([self.gc.ravel(), gp.ravel()])
         self._jc_csr = st.camera_jacobian_csr(Jc)
@@ -200,59 +198,39 @@ class NormalEquations:
             return None
         jp = self._jp
         pt = st.pt
-        a00, a10, a11, a20, a21, a22 = i00[pt], i10[pt], i11[pt], i20[pt], i21[pt], i22[pt]
-        # G = Jp Ci^T  (n, rows 2, cols 3), as component arrays G[r][k]
-        G = np.empty((2, 3, st.n_obs))
-        G[:, 0] = jp[:, 0] * a00
-        G[:, 1] = jp[:, 0] * a10 + jp[:, 1] * a11
-        G[:, 2] = jp[:, 0] * a20 + jp[:, 1] * a21 + jp[:, 2] * a22
-        # h = Ci gp per point, then G h per observation
+        # G_a = Jp_a Ci^T (2 x 3), Ci the inverse Cholesky factor of the point's damped V
+        CiT = np.zeros((st.n_points, 3, 3))
+        CiT[:, 0, 0], CiT[:, 0, 1], CiT[:, 0, 2] = i00, i10, i20
+        CiT[:, 1, 1], CiT[:, 1, 2], CiT[:, 2, 2] = i11, i21, i22
+        Gt = np.matmul(self.Jp, CiT[pt])                              # (n, 2, 3)
+        # Z_a^T = G_a^T Jc_a (3 x d per observation): W_a V^-1 W_b^T = Z_a Z_b^T
+        Zt = np.matmul(Gt.transpose(0, 2, 1), self.Jc)                # (n, 3, d), C order
+        # h = Ci gp per point: W_a V^-1 gp = Z_a h_a
         g0, g1, g2 = gp[:, 0], gp[:, 1], gp[:, 2]
-        h = np.stack([i00 * g0, i10 * g0 + i11 * g1, i20 * g0 + i21 * g1 + i22 * g2])
-        hp = h[:, pt]
-        Gh = (G * hp[None]).sum(1)                                   # (2, n)
-        # diagonal pairs: q_aa = G_a G_a^T (2x2), E_a = (I - q_aa) Jc_a, u_a = r_a - G_a h_a
-        q00 = (G[0] * G[0]).sum(0)
-        q01 = (G[0] * G[1]).sum(0)
-        q11 = (G[1] * G[1]).sum(0)
-        oc = st.by_cam
-        q00, q01, q11 = q00[oc], q01[oc], q11[oc]
-        Jcc = self._jc_by_cam
-        EU = np.empty((st.n_obs, 2, d + 1))
-        EU[:, 0, :d] = (1.0 - q00)[:, None] * Jcc[:, 0] - q01[:, None] * Jcc[:, 1]
-        EU[:, 1, :d] = -q01[:, None] * Jcc[:, 0] + (1.0 - q11)[:, None] * Jcc[:, 1]
-        EU[:, :, d] = self._r_by_cam.reshape(-1, 2) - Gh.T[oc]
-        EU2 = EU.reshape(-1, d + 1)
+        h = np.stack([i00 * g0, i10 * g0 + i11 * g1, i20 * g0 + i21 * g1 + i22 * g2], 1)
         nc = st.n_cameras
         Sb = np.zeros((nc, nc, d, d))
-        rhs = np.empty((nc, d))
+        rhs = -self.gc.copy()
+        oc = st.by_cam
+        Zc = Zt[oc].reshape(-1, d)                                   # (3n, d) by camera
+        hc = h[st.pt[oc]].reshape(-1)
         b = st.cam_bounds
-        jcT = self._jcT_by_cam
         for c in range(nc):
-            s, e = 2 * b[c], 2 * b[c + 1]
-            blk = jcT[:, s:e] @ EU2[s:e]
-            Sb[c, c] = blk[:, :d]
-            rhs[c] = -blk[:, d]
-        # off-diagonal pairs: q_ab = G_a G_b^T, then Ja^T (q Jb) per camera pair
+            s, e = 3 * b[c], 3 * b[c + 1]
+            blk = Zc[s:e]
+            Sb[c, c] = self.U[c] - blk.T @ blk
+            rhs[c] += blk.T @ hc[s:e]
+        # pairs a < b of observations of one point, grouped by camera pair
         A, B = st.pair_a, st.pair_b
         if len(A):
-            Ga, Gb = G[:, :, A], G[:, :, B]
-            p00 = (Ga[0] * Gb[0]).sum(0)
-            p01 = (Ga[0] * Gb[1]).sum(0)
-            p10 = (Ga[1] * Gb[0]).sum(0)
-            p11 = (Ga[1] * Gb[1]).sum(0)
-            jb = self._jb
-            qJ = np.empty_like(jb)
-            qJ[:, 0] = p00[:, None] * jb[:, 0] + p01[:, None] * jb[:, 1]
-            qJ[:, 1] = p10[:, None] * jb[:, 0] + p11[:, None] * jb[:, 1]
-            qJ2 = qJ.reshape(-1, d)
-            jaT = self._jaT
+            Za = Zt[A].reshape(-1, d)
+            Zb = Zt[B].reshape(-1, d)
             pb = st.pair_bounds
             c1s, c2s = st.pair_blocks
             blocks = np.empty((len(c1s), d, d))
             for i in range(len(c1s)):
-                s, e = 2 * pb[i], 2 * pb[i + 1]
-                np.matmul(jaT[:, s:e], qJ2[s:e], out=blocks[i])
+                s, e = 3 * pb[i], 3 * pb[i + 1]
+                np.matmul(Za[s:e].T, Zb[s:e], out=blocks[i])
             Sb[c1s, c2s] -= blocks
             Sb[c2s, c1s] -= blocks.transpose(0, 2, 1)
         S = Sb.transpose(0, 2, 1, 3).reshape(nc * d, nc * d)
