@@ -16,7 +16,7 @@ or points.
 >>> p = read_bal(io.StringIO(text))
 >>> p.n_cameras, p.n_points, p.n_observations
 (1, 1, 1)
->>> float(p.cost())
+>>> round(p.cost(), 12)
 0.0
 """
 

@@ -322,12 +322,15 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         raise ValueError("initial_radius must be positive")
     model = problem.model
     nc, npt, d = problem.n_cameras, problem.n_points, problem.cam_dim
+    intr: Sequence[int] | np.ndarray | None
     if fix_intrinsics is True:
-        fix_intrinsics = np.arange(nc)
+        intr = np.arange(nc)
     elif fix_intrinsics is False:
-        fix_intrinsics = None
+        intr = None
+    else:
+        intr = fix_intrinsics
     fc = _camera_mask(_as_mask(fix_cameras, nc, "fix_cameras"),
-                      _as_mask(fix_intrinsics, nc, "fix_intrinsics"), nc, d)
+                      _as_mask(intr, nc, "fix_intrinsics"), nc, d)
     fp = _as_mask(fix_points, npt, "fix_points")
     # observations sorted by point, once
     order = np.lexsort((problem.camera_index, problem.point_index))
@@ -503,9 +506,10 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
 # ---------------------------------------------------------------------------- synthetic scenes
 
 def synthetic_scene(n_cameras: int = 5, n_points: int = 100, *, noise: float = 0.5,
-                    perturb: float = 0.05, seed: int = 0, model: str | CameraModel = "bal"
-                    ) -> tuple[BundleProblem, BundleProblem]:
-    """A ring of cameras looking at a point cloud: ``(truth, start)``.
+                    perturb: float = 0.05, seed: int = 0, model: str | CameraModel = "bal",
+                    distance: float = 6.0) -> tuple[BundleProblem, BundleProblem]:
+    """An arc of cameras at ``distance`` looking at a point cloud in ``[-1, 1]^3``:
+    ``(truth, start)``.
 
     ``truth`` holds the true cameras and points with observations perturbed by ``noise``
     pixels; ``start`` is the same problem with cameras and points perturbed (rotation about
@@ -515,8 +519,8 @@ def synthetic_scene(n_cameras: int = 5, n_points: int = 100, *, noise: float = 0
     mdl = camera_model(model)
     X = rng.uniform(-1.0, 1.0, (n_points, 3))
     ang = np.linspace(0.0, 0.8, n_cameras)
-    centers = np.stack([6.0 * np.sin(ang), 0.3 * rng.standard_normal(n_cameras),
-                        6.0 * np.cos(ang)], 1)
+    centers = np.stack([distance * np.sin(ang), 0.3 * rng.standard_normal(n_cameras),
+                        distance * np.cos(ang)], 1)
     Rs, ts = [], []
     for c in centers:
         # camera looking at the origin; BAL looks down -z, the pinhole model down +z

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
+import scipy.linalg as sla  # type: ignore[import-untyped]
+import scipy.sparse as sp  # type: ignore[import-untyped]
 
 __all__ = ["SchurStructure", "NormalEquations", "LinearSolverKind", "LINEAR_SOLVERS"]
 
@@ -235,16 +235,16 @@ class NormalEquations:
             Sb[c2s, c1s] -= blocks.transpose(0, 2, 1)
         S = Sb.transpose(0, 2, 1, 3).reshape(nc * d, nc * d)
         S[np.diag_indices_from(S)] += Dc2.reshape(-1)
-        rhs = rhs.reshape(-1)
+        rhs_v = rhs.reshape(-1)
         fc = self.fixed_cameras
         if fc is not None and fc.any():
             idx = np.nonzero(fc.reshape(-1))[0]
             S[idx, :] = 0.0
             S[:, idx] = 0.0
             S[idx, idx] = 1.0
-            rhs[idx] = 0.0
+            rhs_v[idx] = 0.0
         t1 = time.perf_counter()
-        dc = self._solve_reduced(S, rhs, kind)
+        dc = self._solve_reduced(S, rhs_v, kind)
         if dc is None:
             return None
         t2 = time.perf_counter()
@@ -274,7 +274,7 @@ class NormalEquations:
     @staticmethod
     def _solve_reduced(S: np.ndarray, rhs: np.ndarray, kind: str) -> np.ndarray | None:
         if kind == "sparse" or (kind == "auto" and S.shape[0] > _DENSE_LIMIT):
-            from scipy.sparse.linalg import splu
+            from scipy.sparse.linalg import splu  # type: ignore[import-untyped]
             try:
                 lu = splu(sp.csc_matrix(S), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                           options={"SymmetricMode": True})
@@ -321,7 +321,7 @@ class NormalEquations:
         return (keep @ H @ keep + sp.diags(fix.astype(float))).tocsc()
 
     def _solve_full(self, Dc2, Dp2):
-        from scipy.sparse.linalg import splu
+        from scipy.sparse.linalg import splu  # type: ignore[import-untyped]
         st, d = self.structure, self.structure.cam_dim
         H = self.full_matrix(Dc2, Dp2)
         g = self.gradient.copy()
