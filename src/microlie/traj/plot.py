@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from .metrics import PoseError
+from .metrics import PoseError, relation_label
 from .trajectory import Trajectory
 
 __all__ = [
@@ -215,7 +215,6 @@ def plot_error(res: PoseError, title: str | None = None, plot_mode: str = "xy") 
     _draw_path(ax_path, est_p, dims, color="0.75", zorder=0.5, label="estimate")
     sc = ax_path.scatter(*(est_p[idx, k] for k in dims), c=res.errors, s=6, cmap="jet",
                          zorder=2)
-    unit = f" ({res.unit})" if res.unit else ""
     fig.colorbar(sc, ax=ax_path, label=res.label)
     ax_path.legend(fontsize="small")
     x, xl = _time_axis(res.est, _time_origin([res.ref, res.est]))
@@ -223,7 +222,7 @@ def plot_error(res: PoseError, title: str | None = None, plot_mode: str = "xy") 
     for key, c in (("rmse", "tab:blue"), ("mean", "tab:green"), ("median", "tab:red")):
         ax_err.axhline(res.stats[key], color=c, lw=1, label=f"{key} {res.stats[key]:.4g}")
     ax_err.set_xlabel(xl)
-    ax_err.set_ylabel(f"{res.relation}{unit}")
+    ax_err.set_ylabel(relation_label(res.relation))
     ax_err.legend(fontsize="small")
     fig.suptitle(title or res.label)
     return fig

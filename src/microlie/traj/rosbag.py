@@ -48,10 +48,19 @@ def is_bag(path: str | os.PathLike) -> bool:
 def _rosbags() -> Any:
     try:
         from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     except ImportError as exc:
         raise ImportError("reading ROS bags needs rosbags: pip install 'microlie[ros]'") from exc
-    return AnyReader, get_typestore(Stores.ROS2_HUMBLE)
+    return AnyReader, typestore(Stores, get_types_from_msg, get_typestore)
+
+
+def typestore(Stores: Any, get_types_from_msg: Any, get_typestore: Any, ros1: bool = False) -> Any:
+    """rosbags' ROS 2 Humble (or ROS 1 Noetic) message types plus ``tf2_msgs/TFMessage``, for
+    bags that do not embed their message definitions."""
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    if _TF not in store.types:
+        store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", _TF))
+    return store
 
 
 def _open(path: str | os.PathLike) -> Any:
