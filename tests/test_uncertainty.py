@@ -995,6 +995,10 @@ def test_mahalanobis_and_density_rank_deficient():
                                multivariate_normal(np.zeros(3), P3).logpdf(t[PLANAR]),
                                rtol=1e-10)
     assert g.mahalanobis(X.plus([0, 0, 0.01, 0, 0, 0])) == np.inf
+    # a derived Gaussian (rank found lazily): the distance is frame-independent
+    np.testing.assert_allclose(g.to_frame("left").mahalanobis(X.plus(t)), g.mahalanobis(X.plus(t)),
+                               rtol=1e-9)
+    assert g.to_frame("left").mahalanobis(X.plus([0, 0, 0.01, 0, 0, 0])) == np.inf
     # batched: one singular element among regular ones
     Pb = np.stack([planar_cov(P3), random_cov(rng, 6, 0.3)])
     gb = Gaussian(SE3(np.stack([X.params] * 2)), Pb, frame="right")
