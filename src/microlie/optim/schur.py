@@ -121,6 +121,7 @@ class NormalEquations:
     fixed_cameras: np.ndarray | None = None
     fixed_points: np.ndarray | None = None
     timings: dict[str, float] = field(default_factory=dict)
+    full_backend: str = "auto"      # sparse Cholesky of the full system (``kind="full"``)
 
     def __post_init__(self) -> None:
         st, Jc, Jp, r = self.structure, self.Jc, self.Jp, self.r
@@ -321,20 +322,30 @@ class NormalEquations:
         return (keep @ H @ keep + sp.diags(fix.astype(float))).tocsc()
 
     def _solve_full(self, Dc2, Dp2):
-        from scipy.sparse.linalg import splu  # type: ignore[import-untyped]
+        from .linear import SingularSystemError, make_solver
+
         st, d = self.structure, self.structure.cam_dim
         H = self.full_matrix(Dc2, Dp2)
+        H.sort_indices()
         g = self.gradient.copy()
         if self.fixed_cameras is not None:
-            g[: st.n_cameras * d].reshape(-1, d)[self.fixed_cameras] = 0.0
+            g[: st.n_cameras * d][self.fixed_cameras.reshape(-1)] = 0.0
         if self.fixed_points is not None:
             g[st.n_cameras * d:].reshape(-1, 3)[self.fixed_points] = 0.0
+        # the pattern is the same at every iteration: analyse once per structure
+        cache = getattr(st, "_full_solver", None)
+        if (cache is None or cache[1].shape != H.indices.shape
+                or not np.array_equal(cache[1], H.indices)
+                or not np.array_equal(cache[2], H.indptr)):
+            solver = make_solver(self.full_backend, H.shape[0])
+            solver.analyse(H.indptr, H.indices, H.shape[0])
+            cache = (solver, H.indices.copy(), H.indptr.copy())
+            st._full_solver = cache
         try:
-            lu = splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                      options={"SymmetricMode": True})
-        except RuntimeError:
+            cache[0].factorize(H.data)
+            x = -cache[0].solve(g)
+        except SingularSystemError:
             return None
-        x = -lu.solve(g)
         if not np.all(np.isfinite(x)):
             return None
         k = st.n_cameras * d
