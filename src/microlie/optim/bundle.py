@@ -251,12 +251,12 @@ def _undamped_schur(res: BundleResult) -> np.ndarray:
     st = ne.structure
     Dc2 = np.zeros((st.n_cameras, st.cam_dim))
     Dp2 = np.zeros((st.n_points, 3))
-    out = ne.solve(Dc2, Dp2, "dense")
-    if out is None:
+    red = ne.reduced_system(Dc2, Dp2)
+    if red is None:
         raise np.linalg.LinAlgError("a point block is singular: some point is not determined")
     # undo the column scaling: S_unscaled = diag(1/s) S diag(1/s)
     sc = res.timings.get("_scale_c")
-    S = ne.reduced_matrix
+    S = red[0]
     if isinstance(sc, np.ndarray):
         inv = 1.0 / sc.reshape(-1)
         S = inv[:, None] * S * inv[None, :]

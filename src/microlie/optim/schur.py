@@ -20,6 +20,7 @@ backend's ordering), which exists to compare against and to test the elimination
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -181,8 +182,45 @@ class NormalEquations:
             raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {kind!r}")
         if kind == "full":
             return self._solve_full(Dc2, Dp2)
-        import time
         t0 = time.perf_counter()
+        red = self.reduced_system(Dc2, Dp2)
+        if red is None:
+            return None
+        S, rhs_v, (i00, i10, i11, i20, i21, i22), gp = red
+        st, d, nc = self.structure, self.structure.cam_dim, self.structure.n_cameras
+        fp = self.fixed_points
+        jp = self._jp
+        t1 = time.perf_counter()
+        dc = self._solve_reduced(S, rhs_v, kind)
+        if dc is None:
+            return None
+        t2 = time.perf_counter()
+        # back substitution: dp = -V^-1 (gp + Jp^T Jc dc)
+        y = (self._jc_csr @ dc).reshape(-1, 2)
+        z = np.einsum("rin,nr->ni", jp, y)
+        zp = np.zeros((st.n_points, 3))
+        ne = st.point_count > 0
+        if st.n_obs:
+            zp[ne] = np.add.reduceat(z, st.point_start[ne], axis=0)
+        w = gp + zp
+        if fp is not None and fp.any():
+            w[fp] = 0.0
+        w0, w1, w2 = w[:, 0], w[:, 1], w[:, 2]
+        u0 = i00 * w0
+        u1 = i10 * w0 + i11 * w1
+        u2 = i20 * w0 + i21 * w1 + i22 * w2
+        dp = -np.stack([i00 * u0 + i10 * u1 + i20 * u2, i11 * u1 + i21 * u2, i22 * u2], 1)
+        t3 = time.perf_counter()
+        tm = self.timings
+        tm["schur_form"] = tm.get("schur_form", 0.0) + t1 - t0
+        tm["reduced_solve"] = tm.get("reduced_solve", 0.0) + t2 - t1
+        tm["back_substitution"] = tm.get("back_substitution", 0.0) + t3 - t2
+        return dc.reshape(nc, d), dp
+
+    def reduced_system(self, Dc2: np.ndarray, Dp2: np.ndarray) -> tuple | None:
+        """The reduced camera system ``(S, rhs)`` (dense, held unknowns replaced by unit rows)
+        with the points' inverse Cholesky factors and gradient; ``None`` when a point block is
+        not positive definite."""
         st, d = self.structure, self.structure.cam_dim
         V = self.V.copy()
         V[:, 0] += Dp2[:, 0]
@@ -197,7 +235,6 @@ class NormalEquations:
         i00, i10, i11, i20, i21, i22 = _chol3_inv(V.T)
         if not np.all(np.isfinite(i22)):
             return None
-        jp = self._jp
         pt = st.pt
         # G_a = Jp_a Ci^T (2 x 3), Ci the inverse Cholesky factor of the point's damped V
         CiT = np.zeros((st.n_points, 3, 3))
@@ -244,33 +281,7 @@ class NormalEquations:
             S[:, idx] = 0.0
             S[idx, idx] = 1.0
             rhs_v[idx] = 0.0
-        t1 = time.perf_counter()
-        dc = self._solve_reduced(S, rhs_v, kind)
-        if dc is None:
-            return None
-        t2 = time.perf_counter()
-        # back substitution: dp = -V^-1 (gp + Jp^T Jc dc)
-        y = (self._jc_csr @ dc).reshape(-1, 2)
-        z = np.einsum("rin,nr->ni", jp, y)
-        zp = np.zeros((st.n_points, 3))
-        ne = st.point_count > 0
-        if st.n_obs:
-            zp[ne] = np.add.reduceat(z, st.point_start[ne], axis=0)
-        w = gp + zp
-        if fp is not None and fp.any():
-            w[fp] = 0.0
-        w0, w1, w2 = w[:, 0], w[:, 1], w[:, 2]
-        u0 = i00 * w0
-        u1 = i10 * w0 + i11 * w1
-        u2 = i20 * w0 + i21 * w1 + i22 * w2
-        dp = -np.stack([i00 * u0 + i10 * u1 + i20 * u2, i11 * u1 + i21 * u2, i22 * u2], 1)
-        t3 = time.perf_counter()
-        tm = self.timings
-        tm["schur_form"] = tm.get("schur_form", 0.0) + t1 - t0
-        tm["reduced_solve"] = tm.get("reduced_solve", 0.0) + t2 - t1
-        tm["back_substitution"] = tm.get("back_substitution", 0.0) + t3 - t2
-        self.reduced_matrix = S
-        return dc.reshape(nc, d), dp
+        return S, rhs_v, (i00, i10, i11, i20, i21, i22), gp
 
     @staticmethod
     def _solve_reduced(S: np.ndarray, rhs: np.ndarray, kind: str) -> np.ndarray | None:
