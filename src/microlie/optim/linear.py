@@ -9,9 +9,9 @@ Backends (``make_solver(name)``): ``"supernodal"`` (our supernodal multifrontal 
 block pattern, NumPy and LAPACK only, :mod:`microlie.optim.cholesky`), ``"scipy"`` (SuperLU with
 a symmetric minimum-degree order), ``"qdldl"`` (``pip install microlie[sparse]``, Apache-2.0),
 ``"pardiso"`` (Intel MKL PARDISO through pypardiso, ``pip install microlie[mkl]``), ``"dense"``
-(LAPACK Cholesky of the dense matrix, for small problems). ``"auto"`` takes PARDISO if installed, else
-the supernodal Cholesky (measured faster than SuperLU and qdldl on the shared pose graphs, see
-``benchmarks/pose_graph.py``); below 300 unknowns it takes the dense Cholesky.
+(LAPACK Cholesky of the dense matrix, for small problems). ``"auto"`` takes PARDISO if
+installed, else the supernodal Cholesky (measured faster than SuperLU on the shared pose graphs,
+see ``benchmarks/pose_graph.py``); below 300 unknowns it takes the dense Cholesky.
 """
 
 from __future__ import annotations
