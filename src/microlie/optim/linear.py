@@ -126,9 +126,7 @@ class PardisoSolver(LinearSolver):
 
     def analyse(self, indptr, indices, n, block_size=1):
         super().analyse(indptr, indices, n)
-        import pypardiso  # type: ignore[import-not-found]
-
-        self._ps = pypardiso.PyPardisoSolver(mtype=2)
+        self._ps = _pardiso_instance()
         self._A = sp.csr_matrix((np.zeros(self._lower.size), self.lower_indices,
                                  self.lower_indptr), shape=(n, n))
         self._analysed = False
@@ -152,6 +150,26 @@ class PardisoSolver(LinearSolver):
     def solve(self, b: np.ndarray) -> np.ndarray:
         x = self._call(33, np.asfortranarray(b.reshape(self.n, -1)))
         return _checked(x.reshape(b.shape))
+
+
+_PARDISO_TEMPLATE: Any = None
+
+
+def _pardiso_instance() -> Any:
+    """A fresh PyPardisoSolver (``mtype=2``) without searching for and loading MKL again
+    (about half a second per construction): copies of one template with new handles."""
+    global _PARDISO_TEMPLATE
+    import copy
+
+    import pypardiso  # type: ignore[import-not-found]
+
+    if _PARDISO_TEMPLATE is None:
+        _PARDISO_TEMPLATE = pypardiso.PyPardisoSolver(mtype=2)
+    ps = copy.copy(_PARDISO_TEMPLATE)
+    ps.pt = np.zeros_like(_PARDISO_TEMPLATE.pt)
+    ps.iparm = np.zeros_like(_PARDISO_TEMPLATE.iparm)
+    ps.perm = np.zeros(0, dtype=np.int32)
+    return ps
 
 
 class DenseSolver(LinearSolver):
