@@ -856,6 +856,34 @@ def _np(a) -> np.ndarray:
 
 
 @pytest.mark.parametrize("frame", FRAMES)
+def test_fuse_rank_deficient_float32_and_batched(frame):
+    """float32 (rank tolerance 1e3 eps) agrees with float64 to float32 precision; a batch
+    mixing a planar and a full-rank element equals the elements fused one by one."""
+    rng = np.random.default_rng(107)
+    X = planar_se3(3.0, -2.0, np.deg2rad(170.0))
+    Y = X.plus([0.1, 0.05, 0.0, 0.0, 0.0, 0.02])
+    P, Q = planar_cov(random_cov(rng, 3, 0.3)), planar_cov(random_cov(rng, 3, 0.2))
+    ref = Gaussian(X, P, frame=frame).fuse(Gaussian(Y, Q, frame=frame))
+    f32 = lambda Z, C: Gaussian(SE3(Z.params.astype(np.float32)), C.astype(np.float32),  # noqa
+                                frame=frame)
+    out = f32(X, P).fuse(f32(Y, Q))
+    assert out.cov.dtype == np.float32
+    np.testing.assert_allclose(out.cov, ref.cov, rtol=1e-4, atol=1e-7)
+    np.testing.assert_allclose(out.mean.params, ref.mean.params, atol=1e-5)
+    np.testing.assert_allclose(f32(X, P).fuse(f32(X, P)).cov, P / 2, atol=1e-7)
+    with pytest.raises(ValueError, match="incompatible"):
+        f32(X, P).fuse(f32(X.plus([0, 0, 1e-2, 0, 0, 0]), Q))
+    F = random_cov(rng, 6, 0.2)
+    gb = Gaussian(SE3(np.stack([X.params, X.params])), np.stack([P, F]), frame=frame)
+    hb = Gaussian(SE3(np.stack([Y.params, Y.params])), np.stack([Q, F]), frame=frame)
+    both = gb.fuse(hb)
+    for i, (A_, B_) in enumerate(((P, Q), (F, F))):
+        one = Gaussian(X, A_, frame=frame).fuse(Gaussian(Y, B_, frame=frame))
+        np.testing.assert_allclose(both.cov[i], one.cov, rtol=1e-9, atol=1e-14)
+        np.testing.assert_allclose(both.mean.params[i], one.mean.params, atol=1e-12)
+
+
+@pytest.mark.parametrize("frame", FRAMES)
 def test_fuse_planar_estimates_is_the_planar_closed_form(frame):
     """Two compatible planar estimates in SE(3) fuse to the SE(2) result computed here in
     information form, ``P+ = (P1^-1 + R^-1)^-1``, ``delta = P+ R^-1 d``, ``R = J^-1 P2 J^-T``,
