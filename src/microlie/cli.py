@@ -136,6 +136,10 @@ def build_parser() -> argparse.ArgumentParser:
                    default="none", help="align every other file to the first one")
     p.add_argument("--max-diff", type=float, default=0.01,
                    help="max. timestamp difference when aligning, s (default 0.01)")
+
+    from .optim.command import register as register_optimize  # argparse only, no solver yet
+
+    register_optimize(sub)
     return parser
 
 
@@ -248,6 +252,8 @@ def main(argv: Sequence[str] | None = None, out=None, err=None) -> int:
     err = err or sys.stderr
     args = build_parser().parse_args(argv)
     try:
+        if getattr(args, "run", None) is not None:  # subcommands registered by other modules
+            return args.run(args, out, err)
         if args.command in ("ape", "rpe"):
             return _run_metric(args, out, err)
         if args.command == "kitti":
