@@ -40,7 +40,7 @@ INITS = ("auto", "file", "odometry", "chordal")
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``optimize`` subcommand to ``subparsers`` (from ``add_subparsers()``); its
-    arguments carry ``run`` as the function to call with ``(args, out, err)``."""
+    arguments carry ``func`` (:func:`run`), called with ``(args, out, err)``."""
     p = subparsers.add_parser(
         "optimize", help="optimise a pose graph (g2o, TORO) or another least-squares file",
         description="Optimise a pose graph read from IN; report costs (GTSAM's "
@@ -66,7 +66,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="FILE", default=None,
                    help="draw the initial and optimised graph to FILE (PNG)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(run=run)
+    p.set_defaults(func=run)
     return p
 
 
