@@ -43,7 +43,9 @@ def plot_pose_graph(graph: PoseGraph, initial: LieGroup, optimised: LieGroup,
     for k, (X, name) in enumerate(((initial, "initial"), (optimised, "optimised"))):
         odo, loops = _segments(graph, X)
         if three_d:
-            from mpl_toolkits.mplot3d.art3d import Line3DCollection
+            from mpl_toolkits.mplot3d.art3d import (  # type: ignore[import-untyped]
+                Line3DCollection,
+            )
 
             ax = fig.add_subplot(1, 2, k + 1, projection="3d")
             ax.add_collection3d(Line3DCollection(loops, colors="tab:orange", linewidths=0.3,
@@ -59,9 +61,9 @@ def plot_pose_graph(graph: PoseGraph, initial: LieGroup, optimised: LieGroup,
             ax.set_zlabel("z")
         else:
             ax = fig.add_subplot(1, 2, k + 1)
-            ax.add_collection(LineCollection(loops, colors="tab:orange", linewidths=0.3,
+            ax.add_collection(LineCollection(list(loops), colors="tab:orange", linewidths=0.3,
                                              alpha=0.5, label="loop closures"))
-            ax.add_collection(LineCollection(odo, colors="tab:blue", linewidths=0.8,
+            ax.add_collection(LineCollection(list(odo), colors="tab:blue", linewidths=0.8,
                                              label="odometry"))
             ax.autoscale()
             ax.set_aspect("equal", adjustable="datalim")
