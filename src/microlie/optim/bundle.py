@@ -41,7 +41,7 @@ from .camera import BALCamera, CameraModel, PinholeCamera, reproject
 from .schur import LinearSolverKind, NormalEquations, SchurStructure
 
 __all__ = ["BundleProblem", "BundleResult", "IterationRecord", "solve", "synthetic_scene",
-           "rotvec_to_matrix", "matrix_to_rotvec", "camera_model"]
+           "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec", "camera_model"]
 
 
 def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
@@ -251,12 +251,12 @@ def _undamped_schur(res: BundleResult) -> np.ndarray:
     st = ne.structure
     Dc2 = np.zeros((st.n_cameras, st.cam_dim))
     Dp2 = np.zeros((st.n_points, 3))
-    out = ne.solve(Dc2, Dp2, "dense")
-    if out is None:
+    red = ne.reduced_system(Dc2, Dp2)
+    if red is None:
         raise np.linalg.LinAlgError("a point block is singular: some point is not determined")
     # undo the column scaling: S_unscaled = diag(1/s) S diag(1/s)
     sc = res.timings.get("_scale_c")
-    S = ne.reduced_matrix
+    S = red[0]
     if isinstance(sc, np.ndarray):
         inv = 1.0 / sc.reshape(-1)
         S = inv[:, None] * S * inv[None, :]
@@ -552,3 +552,45 @@ def synthetic_scene(n_cameras: int = 5, n_points: int = 100, *, noise: float = 0
                     translations=t + perturb * rng.standard_normal(t.shape),
                     points=X + perturb * rng.standard_normal(X.shape))
     return truth, start
+
+
+# ---------------------------------------------------------------------------- plot
+
+def plot_bundle(initial: BundleProblem, optimised: BundleProblem, path: Any = None,
+                title: str | None = None, max_points: int = 20000) -> Any:
+    """3-D views of the camera centres ``-R^T t`` and the points before (left) and after
+    (right); saved to ``path`` (PNG) when given. Builds a ``matplotlib.figure.Figure`` with the
+    Agg canvas (never pyplot, never the caller's backend) and returns it. The view is limited
+    to the 2-98 % range of the points (BAL files have a few far-away points)."""
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError as exc:  # pragma: no cover - exercised only without matplotlib
+        raise ImportError("plotting needs matplotlib: pip install 'microlie[plot]'") from exc
+    fig = Figure(figsize=(12.0, 6.0), dpi=100)
+    FigureCanvasAgg(fig)
+    for k, (p, name) in enumerate(((initial, "initial"), (optimised, "optimised"))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        X = p.points
+        if len(X) > max_points:
+            X = X[np.linspace(0, len(X) - 1, max_points).astype(int)]
+        centres = -np.einsum("nji,nj->ni", p.rotations, p.translations)
+        ax.scatter(X[:, 0], X[:, 1], X[:, 2], s=0.3, c="tab:blue", alpha=0.5, label="points")
+        ax.scatter(centres[:, 0], centres[:, 1], centres[:, 2], s=12, c="tab:red", marker="^",
+                   label="cameras")
+        both = np.concatenate([X, centres])
+        lo, hi = np.percentile(both, 2, axis=0), np.percentile(both, 98, axis=0)
+        mid, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-9)
+        ax.set_xlim(mid[0] - half, mid[0] + half)
+        ax.set_ylim(mid[1] - half, mid[1] + half)
+        ax.set_zlim(mid[2] - half, mid[2] + half)
+        ax.set_xlabel("x")
+        ax.set_ylabel("y")
+        ax.set_zlabel("z")
+        ax.set_title(f"{name}: cost {p.cost():.6g}")
+        ax.legend(loc="upper right", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    if path is not None:
+        fig.savefig(path)
+    return fig

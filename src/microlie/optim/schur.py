@@ -20,6 +20,7 @@ backend's ordering), which exists to compare against and to test the elimination
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -121,6 +122,7 @@ class NormalEquations:
     fixed_cameras: np.ndarray | None = None
     fixed_points: np.ndarray | None = None
     timings: dict[str, float] = field(default_factory=dict)
+    full_backend: str = "auto"      # sparse Cholesky of the full system (``kind="full"``)
 
     def __post_init__(self) -> None:
         st, Jc, Jp, r = self.structure, self.Jc, self.Jp, self.r
@@ -180,8 +182,45 @@ class NormalEquations:
             raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {kind!r}")
         if kind == "full":
             return self._solve_full(Dc2, Dp2)
-        import time
         t0 = time.perf_counter()
+        red = self.reduced_system(Dc2, Dp2)
+        if red is None:
+            return None
+        S, rhs_v, (i00, i10, i11, i20, i21, i22), gp = red
+        st, d, nc = self.structure, self.structure.cam_dim, self.structure.n_cameras
+        fp = self.fixed_points
+        jp = self._jp
+        t1 = time.perf_counter()
+        dc = self._solve_reduced(S, rhs_v, kind)
+        if dc is None:
+            return None
+        t2 = time.perf_counter()
+        # back substitution: dp = -V^-1 (gp + Jp^T Jc dc)
+        y = (self._jc_csr @ dc).reshape(-1, 2)
+        z = np.einsum("rin,nr->ni", jp, y)
+        zp = np.zeros((st.n_points, 3))
+        ne = st.point_count > 0
+        if st.n_obs:
+            zp[ne] = np.add.reduceat(z, st.point_start[ne], axis=0)
+        w = gp + zp
+        if fp is not None and fp.any():
+            w[fp] = 0.0
+        w0, w1, w2 = w[:, 0], w[:, 1], w[:, 2]
+        u0 = i00 * w0
+        u1 = i10 * w0 + i11 * w1
+        u2 = i20 * w0 + i21 * w1 + i22 * w2
+        dp = -np.stack([i00 * u0 + i10 * u1 + i20 * u2, i11 * u1 + i21 * u2, i22 * u2], 1)
+        t3 = time.perf_counter()
+        tm = self.timings
+        tm["schur_form"] = tm.get("schur_form", 0.0) + t1 - t0
+        tm["reduced_solve"] = tm.get("reduced_solve", 0.0) + t2 - t1
+        tm["back_substitution"] = tm.get("back_substitution", 0.0) + t3 - t2
+        return dc.reshape(nc, d), dp
+
+    def reduced_system(self, Dc2: np.ndarray, Dp2: np.ndarray) -> tuple | None:
+        """The reduced camera system ``(S, rhs)`` (dense, held unknowns replaced by unit rows)
+        with the points' inverse Cholesky factors and gradient; ``None`` when a point block is
+        not positive definite."""
         st, d = self.structure, self.structure.cam_dim
         V = self.V.copy()
         V[:, 0] += Dp2[:, 0]
@@ -196,7 +235,6 @@ class NormalEquations:
         i00, i10, i11, i20, i21, i22 = _chol3_inv(V.T)
         if not np.all(np.isfinite(i22)):
             return None
-        jp = self._jp
         pt = st.pt
         # G_a = Jp_a Ci^T (2 x 3), Ci the inverse Cholesky factor of the point's damped V
         CiT = np.zeros((st.n_points, 3, 3))
@@ -243,33 +281,7 @@ class NormalEquations:
             S[:, idx] = 0.0
             S[idx, idx] = 1.0
             rhs_v[idx] = 0.0
-        t1 = time.perf_counter()
-        dc = self._solve_reduced(S, rhs_v, kind)
-        if dc is None:
-            return None
-        t2 = time.perf_counter()
-        # back substitution: dp = -V^-1 (gp + Jp^T Jc dc)
-        y = (self._jc_csr @ dc).reshape(-1, 2)
-        z = np.einsum("rin,nr->ni", jp, y)
-        zp = np.zeros((st.n_points, 3))
-        ne = st.point_count > 0
-        if st.n_obs:
-            zp[ne] = np.add.reduceat(z, st.point_start[ne], axis=0)
-        w = gp + zp
-        if fp is not None and fp.any():
-            w[fp] = 0.0
-        w0, w1, w2 = w[:, 0], w[:, 1], w[:, 2]
-        u0 = i00 * w0
-        u1 = i10 * w0 + i11 * w1
-        u2 = i20 * w0 + i21 * w1 + i22 * w2
-        dp = -np.stack([i00 * u0 + i10 * u1 + i20 * u2, i11 * u1 + i21 * u2, i22 * u2], 1)
-        t3 = time.perf_counter()
-        tm = self.timings
-        tm["schur_form"] = tm.get("schur_form", 0.0) + t1 - t0
-        tm["reduced_solve"] = tm.get("reduced_solve", 0.0) + t2 - t1
-        tm["back_substitution"] = tm.get("back_substitution", 0.0) + t3 - t2
-        self.reduced_matrix = S
-        return dc.reshape(nc, d), dp
+        return S, rhs_v, (i00, i10, i11, i20, i21, i22), gp
 
     @staticmethod
     def _solve_reduced(S: np.ndarray, rhs: np.ndarray, kind: str) -> np.ndarray | None:
@@ -321,20 +333,30 @@ class NormalEquations:
         return (keep @ H @ keep + sp.diags(fix.astype(float))).tocsc()
 
     def _solve_full(self, Dc2, Dp2):
-        from scipy.sparse.linalg import splu  # type: ignore[import-untyped]
+        from .linear import SingularSystemError, make_solver
+
         st, d = self.structure, self.structure.cam_dim
         H = self.full_matrix(Dc2, Dp2)
+        H.sort_indices()
         g = self.gradient.copy()
         if self.fixed_cameras is not None:
-            g[: st.n_cameras * d].reshape(-1, d)[self.fixed_cameras] = 0.0
+            g[: st.n_cameras * d][self.fixed_cameras.reshape(-1)] = 0.0
         if self.fixed_points is not None:
             g[st.n_cameras * d:].reshape(-1, 3)[self.fixed_points] = 0.0
+        # the pattern is the same at every iteration: analyse once per structure
+        cache = getattr(st, "_full_solver", None)
+        if (cache is None or cache[1].shape != H.indices.shape
+                or not np.array_equal(cache[1], H.indices)
+                or not np.array_equal(cache[2], H.indptr)):
+            solver = make_solver(self.full_backend, H.shape[0])
+            solver.analyse(H.indptr, H.indices, H.shape[0])
+            cache = (solver, H.indices.copy(), H.indptr.copy())
+            st._full_solver = cache
         try:
-            lu = splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                      options={"SymmetricMode": True})
-        except RuntimeError:
+            cache[0].factorize(H.data)
+            x = -cache[0].solve(g)
+        except SingularSystemError:
             return None
-        x = -lu.solve(g)
         if not np.all(np.isfinite(x)):
             return None
         k = st.n_cameras * d
