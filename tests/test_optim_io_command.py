@@ -69,6 +69,15 @@ def test_files_without_vertices_start_from_odometry_and_toro_round_trip(tmp_path
     assert read_toro(out_file).cost() == pytest.approx(r["final_cost"], rel=1e-12)
 
 
+def test_bal_files_are_detected_and_dispatched():
+    path = data_file("bal/dubrovnik-3-7-pre.txt")
+    assert detect_format(path) == "bal"
+    code, out, _ = _run(str(path), "--json", "--max-iter", "5")
+    r = json.loads(out)
+    assert code == 0 and r["format"] == "bal"
+    assert r["initial_cost"] == pytest.approx(2764.220, abs=1e-3)  # data README
+
+
 def test_plot_draws_a_png_of_the_given_size(tmp_path):
     require("matplotlib")
     for rel in (POSE2, "pose_graph/tinyGrid3D.g2o"):

@@ -33,6 +33,7 @@ __all__ = ["register", "run", "run_pose_graph", "FORMATS", "detect_format"]
 FORMATS: dict[str, str] = {
     "g2o": "microlie.optim.command:run_pose_graph",
     "toro": "microlie.optim.command:run_pose_graph",
+    "bal": "microlie.optim.command_bal:run_bal",
 }
 SOLVERS = ("lm", "gn", "dogleg")
 INITS = ("auto", "file", "odometry", "chordal")
@@ -45,11 +46,12 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         "optimize", help="optimise a pose graph (g2o, TORO) or another least-squares file",
         description="Optimise a pose graph read from IN; report costs (GTSAM's "
                     "0.5 sum r^T Omega r over the file's edges), iterations and solve time.")
-    p.add_argument("input", metavar="IN", help="input file (g2o or TORO pose graph, ...)")
+    p.add_argument("input", metavar="IN",
+                   help="input file: a g2o or TORO pose graph, or a BAL bundle-adjustment problem")
     p.add_argument("-o", "--output", metavar="OUT", default=None,
                    help="write the optimised graph to OUT (format from its extension: "
                         ".graph/.toro for TORO, else the input's format)")
-    p.add_argument("--format", "-f", choices=("auto", *FORMATS, "bal"), default="auto",
+    p.add_argument("--format", "-f", choices=("auto", *FORMATS), default="auto",
                    help="input format (default: detected from the first data line)")
     p.add_argument("--solver", choices=SOLVERS, default="lm",
                    help="lm (Levenberg-Marquardt, default), gn (Gauss-Newton), dogleg")
