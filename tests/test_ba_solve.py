@@ -15,8 +15,8 @@ from microlie.optim.schur import NormalEquations, SchurStructure
 
 
 def _dense_jacobian(p: BundleProblem):
-    """The full Jacobian (2 n_obs, 9 n_cam + 3 n_pt), observations sorted by point."""
-    order = np.lexsort((p.camera_index, p.point_index))
+    """The full Jacobian (2 n_obs, 9 n_cam + 3 n_pt), observations sorted by camera."""
+    order = np.lexsort((p.point_index, p.camera_index))
     cam, pt, obs = p.camera_index[order], p.point_index[order], p.observations[order]
     rp = reproject(p.model, p.rotations, p.translations, p.intrinsics, p.points, cam, pt, obs)
     d = p.cam_dim

@@ -332,8 +332,8 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
     fc = _camera_mask(_as_mask(fix_cameras, nc, "fix_cameras"),
                       _as_mask(intr, nc, "fix_intrinsics"), nc, d)
     fp = _as_mask(fix_points, npt, "fix_points")
-    # observations sorted by point, once
-    order = np.lexsort((problem.camera_index, problem.point_index))
+    # observations sorted by camera (then point), once
+    order = np.lexsort((problem.point_index, problem.camera_index))
     cam = np.asarray(problem.camera_index)[order].astype(np.intp)
     pt = np.asarray(problem.point_index)[order].astype(np.intp)
     obs = np.asarray(problem.observations, dtype=float)[order]

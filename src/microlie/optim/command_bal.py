@@ -18,9 +18,12 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
+from .schur import LinearSolverKind
+
 __all__ = ["run_bal"]
 
-_LINEAR = {"auto": "auto", "dense": "dense", "sparse": "sparse", "full": "full"}
+_LINEAR: dict[str, LinearSolverKind] = {"auto": "auto", "dense": "dense", "sparse": "sparse",
+                                         "full": "full"}
 
 
 def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
