@@ -52,7 +52,7 @@ def test_dubrovnik_3_7_reaches_gtsam_regression_value():
     # GTSAM testGeneralSFMFactorB.cpp: default LM ends at 0.0199833 (+-1e-5); the problem is
     # under-determined (38 residuals, 48 unknowns), so a tighter LM may go lower, never higher
     p = read_bal(data_file("bal/dubrovnik-3-7-pre.txt"))
-    r = solve(p, max_iterations=200)
+    r = solve(p, max_iter=200)
     assert r.initial_cost == pytest.approx(2764.220, abs=1e-3)
     assert r.final_cost <= 0.0199833 + 1e-5
 

@@ -12,7 +12,7 @@ radius`` (radius starts at 1e4, diagonal reused after a rejected step); step qua
 ``radius /= max(1/3, 1 - (2 rho - 1)^3)``; rejected: ``radius /= 2, 4, 8, ...``. Stops on
 ``|cost change| <= 1e-6 cost`` (the step is then not taken, as in Ceres), a step shorter than
 ``1e-8 (|x| + 1e-8)``, a gradient max-norm below ``1e-10``, ``radius < 1e-32``, or
-``max_iterations`` tries (accepted plus rejected, Ceres' ``iterations``).
+``max_iter`` tries (accepted plus rejected, Ceres' ``iterations``).
 
 The gauge (7 degrees of freedom for BAL: rotation, translation, scale) is left free by default
 (the damping keeps the system definite, as in Ceres); ``fix_cameras=[0]`` holds camera 0 (and
@@ -175,13 +175,19 @@ class IterationRecord:
 
 @dataclass
 class BundleResult:
-    """Outcome of :func:`solve`: the optimised ``problem``, costs ``0.5 sum rho(|r|^2)`` in
-    pixels, ``iterations`` (tries, as Ceres counts them), ``successful_steps``, ``converged``
-    with the reason in ``message``, wall time ``time_s`` and its breakdown ``timings``."""
+    """Outcome of :func:`solve`, with the fields of :class:`microlie.optim.solvers.Result`:
+    the optimised ``problem``; ``initial_cost`` / ``final_cost`` ``0.5 sum |r|^2`` in pixels
+    without the robust loss, ``initial_robust_cost`` / ``final_robust_cost`` the minimised
+    ``0.5 sum rho(|r|^2)`` (equal without a loss); ``iterations`` (tries, accepted or not, the
+    stopping one included); ``successful_steps`` (Ceres' count: accepted steps plus iteration
+    0); ``converged`` with the reason in ``message``; wall time ``time_s`` and its breakdown
+    ``timings``; ``history`` one :class:`IterationRecord` per try."""
 
     problem: BundleProblem
     initial_cost: float
     final_cost: float
+    initial_robust_cost: float
+    final_robust_cost: float
     iterations: int
     successful_steps: int
     converged: bool
@@ -190,12 +196,15 @@ class BundleResult:
     history: list[IterationRecord]
     timings: dict[str, float]
     behind: str = "evaluate"
+    solver: str = "lm"
+    linear_solver: str = "auto"
     _normal: Any = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {"initial_cost": self.initial_cost, "final_cost": self.final_cost,
-                "iterations": self.iterations, "time_s": self.time_s,
-                "converged": self.converged, "message": self.message,
+                "initial_robust_cost": self.initial_robust_cost,
+                "final_robust_cost": self.final_robust_cost, "iterations": self.iterations,
+                "time_s": self.time_s, "converged": self.converged, "message": self.message,
                 "successful_steps": self.successful_steps}
 
     def camera_covariance(self, cameras: Sequence[int]) -> np.ndarray:
@@ -294,7 +303,7 @@ def _camera_mask(pose: np.ndarray | None, intr: np.ndarray | None, n: int, d: in
 def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: str = "evaluate",
           fix_cameras: Sequence[int] | None = None, fix_points: Sequence[int] | None = None,
           fix_intrinsics: Sequence[int] | bool | None = None,
-          linear_solver: LinearSolverKind = "auto", max_iterations: int = 100,
+          linear_solver: LinearSolverKind = "auto", max_iter: int = 100,
           function_tolerance: float = 1e-6, gradient_tolerance: float = 1e-10,
           parameter_tolerance: float = 1e-8, initial_radius: float = 1e4,
           jacobi_scaling: bool = True, verbose: bool = False) -> BundleResult:
@@ -316,8 +325,8 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         from .robust import make_loss
 
         loss = make_loss(robust)
-    if max_iterations < 0:
-        raise ValueError("max_iterations must be >= 0")
+    if max_iter < 0:
+        raise ValueError("max_iter must be >= 0")
     if initial_radius <= 0:
         raise ValueError("initial_radius must be positive")
     model = problem.model
@@ -429,7 +438,7 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         if radius <= 1e-32:
             converged, message = True, "minimum trust region radius reached"
             break
-        if it >= max_iterations:
+        if it >= max_iter:
             break
         it += 1
         ts = time.perf_counter()
@@ -498,9 +507,12 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         tm["_scale_c"] = scale_c
     time_s = time.perf_counter() - t_start
     tm["total"] = time_s
-    final_cost = cost
-    return BundleResult(x, initial_cost, final_cost, it, successful, converged, message, time_s,
-                        history, tm, behind, ne)
+    if loss is None:
+        plain0, plain1 = initial_cost, cost
+    else:
+        plain0, plain1 = problem.cost(behind), x.cost(behind)
+    return BundleResult(x, plain0, plain1, initial_cost, cost, it, successful, converged,
+                        message, time_s, history, tm, behind, "lm", linear_solver, ne)
 
 
 # ---------------------------------------------------------------------------- synthetic scenes
