@@ -6,7 +6,8 @@ Unknowns: per camera a world-to-camera rotation ``R`` (perturbed ``R Exp(dphi)``
 
 The iteration follows Ceres' ``TrustRegionMinimizer`` with ``LevenbergMarquardtStrategy`` so
 that iteration counts compare with Ceres': Jacobi scaling of the columns by
-``1 / (1 + |J_col|)`` fixed at iteration 0; damping ``D^2 = clamp(diag(J^T J), 1e-6, 1e32) /
+``s = 1 / (1 + |J_col|)`` fixed at iteration 0 (applied exactly, as the equivalent damping
+``D^2 / s^2`` of the unscaled system, so the Jacobians are never rescaled); damping ``D^2 = clamp(diag(J^T J), 1e-6, 1e32) /
 radius`` (radius starts at 1e4, diagonal reused after a rejected step); step quality
 ``rho = actual / model cost decrease``; accepted when ``rho > 1e-3``, then
 ``radius /= max(1/3, 1 - (2 rho - 1)^3)``; rejected: ``radius /= 2, 4, 8, ...``. Stops on
@@ -263,13 +264,7 @@ def _undamped_schur(res: BundleResult) -> np.ndarray:
     red = ne.reduced_system(Dc2, Dp2)
     if red is None:
         raise np.linalg.LinAlgError("a point block is singular: some point is not determined")
-    # undo the column scaling: S_unscaled = diag(1/s) S diag(1/s)
-    sc = res.timings.get("_scale_c")
-    S = red[0]
-    if isinstance(sc, np.ndarray):
-        inv = 1.0 / sc.reshape(-1)
-        S = inv[:, None] * S * inv[None, :]
-    return S
+    return red[0]
 
 
 def _as_mask(idx: Sequence[int] | np.ndarray | None, n: int, what: str) -> np.ndarray | None:
@@ -390,22 +385,17 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             r = r * rscale[:, None]
         else:
             cost = 0.5 * float(s.sum())
-        if jacobi_scaling:
-            if scale_c is None:
-                nc2 = np.zeros((nc, d))
-                np.add.at(nc2, cam, (Jc * Jc).sum(1))
-                np2 = np.zeros((npt, 3))
-                np.add.at(np2, pt, (Jp * Jp).sum(1))
-                scale_c = 1.0 / (1.0 + np.sqrt(nc2))
-                scale_p = 1.0 / (1.0 + np.sqrt(np2))
-            assert scale_p is not None
-            Jc = Jc * scale_c[cam][:, None, :]
-            Jp = Jp * scale_p[pt][:, None, :]
         ne = NormalEquations(structure, r, Jc, Jp, fc, fp, tm)
+        if scale_c is None:
+            # Ceres' Jacobi scaling 1 / (1 + |J_col|), fixed at iteration 0. Solving the scaled
+            # system (S J^T J S + D_s) y = -S g, delta = S y, is solving
+            # (J^T J + S^-1 D_s S^-1) delta = -g: the scaling only changes the damping.
+            if jacobi_scaling:
+                scale_c = 1.0 / (1.0 + np.sqrt(ne.diag_c))
+                scale_p = 1.0 / (1.0 + np.sqrt(ne.diag_p))
+            else:
+                scale_c, scale_p = np.ones((nc, d)), np.ones((npt, 3))
         g = ne.gradient
-        if jacobi_scaling:
-            assert scale_c is not None and scale_p is not None
-            g = g / np.concatenate([scale_c.reshape(-1), scale_p.reshape(-1)])
         gmask = np.ones(len(g), bool)
         if fc is not None:
             gmask[: nc * d] &= ~fc.reshape(-1)
@@ -443,8 +433,10 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         it += 1
         ts = time.perf_counter()
         if not reuse or diag_c is None:
-            diag_c = np.clip(ne.diag_c, 1e-6, 1e32)
-            diag_p = np.clip(ne.diag_p, 1e-6, 1e32)
+            # LM diagonal of the scaled Jacobian, clamped as Ceres does, in unscaled units
+            assert scale_c is not None and scale_p is not None
+            diag_c = np.clip(ne.diag_c * scale_c ** 2, 1e-6, 1e32) / scale_c ** 2
+            diag_p = np.clip(ne.diag_p * scale_p ** 2, 1e-6, 1e32) / scale_p ** 2
         assert diag_p is not None
         tm["step"] += time.perf_counter() - ts
         step = ne.solve(diag_c / radius, diag_p / radius, linear_solver)
@@ -457,14 +449,9 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             history.append(IterationRecord(it, cost, False, 0.0, radius, 0.0))
             tm["step"] += time.perf_counter() - ts
             continue
-        yc, yp = step
-        Jd = ne.jvp(yc, yp)
+        dc, dp = step
+        Jd = ne.jvp(dc, dp)
         model_change = -float(np.sum(Jd * (r + 0.5 * Jd)))
-        if jacobi_scaling:
-            assert scale_c is not None and scale_p is not None
-            dc, dp = yc * scale_c, yp * scale_p
-        else:
-            dc, dp = yc, yp
         tm["step"] += time.perf_counter() - ts
         if not model_change > 0.0:
             radius /= decrease
@@ -503,8 +490,6 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         if verbose:
             print(f"iter {it:4d}  cost {cand_cost:.9e}  rho {rho:+.3e}  radius {radius:.2e}"
                   f"  {'accepted' if rho > 1e-3 else 'rejected'}", file=sys.stderr)
-    if jacobi_scaling:
-        tm["_scale_c"] = scale_c
     time_s = time.perf_counter() - t_start
     tm["total"] = time_s
     if loss is None:
