@@ -105,6 +105,15 @@ def test_schur_step_equals_full_system_step(model, fixed):
         np.testing.assert_allclose(got, x, rtol=0, atol=1e-9 * np.abs(x).max())
 
 
+@pytest.mark.parametrize("kind", ["sparse", "full"])
+def test_other_linear_solvers_follow_the_same_iterates(kind):
+    p = read_bal(data_file("bal/dubrovnik-3-7-pre.txt"))
+    ref = solve(p, max_iter=20)
+    other = solve(p, max_iter=20, linear_solver=kind)
+    assert other.iterations == ref.iterations
+    assert other.final_cost == pytest.approx(ref.final_cost, rel=1e-6, abs=1e-9)
+
+
 # ------------------------------------------------------------------ gauge and marginals
 
 def test_free_and_fixed_gauge_reach_the_same_cost():
@@ -188,6 +197,8 @@ def test_bad_input_rejected():
         replace(start, point_index=start.point_index + 1)
     with pytest.raises(ValueError, match="intrinsics"):
         replace(start, intrinsics=np.ones((2, 2)))
+    with pytest.raises(ValueError, match="rotation matrices"):
+        replace(start, rotations=start.rotations * 1.01)
     with pytest.raises(ValueError, match="linear_solver"):
         solve(start, linear_solver="qr")
     with pytest.raises(ValueError, match="fix_cameras"):

@@ -106,6 +106,10 @@ class BundleProblem:
                         (self.points, "points"), (self.observations, "observations")):
             if not np.all(np.isfinite(a)):
                 raise ValueError(f"{what} contain non-finite values")
+        err = np.abs(np.swapaxes(self.rotations, 1, 2) @ self.rotations - np.eye(3)).max(
+            initial=0.0)
+        if err > 1e-6 or (nc and np.min(np.linalg.det(self.rotations)) < 0):
+            raise ValueError(f"rotations must be rotation matrices (|R^T R - I| = {err:.2e})")
 
     @classmethod
     def from_bal(cls, bal: BALProblem) -> BundleProblem:
