@@ -856,6 +856,34 @@ def _np(a) -> np.ndarray:
 
 
 @pytest.mark.parametrize("frame", FRAMES)
+def test_fuse_rank_deficient_float32_and_batched(frame):
+    """float32 (rank tolerance 1e3 eps) agrees with float64 to float32 precision; a batch
+    mixing a planar and a full-rank element equals the elements fused one by one."""
+    rng = np.random.default_rng(107)
+    X = planar_se3(3.0, -2.0, np.deg2rad(170.0))
+    Y = X.plus([0.1, 0.05, 0.0, 0.0, 0.0, 0.02])
+    P, Q = planar_cov(random_cov(rng, 3, 0.3)), planar_cov(random_cov(rng, 3, 0.2))
+    ref = Gaussian(X, P, frame=frame).fuse(Gaussian(Y, Q, frame=frame))
+    f32 = lambda Z, C: Gaussian(SE3(Z.params.astype(np.float32)), C.astype(np.float32),  # noqa
+                                frame=frame)
+    out = f32(X, P).fuse(f32(Y, Q))
+    assert out.cov.dtype == np.float32
+    np.testing.assert_allclose(out.cov, ref.cov, rtol=1e-4, atol=1e-7)
+    np.testing.assert_allclose(out.mean.params, ref.mean.params, atol=1e-5)
+    np.testing.assert_allclose(f32(X, P).fuse(f32(X, P)).cov, P / 2, atol=1e-7)
+    with pytest.raises(ValueError, match="incompatible"):
+        f32(X, P).fuse(f32(X.plus([0, 0, 1e-2, 0, 0, 0]), Q))
+    F = random_cov(rng, 6, 0.2)
+    gb = Gaussian(SE3(np.stack([X.params, X.params])), np.stack([P, F]), frame=frame)
+    hb = Gaussian(SE3(np.stack([Y.params, Y.params])), np.stack([Q, F]), frame=frame)
+    both = gb.fuse(hb)
+    for i, (A_, B_) in enumerate(((P, Q), (F, F))):
+        one = Gaussian(X, A_, frame=frame).fuse(Gaussian(Y, B_, frame=frame))
+        np.testing.assert_allclose(both.cov[i], one.cov, rtol=1e-9, atol=1e-14)
+        np.testing.assert_allclose(both.mean.params[i], one.mean.params, atol=1e-12)
+
+
+@pytest.mark.parametrize("frame", FRAMES)
 def test_fuse_planar_estimates_is_the_planar_closed_form(frame):
     """Two compatible planar estimates in SE(3) fuse to the SE(2) result computed here in
     information form, ``P+ = (P1^-1 + R^-1)^-1``, ``delta = P+ R^-1 d``, ``R = J^-1 P2 J^-T``,
@@ -995,6 +1023,10 @@ def test_mahalanobis_and_density_rank_deficient():
                                multivariate_normal(np.zeros(3), P3).logpdf(t[PLANAR]),
                                rtol=1e-10)
     assert g.mahalanobis(X.plus([0, 0, 0.01, 0, 0, 0])) == np.inf
+    # a derived Gaussian (rank found lazily): the distance is frame-independent
+    np.testing.assert_allclose(g.to_frame("left").mahalanobis(X.plus(t)), g.mahalanobis(X.plus(t)),
+                               rtol=1e-9)
+    assert g.to_frame("left").mahalanobis(X.plus([0, 0, 0.01, 0, 0, 0])) == np.inf
     # batched: one singular element among regular ones
     Pb = np.stack([planar_cov(P3), random_cov(rng, 6, 0.3)])
     gb = Gaussian(SE3(np.stack([X.params] * 2)), Pb, frame="right")
@@ -1023,6 +1055,82 @@ def test_rank_deficient_torch_autograd_and_jax_jit():
     f = jax.jit(lambda x: VectorGaussian(jnp.zeros(3), Pj).log_density(x))
     ref = multivariate_normal(np.zeros(3), P, allow_singular=True).logpdf(e)
     np.testing.assert_allclose(float(f(jnp.asarray(e))), ref, rtol=1e-12)
+
+
+# ------------------------------------------------------------------------ composite states
+
+
+def _state():
+    from microlie import SE23, Product, R
+
+    return Product(SE23, R(3), R(3)), (SE23, R(3), R(3))
+
+
+def _block_diag(*Ms: np.ndarray) -> np.ndarray:
+    n = sum(m.shape[-1] for m in Ms)
+    out = np.zeros((n, n))
+    i = 0
+    for m in Ms:
+        k = m.shape[-1]
+        out[i:i + k, i:i + k] = m
+        i += k
+    return out
+
+
+@pytest.mark.parametrize("frame", FRAMES)
+def test_product_state_is_blockwise_the_factor_gaussians(frame):
+    """An inertial filter state ``Product(SE23, R(3), R(3))`` as a Gaussian mean: with a
+    block-diagonal covariance every operation equals, block by block, the same operation on
+    the factors' own Gaussians (the product relies only on the generic group interface)."""
+    G, factors = _state()
+    rng = np.random.default_rng(111)
+    Xs = [F.random(rng=rng) for F in factors]
+    Ys = [F.random(rng=rng) for F in factors]
+    Ps = [random_cov(rng, F.dof, 0.1) for F in factors]
+    Qs = [random_cov(rng, F.dof, 0.1) for F in factors]
+    taus = [0.3 * rng.standard_normal(F.dof) for F in factors]
+    X, Y = G.from_parts(*Xs), G.from_parts(*Ys)
+    gx = Gaussian(X, _block_diag(*Ps), frame=frame)
+    gy = Gaussian(Y, _block_diag(*Qs), frame=frame)
+    fx = [Gaussian(a, P, frame=frame) for a, P in zip(Xs, Ps, strict=True)]
+    fy = [Gaussian(b, Q, frame=frame) for b, Q in zip(Ys, Qs, strict=True)]
+    tau, Tq = np.concatenate(taus), _block_diag(*Qs)
+    other = "left" if frame == "right" else "right"
+    ops = {
+        "compose": (gx.compose(gy), [a.compose(b) for a, b in zip(fx, fy, strict=True)]),
+        "between": (gx.between(gy), [a.between(b) for a, b in zip(fx, fy, strict=True)]),
+        "inverse": (gx.inverse(), [a.inverse() for a in fx]),
+        "to_frame": (gx.to_frame(other), [a.to_frame(other) for a in fx]),
+        "plus": (gx.plus(tau, Tq), [a.plus(t, Q) for a, t, Q in zip(fx, taus, Qs, strict=True)]),
+        "fuse": (gx.fuse(Gaussian(X.plus(0.1 * tau), gy.cov, frame=frame)),
+                 [a.fuse(Gaussian(a.mean.plus(0.1 * t), Q, frame=frame))
+                  for a, t, Q in zip(fx, taus, Qs, strict=True)]),
+    }
+    for name, (whole, parts) in ops.items():
+        np.testing.assert_allclose(whole.cov, _block_diag(*(p.cov for p in parts)), rtol=1e-9,
+                                   atol=1e-13, err_msg=name)
+        np.testing.assert_allclose(whole.mean.params,
+                                   np.concatenate([p.mean.params for p in parts]), atol=1e-12,
+                                   err_msg=name)
+    lg = gx.log()
+    np.testing.assert_allclose(lg.cov, _block_diag(*(a.log().cov for a in fx)), rtol=1e-9,
+                               atol=1e-13)
+    e = X.plus(0.05 * tau)
+    np.testing.assert_allclose(gx.mahalanobis(e, squared=True),
+                               sum(a.mahalanobis(p, squared=True)
+                                   for a, p in zip(fx, e.parts(), strict=True)), rtol=1e-9)
+
+
+@pytest.mark.parametrize("frame", FRAMES)
+def test_product_state_monte_carlo(frame):
+    """The same state with a full correlated covariance (biases correlated with the pose),
+    against Monte Carlo with the tolerance of the other propagation tests."""
+    G, _ = _state()
+    for op in ("compose_correlated", "between", "plus", "log", "inverse"):
+        rng = np.random.default_rng([112, FRAMES.index(frame), len(op)])
+        E, P, inputs = CASES[op](G, frame, rng, SIGMA)
+        ratio, rel = mc_ratio(E, P, largest_std(*inputs))
+        assert ratio <= 1.0, (op, ratio, rel)
 
 
 # ------------------------------------------------------------------------ immutability, jit

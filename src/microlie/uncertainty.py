@@ -43,7 +43,7 @@ from . import _linalg as L
 from ._array import Array
 from .groups.base import LieGroup
 
-__all__ = ["Gaussian", "VectorGaussian", "propagate", "FRAMES"]
+__all__ = ["Gaussian", "VectorGaussian", "propagate", "FRAMES", "RANK_RTOL"]
 
 Frame = Literal["right", "left"]
 FRAMES: tuple[str, str] = ("right", "left")
@@ -77,18 +77,18 @@ def _check_finite(x: Array, what: str) -> np.ndarray | None:
     return M
 
 
-def check_covariance(P: Array, n: int, what: str = "covariance") -> None:
+def check_covariance(P: Array, n: int, what: str = "covariance") -> np.ndarray | None:
     """Raise ``ValueError`` unless ``P`` is ``(..., n, n)``, finite, symmetric and PSD.
 
     Symmetry and positive semi-definiteness are checked to ``sqrt(eps)`` of the dtype relative to
     the largest entry or eigenvalue of each matrix. The values are read without forcing a
     traced one: under ``jax.jit`` a concrete (closed-over) covariance is checked, a traced one
-    is not.
+    is not. Returns the eigenvalues (float64, ascending), or ``None`` when unknown.
     """
     A.check_last_dim(P, (n, n), what)
     M = _check_finite(P, what)
     if M is None or M.size == 0:
-        return
+        return None
     tol = math.sqrt(float(np.finfo(M.dtype).eps))
     M = M.astype(np.float64)
     scale = np.abs(M).max(axis=(-1, -2))
@@ -99,6 +99,7 @@ def check_covariance(P: Array, n: int, what: str = "covariance") -> None:
     if np.any(w[..., 0] < -tol * np.maximum(np.abs(w).max(axis=-1), 1e-300)):
         raise ValueError(f"{what} is not positive semi-definite (smallest eigenvalue "
                          f"{w[..., 0].min():.3g})")
+    return w
 
 
 # ---------------------------------------------------------------------------- rank rule
@@ -127,18 +128,24 @@ class _Null:
         self.proj, self.scale, self.rank_loss, self.dev_tol = proj, scale, rank_loss, dev_tol
 
     @staticmethod
-    def of(P: Array) -> _Null | None:
-        """``None`` when every matrix has full rank, or when the values are unknown (traced)."""
-        M = L.concrete(P)
-        if M is None or M.size == 0:
-            return None
-        rtol = RANK_RTOL.get(str(M.dtype), RANK_RTOL["float64"])
-        M = 0.5 * (M + np.swapaxes(M, -1, -2)).astype(np.float64)
-        w = np.linalg.eigvalsh(M)
+    def of(P: Array, w: np.ndarray | None = None) -> _Null | None:
+        """``None`` when every matrix has full rank, or when the values are unknown (traced).
+        ``w``: the eigenvalues of ``P`` if already known (from :func:`check_covariance`)."""
+        M = None
+        if w is None:
+            M = L.concrete(P)
+            if M is None or M.size == 0:
+                return None
+            M = 0.5 * (M + np.swapaxes(M, -1, -2)).astype(np.float64)
+            w = np.linalg.eigvalsh(M)
+        rtol = RANK_RTOL["float32" if "float32" in str(P.dtype) else "float64"]
         big = np.abs(w).max(axis=-1)
         t = np.maximum(rtol * big, -w[..., 0])
         if not np.any(w[..., 0] <= t):
             return None
+        if M is None:
+            M = np.asarray(L.concrete(P), dtype=np.float64)
+            M = 0.5 * (M + np.swapaxes(M, -1, -2))
         w, V = np.linalg.eigh(M)
         zero = w <= t[..., None]
         Vz = V * zero[..., None, :]
@@ -181,9 +188,10 @@ class VectorGaussian:
     1.0
     """
 
-    __slots__ = ("mean", "cov")
+    __slots__ = ("mean", "cov", "_null")
     mean: Array
     cov: Array
+    _null: Any
 
     def __init__(self, mean: Any, cov: Any, *, validate: bool = True) -> None:
         m = A.as_float_array(mean)
@@ -191,11 +199,14 @@ class VectorGaussian:
             raise ValueError("the mean of a VectorGaussian must have shape (..., n)")
         _check_finite(m, "VectorGaussian mean")
         P = _as_array(cov, m, "VectorGaussian covariance")
+        w = None
         if validate:
-            check_covariance(P, m.shape[-1], "VectorGaussian covariance")
+            w = check_covariance(P, m.shape[-1], "VectorGaussian covariance")
         else:
             A.check_last_dim(P, (m.shape[-1], m.shape[-1]), "VectorGaussian covariance")
         self._init(*_broadcast_pair(L.copy(m), L.copy(P)))
+        if w is not None:
+            object.__setattr__(self, "_null", _Null.of(P, w))
 
     @classmethod
     def _make(cls, mean: Array, cov: Array) -> VectorGaussian:
@@ -206,6 +217,7 @@ class VectorGaussian:
     def _init(self, mean: Array, cov: Array) -> None:
         object.__setattr__(self, "mean", L.readonly(mean))
         object.__setattr__(self, "cov", cov if cov is None else L.readonly(cov))
+        object.__setattr__(self, "_null", _UNSET)
         L.activate_pytrees(mean)
 
     def __setattr__(self, name: str, value: Any) -> None:
@@ -253,12 +265,12 @@ class VectorGaussian:
         """Mahalanobis distance ``sqrt((x - m)^T P^-1 (x - m))`` (``squared=True``: without
         the square root, chi-square with ``dim`` degrees of freedom under the model)."""
         d = _as_array(x, self.mean, "x") - self.mean
-        return _mahalanobis(d, self.cov, squared)
+        return _mahalanobis(d, self.cov, squared, _rank(self))
 
     def log_density(self, x: Any) -> Array:
         """``log N(x; mean, cov)`` (the covariance must be positive definite)."""
         d = _as_array(x, self.mean, "x") - self.mean
-        return _log_normal(d, self.cov)
+        return _log_normal(d, self.cov, _rank(self))
 
     def ellipse(self, nsigma: float = 2.0, num: int = 64, dims: tuple[int, int] = (0, 1)
                 ) -> Array:
@@ -297,10 +309,11 @@ class Gaussian:
     'left'
     """
 
-    __slots__ = ("mean", "cov", "frame")
+    __slots__ = ("mean", "cov", "frame", "_null")
     mean: LieGroup
     cov: Array
     frame: Frame
+    _null: Any
 
     def __init__(self, mean: LieGroup, cov: Any, *, frame: Frame,
                  validate: bool = True) -> None:
@@ -309,12 +322,15 @@ class Gaussian:
         _check_frame(frame)
         P = _as_array(cov, mean.params, f"{type(mean).__name__} Gaussian covariance")
         what = f"{type(mean).__name__} Gaussian covariance"
+        w = None
         if validate:
-            check_covariance(P, mean.dof, what)
+            w = check_covariance(P, mean.dof, what)
         else:
             A.check_last_dim(P, (mean.dof, mean.dof), what)
-        params, P = _broadcast_pair(mean.params, L.copy(P))
-        self._init(type(mean)._wrap(params), P, frame)
+        params, Pb = _broadcast_pair(mean.params, L.copy(P))
+        self._init(type(mean)._wrap(params), Pb, frame)
+        if w is not None:
+            object.__setattr__(self, "_null", _Null.of(P, w))
 
     @classmethod
     def _make(cls, mean: LieGroup, cov: Array, frame: Frame) -> Gaussian:
@@ -326,6 +342,7 @@ class Gaussian:
         object.__setattr__(self, "mean", mean)
         object.__setattr__(self, "cov", cov if cov is None else L.readonly(cov))
         object.__setattr__(self, "frame", frame)
+        object.__setattr__(self, "_null", _UNSET)
         L.activate_pytrees(cov)
 
     def __setattr__(self, name: str, value: Any) -> None:
@@ -427,7 +444,7 @@ class Gaussian:
         """Mahalanobis distance of ``X`` from the mean, ``sqrt(e^T P^-1 e)`` with ``e =``
         :meth:`error` ``(X)`` in this frame (frame-independent, since the frames differ by the
         exact linear map ``Ad``)."""
-        return _mahalanobis(self.error(X), self.cov, squared)
+        return _mahalanobis(self.error(X), self.cov, squared, _rank(self))
 
     def log_density(self, X: LieGroup, haar: bool = False) -> Array:
         """Log-density of ``X``: ``log N(e; 0, P)`` with ``e =`` :meth:`error` ``(X)``.
@@ -439,7 +456,7 @@ class Gaussian:
         (left) is added. Frame-independent up to that measure.
         """
         e = self.error(X)
-        out = _log_normal(e, self.cov)
+        out = _log_normal(e, self.cov, _rank(self))
         if haar:
             J = self.group.jr(e) if self.frame == "right" else self.group.jl(e)
             out = out - L.slogdet(J)[1]
@@ -561,12 +578,13 @@ class Gaussian:
         or ``Jl(d) P Jl(d)^T`` (left), since ``mean Exp(d + x) ~= mean Exp(d) Exp(Jr(d) x)``.
 
         ``R`` is checked like every covariance (finite, symmetric, positive semi-definite).
-        Rank-deficient ``P`` and ``R`` are handled exactly: when ``S`` is singular (rank rule
-        of :class:`_Null`, tolerance :data:`RANK_RTOL`) its pseudo-inverse is used, so ``d``
-        stays in the range of ``P H^T`` (the mean never moves along a zero-variance direction),
-        and a residual that has a component where ``S`` has zero variance (the measurement
-        contradicts what both sides hold certain) raises ``ValueError``. Under ``jax.jit``
-        with a traced covariance the rank cannot be read: ``S`` must then be invertible.
+        Rank-deficient ``P`` and ``R`` are handled exactly: when ``S`` is singular (the rank
+        rule of docs/uncertainty.md, tolerance :data:`RANK_RTOL`) its pseudo-inverse is used,
+        so ``d`` stays in the range of ``P H^T`` (the mean never moves along a zero-variance
+        direction), and a residual that has a component where ``S`` has zero variance (the
+        measurement contradicts what both sides hold certain) raises ``ValueError``. Under
+        ``jax.jit`` with a traced covariance the rank cannot be read: ``S`` must then be
+        invertible.
 
         >>> from microlie import SE2
         >>> g = Gaussian(SE2.identity(), np.diag([1.0, 1.0, 0.0]), frame="right")  # exact heading
@@ -796,26 +814,34 @@ def _standard_normal(n: int | tuple[int, ...], shape: tuple, rng: Any, like: Arr
     return L.asarray(np.random.default_rng(rng).standard_normal((*size, *shape)), like)
 
 
-def _mahalanobis(e: Array, P: Array, squared: bool) -> Array:
-    """``e^T P^-1 e`` (or its root); on a rank-deficient ``P`` (see :class:`_Null`) the
-    pseudo-inverse on the support and ``inf`` off it."""
-    d2, _ = _mahalanobis_null(e, P)
+_UNSET: Any = object()  # "rank not computed yet" (distinct from None: "full rank or unknown")
+
+
+def _rank(g: Gaussian | VectorGaussian) -> _Null | None:
+    """The zero-variance directions of ``g.cov``, computed once per object."""
+    null = g._null
+    if null is _UNSET:
+        null = _Null.of(g.cov)
+        object.__setattr__(g, "_null", null)
+    return null
+
+
+def _mahalanobis(e: Array, P: Array, squared: bool, null: _Null | None) -> Array:
+    """``e^T P^-1 e`` (or its root); on a rank-deficient ``P`` (``null``, see :class:`_Null`)
+    the pseudo-inverse on the support and ``inf`` off it."""
+    if null is None:
+        d2 = (e * L.solve(P, e[..., None])[..., 0]).sum(-1)
+    else:
+        d2 = (e * null.pinv_solve(P, e[..., None])[..., 0]).sum(-1)
+        d2 = L.where(null.off_support(e), math.inf, d2)
     return d2 if squared else d2**0.5
 
 
-def _mahalanobis_null(e: Array, P: Array) -> tuple[Array, _Null | None]:
-    null = _Null.of(P)
-    if null is None:
-        return (e * L.solve(P, e[..., None])[..., 0]).sum(-1), None
-    d2 = (e * null.pinv_solve(P, e[..., None])[..., 0]).sum(-1)
-    return L.where(null.off_support(e), math.inf, d2), null
-
-
-def _log_normal(e: Array, P: Array) -> Array:
+def _log_normal(e: Array, P: Array, null: _Null | None) -> Array:
     """``log N(e; 0, P)``; on a rank-deficient ``P`` the density on its support (w.r.t. the
     Lebesgue measure of the support, as SciPy's ``allow_singular=True``), ``-inf`` off it."""
     n = e.shape[-1]
-    d2, null = _mahalanobis_null(e, P)
+    d2 = _mahalanobis(e, P, True, null)
     if null is None:
         return -0.5 * (d2 + n * _LOG_2PI + L.slogdet(P)[1])
     rank = L.asarray(n - null.rank_loss, d2)

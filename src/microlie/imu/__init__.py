@@ -8,9 +8,11 @@ preintegration covariance is in the order ``(dphi, dv, dp)`` (Forster et al. 201
 """
 
 from .factors import BiasRandomWalkFactor, ImuFactor
+from .filters import ErrorStateEKF, InvariantEKF
 from .preintegration import Preintegration
 from .residual import Deltas, imu_residual
 from .simulate import EUROC_ADIS16448, ImuData, SmoothTrajectory, simulate_imu
 
 __all__ = ["Preintegration", "ImuFactor", "BiasRandomWalkFactor", "Deltas", "imu_residual",
-           "EUROC_ADIS16448", "ImuData", "SmoothTrajectory", "simulate_imu"]
+           "EUROC_ADIS16448", "ImuData", "SmoothTrajectory", "simulate_imu", "ErrorStateEKF",
+           "InvariantEKF"]

@@ -178,12 +178,15 @@ def simulate_imu(
     bias_gyro0: Any = None,
     bias_accel0: Any = None,
     truth: bool = True,
+    runs: int | None = None,
     **densities: float,
 ) -> ImuData:
     """Samples at ``rate`` Hz over ``duration`` seconds from ``start`` (default: the whole
     trajectory). ``densities`` override :data:`EUROC_ADIS16448` (``gyro_noise``,
     ``accel_noise``, ``gyro_walk``, ``accel_walk``); initial biases default to draws of
-    ``N(0, (0.01 rad/s)^2)`` and ``N(0, (0.05 m/s^2)^2)``."""
+    ``N(0, (0.01 rad/s)^2)`` and ``N(0, (0.05 m/s^2)^2)``. With ``runs=M`` the
+    measurements and biases get shape ``(N, M, 3)``: ``M`` independent noise draws on the same
+    motion (Monte Carlo), the truth states being shared."""
     unknown = set(densities) - set(EUROC_ADIS16448)
     if unknown:
         raise ValueError(f"unknown noise parameters {sorted(unknown)}")
@@ -199,14 +202,19 @@ def simulate_imu(
     t = t0 + dt * np.arange(n)
     w = traj.angular_velocity(t)
     f = traj.specific_force(t, g)
-    bg0 = 0.01 * rng.standard_normal(3) if bias_gyro0 is None else np.asarray(bias_gyro0, float)
-    ba0 = 0.05 * rng.standard_normal(3) if bias_accel0 is None else np.asarray(bias_accel0, float)
-    walk = rng.standard_normal((2, n, 3)) * np.sqrt(dt)
-    bg = bg0 + prm["gyro_walk"] * np.concatenate([np.zeros((1, 3)), np.cumsum(walk[0], 0)[:-1]])
-    ba = ba0 + prm["accel_walk"] * np.concatenate([np.zeros((1, 3)), np.cumsum(walk[1], 0)[:-1]])
-    noise = rng.standard_normal((2, n, 3)) / np.sqrt(dt)
-    gyro = w + bg + prm["gyro_noise"] * noise[0]
-    accel = f + ba + prm["accel_noise"] * noise[1]
+    m = () if runs is None else (int(runs),)
+    bg0 = 0.01 * rng.standard_normal((*m, 3)) if bias_gyro0 is None else \
+        np.broadcast_to(np.asarray(bias_gyro0, float), (*m, 3))
+    ba0 = 0.05 * rng.standard_normal((*m, 3)) if bias_accel0 is None else \
+        np.broadcast_to(np.asarray(bias_accel0, float), (*m, 3))
+    walk = rng.standard_normal((2, n, *m, 3)) * np.sqrt(dt)
+    zero = np.zeros((1, *m, 3))
+    bg = bg0 + prm["gyro_walk"] * np.concatenate([zero, np.cumsum(walk[0], 0)[:-1]])
+    ba = ba0 + prm["accel_walk"] * np.concatenate([zero, np.cumsum(walk[1], 0)[:-1]])
+    noise = rng.standard_normal((2, n, *m, 3)) / np.sqrt(dt)
+    ws, fs = (w, f) if runs is None else (w[:, None], f[:, None])
+    gyro = ws + bg + prm["gyro_noise"] * noise[0]
+    accel = fs + ba + prm["accel_noise"] * noise[1]
     X = (
         integrate_states(traj.state(t0), f, w, dt, g)
         if truth

@@ -132,8 +132,8 @@ class BetweenFactor(Factor):
     """The pose-graph edge ``r = (X_i^-1 X_j) (-) Z_ij = Log(Z_ij^-1 X_i^-1 X_j)``
     (``x_j - x_i - z`` for vectors).
 
-    Jacobians (right): ``d r / d X_j = Jr^-1(r)``, ``d r / d X_i = -Jl^-1(r) Ad_(Z^-1)``
-    (``Ad_(Z^-1)`` is constant, computed once).
+    Jacobians (right): ``d r / d X_j = Jr^-1(r)``, ``d r / d X_i = -Jl^-1(r) Ad_(Z^-1)
+    = -Jr^-1(r) Ad_((X_i^-1 X_j)^-1)``.
     """
 
     def __init__(self, variables: Variables, i: Any, j: Any, Z: Any,
@@ -147,7 +147,6 @@ class BetweenFactor(Factor):
         self.Z = _measurement(variables, Z, self.count, "BetweenFactor")
         if variables.group is not None:
             self._Zinv = self.Z.inverse()
-            self._ad_zinv = np.asarray(self._Zinv.adjoint())
 
     def evaluate(self, values: list[Any], jac: bool) -> Any:
         Xi, Xj = values
@@ -157,12 +156,14 @@ class BetweenFactor(Factor):
                 return r
             eye = np.broadcast_to(np.eye(self.dim), (self.count, self.dim, self.dim))
             return r, [-eye, eye]
-        E = self._Zinv.compose(Xi.inverse().compose(Xj))
+        D = Xi.inverse().compose(Xj)
+        E = self._Zinv.compose(D)
         if not jac:
             return np.asarray(E.log())
         r, Jj = E.log(jac=True)
-        G = type(E)
-        Ji = -(G.jr_inv(-r) @ self._ad_zinv)
+        # d r / d X_i = -Jl^-1(r) Ad_(Z^-1) = -Jr^-1(r) Ad_(D^-1), D = X_i^-1 X_j: one adjoint
+        # instead of a second inverse Jacobian
+        Ji = -(Jj @ D.inverse().adjoint())
         return r, [Ji, Jj]
 
 

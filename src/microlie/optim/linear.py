@@ -9,9 +9,8 @@ Backends (``make_solver(name)``): ``"supernodal"`` (our supernodal multifrontal 
 block pattern, NumPy and LAPACK only, :mod:`microlie.optim.cholesky`), ``"scipy"`` (SuperLU with
 a symmetric minimum-degree order), ``"qdldl"`` (``pip install microlie[sparse]``, Apache-2.0),
 ``"pardiso"`` (Intel MKL PARDISO through pypardiso, ``pip install microlie[mkl]``), ``"dense"``
-(LAPACK Cholesky of the dense matrix, for small problems). ``"auto"`` takes PARDISO if
-installed, else the supernodal Cholesky (measured faster than SuperLU on the shared pose graphs,
-see ``benchmarks/pose_graph.py``); below 300 unknowns it takes the dense Cholesky.
+(LAPACK Cholesky of the dense matrix, for small problems). ``"auto"`` chooses by problem
+and installation (see :func:`make_solver`).
 """
 
 from __future__ import annotations
@@ -207,16 +206,22 @@ def available_solvers() -> list[str]:
             if k not in _MODULES or importlib.util.find_spec(_MODULES[k]) is not None]
 
 
-def make_solver(name: str | LinearSolver, n: int = 0) -> LinearSolver:
-    """A solver by name (``"auto"`` picks by availability and size, see the module)."""
+def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
+                available: list[str] | None = None) -> LinearSolver:
+    """A solver by name. ``"auto"`` chooses by what is installed and by the measurements of
+    ``benchmarks/pose_graph.py``: below 300 unknowns the dense Cholesky; for 3-D problems
+    (blocks of 6 or more) PARDISO, else the supernodal Cholesky; for 2-D problems qdldl, else
+    PARDISO, else SuperLU (on 2-D pose graphs SuperLU beat the supernodal Cholesky, whose
+    per-supernode overhead dominates with 3x3 blocks). ``available`` restricts the choice (for
+    example to ``["scipy", "supernodal", "dense"]``, what ``pip install microlie`` has)."""
     if isinstance(name, LinearSolver):
         return name
     if name == "auto":
         if n < 300:
             return DenseSolver()
-        if "pardiso" in available_solvers():
-            return PardisoSolver()
-        return SOLVERS["supernodal"]()()
+        avail = available_solvers() if available is None else available
+        prefs = ("pardiso", "supernodal") if block_size >= 6 else ("qdldl", "pardiso", "scipy")
+        return SOLVERS[next(k for k in prefs if k in avail)]()()
     make = SOLVERS.get(name)
     if make is None:
         raise ValueError(f"unknown linear solver {name!r}; known: auto, "
