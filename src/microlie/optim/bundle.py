@@ -7,8 +7,9 @@ Unknowns: per camera a world-to-camera rotation ``R`` (perturbed ``R Exp(dphi)``
 The iteration follows Ceres' ``TrustRegionMinimizer`` with ``LevenbergMarquardtStrategy`` so
 that iteration counts compare with Ceres': Jacobi scaling of the columns by
 ``s = 1 / (1 + |J_col|)`` fixed at iteration 0 (applied exactly, as the equivalent damping
-``D^2 / s^2`` of the unscaled system, so the Jacobians are never rescaled); damping ``D^2 = clamp(diag(J^T J), 1e-6, 1e32) /
-radius`` (radius starts at 1e4, diagonal reused after a rejected step); step quality
+``D^2 / s^2`` of the unscaled system, so the Jacobians are never rescaled); damping
+``D^2 = clamp(diag(J^T J), 1e-6, 1e32) / radius`` of the scaled Jacobian (radius starts at
+1e4, diagonal reused after a rejected step); step quality
 ``rho = actual / model cost decrease``; accepted when ``rho > 1e-3``, then
 ``radius /= max(1/3, 1 - (2 rho - 1)^3)``; rejected: ``radius /= 2, 4, 8, ...``. Stops on
 ``|cost change| <= 1e-6 cost`` (the step is then not taken, as in Ceres), a step shorter than
