@@ -16,10 +16,9 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp  # type: ignore[import-untyped]
-import scipy.sparse.linalg as spla  # type: ignore[import-untyped]
 from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
 
-from .linear import LinearSolver, SingularSystemError
+from .linear import LinearSolver, SingularSystemError, block_graph, splu_symmetric
 
 __all__ = ["SupernodalSolver"]
 
@@ -38,21 +37,14 @@ class SupernodalSolver(LinearSolver):
         bs = block_size if block_size > 0 and n % block_size == 0 else 1
         self.bs = bs
         nb = n // bs
-        cols = np.repeat(np.arange(n), np.diff(indptr))
-        B = sp.csc_matrix((np.ones(indices.size), (indices // bs, cols // bs)), shape=(nb, nb))
-        # symmetric random values: SuperLU's numeric L then has the symbolic pattern (equal
-        # values can cancel exactly and drop a fill entry); the dominant diagonal avoids pivoting
-        B = sp.triu(B, 1).tocoo()
-        w = np.random.default_rng(0).uniform(0.5, 1.0, B.nnz)
-        B = sp.coo_matrix((w, (B.row, B.col)), shape=(nb, nb))
-        B = (B + B.T + sp.eye(nb) * (nb + 1.0)).tocsc()
+        B = block_graph(indptr, indices, n, bs)
         # SuperLU's L is the factor of B[q][:, q] with q = argsort(perm_c), whatever the
         # requested order (it postorders the elimination tree itself)
-        lu = _lu(B, "MMD_AT_PLUS_A")
+        lu = splu_symmetric(B, "MMD_AT_PLUS_A")
         perm = np.argsort(lu.perm_c)
         parent = _etree(lu.L.tocsc(), nb)
         perm = perm[_postorder(parent, nb)]
-        lu = _lu(B[perm][:, perm].tocsc(), "NATURAL")
+        lu = splu_symmetric(B[perm][:, perm].tocsc(), "NATURAL")
         perm = perm[np.argsort(lu.perm_c)]
         L = _closed(lu.L.tocsc(), nb)
         parent = _etree(L, nb)
@@ -232,11 +224,6 @@ class SupernodalSolver(LinearSolver):
             raise SingularSystemError("the linear system is singular (the solution is not "
                                       "finite)")
         return x[:, 0] if vec else x
-
-
-def _lu(B: Any, order: str) -> Any:
-    return spla.splu(B, permc_spec=order, diag_pivot_thresh=0.0,
-                     options={"SymmetricMode": True})
 
 
 def _closed(L: Any, nb: int) -> Any:
