@@ -288,3 +288,29 @@ def test_bad_input():
         Preintegration(gyro_noise=1e-3, accel_noise=1e-2, bias_gyro=np.zeros(4))
     with pytest.raises(ValueError, match="scheme"):
         Preintegration(gyro_noise=1e-3, accel_noise=1e-2, scheme="euler")
+
+
+@pytest.mark.parametrize("error", ["forster", "logmap"])
+def test_imu_factor_cost_in_a_graph(error):
+    """FactorGraph.cost with an ImuFactor batch is 0.5 r^T Sigma^-1 r summed, with r from
+    imu_residual and Sigma the preintegration covariance (mapped for the Logmap form)."""
+    from microlie.imu import ImuFactor
+    from microlie.optim import FactorGraph
+
+    Xi, Xj, b = _states()
+    g = FactorGraph()
+    x = g.add_variables(SE23._wrap(np.concatenate([Xi.params, Xj.params])))
+    bv = g.add_variables(np.concatenate([b, b]))
+    for scheme in ("manifold", "tangent"):
+        idx = np.arange(5)
+        g.add(ImuFactor(x, bv, idx, idx + 5, [_pim(scheme)] * 5, error=error))
+    total = 0.0
+    for scheme in ("manifold", "tangent"):
+        pim = _pim(scheme)
+        r = imu_residual(Deltas([pim] * 5), Xi, Xj, b, error=error)
+        S = pim.covariance
+        if error == "logmap":
+            M = _blockdiag(np.eye(3), *[pim.delta_rotation.matrix().T] * 2)
+            S = M @ S @ M.T
+        total += 0.5 * np.sum(r * np.linalg.solve(S, r.T).T)
+    assert abs(g.cost() - total) < 1e-9 * total
