@@ -98,8 +98,9 @@ def _normalize_argv(argv: list[str]) -> list[str]:
 
 
 def _is_bag(path: str) -> bool:
-    p = Path(path)
-    return p.suffix in (".bag", ".db3", ".mcap") or (p.is_dir() and (p / "metadata.yaml").exists())
+    from .traj.rosbag import is_bag
+
+    return is_bag(path)
 
 
 class _Source:
@@ -587,6 +588,18 @@ def _align_to(ref: Any, t: Any, args: argparse.Namespace, method: str) -> tuple[
     return (t if g is None else t.transform(g)), g
 
 
+def _file_stem(name: str | None) -> str:
+    """Output file stem for a trajectory name: the file's stem; for a bag topic
+    ``run.bag:/tf:map.base`` the bag's stem and the topic (``run_tf_map_base``)."""
+    if not name:
+        return "trajectory"
+    path, _, topic = str(name).partition(":")
+    stem = Path(path).stem
+    if topic:
+        stem += "_" + "".join(c if c.isalnum() else "_" for c in topic.strip("/"))
+    return stem
+
+
 def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     from .traj import describe_alignment, merge, read_trajectory, write_trajectory
 
@@ -658,7 +671,7 @@ def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         Path(folder).mkdir(parents=True, exist_ok=True)
         ext = {"tum": ".tum", "kitti": ".kitti", "euroc": ".csv"}[fmt]
         for t in trajs:
-            stem = Path(str(t.name).split(":")[0]).stem if t.name else "trajectory"
+            stem = _file_stem(t.name)
             target = Path(folder) / (stem + ext)
             write_trajectory(target, t, fmt)
             err.write(f"wrote {target}\n")
