@@ -131,10 +131,14 @@ def test_euroc_csv_and_tum_estimate_share_one_time_origin(tmp_path):
     assert hi[0] == pytest.approx(est.timestamps[-1] - gt.timestamps[0], abs=px + 0.2)
 
 
-def test_roll_pitch_yaw_of_agreeing_trajectories_overlap():
+def test_roll_pitch_yaw_of_agreeing_trajectories_overlap(tmp_path):
     gt, est = kitti()
     est_aligned, _ = T.align(gt, est, "se3")  # KITTI: paired by index
     fig = T.plot.plot_trajectories([gt, est_aligned])
+    # the command's PNG is this figure
+    run("plot", "kitti", str(gt.name), str(est.name), "-a", "-o", str(tmp_path / "k.png"))
+    T.plot.save(fig, tmp_path / "lib.png")
+    np.testing.assert_array_equal(read_png(tmp_path / "k.png"), read_png(tmp_path / "lib.png"))
     for k, gid in enumerate(("roll", "pitch", "yaw")):
         ref_line, est_line = axes(fig, gid).get_lines()
         d = np.abs(est_line.get_ydata() - ref_line.get_ydata())

@@ -307,3 +307,10 @@ def test_rot_label_and_sim3_scale_in_text_and_json():
     d = json.loads(run("ape", gt, est, "-as", "--json")[1])
     assert d["info"]["alignment_scale"] == pytest.approx(s, rel=1e-12)
     assert d["info"]["alignment_transform"]["scale"] == d["info"]["alignment_scale"]
+
+
+def test_statistics_median_is_numpys_bit_for_bit():
+    rng = np.random.default_rng(0)
+    for n in [*range(1, 40), 1000, 1001]:
+        e = np.abs(rng.standard_normal(n)) * rng.uniform(1e-3, 1e3)
+        assert T.statistics(e)["median"] == float(np.median(e)), n
