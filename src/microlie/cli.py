@@ -72,18 +72,24 @@ def _progress(items: Sequence[T], label: str, stream: TextIO | None = None) -> I
 def _normalize_argv(argv: list[str]) -> list[str]:
     """evo's flag forms of the alignment options, rewritten to ``--align METHOD``.
 
-    ``-as`` / ``-sa`` is ``--align sim3``; ``-a`` / ``--align`` not followed by a method is
+    Combined flags are split (``-as`` is ``-a -s``, i.e. sim3; ``-va`` is ``-v -a``);
+    ``-a`` / ``--align`` not followed by a method is
     ``--align se3`` (evo's ``-a`` is a flag, ours takes an optional method, so that
     ``microlie ape -a gt.txt est.txt`` keeps its positional arguments); the same for a bare
     ``--interpolate`` (``se3``).
     """
+    expanded: list[str] = []
+    for tok in argv:  # evo's combined flags: -as, -va, -vas, ...
+        if len(tok) > 2 and tok[0] == "-" and tok[1] != "-" and set(tok[1:]) <= set("asv"):
+            expanded += [f"-{c}" for c in tok[1:]]
+        else:
+            expanded.append(tok)
+    argv = expanded
     out: list[str] = []
     it = iter(range(len(argv)))
     for i in it:
         tok = argv[i]
-        if tok in ("-as", "-sa"):
-            out += ["--align", "sim3"]
-        elif tok in ("-a", "--align", "--interpolate"):
+        if tok in ("-a", "--align", "--interpolate"):
             name, values = ("--interpolate", ("se3", "split")) if tok == "--interpolate" else \
                 ("--align", ALIGNMENTS)
             nxt = argv[i + 1] if i + 1 < len(argv) else None
