@@ -185,36 +185,6 @@ def _loadtxt(
     return mat
 
 
-def _parse_block(data: str, ncols: int) -> np.ndarray | None:
-    """The numbers of ``data`` (ASCII, ``\n`` line ends, no comment, fields separated by spaces
-    or tabs) as an ``(N, ncols)`` matrix, or ``None`` if any line with fields does not have
-    exactly ``ncols`` of them, a field is not a number, or a value is not finite.
-
-    Fields are counted per line in bulk on the bytes; the numbers are then converted in C by
-    :func:`numpy.fromstring` with Python's correctly rounded ``float`` conversion, so values
-    are bit-identical to the careful path, about 4x faster than ``loadtxt``.
-    """
-    raw = np.frombuffer(data.encode("ascii"), dtype=np.uint8)
-    newline = raw == 10
-    sep = newline | (raw == 32) | (raw == 9)
-    start = ~sep
-    start[1:] &= sep[:-1]  # a field starts where a separator is followed by a non-separator
-    line = np.searchsorted(np.flatnonzero(newline), np.flatnonzero(start))
-    counts = np.bincount(line)
-    counts = counts[counts > 0]
-    if counts.size == 0 or np.any(counts != ncols):
-        return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # a field that is not a number: stops with a warning
-        try:
-            values = np.fromstring(data, dtype=np.float64, sep=" ")
-        except (ValueError, DeprecationWarning):
-            return None
-    if values.size != counts.size * ncols or not np.isfinite(values).all():
-        return None
-    return values.reshape(-1, ncols)
-
-
 def _fast_matrix(
     path: PathLike, text: str, ncols: int, comma: bool, at_least: bool
 ) -> np.ndarray | None:
@@ -234,10 +204,6 @@ def _fast_matrix(
         and not any(c in text for c in _BREAKS)
         and not any(text.find(c, offset) >= 0 for c in below_header)
     ):
-        if not comma:
-            mat = _parse_block(text[offset:], ncols)
-            if mat is not None:
-                return mat
         return _loadtxt(path, ncols, comma, at_least, skip)
     lines = _data_block(text)
     if not comma and "," in text:
