@@ -8,6 +8,7 @@ Subcommands (``microlie COMMAND -h`` shows every option with an example)::
     microlie traj FILES... [--ref FILE] [-a ...] [--merge] [--plot FILE] [--save-as FMT DIR]
     microlie res RESULTS.json... [--plot FILE] [--json]
     microlie plot FILES... -o FILE [--plot-mode xy|xz|yz|zy|xyz]
+    microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] ...  # microlie.optim.command
 
 evo's spellings are accepted as aliases (``-a``, ``-s``, ``-as``, ``--align_origin``,
 ``-r trans_part``, ``-u f``, ``--t_max_diff``, ``--t_offset``, ``--n_to_align``,
@@ -407,9 +408,15 @@ def _register_plot(sub: Any) -> None:
 
 # Subcommands in the order ``microlie -h`` lists them; each entry adds one subparser whose
 # ``func(args, out, err)`` runs it. Another package's command is one more entry here.
+def _register_optimize(sub: Any) -> None:
+    from .optim.command import register  # argparse only: the solver is imported on use
+
+    register(sub)
+
+
 COMMANDS: list[Callable[[Any], None]] = [
     _register_ape, _register_rpe, _register_kitti, _register_traj, _register_res,
-    _register_plot,
+    _register_plot, _register_optimize,
 ]
 
 

@@ -39,34 +39,35 @@ class SchurStructure:
     """The sparsity of a bundle-adjustment problem, analysed once.
 
     ``cam`` and ``pt`` give the camera and point of each observation; the observations must be
-    sorted by point (``np.lexsort((cam, pt))`` order), which the solver does once.
+    sorted by camera, then point (``np.lexsort((pt, cam))`` order), which the solver does once:
+    each camera's observations are then one contiguous block.
     """
 
     def __init__(self, cam: np.ndarray, pt: np.ndarray, n_cameras: int, n_points: int,
                  cam_dim: int) -> None:
         cam = np.asarray(cam, dtype=np.intp)
         pt = np.asarray(pt, dtype=np.intp)
-        if np.any(np.diff(pt) < 0):
-            raise ValueError("observations must be sorted by point")
+        if np.any(np.diff(cam) < 0):
+            raise ValueError("observations must be sorted by camera")
         self.cam, self.pt = cam, pt
         self.n_cameras, self.n_points, self.cam_dim = n_cameras, n_points, cam_dim
         self.n_obs = n = len(cam)
         counts = np.bincount(pt, minlength=n_points)
-        self.point_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)
         self.point_count = counts
-        # observations sorted by camera (for the diagonal blocks and the gradient)
-        self.by_cam = np.argsort(cam, kind="stable")
         ccount = np.bincount(cam, minlength=n_cameras)
         self.cam_bounds = np.concatenate([[0], np.cumsum(ccount)]).astype(np.intp)
-        # pairs a < b of observations of the same point, with cam[a] <= cam[b]
+        # pairs a < b of observations of the same point, with cam[a] <= cam[b]: enumerate them
+        # in point order (a stable sort keeps the camera order within each point)
+        by_pt = np.argsort(pt, kind="stable")
+        point_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)
         a_list, b_list = [], []
         for m in np.unique(counts):
             if m < 2:
                 continue
-            base = self.point_start[counts == m]
+            base = point_start[counts == m]
             ia, ib = np.triu_indices(m, 1)
-            a_list.append((base[:, None] + ia[None]).ravel())
-            b_list.append((base[:, None] + ib[None]).ravel())
+            a_list.append(by_pt[(base[:, None] + ia[None]).ravel()])
+            b_list.append(by_pt[(base[:, None] + ib[None]).ravel()])
         a = np.concatenate(a_list) if a_list else np.zeros(0, np.intp)
         b = np.concatenate(b_list) if b_list else np.zeros(0, np.intp)
         swap = cam[a] > cam[b]
@@ -81,6 +82,13 @@ class SchurStructure:
         cols = cam[:, None] * cam_dim + np.arange(cam_dim)[None, :]
         self._jc_indices = np.repeat(cols, 2, axis=0).ravel()
         self._jc_indptr = np.arange(0, 2 * n * cam_dim + 1, cam_dim)
+
+    def point_sum(self, v: np.ndarray) -> np.ndarray:
+        """Sums ``(n_points, k)`` of per-observation rows ``v`` ``(n_obs, k)`` by point."""
+        out = np.empty((self.n_points, v.shape[1]))
+        for k in range(v.shape[1]):
+            out[:, k] = np.bincount(self.pt, weights=v[:, k], minlength=self.n_points)
+        return out
 
     def camera_jacobian_csr(self, Jc: np.ndarray) -> sp.csr_matrix:
         n, d = self.n_obs, self.cam_dim
@@ -109,7 +117,7 @@ def _chol3_inv(v: np.ndarray) -> tuple[np.ndarray, ...]:
 @dataclass
 class NormalEquations:
     """One linearisation: residuals ``r`` ``(n, 2)`` and Jacobians ``Jc`` ``(n, 2, d)``,
-    ``Jp`` ``(n, 2, 3)`` (observations sorted by point, already weighted and scaled).
+    ``Jp`` ``(n, 2, 3)`` (observations sorted by camera, already weighted and scaled).
 
     ``fixed_cameras`` is a ``(n_cameras, d)`` mask of held camera unknowns (a camera's pose,
     its intrinsics or both), ``fixed_points`` a ``(n_points,)`` mask of held points; held
@@ -139,17 +147,12 @@ class NormalEquations:
                           (JpT[:, 0] * JpT[:, 2]).sum(0), (JpT[:, 1] * JpT[:, 1]).sum(0),
                           (JpT[:, 1] * JpT[:, 2]).sum(0), (JpT[:, 2] * JpT[:, 2]).sum(0)], 1)
         gp_obs = np.einsum("rin,nr->ni", JpT, r)
-        seg = st.point_start
-        nonempty = st.point_count > 0
-        V = np.zeros((st.n_points, 6))
-        gp = np.zeros((st.n_points, 3))
-        if st.n_obs:
-            V[nonempty] = np.add.reduceat(prods, seg[nonempty], axis=0)
-            gp[nonempty] = np.add.reduceat(gp_obs, seg[nonempty], axis=0)
+        V = st.point_sum(prods)
+        gp = st.point_sum(gp_obs)
         self.V, self.gp = V, gp
-        # camera side, sorted by camera: U_c = Jc^T Jc, g_c = Jc^T r, diag(U_c)
-        Jcc = Jc[st.by_cam].reshape(-1, d)                          # (2n, d)
-        rc = r[st.by_cam].reshape(-1)
+        # camera side (observations are sorted by camera): U_c = Jc^T Jc, g_c = Jc^T r
+        Jcc = Jc.reshape(-1, d)                                      # (2n, d)
+        rc = r.reshape(-1)
         b = st.cam_bounds
         nc = st.n_cameras
         self.U = np.zeros((nc, d, d))
@@ -162,13 +165,12 @@ class NormalEquations:
         self.diag_c = np.diagonal(self.U, axis1=1, axis2=2).copy()
         self.diag_p = V[:, [0, 3, 5]].copy()
         self.gradient = np.concatenate([self.gc.ravel(), gp.ravel()])
-        self._jc_csr = st.camera_jacobian_csr(Jc)
 
     # ------------------------------------------------------------------ products with J
     def jvp(self, dc: np.ndarray, dp: np.ndarray) -> np.ndarray:
         """``J_c dc + J_p dp`` as ``(n, 2)``."""
         st = self.structure
-        out = (self._jc_csr @ dc.reshape(-1)).reshape(-1, 2)
+        out = np.matmul(self.Jc, dc[st.cam][:, :, None])[:, :, 0]
         out += np.einsum("rin,ni->nr", self._jp, dp[st.pt])
         return out
 
@@ -196,13 +198,9 @@ class NormalEquations:
             return None
         t2 = time.perf_counter()
         # back substitution: dp = -V^-1 (gp + Jp^T Jc dc)
-        y = (self._jc_csr @ dc).reshape(-1, 2)
+        y = np.matmul(self.Jc, dc.reshape(nc, d)[st.cam][:, :, None])[:, :, 0]
         z = np.einsum("rin,nr->ni", jp, y)
-        zp = np.zeros((st.n_points, 3))
-        ne = st.point_count > 0
-        if st.n_obs:
-            zp[ne] = np.add.reduceat(z, st.point_start[ne], axis=0)
-        w = gp + zp
+        w = gp + st.point_sum(z)
         if fp is not None and fp.any():
             w[fp] = 0.0
         w0, w1, w2 = w[:, 0], w[:, 1], w[:, 2]
@@ -249,9 +247,8 @@ class NormalEquations:
         nc = st.n_cameras
         Sb = np.zeros((nc, nc, d, d))
         rhs = -self.gc.copy()
-        oc = st.by_cam
-        Zc = Zt[oc].reshape(-1, d)                                   # (3n, d) by camera
-        hc = h[st.pt[oc]].reshape(-1)
+        Zc = Zt.reshape(-1, d)                                       # (3n, d) by camera
+        hc = h[st.pt].reshape(-1)
         b = st.cam_bounds
         for c in range(nc):
             s, e = 3 * b[c], 3 * b[c + 1]
@@ -310,8 +307,8 @@ class NormalEquations:
         ip = np.arange(0, 2 * n * 3 + 1, 3)
         Jp_csr = sp.csr_matrix((self.Jp.reshape(-1), np.repeat(cols_p, 2, axis=0).ravel(), ip),
                                shape=(2 * n, st.n_cameras * d + st.n_points * 3))
-        Jc_csr = sp.csr_matrix((self._jc_csr.data, self._jc_csr.indices, self._jc_csr.indptr),
-                               shape=Jp_csr.shape)
+        jc = st.camera_jacobian_csr(self.Jc)
+        Jc_csr = sp.csr_matrix((jc.data, jc.indices, jc.indptr), shape=Jp_csr.shape)
         J = (Jc_csr + Jp_csr).tocsc()
         H = (J.T @ J).tocsc()
         H = H + sp.diags(np.concatenate([Dc2.reshape(-1), Dp2.reshape(-1)]))
