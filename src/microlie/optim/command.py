@@ -10,8 +10,8 @@ The reported costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges (pl
 ``--robust``, and without the gauge prior); ``time_s`` is the solve alone (reading, initial
 guess and graph construction are reported apart). The gauge is the file's ``FIX`` vertices,
 or else a prior on the first pose at its start value. ``--init auto`` takes the file's vertices,
-or the odometry chain when the file has none. A progress line per iteration goes to stderr
-on a terminal.
+or the odometry chain when the file has none, or chordal when that chain is incomplete (said on
+stderr). A progress line per iteration goes to stderr on a terminal.
 
 Formats are handled by the functions in :data:`FORMATS` (format name -> ``"module:function"``,
 imported on use), each called as ``run(args, err) -> dict`` and returning the JSON report: a
@@ -60,7 +60,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         "barron, optionally with a scale, e.g. huber:1.0")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, or chordal "
-                        "(default auto: the file's vertices, else odometry)")
+                        "(default auto: the file's vertices, else odometry, else chordal)")
     p.add_argument("--linear-solver", default="auto", metavar="NAME",
                    help="sparse linear solver: auto (default), scipy, qdldl, pardiso, dense")
     p.add_argument("--max-iter", type=int, default=100, metavar="N",
@@ -153,7 +153,14 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     init = args.init
     if init == "auto":
         init = "file" if graph.poses is not None else "odometry"
-    X0 = initialize(graph, init)
+        try:
+            X0 = initialize(graph, init)
+        except ValueError as e:  # no vertices and no complete odometry chain
+            init = "chordal"
+            err.write(f"microlie optimize: {e}; starting from the chordal initialisation\n")
+            X0 = initialize(graph, init)
+    else:
+        X0 = initialize(graph, init)
     t2 = time.perf_counter()
     fg, poses = graph.to_factor_graph(X0, loss=args.robust)
     t3 = time.perf_counter()
