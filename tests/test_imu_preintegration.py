@@ -299,7 +299,7 @@ def test_imu_factor_cost_in_a_graph(error):
 
     Xi, Xj, b = _states()
     g = FactorGraph()
-    x = g.add_variables(SE23._wrap(np.concatenate([Xi.params, Xj.params])))
+    x = g.add_variables(SE23(np.concatenate([Xi.params, Xj.params])))
     bv = g.add_variables(np.concatenate([b, b]))
     for scheme in ("manifold", "tangent"):
         idx = np.arange(5)
