@@ -154,7 +154,7 @@ class Preintegration:
     @property
     def delta_rotation(self) -> SO3:
         """``dR_ij`` as an ``SO3`` element."""
-        return SO3._wrap(self._q.copy())  # type: ignore[return-value]
+        return SO3(self._q.copy())
 
     def _to_ours(self) -> np.ndarray:
         """The 9x9 map from the internal error coordinates to ``(dphi, dv, dp)``."""
