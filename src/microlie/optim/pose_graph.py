@@ -278,8 +278,8 @@ def _block(name: str, tag: str, rests: list[str], lines: list[int], n_ids: int,
         except (DeprecationWarning, ValueError):
             a = None
     if a is None or a.size != n * k:
-        for r, ln in zip(rests, lines, strict=True):
-            _check_line(name, tag, r.split(), ln, n_ids, n_num)
+        for rest, ln in zip(rests, lines, strict=True):
+            _check_line(name, tag, rest.split(), ln, n_ids, n_num)
         raise AssertionError(f"{name}: {tag} lines failed to parse")  # pragma: no cover
     a = a.reshape(n, k)
     ids, vals = a[:, :n_ids], a[:, n_ids:]
