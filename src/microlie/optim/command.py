@@ -145,13 +145,13 @@ def _write(path: str, graph: Any, poses: Any, fmt: str) -> None:
 
 def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     """Read, initialise, optimise, write and plot one pose graph; the JSON report."""
-    from .init import initialize
+    from .init import InitMethod, initialize
 
     t0 = time.perf_counter()
     graph = _read(args.input, args.format)
     t1 = time.perf_counter()
-    init = args.init
-    if init == "auto":
+    init: InitMethod
+    if args.init == "auto":
         init = "file" if graph.poses is not None else "odometry"
         try:
             X0 = initialize(graph, init)
@@ -160,6 +160,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
             err.write(f"microlie optimize: {e}; starting from the chordal initialisation\n")
             X0 = initialize(graph, init)
     else:
+        init = args.init
         X0 = initialize(graph, init)
     t2 = time.perf_counter()
     fg, poses = graph.to_factor_graph(X0, loss=args.robust)

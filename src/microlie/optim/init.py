@@ -36,7 +36,7 @@ import scipy.sparse as sp  # type: ignore[import-untyped]
 from ..groups import SE2, SE3, LieGroup
 from .pose_graph import PoseGraph
 
-__all__ = ["initialize", "from_file", "odometry", "chordal", "INIT_METHODS"]
+__all__ = ["initialize", "from_file", "odometry", "chordal", "INIT_METHODS", "InitMethod"]
 
 InitMethod = Literal["file", "odometry", "chordal"]
 INIT_METHODS: tuple[str, ...] = ("file", "odometry", "chordal")
