@@ -41,6 +41,8 @@ class Deltas:
         if len(schemes) != 1:
             raise ValueError("all preintegrations of one factor batch must use one scheme")
         self.scheme = schemes.pop()
+        for p in pims:
+            p._flush()
         self.q = np.stack([p._q for p in pims])
         self.theta = np.stack([p._theta for p in pims])
         self.dv = np.stack([p.delta_velocity for p in pims])
