@@ -235,6 +235,11 @@ def test_pose_graph_checks_its_fields():
     with pytest.raises(ValueError, match="information must have shape"):
         PoseGraph(SE2, ids=np.arange(2), poses=None, i=[0], j=[1], measurements=Z,
                   information=np.eye(3))
+    g = PoseGraph(SE2, ids=np.array([2, 4]), poses=None, i=[2], j=[4], measurements=Z,
+                  information=np.eye(3)[None])
+    assert g.index([4, 2]).tolist() == [1, 0]
+    with pytest.raises(ValueError, match="vertex id 3 is not in this graph"):
+        g.index(3)
     with pytest.raises(ValueError, match="vertex id 5"):
         PoseGraph(SE2, ids=np.arange(2), poses=None, i=[0], j=[5], measurements=Z,
                   information=np.eye(3)[None])

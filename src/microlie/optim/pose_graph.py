@@ -100,8 +100,9 @@ class PoseGraph:
         """Positions in ``ids`` (and in ``poses``) of the given vertex ids."""
         ids = np.asarray(ids, dtype=np.int64)
         k = np.searchsorted(self.ids, ids)
-        if np.any(k >= self.ids.size) or np.any(self.ids[np.minimum(k, self.ids.size - 1)] != ids):
-            raise ValueError("unknown vertex id")
+        bad = (k >= self.ids.size) | (self.ids[np.minimum(k, self.ids.size - 1)] != ids)
+        if np.any(bad):
+            raise ValueError(f"vertex id {int(ids[bad].reshape(-1)[0])} is not in this graph")
         return k
 
     def edge_index(self) -> tuple[np.ndarray, np.ndarray]:
