@@ -192,6 +192,8 @@ BAD = [
     ("VERTEX_SE2 0 0 inf 0\n" + E2, r":1: VERTEX_SE2: non-finite value 'inf'"),
     (V2 + "EDGE_SE2 0 x 1 0 0 1 0 0 1 0 1\n", r":3: EDGE_SE2: vertex id 'x' is not an integer"),
     (V2 + "EDGE_SE2 0 -1 1 0 0 1 0 0 1 0 1\n", r":3: EDGE_SE2: negative vertex id -1"),
+    (V2 + "EDGE_SE2 0 1 1 0 0 1 0 0 1 0\nVERTEX_SE2 2 x 0 0\n",  # the first bad line wins
+     r":3: EDGE_SE2 needs 11 fields"),
     (V2 + E2 + "EDGE_SE2 0 1.5 1 0 0 1 0 0 1 0 1\n",
      r":4: EDGE_SE2: vertex id '1.5' is not an integer"),
     (V2 + E2 + E2 + "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1 7\n", r":5: EDGE_SE2 needs 11 fields"),
