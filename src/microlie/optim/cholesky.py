@@ -93,7 +93,6 @@ class SupernodalSolver(LinearSolver):
         poff = np.concatenate([[0], np.cumsum([u * u for u in usize])]).astype(np.int64)
         self.pool_size = int(poff[-1])
         pos = np.full(n, -1, np.int64)
-        tril: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         info = []
         for k, (idx, kc) in enumerate(fronts):
             m = idx.size
@@ -103,22 +102,16 @@ class SupernodalSolver(LinearSolver):
             if rr.size and rr.min() < 0:
                 raise AssertionError("supernodal analysis: an entry outside its front")
             dst = rr * m + (c_all[s0:s1] - idx[0])
-            psrc, pdst = [], []
+            adds = []
             for c in children[k]:
                 cidx, ckc = fronts[c]
                 rel = pos[cidx[ckc:]]
-                if rel.min() < 0:
-                    raise AssertionError("supernodal analysis: a child row outside the front")
                 u = rel.size
-                if u not in tril:
-                    tril[u] = np.tril_indices(u)
-                aa, bb = tril[u]
-                psrc.append(poff[c] + aa * u + bb)
-                pdst.append(rel[aa] * m + rel[bb])
+                adds.append((np.ix_(rel, rel), int(poff[c]), u))
             pos[idx] = -1
             info.append({"idx": idx, "m": m, "k": kc, "src": src_all[s0:s1], "dst": dst,
                          "c0": int(idx[0]), "rows": idx[kc:],
-                         "adds": list(zip(pdst, psrc, strict=True)),
+                         "adds": adds,
                          "poff": int(poff[k]), "u": usize[k]})
         # leaves (no children), batched by shape; the other supernodes one by one
         groups: dict[tuple[int, int], list[int]] = {}
@@ -168,9 +161,11 @@ class SupernodalSolver(LinearSolver):
             m, kc = f["m"], f["k"]
             F = np.zeros(m * m)
             F[f["dst"]] = data[f["src"]]
-            for pdst, psrc in f["adds"]:  # extend-add: positions are unique within a child
-                F[pdst] += pool[psrc]
             F = F.reshape(m, m)
+            for ix, off, u in f["adds"]:
+                # extend-add of a child's update (only its lower triangle is valid; the rest
+                # lands in this front's upper triangle, which is never read)
+                F[ix] += pool[off:off + u * u].reshape(u, u)
             L11, info = potrf(F[:kc, :kc], lower=1, clean=1, overwrite_a=0)
             if info != 0:
                 raise SingularSystemError("the linear system is not positive definite (a "
