@@ -11,8 +11,9 @@ All three return one batch of poses aligned with ``graph.ids``.
   estimate to SO(n) by SVD; then translations by linear least squares with those rotations
   fixed, ``R_i^T (t_j - t_i) = t_ij`` weighted by the translation block of the information.
 
-The anchor is the first fixed vertex (``FIX``) or else the first vertex; it keeps its file pose
-when the file has vertices and is the identity otherwise.
+The odometry chain starts at the first vertex; the chordal anchor is the first fixed vertex
+(``FIX``), else the first vertex. Either keeps its file pose when the file has vertices and is
+the identity otherwise.
 
 >>> import numpy as np
 >>> from microlie import SE2
