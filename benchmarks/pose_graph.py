@@ -17,9 +17,10 @@ ratios. Every BLAS/LAPACK library is held to one thread (GTSAM's wheel is single
 Costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges, both evaluated by microlie's
 ``PoseGraph.cost`` on the returned poses.
 
-Backends: ``supernodal`` is what ``pip install microlie`` gives (NumPy/SciPy only);
-``pardiso`` needs ``microlie[mkl]``; ``qdldl`` (``microlie[sparse]``) and ``scipy`` (SuperLU)
-are shown for reference.
+Backends: ``supernodal`` (our NumPy/LAPACK Cholesky) and ``scipy`` (SuperLU) are what
+``pip install microlie`` has; ``pardiso`` needs ``microlie[mkl]``, ``qdldl`` ``microlie[sparse]``.
+The summary table gives the ratio of ``linear_solver="auto"``'s pick, once with everything of this
+environment installed and once restricted to the default install.
 """
 
 from __future__ import annotations

@@ -75,8 +75,11 @@ def test_schur_step_equals_full_system_step(model, fixed):
     keep = np.random.default_rng(0).random(len(start.camera_index)) > 0.3
     from dataclasses import replace
 
-    p = replace(start, camera_index=start.camera_index[keep], point_index=start.point_index[keep],
-                observations=start.observations[keep])
+    # and one point observed twice by the same camera (a pair within one camera block)
+    dup = np.nonzero(keep)[0][:3]
+    p = replace(start, camera_index=np.r_[start.camera_index[keep], start.camera_index[dup]],
+                point_index=np.r_[start.point_index[keep], start.point_index[dup]],
+                observations=np.r_[start.observations[keep], start.observations[dup] + 1.0])
     J, rp, cam, pt = _dense_jacobian(p)
     st = SchurStructure(cam, pt, p.n_cameras, p.n_points, p.cam_dim)
     fc = np.zeros((p.n_cameras, p.cam_dim), bool)
@@ -163,6 +166,20 @@ def test_camera_marginals_equal_inverse_of_full_information():
     np.testing.assert_allclose(np.asarray(g.cov), T @ ref @ T.T, rtol=1e-6,
                                atol=1e-12 * np.abs(ref).max())
     np.testing.assert_allclose(np.asarray(g.mean.matrix())[:3, :3], p.rotations[1], atol=1e-12)
+
+
+def test_sparse_reduced_system_gives_the_same_marginals(monkeypatch):
+    import microlie.optim.schur as schur
+
+    truth, start = synthetic_scene(4, 40, noise=0.5, seed=8)
+    r = solve(start, fix_cameras=[0], fix_points=[0], function_tolerance=1e-12)
+    dense = r.camera_covariance([1, 2])
+    monkeypatch.setattr(schur, "DENSE_LIMIT", 10)
+    monkeypatch.setattr(schur, "SPARSE_DENSITY", 2.0)
+    sparse = r.camera_covariance([1, 2])
+    np.testing.assert_allclose(sparse, dense, rtol=1e-8, atol=1e-14 * np.abs(dense).max())
+    r2 = solve(start, fix_cameras=[0], fix_points=[0], function_tolerance=1e-12)
+    assert r2.final_cost == pytest.approx(r.final_cost, rel=1e-10)
 
 
 def test_marginal_rotation_spread_matches_monte_carlo():
