@@ -13,7 +13,8 @@ region). microlie runs ``FactorGraph.optimize()`` (LM, the same lambda schedule 
 tolerances as GTSAM); its time includes the linear solver's one-off symbolic analysis, but not
 building the graph and its pattern (``FactorGraph.problem()``, printed as "setup"). Runs
 alternate GTSAM, microlie-backend-1, microlie-backend-2, ... ``--repeat`` times after one
-warm-up; the table gives medians, the ratio of medians, and the spread of the per-round ratios. Every BLAS/LAPACK library is held to one thread (GTSAM's wheel is single-threaded).
+warm-up; the table gives medians, the ratio of medians, and the spread of the per-round ratios.
+Every BLAS/LAPACK library is held to one thread (GTSAM's wheel is single-threaded).
 Costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges, both evaluated by microlie's
 ``PoseGraph.cost`` on the returned poses.
 
