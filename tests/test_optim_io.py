@@ -192,6 +192,8 @@ BAD = [
     ("VERTEX_SE2 0 0 inf 0\n" + E2, r":1: VERTEX_SE2: non-finite value 'inf'"),
     (V2 + "EDGE_SE2 0 x 1 0 0 1 0 0 1 0 1\n", r":3: EDGE_SE2: vertex id 'x' is not an integer"),
     (V2 + "EDGE_SE2 0 -1 1 0 0 1 0 0 1 0 1\n", r":3: EDGE_SE2: negative vertex id -1"),
+    (V2 + "EDGE_SE2 0 1 1 0 0 1 0 0 1 0\nVERTEX_SE2 2 x 0 0\n",  # the first bad line wins
+     r":3: EDGE_SE2 needs 11 fields"),
     (V2 + E2 + "EDGE_SE2 0 1.5 1 0 0 1 0 0 1 0 1\n",
      r":4: EDGE_SE2: vertex id '1.5' is not an integer"),
     (V2 + E2 + E2 + "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1 7\n", r":5: EDGE_SE2 needs 11 fields"),
@@ -235,6 +237,11 @@ def test_pose_graph_checks_its_fields():
     with pytest.raises(ValueError, match="information must have shape"):
         PoseGraph(SE2, ids=np.arange(2), poses=None, i=[0], j=[1], measurements=Z,
                   information=np.eye(3))
+    g = PoseGraph(SE2, ids=np.array([2, 4]), poses=None, i=[2], j=[4], measurements=Z,
+                  information=np.eye(3)[None])
+    assert g.index([4, 2]).tolist() == [1, 0]
+    with pytest.raises(ValueError, match="vertex id 3 is not in this graph"):
+        g.index(3)
     with pytest.raises(ValueError, match="vertex id 5"):
         PoseGraph(SE2, ids=np.arange(2), poses=None, i=[0], j=[5], measurements=Z,
                   information=np.eye(3)[None])

@@ -100,8 +100,9 @@ class PoseGraph:
         """Positions in ``ids`` (and in ``poses``) of the given vertex ids."""
         ids = np.asarray(ids, dtype=np.int64)
         k = np.searchsorted(self.ids, ids)
-        if np.any(k >= self.ids.size) or np.any(self.ids[np.minimum(k, self.ids.size - 1)] != ids):
-            raise ValueError("unknown vertex id")
+        bad = (k >= self.ids.size) | (self.ids[np.minimum(k, self.ids.size - 1)] != ids)
+        if np.any(bad):
+            raise ValueError(f"vertex id {int(ids[bad].reshape(-1)[0])} is not in this graph")
         return k
 
     def edge_index(self) -> tuple[np.ndarray, np.ndarray]:
@@ -237,34 +238,48 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
     group: type[LieGroup] | None = None
     group_tag, group_line = "", 0
     vertices, edges, fixed = _Lines(), _Lines(), _Lines()
+    errors: list[tuple[int, str]] = []  # (line, message): the first bad line is reported
     for tag, (rests, lines) in sorted(buckets.items(), key=lambda kv: kv[1][1][0]):
-        if tag == fix_tag:
-            ids = [_ints(r.split(), f"{name}:{ln}", tag, at_least_one=True)
-                   for r, ln in zip(rests, lines, strict=True)]
-            fixed.ids = [i for row in ids for i in row]
-            fixed.lines = [ln for row, ln in zip(ids, lines, strict=True) for _ in row]
-            continue
-        spec: VertexTag | EdgeTag
-        if tag in vertex_tags:
-            spec, n_ids, store = vertex_tags[tag], 1, vertices
-            n_num = spec.n
-        elif tag in edge_tags:
-            spec, n_ids, store = edge_tags[tag], 2, edges
-            n_num = spec.n + spec.m
-        else:
-            raise ValueError(f"{name}:{lines[0]}: unknown tag {tag!r} in a {kind} file "
-                             f"(known: {', '.join(known)})")
-        if group is None:
-            group, group_tag, group_line = spec.group, tag, lines[0]
-        elif spec.group is not group:
-            raise ValueError(f"{name}:{lines[0]}: {tag} is a {spec.group.__name__} line but "
-                             f"line {group_line} ({group_tag}) made this a {group.__name__} "
-                             "graph")
-        store.ids, store.values = _block(name, tag, rests, lines, n_ids, n_num)
-        store.lines = np.asarray(lines, dtype=np.int64)
+        try:
+            if tag == fix_tag:
+                ids = [_ints(r.split(), f"{name}:{ln}", tag, at_least_one=True, line=ln)
+                       for r, ln in zip(rests, lines, strict=True)]
+                fixed.ids = [i for row in ids for i in row]
+                fixed.lines = [ln for row, ln in zip(ids, lines, strict=True) for _ in row]
+                continue
+            spec: VertexTag | EdgeTag
+            if tag in vertex_tags:
+                spec, n_ids, store = vertex_tags[tag], 1, vertices
+                n_num = spec.n
+            elif tag in edge_tags:
+                spec, n_ids, store = edge_tags[tag], 2, edges
+                n_num = spec.n + spec.m
+            else:
+                raise _LineError(lines[0], f"{name}:{lines[0]}: unknown tag {tag!r} in a "
+                                 f"{kind} file (known: {', '.join(known)})")
+            if group is None:
+                group, group_tag, group_line = spec.group, tag, lines[0]
+            elif spec.group is not group:
+                raise _LineError(lines[0], f"{name}:{lines[0]}: {tag} is a "
+                                 f"{spec.group.__name__} line but line {group_line} "
+                                 f"({group_tag}) made this a {group.__name__} graph")
+            store.ids, store.values = _block(name, tag, rests, lines, n_ids, n_num)
+            store.lines = np.asarray(lines, dtype=np.int64)
+        except _LineError as e:
+            errors.append((e.line, str(e)))
+    if errors:
+        raise ValueError(min(errors)[1])
     if group is None:
         raise ValueError(f"{name}: no vertex or edge lines (tags: {', '.join(known)})")
     return _assemble(name, group, vertices, edges, fixed, vertex_tags, edge_tags)
+
+
+class _LineError(ValueError):
+    """A malformed line; ``line`` lets the parser report the first one in the file."""
+
+    def __init__(self, line: int, message: str) -> None:
+        super().__init__(message)
+        self.line = int(line)
 
 
 def _block(name: str, tag: str, rests: list[str], lines: list[int], n_ids: int,
@@ -279,7 +294,7 @@ def _block(name: str, tag: str, rests: list[str], lines: list[int], n_ids: int,
             a = None
     if a is None or a.size != n * k:
         for rest, ln in zip(rests, lines, strict=True):
-            _check_line(name, tag, rest.split(), ln, n_ids, n_num)
+            _check_line(name, tag, rest.split(), ln, n_ids, n_num)  # raises at the first
         raise AssertionError(f"{name}: {tag} lines failed to parse")  # pragma: no cover
     a = a.reshape(n, k)
     ids, vals = a[:, :n_ids], a[:, n_ids:]
@@ -288,44 +303,45 @@ def _block(name: str, tag: str, rests: list[str], lines: list[int], n_ids: int,
     if np.any(bad):
         r = int(np.flatnonzero(bad)[0])
         _check_line(name, tag, rests[r].split(), lines[r], n_ids, n_num)
-        raise ValueError(f"{name}:{lines[r]}: {tag}: vertex id is not an integer")
+        raise _LineError(lines[r], f"{name}:{lines[r]}: {tag}: vertex id is not an integer")
     return ids.astype(np.int64), vals
 
 
 def _check_line(name: str, tag: str, fields: list[str], lineno: int, n_ids: int,
                 n_num: int) -> None:
-    """Raise the ``ValueError`` that names what is wrong with one line (if anything)."""
+    """Raise the error that names what is wrong with one line (if anything)."""
     where = f"{name}:{lineno}"
     if len(fields) != n_ids + n_num:
-        raise ValueError(f"{where}: {tag} needs {n_ids + n_num} fields "
+        raise _LineError(lineno, f"{where}: {tag} needs {n_ids + n_num} fields "
                          f"({n_ids} id{'s' * (n_ids > 1)} and {n_num} numbers), "
                          f"got {len(fields)}")
-    _ints(fields[:n_ids], where, tag)
-    _floats(fields[n_ids:], where, tag)
+    _ints(fields[:n_ids], where, tag, line=lineno)
+    _floats(fields[n_ids:], where, tag, line=lineno)
 
 
-def _ints(fields: Sequence[str], where: str, tag: str, at_least_one: bool = False) -> list[int]:
+def _ints(fields: Sequence[str], where: str, tag: str, at_least_one: bool = False,
+          line: int = 0) -> list[int]:
     if at_least_one and not fields:
-        raise ValueError(f"{where}: {tag} needs at least one vertex id")
+        raise _LineError(line, f"{where}: {tag} needs at least one vertex id")
     try:
         out = [int(f) for f in fields]
     except ValueError:
         bad = next(f for f in fields if not f.lstrip("+-").isdigit())
-        raise ValueError(f"{where}: {tag}: vertex id {bad!r} is not an integer") from None
+        raise _LineError(line, f"{where}: {tag}: vertex id {bad!r} is not an integer") from None
     if any(v < 0 for v in out):
-        raise ValueError(f"{where}: {tag}: negative vertex id {min(out)}")
+        raise _LineError(line, f"{where}: {tag}: negative vertex id {min(out)}")
     return out
 
 
-def _floats(fields: Sequence[str], where: str, tag: str) -> list[float]:
+def _floats(fields: Sequence[str], where: str, tag: str, line: int = 0) -> list[float]:
     try:
         out = [float(f) for f in fields]
     except ValueError:
         bad = next(f for f in fields if not _is_float(f))
-        raise ValueError(f"{where}: {tag}: field {bad!r} is not a number") from None
+        raise _LineError(line, f"{where}: {tag}: field {bad!r} is not a number") from None
     if not all(math.isfinite(v) for v in out):
         bad = next(f for f, v in zip(fields, out, strict=True) if not math.isfinite(v))
-        raise ValueError(f"{where}: {tag}: non-finite value {bad!r}")
+        raise _LineError(line, f"{where}: {tag}: non-finite value {bad!r}")
     return out
 
 
