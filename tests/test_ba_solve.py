@@ -75,8 +75,11 @@ def test_schur_step_equals_full_system_step(model, fixed):
     keep = np.random.default_rng(0).random(len(start.camera_index)) > 0.3
     from dataclasses import replace
 
-    p = replace(start, camera_index=start.camera_index[keep], point_index=start.point_index[keep],
-                observations=start.observations[keep])
+    # and one point observed twice by the same camera (a pair within one camera block)
+    dup = np.nonzero(keep)[0][:3]
+    p = replace(start, camera_index=np.r_[start.camera_index[keep], start.camera_index[dup]],
+                point_index=np.r_[start.point_index[keep], start.point_index[dup]],
+                observations=np.r_[start.observations[keep], start.observations[dup] + 1.0])
     J, rp, cam, pt = _dense_jacobian(p)
     st = SchurStructure(cam, pt, p.n_cameras, p.n_points, p.cam_dim)
     fc = np.zeros((p.n_cameras, p.cam_dim), bool)
@@ -165,6 +168,20 @@ def test_camera_marginals_equal_inverse_of_full_information():
     np.testing.assert_allclose(np.asarray(g.mean.matrix())[:3, :3], p.rotations[1], atol=1e-12)
 
 
+def test_sparse_reduced_system_gives_the_same_marginals(monkeypatch):
+    import microlie.optim.schur as schur
+
+    truth, start = synthetic_scene(4, 40, noise=0.5, seed=8)
+    r = solve(start, fix_cameras=[0], fix_points=[0], function_tolerance=1e-12)
+    dense = r.camera_covariance([1, 2])
+    monkeypatch.setattr(schur, "DENSE_LIMIT", 10)
+    monkeypatch.setattr(schur, "SPARSE_DENSITY", 2.0)
+    sparse = r.camera_covariance([1, 2])
+    np.testing.assert_allclose(sparse, dense, rtol=1e-8, atol=1e-14 * np.abs(dense).max())
+    r2 = solve(start, fix_cameras=[0], fix_points=[0], function_tolerance=1e-12)
+    assert r2.final_cost == pytest.approx(r.final_cost, rel=1e-10)
+
+
 def test_marginal_rotation_spread_matches_monte_carlo():
     # independent check of the frame: re-solve with resampled noise, compare the spread of
     # camera 2's rotation error Log(R_hat^T R) with the predicted SE(3) marginal (right frame)
@@ -199,6 +216,18 @@ def test_bad_input_rejected():
         replace(start, intrinsics=np.ones((2, 2)))
     with pytest.raises(ValueError, match="rotation matrices"):
         replace(start, rotations=start.rotations * 1.01)
+    # a point on the plane of its camera: infinite residual under the BAL convention
+    R = start.rotations.copy()
+    R[1] = np.eye(3)
+    t = start.translations.copy()
+    t[1] = 0.0
+    X = start.points.copy()
+    X[2, 2] = 0.0                                   # camera 1 sees point 2 at P_z = 0
+    onplane = replace(start, rotations=R, translations=t, points=X)
+    k = int(np.nonzero((onplane.camera_index == 1) & (onplane.point_index == 2))[0][0])
+    with pytest.raises(ValueError, match=f"observation {k} is not finite"):
+        solve(onplane)
+    assert np.isfinite(solve(onplane, behind="drop", max_iter=3).final_cost)
     with pytest.raises(ValueError, match="linear_solver"):
         solve(start, linear_solver="qr")
     with pytest.raises(ValueError, match="fix_cameras"):

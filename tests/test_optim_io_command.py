@@ -13,7 +13,7 @@ from conftest import data_file, require
 
 from microlie.cli import main
 from microlie.optim.command import detect_format
-from microlie.optim.g2o import read_g2o
+from microlie.optim.g2o import read_g2o, write_g2o
 from microlie.optim.toro import read_toro, write_toro
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,6 +78,21 @@ def test_bal_files_are_detected_and_dispatched():
     assert r["initial_cost"] == pytest.approx(2764.220, abs=1e-3)  # data README
 
 
+def test_auto_start_falls_back_to_chordal_without_an_odometry_chain(tmp_path):
+    src = read_g2o(data_file("pose_graph/CSAIL.g2o"))
+    ii, jj = src.edge_index()
+    keep = ~((ii == 100) & (jj == 101))  # break the chain once; a loop closure keeps 101
+    broken = src.replace(i=src.i[keep], j=src.j[keep], measurements=src.measurements[keep],
+                         information=src.information[keep])
+    path = tmp_path / "broken.g2o"
+    write_g2o(path, broken)
+    code, out, err = _run(str(path), "--json")
+    r = json.loads(out)
+    assert code == 0 and r["init"] == "chordal" and "no edge between vertices 100 and 101" in err
+    # fewer terms than CSAIL: its optimum is at most the full graph's (GTSAM: 20.27544167)
+    assert r["final_cost"] <= 20.27544167 * (1 + 1e-9)
+
+
 def test_plot_draws_a_png_of_the_given_size(tmp_path):
     require("matplotlib")
     for rel in (POSE2, "pose_graph/tinyGrid3D.g2o"):
@@ -103,8 +118,8 @@ def test_bad_input_is_an_error_message_with_file_and_line(tmp_path):
     code, out, err = _run(str(bad))
     assert code == 1 and f"{bad}:3: EDGE_SE2 needs 11 fields" in err and out == ""
     bad.write_text("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 2 3 1 0 0 1 0 0 1 0 1\n")
-    code, _, err = _run(str(bad))
-    assert code == 1 and "odometry chain is incomplete" in err
+    code, _, err = _run(str(bad), "--init", "odometry")
+    assert code == 1 and "no edge between vertices 1 and 2" in err
     bad.write_text("POINT 0 1 2\n")
     code, _, err = _run(str(bad))
     assert code == 1 and "cannot tell the file format" in err

@@ -426,8 +426,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = argparse.ArgumentParser(
         prog="microlie",
-        description="Trajectory evaluation with microlie (APE, RPE, KITTI metric, trajectory "
-                    "files, saved results, plots).",
+        description="microlie from the shell: trajectory evaluation (APE, RPE, KITTI metric, "
+                    "trajectory files, saved results, plots) and the other subcommands below.",
         epilog="exit status: 0 ok, 1 data or runtime error, 2 usage error, 3 missing optional "
                "dependency.\nexample: microlie ape tum groundtruth.txt estimate.txt -a",
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -217,25 +217,45 @@ class BundleResult:
         """Marginal covariances ``(len(cameras), d, d)`` of the camera tangents
         ``(dt, dphi, dK)`` at the solution, from the reduced camera system: the camera block of
         ``(J^T J)^-1`` is ``S^-1`` (``S`` the Schur complement of the points). With a free
-        gauge ``S`` is singular and the pseudo-inverse (minimum-norm gauge) is returned."""
-        S = _undamped_schur(self)
+        gauge ``S`` is singular: the pseudo-inverse (minimum-norm gauge) is returned for a dense
+        ``S``; a sparse one (many cameras) needs the gauge held (``fix_cameras`` and a point).
+        Held unknowns have zero covariance."""
         d = self.problem.cam_dim
         idx = np.concatenate([np.arange(c * d, (c + 1) * d) for c in cameras])
-        keep = np.ones(S.shape[0], bool)
+        S = _undamped_schur(self)
+        n = S.shape[0]
+        keep = np.ones(n, bool)
         if self._normal is not None and self._normal.fixed_cameras is not None:
             keep = ~self._normal.fixed_cameras.reshape(-1)
-        Sk = S[np.ix_(keep, keep)]
-        pos = -np.ones(S.shape[0], int)
-        pos[keep] = np.arange(keep.sum())
-        try:
-            cf = np.linalg.cholesky(Sk)
-            inv = np.linalg.inv(cf)
-            cov_k = inv.T @ inv
-        except np.linalg.LinAlgError:
-            cov_k = np.linalg.pinv(Sk, hermitian=True)
         cov = np.zeros((len(idx), len(idx)))
-        sel = pos[idx] >= 0
-        cov[np.ix_(sel, sel)] = cov_k[np.ix_(pos[idx][sel], pos[idx][sel])]
+        sel = keep[idx]
+        if not isinstance(S, np.ndarray):
+            from .linear import SingularSystemError, make_solver
+
+            solver = make_solver("auto", n)
+            E = np.zeros((n, int(sel.sum())))
+            E[idx[sel], np.arange(E.shape[1])] = 1.0
+            try:
+                solver.analyse(S.indptr, S.indices, n)
+                solver.factorize(S.data)
+                X = np.column_stack([solver.solve(E[:, k]) for k in range(E.shape[1])])
+            except SingularSystemError:
+                raise np.linalg.LinAlgError(
+                    "the reduced camera system is singular: hold the gauge (fix_cameras=[0] "
+                    "and fix_points=[k]) to get marginal covariances") from None
+            cov[np.ix_(sel, sel)] = X[idx[sel]]
+        else:
+            Sk = S[np.ix_(keep, keep)]
+            pos = -np.ones(n, int)
+            pos[keep] = np.arange(keep.sum())
+            try:
+                cf = np.linalg.cholesky(Sk)
+                inv = np.linalg.inv(cf)
+                cov_k = inv.T @ inv
+            except np.linalg.LinAlgError:
+                cov_k = np.linalg.pinv(Sk, hermitian=True)
+            cov[np.ix_(sel, sel)] = cov_k[np.ix_(pos[idx][sel], pos[idx][sel])]
+        cov = 0.5 * (cov + cov.T)
         return np.stack([cov[i * d:(i + 1) * d, i * d:(i + 1) * d] for i in range(len(cameras))])
 
     def marginals(self, cameras: Sequence[int]) -> list[Any]:
@@ -259,14 +279,14 @@ class BundleResult:
         return out
 
 
-def _undamped_schur(res: BundleResult) -> np.ndarray:
+def _undamped_schur(res: BundleResult) -> Any:
     ne = res._normal
     if ne is None:
         raise ValueError("no linearisation stored in this result")
     st = ne.structure
     Dc2 = np.zeros((st.n_cameras, st.cam_dim))
     Dp2 = np.zeros((st.n_points, 3))
-    red = ne.reduced_system(Dc2, Dp2)
+    red = ne.reduced_system(Dc2, Dp2, st.sparse_reduced("auto"))
     if red is None:
         raise np.linalg.LinAlgError("a point block is singular: some point is not determined")
     return red[0]
@@ -416,6 +436,11 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
 
     x = problem
     cost, ne, gmax, r = linearize(x)
+    if not np.isfinite(cost):
+        bad = np.nonzero(~np.isfinite(r).all(axis=1))[0]
+        k = int(order[bad[0]]) if len(bad) else -1
+        raise ValueError(f"the initial residual of observation {k} is not finite (a point on "
+                         f"the plane of its camera, P_z = 0); use behind='drop' or move it")
     initial_cost = cost
     radius, decrease = float(initial_radius), 2.0
     diag_c = diag_p = None

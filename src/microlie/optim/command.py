@@ -3,15 +3,15 @@
 ::
 
     microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] [--robust huber:1.0]
-                     [--init auto|file|odometry|chordal] [--linear-solver auto|scipy|...]
+                     [--init auto|file|odometry|chordal] [--linear-solver auto|supernodal|...]
                      [--max-iter N] [--plot FILE] [--json] [--format auto|g2o|toro|bal]
 
 The reported costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges (plain, even with
 ``--robust``, and without the gauge prior); ``time_s`` is the solve alone (reading, initial
 guess and graph construction are reported apart). The gauge is the file's ``FIX`` vertices,
 or else a prior on the first pose at its start value. ``--init auto`` takes the file's vertices,
-or the odometry chain when the file has none. A progress line per iteration goes to stderr
-on a terminal.
+or the odometry chain when the file has none, or chordal when that chain is incomplete (said on
+stderr). A progress line per iteration goes to stderr on a terminal.
 
 Formats are handled by the functions in :data:`FORMATS` (format name -> ``"module:function"``,
 imported on use), each called as ``run(args, err) -> dict`` and returning the JSON report: a
@@ -43,7 +43,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``optimize`` subcommand to ``subparsers`` (from ``add_subparsers()``); its
     arguments carry ``func`` (:func:`run`), called with ``(args, out, err)``."""
     p = subparsers.add_parser(
-        "optimize", help="optimise a pose graph (g2o, TORO) or another least-squares file",
+        "optimize", help="optimise a pose graph (g2o, TORO) or a bundle adjustment (BAL)",
         description="Optimise a pose graph read from IN; report costs (GTSAM's "
                     "0.5 sum r^T Omega r over the file's edges), iterations and solve time.")
     p.add_argument("input", metavar="IN",
@@ -60,9 +60,10 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         "barron, optionally with a scale, e.g. huber:1.0")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, or chordal "
-                        "(default auto: the file's vertices, else odometry)")
+                        "(default auto: the file's vertices, else odometry, else chordal)")
     p.add_argument("--linear-solver", default="auto", metavar="NAME",
-                   help="sparse linear solver: auto (default), scipy, qdldl, pardiso, dense")
+                   help="linear solver, auto (default) or forced: for pose graphs supernodal, "
+                        "scipy, qdldl, pardiso, dense; for BAL dense, sparse, full")
     p.add_argument("--max-iter", type=int, default=100, metavar="N",
                    help="maximum number of iterations (default 100)")
     p.add_argument("--plot", metavar="FILE", default=None,
@@ -145,15 +146,23 @@ def _write(path: str, graph: Any, poses: Any, fmt: str) -> None:
 
 def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     """Read, initialise, optimise, write and plot one pose graph; the JSON report."""
-    from .init import initialize
+    from .init import InitMethod, initialize
 
     t0 = time.perf_counter()
     graph = _read(args.input, args.format)
     t1 = time.perf_counter()
-    init = args.init
-    if init == "auto":
+    init: InitMethod
+    if args.init == "auto":
         init = "file" if graph.poses is not None else "odometry"
-    X0 = initialize(graph, init)
+        try:
+            X0 = initialize(graph, init)
+        except ValueError as e:  # no vertices and no complete odometry chain
+            init = "chordal"
+            err.write(f"microlie optimize: {e}; starting from the chordal initialisation\n")
+            X0 = initialize(graph, init)
+    else:
+        init = args.init
+        X0 = initialize(graph, init)
     t2 = time.perf_counter()
     fg, poses = graph.to_factor_graph(X0, loss=args.robust)
     t3 = time.perf_counter()

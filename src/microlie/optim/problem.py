@@ -83,6 +83,8 @@ class Problem:
 
     # ------------------------------------------------------------------ gauge
     def _check_gauge(self, gauge: str) -> None:
+        if gauge not in ("check", "fix_first"):
+            raise ValueError(f"gauge must be 'check', 'fix_first' or 'none', got {gauge!r}")
         nn = self.num_nodes
         if nn == 0:
             return
@@ -108,8 +110,6 @@ class Problem:
         if ok.all():
             return
         bad = ~ok[label]
-        if gauge not in ("check", "fix_first"):
-            raise ValueError(f"gauge must be 'check', 'fix_first' or 'none', got {gauge!r}")
         if gauge == "check":
             first = int(np.flatnonzero(bad)[0])
             name = self._node_name(first)
