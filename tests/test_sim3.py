@@ -47,15 +47,24 @@ def _ad(mp, z):
 
 
 def _phi_of(mp, A):
-    """``sum_k A^k / (k+1)!`` as the top-right block of ``expm([[A, I], [0, 0]])``."""
+    """``phi(A) = sum_k A^k / (k+1)!``: Taylor series on ``A / 2^j``, then ``j`` doublings
+    ``phi(2A) = phi(A) (e^A + I) / 2``, ``e^(2A) = (e^A)^2`` (all at the working precision)."""
     n = A.rows
-    B = mp.zeros(2 * n, 2 * n)
-    for i in range(n):
-        for j in range(n):
-            B[i, j] = A[i, j]
-        B[i, n + i] = 1
-    E = mp.expm(B)
-    return mp.matrix([[E[i, n + j] for j in range(n)] for i in range(n)])
+    j = max(0, int(mp.ceil(mp.log(max(mp.mnorm(A, 1), 1), 2))) + 1)
+    N = A / 2**j
+    I = mp.eye(n)
+    E, F, term, k = I.copy(), I.copy(), I.copy(), 1
+    while True:
+        term = term * N / k  # N^k / k!
+        E += term
+        F += term / (k + 1)
+        k += 1
+        if mp.mnorm(term, 1) < mp.mpf(10) ** (-mp.mp.dps - 5):
+            break
+    for _ in range(j):
+        F = F * (E + I) / 2
+        E = E * E
+    return F
 
 
 def reference(z):
@@ -170,43 +179,31 @@ def test_backends_and_gradients_at_sigma_and_theta_zero(bk):
     equal to central differences of the closed forms elsewhere."""
     rng = np.random.default_rng(8)
     zs = np.array([_tangent(rng, s, t) for s, t in
-                   [(0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1e-12, 1e-12), (-30.0, 3.0)]])
+                   [(0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1e-12, 1e-12), (-20.0, 3.0)]])
     zb = to_backend(zs, bk)
     np.testing.assert_allclose(to_numpy(Sim3.jr(zb)), Sim3.jr(zs), rtol=1e-14, atol=1e-14)
     np.testing.assert_allclose(to_numpy(Sim3.jr_inv(zb)), Sim3.jr_inv(zs), rtol=1e-13,
                                atol=1e-13)
 
-    def loss_np(z):
+    def loss(z):  # a sum over the batch: its gradient holds each element's gradient
         X = Sim3.exp(z)
         return (X.params.sum() + Sim3.jr(z).sum() + Sim3.jr_inv(z).sum()
                 + (X @ X).log().sum())
 
-    for z in zs:
-        if bk == "torch":
-            torch = require("torch")
-            t = torch.tensor(z, requires_grad=True)
-            X = Sim3.exp(t)
-            loss = (X.params.sum() + Sim3.jr(t).sum() + Sim3.jr_inv(t).sum()
-                    + (X @ X).log().sum())
-            loss.backward()
-            g = t.grad.numpy()
-        else:
-            jax = require("jax")
-            jax.config.update("jax_enable_x64", True)
-            import jax.numpy as jnp
-
-            def loss_j(t):
-                X = Sim3.exp(t)
-                return (X.params.sum() + Sim3.jr(t).sum() + Sim3.jr_inv(t).sum()
-                        + (X @ X).log().sum())
-
-            g = np.asarray(jax.jit(jax.grad(loss_j))(jnp.asarray(z)))
-        assert np.all(np.isfinite(g)), (z, g)
+    if bk == "torch":
+        torch = require("torch")
+        t = torch.tensor(zs, requires_grad=True)
+        loss(t).backward()
+        g = t.grad.numpy()
+    else:
+        jax = require("jax")
+        g = np.asarray(jax.grad(loss)(zb))
+    assert np.all(np.isfinite(g)), g
+    h = 1e-6
+    for z, gz in zip(zs, g, strict=True):
         if np.linalg.norm(z[3:]) > 0.5:  # away from the patched origin: the true gradient
-            h = 1e-6
-            fd = np.array([(loss_np(z + h * e) - loss_np(z - h * e)) / (2 * h)
-                           for e in np.eye(7)])
-            np.testing.assert_allclose(g, fd, rtol=1e-6, atol=1e-6)
+            fd = np.array([(loss(z + h * e) - loss(z - h * e)) / (2 * h) for e in np.eye(7)])
+            np.testing.assert_allclose(gz, fd, rtol=1e-6, atol=1e-6)
 
 
 def test_jax_jit_and_vmap():
