@@ -137,7 +137,7 @@ def _linear_problem(noise_kind="diag"):
 
 
 @pytest.mark.parametrize("solver", ["lm", "gn", "dogleg"])
-@pytest.mark.parametrize("ls", ["scipy", "dense"])
+@pytest.mark.parametrize("ls", ["supernodal", "scipy", "dense"])
 def test_linear_least_squares_closed_form(solver, ls):
     g, x, xs, cost = _linear_problem()
     r = g.optimize(solver=solver, linear_solver=ls, rel_tol=1e-12, abs_tol=1e-14)
@@ -171,7 +171,7 @@ def test_lm_gn_dogleg_reach_the_same_optimum():
         assert np.abs(d).max() < 1e-6, s
 
 
-@pytest.mark.parametrize("ls", ["scipy", "dense", "qdldl", "pardiso"])
+@pytest.mark.parametrize("ls", ["supernodal", "scipy", "dense", "qdldl", "pardiso"])
 def test_linear_solvers_agree(ls):
     if ls == "qdldl":
         from conftest import require
@@ -390,3 +390,39 @@ def test_shared_graphs_reach_gtsam_cost(name, init, expected):
     assert r.converged
     assert r.final_cost == pytest.approx(expected, rel=1e-6)
     assert pg.cost(r.values[poses]) == pytest.approx(r.final_cost, rel=1e-12)
+
+
+@pytest.mark.parametrize("bs, nb", [(6, 40), (3, 120), (2, 7), (1, 50)])
+def test_supernodal_cholesky_matches_dense(bs, nb):
+    """Random block-sparse SPD matrices (a chain, random long edges and a dense corner) against
+    NumPy's dense solve; a matrix made indefinite is a SingularSystemError."""
+    import scipy.sparse as sp
+
+    from microlie.optim.cholesky import SupernodalSolver
+    from microlie.optim.linear import SingularSystemError
+
+    rng = np.random.default_rng(bs * 100 + nb)
+    pairs = {(k, k + 1) for k in range(nb - 1)}
+    pairs |= {tuple(sorted(rng.choice(nb, 2, replace=False))) for _ in range(nb // 2)}
+    pairs |= {(a, b) for a in range(nb - 4, nb) for b in range(a + 1, nb)}
+    n = nb * bs
+    M = np.zeros((n, n))
+    for a, b in pairs:
+        J = rng.standard_normal((bs + 1, 2 * bs))
+        blk = J.T @ J
+        idx = np.r_[a * bs:(a + 1) * bs, b * bs:(b + 1) * bs]
+        M[np.ix_(idx, idx)] += blk
+    M += 1e-3 * np.eye(n)
+    H = sp.csc_matrix(M)
+    H.sort_indices()
+    s = SupernodalSolver()
+    s.analyse(H.indptr, H.indices, n, bs)
+    s.factorize(H.data)
+    b = rng.standard_normal(n)
+    np.testing.assert_allclose(s.solve(b), np.linalg.solve(M, b), rtol=1e-8, atol=1e-10)
+    B = rng.standard_normal((n, 3))
+    np.testing.assert_allclose(s.solve(B), np.linalg.solve(M, B), rtol=1e-8, atol=1e-10)
+    bad = H.copy()
+    bad.data[bad.indices == np.repeat(np.arange(n), np.diff(bad.indptr))] *= -1.0
+    with pytest.raises(SingularSystemError, match="not positive definite"):
+        s.factorize(bad.data)

@@ -19,7 +19,8 @@ True
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import sys
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -30,7 +31,8 @@ from ._array import Array
 __all__ = [
     "mT", "eye", "zeros", "solve", "inv", "cholesky", "cho_solve", "solve_triangular", "eigh",
     "eigvalsh", "det", "slogdet", "symmetrize", "diag", "diag_embed", "sqrt_psd",
-    "broadcast_to", "broadcast_batch", "numel", "concat", "stack", "copy", "concrete",
+    "broadcast_to", "broadcast_batch", "numel", "concat", "stack", "where", "asarray",
+    "same_backend", "copy", "readonly", "concrete", "register_pytree", "activate_pytrees",
 ]
 
 
@@ -109,6 +111,32 @@ def stack(arrays: Sequence[Array], axis: int = 0) -> Array:
     return _xp(*arrays).stack(arrays, axis=axis)
 
 
+def where(cond: Any, a: Any, b: Any) -> Array:
+    """Element-wise ``a if cond else b``; ``cond`` may be a NumPy boolean array (it is moved to
+    the backend of ``a``/``b``), ``a`` or ``b`` a Python scalar."""
+    arrays = [x for x in (a, b) if hasattr(x, "shape")]
+    if _is_np(*arrays):
+        return np.where(cond, a, b)
+    like = arrays[0]
+    if isinstance(cond, (np.ndarray, np.generic, bool)):
+        cond = _xp(like).asarray(np.asarray(cond), device=A._device(like))
+    return _xp(like).where(cond, a, b)
+
+
+def asarray(x: Any, like: Array) -> Array:
+    """``x`` (numbers, lists, NumPy arrays) as an array of the backend, dtype and device of
+    ``like``."""
+    if _is_np(like):
+        return np.asarray(x, dtype=like.dtype)
+    return _xp(like).asarray(np.asarray(x), dtype=like.dtype, device=A._device(like))
+
+
+def same_backend(a: Array, b: Array) -> bool:
+    """True when ``a`` and ``b`` belong to the same array library (Python numbers and NumPy
+    arrays count as NumPy)."""
+    return A.namespace(a) is A.namespace(b)
+
+
 def diag(a: Array) -> Array:
     """The diagonals ``(..., n)`` of matrices ``(..., n, n)``."""
     if _is_np(a):
@@ -136,6 +164,15 @@ def copy(a: Array) -> Array:
         return out
     if A.is_torch(a):
         return a.clone()
+    return a
+
+
+def readonly(a: Array) -> Array:
+    """``a`` itself, or for a writable NumPy array a read-only view of it (for arrays the
+    library created and hands out; copy a caller's array with :func:`copy`)."""
+    if isinstance(a, np.ndarray) and a.flags.writeable:
+        a = a.view()
+        a.flags.writeable = False
     return a
 
 
@@ -248,3 +285,34 @@ def sqrt_psd(a: Array) -> Array:
         return v * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
     xp = _xp(w)
     return v * xp.sqrt(xp.clip(w, 0.0, None))[..., None, :]
+
+
+# ---------------------------------------------------------------------------- JAX pytrees
+
+_PYTREES: list[tuple[type, Callable[..., Any], Callable[..., Any]]] = []
+_REGISTERED: set[type] = set()
+
+
+def register_pytree(cls: type, flatten: Callable[..., Any], unflatten: Callable[..., Any]
+                    ) -> None:
+    """Make ``cls`` a JAX pytree once JAX is in use (now if it is already imported), without
+    importing JAX. ``flatten(obj) -> (children, aux)``, ``unflatten(aux, children) -> obj``."""
+    _PYTREES.append((cls, flatten, unflatten))
+    activate_pytrees()
+
+
+def activate_pytrees(like: Array | None = None) -> None:
+    """Register the classes given to :func:`register_pytree` with JAX when JAX is imported
+    (and ``like``, if given, is a JAX array); a no-op once done."""
+    if len(_REGISTERED) == len(_PYTREES) or "jax" not in sys.modules:
+        return
+    if like is not None:
+        if not A.is_jax(like):
+            return
+        A.namespace(like)  # registers the group classes as well
+    import jax
+
+    for cls, flatten, unflatten in _PYTREES:
+        if cls not in _REGISTERED:
+            jax.tree_util.register_pytree_node(cls, flatten, unflatten)
+            _REGISTERED.add(cls)

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from .factors import Factor
-from .linear import LinearSolver, make_solver
+from .linear import LinearSolver
 from .problem import Problem
 from .solvers import Result, SolverOptions, solve
 from .variables import Values, Variables
@@ -132,17 +132,19 @@ class FactorGraph:
         return solve(self.problem(gauge), self._states(values), o)
 
     # ------------------------------------------------------------------ marginals
+    def _factorized(self, values: Values | None, linear_solver: Any) -> tuple:
+        prob = self.problem("check")
+        states = self._states(values)
+        ls = prob.analysed(linear_solver)
+        ls.factorize(prob.linearize(states).data)
+        return prob, states, ls
+
     def marginal_covariance(self, values: Values | None, items: Sequence[tuple[Variables, int]],
                             linear_solver: str | LinearSolver = "auto") -> np.ndarray:
         """Joint covariance ``H^-1`` (Gauss-Newton matrix at ``values``, robust weights
         included, no damping) of the listed free variables, in their order and the
         right-perturbation frame: an ``(sum dof, sum dof)`` array."""
-        prob = self.problem("check")
-        states = self._states(values)
-        lin = prob.linearize(states)
-        ls = make_solver(linear_solver, prob.size)
-        ls.analyse(prob.indptr, prob.indices, prob.size)
-        ls.factorize(lin.data)
+        prob, states, ls = self._factorized(values, linear_solver)
         cols = []
         for var, i in items:
             i = int(var.indices(i)[0])
@@ -165,12 +167,7 @@ class FactorGraph:
         from ..uncertainty import Gaussian, VectorGaussian
 
         ix = np.arange(variables.n) if idx is None else variables.indices(idx)
-        prob = self.problem("check")
-        states = self._states(values)
-        lin = prob.linearize(states)
-        ls = make_solver(linear_solver, prob.size)
-        ls.analyse(prob.indptr, prob.indices, prob.size)
-        ls.factorize(lin.data)
+        prob, states, ls = self._factorized(values, linear_solver)
         nodes = prob.node_of[prob.key(variables)][ix]
         if np.any(nodes < 0):
             bad = int(ix[np.flatnonzero(nodes < 0)[0]])

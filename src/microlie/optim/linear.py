@@ -5,11 +5,13 @@ storage, compressed sparse columns, sorted rows); ``solver.factorize(data)`` ref
 new numbers in that pattern; ``solver.solve(b)`` solves ``H x = b``. A matrix that is not
 positive definite raises :class:`SingularSystemError`.
 
-Backends (``make_solver(name)``): ``"scipy"`` (SuperLU with a symmetric minimum-degree order,
-always available), ``"qdldl"`` (``pip install microlie[sparse]``, Apache-2.0), ``"pardiso"``
-(Intel MKL PARDISO through pypardiso, ``pip install microlie[mkl]``), ``"dense"`` (LAPACK
-Cholesky of the dense matrix, for small problems). ``"auto"`` takes PARDISO if installed, else
-qdldl if installed, else scipy; below 300 unknowns it takes the dense Cholesky.
+Backends (``make_solver(name)``): ``"supernodal"`` (our supernodal multifrontal Cholesky on the
+block pattern, NumPy and LAPACK only, :mod:`microlie.optim.cholesky`), ``"scipy"`` (SuperLU with
+a symmetric minimum-degree order), ``"qdldl"`` (``pip install microlie[sparse]``, Apache-2.0),
+``"pardiso"`` (Intel MKL PARDISO through pypardiso, ``pip install microlie[mkl]``), ``"dense"``
+(LAPACK Cholesky of the dense matrix, for small problems). ``"auto"`` takes PARDISO if
+installed, else the supernodal Cholesky (measured faster than SuperLU on the shared pose graphs,
+see ``benchmarks/pose_graph.py``); below 300 unknowns it takes the dense Cholesky.
 """
 
 from __future__ import annotations
@@ -35,7 +37,9 @@ class LinearSolver:
 
     name = "base"
 
-    def analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int) -> None:
+    def analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int,
+                block_size: int = 1) -> None:
+        """See the pattern (``block_size``: the unknowns come in dense blocks of that size)."""
         self.indptr, self.indices, self.n = indptr, indices, n
         cols = np.repeat(np.arange(n), np.diff(indptr))
         self._upper = np.flatnonzero(indices <= cols)  # CSC upper triangle (= CSR lower)
@@ -91,7 +95,7 @@ class QdldlSolver(LinearSolver):
 
     name = "qdldl"
 
-    def analyse(self, indptr, indices, n):
+    def analyse(self, indptr, indices, n, block_size=1):
         super().analyse(indptr, indices, n)
         import qdldl  # type: ignore[import-not-found]
 
@@ -120,11 +124,9 @@ class PardisoSolver(LinearSolver):
 
     name = "pardiso"
 
-    def analyse(self, indptr, indices, n):
+    def analyse(self, indptr, indices, n, block_size=1):
         super().analyse(indptr, indices, n)
-        import pypardiso  # type: ignore[import-not-found]
-
-        self._ps = pypardiso.PyPardisoSolver(mtype=2)
+        self._ps = _pardiso_instance()
         self._A = sp.csr_matrix((np.zeros(self._lower.size), self.lower_indices,
                                  self.lower_indptr), shape=(n, n))
         self._analysed = False
@@ -150,6 +152,26 @@ class PardisoSolver(LinearSolver):
         return _checked(x.reshape(b.shape))
 
 
+_PARDISO_TEMPLATE: Any = None
+
+
+def _pardiso_instance() -> Any:
+    """A fresh PyPardisoSolver (``mtype=2``) without searching for and loading MKL again
+    (about half a second per construction): copies of one template with new handles."""
+    global _PARDISO_TEMPLATE
+    import copy
+
+    import pypardiso  # type: ignore[import-not-found]
+
+    if _PARDISO_TEMPLATE is None:
+        _PARDISO_TEMPLATE = pypardiso.PyPardisoSolver(mtype=2)
+    ps = copy.copy(_PARDISO_TEMPLATE)
+    ps.pt = np.zeros_like(_PARDISO_TEMPLATE.pt)
+    ps.iparm = np.zeros_like(_PARDISO_TEMPLATE.iparm)
+    ps.perm = np.zeros(0, dtype=np.int32)
+    return ps
+
+
 class DenseSolver(LinearSolver):
     """LAPACK Cholesky of the dense matrix (small problems)."""
 
@@ -166,8 +188,15 @@ class DenseSolver(LinearSolver):
         return _checked(sla.cho_solve(self._c, b, check_finite=False))
 
 
-SOLVERS: dict[str, type[LinearSolver]] = {"scipy": ScipySolver, "qdldl": QdldlSolver,
-                                         "pardiso": PardisoSolver, "dense": DenseSolver}
+def _supernodal() -> type[LinearSolver]:
+    from .cholesky import SupernodalSolver
+
+    return SupernodalSolver
+
+
+SOLVERS: dict[str, Any] = {"supernodal": _supernodal, "scipy": lambda: ScipySolver,
+                           "qdldl": lambda: QdldlSolver, "pardiso": lambda: PardisoSolver,
+                           "dense": lambda: DenseSolver}
 _MODULES = {"qdldl": "qdldl", "pardiso": "pypardiso"}
 _EXTRAS = {"qdldl": "microlie[sparse]", "pardiso": "microlie[mkl]"}
 
@@ -185,16 +214,14 @@ def make_solver(name: str | LinearSolver, n: int = 0) -> LinearSolver:
     if name == "auto":
         if n < 300:
             return DenseSolver()
-        avail = available_solvers()
-        for k in ("pardiso", "qdldl"):
-            if k in avail:
-                return SOLVERS[k]()
-        return ScipySolver()
-    cls = SOLVERS.get(name)
-    if cls is None:
+        if "pardiso" in available_solvers():
+            return PardisoSolver()
+        return SOLVERS["supernodal"]()()
+    make = SOLVERS.get(name)
+    if make is None:
         raise ValueError(f"unknown linear solver {name!r}; known: auto, "
                          f"{', '.join(SOLVERS)}")
     if name in _MODULES and importlib.util.find_spec(_MODULES[name]) is None:
         raise ImportError(f"linear_solver={name!r} needs the package {_MODULES[name]!r} "
                           f"(pip install {_EXTRAS[name]!r})")
-    return cls()
+    return make()()

@@ -74,6 +74,7 @@ class Problem:
         self.node_dof = np.concatenate(dofs) if dofs else np.zeros(0, np.int64)
         self.node_off = np.concatenate([[0], np.cumsum(self.node_dof)]).astype(np.int64)
         self.size = int(self.node_off[-1])
+        self.block_size = int(np.gcd.reduce(self.node_dof)) if nn else 1
         self.fargs = [[node_of[self._key[id(var)]][idx] for var, idx in f.args]
                       for f in self.factors]
 
@@ -214,6 +215,14 @@ class Problem:
         d = pos[np.minimum(base[:, None, None] + local[None], self.nnz - 1)]
         d = np.where(ok[:, None, None], d, self.nnz)
         return d.reshape(m, -1).ravel()
+
+    def analysed(self, linear_solver: Any) -> Any:
+        """A linear solver (name or instance) that has analysed this problem's pattern."""
+        from .linear import make_solver
+
+        ls = make_solver(linear_solver, self.size)
+        ls.analyse(self.indptr, self.indices, self.size, self.block_size)
+        return ls
 
     def matrix(self, data: np.ndarray) -> sp.csc_matrix:
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))

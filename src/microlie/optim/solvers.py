@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .linear import LinearSolver, SingularSystemError, make_solver
+from .linear import LinearSolver, SingularSystemError
 from .problem import Problem
 from .variables import Values
 
@@ -116,8 +116,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
     t_start = time.perf_counter()
     tm = _Timer()
     show = bool(o.verbose) if o.verbose is not None else sys.stderr.isatty()
-    ls = make_solver(o.linear_solver, problem.size)
-    ls.analyse(problem.indptr, problem.indices, problem.size)
+    ls = problem.analysed(o.linear_solver)
     lin = _linearize(problem, states, tm)
     c0, rc0 = lin.cost, lin.robust_cost
     cur, cur_rc = states, rc0
