@@ -571,3 +571,105 @@ def test_large_batches_take_the_chunked_path_and_agree(group, backend):
         np.testing.assert_allclose(res["exp"][i], G.exp(tau[i]).params, atol=1e-14)
         if i < 40000:
             np.testing.assert_allclose(res["jr"][i], G.jr(tau[i]), atol=1e-13)
+
+
+# ------------------------------------------------------------------------ regressions (issue 8)
+
+
+@pytest.mark.parametrize("G", [SO3, SE3, Sim3], ids=lambda g: g.__name__)
+@pytest.mark.parametrize("bk", ["torch", "jax"])
+def test_autodiff_through_log_at_exactly_pi(G, bk):
+    """At a rotation by exactly pi (quaternion w = 0) autodiff of ``Log(X Exp(d))`` equals the
+    analytic ``Jr^-1(Log X)``: along the rotation axis the angle moves one for one (torch's
+    d|w|/dw = 0 at 0 used to give 0 there)."""
+    backend_fixture_check(bk)
+    R = SO3.from_matrix(np.diag([1.0, -1.0, -1.0]))  # axis x, w = 0 exactly
+    assert R.params[3] == 0.0
+    X = R if G is SO3 else G.from_rotation_translation(R, [1.0, -2.0, 0.5])
+    tau, J = X.log(jac=True)
+    axis = np.zeros(G.dof)
+    axis[_ROT[G].start] = 1.0
+    sl = _ROT[G]
+    np.testing.assert_allclose((J @ axis)[sl], axis[sl], atol=1e-15)  # angle: one for one
+    # independently: the one-sided difference that turns the angle below pi
+    h = 1e-7
+    fd = (X.plus(-h * axis).log() - tau) / -h
+    np.testing.assert_allclose(fd, J @ axis, atol=1e-6)
+    d0 = np.zeros(G.dof)
+    if bk == "torch":
+        torch = require("torch")
+        Xt = G(torch.tensor(X.params))
+        Jad = torch.autograd.functional.jacobian(lambda d: Xt.plus(d).log(),
+                                                 torch.tensor(d0)).numpy()
+    else:
+        import jax
+        import jax.numpy as jnp
+
+        Xj = G(jnp.asarray(X.params))
+        Jad = np.asarray(jax.jacfwd(lambda d: Xj.plus(d).log())(jnp.asarray(d0)))
+    np.testing.assert_allclose(Jad, J, atol=1e-12)
+
+
+_ROT = {SO3: slice(0, 3), SE3: slice(3, 6), Sim3: slice(3, 6)}
+
+
+def test_from_matrix_normalize_rejects_degenerate_matrices():
+    """``normalize=True`` projects onto the nearest rotation; where that is not unique (the zero
+    matrix, rank 1) it raises instead of returning the identity."""
+    rank1 = np.outer([1.0, 2.0, 3.0], [0.5, -1.0, 2.0])
+    for R in (np.zeros((3, 3)), rank1, np.stack([np.eye(3), np.zeros((3, 3))])):
+        with pytest.raises(ValueError, match="rank < 2"):
+            SO3.from_matrix(R, normalize=True)
+    T = np.eye(4)
+    T[:3, :3] = 0.0
+    with pytest.raises(ValueError, match="rank < 2"):
+        SE3.from_matrix(T, normalize=True)
+    with pytest.raises(ValueError, match="positive determinant"):
+        Sim3.from_matrix(T, normalize=True)
+    T5 = np.eye(5)
+    T5[:3, :3] = 0.0
+    with pytest.raises(ValueError, match="rank < 2"):
+        SE23.from_matrix(T5, normalize=True)
+    with pytest.raises(ValueError, match="no nearest rotation"):
+        SO2.from_matrix(np.zeros((2, 2)), normalize=True)
+    with pytest.raises(ValueError, match="no nearest rotation"):
+        SO2.from_matrix(np.array([[1.0, 2.0], [2.0, -1.0]]), normalize=True)
+    T2 = np.eye(3)
+    T2[:2, :2] = 0.0
+    with pytest.raises(ValueError, match="no nearest rotation"):
+        SE2.from_matrix(T2, normalize=True)
+    # rank 2 still has a unique nearest rotation, and that is what is returned
+    np.testing.assert_allclose(SO3.from_matrix(np.diag([1.0, 1.0, 0.0]), normalize=True)
+                               .matrix(), np.eye(3), atol=1e-15)
+
+
+def test_from_euler_validated_like_scipy():
+    from itertools import product
+
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(25)
+    seqs = ["".join(p) for n in (1, 2, 3) for p in product("xyz", repeat=n)
+            if all(a != b for a, b in zip(p, p[1:], strict=False))]
+    for seq in seqs + [s.upper() for s in seqs]:
+        n = len(seq)
+        for shape in ((n,), (4, n), (2, 3, n)):
+            ang = rng.uniform(-3.0, 3.0, shape)
+            np.testing.assert_allclose(SO3.from_euler(seq, ang).matrix(),
+                                       Rotation.from_euler(seq, ang).as_matrix(), atol=1e-14,
+                                       err_msg=seq)
+        deg = rng.uniform(-170, 170, (5, n))
+        np.testing.assert_allclose(SO3.from_euler(seq, deg, degrees=True).matrix(),
+                                   Rotation.from_euler(seq, deg, degrees=True).as_matrix(),
+                                   atol=1e-14)
+    # one axis: a scalar angle is one rotation, as in SciPy
+    np.testing.assert_allclose(SO3.from_euler("y", 0.3).matrix(),
+                               Rotation.from_euler("y", 0.3).as_matrix(), atol=1e-15)
+    bad = [("xxy", [0.1, 0.2, 0.3]), ("zz", [0.1, 0.2]), ("xYz", [0.1, 0.2, 0.3]),
+           ("abc", [0.1, 0.2, 0.3]), ("", [0.1]), ("xyzx", [0.1, 0.2, 0.3, 0.4]),
+           ("xyz", [0.1, 0.2]), ("x", [0.1, 0.2]), ("XY", [0.1, 0.2, 0.3])]
+    for seq, ang in bad:
+        with pytest.raises(ValueError):
+            Rotation.from_euler(seq, ang)  # SciPy rejects it too
+        with pytest.raises(ValueError, match="Euler"):
+            SO3.from_euler(seq, ang)
