@@ -282,6 +282,13 @@ class SO3(LieGroup):
         [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
         [[0, -1, 0], [1, 0, 0], [0, 0, 0]],
     ], dtype=float)
+    # facts for the generic test suite: the rotation's entries of the tangent vector
+    _rotation_slice = slice(0, 3)
+
+    @classmethod
+    def _exact_pi_element(cls) -> SO3:
+        """The rotation by exactly pi about x, quaternion ``(1, 0, 0, 0)`` (``w = 0`` exactly)."""
+        return cls(np.array([1.0, 0.0, 0.0, 0.0]))
 
     @classmethod
     def _validate_params(cls, p: Array, normalize: bool) -> Array:
