@@ -288,7 +288,7 @@ def test_non_positive_information_is_a_value_error():
         PriorFactor(x, 2, SE2.identity())
 
 
-def test_custom_factors_analytic_numerical_jax_agree():
+def test_custom_factors_analytic_numerical_jax_torch_agree():
     from conftest import require
 
     jax = require("jax")
@@ -316,13 +316,22 @@ def test_custom_factors_analytic_numerical_jax_agree():
                            jac=jac))
         return g, x
 
+    torch = require("torch")
+
+    def build_torch():
+        g, x = build("numerical")
+        f = g.factors[-1]
+        f.mode = "torch"
+        f.fn = lambda X, z: X.act(torch.zeros(2, dtype=torch.float64)) - z
+        return g, x
+
     sols = {}
-    for jac in ("analytic", "numerical", "jax"):
-        g, x = build(jac)
+    for jac in ("analytic", "numerical", "jax", "torch"):
+        g, x = build_torch() if jac == "torch" else build(jac)
         r = g.optimize(rel_tol=1e-12, abs_tol=1e-14)
         assert r.converged
         sols[jac] = r.values[x]
-    for jac in ("numerical", "jax"):
+    for jac in ("numerical", "jax", "torch"):
         assert np.abs(sols[jac].minus(sols["analytic"])).max() < 1e-7, jac
 
 

@@ -259,7 +259,7 @@ class VectorGaussian:
         (5, 3)
         """
         z = _standard_normal(n, (*self.batch_shape, self.dim), rng, self.mean)
-        return self.mean + (L.sqrt_psd(self.cov) @ z[..., None])[..., 0]
+        return self.mean + (_cov_factor(self) @ z[..., None])[..., 0]
 
     def mahalanobis(self, x: Any, squared: bool = False) -> Array:
         """Mahalanobis distance ``sqrt((x - m)^T P^-1 (x - m))`` (``squared=True``: without
@@ -438,7 +438,7 @@ class Gaussian:
         (4,)
         """
         z = _standard_normal(n, (*self.batch_shape, self.dof), rng, self.cov)
-        return self.retract((L.sqrt_psd(self.cov) @ z[..., None])[..., 0])
+        return self.retract((_cov_factor(self) @ z[..., None])[..., 0])
 
     def mahalanobis(self, X: LieGroup, squared: bool = False) -> Array:
         """Mahalanobis distance of ``X`` from the mean, ``sqrt(e^T P^-1 e)`` with ``e =``
@@ -824,6 +824,15 @@ def _rank(g: Gaussian | VectorGaussian) -> _Null | None:
         null = _Null.of(g.cov)
         object.__setattr__(g, "_null", null)
     return null
+
+
+def _cov_factor(g: Gaussian | VectorGaussian) -> Array:
+    """``S`` with ``S S^T = g.cov`` for sampling: the Cholesky factor when the covariance is
+    known to have full rank (its gradient is finite where ``eigh``'s is not: repeated
+    eigenvalues), else the symmetric square root from ``eigh`` (rank-deficient or traced)."""
+    if L.concrete(g.cov) is not None and _rank(g) is None:
+        return L.cholesky(g.cov)
+    return L.sqrt_psd(g.cov)
 
 
 def _mahalanobis(e: Array, P: Array, squared: bool, null: _Null | None) -> Array:

@@ -21,22 +21,56 @@ Pose-graph files: :mod:`microlie.optim.g2o`, :mod:`microlie.optim.toro` (both re
 :class:`microlie.optim.pose_graph.PoseGraph`); initialisation: :mod:`microlie.optim.init`.
 """
 
-from .factors import BetweenFactor, CustomFactor, Factor, PriorFactor
-from .graph import FactorGraph, from_pose_graph
-from .linear import LinearSolver, SingularSystemError, available_solvers, make_solver
-from .noise import (
-    Covariance,
-    Diagonal,
-    Information,
-    Isotropic,
-    NoiseModel,
-    SqrtInformation,
-    Unit,
-)
-from .problem import GaugeError, Problem
-from .robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
-from .solvers import IterationRecord, Result
-from .variables import Values, Variables
+# Submodules load on first use (PEP 562), so that ``microlie optimize``'s argument parser and the
+# file readers (``microlie.optim.g2o``) do not pay for the solver's SciPy imports.
+import importlib
+from typing import TYPE_CHECKING, Any
+
+_LAZY = {
+    "factors": ("BetweenFactor", "CustomFactor", "Factor", "PriorFactor"),
+    "graph": ("FactorGraph", "from_pose_graph"),
+    "linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
+    "noise": ("Covariance", "Diagonal", "Information", "Isotropic", "NoiseModel",
+              "SqrtInformation", "Unit"),
+    "problem": ("GaugeError", "Problem"),
+    "robust": ("DCS", "Barron", "Cauchy", "GemanMcClure", "Huber", "RobustLoss", "Tukey",
+               "make_loss"),
+    "solvers": ("IterationRecord", "Result"),
+    "variables": ("Values", "Variables"),
+}
+_WHERE = {name: module for module, names in _LAZY.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_WHERE])
+
+
+if TYPE_CHECKING:
+    from .factors import BetweenFactor, CustomFactor, Factor, PriorFactor
+    from .graph import FactorGraph, from_pose_graph
+    from .linear import LinearSolver, SingularSystemError, available_solvers, make_solver
+    from .noise import (
+        Covariance,
+        Diagonal,
+        Information,
+        Isotropic,
+        NoiseModel,
+        SqrtInformation,
+        Unit,
+    )
+    from .problem import GaugeError, Problem
+    from .robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
+    from .solvers import IterationRecord, Result
+    from .variables import Values, Variables
 
 __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "PriorFactor",
            "BetweenFactor", "CustomFactor", "NoiseModel", "Information", "SqrtInformation",

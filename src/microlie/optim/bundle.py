@@ -6,13 +6,15 @@ Unknowns: per camera a world-to-camera rotation ``R`` (perturbed ``R Exp(dphi)``
 
 The iteration follows Ceres' ``TrustRegionMinimizer`` with ``LevenbergMarquardtStrategy`` so
 that iteration counts compare with Ceres': Jacobi scaling of the columns by
-``1 / (1 + |J_col|)`` fixed at iteration 0; damping ``D^2 = clamp(diag(J^T J), 1e-6, 1e32) /
-radius`` (radius starts at 1e4, diagonal reused after a rejected step); step quality
+``s = 1 / (1 + |J_col|)`` fixed at iteration 0 (applied exactly, as the equivalent damping
+``D^2 / s^2`` of the unscaled system, so the Jacobians are never rescaled); damping
+``D^2 = clamp(diag(J^T J), 1e-6, 1e32) / radius`` of the scaled Jacobian (radius starts at
+1e4, diagonal reused after a rejected step); step quality
 ``rho = actual / model cost decrease``; accepted when ``rho > 1e-3``, then
 ``radius /= max(1/3, 1 - (2 rho - 1)^3)``; rejected: ``radius /= 2, 4, 8, ...``. Stops on
 ``|cost change| <= 1e-6 cost`` (the step is then not taken, as in Ceres), a step shorter than
 ``1e-8 (|x| + 1e-8)``, a gradient max-norm below ``1e-10``, ``radius < 1e-32``, or
-``max_iterations`` tries (accepted plus rejected, Ceres' ``iterations``).
+``max_iter`` tries (accepted plus rejected, Ceres' ``iterations``).
 
 The gauge (7 degrees of freedom for BAL: rotation, translation, scale) is left free by default
 (the damping keeps the system definite, as in Ceres); ``fix_cameras=[0]`` holds camera 0 (and
@@ -105,6 +107,10 @@ class BundleProblem:
                         (self.points, "points"), (self.observations, "observations")):
             if not np.all(np.isfinite(a)):
                 raise ValueError(f"{what} contain non-finite values")
+        err = np.abs(np.swapaxes(self.rotations, 1, 2) @ self.rotations - np.eye(3)).max(
+            initial=0.0)
+        if err > 1e-6 or (nc and np.min(np.linalg.det(self.rotations)) < 0):
+            raise ValueError(f"rotations must be rotation matrices (|R^T R - I| = {err:.2e})")
 
     @classmethod
     def from_bal(cls, bal: BALProblem) -> BundleProblem:
@@ -175,13 +181,19 @@ class IterationRecord:
 
 @dataclass
 class BundleResult:
-    """Outcome of :func:`solve`: the optimised ``problem``, costs ``0.5 sum rho(|r|^2)`` in
-    pixels, ``iterations`` (tries, as Ceres counts them), ``successful_steps``, ``converged``
-    with the reason in ``message``, wall time ``time_s`` and its breakdown ``timings``."""
+    """Outcome of :func:`solve`, with the fields of :class:`microlie.optim.solvers.Result`:
+    the optimised ``problem``; ``initial_cost`` / ``final_cost`` ``0.5 sum |r|^2`` in pixels
+    without the robust loss, ``initial_robust_cost`` / ``final_robust_cost`` the minimised
+    ``0.5 sum rho(|r|^2)`` (equal without a loss); ``iterations`` (tries, accepted or not, the
+    stopping one included); ``successful_steps`` (Ceres' count: accepted steps plus iteration
+    0); ``converged`` with the reason in ``message``; wall time ``time_s`` and its breakdown
+    ``timings``; ``history`` one :class:`IterationRecord` per try."""
 
     problem: BundleProblem
     initial_cost: float
     final_cost: float
+    initial_robust_cost: float
+    final_robust_cost: float
     iterations: int
     successful_steps: int
     converged: bool
@@ -190,37 +202,60 @@ class BundleResult:
     history: list[IterationRecord]
     timings: dict[str, float]
     behind: str = "evaluate"
+    solver: str = "lm"
+    linear_solver: str = "auto"
     _normal: Any = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {"initial_cost": self.initial_cost, "final_cost": self.final_cost,
-                "iterations": self.iterations, "time_s": self.time_s,
-                "converged": self.converged, "message": self.message,
+                "initial_robust_cost": self.initial_robust_cost,
+                "final_robust_cost": self.final_robust_cost, "iterations": self.iterations,
+                "time_s": self.time_s, "converged": self.converged, "message": self.message,
                 "successful_steps": self.successful_steps}
 
     def camera_covariance(self, cameras: Sequence[int]) -> np.ndarray:
         """Marginal covariances ``(len(cameras), d, d)`` of the camera tangents
         ``(dt, dphi, dK)`` at the solution, from the reduced camera system: the camera block of
         ``(J^T J)^-1`` is ``S^-1`` (``S`` the Schur complement of the points). With a free
-        gauge ``S`` is singular and the pseudo-inverse (minimum-norm gauge) is returned."""
-        S = _undamped_schur(self)
+        gauge ``S`` is singular: the pseudo-inverse (minimum-norm gauge) is returned for a dense
+        ``S``; a sparse one (many cameras) needs the gauge held (``fix_cameras`` and a point).
+        Held unknowns have zero covariance."""
         d = self.problem.cam_dim
         idx = np.concatenate([np.arange(c * d, (c + 1) * d) for c in cameras])
-        keep = np.ones(S.shape[0], bool)
+        S = _undamped_schur(self)
+        n = S.shape[0]
+        keep = np.ones(n, bool)
         if self._normal is not None and self._normal.fixed_cameras is not None:
             keep = ~self._normal.fixed_cameras.reshape(-1)
-        Sk = S[np.ix_(keep, keep)]
-        pos = -np.ones(S.shape[0], int)
-        pos[keep] = np.arange(keep.sum())
-        try:
-            cf = np.linalg.cholesky(Sk)
-            inv = np.linalg.inv(cf)
-            cov_k = inv.T @ inv
-        except np.linalg.LinAlgError:
-            cov_k = np.linalg.pinv(Sk, hermitian=True)
         cov = np.zeros((len(idx), len(idx)))
-        sel = pos[idx] >= 0
-        cov[np.ix_(sel, sel)] = cov_k[np.ix_(pos[idx][sel], pos[idx][sel])]
+        sel = keep[idx]
+        if not isinstance(S, np.ndarray):
+            from .linear import SingularSystemError, make_solver
+
+            solver = make_solver("auto", n)
+            E = np.zeros((n, int(sel.sum())))
+            E[idx[sel], np.arange(E.shape[1])] = 1.0
+            try:
+                solver.analyse(S.indptr, S.indices, n)
+                solver.factorize(S.data)
+                X = np.column_stack([solver.solve(E[:, k]) for k in range(E.shape[1])])
+            except SingularSystemError:
+                raise np.linalg.LinAlgError(
+                    "the reduced camera system is singular: hold the gauge (fix_cameras=[0] "
+                    "and fix_points=[k]) to get marginal covariances") from None
+            cov[np.ix_(sel, sel)] = X[idx[sel]]
+        else:
+            Sk = S[np.ix_(keep, keep)]
+            pos = -np.ones(n, int)
+            pos[keep] = np.arange(keep.sum())
+            try:
+                cf = np.linalg.cholesky(Sk)
+                inv = np.linalg.inv(cf)
+                cov_k = inv.T @ inv
+            except np.linalg.LinAlgError:
+                cov_k = np.linalg.pinv(Sk, hermitian=True)
+            cov[np.ix_(sel, sel)] = cov_k[np.ix_(pos[idx][sel], pos[idx][sel])]
+        cov = 0.5 * (cov + cov.T)
         return np.stack([cov[i * d:(i + 1) * d, i * d:(i + 1) * d] for i in range(len(cameras))])
 
     def marginals(self, cameras: Sequence[int]) -> list[Any]:
@@ -244,23 +279,17 @@ class BundleResult:
         return out
 
 
-def _undamped_schur(res: BundleResult) -> np.ndarray:
+def _undamped_schur(res: BundleResult) -> Any:
     ne = res._normal
     if ne is None:
         raise ValueError("no linearisation stored in this result")
     st = ne.structure
     Dc2 = np.zeros((st.n_cameras, st.cam_dim))
     Dp2 = np.zeros((st.n_points, 3))
-    red = ne.reduced_system(Dc2, Dp2)
+    red = ne.reduced_system(Dc2, Dp2, st.sparse_reduced("auto"))
     if red is None:
         raise np.linalg.LinAlgError("a point block is singular: some point is not determined")
-    # undo the column scaling: S_unscaled = diag(1/s) S diag(1/s)
-    sc = res.timings.get("_scale_c")
-    S = red[0]
-    if isinstance(sc, np.ndarray):
-        inv = 1.0 / sc.reshape(-1)
-        S = inv[:, None] * S * inv[None, :]
-    return S
+    return red[0]
 
 
 def _as_mask(idx: Sequence[int] | np.ndarray | None, n: int, what: str) -> np.ndarray | None:
@@ -294,7 +323,7 @@ def _camera_mask(pose: np.ndarray | None, intr: np.ndarray | None, n: int, d: in
 def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: str = "evaluate",
           fix_cameras: Sequence[int] | None = None, fix_points: Sequence[int] | None = None,
           fix_intrinsics: Sequence[int] | bool | None = None,
-          linear_solver: LinearSolverKind = "auto", max_iterations: int = 100,
+          linear_solver: LinearSolverKind = "auto", max_iter: int = 100,
           function_tolerance: float = 1e-6, gradient_tolerance: float = 1e-10,
           parameter_tolerance: float = 1e-8, initial_radius: float = 1e4,
           jacobi_scaling: bool = True, verbose: bool = False) -> BundleResult:
@@ -316,8 +345,8 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         from .robust import make_loss
 
         loss = make_loss(robust)
-    if max_iterations < 0:
-        raise ValueError("max_iterations must be >= 0")
+    if max_iter < 0:
+        raise ValueError("max_iter must be >= 0")
     if initial_radius <= 0:
         raise ValueError("initial_radius must be positive")
     model = problem.model
@@ -332,8 +361,8 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
     fc = _camera_mask(_as_mask(fix_cameras, nc, "fix_cameras"),
                       _as_mask(intr, nc, "fix_intrinsics"), nc, d)
     fp = _as_mask(fix_points, npt, "fix_points")
-    # observations sorted by point, once
-    order = np.lexsort((problem.camera_index, problem.point_index))
+    # observations sorted by camera (then point), once
+    order = np.lexsort((problem.point_index, problem.camera_index))
     cam = np.asarray(problem.camera_index)[order].astype(np.intp)
     pt = np.asarray(problem.point_index)[order].astype(np.intp)
     obs = np.asarray(problem.observations, dtype=float)[order]
@@ -381,22 +410,17 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             r = r * rscale[:, None]
         else:
             cost = 0.5 * float(s.sum())
-        if jacobi_scaling:
-            if scale_c is None:
-                nc2 = np.zeros((nc, d))
-                np.add.at(nc2, cam, (Jc * Jc).sum(1))
-                np2 = np.zeros((npt, 3))
-                np.add.at(np2, pt, (Jp * Jp).sum(1))
-                scale_c = 1.0 / (1.0 + np.sqrt(nc2))
-                scale_p = 1.0 / (1.0 + np.sqrt(np2))
-            assert scale_p is not None
-            Jc = Jc * scale_c[cam][:, None, :]
-            Jp = Jp * scale_p[pt][:, None, :]
         ne = NormalEquations(structure, r, Jc, Jp, fc, fp, tm)
+        if scale_c is None:
+            # Ceres' Jacobi scaling 1 / (1 + |J_col|), fixed at iteration 0. Solving the scaled
+            # system (S J^T J S + D_s) y = -S g, delta = S y, is solving
+            # (J^T J + S^-1 D_s S^-1) delta = -g: the scaling only changes the damping.
+            if jacobi_scaling:
+                scale_c = 1.0 / (1.0 + np.sqrt(ne.diag_c))
+                scale_p = 1.0 / (1.0 + np.sqrt(ne.diag_p))
+            else:
+                scale_c, scale_p = np.ones((nc, d)), np.ones((npt, 3))
         g = ne.gradient
-        if jacobi_scaling:
-            assert scale_c is not None and scale_p is not None
-            g = g / np.concatenate([scale_c.reshape(-1), scale_p.reshape(-1)])
         gmask = np.ones(len(g), bool)
         if fc is not None:
             gmask[: nc * d] &= ~fc.reshape(-1)
@@ -429,13 +453,15 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         if radius <= 1e-32:
             converged, message = True, "minimum trust region radius reached"
             break
-        if it >= max_iterations:
+        if it >= max_iter:
             break
         it += 1
         ts = time.perf_counter()
         if not reuse or diag_c is None:
-            diag_c = np.clip(ne.diag_c, 1e-6, 1e32)
-            diag_p = np.clip(ne.diag_p, 1e-6, 1e32)
+            # LM diagonal of the scaled Jacobian, clamped as Ceres does, in unscaled units
+            assert scale_c is not None and scale_p is not None
+            diag_c = np.clip(ne.diag_c * scale_c ** 2, 1e-6, 1e32) / scale_c ** 2
+            diag_p = np.clip(ne.diag_p * scale_p ** 2, 1e-6, 1e32) / scale_p ** 2
         assert diag_p is not None
         tm["step"] += time.perf_counter() - ts
         step = ne.solve(diag_c / radius, diag_p / radius, linear_solver)
@@ -448,14 +474,9 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             history.append(IterationRecord(it, cost, False, 0.0, radius, 0.0))
             tm["step"] += time.perf_counter() - ts
             continue
-        yc, yp = step
-        Jd = ne.jvp(yc, yp)
+        dc, dp = step
+        Jd = ne.jvp(dc, dp)
         model_change = -float(np.sum(Jd * (r + 0.5 * Jd)))
-        if jacobi_scaling:
-            assert scale_c is not None and scale_p is not None
-            dc, dp = yc * scale_c, yp * scale_p
-        else:
-            dc, dp = yc, yp
         tm["step"] += time.perf_counter() - ts
         if not model_change > 0.0:
             radius /= decrease
@@ -494,13 +515,14 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         if verbose:
             print(f"iter {it:4d}  cost {cand_cost:.9e}  rho {rho:+.3e}  radius {radius:.2e}"
                   f"  {'accepted' if rho > 1e-3 else 'rejected'}", file=sys.stderr)
-    if jacobi_scaling:
-        tm["_scale_c"] = scale_c
     time_s = time.perf_counter() - t_start
     tm["total"] = time_s
-    final_cost = cost
-    return BundleResult(x, initial_cost, final_cost, it, successful, converged, message, time_s,
-                        history, tm, behind, ne)
+    if loss is None:
+        plain0, plain1 = initial_cost, cost
+    else:
+        plain0, plain1 = problem.cost(behind), x.cost(behind)
+    return BundleResult(x, plain0, plain1, initial_cost, cost, it, successful, converged,
+                        message, time_s, history, tm, behind, "lm", linear_solver, ne)
 
 
 # ---------------------------------------------------------------------------- synthetic scenes

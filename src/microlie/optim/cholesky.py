@@ -16,10 +16,9 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp  # type: ignore[import-untyped]
-import scipy.sparse.linalg as spla  # type: ignore[import-untyped]
 from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
 
-from .linear import LinearSolver, SingularSystemError
+from .linear import LinearSolver, SingularSystemError, block_graph, splu_symmetric
 
 __all__ = ["SupernodalSolver"]
 
@@ -38,21 +37,14 @@ class SupernodalSolver(LinearSolver):
         bs = block_size if block_size > 0 and n % block_size == 0 else 1
         self.bs = bs
         nb = n // bs
-        cols = np.repeat(np.arange(n), np.diff(indptr))
-        B = sp.csc_matrix((np.ones(indices.size), (indices // bs, cols // bs)), shape=(nb, nb))
-        # symmetric random values: SuperLU's numeric L then has the symbolic pattern (equal
-        # values can cancel exactly and drop a fill entry); the dominant diagonal avoids pivoting
-        B = sp.triu(B, 1).tocoo()
-        w = np.random.default_rng(0).uniform(0.5, 1.0, B.nnz)
-        B = sp.coo_matrix((w, (B.row, B.col)), shape=(nb, nb))
-        B = (B + B.T + sp.eye(nb) * (nb + 1.0)).tocsc()
+        B = block_graph(indptr, indices, n, bs)
         # SuperLU's L is the factor of B[q][:, q] with q = argsort(perm_c), whatever the
         # requested order (it postorders the elimination tree itself)
-        lu = _lu(B, "MMD_AT_PLUS_A")
+        lu = splu_symmetric(B, "MMD_AT_PLUS_A")
         perm = np.argsort(lu.perm_c)
         parent = _etree(lu.L.tocsc(), nb)
         perm = perm[_postorder(parent, nb)]
-        lu = _lu(B[perm][:, perm].tocsc(), "NATURAL")
+        lu = splu_symmetric(B[perm][:, perm].tocsc(), "NATURAL")
         perm = perm[np.argsort(lu.perm_c)]
         L = _closed(lu.L.tocsc(), nb)
         parent = _etree(L, nb)
@@ -125,6 +117,7 @@ class SupernodalSolver(LinearSolver):
                 pdst.append(rel[aa] * m + rel[bb])
             pos[idx] = -1
             info.append({"idx": idx, "m": m, "k": kc, "src": src_all[s0:s1], "dst": dst,
+                         "c0": int(idx[0]), "rows": idx[kc:],
                          "adds": list(zip(pdst, psrc, strict=True)),
                          "poff": int(poff[k]), "u": usize[k]})
         # leaves (no children), batched by shape; the other supernodes one by one
@@ -168,8 +161,8 @@ class SupernodalSolver(LinearSolver):
             L21 = np.swapaxes(np.linalg.solve(L11, np.swapaxes(F[:, kc:, :kc], 1, 2)), 1, 2)
             U = F[:, kc:, kc:] - L21 @ np.swapaxes(L21, 1, 2)
             pool[g["pidx"]] = U.ravel()
-            self.L_leaf.append((L11, L21))
-        potrf, trsm, syrk = lapack.dpotrf, blas.dtrsm, blas.dsyrk
+            self.L_leaf.append((np.linalg.inv(L11), L21))
+        potrf, trsm, syrk, trtri = lapack.dpotrf, blas.dtrsm, blas.dsyrk, lapack.dtrtri
         self.L_inner = []
         for f in self.inner:
             m, kc = f["m"], f["k"]
@@ -193,50 +186,44 @@ class SupernodalSolver(LinearSolver):
                 syrk(-1.0, L21, beta=1.0, c=V.T, trans=0, lower=0, overwrite_c=1)
             else:
                 L21 = np.zeros((0, kc))
-            self.L_inner.append((L11, L21))
+            Linv, _ = trtri(L11, lower=1)  # the solves become matrix products
+            self.L_inner.append((Linv, L21))
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         b = np.asarray(b, dtype=np.float64)
         vec = b.ndim == 1
         y = (b[:, None] if vec else b)[self.sperm].copy()
         nr = y.shape[1]
-        for g, (L11, L21) in zip(self.leaf_groups, self.L_leaf, strict=True):
-            yc = np.linalg.solve(L11, y[g["cidx"]])  # (G, kc, nr)
+        for g, (Li, L21) in zip(self.leaf_groups, self.L_leaf, strict=True):
+            yc = Li @ y[g["cidx"]]  # (G, kc, nr)
             y[g["cidx"]] = yc
             upd = L21 @ yc  # (G, u, nr)
-            np.subtract.at(y, g["ridx"], upd) if nr > 1 else \
-                y.__setitem__((slice(None), 0), y[:, 0] - np.bincount(
-                    g["ridx"].ravel(), weights=upd.ravel(), minlength=y.shape[0]))
-        trtrs = lapack.dtrtrs
-        for f, (L11, L21) in zip(self.inner, self.L_inner, strict=True):
-            idx, kc = f["idx"], f["k"]
-            c = idx[:kc]
-            yc, _ = trtrs(L11, y[c], lower=1)
-            y[c] = yc
+            if nr > 1:
+                np.subtract.at(y, g["ridx"], upd)
+            else:
+                y[:, 0] -= np.bincount(g["ridx"].ravel(), weights=upd.ravel(),
+                                       minlength=y.shape[0])
+        for f, (Li, L21) in zip(self.inner, self.L_inner, strict=True):
+            c0, kc = f["c0"], f["k"]
+            yc = Li @ y[c0:c0 + kc]
+            y[c0:c0 + kc] = yc
             if L21.shape[0]:
-                y[idx[kc:]] -= L21 @ yc
-        for f, (L11, L21) in zip(reversed(self.inner), reversed(self.L_inner), strict=True):
-            idx, kc = f["idx"], f["k"]
-            c = idx[:kc]
-            rhs = y[c]
+                y[f["rows"]] -= L21 @ yc
+        for f, (Li, L21) in zip(reversed(self.inner), reversed(self.L_inner), strict=True):
+            c0, kc = f["c0"], f["k"]
+            rhs = y[c0:c0 + kc]
             if L21.shape[0]:
-                rhs = rhs - L21.T @ y[idx[kc:]]
-            xc, _ = trtrs(L11, rhs, lower=1, trans=1)
-            y[c] = xc
-        for g, (L11, L21) in zip(self.leaf_groups, self.L_leaf, strict=True):
+                rhs = rhs - L21.T @ y[f["rows"]]
+            y[c0:c0 + kc] = Li.T @ rhs
+        for g, (Li, L21) in zip(self.leaf_groups, self.L_leaf, strict=True):
             rhs = y[g["cidx"]] - np.swapaxes(L21, 1, 2) @ y[g["ridx"]]
-            y[g["cidx"]] = np.linalg.solve(np.swapaxes(L11, 1, 2), rhs)
+            y[g["cidx"]] = np.swapaxes(Li, 1, 2) @ rhs
         x = np.empty_like(y)
         x[self.sperm] = y
         if not np.all(np.isfinite(x)):
             raise SingularSystemError("the linear system is singular (the solution is not "
                                       "finite)")
         return x[:, 0] if vec else x
-
-
-def _lu(B: Any, order: str) -> Any:
-    return spla.splu(B, permc_spec=order, diag_pivot_thresh=0.0,
-                     options={"SymmetricMode": True})
 
 
 def _closed(L: Any, nb: int) -> Any:

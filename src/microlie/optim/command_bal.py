@@ -18,9 +18,12 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
+from .schur import LinearSolverKind
+
 __all__ = ["run_bal"]
 
-_LINEAR = {"auto": "auto", "dense": "dense", "sparse": "sparse", "full": "full"}
+_LINEAR: dict[str, LinearSolverKind] = {"auto": "auto", "dense": "dense", "sparse": "sparse",
+                                         "full": "full"}
 
 
 def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
@@ -41,7 +44,7 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     t1 = time.perf_counter()
     verbose = bool(getattr(err, "isatty", None) and err.isatty())
     res = solve(start, robust=getattr(args, "robust", None), linear_solver=_LINEAR[linear],
-                max_iterations=getattr(args, "max_iter", 100), verbose=verbose)
+                max_iter=getattr(args, "max_iter", 100), verbose=verbose)
     report: dict[str, Any] = {
         "file": str(args.input),
         "format": "bal",
@@ -53,9 +56,10 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
         "robust": getattr(args, "robust", None),
         "solver": "lm",
         "linear_solver": linear,
-        "initial_cost": start.cost(),
-        "final_cost": res.problem.cost(),
-        "final_robust_cost": res.final_cost,
+        "initial_cost": res.initial_cost,
+        "final_cost": res.final_cost,
+        "initial_robust_cost": res.initial_robust_cost,
+        "final_robust_cost": res.final_robust_cost,
         "iterations": res.iterations,
         "time_s": res.time_s,
         "converged": bool(res.converged),

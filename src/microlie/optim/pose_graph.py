@@ -123,6 +123,39 @@ class PoseGraph:
         r = self.residuals(poses)
         return 0.5 * float(np.einsum("ei,eij,ej->", r, self.information, r))
 
+    # ------------------------------------------------------------------ to the solver
+    def to_factor_graph(self, poses: LieGroup | None = None, *, loss: Any = None,
+                        gauge: str = "prior", prior_sigma: float = 1e-6) -> tuple[Any, Any]:
+        """Build a :class:`~microlie.optim.FactorGraph` of this graph's edges.
+
+        Returns ``(factor_graph, handle)``; ``result.values[handle]`` is then the optimised
+        batch aligned with ``ids``. ``poses`` is the start (default: the file's). One
+        ``BetweenFactor`` batch holds every edge with its information matrix and ``loss``
+        (a robust loss or a spec such as ``"huber:1.0"``). The gauge: the file's fixed
+        vertices when it has ``FIX`` lines; otherwise ``gauge="prior"`` (default, as GTSAM)
+        adds a prior on the first pose at its start value with standard deviation
+        ``prior_sigma`` (a term :meth:`cost` leaves out), ``gauge="fix"`` holds the first pose
+        constant, ``gauge="none"`` adds nothing (the solver then asks for a gauge).
+        """
+        from .factors import BetweenFactor, PriorFactor
+        from .graph import FactorGraph
+        from .noise import Information, Isotropic
+
+        X = self._poses(poses)
+        fg = FactorGraph()
+        fixed = self.index(self.fixed) if self.fixed.size else None
+        if fixed is None and gauge == "fix":
+            fixed = np.array([0])
+        elif gauge not in ("prior", "fix", "none"):
+            raise ValueError(f"gauge must be 'prior', 'fix' or 'none', got {gauge!r}")
+        handle = fg.add_variables(X, fixed=fixed, name="poses")
+        ii, jj = self.edge_index()
+        fg.add(BetweenFactor(handle, ii, jj, self.measurements, Information(self.information),
+                             loss=loss))
+        if fixed is None and gauge == "prior":
+            fg.add(PriorFactor(handle, [0], X[0:1], Isotropic(self.group.dof, prior_sigma)))
+        return fg, handle
+
     def _poses(self, poses: LieGroup | None) -> LieGroup:
         X = self.poses if poses is None else poses
         if X is None:
