@@ -79,7 +79,7 @@ def run_smoother(data, fixes):
     for p in pims:
         X.append(p.predict(X[-1]))
     g = FactorGraph()
-    x = g.add_variables(SE23._wrap(np.stack([np.asarray(s.params) for s in X])))
+    x = g.add_variables(SE23(np.stack([np.asarray(s.params) for s in X])))
     b = g.add_variables(np.zeros((nk + 1, 6)))
     i, j = np.arange(nk), np.arange(1, nk + 1)
     g.add(ImuFactor(x, b, i, j, pims))

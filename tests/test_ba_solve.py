@@ -216,6 +216,18 @@ def test_bad_input_rejected():
         replace(start, intrinsics=np.ones((2, 2)))
     with pytest.raises(ValueError, match="rotation matrices"):
         replace(start, rotations=start.rotations * 1.01)
+    # a point on the plane of its camera: infinite residual under the BAL convention
+    R = start.rotations.copy()
+    R[1] = np.eye(3)
+    t = start.translations.copy()
+    t[1] = 0.0
+    X = start.points.copy()
+    X[2, 2] = 0.0                                   # camera 1 sees point 2 at P_z = 0
+    onplane = replace(start, rotations=R, translations=t, points=X)
+    k = int(np.nonzero((onplane.camera_index == 1) & (onplane.point_index == 2))[0][0])
+    with pytest.raises(ValueError, match=f"observation {k} is not finite"):
+        solve(onplane)
+    assert np.isfinite(solve(onplane, behind="drop", max_iter=3).final_cost)
     with pytest.raises(ValueError, match="linear_solver"):
         solve(start, linear_solver="qr")
     with pytest.raises(ValueError, match="fix_cameras"):

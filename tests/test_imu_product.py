@@ -145,7 +145,7 @@ def test_solver_variable_matches_separate_variables():
     out = res.values[x]
 
     h = FactorGraph()
-    p = h.add_variables(SE23._wrap(np.asarray(init.params)[:, :10]))
+    p = h.add_variables(SE23(np.asarray(init.params)[:, :10]))
     v = h.add_variables(np.asarray(init.params)[:, 10:])
     h.add(PriorFactor(p, 0, prior.part(0), Isotropic(9, 0.1)))
     h.add(PriorFactor(v, 0, np.asarray(prior.part(1).params), Isotropic(3, 0.1)))

@@ -264,6 +264,6 @@ def hand_eye_from_poses(gripper2base: SE3, target2cam: SE3, iterations: int = 20
         raise ValueError("hand_eye_from_poses: at least 3 poses are needed")
     A, B = G, C.inverse()
     X0 = hand_eye(*motions_from_poses(G, C)).mean
-    W0 = SE3._wrap(np.asarray((A @ X0 @ B.inverse()).params)[0])
+    W0 = SE3(np.asarray((A @ X0 @ B.inverse()).params)[0])
     X, _, cov = _refine_ml(A, B, X0, W0, np.asarray(C.adjoint()), iterations)  # type: ignore
     return Gaussian(X, cov[:6, :6], frame="right")

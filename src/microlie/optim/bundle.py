@@ -436,6 +436,11 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
 
     x = problem
     cost, ne, gmax, r = linearize(x)
+    if not np.isfinite(cost):
+        bad = np.nonzero(~np.isfinite(r).all(axis=1))[0]
+        k = int(order[bad[0]]) if len(bad) else -1
+        raise ValueError(f"the initial residual of observation {k} is not finite (a point on "
+                         f"the plane of its camera, P_z = 0); use behind='drop' or move it")
     initial_cost = cost
     radius, decrease = float(initial_radius), 2.0
     diag_c = diag_p = None

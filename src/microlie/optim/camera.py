@@ -234,9 +234,13 @@ def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X
     """
     if behind not in BEHIND:
         raise ValueError(f"behind must be one of {BEHIND}, got {behind!r}")
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # P_z = 0: inf cost
+        return _reproject(model, R, t, K, X, cam, pt, observed, jac, behind)
+
+
+def _reproject(model, R, t, K, X, cam, pt, observed, jac, behind):
     P, Rc, Xo = transform_points(R, t, X, cam, pt)
-    with np.errstate(divide="ignore", invalid="ignore"):   # P_z = 0 gives inf: cost inf
-        uv, JP, JK = model.project(P, K[cam], jac)
+    uv, JP, JK = model.project(P, K[cam], jac)
     res = uv - observed
     valid = np.ones(len(cam), dtype=bool) if behind == "evaluate" else model.in_front(P)
     if not jac:

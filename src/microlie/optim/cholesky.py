@@ -93,7 +93,6 @@ class SupernodalSolver(LinearSolver):
         poff = np.concatenate([[0], np.cumsum([u * u for u in usize])]).astype(np.int64)
         self.pool_size = int(poff[-1])
         pos = np.full(n, -1, np.int64)
-        tril: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         info = []
         for k, (idx, kc) in enumerate(fronts):
             m = idx.size
@@ -103,22 +102,16 @@ class SupernodalSolver(LinearSolver):
             if rr.size and rr.min() < 0:
                 raise AssertionError("supernodal analysis: an entry outside its front")
             dst = rr * m + (c_all[s0:s1] - idx[0])
-            psrc, pdst = [], []
+            adds = []
             for c in children[k]:
                 cidx, ckc = fronts[c]
                 rel = pos[cidx[ckc:]]
-                if rel.min() < 0:
-                    raise AssertionError("supernodal analysis: a child row outside the front")
                 u = rel.size
-                if u not in tril:
-                    tril[u] = np.tril_indices(u)
-                aa, bb = tril[u]
-                psrc.append(poff[c] + aa * u + bb)
-                pdst.append(rel[aa] * m + rel[bb])
+                adds.append((np.ix_(rel, rel), int(poff[c]), u))
             pos[idx] = -1
             info.append({"idx": idx, "m": m, "k": kc, "src": src_all[s0:s1], "dst": dst,
                          "c0": int(idx[0]), "rows": idx[kc:],
-                         "adds": list(zip(pdst, psrc, strict=True)),
+                         "adds": adds,
                          "poff": int(poff[k]), "u": usize[k]})
         # leaves (no children), batched by shape; the other supernodes one by one
         groups: dict[tuple[int, int], list[int]] = {}
@@ -168,9 +161,11 @@ class SupernodalSolver(LinearSolver):
             m, kc = f["m"], f["k"]
             F = np.zeros(m * m)
             F[f["dst"]] = data[f["src"]]
-            for pdst, psrc in f["adds"]:  # extend-add: positions are unique within a child
-                F[pdst] += pool[psrc]
             F = F.reshape(m, m)
+            for ix, off, u in f["adds"]:
+                # extend-add of a child's update (only its lower triangle is valid; the rest
+                # lands in this front's upper triangle, which is never read)
+                F[ix] += pool[off:off + u * u].reshape(u, u)
             L11, info = potrf(F[:kc, :kc], lower=1, clean=1, overwrite_a=0)
             if info != 0:
                 raise SingularSystemError("the linear system is not positive definite (a "
@@ -229,22 +224,26 @@ class SupernodalSolver(LinearSolver):
 def _closed(L: Any, nb: int) -> Any:
     """The symbolic Cholesky pattern containing SuperLU's numeric ``L``: SuperLU can drop an
     entry that cancelled exactly, so close the pattern under ``struct(j) - {p} <= struct(p)``
-    (``p`` the parent of ``j``)."""
+    (``p`` the parent of ``j``). The check is vectorised; the (rare) repair loops."""
     L = sp.tril(L, -1).tocsc()
     L.sort_indices()
-    struct = [L.indices[L.indptr[j]:L.indptr[j + 1]] for j in range(nb)]
-    changed = False
-    for j in range(nb):
-        sj = struct[j]
-        if sj.size > 1:
-            p = sj[0]
-            sp_ = struct[p]
-            rest = sj[1:]
-            k = np.searchsorted(sp_, rest)
-            if rest.size > sp_.size or np.any(sp_[np.minimum(k, sp_.size - 1)] != rest):
-                struct[p] = np.union1d(sp_, rest)
-                changed = True
-    if changed:
+    cols = np.repeat(np.arange(nb), np.diff(L.indptr))
+    rows = L.indices.astype(np.int64)
+    parent = np.full(nb, -1, np.int64)
+    has = np.diff(L.indptr) > 0
+    parent[has] = rows[L.indptr[:-1][has]]
+    keys = cols * nb + rows  # sorted: by column, then row
+    p = parent[cols]
+    need = rows != p
+    want = p[need] * nb + rows[need]
+    k = np.searchsorted(keys, want)
+    ok = (k < keys.size) & (keys[np.minimum(k, keys.size - 1)] == want)
+    if not ok.all():
+        struct = [rows[L.indptr[j]:L.indptr[j + 1]] for j in range(nb)]
+        for j in range(nb):
+            sj = struct[j]
+            if sj.size > 1:
+                struct[sj[0]] = np.union1d(struct[sj[0]], sj[1:])
         cnt = np.array([x.size for x in struct])
         L = sp.csc_matrix((np.ones(cnt.sum()), np.concatenate(struct),
                            np.concatenate([[0], np.cumsum(cnt)])), shape=(nb, nb))

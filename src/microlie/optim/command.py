@@ -3,7 +3,7 @@
 ::
 
     microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] [--robust huber:1.0]
-                     [--init auto|file|odometry|chordal] [--linear-solver auto|scipy|...]
+                     [--init auto|file|odometry|chordal] [--linear-solver auto|supernodal|...]
                      [--max-iter N] [--plot FILE] [--json] [--format auto|g2o|toro|bal]
 
 The reported costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges (plain, even with
@@ -43,7 +43,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``optimize`` subcommand to ``subparsers`` (from ``add_subparsers()``); its
     arguments carry ``func`` (:func:`run`), called with ``(args, out, err)``."""
     p = subparsers.add_parser(
-        "optimize", help="optimise a pose graph (g2o, TORO) or another least-squares file",
+        "optimize", help="optimise a pose graph (g2o, TORO) or a bundle adjustment (BAL)",
         description="Optimise a pose graph read from IN; report costs (GTSAM's "
                     "0.5 sum r^T Omega r over the file's edges), iterations and solve time.")
     p.add_argument("input", metavar="IN",
@@ -62,7 +62,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="initial guess: the file's vertices, the odometry chain, or chordal "
                         "(default auto: the file's vertices, else odometry, else chordal)")
     p.add_argument("--linear-solver", default="auto", metavar="NAME",
-                   help="sparse linear solver: auto (default), scipy, qdldl, pardiso, dense")
+                   help="linear solver, auto (default) or forced: for pose graphs supernodal, "
+                        "scipy, qdldl, pardiso, dense; for BAL dense, sparse, full")
     p.add_argument("--max-iter", type=int, default=100, metavar="N",
                    help="maximum number of iterations (default 100)")
     p.add_argument("--plot", metavar="FILE", default=None,
@@ -145,13 +146,13 @@ def _write(path: str, graph: Any, poses: Any, fmt: str) -> None:
 
 def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     """Read, initialise, optimise, write and plot one pose graph; the JSON report."""
-    from .init import initialize
+    from .init import InitMethod, initialize
 
     t0 = time.perf_counter()
     graph = _read(args.input, args.format)
     t1 = time.perf_counter()
-    init = args.init
-    if init == "auto":
+    init: InitMethod
+    if args.init == "auto":
         init = "file" if graph.poses is not None else "odometry"
         try:
             X0 = initialize(graph, init)
@@ -160,6 +161,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
             err.write(f"microlie optimize: {e}; starting from the chordal initialisation\n")
             X0 = initialize(graph, init)
     else:
+        init = args.init
         X0 = initialize(graph, init)
     t2 = time.perf_counter()
     fg, poses = graph.to_factor_graph(X0, loss=args.robust)

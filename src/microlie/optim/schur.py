@@ -192,7 +192,11 @@ class NormalEquations:
     def jvp(self, dc: np.ndarray, dp: np.ndarray) -> np.ndarray:
         """``J_c dc + J_p dp`` as ``(n, 2)``."""
         st = self.structure
-        out = np.matmul(self.Jc, dc[st.cam][:, :, None])[:, :, 0]
+        cached = getattr(self, "_jc_dc", None)
+        if cached is not None and cached[0] is dc:
+            out = cached[1].copy()                     # J_c dc from the back substitution
+        else:
+            out = np.matmul(self.Jc, dc[st.cam][:, :, None])[:, :, 0]
         out += np.einsum("rin,ni->nr", self._jp, dp[st.pt])
         return out
 
@@ -220,7 +224,9 @@ class NormalEquations:
             return None
         t2 = time.perf_counter()
         # back substitution: dp = -V^-1 (gp + Jp^T Jc dc)
-        y = np.matmul(self.Jc, dc.reshape(nc, d)[st.cam][:, :, None])[:, :, 0]
+        dc = dc.reshape(nc, d)
+        y = np.matmul(self.Jc, dc[st.cam][:, :, None])[:, :, 0]
+        self._jc_dc = (dc, y)
         z = np.einsum("rin,nr->ni", jp, y)
         w = gp + st.point_sum(z)
         if fp is not None and fp.any():
@@ -235,7 +241,7 @@ class NormalEquations:
         tm["schur_form"] = tm.get("schur_form", 0.0) + t1 - t0
         tm["reduced_solve"] = tm.get("reduced_solve", 0.0) + t2 - t1
         tm["back_substitution"] = tm.get("back_substitution", 0.0) + t3 - t2
-        return dc.reshape(nc, d), dp
+        return dc, dp
 
     def reduced_system(self, Dc2: np.ndarray, Dp2: np.ndarray, sparse: bool = False
                        ) -> tuple | None:
