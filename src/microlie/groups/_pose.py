@@ -15,6 +15,7 @@ class Pose(LieGroup):
     """A group whose parameters start with a translation followed by a rotation's parameters."""
 
     _rotation: ClassVar[type[LieGroup]]  # SO2 or SO3
+    _rotation_slice: ClassVar[slice]  # test fact: the rotation's entries of the tangent
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         # test fact: the rotation's entries of the tangent, right after the translation's
@@ -32,7 +33,7 @@ class Pose(LieGroup):
         p = np.array(cls._identity_params)
         p[n:r] = cls._rotation._exact_pi_element().params  # type: ignore[attr-defined]
         tau = np.linspace(0.3, 1.1, cls.dof) * (-1.0) ** np.arange(cls.dof)
-        tau[cls._rotation_slice] = 0.0  # type: ignore[attr-defined]
+        tau[cls._rotation_slice] = 0.0
         return cls.exp(tau) @ cls(p)  # type: ignore[return-value]
 
     @classmethod
