@@ -9,13 +9,14 @@ jac="numerical"|"analytic"|"jax"|"torch")``, each added with ``g.add(...)``; noi
 ``Information``, ``SqrtInformation``, ``Covariance``, ``Diagonal``, ``Isotropic``; robust losses
 (``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
 ``DCS``, ``Barron``, applied as in Ceres. ``result = g.optimize(solver="lm"|"gn"|"dogleg",
-linear_solver="auto"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a :class:`Result` with
-``values`` (``result.values[poses]`` is the optimised batch), ``initial_cost``, ``final_cost``
-(``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``, ``converged``, ``message``,
-``history`` and ``time_s``. ``g.marginals(result.values, poses, idx)`` gives
-:class:`~microlie.Gaussian` marginals in the right-perturbation frame. Conventions: every
-variable is perturbed on the right (``X Exp(delta)``), every Jacobian is a right Jacobian,
-tangents are translation first.
+linear_solver="auto"|"supernodal"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
+:class:`Result` with ``values`` (``result.values[poses]`` is the optimised batch),
+``initial_cost``, ``final_cost`` (``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``,
+``converged``, ``message``, ``history`` and ``time_s``; a graph without a prior or a fixed
+variable is a ``GaugeError`` unless ``gauge="fix_first"``. ``g.marginals(result.values, poses,
+idx)`` gives :class:`~microlie.Gaussian` marginals in the right-perturbation frame.
+Conventions: every variable is perturbed on the right (``X Exp(delta)``), every Jacobian is a
+right Jacobian, tangents are translation first.
 
 Pose-graph files: :mod:`microlie.optim.g2o`, :mod:`microlie.optim.toro` (both return a
 :class:`microlie.optim.pose_graph.PoseGraph`); initialisation: :mod:`microlie.optim.init`.
