@@ -190,20 +190,25 @@ def test_every_jacobian_against_finite_differences(G, where, side, bk, seed):
     backend_fixture_check(bk)
     rng = np.random.default_rng(seed)
     for op, args in _builders(G, rng, HARD_ANGLES[where]).items():
-        bargs = [element(G, x.params, bk) if isinstance(x, LieGroup) else to_backend(x, bk)
-                 for x in args]
-        if op == "exp":
-            f = lambda t: G.exp(t)  # noqa: E731
-            res = G.exp(bargs[0], jac=True, side=side)
-        else:
-            f = lambda *a, op=op: getattr(a[0], op)(*a[1:])  # noqa: E731
-            res = getattr(bargs[0], op)(*bargs[1:], jac=True, side=side)
-        jacs = [to_numpy(J) for J in res[1:]]
-        assert len(jacs) == len(args)
-        for i, J in enumerate(jacs):
-            J_fd = fd_jacobian(f, args, i, side=side)
-            err = np.abs(J - J_fd).max() / max(1.0, np.abs(J_fd).max())
-            assert err <= 1e-6, f"{G.__name__}.{op} d/darg{i} ({side}, {where}): {err:.2e}"
+        _check_against_fd(G, op, args, side, bk, where)
+
+
+def _check_against_fd(G, op, args, side, bk, where):
+    """``op(*args, jac=True)`` on backend ``bk`` against :func:`fd_jacobian` (NumPy)."""
+    bargs = [element(G, x.params, bk) if isinstance(x, LieGroup) else to_backend(x, bk)
+             for x in args]
+    if op == "exp":
+        f = lambda t: G.exp(t)  # noqa: E731
+        res = G.exp(bargs[0], jac=True, side=side)
+    else:
+        f = lambda *a: getattr(a[0], op)(*a[1:])  # noqa: E731
+        res = getattr(bargs[0], op)(*bargs[1:], jac=True, side=side)
+    jacs = [to_numpy(J) for J in res[1:]]
+    assert len(jacs) == len(args)
+    for i, J in enumerate(jacs):
+        J_fd = fd_jacobian(f, args, i, side=side)
+        err = np.abs(J - J_fd).max() / max(1.0, np.abs(J_fd).max())
+        assert err <= 1e-6, f"{G.__name__}.{op} d/darg{i} ({side}, {where}): {err:.2e}"
 
 
 def _hard_cases(G, rng):
@@ -237,18 +242,7 @@ def test_jacobians_at_hard_elements_against_finite_differences(G, side, bk):
     backend_fixture_check(bk)
     rng = np.random.default_rng(26)
     for name, op, args in _hard_cases(G, rng):
-        bargs = [element(G, x.params, bk) if isinstance(x, LieGroup) else to_backend(x, bk)
-                 for x in args]
-        if op == "exp":
-            f = lambda t: G.exp(t)  # noqa: E731
-            res = G.exp(bargs[0], jac=True, side=side)
-        else:
-            f = lambda *a, op=op: getattr(a[0], op)(*a[1:])  # noqa: E731
-            res = getattr(bargs[0], op)(*bargs[1:], jac=True, side=side)
-        for i, J in enumerate(to_numpy(J) for J in res[1:]):
-            J_fd = fd_jacobian(f, args, i, side=side)
-            err = np.abs(J - J_fd).max() / max(1.0, np.abs(J_fd).max())
-            assert err <= 1e-6, f"{G.__name__}.{op} d/darg{i} ({side}, {name}): {err:.2e}"
+        _check_against_fd(G, op, args, side, bk, name)
 
 
 def backend_fixture_check(bk):
