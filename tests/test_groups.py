@@ -643,28 +643,23 @@ def test_autodiff_through_log_at_exactly_pi(G, bk):
 def test_from_matrix_normalize_rejects_degenerate_matrices():
     """``normalize=True`` projects onto the nearest rotation; where that is not unique (the zero
     matrix, rank 1) it raises instead of returning the identity."""
+    def homogeneous(n, block):
+        T = np.eye(n)
+        T[:block.shape[0], :block.shape[1]] = block
+        return T
+
     rank1 = np.outer([1.0, 2.0, 3.0], [0.5, -1.0, 2.0])
-    for R in (np.zeros((3, 3)), rank1, np.stack([np.eye(3), np.zeros((3, 3))])):
-        with pytest.raises(ValueError, match="rank < 2"):
-            SO3.from_matrix(R, normalize=True)
-    T = np.eye(4)
-    T[:3, :3] = 0.0
-    with pytest.raises(ValueError, match="rank < 2"):
-        SE3.from_matrix(T, normalize=True)
-    with pytest.raises(ValueError, match="positive determinant"):
-        Sim3.from_matrix(T, normalize=True)
-    T5 = np.eye(5)
-    T5[:3, :3] = 0.0
-    with pytest.raises(ValueError, match="rank < 2"):
-        SE23.from_matrix(T5, normalize=True)
-    with pytest.raises(ValueError, match="no nearest rotation"):
-        SO2.from_matrix(np.zeros((2, 2)), normalize=True)
-    with pytest.raises(ValueError, match="no nearest rotation"):
-        SO2.from_matrix(np.array([[1.0, 2.0], [2.0, -1.0]]), normalize=True)
-    T2 = np.eye(3)
-    T2[:2, :2] = 0.0
-    with pytest.raises(ValueError, match="no nearest rotation"):
-        SE2.from_matrix(T2, normalize=True)
+    z3, z2 = np.zeros((3, 3)), np.zeros((2, 2))
+    cases = [(SO3, z3, "rank < 2"), (SO3, rank1, "rank < 2"),
+             (SO3, np.stack([np.eye(3), z3]), "rank < 2"),
+             (SE3, homogeneous(4, z3), "rank < 2"), (SE23, homogeneous(5, z3), "rank < 2"),
+             (Sim3, homogeneous(4, z3), "positive determinant"),
+             (SO2, z2, "no nearest rotation"),
+             (SO2, np.array([[1.0, 2.0], [2.0, -1.0]]), "no nearest rotation"),
+             (SE2, homogeneous(3, z2), "no nearest rotation")]
+    for G, m, match in cases:
+        with pytest.raises(ValueError, match=match):
+            G.from_matrix(m, normalize=True)
     # rank 2 still has a unique nearest rotation, and that is what is returned
     np.testing.assert_allclose(SO3.from_matrix(np.diag([1.0, 1.0, 0.0]), normalize=True)
                                .matrix(), np.eye(3), atol=1e-15)
