@@ -28,6 +28,9 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 _LAZY = {
+    "bal": ("BALProblem", "read_bal", "write_bal"),
+    "bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
+    "camera": ("BALCamera", "PinholeCamera"),
     "factors": ("BetweenFactor", "CustomFactor", "Factor", "PriorFactor"),
     "graph": ("FactorGraph", "from_pose_graph"),
     "linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
@@ -56,6 +59,9 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:
+    from .bal import BALProblem, read_bal, write_bal
+    from .bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
+    from .camera import BALCamera, PinholeCamera
     from .factors import BetweenFactor, CustomFactor, Factor, PriorFactor
     from .graph import FactorGraph, from_pose_graph
     from .linear import LinearSolver, SingularSystemError, available_solvers, make_solver
@@ -78,4 +84,5 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
            "LinearSolver", "SingularSystemError", "GaugeError", "Problem", "available_solvers",
-           "make_solver"]
+           "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
+           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera"]
