@@ -167,9 +167,13 @@ class _Null:
 
     def pinv_solve(self, P: Array, b: Array) -> Array:
         """``G b`` for matrices ``b`` ``(..., n, k)`` (differentiable in ``P`` and ``b``)."""
-        m = L.asarray(self.keep, P)
-        Pm = P * (m[..., :, None] * m[..., None, :]) + L.diag_embed(1.0 - m)
+        m, Pm = self._block(P)
         return L.solve(Pm, m[..., :, None] * b) * m[..., :, None]
+
+    def _block(self, P: Array) -> tuple[Array, Array]:
+        """The mask ``m`` in the backend of ``P`` and ``P_mm`` padded with the identity."""
+        m = L.asarray(self.keep, P)
+        return m, P * (m[..., :, None] * m[..., None, :]) + L.diag_embed(1.0 - m)
 
     def off_support(self, P: Array, e: Array) -> Array:
         """Boolean ``(...)``: the deviation ``e`` ``(..., n)`` leaves the support of ``P``."""
@@ -185,8 +189,7 @@ class _Null:
         ``det P_mm det(I + W^T W)``, ``W = P G`` on the degenerate rows (``P = T P_mm T^T`` with
         ``T = [I; W]``)."""
         n = int(P.shape[-1])
-        m = L.asarray(self.keep, P)
-        Pm = P * (m[..., :, None] * m[..., None, :]) + L.diag_embed(1.0 - m)
+        m, Pm = self._block(P)
         W = (1.0 - m)[..., :, None] * (P @ self.pinv_solve(P, L.eye(n, P)))
         return L.slogdet(Pm)[1] + L.slogdet(L.eye(n, P) + L.mT(W) @ W)[1]
 
