@@ -74,7 +74,8 @@ def camera_model(spec: str | CameraModel) -> CameraModel:
 @dataclass(frozen=True)
 class BundleProblem:
     """Cameras ``(R, t, K)`` (world to camera: ``P = R X + t``), points ``X`` and observations
-    ``(camera_index, point_index, observations)``; ``model`` projects camera-frame points."""
+    ``(camera_index, point_index, observations)``; ``model`` projects camera-frame points.
+    Arrays are stored as float64 (and intp indices), whatever the input dtype."""
 
     rotations: np.ndarray
     translations: np.ndarray
@@ -86,6 +87,14 @@ class BundleProblem:
     model: CameraModel = field(default_factory=BALCamera)
 
     def __post_init__(self) -> None:
+        # the solver works in float64 (costs of 1e6 px^2 and 1e-9 steps do not fit float32)
+        for name in ("rotations", "translations", "intrinsics", "points", "observations"):
+            object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=np.float64))
+        for name in ("camera_index", "point_index"):
+            a = np.asarray(getattr(self, name))
+            if a.size and not np.issubdtype(a.dtype, np.integer):
+                raise ValueError(f"{name} must hold integers, got {a.dtype}")
+            object.__setattr__(self, name, a.astype(np.intp))
         nc = self.rotations.shape[0] if np.ndim(self.rotations) == 3 else -1
         if np.shape(self.rotations) != (nc, 3, 3):
             raise ValueError(f"rotations must be (n_cameras, 3, 3), got {np.shape(self.rotations)}")
