@@ -9,8 +9,8 @@ Every contender starts from the file's values and runs single-threaded; the runs
 interleaved (one of each per round) and the table shows medians (min-max) and the ratio to
 microlie. Contenders:
 
-* microlie: ``microlie.optim.bundle.solve`` (BAL model, Ceres' LM rules, dense Schur), time
-  of ``solve`` (includes the sparsity analysis, excludes reading the file);
+* microlie: ``microlie.optim.bundle.bundle_adjust`` (BAL model, Ceres' LM rules, dense Schur), time
+  of ``bundle_adjust`` (includes the sparsity analysis, excludes reading the file);
 * Ceres 2.1 C++ (``benchmarks/ceres_bal/ceres_bal.cc``, built here with cmake against
   ``libceres-dev``): autodiff BAL cost, LM, SPARSE_SCHUR and DENSE_SCHUR, one thread; time
   ``Summary::total_time_in_seconds`` (excludes reading the file);
@@ -53,10 +53,10 @@ DEFAULT_FILE = ROOT / ".." / "shared" / "data" / "bal" / "problem-49-7776-pre.tx
 
 def run_microlie(path: Path, behind: str = "evaluate") -> dict:
     from microlie.optim.bal import read_bal
-    from microlie.optim.bundle import solve
+    from microlie.optim.bundle import bundle_adjust
 
     p = read_bal(path)
-    r = solve(p, behind=behind)
+    r = bundle_adjust(p, behind=behind)
     return {"time_s": r.time_s, "initial_cost": r.initial_cost, "final_cost": r.final_cost,
             "iterations": r.iterations, "accepted": r.successful_steps - 1,
             "timings": r.timings, "message": r.message}

@@ -52,20 +52,29 @@ REAL = [
 ]
 
 
-def command_times(fmt: str, gt: Path, est: Path, repeat: int) -> tuple[list[float], list[float]]:
-    """Wall times of the two whole commands, fresh processes, runs interleaved."""
+def _children_cpu() -> float:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def command_times(fmt: str, gt: Path, est: Path, repeat: int) -> list[list[float]]:
+    """Wall times of the two whole commands (fresh processes, runs interleaved) and their CPU
+    times (user + system of the finished child): ``[wall_ours, wall_evo, cpu_ours, cpu_evo]``."""
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
     ours = [sys.executable, "-m", "microlie.cli", "ape", fmt, str(gt), str(est), "-a"]
     evo = [str(EVO_BIN / "evo_ape"), fmt, str(gt), str(est), "-a", "--no_warnings"]
-    t_ours: list[float] = []
-    t_evo: list[float] = []
+    out: list[list[float]] = [[], [], [], []]
     for _ in range(repeat):
-        for cmd, acc in ((ours, t_ours), (evo, t_evo)):
+        for k, cmd in enumerate((ours, evo)):
+            c0 = _children_cpu()
             t0 = time.perf_counter()
             subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL,
                            stderr=subprocess.DEVNULL)
-            acc.append(time.perf_counter() - t0)
-    return t_ours, t_evo
+            out[k].append(time.perf_counter() - t0)
+            out[k + 2].append(_children_cpu() - c0)
+    return out
 
 
 def _median_iqr(x: list[float]) -> str:
@@ -76,11 +85,13 @@ def _median_iqr(x: list[float]) -> str:
 def command_rows(cases: list[tuple[str, str, Path, Path]], repeat: int) -> list[dict]:
     rows = []
     for label, fmt, gt, est in cases:
-        a, b = command_times(fmt, gt, est, repeat)
+        a, b, cpu_a, cpu_b = command_times(fmt, gt, est, repeat)
         ratio = np.asarray(b) / np.asarray(a)
         rows.append(dict(case=label, ours=_median_iqr(a), evo=_median_iqr(b),
                          ratio=float(np.median(ratio)), lo=float(np.percentile(ratio, 25)),
-                         hi=float(np.percentile(ratio, 75)), runs=repeat))
+                         hi=float(np.percentile(ratio, 75)), runs=repeat,
+                         cpu_ours=float(np.median(cpu_a)), cpu_evo=float(np.median(cpu_b)),
+                         cpu_ratio=float(np.median(np.asarray(cpu_b) / np.asarray(cpu_a)))))
         print(f"command {label:22s} microlie {rows[-1]['ours']:>22s}  evo {rows[-1]['evo']:>22s}"
               f"  x{rows[-1]['ratio']:.1f}", flush=True)
     return rows
@@ -94,14 +105,19 @@ def command_table(rows: list[dict]) -> str:
         "a fresh process (interpreter start, imports, reading, association, SE(3) alignment, "
         "APE, text output), the two commands alternating; median wall time with the "
         "interquartile range, and the median of the per-round ratios evo / microlie with its "
-        "interquartile range.",
+        "interquartile range. CPU: user + system seconds of each finished process (the "
+        "operating system's accounting; less sensitive to other jobs than wall time), medians "
+        "and the median per-round ratio.",
         "",
-        "| files | runs | microlie | evo | speed-up (IQR) |",
-        "|---|---|---|---|---|",
+        "| files | runs | microlie wall | evo wall | wall speed-up (IQR) | microlie CPU | "
+        "evo CPU | CPU speed-up |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(f"| {r['case']} | {r['runs']} | {r['ours']} | {r['evo']} | "
-                     f"**{r['ratio']:.1f}x** ({r['lo']:.1f}-{r['hi']:.1f}) |")
+                     f"**{r['ratio']:.1f}x** ({r['lo']:.1f}-{r['hi']:.1f}) | "
+                     f"{r['cpu_ours'] * 1e3:.0f} ms | {r['cpu_evo'] * 1e3:.0f} ms | "
+                     f"**{r['cpu_ratio']:.1f}x** |")
     return "\n".join(lines) + "\n"
 
 

@@ -339,3 +339,19 @@ def test_sample_by_sample_calls_equal_one_batch():
     np.testing.assert_allclose(pim.bias_jacobian, ref.bias_jacobian, atol=1e-11)
     with pytest.raises(ValueError, match="NaN"):
         pim.integrate([np.nan, 0.0, 0.0], [0.0, 0.0, 0.0], 0.005)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-3, 0.7, 0.999, 1.001, 2.5, 3.1])
+def test_tangent_scheme_jacobian_of_jr_times_x(angle):
+    """d (Jr(theta) x) / d theta (closed form, series below |theta| = 1) against central
+    differences of Jr (the Jacobian of the tangent scheme's rotation update)."""
+    from microlie.imu.preintegration import _djr_times
+
+    rng = np.random.default_rng(int(angle * 1000))
+    th = rng.standard_normal(3)
+    th *= angle / np.linalg.norm(th)
+    x = rng.standard_normal(3)
+    h = 1e-6
+    fd = np.stack([(SO3.jr(th + h * e) @ x - SO3.jr(th - h * e) @ x) / (2 * h)
+                   for e in np.eye(3)], -1)
+    np.testing.assert_allclose(_djr_times(th, x), fd, atol=2e-9)

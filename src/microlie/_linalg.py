@@ -203,6 +203,8 @@ def solve(a: Array, b: Array) -> Array:
 
     NumPy and torch raise their ``LinAlgError`` on an exactly singular ``a``; JAX returns
     non-finite values."""
+    if _is_np(a, b):
+        return np.linalg.solve(a, b)  # broadcasts the batch itself
     return _la("solve", *broadcast_batch(a, b))
 
 
@@ -221,10 +223,10 @@ def cholesky(a: Array) -> Array:
 
 def solve_triangular(t: Array, b: Array, *, lower: bool = True) -> Array:
     """``x`` with ``t x = b`` for triangular ``t`` ``(..., n, n)`` and ``b`` ``(..., n, k)``."""
-    t, b = broadcast_batch(t, b)
     if _is_np(t, b):
         # NumPy has no batched triangular solve: LU of a triangular matrix is backward stable
         return np.linalg.solve(t, b)
+    t, b = broadcast_batch(t, b)
     if A.is_torch(t):
         import torch
 

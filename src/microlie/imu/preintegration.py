@@ -27,6 +27,8 @@ product of the rotation increments, cumulative sums, and one matrix product for 
 from __future__ import annotations
 
 import math
+from fractions import Fraction
+from math import factorial
 from typing import Any
 
 import numpy as np
@@ -514,12 +516,37 @@ def _gamma2(w: np.ndarray) -> np.ndarray:
     return 0.5 * np.eye(3) + b * W + c * (W @ W)
 
 
-def _djr_times(theta: np.ndarray, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
-    """``d (Jr(theta) x) / d theta`` (3x3), by central differences of the closed form
-    (exact to about 1e-10; used only by the sequential tangent scheme)."""
-    out = np.empty((3, 3))
-    for i in range(3):
-        e = np.zeros(3)
-        e[i] = h
-        out[:, i] = (SO3.jr(theta + e) @ x - SO3.jr(theta - e) @ x) / (2 * h)
-    return out
+def _series(term: Any, n: int = 12) -> tuple[float, ...]:
+    return tuple(float(term(k)) for k in range(n))
+
+
+# Taylor coefficients in t^2 of the Jr coefficient a = (1 - cos t)/t^2 = sum (-1)^k t^2k/(2k+2)!
+# and of a'(t)/t and b'(t)/t (b = (t - sin t)/t^3 = sum (-1)^k t^2k/(2k+3)!)
+C_A = _series(lambda k: Fraction((-1) ** k, factorial(2 * k + 2)))
+C_DA = _series(lambda k: Fraction((-1) ** (k + 1) * 2 * (k + 1), factorial(2 * k + 4)))
+C_DB = _series(lambda k: Fraction((-1) ** (k + 1) * 2 * (k + 1), factorial(2 * k + 5)))
+
+
+def _djr_times(theta: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``d (Jr(theta) x) / d theta`` (3x3) for ``Jr(theta) x = x - a theta x x
+    + b theta x (theta x x)``, ``a = (1 - cos t)/t^2``, ``b = (t - sin t)/t^3``:
+    ``a hat(x) - (theta x x) (a'/t) theta^T + b ((theta.x) I + theta x^T - 2 x theta^T)
+    + theta x (theta x x) (b'/t) theta^T`` (series for ``a'/t``, ``b'/t`` below t = 1)."""
+    t2 = float(theta @ theta)
+    if t2 < 1.0:
+        a = _M.horner(t2, C_A)
+        b = _M.horner(t2, _M.C_T_SIN)
+        da = _M.horner(t2, C_DA)
+        db = _M.horner(t2, C_DB)
+    else:
+        t = math.sqrt(t2)
+        st, ct = math.sin(t), math.cos(t)
+        a = (1.0 - ct) / t2
+        b = (t - st) / (t2 * t)
+        da = (t * st - 2.0 * (1.0 - ct)) / (t2 * t2)
+        db = ((1.0 - ct) * t - 3.0 * (t - st)) / (t2 * t2 * t)
+    c = np.cross(theta, x)
+    cc = np.cross(theta, c)
+    return (a * _hat(x) - da * np.outer(c, theta)
+            + b * (float(theta @ x) * np.eye(3) + np.outer(theta, x) - 2.0 * np.outer(x, theta))
+            + db * np.outer(cc, theta))

@@ -9,13 +9,14 @@ jac="numerical"|"analytic"|"jax"|"torch")``, each added with ``g.add(...)``; noi
 ``Information``, ``SqrtInformation``, ``Covariance``, ``Diagonal``, ``Isotropic``; robust losses
 (``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
 ``DCS``, ``Barron``, applied as in Ceres. ``result = g.optimize(solver="lm"|"gn"|"dogleg",
-linear_solver="auto"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a :class:`Result` with
-``values`` (``result.values[poses]`` is the optimised batch), ``initial_cost``, ``final_cost``
-(``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``, ``converged``, ``message``,
-``history`` and ``time_s``. ``g.marginals(result.values, poses, idx)`` gives
-:class:`~microlie.Gaussian` marginals in the right-perturbation frame. Conventions: every
-variable is perturbed on the right (``X Exp(delta)``), every Jacobian is a right Jacobian,
-tangents are translation first.
+linear_solver="auto"|"supernodal"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
+:class:`Result` with ``values`` (``result.values[poses]`` is the optimised batch),
+``initial_cost``, ``final_cost`` (``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``,
+``converged``, ``message``, ``history`` and ``time_s``; a graph without a prior or a fixed
+variable is a ``GaugeError`` unless ``gauge="fix_first"``. ``g.marginals(result.values, poses,
+idx)`` gives :class:`~microlie.Gaussian` marginals in the right-perturbation frame.
+Conventions: every variable is perturbed on the right (``X Exp(delta)``), every Jacobian is a
+right Jacobian, tangents are translation first.
 
 Pose-graph files: :mod:`microlie.optim.g2o`, :mod:`microlie.optim.toro` (both return a
 :class:`microlie.optim.pose_graph.PoseGraph`); initialisation: :mod:`microlie.optim.init`.
@@ -27,6 +28,9 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 _LAZY = {
+    "bal": ("BALProblem", "read_bal", "write_bal"),
+    "bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
+    "camera": ("BALCamera", "PinholeCamera"),
     "factors": ("BetweenFactor", "CustomFactor", "Factor", "PriorFactor"),
     "graph": ("FactorGraph", "from_pose_graph"),
     "linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
@@ -55,6 +59,9 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:
+    from .bal import BALProblem, read_bal, write_bal
+    from .bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
+    from .camera import BALCamera, PinholeCamera
     from .factors import BetweenFactor, CustomFactor, Factor, PriorFactor
     from .graph import FactorGraph, from_pose_graph
     from .linear import LinearSolver, SingularSystemError, available_solvers, make_solver
@@ -77,4 +84,5 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
            "LinearSolver", "SingularSystemError", "GaugeError", "Problem", "available_solvers",
-           "make_solver"]
+           "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
+           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera"]

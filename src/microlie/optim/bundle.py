@@ -21,9 +21,9 @@ The gauge (7 degrees of freedom for BAL: rotation, translation, scale) is left f
 with it 6 of the 7), ``fix_points`` holds points.
 
 >>> import numpy as np
->>> from microlie.optim.bundle import synthetic_scene, solve
+>>> from microlie.optim.bundle import bundle_adjust, synthetic_scene
 >>> truth, start = synthetic_scene(n_cameras=3, n_points=40, noise=0.0, seed=1)
->>> result = solve(start, fix_cameras=[0])
+>>> result = bundle_adjust(start, fix_cameras=[0])
 >>> result.converged, result.final_cost < 1e-12
 (True, True)
 """
@@ -42,7 +42,7 @@ from .bal import BALProblem
 from .camera import BALCamera, CameraModel, PinholeCamera, reproject
 from .schur import LinearSolverKind, NormalEquations, SchurStructure
 
-__all__ = ["BundleProblem", "BundleResult", "IterationRecord", "solve", "synthetic_scene",
+__all__ = ["BundleProblem", "BundleResult", "BundleIteration", "bundle_adjust", "synthetic_scene",
            "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec", "camera_model"]
 
 
@@ -74,7 +74,8 @@ def camera_model(spec: str | CameraModel) -> CameraModel:
 @dataclass(frozen=True)
 class BundleProblem:
     """Cameras ``(R, t, K)`` (world to camera: ``P = R X + t``), points ``X`` and observations
-    ``(camera_index, point_index, observations)``; ``model`` projects camera-frame points."""
+    ``(camera_index, point_index, observations)``; ``model`` projects camera-frame points.
+    Arrays are stored as float64 (and intp indices), whatever the input dtype."""
 
     rotations: np.ndarray
     translations: np.ndarray
@@ -86,6 +87,14 @@ class BundleProblem:
     model: CameraModel = field(default_factory=BALCamera)
 
     def __post_init__(self) -> None:
+        # the solver works in float64 (costs of 1e6 px^2 and 1e-9 steps do not fit float32)
+        for name in ("rotations", "translations", "intrinsics", "points", "observations"):
+            object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=np.float64))
+        for name in ("camera_index", "point_index"):
+            a = np.asarray(getattr(self, name))
+            if a.size and not np.issubdtype(a.dtype, np.integer):
+                raise ValueError(f"{name} must hold integers, got {a.dtype}")
+            object.__setattr__(self, name, a.astype(np.intp))
         nc = self.rotations.shape[0] if np.ndim(self.rotations) == 3 else -1
         if np.shape(self.rotations) != (nc, 3, 3):
             raise ValueError(f"rotations must be (n_cameras, 3, 3), got {np.shape(self.rotations)}")
@@ -167,7 +176,7 @@ class BundleProblem:
 
 
 @dataclass(frozen=True)
-class IterationRecord:
+class BundleIteration:
     """One try: its number, the cost after it (the candidate's for a rejected try), whether it
     was accepted, the step quality ``rho``, the trust radius used and the step norm."""
 
@@ -181,13 +190,13 @@ class IterationRecord:
 
 @dataclass
 class BundleResult:
-    """Outcome of :func:`solve`, with the fields of :class:`microlie.optim.solvers.Result`:
+    """Outcome of :func:`bundle_adjust`, with the fields of :class:`microlie.optim.solvers.Result`:
     the optimised ``problem``; ``initial_cost`` / ``final_cost`` ``0.5 sum |r|^2`` in pixels
     without the robust loss, ``initial_robust_cost`` / ``final_robust_cost`` the minimised
     ``0.5 sum rho(|r|^2)`` (equal without a loss); ``iterations`` (tries, accepted or not, the
     stopping one included); ``successful_steps`` (Ceres' count: accepted steps plus iteration
     0); ``converged`` with the reason in ``message``; wall time ``time_s`` and its breakdown
-    ``timings``; ``history`` one :class:`IterationRecord` per try."""
+    ``timings``; ``history`` one :class:`BundleIteration` per try."""
 
     problem: BundleProblem
     initial_cost: float
@@ -199,7 +208,7 @@ class BundleResult:
     converged: bool
     message: str
     time_s: float
-    history: list[IterationRecord]
+    history: list[BundleIteration]
     timings: dict[str, float]
     behind: str = "evaluate"
     solver: str = "lm"
@@ -320,13 +329,14 @@ def _camera_mask(pose: np.ndarray | None, intr: np.ndarray | None, n: int, d: in
     return m
 
 
-def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: str = "evaluate",
-          fix_cameras: Sequence[int] | None = None, fix_points: Sequence[int] | None = None,
-          fix_intrinsics: Sequence[int] | bool | None = None,
-          linear_solver: LinearSolverKind = "auto", max_iter: int = 100,
-          function_tolerance: float = 1e-6, gradient_tolerance: float = 1e-10,
-          parameter_tolerance: float = 1e-8, initial_radius: float = 1e4,
-          jacobi_scaling: bool = True, verbose: bool = False) -> BundleResult:
+def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
+                  behind: str = "evaluate", fix_cameras: Sequence[int] | None = None,
+                  fix_points: Sequence[int] | None = None,
+                  fix_intrinsics: Sequence[int] | bool | None = None,
+                  linear_solver: LinearSolverKind = "auto", max_iter: int = 100,
+                  function_tolerance: float = 1e-6, gradient_tolerance: float = 1e-10,
+                  parameter_tolerance: float = 1e-8, initial_radius: float = 1e4,
+                  jacobi_scaling: bool = True, verbose: bool = False) -> BundleResult:
     """Levenberg-Marquardt bundle adjustment (Ceres' rules, module docstring).
 
     ``fix_cameras``: cameras whose *pose* is held (the gauge: one camera holds 6 of BAL's 7
@@ -436,11 +446,16 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
 
     x = problem
     cost, ne, gmax, r = linearize(x)
+    if not np.isfinite(cost):
+        bad = np.nonzero(~np.isfinite(r).all(axis=1))[0]
+        k = int(order[bad[0]]) if len(bad) else -1
+        raise ValueError(f"the initial residual of observation {k} is not finite (a point on "
+                         f"the plane of its camera, P_z = 0); use behind='drop' or move it")
     initial_cost = cost
     radius, decrease = float(initial_radius), 2.0
     diag_c = diag_p = None
     reuse = False
-    history: list[IterationRecord] = []
+    history: list[BundleIteration] = []
     it, successful = 0, 1                      # Ceres counts iteration 0 as successful
     converged, message = False, "maximum number of iterations reached"
     x_norm = -1.0                              # as Ceres: no parameter test before a step
@@ -471,7 +486,7 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             radius /= decrease
             decrease *= 2.0
             reuse = True
-            history.append(IterationRecord(it, cost, False, 0.0, radius, 0.0))
+            history.append(BundleIteration(it, cost, False, 0.0, radius, 0.0))
             tm["step"] += time.perf_counter() - ts
             continue
         dc, dp = step
@@ -482,7 +497,7 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             radius /= decrease
             decrease *= 2.0
             reuse = True
-            history.append(IterationRecord(it, cost, False, 0.0, radius, 0.0))
+            history.append(BundleIteration(it, cost, False, 0.0, radius, 0.0))
             continue
         cand = x.retract(dc, dp)
         cand_cost = evaluate(cand)
@@ -491,12 +506,12 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         step_norm = float(np.sqrt(np.sum(dc * dc) + np.sum(dp * dp)))
         if step_norm <= parameter_tolerance * (x_norm + parameter_tolerance):
             converged, message = True, "parameter tolerance reached"
-            history.append(IterationRecord(it, cand_cost, False, 0.0, radius, step_norm))
+            history.append(BundleIteration(it, cand_cost, False, 0.0, radius, step_norm))
             break
         if abs(cost - cand_cost) <= function_tolerance * cost:
             converged, message = True, (f"function tolerance reached (|cost change|/cost = "
                                         f"{abs(cost - cand_cost) / cost:.3e})")
-            history.append(IterationRecord(it, cand_cost, False, 0.0, radius, step_norm))
+            history.append(BundleIteration(it, cand_cost, False, 0.0, radius, step_norm))
             break
         rho = (cost - cand_cost) / model_change
         used_radius = radius
@@ -511,7 +526,7 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             radius /= decrease
             decrease *= 2.0
             reuse = True
-        history.append(IterationRecord(it, cand_cost, rho > 1e-3, rho, used_radius, step_norm))
+        history.append(BundleIteration(it, cand_cost, rho > 1e-3, rho, used_radius, step_norm))
         if verbose:
             print(f"iter {it:4d}  cost {cand_cost:.9e}  rho {rho:+.3e}  radius {radius:.2e}"
                   f"  {'accepted' if rho > 1e-3 else 'rejected'}", file=sys.stderr)

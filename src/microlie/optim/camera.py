@@ -215,10 +215,10 @@ def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray, cam: np.ndarra
                      pt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``P = R[cam] X[pt] + t[cam]`` for every observation; also returns the gathered ``R``
     and ``X`` (used by the Jacobians)."""
-    Rc = R[cam]
-    Xo = X[pt]
+    Rc = np.take(R, cam, axis=0)
+    Xo = np.take(X, pt, axis=0)
     P = np.matmul(Rc, Xo[:, :, None])[:, :, 0]
-    P += t[cam]
+    P += np.take(t, cam, axis=0)
     return P, Rc, Xo
 
 
@@ -234,9 +234,13 @@ def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X
     """
     if behind not in BEHIND:
         raise ValueError(f"behind must be one of {BEHIND}, got {behind!r}")
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # P_z = 0: inf cost
+        return _reproject(model, R, t, K, X, cam, pt, observed, jac, behind)
+
+
+def _reproject(model, R, t, K, X, cam, pt, observed, jac, behind):
     P, Rc, Xo = transform_points(R, t, X, cam, pt)
-    with np.errstate(divide="ignore", invalid="ignore"):   # P_z = 0 gives inf: cost inf
-        uv, JP, JK = model.project(P, K[cam], jac)
+    uv, JP, JK = model.project(P, np.take(K, cam, axis=0), jac)
     res = uv - observed
     valid = np.ones(len(cam), dtype=bool) if behind == "evaluate" else model.in_front(P)
     if not jac:

@@ -224,22 +224,26 @@ class SupernodalSolver(LinearSolver):
 def _closed(L: Any, nb: int) -> Any:
     """The symbolic Cholesky pattern containing SuperLU's numeric ``L``: SuperLU can drop an
     entry that cancelled exactly, so close the pattern under ``struct(j) - {p} <= struct(p)``
-    (``p`` the parent of ``j``)."""
+    (``p`` the parent of ``j``). The check is vectorised; the (rare) repair loops."""
     L = sp.tril(L, -1).tocsc()
     L.sort_indices()
-    struct = [L.indices[L.indptr[j]:L.indptr[j + 1]] for j in range(nb)]
-    changed = False
-    for j in range(nb):
-        sj = struct[j]
-        if sj.size > 1:
-            p = sj[0]
-            sp_ = struct[p]
-            rest = sj[1:]
-            k = np.searchsorted(sp_, rest)
-            if rest.size > sp_.size or np.any(sp_[np.minimum(k, sp_.size - 1)] != rest):
-                struct[p] = np.union1d(sp_, rest)
-                changed = True
-    if changed:
+    cols = np.repeat(np.arange(nb), np.diff(L.indptr))
+    rows = L.indices.astype(np.int64)
+    parent = np.full(nb, -1, np.int64)
+    has = np.diff(L.indptr) > 0
+    parent[has] = rows[L.indptr[:-1][has]]
+    keys = cols * nb + rows  # sorted: by column, then row
+    p = parent[cols]
+    need = rows != p
+    want = p[need] * nb + rows[need]
+    k = np.searchsorted(keys, want)
+    ok = (k < keys.size) & (keys[np.minimum(k, keys.size - 1)] == want)
+    if not ok.all():
+        struct = [rows[L.indptr[j]:L.indptr[j + 1]] for j in range(nb)]
+        for j in range(nb):
+            sj = struct[j]
+            if sj.size > 1:
+                struct[sj[0]] = np.union1d(struct[sj[0]], sj[1:])
         cnt = np.array([x.size for x in struct])
         L = sp.csc_matrix((np.ones(cnt.sum()), np.concatenate(struct),
                            np.concatenate([[0], np.cumsum(cnt)])), shape=(nb, nb))

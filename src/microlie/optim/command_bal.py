@@ -1,7 +1,7 @@
 """``microlie optimize problem.txt --format bal``: bundle adjustment of a BAL file.
 
 :func:`run_bal` is the BAL entry of :data:`microlie.optim.command.FORMATS`: it reads the file,
-runs :func:`microlie.optim.bundle.solve` (Levenberg-Marquardt with Ceres' rules on the Schur
+runs :func:`microlie.optim.bundle.bundle_adjust` (Levenberg-Marquardt with Ceres' rules on the Schur
 system, BAL camera model, points behind a camera evaluated as in the standard BAL model) and
 returns the JSON report with the pose-graph keys (``initial_cost``, ``final_cost``,
 ``iterations``, ``time_s``, ``converged``, ...). Costs are ``0.5 * sum |r|^2`` in pixels
@@ -29,7 +29,7 @@ _LINEAR: dict[str, LinearSolverKind] = {"auto": "auto", "dense": "dense", "spars
 def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     """Read, solve, write and plot one BAL problem; returns the JSON report."""
     from .bal import read_bal, write_bal
-    from .bundle import BundleProblem, plot_bundle, solve
+    from .bundle import BundleProblem, bundle_adjust, plot_bundle
 
     solver = getattr(args, "solver", "lm")
     if solver != "lm":
@@ -43,7 +43,7 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     start = BundleProblem.from_bal(bal)
     t1 = time.perf_counter()
     verbose = bool(getattr(err, "isatty", None) and err.isatty())
-    res = solve(start, robust=getattr(args, "robust", None), linear_solver=_LINEAR[linear],
+    res = bundle_adjust(start, robust=getattr(args, "robust", None), linear_solver=_LINEAR[linear],
                 max_iter=getattr(args, "max_iter", 100), verbose=verbose)
     report: dict[str, Any] = {
         "file": str(args.input),

@@ -302,7 +302,7 @@ def _make_torch(factor: CustomFactor) -> Callable[[list[Any], bool], Any]:
     groups = [var.group for var, _ in factor.args]
 
     def run(values, jac):
-        ps = [torch.as_tensor(p, dtype=torch.float64) for p in _parts(factor, values)]
+        ps = [torch.as_tensor(np.array(p, dtype=np.float64)) for p in _parts(factor, values)]
         ds = [torch.zeros((factor.count, var.dof), dtype=torch.float64, requires_grad=jac)
               for var, _ in factor.args]
         vals = [p + d if G is None else element(G, p).plus(d)

@@ -40,6 +40,10 @@ class LinearSolver:
                 block_size: int = 1) -> None:
         """See the pattern (``block_size``: the unknowns come in dense blocks of that size)."""
         self.indptr, self.indices, self.n = indptr, indices, n
+
+    def _triangles(self) -> None:
+        """CSC upper and lower triangles of the pattern (for the triangular-input backends)."""
+        indptr, indices, n = self.indptr, self.indices, self.n
         cols = np.repeat(np.arange(n), np.diff(indptr))
         self._upper = np.flatnonzero(indices <= cols)  # CSC upper triangle (= CSR lower)
         self._lower = np.flatnonzero(indices >= cols)  # CSC lower triangle (= CSR upper)
@@ -139,6 +143,7 @@ class QdldlSolver(LinearSolver):
 
     def analyse(self, indptr, indices, n, block_size=1):
         super().analyse(indptr, indices, n)
+        self._triangles()
         import qdldl  # type: ignore[import-not-found]
 
         self._mod = qdldl
@@ -168,6 +173,7 @@ class PardisoSolver(LinearSolver):
 
     def analyse(self, indptr, indices, n, block_size=1):
         super().analyse(indptr, indices, n)
+        self._triangles()
         self._ps = _pardiso_instance()
         self._A = sp.csr_matrix((np.zeros(self._lower.size), self.lower_indices,
                                  self.lower_indptr), shape=(n, n))

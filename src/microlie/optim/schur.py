@@ -102,6 +102,15 @@ class SchurStructure:
         n = self.n_cameras * self.cam_dim
         return n > DENSE_MAX or (n > DENSE_LIMIT and self.block_density < SPARSE_DENSITY)
 
+    def buffer(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        """A scratch array kept between iterations (fresh large arrays cost page faults that
+        measured as much as the arithmetic on them)."""
+        ws = self.__dict__.setdefault("_workspace", {})
+        a = ws.get(name)
+        if a is None or a.shape != shape:
+            a = ws[name] = np.empty(shape)
+        return a
+
     def point_sum(self, v: np.ndarray) -> np.ndarray:
         """Sums ``(n_points, k)`` of per-observation rows ``v`` ``(n_obs, k)`` by point."""
         out = np.empty((self.n_points, v.shape[1]))
@@ -196,8 +205,8 @@ class NormalEquations:
         if cached is not None and cached[0] is dc:
             out = cached[1].copy()                     # J_c dc from the back substitution
         else:
-            out = np.matmul(self.Jc, dc[st.cam][:, :, None])[:, :, 0]
-        out += np.einsum("rin,ni->nr", self._jp, dp[st.pt])
+            out = np.matmul(self.Jc, np.take(dc, st.cam, axis=0)[:, :, None])[:, :, 0]
+        out += np.einsum("rin,ni->nr", self._jp, np.take(dp, st.pt, axis=0))
         return out
 
     # ------------------------------------------------------------------ the damped solve
@@ -225,7 +234,7 @@ class NormalEquations:
         t2 = time.perf_counter()
         # back substitution: dp = -V^-1 (gp + Jp^T Jc dc)
         dc = dc.reshape(nc, d)
-        y = np.matmul(self.Jc, dc[st.cam][:, :, None])[:, :, 0]
+        y = np.matmul(self.Jc, np.take(dc, st.cam, axis=0)[:, :, None])[:, :, 0]
         self._jc_dc = (dc, y)
         z = np.einsum("rin,nr->ni", jp, y)
         w = gp + st.point_sum(z)
@@ -268,16 +277,17 @@ class NormalEquations:
         CiT = np.zeros((st.n_points, 3, 3))
         CiT[:, 0, 0], CiT[:, 0, 1], CiT[:, 0, 2] = i00, i10, i20
         CiT[:, 1, 1], CiT[:, 1, 2], CiT[:, 2, 2] = i11, i21, i22
-        Gt = np.matmul(self.Jp, CiT[pt])                              # (n, 2, 3)
+        Gt = np.matmul(self.Jp, np.take(CiT, pt, axis=0))                       # (n, 2, 3)
         # Z_a^T = G_a^T Jc_a (3 x d per observation): W_a V^-1 W_b^T = Z_a Z_b^T
-        Zt = np.matmul(Gt.transpose(0, 2, 1), self.Jc)                # (n, 3, d), C order
+        Zt = np.matmul(Gt.transpose(0, 2, 1), self.Jc,
+                       out=st.buffer("Zt", (st.n_obs, 3, d)))                   # (n, 3, d)
         # h = Ci gp per point: W_a V^-1 gp = Z_a h_a
         g0, g1, g2 = gp[:, 0], gp[:, 1], gp[:, 2]
         h = np.stack([i00 * g0, i10 * g0 + i11 * g1, i20 * g0 + i21 * g1 + i22 * g2], 1)
         nc = st.n_cameras
         rhs = -self.gc.copy()
         Zc = Zt.reshape(-1, d)                                       # (3n, d) by camera
-        hc = h[st.pt].reshape(-1)
+        hc = np.take(h, st.pt, axis=0).reshape(-1)
         b = st.cam_bounds
         diag = np.empty((nc, d, d))
         for c in range(nc):
@@ -292,8 +302,13 @@ class NormalEquations:
         pb = st.pair_bounds
         for i0, i1 in st.pair_chunks:
             p0, p1 = pb[i0], pb[i1]
-            Za = Zt[st.pair_a[p0:p1]].reshape(-1, d)
-            Zb = Zt[st.pair_b[p0:p1]].reshape(-1, d)
+            shape = (int(p1 - p0), 3, d)
+            # np.take into kept buffers (mode="clip": indices are valid by construction, and
+            # "raise" with out= would copy)
+            Za = np.take(Zt, st.pair_a[p0:p1], axis=0, out=st.buffer(f"Za{i0}", shape),
+                         mode="clip").reshape(-1, d)
+            Zb = np.take(Zt, st.pair_b[p0:p1], axis=0, out=st.buffer(f"Zb{i0}", shape),
+                         mode="clip").reshape(-1, d)
             for i in range(i0, i1):
                 s, e = 3 * (pb[i] - p0), 3 * (pb[i + 1] - p0)
                 np.matmul(Za[s:e].T, Zb[s:e], out=blocks[i])
