@@ -188,7 +188,8 @@ class Trajectory:
         >>> import numpy as np
         >>> from microlie.traj import Trajectory
         >>> q = np.tile([0, 0, 0, 1.0], (4, 1))
-        >>> t = Trajectory.from_arrays([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]], q, [0, 1, 2, 3.0])
+        >>> p = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]]
+        >>> t = Trajectory.from_arrays(p, q, [0, 1, 2, 3.0])
         >>> t.matrices()[1, :3, 3].tolist()
         [1.0, 0.0, 0.0]
         """
@@ -215,7 +216,8 @@ class Trajectory:
         >>> import numpy as np
         >>> from microlie.traj import Trajectory
         >>> q = np.tile([0, 0, 0, 1.0], (4, 1))
-        >>> t = Trajectory.from_arrays([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]], q, [0, 1, 2, 3.0])
+        >>> p = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]]
+        >>> t = Trajectory.from_arrays(p, q, [0, 1, 2, 3.0])
         >>> t.euler(degrees=True)[0].tolist()
         [0.0, 0.0, 0.0]
         """
@@ -234,7 +236,8 @@ class Trajectory:
         >>> import numpy as np
         >>> from microlie.traj import Trajectory
         >>> q = np.tile([0, 0, 0, 1.0], (4, 1))
-        >>> t = Trajectory.from_arrays([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]], q, [0, 1, 2, 3.0])
+        >>> p = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]]
+        >>> t = Trajectory.from_arrays(p, q, [0, 1, 2, 3.0])
         >>> t.step_lengths().tolist()
         [1.0, 1.0, 1.0]
         """
@@ -254,7 +257,8 @@ class Trajectory:
         >>> import numpy as np
         >>> from microlie.traj import Trajectory
         >>> q = np.tile([0, 0, 0, 1.0], (4, 1))
-        >>> t = Trajectory.from_arrays([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]], q, [0, 1, 2, 3.0])
+        >>> p = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]]
+        >>> t = Trajectory.from_arrays(p, q, [0, 1, 2, 3.0])
         >>> t.distances().tolist(), t.path_length
         ([0.0, 1.0, 2.0, 3.0], 3.0)
         """
@@ -385,7 +389,8 @@ class Trajectory:
         >>> import numpy as np
         >>> from microlie.traj import Trajectory
         >>> q = np.tile([0, 0, 0, 1.0], (4, 1))
-        >>> t = Trajectory.from_arrays([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]], q, [0, 1, 2, 3.0])
+        >>> p = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]]
+        >>> t = Trajectory.from_arrays(p, q, [0, 1, 2, 3.0])
         >>> t.subset([0, 3]).positions.tolist()
         [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]
         """
@@ -413,7 +418,8 @@ class Trajectory:
         >>> import numpy as np
         >>> from microlie.traj import Trajectory
         >>> q = np.tile([0, 0, 0, 1.0], (4, 1))
-        >>> t = Trajectory.from_arrays([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]], q, [0, 1, 2, 3.0])
+        >>> p = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]]
+        >>> t = Trajectory.from_arrays(p, q, [0, 1, 2, 3.0])
         >>> t.crop(0.5, 2.0).timestamps.tolist()
         [1.0, 2.0]
         """
@@ -561,7 +567,8 @@ class Trajectory:
         >>> import numpy as np
         >>> from microlie.traj import Trajectory
         >>> q = np.tile([0, 0, 0, 1.0], (4, 1))
-        >>> t = Trajectory.from_arrays([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]], q, [0, 1, 2, 3.0])
+        >>> p = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1.0]]
+        >>> t = Trajectory.from_arrays(p, q, [0, 1, 2, 3.0])
         >>> t.with_name("estimate").name
         'estimate'
         """
