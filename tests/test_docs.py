@@ -150,9 +150,10 @@ def test_documented(label, obj, kind, owner):
 
 
 def test_gap_list_is_current():
-    """Every listed gap is a real public callable that is still undocumented."""
+    """Every listed gap that is still public is still undocumented (a name that is gone
+    from the API is ignored)."""
     labels = {p[0]: p for p in PUBLIC}
-    stale = sorted(g for g in GAPS if g not in labels or not _problems(*labels[g][1:]))
+    stale = sorted(g for g in GAPS if g in labels and not _problems(*labels[g][1:]))
     assert not stale, f"remove from tests/docs_gaps.txt (documented or gone): {stale}"
 
 
