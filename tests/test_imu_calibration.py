@@ -57,6 +57,24 @@ def test_no_worse_than_opencv_on_the_same_noisy_poses():
         assert ours_mean[0] <= ref[0] and ours_mean[1] <= ref[1], (m, ours_mean, ref)
 
 
+def test_robot_world_no_worse_than_opencv_on_the_same_noisy_poses():
+    """AX = YB (X camera-to-gripper, Y target-to-base) against OpenCV's
+    calibrateRobotWorldHandEye (Shah, Li): mean rotation and translation errors of both."""
+    ours, theirs = [], {m: [] for m in ("SHAH", "LI")}
+    for k in range(1, len(FIX["X"])):
+        X, W, G, C = (SE3(FIX[n][k]) for n in ("X", "W", "G", "C"))
+        est = hand_eye_robot_world(G, C.inverse(), b_noise="left").mean
+        ex, ew = est.part(0), est.part(1)
+        ours.append(_errors(X, ex.rotation().matrix(), ex.translation())
+                    + _errors(W, ew.rotation().matrix(), ew.translation()))
+        for m in theirs:
+            theirs[m].append(_errors(X, FIX[f"RX_{m}"][k], FIX[f"tX_{m}"][k])
+                             + _errors(W, FIX[f"RW_{m}"][k], FIX[f"tW_{m}"][k]))
+    mine = np.mean(ours, 0)
+    for m, v in theirs.items():
+        assert np.all(mine <= np.mean(v, 0)), (m, mine, np.mean(v, 0))
+
+
 def _synthetic(rng, n=15, sigma=1e-3):
     X = SE3.exp(np.r_[0.1 * rng.standard_normal(3), 0.5 * rng.standard_normal(3)])
     W = SE3.exp(np.r_[rng.standard_normal(3), 0.5 * rng.standard_normal(3)])
@@ -89,5 +107,7 @@ def test_degenerate_and_bad_input():
         hand_eye(SE3.random(3, rng=0), SE3.random(4, rng=0))
     with pytest.raises(TypeError, match="SE3"):
         hand_eye(SO3.random(3, rng=0), SO3.random(3, rng=0))
+    with pytest.raises(ValueError, match="b_noise"):
+        hand_eye_robot_world(SE3.random(4, rng=0), SE3.random(4, rng=1), b_noise="up")
     with pytest.raises(ValueError, match="pairs"):
         motions_from_poses(SE3.random(4, rng=0), SE3.random(4, rng=1), pairs="some")

@@ -20,11 +20,11 @@ perturbation) whose covariance is the inverse Gauss-Newton information scaled by
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
-from .groups import SE3, SO3, Product
+from .groups import SE3, SO3, Product, ProductGroup
 from .uncertainty import Gaussian
 
 __all__ = ["hand_eye", "hand_eye_from_poses", "hand_eye_robot_world", "motions_from_poses"]
@@ -178,11 +178,15 @@ def _closed_form_axyb(A: SE3, B: SE3) -> tuple[SE3, SE3]:
     return X, Y  # type: ignore[return-value]
 
 
-def hand_eye_robot_world(A: SE3, B: SE3, iterations: int = 20) -> Gaussian:
+def hand_eye_robot_world(A: SE3, B: SE3, iterations: int = 20, b_noise: str = "right"
+                         ) -> Gaussian:
     """Solve ``A_i X = Y B_i`` for ``X`` and ``Y`` (robot-world/hand-eye: with ``A_i`` the
     gripper-to-base poses and ``B_i`` the camera-to-target poses, ``X`` is camera-to-gripper
     and ``Y`` target-to-base). Returns a ``Gaussian`` on ``Product(SE3, SE3)`` with mean
-    ``(X, Y)`` (tangent ``(x, y)``, right perturbation).
+    ``(X, Y)`` (tangent ``(x, y)``, right perturbation). The weights assume independent, equal
+    noise on every ``A_i`` (right perturbation) and ``B_i`` (``b_noise="right"``, or
+    ``"left"`` when the ``B_i`` are inverses of right-perturbed poses, as with
+    ``B_i = C_i^-1`` for target-to-camera poses ``C_i``).
 
     >>> import numpy as np
     >>> from microlie import SE3
@@ -197,8 +201,11 @@ def hand_eye_robot_world(A: SE3, B: SE3, iterations: int = 20) -> Gaussian:
     A, B = _check_pairs(A, B, "hand_eye_robot_world")
     if len(A) < 3:
         raise ValueError("hand_eye_robot_world: at least 3 pairs are needed")
+    if b_noise not in ("right", "left"):
+        raise ValueError(f"b_noise must be 'right' or 'left', got {b_noise!r}")
     X0, Y0 = _closed_form_axyb(A, B)
-    X, Y, cov = _refine_ml(A, B, X0, Y0, None, iterations)
+    Bmap = None if b_noise == "right" else np.asarray(B.inverse().adjoint())
+    X, Y, cov = _refine_ml(A, B, X0, Y0, Bmap, iterations)
     return Gaussian(Product(SE3, SE3).from_parts(X, Y), cov, frame="right")
 
 
@@ -245,10 +252,10 @@ def hand_eye_from_poses(gripper2base: SE3, target2cam: SE3, iterations: int = 20
     """Camera-to-gripper ``X`` from the poses OpenCV's ``calibrateHandEye`` takes:
     gripper-to-base ``G_i`` and target-to-camera ``C_i``, with ``G_i X C_i = W`` (the fixed
     target-to-base) for every pose. Solved as ``A_i X = W B_i`` with ``A_i = G_i``,
-    ``B_i = C_i^-1``: a closed-form start, then maximum likelihood for independent, equal
-    right-perturbation noise on every ``G_i`` and ``C_i`` (translation and rotation levels
-    fitted to the residuals). Returns the ``Gaussian`` of ``X`` (marginal of the joint
-    ``(X, W)`` estimate).
+    ``B_i = C_i^-1`` by :func:`hand_eye_robot_world` (``b_noise="left"``): maximum
+    likelihood for independent, equal right-perturbation noise on every ``G_i`` and ``C_i``
+    (translation and rotation levels fitted to the residuals). Returns the ``Gaussian`` of
+    ``X`` (marginal of the joint ``(X, W)`` estimate).
 
     >>> import numpy as np
     >>> from microlie import SE3
@@ -262,8 +269,6 @@ def hand_eye_from_poses(gripper2base: SE3, target2cam: SE3, iterations: int = 20
     G, C = _check_pairs(gripper2base, target2cam, "hand_eye_from_poses")
     if len(G) < 3:
         raise ValueError("hand_eye_from_poses: at least 3 poses are needed")
-    A, B = G, C.inverse()
-    X0 = hand_eye(*motions_from_poses(G, C)).mean
-    W0 = SE3(np.asarray((A @ X0 @ B.inverse()).params)[0])
-    X, _, cov = _refine_ml(A, B, X0, W0, np.asarray(C.adjoint()), iterations)  # type: ignore
-    return Gaussian(X, cov[:6, :6], frame="right")
+    joint = hand_eye_robot_world(G, C.inverse(), iterations, b_noise="left")
+    mean = cast(ProductGroup, joint.mean)
+    return Gaussian(mean.part(0), joint.cov[..., :6, :6], frame="right")

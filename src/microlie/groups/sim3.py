@@ -230,29 +230,34 @@ class Sim3(Pose):
         ], -1)
 
     # ------------------------------------------------------------------ range checks
+    # Every tangent vector that enters (exp, jr, jr_inv, jl, plus, ...) passes through
+    # _tangent; every one that leaves (log, minus, lminus) is checked on the way out.
     @classmethod
-    def exp(cls, tau: Any, jac: bool = False, side: str = "right"):  # noqa: D102
-        return super().exp(_checked_sigma(tau, 6), jac=jac, side=side)
+    def _tangent(cls, tau: Any, like: Array | None = None) -> Array:
+        t = super()._tangent(tau, like)
+        check_sigma(t, "tangent vector")
+        return t
 
-    exp.__doc__ = Pose.exp.__doc__
-
-    @classmethod
-    def jr(cls, tau: Any) -> Array:  # noqa: D102
-        return super().jr(_checked_sigma(tau, 6))
-
-    jr.__doc__ = Pose.jr.__doc__
-
-    @classmethod
-    def jr_inv(cls, tau: Any) -> Array:  # noqa: D102
-        return super().jr_inv(_checked_sigma(tau, 6))
-
-    jr_inv.__doc__ = Pose.jr_inv.__doc__
-
-    def log(self, jac: bool = False, side: str = "right"):  # noqa: D102
-        check_scale_range(self.params[..., 7])
-        return super().log(jac=jac, side=side)
+    def log(self, jac: bool = False, side: Any = "right") -> Any:  # noqa: D102
+        out = super().log(jac=jac, side=side)
+        check_sigma(out[0] if jac else out, "Log")
+        return out
 
     log.__doc__ = Pose.log.__doc__
+
+    def minus(self, other: Any, jac: bool = False, side: Any = "right") -> Any:  # noqa: D102
+        out = super().minus(other, jac=jac, side=side)
+        check_sigma(out[0] if jac else out, "minus")
+        return out
+
+    minus.__doc__ = Pose.minus.__doc__
+
+    def lminus(self, other: Any, jac: bool = False, side: Any = "right") -> Any:  # noqa: D102
+        out = super().lminus(other, jac=jac, side=side)
+        check_sigma(out[0] if jac else out, "lminus")
+        return out
+
+    lminus.__doc__ = Pose.lminus.__doc__
 
     # ------------------------------------------------------------------ primitives
     @staticmethod
@@ -388,29 +393,16 @@ def _assemble(A: tuple, top: tuple, J: tuple, like: Any) -> tuple:
             + ((z, z, z, z, z, z, z + 1.0),))
 
 
-# the scales of |sigma| <= SIGMA_MAX, with room for the rounding of exp
-_S_MIN, _S_MAX = float(np.exp(-SIGMA_MAX)) * (1 - 1e-12), float(np.exp(SIGMA_MAX)) * (1 + 1e-12)
-
-
-def _checked_sigma(tau: Any, i: int) -> Array:
-    """``tau`` as an array, after checking ``|tau[..., i]| <= SIGMA_MAX`` (skipped when traced)."""
-    t = A.as_float_array(tau)
-    if t.ndim and t.shape[-1] > i:
-        x = L.concrete(t[..., i])
-        m = float(np.max(np.abs(x))) if x is not None and x.size else 0.0
-        if SIGMA_MAX < m < np.inf:  # NaN and inf: the finiteness check reports them
-            raise ValueError(
-                f"Sim3: |sigma| = {m:.6g} exceeds SIGMA_MAX = "
-                f"{SIGMA_MAX:g} (scales beyond e^{SIGMA_MAX:g}), outside the verified range")
-    return t
-
-
-def check_scale_range(s: Array) -> None:
-    """``|log s| <= SIGMA_MAX`` (skipped when traced)."""
-    x = L.concrete(s)
-    if x is None or not x.size:
-        return
-    lo, hi = float(np.min(x)), float(np.max(x))
-    if lo < _S_MIN or hi > _S_MAX:
-        raise ValueError(f"Sim3: |log s| exceeds SIGMA_MAX = {SIGMA_MAX:g} (scale {hi:.6g} or "
-                         f"{lo:.6g} beyond e^+-{SIGMA_MAX:g}), outside the verified range")
+def check_sigma(tau: Array, what: str) -> None:
+    """``ValueError`` unless ``|sigma| <= SIGMA_MAX`` for every Sim3 tangent in ``tau``
+    (``(..., 7)``); a NaN or infinite sigma out of a Log fails too. Skipped when traced."""
+    if type(tau) is np.ndarray and tau.ndim == 1:
+        m = abs(float(tau[6]))
+    else:
+        x = L.concrete(tau[..., 6])
+        if x is None or not x.size:
+            return
+        m = float(np.max(np.abs(x)))
+    if not m <= SIGMA_MAX * (1.0 + 1e-12):  # room for the rounding of log(exp(50))
+        raise ValueError(f"Sim3 {what}: |sigma| = {m:.6g} exceeds SIGMA_MAX = {SIGMA_MAX:g} "
+                         f"(scales beyond e^+-{SIGMA_MAX:g}), outside the verified range")

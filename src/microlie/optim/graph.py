@@ -19,6 +19,11 @@ __all__ = ["FactorGraph", "from_pose_graph"]
 class FactorGraph:
     """Variables stored per type as batches, factors stored and evaluated per type as batches.
 
+    Build one with no arguments, then add variable batches (``add_variables``) and factor
+    batches (``add``), and call ``optimize``.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE2
     >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor, Diagonal

@@ -10,6 +10,8 @@ would make the Gauss-Newton matrix indefinite.
 ``scale`` is ``c`` in the residual's units (whitened, i.e. in standard deviations): residuals
 with ``|e|`` above about ``c`` are down-weighted.
 
+Examples
+--------
 >>> import numpy as np
 >>> h = Huber(1.0)
 >>> [float(v) for v in h.rho(np.array([0.25, 4.0]))]
