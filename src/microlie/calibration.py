@@ -47,11 +47,32 @@ def _project_so3(M: np.ndarray) -> np.ndarray:
 
 def motions_from_poses(gripper2base: SE3, target2cam: SE3, pairs: str = "all"
                        ) -> tuple[SE3, SE3]:
-    """Relative motions ``A_ij = G_j^-1 G_i``, ``B_ij = C_j C_i^-1`` of pose pairs ``i < j``
-    (``pairs="all"``, as OpenCV's methods use them) or consecutive ones
-    (``pairs="consecutive"``), with ``G`` gripper-to-base and ``C`` target-to-camera poses as
-    OpenCV's ``calibrateHandEye`` takes them; ``A X = X B`` then holds for ``X`` =
-    camera-to-gripper."""
+    """Relative motions ``A_ij = G_j^-1 G_i``, ``B_ij = C_j C_i^-1`` of pose pairs.
+
+    With ``G`` gripper-to-base and ``C`` target-to-camera poses (as OpenCV's
+    ``calibrateHandEye`` takes them), ``A X = X B`` holds for ``X`` = camera-to-gripper.
+
+    Parameters
+    ----------
+    gripper2base, target2cam : SE3
+        1-D batches of the same length (at least 3).
+    pairs : {"all", "consecutive"}
+        Every pair ``i < j`` (as OpenCV's methods use them) or consecutive poses only.
+
+    Returns
+    -------
+    A, B : SE3
+        The paired motions.
+
+    Examples
+    --------
+    >>> from microlie import SE3
+    >>> from microlie.calibration import motions_from_poses
+    >>> A, B = motions_from_poses(SE3.random(5, rng=0), SE3.random(5, rng=1))
+    >>> A.batch_shape, motions_from_poses(SE3.random(5, rng=0), SE3.random(5, rng=1),
+    ...                                   "consecutive")[0].batch_shape
+    ((10,), (4,))
+    """
     G, C = _check_pairs(gripper2base, target2cam, "motions_from_poses")
     if len(G) < 3:
         raise ValueError("motions_from_poses: at least 3 poses are needed")
@@ -130,9 +151,24 @@ def _refine(A: SE3, B: SE3, X: SE3, Y: SE3 | None, iterations: int) -> tuple:
 
 
 def hand_eye(A: SE3, B: SE3, iterations: int = 20) -> Gaussian:
-    """Solve ``A_i X = X B_i`` for ``X`` (see the module docstring). Returns a ``Gaussian``
-    (mean ``X``, 6x6 right-perturbation covariance, tangent ``(rho, phi)``).
+    """Solve ``A_i X = X B_i`` for ``X``: Park and Martin's closed form, then Gauss-Newton
+    with the rotation and translation residuals weighted by their spread.
 
+    Parameters
+    ----------
+    A, B : SE3
+        1-D batches of paired motions (at least 2, rotations about two non-parallel axes).
+    iterations : int
+        Gauss-Newton iterations at most.
+
+    Returns
+    -------
+    Gaussian
+        Mean ``X``, 6x6 right-perturbation covariance (tangent ``(rho, phi)``) scaled by the
+        residual spread.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE3
     >>> from microlie.calibration import hand_eye
@@ -182,12 +218,29 @@ def hand_eye_robot_world(A: SE3, B: SE3, iterations: int = 20, b_noise: str = "r
                          ) -> Gaussian:
     """Solve ``A_i X = Y B_i`` for ``X`` and ``Y`` (robot-world/hand-eye: with ``A_i`` the
     gripper-to-base poses and ``B_i`` the camera-to-target poses, ``X`` is camera-to-gripper
-    and ``Y`` target-to-base). Returns a ``Gaussian`` on ``Product(SE3, SE3)`` with mean
-    ``(X, Y)`` (tangent ``(x, y)``, right perturbation). The weights assume independent, equal
-    noise on every ``A_i`` (right perturbation) and ``B_i`` (``b_noise="right"``, or
-    ``"left"`` when the ``B_i`` are inverses of right-perturbed poses, as with
-    ``B_i = C_i^-1`` for target-to-camera poses ``C_i``).
+    and ``Y`` target-to-base): Kronecker null-space closed form, then maximum likelihood.
 
+    The weights assume independent, equal noise on every ``A_i`` (right perturbation) and
+    ``B_i``, with translation and rotation levels fitted to the residuals.
+
+    Parameters
+    ----------
+    A, B : SE3
+        1-D batches of the same length (at least 3).
+    iterations : int
+        Gauss-Newton iterations at most.
+    b_noise : {"right", "left"}
+        Side of the noise on ``B_i``: ``"left"`` when the ``B_i`` are inverses of
+        right-perturbed poses (``B_i = C_i^-1`` for target-to-camera poses ``C_i``).
+
+    Returns
+    -------
+    Gaussian
+        On ``Product(SE3, SE3)``: mean ``(X, Y)``, 12x12 right-perturbation covariance
+        (tangent ``(x, y)``).
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE3
     >>> from microlie.calibration import hand_eye_robot_world
@@ -249,14 +302,28 @@ def _refine_ml(A: SE3, B: SE3, X: SE3, Y: SE3, Bmap: np.ndarray | None,
 
 
 def hand_eye_from_poses(gripper2base: SE3, target2cam: SE3, iterations: int = 20) -> Gaussian:
-    """Camera-to-gripper ``X`` from the poses OpenCV's ``calibrateHandEye`` takes:
-    gripper-to-base ``G_i`` and target-to-camera ``C_i``, with ``G_i X C_i = W`` (the fixed
-    target-to-base) for every pose. Solved as ``A_i X = W B_i`` with ``A_i = G_i``,
-    ``B_i = C_i^-1`` by :func:`hand_eye_robot_world` (``b_noise="left"``): maximum
-    likelihood for independent, equal right-perturbation noise on every ``G_i`` and ``C_i``
-    (translation and rotation levels fitted to the residuals). Returns the ``Gaussian`` of
-    ``X`` (marginal of the joint ``(X, W)`` estimate).
+    """Camera-to-gripper ``X`` from the poses OpenCV's ``calibrateHandEye`` takes.
 
+    ``G_i X C_i = W`` (the fixed target-to-base) holds for every pose; it is solved as
+    ``A_i X = W B_i`` with ``A_i = G_i``, ``B_i = C_i^-1`` by :func:`hand_eye_robot_world`
+    (``b_noise="left"``): maximum likelihood for independent, equal right-perturbation noise
+    on every ``G_i`` and ``C_i``.
+
+    Parameters
+    ----------
+    gripper2base, target2cam : SE3
+        1-D batches of the same length (at least 3).
+    iterations : int
+        Gauss-Newton iterations at most.
+
+    Returns
+    -------
+    Gaussian
+        Mean ``X`` with its 6x6 right-perturbation covariance (the marginal of the joint
+        ``(X, W)`` estimate).
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE3
     >>> from microlie.calibration import hand_eye_from_poses

@@ -28,13 +28,27 @@ __all__ = ["ImuFactor", "BiasRandomWalkFactor"]
 
 
 class ImuFactor(Factor):
-    """IMU factors ``(X_i, X_j, b_i)`` for ``m`` keyframe pairs.
+    """IMU factors ``(X_i, X_j, b_i)`` for ``m`` keyframe pairs, weighted by each
+    preintegration's covariance, with analytic right Jacobians.
 
-    ``states`` is an ``SE23`` variable handle, ``biases`` an ``(n, 6)`` vector handle
-    (``(b_g, b_a)``), ``i``/``j`` index arrays of the state pairs (the bias of state ``i`` is
-    used), ``pims`` one :class:`Preintegration` per pair. The noise is each preintegration's
-    covariance; ``loss`` a robust loss as for every factor.
+    Parameters
+    ----------
+    states : Variables
+        An ``SE23`` variable handle (navigation states).
+    biases : Variables
+        An ``(n, 6)`` vector variable handle, rows ``(b_g, b_a)``; the bias of state ``i``
+        is used.
+    i, j : array_like of int
+        Indices of the state pairs.
+    pims : sequence of Preintegration
+        One per pair (all of one scheme, gravity and Coriolis setting).
+    error : {"forster", "logmap"}
+        Forster et al. eq. 45, or GTSAM 4.3's default ``Log(X_pred^-1 X_j)``.
+    loss : RobustLoss or str, optional
+        A robust loss as for every factor.
 
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE23
     >>> from microlie.imu import ImuFactor, Preintegration
@@ -90,8 +104,30 @@ class ImuFactor(Factor):
 class BiasRandomWalkFactor(Factor):
     """``r = b_j - b_i`` between bias variables, noise ``diag(s_gw^2 I, s_aw^2 I) dt``.
 
-    ``gyro_walk``, ``accel_walk``: random-walk densities (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz));
-    ``dt``: time between the keyframes (scalar or one per pair)."""
+    Parameters
+    ----------
+    biases : Variables
+        An ``(n, 6)`` vector variable handle, rows ``(b_g, b_a)``.
+    i, j : array_like of int
+        Indices of the consecutive biases.
+    gyro_walk, accel_walk : float
+        Random-walk densities (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)), positive.
+    dt : float or array_like
+        Time between the keyframes (scalar or one per pair), positive.
+    loss : RobustLoss or str, optional
+        A robust loss as for every factor.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.imu import BiasRandomWalkFactor
+    >>> from microlie.optim import FactorGraph
+    >>> g = FactorGraph()
+    >>> b = g.add_variables(np.array([[0.0] * 6, [1e-4] * 3 + [0.0] * 3]))
+    >>> _ = g.add(BiasRandomWalkFactor(b, [0], [1], 1e-4, 1e-3, 1.0))
+    >>> round(g.cost(), 6)  # 0.5 * 3 * (1e-4 / 1e-4)^2
+    1.5
+    """
 
     def __init__(self, biases: Variables, i: Any, j: Any, gyro_walk: float, accel_walk: float,
                  dt: Any, loss: Any = None) -> None:

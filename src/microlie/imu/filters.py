@@ -165,10 +165,24 @@ class _ImuFilter:
 class ErrorStateEKF(_ImuFilter):
     """Error-state EKF on ``Product(SO3, R(3), R(3), R(3), R(3))`` (see the module docstring).
 
-    ``state`` is an element of that product (attitude, position, velocity, b_g, b_a), batched
-    over leading axes to run many filters at once; ``cov`` (``(..., 15, 15)``) in the tangent
-    order ``(dtheta, dp, dv, db_g, db_a)``; ``side`` the attitude error side.
+    Parameters
+    ----------
+    state : Product(SO3, R(3), R(3), R(3), R(3))
+        The initial estimate (attitude, position, velocity, b_g, b_a), batched over leading
+        axes to run many filters at once.
+    cov : array_like
+        ``(..., 15, 15)`` initial covariance, tangent order ``(dtheta, dp, dv, db_g, db_a)``.
+    gyro_noise, accel_noise : float
+        White-noise densities (rad/s/sqrt(Hz), m/s^2/sqrt(Hz)).
+    gyro_walk, accel_walk : float
+        Bias random-walk densities (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)).
+    gravity : array_like
+        Gravity in the navigation frame (default ``(0, 0, -9.81)``).
+    side : {"right", "left"}
+        Attitude error ``R_hat Exp(dtheta)`` (local) or ``Exp(dtheta) R_hat`` (global).
 
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
     >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
@@ -238,6 +252,19 @@ class InvariantEKF(_ImuFilter):
     ``X = Exp(xi) X_hat`` on SE_2(3) (``side="left"``), tangent order
     ``(rho, phi, nu, db_g, db_a)``.
 
+    Parameters
+    ----------
+    state : Product(SE23, R(3), R(3))
+        The initial estimate (navigation state, b_g, b_a), batched over leading axes.
+    cov : array_like
+        ``(..., 15, 15)`` initial covariance in the tangent order above.
+    gyro_noise, accel_noise, gyro_walk, accel_walk : float
+        Noise and bias random-walk densities, as for :class:`ErrorStateEKF`.
+    gravity : array_like
+        Gravity in the navigation frame (default ``(0, 0, -9.81)``).
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie.imu.filters import InvariantEKF, IEKF_STATE
     >>> f = InvariantEKF(IEKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,

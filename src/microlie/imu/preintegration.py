@@ -122,21 +122,38 @@ def _cumsum0(x: np.ndarray) -> np.ndarray:
 
 
 class Preintegration:
-    """Preintegrated IMU measurements between two keyframes.
+    """Preintegrated IMU measurements between two keyframes (see the module docstring).
 
-    ``gyro_noise`` and ``accel_noise`` are white-noise densities (rad/s/sqrt(Hz) and
-    m/s^2/sqrt(Hz); scalars or one per axis), ``bias_gyro`` and ``bias_accel`` the biases the
-    samples are corrected with (length-3). ``gravity`` (default ``(0, 0, -9.81)``, z up) and
-    ``omega_coriolis`` (the earth rate in the navigation frame, off by default: the exact
-    rotating-frame prediction of GTSAM 4.3) enter :meth:`predict` and the IMU factor.
-    ``scheme`` is ``"manifold"`` (Forster) or ``"tangent"``
-    (GTSAM's default class).
+    Parameters
+    ----------
+    gyro_noise, accel_noise : float or array_like
+        White-noise densities (rad/s/sqrt(Hz), m/s^2/sqrt(Hz)); scalars or one per axis.
+    bias_gyro, bias_accel : array_like
+        The length-3 biases the samples are corrected with.
+    gravity : array_like
+        Gravity in the navigation frame (default ``(0, 0, -9.81)``, z up); used by
+        :meth:`predict` and the IMU factor.
+    omega_coriolis : array_like, optional
+        The earth rate in the navigation frame (off by default): the exact rotating-frame
+        prediction of GTSAM 4.3.
+    scheme : {"manifold", "tangent"}
+        Forster's product of exponentials, or GTSAM's default tangent-space class.
 
-    Attributes after :meth:`integrate`: ``delta_rotation`` (an ``SO3``), ``delta_velocity``,
-    ``delta_position`` (3,), ``dt`` (total time), ``covariance`` (9x9, tangent order
-    ``(dphi, dv, dp)``, see the module docstring), ``bias_jacobian`` (9x6: rows
-    ``(dphi, dv, dp)``, columns ``(bias_gyro, bias_accel)``).
+    Attributes
+    ----------
+    delta_rotation : SO3
+        ``dR_ij``.
+    delta_velocity, delta_position : numpy.ndarray
+        ``dv_ij``, ``dp_ij`` (3,), in the frame of keyframe ``i``.
+    dt : float
+        The integrated time.
+    covariance : numpy.ndarray
+        9x9, tangent order ``(dphi, dv, dp)``.
+    bias_jacobian : numpy.ndarray
+        9x6: rows ``(dphi, dv, dp)``, columns ``(bias_gyro, bias_accel)``.
 
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie.imu import Preintegration
     >>> pim = Preintegration(gyro_noise=1.7e-4, accel_noise=2e-3, bias_gyro=np.zeros(3),
@@ -165,7 +182,18 @@ class Preintegration:
         self.reset()
 
     def reset(self) -> None:
-        """Forget every sample (keep the noise, biases and options)."""
+        """Forget every sample (keep the noise, biases and options).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu import Preintegration
+        >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2)
+        >>> _ = pim.integrate(np.ones((5, 3)), np.ones((5, 3)), 0.01)
+        >>> pim.reset()
+        >>> pim.count, pim.dt
+        (0, 0.0)
+        """
         self._q = np.array([0.0, 0.0, 0.0, 1.0])
         self._theta = np.zeros(3)  # tangent scheme: the rotation vector of dR
         self._dv = np.zeros(3)
@@ -229,8 +257,34 @@ class Preintegration:
 
     # ------------------------------------------------------------------ integration
     def integrate(self, accel: Any, gyro: Any, dt: Any) -> Preintegration:
-        """Add samples: ``accel`` and ``gyro`` of shape ``(N, 3)`` (or ``(3,)`` for one
-        sample), ``dt`` a scalar or ``(N,)`` (seconds, > 0). Returns ``self``."""
+        """Add samples (callable repeatedly; single samples are buffered and integrated
+        together when a result is read).
+
+        Parameters
+        ----------
+        accel, gyro : array_like
+            ``(N, 3)`` specific force (m/s^2) and angular rate (rad/s) in the body frame, or
+            ``(3,)`` for one sample.
+        dt : float or array_like
+            Sample period(s), a scalar or ``(N,)`` (s, > 0); sample ``k`` acts for ``dt_k``.
+
+        Returns
+        -------
+        Preintegration
+            ``self``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu import Preintegration
+        >>> pim = Preintegration(gyro_noise=1.7e-4, accel_noise=2e-3, bias_gyro=np.zeros(3),
+        ...                      bias_accel=np.zeros(3))
+        >>> n = 200  # one second at 200 Hz, turning at 0.5 rad/s about z, accelerating 1 m/s^2 in x
+        >>> _ = pim.integrate(np.tile([1.0, 0, 0], (n, 1)), np.tile([0, 0, 0.5], (n, 1)), 0.005)
+        >>> _ = pim.integrate([1.0, 0.0, 0.0], [0.0, 0.0, 0.5], 0.005)  # one more sample
+        >>> pim.count
+        201
+        """
         if self.scheme == "manifold" and getattr(accel, "ndim", 1) == 1 and \
                 getattr(gyro, "ndim", 1) == 1 and np.ndim(dt) == 0:
             row = _sample_row(accel, gyro, dt)
@@ -433,9 +487,32 @@ class Preintegration:
 
     # ------------------------------------------------------------------ bias correction
     def correct(self, bias_gyro: Any, bias_accel: Any) -> tuple[SO3, np.ndarray, np.ndarray]:
-        """The deltas ``(dR, dv, dp)`` for other biases, to first order: ``dR Exp(J_Rg db_g)``,
+        """The deltas for other biases, to first order: ``dR Exp(J_Rg db_g)``,
         ``dv + J_vg db_g + J_va db_a``, ``dp + J_pg db_g + J_pa db_a`` (the tangent scheme
-        corrects its rotation vector linearly instead, as GTSAM does)."""
+        corrects its rotation vector linearly instead, as GTSAM does).
+
+        Parameters
+        ----------
+        bias_gyro, bias_accel : array_like
+            The new length-3 biases.
+
+        Returns
+        -------
+        dR : SO3
+        dv, dp : numpy.ndarray
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu import Preintegration
+        >>> pim = Preintegration(gyro_noise=1.7e-4, accel_noise=2e-3, bias_gyro=np.zeros(3),
+        ...                      bias_accel=np.zeros(3))
+        >>> n = 200  # one second at 200 Hz, turning at 0.5 rad/s about z, accelerating 1 m/s^2 in x
+        >>> _ = pim.integrate(np.tile([1.0, 0, 0], (n, 1)), np.tile([0, 0, 0.5], (n, 1)), 0.005)
+        >>> dR, dv, dp = pim.correct([0.0, 0.0, 0.01], [0.0, 0.0, 0.0])
+        >>> round(float(dR.log()[2]), 9)  # 0.01 rad/s less of rate over 1 s
+        0.49
+        """
         self._flush()
         db = np.concatenate([_vec3(bias_gyro, "bias_gyro") - self.bias_gyro,
                              _vec3(bias_accel, "bias_accel") - self.bias_accel])
@@ -448,9 +525,30 @@ class Preintegration:
         return R, self._dv + c[3:6], self._dp + c[6:9]  # type: ignore
 
     def predict(self, state: Any, bias_gyro: Any = None, bias_accel: Any = None) -> Any:
-        """The state at keyframe ``j`` (an ``SE23``) from the state ``state`` at ``i`` and the
-        biases (default: the integration biases), with gravity and (if set) the earth rate
-        (see :func:`_predict`)."""
+        """The state at keyframe ``j`` from the state at ``i`` and the biases, with gravity and
+        (if set) the earth rate (see :func:`_predict`).
+
+        Parameters
+        ----------
+        state : SE23
+            The state at keyframe ``i`` (batches broadcast).
+        bias_gyro, bias_accel : array_like, optional
+            Biases (default: the integration biases; others are corrected to first order).
+
+        Returns
+        -------
+        SE23
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> from microlie.imu import Preintegration
+        >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2)
+        >>> _ = pim.integrate(np.zeros((100, 3)), np.zeros((100, 3)), 0.01)  # free fall, 1 s
+        >>> np.round(pim.predict(SE23.identity()).translation(), 6)
+        array([ 0.   ,  0.   , -4.905])
+        """
         from ..groups import SE23
 
         bg = self.bias_gyro if bias_gyro is None else bias_gyro

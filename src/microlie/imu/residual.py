@@ -32,7 +32,24 @@ from .preintegration import Preintegration, _hat, _predict
 
 
 class Deltas:
-    """The preintegrated deltas of ``m`` :class:`Preintegration` objects, stacked."""
+    """The preintegrated deltas of ``m`` :class:`Preintegration` objects, stacked (the input
+    of :func:`imu_residual`).
+
+    Parameters
+    ----------
+    pims : sequence of Preintegration
+        All of one scheme, gravity and Coriolis setting.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.imu import Deltas, Preintegration
+    >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
+    ...     np.tile([0.0, 0.0, 9.81], (10, 1)), np.zeros((10, 3)), 0.01)
+    >>> d = Deltas([pim, pim])
+    >>> len(d), d.cov.shape
+    (2, (2, 9, 9))
+    """
 
     def __init__(self, pims: Sequence[Preintegration]) -> None:
         if not pims:
@@ -65,8 +82,32 @@ class Deltas:
         return len(self.T)
 
     def corrected(self, bias: np.ndarray) -> tuple:
-        """``(dR_c, dv_c, dp_c, K)`` for biases ``(m, 6)``; ``K`` (m, 3, 6) maps a bias
-        perturbation to the right perturbation of ``dR_c``."""
+        """The first-order bias-corrected deltas.
+
+        Parameters
+        ----------
+        bias : numpy.ndarray
+            ``(m, 6)`` biases ``(b_g, b_a)``.
+
+        Returns
+        -------
+        dR_c : SO3
+            Corrected rotations ``(m,)``.
+        dv_c, dp_c : numpy.ndarray
+            Corrected velocity and position deltas ``(m, 3)``.
+        K : numpy.ndarray
+            ``(m, 3, 6)``: a bias perturbation to the right perturbation of ``dR_c``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu import Deltas, Preintegration
+        >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
+        ...     np.tile([0.0, 0.0, 9.81], (10, 1)), np.zeros((10, 3)), 0.01)
+        >>> dR, dv, dp, K = Deltas([pim]).corrected(np.zeros((1, 6)))
+        >>> np.round(dv, 12).tolist(), K.shape
+        ([[0.0, 0.0, 0.981]], (1, 3, 6))
+        """
         db = bias - self.bias
         c = (self.J @ db[:, :, None])[..., 0]
         if self.scheme == "manifold":
@@ -86,9 +127,42 @@ _LOG_ORDER = np.r_[3:6, 6:9, 0:3]  # SE23 tangent (rho, phi, nu) -> (phi, nu, rh
 
 def imu_residual(deltas: Deltas, Xi: SE23, Xj: SE23, bias: Any, jac: bool = False,
                  error: str = "forster") -> Any:
-    """The residuals ``(m, 9)`` (order ``(dphi, dv, dp)``) and, with ``jac=True``, the right
-    Jacobians ``(m, 9, 9)``, ``(m, 9, 9)``, ``(m, 9, 6)`` with respect to ``X_i``, ``X_j``,
-    ``bias`` (``bias`` rows are ``(b_g, b_a)``)."""
+    """The IMU residuals and their right Jacobians (see the module docstring).
+
+    Parameters
+    ----------
+    deltas : Deltas
+        ``m`` stacked preintegrations.
+    Xi, Xj : SE23
+        ``(m,)`` states at the two keyframes.
+    bias : array_like
+        ``(m, 6)`` biases ``(b_g, b_a)`` at keyframe ``i``.
+    jac : bool
+        Also return the Jacobians.
+    error : {"forster", "logmap"}
+        Forster et al. eq. 45 (order ``(dphi, dv, dp)``) or ``Log(X_pred^-1 X_j)`` (order
+        ``(phi, nu, rho)``).
+
+    Returns
+    -------
+    r : numpy.ndarray
+        ``(m, 9)`` residuals.
+    Ji, Jj, Jb : numpy.ndarray
+        With ``jac=True``: ``(m, 9, 9)``, ``(m, 9, 9)``, ``(m, 9, 6)`` right Jacobians with
+        respect to ``X_i``, ``X_j`` (SE23 tangent ``(rho, phi, nu)``) and the bias.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE23
+    >>> from microlie.imu import Deltas, Preintegration, imu_residual
+    >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
+    ...     np.tile([0.0, 0.0, 9.81], (10, 1)), np.zeros((10, 3)), 0.01)
+    >>> Xi = SE23.identity(1)
+    >>> r = imu_residual(Deltas([pim]), Xi, pim.predict(Xi), np.zeros((1, 6)))
+    >>> float(np.abs(r).max()) < 1e-12
+    True
+    """
     if error not in ERRORS:
         raise ValueError(f"error must be one of {ERRORS}, got {error!r}")
     b = np.asarray(bias, dtype=np.float64).reshape(len(deltas), 6)

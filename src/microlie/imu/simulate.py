@@ -72,7 +72,30 @@ def load_euroc_groundtruth(path: str | Path) -> tuple[np.ndarray, SE3]:
 
 class SmoothTrajectory:
     """A smooth fit of timed attitudes and positions: cubic position spline, SciPy
-    ``RotationSpline`` for the attitude, knots every ``knot_dt`` seconds."""
+    ``RotationSpline`` for the attitude, knots every ``knot_dt`` seconds.
+
+    Parameters
+    ----------
+    t : array_like
+        ``(n,)`` increasing times (s).
+    rotations : SO3
+        ``(n,)`` attitudes (world from body).
+    positions : array_like
+        ``(n, 3)`` positions in the world frame.
+    knot_dt : float
+        Spacing of the spline knots (s); larger smooths more.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SO3
+    >>> from microlie.imu import SmoothTrajectory
+    >>> t = np.linspace(0.0, 4.0, 41)
+    >>> traj = SmoothTrajectory(t, SO3.exp(np.stack([0 * t, 0 * t, t], -1)),
+    ...             np.stack([np.cos(t), np.sin(t), 0 * t], -1))
+    >>> np.round(traj.angular_velocity(2.0), 3)  # turning at 1 rad/s about z
+    array([0., 0., 1.])
+    """
 
     def __init__(self, t: Any, rotations: SO3, positions: Any, knot_dt: float = 0.1) -> None:
         from scipy.interpolate import CubicSpline  # type: ignore[import-untyped]
@@ -95,24 +118,165 @@ class SmoothTrajectory:
 
     @classmethod
     def from_poses(cls, t: Any, poses: SE3, knot_dt: float = 0.1) -> SmoothTrajectory:
+        """The fit of timed ``SE3`` poses (world from body).
+
+        Parameters
+        ----------
+        t : array_like
+            ``(n,)`` increasing times (s).
+        poses : SE3
+            ``(n,)`` poses.
+        knot_dt : float
+            Spacing of the spline knots (s).
+
+        Returns
+        -------
+        SmoothTrajectory
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 2.0, 21)
+        >>> poses = SE3.exp(np.stack([t, 0 * t, 0 * t, 0 * t, 0 * t, 0 * t], -1))
+        >>> np.round(SmoothTrajectory.from_poses(t, poses).position(1.0, order=1), 6)
+        array([1., 0., 0.])
+        """
         return cls(t, poses.rotation(), poses.translation(), knot_dt)  # type: ignore[arg-type]
 
     def rotation(self, t: Any) -> SO3:
+        """The attitude at times ``t``.
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times (s) inside ``[t0, t1]``.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 4.0, 41)
+        >>> traj = SmoothTrajectory(t, SO3.exp(np.stack([0 * t, 0 * t, t], -1)),
+        ...                         np.stack([np.cos(t), np.sin(t), 0 * t], -1))
+        >>> np.round(traj.rotation(1.0).log(), 6)
+        array([0., 0., 1.])
+        """
         return SO3(self._R(np.asarray(t)).as_quat())
 
     def position(self, t: Any, order: int = 0) -> np.ndarray:
+        """The position (``order=0``), velocity (1) or acceleration (2) at times ``t``.
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times (s).
+        order : int
+            Derivative order.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(..., 3)`` in the world frame.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 4.0, 41)
+        >>> traj = SmoothTrajectory(t, SO3.exp(np.stack([0 * t, 0 * t, t], -1)),
+        ...                         np.stack([np.cos(t), np.sin(t), 0 * t], -1))
+        >>> np.round(traj.position(np.pi / 2), 3) + 0.0
+        array([0., 1., 0.])
+        """
         return self._p(np.asarray(t), order)
 
     def angular_velocity(self, t: Any) -> np.ndarray:
-        """Body angular rate ``(R^T dR/dt)^vee``."""
+        """Body angular rate ``(R^T dR/dt)^vee``.
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times (s).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(..., 3)`` rad/s in the body frame.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 4.0, 41)
+        >>> traj = SmoothTrajectory(t, SO3.exp(np.stack([0 * t, 0 * t, t], -1)),
+        ...                         np.stack([np.cos(t), np.sin(t), 0 * t], -1))
+        >>> np.round(traj.angular_velocity([1.0, 2.0]), 3)
+        array([[0., 0., 1.],
+               [0., 0., 1.]])
+        """
         return self._R(np.asarray(t), 1)
 
     def specific_force(self, t: Any, gravity: Any = GRAVITY) -> np.ndarray:
-        """``R^T (a - g)`` in the body frame."""
+        """The specific force ``R^T (a - g)`` in the body frame (what an accelerometer reads).
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times (s).
+        gravity : array_like
+            Gravity in the world frame (default ``(0, 0, -9.81)``).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(..., 3)`` m/s^2.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 4.0, 41)
+        >>> traj = SmoothTrajectory(t, SO3.exp(np.stack([0 * t, 0 * t, t], -1)),
+        ...                         np.stack([np.cos(t), np.sin(t), 0 * t], -1))
+        >>> float(np.round(traj.specific_force(2.0)[2], 3))  # +g up
+        9.81
+        """
         R = self.rotation(t)
         return R.inverse().act(self.position(t, 2) - np.asarray(gravity))
 
     def state(self, t: Any) -> SE23:
+        """The navigation state (attitude, position, velocity) at times ``t``.
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times (s).
+
+        Returns
+        -------
+        SE23
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 4.0, 41)
+        >>> traj = SmoothTrajectory(t, SO3.exp(np.stack([0 * t, 0 * t, t], -1)),
+        ...                         np.stack([np.cos(t), np.sin(t), 0 * t], -1))
+        >>> np.round(traj.state(np.pi / 2).velocity(), 3)
+        array([-1.,  0.,  0.])
+        """
         return SE23.from_rotation_translation(
             self.rotation(t), self.position(t), self.position(t, 1)
         )
@@ -120,12 +284,40 @@ class SmoothTrajectory:
 
 @dataclass
 class ImuData:
-    """Synthetic samples at times ``t`` (``(N,)``) with their truth.
+    """Synthetic samples with their truth (made by :func:`simulate_imu`).
 
-    ``accel``/``gyro`` (N, 3) are the measurements (sample ``k`` acts on ``[t_k, t_k + dt]``),
-    ``true_accel``/``true_gyro`` the noise- and bias-free values, ``bias_gyro``/``bias_accel``
-    (N, 3) the biases, ``truth`` the ``SE23`` states at ``t`` and one step beyond (N + 1),
-    ``params`` the noise densities used."""
+    Attributes
+    ----------
+    t : numpy.ndarray
+        ``(N,)`` sample times; sample ``k`` acts on ``[t_k, t_k + dt]``.
+    dt : float
+        Sample period (s).
+    accel, gyro : numpy.ndarray
+        ``(N, 3)`` (or ``(N, M, 3)`` for ``M`` runs) measurements.
+    true_accel, true_gyro : numpy.ndarray
+        ``(N, 3)`` noise- and bias-free values.
+    bias_gyro, bias_accel : numpy.ndarray
+        The biases, shaped like the measurements.
+    truth : SE23
+        ``(N + 1,)`` states at ``t`` and one step beyond.
+    gravity : numpy.ndarray
+        Gravity used.
+    params : dict
+        The noise densities used.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SO3
+    >>> from microlie.imu import SmoothTrajectory
+    >>> t = np.linspace(0.0, 4.0, 41)
+    >>> traj = SmoothTrajectory(t, SO3.exp(np.stack([0 * t, 0 * t, t], -1)),
+    ...             np.stack([np.cos(t), np.sin(t), 0 * t], -1))
+    >>> from microlie.imu import simulate_imu
+    >>> data = simulate_imu(traj, duration=1.0, rng=0)
+    >>> data.accel.shape, data.truth.batch_shape
+    ((200, 3), (201,))
+    """
 
     t: np.ndarray
     dt: float
@@ -181,12 +373,50 @@ def simulate_imu(
     runs: int | None = None,
     **densities: float,
 ) -> ImuData:
-    """Samples at ``rate`` Hz over ``duration`` seconds from ``start`` (default: the whole
-    trajectory). ``densities`` override :data:`EUROC_ADIS16448` (``gyro_noise``,
-    ``accel_noise``, ``gyro_walk``, ``accel_walk``); initial biases default to draws of
-    ``N(0, (0.01 rad/s)^2)`` and ``N(0, (0.05 m/s^2)^2)``. With ``runs=M`` the
-    measurements and biases get shape ``(N, M, 3)``: ``M`` independent noise draws on the same
-    motion (Monte Carlo), the truth states being shared."""
+    """Synthetic IMU samples from a smooth trajectory (see the module docstring).
+
+    Parameters
+    ----------
+    traj : SmoothTrajectory
+        The motion.
+    rate : float
+        Sample rate (Hz).
+    duration, start : float, optional
+        The interval (s); default the whole trajectory.
+    rng : int or numpy.random.Generator, optional
+        Seed or generator.
+    gravity : array_like
+        Gravity in the world frame (default ``(0, 0, -9.81)``).
+    bias_gyro0, bias_accel0 : array_like, optional
+        Initial biases; default draws of ``N(0, (0.01 rad/s)^2)`` and
+        ``N(0, (0.05 m/s^2)^2)``.
+    truth : bool
+        ``True``: the truth states integrate the noise-free samples by the discrete scheme;
+        ``False``: they are the spline's states.
+    runs : int, optional
+        ``M`` independent noise draws on the same motion (measurements and biases
+        ``(N, M, 3)``, truth shared).
+    **densities : float
+        Override :data:`EUROC_ADIS16448` (``gyro_noise``, ``accel_noise``, ``gyro_walk``,
+        ``accel_walk``).
+
+    Returns
+    -------
+    ImuData
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SO3
+    >>> from microlie.imu import SmoothTrajectory
+    >>> t = np.linspace(0.0, 4.0, 41)
+    >>> traj = SmoothTrajectory(t, SO3.exp(np.stack([0 * t, 0 * t, t], -1)),
+    ...             np.stack([np.cos(t), np.sin(t), 0 * t], -1))
+    >>> from microlie.imu import simulate_imu
+    >>> data = simulate_imu(traj, duration=1.0, rng=0, runs=4)
+    >>> data.gyro.shape
+    (200, 4, 3)
+    """
     unknown = set(densities) - set(EUROC_ADIS16448)
     if unknown:
         raise ValueError(f"unknown noise parameters {sorted(unknown)}")
