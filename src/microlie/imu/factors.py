@@ -28,24 +28,24 @@ __all__ = ["ImuFactor", "BiasRandomWalkFactor"]
 
 
 class ImuFactor(Factor):
-    """IMU factors ``(X_i, X_j, b_i)`` for ``m`` keyframe pairs, weighted by each
-    preintegration's covariance, with analytic right Jacobians.
+    """IMU factors ``(X_i, X_j, b_i)`` for ``m`` keyframe pairs.
+
+    The noise is each preintegration's covariance.
 
     Parameters
     ----------
     states : Variables
-        An ``SE23`` variable handle (navigation states).
+        An ``SE23`` variable handle.
     biases : Variables
-        An ``(n, 6)`` vector variable handle, rows ``(b_g, b_a)``; the bias of state ``i``
-        is used.
-    i, j : array_like of int
-        Indices of the state pairs.
+        An ``(n, 6)`` vector handle (``(b_g, b_a)``).
+    i, j : array_like
+        Index arrays of the state pairs (the bias of state ``i`` is used).
     pims : sequence of Preintegration
-        One per pair (all of one scheme, gravity and Coriolis setting).
-    error : {"forster", "logmap"}
-        Forster et al. eq. 45, or GTSAM 4.3's default ``Log(X_pred^-1 X_j)``.
-    loss : RobustLoss or str, optional
-        A robust loss as for every factor.
+        One per pair.
+    error : str
+        The residual form (see :func:`~microlie.imu.imu_residual`).
+    loss : str or RobustLoss, optional
+        A robust loss, as for every factor.
 
     Examples
     --------
@@ -107,15 +107,15 @@ class BiasRandomWalkFactor(Factor):
     Parameters
     ----------
     biases : Variables
-        An ``(n, 6)`` vector variable handle, rows ``(b_g, b_a)``.
-    i, j : array_like of int
-        Indices of the consecutive biases.
+        An ``(n, 6)`` vector handle (``(b_g, b_a)``).
+    i, j : array_like
+        Index arrays of the pairs.
     gyro_walk, accel_walk : float
-        Random-walk densities (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)), positive.
+        Random-walk densities (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)).
     dt : float or array_like
-        Time between the keyframes (scalar or one per pair), positive.
-    loss : RobustLoss or str, optional
-        A robust loss as for every factor.
+        Time between the keyframes (scalar or one per pair).
+    loss : str or RobustLoss, optional
+        A robust loss.
 
     Examples
     --------
@@ -123,10 +123,10 @@ class BiasRandomWalkFactor(Factor):
     >>> from microlie.imu import BiasRandomWalkFactor
     >>> from microlie.optim import FactorGraph
     >>> g = FactorGraph()
-    >>> b = g.add_variables(np.array([[0.0] * 6, [1e-4] * 3 + [0.0] * 3]))
-    >>> _ = g.add(BiasRandomWalkFactor(b, [0], [1], 1e-4, 1e-3, 1.0))
-    >>> round(g.cost(), 6)  # 0.5 * 3 * (1e-4 / 1e-4)^2
-    1.5
+    >>> b = g.add_variables(np.array([[0.0] * 6, [0.01, 0, 0, 0, 0, 0]]))
+    >>> _ = g.add(BiasRandomWalkFactor(b, [0], [1], gyro_walk=0.01, accel_walk=0.1, dt=1.0))
+    >>> round(g.cost(), 9)  # 0.5 * (0.01 / 0.01)^2
+    0.5
     """
 
     def __init__(self, biases: Variables, i: Any, j: Any, gyro_walk: float, accel_walk: float,

@@ -32,23 +32,24 @@ from .preintegration import Preintegration, _hat, _predict
 
 
 class Deltas:
-    """The preintegrated deltas of ``m`` :class:`Preintegration` objects, stacked (the input
-    of :func:`imu_residual`).
+    """The preintegrated deltas of ``m`` :class:`Preintegration` objects, stacked (one scheme,
+    gravity and Coriolis rate for all).
 
     Parameters
     ----------
     pims : sequence of Preintegration
-        All of one scheme, gravity and Coriolis setting.
+        ``m >= 1`` preintegrations.
 
     Examples
     --------
     >>> import numpy as np
-    >>> from microlie.imu import Deltas, Preintegration
+    >>> from microlie import SE23
+    >>> from microlie.imu import Deltas, Preintegration, imu_residual
     >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
-    ...     np.tile([0.0, 0.0, 9.81], (10, 1)), np.zeros((10, 3)), 0.01)
+    ...     np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
     >>> d = Deltas([pim, pim])
-    >>> len(d), d.cov.shape
-    (2, (2, 9, 9))
+    >>> d.dv.shape, d.cov.shape
+    ((2, 3), (2, 9, 9))
     """
 
     def __init__(self, pims: Sequence[Preintegration]) -> None:
@@ -82,7 +83,7 @@ class Deltas:
         return len(self.T)
 
     def corrected(self, bias: np.ndarray) -> tuple:
-        """The first-order bias-corrected deltas.
+        """The deltas corrected to other biases, to first order.
 
         Parameters
         ----------
@@ -92,21 +93,23 @@ class Deltas:
         Returns
         -------
         dR_c : SO3
-            Corrected rotations ``(m,)``.
+            ``(m,)`` corrected rotations.
         dv_c, dp_c : numpy.ndarray
-            Corrected velocity and position deltas ``(m, 3)``.
+            ``(m, 3)`` corrected velocity and position deltas.
         K : numpy.ndarray
-            ``(m, 3, 6)``: a bias perturbation to the right perturbation of ``dR_c``.
+            ``(m, 3, 6)``: maps a bias perturbation to the right perturbation of ``dR_c``.
 
         Examples
         --------
         >>> import numpy as np
-        >>> from microlie.imu import Deltas, Preintegration
+        >>> from microlie import SE23
+        >>> from microlie.imu import Deltas, Preintegration, imu_residual
         >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
-        ...     np.tile([0.0, 0.0, 9.81], (10, 1)), np.zeros((10, 3)), 0.01)
-        >>> dR, dv, dp, K = Deltas([pim]).corrected(np.zeros((1, 6)))
-        >>> np.round(dv, 12).tolist(), K.shape
-        ([[0.0, 0.0, 0.981]], (1, 3, 6))
+        ...     np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+        >>> d = Deltas([pim, pim])
+        >>> dR, dv, dp, K = d.corrected(np.zeros((2, 6)))
+        >>> np.round(dv[0], 12).tolist(), K.shape
+        ([0.0, 0.0, 9.81], (2, 3, 6))
         """
         db = bias - self.bias
         c = (self.J @ db[:, :, None])[..., 0]
@@ -127,29 +130,26 @@ _LOG_ORDER = np.r_[3:6, 6:9, 0:3]  # SE23 tangent (rho, phi, nu) -> (phi, nu, rh
 
 def imu_residual(deltas: Deltas, Xi: SE23, Xj: SE23, bias: Any, jac: bool = False,
                  error: str = "forster") -> Any:
-    """The IMU residuals and their right Jacobians (see the module docstring).
+    """The IMU residuals of state pairs, order ``(dphi, dv, dp)``.
 
     Parameters
     ----------
     deltas : Deltas
-        ``m`` stacked preintegrations.
+        ``m`` preintegrations.
     Xi, Xj : SE23
-        ``(m,)`` states at the two keyframes.
+        ``(m,)`` states at the first and second keyframe.
     bias : array_like
-        ``(m, 6)`` biases ``(b_g, b_a)`` at keyframe ``i``.
+        ``(m, 6)`` biases ``(b_g, b_a)`` at the first keyframe.
     jac : bool
-        Also return the Jacobians.
-    error : {"forster", "logmap"}
-        Forster et al. eq. 45 (order ``(dphi, dv, dp)``) or ``Log(X_pred^-1 X_j)`` (order
-        ``(phi, nu, rho)``).
+        Also return the right Jacobians.
+    error : str
+        The residual form (``"forster"``, the default).
 
     Returns
     -------
-    r : numpy.ndarray
-        ``(m, 9)`` residuals.
-    Ji, Jj, Jb : numpy.ndarray
-        With ``jac=True``: ``(m, 9, 9)``, ``(m, 9, 9)``, ``(m, 9, 6)`` right Jacobians with
-        respect to ``X_i``, ``X_j`` (SE23 tangent ``(rho, phi, nu)``) and the bias.
+    numpy.ndarray or tuple
+        ``(m, 9)`` residuals; with ``jac=True`` also the Jacobians ``(m, 9, 9)``,
+        ``(m, 9, 9)``, ``(m, 9, 6)`` with respect to ``X_i``, ``X_j``, ``bias``.
 
     Examples
     --------
@@ -157,11 +157,12 @@ def imu_residual(deltas: Deltas, Xi: SE23, Xj: SE23, bias: Any, jac: bool = Fals
     >>> from microlie import SE23
     >>> from microlie.imu import Deltas, Preintegration, imu_residual
     >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
-    ...     np.tile([0.0, 0.0, 9.81], (10, 1)), np.zeros((10, 3)), 0.01)
-    >>> Xi = SE23.identity(1)
-    >>> r = imu_residual(Deltas([pim]), Xi, pim.predict(Xi), np.zeros((1, 6)))
-    >>> float(np.abs(r).max()) < 1e-12
-    True
+    ...     np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+    >>> d = Deltas([pim, pim])
+    >>> X = SE23.identity(2)
+    >>> r, Ji, Jj, Jb = imu_residual(d, X, X, np.zeros((2, 6)), jac=True)
+    >>> float(np.abs(r).max()) < 1e-12, Jb.shape
+    (True, (2, 9, 6))
     """
     if error not in ERRORS:
         raise ValueError(f"error must be one of {ERRORS}, got {error!r}")
