@@ -608,8 +608,9 @@ def test_large_batches_take_the_chunked_path_and_agree(group, backend):
 # ------------------------------------------------------------------------ regressions (issue 8)
 
 
-@pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
-@pytest.mark.parametrize("bk", ["torch", "jax"])
+@pytest.mark.parametrize(("G", "bk"), [(G, "torch") for G in GROUPS]
+                         + [(G, "jax") for G in (SO3, SE3, Sim3)],
+                         ids=lambda x: x if isinstance(x, str) else x.__name__)
 def test_autodiff_through_log_at_exactly_pi(G, bk):
     """At a rotation by exactly pi (quaternion w = 0) autodiff of ``Log(X Exp(d))`` equals the
     analytic ``Jr^-1(Log X)``: along the rotation axis the angle moves one for one (torch's
