@@ -78,6 +78,8 @@ def _public_objects():
     """(label, object, kind, owner-class) for every public callable, each checked once."""
     seen: set[int] = set()
     out = []
+    exported = {id(getattr(importlib.import_module(m), n)) for m in PUBLIC_MODULES
+                for n in getattr(importlib.import_module(m), "__all__", [])}
     for modname in PUBLIC_MODULES:
         mod = importlib.import_module(modname)
         for name in getattr(mod, "__all__", []):
@@ -89,7 +91,12 @@ def _public_objects():
                 out.append((f"{obj.__module__}.{obj.__qualname__}", obj, "class", None))
                 if _is_exception(obj):
                     continue
-                for attr, raw in vars(obj).items():
+                # methods defined on the class or inherited from a base that is not itself
+                # public (a public base, e.g. LieGroup, is walked and checked on its own)
+                own = [obj] + [k for k in obj.__mro__[1:] if id(k) not in exported
+                               and k.__module__.startswith("microlie")]
+                members = {a: r for k in reversed(own) for a, r in vars(k).items()}
+                for attr, raw in members.items():
                     if attr.startswith("_"):
                         continue
                     fn = raw.__func__ if isinstance(raw, classmethod | staticmethod) else raw

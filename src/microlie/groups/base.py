@@ -297,16 +297,59 @@ class LieGroup:
     @classmethod
     def bch(cls, a: Any, b: Any, order: int = 2) -> Array:
         """``Log(Exp(a) Exp(b))`` by the Baker-Campbell-Hausdorff series up to the terms of
-        degree ``order`` (1 to 4): ``a + b + [a, b]/2 + ([a, [a, b]] - [b, [a, b]])/12
-        - [b, [a, [a, b]]]/24``; see :mod:`microlie.groups._bch`."""
+        degree ``order``: ``a + b + [a, b]/2 + ([a, [a, b]] - [b, [a, b]])/12
+        - [b, [a, [a, b]]]/24`` (the first bracket term is 1/2; see :mod:`microlie.groups._bch`).
+
+        Parameters
+        ----------
+        a, b : array_like
+            Tangent vectors ``(..., dof)`` (batches broadcast).
+        order : int
+            1 to 4; the error is ``O(|a, b|^(order + 1))``.
+
+        Returns
+        -------
+        array
+            ``(..., dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> a, b = np.array([0.01, 0.0, 0.0]), np.array([0.0, 0.02, 0.0])
+        >>> exact = (SO3.exp(a) @ SO3.exp(b)).log()
+        >>> bool(np.abs(SO3.bch(a, b, order=3) - exact).max() < 1e-8)
+        True
+        """
         from ._bch import bch
 
         return bch(cls, a, b, order)
 
     @classmethod
     def bch_first_order(cls, a: Any, b: Any, small: str = "a") -> Array:
-        """``Log(Exp(a) Exp(b))`` to first order in the small argument: ``Jl(b)^-1 a + b``
-        (``small="a"``) or ``a + Jr(a)^-1 b`` (``small="b"``)."""
+        """``Log(Exp(a) Exp(b))`` to first order in the small argument (the other may be large).
+
+        Parameters
+        ----------
+        a, b : array_like
+            Tangent vectors ``(..., dof)``.
+        small : {"a", "b"}
+            ``"a"``: ``Jl(b)^-1 a + b``; ``"b"``: ``a + Jr(a)^-1 b``.
+
+        Returns
+        -------
+        array
+            ``(..., dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> a, b = np.array([1e-3, 0.0, 0.0]), np.array([0.0, 1.5, 0.3])
+        >>> exact = (SO3.exp(a) @ SO3.exp(b)).log()
+        >>> bool(np.abs(SO3.bch_first_order(a, b, small="a") - exact).max() < 1e-6)
+        True
+        """
         from ._bch import bch_first_order
 
         return bch_first_order(cls, a, b, small)
