@@ -110,10 +110,10 @@ class SupernodalSolver(LinearSolver):
                 # the child's rows fall into runs of consecutive rows of this front: one
                 # slice addition per pair of runs (lower triangle only; at least block_size
                 # rows per run), much faster than a fancy-indexed scatter
-                cut = np.flatnonzero(np.diff(rel) != 1) + 1
-                lo, hi = np.r_[0, cut], np.r_[cut, u]
-                runs = [(slice(int(rel[a]), int(rel[a]) + b - a), slice(int(a), int(b)))
-                        for a, b in zip(lo.tolist(), hi.tolist(), strict=True)]
+                cut = (np.flatnonzero(rel[1:] - rel[:-1] != 1) + 1).tolist()
+                r0 = rel[[0, *cut]].tolist()
+                runs = [(slice(r, r + b - a), slice(a, b))
+                        for r, a, b in zip(r0, [0, *cut], [*cut, u], strict=True)]
                 pairs = [(fr, fc, cr, cc) for i, (fr, cr) in enumerate(runs)
                          for fc, cc in runs[:i + 1]]
                 adds.append((int(poff[c]), u, pairs))
