@@ -23,7 +23,7 @@ extern double atan2(double, double);
 
 #define LM_INLINE static inline __attribute__((always_inline))
 #ifndef S
-#define S 64 /* the block length: component i of an element is at x[i * S] */
+#define S 32 /* the block length: component i of an element is at x[i * S] */
 #endif
 
 LM_INLINE double horner(double x, const double *c, int n) {
