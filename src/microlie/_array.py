@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -209,72 +208,33 @@ def components(x: Array) -> list[Array]:
     return [x[..., i] for i in range(x.shape[-1])]
 
 
-def scalar_components(x: np.ndarray) -> list[float]:
-    return x.tolist()
-
-
-def pack(ops: Any, comps: Sequence[Any], like: Array) -> Array:
-    """Stack components along a new last axis, in the backend and dtype of ``like``."""
-    if ops.is_scalar:
-        return np.array(comps, dtype=like.dtype)
-    xp = ops.xp
-    arrays = _broadcast(xp, comps, like)
-    return xp.stack(arrays, axis=-1)
-
-
-def pack_matrix(ops: Any, rows: Sequence[Sequence[Any]], like: Array) -> Array:
-    """Stack a nested tuple of components into an array of shape ``(*batch, rows, cols)``."""
-    if ops.is_scalar:
-        return np.array(rows, dtype=like.dtype)
-    xp = ops.xp
-    flat = [c for row in rows for c in row]
-    arrays = _broadcast(xp, flat, like)
-    n_cols = len(rows[0])
-    out = xp.stack(arrays, axis=-1)
-    return xp.reshape(out, (*out.shape[:-1], len(rows), n_cols))
-
-
-def _broadcast(xp: Any, comps: Sequence[Any], like: Array) -> list[Array]:
-    shape = None
-    uniform = True
-    for c in comps:
-        s = getattr(c, "shape", None)
-        if s is None or getattr(c, "ndim", 0) == 0 and not hasattr(c, "dtype"):
-            uniform = False
-            continue
-        if shape is None:
-            shape = tuple(s)
-        elif tuple(s) != shape:
-            uniform = False
-    if uniform and shape is not None:
-        return list(comps)
-    arrays = [
-        c if hasattr(c, "shape") else xp.asarray(c, dtype=like.dtype, device=_device(like))
-        for c in comps
-    ]
-    return list(xp.broadcast_arrays(*arrays))
+def host_values(x: Array) -> np.ndarray | None:
+    """The values of ``x`` as a NumPy array, or ``None`` when they are unknown (a JAX tracer, a
+    tensor under ``torch.compile``). Never forces a traced value: a concrete JAX array closed
+    over by a jitted function is read on the host, not through a (traced) JAX operation. Torch
+    tensors are detached first. For value checks only."""
+    if type(x) is np.ndarray:
+        return x
+    if is_torch(x):
+        return None if _torch_compiling(x) else x.detach().cpu().numpy()
+    if is_jax(x):
+        return None if is_traced(x) else np.asarray(x)
+    return np.asarray(x)
 
 
 def check_finite(x: Array, what: str) -> None:
-    """Raise ``ValueError`` if ``x`` holds NaN or inf (skipped under a JAX trace)."""
-    if is_numpy(x):
-        # one sum: NaN/inf make it non-finite (so can overflow of huge values, in which case
-        # the exact test decides). Not a BLAS call: no thread wake-up, no copy of a slice.
-        if x.ndim == 1 and x.size <= 16:  # one element: a Python sum is the cheapest test
-            bad = not math.isfinite(sum(x.tolist())) and not np.isfinite(x).all()
-        else:
-            bad = x.size and not math.isfinite(np.add.reduce(x, axis=None)) \
-                and not np.isfinite(x).all()
-        if bad:
-            raise ValueError(f"{what} contains NaN or infinite values")
+    """Raise ``ValueError`` if ``x`` holds NaN or inf (skipped for traced values)."""
+    v = host_values(x)
+    if v is None:
         return
-    if is_traced(x):
-        return
-    xp = namespace(x)
-    if is_torch(x):
-        x = x.detach()
-    # one reduction first (NaN/inf propagate through a sum); the exact test only if it fails
-    if not math.isfinite(float(xp.sum(x))) and not bool(xp.all(xp.isfinite(x))):
+    # one sum: NaN/inf make it non-finite (so can overflow of huge values, in which case the
+    # exact test decides). Not a BLAS call: no thread wake-up, no copy of a slice.
+    if v.ndim == 1 and v.size <= 16:  # one element: a Python sum is the cheapest test
+        bad = not math.isfinite(sum(v.tolist())) and not np.isfinite(v).all()
+    else:
+        bad = v.size and not math.isfinite(np.add.reduce(v, axis=None)) \
+            and not np.isfinite(v).all()
+    if bad:
         raise ValueError(f"{what} contains NaN or infinite values")
 
 
@@ -328,6 +288,6 @@ def _register_one(cls: type) -> None:
     jax.tree_util.register_pytree_node(
         cls,
         lambda x: ((x.params,), None),
-        lambda _, children: cls._wrap(children[0]),
+        lambda _, children: cls.from_params(children[0], check=False),  # type: ignore[attr-defined]
     )
     _REGISTERED.add(cls)

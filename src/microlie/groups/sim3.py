@@ -185,7 +185,8 @@ class Sim3(Pose):
         sR, t = cls._split_matrix(matrix, normalize)
         xp = A.namespace(sR)
         det = xp.linalg.det(sR)
-        if not A.is_traced(det) and bool(xp.any(det <= 0)):
+        v = A.host_values(sR)
+        if v is not None and bool(np.any(np.linalg.det(v) <= 0)):
             raise ValueError("Sim3.from_matrix: the 3x3 block must have a positive determinant")
         s = det ** (1.0 / 3.0)
         R = SO3.from_matrix(sR / s[..., None, None], normalize=normalize)
@@ -197,5 +198,6 @@ class Sim3(Pose):
 
 
 def check_positive_scale(s: Array) -> None:
-    if not A.is_traced(s) and bool(A.namespace(s).any(s <= 0)):
+    v = A.host_values(s)
+    if v is not None and bool(np.any(v <= 0)):
         raise ValueError("Sim3: scale must be positive")
