@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from microlie import SE2, SE3, SO2, SO3, LieGroup, Sim3
+from microlie import SE2, SE3, SE23, SO2, SO3, LieGroup, Sim3
 
 IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
-GROUPS = [SO2, SE2, SO3, SE3, Sim3]  # adding a group to the generic suite is one entry here
+GROUPS = [SO2, SE2, SO3, SE3, Sim3, SE23]  # adding a group to the generic suite is one entry here
 BACKENDS = ["numpy", "torch", "jax"]
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
@@ -90,7 +90,7 @@ def backend(request):
 # ------------------------------------------------------------------------ tangent vectors
 
 ROT_SLICE = {SO2: slice(0, 1), SE2: slice(2, 3), SO3: slice(0, 3), SE3: slice(3, 6),
-             Sim3: slice(3, 6)}
+             Sim3: slice(3, 6), SE23: slice(3, 6)}
 
 
 def tangent_with_angle(G, rng: np.random.Generator, theta: float, size=None) -> np.ndarray:

@@ -23,7 +23,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.linalg import expm, logm
 
-from microlie import SE2, SE3, SO2, SO3, LieGroup, Sim3
+from microlie import SE2, SE3, SE23, SO2, SO3, LieGroup, Sim3
 
 HARD_ANGLES = {"random": None, "tiny": 1e-9, "near_pi": np.pi - 1e-4}
 
@@ -58,7 +58,9 @@ def test_group_axioms(G, seed):
     # action is compatible with composition and with the matrix
     p = rng.standard_normal(G.point_dim)
     np.testing.assert_allclose((X @ Y).act(p), X.act(Y.act(p)), atol=1e-12)
-    ph = np.append(p, 1.0) if G.matrix_dim == G.point_dim + 1 else p
+    # homogeneous point (SE23's 5x5 matrix: (p, 1, 0))
+    ph = np.concatenate([p, np.eye(G.matrix_dim - G.point_dim)[0]]) \
+        if G.matrix_dim > G.point_dim else p
     np.testing.assert_allclose(X.act(p), (M(X) @ ph)[: G.point_dim], atol=1e-12)
 
 
@@ -285,6 +287,9 @@ def test_exactly_pi_has_valid_log(G):
     elif G is Sim3:
         X = Sim3.from_rotation_translation_scale(SO3.from_matrix(np.diag([-1.0, -1.0, 1.0])),
                                                  [1.0, 2.0, 3.0], 2.0)
+    elif G is SE23:
+        X = SE23.from_rotation_translation(SO3.from_matrix(np.diag([-1.0, 1.0, -1.0])),
+                                           [1.0, 2.0, 3.0], [-4.0, 5.0, 0.5])
     elif G is SO2:
         X = SO2.from_matrix(-np.eye(2))
     else:

@@ -207,7 +207,9 @@ def test_euroc_malformed(tmp_path, line, pattern):
 def test_empty_and_unknown_format(tmp_path):
     _expect(read_tum, tmp_path, "# only a comment\n", r"no data lines")
     with pytest.raises(ValueError, match="unknown trajectory format"):
-        read_trajectory(tmp_path / "bad.txt", "bag")
+        read_trajectory(tmp_path / "bad.txt", "g2o")
+    with pytest.raises(ValueError, match="needs a topic"):
+        read_trajectory(tmp_path / "bad.bag", "bag")
 
 
 def test_quaternion_tolerance_is_configurable(tmp_path):

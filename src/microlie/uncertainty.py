@@ -33,24 +33,24 @@ True
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal
+from typing import Any, Literal, overload
 
 import numpy as np
 
 from . import _array as A
+from . import _linalg as L
 from ._array import Array
 from .groups.base import LieGroup
 
-__all__ = ["Gaussian", "VectorGaussian", "propagate", "FRAMES"]
+__all__ = ["Gaussian", "VectorGaussian", "propagate", "FRAMES", "RANK_RTOL"]
 
 Frame = Literal["right", "left"]
 FRAMES: tuple[str, str] = ("right", "left")
 _LOG_2PI = math.log(2.0 * math.pi)
 
 
-# ---------------------------------------------------------------------------- array helpers
+# ---------------------------------------------------------------------------- checks
 
 
 def _check_frame(frame: Any, what: str = "frame") -> str:
@@ -59,89 +59,36 @@ def _check_frame(frame: Any, what: str = "frame") -> str:
     return frame
 
 
-def _xp(x: Array) -> Any:
-    return A.namespace(x)
-
-
-def _mT(m: Array) -> Array:
-    """Transpose the last two axes."""
-    if A.is_numpy(m):
-        return np.swapaxes(m, -1, -2)
-    xp = _xp(m)
-    return xp.matrix_transpose(m) if hasattr(xp, "matrix_transpose") else m.transpose(-1, -2)
-
-
-def _sym(m: Array) -> Array:
-    return 0.5 * (m + _mT(m))
-
-
-def _eye(n: int, like: Array) -> Array:
-    if A.is_numpy(like):
-        return np.eye(n, dtype=like.dtype)
-    return _xp(like).eye(n, dtype=like.dtype, device=A._device(like))
-
-
-def _solve(a: Array, b: Array) -> Array:
-    """Solve ``a x = b`` for matrices ``b`` ``(..., n, k)`` (broadcasting the batch)."""
-    if A.is_numpy(a) and A.is_numpy(b):
-        return np.linalg.solve(a, b)
-    xp = A.namespace(a, b)
-    batch = tuple(np.broadcast_shapes(tuple(a.shape[:-2]), tuple(b.shape[:-2])))
-    a = xp.broadcast_to(a, (*batch, *a.shape[-2:]))
-    b = xp.broadcast_to(b, (*batch, *b.shape[-2:]))
-    return xp.linalg.solve(a, b)
-
-
-def _broadcast_to(x: Array, shape: tuple) -> Array:
-    if tuple(x.shape) == tuple(shape):
-        return x
-    if A.is_numpy(x):
-        return np.broadcast_to(x, shape)
-    return _xp(x).broadcast_to(x, shape)
-
-
-def _to_numpy(x: Array) -> np.ndarray:
-    if hasattr(x, "detach"):
-        x = x.detach().cpu()
-    return np.asarray(x)
-
-
-def _matrix_sqrt(P: Array) -> Array:
-    """``S`` with ``S S^T = P`` for symmetric positive semi-definite ``P`` (via ``eigh``)."""
-    if A.is_numpy(P):
-        w, V = np.linalg.eigh(P)
-        return V * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
-    xp = _xp(P)
-    w, V = xp.linalg.eigh(P)
-    return V * xp.sqrt(xp.clip(w, 0.0, None))[..., None, :]
-
-
-def _slogdet(P: Array) -> Array:
-    if A.is_numpy(P):
-        return np.linalg.slogdet(P)[1]
-    return _xp(P).linalg.slogdet(P)[1]
-
-
 def _as_array(x: Any, like: Array, what: str) -> Array:
     """``x`` as a float array of the backend of ``like`` (clear error on a backend mix)."""
     arr = A.as_float_array(x, like=like)
-    if A.namespace(arr) is not A.namespace(like):
+    if not L.same_backend(arr, like):
         raise ValueError(f"{what} is a {type(arr).__module__} array but the mean is a "
                          f"{type(like).__module__} array: use one array backend")
     return arr
 
 
-def check_covariance(P: Array, n: int, what: str = "covariance") -> None:
+def _check_finite(x: Array, what: str) -> np.ndarray | None:
+    """Raise ``ValueError`` if ``x`` holds NaN or inf; returns its values as NumPy (``None``
+    when they are unknown under a trace: no check, and no traced value is ever forced)."""
+    M = L.concrete(x)
+    if M is not None and M.size and not np.isfinite(M).all():
+        raise ValueError(f"{what} contains NaN or infinite values")
+    return M
+
+
+def check_covariance(P: Array, n: int, what: str = "covariance") -> np.ndarray | None:
     """Raise ``ValueError`` unless ``P`` is ``(..., n, n)``, finite, symmetric and PSD.
 
     Symmetry and positive semi-definiteness are checked to ``sqrt(eps)`` of the dtype relative to
-    the largest entry or eigenvalue of each matrix (skipped under a JAX trace).
+    the largest entry or eigenvalue of each matrix. The values are read without forcing a
+    traced one: under ``jax.jit`` a concrete (closed-over) covariance is checked, a traced one
+    is not. Returns the eigenvalues (float64, ascending), or ``None`` when unknown.
     """
     A.check_last_dim(P, (n, n), what)
-    A.check_finite(P, what)
-    if A.is_traced(P) or int(np.prod(tuple(P.shape[:-2]))) == 0:
-        return
-    M = _to_numpy(P)
+    M = _check_finite(P, what)
+    if M is None or M.size == 0:
+        return None
     tol = math.sqrt(float(np.finfo(M.dtype).eps))
     M = M.astype(np.float64)
     scale = np.abs(M).max(axis=(-1, -2))
@@ -152,6 +99,77 @@ def check_covariance(P: Array, n: int, what: str = "covariance") -> None:
     if np.any(w[..., 0] < -tol * np.maximum(np.abs(w).max(axis=-1), 1e-300)):
         raise ValueError(f"{what} is not positive semi-definite (smallest eigenvalue "
                          f"{w[..., 0].min():.3g})")
+    return w
+
+
+# ---------------------------------------------------------------------------- rank rule
+
+#: Relative eigenvalue tolerance of the rank rule, by dtype: SciPy's (``multivariate_normal``,
+#: ``pinvh``) ``1e6 eps`` in float64 (2.2e-10) and ``1e3 eps`` in float32 (1.2e-4).
+RANK_RTOL: dict[str, float] = {"float64": 1e6 * float(np.finfo(np.float64).eps),
+                               "float32": 1e3 * float(np.finfo(np.float32).eps)}
+
+
+class _Null:
+    """The zero-variance directions of a batch of covariances (NumPy, constants for autograd).
+
+    An eigenvalue ``w`` of ``P`` counts as zero when ``w <= t = max(rtol max|w|, -min w)``
+    (``rtol`` = :data:`RANK_RTOL`; the second term puts the rounding-level negative eigenvalues
+    that validation lets through, and anything as small, on the null side). ``proj`` projects
+    onto those directions; a deviation ``e`` lies in the support when ``|proj e| <= sqrt(t)``
+    (no larger than a standard deviation counted as zero). With ``c = max|w|``,
+    ``P + c proj`` is invertible and ``P^+ = (P + c proj)^-1 - proj / c``.
+    """
+
+    __slots__ = ("proj", "scale", "rank_loss", "dev_tol")
+
+    def __init__(self, proj: np.ndarray, scale: np.ndarray, rank_loss: np.ndarray,
+                 dev_tol: np.ndarray) -> None:
+        self.proj, self.scale, self.rank_loss, self.dev_tol = proj, scale, rank_loss, dev_tol
+
+    @staticmethod
+    def of(P: Array, w: np.ndarray | None = None) -> _Null | None:
+        """``None`` when every matrix has full rank, or when the values are unknown (traced).
+        ``w``: the eigenvalues of ``P`` if already known (from :func:`check_covariance`)."""
+        M = None
+        if w is None:
+            M = L.concrete(P)
+            if M is None or M.size == 0:
+                return None
+            M = 0.5 * (M + np.swapaxes(M, -1, -2)).astype(np.float64)
+            w = np.linalg.eigvalsh(M)
+        rtol = RANK_RTOL["float32" if "float32" in str(P.dtype) else "float64"]
+        big = np.abs(w).max(axis=-1)
+        t = np.maximum(rtol * big, -w[..., 0])
+        if not np.any(w[..., 0] <= t):
+            return None
+        if M is None:
+            M = np.asarray(L.concrete(P), dtype=np.float64)
+            M = 0.5 * (M + np.swapaxes(M, -1, -2))
+        w, V = np.linalg.eigh(M)
+        zero = w <= t[..., None]
+        Vz = V * zero[..., None, :]
+        return _Null(Vz @ np.swapaxes(Vz, -1, -2), np.where(big > 0, big, 1.0),
+                     zero.sum(axis=-1), np.sqrt(t))
+
+    def pinv_solve(self, P: Array, b: Array) -> Array:
+        """``P^+ b`` for matrices ``b`` ``(..., n, k)`` (differentiable in ``P`` and ``b``)."""
+        Pi = L.asarray(self.proj, P)
+        c = L.asarray(self.scale[..., None, None], P)
+        return L.solve(P + c * Pi, b) - Pi @ b / c
+
+    def off_support(self, e: Array) -> Array:
+        """Boolean ``(...)``: the deviation ``e`` ``(..., n)`` leaves the support."""
+        Pi = L.asarray(self.proj, e)
+        u = (Pi @ e[..., None])[..., 0]
+        return (u * u).sum(-1) > L.asarray(self.dev_tol**2, e)
+
+    def log_pdet(self, P: Array) -> Array:
+        """Log of the pseudo-determinant (product of the nonzero eigenvalues)."""
+        c = self.scale
+        Pi = L.asarray(self.proj, P)
+        return L.slogdet(P + L.asarray(c[..., None, None], P) * Pi)[1] \
+            - L.asarray(self.rank_loss * np.log(c), P)
 
 
 # ---------------------------------------------------------------------------- vector Gaussian
@@ -170,21 +188,25 @@ class VectorGaussian:
     1.0
     """
 
-    __slots__ = ("mean", "cov")
+    __slots__ = ("mean", "cov", "_null")
     mean: Array
     cov: Array
+    _null: Any
 
     def __init__(self, mean: Any, cov: Any, *, validate: bool = True) -> None:
         m = A.as_float_array(mean)
         if m.ndim < 1:
             raise ValueError("the mean of a VectorGaussian must have shape (..., n)")
-        A.check_finite(m, "VectorGaussian mean")
+        _check_finite(m, "VectorGaussian mean")
         P = _as_array(cov, m, "VectorGaussian covariance")
+        w = None
         if validate:
-            check_covariance(P, m.shape[-1], "VectorGaussian covariance")
+            w = check_covariance(P, m.shape[-1], "VectorGaussian covariance")
         else:
             A.check_last_dim(P, (m.shape[-1], m.shape[-1]), "VectorGaussian covariance")
-        self._init(*_broadcast_pair(m, P))
+        self._init(*_broadcast_pair(L.copy(m), L.copy(P)))
+        if w is not None:
+            object.__setattr__(self, "_null", _Null.of(P, w))
 
     @classmethod
     def _make(cls, mean: Array, cov: Array) -> VectorGaussian:
@@ -193,10 +215,10 @@ class VectorGaussian:
         return obj
 
     def _init(self, mean: Array, cov: Array) -> None:
-        object.__setattr__(self, "mean", mean)
-        object.__setattr__(self, "cov", cov)
-        if A.is_jax(mean):
-            _register_jax(mean)
+        object.__setattr__(self, "mean", L.readonly(mean))
+        object.__setattr__(self, "cov", cov if cov is None else L.readonly(cov))
+        object.__setattr__(self, "_null", _UNSET)
+        L.activate_pytrees(mean)
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError("VectorGaussian objects are immutable")
@@ -222,18 +244,12 @@ class VectorGaussian:
 
     def std(self) -> Array:
         """Marginal standard deviations, ``sqrt(diag(cov))``."""
-        return _diag(self.cov) ** 0.5
+        return L.diag(self.cov) ** 0.5
 
     def marginal(self, indices: Sequence[int]) -> VectorGaussian:
         """The marginal over the coordinates ``indices`` (e.g. ``(0, 1)`` for x and y)."""
-        idx = list(indices)
-        if A.is_numpy(self.mean):
-            return VectorGaussian._make(self.mean[..., idx], self.cov[..., idx, :][..., :, idx])
-        xp = _xp(self.mean)
-        m = xp.stack([self.mean[..., i] for i in idx], axis=-1)
-        P = xp.stack([xp.stack([self.cov[..., i, j] for j in idx], axis=-1) for i in idx],
-                     axis=-2)
-        return VectorGaussian._make(m, P)
+        idx = [int(i) for i in indices]
+        return VectorGaussian._make(self.mean[..., idx], self.cov[..., idx, :][..., :, idx])
 
     def sample(self, n: int | tuple[int, ...], rng: Any = None) -> Array:
         """``n`` samples, shape ``(*n, *batch, dim)``, drawn with a NumPy generator.
@@ -243,18 +259,18 @@ class VectorGaussian:
         (5, 3)
         """
         z = _standard_normal(n, (*self.batch_shape, self.dim), rng, self.mean)
-        return self.mean + (_matrix_sqrt(self.cov) @ z[..., None])[..., 0]
+        return self.mean + (L.sqrt_psd(self.cov) @ z[..., None])[..., 0]
 
     def mahalanobis(self, x: Any, squared: bool = False) -> Array:
         """Mahalanobis distance ``sqrt((x - m)^T P^-1 (x - m))`` (``squared=True``: without
         the square root, chi-square with ``dim`` degrees of freedom under the model)."""
         d = _as_array(x, self.mean, "x") - self.mean
-        return _mahalanobis(d, self.cov, squared)
+        return _mahalanobis(d, self.cov, squared, _rank(self))
 
     def log_density(self, x: Any) -> Array:
         """``log N(x; mean, cov)`` (the covariance must be positive definite)."""
         d = _as_array(x, self.mean, "x") - self.mean
-        return _log_normal(d, self.cov)
+        return _log_normal(d, self.cov, _rank(self))
 
     def ellipse(self, nsigma: float = 2.0, num: int = 64, dims: tuple[int, int] = (0, 1)
                 ) -> Array:
@@ -267,8 +283,8 @@ class VectorGaussian:
         g = self.marginal(dims)
         t = np.linspace(0.0, 2.0 * np.pi, num, endpoint=False)
         circle = A.as_float_array(np.stack([np.cos(t), np.sin(t)], -1), like=g.mean)
-        S = _matrix_sqrt(g.cov)
-        return g.mean[..., None, :] + nsigma * (circle @ _mT(S))
+        S = L.sqrt_psd(g.cov)
+        return g.mean[..., None, :] + nsigma * (circle @ L.mT(S))
 
 
 # ---------------------------------------------------------------------------- group Gaussian
@@ -293,10 +309,11 @@ class Gaussian:
     'left'
     """
 
-    __slots__ = ("mean", "cov", "frame")
+    __slots__ = ("mean", "cov", "frame", "_null")
     mean: LieGroup
     cov: Array
-    frame: str
+    frame: Frame
+    _null: Any
 
     def __init__(self, mean: LieGroup, cov: Any, *, frame: Frame,
                  validate: bool = True) -> None:
@@ -305,25 +322,28 @@ class Gaussian:
         _check_frame(frame)
         P = _as_array(cov, mean.params, f"{type(mean).__name__} Gaussian covariance")
         what = f"{type(mean).__name__} Gaussian covariance"
+        w = None
         if validate:
-            check_covariance(P, mean.dof, what)
+            w = check_covariance(P, mean.dof, what)
         else:
             A.check_last_dim(P, (mean.dof, mean.dof), what)
-        params, P = _broadcast_pair(mean.params, P)
-        self._init(type(mean)._wrap(params), P, frame)
+        params, Pb = _broadcast_pair(mean.params, L.copy(P))
+        self._init(type(mean)._wrap(params), Pb, frame)
+        if w is not None:
+            object.__setattr__(self, "_null", _Null.of(P, w))
 
     @classmethod
-    def _make(cls, mean: LieGroup, cov: Array, frame: str) -> Gaussian:
+    def _make(cls, mean: LieGroup, cov: Array, frame: Frame) -> Gaussian:
         obj = object.__new__(cls)
         obj._init(mean, cov, frame)
         return obj
 
-    def _init(self, mean: LieGroup, cov: Array, frame: str) -> None:
+    def _init(self, mean: LieGroup, cov: Array, frame: Frame) -> None:
         object.__setattr__(self, "mean", mean)
-        object.__setattr__(self, "cov", cov)
+        object.__setattr__(self, "cov", cov if cov is None else L.readonly(cov))
         object.__setattr__(self, "frame", frame)
-        if A.is_jax(cov):
-            _register_jax(cov)
+        object.__setattr__(self, "_null", _UNSET)
+        L.activate_pytrees(cov)
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError("Gaussian objects are immutable")
@@ -342,11 +362,7 @@ class Gaussian:
         """
         s = _as_array(std, mean.params, "std")
         A.check_last_dim(s, mean.dof, "std")
-        if A.is_numpy(s):
-            P = s[..., :, None] ** 2 * np.eye(mean.dof, dtype=s.dtype)
-        else:
-            P = s[..., :, None] ** 2 * _eye(mean.dof, s)
-        return cls(mean, P, frame=frame)
+        return cls(mean, L.diag_embed(s**2), frame=frame)
 
     # ------------------------------------------------------------------ container protocol
     @property
@@ -380,7 +396,7 @@ class Gaussian:
         identity for the same frame."""
         _check_frame(frame)
         if frame == self.frame:
-            return _broadcast_to(_eye(self.dof, self.cov), tuple(self.cov.shape))
+            return L.eye(self.dof, self.cov, self.cov.shape[:-2])
         if frame == "left":
             return self.mean.adjoint()
         return self.mean.inverse().adjoint()
@@ -400,7 +416,7 @@ class Gaussian:
         if _check_frame(frame) == self.frame:
             return self
         T = self.frame_map(frame)
-        return Gaussian._make(self.mean, _sym(T @ self.cov @ _mT(T)), frame)
+        return Gaussian._make(self.mean, L.symmetrize(T @ self.cov @ L.mT(T)), frame)
 
     # ------------------------------------------------------------------ errors and samples
     def error(self, X: LieGroup) -> Array:
@@ -422,13 +438,13 @@ class Gaussian:
         (4,)
         """
         z = _standard_normal(n, (*self.batch_shape, self.dof), rng, self.cov)
-        return self.retract((_matrix_sqrt(self.cov) @ z[..., None])[..., 0])
+        return self.retract((L.sqrt_psd(self.cov) @ z[..., None])[..., 0])
 
     def mahalanobis(self, X: LieGroup, squared: bool = False) -> Array:
         """Mahalanobis distance of ``X`` from the mean, ``sqrt(e^T P^-1 e)`` with ``e =``
         :meth:`error` ``(X)`` in this frame (frame-independent, since the frames differ by the
         exact linear map ``Ad``)."""
-        return _mahalanobis(self.error(X), self.cov, squared)
+        return _mahalanobis(self.error(X), self.cov, squared, _rank(self))
 
     def log_density(self, X: LieGroup, haar: bool = False) -> Array:
         """Log-density of ``X``: ``log N(e; 0, P)`` with ``e =`` :meth:`error` ``(X)``.
@@ -440,10 +456,10 @@ class Gaussian:
         (left) is added. Frame-independent up to that measure.
         """
         e = self.error(X)
-        out = _log_normal(e, self.cov)
+        out = _log_normal(e, self.cov, _rank(self))
         if haar:
             J = self.group.jr(e) if self.frame == "right" else self.group.jl(e)
-            out = out - _slogdet(J)
+            out = out - L.slogdet(J)[1]
         return out
 
     # ------------------------------------------------------------------ propagation
@@ -502,7 +518,8 @@ class Gaussian:
         """
         pts = self._vector(points, points_cov, self.group.point_dim, "points")
         out, JX, Jp = self.mean.act(pts.mean, jac=True, side=self.frame)
-        inputs, jacs = [self], [JX]
+        inputs: list[Gaussian | VectorGaussian] = [self]
+        jacs = [JX]
         if not _is_zero(pts):
             inputs.append(pts)
             jacs.append(Jp)
@@ -555,28 +572,36 @@ class Gaussian:
 
         Model: ``residual = z - h(mean) ~= H eps + v``, ``v ~ N(0, R)``, ``eps`` this Gaussian's
         error in its frame (so ``H`` is the Jacobian of ``h`` on this frame's side). Computes
-        ``K = P H^T (H P H^T + R)^-1``, ``d = K residual``, the Joseph-form covariance
-        ``(I - K H) P (I - K H)^T + K R K^T``, and the new mean ``retract(d)``. With ``reset``
-        the covariance is moved to the new mean's error: ``Jr(d) P Jr(d)^T`` (right) or
-        ``Jl(d) P Jl(d)^T`` (left), since ``mean Exp(d + x) ~= mean Exp(d) Exp(Jr(d) x)``.
+        ``K = P H^T S^-1`` with ``S = H P H^T + R``, ``d = K residual``, the Joseph-form
+        covariance ``(I - K H) P (I - K H)^T + K R K^T``, and the new mean ``retract(d)``. With
+        ``reset`` the covariance is moved to the new mean's error: ``Jr(d) P Jr(d)^T`` (right)
+        or ``Jl(d) P Jl(d)^T`` (left), since ``mean Exp(d + x) ~= mean Exp(d) Exp(Jr(d) x)``.
+
+        ``R`` is checked like every covariance (finite, symmetric, positive semi-definite).
+        Rank-deficient ``P`` and ``R`` are handled exactly: when ``S`` is singular (the rank
+        rule of docs/uncertainty.md, tolerance :data:`RANK_RTOL`) its pseudo-inverse is used,
+        so ``d`` stays in the range of ``P H^T`` (the mean never moves along a zero-variance
+        direction), and a residual that has a component where ``S`` has zero variance (the
+        measurement contradicts what both sides hold certain) raises ``ValueError``. Under
+        ``jax.jit`` with a traced covariance the rank cannot be read: ``S`` must then be
+        invertible.
+
+        >>> from microlie import SE2
+        >>> g = Gaussian(SE2.identity(), np.diag([1.0, 1.0, 0.0]), frame="right")  # exact heading
+        >>> out = g.update([0.5, 0.0], np.eye(2, 3), np.eye(2), reset=False)
+        >>> out.mean.log().round(12).tolist(), np.diag(out.cov).round(12).tolist()
+        ([0.25, 0.0, 0.0], [0.5, 0.5, 0.0])
         """
         P = self.cov
         r = _as_array(residual, P, "residual")
-        Hm = _as_array(H, P, "H")
-        Rm = _as_array(R, P, "R")
         m = int(r.shape[-1])
+        Hm = _as_array(H, P, "H")
         A.check_last_dim(Hm, (m, self.dof), "H")
-        A.check_last_dim(Rm, (m, m), "R")
-        PHt = P @ _mT(Hm)
-        S = Hm @ PHt + Rm
-        K = _mT(_solve(_sym(S), _mT(PHt)))
-        d = (K @ r[..., None])[..., 0]
-        IKH = _eye(self.dof, P) - K @ Hm
-        Pn = IKH @ P @ _mT(IKH) + K @ Rm @ _mT(K)
-        if reset:
-            J = self.group.jr(d) if self.frame == "right" else self.group.jl(d)
-            Pn = J @ Pn @ _mT(J)
-        return Gaussian._make(self.retract(d), _sym(Pn), self.frame)
+        _check_finite(r, "residual")
+        _check_finite(Hm, "H")
+        Rm = _as_array(R, P, "R")
+        check_covariance(Rm, m, "R")
+        return self._kalman(r, Hm, Rm, reset, "the residual")
 
     def fuse(self, other: Gaussian, *, reset: bool = True) -> Gaussian:
         """Fuse two independent Gaussians on the same element (the update of an error-state
@@ -589,6 +614,11 @@ class Gaussian:
         :meth:`update` with ``H = I``. First order in ``e2`` and ``d``: accurate when the two
         means agree to within a few standard deviations and the covariances are small.
 
+        Rank-deficient covariances follow the rule of :meth:`update`: a Gaussian with
+        zero-variance directions fused with itself returns its mean (and half its covariance);
+        two estimates that differ along a direction in which both have zero variance raise
+        ``ValueError``.
+
         >>> from microlie import SE2
         >>> a = Gaussian(SE2.identity(), np.eye(3), frame="right")
         >>> bool(np.allclose(a.fuse(a).cov, 0.5 * np.eye(3)))
@@ -600,8 +630,33 @@ class Gaussian:
         o = other.to_frame(self.frame)
         d = o.mean.minus(self.mean) if self.frame == "right" else o.mean.lminus(self.mean)
         Ji = self.group.jr_inv(d) if self.frame == "right" else self.group.jl_inv(d)
-        R = _sym(Ji @ o.cov @ _mT(Ji))
-        return self.update(d, _eye(self.dof, self.cov), R, reset=reset)
+        R = L.symmetrize(Ji @ o.cov @ L.mT(Ji))
+        return self._kalman(d, L.eye(self.dof, self.cov), R, reset,
+                            "the difference of the two means")
+
+    def _kalman(self, r: Array, H: Array, R: Array, reset: bool, what: str) -> Gaussian:
+        P = self.cov
+        PHt = P @ L.mT(H)
+        S = L.symmetrize(H @ PHt + R)
+        null = _Null.of(S)
+        if null is None:
+            K = L.mT(L.solve(S, L.mT(PHt)))
+        else:
+            off, rv = L.concrete(null.off_support(r)), L.concrete(r)
+            if off is not None and rv is not None and off.any():
+                u = np.einsum("...ij,...j->...i", null.proj, rv)
+                raise ValueError(
+                    f"{what} has a component of size {np.linalg.norm(u, axis=-1).max():.3g} "
+                    f"along a direction in which both covariances are zero (H P H^T + R is "
+                    f"singular there): the two are incompatible")
+            K = L.mT(null.pinv_solve(S, L.mT(PHt)))
+        d = (K @ r[..., None])[..., 0]
+        IKH = L.eye(self.dof, P) - K @ H
+        Pn = IKH @ P @ L.mT(IKH) + K @ R @ L.mT(K)
+        if reset:
+            J = self.group.jr(d) if self.frame == "right" else self.group.jl(d)
+            Pn = J @ Pn @ L.mT(J)
+        return Gaussian._make(self.retract(d), L.symmetrize(Pn), self.frame)
 
     # ------------------------------------------------------------------ helpers
     def _same_group(self, X: Any) -> None:
@@ -637,6 +692,14 @@ class Gaussian:
 # ---------------------------------------------------------------------------- propagation
 
 
+@overload
+def propagate(value: LieGroup, inputs: Sequence[Gaussian | VectorGaussian],
+              jacobians: Sequence[Any], *, side: Frame,
+              cross_cov: Mapping[tuple[int, int], Any] | None = None) -> Gaussian: ...
+@overload
+def propagate(value: Any, inputs: Sequence[Gaussian | VectorGaussian],
+              jacobians: Sequence[Any], *, side: Frame,
+              cross_cov: Mapping[tuple[int, int], Any] | None = None) -> VectorGaussian: ...
 def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian],
               jacobians: Sequence[Any], *, side: Frame,
               cross_cov: Mapping[tuple[int, int], Any] | None = None
@@ -672,7 +735,7 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
         m = value.dof
         ref = value.params
     else:
-        value = _as_array(value, like, "value")
+        value = L.copy(_as_array(value, like, "value"))
         m = int(value.shape[-1])
         ref = value
     eff = []
@@ -690,7 +753,7 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
     for g, J in zip(inputs, eff, strict=True):
         if g.cov is None:
             continue
-        term = J @ g.cov @ _mT(J)
+        term = J @ g.cov @ L.mT(J)
         P = term if P is None else P + term
     for (i, j), C in (cross_cov or {}).items():
         if i == j or not (0 <= i < len(inputs) and 0 <= j < len(inputs)):
@@ -698,12 +761,12 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
         ni, nj = eff[i].shape[-1], eff[j].shape[-1]
         Cm = _as_array(C, ref, f"cross_cov[{(i, j)}]")
         A.check_last_dim(Cm, (ni, nj), f"cross_cov[{(i, j)}]")
-        A.check_finite(Cm, f"cross_cov[{(i, j)}]")
-        term = eff[i] @ Cm @ _mT(eff[j])
-        P = P + term + _mT(term)
+        _check_finite(Cm, f"cross_cov[{(i, j)}]")
+        term = eff[i] @ Cm @ L.mT(eff[j])
+        P = P + term + L.mT(term)
     if P is None:
         raise ValueError("no input has a covariance")
-    P = _sym(P)
+    P = L.symmetrize(P)
     if isinstance(value, LieGroup):
         params, P = _broadcast_pair(value.params, P)
         return Gaussian._make(type(value)._wrap(params), P, side)
@@ -717,19 +780,13 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
 def _broadcast_pair(v: Array, P: Array) -> tuple[Array, Array]:
     """Broadcast the batch axes of a vector ``(..., k)`` and a matrix ``(..., n, n)``."""
     batch = tuple(np.broadcast_shapes(tuple(v.shape[:-1]), tuple(P.shape[:-2])))
-    return (_broadcast_to(v, (*batch, v.shape[-1])), _broadcast_to(P, (*batch, *P.shape[-2:])))
+    return (L.broadcast_to(v, (*batch, v.shape[-1])), L.broadcast_to(P, (*batch, *P.shape[-2:])))
 
 
 def _same_backend(a: Array, b: Array) -> None:
-    if a is not None and b is not None and A.namespace(a) is not A.namespace(b):
+    if a is not None and b is not None and not L.same_backend(a, b):
         raise ValueError(f"cannot mix array backends: {type(a).__module__} and "
                          f"{type(b).__module__} (convert one Gaussian first)")
-
-
-def _diag(P: Array) -> Array:
-    if A.is_numpy(P):
-        return np.diagonal(P, axis1=-2, axis2=-1)
-    return _xp(P).stack([P[..., i, i] for i in range(P.shape[-1])], axis=-1)
 
 
 def _is_zero(g: Any) -> bool:
@@ -746,7 +803,7 @@ def _vector_input(x: Any, cov: Any, n: int, what: str, like: Array | None) -> Ve
         return x
     m = A.as_float_array(x) if like is None else _as_array(x, like, what)
     A.check_last_dim(m, n, what)
-    A.check_finite(m, what)
+    _check_finite(m, what)
     if cov is None:
         return VectorGaussian._make(m, None)
     return VectorGaussian(m, cov)
@@ -754,37 +811,44 @@ def _vector_input(x: Any, cov: Any, n: int, what: str, like: Array | None) -> Ve
 
 def _standard_normal(n: int | tuple[int, ...], shape: tuple, rng: Any, like: Array) -> Array:
     size = (n,) if isinstance(n, (int, np.integer)) else tuple(n)
-    z = np.random.default_rng(rng).standard_normal((*size, *shape))
-    return A.as_float_array(z, like=like) if not A.is_numpy(like) else z.astype(like.dtype)
+    return L.asarray(np.random.default_rng(rng).standard_normal((*size, *shape)), like)
 
 
-def _mahalanobis(e: Array, P: Array, squared: bool) -> Array:
-    sol = _solve(P, e[..., None])[..., 0]
-    d2 = (e * sol).sum(-1) if A.is_numpy(e) else _xp(e).sum(e * sol, axis=-1)
+_UNSET: Any = object()  # "rank not computed yet" (distinct from None: "full rank or unknown")
+
+
+def _rank(g: Gaussian | VectorGaussian) -> _Null | None:
+    """The zero-variance directions of ``g.cov``, computed once per object."""
+    null = g._null
+    if null is _UNSET:
+        null = _Null.of(g.cov)
+        object.__setattr__(g, "_null", null)
+    return null
+
+
+def _mahalanobis(e: Array, P: Array, squared: bool, null: _Null | None) -> Array:
+    """``e^T P^-1 e`` (or its root); on a rank-deficient ``P`` (``null``, see :class:`_Null`)
+    the pseudo-inverse on the support and ``inf`` off it."""
+    if null is None:
+        d2 = (e * L.solve(P, e[..., None])[..., 0]).sum(-1)
+    else:
+        d2 = (e * null.pinv_solve(P, e[..., None])[..., 0]).sum(-1)
+        d2 = L.where(null.off_support(e), math.inf, d2)
     return d2 if squared else d2**0.5
 
 
-def _log_normal(e: Array, P: Array) -> Array:
+def _log_normal(e: Array, P: Array, null: _Null | None) -> Array:
+    """``log N(e; 0, P)``; on a rank-deficient ``P`` the density on its support (w.r.t. the
+    Lebesgue measure of the support, as SciPy's ``allow_singular=True``), ``-inf`` off it."""
     n = e.shape[-1]
-    return -0.5 * (_mahalanobis(e, P, True) + n * _LOG_2PI + _slogdet(P))
+    d2 = _mahalanobis(e, P, True, null)
+    if null is None:
+        return -0.5 * (d2 + n * _LOG_2PI + L.slogdet(P)[1])
+    rank = L.asarray(n - null.rank_loss, d2)
+    return -0.5 * (d2 + rank * _LOG_2PI + null.log_pdet(P))
 
 
-_JAX_REGISTERED = False
-
-
-def _register_jax(like: Array) -> None:
-    """Make :class:`Gaussian` and :class:`VectorGaussian` JAX pytrees (once JAX is in use)."""
-    global _JAX_REGISTERED
-    if _JAX_REGISTERED or "jax" not in sys.modules:
-        return
-    import jax
-
-    A.ops_for(like)  # also registers the group classes (the core does it on first use only)
-
-    _JAX_REGISTERED = True
-    jax.tree_util.register_pytree_node(
-        Gaussian, lambda g: ((g.mean, g.cov), g.frame),
-        lambda frame, ch: Gaussian._make(ch[0], ch[1], frame))
-    jax.tree_util.register_pytree_node(
-        VectorGaussian, lambda g: ((g.mean, g.cov), None),
-        lambda _, ch: VectorGaussian._make(ch[0], ch[1]))
+L.register_pytree(Gaussian, lambda g: ((g.mean, g.cov), g.frame),
+                  lambda frame, ch: Gaussian._make(ch[0], ch[1], frame))
+L.register_pytree(VectorGaussian, lambda g: ((g.mean, g.cov), None),
+                  lambda _, ch: VectorGaussian._make(ch[0], ch[1]))

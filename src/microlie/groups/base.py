@@ -401,6 +401,23 @@ class LieGroup:
         return cls.vee(ha @ hb - hb @ ha)
 
     @classmethod
+    def bch(cls, a: Any, b: Any, order: int = 2) -> Array:
+        """``Log(Exp(a) Exp(b))`` by the Baker-Campbell-Hausdorff series up to the terms of
+        degree ``order`` (1 to 4): ``a + b + [a, b]/2 + ([a, [a, b]] - [b, [a, b]])/12
+        - [b, [a, [a, b]]]/24``; see :mod:`microlie.groups._bch`."""
+        from ._bch import bch
+
+        return bch(cls, a, b, order)
+
+    @classmethod
+    def bch_first_order(cls, a: Any, b: Any, small: str = "a") -> Array:
+        """``Log(Exp(a) Exp(b))`` to first order in the small argument: ``Jl(b)^-1 a + b``
+        (``small="a"``) or ``a + Jr(a)^-1 b`` (``small="b"``)."""
+        from ._bch import bch_first_order
+
+        return bch_first_order(cls, a, b, small)
+
+    @classmethod
     def ad(cls, tau: Any) -> Array:
         """The small adjoint matrix ``ad_tau`` (``ad(a) @ b == bracket(a, b)``)."""
         t = cls._tangent(tau)

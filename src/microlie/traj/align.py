@@ -56,12 +56,13 @@ def umeyama(
 
 
 def align(
-    est: Trajectory,
     ref: Trajectory,
+    est: Trajectory,
     method: str = "se3",
     n: int | None = None,
 ) -> tuple[Trajectory, SE3 | Sim3 | None]:
-    """Align ``est`` to ``ref`` (same length, paired index by index).
+    """Align ``est`` to ``ref`` (same length, paired index by index; reference first, as in
+    every function of :mod:`microlie.traj`).
 
     Args:
         method: ``"se3"`` (rigid Umeyama), ``"sim3"`` (Umeyama with scale, for monocular
@@ -72,6 +73,14 @@ def align(
 
     Returns:
         The aligned estimate and the transform that was applied (``None`` for ``"none"``).
+
+    Example:
+        >>> from microlie.traj import read_tum, associate, align
+        >>> from microlie.data import example_paths
+        >>> ref, est = associate(*(read_tum(p) for p in example_paths()))
+        >>> aligned, g = align(ref, est, "sim3")
+        >>> round(float(g.scale()), 4) > 0
+        True
     """
     if len(est) != len(ref):
         raise ValueError(f"align needs paired trajectories, got {len(est)} and {len(ref)} poses")

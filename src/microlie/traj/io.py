@@ -34,13 +34,15 @@ __all__ = [
     "write_tum",
     "read_kitti",
     "write_kitti",
+    "write_euroc",
+    "write_trajectory",
     "read_euroc",
     "read_timestamps",
     "read_trajectory",
     "FORMATS",
 ]
 
-FORMATS = ("tum", "kitti", "euroc")
+FORMATS = ("tum", "kitti", "euroc", "bag")
 
 PathLike = str | os.PathLike
 
@@ -354,15 +356,29 @@ def read_euroc(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = Non
 
 
 def read_trajectory(
-    path: PathLike, fmt: str = "tum", *, timestamps: PathLike | None = None
+    path: PathLike,
+    fmt: str = "tum",
+    *,
+    timestamps: PathLike | None = None,
+    topic: str | None = None,
 ) -> Trajectory:
-    """Read ``path`` in format ``fmt`` (``"tum"``, ``"kitti"`` or ``"euroc"``)."""
+    """Read ``path`` in format ``fmt`` (``"tum"``, ``"kitti"``, ``"euroc"`` or ``"bag"``).
+
+    ``timestamps`` is KITTI's times file; ``topic`` the bag topic (see
+    :func:`microlie.traj.rosbag.read_bag`), required for ``"bag"``.
+    """
     if fmt == "tum":
         return read_tum(path)
     if fmt == "kitti":
         return read_kitti(path, timestamps)
     if fmt == "euroc":
         return read_euroc(path)
+    if fmt == "bag":
+        if not topic:
+            raise ValueError(f"{path}: reading a bag needs a topic")
+        from .rosbag import read_bag
+
+        return read_bag(path, topic)
     raise ValueError(f"unknown trajectory format {fmt!r}; expected one of {FORMATS}")
 
 
@@ -381,3 +397,27 @@ def write_kitti(path: PathLike, traj: Trajectory) -> None:
     """Write ``traj`` as KITTI poses (row-major 3x4 ``[R | t]``, full precision)."""
     m = traj.matrices()[:, :3, :].reshape(-1, 12)
     np.savetxt(path, m, fmt="%.17g")
+
+
+def write_euroc(path: PathLike, traj: Trajectory) -> None:
+    """Write ``traj`` as a EuRoC CSV (``#timestamp [ns],p_x,p_y,p_z,q_w,q_x,q_y,q_z``).
+
+    Timestamps are rounded to integer nanoseconds; a trajectory without timestamps is
+    written with its pose index as the time in seconds.
+    """
+    stamps = traj.timestamps if traj.timestamps is not None else np.arange(len(traj), dtype=float)
+    q = traj.quat_xyzw
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],"
+                "q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []\n")
+        for t, p, qq in zip(np.rint(stamps * 1e9).astype(np.int64).tolist(),
+                            traj.positions.tolist(), q.tolist(), strict=True):
+            f.write(f"{t},{p[0]!r},{p[1]!r},{p[2]!r},{qq[3]!r},{qq[0]!r},{qq[1]!r},{qq[2]!r}\n")
+
+
+def write_trajectory(path: PathLike, traj: Trajectory, fmt: str = "tum") -> None:
+    """Write ``traj`` in format ``fmt`` (``"tum"``, ``"kitti"`` or ``"euroc"``)."""
+    writers = {"tum": write_tum, "kitti": write_kitti, "euroc": write_euroc}
+    if fmt not in writers:
+        raise ValueError(f"cannot write format {fmt!r}; expected one of {tuple(writers)}")
+    writers[fmt](path, traj)

@@ -37,6 +37,7 @@ from .trajectory import Trajectory
 
 __all__ = [
     "RELATIONS",
+    "relation_label",
     "statistics",
     "ape",
     "rpe",
@@ -91,6 +92,24 @@ _UNITS = {
 }
 
 
+_NAMES = {
+    "trans": "translation part",
+    "point_distance": "point distance",
+    "angle_deg": "rotation angle",
+    "angle_rad": "rotation angle",
+    "rot_part": "rotation part",
+    "full": "full transformation",
+    "se3": "SE(3) logarithm norm",
+}
+
+
+def relation_label(relation: str) -> str:
+    """Human-readable name and unit of a pose relation, e.g. ``"rotation angle (deg)"``."""
+    rel = _relation(relation, "deg") if relation != "rot" else "angle_deg"
+    unit = _UNITS[rel] or "unit-less"
+    return f"{_NAMES[rel]} ({unit})"
+
+
 def _pose_error_values(e: SE3, rel: str) -> np.ndarray:
     """The chosen scalar of a batch of error poses ``E``."""
     if rel == "trans":
@@ -136,11 +155,17 @@ class PoseError:
     est: Trajectory | None = None
     info: dict = field(default_factory=dict)
 
+    @property
+    def label(self) -> str:
+        """``"APE w.r.t. translation part (m)"`` and the like."""
+        return f"{self.metric.upper()} w.r.t. {relation_label(self.relation)}"
+
     def to_dict(self) -> dict:
         """A JSON-ready summary (no arrays)."""
         return {
             "metric": self.metric,
             "relation": self.relation,
+            "label": self.label,
             "unit": self.unit,
             "num_errors": int(self.errors.size),
             "stats": dict(self.stats),
@@ -166,7 +191,7 @@ def ape(
         >>> from microlie.traj import align, associate, read_tum
         >>> ref, est = (read_tum(p) for p in example_paths())
         >>> ref, est = associate(ref, est)
-        >>> res = ape(ref, align(est, ref, "se3")[0], "trans")
+        >>> res = ape(ref, align(ref, est, "se3")[0], "trans")
         >>> round(float(res.stats["rmse"]), 4)
         0.0617
     """
@@ -195,13 +220,19 @@ def pose_pairs(
       reaches ``delta`` the current index closes a pair and the sum restarts at 0.
     * metres, all pairs: for every ``i`` the ``j > i`` whose travelled distance from ``i`` is
       closest to ``delta`` (first such ``j`` on ties), kept if within ``rel_tol * delta``.
+    * degrees / radians (``"deg"``, ``"rad"``), consecutive: as metres with the rotation angles
+      of consecutive relative orientations summed; all pairs: *every* ``j > i`` whose direct
+      relative rotation angle is within ``rel_tol * delta`` of ``delta`` (evo's rules).
+
+    ``unit`` is ``"frames"`` (``"f"``), ``"m"``, ``"deg"`` (``"d"``) or ``"rad"`` (``"r"``).
 
     Returns an ``(M, 2)`` integer array; raises ``ValueError`` if it would be empty.
     """
     n = len(traj)
-    if delta <= 0:
+    if not delta > 0:
         raise ValueError(f"delta must be positive, got {delta}")
-    if unit in ("frames", "f"):
+    unit = _delta_unit(unit)
+    if unit == "frames":
         if float(delta) != int(delta):
             raise ValueError(f"a frame delta must be an integer, got {delta}")
         d = int(delta)
@@ -211,23 +242,25 @@ def pose_pairs(
         else:
             ids = np.arange(0, n, d)
             pairs = np.stack([ids[:-1], ids[1:]], axis=1)
-    elif unit in ("m", "meters", "metres"):
+    elif unit == "m":
         steps = traj.step_lengths()
         if all_pairs:
             pairs = _all_pairs_by_distance(np.concatenate([[0.0], np.cumsum(steps)]),
                                            float(delta), float(delta) * rel_tol)
         else:
-            ids = [0]
-            acc = 0.0
-            for k, s in enumerate(steps.tolist(), start=1):
-                acc += s
-                if acc >= delta:
-                    ids.append(k)
-                    acc = 0.0
-            a = np.asarray(ids)
-            pairs = np.stack([a[:-1], a[1:]], axis=1)
+            pairs = _consecutive_by_sum(steps, float(delta))
     else:
-        raise ValueError(f"unknown delta unit {unit!r}; expected 'frames' or 'm'")
+        bound = 180.0 if unit == "deg" else np.pi
+        if delta > bound:
+            raise ValueError(f"an angle delta must be at most {bound:g} {unit}, got {delta}")
+        rad = float(np.deg2rad(delta)) if unit == "deg" else float(delta)
+        tol = float(np.deg2rad(delta * rel_tol)) if unit == "deg" else float(delta * rel_tol)
+        rot = traj.poses.rotation()
+        if all_pairs:
+            pairs = _all_pairs_by_angle(rot, rad, tol)
+        else:
+            steps = _angles(rot[:-1].between(rot[1:])) if n > 1 else np.zeros(0)
+            pairs = _consecutive_by_sum(steps, rad)
     pairs = pairs.astype(np.intp).reshape(-1, 2)
     if pairs.shape[0] == 0:
         raise ValueError(
@@ -235,6 +268,55 @@ def pose_pairs(
             f"({traj.path_length:.3f} m): use a smaller delta"
         )
     return pairs
+
+
+_DELTA_UNITS = {"frames": "frames", "f": "frames", "m": "m", "meters": "m", "metres": "m",
+                "deg": "deg", "d": "deg", "degrees": "deg", "rad": "rad", "r": "rad",
+                "radians": "rad"}
+
+
+def _delta_unit(unit: str) -> str:
+    try:
+        return _DELTA_UNITS[unit]
+    except KeyError:
+        raise ValueError(
+            f"unknown delta unit {unit!r}; expected 'frames', 'm', 'deg' or 'rad'"
+        ) from None
+
+
+def _angles(rot) -> np.ndarray:
+    """Rotation angles (rad) of a batch of SO(3) elements."""
+    phi = np.asarray(rot.log())
+    return np.sqrt(np.einsum("ij,ij->i", phi, phi))
+
+
+def _consecutive_by_sum(steps: np.ndarray, delta: float) -> np.ndarray:
+    """Walk the steps summing them; each time the sum reaches ``delta`` the current index closes
+    a pair, opens the next one, and the sum restarts at 0 (pose 0 opens the first pair)."""
+    ids = [0]
+    acc = 0.0
+    for k, s in enumerate(steps.tolist(), start=1):
+        acc += s
+        if acc >= delta:
+            ids.append(k)
+            acc = 0.0
+    a = np.asarray(ids)
+    return np.stack([a[:-1], a[1:]], axis=1)
+
+
+def _all_pairs_by_angle(rot, delta: float, tol: float) -> np.ndarray:
+    """Every ``(i, j > i)`` whose relative rotation angle is within ``tol`` of ``delta``."""
+    n = rot.batch_shape[0]
+    out = []
+    block = max(1, 1_000_000 // max(n, 1))
+    for s in range(0, n - 1, block):
+        i = np.arange(s, min(s + block, n - 1))
+        ii, jj = np.nonzero(np.arange(n)[None, :] > i[:, None])
+        ii = i[ii]
+        ang = _angles(rot[ii].between(rot[jj]))
+        ok = (ang >= delta - tol) & (ang <= delta + tol)
+        out.append(np.stack([ii[ok], jj[ok]], axis=1))
+    return np.concatenate(out) if out else np.zeros((0, 2), dtype=np.intp)
 
 
 def _all_pairs_by_distance(dist: np.ndarray, delta: float, tol: float) -> np.ndarray:
@@ -277,7 +359,8 @@ def rpe(
     Args:
         relation: see the module docstring (``point_distance`` compares the lengths of the
             displacements only).
-        delta, unit: pair separation, ``unit`` in ``{"frames", "m"}``.
+        delta, unit: pair separation; ``unit`` in ``{"frames", "m", "deg", "rad"}`` (see
+            :func:`pose_pairs`).
         all_pairs: every admissible pair instead of consecutive, non-overlapping ones.
         rel_tol: relative tolerance on the distance in all-pairs metre mode.
         pairs_from: choose pairs on the ``"est"`` (evo's default) or ``"ref"`` trajectory.
@@ -304,7 +387,7 @@ def rpe(
         q_rel = ref.poses[i].between(ref.poses[j])
         p_rel = est.poses[i].between(est.poses[j])
         err = _pose_error_values(q_rel.between(p_rel), rel)
-    info = {"delta": delta, "delta_unit": "frames" if unit in ("frames", "f") else "m",
+    info = {"delta": delta, "delta_unit": _delta_unit(unit),
             "all_pairs": all_pairs, "pairs_from": pairs_from}
     return PoseError("rpe", rel, _UNITS[rel], err, statistics(err), pairs, ref, est, info)
 

@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from microlie import SE3, SO3, Sim3
 
-__all__ = ["Trajectory"]
+__all__ = ["Trajectory", "TimestampWarning", "PLANES", "merge"]
+
+PLANES = ("xy", "xz", "yz")
+
+
+class TimestampWarning(UserWarning):
+    """Timestamps that make time association ambiguous (repeated or decreasing stamps)."""
 
 
 class Trajectory:
@@ -20,7 +27,24 @@ class Trajectory:
         timestamps: ``(N,)`` float64 seconds, or ``None`` (e.g. KITTI without a times file).
         name: a label (usually the file name) used in messages and plot legends.
 
-    Instances are treated as immutable: every operation returns a new trajectory.
+    Instances are treated as immutable: every operation returns a new trajectory. Indexing
+    with a slice, a boolean mask of length N or an integer index array returns a
+    :class:`Trajectory` (``traj[10:20]``, ``traj[traj.timestamps > t0]``); one pose is
+    ``traj.poses[i]``.
+
+    Repeated or decreasing timestamps are not an error (files have them), but they make the
+    pairing by time ambiguous: :meth:`check` lists them, and :func:`~microlie.traj.associate`
+    emits a :class:`TimestampWarning` when it meets them.
+
+    Example:
+        >>> import numpy as np
+        >>> from microlie.traj import Trajectory
+        >>> q = np.tile([0, 0, 0, 1.0], (4, 1))
+        >>> t = Trajectory.from_arrays(np.arange(12.0).reshape(4, 3), q, [0.0, 0.1, 0.1, 0.3])
+        >>> len(t[1:3]), len(t[t.timestamps > 0.05])
+        (2, 3)
+        >>> t.check()
+        ['1 repeated timestamp (first at index 2, t = 0.1)']
     """
 
     __slots__ = ("poses", "timestamps", "name", "_positions")
@@ -126,12 +150,120 @@ class Trajectory:
             return np.zeros(0, dtype=np.intp)
         return np.flatnonzero(np.diff(self.timestamps) == 0) + 1
 
+    def check(self) -> list[str]:
+        """Problems of the timestamps that affect time association, one sentence each.
+
+        Reports repeated timestamps and timestamps that decrease; an empty list means none
+        (also for a trajectory without timestamps).
+        """
+        if self.timestamps is None:
+            return []
+        problems = []
+        d = np.diff(self.timestamps)
+        for mask, what in ((d == 0, "repeated timestamp"), (d < 0, "decreasing timestamp")):
+            k = np.flatnonzero(mask) + 1
+            if k.size:
+                problems.append(
+                    f"{k.size} {what}{'s' if k.size > 1 else ''} (first at index {k[0]}, "
+                    f"t = {self.timestamps[k[0]]:.9g})"
+                )
+        return problems
+
+    def warn_timestamps(self) -> None:
+        """Emit a :class:`TimestampWarning` with :meth:`check`'s findings, if there are any."""
+        problems = self.check()
+        if problems:
+            warnings.warn(f"{self.name or 'trajectory'}: {'; '.join(problems)}",
+                          TimestampWarning, stacklevel=3)
+
     # ------------------------------------------------------------------ operations
+    def __getitem__(self, index: slice | Sequence[int] | np.ndarray) -> Trajectory:
+        if isinstance(index, (int, np.integer)):
+            raise TypeError(
+                "index a Trajectory with a slice, a boolean mask or an index array "
+                f"(traj[{index}:{index + 1}]); one pose is traj.poses[{index}]"
+            )
+        if isinstance(index, slice):
+            idx: slice | np.ndarray = index
+        else:
+            idx = np.asarray(index)
+            if idx.dtype == bool:
+                if idx.shape != (len(self),):
+                    raise ValueError(
+                        f"a boolean mask must have shape ({len(self)},), got {idx.shape}"
+                    )
+                idx = np.flatnonzero(idx)
+            elif idx.ndim != 1 or not (idx.size == 0 or np.issubdtype(idx.dtype, np.integer)):
+                raise TypeError(f"index arrays must be 1-D integers, got {idx.dtype} {idx.shape}")
+            else:
+                idx = idx.astype(np.intp)
+                if idx.size and (idx.max() >= len(self) or idx.min() < -len(self)):
+                    raise IndexError(f"index out of range for a trajectory of {len(self)} poses")
+        sel = np.arange(len(self))[idx]
+        if sel.size == 0:
+            raise ValueError("the selection is empty (a trajectory needs at least one pose)")
+        stamps = None if self.timestamps is None else self.timestamps[sel]
+        return Trajectory(cast(SE3, self.poses[sel]), stamps, self.name)
+
     def subset(self, index: Sequence[int] | np.ndarray | slice) -> Trajectory:
-        """The poses (and timestamps) at ``index`` (an index array or a slice)."""
-        idx = index if isinstance(index, slice) else np.asarray(index, dtype=np.intp)
-        stamps = None if self.timestamps is None else self.timestamps[idx]
-        return Trajectory(self.poses[idx], stamps, self.name)
+        """The poses (and timestamps) at ``index``; the same as ``traj[index]``."""
+        return self[index]
+
+    def crop(self, t_start: float | None = None, t_end: float | None = None) -> Trajectory:
+        """The poses with ``t_start <= timestamp <= t_end`` (absolute seconds; ``None``: open).
+
+        Raises:
+            ValueError: no timestamps, ``t_start > t_end``, or no pose in the window.
+        """
+        if self.timestamps is None:
+            raise ValueError(f"{self.name or 'trajectory'} has no timestamps to crop by")
+        lo = -np.inf if t_start is None else float(t_start)
+        hi = np.inf if t_end is None else float(t_end)
+        if lo > hi:
+            raise ValueError(f"t_start {lo} is after t_end {hi}")
+        keep = (self.timestamps >= lo) & (self.timestamps <= hi)
+        if not keep.any():
+            raise ValueError(
+                f"{self.name or 'trajectory'}: no pose between t = {lo} and {hi} s "
+                f"(its stamps span {self.timestamps[0]:.9g} .. {self.timestamps[-1]:.9g})"
+            )
+        return self[keep]
+
+    def downsample(self, num_poses: int) -> Trajectory:
+        """At most ``num_poses`` poses, evenly spaced by index (first and last kept).
+
+        Indices ``floor(linspace(0, N - 1, num_poses))``, as evo's ``downsample`` chooses them;
+        a trajectory with no more than ``num_poses`` poses is returned unchanged.
+        """
+        if int(num_poses) != num_poses or num_poses < 1:
+            raise ValueError(f"num_poses must be a positive integer, got {num_poses}")
+        if len(self) <= num_poses:
+            return self
+        return self[np.linspace(0, len(self) - 1, int(num_poses), dtype=int)]
+
+    def project(self, plane: str = "xy") -> Trajectory:
+        """Project onto a coordinate plane (``"xy"``, ``"xz"`` or ``"yz"``) for 2-D evaluation.
+
+        The out-of-plane coordinate is set to 0 and each orientation is replaced by the
+        rotation about the plane normal ``n`` closest to it: its *twist* about ``n``, angle
+        ``atan2(n . v, (tr R - n^T R n) / 2)`` with ``v`` the axial vector of
+        ``(R - R^T) / 2``. This is the heading in the plane for any orientation (evo takes
+        an Euler angle instead, which folds headings beyond 90 degrees for ``xz`` / ``yz``).
+        """
+        if plane not in PLANES:
+            raise ValueError(f"unknown plane {plane!r}; expected one of {PLANES}")
+        k = {"xy": 2, "xz": 1, "yz": 0}[plane]
+        r = np.asarray(self.poses.rotation().matrix())
+        a, b = [(1, 2), (2, 0), (0, 1)][k]  # the two in-plane axes, right-handed about n
+        sin_part = r[:, b, a] - r[:, a, b]  # 4 w q_n in quaternion terms
+        cos_part = r[:, a, a] + r[:, b, b]  # 2 (w^2 - q_n^2): atan2 gives the twist angle
+        theta = np.arctan2(sin_part, cos_part)
+        phi = np.zeros((len(self), 3))
+        phi[:, k] = theta
+        p = self.positions.copy()
+        p[:, k] = 0.0
+        poses = cast(SE3, SE3.from_rotation_translation(SO3.exp(phi), p))
+        return Trajectory(poses, self.timestamps, self.name)
 
     def transform(self, g: SE3 | Sim3) -> Trajectory:
         """Left-multiply every pose by ``g`` (a single SE3 or Sim3).
@@ -155,3 +287,25 @@ class Trajectory:
     def with_name(self, name: str | None) -> Trajectory:
         """The same trajectory under another name."""
         return Trajectory(self.poses, self.timestamps, name)
+
+
+def merge(trajs: Sequence[Trajectory], name: str = "merged") -> Trajectory:
+    """One trajectory of all poses of ``trajs``, sorted by timestamp (stable: on equal stamps
+    the earlier trajectory's pose comes first).
+
+    Example:
+        >>> import numpy as np
+        >>> from microlie.traj import Trajectory, merge
+        >>> a = Trajectory.from_arrays(np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)), [0, 2])
+        >>> b = Trajectory.from_arrays(np.ones((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)), [1, 3])
+        >>> merge([a, b]).timestamps
+        array([0., 1., 2., 3.])
+    """
+    if not trajs:
+        raise ValueError("nothing to merge")
+    if any(t.timestamps is None for t in trajs):
+        raise ValueError("merging needs timestamps on every trajectory")
+    stamps = np.concatenate([t.timestamps for t in trajs if t.timestamps is not None])
+    order = np.argsort(stamps, kind="stable")
+    params = np.concatenate([np.asarray(t.poses.params) for t in trajs])[order]
+    return Trajectory(SE3(params), stamps[order], name)

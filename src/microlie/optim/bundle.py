@@ -1,0 +1,596 @@
+"""Bundle adjustment: Levenberg-Marquardt with Ceres' trust-region rules on the Schur system.
+
+Unknowns: per camera a world-to-camera rotation ``R`` (perturbed ``R Exp(dphi)``), a translation
+``t`` (``t + dt``) and intrinsics ``K`` (``K + dK``), tangent ``(dt, dphi, dK)``; per point a
+3-vector. Cost ``0.5 * sum rho(|r|^2)`` in pixels (``rho(s) = s`` without a robust loss).
+
+The iteration follows Ceres' ``TrustRegionMinimizer`` with ``LevenbergMarquardtStrategy`` so
+that iteration counts compare with Ceres': Jacobi scaling of the columns by
+``1 / (1 + |J_col|)`` fixed at iteration 0; damping ``D^2 = clamp(diag(J^T J), 1e-6, 1e32) /
+radius`` (radius starts at 1e4, diagonal reused after a rejected step); step quality
+``rho = actual / model cost decrease``; accepted when ``rho > 1e-3``, then
+``radius /= max(1/3, 1 - (2 rho - 1)^3)``; rejected: ``radius /= 2, 4, 8, ...``. Stops on
+``|cost change| <= 1e-6 cost`` (the step is then not taken, as in Ceres), a step shorter than
+``1e-8 (|x| + 1e-8)``, a gradient max-norm below ``1e-10``, ``radius < 1e-32``, or
+``max_iterations`` tries (accepted plus rejected, Ceres' ``iterations``).
+
+The gauge (7 degrees of freedom for BAL: rotation, translation, scale) is left free by default
+(the damping keeps the system definite, as in Ceres); ``fix_cameras=[0]`` holds camera 0 (and
+with it 6 of the 7), ``fix_points`` holds points.
+
+>>> import numpy as np
+>>> from microlie.optim.bundle import synthetic_scene, solve
+>>> truth, start = synthetic_scene(n_cameras=3, n_points=40, noise=0.0, seed=1)
+>>> result = solve(start, fix_cameras=[0])
+>>> result.converged, result.final_cost < 1e-12
+(True, True)
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .bal import BALProblem
+from .camera import BALCamera, CameraModel, PinholeCamera, reproject
+from .schur import LinearSolverKind, NormalEquations, SchurStructure
+
+__all__ = ["BundleProblem", "BundleResult", "IterationRecord", "solve", "synthetic_scene",
+           "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec", "camera_model"]
+
+
+def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(n, 3, 3)`` of angle-axis vectors ``(n, 3)`` (``SO3.exp``)."""
+    from ..groups import SO3
+
+    return np.asarray(SO3.exp(np.asarray(w, dtype=float)).matrix())
+
+
+def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
+    """Angle-axis vectors ``(n, 3)`` of rotation matrices (``SO3.log``)."""
+    from ..groups import SO3
+
+    return np.asarray(SO3.from_matrix(np.asarray(R), normalize=True).log())
+
+
+def camera_model(spec: str | CameraModel) -> CameraModel:
+    """``"bal"``, ``"pinhole"``, ``"pinhole-radtan"`` or a :class:`CameraModel`."""
+    if isinstance(spec, CameraModel):
+        return spec
+    models = {"bal": BALCamera, "pinhole": PinholeCamera,
+              "pinhole-radtan": lambda: PinholeCamera(distortion=True)}
+    if spec not in models:
+        raise ValueError(f"unknown camera model {spec!r}; known: {', '.join(models)}")
+    return models[spec]()  # type: ignore[operator]
+
+
+@dataclass(frozen=True)
+class BundleProblem:
+    """Cameras ``(R, t, K)`` (world to camera: ``P = R X + t``), points ``X`` and observations
+    ``(camera_index, point_index, observations)``; ``model`` projects camera-frame points."""
+
+    rotations: np.ndarray
+    translations: np.ndarray
+    intrinsics: np.ndarray
+    points: np.ndarray
+    camera_index: np.ndarray
+    point_index: np.ndarray
+    observations: np.ndarray
+    model: CameraModel = field(default_factory=BALCamera)
+
+    def __post_init__(self) -> None:
+        nc = self.rotations.shape[0] if np.ndim(self.rotations) == 3 else -1
+        if np.shape(self.rotations) != (nc, 3, 3):
+            raise ValueError(f"rotations must be (n_cameras, 3, 3), got {np.shape(self.rotations)}")
+        if np.shape(self.translations) != (nc, 3):
+            raise ValueError(f"translations must be ({nc}, 3), got {np.shape(self.translations)}")
+        self.model.check_intrinsics(self.intrinsics, nc)
+        if np.ndim(self.points) != 2 or np.shape(self.points)[1] != 3:
+            raise ValueError(f"points must be (n_points, 3), got {np.shape(self.points)}")
+        no = len(self.camera_index)
+        if np.shape(self.point_index) != (no,) or np.shape(self.observations) != (no, 2):
+            raise ValueError("camera_index, point_index and observations (n, 2) must agree in "
+                             "length")
+        for arr, lim, what in ((self.camera_index, nc, "camera"),
+                               (self.point_index, len(self.points), "point")):
+            if no and (np.min(arr) < 0 or np.max(arr) >= lim):
+                raise ValueError(f"an observation refers to a missing {what} (index out of "
+                                 f"range 0..{lim - 1})")
+        for a, what in ((self.rotations, "rotations"), (self.translations, "translations"),
+                        (self.points, "points"), (self.observations, "observations")):
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"{what} contain non-finite values")
+
+    @classmethod
+    def from_bal(cls, bal: BALProblem) -> BundleProblem:
+        c = bal.cameras
+        return cls(rotvec_to_matrix(c[:, :3]), c[:, 3:6].copy(), c[:, 6:9].copy(),
+                   bal.points.copy(), bal.camera_index, bal.point_index, bal.observations,
+                   BALCamera())
+
+    def to_bal(self) -> BALProblem:
+        if not isinstance(self.model, BALCamera):
+            raise ValueError("only problems with the BAL camera model can be written as BAL")
+        cams = np.concatenate([matrix_to_rotvec(self.rotations), self.translations,
+                               self.intrinsics], axis=1)
+        return BALProblem(cams, self.points.copy(), self.camera_index, self.point_index,
+                          self.observations)
+
+    @property
+    def n_cameras(self) -> int:
+        return int(self.rotations.shape[0])
+
+    @property
+    def n_points(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def cam_dim(self) -> int:
+        return 6 + self.model.n_intrinsics
+
+    def poses(self) -> Any:
+        """The cameras as a batch of world-to-camera ``SE3`` elements ``(R, t)``."""
+        from ..groups import SE3, SO3
+
+        q = np.asarray(SO3.from_matrix(self.rotations, normalize=True).params)
+        return SE3(np.concatenate([self.translations, q], axis=1))
+
+    def residuals(self, behind: str = "evaluate") -> np.ndarray:
+        return reproject(self.model, self.rotations, self.translations, self.intrinsics,
+                         self.points, self.camera_index, self.point_index, self.observations,
+                         jac=False, behind=behind).residuals  # type: ignore[arg-type]
+
+    def cost(self, behind: str = "evaluate") -> float:
+        r = self.residuals(behind)
+        return 0.5 * float(np.sum(r * r))
+
+    def retract(self, dc: np.ndarray, dp: np.ndarray) -> BundleProblem:
+        """``R Exp(dphi)``, ``t + dt``, ``K + dK``, ``X + dX`` for camera steps ``(dt, dphi,
+        dK)`` ``(n_cameras, 6 + k)`` and point steps ``(n_points, 3)``."""
+        from ..groups import SO3
+
+        dR = np.asarray(SO3.exp(dc[:, 3:6]).matrix())
+        return replace(self, rotations=self.rotations @ dR,
+                       translations=self.translations + dc[:, 0:3],
+                       intrinsics=self.intrinsics + dc[:, 6:], points=self.points + dp)
+
+
+@dataclass(frozen=True)
+class IterationRecord:
+    """One try: its number, the cost after it (the candidate's for a rejected try), whether it
+    was accepted, the step quality ``rho``, the trust radius used and the step norm."""
+
+    iteration: int
+    cost: float
+    accepted: bool
+    rho: float
+    radius: float
+    step_norm: float
+
+
+@dataclass
+class BundleResult:
+    """Outcome of :func:`solve`: the optimised ``problem``, costs ``0.5 sum rho(|r|^2)`` in
+    pixels, ``iterations`` (tries, as Ceres counts them), ``successful_steps``, ``converged``
+    with the reason in ``message``, wall time ``time_s`` and its breakdown ``timings``."""
+
+    problem: BundleProblem
+    initial_cost: float
+    final_cost: float
+    iterations: int
+    successful_steps: int
+    converged: bool
+    message: str
+    time_s: float
+    history: list[IterationRecord]
+    timings: dict[str, float]
+    behind: str = "evaluate"
+    _normal: Any = field(default=None, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"initial_cost": self.initial_cost, "final_cost": self.final_cost,
+                "iterations": self.iterations, "time_s": self.time_s,
+                "converged": self.converged, "message": self.message,
+                "successful_steps": self.successful_steps}
+
+    def camera_covariance(self, cameras: Sequence[int]) -> np.ndarray:
+        """Marginal covariances ``(len(cameras), d, d)`` of the camera tangents
+        ``(dt, dphi, dK)`` at the solution, from the reduced camera system: the camera block of
+        ``(J^T J)^-1`` is ``S^-1`` (``S`` the Schur complement of the points). With a free
+        gauge ``S`` is singular and the pseudo-inverse (minimum-norm gauge) is returned."""
+        S = _undamped_schur(self)
+        d = self.problem.cam_dim
+        idx = np.concatenate([np.arange(c * d, (c + 1) * d) for c in cameras])
+        keep = np.ones(S.shape[0], bool)
+        if self._normal is not None and self._normal.fixed_cameras is not None:
+            keep = ~self._normal.fixed_cameras.reshape(-1)
+        Sk = S[np.ix_(keep, keep)]
+        pos = -np.ones(S.shape[0], int)
+        pos[keep] = np.arange(keep.sum())
+        try:
+            cf = np.linalg.cholesky(Sk)
+            inv = np.linalg.inv(cf)
+            cov_k = inv.T @ inv
+        except np.linalg.LinAlgError:
+            cov_k = np.linalg.pinv(Sk, hermitian=True)
+        cov = np.zeros((len(idx), len(idx)))
+        sel = pos[idx] >= 0
+        cov[np.ix_(sel, sel)] = cov_k[np.ix_(pos[idx][sel], pos[idx][sel])]
+        return np.stack([cov[i * d:(i + 1) * d, i * d:(i + 1) * d] for i in range(len(cameras))])
+
+    def marginals(self, cameras: Sequence[int]) -> list[Any]:
+        """Marginal Gaussians of the chosen camera poses as world-to-camera ``SE3`` elements,
+        ``frame="right"``: ``T = Tbar Exp(rho, phi)``. The solver's translation step ``dt`` is
+        in the camera frame, so ``rho = R^T dt`` (first order) and the SE(3) covariance is
+        ``blockdiag(R^T, I) P blockdiag(R, I)`` of the pose block ``P`` of
+        :meth:`camera_covariance` (intrinsics are marginalised out)."""
+        from ..uncertainty import Gaussian
+
+        covs = self.camera_covariance(cameras)
+        poses = self.problem.poses()
+        out = []
+        for c, P in zip(cameras, covs, strict=True):
+            Rt = self.problem.rotations[c].T
+            T = np.zeros((6, 6))
+            T[:3, :3] = Rt
+            T[3:, 3:] = np.eye(3)
+            Pse3 = T @ P[:6, :6] @ T.T
+            out.append(Gaussian(poses[c], 0.5 * (Pse3 + Pse3.T), frame="right"))
+        return out
+
+
+def _undamped_schur(res: BundleResult) -> np.ndarray:
+    ne = res._normal
+    if ne is None:
+        raise ValueError("no linearisation stored in this result")
+    st = ne.structure
+    Dc2 = np.zeros((st.n_cameras, st.cam_dim))
+    Dp2 = np.zeros((st.n_points, 3))
+    red = ne.reduced_system(Dc2, Dp2)
+    if red is None:
+        raise np.linalg.LinAlgError("a point block is singular: some point is not determined")
+    # undo the column scaling: S_unscaled = diag(1/s) S diag(1/s)
+    sc = res.timings.get("_scale_c")
+    S = red[0]
+    if isinstance(sc, np.ndarray):
+        inv = 1.0 / sc.reshape(-1)
+        S = inv[:, None] * S * inv[None, :]
+    return S
+
+
+def _as_mask(idx: Sequence[int] | np.ndarray | None, n: int, what: str) -> np.ndarray | None:
+    if idx is None:
+        return None
+    a = np.asarray(idx)
+    if a.dtype == bool:
+        if a.shape != (n,):
+            raise ValueError(f"{what} mask must have shape ({n},)")
+        return a.copy()
+    a = a.astype(np.intp).ravel()
+    if len(a) and (a.min() < 0 or a.max() >= n):
+        raise ValueError(f"{what} index out of range 0..{n - 1}")
+    m = np.zeros(n, bool)
+    m[a] = True
+    return m if m.any() else None
+
+
+def _camera_mask(pose: np.ndarray | None, intr: np.ndarray | None, n: int, d: int
+                 ) -> np.ndarray | None:
+    if pose is None and intr is None:
+        return None
+    m = np.zeros((n, d), bool)
+    if pose is not None:
+        m[pose, :6] = True
+    if intr is not None:
+        m[intr, 6:] = True
+    return m
+
+
+def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: str = "evaluate",
+          fix_cameras: Sequence[int] | None = None, fix_points: Sequence[int] | None = None,
+          fix_intrinsics: Sequence[int] | bool | None = None,
+          linear_solver: LinearSolverKind = "auto", max_iterations: int = 100,
+          function_tolerance: float = 1e-6, gradient_tolerance: float = 1e-10,
+          parameter_tolerance: float = 1e-8, initial_radius: float = 1e4,
+          jacobi_scaling: bool = True, verbose: bool = False) -> BundleResult:
+    """Levenberg-Marquardt bundle adjustment (Ceres' rules, module docstring).
+
+    ``fix_cameras``: cameras whose *pose* is held (the gauge: one camera holds 6 of BAL's 7
+    degrees of freedom; the scale stays free and the damping handles it). ``fix_intrinsics``:
+    cameras whose intrinsics are held (``True``: all). ``fix_points``: held points.
+
+    ``robust``: a loss of :mod:`microlie.optim.robust` or a spec such as ``"huber:1.0"`` (scale
+    in pixels) applied to each observation's squared residual norm. ``behind``: ``"evaluate"``
+    (BAL convention) or ``"drop"`` (GTSAM/COLMAP), see :mod:`microlie.optim.camera`.
+    """
+    t_start = time.perf_counter()
+    if isinstance(problem, BALProblem):
+        problem = BundleProblem.from_bal(problem)
+    loss = None
+    if robust is not None:
+        from .robust import make_loss
+
+        loss = make_loss(robust)
+    if max_iterations < 0:
+        raise ValueError("max_iterations must be >= 0")
+    if initial_radius <= 0:
+        raise ValueError("initial_radius must be positive")
+    model = problem.model
+    nc, npt, d = problem.n_cameras, problem.n_points, problem.cam_dim
+    intr: Sequence[int] | np.ndarray | None
+    if fix_intrinsics is True:
+        intr = np.arange(nc)
+    elif fix_intrinsics is False:
+        intr = None
+    else:
+        intr = fix_intrinsics
+    fc = _camera_mask(_as_mask(fix_cameras, nc, "fix_cameras"),
+                      _as_mask(intr, nc, "fix_intrinsics"), nc, d)
+    fp = _as_mask(fix_points, npt, "fix_points")
+    # observations sorted by point, once
+    order = np.lexsort((problem.camera_index, problem.point_index))
+    cam = np.asarray(problem.camera_index)[order].astype(np.intp)
+    pt = np.asarray(problem.point_index)[order].astype(np.intp)
+    obs = np.asarray(problem.observations, dtype=float)[order]
+    tm: dict[str, Any] = {"structure": 0.0, "evaluate": 0.0, "linearize": 0.0,
+                          "schur_form": 0.0, "reduced_solve": 0.0, "back_substitution": 0.0,
+                          "step": 0.0}
+    t0 = time.perf_counter()
+    structure = SchurStructure(cam, pt, nc, npt, d)
+    tm["structure"] += time.perf_counter() - t0
+
+    def evaluate(p: BundleProblem) -> float:
+        t = time.perf_counter()
+        r = reproject(model, p.rotations, p.translations, p.intrinsics, p.points, cam, pt, obs,
+                      jac=False, behind=behind).residuals  # type: ignore[arg-type]
+        s = (r * r).sum(1)
+        c = 0.5 * float(loss.rho(s).sum() if loss is not None else s.sum())
+        tm["evaluate"] += time.perf_counter() - t
+        return c
+
+    scale_c: np.ndarray | None = None
+    scale_p: np.ndarray | None = None
+
+    def linearize(p: BundleProblem) -> tuple[float, NormalEquations, float, np.ndarray]:
+        nonlocal scale_c, scale_p
+        t = time.perf_counter()
+        rp = reproject(model, p.rotations, p.translations, p.intrinsics, p.points, cam, pt, obs,
+                       behind=behind)  # type: ignore[arg-type]
+        r, Jc, Jp = rp.residuals, rp.J_cam, rp.J_point
+        assert Jc is not None and Jp is not None
+        s = (r * r).sum(1)
+        if loss is not None:
+            from .robust import corrected_weights
+
+            rho, rscale, aos = corrected_weights(loss, s)
+            cost = 0.5 * float(rho.sum())
+            w = np.sqrt(np.maximum(loss.evaluate(s)[1], 0.0))
+            if np.any(aos != 0):
+                # J <- sqrt(rho') (I - aos r r^T) J, with the unscaled residual
+                rJc = np.einsum("nr,nrk->nk", r, Jc)
+                rJp = np.einsum("nr,nrk->nk", r, Jp)
+                Jc = Jc - (aos[:, None, None] * r[:, :, None]) * rJc[:, None, :]
+                Jp = Jp - (aos[:, None, None] * r[:, :, None]) * rJp[:, None, :]
+            Jc = Jc * w[:, None, None]
+            Jp = Jp * w[:, None, None]
+            r = r * rscale[:, None]
+        else:
+            cost = 0.5 * float(s.sum())
+        if jacobi_scaling:
+            if scale_c is None:
+                nc2 = np.zeros((nc, d))
+                np.add.at(nc2, cam, (Jc * Jc).sum(1))
+                np2 = np.zeros((npt, 3))
+                np.add.at(np2, pt, (Jp * Jp).sum(1))
+                scale_c = 1.0 / (1.0 + np.sqrt(nc2))
+                scale_p = 1.0 / (1.0 + np.sqrt(np2))
+            assert scale_p is not None
+            Jc = Jc * scale_c[cam][:, None, :]
+            Jp = Jp * scale_p[pt][:, None, :]
+        ne = NormalEquations(structure, r, Jc, Jp, fc, fp, tm)
+        g = ne.gradient
+        if jacobi_scaling:
+            assert scale_c is not None and scale_p is not None
+            g = g / np.concatenate([scale_c.reshape(-1), scale_p.reshape(-1)])
+        gmask = np.ones(len(g), bool)
+        if fc is not None:
+            gmask[: nc * d] &= ~fc.reshape(-1)
+        if fp is not None:
+            gmask[nc * d:].reshape(npt, 3)[fp] = False
+        gmax = float(np.max(np.abs(g[gmask]))) if gmask.any() else 0.0
+        tm["linearize"] += time.perf_counter() - t
+        return cost, ne, gmax, r
+
+    def xnorm(p: BundleProblem) -> float:
+        return float(np.sqrt(np.sum(p.translations ** 2) + np.sum(p.intrinsics ** 2)
+                             + np.sum(p.points ** 2) + np.sum(matrix_to_rotvec(p.rotations) ** 2)))
+
+    x = problem
+    cost, ne, gmax, r = linearize(x)
+    initial_cost = cost
+    radius, decrease = float(initial_radius), 2.0
+    diag_c = diag_p = None
+    reuse = False
+    history: list[IterationRecord] = []
+    it, successful = 0, 1                      # Ceres counts iteration 0 as successful
+    converged, message = False, "maximum number of iterations reached"
+    x_norm = -1.0                              # as Ceres: no parameter test before a step
+    if verbose:
+        print(f"iter {0:4d}  cost {cost:.9e}  radius {radius:.2e}", file=sys.stderr)
+    while True:
+        if gmax <= gradient_tolerance:
+            converged, message = True, f"gradient tolerance reached ({gmax:.3e})"
+            break
+        if radius <= 1e-32:
+            converged, message = True, "minimum trust region radius reached"
+            break
+        if it >= max_iterations:
+            break
+        it += 1
+        ts = time.perf_counter()
+        if not reuse or diag_c is None:
+            diag_c = np.clip(ne.diag_c, 1e-6, 1e32)
+            diag_p = np.clip(ne.diag_p, 1e-6, 1e32)
+        assert diag_p is not None
+        tm["step"] += time.perf_counter() - ts
+        step = ne.solve(diag_c / radius, diag_p / radius, linear_solver)
+        ts = time.perf_counter()
+        if step is None:
+            # invalid step: shrink the radius and retry (Ceres' StepIsInvalid)
+            radius /= decrease
+            decrease *= 2.0
+            reuse = True
+            history.append(IterationRecord(it, cost, False, 0.0, radius, 0.0))
+            tm["step"] += time.perf_counter() - ts
+            continue
+        yc, yp = step
+        Jd = ne.jvp(yc, yp)
+        model_change = -float(np.sum(Jd * (r + 0.5 * Jd)))
+        if jacobi_scaling:
+            assert scale_c is not None and scale_p is not None
+            dc, dp = yc * scale_c, yp * scale_p
+        else:
+            dc, dp = yc, yp
+        tm["step"] += time.perf_counter() - ts
+        if not model_change > 0.0:
+            radius /= decrease
+            decrease *= 2.0
+            reuse = True
+            history.append(IterationRecord(it, cost, False, 0.0, radius, 0.0))
+            continue
+        cand = x.retract(dc, dp)
+        cand_cost = evaluate(cand)
+        if not np.isfinite(cand_cost):
+            cand_cost = float(np.finfo(float).max)
+        step_norm = float(np.sqrt(np.sum(dc * dc) + np.sum(dp * dp)))
+        if step_norm <= parameter_tolerance * (x_norm + parameter_tolerance):
+            converged, message = True, "parameter tolerance reached"
+            history.append(IterationRecord(it, cand_cost, False, 0.0, radius, step_norm))
+            break
+        if abs(cost - cand_cost) <= function_tolerance * cost:
+            converged, message = True, (f"function tolerance reached (|cost change|/cost = "
+                                        f"{abs(cost - cand_cost) / cost:.3e})")
+            history.append(IterationRecord(it, cand_cost, False, 0.0, radius, step_norm))
+            break
+        rho = (cost - cand_cost) / model_change
+        used_radius = radius
+        if rho > 1e-3:
+            x = cand
+            x_norm = xnorm(x)
+            cost, ne, gmax, r = linearize(x)
+            radius = min(1e16, radius / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
+            decrease, reuse = 2.0, False
+            successful += 1
+        else:
+            radius /= decrease
+            decrease *= 2.0
+            reuse = True
+        history.append(IterationRecord(it, cand_cost, rho > 1e-3, rho, used_radius, step_norm))
+        if verbose:
+            print(f"iter {it:4d}  cost {cand_cost:.9e}  rho {rho:+.3e}  radius {radius:.2e}"
+                  f"  {'accepted' if rho > 1e-3 else 'rejected'}", file=sys.stderr)
+    if jacobi_scaling:
+        tm["_scale_c"] = scale_c
+    time_s = time.perf_counter() - t_start
+    tm["total"] = time_s
+    final_cost = cost
+    return BundleResult(x, initial_cost, final_cost, it, successful, converged, message, time_s,
+                        history, tm, behind, ne)
+
+
+# ---------------------------------------------------------------------------- synthetic scenes
+
+def synthetic_scene(n_cameras: int = 5, n_points: int = 100, *, noise: float = 0.5,
+                    perturb: float = 0.05, seed: int = 0, model: str | CameraModel = "bal",
+                    distance: float = 6.0) -> tuple[BundleProblem, BundleProblem]:
+    """An arc of cameras at ``distance`` looking at a point cloud in ``[-1, 1]^3``:
+    ``(truth, start)``.
+
+    ``truth`` holds the true cameras and points with observations perturbed by ``noise``
+    pixels; ``start`` is the same problem with cameras and points perturbed (rotation about
+    ``perturb`` rad, translation and points ``perturb`` units). Every camera sees every point.
+    """
+    rng = np.random.default_rng(seed)
+    mdl = camera_model(model)
+    X = rng.uniform(-1.0, 1.0, (n_points, 3))
+    ang = np.linspace(0.0, 0.8, n_cameras)
+    centers = np.stack([distance * np.sin(ang), 0.3 * rng.standard_normal(n_cameras),
+                        distance * np.cos(ang)], 1)
+    Rs, ts = [], []
+    for c in centers:
+        # camera looking at the origin; BAL looks down -z, the pinhole model down +z
+        fwd = -c / np.linalg.norm(c)
+        z = -fwd if isinstance(mdl, BALCamera) else fwd
+        xax = np.cross([0.0, 1.0, 0.0], z)
+        xax /= np.linalg.norm(xax)
+        yax = np.cross(z, xax)
+        R = np.stack([xax, yax, z])        # rows: camera axes in the world
+        Rs.append(R)
+        ts.append(-R @ c)
+    R = np.array(Rs)
+    t = np.array(ts)
+    if isinstance(mdl, BALCamera):
+        K = np.tile([500.0, 1e-2, -1e-3], (n_cameras, 1))
+    elif mdl.n_intrinsics == 4:
+        K = np.tile([500.0, 510.0, 320.0, 240.0], (n_cameras, 1))
+    else:
+        K = np.tile([500.0, 510.0, 320.0, 240.0, -0.1, 0.01, 1e-3, -1e-3], (n_cameras, 1))
+    cam = np.repeat(np.arange(n_cameras), n_points)
+    pt = np.tile(np.arange(n_points), n_cameras)
+    clean = reproject(mdl, R, t, K, X, cam, pt, np.zeros((len(cam), 2)), jac=False).residuals
+    obs = clean + noise * rng.standard_normal(clean.shape)
+    truth = BundleProblem(R, t, K, X, cam, pt, obs, mdl)
+    from ..groups import SO3
+
+    dR = np.asarray(SO3.exp(perturb * rng.standard_normal((n_cameras, 3))).matrix())
+    start = replace(truth, rotations=R @ dR,
+                    translations=t + perturb * rng.standard_normal(t.shape),
+                    points=X + perturb * rng.standard_normal(X.shape))
+    return truth, start
+
+
+# ---------------------------------------------------------------------------- plot
+
+def plot_bundle(initial: BundleProblem, optimised: BundleProblem, path: Any = None,
+                title: str | None = None, max_points: int = 20000) -> Any:
+    """3-D views of the camera centres ``-R^T t`` and the points before (left) and after
+    (right); saved to ``path`` (PNG) when given. Builds a ``matplotlib.figure.Figure`` with the
+    Agg canvas (never pyplot, never the caller's backend) and returns it. The view is limited
+    to the 2-98 % range of the points (BAL files have a few far-away points)."""
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError as exc:  # pragma: no cover - exercised only without matplotlib
+        raise ImportError("plotting needs matplotlib: pip install 'microlie[plot]'") from exc
+    fig = Figure(figsize=(12.0, 6.0), dpi=100)
+    FigureCanvasAgg(fig)
+    for k, (p, name) in enumerate(((initial, "initial"), (optimised, "optimised"))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        X = p.points
+        if len(X) > max_points:
+            X = X[np.linspace(0, len(X) - 1, max_points).astype(int)]
+        centres = -np.einsum("nji,nj->ni", p.rotations, p.translations)
+        ax.scatter(X[:, 0], X[:, 1], X[:, 2], s=0.3, c="tab:blue", alpha=0.5, label="points")
+        ax.scatter(centres[:, 0], centres[:, 1], centres[:, 2], s=12, c="tab:red", marker="^",
+                   label="cameras")
+        both = np.concatenate([X, centres])
+        lo, hi = np.percentile(both, 2, axis=0), np.percentile(both, 98, axis=0)
+        mid, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-9)
+        ax.set_xlim(mid[0] - half, mid[0] + half)
+        ax.set_ylim(mid[1] - half, mid[1] + half)
+        ax.set_zlim(mid[2] - half, mid[2] + half)
+        ax.set_xlabel("x")
+        ax.set_ylabel("y")
+        ax.set_zlabel("z")
+        ax.set_title(f"{name}: cost {p.cost():.6g}")
+        ax.legend(loc="upper right", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    if path is not None:
+        fig.savefig(path)
+    return fig

@@ -1,0 +1,227 @@
+"""Sparse symmetric positive definite solvers behind one small interface.
+
+``solver.analyse(indptr, indices, n)`` sees the fixed sparsity pattern once (full symmetric
+storage, compressed sparse columns, sorted rows); ``solver.factorize(data)`` refactorises with
+new numbers in that pattern; ``solver.solve(b)`` solves ``H x = b``. A matrix that is not
+positive definite raises :class:`SingularSystemError`.
+
+Backends (``make_solver(name)``): ``"supernodal"`` (our supernodal multifrontal Cholesky on the
+block pattern, NumPy and LAPACK only, :mod:`microlie.optim.cholesky`), ``"scipy"`` (SuperLU with
+a symmetric minimum-degree order), ``"qdldl"`` (``pip install microlie[sparse]``, Apache-2.0),
+``"pardiso"`` (Intel MKL PARDISO through pypardiso, ``pip install microlie[mkl]``), ``"dense"``
+(LAPACK Cholesky of the dense matrix, for small problems). ``"auto"`` takes PARDISO if
+installed, else the supernodal Cholesky (measured faster than SuperLU on the shared pose graphs,
+see ``benchmarks/pose_graph.py``); below 300 unknowns it takes the dense Cholesky.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla  # type: ignore[import-untyped]
+import scipy.sparse as sp  # type: ignore[import-untyped]
+import scipy.sparse.linalg as spla  # type: ignore[import-untyped]
+
+__all__ = ["LinearSolver", "SingularSystemError", "make_solver", "available_solvers",
+           "SOLVERS"]
+
+
+class SingularSystemError(ValueError):
+    """The linear system is singular or not positive definite."""
+
+
+class LinearSolver:
+    """Analyse once, refactorise many times, solve."""
+
+    name = "base"
+
+    def analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int,
+                block_size: int = 1) -> None:
+        """See the pattern (``block_size``: the unknowns come in dense blocks of that size)."""
+        self.indptr, self.indices, self.n = indptr, indices, n
+        cols = np.repeat(np.arange(n), np.diff(indptr))
+        self._upper = np.flatnonzero(indices <= cols)  # CSC upper triangle (= CSR lower)
+        self._lower = np.flatnonzero(indices >= cols)  # CSC lower triangle (= CSR upper)
+        up_cols = cols[self._upper]
+        self.upper_indptr = np.concatenate([[0], np.cumsum(np.bincount(up_cols, minlength=n))]
+                                           ).astype(np.int32)
+        self.upper_indices = indices[self._upper].astype(np.int32)
+        lo_cols = cols[self._lower]
+        self.lower_indptr = np.concatenate([[0], np.cumsum(np.bincount(lo_cols, minlength=n))]
+                                           ).astype(np.int32)
+        self.lower_indices = indices[self._lower].astype(np.int32)
+
+    def full(self, data: np.ndarray) -> sp.csc_matrix:
+        return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+
+    def factorize(self, data: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+def _checked(x: np.ndarray) -> np.ndarray:
+    if not np.all(np.isfinite(x)):
+        raise SingularSystemError("the linear system is singular (the solution is not finite)")
+    return x
+
+
+class ScipySolver(LinearSolver):
+    """SuperLU (scipy) with the minimum-degree order on ``A^T + A`` and symmetric mode
+    (diagonal pivots, no partial pivoting), the fastest SuperLU setting for these matrices."""
+
+    name = "scipy"
+
+    def factorize(self, data: np.ndarray) -> None:
+        try:
+            self._lu = spla.splu(self.full(data), permc_spec="MMD_AT_PLUS_A",
+                                 diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        except RuntimeError as e:
+            raise SingularSystemError(f"the linear system is singular ({e})") from None
+        d = self._lu.U.diagonal()
+        if not np.all(d > 0):
+            raise SingularSystemError("the linear system is not positive definite (a pivot "
+                                      "is zero or negative)")
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        return _checked(self._lu.solve(b))
+
+
+class QdldlSolver(LinearSolver):
+    """qdldl's LDL^T with its AMD order, analysed once and updated numerically."""
+
+    name = "qdldl"
+
+    def analyse(self, indptr, indices, n, block_size=1):
+        super().analyse(indptr, indices, n)
+        import qdldl  # type: ignore[import-not-found]
+
+        self._mod = qdldl
+        self._solver: Any = None
+
+    def factorize(self, data: np.ndarray) -> None:
+        U = sp.csc_matrix((data[self._upper], self.upper_indices, self.upper_indptr),
+                          shape=(self.n, self.n))
+        try:
+            if self._solver is None:
+                self._solver = self._mod.Solver(U, upper=True)
+            else:
+                self._solver.update(U, upper=True)
+        except Exception as e:  # qdldl raises ValueError on a zero pivot
+            self._solver = None
+            raise SingularSystemError(f"the linear system is singular ({e})") from None
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        return _checked(self._solver.solve(b))
+
+
+class PardisoSolver(LinearSolver):
+    """Intel MKL PARDISO (real symmetric positive definite, ``mtype=2``): symbolic analysis
+    (phase 11) once, numeric factorisation (22) and solve (33) per call."""
+
+    name = "pardiso"
+
+    def analyse(self, indptr, indices, n, block_size=1):
+        super().analyse(indptr, indices, n)
+        self._ps = _pardiso_instance()
+        self._A = sp.csr_matrix((np.zeros(self._lower.size), self.lower_indices,
+                                 self.lower_indptr), shape=(n, n))
+        self._analysed = False
+
+    def _call(self, phase: int, b: np.ndarray) -> np.ndarray:
+        self._ps.set_phase(phase)
+        return self._ps._call_pardiso(self._A, b)
+
+    def factorize(self, data: np.ndarray) -> None:
+        self._A.data[:] = data[self._lower]
+        b = np.zeros((self.n, 1))
+        try:
+            if not self._analysed:
+                self._call(11, b)
+                self._analysed = True
+            self._call(22, b)
+        except Exception as e:  # PyPardisoError: -4 zero pivot, ...
+            raise SingularSystemError(f"the linear system is not positive definite "
+                                      f"(PARDISO: {e})") from None
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        x = self._call(33, np.asfortranarray(b.reshape(self.n, -1)))
+        return _checked(x.reshape(b.shape))
+
+
+_PARDISO_TEMPLATE: Any = None
+
+
+def _pardiso_instance() -> Any:
+    """A fresh PyPardisoSolver (``mtype=2``) without searching for and loading MKL again
+    (about half a second per construction): copies of one template with new handles."""
+    global _PARDISO_TEMPLATE
+    import copy
+
+    import pypardiso  # type: ignore[import-not-found]
+
+    if _PARDISO_TEMPLATE is None:
+        _PARDISO_TEMPLATE = pypardiso.PyPardisoSolver(mtype=2)
+    ps = copy.copy(_PARDISO_TEMPLATE)
+    ps.pt = np.zeros_like(_PARDISO_TEMPLATE.pt)
+    ps.iparm = np.zeros_like(_PARDISO_TEMPLATE.iparm)
+    ps.perm = np.zeros(0, dtype=np.int32)
+    return ps
+
+
+class DenseSolver(LinearSolver):
+    """LAPACK Cholesky of the dense matrix (small problems)."""
+
+    name = "dense"
+
+    def factorize(self, data: np.ndarray) -> None:
+        try:
+            self._c = sla.cho_factor(self.full(data).toarray(), lower=True, check_finite=False)
+        except np.linalg.LinAlgError as e:
+            raise SingularSystemError(f"the linear system is not positive definite ({e})") \
+                from None
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        return _checked(sla.cho_solve(self._c, b, check_finite=False))
+
+
+def _supernodal() -> type[LinearSolver]:
+    from .cholesky import SupernodalSolver
+
+    return SupernodalSolver
+
+
+SOLVERS: dict[str, Any] = {"supernodal": _supernodal, "scipy": lambda: ScipySolver,
+                           "qdldl": lambda: QdldlSolver, "pardiso": lambda: PardisoSolver,
+                           "dense": lambda: DenseSolver}
+_MODULES = {"qdldl": "qdldl", "pardiso": "pypardiso"}
+_EXTRAS = {"qdldl": "microlie[sparse]", "pardiso": "microlie[mkl]"}
+
+
+def available_solvers() -> list[str]:
+    """The backends importable here (``scipy`` and ``dense`` always are)."""
+    return [k for k in SOLVERS
+            if k not in _MODULES or importlib.util.find_spec(_MODULES[k]) is not None]
+
+
+def make_solver(name: str | LinearSolver, n: int = 0) -> LinearSolver:
+    """A solver by name (``"auto"`` picks by availability and size, see the module)."""
+    if isinstance(name, LinearSolver):
+        return name
+    if name == "auto":
+        if n < 300:
+            return DenseSolver()
+        if "pardiso" in available_solvers():
+            return PardisoSolver()
+        return SOLVERS["supernodal"]()()
+    make = SOLVERS.get(name)
+    if make is None:
+        raise ValueError(f"unknown linear solver {name!r}; known: auto, "
+                         f"{', '.join(SOLVERS)}")
+    if name in _MODULES and importlib.util.find_spec(_MODULES[name]) is None:
+        raise ImportError(f"linear_solver={name!r} needs the package {_MODULES[name]!r} "
+                          f"(pip install {_EXTRAS[name]!r})")
+    return make()()

@@ -1,0 +1,361 @@
+"""Pose graphs read from files: one typed object, a shared line parser, GTSAM's cost.
+
+A :class:`PoseGraph` holds what a g2o or TORO file says: the group (SE2 or SE3), the vertex
+ids, the initial poses as one batch (``None`` when the file has no vertices), the edges
+``i -> j`` with their measurements ``Z`` as one batch, the information matrices ``(E, d, d)`` in
+**our tangent order** (translation first: SE2 ``(x, y, theta)``, SE3 ``(rho, phi)``), and the
+fixed ids. Its :meth:`~PoseGraph.cost` is GTSAM's ``0.5 sum r^T Omega r`` with the edge
+residual ``r = (X_i^-1 X_j) (-) Z = Log(Z^-1 X_i^-1 X_j)``, over the file's edges only.
+
+The readers live in :mod:`microlie.optim.g2o` and :mod:`microlie.optim.toro`; both use the
+parser here, which reports a malformed line as ``ValueError("FILE:LINE: ...")``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..groups import SE2, SE3, LieGroup
+
+__all__ = ["PoseGraph", "VertexTag", "EdgeTag", "parse_pose_graph", "symmetric_from_upper"]
+
+
+@dataclass(frozen=True, eq=False)
+class PoseGraph:
+    """A pose graph: vertices (ids, optional initial poses), edges with measurements and
+    information matrices in our tangent order, and fixed ids.
+
+    ``i``, ``j`` and ``fixed`` hold vertex *ids* as in the file; ``ids`` is sorted and
+    ``poses[k]`` (when present) is the pose of ``ids[k]``. An edge says ``Z ~ X_i^-1 X_j``.
+
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> g = PoseGraph(SE2, ids=np.array([0, 1]), poses=SE2.from_xy_theta([0., 1.], [0., 0.], 0.),
+    ...               i=np.array([0]), j=np.array([1]),
+    ...               measurements=SE2.from_xy_theta([1.1], [0.], [0.]),
+    ...               information=np.eye(3)[None] * 100.0)
+    >>> round(g.cost(), 12)  # 0.5 * 100 * 0.1^2
+    0.5
+    """
+
+    group: type[LieGroup]
+    ids: np.ndarray
+    poses: LieGroup | None
+    i: np.ndarray
+    j: np.ndarray
+    measurements: LieGroup
+    information: np.ndarray
+    fixed: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    def __post_init__(self) -> None:
+        if self.group not in (SE2, SE3):
+            raise ValueError(f"a pose graph is on SE2 or SE3, got {self.group!r}")
+        d = self.group.dof
+        ids = np.asarray(self.ids, dtype=np.int64)
+        object.__setattr__(self, "ids", ids)
+        for name in ("i", "j", "fixed"):
+            object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=np.int64))
+        if ids.ndim != 1 or np.any(np.diff(ids) <= 0):
+            raise ValueError("ids must be a strictly increasing 1-D array of vertex ids")
+        n_e = self.i.shape[0]
+        if self.i.shape != (n_e,) or self.j.shape != (n_e,):
+            raise ValueError("i and j must be 1-D arrays of the same length")
+        if self.measurements.batch_shape != (n_e,) or type(self.measurements) is not self.group:
+            raise ValueError(f"measurements must be a {self.group.__name__} batch of {n_e}")
+        info = np.asarray(self.information, dtype=np.float64)
+        if info.shape != (n_e, d, d):
+            raise ValueError(f"information must have shape ({n_e}, {d}, {d}), got {info.shape}")
+        object.__setattr__(self, "information", info)
+        if self.poses is not None and (type(self.poses) is not self.group
+                                       or self.poses.batch_shape != ids.shape):
+            raise ValueError(f"poses must be a {self.group.__name__} batch of {ids.size}")
+        for name in ("i", "j", "fixed"):
+            missing = np.setdiff1d(getattr(self, name), ids)
+            if missing.size:
+                raise ValueError(f"{name} refers to vertex id {int(missing[0])}, not in ids")
+
+    # ------------------------------------------------------------------ sizes and indices
+    @property
+    def dim(self) -> int:
+        """The dimension of the poses: 2 (SE2) or 3 (SE3)."""
+        return self.group.point_dim
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.ids.size)
+
+    @property
+    def num_edges(self) -> int:
+        return int(self.i.size)
+
+    def index(self, ids: Any) -> np.ndarray:
+        """Positions in ``ids`` (and in ``poses``) of the given vertex ids."""
+        ids = np.asarray(ids, dtype=np.int64)
+        k = np.searchsorted(self.ids, ids)
+        if np.any(k >= self.ids.size) or np.any(self.ids[np.minimum(k, self.ids.size - 1)] != ids):
+            raise ValueError("unknown vertex id")
+        return k
+
+    def edge_index(self) -> tuple[np.ndarray, np.ndarray]:
+        """Positions ``(ii, jj)`` in ``poses`` of the edges' endpoints."""
+        return self.index(self.i), self.index(self.j)
+
+    def replace(self, **changes: Any) -> PoseGraph:
+        """A copy with some fields replaced (for example ``poses=...``)."""
+        return dataclasses.replace(self, **changes)
+
+    # ------------------------------------------------------------------ cost
+    def residuals(self, poses: LieGroup | None = None) -> np.ndarray:
+        """Edge residuals ``Log(Z^-1 X_i^-1 X_j)``, shape ``(E, d)``, in our tangent order."""
+        X = self._poses(poses)
+        ii, jj = self.edge_index()
+        return np.asarray(X[ii].between(X[jj]).minus(self.measurements))
+
+    def cost(self, poses: LieGroup | None = None) -> float:
+        """GTSAM's error ``0.5 sum_e r_e^T Omega_e r_e`` over the edges (no prior terms)."""
+        r = self.residuals(poses)
+        return 0.5 * float(np.einsum("ei,eij,ej->", r, self.information, r))
+
+    def _poses(self, poses: LieGroup | None) -> LieGroup:
+        X = self.poses if poses is None else poses
+        if X is None:
+            raise ValueError("this pose graph has no poses: give poses or initialise "
+                             "(microlie.optim.init)")
+        if type(X) is not self.group or X.batch_shape != self.ids.shape:
+            raise ValueError(f"poses must be a {self.group.__name__} batch of {self.ids.size}")
+        return X
+
+
+def symmetric_from_upper(values: np.ndarray, d: int) -> np.ndarray:
+    """``(E, d(d+1)/2)`` upper-triangle entries, row by row, to symmetric ``(E, d, d)``."""
+    r, c = np.triu_indices(d)
+    M = np.zeros((values.shape[0], d, d))
+    M[:, r, c] = values
+    M[:, c, r] = values
+    return M
+
+
+# ---------------------------------------------------------------------- the line parser
+@dataclass(frozen=True)
+class VertexTag:
+    """A vertex line ``TAG id v_1 ... v_n``; ``to_params`` maps ``(V, n)`` values to group
+    parameters ``(V, param_dim)``."""
+
+    group: type[LieGroup]
+    n: int
+    to_params: Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class EdgeTag:
+    """An edge line ``TAG i j z_1 ... z_n w_1 ... w_m``; ``to_params`` maps the measurement
+    values to group parameters, ``to_information`` maps ``(E, m)`` values to ``(E, d, d)``
+    information matrices in our tangent order."""
+
+    group: type[LieGroup]
+    n: int
+    m: int
+    to_params: Callable[[np.ndarray], np.ndarray]
+    to_information: Callable[[np.ndarray], np.ndarray]
+
+
+class _Lines:
+    """Collects the numbers of one kind of line, with line numbers for error messages."""
+
+    def __init__(self) -> None:
+        self.ids: list[list[int]] = []
+        self.values: list[list[float]] = []
+        self.lines: list[int] = []
+
+
+def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
+                     edge_tags: dict[str, EdgeTag], fix_tag: str | None = None,
+                     kind: str = "pose-graph") -> PoseGraph:
+    """Parse a line-based pose-graph file with the given tags (see :mod:`.g2o`, :mod:`.toro`).
+
+    Blank lines and lines starting with ``#`` are skipped. Every other line must start with a
+    known tag and have exactly its number of fields; anything else is a ``ValueError`` naming
+    ``FILE:LINE``.
+    """
+    path = Path(path)
+    name = str(path)
+    vertices, edges, fixed = _Lines(), _Lines(), _Lines()
+    group: type[LieGroup] | None = None
+    group_line = 0
+    known = sorted([*vertex_tags, *edge_tags, *([fix_tag] if fix_tag else [])])
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        toks = line.split()
+        if not toks or toks[0].startswith("#"):
+            continue
+        tag, fields = toks[0], toks[1:]
+        where = f"{name}:{lineno}"
+        if tag == fix_tag:
+            if not fields:
+                raise ValueError(f"{where}: {tag} needs at least one vertex id")
+            fixed.ids.append(_ints(fields, where, tag))
+            fixed.lines.append(lineno)
+            continue
+        spec: VertexTag | EdgeTag
+        if tag in vertex_tags:
+            spec, n_ids, store = vertex_tags[tag], 1, vertices
+            n_num = spec.n
+        elif tag in edge_tags:
+            spec, n_ids, store = edge_tags[tag], 2, edges
+            n_num = spec.n + spec.m
+        else:
+            raise ValueError(f"{where}: unknown tag {tag!r} in a {kind} file "
+                             f"(known: {', '.join(known)})")
+        if len(fields) != n_ids + n_num:
+            raise ValueError(f"{where}: {tag} needs {n_ids + n_num} fields "
+                             f"({n_ids} id{'s' * (n_ids > 1)} and {n_num} numbers), "
+                             f"got {len(fields)}")
+        if group is None:
+            group, group_line = spec.group, lineno
+        elif spec.group is not group:
+            raise ValueError(f"{where}: {tag} is a {spec.group.__name__} line but line "
+                             f"{group_line} made this a {group.__name__} graph")
+        store.ids.append(_ints(fields[:n_ids], where, tag))
+        store.values.append(_floats(fields[n_ids:], where, tag))
+        store.lines.append(lineno)
+    if group is None:
+        raise ValueError(f"{name}: no vertex or edge lines (tags: {', '.join(known)})")
+    return _assemble(name, group, vertices, edges, fixed, vertex_tags, edge_tags)
+
+
+def _ints(fields: Sequence[str], where: str, tag: str) -> list[int]:
+    try:
+        out = [int(f) for f in fields]
+    except ValueError:
+        bad = next(f for f in fields if not f.lstrip("+-").isdigit())
+        raise ValueError(f"{where}: {tag}: vertex id {bad!r} is not an integer") from None
+    if any(v < 0 for v in out):
+        raise ValueError(f"{where}: {tag}: negative vertex id {min(out)}")
+    return out
+
+
+def _floats(fields: Sequence[str], where: str, tag: str) -> list[float]:
+    try:
+        out = [float(f) for f in fields]
+    except ValueError:
+        bad = next(f for f in fields if not _is_float(f))
+        raise ValueError(f"{where}: {tag}: field {bad!r} is not a number") from None
+    if not all(math.isfinite(v) for v in out):
+        bad = next(f for f, v in zip(fields, out, strict=True) if not math.isfinite(v))
+        raise ValueError(f"{where}: {tag}: non-finite value {bad!r}")
+    return out
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+def _assemble(name: str, group: type[LieGroup], vertices: _Lines, edges: _Lines,
+              fixed: _Lines, vertex_tags: dict[str, VertexTag],
+              edge_tags: dict[str, EdgeTag]) -> PoseGraph:
+    vspec = next((s for s in vertex_tags.values() if s.group is group), None)
+    espec = next((s for s in edge_tags.values() if s.group is group), None)
+    if espec is None:
+        raise ValueError(f"{name}: no edge tag for {group.__name__}")
+    # vertices: unique ids, sorted
+    poses = None
+    if vertices.ids:
+        vid = np.array([v[0] for v in vertices.ids], dtype=np.int64)
+        order = np.argsort(vid, kind="stable")
+        dup = np.flatnonzero(np.diff(vid[order]) == 0)
+        if dup.size:
+            k = order[dup[0] + 1]
+            first = vertices.lines[order[dup[0]]]
+            raise ValueError(f"{name}:{vertices.lines[k]}: vertex {vid[k]} is defined twice "
+                             f"(first on line {first})")
+        assert vspec is not None
+        vals = np.array(vertices.values, dtype=np.float64)[order]
+        vlines = np.array(vertices.lines)[order]
+        params = _checked_params(vspec.to_params, vals, name, vlines, "vertex")
+        poses = group(params)
+        ids = vid[order]
+    if not edges.ids:
+        raise ValueError(f"{name}: no edges")
+    ij = np.array(edges.ids, dtype=np.int64)
+    elines = np.array(edges.lines)
+    self_loop = np.flatnonzero(ij[:, 0] == ij[:, 1])
+    if self_loop.size:
+        k = self_loop[0]
+        raise ValueError(f"{name}:{elines[k]}: edge from vertex {ij[k, 0]} to itself")
+    if poses is None:
+        ids = np.unique(ij)
+    else:
+        for col in (0, 1):
+            bad = np.flatnonzero(~np.isin(ij[:, col], ids))
+            if bad.size:
+                k = bad[0]
+                raise ValueError(f"{name}:{elines[k]}: edge {ij[k, 0]} -> {ij[k, 1]} refers to "
+                                 f"vertex {ij[k, col]}, which has no vertex line")
+    vals = np.array(edges.values, dtype=np.float64)
+    Z = group(_checked_params(espec.to_params, vals[:, :espec.n], name, elines, "measurement"))
+    info = espec.to_information(vals[:, espec.n:])
+    _check_information(info, name, elines)
+    fix = np.array([i for ids_ in fixed.ids for i in ids_], dtype=np.int64)
+    flines = [ln for ids_, ln in zip(fixed.ids, fixed.lines, strict=True) for _ in ids_]
+    unknown = np.flatnonzero(~np.isin(fix, ids))
+    if unknown.size:
+        k = unknown[0]
+        raise ValueError(f"{name}:{flines[k]}: FIX names vertex {fix[k]}, which is not in "
+                         "the graph")
+    return PoseGraph(group, ids=ids, poses=poses, i=ij[:, 0], j=ij[:, 1], measurements=Z,
+                     information=info, fixed=np.unique(fix))
+
+
+def _checked_params(to_params: Callable[[np.ndarray], np.ndarray], vals: np.ndarray,
+                    name: str, lines: np.ndarray, what: str) -> np.ndarray:
+    try:
+        return to_params(vals)
+    except _BadRow as e:
+        raise ValueError(f"{name}:{lines[e.row]}: {what}: {e.message}") from None
+
+
+class _BadRow(Exception):
+    """Raised by a ``to_params`` converter for a row it refuses (for example a zero
+    quaternion); the parser turns it into a ``ValueError`` with FILE:LINE."""
+
+    def __init__(self, row: int, message: str) -> None:
+        super().__init__(message)
+        self.row = int(row)
+        self.message = message
+
+
+def unit_quaternions(q: np.ndarray) -> np.ndarray:
+    """Normalise ``(N, 4)`` quaternions printed with rounding; a norm off by more than 1 %
+    is refused (``_BadRow``) rather than silently repaired."""
+    n = np.linalg.norm(q, axis=-1)
+    bad = np.flatnonzero(np.abs(n - 1.0) > 1e-2)
+    if bad.size:
+        k = bad[0]
+        raise _BadRow(k, f"quaternion {q[k].tolist()} has norm {n[k]:.6g}, not 1")
+    return q / n[:, None]
+
+
+def _check_information(info: np.ndarray, name: str, lines: np.ndarray) -> None:
+    """Every information matrix must be symmetric positive definite."""
+    try:
+        np.linalg.cholesky(info)
+        return
+    except np.linalg.LinAlgError:
+        pass
+    lam = np.linalg.eigvalsh(info)
+    k = int(np.flatnonzero(lam[:, 0] <= 0)[0]) if np.any(lam[:, 0] <= 0) else \
+        int(np.argmin(lam[:, 0]))
+    raise ValueError(f"{name}:{lines[k]}: information matrix is not positive definite "
+                     f"(smallest eigenvalue {lam[k, 0]:.6g})")

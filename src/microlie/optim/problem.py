@@ -1,0 +1,311 @@
+"""The least-squares problem of a graph: linearisation, and assembly into a fixed pattern.
+
+Built once per optimisation: every free variable gets a block of columns (fixed ones get
+none), the block sparsity of ``H = J^T J`` (whitened) is analysed once into a compressed
+sparse column pattern (full symmetric storage, diagonal blocks always present), and every
+factor batch gets precomputed scatter indices. Each iteration then only refills the numbers:
+one ``bincount`` into the pattern, no rebuilding of ``J^T J``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp  # type: ignore[import-untyped]
+from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
+
+from .factors import Factor
+from .robust import corrected_weights
+from .variables import Variables
+
+__all__ = ["Problem", "Linearization", "GaugeError"]
+
+
+class GaugeError(ValueError):
+    """The graph leaves some variables unconstrained up to a common transformation."""
+
+
+@dataclass
+class Linearization:
+    """``H`` (CSC data in the problem's pattern), gradient ``g = J^T e``, costs, timings."""
+
+    data: np.ndarray
+    grad: np.ndarray
+    cost: float
+    robust_cost: float
+    times: dict = field(default_factory=dict)
+
+
+class Problem:
+    def __init__(self, variables: list[Variables], factors: list[Factor],
+                 gauge: str = "check") -> None:
+        self.variables = variables
+        self.factors = factors
+        self.has_loss = any(f.loss is not None for f in factors)
+        self._key = {id(v): k for k, v in enumerate(variables)}
+        self.gauge_fixed: list[tuple[Variables, int]] = []
+        self._number()
+        if gauge != "none":
+            self._check_gauge(gauge)
+            if self.gauge_fixed:
+                self._number()
+        self._build_pattern()
+
+    def _number(self) -> None:
+        """One node per free variable, in graph order (gauge-fixed ones count as fixed)."""
+        extra: dict[int, list[int]] = {}
+        for var, i in self.gauge_fixed:
+            extra.setdefault(id(var), []).append(i)
+        node_of, dofs, nn = [], [], 0
+        for v in self.variables:
+            nodes = np.full(v.n, -1, dtype=np.int64)
+            fixed = v.fixed.copy()
+            fixed[extra.get(id(v), [])] = True
+            free = np.flatnonzero(~fixed)
+            nodes[free] = nn + np.arange(free.size)
+            nn += free.size
+            node_of.append(nodes)
+            dofs.append(np.full(free.size, v.dof, dtype=np.int64))
+        self.node_of = node_of
+        self.num_nodes = nn
+        self.node_dof = np.concatenate(dofs) if dofs else np.zeros(0, np.int64)
+        self.node_off = np.concatenate([[0], np.cumsum(self.node_dof)]).astype(np.int64)
+        self.size = int(self.node_off[-1])
+        self.block_size = int(np.gcd.reduce(self.node_dof)) if nn else 1
+        self.fargs = [[node_of[self._key[id(var)]][idx] for var, idx in f.args]
+                      for f in self.factors]
+
+    def key(self, var: Variables) -> int:
+        return self._key[id(var)]
+
+    # ------------------------------------------------------------------ gauge
+    def _check_gauge(self, gauge: str) -> None:
+        nn = self.num_nodes
+        if nn == 0:
+            return
+        rows, cols = [], []
+        anchored = np.zeros(nn, dtype=bool)
+        for nodes in self.fargs:
+            stack = np.stack(nodes)  # (K, m)
+            free = stack >= 0
+            nfree = free.sum(0)
+            absolute = (len(nodes) == 1) | (nfree < len(nodes))
+            for k in range(len(nodes)):
+                anchored[stack[k][free[k] & absolute]] = True
+                for l in range(k + 1, len(nodes)):
+                    both = free[k] & free[l]
+                    rows.append(stack[k][both])
+                    cols.append(stack[l][both])
+        r = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+        c = np.concatenate(cols) if cols else np.zeros(0, np.int64)
+        adj = sp.coo_matrix((np.ones(r.size), (r, c)), shape=(nn, nn))
+        ncomp, label = connected_components(adj, directed=False)
+        ok = np.zeros(ncomp, dtype=bool)
+        ok[label[anchored]] = True
+        if ok.all():
+            return
+        bad = ~ok[label]
+        if gauge not in ("check", "fix_first"):
+            raise ValueError(f"gauge must be 'check', 'fix_first' or 'none', got {gauge!r}")
+        if gauge == "check":
+            first = int(np.flatnonzero(bad)[0])
+            name = self._node_name(first)
+            raise GaugeError(
+                f"the graph has a gauge freedom: {int(bad.sum())} variables (in "
+                f"{int((~ok).sum())} connected component(s), the first containing {name}) are "
+                f"not connected to a prior or a fixed variable; add a PriorFactor, fix a "
+                f"variable, or pass gauge='fix_first' to hold the first variable of each such "
+                f"component constant")
+        for comp in np.flatnonzero(~ok):
+            node = int(np.flatnonzero(label == comp)[0])
+            self.gauge_fixed.append(self._node_var(node))
+
+    def _node_var(self, node: int) -> tuple[Variables, int]:
+        for v, nodes in zip(self.variables, self.node_of, strict=False):
+            hit = np.flatnonzero(nodes == node)
+            if hit.size:
+                return v, int(hit[0])
+        raise KeyError(node)
+
+    def _node_name(self, node: int) -> str:
+        v, i = self._node_var(node)
+        return f"{v.name}[{i}]"
+
+    # ------------------------------------------------------------------ pattern
+    def _build_pattern(self) -> None:
+        nn = self.num_nodes
+        keys = [np.arange(nn, dtype=np.int64) * (nn + 1)]
+        for nodes in self.fargs:
+            for k in range(len(nodes)):
+                for l in range(k + 1, len(nodes)):
+                    a, b = nodes[k], nodes[l]
+                    both = (a >= 0) & (b >= 0)
+                    keys.append(a[both] * nn + b[both])
+                    keys.append(b[both] * nn + a[both])
+        uniq = np.unique(np.concatenate(keys))
+        pu, pv = uniq // max(nn, 1), uniq % max(nn, 1)
+        du, dv = self.node_dof[pu], self.node_dof[pv]
+        psize = du * dv
+        pbase = np.concatenate([[0], np.cumsum(psize)]).astype(np.int64)
+        nnz = int(pbase[-1])
+        rows = np.empty(nnz, np.int64)
+        cols = np.empty(nnz, np.int64)
+        for a_dof, b_dof in set(zip(du.tolist(), dv.tolist(), strict=False)):
+            sel = np.flatnonzero((du == a_dof) & (dv == b_dof))
+            ra, cb = np.divmod(np.arange(a_dof * b_dof), b_dof)
+            slots = pbase[sel][:, None] + np.arange(a_dof * b_dof)
+            rows[slots] = self.node_off[pu[sel]][:, None] + ra
+            cols[slots] = self.node_off[pv[sel]][:, None] + cb
+        order = np.lexsort((rows, cols))
+        pos = np.empty(nnz, np.int64)
+        pos[order] = np.arange(nnz)
+        self.nnz = nnz
+        self.indices = rows[order].astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=self.size))]
+                                     ).astype(np.int32)
+        # diagonal positions (for damping)
+        pdiag = np.searchsorted(uniq, np.arange(nn, dtype=np.int64) * (nn + 1))
+        dpos = [pos[pbase[pdiag][self.node_dof == d][:, None] + np.arange(d) * (d + 1)]
+                for d in np.unique(self.node_dof)]
+        diag = np.empty(self.size, np.int64)
+        for d, dp in zip(np.unique(self.node_dof), dpos, strict=False):
+            offs = self.node_off[:-1][self.node_dof == d][:, None] + np.arange(d)
+            diag[offs.ravel()] = dp.ravel()
+        self.diag_pos = diag
+        # scatter indices per factor
+        hdest, gdest = [], []
+        self.fpairs = []
+        for f, nodes in zip(self.factors, self.fargs, strict=False):
+            dofs = [var.dof for var, _ in f.args]
+            pairs = []
+            for k in range(len(nodes)):
+                for l in range(k, len(nodes)):
+                    pairs.append((k, l))
+                    hdest.append(self._dest(nodes[k], nodes[l], dofs[k], dofs[l], uniq, pbase,
+                                            pos, nn, False))
+                    if l != k:
+                        hdest.append(self._dest(nodes[l], nodes[k], dofs[l], dofs[k], uniq,
+                                                pbase, pos, nn, True))
+                g = np.where(nodes[k][:, None] >= 0,
+                             self.node_off[np.maximum(nodes[k], 0)][:, None] + np.arange(dofs[k]),
+                             self.size)
+                gdest.append(g.ravel())
+            self.fpairs.append(pairs)
+        self.hdest = np.concatenate(hdest) if hdest else np.zeros(0, np.int64)
+        self.gdest = np.concatenate(gdest) if gdest else np.zeros(0, np.int64)
+
+    def _dest(self, a, b, da, db, uniq, pbase, pos, nn, transposed):
+        """Positions in the CSC data of block ``(a, b)``, laid out like ``B = A_k^T A_l``
+        (for ``transposed``, ``B``'s entry ``(x, y)`` goes to block ``(a, b)`` entry ``(y, x)``
+        where ``(a, b) = (l, k)``)."""
+        m = a.size
+        ok = (a >= 0) & (b >= 0)
+        p = np.searchsorted(uniq, np.where(ok, a * nn + b, 0))
+        base = pbase[p]
+        if transposed:  # shape (m, db_orig=da? ) -> B has rows = dof of b, cols = dof of a
+            x, y = np.meshgrid(np.arange(db), np.arange(da), indexing="ij")
+            local = (y * db + x)  # B[x, y] -> entry (y, x) of block (a, b), row-major da x db
+            # careful: block (a, b) has da rows and db cols; entry (y, x) -> y * db + x
+        else:
+            x, y = np.meshgrid(np.arange(da), np.arange(db), indexing="ij")
+            local = x * db + y
+        d = pos[np.minimum(base[:, None, None] + local[None], self.nnz - 1)]
+        d = np.where(ok[:, None, None], d, self.nnz)
+        return d.reshape(m, -1).ravel()
+
+    def analysed(self, linear_solver: Any) -> Any:
+        """A linear solver (name or instance) that has analysed this problem's pattern."""
+        from .linear import make_solver
+
+        ls = make_solver(linear_solver, self.size)
+        ls.analyse(self.indptr, self.indices, self.size, self.block_size)
+        return ls
+
+    def matrix(self, data: np.ndarray) -> sp.csc_matrix:
+        return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
+
+    # ------------------------------------------------------------------ evaluation
+    def gather(self, f: Factor, states: list[np.ndarray]) -> list[Any]:
+        return [var.wrap(states[self.key(var)][idx]) for var, idx in f.args]
+
+    def whiten(self, f: Factor, r: np.ndarray) -> np.ndarray:
+        L = f.noise.sqrt_info
+        if L.ndim == 2:
+            return r @ L.T
+        return np.einsum("mij,mj->mi", L, r)
+
+    def costs(self, states: list[np.ndarray]) -> tuple[float, float]:
+        """Plain cost ``0.5 sum |e|^2`` and robust cost ``0.5 sum rho(|e|^2)``."""
+        c = rc = 0.0
+        for f in self.factors:
+            e = self.whiten(f, np.asarray(f.evaluate(self.gather(f, states), False)))
+            s = np.einsum("mi,mi->m", e, e)
+            c += 0.5 * float(s.sum())
+            rc += 0.5 * float((f.loss.rho(s) if f.loss is not None else s).sum())
+        return c, rc
+
+    def linearize(self, states: list[np.ndarray]) -> Linearization:
+        t0 = time.perf_counter()
+        hw, gw = [], []
+        cost = rcost = 0.0
+        t_lin = t_prod = 0.0
+        for f, pairs in zip(self.factors, self.fpairs, strict=False):
+            ta = time.perf_counter()
+            r, Js = f.evaluate(self.gather(f, states), True)
+            r = np.asarray(r, dtype=np.float64)
+            L = f.noise.sqrt_info
+            if L.ndim == 2:
+                e = r @ L.T
+                As = [L @ J for J in Js]
+            else:
+                e = np.einsum("mij,mj->mi", L, r)
+                As = [L @ J for J in Js]
+            s = np.einsum("mi,mi->m", e, e)
+            cost += 0.5 * float(s.sum())
+            if f.loss is not None:
+                rho, scale, aos = corrected_weights(f.loss, s)
+                rcost += 0.5 * float(rho.sum())
+                sq = np.sqrt(np.maximum(f.loss.evaluate(s)[1], 0.0))
+                eA = [np.einsum("mi,mij->mj", e, A) for A in As]
+                As = [sq[:, None, None] * (A - (aos[:, None] * e)[:, :, None] * ea[:, None, :])
+                      for A, ea in zip(As, eA, strict=False)]
+                e = scale[:, None] * e
+            else:
+                rcost += 0.5 * float(s.sum())
+            tb = time.perf_counter()
+            t_lin += tb - ta
+            ATs = [np.swapaxes(A, 1, 2) for A in As]
+            for k, l in pairs:
+                B = ATs[k] @ As[l]
+                hw.append(B.ravel())
+                if l != k:
+                    hw.append(B.ravel())
+            for k in range(len(As)):
+                gw.append(np.einsum("mji,mj->mi", As[k], e).ravel())
+            t_prod += time.perf_counter() - tb
+        tc = time.perf_counter()
+        data = np.bincount(self.hdest, weights=np.concatenate(hw) if hw else None,
+                           minlength=self.nnz + 1)[: self.nnz]
+        grad = np.bincount(self.gdest, weights=np.concatenate(gw) if gw else None,
+                           minlength=self.size + 1)[: self.size]
+        t_end = time.perf_counter()
+        return Linearization(data, grad, cost, rcost,
+                             {"linearize": t_lin, "products": t_prod, "assemble": t_end - tc,
+                              "total": t_end - t0})
+
+    def retract(self, states: list[np.ndarray], dx: np.ndarray) -> list[np.ndarray]:
+        out = []
+        for v, nodes, p in zip(self.variables, self.node_of, states, strict=False):
+            free = np.flatnonzero(nodes >= 0)
+            if free.size == 0:
+                out.append(p)
+                continue
+            off = self.node_off[nodes[free]]
+            d = dx[off[:, None] + np.arange(v.dof)]
+            q = p.copy()
+            q[free] = v.retract(p[free], d)
+            out.append(q)
+        return out
