@@ -232,7 +232,7 @@ def check_finite(x: Array, what: str) -> None:
     if v.ndim == 1 and v.size <= 16:  # one element: a Python sum is the cheapest test
         bad = not math.isfinite(sum(v.tolist())) and not np.isfinite(v).all()
     else:
-        bad = v.size and not math.isfinite(np.add.reduce(v, axis=None)) \
+        bad = bool(v.size) and not math.isfinite(np.add.reduce(v, axis=None)) \
             and not np.isfinite(v).all()
     if bad:
         raise ValueError(f"{what} contains NaN or infinite values")

@@ -122,7 +122,8 @@ def run(k: Kernel, *arrays: Array) -> Any:
             return _run_foreign(k, arrays)
         if a.ndim != 1:
             single = False
-    if k.impl is not None or k.fn is None:
+    fn = k.fn
+    if k.impl is not None or fn is None:
         return _run_arrays(k, arrays)
     dt = arrays[0].dtype
     for a in arrays[1:]:
@@ -131,7 +132,7 @@ def run(k: Kernel, *arrays: Array) -> Any:
             arrays = tuple(b.astype(dt, copy=False) for b in arrays)
     if single:  # single NumPy elements: plain Python floats, far faster than tiny arrays
         try:
-            r = k.fn(SCALAR, *[a.tolist() for a in arrays])
+            r = fn(SCALAR, *[a.tolist() for a in arrays])
         except (ValueError, OverflowError, ZeroDivisionError) as e:
             raise ValueError(_not_finite(k)) from e
         if k._flat:
@@ -154,6 +155,7 @@ def run(k: Kernel, *arrays: Array) -> Any:
 def _numpy_batch(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> list:
     out = _chunked(k, arrays, batch, dt)
     if out is None:
+        assert k.fn is not None
         r = k.fn(NUMPY, *[A.components(a) for a in arrays])
         out = [_pack(NUMPY, x, s, dt, batch)
                for x, s in zip([r] if k._flat else r, k.outs, strict=True)]
@@ -196,14 +198,15 @@ def _pack(ops: Any, comps: Any, shape: Shape, dt: Any, batch: Shape) -> Array:
 
 def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> Any:
     n = math.prod(batch)
-    if n < 2 * CHUNK or any(a.ndim > 1 and a.shape[:-1] != batch for a in arrays):
+    fn = k.fn
+    if fn is None or n < 2 * CHUNK or any(a.ndim > 1 and a.shape[:-1] != batch for a in arrays):
         return None
     flats = [a.reshape(n, a.shape[-1]) if a.ndim > 1 else a.tolist() for a in arrays]
     outs = [np.empty((n, math.prod(s)), dtype=dt) for s in k.outs]
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
-        r = k.fn(NUMPY, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
-                          for f in flats])
+        r = fn(NUMPY, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
+                        for f in flats])
         for res, out, shape in zip([r] if k._flat else r, outs, k.outs, strict=True):
             flat = res if len(shape) == 1 else [c for row in res for c in row]
             for j, c in enumerate(flat):
@@ -267,14 +270,16 @@ def _chunked_torch(o: Any, k: Kernel, arrays: Sequence[Array], batch: Shape, dt:
     """Large CPU tensors in chunks (cache-resident temporaries), joined with ``cat`` so that
     autograd sees ordinary operations."""
     n = math.prod(batch)
-    if n < 2 * TORCH_CHUNK or any(a.ndim > 1 and tuple(a.shape[:-1]) != batch for a in arrays):
+    fn = k.fn
+    if fn is None or n < 2 * TORCH_CHUNK or \
+            any(a.ndim > 1 and tuple(a.shape[:-1]) != batch for a in arrays):
         return None
     xp = o.xp
     flats = [xp.reshape(a, (n, a.shape[-1])) if a.ndim > 1 else a for a in arrays]
     parts: list[list[Array]] = [[] for _ in k.outs]
     for s in range(0, n, TORCH_CHUNK):
         m = min(s + TORCH_CHUNK, n) - s
-        r = k.fn(o, *[A.components(f[s:s + m] if f.ndim > 1 else f) for f in flats])
+        r = fn(o, *[A.components(f[s:s + m] if f.ndim > 1 else f) for f in flats])
         for res, acc, shape in zip([r] if k._flat else r, parts, k.outs, strict=True):
             acc.append(_pack(o, res, shape, dt, (m,)))
     return [xp.reshape(xp.concat(p, axis=0), (*batch, *shape))

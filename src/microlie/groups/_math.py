@@ -52,7 +52,7 @@ def _bernoulli(n: int) -> list[Fraction]:
     """Bernoulli numbers B_0..B_n (B_1 = -1/2), from sum_k C(m+1, k) B_k = 0."""
     b = [Fraction(1)]
     for m in range(1, n + 1):
-        b.append(-sum(comb(m + 1, k) * b[k] for k in range(m)) / (m + 1))
+        b.append(-sum((comb(m + 1, k) * b[k] for k in range(m)), Fraction(0)) / (m + 1))
     return b
 
 

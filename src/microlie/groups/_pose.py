@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -10,11 +10,14 @@ from .. import _array as A
 from .._array import Array
 from .base import LieGroup
 
+if TYPE_CHECKING:
+    from typing_extensions import Self
+
 
 class Pose(LieGroup):
     """A group whose parameters start with a translation followed by a rotation's parameters."""
 
-    _rotation: ClassVar[type[LieGroup]]  # SO2 or SO3
+    _rotation: ClassVar[Any]  # SO2 or SO3
 
     @classmethod
     def _dims(cls) -> tuple[int, int]:
@@ -29,7 +32,7 @@ class Pose(LieGroup):
         return xp.concat([p[..., :n], rot, p[..., r:]], axis=-1)
 
     @classmethod
-    def from_rotation_translation(cls, rotation: Any, translation: Any) -> Pose:
+    def from_rotation_translation(cls, rotation: Any, translation: Any) -> Self:
         """From a rotation (an element of the rotation group, or rotation matrices) and
         translations ``(..., n)``; the batch axes broadcast."""
         R = rotation if isinstance(rotation, cls._rotation) else \
@@ -51,13 +54,13 @@ class Pose(LieGroup):
         return T[..., : m - 1, : m - 1], T[..., : m - 1, m - 1]
 
     @classmethod
-    def from_matrix(cls, matrix: Any, normalize: bool = False) -> Pose:
+    def from_matrix(cls, matrix: Any, normalize: bool = False) -> Self:
         """From homogeneous matrices ``[[R, t], [0, 1]]``. ``R`` must be a rotation within
         tolerance (``ValueError`` otherwise) unless ``normalize=True`` projects it."""
         R, t = cls._split_matrix(matrix, normalize)
         return cls.from_rotation_translation(cls._rotation.from_matrix(R, normalize=normalize), t)
 
-    def rotation(self) -> LieGroup:
+    def rotation(self) -> Any:
         """The rotation part, an element of the rotation group."""
         n, r = self._dims()
         return self._rotation._wrap(self.params[..., n:r])

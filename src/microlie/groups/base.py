@@ -18,7 +18,7 @@ unless ``side="left"`` is passed, which transports it with ``J_left = Ad_out J_r
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from math import factorial
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, overload
 
@@ -202,6 +202,17 @@ class LieGroup:
     _generators: ClassVar[np.ndarray]
     _vee_matrix: ClassVar[np.ndarray]
     _K: ClassVar[dict[str, Kernel]]
+    # the primitives a concrete group supplies (component functions, see the module docstring)
+    _exp: ClassVar[Callable[..., Any]]
+    _log: ClassVar[Callable[..., Any]]
+    _compose: ClassVar[Callable[..., Any]]
+    _inverse: ClassVar[Callable[..., Any]]
+    _act: ClassVar[Callable[..., Any]]
+    _act_jac: ClassVar[Callable[..., Any]]
+    _adjoint: ClassVar[Callable[..., Any]]
+    _matrix: ClassVar[Callable[..., Any]]
+    _jr: ClassVar[Callable[..., Any]]
+    _jr_inv: ClassVar[Callable[..., Any]]
     # Groups with closed-form ``_jr``/``_jr_inv`` set this; the others use ``_jr_series``.
     _has_closed_jr: ClassVar[bool] = True
 
@@ -214,7 +225,10 @@ class LieGroup:
         A.check_last_dim(p, self.param_dim, f"{type(self).__name__} parameters")
         A.check_finite(p, f"{type(self).__name__} parameters")
         q = type(self)._validate_params(p, normalize)
-        _set_params(self, _frozen(q.copy() if q is params and A.is_numpy(q) else q))
+        if type(q) is np.ndarray:
+            q = q.copy() if q is params else q
+            _setflags(q, write=False)
+        _set_params(self, q)
 
     @classmethod
     def from_params(cls, params: Any, check: bool = True) -> Self:
@@ -228,14 +242,27 @@ class LieGroup:
             return cls(params)
         if A.is_numpy_like(params):
             p = A.as_float_array(params)
-            p = p.copy() if p is params else p
-            return cls._wrap(p)
+            return cls._new(p.copy() if p is params else p)
         return cls._wrap(params)
 
     @classmethod
-    def _wrap(cls, params: Array) -> Self:
+    def _new(cls, params: Array) -> Self:
+        """Wrap a fresh parameter array (made read-only in place)."""
         obj = object.__new__(cls)
-        _set_params(obj, _frozen(params))
+        if type(params) is np.ndarray:
+            _setflags(params, write=False)
+        _set_params(obj, params)
+        return obj
+
+    @classmethod
+    def _wrap(cls, params: Array) -> Self:
+        """Wrap parameters without checks (a read-only view of a NumPy array; the array itself
+        is left as it is)."""
+        obj = object.__new__(cls)
+        if type(params) is np.ndarray and params.flags.writeable:
+            params = params.view()
+            _setflags(params, write=False)
+        _set_params(obj, params)
         return obj
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -274,7 +301,7 @@ class LieGroup:
         batch_shape = (batch_shape,) if isinstance(batch_shape, int) else tuple(batch_shape)
         p = np.broadcast_to(np.asarray(cls._identity_params, dtype=dtype or np.float64),
                             (*batch_shape, cls.param_dim)).copy()
-        return cls._wrap(A.as_float_array(p, like=like))
+        return cls._new(A.as_float_array(p, like=like))
 
     @classmethod
     def random(cls, batch_shape: tuple[int, ...] | int = (), rng: Any = None,
@@ -285,7 +312,7 @@ class LieGroup:
         rng = np.random.default_rng(rng)
         batch_shape = (batch_shape,) if isinstance(batch_shape, int) else tuple(batch_shape)
         p = cls._random_params(rng, batch_shape).astype(dtype or np.float64)
-        return cls._wrap(p if like is None else A.as_float_array(p, like=like))
+        return cls._new(p if like is None else A.as_float_array(p, like=like))
 
     def normalize(self) -> Self:
         """Project the parameters back onto the group (e.g. renormalise a quaternion that
@@ -311,7 +338,7 @@ class LieGroup:
             raise IndexError(f"a single {type(self).__name__} element cannot be indexed")
         if not isinstance(index, tuple):
             index = (index,)
-        return type(self)._wrap(self.params[(*index, slice(None))])
+        return type(self)._wrap(self.params[index + (slice(None),)])
 
     def __iter__(self) -> Iterator[Self]:
         for i in range(len(self)):
@@ -327,7 +354,7 @@ class LieGroup:
         nb = len(ps[0].shape) - 1
         ax = _batch_axis(axis, nb + 1, "stack")
         xp = A.namespace(*ps)
-        return cls._wrap(np.stack(ps, axis=ax) if xp is np else xp.stack(ps, axis=ax))
+        return cls._new(np.stack(ps, axis=ax) if xp is np else xp.stack(ps, axis=ax))
 
     @classmethod
     def concatenate(cls, elements: Sequence[LieGroup], axis: int = 0) -> Self:
@@ -338,7 +365,7 @@ class LieGroup:
             raise ValueError("concatenate needs batches (single elements: use stack)")
         ax = _batch_axis(axis, nb, "concatenate")
         xp = A.namespace(*ps)
-        return cls._wrap(np.concatenate(ps, axis=ax) if xp is np else xp.concat(ps, axis=ax))
+        return cls._new(np.concatenate(ps, axis=ax) if xp is np else xp.concat(ps, axis=ax))
 
     @classmethod
     def _params_of(cls, elements: Sequence[LieGroup]) -> list[Array]:
@@ -486,9 +513,9 @@ class LieGroup:
         ``Jr(tau)`` for ``side="right"``, ``Jl(tau)`` for ``side="left"``."""
         t = cls._tangent(tau)
         if not jac:
-            return cls._wrap(run(cls._K["exp"], t))
+            return cls._new(run(cls._K["exp"], t))
         p, J = run(cls._K["exp_jac"], t)
-        return cls._wrap(p)._left(side, [(J, None)])
+        return cls._new(p)._left(side, [(J, None)])
 
     @overload
     def log(self, jac: Literal[False] = ..., side: Side = ...) -> Array: ...
@@ -516,9 +543,9 @@ class LieGroup:
     def inverse(self, jac: bool = False, side: Side = "right") -> Any:
         """``X^-1``. Jacobian (eq. 62): ``-Ad_X`` (right), ``-Ad_X^-1`` (left)."""
         if not jac:
-            return self._wrap(run(self._K["inverse"], self.params))
+            return self._new(run(self._K["inverse"], self.params))
         p, J = run(self._K["inverse_jac"], self.params)
-        return self._wrap(p)._left(side, [(J, self)])
+        return self._new(p)._left(side, [(J, self)])
 
     @overload
     def compose(self, other: Self, jac: Literal[False] = ..., side: Side = ...) -> Self: ...
@@ -535,9 +562,9 @@ class LieGroup:
         if type(other) is not type(self):
             self._same_group(other)
         if not jac:
-            return self._wrap(run(self._K["compose"], self.params, other.params))
+            return self._new(run(self._K["compose"], self.params, other.params))
         p, J1 = run(self._K["compose_jac"], self.params, other.params)
-        Z = self._wrap(p)
+        Z = self._new(p)
         return Z._left(side, [(J1, self), (_eye(self.dof, p, Z.batch_shape), other)])
 
     def __matmul__(self, other: Self) -> Self:
@@ -558,9 +585,9 @@ class LieGroup:
         """``X^-1 Y``. Jacobians (right): ``-Ad_(Y^-1 X)`` and ``I``."""
         self._same_group(other)
         if not jac:
-            return self._wrap(run(self._K["between"], self.params, other.params))
+            return self._new(run(self._K["between"], self.params, other.params))
         p, J1 = run(self._K["between_jac"], self.params, other.params)
-        Z = self._wrap(p)
+        Z = self._new(p)
         return Z._left(side, [(J1, self), (_eye(self.dof, p, Z.batch_shape), other)])
 
     @overload
@@ -607,9 +634,9 @@ class LieGroup:
         ``Ad_Exp(tau)^-1`` and ``Jr(tau)``."""
         t = self._tangent(tau, like=self.params)
         if not jac:
-            return self._wrap(run(self._K["plus"], self.params, t))
+            return self._new(run(self._K["plus"], self.params, t))
         p, J1, J2 = run(self._K["plus_jac"], self.params, t)
-        return self._wrap(p)._left(side, [(J1, self), (J2, None)])
+        return self._new(p)._left(side, [(J1, self), (J2, None)])
 
     @overload
     def minus(self, other: Self, jac: Literal[False] = ..., side: Side = ...) -> Array: ...
@@ -643,9 +670,9 @@ class LieGroup:
         ``Ad_X^-1 Jr(tau)``."""
         t = self._tangent(tau, like=self.params)
         if not jac:
-            return self._wrap(run(self._K["lplus"], self.params, t))
+            return self._new(run(self._K["lplus"], self.params, t))
         p, J2 = run(self._K["lplus_jac"], self.params, t)
-        Z = self._wrap(p)
+        Z = self._new(p)
         return Z._left(side, [(_eye(self.dof, p, Z.batch_shape), self), (J2, None)])
 
     @overload
@@ -715,6 +742,8 @@ class LieGroup:
                                    or wv.sum() <= 0):
                 raise ValueError("weights must be finite, non-negative, with a positive sum")
             w = w / xp.sum(w)
+        if w.dtype != p.dtype:
+            w = xp.astype(w, p.dtype)
         shape = [1] * (nb + 1)
         shape[ax] = n
         w = xp.reshape(w, tuple(shape))
@@ -774,12 +803,6 @@ def _batch_axis(axis: int, ndim: int, what: str) -> int:
     if not -ndim <= axis < ndim:
         raise ValueError(f"{what}: axis {axis} is out of range for {ndim} batch axes")
     return axis if axis >= 0 else axis - 1
-
-
-def _frozen(p: Array) -> Array:
-    if type(p) is np.ndarray:
-        _setflags(p, write=False)
-    return p
 
 
 def _unpickle(cls: type[LieGroup], params: Array) -> LieGroup:

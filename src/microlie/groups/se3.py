@@ -15,12 +15,15 @@ from ._pose import Pose
 from .so3 import SO3
 
 
-def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
-    """The block ``Q(rho, phi)`` of the left Jacobian of SE(3) (MATH.md section 4).
+def q_parts(o: Any, rho: tuple, phi: tuple) -> tuple[tuple, tuple]:
+    """The even and odd parts of the block ``Q(rho, phi)`` of the left Jacobian of SE(3):
+    ``Q(rho, phi) = even + odd`` and ``Q(-rho, -phi) = even - odd`` (Barfoot's ``Q``; the
+    right Jacobian uses ``Q(-rho, -phi)``, Sola et al. eqs. 179-180 and appendix D).
 
     Written with ``hat(a) hat(b) = b a^T - (a.b) I``, which reduces the products of the
     textbook formula to ``Q = P/2 + c1 (rho phi^T + phi rho^T - 2d I - d F)
-    + c2 (hat(phi x (phi x rho)) + d F) - 2 c3 d F^2`` with ``d = rho . phi``.
+    + c2 (hat(phi x (phi x rho)) + d F) - 2 c3 d F^2`` with ``d = rho . phi``: the terms of
+    odd degree in ``(rho, phi)`` form ``odd``, the others ``even``.
     """
     t2 = M.norm2(*phi)
     k, ch = so3.half_angle(o, t2)
@@ -37,17 +40,29 @@ def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
     F2 = so3.hat_sq(phi, t2)
     P = M.hat3(rho)
     G = M.hat3(M.cross(phi, M.cross(phi, rho)))
-    out = []
-    for i in range(3):
-        row = []
-        for j in range(3):
-            sym = rho[i] * phi[j] + phi[i] * rho[j] - (2.0 * d if i == j else 0.0)
-            row.append(
-                0.5 * P[i][j] + c1 * (sym - d * F[i][j]) + c2 * (G[i][j] + d * F[i][j])
-                - 2.0 * c3 * d * F2[i][j]
-            )
-        out.append(tuple(row))
-    return tuple(out)
+    c1d, c2d, c3d = c1 * d, c2 * d, 2.0 * c3 * d
+    even = tuple(tuple(c1 * (rho[i] * phi[j] + phi[i] * rho[j] - (2.0 * d if i == j else 0.0))
+                       - c3d * F2[i][j] for j in range(3)) for i in range(3))
+    odd = tuple(tuple(0.5 * P[i][j] + (c2d - c1d) * F[i][j] + c2 * G[i][j] for j in range(3))
+                for i in range(3))
+    return even, odd
+
+
+def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
+    """``Q(rho, phi)`` (see :func:`q_parts`)."""
+    even, odd = q_parts(o, rho, phi)
+    return M.add(even, odd)
+
+
+def _sub(a: tuple, b: tuple) -> tuple:
+    return tuple(tuple(x - y for x, y in zip(ra, rb, strict=True))
+                 for ra, rb in zip(a, b, strict=True))
+
+
+def _jinv_block(Ji: tuple, Q: tuple) -> tuple:
+    """``[[Ji, -Ji Q Ji], [0, Ji]]``: the inverse of ``[[J, Q], [0, J]]`` with ``Ji = J^-1``."""
+    return M.blocks([[Ji, M.neg(M.matmul(Ji, M.matmul(Q, Ji)))],
+                     [M.zeros(3, 3, Ji[0][0]), Ji]])
 
 
 def v_times(o: Any, phi: tuple, t2: Any, k: Any, ch: Any, v: tuple) -> tuple:
@@ -145,14 +160,21 @@ class SE3(Pose):
     @classmethod
     def _jr(cls, o, tau):
         rho, phi = tau[:3], tau[3:]
+        even, odd = q_parts(o, rho, phi)
         J = so3.jr(o, phi)
-        Q = q_block(o, tuple(-x for x in rho), tuple(-x for x in phi))
-        return M.blocks([[J, Q], [M.zeros(3, 3, rho[0]), J]])
+        return M.blocks([[J, _sub(even, odd)], [M.zeros(3, 3, rho[0]), J]])
 
     @classmethod
     def _jr_inv(cls, o, tau):
         rho, phi = tau[:3], tau[3:]
+        even, odd = q_parts(o, rho, phi)
+        return _jinv_block(so3.jr_inv(o, phi), _sub(even, odd))
+
+    @classmethod
+    def _jr_inv_pair(cls, o, tau):
+        """``Jr^-1(tau)`` and ``Jl^-1(tau)``: ``Jl^-1_SO3 = (Jr^-1_SO3)^T`` and
+        ``Q(+-rho, +-phi) = even +- odd`` share every coefficient."""
+        rho, phi = tau[:3], tau[3:]
         Ji = so3.jr_inv(o, phi)
-        Q = q_block(o, tuple(-x for x in rho), tuple(-x for x in phi))
-        return M.blocks([[Ji, M.neg(M.matmul(Ji, M.matmul(Q, Ji)))],
-                         [M.zeros(3, 3, rho[0]), Ji]])
+        even, odd = q_parts(o, rho, phi)
+        return _jinv_block(Ji, _sub(even, odd)), _jinv_block(M.transpose(Ji), M.add(even, odd))
