@@ -38,15 +38,19 @@ without touching the group classes; ``register(name, None)`` restores the generi
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
 
 from . import _array as A
 from ._array import NUMPY, SCALAR, Array
+from ._trace import compile_scalar
 
-__all__ = ["Kernel", "KERNELS", "run", "register", "replacements", "CHUNK", "TORCH_CHUNK"]
+__all__ = ["Kernel", "KERNELS", "run", "run_floats", "register", "replacements", "CHUNK",
+           "TORCH_CHUNK"]
 
 # Large NumPy batches are evaluated in chunks of this many elements, so that the dozens of
 # element-wise temporaries of one formula stay in the CPU cache (about twice as fast at 1e6).
@@ -66,11 +70,12 @@ class Kernel:
     NumPy replacement, if any.
     """
 
-    __slots__ = ("name", "group", "fn", "array_fn", "ins", "outs", "finite", "impl", "_flat")
+    __slots__ = ("name", "group", "fn", "array_fn", "ins", "outs", "finite", "impl", "_flat",
+                 "frozen", "_scalar", "_sizes")
 
     def __init__(self, name: str, group: Any, fn: Callable[..., Any] | None,
                  ins: Sequence[str], outs: Sequence[Shape], finite: bool = False,
-                 array_fn: Callable[..., Any] | None = None) -> None:
+                 array_fn: Callable[..., Any] | None = None, frozen: bool = False) -> None:
         self.name = name
         self.group = group
         self.fn = fn
@@ -80,6 +85,9 @@ class Kernel:
         self.finite = finite
         self.impl: Callable[..., Any] | None = None
         self._flat = len(self.outs) == 1
+        self.frozen = frozen  # the first output becomes an element's parameters: read-only
+        self._scalar: Callable[..., Any] | None = None  # the traced single-element function
+        self._sizes: tuple[int, ...] = ()
 
     def __repr__(self) -> str:
         return f"Kernel({self.name!r}, ins={self.ins}, outs={self.outs})"
@@ -116,32 +124,96 @@ def replacements() -> list[str]:
 
 def run(k: Kernel, *arrays: Array) -> Any:
     """Evaluate kernel ``k`` on ``arrays``: one array per output (a tuple if several)."""
+    a = arrays[0]
+    if k.impl is None and k.fn is not None and type(a) is np.ndarray and a.ndim == 1:
+        # single NumPy elements: plain Python floats, far faster than NumPy on tiny arrays
+        if len(arrays) == 1:
+            return _single(k, (a.tolist(),), a.dtype)
+        b = arrays[1]
+        if len(arrays) == 2 and type(b) is np.ndarray and b.ndim == 1 and b.dtype is a.dtype:
+            return _single(k, (a.tolist(), b.tolist()), a.dtype)
+    return _run(k, arrays)
+
+
+def run_floats(k: Kernel, lists: tuple, dt: Any) -> Any:
+    """:func:`run` on one element given as lists of Python floats (one list per input, of the
+    right lengths, finite) and the NumPy dtype of the result: for callers that have already
+    read and checked the values."""
+    if k.impl is not None or k.fn is None:
+        return run(k, *[np.array(x, dtype=dt) for x in lists])
+    return _single(k, lists, dt)
+
+
+def _single(k: Kernel, lists: tuple, dt: Any) -> Any:
+    f = k._scalar or _scalar_function(k)
+    try:
+        r = f(*lists)
+    except (ValueError, OverflowError, ZeroDivisionError) as e:
+        for i, (x, n) in enumerate(zip(lists, k._sizes, strict=False)):
+            if len(x) != n:
+                raise ValueError(f"{k.name}: input {i} has {len(x)} components, expected "
+                                 f"{n}") from e
+        raise ValueError(_not_finite(k)) from e
+    if k._flat:
+        if k.finite and not math.isfinite(_fsum(r)):
+            raise ValueError(_not_finite(k))
+        if k.frozen and dt is _F64:  # read-only without a copy or a flag change
+            return _frombuffer(_PACK[len(r)](*r))
+        out = np.array(r, dtype=dt)
+        if k.frozen:
+            _setflags(out, write=False)
+        return out
+    if k.finite and not math.isfinite(sum(_fsum(x) for x in r)):
+        raise ValueError(_not_finite(k))
+    outs = [np.array(x, dtype=dt) for x in r]
+    if k.frozen:
+        _setflags(outs[0], write=False)
+    return tuple(outs)
+
+
+_F64 = np.dtype(np.float64)
+_frombuffer = np.frombuffer
+_setflags = np.ndarray.setflags
+_PACK = {n: struct.Struct(f"{n}d").pack for n in range(1, 33)}
+
+
+def _scalar_function(k: Kernel) -> Callable[..., Any]:
+    """The single-element function of ``k``: traced once (see :mod:`microlie._trace`), or the
+    component function on Python floats when it cannot be traced."""
+    fn = k.fn
+    assert fn is not None
+    sizes = _input_sizes(k)
+    traced = compile_scalar(fn, sizes) if sizes else None
+    k._sizes = sizes
+    k._scalar = traced if traced is not None else partial(fn, SCALAR)
+    return k._scalar
+
+
+def _input_sizes(k: Kernel) -> tuple[int, ...]:
+    G = k.group
+    dims = {"p": "param_dim", "t": "dof", "v": "point_dim"}
+    try:
+        return tuple(9 if kind == "m" else int(getattr(G, dims[kind])) for kind in k.ins)
+    except (KeyError, AttributeError):
+        return ()
+
+
+def _run(k: Kernel, arrays: Sequence[Array]) -> Any:
     single = True
     for a in arrays:
         if type(a) is not np.ndarray:
             return _run_foreign(k, arrays)
         if a.ndim != 1:
             single = False
-    fn = k.fn
-    if k.impl is not None or fn is None:
+    if k.impl is not None or k.fn is None:
         return _run_arrays(k, arrays)
     dt = arrays[0].dtype
     for a in arrays[1:]:
         if a.dtype is not dt:  # mixed dtypes: evaluate in the promoted one (NumPy's rules)
             dt = np.promote_types(dt, a.dtype)
             arrays = tuple(b.astype(dt, copy=False) for b in arrays)
-    if single:  # single NumPy elements: plain Python floats, far faster than tiny arrays
-        try:
-            r = fn(SCALAR, *[a.tolist() for a in arrays])
-        except (ValueError, OverflowError, ZeroDivisionError) as e:
-            raise ValueError(_not_finite(k)) from e
-        if k._flat:
-            if k.finite and not math.isfinite(_fsum(r)):
-                raise ValueError(_not_finite(k))
-            return np.array(r, dtype=dt)
-        if k.finite and not math.isfinite(sum(_fsum(x) for x in r)):
-            raise ValueError(_not_finite(k))
-        return tuple(np.array(x, dtype=dt) for x in r)
+    if single:
+        return _single(k, tuple(a.tolist() for a in arrays), dt)
     batch = np.broadcast_shapes(*(a.shape[:-1] for a in arrays))
     if k.finite:  # overflow is reported once, as a ValueError, not as NumPy warnings
         with np.errstate(over="ignore", invalid="ignore"):
@@ -149,6 +221,8 @@ def run(k: Kernel, *arrays: Array) -> Any:
         _check_outputs(k, out)
     else:
         out = _numpy_batch(k, arrays, batch, dt)
+    if k.frozen:
+        _setflags(out[0], write=False)
     return out[0] if k._flat else tuple(out)
 
 
@@ -236,6 +310,8 @@ def _run_arrays(k: Kernel, arrays: Sequence[np.ndarray]) -> Any:
         out.append(r.reshape(*batch, *shape))
     if k.finite:
         _check_outputs(k, out)
+    if k.frozen:
+        _setflags(out[0], write=False)
     return out[0] if k._flat else tuple(out)
 
 

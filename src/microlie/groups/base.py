@@ -18,6 +18,7 @@ unless ``side="left"`` is passed, which transports it with ``J_left = Ad_out J_r
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator, Sequence
 from math import factorial
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, overload
@@ -101,7 +102,7 @@ def _build_kernels(cls: Any) -> dict[str, Kernel]:
         "between_jac": (_between_jac(comp, inv, adj), "pp", [(pd,), sq]),
     }
     out = {name: K.add(Kernel(f"{cls.__name__}.{name}", cls, d_[0], d_[1], d_[2],
-                              finite=len(d_) > 3 and d_[3]))
+                              finite=len(d_) > 3 and d_[3], frozen=name in _ELEMENT_OUT))
            for name, d_ in defs.items()}
     jac_outs = {"exp_jac": ("t", [(pd,), sq]), "log_jac": ("p", [(d,), sq]),
                 "minus_jac": ("pp", [(d,), sq, sq]), "lminus_jac": ("pp", [(d,), sq, sq]),
@@ -112,9 +113,14 @@ def _build_kernels(cls: Any) -> dict[str, Kernel]:
         fn = fns[name]
         finite = ins[-1] == "t"
         out[name] = K.add(Kernel(f"{cls.__name__}.{name}", cls, fn if cls._has_closed_jr else None,
-                                 ins, outs, finite=finite,
+                                 ins, outs, finite=finite, frozen=name in _ELEMENT_OUT,
                                  array_fn=None if cls._has_closed_jr else fn))
     return out
+
+
+# kernels whose first output becomes an element's parameters (returned read-only)
+_ELEMENT_OUT = {"exp", "compose", "inverse", "between", "plus", "lplus", "exp_jac",
+                "inverse_jac", "compose_jac", "between_jac", "plus_jac", "lplus_jac"}
 
 
 def _between_jac(comp: Any, inv: Any, adj: Any) -> Any:
@@ -202,6 +208,8 @@ class LieGroup:
     _generators: ClassVar[np.ndarray]
     _vee_matrix: ClassVar[np.ndarray]
     _K: ClassVar[dict[str, Kernel]]
+    _tshape: ClassVar[tuple[int]]
+    _vshape: ClassVar[tuple[int]]
     # the primitives a concrete group supplies (component functions, see the module docstring)
     _exp: ClassVar[Callable[..., Any]]
     _log: ClassVar[Callable[..., Any]]
@@ -255,6 +263,13 @@ class LieGroup:
         return obj
 
     @classmethod
+    def _adopt(cls, params: Array) -> Self:
+        """Wrap a kernel's output (already read-only)."""
+        obj = object.__new__(cls)
+        _set_params(obj, params)
+        return obj
+
+    @classmethod
     def _wrap(cls, params: Array) -> Self:
         """Wrap parameters without checks (a read-only view of a NumPy array; the array itself
         is left as it is)."""
@@ -275,6 +290,7 @@ class LieGroup:
         if missing:
             raise TypeError(f"{cls.__name__} does not supply {', '.join(missing)}")
         d, n = cls.dof, cls.matrix_dim
+        cls._tshape, cls._vshape = (d,), (cls.point_dim,)
         cls._vee_matrix = np.linalg.pinv(cls._generators.reshape(d, n * n))
         cls._K = _build_kernels(cls)
 
@@ -390,6 +406,10 @@ class LieGroup:
     # ------------------------------------------------------------------ tangent space
     @classmethod
     def _tangent(cls, tau: Any, like: Array | None = None) -> Array:
+        if type(tau) is np.ndarray and tau.shape == cls._tshape and tau.dtype in _FLOATS \
+                and (like is None or type(like) is np.ndarray) \
+                and math.isfinite(sum(tau.tolist())):
+            return tau  # one valid NumPy tangent vector: the common case, checked once
         t = A.as_float_array(tau, like=like)
         A.check_last_dim(t, cls.dof, f"{cls.__name__} tangent vector")
         A.check_finite(t, f"{cls.__name__} tangent vector")
@@ -513,9 +533,9 @@ class LieGroup:
         ``Jr(tau)`` for ``side="right"``, ``Jl(tau)`` for ``side="left"``."""
         t = cls._tangent(tau)
         if not jac:
-            return cls._new(run(cls._K["exp"], t))
+            return cls._adopt(run(cls._K["exp"], t))
         p, J = run(cls._K["exp_jac"], t)
-        return cls._new(p)._left(side, [(J, None)])
+        return cls._adopt(p)._left(side, [(J, None)])
 
     @overload
     def log(self, jac: Literal[False] = ..., side: Side = ...) -> Array: ...
@@ -543,9 +563,9 @@ class LieGroup:
     def inverse(self, jac: bool = False, side: Side = "right") -> Any:
         """``X^-1``. Jacobian (eq. 62): ``-Ad_X`` (right), ``-Ad_X^-1`` (left)."""
         if not jac:
-            return self._new(run(self._K["inverse"], self.params))
+            return self._adopt(run(self._K["inverse"], self.params))
         p, J = run(self._K["inverse_jac"], self.params)
-        return self._new(p)._left(side, [(J, self)])
+        return self._adopt(p)._left(side, [(J, self)])
 
     @overload
     def compose(self, other: Self, jac: Literal[False] = ..., side: Side = ...) -> Self: ...
@@ -562,9 +582,9 @@ class LieGroup:
         if type(other) is not type(self):
             self._same_group(other)
         if not jac:
-            return self._new(run(self._K["compose"], self.params, other.params))
+            return self._adopt(run(self._K["compose"], self.params, other.params))
         p, J1 = run(self._K["compose_jac"], self.params, other.params)
-        Z = self._new(p)
+        Z = self._adopt(p)
         return Z._left(side, [(J1, self), (_eye(self.dof, p, Z.batch_shape), other)])
 
     def __matmul__(self, other: Self) -> Self:
@@ -585,9 +605,9 @@ class LieGroup:
         """``X^-1 Y``. Jacobians (right): ``-Ad_(Y^-1 X)`` and ``I``."""
         self._same_group(other)
         if not jac:
-            return self._new(run(self._K["between"], self.params, other.params))
+            return self._adopt(run(self._K["between"], self.params, other.params))
         p, J1 = run(self._K["between_jac"], self.params, other.params)
-        Z = self._new(p)
+        Z = self._adopt(p)
         return Z._left(side, [(J1, self), (_eye(self.dof, p, Z.batch_shape), other)])
 
     @overload
@@ -603,11 +623,17 @@ class LieGroup:
         """Act on points ``(..., point_dim)``: ``X . p``. Jacobians: ``d/dX`` (right, or left with
         ``side="left"``) and ``d/dp``, with the value in one evaluation. The result dtype is the
         promotion of the element's and the points' dtypes."""
-        v = A.as_float_array(points, like=self.params)
+        p = self.params
+        if type(points) is np.ndarray and points.shape == self._vshape and not jac \
+                and type(p) is np.ndarray and points.dtype is p.dtype:
+            vals = points.tolist()  # one point, the common case: checked and evaluated once
+            if math.isfinite(sum(vals)):
+                return K.run_floats(self._K["act"], (p.tolist(), vals), p.dtype)
+        v = A.as_float_array(points, like=p)
         A.check_last_dim(v, self.point_dim, "points")
         A.check_finite(v, "points")
         if not jac:
-            return run(self._K["act"], self.params, v)
+            return run(self._K["act"], p, v)
         out, JX, JV = run(self._K["act_jac"], self.params, v)
         return _left_vec(side, out, [(JX, self), (JV, None)])
 
@@ -634,9 +660,9 @@ class LieGroup:
         ``Ad_Exp(tau)^-1`` and ``Jr(tau)``."""
         t = self._tangent(tau, like=self.params)
         if not jac:
-            return self._new(run(self._K["plus"], self.params, t))
+            return self._adopt(run(self._K["plus"], self.params, t))
         p, J1, J2 = run(self._K["plus_jac"], self.params, t)
-        return self._new(p)._left(side, [(J1, self), (J2, None)])
+        return self._adopt(p)._left(side, [(J1, self), (J2, None)])
 
     @overload
     def minus(self, other: Self, jac: Literal[False] = ..., side: Side = ...) -> Array: ...
@@ -670,9 +696,9 @@ class LieGroup:
         ``Ad_X^-1 Jr(tau)``."""
         t = self._tangent(tau, like=self.params)
         if not jac:
-            return self._new(run(self._K["lplus"], self.params, t))
+            return self._adopt(run(self._K["lplus"], self.params, t))
         p, J2 = run(self._K["lplus_jac"], self.params, t)
-        Z = self._new(p)
+        Z = self._adopt(p)
         return Z._left(side, [(_eye(self.dof, p, Z.batch_shape), self), (J2, None)])
 
     @overload
@@ -810,4 +836,5 @@ def _unpickle(cls: type[LieGroup], params: Array) -> LieGroup:
 
 
 _set_params = LieGroup.__dict__["params"].__set__
+_FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 _setflags = np.ndarray.setflags
