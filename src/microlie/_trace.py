@@ -141,7 +141,7 @@ def compile_scalar(fn: Callable[..., Any], sizes: Sequence[int]) -> Callable[...
     unpack = [f"    {', '.join(f'a{i}_{j}' for j in range(n))}, = a{i}"
               for i, n in enumerate(sizes)]
     src = "\n".join([f"def kernel({args}):", *unpack, *rec.lines, f"    return {body}"])
-    ns = dict(_NAMESPACE)
+    ns: dict[str, Any] = dict(_NAMESPACE)
     exec(compile(src, f"<traced {getattr(fn, '__qualname__', fn)}>", "exec"), ns)
     kernel: Callable[..., Any] = ns["kernel"]
     return kernel
