@@ -9,14 +9,14 @@ from conftest import data_file
 from scipy.spatial.transform import Rotation
 
 from microlie.optim.bal import read_bal
-from microlie.optim.bundle import BundleProblem, solve, synthetic_scene
+from microlie.optim.bundle import BundleProblem, bundle_adjust, synthetic_scene
 from microlie.optim.camera import reproject
 from microlie.optim.schur import NormalEquations, SchurStructure
 
 
 def _dense_jacobian(p: BundleProblem):
-    """The full Jacobian (2 n_obs, 9 n_cam + 3 n_pt), observations sorted by point."""
-    order = np.lexsort((p.camera_index, p.point_index))
+    """The full Jacobian (2 n_obs, 9 n_cam + 3 n_pt), observations sorted by camera."""
+    order = np.lexsort((p.point_index, p.camera_index))
     cam, pt, obs = p.camera_index[order], p.point_index[order], p.observations[order]
     rp = reproject(p.model, p.rotations, p.translations, p.intrinsics, p.points, cam, pt, obs)
     d = p.cam_dim
@@ -32,7 +32,7 @@ def _dense_jacobian(p: BundleProblem):
 def test_problem_49_reaches_ceres_optimum_in_ceres_iterations():
     # PEERS.md / issue 10: Ceres reaches 13344.3184 in 32 successful steps (31 iterations)
     p = read_bal(data_file("bal/problem-49-7776-pre.txt"))
-    r = solve(p)
+    r = bundle_adjust(p)
     assert r.initial_cost == pytest.approx(850912.46, abs=0.01)
     assert r.final_cost == pytest.approx(13344.3184, rel=1e-6)
     assert r.converged
@@ -43,7 +43,7 @@ def test_problem_49_reaches_ceres_optimum_in_ceres_iterations():
 def test_problem_49_drop_convention_optimum():
     # GTSAM / COLMAP convention (points behind the camera dropped): 850802.09 -> 13308.4836
     p = read_bal(data_file("bal/problem-49-7776-pre.txt"))
-    r = solve(p, behind="drop")
+    r = bundle_adjust(p, behind="drop")
     assert r.initial_cost == pytest.approx(850802.09, abs=0.01)
     assert r.final_cost == pytest.approx(13308.4836, rel=1e-6)
 
@@ -52,14 +52,14 @@ def test_dubrovnik_3_7_reaches_gtsam_regression_value():
     # GTSAM testGeneralSFMFactorB.cpp: default LM ends at 0.0199833 (+-1e-5); the problem is
     # under-determined (38 residuals, 48 unknowns), so a tighter LM may go lower, never higher
     p = read_bal(data_file("bal/dubrovnik-3-7-pre.txt"))
-    r = solve(p, max_iterations=200)
+    r = bundle_adjust(p, max_iter=200)
     assert r.initial_cost == pytest.approx(2764.220, abs=1e-3)
     assert r.final_cost <= 0.0199833 + 1e-5
 
 
 def test_dubrovnik_1_1_single_observation_fitted_exactly():
     p = read_bal(data_file("bal/dubrovnik-1-1-pre.txt"))
-    r = solve(p)
+    r = bundle_adjust(p)
     assert r.initial_cost == pytest.approx(63.31642, rel=1e-6)
     assert r.final_cost < 1e-16
     np.testing.assert_allclose(r.problem.to_bal().residuals(), 0.0, atol=1e-8)
@@ -75,8 +75,11 @@ def test_schur_step_equals_full_system_step(model, fixed):
     keep = np.random.default_rng(0).random(len(start.camera_index)) > 0.3
     from dataclasses import replace
 
-    p = replace(start, camera_index=start.camera_index[keep], point_index=start.point_index[keep],
-                observations=start.observations[keep])
+    # and one point observed twice by the same camera (a pair within one camera block)
+    dup = np.nonzero(keep)[0][:3]
+    p = replace(start, camera_index=np.r_[start.camera_index[keep], start.camera_index[dup]],
+                point_index=np.r_[start.point_index[keep], start.point_index[dup]],
+                observations=np.r_[start.observations[keep], start.observations[dup] + 1.0])
     J, rp, cam, pt = _dense_jacobian(p)
     st = SchurStructure(cam, pt, p.n_cameras, p.n_points, p.cam_dim)
     fc = np.zeros((p.n_cameras, p.cam_dim), bool)
@@ -105,13 +108,22 @@ def test_schur_step_equals_full_system_step(model, fixed):
         np.testing.assert_allclose(got, x, rtol=0, atol=1e-9 * np.abs(x).max())
 
 
+@pytest.mark.parametrize("kind", ["sparse", "full"])
+def test_other_linear_solvers_follow_the_same_iterates(kind):
+    p = read_bal(data_file("bal/dubrovnik-3-7-pre.txt"))
+    ref = bundle_adjust(p, max_iter=20)
+    other = bundle_adjust(p, max_iter=20, linear_solver=kind)
+    assert other.iterations == ref.iterations
+    assert other.final_cost == pytest.approx(ref.final_cost, rel=1e-6, abs=1e-9)
+
+
 # ------------------------------------------------------------------ gauge and marginals
 
 def test_free_and_fixed_gauge_reach_the_same_cost():
     truth, start = synthetic_scene(5, 60, noise=0.5, seed=7)
     tight = dict(function_tolerance=1e-12, parameter_tolerance=1e-14)
-    free = solve(start, **tight)
-    fixed = solve(start, fix_cameras=[0], **tight)
+    free = bundle_adjust(start, **tight)
+    fixed = bundle_adjust(start, fix_cameras=[0], **tight)
     assert free.converged and fixed.converged
     assert free.final_cost == pytest.approx(fixed.final_cost, rel=1e-9)
     assert free.final_cost < truth.cost()
@@ -121,14 +133,14 @@ def test_free_and_fixed_gauge_reach_the_same_cost():
 
 def test_pinhole_noise_free_scene_solved_exactly():
     truth, start = synthetic_scene(4, 50, noise=0.0, seed=3, model="pinhole")
-    r = solve(start, fix_cameras=[0])
+    r = bundle_adjust(start, fix_cameras=[0])
     assert r.initial_cost > 1e3
     assert r.final_cost < 1e-14
 
 
 def test_camera_marginals_equal_inverse_of_full_information():
     truth, start = synthetic_scene(4, 40, noise=0.5, seed=8)
-    r = solve(start, fix_cameras=[0], fix_points=[0], function_tolerance=1e-12,
+    r = bundle_adjust(start, fix_cameras=[0], fix_points=[0], function_tolerance=1e-12,
               parameter_tolerance=1e-14)
     p = r.problem
     J, _, _, _ = _dense_jacobian(p)
@@ -156,11 +168,25 @@ def test_camera_marginals_equal_inverse_of_full_information():
     np.testing.assert_allclose(np.asarray(g.mean.matrix())[:3, :3], p.rotations[1], atol=1e-12)
 
 
+def test_sparse_reduced_system_gives_the_same_marginals(monkeypatch):
+    import microlie.optim.schur as schur
+
+    truth, start = synthetic_scene(4, 40, noise=0.5, seed=8)
+    r = bundle_adjust(start, fix_cameras=[0], fix_points=[0], function_tolerance=1e-12)
+    dense = r.camera_covariance([1, 2])
+    monkeypatch.setattr(schur, "DENSE_LIMIT", 10)
+    monkeypatch.setattr(schur, "SPARSE_DENSITY", 2.0)
+    sparse = r.camera_covariance([1, 2])
+    np.testing.assert_allclose(sparse, dense, rtol=1e-8, atol=1e-14 * np.abs(dense).max())
+    r2 = bundle_adjust(start, fix_cameras=[0], fix_points=[0], function_tolerance=1e-12)
+    assert r2.final_cost == pytest.approx(r.final_cost, rel=1e-10)
+
+
 def test_marginal_rotation_spread_matches_monte_carlo():
     # independent check of the frame: re-solve with resampled noise, compare the spread of
     # camera 2's rotation error Log(R_hat^T R) with the predicted SE(3) marginal (right frame)
     truth, start = synthetic_scene(3, 30, noise=1.0, seed=11)
-    r0 = solve(truth, fix_cameras=[0], fix_points=[0])
+    r0 = bundle_adjust(truth, fix_cameras=[0], fix_points=[0])
     pred = np.asarray(r0.marginals([2])[0].cov)[3:, 3:]
     rng = np.random.default_rng(12)
     clean = truth.observations - (truth.residuals())      # exact projections of the truth
@@ -169,7 +195,7 @@ def test_marginal_rotation_spread_matches_monte_carlo():
 
     for _ in range(200):
         q = replace(truth, observations=clean + rng.normal(size=clean.shape))
-        rq = solve(q, fix_cameras=[0], fix_points=[0])
+        rq = bundle_adjust(q, fix_cameras=[0], fix_points=[0])
         errs.append(Rotation.from_matrix(r0.problem.rotations[2].T
                                          @ rq.problem.rotations[2]).as_rotvec())
     emp = np.cov(np.array(errs).T)
@@ -188,7 +214,21 @@ def test_bad_input_rejected():
         replace(start, point_index=start.point_index + 1)
     with pytest.raises(ValueError, match="intrinsics"):
         replace(start, intrinsics=np.ones((2, 2)))
+    with pytest.raises(ValueError, match="rotation matrices"):
+        replace(start, rotations=start.rotations * 1.01)
+    # a point on the plane of its camera: infinite residual under the BAL convention
+    R = start.rotations.copy()
+    R[1] = np.eye(3)
+    t = start.translations.copy()
+    t[1] = 0.0
+    X = start.points.copy()
+    X[2, 2] = 0.0                                   # camera 1 sees point 2 at P_z = 0
+    onplane = replace(start, rotations=R, translations=t, points=X)
+    k = int(np.nonzero((onplane.camera_index == 1) & (onplane.point_index == 2))[0][0])
+    with pytest.raises(ValueError, match=f"observation {k} is not finite"):
+        bundle_adjust(onplane)
+    assert np.isfinite(bundle_adjust(onplane, behind="drop", max_iter=3).final_cost)
     with pytest.raises(ValueError, match="linear_solver"):
-        solve(start, linear_solver="qr")
+        bundle_adjust(start, linear_solver="qr")
     with pytest.raises(ValueError, match="fix_cameras"):
-        solve(start, fix_cameras=[5])
+        bundle_adjust(start, fix_cameras=[5])

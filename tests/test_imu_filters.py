@@ -37,11 +37,11 @@ def _truth(kind, data, k):
     if kind == "iekf":
         from microlie import SE23
 
-        Xb = SE23._wrap(np.broadcast_to(np.asarray(X.params), (M, 10)))
+        Xb = SE23(np.broadcast_to(np.asarray(X.params), (M, 10)))
         return IEKF_STATE.from_parts(Xb, R(3)(bg), R(3)(ba))
     from microlie import SO3
 
-    Rq = SO3._wrap(np.broadcast_to(np.asarray(X.rotation().params), (M, 4)))
+    Rq = SO3(np.broadcast_to(np.asarray(X.rotation().params), (M, 4)))
     vec = [np.broadcast_to(np.asarray(a), (M, 3)) for a in (X.translation(), X.velocity())]
     return ESKF_STATE.from_parts(Rq, R(3)(vec[0]), R(3)(vec[1]), R(3)(bg), R(3)(ba))
 

@@ -144,7 +144,8 @@ def test_prediction_makes_the_residual_zero_and_bias_correction_is_first_order()
 
 def _forster_sequential(a, w, dt, sg, sa):
     """Forster et al. 2017, eqs. 38 (covariance) and Appendix B (bias Jacobians), one sample
-    at a time with rotation matrices."""
+    at a time with rotation matrices (``dt`` scalar or per sample, noise densities scalar or
+    per axis)."""
     from scipy.spatial.transform import Rotation
 
     def hat(x):
@@ -157,7 +158,9 @@ def _forster_sequential(a, w, dt, sg, sa):
 
     R, v, p = np.eye(3), np.zeros(3), np.zeros(3)
     P, J = np.zeros((9, 9)), np.zeros((9, 6))
+    dts = np.broadcast_to(dt, (len(a),))
     for k in range(len(a)):
+        dt = dts[k]
         dRk = Rotation.from_rotvec(w[k] * dt).as_matrix()
         Jr = jr(w[k] * dt)
         Ah = R @ hat(a[k])
@@ -170,7 +173,7 @@ def _forster_sequential(a, w, dt, sg, sa):
         B[0:3, 0:3] = Jr * dt
         B[3:6, 3:6] = R * dt
         B[6:9, 3:6] = 0.5 * R * dt * dt
-        Q = np.diag(np.r_[np.full(3, sg**2), np.full(3, sa**2)] / dt)
+        Q = np.diag(np.r_[np.broadcast_to(sg, 3) ** 2, np.broadcast_to(sa, 3) ** 2] / dt)
         P = A @ P @ A.T + B @ Q @ B.T
         J = A @ J - B
         p = p + v * dt + 0.5 * R @ a[k] * dt * dt
@@ -199,6 +202,24 @@ def test_vectorised_scheme_equals_forster_recursions_and_is_split_invariant():
     np.testing.assert_allclose(pim2.covariance, P, rtol=1e-9, atol=1e-12 * np.abs(P).max())
     np.testing.assert_allclose(pim2.bias_jacobian, J, atol=1e-11)
     np.testing.assert_allclose(pim2.delta_position, p, atol=1e-12)
+
+
+def test_variable_dt_and_per_axis_noise():
+    """Jittered sample times (each dt different) and per-axis noise densities."""
+    rng = np.random.default_rng(6)
+    n = 250
+    a = rng.standard_normal((n, 3)) + [0, 0, 9.81]
+    w = 0.8 * rng.standard_normal((n, 3))
+    dt = 0.005 * (1 + 0.2 * rng.uniform(-1, 1, n))
+    sg, sa = np.array([1e-3, 2e-3, 3e-3]), np.array([2e-2, 1e-2, 3e-2])
+    Rr, vr, pr, Pr, Jr = _forster_sequential(a, w, dt, sg, sa)
+    pim = Preintegration(gyro_noise=sg, accel_noise=sa).integrate(a[:100], w[:100], dt[:100])
+    pim.integrate(a[100:], w[100:], dt[100:])
+    np.testing.assert_allclose(pim.delta_rotation.matrix(), Rr, atol=1e-12)
+    np.testing.assert_allclose(pim.delta_position, pr, atol=1e-12)
+    np.testing.assert_allclose(pim.covariance, Pr, rtol=1e-9, atol=1e-12 * np.abs(Pr).max())
+    np.testing.assert_allclose(pim.bias_jacobian, Jr, atol=1e-11)
+    assert abs(pim.dt - dt.sum()) < 1e-15
 
 
 def _omega(t):
@@ -267,3 +288,70 @@ def test_bad_input():
         Preintegration(gyro_noise=1e-3, accel_noise=1e-2, bias_gyro=np.zeros(4))
     with pytest.raises(ValueError, match="scheme"):
         Preintegration(gyro_noise=1e-3, accel_noise=1e-2, scheme="euler")
+
+
+@pytest.mark.parametrize("error", ["forster", "logmap"])
+def test_imu_factor_cost_in_a_graph(error):
+    """FactorGraph.cost with an ImuFactor batch is 0.5 r^T Sigma^-1 r summed, with r from
+    imu_residual and Sigma the preintegration covariance (mapped for the Logmap form)."""
+    from microlie.imu import ImuFactor
+    from microlie.optim import FactorGraph
+
+    Xi, Xj, b = _states()
+    g = FactorGraph()
+    x = g.add_variables(SE23(np.concatenate([Xi.params, Xj.params])))
+    bv = g.add_variables(np.concatenate([b, b]))
+    for scheme in ("manifold", "tangent"):
+        idx = np.arange(5)
+        g.add(ImuFactor(x, bv, idx, idx + 5, [_pim(scheme)] * 5, error=error))
+    total = 0.0
+    for scheme in ("manifold", "tangent"):
+        pim = _pim(scheme)
+        r = imu_residual(Deltas([pim] * 5), Xi, Xj, b, error=error)
+        S = pim.covariance
+        if error == "logmap":
+            M = _blockdiag(np.eye(3), *[pim.delta_rotation.matrix().T] * 2)
+            S = M @ S @ M.T
+        total += 0.5 * np.sum(r * np.linalg.solve(S, r.T).T)
+    assert abs(g.cost() - total) < 1e-9 * total
+
+
+def test_sample_by_sample_calls_equal_one_batch():
+    """One integrate() call per sample (buffered internally, results read midway) gives the
+    batch result."""
+    rng = np.random.default_rng(9)
+    n = 600
+    a = rng.standard_normal((n, 3)) + [0, 0, 9.81]
+    w = 0.5 * rng.standard_normal((n, 3))
+    kw = dict(gyro_noise=1e-3, accel_noise=2e-2, bias_gyro=[0.01, 0, -0.02],
+              bias_accel=[0.1, -0.1, 0.05])
+    ref = Preintegration(**kw).integrate(a, w, 0.005)
+    pim = Preintegration(**kw)
+    for k in range(n):
+        pim.integrate(a[k], list(w[k]), 0.005)
+        if k == 250:
+            assert pim.count == 251 and abs(pim.dt - 251 * 0.005) < 1e-12
+    np.testing.assert_allclose(pim.delta_rotation.matrix(), ref.delta_rotation.matrix(),
+                               atol=1e-13)
+    np.testing.assert_allclose(pim.delta_position, ref.delta_position, atol=1e-12)
+    np.testing.assert_allclose(pim.covariance, ref.covariance, rtol=1e-10,
+                               atol=1e-13 * np.abs(ref.covariance).max())
+    np.testing.assert_allclose(pim.bias_jacobian, ref.bias_jacobian, atol=1e-11)
+    with pytest.raises(ValueError, match="NaN"):
+        pim.integrate([np.nan, 0.0, 0.0], [0.0, 0.0, 0.0], 0.005)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-3, 0.7, 0.999, 1.001, 2.5, 3.1])
+def test_tangent_scheme_jacobian_of_jr_times_x(angle):
+    """d (Jr(theta) x) / d theta (closed form, series below |theta| = 1) against central
+    differences of Jr (the Jacobian of the tangent scheme's rotation update)."""
+    from microlie.imu.preintegration import _djr_times
+
+    rng = np.random.default_rng(int(angle * 1000))
+    th = rng.standard_normal(3)
+    th *= angle / np.linalg.norm(th)
+    x = rng.standard_normal(3)
+    h = 1e-6
+    fd = np.stack([(SO3.jr(th + h * e) @ x - SO3.jr(th - h * e) @ x) / (2 * h)
+                   for e in np.eye(3)], -1)
+    np.testing.assert_allclose(_djr_times(th, x), fd, atol=2e-9)

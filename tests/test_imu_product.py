@@ -145,7 +145,7 @@ def test_solver_variable_matches_separate_variables():
     out = res.values[x]
 
     h = FactorGraph()
-    p = h.add_variables(SE23._wrap(np.asarray(init.params)[:, :10]))
+    p = h.add_variables(SE23(np.asarray(init.params)[:, :10]))
     v = h.add_variables(np.asarray(init.params)[:, 10:])
     h.add(PriorFactor(p, 0, prior.part(0), Isotropic(9, 0.1)))
     h.add(PriorFactor(v, 0, np.asarray(prior.part(1).params), Isotropic(3, 0.1)))
@@ -158,3 +158,13 @@ def test_solver_variable_matches_separate_variables():
     np.testing.assert_allclose(out.part(0).matrix(), ref.values[p].matrix(), atol=1e-7)
     np.testing.assert_allclose(np.asarray(out.part(1).params), ref.values[v], atol=1e-7)
     assert abs(res.final_cost - ref.final_cost) < 1e-8 * max(1.0, ref.final_cost)
+
+
+def test_pickle_roundtrip_of_generated_classes():
+    import pickle
+
+    for G in (STATE, R(4), Product(Product(SO3, R(2)), SE3)):
+        X = G.random(3, rng=0)
+        Y = pickle.loads(pickle.dumps(X))
+        assert type(Y) is G
+        np.testing.assert_array_equal(Y.params, X.params)

@@ -171,3 +171,17 @@ def test_jax_jit_and_grad():
     seen = []
     jax.jit(lambda x: seen.append(L.concrete(x)) or x)(jnp.ones(2))
     assert seen == [None]
+
+
+def test_uncertainty_knows_no_array_library():
+    """``uncertainty`` goes through ``_linalg``/``_array`` for everything backend-specific: no
+    backend test, no torch/JAX import, no NumPy-array type check in its source."""
+    import re
+    from pathlib import Path
+
+    import microlie.uncertainty as U
+
+    src = Path(U.__file__).read_text()
+    bad = re.findall(r"is_numpy|is_torch|is_jax|is_traced|isinstance\([^)]*np\.ndarray|"
+                     r"import torch|import jax|\.detach\(", src)
+    assert not bad, bad

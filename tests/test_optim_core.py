@@ -18,6 +18,7 @@ from microlie.optim import (
     Isotropic,
     PriorFactor,
     SqrtInformation,
+    available_solvers,
     from_pose_graph,
 )
 from microlie.optim.problem import Problem
@@ -171,17 +172,10 @@ def test_lm_gn_dogleg_reach_the_same_optimum():
         assert np.abs(d).max() < 1e-6, s
 
 
-@pytest.mark.parametrize("ls", ["supernodal", "scipy", "dense", "qdldl", "pardiso"])
+# every backend installed here (qdldl is in the test extra, so CI runs it; PARDISO only where
+# microlie[mkl] is installed)
+@pytest.mark.parametrize("ls", available_solvers())
 def test_linear_solvers_agree(ls):
-    if ls == "qdldl":
-        from conftest import require
-
-        require("qdldl")  # in the test extra: CI fails without it
-    elif ls == "pardiso":
-        from microlie.optim import available_solvers
-
-        if "pardiso" not in available_solvers():  # MKL (1 GB) is not in the test extra
-            pytest.skip("pypardiso not installed (optional extra microlie[mkl])")
     g, poses, _ = _se3_loop(n=12)
     a = g.optimize(linear_solver="dense", rel_tol=1e-12)
     b = g.optimize(linear_solver=ls, rel_tol=1e-12)
@@ -288,7 +282,7 @@ def test_non_positive_information_is_a_value_error():
         PriorFactor(x, 2, SE2.identity())
 
 
-def test_custom_factors_analytic_numerical_jax_agree():
+def test_custom_factors_analytic_numerical_jax_torch_agree():
     from conftest import require
 
     jax = require("jax")
@@ -316,13 +310,22 @@ def test_custom_factors_analytic_numerical_jax_agree():
                            jac=jac))
         return g, x
 
+    torch = require("torch")
+
+    def build_torch():
+        g, x = build("numerical")
+        f = g.factors[-1]
+        f.mode = "torch"
+        f.fn = lambda X, z: X.act(torch.zeros(2, dtype=torch.float64)) - z
+        return g, x
+
     sols = {}
-    for jac in ("analytic", "numerical", "jax"):
-        g, x = build(jac)
+    for jac in ("analytic", "numerical", "jax", "torch"):
+        g, x = build_torch() if jac == "torch" else build(jac)
         r = g.optimize(rel_tol=1e-12, abs_tol=1e-14)
         assert r.converged
         sols[jac] = r.values[x]
-    for jac in ("numerical", "jax"):
+    for jac in ("numerical", "jax", "torch"):
         assert np.abs(sols[jac].minus(sols["analytic"])).max() < 1e-7, jac
 
 

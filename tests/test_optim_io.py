@@ -191,6 +191,12 @@ BAD = [
     (V2 + "EDGE_SE2 0 1 1 0 nan 1 0 0 1 0 1\n", r":3: EDGE_SE2: non-finite value 'nan'"),
     ("VERTEX_SE2 0 0 inf 0\n" + E2, r":1: VERTEX_SE2: non-finite value 'inf'"),
     (V2 + "EDGE_SE2 0 x 1 0 0 1 0 0 1 0 1\n", r":3: EDGE_SE2: vertex id 'x' is not an integer"),
+    (V2 + "EDGE_SE2 0 -1 1 0 0 1 0 0 1 0 1\n", r":3: EDGE_SE2: negative vertex id -1"),
+    (V2 + "EDGE_SE2 0 1 1 0 0 1 0 0 1 0\nVERTEX_SE2 2 x 0 0\n",  # the first bad line wins
+     r":3: EDGE_SE2 needs 11 fields"),
+    (V2 + E2 + "EDGE_SE2 0 1.5 1 0 0 1 0 0 1 0 1\n",
+     r":4: EDGE_SE2: vertex id '1.5' is not an integer"),
+    (V2 + E2 + E2 + "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1 7\n", r":5: EDGE_SE2 needs 11 fields"),
     (V2 + "VERTEX_XY 2 0 0\n" + E2, r":3: unknown tag 'VERTEX_XY' in a g2o file"),
     (V2 + "EDGE_SE2 0 2 1 0 0 1 0 0 1 0 1\n",
      r":3: edge 0 -> 2 refers to vertex 2, which has no vertex line"),
@@ -202,7 +208,8 @@ BAD = [
     (V2 + "VERTEX_SE2 1 2 0 0\n" + E2, r":3: vertex 1 is defined twice \(first on line 2\)"),
     (V2 + E2 + "FIX 4\n", r":4: FIX names vertex 4"),
     (V2 + E2 + "FIX\n", r":4: FIX needs at least one vertex id"),
-    (V2 + E2 + V3, r":4: VERTEX_SE3:QUAT is a SE3 line but line 1 made this a SE2 graph"),
+    (V2 + E2 + V3,
+     r":4: VERTEX_SE3:QUAT is a SE3 line but line 1 \(VERTEX_SE2\) made this a SE2 graph"),
     (V3 + f"EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 0.5 {INFO6}\n", r":3: measurement: quaternion .* norm"),
     (V2, r"no edges"),
     ("# nothing\n", r"no vertex or edge lines"),
@@ -230,6 +237,11 @@ def test_pose_graph_checks_its_fields():
     with pytest.raises(ValueError, match="information must have shape"):
         PoseGraph(SE2, ids=np.arange(2), poses=None, i=[0], j=[1], measurements=Z,
                   information=np.eye(3))
+    g = PoseGraph(SE2, ids=np.array([2, 4]), poses=None, i=[2], j=[4], measurements=Z,
+                  information=np.eye(3)[None])
+    assert g.index([4, 2]).tolist() == [1, 0]
+    with pytest.raises(ValueError, match="vertex id 3 is not in this graph"):
+        g.index(3)
     with pytest.raises(ValueError, match="vertex id 5"):
         PoseGraph(SE2, ids=np.arange(2), poses=None, i=[0], j=[5], measurements=Z,
                   information=np.eye(3)[None])

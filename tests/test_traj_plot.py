@@ -15,6 +15,7 @@ from conftest import data_file, require
 
 from microlie import traj as T
 from microlie.cli import main
+from microlie.traj import plot as P
 
 EVO = "trajectory/evo/"
 BLUE = np.array([0x1F, 0x77, 0xB4]) / 255.0  # matplotlib's first colour (tab:blue)
@@ -80,8 +81,8 @@ def test_plot_mode_shows_the_path_on_that_plane(tmp_path, mode):
     extra = [] if mode is None else ["--plot-mode", mode]
     run("plot", "kitti", str(gt.name), str(est.name), "-o", str(png), *extra)
     mode = mode or "xz"  # the KITTI default: its ground plane
-    fig = T.plot.plot_trajectories([gt, est], labels=[gt.name, est.name], plot_mode=mode)
-    T.plot.save(fig, tmp_path / "lib.png")
+    fig = P.plot_trajectories([gt, est], labels=[gt.name, est.name], plot_mode=mode)
+    P.save(fig, tmp_path / "lib.png")
     img = read_png(png)
     np.testing.assert_array_equal(img, read_png(tmp_path / "lib.png"))  # the command's figure
     ax = axes(fig, "path")
@@ -98,12 +99,12 @@ def test_plot_mode_shows_the_path_on_that_plane(tmp_path, mode):
 
 def test_plot_mode_xyz_is_3d(tmp_path):
     gt, est = kitti()
-    fig = T.plot.plot_trajectories([gt, est], plot_mode="xyz")
+    fig = P.plot_trajectories([gt, est], plot_mode="xyz")
     ax = axes(fig, "path")
     assert ax.name == "3d" and ax.get_zlabel() == "z (m)"
     run("plot", "kitti", str(gt.name), str(est.name), "-o", str(tmp_path / "k.png"),
         "--plot-mode", "xyz")
-    T.plot.save(fig, tmp_path / "lib.png")
+    P.save(fig, tmp_path / "lib.png")
     np.testing.assert_array_equal(read_png(tmp_path / "k.png"), read_png(tmp_path / "lib.png"))
 
 
@@ -118,7 +119,7 @@ def test_euroc_csv_and_tum_estimate_share_one_time_origin(tmp_path):
     gt, est = T.read_euroc(gt_path), T.read_tum(est_path)
     offset = est.timestamps[0] - gt.timestamps[0]
     assert offset > 4.0  # the estimate starts 4.2 s after the ground truth
-    fig = T.plot.plot_trajectories([gt, est], labels=[str(gt_path), str(est_path)])
+    fig = P.plot_trajectories([gt, est], labels=[str(gt_path), str(est_path)])
     ax = axes(fig, "x")
     ref_line, est_line = ax.get_lines()
     assert ref_line.get_xdata()[0] == 0.0
@@ -131,10 +132,14 @@ def test_euroc_csv_and_tum_estimate_share_one_time_origin(tmp_path):
     assert hi[0] == pytest.approx(est.timestamps[-1] - gt.timestamps[0], abs=px + 0.2)
 
 
-def test_roll_pitch_yaw_of_agreeing_trajectories_overlap():
+def test_roll_pitch_yaw_of_agreeing_trajectories_overlap(tmp_path):
     gt, est = kitti()
     est_aligned, _ = T.align(gt, est, "se3")  # KITTI: paired by index
-    fig = T.plot.plot_trajectories([gt, est_aligned])
+    fig = P.plot_trajectories([gt, est_aligned], plot_mode="xz")
+    # the command's PNG is this figure
+    run("plot", "kitti", str(gt.name), str(est.name), "-a", "-o", str(tmp_path / "k.png"))
+    P.save(fig, tmp_path / "lib.png")
+    np.testing.assert_array_equal(read_png(tmp_path / "k.png"), read_png(tmp_path / "lib.png"))
     for k, gid in enumerate(("roll", "pitch", "yaw")):
         ref_line, est_line = axes(fig, gid).get_lines()
         d = np.abs(est_line.get_ydata() - ref_line.get_ydata())
@@ -155,8 +160,8 @@ def test_error_plot_colours_the_path_on_the_chosen_plane(tmp_path):
     png = tmp_path / "ape.png"
     run("ape", "kitti", gt, est, "-as", "--plot", str(png))  # default plane: xz
     res = T.evaluate_ape(T.read_kitti(gt), T.read_kitti(est), align="sim3")
-    fig = T.plot.plot_error(res, plot_mode="xz")
-    T.plot.save(fig, tmp_path / "lib.png")
+    fig = P.plot_error(res, plot_mode="xz")
+    P.save(fig, tmp_path / "lib.png")
     img = read_png(png)
     np.testing.assert_array_equal(img, read_png(tmp_path / "lib.png"))
     ax = axes(fig, "path")
@@ -180,8 +185,8 @@ def test_res_and_traj_plots(tmp_path):
         run("ape", gt, str(data_file(EVO + est)), "-as", "--save-results", files[-1])
     run("res", *files, "--plot", str(tmp_path / "res.png"))
     results = [T.load_result(f) for f in files]
-    fig = T.plot.plot_results(results, ["r0.json", "r1.json"])
-    T.plot.save(fig, tmp_path / "lib.png")
+    fig = P.plot_results(results, ["r0.json", "r1.json"])
+    P.save(fig, tmp_path / "lib.png")
     np.testing.assert_array_equal(read_png(tmp_path / "res.png"), read_png(tmp_path / "lib.png"))
     lines = axes(fig, "errors").get_lines()
     for line, r in zip(lines, results, strict=True):

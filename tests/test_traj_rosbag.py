@@ -136,5 +136,11 @@ def test_command_reads_bags_both_ways(bag):
     same = stats("ape", "bag", str(path), "/pose", "/tf:map.base")
     assert same["max"] == pytest.approx(0.0, abs=1e-12)
     out = io.StringIO()
-    assert main(["traj", "bag", str(path), "/pose", "/odom"], out=out, err=io.StringIO()) == 0
+    folder = path.parent / "converted"
+    assert main(["traj", "bag", str(path), "/pose", "/tf:map.base", "--save-as", "tum",
+                 str(folder)], out=out, err=io.StringIO()) == 0
     assert out.getvalue().count(f"poses {len(tum)}") == 2
+    for name in ("pose", "tf_map_base"):
+        back = T.read_tum(folder / f"{path.stem}_{name}.tum")
+        np.testing.assert_array_equal(back.timestamps, tum.timestamps)
+        np.testing.assert_allclose(back.matrices(), tum.matrices(), atol=1e-15)

@@ -294,6 +294,21 @@ def test_help_has_an_example_per_command():
         assert f"  microlie {cmd} " in epilog
 
 
+def test_combined_evo_flags():
+    gt, est = (str(p) for p in example_paths())
+    stats = {}
+    for flags in (["-va"], ["-av"], ["-a", "-v"], ["--align", "se3", "-v"], ["-vas"], ["-sa"],
+                  ["-as"], ["--align", "sim3"], ["-a", "-s"], ["-s"], ["--align", "scale"]):
+        code, out, err = run("ape", gt, est, *flags)
+        assert code == 0, err
+        stats[" ".join(flags)] = out.split("\n\n")[-1]  # the statistics block
+    assert stats["-va"] == stats["-av"] == stats["-a -v"] == stats["--align se3 -v"]
+    assert stats["-vas"] == stats["-sa"] == stats["-as"] == stats["--align sim3"] == \
+        stats["-a -s"]
+    assert stats["-s"] == stats["--align scale"] != stats["-as"]
+    assert "alignment transform" in run("ape", gt, est, "-va")[1]
+
+
 def test_rot_label_and_sim3_scale_in_text_and_json():
     gt, est = (str(p) for p in example_paths())
     code, out, _ = run("ape", gt, est, "-r", "rot")
@@ -307,3 +322,10 @@ def test_rot_label_and_sim3_scale_in_text_and_json():
     d = json.loads(run("ape", gt, est, "-as", "--json")[1])
     assert d["info"]["alignment_scale"] == pytest.approx(s, rel=1e-12)
     assert d["info"]["alignment_transform"]["scale"] == d["info"]["alignment_scale"]
+
+
+def test_statistics_median_is_numpys_bit_for_bit():
+    rng = np.random.default_rng(0)
+    for n in [*range(1, 40), 1000, 1001]:
+        e = np.abs(rng.standard_normal(n)) * rng.uniform(1e-3, 1e3)
+        assert T.statistics(e)["median"] == float(np.median(e)), n

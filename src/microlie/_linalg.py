@@ -44,6 +44,12 @@ def _xp(*arrays: Array) -> Any:
     return A.namespace(*arrays)
 
 
+def _la(name: str, *arrays: Array) -> Any:
+    """``name`` from ``numpy.linalg`` or the arrays' namespace's ``linalg``, applied."""
+    mod = np.linalg if _is_np(*arrays) else _xp(*arrays).linalg
+    return getattr(mod, name)(*arrays)
+
+
 # ---------------------------------------------------------------------------- shapes
 
 
@@ -197,17 +203,14 @@ def solve(a: Array, b: Array) -> Array:
 
     NumPy and torch raise their ``LinAlgError`` on an exactly singular ``a``; JAX returns
     non-finite values."""
-    a, b = broadcast_batch(a, b)
     if _is_np(a, b):
-        return np.linalg.solve(a, b)
-    return _xp(a, b).linalg.solve(a, b)
+        return np.linalg.solve(a, b)  # broadcasts the batch itself
+    return _la("solve", *broadcast_batch(a, b))
 
 
 def inv(a: Array) -> Array:
     """Inverses of square matrices ``(..., n, n)``."""
-    if _is_np(a):
-        return np.linalg.inv(a)
-    return _xp(a).linalg.inv(a)
+    return _la("inv", a)
 
 
 def cholesky(a: Array) -> Array:
@@ -215,17 +218,15 @@ def cholesky(a: Array) -> Array:
 
     NumPy and torch raise their ``LinAlgError`` when ``a`` is not positive definite; JAX
     returns NaN. Callers that need a clear error check definiteness first."""
-    if _is_np(a):
-        return np.linalg.cholesky(a)
-    return _xp(a).linalg.cholesky(a)
+    return _la("cholesky", a)
 
 
 def solve_triangular(t: Array, b: Array, *, lower: bool = True) -> Array:
     """``x`` with ``t x = b`` for triangular ``t`` ``(..., n, n)`` and ``b`` ``(..., n, k)``."""
-    t, b = broadcast_batch(t, b)
     if _is_np(t, b):
         # NumPy has no batched triangular solve: LU of a triangular matrix is backward stable
         return np.linalg.solve(t, b)
+    t, b = broadcast_batch(t, b)
     if A.is_torch(t):
         import torch
 
@@ -247,34 +248,24 @@ def cho_solve(chol: Array, b: Array) -> Array:
 def eigh(a: Array) -> tuple[Array, Array]:
     """Eigenvalues (ascending, ``(..., n)``) and orthonormal eigenvectors (columns,
     ``(..., n, n)``) of symmetric matrices (only the lower triangle is read)."""
-    if _is_np(a):
-        w, v = np.linalg.eigh(a)
-        return w, v
-    w, v = _xp(a).linalg.eigh(a)
+    w, v = _la("eigh", a)
     return w, v
 
 
 def eigvalsh(a: Array) -> Array:
     """Eigenvalues (ascending, ``(..., n)``) of symmetric matrices."""
-    if _is_np(a):
-        return np.linalg.eigvalsh(a)
-    return _xp(a).linalg.eigvalsh(a)
+    return _la("eigvalsh", a)
 
 
 def det(a: Array) -> Array:
     """Determinants ``(...)`` of square matrices ``(..., n, n)``."""
-    if _is_np(a):
-        return np.linalg.det(a)
-    return _xp(a).linalg.det(a)
+    return _la("det", a)
 
 
 def slogdet(a: Array) -> tuple[Array, Array]:
     """``(sign, log|det a|)`` of square matrices, each of shape ``(...)``."""
-    if _is_np(a):
-        s, ld = np.linalg.slogdet(a)
-        return s, ld
-    s, ld = _xp(a).linalg.slogdet(a)
-    return s, ld
+    sign, logabs = _la("slogdet", a)
+    return sign, logabs
 
 
 def sqrt_psd(a: Array) -> Array:

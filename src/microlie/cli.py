@@ -8,6 +8,7 @@ Subcommands (``microlie COMMAND -h`` shows every option with an example)::
     microlie traj FILES... [--ref FILE] [-a ...] [--merge] [--plot FILE] [--save-as FMT DIR]
     microlie res RESULTS.json... [--plot FILE] [--json]
     microlie plot FILES... -o FILE [--plot-mode xy|xz|yz|zy|xyz]
+    microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] ...  # microlie.optim.command
 
 evo's spellings are accepted as aliases (``-a``, ``-s``, ``-as``, ``--align_origin``,
 ``-r trans_part``, ``-u f``, ``--t_max_diff``, ``--t_offset``, ``--n_to_align``,
@@ -72,18 +73,24 @@ def _progress(items: Sequence[T], label: str, stream: TextIO | None = None) -> I
 def _normalize_argv(argv: list[str]) -> list[str]:
     """evo's flag forms of the alignment options, rewritten to ``--align METHOD``.
 
-    ``-as`` / ``-sa`` is ``--align sim3``; ``-a`` / ``--align`` not followed by a method is
+    Combined flags are split (``-as`` is ``-a -s``, i.e. sim3; ``-va`` is ``-v -a``);
+    ``-a`` / ``--align`` not followed by a method is
     ``--align se3`` (evo's ``-a`` is a flag, ours takes an optional method, so that
     ``microlie ape -a gt.txt est.txt`` keeps its positional arguments); the same for a bare
     ``--interpolate`` (``se3``).
     """
+    expanded: list[str] = []
+    for tok in argv:  # evo's combined flags: -as, -va, -vas, ...
+        if len(tok) > 2 and tok[0] == "-" and tok[1] != "-" and set(tok[1:]) <= set("asv"):
+            expanded += [f"-{c}" for c in tok[1:]]
+        else:
+            expanded.append(tok)
+    argv = expanded
     out: list[str] = []
     it = iter(range(len(argv)))
     for i in it:
         tok = argv[i]
-        if tok in ("-as", "-sa"):
-            out += ["--align", "sim3"]
-        elif tok in ("-a", "--align", "--interpolate"):
+        if tok in ("-a", "--align", "--interpolate"):
             name, values = ("--interpolate", ("se3", "split")) if tok == "--interpolate" else \
                 ("--align", ALIGNMENTS)
             nxt = argv[i + 1] if i + 1 < len(argv) else None
@@ -98,8 +105,9 @@ def _normalize_argv(argv: list[str]) -> list[str]:
 
 
 def _is_bag(path: str) -> bool:
-    p = Path(path)
-    return p.suffix in (".bag", ".db3", ".mcap") or (p.is_dir() and (p / "metadata.yaml").exists())
+    from .traj.rosbag import is_bag
+
+    return is_bag(path)
 
 
 class _Source:
@@ -400,9 +408,15 @@ def _register_plot(sub: Any) -> None:
 
 # Subcommands in the order ``microlie -h`` lists them; each entry adds one subparser whose
 # ``func(args, out, err)`` runs it. Another package's command is one more entry here.
+def _register_optimize(sub: Any) -> None:
+    from .optim.command import register  # argparse only: the solver is imported on use
+
+    register(sub)
+
+
 COMMANDS: list[Callable[[Any], None]] = [
     _register_ape, _register_rpe, _register_kitti, _register_traj, _register_res,
-    _register_plot,
+    _register_plot, _register_optimize,
 ]
 
 
@@ -412,8 +426,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = argparse.ArgumentParser(
         prog="microlie",
-        description="Trajectory evaluation with microlie (APE, RPE, KITTI metric, trajectory "
-                    "files, saved results, plots).",
+        description="microlie from the shell: trajectory evaluation (APE, RPE, KITTI metric, "
+                    "trajectory files, saved results, plots) and the other subcommands below.",
         epilog="exit status: 0 ok, 1 data or runtime error, 2 usage error, 3 missing optional "
                "dependency.\nexample: microlie ape tum groundtruth.txt estimate.txt -a",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -587,6 +601,18 @@ def _align_to(ref: Any, t: Any, args: argparse.Namespace, method: str) -> tuple[
     return (t if g is None else t.transform(g)), g
 
 
+def _file_stem(name: str | None) -> str:
+    """Output file stem for a trajectory name: the file's stem; for a bag topic
+    ``run.bag:/tf:map.base`` the bag's stem and the topic (``run_tf_map_base``)."""
+    if not name:
+        return "trajectory"
+    path, _, topic = str(name).partition(":")
+    stem = Path(path).stem
+    if topic:
+        stem += "_" + "".join(c if c.isalnum() else "_" for c in topic.strip("/"))
+    return stem
+
+
 def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     from .traj import describe_alignment, merge, read_trajectory, write_trajectory
 
@@ -658,7 +684,7 @@ def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         Path(folder).mkdir(parents=True, exist_ok=True)
         ext = {"tum": ".tum", "kitti": ".kitti", "euroc": ".csv"}[fmt]
         for t in trajs:
-            stem = Path(str(t.name).split(":")[0]).stem if t.name else "trajectory"
+            stem = _file_stem(t.name)
             target = Path(folder) / (stem + ext)
             write_trajectory(target, t, fmt)
             err.write(f"wrote {target}\n")

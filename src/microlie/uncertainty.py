@@ -77,18 +77,18 @@ def _check_finite(x: Array, what: str) -> np.ndarray | None:
     return M
 
 
-def check_covariance(P: Array, n: int, what: str = "covariance") -> np.ndarray | None:
+def check_covariance(P: Array, n: int, what: str = "covariance") -> None:
     """Raise ``ValueError`` unless ``P`` is ``(..., n, n)``, finite, symmetric and PSD.
 
     Symmetry and positive semi-definiteness are checked to ``sqrt(eps)`` of the dtype relative to
     the largest entry or eigenvalue of each matrix. The values are read without forcing a
     traced one: under ``jax.jit`` a concrete (closed-over) covariance is checked, a traced one
-    is not. Returns the eigenvalues (float64, ascending), or ``None`` when unknown.
+    is not.
     """
     A.check_last_dim(P, (n, n), what)
     M = _check_finite(P, what)
     if M is None or M.size == 0:
-        return None
+        return
     tol = math.sqrt(float(np.finfo(M.dtype).eps))
     M = M.astype(np.float64)
     scale = np.abs(M).max(axis=(-1, -2))
@@ -99,77 +99,99 @@ def check_covariance(P: Array, n: int, what: str = "covariance") -> np.ndarray |
     if np.any(w[..., 0] < -tol * np.maximum(np.abs(w).max(axis=-1), 1e-300)):
         raise ValueError(f"{what} is not positive semi-definite (smallest eigenvalue "
                          f"{w[..., 0].min():.3g})")
-    return w
 
 
 # ---------------------------------------------------------------------------- rank rule
 
-#: Relative eigenvalue tolerance of the rank rule, by dtype: SciPy's (``multivariate_normal``,
-#: ``pinvh``) ``1e6 eps`` in float64 (2.2e-10) and ``1e3 eps`` in float32 (1.2e-4).
+#: Tolerance of the rank rule, by dtype: a coordinate is degenerate when the part of its
+#: variance not explained by the preceding coordinates is at most this fraction of it (SciPy's
+#: rank tolerances, ``1e6 eps`` in float64 = 2.2e-10 and ``1e3 eps`` in float32 = 1.2e-4, here
+#: relative to each coordinate's own variance, so the rule does not depend on units).
 RANK_RTOL: dict[str, float] = {"float64": 1e6 * float(np.finfo(np.float64).eps),
                                "float32": 1e3 * float(np.finfo(np.float32).eps)}
 
 
 class _Null:
-    """The zero-variance directions of a batch of covariances (NumPy, constants for autograd).
+    """The degenerate coordinates of a batch of covariances (NumPy masks: constants for
+    autograd), found by a Cholesky elimination without pivoting.
 
-    An eigenvalue ``w`` of ``P`` counts as zero when ``w <= t = max(rtol max|w|, -min w)``
-    (``rtol`` = :data:`RANK_RTOL`; the second term puts the rounding-level negative eigenvalues
-    that validation lets through, and anything as small, on the null side). ``proj`` projects
-    onto those directions; a deviation ``e`` lies in the support when ``|proj e| <= sqrt(t)``
-    (no larger than a standard deviation counted as zero). With ``c = max|w|``,
-    ``P + c proj`` is invertible and ``P^+ = (P + c proj)^-1 - proj / c``.
+    Coordinate ``k`` is degenerate when its Schur complement (its variance left unexplained by
+    the coordinates before it) is ``<= rtol P_kk`` (:data:`RANK_RTOL`; a variance that is 0 or
+    negative is always degenerate). The rule is invariant to the units of each coordinate. The
+    others, ``m``, index a principal block ``P_mm`` of full rank, so
+    ``G = pad(P_mm^-1)`` (zero elsewhere) is a symmetric generalised inverse of ``P``:
+    ``e^T G e`` and ``P H^T G r`` are the same as with the pseudo-inverse for every ``e`` and
+    ``r`` in the range. A deviation ``e`` lies in that range (the support) when at every
+    degenerate coordinate ``|e - P G e|_k <= sqrt(rtol P_kk) + sqrt(eps) max(|e|, 1)`` (its
+    unexplained standard deviation counted as zero, plus rounding).
     """
 
-    __slots__ = ("proj", "scale", "rank_loss", "dev_tol")
+    __slots__ = ("keep", "rank_loss", "rtol", "eps")
 
-    def __init__(self, proj: np.ndarray, scale: np.ndarray, rank_loss: np.ndarray,
-                 dev_tol: np.ndarray) -> None:
-        self.proj, self.scale, self.rank_loss, self.dev_tol = proj, scale, rank_loss, dev_tol
+    def __init__(self, keep: np.ndarray, rtol: float, eps: float) -> None:
+        self.keep = keep  # (*batch, n) float: 1 for the coordinates of the full-rank block
+        self.rank_loss = (keep == 0).sum(axis=-1)
+        self.rtol, self.eps = rtol, eps
 
     @staticmethod
-    def of(P: Array, w: np.ndarray | None = None) -> _Null | None:
-        """``None`` when every matrix has full rank, or when the values are unknown (traced).
-        ``w``: the eigenvalues of ``P`` if already known (from :func:`check_covariance`)."""
-        M = None
-        if w is None:
-            M = L.concrete(P)
-            if M is None or M.size == 0:
-                return None
-            M = 0.5 * (M + np.swapaxes(M, -1, -2)).astype(np.float64)
-            w = np.linalg.eigvalsh(M)
-        rtol = RANK_RTOL["float32" if "float32" in str(P.dtype) else "float64"]
-        big = np.abs(w).max(axis=-1)
-        t = np.maximum(rtol * big, -w[..., 0])
-        if not np.any(w[..., 0] <= t):
+    def of(P: Array) -> _Null | None:
+        """``None`` when every matrix has full rank, or when the values are unknown (traced)."""
+        M = L.concrete(P)
+        if M is None or M.size == 0:
             return None
-        if M is None:
-            M = np.asarray(L.concrete(P), dtype=np.float64)
-            M = 0.5 * (M + np.swapaxes(M, -1, -2))
-        w, V = np.linalg.eigh(M)
-        zero = w <= t[..., None]
-        Vz = V * zero[..., None, :]
-        return _Null(Vz @ np.swapaxes(Vz, -1, -2), np.where(big > 0, big, 1.0),
-                     zero.sum(axis=-1), np.sqrt(t))
+        f32 = "float32" in str(P.dtype)
+        rtol = RANK_RTOL["float32" if f32 else "float64"]
+        M = M.astype(np.float64)
+        n = M.shape[-1]
+        A_ = 0.5 * (M + np.swapaxes(M, -1, -2))
+        diag0 = np.diagonal(A_, axis1=-2, axis2=-1).copy()
+        try:  # the common case in one LAPACK call: the pivots are the squared diagonal of L
+            piv = np.diagonal(np.linalg.cholesky(A_), axis1=-2, axis2=-1) ** 2
+            if np.all(piv > rtol * diag0):
+                return None
+        except np.linalg.LinAlgError:
+            pass
+        bad = np.zeros(M.shape[:-1], dtype=bool)
+        for k in range(n):
+            d = A_[..., k, k]
+            z = d <= rtol * diag0[..., k]
+            bad[..., k] = z
+            col = np.where(z[..., None], 0.0, A_[..., :, k] / np.where(z, 1.0, d)[..., None])
+            A_ = A_ - col[..., :, None] * A_[..., k, None, :]
+            A_[..., k, :] = np.where(z[..., None], 0.0, A_[..., k, :])
+            A_[..., :, k] = np.where(z[..., None], 0.0, A_[..., :, k])
+        if not bad.any():
+            return None
+        eps = float(np.finfo(np.float32 if f32 else np.float64).eps)
+        return _Null((~bad).astype(np.float64), rtol, eps)
 
     def pinv_solve(self, P: Array, b: Array) -> Array:
-        """``P^+ b`` for matrices ``b`` ``(..., n, k)`` (differentiable in ``P`` and ``b``)."""
-        Pi = L.asarray(self.proj, P)
-        c = L.asarray(self.scale[..., None, None], P)
-        return L.solve(P + c * Pi, b) - Pi @ b / c
+        """``G b`` for matrices ``b`` ``(..., n, k)`` (differentiable in ``P`` and ``b``)."""
+        m, Pm = self._block(P)
+        return L.solve(Pm, m[..., :, None] * b) * m[..., :, None]
 
-    def off_support(self, e: Array) -> Array:
-        """Boolean ``(...)``: the deviation ``e`` ``(..., n)`` leaves the support."""
-        Pi = L.asarray(self.proj, e)
-        u = (Pi @ e[..., None])[..., 0]
-        return (u * u).sum(-1) > L.asarray(self.dev_tol**2, e)
+    def _block(self, P: Array) -> tuple[Array, Array]:
+        """The mask ``m`` in the backend of ``P`` and ``P_mm`` padded with the identity."""
+        m = L.asarray(self.keep, P)
+        return m, P * (m[..., :, None] * m[..., None, :]) + L.diag_embed(1.0 - m)
+
+    def off_support(self, P: Array, e: Array) -> Array:
+        """Boolean ``(...)``: the deviation ``e`` ``(..., n)`` leaves the support of ``P``."""
+        r = e - (P @ self.pinv_solve(P, e[..., None]))[..., 0]
+        d = L.diag(P)
+        bad = L.asarray(1.0 - self.keep, e)
+        size = L.where((e * e).sum(-1) > 1.0, (e * e).sum(-1), 1.0) ** 0.5
+        tol = (self.rtol * d * (d > 0)) ** 0.5 + self.eps**0.5 * size[..., None]
+        return (bad * (r * r - tol * tol) > 0).any(-1)
 
     def log_pdet(self, P: Array) -> Array:
-        """Log of the pseudo-determinant (product of the nonzero eigenvalues)."""
-        c = self.scale
-        Pi = L.asarray(self.proj, P)
-        return L.slogdet(P + L.asarray(c[..., None, None], P) * Pi)[1] \
-            - L.asarray(self.rank_loss * np.log(c), P)
+        """Log of the pseudo-determinant of ``P`` (the product of its nonzero eigenvalues):
+        ``det P_mm det(I + W^T W)``, ``W = P G`` on the degenerate rows (``P = T P_mm T^T`` with
+        ``T = [I; W]``)."""
+        n = int(P.shape[-1])
+        m, Pm = self._block(P)
+        W = (1.0 - m)[..., :, None] * (P @ self.pinv_solve(P, L.eye(n, P)))
+        return L.slogdet(Pm)[1] + L.slogdet(L.eye(n, P) + L.mT(W) @ W)[1]
 
 
 # ---------------------------------------------------------------------------- vector Gaussian
@@ -199,14 +221,11 @@ class VectorGaussian:
             raise ValueError("the mean of a VectorGaussian must have shape (..., n)")
         _check_finite(m, "VectorGaussian mean")
         P = _as_array(cov, m, "VectorGaussian covariance")
-        w = None
         if validate:
-            w = check_covariance(P, m.shape[-1], "VectorGaussian covariance")
+            check_covariance(P, m.shape[-1], "VectorGaussian covariance")
         else:
             A.check_last_dim(P, (m.shape[-1], m.shape[-1]), "VectorGaussian covariance")
         self._init(*_broadcast_pair(L.copy(m), L.copy(P)))
-        if w is not None:
-            object.__setattr__(self, "_null", _Null.of(P, w))
 
     @classmethod
     def _make(cls, mean: Array, cov: Array) -> VectorGaussian:
@@ -259,7 +278,7 @@ class VectorGaussian:
         (5, 3)
         """
         z = _standard_normal(n, (*self.batch_shape, self.dim), rng, self.mean)
-        return self.mean + (L.sqrt_psd(self.cov) @ z[..., None])[..., 0]
+        return self.mean + (_cov_factor(self) @ z[..., None])[..., 0]
 
     def mahalanobis(self, x: Any, squared: bool = False) -> Array:
         """Mahalanobis distance ``sqrt((x - m)^T P^-1 (x - m))`` (``squared=True``: without
@@ -322,15 +341,12 @@ class Gaussian:
         _check_frame(frame)
         P = _as_array(cov, mean.params, f"{type(mean).__name__} Gaussian covariance")
         what = f"{type(mean).__name__} Gaussian covariance"
-        w = None
         if validate:
-            w = check_covariance(P, mean.dof, what)
+            check_covariance(P, mean.dof, what)
         else:
             A.check_last_dim(P, (mean.dof, mean.dof), what)
-        params, Pb = _broadcast_pair(mean.params, L.copy(P))
-        self._init(type(mean)._wrap(params), Pb, frame)
-        if w is not None:
-            object.__setattr__(self, "_null", _Null.of(P, w))
+        params, P = _broadcast_pair(mean.params, L.copy(P))
+        self._init(type(mean)._wrap(params), P, frame)
 
     @classmethod
     def _make(cls, mean: LieGroup, cov: Array, frame: Frame) -> Gaussian:
@@ -438,7 +454,7 @@ class Gaussian:
         (4,)
         """
         z = _standard_normal(n, (*self.batch_shape, self.dof), rng, self.cov)
-        return self.retract((L.sqrt_psd(self.cov) @ z[..., None])[..., 0])
+        return self.retract((_cov_factor(self) @ z[..., None])[..., 0])
 
     def mahalanobis(self, X: LieGroup, squared: bool = False) -> Array:
         """Mahalanobis distance of ``X`` from the mean, ``sqrt(e^T P^-1 e)`` with ``e =``
@@ -579,10 +595,11 @@ class Gaussian:
 
         ``R`` is checked like every covariance (finite, symmetric, positive semi-definite).
         Rank-deficient ``P`` and ``R`` are handled exactly: when ``S`` is singular (the rank
-        rule of docs/uncertainty.md, tolerance :data:`RANK_RTOL`) its pseudo-inverse is used,
-        so ``d`` stays in the range of ``P H^T`` (the mean never moves along a zero-variance
-        direction), and a residual that has a component where ``S`` has zero variance (the
-        measurement contradicts what both sides hold certain) raises ``ValueError``. Under
+        rule of docs/uncertainty.md, tolerance :data:`RANK_RTOL`, independent of units) a
+        generalised inverse is used, so ``d`` stays in the range of ``P H^T`` (the mean never
+        moves along a zero-variance direction), and a residual that has a component where
+        ``S`` has zero variance (the measurement contradicts what both sides hold certain)
+        raises ``ValueError``. Under
         ``jax.jit`` with a traced covariance the rank cannot be read: ``S`` must then be
         invertible.
 
@@ -642,13 +659,11 @@ class Gaussian:
         if null is None:
             K = L.mT(L.solve(S, L.mT(PHt)))
         else:
-            off, rv = L.concrete(null.off_support(r)), L.concrete(r)
-            if off is not None and rv is not None and off.any():
-                u = np.einsum("...ij,...j->...i", null.proj, rv)
+            off = L.concrete(null.off_support(S, r))
+            if off is not None and off.any():
                 raise ValueError(
-                    f"{what} has a component of size {np.linalg.norm(u, axis=-1).max():.3g} "
-                    f"along a direction in which both covariances are zero (H P H^T + R is "
-                    f"singular there): the two are incompatible")
+                    f"{what} is not in the range of H P H^T + R: it has a component along a "
+                    f"direction in which both covariances are zero (the two are incompatible)")
             K = L.mT(null.pinv_solve(S, L.mT(PHt)))
         d = (K @ r[..., None])[..., 0]
         IKH = L.eye(self.dof, P) - K @ H
@@ -826,6 +841,15 @@ def _rank(g: Gaussian | VectorGaussian) -> _Null | None:
     return null
 
 
+def _cov_factor(g: Gaussian | VectorGaussian) -> Array:
+    """``S`` with ``S S^T = g.cov`` for sampling: the Cholesky factor when the covariance is
+    known to have full rank (its gradient is finite where ``eigh``'s is not: repeated
+    eigenvalues), else the symmetric square root from ``eigh`` (rank-deficient or traced)."""
+    if L.concrete(g.cov) is not None and _rank(g) is None:
+        return L.cholesky(g.cov)
+    return L.sqrt_psd(g.cov)
+
+
 def _mahalanobis(e: Array, P: Array, squared: bool, null: _Null | None) -> Array:
     """``e^T P^-1 e`` (or its root); on a rank-deficient ``P`` (``null``, see :class:`_Null`)
     the pseudo-inverse on the support and ``inf`` off it."""
@@ -833,7 +857,7 @@ def _mahalanobis(e: Array, P: Array, squared: bool, null: _Null | None) -> Array
         d2 = (e * L.solve(P, e[..., None])[..., 0]).sum(-1)
     else:
         d2 = (e * null.pinv_solve(P, e[..., None])[..., 0]).sum(-1)
-        d2 = L.where(null.off_support(e), math.inf, d2)
+        d2 = L.where(null.off_support(P, e), math.inf, d2)
     return d2 if squared else d2**0.5
 
 

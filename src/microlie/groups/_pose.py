@@ -18,6 +18,26 @@ class Pose(LieGroup):
     """A group whose parameters start with a translation followed by a rotation's parameters."""
 
     _rotation: ClassVar[Any]  # SO2 or SO3
+    _rotation_slice: ClassVar[slice]  # test fact: the rotation's entries of the tangent
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        # test fact: the rotation's entries of the tangent, right after the translation's
+        rot = cls.__dict__.get("_rotation")
+        if rot is not None and "_rotation_slice" not in cls.__dict__:
+            cls._rotation_slice = slice(rot.point_dim, rot.point_dim + rot.dof)
+        super().__init_subclass__(**kwargs)
+
+    @classmethod
+    def _exact_pi_element(cls) -> Pose:
+        """An element whose rotation is by exactly pi (the rotation group's
+        ``_exact_pi_element``, no rounding), every other part non-zero: ``Exp(tau) X_pi`` with
+        ``tau`` zero on the rotation."""
+        n, r = cls._dims()
+        p = np.array(cls._identity_params)
+        p[n:r] = cls._rotation._exact_pi_element().params  # type: ignore[attr-defined]
+        tau = np.linspace(0.3, 1.1, cls.dof) * (-1.0) ** np.arange(cls.dof)
+        tau[cls._rotation_slice] = 0.0
+        return cls.exp(tau) @ cls(p)  # type: ignore[return-value]
 
     @classmethod
     def _dims(cls) -> tuple[int, int]:

@@ -28,6 +28,9 @@ class VectorSpace(LieGroup):
 
     dim: ClassVar[int]
 
+    def __reduce__(self):
+        return (_rebuild, (_spec(type(self)), self.params))
+
     @classmethod
     def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
         return rng.standard_normal((*batch_shape, cls.dim))
@@ -107,6 +110,9 @@ class ProductGroup(LieGroup):
     _p: ClassVar[tuple[int, ...]]  # parameter offsets
     _t: ClassVar[tuple[int, ...]]  # tangent offsets
     _v: ClassVar[tuple[int, ...]]  # point offsets
+
+    def __reduce__(self):
+        return (_rebuild, (_spec(type(self)), self.params))
 
     @classmethod
     def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
@@ -204,6 +210,28 @@ def _blockdiag(blocks: list[tuple], like: Any) -> tuple:
                 row.extend(r if m == k else (z,) * w)
             rows.append(tuple(row))
     return tuple(rows)
+
+
+def _spec(G: type[LieGroup]) -> Any:
+    """A picklable description of a (possibly generated) group class."""
+    if issubclass(G, VectorSpace):
+        return ("R", G.dim)
+    if issubclass(G, ProductGroup):
+        return ("Product", tuple(_spec(F) for F in G.factors))
+    return G
+
+
+def _group(spec: Any) -> type[LieGroup]:
+    if isinstance(spec, tuple) and spec[0] == "R":
+        return R(spec[1])
+    if isinstance(spec, tuple) and spec[0] == "Product":
+        return Product(*(_group(f) for f in spec[1]))
+    return spec
+
+
+def _rebuild(spec: Any, params: Any) -> LieGroup:
+    """Unpickle an element of a generated group (classes made by R(n) and Product)."""
+    return _group(spec)._wrap(params)
 
 
 def _offsets(sizes: list[int]) -> tuple[int, ...]:

@@ -30,6 +30,13 @@ class SO2(LieGroup):
     point_dim = 2
     _identity_params = (1.0, 0.0)
     _generators = np.array([[[0.0, -1.0], [1.0, 0.0]]])
+    # facts for the generic test suite: the rotation's entries of the tangent vector
+    _rotation_slice = slice(0, 1)
+
+    @classmethod
+    def _exact_pi_element(cls) -> SO2:
+        """The rotation by exactly pi, ``(cos, sin) = (-1, 0)`` with no rounding."""
+        return cls(np.array([-1.0, 0.0]))
 
     @classmethod
     def _validate_params(cls, p: Array, normalize: bool) -> Array:

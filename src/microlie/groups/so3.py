@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from .. import _array as A
+from .. import _linalg as L
 from .._array import Array
 from .._kernels import Kernel, add, run
 from . import _math as M
@@ -72,7 +73,9 @@ def quat_log_parts(o: Any, q: tuple) -> tuple:
     """``(phi, kl, aw)``: the rotation vector, ``kl = theta / |v|`` and ``aw = |w|``
     (``cos(theta/2)``), for callers that need the half-angle functions too."""
     x, y, z, w = q
-    aw = o.abs(w)
+    # |w| as w * sign1(w) (sign1(0) = +1): its derivative at w = 0 is 1, where abs's is 0 in
+    # torch; at a rotation by exactly pi that derivative carries the change of the angle
+    aw = w * o.sign1(w)
     n2 = x * x + y * y + z * z
     small = n2 < M.TINY2
     n = o.sqrt(n2 + small)
@@ -223,11 +226,19 @@ def checked_unit_quat(q: Array, normalize: bool, what: str, kind: str = "quatern
     return q / n
 
 
+_RANK_TOL = 1e-12  # second singular value below this times the first: rank < 2
+
+
 def checked_rotation_matrix(R: Array, normalize: bool, what: str) -> Array:
     """Check ``R^T R = I`` and ``det R = +1`` within tolerance, or project with ``normalize``."""
     xp = A.namespace(R)
     if normalize:
-        U, _, Vt = xp.linalg.svd(R)
+        U, S, Vt = xp.linalg.svd(R)
+        sv = L.concrete(S)
+        # rank < 2 (the zero matrix included): every rotation about the null space is as near
+        if sv is not None and sv.size and bool(np.any(sv[..., 1] <= _RANK_TOL * sv[..., 0])):
+            raise ValueError(f"{what}: matrix has rank < 2, no unique nearest rotation "
+                             "(normalize=True cannot project it)")
         d = xp.linalg.det(U @ Vt)
         sign = xp.stack([xp.ones_like(d), xp.ones_like(d), d], axis=-1)
         return (U * sign[..., None, :]) @ Vt
@@ -272,6 +283,13 @@ class SO3(LieGroup):
         [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
         [[0, -1, 0], [1, 0, 0], [0, 0, 0]],
     ], dtype=float)
+    # facts for the generic test suite: the rotation's entries of the tangent vector
+    _rotation_slice = slice(0, 3)
+
+    @classmethod
+    def _exact_pi_element(cls) -> SO3:
+        """The rotation by exactly pi about x, quaternion ``(1, 0, 0, 0)`` (``w = 0`` exactly)."""
+        return cls(np.array([1.0, 0.0, 0.0, 0.0]))
 
     @classmethod
     def _validate_params(cls, p: Array, normalize: bool) -> Array:
@@ -371,14 +389,27 @@ class SO3(LieGroup):
 
     @classmethod
     def from_euler(cls, seq: str, angles: Any, degrees: bool = False) -> SO3:
-        """From Euler angles, SciPy's convention: ``seq`` of three letters from ``xyz``
-        (extrinsic, rotations about the fixed axes, applied left to right) or ``XYZ``
-        (intrinsic, about the moving axes). ``angles`` has shape ``(..., 3)``."""
-        if len(seq) != 3 or not (set(seq) <= set("xyz") or set(seq) <= set("XYZ")):
-            raise ValueError(
-                f"seq must be 3 letters, all from 'xyz' or all from 'XYZ', got {seq!r}")
+        """From Euler angles, SciPy's convention: ``seq`` of one to three letters, all from
+        ``xyz`` (extrinsic: rotations about the fixed axes, applied left to right) or all from
+        ``XYZ`` (intrinsic: about the moving axes), no axis twice in a row (``"xyx"`` is valid,
+        ``"xxy"`` is not). ``angles`` has shape ``(..., len(seq))`` (a scalar for one axis);
+        radians, or degrees with ``degrees=True``.
+
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> np.round(SO3.from_euler("z", 90, degrees=True).matrix(), 12)
+        array([[ 0., -1.,  0.],
+               [ 1.,  0.,  0.],
+               [ 0.,  0.,  1.]])
+        """
+        check_euler_seq(seq)
         a = A.as_float_array(angles)
-        A.check_last_dim(a, 3, "Euler angles")
+        if a.ndim == 0:
+            a = a[None]
+        if a.shape[-1] != len(seq):
+            raise ValueError(f"Euler angles: the last dimension must match the {len(seq)} axes "
+                             f"of seq {seq!r}, got shape {tuple(a.shape)}")
+        A.check_finite(a, "Euler angles")
         if degrees:
             a = a * (np.pi / 180.0)
         out = None
@@ -419,6 +450,17 @@ class SO3(LieGroup):
         """``(roll, pitch, yaw)`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``, pitch in
         ``[-pi/2, pi/2]``."""
         return run(_K_RPY, self.params)
+
+
+def check_euler_seq(seq: Any) -> None:
+    """SciPy's rules for an Euler axis sequence (``ValueError`` naming the problem)."""
+    if not isinstance(seq, str) or not 1 <= len(seq) <= 3:
+        raise ValueError(f"Euler seq must be a string of 1 to 3 axes, got {seq!r}")
+    if not (set(seq) <= set("xyz") or set(seq) <= set("XYZ")):
+        raise ValueError("Euler seq axes must all be from 'xyz' (extrinsic) or all from 'XYZ' "
+                         f"(intrinsic), got {seq!r}")
+    if any(a == b for a, b in zip(seq, seq[1:], strict=False)):
+        raise ValueError(f"Euler seq must not repeat an axis consecutively, got {seq!r}")
 
 
 def _roll_quat(q: Array, to_scalar_last: bool) -> Array:

@@ -26,16 +26,24 @@ product of the rotation increments, cumulative sums, and one matrix product for 
 
 from __future__ import annotations
 
+import math
+from fractions import Fraction
+from math import factorial
 from typing import Any
 
 import numpy as np
 
-from .._array import NUMPY
+from .._array import NUMPY, SCALAR
 from ..groups import SO3
 from ..groups import _math as _M
 from ..groups import so3 as _so3
 
 __all__ = ["Preintegration"]
+
+# Below this many samples per call, integrate() buffers them; a buffer of BUFFER samples (or
+# any read of a result) is integrated at once, below SMALL samples one at a time.
+SMALL = 24
+BUFFER = 4096
 
 
 def _vec3(x: Any, what: str) -> np.ndarray:
@@ -47,6 +55,23 @@ def _vec3(x: Any, what: str) -> np.ndarray:
     if not np.all(np.isfinite(a)):
         raise ValueError(f"{what} has NaN or infinite entries")
     return a
+
+
+def _sample_row(accel: Any, gyro: Any, dt: Any) -> list[float] | None:
+    """``[ax, ay, az, wx, wy, wz, dt]`` for one valid sample, else None (the array path then
+    checks and reports)."""
+    try:
+        a = accel.tolist() if type(accel) is np.ndarray else accel
+        w = gyro.tolist() if type(gyro) is np.ndarray else gyro
+        row = [float(a[0]), float(a[1]), float(a[2]), float(w[0]), float(w[1]), float(w[2]),
+               float(dt)]
+        if len(a) != 3 or len(w) != 3:
+            return None
+    except (TypeError, ValueError, IndexError):
+        return None
+    if not math.isfinite(sum(row)) or row[6] <= 0:
+        return None
+    return row
 
 
 def _hat(v: np.ndarray) -> np.ndarray:
@@ -143,21 +168,47 @@ class Preintegration:
         """Forget every sample (keep the noise, biases and options)."""
         self._q = np.array([0.0, 0.0, 0.0, 1.0])
         self._theta = np.zeros(3)  # tangent scheme: the rotation vector of dR
-        self.delta_velocity = np.zeros(3)
-        self.delta_position = np.zeros(3)
-        self.dt = 0.0
+        self._dv = np.zeros(3)
+        self._dp = np.zeros(3)
+        self._T = 0.0
         self._cov_left = np.zeros((9, 9))  # (psi = dR dphi, dv, dp); tangent: (dtheta, dv, dp)
         self._jac_left = np.zeros((9, 6))
-        self.count = 0
+        self._n = 0
+        self._pending: list[list[float]] = []  # buffered samples (accel, gyro, dt)
 
     # ------------------------------------------------------------------ results
     @property
     def delta_rotation(self) -> SO3:
         """``dR_ij`` as an ``SO3`` element."""
-        return SO3._wrap(self._q.copy())  # type: ignore[return-value]
+        self._flush()
+        return SO3(self._q.copy())
+
+    @property
+    def delta_velocity(self) -> np.ndarray:
+        """``dv_ij`` (3,), in the frame of keyframe ``i``."""
+        self._flush()
+        return self._dv.copy()
+
+    @property
+    def delta_position(self) -> np.ndarray:
+        """``dp_ij`` (3,), in the frame of keyframe ``i``."""
+        self._flush()
+        return self._dp.copy()
+
+    @property
+    def dt(self) -> float:
+        """The integrated time (s)."""
+        self._flush()
+        return self._T
+
+    @property
+    def count(self) -> int:
+        """The number of integrated samples."""
+        return self._n + len(self._pending)
 
     def _to_ours(self) -> np.ndarray:
         """The 9x9 map from the internal error coordinates to ``(dphi, dv, dp)``."""
+        self._flush()
         T = np.eye(9)
         if self.scheme == "manifold":
             T[:3, :3] = self.delta_rotation.matrix().T  # dphi = dR^T psi
@@ -180,6 +231,14 @@ class Preintegration:
     def integrate(self, accel: Any, gyro: Any, dt: Any) -> Preintegration:
         """Add samples: ``accel`` and ``gyro`` of shape ``(N, 3)`` (or ``(3,)`` for one
         sample), ``dt`` a scalar or ``(N,)`` (seconds, > 0). Returns ``self``."""
+        if self.scheme == "manifold" and getattr(accel, "ndim", 1) == 1 and \
+                getattr(gyro, "ndim", 1) == 1 and np.ndim(dt) == 0:
+            row = _sample_row(accel, gyro, dt)
+            if row is not None:  # one sample: Python-float checks, buffered
+                self._pending.append(row)
+                if len(self._pending) >= BUFFER:
+                    self._flush()
+                return self
         a = np.asarray(accel, dtype=np.float64)
         w = np.asarray(gyro, dtype=np.float64)
         if a.ndim == 1:
@@ -200,14 +259,33 @@ class Preintegration:
             raise ValueError("dt must be > 0")
         if n == 0:
             return self
-        a = a - self.bias_accel
-        w = w - self.bias_gyro
-        if self.scheme == "manifold":
-            self._integrate_manifold(a, w, d)
-        else:
-            self._integrate_tangent(a, w, d)
-        self.count += n
+        if self.scheme == "manifold" and n < SMALL:
+            # few samples (e.g. one per call): buffered, integrated together when a result is
+            # read or the buffer is full (the same arithmetic as one call with all of them)
+            self._pending.extend(np.concatenate([a, w, d[:, None]], 1).tolist())
+            if len(self._pending) >= BUFFER:
+                self._flush()
+            return self
+        self._flush()
+        self._run(a - self.bias_accel, w - self.bias_gyro, d)
         return self
+
+    def _run(self, a: np.ndarray, w: np.ndarray, d: np.ndarray) -> None:
+        n = len(d)
+        if self.scheme == "tangent":
+            self._integrate_tangent(a, w, d)
+        elif n < SMALL:
+            self._integrate_few(a, w, d)
+        else:
+            self._integrate_manifold(a, w, d)
+        self._n += n
+
+    def _flush(self) -> None:
+        if not self._pending:
+            return
+        rows = np.array(self._pending)
+        self._pending = []
+        self._run(rows[:, 0:3] - self.bias_accel, rows[:, 3:6] - self.bias_gyro, rows[:, 6])
 
     def _integrate_manifold(self, a: np.ndarray, w: np.ndarray, d: np.ndarray) -> None:
         # Written on contiguous component arrays (one array of n per matrix entry): several
@@ -231,7 +309,7 @@ class Preintegration:
         wk = [_cumsum0(s[i][:-1] * d + f[i] * d2) for i in range(3)]  # p_k - p_0 - v_0 t_k
         tk = _cumsum0(d)
         T = float(tk[-1])
-        v0 = self.delta_velocity
+        v0 = self._dv
         # Error transition from step m to the end, in left coordinates (psi = R dphi):
         #   [[I, 0, 0], [-hat(s_n - s_m), I, 0],
         #    [-hat(w_n - w_m - s_m (T - t_m)), (T - t_m) I, I]]
@@ -277,13 +355,49 @@ class Preintegration:
         self._cov_left = Phi @ self._cov_left @ Phi.T + cov
         self._jac_left = Phi @ self._jac_left - jsum
         self._q = np.array([x[-1] for x in q])
-        self.delta_position = self.delta_position + v0 * T + w_n
-        self.delta_velocity = v0 + s_n
-        self.dt += T
+        self._dp = self._dp + v0 * T + w_n
+        self._dv = v0 + s_n
+        self._T += T
+
+    def _integrate_few(self, a: np.ndarray, w: np.ndarray, d: np.ndarray) -> None:
+        """The manifold scheme one sample at a time (few samples: less overhead than the
+        vectorised path), in the same left error coordinates."""
+        o = SCALAR
+        q = tuple(self._q.tolist())
+        v, p = self._dv, self._dp
+        P, J = self._cov_left, self._jac_left
+        qg = np.concatenate([self.gyro_noise**2, self.accel_noise**2])
+        A = np.eye(9)
+        B = np.zeros((9, 6))
+        R0 = np.array(_so3.quat_to_matrix(q))
+        eye3 = np.eye(3)
+        for k in range(len(d)):
+            dt = float(d[k])
+            phi = tuple((w[k] * dt).tolist())
+            q1 = _so3.quat_mul(q, _so3.quat_exp(o, phi))
+            R1 = np.array(_so3.quat_to_matrix(q1))
+            f = R0 @ a[k]
+            x, y, z = f.tolist()
+            Fh = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+            A[3:6, 0:3] = Fh * -dt
+            A[6:9, 0:3] = Fh * (-0.5 * dt * dt)
+            A[6:9, 3:6] = eye3 * dt
+            B[0:3, 0:3] = R1 @ np.array(_so3.jr(o, phi)) * dt
+            B[3:6, 3:6] = R0 * dt
+            B[6:9, 3:6] = R0 * (0.5 * dt * dt)
+            P = A @ P @ A.T + (B * (qg / dt)) @ B.T
+            J = A @ J - B
+            p = p + v * dt + f * (0.5 * dt * dt)
+            v = v + f * dt
+            q, R0 = q1, R1
+        self._q = np.array(q)
+        self._dv, self._dp = v, p
+        self._cov_left, self._jac_left = P, J
+        self._T += float(d.sum())
 
     def _integrate_tangent(self, a: np.ndarray, w: np.ndarray, d: np.ndarray) -> None:
         """GTSAM's tangent scheme on ``x = (theta, v, p)``: sequential."""
-        th, v, p = self._theta.copy(), self.delta_velocity.copy(), self.delta_position.copy()
+        th, v, p = self._theta.copy(), self._dv.copy(), self._dp.copy()
         P, J = self._cov_left, self._jac_left
         Qg, Qa = self.gyro_noise**2, self.accel_noise**2
         eye3 = np.eye(3)
@@ -312,16 +426,17 @@ class Preintegration:
             th = th + wt * dt
             P = A @ P @ A.T + (Bw * (Qg / dt)) @ Bw.T + (Ba * (Qa / dt)) @ Ba.T
             J = A @ J - np.concatenate([Bw, Ba], 1)
-        self._theta, self.delta_velocity, self.delta_position = th, v, p
+        self._theta, self._dv, self._dp = th, v, p
         self._cov_left, self._jac_left = P, J
         self._q = SO3.exp(th).params
-        self.dt += float(d.sum())
+        self._T += float(d.sum())
 
     # ------------------------------------------------------------------ bias correction
     def correct(self, bias_gyro: Any, bias_accel: Any) -> tuple[SO3, np.ndarray, np.ndarray]:
         """The deltas ``(dR, dv, dp)`` for other biases, to first order: ``dR Exp(J_Rg db_g)``,
         ``dv + J_vg db_g + J_va db_a``, ``dp + J_pg db_g + J_pa db_a`` (the tangent scheme
         corrects its rotation vector linearly instead, as GTSAM does)."""
+        self._flush()
         db = np.concatenate([_vec3(bias_gyro, "bias_gyro") - self.bias_gyro,
                              _vec3(bias_accel, "bias_accel") - self.bias_accel])
         if self.scheme == "manifold":
@@ -330,7 +445,7 @@ class Preintegration:
         else:
             c = self._jac_left @ db
             R = SO3.exp(self._theta + c[:3])
-        return R, self.delta_velocity + c[3:6], self.delta_position + c[6:9]  # type: ignore
+        return R, self._dv + c[3:6], self._dp + c[6:9]  # type: ignore
 
     def predict(self, state: Any, bias_gyro: Any = None, bias_accel: Any = None) -> Any:
         """The state at keyframe ``j`` (an ``SE23``) from the state ``state`` at ``i`` and the
@@ -401,12 +516,37 @@ def _gamma2(w: np.ndarray) -> np.ndarray:
     return 0.5 * np.eye(3) + b * W + c * (W @ W)
 
 
-def _djr_times(theta: np.ndarray, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
-    """``d (Jr(theta) x) / d theta`` (3x3), by central differences of the closed form
-    (exact to about 1e-10; used only by the sequential tangent scheme)."""
-    out = np.empty((3, 3))
-    for i in range(3):
-        e = np.zeros(3)
-        e[i] = h
-        out[:, i] = (SO3.jr(theta + e) @ x - SO3.jr(theta - e) @ x) / (2 * h)
-    return out
+def _series(term: Any, n: int = 12) -> tuple[float, ...]:
+    return tuple(float(term(k)) for k in range(n))
+
+
+# Taylor coefficients in t^2 of the Jr coefficient a = (1 - cos t)/t^2 = sum (-1)^k t^2k/(2k+2)!
+# and of a'(t)/t and b'(t)/t (b = (t - sin t)/t^3 = sum (-1)^k t^2k/(2k+3)!)
+C_A = _series(lambda k: Fraction((-1) ** k, factorial(2 * k + 2)))
+C_DA = _series(lambda k: Fraction((-1) ** (k + 1) * 2 * (k + 1), factorial(2 * k + 4)))
+C_DB = _series(lambda k: Fraction((-1) ** (k + 1) * 2 * (k + 1), factorial(2 * k + 5)))
+
+
+def _djr_times(theta: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``d (Jr(theta) x) / d theta`` (3x3) for ``Jr(theta) x = x - a theta x x
+    + b theta x (theta x x)``, ``a = (1 - cos t)/t^2``, ``b = (t - sin t)/t^3``:
+    ``a hat(x) - (theta x x) (a'/t) theta^T + b ((theta.x) I + theta x^T - 2 x theta^T)
+    + theta x (theta x x) (b'/t) theta^T`` (series for ``a'/t``, ``b'/t`` below t = 1)."""
+    t2 = float(theta @ theta)
+    if t2 < 1.0:
+        a = _M.horner(t2, C_A)
+        b = _M.horner(t2, _M.C_T_SIN)
+        da = _M.horner(t2, C_DA)
+        db = _M.horner(t2, C_DB)
+    else:
+        t = math.sqrt(t2)
+        st, ct = math.sin(t), math.cos(t)
+        a = (1.0 - ct) / t2
+        b = (t - st) / (t2 * t)
+        da = (t * st - 2.0 * (1.0 - ct)) / (t2 * t2)
+        db = ((1.0 - ct) * t - 3.0 * (t - st)) / (t2 * t2 * t)
+    c = np.cross(theta, x)
+    cc = np.cross(theta, c)
+    return (a * _hat(x) - da * np.outer(c, theta)
+            + b * (float(theta @ x) * np.eye(3) + np.outer(theta, x) - 2.0 * np.outer(x, theta))
+            + db * np.outer(cc, theta))

@@ -41,6 +41,8 @@ class Deltas:
         if len(schemes) != 1:
             raise ValueError("all preintegrations of one factor batch must use one scheme")
         self.scheme = schemes.pop()
+        for p in pims:
+            p._flush()
         self.q = np.stack([p._q for p in pims])
         self.theta = np.stack([p._theta for p in pims])
         self.dv = np.stack([p.delta_velocity for p in pims])
@@ -69,7 +71,7 @@ class Deltas:
         c = (self.J @ db[:, :, None])[..., 0]
         if self.scheme == "manifold":
             e = c[:, :3]
-            dR = SO3._wrap(self.q) @ SO3.exp(e)
+            dR = SO3(self.q) @ SO3.exp(e)
             K = SO3.jr(e) @ self.J[:, :3]
         else:
             th = self.theta + (self.H[:, :3] @ db[:, :, None])[..., 0]

@@ -154,8 +154,8 @@ def integrate_states(
     dq = np.asarray(SO3.exp(w * dt).params)
     q = np.stack(_prefix_scan([np.ascontiguousarray(dq[:, i]) for i in range(4)]), -1)
     R0 = X0.rotation()
-    Rk = SO3._wrap(
-        np.concatenate([np.asarray(R0.params)[None], np.asarray((R0 @ SO3._wrap(q)).params)])
+    Rk = SO3(
+        np.concatenate([np.asarray(R0.params)[None], np.asarray((R0 @ SO3(q)).params)])
     )
     f = Rk[:-1].act(a) + g  # navigation-frame acceleration on each step
     v = np.concatenate(

@@ -6,22 +6,24 @@ Unknowns: per camera a world-to-camera rotation ``R`` (perturbed ``R Exp(dphi)``
 
 The iteration follows Ceres' ``TrustRegionMinimizer`` with ``LevenbergMarquardtStrategy`` so
 that iteration counts compare with Ceres': Jacobi scaling of the columns by
-``1 / (1 + |J_col|)`` fixed at iteration 0; damping ``D^2 = clamp(diag(J^T J), 1e-6, 1e32) /
-radius`` (radius starts at 1e4, diagonal reused after a rejected step); step quality
+``s = 1 / (1 + |J_col|)`` fixed at iteration 0 (applied exactly, as the equivalent damping
+``D^2 / s^2`` of the unscaled system, so the Jacobians are never rescaled); damping
+``D^2 = clamp(diag(J^T J), 1e-6, 1e32) / radius`` of the scaled Jacobian (radius starts at
+1e4, diagonal reused after a rejected step); step quality
 ``rho = actual / model cost decrease``; accepted when ``rho > 1e-3``, then
 ``radius /= max(1/3, 1 - (2 rho - 1)^3)``; rejected: ``radius /= 2, 4, 8, ...``. Stops on
 ``|cost change| <= 1e-6 cost`` (the step is then not taken, as in Ceres), a step shorter than
 ``1e-8 (|x| + 1e-8)``, a gradient max-norm below ``1e-10``, ``radius < 1e-32``, or
-``max_iterations`` tries (accepted plus rejected, Ceres' ``iterations``).
+``max_iter`` tries (accepted plus rejected, Ceres' ``iterations``).
 
 The gauge (7 degrees of freedom for BAL: rotation, translation, scale) is left free by default
 (the damping keeps the system definite, as in Ceres); ``fix_cameras=[0]`` holds camera 0 (and
 with it 6 of the 7), ``fix_points`` holds points.
 
 >>> import numpy as np
->>> from microlie.optim.bundle import synthetic_scene, solve
+>>> from microlie.optim.bundle import bundle_adjust, synthetic_scene
 >>> truth, start = synthetic_scene(n_cameras=3, n_points=40, noise=0.0, seed=1)
->>> result = solve(start, fix_cameras=[0])
+>>> result = bundle_adjust(start, fix_cameras=[0])
 >>> result.converged, result.final_cost < 1e-12
 (True, True)
 """
@@ -40,7 +42,7 @@ from .bal import BALProblem
 from .camera import BALCamera, CameraModel, PinholeCamera, reproject
 from .schur import LinearSolverKind, NormalEquations, SchurStructure
 
-__all__ = ["BundleProblem", "BundleResult", "IterationRecord", "solve", "synthetic_scene",
+__all__ = ["BundleProblem", "BundleResult", "BundleIteration", "bundle_adjust", "synthetic_scene",
            "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec", "camera_model"]
 
 
@@ -105,6 +107,10 @@ class BundleProblem:
                         (self.points, "points"), (self.observations, "observations")):
             if not np.all(np.isfinite(a)):
                 raise ValueError(f"{what} contain non-finite values")
+        err = np.abs(np.swapaxes(self.rotations, 1, 2) @ self.rotations - np.eye(3)).max(
+            initial=0.0)
+        if err > 1e-6 or (nc and np.min(np.linalg.det(self.rotations)) < 0):
+            raise ValueError(f"rotations must be rotation matrices (|R^T R - I| = {err:.2e})")
 
     @classmethod
     def from_bal(cls, bal: BALProblem) -> BundleProblem:
@@ -161,7 +167,7 @@ class BundleProblem:
 
 
 @dataclass(frozen=True)
-class IterationRecord:
+class BundleIteration:
     """One try: its number, the cost after it (the candidate's for a rejected try), whether it
     was accepted, the step quality ``rho``, the trust radius used and the step norm."""
 
@@ -175,52 +181,81 @@ class IterationRecord:
 
 @dataclass
 class BundleResult:
-    """Outcome of :func:`solve`: the optimised ``problem``, costs ``0.5 sum rho(|r|^2)`` in
-    pixels, ``iterations`` (tries, as Ceres counts them), ``successful_steps``, ``converged``
-    with the reason in ``message``, wall time ``time_s`` and its breakdown ``timings``."""
+    """Outcome of :func:`bundle_adjust`, with the fields of :class:`microlie.optim.solvers.Result`:
+    the optimised ``problem``; ``initial_cost`` / ``final_cost`` ``0.5 sum |r|^2`` in pixels
+    without the robust loss, ``initial_robust_cost`` / ``final_robust_cost`` the minimised
+    ``0.5 sum rho(|r|^2)`` (equal without a loss); ``iterations`` (tries, accepted or not, the
+    stopping one included); ``successful_steps`` (Ceres' count: accepted steps plus iteration
+    0); ``converged`` with the reason in ``message``; wall time ``time_s`` and its breakdown
+    ``timings``; ``history`` one :class:`BundleIteration` per try."""
 
     problem: BundleProblem
     initial_cost: float
     final_cost: float
+    initial_robust_cost: float
+    final_robust_cost: float
     iterations: int
     successful_steps: int
     converged: bool
     message: str
     time_s: float
-    history: list[IterationRecord]
+    history: list[BundleIteration]
     timings: dict[str, float]
     behind: str = "evaluate"
+    solver: str = "lm"
+    linear_solver: str = "auto"
     _normal: Any = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {"initial_cost": self.initial_cost, "final_cost": self.final_cost,
-                "iterations": self.iterations, "time_s": self.time_s,
-                "converged": self.converged, "message": self.message,
+                "initial_robust_cost": self.initial_robust_cost,
+                "final_robust_cost": self.final_robust_cost, "iterations": self.iterations,
+                "time_s": self.time_s, "converged": self.converged, "message": self.message,
                 "successful_steps": self.successful_steps}
 
     def camera_covariance(self, cameras: Sequence[int]) -> np.ndarray:
         """Marginal covariances ``(len(cameras), d, d)`` of the camera tangents
         ``(dt, dphi, dK)`` at the solution, from the reduced camera system: the camera block of
         ``(J^T J)^-1`` is ``S^-1`` (``S`` the Schur complement of the points). With a free
-        gauge ``S`` is singular and the pseudo-inverse (minimum-norm gauge) is returned."""
-        S = _undamped_schur(self)
+        gauge ``S`` is singular: the pseudo-inverse (minimum-norm gauge) is returned for a dense
+        ``S``; a sparse one (many cameras) needs the gauge held (``fix_cameras`` and a point).
+        Held unknowns have zero covariance."""
         d = self.problem.cam_dim
         idx = np.concatenate([np.arange(c * d, (c + 1) * d) for c in cameras])
-        keep = np.ones(S.shape[0], bool)
+        S = _undamped_schur(self)
+        n = S.shape[0]
+        keep = np.ones(n, bool)
         if self._normal is not None and self._normal.fixed_cameras is not None:
             keep = ~self._normal.fixed_cameras.reshape(-1)
-        Sk = S[np.ix_(keep, keep)]
-        pos = -np.ones(S.shape[0], int)
-        pos[keep] = np.arange(keep.sum())
-        try:
-            cf = np.linalg.cholesky(Sk)
-            inv = np.linalg.inv(cf)
-            cov_k = inv.T @ inv
-        except np.linalg.LinAlgError:
-            cov_k = np.linalg.pinv(Sk, hermitian=True)
         cov = np.zeros((len(idx), len(idx)))
-        sel = pos[idx] >= 0
-        cov[np.ix_(sel, sel)] = cov_k[np.ix_(pos[idx][sel], pos[idx][sel])]
+        sel = keep[idx]
+        if not isinstance(S, np.ndarray):
+            from .linear import SingularSystemError, make_solver
+
+            solver = make_solver("auto", n)
+            E = np.zeros((n, int(sel.sum())))
+            E[idx[sel], np.arange(E.shape[1])] = 1.0
+            try:
+                solver.analyse(S.indptr, S.indices, n)
+                solver.factorize(S.data)
+                X = np.column_stack([solver.solve(E[:, k]) for k in range(E.shape[1])])
+            except SingularSystemError:
+                raise np.linalg.LinAlgError(
+                    "the reduced camera system is singular: hold the gauge (fix_cameras=[0] "
+                    "and fix_points=[k]) to get marginal covariances") from None
+            cov[np.ix_(sel, sel)] = X[idx[sel]]
+        else:
+            Sk = S[np.ix_(keep, keep)]
+            pos = -np.ones(n, int)
+            pos[keep] = np.arange(keep.sum())
+            try:
+                cf = np.linalg.cholesky(Sk)
+                inv = np.linalg.inv(cf)
+                cov_k = inv.T @ inv
+            except np.linalg.LinAlgError:
+                cov_k = np.linalg.pinv(Sk, hermitian=True)
+            cov[np.ix_(sel, sel)] = cov_k[np.ix_(pos[idx][sel], pos[idx][sel])]
+        cov = 0.5 * (cov + cov.T)
         return np.stack([cov[i * d:(i + 1) * d, i * d:(i + 1) * d] for i in range(len(cameras))])
 
     def marginals(self, cameras: Sequence[int]) -> list[Any]:
@@ -244,23 +279,17 @@ class BundleResult:
         return out
 
 
-def _undamped_schur(res: BundleResult) -> np.ndarray:
+def _undamped_schur(res: BundleResult) -> Any:
     ne = res._normal
     if ne is None:
         raise ValueError("no linearisation stored in this result")
     st = ne.structure
     Dc2 = np.zeros((st.n_cameras, st.cam_dim))
     Dp2 = np.zeros((st.n_points, 3))
-    red = ne.reduced_system(Dc2, Dp2)
+    red = ne.reduced_system(Dc2, Dp2, st.sparse_reduced("auto"))
     if red is None:
         raise np.linalg.LinAlgError("a point block is singular: some point is not determined")
-    # undo the column scaling: S_unscaled = diag(1/s) S diag(1/s)
-    sc = res.timings.get("_scale_c")
-    S = red[0]
-    if isinstance(sc, np.ndarray):
-        inv = 1.0 / sc.reshape(-1)
-        S = inv[:, None] * S * inv[None, :]
-    return S
+    return red[0]
 
 
 def _as_mask(idx: Sequence[int] | np.ndarray | None, n: int, what: str) -> np.ndarray | None:
@@ -291,13 +320,14 @@ def _camera_mask(pose: np.ndarray | None, intr: np.ndarray | None, n: int, d: in
     return m
 
 
-def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: str = "evaluate",
-          fix_cameras: Sequence[int] | None = None, fix_points: Sequence[int] | None = None,
-          fix_intrinsics: Sequence[int] | bool | None = None,
-          linear_solver: LinearSolverKind = "auto", max_iterations: int = 100,
-          function_tolerance: float = 1e-6, gradient_tolerance: float = 1e-10,
-          parameter_tolerance: float = 1e-8, initial_radius: float = 1e4,
-          jacobi_scaling: bool = True, verbose: bool = False) -> BundleResult:
+def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
+                  behind: str = "evaluate", fix_cameras: Sequence[int] | None = None,
+                  fix_points: Sequence[int] | None = None,
+                  fix_intrinsics: Sequence[int] | bool | None = None,
+                  linear_solver: LinearSolverKind = "auto", max_iter: int = 100,
+                  function_tolerance: float = 1e-6, gradient_tolerance: float = 1e-10,
+                  parameter_tolerance: float = 1e-8, initial_radius: float = 1e4,
+                  jacobi_scaling: bool = True, verbose: bool = False) -> BundleResult:
     """Levenberg-Marquardt bundle adjustment (Ceres' rules, module docstring).
 
     ``fix_cameras``: cameras whose *pose* is held (the gauge: one camera holds 6 of BAL's 7
@@ -316,8 +346,8 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         from .robust import make_loss
 
         loss = make_loss(robust)
-    if max_iterations < 0:
-        raise ValueError("max_iterations must be >= 0")
+    if max_iter < 0:
+        raise ValueError("max_iter must be >= 0")
     if initial_radius <= 0:
         raise ValueError("initial_radius must be positive")
     model = problem.model
@@ -332,8 +362,8 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
     fc = _camera_mask(_as_mask(fix_cameras, nc, "fix_cameras"),
                       _as_mask(intr, nc, "fix_intrinsics"), nc, d)
     fp = _as_mask(fix_points, npt, "fix_points")
-    # observations sorted by point, once
-    order = np.lexsort((problem.camera_index, problem.point_index))
+    # observations sorted by camera (then point), once
+    order = np.lexsort((problem.point_index, problem.camera_index))
     cam = np.asarray(problem.camera_index)[order].astype(np.intp)
     pt = np.asarray(problem.point_index)[order].astype(np.intp)
     obs = np.asarray(problem.observations, dtype=float)[order]
@@ -381,22 +411,17 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             r = r * rscale[:, None]
         else:
             cost = 0.5 * float(s.sum())
-        if jacobi_scaling:
-            if scale_c is None:
-                nc2 = np.zeros((nc, d))
-                np.add.at(nc2, cam, (Jc * Jc).sum(1))
-                np2 = np.zeros((npt, 3))
-                np.add.at(np2, pt, (Jp * Jp).sum(1))
-                scale_c = 1.0 / (1.0 + np.sqrt(nc2))
-                scale_p = 1.0 / (1.0 + np.sqrt(np2))
-            assert scale_p is not None
-            Jc = Jc * scale_c[cam][:, None, :]
-            Jp = Jp * scale_p[pt][:, None, :]
         ne = NormalEquations(structure, r, Jc, Jp, fc, fp, tm)
+        if scale_c is None:
+            # Ceres' Jacobi scaling 1 / (1 + |J_col|), fixed at iteration 0. Solving the scaled
+            # system (S J^T J S + D_s) y = -S g, delta = S y, is solving
+            # (J^T J + S^-1 D_s S^-1) delta = -g: the scaling only changes the damping.
+            if jacobi_scaling:
+                scale_c = 1.0 / (1.0 + np.sqrt(ne.diag_c))
+                scale_p = 1.0 / (1.0 + np.sqrt(ne.diag_p))
+            else:
+                scale_c, scale_p = np.ones((nc, d)), np.ones((npt, 3))
         g = ne.gradient
-        if jacobi_scaling:
-            assert scale_c is not None and scale_p is not None
-            g = g / np.concatenate([scale_c.reshape(-1), scale_p.reshape(-1)])
         gmask = np.ones(len(g), bool)
         if fc is not None:
             gmask[: nc * d] &= ~fc.reshape(-1)
@@ -412,11 +437,16 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
 
     x = problem
     cost, ne, gmax, r = linearize(x)
+    if not np.isfinite(cost):
+        bad = np.nonzero(~np.isfinite(r).all(axis=1))[0]
+        k = int(order[bad[0]]) if len(bad) else -1
+        raise ValueError(f"the initial residual of observation {k} is not finite (a point on "
+                         f"the plane of its camera, P_z = 0); use behind='drop' or move it")
     initial_cost = cost
     radius, decrease = float(initial_radius), 2.0
     diag_c = diag_p = None
     reuse = False
-    history: list[IterationRecord] = []
+    history: list[BundleIteration] = []
     it, successful = 0, 1                      # Ceres counts iteration 0 as successful
     converged, message = False, "maximum number of iterations reached"
     x_norm = -1.0                              # as Ceres: no parameter test before a step
@@ -429,13 +459,15 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         if radius <= 1e-32:
             converged, message = True, "minimum trust region radius reached"
             break
-        if it >= max_iterations:
+        if it >= max_iter:
             break
         it += 1
         ts = time.perf_counter()
         if not reuse or diag_c is None:
-            diag_c = np.clip(ne.diag_c, 1e-6, 1e32)
-            diag_p = np.clip(ne.diag_p, 1e-6, 1e32)
+            # LM diagonal of the scaled Jacobian, clamped as Ceres does, in unscaled units
+            assert scale_c is not None and scale_p is not None
+            diag_c = np.clip(ne.diag_c * scale_c ** 2, 1e-6, 1e32) / scale_c ** 2
+            diag_p = np.clip(ne.diag_p * scale_p ** 2, 1e-6, 1e32) / scale_p ** 2
         assert diag_p is not None
         tm["step"] += time.perf_counter() - ts
         step = ne.solve(diag_c / radius, diag_p / radius, linear_solver)
@@ -445,23 +477,18 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             radius /= decrease
             decrease *= 2.0
             reuse = True
-            history.append(IterationRecord(it, cost, False, 0.0, radius, 0.0))
+            history.append(BundleIteration(it, cost, False, 0.0, radius, 0.0))
             tm["step"] += time.perf_counter() - ts
             continue
-        yc, yp = step
-        Jd = ne.jvp(yc, yp)
+        dc, dp = step
+        Jd = ne.jvp(dc, dp)
         model_change = -float(np.sum(Jd * (r + 0.5 * Jd)))
-        if jacobi_scaling:
-            assert scale_c is not None and scale_p is not None
-            dc, dp = yc * scale_c, yp * scale_p
-        else:
-            dc, dp = yc, yp
         tm["step"] += time.perf_counter() - ts
         if not model_change > 0.0:
             radius /= decrease
             decrease *= 2.0
             reuse = True
-            history.append(IterationRecord(it, cost, False, 0.0, radius, 0.0))
+            history.append(BundleIteration(it, cost, False, 0.0, radius, 0.0))
             continue
         cand = x.retract(dc, dp)
         cand_cost = evaluate(cand)
@@ -470,12 +497,12 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
         step_norm = float(np.sqrt(np.sum(dc * dc) + np.sum(dp * dp)))
         if step_norm <= parameter_tolerance * (x_norm + parameter_tolerance):
             converged, message = True, "parameter tolerance reached"
-            history.append(IterationRecord(it, cand_cost, False, 0.0, radius, step_norm))
+            history.append(BundleIteration(it, cand_cost, False, 0.0, radius, step_norm))
             break
         if abs(cost - cand_cost) <= function_tolerance * cost:
             converged, message = True, (f"function tolerance reached (|cost change|/cost = "
                                         f"{abs(cost - cand_cost) / cost:.3e})")
-            history.append(IterationRecord(it, cand_cost, False, 0.0, radius, step_norm))
+            history.append(BundleIteration(it, cand_cost, False, 0.0, radius, step_norm))
             break
         rho = (cost - cand_cost) / model_change
         used_radius = radius
@@ -490,17 +517,18 @@ def solve(problem: BundleProblem | BALProblem, *, robust: Any = None, behind: st
             radius /= decrease
             decrease *= 2.0
             reuse = True
-        history.append(IterationRecord(it, cand_cost, rho > 1e-3, rho, used_radius, step_norm))
+        history.append(BundleIteration(it, cand_cost, rho > 1e-3, rho, used_radius, step_norm))
         if verbose:
             print(f"iter {it:4d}  cost {cand_cost:.9e}  rho {rho:+.3e}  radius {radius:.2e}"
                   f"  {'accepted' if rho > 1e-3 else 'rejected'}", file=sys.stderr)
-    if jacobi_scaling:
-        tm["_scale_c"] = scale_c
     time_s = time.perf_counter() - t_start
     tm["total"] = time_s
-    final_cost = cost
-    return BundleResult(x, initial_cost, final_cost, it, successful, converged, message, time_s,
-                        history, tm, behind, ne)
+    if loss is None:
+        plain0, plain1 = initial_cost, cost
+    else:
+        plain0, plain1 = problem.cost(behind), x.cost(behind)
+    return BundleResult(x, plain0, plain1, initial_cost, cost, it, successful, converged,
+                        message, time_s, history, tm, behind, "lm", linear_solver, ne)
 
 
 # ---------------------------------------------------------------------------- synthetic scenes

@@ -40,7 +40,7 @@ array([[ 10., -20.]])
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -65,8 +65,9 @@ class CameraModel:
         """Boolean mask of camera-frame points strictly in front of the camera."""
         raise NotImplementedError
 
-    def project(self, P: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pixels ``(n, 2)``, ``d uv / d P`` ``(n, 2, 3)`` and ``d uv / d K`` ``(n, 2, k)``."""
+    def project(self, P: np.ndarray, K: np.ndarray, jac: bool = True) -> tuple[Any, Any, Any]:
+        """Pixels ``(n, 2)``, ``d uv / d P`` ``(n, 2, 3)`` and ``d uv / d K`` ``(n, 2, k)``
+        (both ``None`` when ``jac=False``)."""
         raise NotImplementedError
 
     def check_intrinsics(self, K: np.ndarray, n_cameras: int) -> np.ndarray:
@@ -91,7 +92,7 @@ class BALCamera(CameraModel):
     def in_front(self, P: np.ndarray) -> np.ndarray:
         return P[:, 2] < 0.0
 
-    def project(self, P, K):
+    def project(self, P, K, jac=True):
         n = P.shape[0]
         f, k1, k2 = K[:, 0], K[:, 1], K[:, 2]
         iz = -1.0 / P[:, 2]
@@ -102,6 +103,8 @@ class BALCamera(CameraModel):
         uv = np.empty((n, 2))
         uv[:, 0] = fd * px
         uv[:, 1] = fd * py
+        if not jac:
+            return uv, None, None
         # d uv / d p = f (d I + 2 (k1 + 2 k2 r2) p p^T);  d p / d P = iz [[1, 0, px], [0, 1, py]]
         g = 2.0 * f * (k1 + 2.0 * k2 * r2)
         a00 = fd + g * px * px
@@ -143,7 +146,7 @@ class PinholeCamera(CameraModel):
     def in_front(self, P: np.ndarray) -> np.ndarray:
         return P[:, 2] > 0.0
 
-    def project(self, P, K):
+    def project(self, P, K, jac=True):
         n = P.shape[0]
         iz = 1.0 / P[:, 2]
         x, y = P[:, 0] * iz, P[:, 1] * iz
@@ -175,6 +178,8 @@ class PinholeCamera(CameraModel):
         uv = np.empty((n, 2))
         uv[:, 0] = fx * xd + K[:, 2]
         uv[:, 1] = fy * yd + K[:, 3]
+        if not jac:
+            return uv, None, None
         JK[:, 0, 0] = xd
         JK[:, 1, 1] = yd
         JK[:, 0, 2] = 1.0
@@ -210,10 +215,10 @@ def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray, cam: np.ndarra
                      pt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``P = R[cam] X[pt] + t[cam]`` for every observation; also returns the gathered ``R``
     and ``X`` (used by the Jacobians)."""
-    Rc = R[cam]
-    Xo = X[pt]
+    Rc = np.take(R, cam, axis=0)
+    Xo = np.take(X, pt, axis=0)
     P = np.matmul(Rc, Xo[:, :, None])[:, :, 0]
-    P += t[cam]
+    P += np.take(t, cam, axis=0)
     return P, Rc, Xo
 
 
@@ -229,9 +234,13 @@ def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X
     """
     if behind not in BEHIND:
         raise ValueError(f"behind must be one of {BEHIND}, got {behind!r}")
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # P_z = 0: inf cost
+        return _reproject(model, R, t, K, X, cam, pt, observed, jac, behind)
+
+
+def _reproject(model, R, t, K, X, cam, pt, observed, jac, behind):
     P, Rc, Xo = transform_points(R, t, X, cam, pt)
-    with np.errstate(divide="ignore", invalid="ignore"):   # P_z = 0 gives inf: cost inf
-        uv, JP, JK = model.project(P, K[cam])
+    uv, JP, JK = model.project(P, np.take(K, cam, axis=0), jac)
     res = uv - observed
     valid = np.ones(len(cam), dtype=bool) if behind == "evaluate" else model.in_front(P)
     if not jac:

@@ -16,10 +16,9 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp  # type: ignore[import-untyped]
-import scipy.sparse.linalg as spla  # type: ignore[import-untyped]
 from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
 
-from .linear import LinearSolver, SingularSystemError
+from .linear import LinearSolver, SingularSystemError, block_graph, splu_symmetric
 
 __all__ = ["SupernodalSolver"]
 
@@ -38,21 +37,14 @@ class SupernodalSolver(LinearSolver):
         bs = block_size if block_size > 0 and n % block_size == 0 else 1
         self.bs = bs
         nb = n // bs
-        cols = np.repeat(np.arange(n), np.diff(indptr))
-        B = sp.csc_matrix((np.ones(indices.size), (indices // bs, cols // bs)), shape=(nb, nb))
-        # symmetric random values: SuperLU's numeric L then has the symbolic pattern (equal
-        # values can cancel exactly and drop a fill entry); the dominant diagonal avoids pivoting
-        B = sp.triu(B, 1).tocoo()
-        w = np.random.default_rng(0).uniform(0.5, 1.0, B.nnz)
-        B = sp.coo_matrix((w, (B.row, B.col)), shape=(nb, nb))
-        B = (B + B.T + sp.eye(nb) * (nb + 1.0)).tocsc()
+        B = block_graph(indptr, indices, n, bs)
         # SuperLU's L is the factor of B[q][:, q] with q = argsort(perm_c), whatever the
         # requested order (it postorders the elimination tree itself)
-        lu = _lu(B, "MMD_AT_PLUS_A")
+        lu = splu_symmetric(B, "MMD_AT_PLUS_A")
         perm = np.argsort(lu.perm_c)
         parent = _etree(lu.L.tocsc(), nb)
         perm = perm[_postorder(parent, nb)]
-        lu = _lu(B[perm][:, perm].tocsc(), "NATURAL")
+        lu = splu_symmetric(B[perm][:, perm].tocsc(), "NATURAL")
         perm = perm[np.argsort(lu.perm_c)]
         L = _closed(lu.L.tocsc(), nb)
         parent = _etree(L, nb)
@@ -101,7 +93,6 @@ class SupernodalSolver(LinearSolver):
         poff = np.concatenate([[0], np.cumsum([u * u for u in usize])]).astype(np.int64)
         self.pool_size = int(poff[-1])
         pos = np.full(n, -1, np.int64)
-        tril: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         info = []
         for k, (idx, kc) in enumerate(fronts):
             m = idx.size
@@ -111,21 +102,16 @@ class SupernodalSolver(LinearSolver):
             if rr.size and rr.min() < 0:
                 raise AssertionError("supernodal analysis: an entry outside its front")
             dst = rr * m + (c_all[s0:s1] - idx[0])
-            psrc, pdst = [], []
+            adds = []
             for c in children[k]:
                 cidx, ckc = fronts[c]
                 rel = pos[cidx[ckc:]]
-                if rel.min() < 0:
-                    raise AssertionError("supernodal analysis: a child row outside the front")
                 u = rel.size
-                if u not in tril:
-                    tril[u] = np.tril_indices(u)
-                aa, bb = tril[u]
-                psrc.append(poff[c] + aa * u + bb)
-                pdst.append(rel[aa] * m + rel[bb])
+                adds.append((np.ix_(rel, rel), int(poff[c]), u))
             pos[idx] = -1
             info.append({"idx": idx, "m": m, "k": kc, "src": src_all[s0:s1], "dst": dst,
-                         "adds": list(zip(pdst, psrc, strict=True)),
+                         "c0": int(idx[0]), "rows": idx[kc:],
+                         "adds": adds,
                          "poff": int(poff[k]), "u": usize[k]})
         # leaves (no children), batched by shape; the other supernodes one by one
         groups: dict[tuple[int, int], list[int]] = {}
@@ -168,16 +154,18 @@ class SupernodalSolver(LinearSolver):
             L21 = np.swapaxes(np.linalg.solve(L11, np.swapaxes(F[:, kc:, :kc], 1, 2)), 1, 2)
             U = F[:, kc:, kc:] - L21 @ np.swapaxes(L21, 1, 2)
             pool[g["pidx"]] = U.ravel()
-            self.L_leaf.append((L11, L21))
-        potrf, trsm, syrk = lapack.dpotrf, blas.dtrsm, blas.dsyrk
+            self.L_leaf.append((np.linalg.inv(L11), L21))
+        potrf, trsm, syrk, trtri = lapack.dpotrf, blas.dtrsm, blas.dsyrk, lapack.dtrtri
         self.L_inner = []
         for f in self.inner:
             m, kc = f["m"], f["k"]
             F = np.zeros(m * m)
             F[f["dst"]] = data[f["src"]]
-            for pdst, psrc in f["adds"]:  # extend-add: positions are unique within a child
-                F[pdst] += pool[psrc]
             F = F.reshape(m, m)
+            for ix, off, u in f["adds"]:
+                # extend-add of a child's update (only its lower triangle is valid; the rest
+                # lands in this front's upper triangle, which is never read)
+                F[ix] += pool[off:off + u * u].reshape(u, u)
             L11, info = potrf(F[:kc, :kc], lower=1, clean=1, overwrite_a=0)
             if info != 0:
                 raise SingularSystemError("the linear system is not positive definite (a "
@@ -193,39 +181,38 @@ class SupernodalSolver(LinearSolver):
                 syrk(-1.0, L21, beta=1.0, c=V.T, trans=0, lower=0, overwrite_c=1)
             else:
                 L21 = np.zeros((0, kc))
-            self.L_inner.append((L11, L21))
+            Linv, _ = trtri(L11, lower=1)  # the solves become matrix products
+            self.L_inner.append((Linv, L21))
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         b = np.asarray(b, dtype=np.float64)
         vec = b.ndim == 1
         y = (b[:, None] if vec else b)[self.sperm].copy()
         nr = y.shape[1]
-        for g, (L11, L21) in zip(self.leaf_groups, self.L_leaf, strict=True):
-            yc = np.linalg.solve(L11, y[g["cidx"]])  # (G, kc, nr)
+        for g, (Li, L21) in zip(self.leaf_groups, self.L_leaf, strict=True):
+            yc = Li @ y[g["cidx"]]  # (G, kc, nr)
             y[g["cidx"]] = yc
             upd = L21 @ yc  # (G, u, nr)
-            np.subtract.at(y, g["ridx"], upd) if nr > 1 else \
-                y.__setitem__((slice(None), 0), y[:, 0] - np.bincount(
-                    g["ridx"].ravel(), weights=upd.ravel(), minlength=y.shape[0]))
-        trtrs = lapack.dtrtrs
-        for f, (L11, L21) in zip(self.inner, self.L_inner, strict=True):
-            idx, kc = f["idx"], f["k"]
-            c = idx[:kc]
-            yc, _ = trtrs(L11, y[c], lower=1)
-            y[c] = yc
+            if nr > 1:
+                np.subtract.at(y, g["ridx"], upd)
+            else:
+                y[:, 0] -= np.bincount(g["ridx"].ravel(), weights=upd.ravel(),
+                                       minlength=y.shape[0])
+        for f, (Li, L21) in zip(self.inner, self.L_inner, strict=True):
+            c0, kc = f["c0"], f["k"]
+            yc = Li @ y[c0:c0 + kc]
+            y[c0:c0 + kc] = yc
             if L21.shape[0]:
-                y[idx[kc:]] -= L21 @ yc
-        for f, (L11, L21) in zip(reversed(self.inner), reversed(self.L_inner), strict=True):
-            idx, kc = f["idx"], f["k"]
-            c = idx[:kc]
-            rhs = y[c]
+                y[f["rows"]] -= L21 @ yc
+        for f, (Li, L21) in zip(reversed(self.inner), reversed(self.L_inner), strict=True):
+            c0, kc = f["c0"], f["k"]
+            rhs = y[c0:c0 + kc]
             if L21.shape[0]:
-                rhs = rhs - L21.T @ y[idx[kc:]]
-            xc, _ = trtrs(L11, rhs, lower=1, trans=1)
-            y[c] = xc
-        for g, (L11, L21) in zip(self.leaf_groups, self.L_leaf, strict=True):
+                rhs = rhs - L21.T @ y[f["rows"]]
+            y[c0:c0 + kc] = Li.T @ rhs
+        for g, (Li, L21) in zip(self.leaf_groups, self.L_leaf, strict=True):
             rhs = y[g["cidx"]] - np.swapaxes(L21, 1, 2) @ y[g["ridx"]]
-            y[g["cidx"]] = np.linalg.solve(np.swapaxes(L11, 1, 2), rhs)
+            y[g["cidx"]] = np.swapaxes(Li, 1, 2) @ rhs
         x = np.empty_like(y)
         x[self.sperm] = y
         if not np.all(np.isfinite(x)):
@@ -234,30 +221,29 @@ class SupernodalSolver(LinearSolver):
         return x[:, 0] if vec else x
 
 
-def _lu(B: Any, order: str) -> Any:
-    return spla.splu(B, permc_spec=order, diag_pivot_thresh=0.0,
-                     options={"SymmetricMode": True})
-
-
 def _closed(L: Any, nb: int) -> Any:
     """The symbolic Cholesky pattern containing SuperLU's numeric ``L``: SuperLU can drop an
     entry that cancelled exactly, so close the pattern under ``struct(j) - {p} <= struct(p)``
-    (``p`` the parent of ``j``)."""
+    (``p`` the parent of ``j``). The check is vectorised; the (rare) repair loops."""
     L = sp.tril(L, -1).tocsc()
     L.sort_indices()
-    struct = [L.indices[L.indptr[j]:L.indptr[j + 1]] for j in range(nb)]
-    changed = False
-    for j in range(nb):
-        sj = struct[j]
-        if sj.size > 1:
-            p = sj[0]
-            sp_ = struct[p]
-            rest = sj[1:]
-            k = np.searchsorted(sp_, rest)
-            if rest.size > sp_.size or np.any(sp_[np.minimum(k, sp_.size - 1)] != rest):
-                struct[p] = np.union1d(sp_, rest)
-                changed = True
-    if changed:
+    cols = np.repeat(np.arange(nb), np.diff(L.indptr))
+    rows = L.indices.astype(np.int64)
+    parent = np.full(nb, -1, np.int64)
+    has = np.diff(L.indptr) > 0
+    parent[has] = rows[L.indptr[:-1][has]]
+    keys = cols * nb + rows  # sorted: by column, then row
+    p = parent[cols]
+    need = rows != p
+    want = p[need] * nb + rows[need]
+    k = np.searchsorted(keys, want)
+    ok = (k < keys.size) & (keys[np.minimum(k, keys.size - 1)] == want)
+    if not ok.all():
+        struct = [rows[L.indptr[j]:L.indptr[j + 1]] for j in range(nb)]
+        for j in range(nb):
+            sj = struct[j]
+            if sj.size > 1:
+                struct[sj[0]] = np.union1d(struct[sj[0]], sj[1:])
         cnt = np.array([x.size for x in struct])
         L = sp.csc_matrix((np.ones(cnt.sum()), np.concatenate(struct),
                            np.concatenate([[0], np.cumsum(cnt)])), shape=(nb, nb))

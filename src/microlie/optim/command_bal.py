@@ -1,7 +1,7 @@
 """``microlie optimize problem.txt --format bal``: bundle adjustment of a BAL file.
 
 :func:`run_bal` is the BAL entry of :data:`microlie.optim.command.FORMATS`: it reads the file,
-runs :func:`microlie.optim.bundle.solve` (Levenberg-Marquardt with Ceres' rules on the Schur
+runs :func:`microlie.optim.bundle.bundle_adjust` (Levenberg-Marquardt with Ceres' rules on the Schur
 system, BAL camera model, points behind a camera evaluated as in the standard BAL model) and
 returns the JSON report with the pose-graph keys (``initial_cost``, ``final_cost``,
 ``iterations``, ``time_s``, ``converged``, ...). Costs are ``0.5 * sum |r|^2`` in pixels
@@ -18,15 +18,18 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
+from .schur import LinearSolverKind
+
 __all__ = ["run_bal"]
 
-_LINEAR = {"auto": "auto", "dense": "dense", "sparse": "sparse", "full": "full"}
+_LINEAR: dict[str, LinearSolverKind] = {"auto": "auto", "dense": "dense", "sparse": "sparse",
+                                         "full": "full"}
 
 
 def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     """Read, solve, write and plot one BAL problem; returns the JSON report."""
     from .bal import read_bal, write_bal
-    from .bundle import BundleProblem, plot_bundle, solve
+    from .bundle import BundleProblem, bundle_adjust, plot_bundle
 
     solver = getattr(args, "solver", "lm")
     if solver != "lm":
@@ -40,8 +43,8 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     start = BundleProblem.from_bal(bal)
     t1 = time.perf_counter()
     verbose = bool(getattr(err, "isatty", None) and err.isatty())
-    res = solve(start, robust=getattr(args, "robust", None), linear_solver=_LINEAR[linear],
-                max_iterations=getattr(args, "max_iter", 100), verbose=verbose)
+    res = bundle_adjust(start, robust=getattr(args, "robust", None), linear_solver=_LINEAR[linear],
+                max_iter=getattr(args, "max_iter", 100), verbose=verbose)
     report: dict[str, Any] = {
         "file": str(args.input),
         "format": "bal",
@@ -53,9 +56,10 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
         "robust": getattr(args, "robust", None),
         "solver": "lm",
         "linear_solver": linear,
-        "initial_cost": start.cost(),
-        "final_cost": res.problem.cost(),
-        "final_robust_cost": res.final_cost,
+        "initial_cost": res.initial_cost,
+        "final_cost": res.final_cost,
+        "initial_robust_cost": res.initial_robust_cost,
+        "final_robust_cost": res.final_robust_cost,
         "iterations": res.iterations,
         "time_s": res.time_s,
         "converged": bool(res.converged),

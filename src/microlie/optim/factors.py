@@ -132,8 +132,8 @@ class BetweenFactor(Factor):
     """The pose-graph edge ``r = (X_i^-1 X_j) (-) Z_ij = Log(Z_ij^-1 X_i^-1 X_j)``
     (``x_j - x_i - z`` for vectors).
 
-    Jacobians (right): ``d r / d X_j = Jr^-1(r)``, ``d r / d X_i = -Jl^-1(r) Ad_(Z^-1)``
-    (``Ad_(Z^-1)`` is constant, computed once).
+    Jacobians (right): ``d r / d X_j = Jr^-1(r)``, ``d r / d X_i = -Jl^-1(r) Ad_(Z^-1)
+    = -Jr^-1(r) Ad_((X_i^-1 X_j)^-1)``.
     """
 
     def __init__(self, variables: Variables, i: Any, j: Any, Z: Any,
@@ -147,7 +147,6 @@ class BetweenFactor(Factor):
         self.Z = _measurement(variables, Z, self.count, "BetweenFactor")
         if variables.group is not None:
             self._Zinv = self.Z.inverse()
-            self._ad_zinv = np.asarray(self._Zinv.adjoint())
 
     def evaluate(self, values: list[Any], jac: bool) -> Any:
         Xi, Xj = values
@@ -157,12 +156,14 @@ class BetweenFactor(Factor):
                 return r
             eye = np.broadcast_to(np.eye(self.dim), (self.count, self.dim, self.dim))
             return r, [-eye, eye]
-        E = self._Zinv.compose(Xi.inverse().compose(Xj))
+        D = Xi.inverse().compose(Xj)
+        E = self._Zinv.compose(D)
         if not jac:
             return np.asarray(E.log())
         r, Jj = E.log(jac=True)
-        G = type(E)
-        Ji = -(G.jr_inv(-r) @ self._ad_zinv)
+        # d r / d X_i = -Jl^-1(r) Ad_(Z^-1) = -Jr^-1(r) Ad_(D^-1), D = X_i^-1 X_j: one adjoint
+        # instead of a second inverse Jacobian
+        Ji = -(Jj @ D.inverse().adjoint())
         return r, [Ji, Jj]
 
 
@@ -212,7 +213,7 @@ class CustomFactor(Factor):
                 raise ValueError(f"CustomFactor: data[{k}] must have {self.count} rows, got "
                                  f"shape {a.shape}")
             self.data.append(a)
-        self._ad: Callable[[list[Any]], Any] | None = None
+        self._ad: Callable[[list[Any], bool], Any] | None = None
 
     def _residual(self, values: list[Any]) -> np.ndarray:
         r = np.asarray(self.fn(*values, *self.data), dtype=np.float64)
@@ -235,11 +236,12 @@ class CustomFactor(Factor):
                     raise ValueError(f"CustomFactor: Jacobian of shape {J.shape}, expected "
                                      f"({self.count}, {self.dim}, {var.dof})")
             return r, Js
-        if not jac:
-            return self._residual(values)
         if self.mode == "numerical":
-            return self._residual(values), self._numerical(values)
-        return self._autodiff(values)
+            r = self._residual(values)
+            return (r, self._numerical(values)) if jac else r
+        if self._ad is None:
+            self._ad = _make_jax(self) if self.mode == "jax" else _make_torch(self)
+        return self._ad(values, jac)
 
     def _numerical(self, values: list[Any]) -> list[np.ndarray]:
         h = self.step
@@ -257,18 +259,13 @@ class CustomFactor(Factor):
             Js.append(J)
         return Js
 
-    def _autodiff(self, values: list[Any]) -> tuple[np.ndarray, list[np.ndarray]]:
-        if self._ad is None:
-            self._ad = _make_jax(self) if self.mode == "jax" else _make_torch(self)
-        return self._ad(values)
-
 
 def _parts(factor: CustomFactor, values: list[Any]) -> list[np.ndarray]:
     return [np.asarray(v if var.group is None else v.params)
             for (var, _), v in zip(factor.args, values, strict=False)]
 
 
-def _make_jax(factor: CustomFactor) -> Callable[[list[Any]], Any]:
+def _make_jax(factor: CustomFactor) -> Callable[[list[Any], bool], Any]:
     import jax
     import jax.numpy as jnp
 
@@ -285,39 +282,43 @@ def _make_jax(factor: CustomFactor) -> Callable[[list[Any]], Any]:
         return single(deltas, params, data), jax.jacfwd(single)(deltas, params, data)
 
     batched = jax.jit(jax.vmap(both))
+    forward = jax.jit(jax.vmap(single))
 
-    def run(values):
+    def run(values, jac):
         ps = [jnp.asarray(p) for p in _parts(factor, values)]
         ds = [jnp.zeros((factor.count, var.dof)) for var, _ in factor.args]
-        r, Js = batched(ds, ps, [jnp.asarray(d) for d in factor.data])
+        data = [jnp.asarray(d) for d in factor.data]
+        if not jac:
+            return np.asarray(forward(ds, ps, data))
+        r, Js = batched(ds, ps, data)
         return np.asarray(r), [np.asarray(J) for J in Js]
 
     return run
 
 
-def _make_torch(factor: CustomFactor) -> Callable[[list[Any]], Any]:
+def _make_torch(factor: CustomFactor) -> Callable[[list[Any], bool], Any]:
     import torch
-    from torch.func import jacfwd, vmap
 
     groups = [var.group for var, _ in factor.args]
 
-    def single(deltas, params, data):
-        vals = []
-        for G, d, p in zip(groups, deltas, params, strict=False):
-            vals.append(p + d if G is None else element(G, p).plus(d))
-        r = factor.fn(*vals, *data)
-        return torch.as_tensor(r).reshape(factor.dim)
-
-    def both(deltas, params, data):
-        return single(deltas, params, data), jacfwd(single)(deltas, params, data)
-
-    def run(values):
-        ps = tuple(torch.as_tensor(p, dtype=torch.float64) for p in _parts(factor, values))
-        ds = tuple(torch.zeros((factor.count, var.dof), dtype=torch.float64)
-                   for var, _ in factor.args)
-        data = tuple(torch.as_tensor(d) for d in factor.data)
-        r, Js = vmap(both)(ds, ps, data)
-        return r.detach().numpy(), [J.detach().numpy() for J in Js]
+    def run(values, jac):
+        ps = [torch.as_tensor(np.array(p, dtype=np.float64)) for p in _parts(factor, values)]
+        ds = [torch.zeros((factor.count, var.dof), dtype=torch.float64, requires_grad=jac)
+              for var, _ in factor.args]
+        vals = [p + d if G is None else element(G, p).plus(d)
+                for G, d, p in zip(groups, ds, ps, strict=True)]
+        r = torch.as_tensor(factor.fn(*vals, *[torch.as_tensor(d) for d in factor.data]))
+        r = r.reshape(factor.count, factor.dim)
+        if not jac:
+            return r.detach().numpy()
+        # row m of r depends on row m of each delta only: one backward pass per residual
+        # component gives every factor's Jacobian row at once
+        Js = [np.zeros((factor.count, factor.dim, var.dof)) for var, _ in factor.args]
+        for a in range(factor.dim):
+            gs = torch.autograd.grad(r[:, a].sum(), ds, retain_graph=True, allow_unused=True)
+            for J, g in zip(Js, gs, strict=True):
+                if g is not None:
+                    J[:, a, :] = g.detach().numpy()
+        return r.detach().numpy(), Js
 
     return run
-

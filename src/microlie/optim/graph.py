@@ -192,24 +192,10 @@ class FactorGraph:
 
 def from_pose_graph(pose_graph: Any, poses: Any = None, loss: Any = None
                     ) -> tuple[FactorGraph, Variables]:
-    """A :class:`FactorGraph` of a :class:`~microlie.optim.pose_graph.PoseGraph`: one batch
-    of poses (``poses``, else the file's vertices) and one :class:`BetweenFactor` batch with
-    the file's information. The gauge is held by fixing the file's ``FIX`` vertices, or the
-    first vertex when there are none (so the cost is the file's edges only).
+    """A :class:`FactorGraph` of a :class:`~microlie.optim.pose_graph.PoseGraph` with the
+    first vertex held fixed (or the file's ``FIX`` vertices): ``pose_graph.to_factor_graph(
+    poses, loss=loss, gauge="fix")``, so the cost is the file's edges only.
 
     Returns ``(graph, handle)``; ``result.values[handle]`` are the poses in ``ids`` order.
     """
-    from .factors import BetweenFactor
-    from .noise import Information
-
-    X = pose_graph.poses if poses is None else poses
-    if X is None:
-        raise ValueError("the pose graph has no vertices: pass initial poses "
-                         "(microlie.optim.init)")
-    g = FactorGraph()
-    fixed = pose_graph.index(pose_graph.fixed) if pose_graph.fixed.size else [0]
-    handle = g.add_variables(X, fixed=fixed, name="poses")
-    ii, jj = pose_graph.edge_index()
-    g.add(BetweenFactor(handle, ii, jj, pose_graph.measurements,
-                        Information(pose_graph.information), loss=loss))
-    return g, handle
+    return pose_graph.to_factor_graph(poses, loss=loss, gauge="fix")

@@ -7,12 +7,13 @@ All three return one batch of poses aligned with ``graph.ids``.
   round is inverted); an error names the first missing link.
 - :func:`chordal`: rotations by linear least squares on the entries of the rotation matrices
   (``R_i Z_ij = R_j`` for every edge, weighted by the rotation precision, the anchor's rotation
-  held), one sparse Cholesky-like solve shared by the ``n`` rows of ``R``; projection of each
+  held), one sparse Cholesky solve shared by the ``n`` rows of ``R``; projection of each
   estimate to SO(n) by SVD; then translations by linear least squares with those rotations
   fixed, ``R_i^T (t_j - t_i) = t_ij`` weighted by the translation block of the information.
 
-The anchor is the first fixed vertex (``FIX``) or else the first vertex; it keeps its file pose
-when the file has vertices and is the identity otherwise.
+The odometry chain starts at the first vertex; the chordal anchor is the first fixed vertex
+(``FIX``), else the first vertex. Either keeps its file pose when the file has vertices and is
+the identity otherwise.
 
 >>> import numpy as np
 >>> from microlie import SE2
@@ -28,16 +29,15 @@ when the file has vertices and is the identity otherwise.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from ..groups import SE2, SE3, LieGroup
 from .pose_graph import PoseGraph
 
-__all__ = ["initialize", "from_file", "odometry", "chordal", "INIT_METHODS"]
+__all__ = ["initialize", "from_file", "odometry", "chordal", "INIT_METHODS", "InitMethod"]
 
 InitMethod = Literal["file", "odometry", "chordal"]
 INIT_METHODS: tuple[str, ...] = ("file", "odometry", "chordal")
@@ -114,28 +114,39 @@ def _prefix_compose(steps: LieGroup) -> LieGroup:
     return X
 
 
-def _solve_spd(H: sp.spmatrix, b: np.ndarray) -> np.ndarray:
-    lu = spla.splu(sp.csc_matrix(H), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                   options={"SymmetricMode": True})
-    return lu.solve(b)
+def _solve_spd(H: Any, b: np.ndarray, block: int) -> np.ndarray:
+    """Solve ``H x = b`` (symmetric positive definite, unknowns in blocks of ``block``) with the
+    solver's own sparse Cholesky interface (:func:`microlie.optim.linear.make_solver`)."""
+    from .linear import make_solver
+
+    H = sp.csc_matrix(H)
+    H.sort_indices()
+    # one factorisation: SuperLU measured fastest here, dense Cholesky on small systems
+    ls = make_solver("dense" if H.shape[0] < 300 else "scipy", H.shape[0])
+    ls.analyse(H.indptr, H.indices, H.shape[0], block_size=block)
+    ls.factorize(H.data)
+    return ls.solve(b)
 
 
 def _block_normal_equations(ii: np.ndarray, jj: np.ndarray, Wi: np.ndarray, Wj: np.ndarray,
-                            Wij: np.ndarray, n: int, keep: np.ndarray) -> sp.csc_matrix:
+                            Wij: np.ndarray, n: int, keep: np.ndarray) -> Any:
     """Assemble ``H`` with blocks ``H_ii += Wi``, ``H_jj += Wj``, ``H_ij += Wij``,
-    ``H_ji += Wij^T`` (blocks of size m), restricted to the block columns in ``keep``."""
+    ``H_ji += Wij^T`` (blocks of size m), restricted to the blocks in ``keep``."""
     m = Wi.shape[-1]
+    pos = np.full(n, -1, dtype=np.int64)
+    pos[keep] = np.arange(keep.size)
     a, b = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
     rows, cols, vals = [], [], []
     for bi, bj, W in ((ii, ii, Wi), (jj, jj, Wj), (ii, jj, Wij),
                       (jj, ii, np.swapaxes(Wij, 1, 2))):
-        rows.append((bi[:, None, None] * m + a).ravel())
-        cols.append((bj[:, None, None] * m + b).ravel())
-        vals.append(W.ravel())
-    H = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(n * m, n * m))
-    idx = (keep[:, None] * m + np.arange(m)).ravel()
-    return H[idx][:, idx]
+        pi, pj = pos[bi], pos[bj]
+        sel = (pi >= 0) & (pj >= 0)
+        rows.append((pi[sel, None, None] * m + a).ravel())
+        cols.append((pj[sel, None, None] * m + b).ravel())
+        vals.append(W[sel].ravel())
+    size = keep.size * m
+    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(size, size))
 
 
 def chordal(graph: PoseGraph) -> LieGroup:
@@ -171,7 +182,7 @@ def chordal(graph: PoseGraph) -> LieGroup:
     np.add.at(b, ii[on_j], w[on_j, None, None] * Rz[on_j])
     # terms with the anchor as i: A_j^T (-A_i x_0) = -(-I) Z^T = w Z^T, at block j
     np.add.at(b, jj[on_i], w[on_i, None, None] * ZT[on_i])
-    x = _solve_spd(H, b[keep].reshape(-1, d))
+    x = _solve_spd(H, b[keep].reshape(-1, d), d)
     xs = np.empty((n, d, d))
     xs[k0] = np.eye(d)
     xs[keep] = x.reshape(-1, d, d)
@@ -185,12 +196,12 @@ def chordal(graph: PoseGraph) -> LieGroup:
     np.add.at(bt, ii, -g)
     np.add.at(bt, jj, g)
     t = np.zeros((n, d))
-    t[keep] = _solve_spd(Ht, bt[keep].reshape(-1)).reshape(-1, d)
+    t[keep] = _solve_spd(Ht, bt[keep].reshape(-1), d).reshape(-1, d)
     T = np.zeros((n, d + 1, d + 1))
     T[:, :d, :d] = R
     T[:, :d, d] = t
     T[:, d, d] = 1.0
-    X = (SE2 if d == 2 else SE3).from_matrix(T, normalize=True)
+    X = (SE2 if d == 2 else SE3).from_matrix(T)  # R is a rotation to rounding
     return _anchored(graph, X, k0)
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,8 +100,9 @@ class PoseGraph:
         """Positions in ``ids`` (and in ``poses``) of the given vertex ids."""
         ids = np.asarray(ids, dtype=np.int64)
         k = np.searchsorted(self.ids, ids)
-        if np.any(k >= self.ids.size) or np.any(self.ids[np.minimum(k, self.ids.size - 1)] != ids):
-            raise ValueError("unknown vertex id")
+        bad = (k >= self.ids.size) | (self.ids[np.minimum(k, self.ids.size - 1)] != ids)
+        if np.any(bad):
+            raise ValueError(f"vertex id {int(ids[bad].reshape(-1)[0])} is not in this graph")
         return k
 
     def edge_index(self) -> tuple[np.ndarray, np.ndarray]:
@@ -122,6 +124,39 @@ class PoseGraph:
         """GTSAM's error ``0.5 sum_e r_e^T Omega_e r_e`` over the edges (no prior terms)."""
         r = self.residuals(poses)
         return 0.5 * float(np.einsum("ei,eij,ej->", r, self.information, r))
+
+    # ------------------------------------------------------------------ to the solver
+    def to_factor_graph(self, poses: LieGroup | None = None, *, loss: Any = None,
+                        gauge: str = "prior", prior_sigma: float = 1e-6) -> tuple[Any, Any]:
+        """Build a :class:`~microlie.optim.FactorGraph` of this graph's edges.
+
+        Returns ``(factor_graph, handle)``; ``result.values[handle]`` is then the optimised
+        batch aligned with ``ids``. ``poses`` is the start (default: the file's). One
+        ``BetweenFactor`` batch holds every edge with its information matrix and ``loss``
+        (a robust loss or a spec such as ``"huber:1.0"``). The gauge: the file's fixed
+        vertices when it has ``FIX`` lines; otherwise ``gauge="prior"`` (default, as GTSAM)
+        adds a prior on the first pose at its start value with standard deviation
+        ``prior_sigma`` (a term :meth:`cost` leaves out), ``gauge="fix"`` holds the first pose
+        constant, ``gauge="none"`` adds nothing (the solver then asks for a gauge).
+        """
+        from .factors import BetweenFactor, PriorFactor
+        from .graph import FactorGraph
+        from .noise import Information, Isotropic
+
+        X = self._poses(poses)
+        fg = FactorGraph()
+        fixed = self.index(self.fixed) if self.fixed.size else None
+        if fixed is None and gauge == "fix":
+            fixed = np.array([0])
+        elif gauge not in ("prior", "fix", "none"):
+            raise ValueError(f"gauge must be 'prior', 'fix' or 'none', got {gauge!r}")
+        handle = fg.add_variables(X, fixed=fixed, name="poses")
+        ii, jj = self.edge_index()
+        fg.add(BetweenFactor(handle, ii, jj, self.measurements, Information(self.information),
+                             loss=loss))
+        if fixed is None and gauge == "prior":
+            fg.add(PriorFactor(handle, [0], X[0:1], Isotropic(self.group.dof, prior_sigma)))
+        return fg, handle
 
     def _poses(self, poses: LieGroup | None) -> LieGroup:
         X = self.poses if poses is None else poses
@@ -167,12 +202,12 @@ class EdgeTag:
 
 
 class _Lines:
-    """Collects the numbers of one kind of line, with line numbers for error messages."""
+    """The numbers of one kind of line (vertex, edge or FIX), with line numbers for messages."""
 
     def __init__(self) -> None:
-        self.ids: list[list[int]] = []
-        self.values: list[list[float]] = []
-        self.lines: list[int] = []
+        self.ids: Any = np.zeros((0, 0), dtype=np.int64)
+        self.values: Any = np.zeros((0, 0))
+        self.lines: Any = np.zeros(0, dtype=np.int64)
 
 
 def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
@@ -182,75 +217,131 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
 
     Blank lines and lines starting with ``#`` are skipped. Every other line must start with a
     known tag and have exactly its number of fields; anything else is a ``ValueError`` naming
-    ``FILE:LINE``.
+    ``FILE:LINE``. Lines are grouped by tag and each group's numbers are converted in one call;
+    a group that fails is re-read line by line to name the first bad line.
     """
     path = Path(path)
     name = str(path)
-    vertices, edges, fixed = _Lines(), _Lines(), _Lines()
-    group: type[LieGroup] | None = None
-    group_line = 0
     known = sorted([*vertex_tags, *edge_tags, *([fix_tag] if fix_tag else [])])
     with open(path, encoding="utf-8") as f:
         text = f.read()
+    buckets: dict[str, tuple[list[str], list[int]]] = {}
     for lineno, line in enumerate(text.splitlines(), start=1):
-        toks = line.split()
-        if not toks or toks[0].startswith("#"):
+        parts = line.split(None, 1)
+        if not parts or parts[0].startswith("#"):
             continue
-        tag, fields = toks[0], toks[1:]
-        where = f"{name}:{lineno}"
-        if tag == fix_tag:
-            if not fields:
-                raise ValueError(f"{where}: {tag} needs at least one vertex id")
-            fixed.ids.append(_ints(fields, where, tag))
-            fixed.lines.append(lineno)
-            continue
-        spec: VertexTag | EdgeTag
-        if tag in vertex_tags:
-            spec, n_ids, store = vertex_tags[tag], 1, vertices
-            n_num = spec.n
-        elif tag in edge_tags:
-            spec, n_ids, store = edge_tags[tag], 2, edges
-            n_num = spec.n + spec.m
-        else:
-            raise ValueError(f"{where}: unknown tag {tag!r} in a {kind} file "
-                             f"(known: {', '.join(known)})")
-        if len(fields) != n_ids + n_num:
-            raise ValueError(f"{where}: {tag} needs {n_ids + n_num} fields "
-                             f"({n_ids} id{'s' * (n_ids > 1)} and {n_num} numbers), "
-                             f"got {len(fields)}")
-        if group is None:
-            group, group_line = spec.group, lineno
-        elif spec.group is not group:
-            raise ValueError(f"{where}: {tag} is a {spec.group.__name__} line but line "
-                             f"{group_line} made this a {group.__name__} graph")
-        store.ids.append(_ints(fields[:n_ids], where, tag))
-        store.values.append(_floats(fields[n_ids:], where, tag))
-        store.lines.append(lineno)
+        b = buckets.get(parts[0])
+        if b is None:
+            b = buckets[parts[0]] = ([], [])
+        b[0].append(parts[1] if len(parts) > 1 else "")
+        b[1].append(lineno)
+    group: type[LieGroup] | None = None
+    group_tag, group_line = "", 0
+    vertices, edges, fixed = _Lines(), _Lines(), _Lines()
+    errors: list[tuple[int, str]] = []  # (line, message): the first bad line is reported
+    for tag, (rests, lines) in sorted(buckets.items(), key=lambda kv: kv[1][1][0]):
+        try:
+            if tag == fix_tag:
+                ids = [_ints(r.split(), f"{name}:{ln}", tag, at_least_one=True, line=ln)
+                       for r, ln in zip(rests, lines, strict=True)]
+                fixed.ids = [i for row in ids for i in row]
+                fixed.lines = [ln for row, ln in zip(ids, lines, strict=True) for _ in row]
+                continue
+            spec: VertexTag | EdgeTag
+            if tag in vertex_tags:
+                spec, n_ids, store = vertex_tags[tag], 1, vertices
+                n_num = spec.n
+            elif tag in edge_tags:
+                spec, n_ids, store = edge_tags[tag], 2, edges
+                n_num = spec.n + spec.m
+            else:
+                raise _LineError(lines[0], f"{name}:{lines[0]}: unknown tag {tag!r} in a "
+                                 f"{kind} file (known: {', '.join(known)})")
+            if group is None:
+                group, group_tag, group_line = spec.group, tag, lines[0]
+            elif spec.group is not group:
+                raise _LineError(lines[0], f"{name}:{lines[0]}: {tag} is a "
+                                 f"{spec.group.__name__} line but line {group_line} "
+                                 f"({group_tag}) made this a {group.__name__} graph")
+            store.ids, store.values = _block(name, tag, rests, lines, n_ids, n_num)
+            store.lines = np.asarray(lines, dtype=np.int64)
+        except _LineError as e:
+            errors.append((e.line, str(e)))
+    if errors:
+        raise ValueError(min(errors)[1])
     if group is None:
         raise ValueError(f"{name}: no vertex or edge lines (tags: {', '.join(known)})")
     return _assemble(name, group, vertices, edges, fixed, vertex_tags, edge_tags)
 
 
-def _ints(fields: Sequence[str], where: str, tag: str) -> list[int]:
+class _LineError(ValueError):
+    """A malformed line; ``line`` lets the parser report the first one in the file."""
+
+    def __init__(self, line: int, message: str) -> None:
+        super().__init__(message)
+        self.line = int(line)
+
+
+def _block(name: str, tag: str, rests: list[str], lines: list[int], n_ids: int,
+           n_num: int) -> tuple[np.ndarray, np.ndarray]:
+    """Ids ``(n, n_ids)`` and numbers ``(n, n_num)`` of the lines of one tag."""
+    n, k = len(rests), n_ids + n_num
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # NumPy warns when a token is not a number
+        try:
+            a = np.fromstring(" ".join(rests), sep=" ")
+        except (DeprecationWarning, ValueError):
+            a = None
+    if a is None or a.size != n * k:
+        for rest, ln in zip(rests, lines, strict=True):
+            _check_line(name, tag, rest.split(), ln, n_ids, n_num)  # raises at the first
+        raise AssertionError(f"{name}: {tag} lines failed to parse")  # pragma: no cover
+    a = a.reshape(n, k)
+    ids, vals = a[:, :n_ids], a[:, n_ids:]
+    bad = ~np.all(np.isfinite(vals) & (np.isfinite(ids) & (ids == np.round(ids)) & (ids >= 0))
+                  .all(1, keepdims=True), axis=1)
+    if np.any(bad):
+        r = int(np.flatnonzero(bad)[0])
+        _check_line(name, tag, rests[r].split(), lines[r], n_ids, n_num)
+        raise _LineError(lines[r], f"{name}:{lines[r]}: {tag}: vertex id is not an integer")
+    return ids.astype(np.int64), vals
+
+
+def _check_line(name: str, tag: str, fields: list[str], lineno: int, n_ids: int,
+                n_num: int) -> None:
+    """Raise the error that names what is wrong with one line (if anything)."""
+    where = f"{name}:{lineno}"
+    if len(fields) != n_ids + n_num:
+        raise _LineError(lineno, f"{where}: {tag} needs {n_ids + n_num} fields "
+                         f"({n_ids} id{'s' * (n_ids > 1)} and {n_num} numbers), "
+                         f"got {len(fields)}")
+    _ints(fields[:n_ids], where, tag, line=lineno)
+    _floats(fields[n_ids:], where, tag, line=lineno)
+
+
+def _ints(fields: Sequence[str], where: str, tag: str, at_least_one: bool = False,
+          line: int = 0) -> list[int]:
+    if at_least_one and not fields:
+        raise _LineError(line, f"{where}: {tag} needs at least one vertex id")
     try:
         out = [int(f) for f in fields]
     except ValueError:
         bad = next(f for f in fields if not f.lstrip("+-").isdigit())
-        raise ValueError(f"{where}: {tag}: vertex id {bad!r} is not an integer") from None
+        raise _LineError(line, f"{where}: {tag}: vertex id {bad!r} is not an integer") from None
     if any(v < 0 for v in out):
-        raise ValueError(f"{where}: {tag}: negative vertex id {min(out)}")
+        raise _LineError(line, f"{where}: {tag}: negative vertex id {min(out)}")
     return out
 
 
-def _floats(fields: Sequence[str], where: str, tag: str) -> list[float]:
+def _floats(fields: Sequence[str], where: str, tag: str, line: int = 0) -> list[float]:
     try:
         out = [float(f) for f in fields]
     except ValueError:
         bad = next(f for f in fields if not _is_float(f))
-        raise ValueError(f"{where}: {tag}: field {bad!r} is not a number") from None
+        raise _LineError(line, f"{where}: {tag}: field {bad!r} is not a number") from None
     if not all(math.isfinite(v) for v in out):
         bad = next(f for f, v in zip(fields, out, strict=True) if not math.isfinite(v))
-        raise ValueError(f"{where}: {tag}: non-finite value {bad!r}")
+        raise _LineError(line, f"{where}: {tag}: non-finite value {bad!r}")
     return out
 
 
@@ -271,8 +362,8 @@ def _assemble(name: str, group: type[LieGroup], vertices: _Lines, edges: _Lines,
         raise ValueError(f"{name}: no edge tag for {group.__name__}")
     # vertices: unique ids, sorted
     poses = None
-    if vertices.ids:
-        vid = np.array([v[0] for v in vertices.ids], dtype=np.int64)
+    if vertices.lines.size:
+        vid = vertices.ids[:, 0]
         order = np.argsort(vid, kind="stable")
         dup = np.flatnonzero(np.diff(vid[order]) == 0)
         if dup.size:
@@ -281,15 +372,15 @@ def _assemble(name: str, group: type[LieGroup], vertices: _Lines, edges: _Lines,
             raise ValueError(f"{name}:{vertices.lines[k]}: vertex {vid[k]} is defined twice "
                              f"(first on line {first})")
         assert vspec is not None
-        vals = np.array(vertices.values, dtype=np.float64)[order]
-        vlines = np.array(vertices.lines)[order]
+        vals = vertices.values[order]
+        vlines = vertices.lines[order]
         params = _checked_params(vspec.to_params, vals, name, vlines, "vertex")
         poses = group(params)
         ids = vid[order]
-    if not edges.ids:
+    if not edges.lines.size:
         raise ValueError(f"{name}: no edges")
-    ij = np.array(edges.ids, dtype=np.int64)
-    elines = np.array(edges.lines)
+    ij = edges.ids
+    elines = edges.lines
     self_loop = np.flatnonzero(ij[:, 0] == ij[:, 1])
     if self_loop.size:
         k = self_loop[0]
@@ -303,12 +394,12 @@ def _assemble(name: str, group: type[LieGroup], vertices: _Lines, edges: _Lines,
                 k = bad[0]
                 raise ValueError(f"{name}:{elines[k]}: edge {ij[k, 0]} -> {ij[k, 1]} refers to "
                                  f"vertex {ij[k, col]}, which has no vertex line")
-    vals = np.array(edges.values, dtype=np.float64)
+    vals = edges.values
     Z = group(_checked_params(espec.to_params, vals[:, :espec.n], name, elines, "measurement"))
     info = espec.to_information(vals[:, espec.n:])
     _check_information(info, name, elines)
-    fix = np.array([i for ids_ in fixed.ids for i in ids_], dtype=np.int64)
-    flines = [ln for ids_, ln in zip(fixed.ids, fixed.lines, strict=True) for _ in ids_]
+    fix = np.asarray(fixed.ids, dtype=np.int64).reshape(-1)
+    flines = fixed.lines
     unknown = np.flatnonzero(~np.isin(fix, ids))
     if unknown.size:
         k = unknown[0]

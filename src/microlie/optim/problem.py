@@ -83,6 +83,8 @@ class Problem:
 
     # ------------------------------------------------------------------ gauge
     def _check_gauge(self, gauge: str) -> None:
+        if gauge not in ("check", "fix_first"):
+            raise ValueError(f"gauge must be 'check', 'fix_first' or 'none', got {gauge!r}")
         nn = self.num_nodes
         if nn == 0:
             return
@@ -108,8 +110,6 @@ class Problem:
         if ok.all():
             return
         bad = ~ok[label]
-        if gauge not in ("check", "fix_first"):
-            raise ValueError(f"gauge must be 'check', 'fix_first' or 'none', got {gauge!r}")
         if gauge == "check":
             first = int(np.flatnonzero(bad)[0])
             name = self._node_name(first)
@@ -175,52 +175,44 @@ class Problem:
             offs = self.node_off[:-1][self.node_dof == d][:, None] + np.arange(d)
             diag[offs.ravel()] = dp.ravel()
         self.diag_pos = diag
-        # scatter indices per factor
+        # scatter indices per factor: the whole (D x D) block of A^T A (D = sum of the
+        # arguments' dofs), row-major, and the (D,) gradient
         hdest, gdest = [], []
-        self.fpairs = []
-        for f, nodes in zip(self.factors, self.fargs, strict=False):
+        for f, nodes in zip(self.factors, self.fargs, strict=True):
             dofs = [var.dof for var, _ in f.args]
-            pairs = []
+            offs = np.concatenate([[0], np.cumsum(dofs)])
+            D = int(offs[-1])
+            m = f.count
+            big = np.empty((m, D, D), np.int64)
+            gd = np.empty((m, D), np.int64)
             for k in range(len(nodes)):
-                for l in range(k, len(nodes)):
-                    pairs.append((k, l))
-                    hdest.append(self._dest(nodes[k], nodes[l], dofs[k], dofs[l], uniq, pbase,
-                                            pos, nn, False))
-                    if l != k:
-                        hdest.append(self._dest(nodes[l], nodes[k], dofs[l], dofs[k], uniq,
-                                                pbase, pos, nn, True))
-                g = np.where(nodes[k][:, None] >= 0,
-                             self.node_off[np.maximum(nodes[k], 0)][:, None] + np.arange(dofs[k]),
-                             self.size)
-                gdest.append(g.ravel())
-            self.fpairs.append(pairs)
+                for l in range(len(nodes)):
+                    big[:, offs[k]:offs[k + 1], offs[l]:offs[l + 1]] = self._dest(
+                        nodes[k], nodes[l], dofs[k], dofs[l], uniq, pbase, pos, nn
+                    ).reshape(m, dofs[k], dofs[l])
+                gd[:, offs[k]:offs[k + 1]] = np.where(
+                    nodes[k][:, None] >= 0,
+                    self.node_off[np.maximum(nodes[k], 0)][:, None] + np.arange(dofs[k]),
+                    self.size)
+            hdest.append(big.ravel())
+            gdest.append(gd.ravel())
         self.hdest = np.concatenate(hdest) if hdest else np.zeros(0, np.int64)
         self.gdest = np.concatenate(gdest) if gdest else np.zeros(0, np.int64)
 
-    def _dest(self, a, b, da, db, uniq, pbase, pos, nn, transposed):
-        """Positions in the CSC data of block ``(a, b)``, laid out like ``B = A_k^T A_l``
-        (for ``transposed``, ``B``'s entry ``(x, y)`` goes to block ``(a, b)`` entry ``(y, x)``
-        where ``(a, b) = (l, k)``)."""
-        m = a.size
+    def _dest(self, a, b, da, db, uniq, pbase, pos, nn):
+        """Positions in the CSC data of block ``(a, b)`` (``da x db``, row-major) per factor;
+        ``nnz`` (a dump slot) where either variable is fixed."""
         ok = (a >= 0) & (b >= 0)
         p = np.searchsorted(uniq, np.where(ok, a * nn + b, 0))
-        base = pbase[p]
-        if transposed:  # shape (m, db_orig=da? ) -> B has rows = dof of b, cols = dof of a
-            x, y = np.meshgrid(np.arange(db), np.arange(da), indexing="ij")
-            local = (y * db + x)  # B[x, y] -> entry (y, x) of block (a, b), row-major da x db
-            # careful: block (a, b) has da rows and db cols; entry (y, x) -> y * db + x
-        else:
-            x, y = np.meshgrid(np.arange(da), np.arange(db), indexing="ij")
-            local = x * db + y
-        d = pos[np.minimum(base[:, None, None] + local[None], self.nnz - 1)]
-        d = np.where(ok[:, None, None], d, self.nnz)
-        return d.reshape(m, -1).ravel()
+        local = (np.arange(da)[:, None] * db + np.arange(db)).ravel()
+        d = pos[np.minimum(pbase[p][:, None] + local, self.nnz - 1)]
+        return np.where(ok[:, None], d, self.nnz).ravel()
 
     def analysed(self, linear_solver: Any) -> Any:
         """A linear solver (name or instance) that has analysed this problem's pattern."""
         from .linear import make_solver
 
-        ls = make_solver(linear_solver, self.size)
+        ls = make_solver(linear_solver, self.size, self.block_size)
         ls.analyse(self.indptr, self.indices, self.size, self.block_size)
         return ls
 
@@ -235,7 +227,7 @@ class Problem:
         L = f.noise.sqrt_info
         if L.ndim == 2:
             return r @ L.T
-        return np.einsum("mij,mj->mi", L, r)
+        return (L @ r[:, :, None])[:, :, 0]
 
     def costs(self, states: list[np.ndarray]) -> tuple[float, float]:
         """Plain cost ``0.5 sum |e|^2`` and robust cost ``0.5 sum rho(|e|^2)``."""
@@ -252,39 +244,30 @@ class Problem:
         hw, gw = [], []
         cost = rcost = 0.0
         t_lin = t_prod = 0.0
-        for f, pairs in zip(self.factors, self.fpairs, strict=False):
+        for f in self.factors:
             ta = time.perf_counter()
             r, Js = f.evaluate(self.gather(f, states), True)
             r = np.asarray(r, dtype=np.float64)
+            J = Js[0] if len(Js) == 1 else np.concatenate(Js, axis=2)  # (m, d, D)
             L = f.noise.sqrt_info
-            if L.ndim == 2:
-                e = r @ L.T
-                As = [L @ J for J in Js]
-            else:
-                e = np.einsum("mij,mj->mi", L, r)
-                As = [L @ J for J in Js]
+            e = self.whiten(f, r)
+            A = L @ np.asarray(J, dtype=np.float64)
             s = np.einsum("mi,mi->m", e, e)
             cost += 0.5 * float(s.sum())
             if f.loss is not None:
                 rho, scale, aos = corrected_weights(f.loss, s)
                 rcost += 0.5 * float(rho.sum())
                 sq = np.sqrt(np.maximum(f.loss.evaluate(s)[1], 0.0))
-                eA = [np.einsum("mi,mij->mj", e, A) for A in As]
-                As = [sq[:, None, None] * (A - (aos[:, None] * e)[:, :, None] * ea[:, None, :])
-                      for A, ea in zip(As, eA, strict=False)]
+                eA = np.einsum("mi,mij->mj", e, A)
+                A = sq[:, None, None] * (A - (aos[:, None] * e)[:, :, None] * eA[:, None, :])
                 e = scale[:, None] * e
             else:
                 rcost += 0.5 * float(s.sum())
             tb = time.perf_counter()
             t_lin += tb - ta
-            ATs = [np.swapaxes(A, 1, 2) for A in As]
-            for k, l in pairs:
-                B = ATs[k] @ As[l]
-                hw.append(B.ravel())
-                if l != k:
-                    hw.append(B.ravel())
-            for k in range(len(As)):
-                gw.append(np.einsum("mji,mj->mi", As[k], e).ravel())
+            At = np.swapaxes(A, 1, 2)
+            hw.append((At @ A).ravel())
+            gw.append((At @ e[:, :, None]).ravel())
             t_prod += time.perf_counter() - tb
         tc = time.perf_counter()
         data = np.bincount(self.hdest, weights=np.concatenate(hw) if hw else None,
@@ -309,3 +292,4 @@ class Problem:
             q[free] = v.retract(p[free], d)
             out.append(q)
         return out
+

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import scipy.linalg as sla  # type: ignore[import-untyped]
@@ -32,41 +32,45 @@ __all__ = ["SchurStructure", "NormalEquations", "LinearSolverKind", "LINEAR_SOLV
 
 LinearSolverKind = Literal["auto", "dense", "sparse", "full"]
 LINEAR_SOLVERS: tuple[str, ...] = ("auto", "dense", "sparse", "full")
-_DENSE_LIMIT = 3000  # camera unknowns up to which the reduced system is factorised densely
+DENSE_LIMIT = 3000  # camera unknowns up to which the reduced system is factorised densely
+SPARSE_DENSITY = 0.05  # above it (fraction of nonzero camera blocks) dense up to DENSE_MAX
+DENSE_MAX = 12000
+_PAIR_CHUNK = 1 << 17  # observation pairs gathered at once when forming the reduced system
 
 
 class SchurStructure:
     """The sparsity of a bundle-adjustment problem, analysed once.
 
     ``cam`` and ``pt`` give the camera and point of each observation; the observations must be
-    sorted by point (``np.lexsort((cam, pt))`` order), which the solver does once.
+    sorted by camera, then point (``np.lexsort((pt, cam))`` order), which the solver does once:
+    each camera's observations are then one contiguous block.
     """
 
     def __init__(self, cam: np.ndarray, pt: np.ndarray, n_cameras: int, n_points: int,
                  cam_dim: int) -> None:
         cam = np.asarray(cam, dtype=np.intp)
         pt = np.asarray(pt, dtype=np.intp)
-        if np.any(np.diff(pt) < 0):
-            raise ValueError("observations must be sorted by point")
+        if np.any(np.diff(cam) < 0):
+            raise ValueError("observations must be sorted by camera")
         self.cam, self.pt = cam, pt
         self.n_cameras, self.n_points, self.cam_dim = n_cameras, n_points, cam_dim
-        self.n_obs = n = len(cam)
+        self.n_obs = len(cam)
         counts = np.bincount(pt, minlength=n_points)
-        self.point_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)
         self.point_count = counts
-        # observations sorted by camera (for the diagonal blocks and the gradient)
-        self.by_cam = np.argsort(cam, kind="stable")
         ccount = np.bincount(cam, minlength=n_cameras)
         self.cam_bounds = np.concatenate([[0], np.cumsum(ccount)]).astype(np.intp)
-        # pairs a < b of observations of the same point, with cam[a] <= cam[b]
+        # pairs a < b of observations of the same point, with cam[a] <= cam[b]: enumerate them
+        # in point order (a stable sort keeps the camera order within each point)
+        by_pt = np.argsort(pt, kind="stable")
+        point_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)
         a_list, b_list = [], []
         for m in np.unique(counts):
             if m < 2:
                 continue
-            base = self.point_start[counts == m]
+            base = point_start[counts == m]
             ia, ib = np.triu_indices(m, 1)
-            a_list.append((base[:, None] + ia[None]).ravel())
-            b_list.append((base[:, None] + ib[None]).ravel())
+            a_list.append(by_pt[(base[:, None] + ia[None]).ravel()])
+            b_list.append(by_pt[(base[:, None] + ib[None]).ravel()])
         a = np.concatenate(a_list) if a_list else np.zeros(0, np.intp)
         b = np.concatenate(b_list) if b_list else np.zeros(0, np.intp)
         swap = cam[a] > cam[b]
@@ -77,15 +81,50 @@ class SchurStructure:
         ukey, start = np.unique(key, return_index=True)
         self.pair_blocks = (ukey // n_cameras, ukey % n_cameras)
         self.pair_bounds = np.concatenate([start, [len(key)]]).astype(np.intp)
-        # CSR pattern of the camera Jacobian (2 rows per observation, cam_dim columns)
-        cols = cam[:, None] * cam_dim + np.arange(cam_dim)[None, :]
-        self._jc_indices = np.repeat(cols, 2, axis=0).ravel()
-        self._jc_indptr = np.arange(0, 2 * n * cam_dim + 1, cam_dim)
+        # chunks of whole camera-pair blocks with at most _PAIR_CHUNK pairs (or one block)
+        chunks, i0 = [], 0
+        nb = len(ukey)
+        while i0 < nb:
+            i1 = int(np.searchsorted(self.pair_bounds, self.pair_bounds[i0] + _PAIR_CHUNK,
+                                     side="right")) - 1
+            i1 = min(max(i1, i0 + 1), nb)
+            chunks.append((i0, i1))
+            i0 = i1
+        self.pair_chunks = chunks
+        self.block_density = (2 * len(ukey) + n_cameras) / max(n_cameras, 1) ** 2
+
+    def sparse_reduced(self, kind: str = "auto") -> bool:
+        """Whether ``kind`` factorises the reduced camera system sparsely: ``"auto"`` does when
+        it has more than ``DENSE_LIMIT`` unknowns and is sparse (fewer than ``SPARSE_DENSITY``
+        of its blocks nonzero), or more than ``DENSE_MAX`` unknowns."""
+        if kind != "auto":
+            return kind == "sparse"
+        n = self.n_cameras * self.cam_dim
+        return n > DENSE_MAX or (n > DENSE_LIMIT and self.block_density < SPARSE_DENSITY)
+
+    def buffer(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        """A scratch array kept between iterations (fresh large arrays cost page faults that
+        measured as much as the arithmetic on them)."""
+        ws = self.__dict__.setdefault("_workspace", {})
+        a = ws.get(name)
+        if a is None or a.shape != shape:
+            a = ws[name] = np.empty(shape)
+        return a
+
+    def point_sum(self, v: np.ndarray) -> np.ndarray:
+        """Sums ``(n_points, k)`` of per-observation rows ``v`` ``(n_obs, k)`` by point."""
+        out = np.empty((self.n_points, v.shape[1]))
+        for k in range(v.shape[1]):
+            out[:, k] = np.bincount(self.pt, weights=v[:, k], minlength=self.n_points)
+        return out
 
     def camera_jacobian_csr(self, Jc: np.ndarray) -> sp.csr_matrix:
+        """The camera Jacobian ``(2 n_obs, n_cameras d)`` as CSR (two rows per observation)."""
         n, d = self.n_obs, self.cam_dim
-        return sp.csr_matrix((Jc.reshape(-1), self._jc_indices, self._jc_indptr),
-                             shape=(2 * n, self.n_cameras * d))
+        cols = self.cam[:, None] * d + np.arange(d)[None, :]
+        indices = np.repeat(cols, 2, axis=0).ravel()
+        indptr = np.arange(0, 2 * n * d + 1, d)
+        return sp.csr_matrix((Jc.reshape(-1), indices, indptr), shape=(2 * n, self.n_cameras * d))
 
 
 def _chol3_inv(v: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -109,7 +148,7 @@ def _chol3_inv(v: np.ndarray) -> tuple[np.ndarray, ...]:
 @dataclass
 class NormalEquations:
     """One linearisation: residuals ``r`` ``(n, 2)`` and Jacobians ``Jc`` ``(n, 2, d)``,
-    ``Jp`` ``(n, 2, 3)`` (observations sorted by point, already weighted and scaled).
+    ``Jp`` ``(n, 2, 3)`` (observations sorted by camera, already weighted and scaled).
 
     ``fixed_cameras`` is a ``(n_cameras, d)`` mask of held camera unknowns (a camera's pose,
     its intrinsics or both), ``fixed_points`` a ``(n_points,)`` mask of held points; held
@@ -139,17 +178,12 @@ class NormalEquations:
                           (JpT[:, 0] * JpT[:, 2]).sum(0), (JpT[:, 1] * JpT[:, 1]).sum(0),
                           (JpT[:, 1] * JpT[:, 2]).sum(0), (JpT[:, 2] * JpT[:, 2]).sum(0)], 1)
         gp_obs = np.einsum("rin,nr->ni", JpT, r)
-        seg = st.point_start
-        nonempty = st.point_count > 0
-        V = np.zeros((st.n_points, 6))
-        gp = np.zeros((st.n_points, 3))
-        if st.n_obs:
-            V[nonempty] = np.add.reduceat(prods, seg[nonempty], axis=0)
-            gp[nonempty] = np.add.reduceat(gp_obs, seg[nonempty], axis=0)
+        V = st.point_sum(prods)
+        gp = st.point_sum(gp_obs)
         self.V, self.gp = V, gp
-        # camera side, sorted by camera: U_c = Jc^T Jc, g_c = Jc^T r, diag(U_c)
-        Jcc = Jc[st.by_cam].reshape(-1, d)                          # (2n, d)
-        rc = r[st.by_cam].reshape(-1)
+        # camera side (observations are sorted by camera): U_c = Jc^T Jc, g_c = Jc^T r
+        Jcc = Jc.reshape(-1, d)                                      # (2n, d)
+        rc = r.reshape(-1)
         b = st.cam_bounds
         nc = st.n_cameras
         self.U = np.zeros((nc, d, d))
@@ -162,14 +196,17 @@ class NormalEquations:
         self.diag_c = np.diagonal(self.U, axis1=1, axis2=2).copy()
         self.diag_p = V[:, [0, 3, 5]].copy()
         self.gradient = np.concatenate([self.gc.ravel(), gp.ravel()])
-        self._jc_csr = st.camera_jacobian_csr(Jc)
 
     # ------------------------------------------------------------------ products with J
     def jvp(self, dc: np.ndarray, dp: np.ndarray) -> np.ndarray:
         """``J_c dc + J_p dp`` as ``(n, 2)``."""
         st = self.structure
-        out = (self._jc_csr @ dc.reshape(-1)).reshape(-1, 2)
-        out += np.einsum("rin,ni->nr", self._jp, dp[st.pt])
+        cached = getattr(self, "_jc_dc", None)
+        if cached is not None and cached[0] is dc:
+            out = cached[1].copy()                     # J_c dc from the back substitution
+        else:
+            out = np.matmul(self.Jc, np.take(dc, st.cam, axis=0)[:, :, None])[:, :, 0]
+        out += np.einsum("rin,ni->nr", self._jp, np.take(dp, st.pt, axis=0))
         return out
 
     # ------------------------------------------------------------------ the damped solve
@@ -183,7 +220,7 @@ class NormalEquations:
         if kind == "full":
             return self._solve_full(Dc2, Dp2)
         t0 = time.perf_counter()
-        red = self.reduced_system(Dc2, Dp2)
+        red = self.reduced_system(Dc2, Dp2, self.structure.sparse_reduced(kind))
         if red is None:
             return None
         S, rhs_v, (i00, i10, i11, i20, i21, i22), gp = red
@@ -191,18 +228,16 @@ class NormalEquations:
         fp = self.fixed_points
         jp = self._jp
         t1 = time.perf_counter()
-        dc = self._solve_reduced(S, rhs_v, kind)
+        dc = self._solve_reduced(S, rhs_v)
         if dc is None:
             return None
         t2 = time.perf_counter()
         # back substitution: dp = -V^-1 (gp + Jp^T Jc dc)
-        y = (self._jc_csr @ dc).reshape(-1, 2)
+        dc = dc.reshape(nc, d)
+        y = np.matmul(self.Jc, np.take(dc, st.cam, axis=0)[:, :, None])[:, :, 0]
+        self._jc_dc = (dc, y)
         z = np.einsum("rin,nr->ni", jp, y)
-        zp = np.zeros((st.n_points, 3))
-        ne = st.point_count > 0
-        if st.n_obs:
-            zp[ne] = np.add.reduceat(z, st.point_start[ne], axis=0)
-        w = gp + zp
+        w = gp + st.point_sum(z)
         if fp is not None and fp.any():
             w[fp] = 0.0
         w0, w1, w2 = w[:, 0], w[:, 1], w[:, 2]
@@ -215,10 +250,12 @@ class NormalEquations:
         tm["schur_form"] = tm.get("schur_form", 0.0) + t1 - t0
         tm["reduced_solve"] = tm.get("reduced_solve", 0.0) + t2 - t1
         tm["back_substitution"] = tm.get("back_substitution", 0.0) + t3 - t2
-        return dc.reshape(nc, d), dp
+        return dc, dp
 
-    def reduced_system(self, Dc2: np.ndarray, Dp2: np.ndarray) -> tuple | None:
-        """The reduced camera system ``(S, rhs)`` (dense, held unknowns replaced by unit rows)
+    def reduced_system(self, Dc2: np.ndarray, Dp2: np.ndarray, sparse: bool = False
+                       ) -> tuple | None:
+        """The reduced camera system ``(S, rhs)`` (dense, or sparse CSC with ``sparse=True``;
+        held unknowns replaced by unit rows)
         with the points' inverse Cholesky factors and gradient; ``None`` when a point block is
         not positive definite."""
         st, d = self.structure, self.structure.cam_dim
@@ -240,59 +277,99 @@ class NormalEquations:
         CiT = np.zeros((st.n_points, 3, 3))
         CiT[:, 0, 0], CiT[:, 0, 1], CiT[:, 0, 2] = i00, i10, i20
         CiT[:, 1, 1], CiT[:, 1, 2], CiT[:, 2, 2] = i11, i21, i22
-        Gt = np.matmul(self.Jp, CiT[pt])                              # (n, 2, 3)
+        Gt = np.matmul(self.Jp, np.take(CiT, pt, axis=0))                       # (n, 2, 3)
         # Z_a^T = G_a^T Jc_a (3 x d per observation): W_a V^-1 W_b^T = Z_a Z_b^T
-        Zt = np.matmul(Gt.transpose(0, 2, 1), self.Jc)                # (n, 3, d), C order
+        Zt = np.matmul(Gt.transpose(0, 2, 1), self.Jc,
+                       out=st.buffer("Zt", (st.n_obs, 3, d)))                   # (n, 3, d)
         # h = Ci gp per point: W_a V^-1 gp = Z_a h_a
         g0, g1, g2 = gp[:, 0], gp[:, 1], gp[:, 2]
         h = np.stack([i00 * g0, i10 * g0 + i11 * g1, i20 * g0 + i21 * g1 + i22 * g2], 1)
         nc = st.n_cameras
-        Sb = np.zeros((nc, nc, d, d))
         rhs = -self.gc.copy()
-        oc = st.by_cam
-        Zc = Zt[oc].reshape(-1, d)                                   # (3n, d) by camera
-        hc = h[st.pt[oc]].reshape(-1)
+        Zc = Zt.reshape(-1, d)                                       # (3n, d) by camera
+        hc = np.take(h, st.pt, axis=0).reshape(-1)
         b = st.cam_bounds
+        diag = np.empty((nc, d, d))
         for c in range(nc):
             s, e = 3 * b[c], 3 * b[c + 1]
             blk = Zc[s:e]
-            Sb[c, c] = self.U[c] - blk.T @ blk
+            diag[c] = self.U[c] - blk.T @ blk
             rhs[c] += blk.T @ hc[s:e]
-        # pairs a < b of observations of one point, grouped by camera pair
-        A, B = st.pair_a, st.pair_b
-        if len(A):
-            Za = Zt[A].reshape(-1, d)
-            Zb = Zt[B].reshape(-1, d)
-            pb = st.pair_bounds
-            c1s, c2s = st.pair_blocks
-            blocks = np.empty((len(c1s), d, d))
-            for i in range(len(c1s)):
-                s, e = 3 * pb[i], 3 * pb[i + 1]
+        # pairs a < b of observations of one point, grouped by camera pair; gathered in chunks
+        # of camera pairs so that memory stays bounded on large problems
+        c1s, c2s = st.pair_blocks
+        blocks = np.empty((len(c1s), d, d))
+        pb = st.pair_bounds
+        for i0, i1 in st.pair_chunks:
+            p0, p1 = pb[i0], pb[i1]
+            shape = (int(p1 - p0), 3, d)
+            # np.take into kept buffers (mode="clip": indices are valid by construction, and
+            # "raise" with out= would copy)
+            Za = np.take(Zt, st.pair_a[p0:p1], axis=0, out=st.buffer(f"Za{i0}", shape),
+                         mode="clip").reshape(-1, d)
+            Zb = np.take(Zt, st.pair_b[p0:p1], axis=0, out=st.buffer(f"Zb{i0}", shape),
+                         mode="clip").reshape(-1, d)
+            for i in range(i0, i1):
+                s, e = 3 * (pb[i] - p0), 3 * (pb[i + 1] - p0)
                 np.matmul(Za[s:e].T, Zb[s:e], out=blocks[i])
-            Sb[c1s, c2s] -= blocks
-            Sb[c2s, c1s] -= blocks.transpose(0, 2, 1)
-        S = Sb.transpose(0, 2, 1, 3).reshape(nc * d, nc * d)
-        S[np.diag_indices_from(S)] += Dc2.reshape(-1)
         rhs_v = rhs.reshape(-1)
         fc = self.fixed_cameras
-        if fc is not None and fc.any():
-            idx = np.nonzero(fc.reshape(-1))[0]
-            S[idx, :] = 0.0
-            S[:, idx] = 0.0
-            S[idx, idx] = 1.0
-            rhs_v[idx] = 0.0
-        return S, rhs_v, (i00, i10, i11, i20, i21, i22), gp
+        held = np.nonzero(fc.reshape(-1))[0] if fc is not None and fc.any() else None
+        if held is not None:
+            rhs_v[held] = 0.0
+        n = nc * d
+        if not sparse:
+            Sb = np.zeros((nc, nc, d, d))
+            Sb[np.arange(nc), np.arange(nc)] = diag
+            # (c1, c2) keys are unique with c1 <= c2, so neither statement repeats an index;
+            # for c1 == c2 (a point seen twice by one camera) both add to the diagonal block
+            Sb[c1s, c2s] -= blocks
+            Sb[c2s, c1s] -= blocks.transpose(0, 2, 1)
+            S = Sb.transpose(0, 2, 1, 3).reshape(n, n)
+            S[np.diag_indices_from(S)] += Dc2.reshape(-1)
+            if held is not None:
+                S[held, :] = 0.0
+                S[:, held] = 0.0
+                S[held, held] = 1.0
+            return S, rhs_v, (i00, i10, i11, i20, i21, i22), gp
+        # sparse assembly: diagonal blocks, pair blocks and their transposes (COO, summed)
+        ii, jj = np.meshgrid(np.arange(d), np.arange(d), indexing="ij")
+        cams = np.arange(nc)
+        rows = [(cams[:, None, None] * d + ii).ravel(), (c1s[:, None, None] * d + ii).ravel(),
+                (c2s[:, None, None] * d + ii).ravel()]
+        cols = [(cams[:, None, None] * d + jj).ravel(), (c2s[:, None, None] * d + jj).ravel(),
+                (c1s[:, None, None] * d + jj).ravel()]
+        vals = [diag.ravel(), -blocks.ravel(), -blocks.transpose(0, 2, 1).ravel()]
+        r_ = np.concatenate(rows)
+        c_ = np.concatenate(cols)
+        v_ = np.concatenate(vals)
+        if held is not None:
+            mask = np.zeros(n, bool)
+            mask[held] = True
+            v_ = np.where(mask[r_] | mask[c_], 0.0, v_)
+        dvals = Dc2.reshape(-1).copy()
+        if held is not None:
+            dvals[held] = 1.0
+        r_ = np.concatenate([r_, np.arange(n)])
+        c_ = np.concatenate([c_, np.arange(n)])
+        v_ = np.concatenate([v_, dvals])
+        Ssp = sp.csc_matrix((v_, (r_, c_)), shape=(n, n))
+        Ssp.sum_duplicates()
+        Ssp.sort_indices()
+        return Ssp, rhs_v, (i00, i10, i11, i20, i21, i22), gp
 
     @staticmethod
-    def _solve_reduced(S: np.ndarray, rhs: np.ndarray, kind: str) -> np.ndarray | None:
-        if kind == "sparse" or (kind == "auto" and S.shape[0] > _DENSE_LIMIT):
-            from scipy.sparse.linalg import splu  # type: ignore[import-untyped]
+    def _solve_reduced(S: Any, rhs: np.ndarray) -> np.ndarray | None:
+        if sp.issparse(S):
+            from .linear import SingularSystemError, make_solver
+
+            solver = make_solver("auto", S.shape[0])
             try:
-                lu = splu(sp.csc_matrix(S), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                          options={"SymmetricMode": True})
-            except RuntimeError:
+                solver.analyse(S.indptr, S.indices, S.shape[0])
+                solver.factorize(S.data)
+                x = solver.solve(rhs)
+            except SingularSystemError:
                 return None
-            x = lu.solve(rhs)
             return x if np.all(np.isfinite(x)) else None
         try:
             cf = sla.cho_factor(S, lower=True, check_finite=False)
@@ -310,8 +387,8 @@ class NormalEquations:
         ip = np.arange(0, 2 * n * 3 + 1, 3)
         Jp_csr = sp.csr_matrix((self.Jp.reshape(-1), np.repeat(cols_p, 2, axis=0).ravel(), ip),
                                shape=(2 * n, st.n_cameras * d + st.n_points * 3))
-        Jc_csr = sp.csr_matrix((self._jc_csr.data, self._jc_csr.indices, self._jc_csr.indptr),
-                               shape=Jp_csr.shape)
+        jc = st.camera_jacobian_csr(self.Jc)
+        Jc_csr = sp.csr_matrix((jc.data, jc.indices, jc.indptr), shape=Jp_csr.shape)
         J = (Jc_csr + Jp_csr).tocsc()
         H = (J.T @ J).tocsc()
         H = H + sp.diags(np.concatenate([Dc2.reshape(-1), Dp2.reshape(-1)]))

@@ -166,7 +166,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         else:  # dogleg
             gn_dx = None
             g = lin.grad
-            H = ls.full(lin.data) if hasattr(ls, "indptr") else None
+            H = problem.matrix(lin.data)
             Hg = H @ g
             gHg = float(g @ Hg)
             sd = -(float(g @ g) / gHg) * g if gHg > 0 else -g

@@ -65,7 +65,14 @@ def prepare(
 
 
 def describe_alignment(g: SE3 | Sim3 | None) -> dict[str, Any]:
-    """The alignment transform as JSON-ready, labelled fields (``scale`` is 1 for SE(3))."""
+    """The alignment transform as JSON-ready, labelled fields (``scale`` is 1 for SE(3)).
+
+    Example:
+        >>> from microlie import Sim3
+        >>> d = describe_alignment(Sim3.identity())
+        >>> sorted(d), d["scale"]
+        (['matrix', 'rotation_quat_xyzw', 'scale', 'translation'], 1.0)
+    """
     if g is None:
         return {}
     scale = float(np.asarray(g.scale())) if isinstance(g, Sim3) else 1.0

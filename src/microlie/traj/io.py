@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import warnings
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -266,7 +267,7 @@ def _quat_trajectory(
     params = np.empty((q_xyzw.shape[0], 7))
     params[:, :3] = positions
     np.divide(q_xyzw, norms, out=params[:, 3:])
-    return Trajectory(SE3._wrap(params), np.ascontiguousarray(stamps), name)
+    return Trajectory(cast(SE3, SE3._wrap(params)), np.ascontiguousarray(stamps), name)
 
 
 def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None) -> Trajectory:

@@ -83,7 +83,7 @@ class Trajectory:
         """
         t = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         rot = SO3.from_quat(np.asarray(quat_xyzw, dtype=np.float64), normalize=True)
-        return cls(SE3.from_rotation_translation(rot, t), timestamps, name)
+        return cls(cast(SE3, SE3.from_rotation_translation(rot, t)), timestamps, name)
 
     @classmethod
     def from_rotation_matrices(
@@ -96,7 +96,7 @@ class Trajectory:
         """Build from ``(N, 3)`` positions and ``(N, 3, 3)`` rotation matrices."""
         t = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         rot = SO3.from_matrix(np.asarray(rotations, dtype=np.float64), normalize=True)
-        return cls(SE3.from_rotation_translation(rot, t), timestamps, name)
+        return cls(cast(SE3, SE3.from_rotation_translation(rot, t)), timestamps, name)
 
     # ------------------------------------------------------------------ views
     def __len__(self) -> int:
@@ -118,7 +118,10 @@ class Trajectory:
     @property
     def quat_xyzw(self) -> np.ndarray:
         """``(N, 4)`` unit quaternions, scalar last."""
-        return np.asarray(self.poses.rotation().as_quat())
+        return np.asarray(self._rotations().as_quat())
+
+    def _rotations(self) -> SO3:
+        return cast(SO3, self.poses.rotation())
 
     def matrices(self) -> np.ndarray:
         """``(N, 4, 4)`` homogeneous matrices."""
@@ -126,7 +129,7 @@ class Trajectory:
 
     def euler(self, seq: str = "xyz", degrees: bool = False) -> np.ndarray:
         """``(N, 3)`` Euler angles of the orientations (default roll, pitch, yaw, extrinsic xyz)."""
-        return np.asarray(self.poses.rotation().as_euler(seq, degrees=degrees))
+        return np.asarray(self._rotations().as_euler(seq, degrees=degrees))
 
     def step_lengths(self) -> np.ndarray:
         """``(N-1,)`` distances between consecutive positions."""
@@ -276,10 +279,10 @@ class Trajectory:
             as_sim = Sim3.from_rotation_translation_scale(
                 self.poses.rotation(), self.positions, np.ones(len(self))
             )
-            moved = g @ as_sim
-            poses = SE3.from_rotation_translation(moved.rotation(), moved.translation())
+            moved = cast(Sim3, g @ as_sim)
+            poses = cast(SE3, SE3.from_rotation_translation(moved.rotation(), moved.translation()))
         elif isinstance(g, SE3):
-            poses = g @ self.poses
+            poses = cast(SE3, g @ self.poses)
         else:
             raise TypeError(f"cannot transform a trajectory by {type(g).__name__}")
         return Trajectory(poses, self.timestamps, self.name)
