@@ -223,6 +223,9 @@ class LieGroup:
     _jr_inv: ClassVar[Callable[..., Any]]
     # Groups with closed-form ``_jr``/``_jr_inv`` set this; the others use ``_jr_series``.
     _has_closed_jr: ClassVar[bool] = True
+    # A group's range check of tangent vectors (``ValueError`` outside the range where its
+    # formulas are verified), applied to every tangent input and output; None: no limit.
+    _range_check: ClassVar[Any] = None  # or a staticmethod f(tau) -> None
 
     __slots__ = ("params",)
     params: Array
@@ -409,11 +412,19 @@ class LieGroup:
         if type(tau) is np.ndarray and tau.shape == cls._tshape and tau.dtype in _FLOATS \
                 and (like is None or type(like) is np.ndarray) \
                 and math.isfinite(sum(tau.tolist())):
-            return tau  # one valid NumPy tangent vector: the common case, checked once
-        t = A.as_float_array(tau, like=like)
-        A.check_last_dim(t, cls.dof, f"{cls.__name__} tangent vector")
-        A.check_finite(t, f"{cls.__name__} tangent vector")
+            t = tau  # one valid NumPy tangent vector: the common case, checked once
+        else:
+            t = A.as_float_array(tau, like=like)
+            A.check_last_dim(t, cls.dof, f"{cls.__name__} tangent vector")
+            A.check_finite(t, f"{cls.__name__} tangent vector")
+        if cls._range_check is not None:
+            cls._range_check(t)
         return t
+
+    def _tangent_out(self, tau: Array) -> Array:
+        if self._range_check is not None:
+            self._range_check(tau)
+        return tau
 
     @classmethod
     def _const(cls, value: np.ndarray, like: Array) -> Array:
@@ -483,7 +494,7 @@ class LieGroup:
     def jl(cls, tau: Any) -> Array:
         """Left Jacobian ``Jl(tau) = Jr(-tau)`` (eqs. 68, 72):
         ``Exp(tau + d) ~= Exp(Jl(tau) d) Exp(tau)``."""
-        return run(cls._K["jr"], -cls._tangent(tau))
+        return cls.jr(-cls._tangent(tau))
 
     @classmethod
     def jr_inv(cls, tau: Any) -> Array:
@@ -493,7 +504,7 @@ class LieGroup:
     @classmethod
     def jl_inv(cls, tau: Any) -> Array:
         """Inverse of the left Jacobian, ``Jl^-1(tau) = Jr^-1(-tau)``."""
-        return run(cls._K["jr_inv"], -cls._tangent(tau))
+        return cls.jr_inv(-cls._tangent(tau))
 
     @classmethod
     def _jr_series(cls, t: Array, halvings: int = 2, terms: int = 22) -> Array:
@@ -548,9 +559,9 @@ class LieGroup:
         """``Log(X) = vee(log(X))`` (eq. 24). With ``jac=True`` also ``d Log / d X``:
         ``Jr^-1(Log X)`` right, ``Jl^-1(Log X)`` left."""
         if not jac:
-            return run(self._K["log"], self.params)
+            return self._tangent_out(run(self._K["log"], self.params))
         tau, J = run(self._K["log_jac"], self.params)
-        return _left_vec(side, tau, [(J, self)])
+        return _left_vec(side, self._tangent_out(tau), [(J, self)])
 
     # ------------------------------------------------------------------ group operations
     @overload
@@ -678,9 +689,9 @@ class LieGroup:
         eqs. 181-182) with respect to ``Y`` and ``X``: ``Jr^-1(tau)``, ``-Jl^-1(tau)``."""
         self._same_group(other)
         if not jac:
-            return run(self._K["minus"], self.params, other.params)
+            return self._tangent_out(run(self._K["minus"], self.params, other.params))
         tau, JY, JX = run(self._K["minus_jac"], self.params, other.params)
-        return _left_vec(side, tau, [(JY, self), (JX, other)])
+        return _left_vec(side, self._tangent_out(tau), [(JY, self), (JX, other)])
 
     @overload
     def lplus(self, tau: Any, jac: Literal[False] = ..., side: Side = ...) -> Self: ...
@@ -715,9 +726,9 @@ class LieGroup:
         (right) with respect to ``Y`` and ``X``: ``Jr^-1(tau) Ad_X`` and its negative."""
         self._same_group(other)
         if not jac:
-            return run(self._K["lminus"], self.params, other.params)
+            return self._tangent_out(run(self._K["lminus"], self.params, other.params))
         tau, JY, JX = run(self._K["lminus_jac"], self.params, other.params)
-        return _left_vec(side, tau, [(JY, self), (JX, other)])
+        return _left_vec(side, self._tangent_out(tau), [(JY, self), (JX, other)])
 
     def interpolate(self, other: Self, t: Any) -> Self:
         """``X (+) t (Y (-) X)``: ``t = 0`` gives ``X``, ``t = 1`` gives ``Y``; ``t`` broadcasts
