@@ -11,9 +11,11 @@ fused with their closed-form right Jacobians, each evaluated in one pass.
 Conventions (Sola, Deray, Atchuthan, "A micro Lie theory for state estimation in robotics",
 arXiv:1812.01537): right plus/minus by default (``X (+) tau = X Exp(tau)``,
 ``Y (-) X = Log(X^-1 Y)``, eqs. 25-26; left ones are ``lplus``/``lminus``, eqs. 27-28); every
-Jacobian is a right Jacobian (perturbation on the right of each input and of the output, eq. 41)
-unless ``side="left"`` is passed, which transports it with ``J_left = Ad_out J_right Ad_in^-1``
-(eq. 46); tangent vectors are translation first.
+Jacobian is a right Jacobian (perturbation on the right of each input and of the output) unless
+``side="left"`` is passed, which transports it with ``J_left = Ad_out J_right Ad_in^-1``
+(``Ad`` of eq. 29); tangent vectors are translation first. The closed-form Jacobians of the
+elementary operations are the paper's (its section on the Jacobians of inverse, composition,
+Exp/Log, plus/minus and the group action), as in manif.
 """
 
 from __future__ import annotations
@@ -75,7 +77,7 @@ def _inv(m: Array) -> Array:
 
 def _build_kernels(cls: Any) -> dict[str, Kernel]:
     """The group's kernels: its primitives, and every derived operation fused with its
-    closed-form right Jacobians (Sola et al., eqs. 58-64 and 179-186)."""
+    closed-form right Jacobians (the paper's Jacobians of the elementary operations)."""
     exp, log, comp, inv = cls._exp, cls._log, cls._compose, cls._inverse
     act, act_jac, adj, mat = cls._act, cls._act_jac, cls._adjoint, cls._matrix
     d, pd, vd, n = cls.dof, cls.param_dim, cls.point_dim, cls.matrix_dim
@@ -435,7 +437,7 @@ class LieGroup:
 
     @classmethod
     def hat(cls, tau: Any) -> Array:
-        """The Lie algebra matrix of ``tau`` (eq. 10): shape ``(*batch, n, n)``."""
+        """The Lie algebra matrix of ``tau``: shape ``(*batch, n, n)``."""
         t = cls._tangent(tau)
         g = cls._const(cls._generators, t)
         return (t[..., :, None, None] * g).sum(-3) if A.is_numpy(t) else \
@@ -487,13 +489,12 @@ class LieGroup:
 
     @classmethod
     def jr(cls, tau: Any) -> Array:
-        """Right Jacobian ``Jr(tau)`` (eq. 67): ``Exp(tau + d) ~= Exp(tau) Exp(Jr(tau) d)``."""
+        """Right Jacobian ``Jr(tau)``: ``Exp(tau + d) ~= Exp(tau) Exp(Jr(tau) d)``."""
         return run(cls._K["jr"], cls._tangent(tau))
 
     @classmethod
     def jl(cls, tau: Any) -> Array:
-        """Left Jacobian ``Jl(tau) = Jr(-tau)`` (eqs. 68, 72):
-        ``Exp(tau + d) ~= Exp(Jl(tau) d) Exp(tau)``."""
+        """Left Jacobian ``Jl(tau) = Jr(-tau)``: ``Exp(tau + d) ~= Exp(Jl(tau) d) Exp(tau)``."""
         return cls.jr(-cls._tangent(tau))
 
     @classmethod
@@ -572,7 +573,7 @@ class LieGroup:
     def inverse(self, jac: bool, side: Side = ...) -> Self | tuple[Self, Array]: ...
 
     def inverse(self, jac: bool = False, side: Side = "right") -> Any:
-        """``X^-1``. Jacobian (eq. 62): ``-Ad_X`` (right), ``-Ad_X^-1`` (left)."""
+        """``X^-1``. Jacobian: ``-Ad_X`` (right), ``-Ad_X^-1`` (left)."""
         if not jac:
             return self._adopt(run(self._K["inverse"], self.params))
         p, J = run(self._K["inverse_jac"], self.params)
@@ -588,8 +589,7 @@ class LieGroup:
                 side: Side = ...) -> Self | tuple[Self, Array, Array]: ...
 
     def compose(self, other: Self, jac: bool = False, side: Side = "right") -> Any:
-        """``X Y``. Jacobians (eqs. 63-64): ``Ad_Y^-1`` and ``I`` (right); ``I`` and ``Ad_X``
-        (left)."""
+        """``X Y``. Jacobians: ``Ad_Y^-1`` and ``I`` (right); ``I`` and ``Ad_X`` (left)."""
         if type(other) is not type(self):
             self._same_group(other)
         if not jac:
@@ -667,7 +667,7 @@ class LieGroup:
              side: Side = ...) -> Self | tuple[Self, Array, Array]: ...
 
     def plus(self, tau: Any, jac: bool = False, side: Side = "right") -> Any:
-        """Right plus ``X (+) tau = X Exp(tau)`` (eq. 25). Jacobians (right, eqs. 179-180):
+        """Right plus ``X (+) tau = X Exp(tau)`` (eq. 25). Jacobians (right):
         ``Ad_Exp(tau)^-1`` and ``Jr(tau)``."""
         t = self._tangent(tau, like=self.params)
         if not jac:
@@ -685,8 +685,8 @@ class LieGroup:
               side: Side = ...) -> Array | tuple[Array, Array, Array]: ...
 
     def minus(self, other: Self, jac: bool = False, side: Side = "right") -> Any:
-        """Right minus ``Y (-) X = Log(X^-1 Y)`` for ``Y.minus(X)`` (eq. 26). Jacobians (right,
-        eqs. 181-182) with respect to ``Y`` and ``X``: ``Jr^-1(tau)``, ``-Jl^-1(tau)``."""
+        """Right minus ``Y (-) X = Log(X^-1 Y)`` for ``Y.minus(X)`` (eq. 26). Jacobians (right)
+        with respect to ``Y`` and ``X``: ``Jr^-1(tau)``, ``-Jl^-1(tau)``."""
         self._same_group(other)
         if not jac:
             return self._tangent_out(run(self._K["minus"], self.params, other.params))
@@ -816,7 +816,7 @@ class LieGroup:
 
 
 def _to_left(ad_out: Array | None, jacs: list) -> list:
-    """``J_left = Ad_out J_right Ad_in^-1`` (Sola et al. eq. 46) for each ``(J, input)``."""
+    """``J_left = Ad_out J_right Ad_in^-1`` for each ``(J, input)``."""
     res = []
     for j, inp in jacs:
         if ad_out is not None:

@@ -16,8 +16,8 @@ from .so3 import SO3
 
 
 def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
-    """The block ``Q(rho, phi)`` of the left Jacobian of SE(3) (Barfoot's ``Q``); the right
-    Jacobian uses ``Q(-rho, -phi) = Q(rho, phi)^T``.
+    """The block ``Q(rho, phi)`` of the left Jacobian of SE(3) (Sola et al. eq. 180, Barfoot's
+    ``Q``); the right Jacobian uses ``Q(-rho, -phi) = Q(rho, phi)^T``.
 
     With ``hat(a) hat(b) = b a^T - (a.b) I`` the textbook products reduce to
     ``Q = P/2 + c1 (rho phi^T + phi rho^T - 2d I - d F) + c2 (hat(phi x (phi x rho)) + d F)
@@ -75,8 +75,9 @@ def _block_transpose(m: tuple) -> tuple:
 class SE3(Pose):
     """Rigid motions in 3-D. Parameters ``(tx, ty, tz, qx, qy, qz, qw)``.
 
-    Tangent ``tau = (rho, phi)`` (translation first, MATH.md section 4). ``X.act(p) = R p + t``.
-    Right plus/minus and right Jacobians by default; ``side="left"`` for left ones.
+    Tangent ``tau = (rho, phi)`` (translation first; Jacobians: Sola et al. eqs. 179-180).
+    ``X.act(p) = R p + t``. Right plus/minus and right Jacobians by default; ``side="left"`` for
+    left ones.
 
     >>> import numpy as np
     >>> from microlie import SE3

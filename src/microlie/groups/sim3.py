@@ -31,7 +31,7 @@ from .so3 import SO3
 # ---------------------------------------------------------------------------- coefficients
 #
 # Exp(zeta) = [[e^sigma R, W rho], [0, 1]] with W = int_0^1 e^(s sigma) Exp(s phi) ds
-# = a I + b hat(phi) + c hat(phi)^2 (MATH.md section 5). The right Jacobian needs W and its
+# = a I + b hat(phi) + c hat(phi)^2. The right Jacobian needs W and its
 # partial derivatives in sigma and in t2 = theta^2. Each of b and c is written as a weighted mean
 # f = (sigma^2 P + t2 Q) / (sigma^2 + t2) of two cancellation-free combinations of one-variable
 # functions (the phi-functions of sigma, the SO(3) coefficients of theta), so no two-variable
