@@ -45,10 +45,7 @@ class _ScalarOps:
     def where(cond: bool, a: float, b: float) -> float:
         return a if cond else b
 
-    @staticmethod
-    def sign1(x: float) -> float:
-        """+1 for x >= 0, -1 otherwise (never 0)."""
-        return 1.0 if x >= 0 else -1.0
+    abs1 = staticmethod(abs)  # |x| (the derivative at 0 matters only to autodiff backends)
 
     @staticmethod
     def zeros_like(x: float) -> float:
@@ -80,9 +77,11 @@ class ArrayOps:
         self.abs = xp.abs
         self.where = xp.where
 
-    def sign1(self, x: Array) -> Array:
+    def abs1(self, x: Array) -> Array:
+        """``|x|`` as ``x * (+1 if x >= 0 else -1)``: the derivative at 0 is 1 (torch's ``abs``
+        has 0 there, which loses the angle of a rotation by exactly pi in ``Log``)."""
         one = self.xp.ones_like(x)
-        return self.xp.where(x >= 0, one, -one)
+        return x * self.xp.where(x >= 0, one, -one)
 
     def zeros_like(self, x: Array) -> Array:
         return self.xp.zeros_like(x)
@@ -98,6 +97,7 @@ class _NumpyOps(ArrayOps):
         super().__init__(np)
         self.atan2 = np.arctan2
         self.where = np.where
+        self.abs1 = np.abs  # no autodiff: the plain absolute value
 
 
 NUMPY = _NumpyOps()

@@ -103,8 +103,8 @@ class _Ops:
     def where(self, cond: Any, a: Any, b: Any) -> Any:
         return self.rec.new(f"{_ref(a)} if {_ref(cond)} else {_ref(b)}")
 
-    def sign1(self, x: Any) -> _Sym:
-        return self.rec.new(f"1.0 if {_ref(x)} >= 0 else -1.0")
+    def abs1(self, x: Any) -> _Sym:
+        return self._call("abs", x)
 
     @staticmethod
     def zeros_like(x: Any) -> float:

@@ -73,9 +73,9 @@ def quat_log_parts(o: Any, q: tuple) -> tuple:
     """``(phi, kl, aw)``: the rotation vector, ``kl = theta / |v|`` and ``aw = |w|``
     (``cos(theta/2)``), for callers that need the half-angle functions too."""
     x, y, z, w = q
-    # |w| as w * sign1(w) (sign1(0) = +1): its derivative at w = 0 is 1, where abs's is 0 in
-    # torch; at a rotation by exactly pi that derivative carries the change of the angle
-    aw = w * o.sign1(w)
+    # |w| whose derivative at w = 0 is 1 (abs's is 0 in torch): at a rotation by exactly pi
+    # that derivative carries the change of the angle
+    aw = o.abs1(w)
     n2 = x * x + y * y + z * z
     small = n2 < M.TINY2
     n = o.sqrt(n2 + small)
