@@ -328,3 +328,16 @@ def test_mixed_dtypes_on_other_backends(bk):
     R = np.asarray(X.matrix())
     want = np.asarray(pts).astype(np.float64) @ R[:3, :3].T + R[:3, 3]
     np.testing.assert_allclose(np.asarray(out), want, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
+def test_single_and_batched_elements_acting_on_one_point(G):
+    """The one-point fast path: a batch of elements acting on one point, one element on one
+    point, and the traced single-element kernels agree with the batched evaluation."""
+    rng = np.random.default_rng(7)
+    X = G.random(5, rng=rng)
+    v = rng.standard_normal(G.point_dim)
+    want = X.act(np.tile(v, (5, 1)))
+    np.testing.assert_allclose(X.act(v), want, rtol=0, atol=1e-14)
+    for i in range(5):
+        np.testing.assert_array_equal(X[i].act(v), want[i])

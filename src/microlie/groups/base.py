@@ -636,7 +636,7 @@ class LieGroup:
         promotion of the element's and the points' dtypes."""
         p = self.params
         if type(points) is np.ndarray and points.shape == self._vshape and not jac \
-                and type(p) is np.ndarray and points.dtype is p.dtype:
+                and type(p) is np.ndarray and p.ndim == 1 and points.dtype is p.dtype:
             vals = points.tolist()  # one point, the common case: checked and evaluated once
             if math.isfinite(sum(vals)):
                 return K.run_floats(self._K["act"], (p.tolist(), vals), p.dtype)
