@@ -425,6 +425,7 @@ class SO3(LieGroup):
                 out = out @ Ri
             else:
                 out = Ri @ out
+        assert out is not None  # seq has at least one axis
         return out
 
     def as_euler(self, seq: str, degrees: bool = False) -> Array:
