@@ -214,6 +214,10 @@ def test_bad_input_rejected():
         replace(start, point_index=start.point_index + 1)
     with pytest.raises(ValueError, match="intrinsics"):
         replace(start, intrinsics=np.ones((2, 2)))
+    with pytest.raises(ValueError, match="integers"):
+        replace(start, camera_index=start.camera_index + 0.5)
+    f32 = replace(start, points=start.points.astype(np.float32))
+    assert f32.points.dtype == np.float64
     with pytest.raises(ValueError, match="rotation matrices"):
         replace(start, rotations=start.rotations * 1.01)
     # a point on the plane of its camera: infinite residual under the BAL convention

@@ -121,7 +121,7 @@ def test_every_replacement_matches_the_generic_kernel(replaced):
                 assert err <= tol, f"{name} {np.dtype(dtype).name}: {err:.2e}"
 
 
-def test_replacement_is_used_for_single_elements_and_batches(replaced):
+def test_replacement_is_used_for_batches(replaced):
     calls = []
 
     def counting(phi):
@@ -130,10 +130,13 @@ def test_replacement_is_used_for_single_elements_and_batches(replaced):
 
     K.register("SO3.exp", counting)
     phi = np.array([0.1, -0.2, 0.3])
-    R = SO3.exp(phi)
-    assert calls == [(1, 3)] and R.params.shape == (4,)
-    SO3.exp(np.tile(phi, (2, 5, 1)))
-    assert calls[-1] == (10, 3)
+    Rs = SO3.exp(np.tile(phi, (2, 5, 1)))
+    assert calls == [(10, 3)] and Rs.batch_shape == (2, 5)
+    SO3.exp(phi[None])
+    assert calls[-1] == (1, 3)
+    R = SO3.exp(phi)  # a single element keeps the traced float code (the contract)
+    assert len(calls) == 2
+    np.testing.assert_allclose(R.params, Rs.params[0, 0], atol=1e-16)
     # the group's other operations are untouched: Log still inverts the replaced Exp
     np.testing.assert_allclose(R.log(), phi, atol=1e-15)
 
@@ -142,7 +145,7 @@ def test_replacement_contract_is_enforced():
     K.register("SO3.exp", lambda phi: (np.zeros((phi.shape[0], 3)),))
     try:
         with pytest.raises(RuntimeError, match="SO3.exp"):
-            SO3.exp(np.zeros(3))
+            SO3.exp(np.zeros((2, 3)))
     finally:
         K.register("SO3.exp", None)
     with pytest.raises(KeyError):

@@ -54,6 +54,7 @@ def test_chordal_start_on_mit_and_robust_option():
     code, out, _ = _run(str(data_file(POSE2)), "--json", "--robust", "huber:1.0")
     r = json.loads(out)
     assert r["robust"] == "huber:1.0" and r["final_cost"] < POSE2_START
+    assert r["final_robust_cost"] <= r["final_cost"] + 1e-9  # Huber's rho(s) <= s
 
 
 def test_files_without_vertices_start_from_odometry_and_toro_round_trip(tmp_path):

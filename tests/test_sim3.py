@@ -151,10 +151,15 @@ def test_sigma_beyond_range_raises():
             with pytest.raises(ValueError, match="SIGMA_MAX"):
                 f(bad)
         X = Sim3.from_rotation_translation_scale(np.eye(3), [1.0, 2.0, 3.0], np.exp(s))
-        with pytest.raises(ValueError, match="SIGMA_MAX"):
-            X.log()
-        with pytest.raises(ValueError, match="SIGMA_MAX"):
-            Sim3.identity().plus(bad[1])
+        I = Sim3.identity()
+        calls = [(X.log, ()), (X.log, (True,)), (X.minus, (I,)), (X.lminus, (I,)),
+                 (I.minus, (X, True)), (I.plus, (bad[1],)), (I.lplus, (bad,))]
+        for f, args in calls:
+            with pytest.raises(ValueError, match="SIGMA_MAX"):
+                f(*args)
+    # the edge itself is accepted both ways
+    E = Sim3.exp(ok)
+    assert abs(E.log()[6] - sim3.SIGMA_MAX) < 1e-12
 
 
 @pytest.mark.parametrize("sigma", [0.0, 1e-12, 0.5, -3.0, 40.0])

@@ -24,9 +24,11 @@ Replacements (the seam for compiled kernels)
 without touching the group classes; ``register(name, None)`` restores the generic one. Contract:
 
 * ``impl(*inputs)`` receives one C-contiguous NumPy array per kernel input, of shape
-  ``(N, k_i)`` (rows are elements; batch axes already broadcast and flattened, ``N >= 1``, single
-  elements arrive as ``N = 1``), all of one dtype, ``float32`` or ``float64`` (the promoted dtype
-  of the caller's inputs);
+  ``(N, k_i)`` (rows are elements; batch axes already broadcast and flattened, ``N >= 1``), all
+  of one dtype, ``float32`` or ``float64`` (the promoted dtype of the caller's inputs). It is
+  used for batches: a call whose inputs are all single elements (no batch axes) keeps the
+  traced straight-line float code (:mod:`microlie._trace`), which is cheaper than any array
+  round trip;
 * it returns a tuple with one fresh array per kernel output, of shape ``(N, *shape_j)``
   (``(N, k)`` for a vector, ``(N, r, c)`` for a matrix, see ``KERNELS[name].outs``) and of the
   same dtype; there is no ``out=`` argument;
@@ -125,7 +127,7 @@ def replacements() -> list[str]:
 def run(k: Kernel, *arrays: Array) -> Any:
     """Evaluate kernel ``k`` on ``arrays``: one array per output (a tuple if several)."""
     a = arrays[0]
-    if k.impl is None and k.fn is not None and type(a) is np.ndarray and a.ndim == 1:
+    if k.fn is not None and type(a) is np.ndarray and a.ndim == 1:
         # single NumPy elements: plain Python floats, far faster than NumPy on tiny arrays
         if len(arrays) == 1:
             return _single(k, (a.tolist(),), a.dtype)
@@ -139,7 +141,7 @@ def run_floats(k: Kernel, lists: tuple, dt: Any) -> Any:
     """:func:`run` on one element given as lists of Python floats (one list per input, of the
     right lengths, finite) and the NumPy dtype of the result: for callers that have already
     read and checked the values."""
-    if k.impl is not None or k.fn is None:
+    if k.fn is None:
         return run(k, *[np.array(x, dtype=dt) for x in lists])
     return _single(k, lists, dt)
 
@@ -205,7 +207,7 @@ def _run(k: Kernel, arrays: Sequence[Array]) -> Any:
             return _run_foreign(k, arrays)
         if a.ndim != 1:
             single = False
-    if k.impl is not None or k.fn is None:
+    if (k.impl is not None and not single) or k.fn is None:
         return _run_arrays(k, arrays)
     dt = arrays[0].dtype
     for a in arrays[1:]:

@@ -36,8 +36,14 @@ __all__ = [
 ]
 
 
+_NP = (np.ndarray, np.generic)
+
+
 def _is_np(*arrays: Array) -> bool:
-    return all(isinstance(a, (np.ndarray, np.generic)) for a in arrays)
+    for a in arrays:
+        if not isinstance(a, _NP):
+            return False
+    return True
 
 
 def _xp(*arrays: Array) -> Any:
@@ -55,8 +61,8 @@ def _la(name: str, *arrays: Array) -> Any:
 
 def mT(a: Array) -> Array:
     """Transpose of the last two axes (``(..., n, k) -> (..., k, n)``; a view where possible)."""
-    if _is_np(a):
-        return np.swapaxes(a, -1, -2)
+    if isinstance(a, np.ndarray):
+        return a.swapaxes(-1, -2)
     if A.is_torch(a):
         return a.transpose(-1, -2)
     return _xp(a).matrix_transpose(a)

@@ -47,11 +47,36 @@ def _project_so3(M: np.ndarray) -> np.ndarray:
 
 def motions_from_poses(gripper2base: SE3, target2cam: SE3, pairs: str = "all"
                        ) -> tuple[SE3, SE3]:
-    """Relative motions ``A_ij = G_j^-1 G_i``, ``B_ij = C_j C_i^-1`` of pose pairs ``i < j``
-    (``pairs="all"``, as OpenCV's methods use them) or consecutive ones
-    (``pairs="consecutive"``), with ``G`` gripper-to-base and ``C`` target-to-camera poses as
-    OpenCV's ``calibrateHandEye`` takes them; ``A X = X B`` then holds for ``X`` =
-    camera-to-gripper."""
+    """Relative motions ``A_ij = G_j^-1 G_i``, ``B_ij = C_j C_i^-1`` of pose pairs, as OpenCV's
+    ``calibrateHandEye`` inputs give them; ``A X = X B`` then holds for ``X`` =
+    camera-to-gripper.
+
+    Parameters
+    ----------
+    gripper2base : SE3
+        ``(N,)`` gripper-to-base poses ``G_i``.
+    target2cam : SE3
+        ``(N,)`` target-to-camera poses ``C_i``.
+    pairs : {"all", "consecutive"}
+        Every pair ``i < j`` (as OpenCV's methods use them) or consecutive ones.
+
+    Returns
+    -------
+    A, B : SE3
+        The motion batches.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE3
+    >>> from microlie.calibration import motions_from_poses
+    >>> X, W = SE3.random(rng=1), SE3.random(rng=2)
+    >>> G = SE3.random(4, rng=3)
+    >>> C = (G @ X).inverse() @ W
+    >>> A, B = motions_from_poses(G, C)
+    >>> A.batch_shape, bool(np.allclose((A @ X).matrix(), (X @ B).matrix()))
+    ((6,), True)
+    """
     G, C = _check_pairs(gripper2base, target2cam, "motions_from_poses")
     if len(G) < 3:
         raise ValueError("motions_from_poses: at least 3 poses are needed")
@@ -130,9 +155,22 @@ def _refine(A: SE3, B: SE3, X: SE3, Y: SE3 | None, iterations: int) -> tuple:
 
 
 def hand_eye(A: SE3, B: SE3, iterations: int = 20) -> Gaussian:
-    """Solve ``A_i X = X B_i`` for ``X`` (see the module docstring). Returns a ``Gaussian``
-    (mean ``X``, 6x6 right-perturbation covariance, tangent ``(rho, phi)``).
+    """Solve ``A_i X = X B_i`` for ``X`` (see the module docstring).
 
+    Parameters
+    ----------
+    A, B : SE3
+        ``(N,)`` paired motions (for example from :func:`motions_from_poses`).
+    iterations : int
+        Gauss-Newton iterations after the closed-form start.
+
+    Returns
+    -------
+    Gaussian
+        Mean ``X``, 6x6 right-perturbation covariance, tangent ``(rho, phi)``.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE3
     >>> from microlie.calibration import hand_eye
@@ -182,12 +220,30 @@ def hand_eye_robot_world(A: SE3, B: SE3, iterations: int = 20, b_noise: str = "r
                          ) -> Gaussian:
     """Solve ``A_i X = Y B_i`` for ``X`` and ``Y`` (robot-world/hand-eye: with ``A_i`` the
     gripper-to-base poses and ``B_i`` the camera-to-target poses, ``X`` is camera-to-gripper
-    and ``Y`` target-to-base). Returns a ``Gaussian`` on ``Product(SE3, SE3)`` with mean
-    ``(X, Y)`` (tangent ``(x, y)``, right perturbation). The weights assume independent, equal
-    noise on every ``A_i`` (right perturbation) and ``B_i`` (``b_noise="right"``, or
-    ``"left"`` when the ``B_i`` are inverses of right-perturbed poses, as with
-    ``B_i = C_i^-1`` for target-to-camera poses ``C_i``).
+    and ``Y`` target-to-base).
 
+    The weights assume independent, equal noise on every ``A_i`` (right perturbation) and
+    ``B_i``.
+
+    Parameters
+    ----------
+    A, B : SE3
+        ``(N,)`` paired poses.
+    iterations : int
+        Gauss-Newton iterations after the closed-form start.
+    b_noise : {"right", "left"}
+        The perturbation side of the noise on ``B_i``: ``"left"`` when the ``B_i`` are
+        inverses of right-perturbed poses, as with ``B_i = C_i^-1`` for target-to-camera
+        poses ``C_i``.
+
+    Returns
+    -------
+    Gaussian
+        On ``Product(SE3, SE3)`` with mean ``(X, Y)`` (tangent ``(x, y)``, right
+        perturbation).
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE3
     >>> from microlie.calibration import hand_eye_robot_world
@@ -249,14 +305,30 @@ def _refine_ml(A: SE3, B: SE3, X: SE3, Y: SE3, Bmap: np.ndarray | None,
 
 
 def hand_eye_from_poses(gripper2base: SE3, target2cam: SE3, iterations: int = 20) -> Gaussian:
-    """Camera-to-gripper ``X`` from the poses OpenCV's ``calibrateHandEye`` takes:
-    gripper-to-base ``G_i`` and target-to-camera ``C_i``, with ``G_i X C_i = W`` (the fixed
+    """Camera-to-gripper ``X`` from the poses OpenCV's ``calibrateHandEye`` takes.
+
+    With gripper-to-base ``G_i`` and target-to-camera ``C_i``, ``G_i X C_i = W`` (the fixed
     target-to-base) for every pose. Solved as ``A_i X = W B_i`` with ``A_i = G_i``,
     ``B_i = C_i^-1`` by :func:`hand_eye_robot_world` (``b_noise="left"``): maximum
     likelihood for independent, equal right-perturbation noise on every ``G_i`` and ``C_i``
-    (translation and rotation levels fitted to the residuals). Returns the ``Gaussian`` of
-    ``X`` (marginal of the joint ``(X, W)`` estimate).
+    (translation and rotation levels fitted to the residuals).
 
+    Parameters
+    ----------
+    gripper2base : SE3
+        ``(N,)`` gripper-to-base poses ``G_i``.
+    target2cam : SE3
+        ``(N,)`` target-to-camera poses ``C_i``.
+    iterations : int
+        Gauss-Newton iterations after the closed-form start.
+
+    Returns
+    -------
+    Gaussian
+        Of ``X`` (the marginal of the joint ``(X, W)`` estimate), right perturbation.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE3
     >>> from microlie.calibration import hand_eye_from_poses

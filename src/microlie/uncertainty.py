@@ -77,28 +77,33 @@ def _check_finite(x: Array, what: str) -> np.ndarray | None:
     return M
 
 
-def check_covariance(P: Array, n: int, what: str = "covariance") -> None:
+def check_covariance(P: Array, n: int, what: str = "covariance") -> bool:
     """Raise ``ValueError`` unless ``P`` is ``(..., n, n)``, finite, symmetric and PSD.
 
     Symmetry and positive semi-definiteness are checked to ``sqrt(eps)`` of the dtype relative to
     the largest entry or eigenvalue of each matrix. The values are read without forcing a
     traced one: under ``jax.jit`` a concrete (closed-over) covariance is checked, a traced one
-    is not.
+    is not. Returns True when every matrix is also known to have full rank by the rank rule.
     """
     A.check_last_dim(P, (n, n), what)
     M = _check_finite(P, what)
     if M is None or M.size == 0:
-        return
+        return False
     tol = math.sqrt(float(np.finfo(M.dtype).eps))
     M = M.astype(np.float64)
     scale = np.abs(M).max(axis=(-1, -2))
     asym = np.abs(M - np.swapaxes(M, -1, -2)).max(axis=(-1, -2))
     if np.any(asym > tol * scale):
         raise ValueError(f"{what} is not symmetric (max |P - P^T| = {asym.max():.3g})")
-    w = np.linalg.eigvalsh(0.5 * (M + np.swapaxes(M, -1, -2)))
+    M = 0.5 * (M + np.swapaxes(M, -1, -2))
+    piv = _pivots(M)
+    if piv is not None:  # positive definite: no eigenvalues needed
+        return _full_rank(M, piv, _rtol(P))
+    w = np.linalg.eigvalsh(M)
     if np.any(w[..., 0] < -tol * np.maximum(np.abs(w).max(axis=-1), 1e-300)):
         raise ValueError(f"{what} is not positive semi-definite (smallest eigenvalue "
                          f"{w[..., 0].min():.3g})")
+    return False
 
 
 # ---------------------------------------------------------------------------- rank rule
@@ -109,6 +114,23 @@ def check_covariance(P: Array, n: int, what: str = "covariance") -> None:
 #: relative to each coordinate's own variance, so the rule does not depend on units).
 RANK_RTOL: dict[str, float] = {"float64": 1e6 * float(np.finfo(np.float64).eps),
                                "float32": 1e3 * float(np.finfo(np.float32).eps)}
+
+
+def _rtol(P: Array) -> float:
+    return RANK_RTOL["float32" if "float32" in str(P.dtype) else "float64"]
+
+
+def _pivots(M: np.ndarray) -> np.ndarray | None:
+    """The Cholesky pivots (squared diagonal of the factor) of symmetric float64 matrices, or
+    ``None`` when one of them is not positive definite."""
+    try:
+        return np.diagonal(np.linalg.cholesky(M), axis1=-2, axis2=-1) ** 2
+    except np.linalg.LinAlgError:
+        return None
+
+
+def _full_rank(M: np.ndarray, piv: np.ndarray, rtol: float) -> bool:
+    return bool(np.all(piv > rtol * np.diagonal(M, axis1=-2, axis2=-1)))
 
 
 class _Null:
@@ -139,18 +161,14 @@ class _Null:
         M = L.concrete(P)
         if M is None or M.size == 0:
             return None
-        f32 = "float32" in str(P.dtype)
-        rtol = RANK_RTOL["float32" if f32 else "float64"]
+        rtol = _rtol(P)
         M = M.astype(np.float64)
         n = M.shape[-1]
         A_ = 0.5 * (M + np.swapaxes(M, -1, -2))
+        piv = _pivots(A_)  # the common case in one LAPACK call
+        if piv is not None and _full_rank(A_, piv, rtol):
+            return None
         diag0 = np.diagonal(A_, axis1=-2, axis2=-1).copy()
-        try:  # the common case in one LAPACK call: the pivots are the squared diagonal of L
-            piv = np.diagonal(np.linalg.cholesky(A_), axis1=-2, axis2=-1) ** 2
-            if np.all(piv > rtol * diag0):
-                return None
-        except np.linalg.LinAlgError:
-            pass
         bad = np.zeros(M.shape[:-1], dtype=bool)
         for k in range(n):
             d = A_[..., k, k]
@@ -162,7 +180,7 @@ class _Null:
             A_[..., :, k] = np.where(z[..., None], 0.0, A_[..., :, k])
         if not bad.any():
             return None
-        eps = float(np.finfo(np.float32 if f32 else np.float64).eps)
+        eps = float(np.finfo(np.float32 if "float32" in str(P.dtype) else np.float64).eps)
         return _Null((~bad).astype(np.float64), rtol, eps)
 
     def pinv_solve(self, P: Array, b: Array) -> Array:
@@ -221,11 +239,14 @@ class VectorGaussian:
             raise ValueError("the mean of a VectorGaussian must have shape (..., n)")
         _check_finite(m, "VectorGaussian mean")
         P = _as_array(cov, m, "VectorGaussian covariance")
+        full = False
         if validate:
-            check_covariance(P, m.shape[-1], "VectorGaussian covariance")
+            full = check_covariance(P, m.shape[-1], "VectorGaussian covariance")
         else:
             A.check_last_dim(P, (m.shape[-1], m.shape[-1]), "VectorGaussian covariance")
         self._init(*_broadcast_pair(L.copy(m), L.copy(P)))
+        if full:
+            object.__setattr__(self, "_null", None)
 
     @classmethod
     def _make(cls, mean: Array, cov: Array) -> VectorGaussian:
@@ -341,12 +362,15 @@ class Gaussian:
         _check_frame(frame)
         P = _as_array(cov, mean.params, f"{type(mean).__name__} Gaussian covariance")
         what = f"{type(mean).__name__} Gaussian covariance"
+        full = False
         if validate:
-            check_covariance(P, mean.dof, what)
+            full = check_covariance(P, mean.dof, what)
         else:
             A.check_last_dim(P, (mean.dof, mean.dof), what)
         params, P = _broadcast_pair(mean.params, L.copy(P))
         self._init(type(mean)._wrap(params), P, frame)
+        if full:  # the rank is known from the validation
+            object.__setattr__(self, "_null", None)
 
     @classmethod
     def _make(cls, mean: LieGroup, cov: Array, frame: Frame) -> Gaussian:

@@ -247,10 +247,27 @@ class LieGroup:
     def from_params(cls, params: Any, check: bool = True) -> Self:
         """An element from raw parameters ``(..., param_dim)``.
 
-        ``check=True`` validates (and raises ``ValueError``) exactly like the constructor;
-        ``check=False`` only takes the array (solvers and readers that produce valid parameters
-        by construction). NumPy input is copied, so the element never aliases the caller's
-        array."""
+        Parameters
+        ----------
+        params : array_like
+            The parameters (NumPy input is copied: the element never aliases the caller's
+            array, and its ``params`` are read-only).
+        check : bool
+            ``True``: validated (``ValueError``) exactly like the constructor. ``False``: taken
+            as they are, for solvers and readers whose parameters are valid by construction.
+
+        Returns
+        -------
+        LieGroup
+            An element of the class it is called on.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> SO3.from_params(np.array([0.0, 0.0, 0.6, 0.8]), check=False).log().round(6)
+        array([0.      , 0.      , 1.287002])
+        """
         if check:
             return cls(params)
         if A.is_numpy_like(params):
@@ -370,7 +387,26 @@ class LieGroup:
 
     @classmethod
     def stack(cls, elements: Sequence[LieGroup], axis: int = 0) -> Self:
-        """Join elements of equal batch shape along a new batch axis ``axis``."""
+        """Join elements of equal batch shape along a new batch axis.
+
+        Parameters
+        ----------
+        elements : sequence of LieGroup
+            Elements of this group, all of one batch shape and backend.
+        axis : int
+            The new batch axis (negative values count from the last batch axis).
+
+        Returns
+        -------
+        LieGroup
+            Batch shape ``(len(elements), *batch)`` for ``axis=0``.
+
+        Examples
+        --------
+        >>> from microlie import SE3
+        >>> SE3.stack([SE3.identity(), SE3.random(rng=0)]).batch_shape
+        (2,)
+        """
         ps = cls._params_of(elements)
         nb = len(ps[0].shape) - 1
         ax = _batch_axis(axis, nb + 1, "stack")
@@ -379,7 +415,26 @@ class LieGroup:
 
     @classmethod
     def concatenate(cls, elements: Sequence[LieGroup], axis: int = 0) -> Self:
-        """Join batches along the existing batch axis ``axis``."""
+        """Join batches along an existing batch axis.
+
+        Parameters
+        ----------
+        elements : sequence of LieGroup
+            Batches of this group (their other batch axes equal).
+        axis : int
+            The batch axis to join along.
+
+        Returns
+        -------
+        LieGroup
+            The joined batch.
+
+        Examples
+        --------
+        >>> from microlie import SO3
+        >>> SO3.concatenate([SO3.random(2, rng=0), SO3.random(3, rng=1)]).batch_shape
+        (5,)
+        """
         ps = cls._params_of(elements)
         nb = len(ps[0].shape) - 1
         if nb == 0:
@@ -463,16 +518,59 @@ class LieGroup:
     @classmethod
     def bch(cls, a: Any, b: Any, order: int = 2) -> Array:
         """``Log(Exp(a) Exp(b))`` by the Baker-Campbell-Hausdorff series up to the terms of
-        degree ``order`` (1 to 4): ``a + b + [a, b]/2 + ([a, [a, b]] - [b, [a, b]])/12
-        - [b, [a, [a, b]]]/24``; see :mod:`microlie.groups._bch`."""
+        degree ``order``: ``a + b + [a, b]/2 + ([a, [a, b]] - [b, [a, b]])/12
+        - [b, [a, [a, b]]]/24`` (the first bracket term is 1/2; see :mod:`microlie.groups._bch`).
+
+        Parameters
+        ----------
+        a, b : array_like
+            Tangent vectors ``(..., dof)`` (batches broadcast).
+        order : int
+            1 to 4; the error is ``O(|a, b|^(order + 1))``.
+
+        Returns
+        -------
+        array
+            ``(..., dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> a, b = np.array([0.01, 0.0, 0.0]), np.array([0.0, 0.02, 0.0])
+        >>> exact = (SO3.exp(a) @ SO3.exp(b)).log()
+        >>> bool(np.abs(SO3.bch(a, b, order=3) - exact).max() < 1e-8)
+        True
+        """
         from ._bch import bch
 
         return bch(cls, a, b, order)
 
     @classmethod
     def bch_first_order(cls, a: Any, b: Any, small: str = "a") -> Array:
-        """``Log(Exp(a) Exp(b))`` to first order in the small argument: ``Jl(b)^-1 a + b``
-        (``small="a"``) or ``a + Jr(a)^-1 b`` (``small="b"``)."""
+        """``Log(Exp(a) Exp(b))`` to first order in the small argument (the other may be large).
+
+        Parameters
+        ----------
+        a, b : array_like
+            Tangent vectors ``(..., dof)``.
+        small : {"a", "b"}
+            ``"a"``: ``Jl(b)^-1 a + b``; ``"b"``: ``a + Jr(a)^-1 b``.
+
+        Returns
+        -------
+        array
+            ``(..., dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> a, b = np.array([1e-3, 0.0, 0.0]), np.array([0.0, 1.5, 0.3])
+        >>> exact = (SO3.exp(a) @ SO3.exp(b)).log()
+        >>> bool(np.abs(SO3.bch_first_order(a, b, small="a") - exact).max() < 1e-6)
+        True
+        """
         from ._bch import bch_first_order
 
         return bch_first_order(cls, a, b, small)
@@ -739,10 +837,33 @@ class LieGroup:
 
     # ------------------------------------------------------------------ comparisons, means
     def allclose(self, other: Self, atol: float = 1e-8, rtol: float = 1e-5) -> bool:
-        """True when every pair of elements agrees on the group: ``d = Y (-) X`` (right minus,
-        a tangent vector) satisfies ``|d| <= atol + rtol * |Log(X)|`` entry by entry (for
-        ``X.allclose(Y)``; the batch axes broadcast). Unlike comparing parameters, ``q`` and
-        ``-q`` are equal and angles compare near pi."""
+        """Whether every pair of elements agrees on the group.
+
+        The rule: ``d = Y (-) X`` (right minus, a tangent vector) satisfies
+        ``|d| <= atol + rtol * |Log(X)|`` entry by entry (for ``X.allclose(Y)``; the batch axes
+        broadcast). Unlike comparing parameters, ``q`` and ``-q`` are equal and angles compare
+        across pi.
+
+        Parameters
+        ----------
+        other : LieGroup
+            Elements of the same group.
+        atol, rtol : float
+            Absolute and relative tolerances (tangent units).
+
+        Returns
+        -------
+        bool
+            ``True`` when all pairs agree.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> R = SO3.exp(np.array([0.0, 0.0, 1.0]))
+        >>> R.allclose(SO3(-R.params))
+        True
+        """
         self._same_group(other)
         d = other.minus(self)
         ref = self.log()
@@ -752,13 +873,41 @@ class LieGroup:
     @classmethod
     def mean(cls, X: Self, weights: Any = None, axis: int = 0, tol: float | None = None,
              max_iter: int = 100) -> Self:
-        """The (weighted) Karcher mean of the elements of ``X`` along batch axis ``axis``:
-        the ``M`` with ``sum_i w_i Log(M^-1 X_i) = 0`` (right minus), found by the fixed-point
-        iteration ``M <- M (+) sum_i w_i (X_i (-) M)`` from the first element. It stops when
-        the update is below ``tol`` (default ``1e-12`` for float64, ``1e-6`` for float32, in
-        tangent units) and raises ``ValueError`` after ``max_iter`` iterations (data spread
-        too wide for a unique mean). ``weights`` (``(n,)``, non-negative, normalised here)
-        default to equal. Needs concrete values (not inside ``jax.jit``)."""
+        """The (weighted) Karcher mean along a batch axis.
+
+        The mean is the ``M`` with ``sum_i w_i Log(M^-1 X_i) = 0`` (right minus), found by the
+        fixed-point iteration ``M <- M (+) sum_i w_i (X_i (-) M)`` from the first element.
+        Needs concrete values (not inside ``jax.jit``).
+
+        Parameters
+        ----------
+        X : LieGroup
+            The elements, a batch of this group.
+        weights : array_like, optional
+            ``(n,)`` non-negative weights with a positive sum (normalised here); equal
+            weights by default.
+        axis : int
+            The batch axis to average over.
+        tol : float, optional
+            Stop when the update is below ``tol`` in tangent units (default ``1e-12`` for
+            float64, ``1e-6`` for float32).
+        max_iter : int
+            ``ValueError`` after this many iterations (the elements are too spread for a
+            unique mean).
+
+        Returns
+        -------
+        LieGroup
+            The mean, with the batch axis ``axis`` removed.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> X = SO3.exp(np.array([[0.0, 0.0, 0.2], [0.0, 0.0, 0.6]]))
+        >>> SO3.mean(X).log().round(12)
+        array([0. , 0. , 0.4])
+        """
         if not isinstance(X, cls):
             raise TypeError(f"expected a {cls.__name__}, got {type(X).__name__}")
         nb = len(X.batch_shape)

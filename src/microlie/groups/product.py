@@ -84,6 +84,18 @@ class VectorSpace(LieGroup):
 def R(n: int) -> type[VectorSpace]:
     """The vector-space group ``R^n`` as a class (cached: ``R(3) is R(3)``).
 
+    Parameters
+    ----------
+    n : int
+        The dimension (positive).
+
+    Returns
+    -------
+    type
+        A :class:`VectorSpace` subclass (parameters, tangent and points of size ``n``).
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import R
     >>> b = R(3)(np.array([0.1, 0.2, 0.3]))
@@ -278,6 +290,18 @@ def Product(*factors: type[LieGroup]) -> type[ProductGroup]:
     Parameters, tangent vectors and points concatenate the factors' in order; the adjoint and
     the Jacobians are block diagonal. Right plus on the product is right plus on each factor.
 
+    Parameters
+    ----------
+    *factors : type
+        ``LieGroup`` classes (including ``R(n)`` and other products).
+
+    Returns
+    -------
+    type
+        A :class:`ProductGroup` subclass.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE23, Product, R
     >>> State = Product(SE23, R(3), R(3))

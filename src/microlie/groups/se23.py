@@ -31,11 +31,20 @@ def _neg(v: tuple) -> tuple:
 class SE23(Pose):
     """Extended poses in 3-D (rotation, position, velocity): the group of IMU navigation states.
 
-    Parameters ``(px, py, pz, qx, qy, qz, qw, vx, vy, vz)``. Tangent ``tau = (rho, phi, nu)``
-    (position, rotation, velocity; the first six are SE(3)'s tangent). Matrix
-    ``[[R, p, v], [0, 1, 0], [0, 0, 1]]``. ``X.act(x) = R x + p``. Right plus/minus and right
-    Jacobians by default; ``side="left"`` for left ones.
+    Tangent ``tau = (rho, phi, nu)`` (position, rotation, velocity; the first six are SE(3)'s
+    tangent). Matrix ``[[R, p, v], [0, 1, 0], [0, 0, 1]]``. ``X.act(x) = R x + p``. Right
+    plus/minus and right Jacobians by default; ``side="left"`` for left ones.
 
+    Parameters
+    ----------
+    params : array_like
+        ``(..., 10)``: ``(px, py, pz, qx, qy, qz, qw, vx, vy, vz)``; the quaternion must be
+        unit within tolerance (``ValueError`` otherwise) unless ``normalize=True``.
+    normalize : bool
+        Normalise the quaternion.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE23
     >>> X = SE23.exp(np.array([1.0, 0, 0, 0, 0, np.pi / 2, 0, 2.0, 0]))
@@ -148,8 +157,29 @@ class SE23(Pose):
     @classmethod
     def from_rotation_translation(cls, rotation: Any, translation: Any,
                                   velocity: Any = None) -> SE23:
-        """From a rotation (an ``SO3`` or rotation matrices), positions ``(..., 3)`` and
-        velocities ``(..., 3)`` (zero if omitted); the batch axes broadcast."""
+        """From rotations, positions and velocities (the batch axes broadcast).
+
+        Parameters
+        ----------
+        rotation : SO3 or array_like
+            Rotations, or rotation matrices ``(..., 3, 3)``.
+        translation : array_like
+            Positions ``(..., 3)``.
+        velocity : array_like, optional
+            Velocities ``(..., 3)`` (zero if omitted).
+
+        Returns
+        -------
+        SE23
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23, SO3
+        >>> X = SE23.from_rotation_translation(SO3.identity(), [1.0, 2.0, 3.0], [0.5, 0, 0])
+        >>> X.params.tolist()
+        [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0, 0.5, 0.0, 0.0]
+        """
         R = rotation if isinstance(rotation, SO3) else SO3.from_matrix(rotation)
         t = A.as_float_array(translation, like=R.params)
         v = A.as_float_array(0.0 * t if velocity is None else velocity, like=R.params)
@@ -160,8 +190,28 @@ class SE23(Pose):
 
     @classmethod
     def from_matrix(cls, matrix: Any, normalize: bool = False) -> SE23:
-        """From 5x5 matrices ``[[R, p, v], [0, 1, 0], [0, 0, 1]]``. ``R`` must be a rotation
-        within tolerance (``ValueError`` otherwise) unless ``normalize=True`` projects it."""
+        """From 5x5 matrices ``[[R, p, v], [0, 1, 0], [0, 0, 1]]``.
+
+        Parameters
+        ----------
+        matrix : array_like
+            ``(..., 5, 5)``; ``R`` must be a rotation within tolerance (``ValueError``
+            otherwise) and the last two rows ``[0 0 0 1 0]``, ``[0 0 0 0 1]``.
+        normalize : bool
+            Project ``R`` onto SO(3).
+
+        Returns
+        -------
+        SE23
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> X = SE23.random(rng=0)
+        >>> bool(np.allclose(SE23.from_matrix(X.matrix()).matrix(), X.matrix()))
+        True
+        """
         T = A.as_float_array(matrix)
         A.check_last_dim(T, (5, 5), "SE23 matrix")
         A.check_finite(T, "SE23 matrix")
@@ -176,11 +226,36 @@ class SE23(Pose):
         return cls.from_rotation_translation(R, T[..., :3, 3], T[..., :3, 4])
 
     def velocity(self) -> Any:
-        """The velocity part ``(..., 3)``."""
+        """The velocity part.
+
+        Returns
+        -------
+        array
+            ``(..., 3)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> SE23.exp(np.array([0, 0, 0, 0, 0, 0, 1.0, 2.0, 3.0])).velocity().tolist()
+        [1.0, 2.0, 3.0]
+        """
         return self.params[..., 7:]
 
     def pose(self) -> Any:
-        """The ``SE3`` pose ``(R, p)`` (the velocity dropped)."""
+        """The ``SE3`` pose ``(R, p)`` (the velocity dropped).
+
+        Returns
+        -------
+        SE3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> SE23.exp(np.array([1.0, 0, 0, 0, 0, 0, 2.0, 0, 0])).pose().translation().tolist()
+        [1.0, 0.0, 0.0]
+        """
         from .se3 import SE3
 
         return SE3._wrap(self.params[..., :7])

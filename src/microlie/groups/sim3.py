@@ -232,9 +232,9 @@ class Sim3(Pose):
     # ------------------------------------------------------------------ range checks
     @staticmethod
     def _range_check(tau: Array) -> None:
-        """Every tangent vector in (Exp, plus, Jr, ...) and out (Log, minus, ...) of the base
-        class operations: ``|sigma| <= SIGMA_MAX``."""
-        _checked_sigma(tau, 6)
+        """Applied by the base class to every tangent vector that enters (exp, jr, jr_inv, jl,
+        plus, ...) and leaves (log, minus, lminus): ``|sigma| <= SIGMA_MAX``."""
+        check_sigma(tau, "tangent vector")
 
     # ------------------------------------------------------------------ primitives
     @staticmethod
@@ -372,14 +372,16 @@ def _assemble(A: tuple, top: tuple, J: tuple, like: Any) -> tuple:
             + ((z, z, z, z, z, z, z + 1.0),))
 
 
-def _checked_sigma(tau: Any, i: int) -> Array:
-    """``tau`` as an array, after checking ``|tau[..., i]| <= SIGMA_MAX`` (skipped when traced)."""
-    t = A.as_float_array(tau)
-    if t.ndim and t.shape[-1] > i:
-        x = L.concrete(t[..., i])
-        m = float(np.max(np.abs(x))) if x is not None and x.size else 0.0
-        if SIGMA_MAX < m < np.inf:  # NaN and inf: the finiteness check reports them
-            raise ValueError(
-                f"Sim3: |sigma| = {m:.6g} exceeds SIGMA_MAX = "
-                f"{SIGMA_MAX:g} (scales beyond e^{SIGMA_MAX:g}), outside the verified range")
-    return t
+def check_sigma(tau: Array, what: str) -> None:
+    """``ValueError`` unless ``|sigma| <= SIGMA_MAX`` for every Sim3 tangent in ``tau``
+    (``(..., 7)``); a NaN or infinite sigma out of a Log fails too. Skipped when traced."""
+    if type(tau) is np.ndarray and tau.ndim == 1:
+        m = abs(float(tau[6]))
+    else:
+        x = L.concrete(tau[..., 6])
+        if x is None or not x.size:
+            return
+        m = float(np.max(np.abs(x)))
+    if not m <= SIGMA_MAX * (1.0 + 1e-12):  # room for the rounding of log(exp(50))
+        raise ValueError(f"Sim3 {what}: |sigma| = {m:.6g} exceeds SIGMA_MAX = {SIGMA_MAX:g} "
+                         f"(scales beyond e^+-{SIGMA_MAX:g}), outside the verified range")

@@ -30,11 +30,25 @@ __all__ = ["ImuFactor", "BiasRandomWalkFactor"]
 class ImuFactor(Factor):
     """IMU factors ``(X_i, X_j, b_i)`` for ``m`` keyframe pairs.
 
-    ``states`` is an ``SE23`` variable handle, ``biases`` an ``(n, 6)`` vector handle
-    (``(b_g, b_a)``), ``i``/``j`` index arrays of the state pairs (the bias of state ``i`` is
-    used), ``pims`` one :class:`Preintegration` per pair. The noise is each preintegration's
-    covariance; ``loss`` a robust loss as for every factor.
+    The noise is each preintegration's covariance.
 
+    Parameters
+    ----------
+    states : Variables
+        An ``SE23`` variable handle.
+    biases : Variables
+        An ``(n, 6)`` vector handle (``(b_g, b_a)``).
+    i, j : array_like
+        Index arrays of the state pairs (the bias of state ``i`` is used).
+    pims : sequence of Preintegration
+        One per pair.
+    error : str
+        The residual form (see :func:`~microlie.imu.imu_residual`).
+    loss : str or RobustLoss, optional
+        A robust loss, as for every factor.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE23
     >>> from microlie.imu import ImuFactor, Preintegration
@@ -90,8 +104,30 @@ class ImuFactor(Factor):
 class BiasRandomWalkFactor(Factor):
     """``r = b_j - b_i`` between bias variables, noise ``diag(s_gw^2 I, s_aw^2 I) dt``.
 
-    ``gyro_walk``, ``accel_walk``: random-walk densities (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz));
-    ``dt``: time between the keyframes (scalar or one per pair)."""
+    Parameters
+    ----------
+    biases : Variables
+        An ``(n, 6)`` vector handle (``(b_g, b_a)``).
+    i, j : array_like
+        Index arrays of the pairs.
+    gyro_walk, accel_walk : float
+        Random-walk densities (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)).
+    dt : float or array_like
+        Time between the keyframes (scalar or one per pair).
+    loss : str or RobustLoss, optional
+        A robust loss.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.imu import BiasRandomWalkFactor
+    >>> from microlie.optim import FactorGraph
+    >>> g = FactorGraph()
+    >>> b = g.add_variables(np.array([[0.0] * 6, [0.01, 0, 0, 0, 0, 0]]))
+    >>> _ = g.add(BiasRandomWalkFactor(b, [0], [1], gyro_walk=0.01, accel_walk=0.1, dt=1.0))
+    >>> round(g.cost(), 9)  # 0.5 * (0.01 / 0.01)^2
+    0.5
+    """
 
     def __init__(self, biases: Variables, i: Any, j: Any, gyro_walk: float, accel_walk: float,
                  dt: Any, loss: Any = None) -> None:

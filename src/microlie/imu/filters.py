@@ -71,8 +71,26 @@ class _ImuFilter:
 
     # ------------------------------------------------------------------ prediction
     def predict(self, accel: Any, gyro: Any, dt: Any) -> None:
-        """Propagate over IMU samples: ``accel``/``gyro`` of shape ``(*batch, 3)`` (one
-        sample) or ``(N, *batch, 3)``; ``dt`` a scalar or ``(N,)``."""
+        """Propagate the state and covariance over IMU samples.
+
+        Parameters
+        ----------
+        accel, gyro : array_like
+            ``(*batch, 3)`` (one sample) or ``(N, *batch, 3)``: specific force (m/s^2) and angular
+            rate (rad/s) in the body frame.
+        dt : float or array_like
+            Sample interval(s), seconds: a scalar or ``(N,)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
+        >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
+        ...                   accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
+        >>> f.predict(np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.005)  # at rest
+        >>> float(np.abs(f.p).max()) < 1e-12, bool(f.cov[3, 3] > 1e-4)
+        (True, True)
+        """
         a = np.asarray(accel, dtype=np.float64)
         w = np.asarray(gyro, dtype=np.float64)
         if a.shape != w.shape or a.shape[-1] != 3:
@@ -111,10 +129,35 @@ class _ImuFilter:
 
     # ------------------------------------------------------------------ update
     def update(self, z: Any, h: Any, H: Any, noise: Any) -> np.ndarray:
-        """Fuse ``z ~ h + N(0, noise)``: ``h`` the predicted measurement ``(*batch, m)`` (or a
-        callable of the filter), ``H`` its Jacobian ``(*batch, m, 15)`` with respect to the
-        filter's error (or a callable), ``noise`` ``(m, m)``. Joseph-form covariance update.
-        Returns the squared Mahalanobis norm of the innovation (NIS)."""
+        """Fuse a measurement ``z ~ h + N(0, noise)`` (Joseph-form covariance update).
+
+        Parameters
+        ----------
+        z : array_like
+            ``(*batch, m)`` measurement.
+        h : array_like or callable
+            The predicted measurement ``(*batch, m)``, or a callable of the filter returning it.
+        H : array_like or callable
+            Its Jacobian ``(*batch, m, 15)`` with respect to the filter's error, or a callable.
+        noise : array_like
+            ``(m, m)`` measurement covariance.
+
+        Returns
+        -------
+        numpy.ndarray
+            The squared Mahalanobis norm of the innovation (NIS), shape ``batch``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
+        >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
+        ...                   accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
+        >>> H = np.zeros((1, 15)); H[0, 3] = 1.0  # measure p_x
+        >>> nis = f.update([0.01], f.p[:1], H, [[1e-4]])
+        >>> round(float(nis), 6), round(float(f.p[0]), 6)  # the fix is halfway trusted
+        (0.5, 0.005)
+        """
         hv = np.asarray(h(self) if callable(h) else h, dtype=np.float64)
         Hm = np.asarray(H(self) if callable(H) else H, dtype=np.float64)
         Rn = np.asarray(noise, dtype=np.float64)
@@ -130,7 +173,30 @@ class _ImuFilter:
         return np.sum(y * np.linalg.solve(S, y[..., None])[..., 0], -1)
 
     def update_position(self, z: Any, sigma: float) -> np.ndarray:
-        """A position fix ``z = p + N(0, sigma^2 I)`` (``(*batch, 3)``)."""
+        """Fuse a position fix ``z = p + N(0, sigma^2 I)``.
+
+        Parameters
+        ----------
+        z : array_like
+            ``(*batch, 3)`` measured position.
+        sigma : float
+            Its standard deviation, metres.
+
+        Returns
+        -------
+        numpy.ndarray
+            The NIS of the fix.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
+        >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
+        ...                   accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
+        >>> nis = f.update_position(np.array([0.01, 0.0, 0.0]), 0.01)
+        >>> round(float(f.p[0]), 6)
+        0.005
+        """
         return self.update(z, self.p, self._position_jacobian(), sigma**2 * np.eye(3))
 
     def _position_jacobian(self) -> np.ndarray:  # pragma: no cover - abstract
@@ -151,13 +217,53 @@ class _ImuFilter:
         return Gaussian(self.state, self.cov, frame=self.side)
 
     def error(self, truth: Any) -> np.ndarray:
-        """The filter's error of a true state (an element of its product group): the tangent
-        ``e`` with ``truth = estimate (+) e`` on the filter's side."""
+        """The filter's error of a true state: the tangent ``e`` with ``truth = estimate (+) e`` on
+        the filter's side.
+
+        Parameters
+        ----------
+        truth : Product
+            An element of the filter's product group.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(*batch, 15)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
+        >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
+        ...                   accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
+        >>> f.error(ESKF_STATE.identity()).shape
+        (15,)
+        """
         X = self.state
         return truth.minus(X) if self.side == "right" else truth.lminus(X)
 
     def nees(self, truth: Any) -> np.ndarray:
-        """Normalised estimation error squared ``e^T P^-1 e`` of a true state."""
+        """Normalised estimation error squared ``e^T P^-1 e`` of a true state.
+
+        Parameters
+        ----------
+        truth : Product
+            An element of the filter's product group.
+
+        Returns
+        -------
+        numpy.ndarray
+            Shape ``batch``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
+        >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
+        ...                   accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
+        >>> float(f.nees(ESKF_STATE.identity()))
+        0.0
+        """
         e = self.error(truth)
         return np.sum(e * np.linalg.solve(self.cov, e[..., None])[..., 0], -1)
 
@@ -165,10 +271,24 @@ class _ImuFilter:
 class ErrorStateEKF(_ImuFilter):
     """Error-state EKF on ``Product(SO3, R(3), R(3), R(3), R(3))`` (see the module docstring).
 
-    ``state`` is an element of that product (attitude, position, velocity, b_g, b_a), batched
-    over leading axes to run many filters at once; ``cov`` (``(..., 15, 15)``) in the tangent
-    order ``(dtheta, dp, dv, db_g, db_a)``; ``side`` the attitude error side.
+    Parameters
+    ----------
+    state : Product
+        An element of ``ESKF_STATE`` (attitude, position, velocity, b_g, b_a), batched over
+        leading axes to run many filters at once.
+    cov : array_like
+        ``(..., 15, 15)`` in the tangent order ``(dtheta, dp, dv, db_g, db_a)``.
+    gyro_noise, accel_noise : float
+        White-noise densities (rad/s/sqrt(Hz), m/s^2/sqrt(Hz)).
+    gyro_walk, accel_walk : float
+        Bias random-walk densities (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)).
+    gravity : array_like
+        Gravity in the navigation frame (default z up).
+    side : {"right", "left"}
+        The attitude error side.
 
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
     >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
@@ -238,6 +358,21 @@ class InvariantEKF(_ImuFilter):
     ``X = Exp(xi) X_hat`` on SE_2(3) (``side="left"``), tangent order
     ``(rho, phi, nu, db_g, db_a)``.
 
+    Parameters
+    ----------
+    state : Product
+        An element of ``IEKF_STATE`` (navigation state, b_g, b_a), batched over leading axes.
+    cov : array_like
+        ``(..., 15, 15)`` in the tangent order above.
+    gyro_noise, accel_noise : float
+        White-noise densities (rad/s/sqrt(Hz), m/s^2/sqrt(Hz)).
+    gyro_walk, accel_walk : float
+        Bias random-walk densities (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)).
+    gravity : array_like
+        Gravity in the navigation frame (default z up).
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie.imu.filters import InvariantEKF, IEKF_STATE
     >>> f = InvariantEKF(IEKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,

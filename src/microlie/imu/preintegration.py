@@ -124,19 +124,28 @@ def _cumsum0(x: np.ndarray) -> np.ndarray:
 class Preintegration:
     """Preintegrated IMU measurements between two keyframes.
 
-    ``gyro_noise`` and ``accel_noise`` are white-noise densities (rad/s/sqrt(Hz) and
-    m/s^2/sqrt(Hz); scalars or one per axis), ``bias_gyro`` and ``bias_accel`` the biases the
-    samples are corrected with (length-3). ``gravity`` (default ``(0, 0, -9.81)``, z up) and
-    ``omega_coriolis`` (the earth rate in the navigation frame, off by default: the exact
-    rotating-frame prediction of GTSAM 4.3) enter :meth:`predict` and the IMU factor.
-    ``scheme`` is ``"manifold"`` (Forster) or ``"tangent"``
-    (GTSAM's default class).
-
     Attributes after :meth:`integrate`: ``delta_rotation`` (an ``SO3``), ``delta_velocity``,
     ``delta_position`` (3,), ``dt`` (total time), ``covariance`` (9x9, tangent order
     ``(dphi, dv, dp)``, see the module docstring), ``bias_jacobian`` (9x6: rows
     ``(dphi, dv, dp)``, columns ``(bias_gyro, bias_accel)``).
 
+    Parameters
+    ----------
+    gyro_noise, accel_noise : float or array_like
+        White-noise densities (rad/s/sqrt(Hz) and m/s^2/sqrt(Hz); scalars or one per axis).
+    bias_gyro, bias_accel : array_like
+        The biases the samples are corrected with (length 3).
+    gravity : array_like
+        Gravity in the navigation frame (default ``(0, 0, -9.81)``, z up); enters
+        :meth:`predict` and the IMU factor.
+    omega_coriolis : array_like, optional
+        The earth rate in the navigation frame (off by default): the exact rotating-frame
+        prediction of GTSAM 4.3.
+    scheme : {"manifold", "tangent"}
+        Forster's on-manifold scheme or GTSAM's default (tangent-space) one.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie.imu import Preintegration
     >>> pim = Preintegration(gyro_noise=1.7e-4, accel_noise=2e-3, bias_gyro=np.zeros(3),
@@ -165,7 +174,19 @@ class Preintegration:
         self.reset()
 
     def reset(self) -> None:
-        """Forget every sample (keep the noise, biases and options)."""
+        """Forget every sample (keep the noise, biases and options).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> from microlie.imu import Preintegration
+        >>> pim = Preintegration(gyro_noise=1.7e-4, accel_noise=2e-3)
+        >>> _ = pim.integrate(np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+        >>> pim.reset()
+        >>> pim.dt, pim.delta_velocity.tolist()
+        (0.0, [0.0, 0.0, 0.0])
+        """
         self._q = np.array([0.0, 0.0, 0.0, 1.0])
         self._theta = np.zeros(3)  # tangent scheme: the rotation vector of dR
         self._dv = np.zeros(3)
@@ -229,8 +250,32 @@ class Preintegration:
 
     # ------------------------------------------------------------------ integration
     def integrate(self, accel: Any, gyro: Any, dt: Any) -> Preintegration:
-        """Add samples: ``accel`` and ``gyro`` of shape ``(N, 3)`` (or ``(3,)`` for one
-        sample), ``dt`` a scalar or ``(N,)`` (seconds, > 0). Returns ``self``."""
+        """Add IMU samples.
+
+        Parameters
+        ----------
+        accel : array_like
+            ``(N, 3)`` (or ``(3,)`` for one sample) specific force in the body frame, m/s^2.
+        gyro : array_like
+            ``(N, 3)`` (or ``(3,)``) angular rate in the body frame, rad/s.
+        dt : float or array_like
+            Sample interval(s), seconds (> 0): a scalar or ``(N,)``.
+
+        Returns
+        -------
+        Preintegration
+            ``self``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> from microlie.imu import Preintegration
+        >>> pim = Preintegration(gyro_noise=1.7e-4, accel_noise=2e-3)
+        >>> _ = pim.integrate(np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+        >>> round(pim.dt, 12), np.round(pim.delta_velocity, 12).tolist()
+        (1.0, [0.0, 0.0, 9.81])
+        """
         if self.scheme == "manifold" and getattr(accel, "ndim", 1) == 1 and \
                 getattr(gyro, "ndim", 1) == 1 and np.ndim(dt) == 0:
             row = _sample_row(accel, gyro, dt)
@@ -433,9 +478,32 @@ class Preintegration:
 
     # ------------------------------------------------------------------ bias correction
     def correct(self, bias_gyro: Any, bias_accel: Any) -> tuple[SO3, np.ndarray, np.ndarray]:
-        """The deltas ``(dR, dv, dp)`` for other biases, to first order: ``dR Exp(J_Rg db_g)``,
+        """The deltas for other biases, to first order: ``dR Exp(J_Rg db_g)``,
         ``dv + J_vg db_g + J_va db_a``, ``dp + J_pg db_g + J_pa db_a`` (the tangent scheme
-        corrects its rotation vector linearly instead, as GTSAM does)."""
+        corrects its rotation vector linearly instead, as GTSAM does).
+
+        Parameters
+        ----------
+        bias_gyro, bias_accel : array_like
+            The new biases (length 3).
+
+        Returns
+        -------
+        dR : SO3
+        dv, dp : numpy.ndarray
+            ``(3,)`` each.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> from microlie.imu import Preintegration
+        >>> pim = Preintegration(gyro_noise=1.7e-4, accel_noise=2e-3)
+        >>> _ = pim.integrate(np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+        >>> dR, dv, dp = pim.correct(np.zeros(3), [0.1, 0.0, 0.0])
+        >>> np.round(dv, 12).tolist()  # 1 s with 0.1 m/s^2 more accelerometer bias
+        [-0.1, 0.0, 9.81]
+        """
         self._flush()
         db = np.concatenate([_vec3(bias_gyro, "bias_gyro") - self.bias_gyro,
                              _vec3(bias_accel, "bias_accel") - self.bias_accel])
@@ -448,9 +516,31 @@ class Preintegration:
         return R, self._dv + c[3:6], self._dp + c[6:9]  # type: ignore
 
     def predict(self, state: Any, bias_gyro: Any = None, bias_accel: Any = None) -> Any:
-        """The state at keyframe ``j`` (an ``SE23``) from the state ``state`` at ``i`` and the
-        biases (default: the integration biases), with gravity and (if set) the earth rate
-        (see :func:`_predict`)."""
+        """The state at keyframe ``j`` from the state at ``i`` and the biases, with gravity and
+        (if set) the earth rate.
+
+        Parameters
+        ----------
+        state : SE23
+            The navigation state ``(R, p, v)`` at keyframe ``i``.
+        bias_gyro, bias_accel : array_like, optional
+            The biases (default: the integration biases; others are applied to first order).
+
+        Returns
+        -------
+        SE23
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> from microlie.imu import Preintegration
+        >>> pim = Preintegration(gyro_noise=1.7e-4, accel_noise=2e-3)
+        >>> _ = pim.integrate(np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+        >>> Xj = pim.predict(SE23.identity())  # at rest: the state does not change
+        >>> bool(np.abs(Xj.log()).max() < 1e-12)
+        True
+        """
         from ..groups import SE23
 
         bg = self.bias_gyro if bias_gyro is None else bias_gyro

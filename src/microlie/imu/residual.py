@@ -32,7 +32,25 @@ from .preintegration import Preintegration, _hat, _predict
 
 
 class Deltas:
-    """The preintegrated deltas of ``m`` :class:`Preintegration` objects, stacked."""
+    """The preintegrated deltas of ``m`` :class:`Preintegration` objects, stacked (one scheme,
+    gravity and Coriolis rate for all).
+
+    Parameters
+    ----------
+    pims : sequence of Preintegration
+        ``m >= 1`` preintegrations.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE23
+    >>> from microlie.imu import Deltas, Preintegration, imu_residual
+    >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
+    ...     np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+    >>> d = Deltas([pim, pim])
+    >>> d.dv.shape, d.cov.shape
+    ((2, 3), (2, 9, 9))
+    """
 
     def __init__(self, pims: Sequence[Preintegration]) -> None:
         if not pims:
@@ -65,8 +83,34 @@ class Deltas:
         return len(self.T)
 
     def corrected(self, bias: np.ndarray) -> tuple:
-        """``(dR_c, dv_c, dp_c, K)`` for biases ``(m, 6)``; ``K`` (m, 3, 6) maps a bias
-        perturbation to the right perturbation of ``dR_c``."""
+        """The deltas corrected to other biases, to first order.
+
+        Parameters
+        ----------
+        bias : numpy.ndarray
+            ``(m, 6)`` biases ``(b_g, b_a)``.
+
+        Returns
+        -------
+        dR_c : SO3
+            ``(m,)`` corrected rotations.
+        dv_c, dp_c : numpy.ndarray
+            ``(m, 3)`` corrected velocity and position deltas.
+        K : numpy.ndarray
+            ``(m, 3, 6)``: maps a bias perturbation to the right perturbation of ``dR_c``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> from microlie.imu import Deltas, Preintegration, imu_residual
+        >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
+        ...     np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+        >>> d = Deltas([pim, pim])
+        >>> dR, dv, dp, K = d.corrected(np.zeros((2, 6)))
+        >>> np.round(dv[0], 12).tolist(), K.shape
+        ([0.0, 0.0, 9.81], (2, 3, 6))
+        """
         db = bias - self.bias
         c = (self.J @ db[:, :, None])[..., 0]
         if self.scheme == "manifold":
@@ -86,9 +130,40 @@ _LOG_ORDER = np.r_[3:6, 6:9, 0:3]  # SE23 tangent (rho, phi, nu) -> (phi, nu, rh
 
 def imu_residual(deltas: Deltas, Xi: SE23, Xj: SE23, bias: Any, jac: bool = False,
                  error: str = "forster") -> Any:
-    """The residuals ``(m, 9)`` (order ``(dphi, dv, dp)``) and, with ``jac=True``, the right
-    Jacobians ``(m, 9, 9)``, ``(m, 9, 9)``, ``(m, 9, 6)`` with respect to ``X_i``, ``X_j``,
-    ``bias`` (``bias`` rows are ``(b_g, b_a)``)."""
+    """The IMU residuals of state pairs, order ``(dphi, dv, dp)``.
+
+    Parameters
+    ----------
+    deltas : Deltas
+        ``m`` preintegrations.
+    Xi, Xj : SE23
+        ``(m,)`` states at the first and second keyframe.
+    bias : array_like
+        ``(m, 6)`` biases ``(b_g, b_a)`` at the first keyframe.
+    jac : bool
+        Also return the right Jacobians.
+    error : str
+        The residual form (``"forster"``, the default).
+
+    Returns
+    -------
+    numpy.ndarray or tuple
+        ``(m, 9)`` residuals; with ``jac=True`` also the Jacobians ``(m, 9, 9)``,
+        ``(m, 9, 9)``, ``(m, 9, 6)`` with respect to ``X_i``, ``X_j``, ``bias``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE23
+    >>> from microlie.imu import Deltas, Preintegration, imu_residual
+    >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
+    ...     np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+    >>> d = Deltas([pim, pim])
+    >>> X = SE23.identity(2)
+    >>> r, Ji, Jj, Jb = imu_residual(d, X, X, np.zeros((2, 6)), jac=True)
+    >>> float(np.abs(r).max()) < 1e-12, Jb.shape
+    (True, (2, 9, 6))
+    """
     if error not in ERRORS:
         raise ValueError(f"error must be one of {ERRORS}, got {error!r}")
     b = np.asarray(bias, dtype=np.float64).reshape(len(deltas), 6)

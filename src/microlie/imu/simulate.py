@@ -72,7 +72,30 @@ def load_euroc_groundtruth(path: str | Path) -> tuple[np.ndarray, SE3]:
 
 class SmoothTrajectory:
     """A smooth fit of timed attitudes and positions: cubic position spline, SciPy
-    ``RotationSpline`` for the attitude, knots every ``knot_dt`` seconds."""
+    ``RotationSpline`` for the attitude, knots every ``knot_dt`` seconds.
+
+    Parameters
+    ----------
+    t : array_like
+        ``(N,)`` increasing times, seconds.
+    rotations : SO3
+        ``(N,)`` body-to-world attitudes.
+    positions : array_like
+        ``(N, 3)`` positions.
+    knot_dt : float
+        Knot spacing, seconds.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SO3
+    >>> from microlie.imu import SmoothTrajectory
+    >>> t = np.linspace(0.0, 2.0, 41)
+    >>> z = np.zeros_like(t)
+    >>> s = SmoothTrajectory(t, SO3.exp(np.c_[z, z, 0.5 * t]), np.c_[t, z, z])
+    >>> np.round(s.angular_velocity(1.0), 6).tolist()
+    [0.0, 0.0, 0.5]
+    """
 
     def __init__(self, t: Any, rotations: SO3, positions: Any, knot_dt: float = 0.1) -> None:
         from scipy.interpolate import CubicSpline  # type: ignore[import-untyped]
@@ -95,24 +118,164 @@ class SmoothTrajectory:
 
     @classmethod
     def from_poses(cls, t: Any, poses: SE3, knot_dt: float = 0.1) -> SmoothTrajectory:
+        """The fit of timed SE(3) poses.
+
+        Parameters
+        ----------
+        t : array_like
+            ``(N,)`` times.
+        poses : SE3
+            ``(N,)`` body-to-world poses.
+        knot_dt : float
+            Knot spacing, seconds.
+
+        Returns
+        -------
+        SmoothTrajectory
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 1.0, 11)
+        >>> s = SmoothTrajectory.from_poses(t, SE3.exp(np.c_[t, np.zeros((11, 5))]))
+        >>> np.round(s.position(0.5), 6).tolist()
+        [0.5, 0.0, 0.0]
+        """
         return cls(t, poses.rotation(), poses.translation(), knot_dt)  # type: ignore[arg-type]
 
     def rotation(self, t: Any) -> SO3:
+        """The attitude at times ``t``.
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times, seconds.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 2.0, 41)
+        >>> z = np.zeros_like(t)
+        >>> s = SmoothTrajectory(t, SO3.exp(np.c_[z, z, 0.5 * t]), np.c_[t, z, z])
+        >>> np.round(s.rotation(1.0).log(), 6).tolist()
+        [0.0, 0.0, 0.5]
+        """
         return SO3(self._R(np.asarray(t)).as_quat())
 
     def position(self, t: Any, order: int = 0) -> np.ndarray:
+        """The position (or a time derivative of it) at times ``t``.
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times, seconds.
+        order : int
+            0 position, 1 velocity, 2 acceleration (world frame).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(..., 3)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 2.0, 41)
+        >>> z = np.zeros_like(t)
+        >>> s = SmoothTrajectory(t, SO3.exp(np.c_[z, z, 0.5 * t]), np.c_[t, z, z])
+        >>> np.round(s.position(1.0), 6).tolist(), np.round(s.position(1.0, 1), 6).tolist()
+        ([1.0, 0.0, 0.0], [1.0, 0.0, 0.0])
+        """
         return self._p(np.asarray(t), order)
 
     def angular_velocity(self, t: Any) -> np.ndarray:
-        """Body angular rate ``(R^T dR/dt)^vee``."""
+        """Body angular rate ``(R^T dR/dt)^vee``.
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times, seconds.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(..., 3)``, rad/s.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 2.0, 41)
+        >>> z = np.zeros_like(t)
+        >>> s = SmoothTrajectory(t, SO3.exp(np.c_[z, z, 0.5 * t]), np.c_[t, z, z])
+        >>> np.round(s.angular_velocity(1.0), 6).tolist()
+        [0.0, 0.0, 0.5]
+        """
         return self._R(np.asarray(t), 1)
 
     def specific_force(self, t: Any, gravity: Any = GRAVITY) -> np.ndarray:
-        """``R^T (a - g)`` in the body frame."""
+        """The specific force ``R^T (a - g)`` in the body frame (what an accelerometer measures).
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times, seconds.
+        gravity : array_like
+            Gravity in the world frame.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(..., 3)``, m/s^2.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 2.0, 41)
+        >>> z = np.zeros_like(t)
+        >>> s = SmoothTrajectory(t, SO3.exp(np.c_[z, z, 0.5 * t]), np.c_[t, z, z])
+        >>> (np.round(s.specific_force(1.0), 6) + 0.0).tolist()  # constant velocity: gravity
+        [0.0, 0.0, 9.81]
+        """
         R = self.rotation(t)
         return R.inverse().act(self.position(t, 2) - np.asarray(gravity))
 
     def state(self, t: Any) -> SE23:
+        """The navigation state ``(R, p, v)`` at times ``t``.
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times, seconds.
+
+        Returns
+        -------
+        SE23
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> from microlie.imu import SmoothTrajectory
+        >>> t = np.linspace(0.0, 2.0, 41)
+        >>> z = np.zeros_like(t)
+        >>> s = SmoothTrajectory(t, SO3.exp(np.c_[z, z, 0.5 * t]), np.c_[t, z, z])
+        >>> np.round(s.state(1.0).velocity(), 6).tolist()
+        [1.0, 0.0, 0.0]
+        """
         return SE23.from_rotation_translation(
             self.rotation(t), self.position(t), self.position(t, 1)
         )
@@ -120,12 +283,40 @@ class SmoothTrajectory:
 
 @dataclass
 class ImuData:
-    """Synthetic samples at times ``t`` (``(N,)``) with their truth.
+    """Synthetic IMU samples with their truth (returned by :func:`simulate_imu`).
 
-    ``accel``/``gyro`` (N, 3) are the measurements (sample ``k`` acts on ``[t_k, t_k + dt]``),
-    ``true_accel``/``true_gyro`` the noise- and bias-free values, ``bias_gyro``/``bias_accel``
-    (N, 3) the biases, ``truth`` the ``SE23`` states at ``t`` and one step beyond (N + 1),
-    ``params`` the noise densities used."""
+    Attributes
+    ----------
+    t : numpy.ndarray
+        ``(N,)`` sample times; sample ``k`` acts on ``[t_k, t_k + dt]``.
+    dt : float
+        The sample interval.
+    accel, gyro : numpy.ndarray
+        ``(N, 3)`` (or ``(N, M, 3)`` with ``runs=M``) measurements.
+    true_accel, true_gyro : numpy.ndarray
+        The noise- and bias-free values.
+    bias_gyro, bias_accel : numpy.ndarray
+        The biases, shaped as the measurements.
+    truth : SE23
+        The states at ``t`` and one step beyond (``N + 1``).
+    gravity : numpy.ndarray
+        The gravity used.
+    params : dict
+        The noise densities used.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SO3
+    >>> from microlie.imu import SmoothTrajectory
+    >>> t = np.linspace(0.0, 2.0, 41)
+    >>> z = np.zeros_like(t)
+    >>> s = SmoothTrajectory(t, SO3.exp(np.c_[z, z, 0.5 * t]), np.c_[t, z, z])
+    >>> from microlie.imu import simulate_imu
+    >>> data = simulate_imu(s, rate=100.0, rng=0)
+    >>> data.accel.shape, data.truth.batch_shape
+    ((200, 3), (201,))
+    """
 
     t: np.ndarray
     dt: float
@@ -181,12 +372,49 @@ def simulate_imu(
     runs: int | None = None,
     **densities: float,
 ) -> ImuData:
-    """Samples at ``rate`` Hz over ``duration`` seconds from ``start`` (default: the whole
-    trajectory). ``densities`` override :data:`EUROC_ADIS16448` (``gyro_noise``,
-    ``accel_noise``, ``gyro_walk``, ``accel_walk``); initial biases default to draws of
-    ``N(0, (0.01 rad/s)^2)`` and ``N(0, (0.05 m/s^2)^2)``. With ``runs=M`` the
-    measurements and biases get shape ``(N, M, 3)``: ``M`` independent noise draws on the same
-    motion (Monte Carlo), the truth states being shared."""
+    """Simulated IMU samples along a smooth trajectory.
+
+    Parameters
+    ----------
+    traj : SmoothTrajectory
+        The motion.
+    rate : float
+        Sample rate, Hz.
+    duration, start : float, optional
+        The time span, seconds (default: the whole trajectory).
+    rng : int or numpy.random.Generator, optional
+        The noise source.
+    gravity : array_like
+        Gravity in the world frame.
+    bias_gyro0, bias_accel0 : array_like, optional
+        Initial biases (default draws of ``N(0, (0.01 rad/s)^2)`` and
+        ``N(0, (0.05 m/s^2)^2)``).
+    truth : bool
+        Also compute the true states.
+    runs : int, optional
+        ``M`` independent noise draws on the same motion (Monte Carlo): the measurements and
+        biases get shape ``(N, M, 3)``, the truth states are shared.
+    **densities : float
+        Override :data:`EUROC_ADIS16448` (``gyro_noise``, ``accel_noise``, ``gyro_walk``,
+        ``accel_walk``).
+
+    Returns
+    -------
+    ImuData
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SO3
+    >>> from microlie.imu import SmoothTrajectory
+    >>> t = np.linspace(0.0, 2.0, 41)
+    >>> z = np.zeros_like(t)
+    >>> s = SmoothTrajectory(t, SO3.exp(np.c_[z, z, 0.5 * t]), np.c_[t, z, z])
+    >>> from microlie.imu import simulate_imu
+    >>> data = simulate_imu(s, rate=100.0, rng=0, runs=5)
+    >>> data.gyro.shape
+    (200, 5, 3)
+    """
     unknown = set(densities) - set(EUROC_ADIS16448)
     if unknown:
         raise ValueError(f"unknown noise parameters {sorted(unknown)}")

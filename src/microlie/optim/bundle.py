@@ -74,7 +74,8 @@ def camera_model(spec: str | CameraModel) -> CameraModel:
 @dataclass(frozen=True)
 class BundleProblem:
     """Cameras ``(R, t, K)`` (world to camera: ``P = R X + t``), points ``X`` and observations
-    ``(camera_index, point_index, observations)``; ``model`` projects camera-frame points."""
+    ``(camera_index, point_index, observations)``; ``model`` projects camera-frame points.
+    Arrays are stored as float64 (and intp indices), whatever the input dtype."""
 
     rotations: np.ndarray
     translations: np.ndarray
@@ -86,6 +87,14 @@ class BundleProblem:
     model: CameraModel = field(default_factory=BALCamera)
 
     def __post_init__(self) -> None:
+        # the solver works in float64 (costs of 1e6 px^2 and 1e-9 steps do not fit float32)
+        for name in ("rotations", "translations", "intrinsics", "points", "observations"):
+            object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=np.float64))
+        for name in ("camera_index", "point_index"):
+            a = np.asarray(getattr(self, name))
+            if a.size and not np.issubdtype(a.dtype, np.integer):
+                raise ValueError(f"{name} must hold integers, got {a.dtype}")
+            object.__setattr__(self, name, a.astype(np.intp))
         nc = self.rotations.shape[0] if np.ndim(self.rotations) == 3 else -1
         if np.shape(self.rotations) != (nc, 3, 3):
             raise ValueError(f"rotations must be (n_cameras, 3, 3), got {np.shape(self.rotations)}")
@@ -450,8 +459,12 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
     it, successful = 0, 1                      # Ceres counts iteration 0 as successful
     converged, message = False, "maximum number of iterations reached"
     x_norm = -1.0                              # as Ceres: no parameter test before a step
-    if verbose:
-        print(f"iter {0:4d}  cost {cost:.9e}  radius {radius:.2e}", file=sys.stderr)
+    t_it = time.perf_counter()
+    if verbose:   # Ceres' progress columns
+        print("iter      cost      cost_change  |gradient|   |step|    tr_ratio  tr_radius  "
+              "iter_time", file=sys.stderr)
+        print(f"{0:4d} {cost:13.6e} {0.0:12.2e} {gmax:10.2e} {0.0:9.2e} {0.0:10.2e} "
+              f"{radius:10.2e} {t_it - t_start:9.2e}", file=sys.stderr)
     while True:
         if gmax <= gradient_tolerance:
             converged, message = True, f"gradient tolerance reached ({gmax:.3e})"
@@ -505,6 +518,7 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
             history.append(BundleIteration(it, cand_cost, False, 0.0, radius, step_norm))
             break
         rho = (cost - cand_cost) / model_change
+        cost_change = cost - cand_cost
         used_radius = radius
         if rho > 1e-3:
             x = cand
@@ -519,8 +533,11 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
             reuse = True
         history.append(BundleIteration(it, cand_cost, rho > 1e-3, rho, used_radius, step_norm))
         if verbose:
-            print(f"iter {it:4d}  cost {cand_cost:.9e}  rho {rho:+.3e}  radius {radius:.2e}"
-                  f"  {'accepted' if rho > 1e-3 else 'rejected'}", file=sys.stderr)
+            now = time.perf_counter()
+            print(f"{it:4d} {cost:13.6e} {cost_change:12.2e} {gmax:10.2e} {step_norm:9.2e} "
+                  f"{rho:10.2e} {radius:10.2e} {now - t_it:9.2e}"
+                  f"{'' if rho > 1e-3 else '  (rejected)'}", file=sys.stderr)
+            t_it = now
     time_s = time.perf_counter() - t_start
     tm["total"] = time_s
     if loss is None:

@@ -65,9 +65,11 @@ class CameraModel:
         """Boolean mask of camera-frame points strictly in front of the camera."""
         raise NotImplementedError
 
-    def project(self, P: np.ndarray, K: np.ndarray, jac: bool = True) -> tuple[Any, Any, Any]:
+    def project(self, P: np.ndarray, K: np.ndarray, jac: bool = True,
+                out: np.ndarray | None = None) -> tuple[Any, Any, Any]:
         """Pixels ``(n, 2)``, ``d uv / d P`` ``(n, 2, 3)`` and ``d uv / d K`` ``(n, 2, k)``
-        (both ``None`` when ``jac=False``)."""
+        (both ``None`` when ``jac=False``). With ``out`` ``(n, 2, 6 + k)`` the two Jacobians
+        are written into its columns ``0:3`` and ``6:`` (the camera Jacobian's layout)."""
         raise NotImplementedError
 
     def check_intrinsics(self, K: np.ndarray, n_cameras: int) -> np.ndarray:
@@ -92,7 +94,7 @@ class BALCamera(CameraModel):
     def in_front(self, P: np.ndarray) -> np.ndarray:
         return P[:, 2] < 0.0
 
-    def project(self, P, K, jac=True):
+    def project(self, P, K, jac=True, out=None):
         n = P.shape[0]
         f, k1, k2 = K[:, 0], K[:, 1], K[:, 2]
         iz = -1.0 / P[:, 2]
@@ -110,14 +112,14 @@ class BALCamera(CameraModel):
         a00 = fd + g * px * px
         a01 = g * px * py
         a11 = fd + g * py * py
-        JP = np.empty((n, 2, 3))
+        JP = np.empty((n, 2, 3)) if out is None else out[:, :, 0:3]
         JP[:, 0, 0] = a00 * iz
         JP[:, 0, 1] = a01 * iz
         JP[:, 0, 2] = (a00 * px + a01 * py) * iz
         JP[:, 1, 0] = a01 * iz
         JP[:, 1, 1] = a11 * iz
         JP[:, 1, 2] = (a01 * px + a11 * py) * iz
-        JK = np.empty((n, 2, 3))
+        JK = np.empty((n, 2, 3)) if out is None else out[:, :, 6:9]
         fr2 = f * r2
         JK[:, 0, 0] = d * px
         JK[:, 1, 0] = d * py
@@ -146,12 +148,16 @@ class PinholeCamera(CameraModel):
     def in_front(self, P: np.ndarray) -> np.ndarray:
         return P[:, 2] > 0.0
 
-    def project(self, P, K, jac=True):
+    def project(self, P, K, jac=True, out=None):
         n = P.shape[0]
         iz = 1.0 / P[:, 2]
         x, y = P[:, 0] * iz, P[:, 1] * iz
         fx, fy = K[:, 0], K[:, 1]
-        JK = np.zeros((n, 2, self.n_intrinsics))
+        if out is None:
+            JK = np.zeros((n, 2, self.n_intrinsics))
+        else:
+            JK = out[:, :, 6:]
+            JK[...] = 0.0
         if self.distortion:
             k1, k2, p1, p2 = K[:, 4], K[:, 5], K[:, 6], K[:, 7]
             r2 = x * x + y * y
@@ -186,7 +192,7 @@ class PinholeCamera(CameraModel):
         JK[:, 1, 3] = 1.0
         # d (x, y) / d P = iz [[1, 0, -x], [0, 1, -y]]
         b00, b01, b10, b11 = fx * dxx, fx * dxy, fy * dyx, fy * dyy
-        JP = np.empty((n, 2, 3))
+        JP = np.empty((n, 2, 3)) if out is None else out[:, :, 0:3]
         JP[:, 0, 0] = b00 * iz
         JP[:, 0, 1] = b01 * iz
         JP[:, 0, 2] = -(b00 * x + b01 * y) * iz
@@ -240,16 +246,16 @@ def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X
 
 def _reproject(model, R, t, K, X, cam, pt, observed, jac, behind):
     P, Rc, Xo = transform_points(R, t, X, cam, pt)
-    uv, JP, JK = model.project(P, np.take(K, cam, axis=0), jac)
+    n, k = len(cam), model.n_intrinsics
+    Jc = np.empty((n, 2, 6 + k)) if jac else None
+    uv, JP, JK = model.project(P, np.take(K, cam, axis=0), jac, out=Jc)   # JP, JK inside Jc
     res = uv - observed
     valid = np.ones(len(cam), dtype=bool) if behind == "evaluate" else model.in_front(P)
     if not jac:
         if behind == "drop":
             res[~valid] = 0.0
         return Reprojection(res, None, None, valid)
-    n, k = len(cam), model.n_intrinsics
-    Jc = np.empty((n, 2, 6 + k))
-    Jc[:, :, 0:3] = JP
+    assert Jc is not None
     Jp = np.matmul(JP, Rc)                     # d r / d X = A R
     # d r / d dphi = -A R [X]_x = -Jp [X]_x: row i is X x Jp_i
     x0, x1, x2 = Xo[:, 0], Xo[:, 1], Xo[:, 2]
@@ -258,7 +264,6 @@ def _reproject(model, R, t, K, X, cam, pt, observed, jac, behind):
         Jc[:, i, 3] = x1 * j2 - x2 * j1
         Jc[:, i, 4] = x2 * j0 - x0 * j2
         Jc[:, i, 5] = x0 * j1 - x1 * j0
-    Jc[:, :, 6:] = JK
     if behind == "drop":
         bad = ~valid
         res[bad] = 0.0

@@ -183,6 +183,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         "linear_solver": res.linear_solver,
         "initial_cost": graph.cost(X0),
         "final_cost": graph.cost(X),
+        "final_robust_cost": res.final_robust_cost,  # the minimised objective (gauge prior in)
         "iterations": res.iterations,
         "time_s": res.time_s,
         "converged": bool(res.converged),

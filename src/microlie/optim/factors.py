@@ -22,7 +22,20 @@ __all__ = ["Factor", "PriorFactor", "BetweenFactor", "CustomFactor"]
 
 
 class Factor:
-    """Base class of factor batches (see the module docstring)."""
+    """Base class of factor batches (see the module docstring).
+
+    A subclass sets up its arguments and implements :meth:`evaluate`; the solver whitens the
+    residuals with ``noise`` and applies ``loss``.
+
+    Examples
+    --------
+    >>> from microlie import SO3
+    >>> from microlie.optim import Factor, FactorGraph, PriorFactor
+    >>> g = FactorGraph()
+    >>> f = PriorFactor(g.add_variables(SO3.identity(2)), [0, 1], SO3.identity())
+    >>> isinstance(f, Factor), len(f), f.dim
+    (True, 2, 3)
+    """
 
     args: list[tuple[Variables, np.ndarray]]
     dim: int
@@ -67,6 +80,32 @@ class Factor:
         self.loss = make_loss(loss)
 
     def evaluate(self, values: list[Any], jac: bool) -> Any:
+        """The residuals of the batch and, with ``jac``, their Jacobians.
+
+        Parameters
+        ----------
+        values : list
+            One batch of ``m`` elements (or ``(m, d)`` array for vectors) per argument.
+        jac : bool
+            Also return the Jacobians.
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``r`` of shape ``(m, dim)``; with ``jac``, ``(r, [J_1, ..., J_K])`` with ``J_k`` of
+            shape ``(m, dim, dof_k)``, right Jacobians (``d r / d delta`` for ``X_k Exp(delta)``).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> g = FactorGraph()
+        >>> f = PriorFactor(g.add_variables(SE2.identity(1)), 0, SE2.exp([0.5, 0.0, 0.2]))
+        >>> r, (J,) = f.evaluate([SE2.identity(1)], True)
+        >>> np.round(r, 6).tolist(), J.shape
+        ([[-0.5, 0.0, -0.2]], (1, 3, 3))
+        """
         raise NotImplementedError
 
     def __len__(self) -> int:
@@ -97,6 +136,21 @@ def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
 class PriorFactor(Factor):
     """``r = X_idx (-) Z = Log(Z^-1 X_idx)`` (right minus; ``x - z`` for vectors).
 
+    Parameters
+    ----------
+    variables : Variables
+        The handle.
+    idx : int or array_like
+        Indices of the constrained variables (``m`` factors).
+    Z : LieGroup or array_like
+        The prior means: one element or a batch of ``m`` (vectors: ``(d,)`` or ``(m, d)``).
+    noise : NoiseModel, optional
+        The residual's noise (default :class:`Unit`); one model or one per factor.
+    loss : str or RobustLoss, optional
+        A robust loss (``"huber:1.0"``, ... see :func:`make_loss`).
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE2
     >>> from microlie.optim import FactorGraph, PriorFactor, Isotropic
@@ -134,6 +188,32 @@ class BetweenFactor(Factor):
 
     Jacobians (right): ``d r / d X_j = Jr^-1(r)``, ``d r / d X_i = -Jl^-1(r) Ad_(Z^-1)
     = -Jr^-1(r) Ad_((X_i^-1 X_j)^-1)``.
+
+    Parameters
+    ----------
+    variables : Variables
+        The handle of both ends.
+    i, j : int or array_like
+        Indices of the first and second variable of each edge.
+    Z : LieGroup or array_like
+        The measured relative poses ``X_i^-1 X_j`` (one or a batch of ``m``).
+    noise : NoiseModel, optional
+        The residual's noise (default :class:`Unit`); one model or one per factor.
+    loss : str or RobustLoss, optional
+        A robust loss (``"huber:1.0"``, ... see :func:`make_loss`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE3
+    >>> from microlie.optim import FactorGraph, BetweenFactor, Diagonal
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE3.identity(2), fixed=[0])
+    >>> Z = SE3.exp([1.0, 0, 0, 0, 0, 0.3])
+    >>> _ = g.add(BetweenFactor(x, 0, 1, Z, Diagonal([0.1] * 6)))
+    >>> res = g.optimize()
+    >>> bool(np.allclose(res.values[x][1].matrix(), Z.matrix()))
+    True
     """
 
     def __init__(self, variables: Variables, i: Any, j: Any, Z: Any,
@@ -170,17 +250,36 @@ class BetweenFactor(Factor):
 class CustomFactor(Factor):
     """A factor from a user function ``fn(*elements, *data) -> residuals (m, dim)``.
 
-    ``args`` lists ``(variables, indices)`` per argument; ``fn`` receives one batch of ``m``
-    elements (or ``(m, d)`` arrays for vectors) per argument, then the arrays in ``data``
-    (each with ``m`` rows). ``jac`` selects the Jacobians:
+    ``fn`` receives one batch of ``m`` elements (or ``(m, d)`` arrays for vectors) per
+    argument, then the arrays in ``data`` (each with ``m`` rows).
 
-    * ``"numerical"`` (default): central differences in the tangent space of each argument
-      (``X Exp(+-h e_a)``), step ``h`` (default ``1e-6``);
-    * ``"analytic"``: ``fn`` returns ``(r, [J_1, ..., J_K])`` with ``J_k`` of shape
-      ``(m, dim, dof_k)``, right Jacobians (``d r / d delta`` for ``X_k Exp(delta)``);
-    * ``"jax"`` / ``"torch"``: automatic differentiation through that backend (imported only
-      then); ``fn`` must use microlie group operations or the backend's array functions.
+    Parameters
+    ----------
+    fn : callable
+        The residual function.
+    args : sequence of (Variables, indices)
+        One pair per argument of ``fn``.
+    dim : int
+        The residual dimension.
+    noise : NoiseModel, optional
+        The residual's noise (default :class:`Unit`).
+    data : sequence of array_like
+        Extra per-factor arrays passed after the elements.
+    jac : {"numerical", "analytic", "jax", "torch"}
+        * ``"numerical"`` (default): central differences in the tangent space of each argument
+          (``X Exp(+-h e_a)``), step ``h = step``;
+        * ``"analytic"``: ``fn`` returns ``(r, [J_1, ..., J_K])`` with ``J_k`` of shape
+          ``(m, dim, dof_k)``, right Jacobians (``d r / d delta`` for ``X_k Exp(delta)``);
+        * ``"jax"`` / ``"torch"``: automatic differentiation through that backend (imported
+          only then); ``fn`` must use microlie group operations or the backend's array
+          functions.
+    step : float
+        The numerical-difference step.
+    loss : str or RobustLoss, optional
+        A robust loss.
 
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE2
     >>> from microlie.optim import FactorGraph, CustomFactor, Isotropic
@@ -188,7 +287,8 @@ class CustomFactor(Factor):
     >>> x = g.add_variables(SE2.identity(1))
     >>> def gps(X, z):  # position of the pose minus a measured position
     ...     return X.params[..., :2] - z
-    >>> _ = g.add(CustomFactor(gps, [(x, 0)], 2, Isotropic(2, 1.0), data=[np.array([[1.0, 2.0]])]))
+    >>> z = np.array([[1.0, 2.0]])
+    >>> _ = g.add(CustomFactor(gps, [(x, 0)], 2, Isotropic(2, 1.0), data=[z]))
     >>> round(g.cost(), 6)
     2.5
     """

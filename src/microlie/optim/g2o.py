@@ -92,16 +92,18 @@ def _pose_values(X: LieGroup) -> np.ndarray:
 
 
 def _rows(tag: str, ids: list[np.ndarray], values: np.ndarray) -> list[str]:
-    cols = [c.astype(str) for c in ids] + [np.char.mod("%.17g", values[:, k])
-                                           for k in range(values.shape[1])]
-    return [f"{tag} " + " ".join(r) for r in zip(*cols, strict=True)]
+    """One line per row: the tag, the integer ids, then the numbers in Python's shortest
+    repr that reads back to the same double."""
+    fmt = f"{tag} " + " ".join(["%d"] * len(ids) + ["%r"] * values.shape[1])
+    id_rows = np.stack(ids, axis=1).tolist()
+    return [fmt % (*i, *v) for i, v in zip(id_rows, values.tolist(), strict=True)]
 
 
 def write_g2o(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None) -> None:
     """Write ``graph`` as g2o, with ``poses`` (default: the graph's own) as vertex lines.
 
-    Numbers are written with 17 significant digits, so reading the file back gives the same
-    graph (angles go through ``atan2`` for SE2)."""
+    Numbers are written in the shortest form that reads back to the same double, so reading
+    the file back gives the same graph (angles go through ``atan2`` for SE2)."""
     X = graph.poses if poses is None else graph._poses(poses)
     is2d = graph.group is SE2
     vtag, etag = ("VERTEX_SE2", "EDGE_SE2") if is2d else ("VERTEX_SE3:QUAT", "EDGE_SE3:QUAT")

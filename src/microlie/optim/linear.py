@@ -32,13 +32,49 @@ class SingularSystemError(ValueError):
 
 
 class LinearSolver:
-    """Analyse once, refactorise many times, solve."""
+    """A sparse symmetric positive definite solver: analyse the pattern once, refactorise many
+    times, solve. The matrix is given as the CSC data of the full symmetric pattern passed
+    to :meth:`analyse`. Backends: ``make_solver(name)`` (see :func:`available_solvers`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim import make_solver
+    >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
+    >>> ls = make_solver("scipy")
+    >>> ls.analyse(A.indptr, A.indices, 3)
+    >>> ls.factorize(A.data)
+    >>> np.round(ls.solve(np.array([5.0, 4.0, 2.0])), 12).tolist()
+    [1.0, 1.0, 1.0]
+    """
 
     name = "base"
 
     def analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int,
                 block_size: int = 1) -> None:
-        """See the pattern (``block_size``: the unknowns come in dense blocks of that size)."""
+        """See the pattern (symbolic analysis, ordering).
+
+        Parameters
+        ----------
+        indptr, indices : numpy.ndarray
+            The CSC pattern of the full symmetric matrix.
+        n : int
+            The matrix size.
+        block_size : int
+            The unknowns come in dense blocks of that size.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> import scipy.sparse as sp
+        >>> from microlie.optim import make_solver
+        >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
+        >>> ls = make_solver("scipy")
+        >>> ls.analyse(A.indptr, A.indices, 3)
+        >>> ls.n
+        3
+        """
         self.indptr, self.indices, self.n = indptr, indices, n
 
     def _triangles(self) -> None:
@@ -57,12 +93,85 @@ class LinearSolver:
         self.lower_indices = indices[self._lower].astype(np.int32)
 
     def full(self, data: np.ndarray) -> sp.csc_matrix:
+        """The matrix of CSC ``data`` in the analysed pattern.
+
+        Parameters
+        ----------
+        data : numpy.ndarray
+            Values in the pattern's order.
+
+        Returns
+        -------
+        scipy.sparse.csc_matrix
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> import scipy.sparse as sp
+        >>> from microlie.optim import make_solver
+        >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
+        >>> ls = make_solver("scipy")
+        >>> ls.analyse(A.indptr, A.indices, 3)
+        >>> ls.full(A.data).toarray()[0].tolist()
+        [4.0, 1.0, 0.0]
+        """
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
 
     def factorize(self, data: np.ndarray) -> None:
+        """Factorise the matrix with values ``data`` in the analysed pattern.
+
+        Parameters
+        ----------
+        data : numpy.ndarray
+            Values in the pattern's order.
+
+        Raises
+        ------
+        SingularSystemError
+            The matrix is singular or not positive definite.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> import scipy.sparse as sp
+        >>> from microlie.optim import make_solver
+        >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
+        >>> ls = make_solver("scipy")
+        >>> ls.analyse(A.indptr, A.indices, 3)
+        >>> ls.factorize(A.data)
+        """
         raise NotImplementedError
 
     def solve(self, b: np.ndarray) -> np.ndarray:
+        """Solve with the last factorisation.
+
+        Parameters
+        ----------
+        b : numpy.ndarray
+            ``(n,)`` right-hand side.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n,)`` solution.
+
+        Raises
+        ------
+        SingularSystemError
+            The solution is not finite.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> import scipy.sparse as sp
+        >>> from microlie.optim import make_solver
+        >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
+        >>> ls = make_solver("scipy")
+        >>> ls.analyse(A.indptr, A.indices, 3)
+        >>> ls.factorize(A.data)
+        >>> np.round(ls.solve(np.array([4.0, 1.0, 0.0])), 12).tolist()
+        [1.0, 0.0, 0.0]
+        """
         raise NotImplementedError
 
 
@@ -250,19 +359,62 @@ _EXTRAS = {"qdldl": "microlie[sparse]", "pardiso": "microlie[mkl]"}
 
 
 def available_solvers() -> list[str]:
-    """The backends importable here (``scipy`` and ``dense`` always are)."""
+    """The linear-solver backends importable here (``scipy`` and ``dense`` always are).
+
+    Returns
+    -------
+    list of str
+
+    Examples
+    --------
+    >>> from microlie.optim import available_solvers
+    >>> {"scipy", "dense"} <= set(available_solvers())
+    True
+    """
     return [k for k in SOLVERS
             if k not in _MODULES or importlib.util.find_spec(_MODULES[k]) is not None]
 
 
 def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
                 available: list[str] | None = None) -> LinearSolver:
-    """A solver by name. ``"auto"`` chooses by what is installed and by the measurements of
+    """A linear solver by name.
+
+    ``"auto"`` chooses by what is installed and by the measurements of
     ``benchmarks/pose_graph.py``: below 300 unknowns the dense Cholesky; for 3-D problems
     (blocks of 6 or more) PARDISO, else the supernodal Cholesky; for 2-D problems qdldl, else
     PARDISO, else SuperLU (on 2-D pose graphs SuperLU beat the supernodal Cholesky, whose
-    per-supernode overhead dominates with 3x3 blocks). ``available`` restricts the choice (for
-    example to ``["scipy", "supernodal", "dense"]``, what ``pip install microlie`` has)."""
+    per-supernode overhead dominates with 3x3 blocks).
+
+    Parameters
+    ----------
+    name : str or LinearSolver
+        ``"auto"``, a backend name (see :func:`available_solvers`) or an instance (returned
+        as is).
+    n : int
+        The number of unknowns (for ``"auto"``).
+    block_size : int
+        The block size of the unknowns (for ``"auto"``).
+    available : list of str, optional
+        Restrict ``"auto"``'s choice (for example to ``["scipy", "supernodal", "dense"]``,
+        what ``pip install microlie`` has).
+
+    Returns
+    -------
+    LinearSolver
+
+    Raises
+    ------
+    ValueError
+        Unknown name.
+    ImportError
+        The backend's package is not installed (the message names the extra).
+
+    Examples
+    --------
+    >>> from microlie.optim import make_solver
+    >>> make_solver("auto", n=100).name, make_solver("auto", 5000, 3, ["scipy"]).name
+    ('dense', 'scipy')
+    """
     if isinstance(name, LinearSolver):
         return name
     if name == "auto":

@@ -59,7 +59,23 @@ def _cholesky_checked(M: np.ndarray, what: str) -> np.ndarray:
 
 class NoiseModel:
     """A Gaussian noise model, held as its square-root information ``sqrt_info`` (upper
-    triangular ``L`` with ``L^T L = information``), shape ``(d, d)`` or ``(m, d, d)``."""
+    triangular ``L`` with ``L^T L = information``), shape ``(d, d)`` or ``(m, d, d)``.
+
+    The properties ``information`` and ``covariance`` give ``L^T L`` and its inverse.
+
+    Parameters
+    ----------
+    sqrt_info : array_like
+        ``L``, one ``(d, d)`` matrix or a stack ``(m, d, d)`` (one per factor).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import NoiseModel
+    >>> n = NoiseModel(np.diag([10.0, 2.0]))
+    >>> n.dim, n.covariance.diagonal().tolist()
+    (2, [0.01, 0.25])
+    """
 
     sqrt_info: np.ndarray
 
@@ -89,7 +105,21 @@ def _upper_sqrt(info: np.ndarray, what: str) -> np.ndarray:
 
 
 class Information(NoiseModel):
-    """Full information matrix ``Omega`` (inverse covariance), ``(d, d)`` or ``(m, d, d)``."""
+    """Full information matrix ``Omega`` (inverse covariance).
+
+    Parameters
+    ----------
+    information : array_like
+        ``(d, d)`` or ``(m, d, d)``, symmetric positive definite.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import Information
+    >>> n = Information([[4.0, 1.0], [1.0, 2.0]])
+    >>> bool(np.allclose(n.sqrt_info.T @ n.sqrt_info, [[4, 1], [1, 2]]))
+    True
+    """
 
     def __init__(self, information: Any) -> None:
         O = _stack(information, "Information")
@@ -98,7 +128,19 @@ class Information(NoiseModel):
 
 class SqrtInformation(NoiseModel):
     """Square-root information ``L`` with ``L^T L = Omega`` (any square root, e.g. upper
-    Cholesky); must be invertible."""
+    Cholesky); must be invertible.
+
+    Parameters
+    ----------
+    sqrt_info : array_like
+        ``(d, d)`` or ``(m, d, d)``.
+
+    Examples
+    --------
+    >>> from microlie.optim import SqrtInformation
+    >>> SqrtInformation([[2.0, 0.0], [0.0, 4.0]]).information.tolist()
+    [[4.0, 0.0], [0.0, 16.0]]
+    """
 
     def __init__(self, sqrt_info: Any) -> None:
         L = _stack(sqrt_info, "SqrtInformation")
@@ -107,7 +149,21 @@ class SqrtInformation(NoiseModel):
 
 
 class Covariance(NoiseModel):
-    """Covariance ``Sigma``; the information is ``Sigma^-1``."""
+    """Covariance ``Sigma``; the information is ``Sigma^-1``.
+
+    Parameters
+    ----------
+    covariance : array_like
+        ``(d, d)`` or ``(m, d, d)``, symmetric positive definite.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import Covariance
+    >>> S = [[0.04, 0.01], [0.01, 0.09]]
+    >>> bool(np.allclose(Covariance(S).covariance, S))
+    True
+    """
 
     def __init__(self, covariance: Any) -> None:
         S = _stack(covariance, "Covariance")
@@ -117,7 +173,19 @@ class Covariance(NoiseModel):
 
 
 class Diagonal(NoiseModel):
-    """Independent components with standard deviations ``sigmas`` (``(d,)`` or ``(m, d)``)."""
+    """Independent components with standard deviations ``sigmas``.
+
+    Parameters
+    ----------
+    sigmas : array_like
+        ``(d,)`` or ``(m, d)`` positive standard deviations.
+
+    Examples
+    --------
+    >>> from microlie.optim import Diagonal
+    >>> Diagonal([0.1, 0.5]).sqrt_info.diagonal().tolist()
+    [10.0, 2.0]
+    """
 
     def __init__(self, sigmas: Any) -> None:
         s = np.asarray(sigmas, dtype=np.float64)
@@ -134,6 +202,23 @@ class Diagonal(NoiseModel):
 
     @classmethod
     def from_variances(cls, variances: Any) -> Diagonal:
+        """The diagonal model of standard deviations ``sqrt(variances)``.
+
+        Parameters
+        ----------
+        variances : array_like
+            ``(d,)`` or ``(m, d)`` positive variances.
+
+        Returns
+        -------
+        Diagonal
+
+        Examples
+        --------
+        >>> from microlie.optim import Diagonal
+        >>> Diagonal.from_variances([0.01, 0.25]).sqrt_info.diagonal().tolist()
+        [10.0, 2.0]
+        """
         v = np.asarray(variances, dtype=np.float64)
         if np.any(v <= 0):
             raise ValueError("Diagonal variances must be positive")
@@ -141,7 +226,21 @@ class Diagonal(NoiseModel):
 
 
 class Isotropic(NoiseModel):
-    """The same standard deviation ``sigma`` on all ``dim`` components."""
+    """The same standard deviation ``sigma`` on all ``dim`` components.
+
+    Parameters
+    ----------
+    dim : int
+        The residual dimension.
+    sigma : float
+        The standard deviation.
+
+    Examples
+    --------
+    >>> from microlie.optim import Isotropic
+    >>> Isotropic(3, 0.5).information.diagonal().tolist()
+    [4.0, 4.0, 4.0]
+    """
 
     def __init__(self, dim: int, sigma: float) -> None:
         if not (np.isfinite(sigma) and sigma > 0):
@@ -150,7 +249,19 @@ class Isotropic(NoiseModel):
 
 
 class Unit(Isotropic):
-    """Unit noise (identity information)."""
+    """Unit noise (identity information).
+
+    Parameters
+    ----------
+    dim : int
+        The residual dimension.
+
+    Examples
+    --------
+    >>> from microlie.optim import Unit
+    >>> Unit(2).sqrt_info.tolist()
+    [[1.0, 0.0], [0.0, 1.0]]
+    """
 
     def __init__(self, dim: int) -> None:
         super().__init__(dim, 1.0)

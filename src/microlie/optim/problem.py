@@ -40,6 +40,37 @@ class Linearization:
 
 
 class Problem:
+    """The least-squares problem of a graph: unknown numbering, the block pattern of
+    ``H = J^T J``, and evaluation into it (built by :meth:`FactorGraph.problem`).
+
+    Parameters
+    ----------
+    variables : list of Variables
+        The graph's variable batches.
+    factors : list of Factor
+        The graph's factor batches.
+    gauge : {"check", "fix_first", "none"}
+        See :meth:`FactorGraph.optimize`.
+
+    Raises
+    ------
+    GaugeError
+        ``gauge="check"`` and some variables are not anchored.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(3))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+    >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+    >>> p = g.problem()
+    >>> states = [v.initial for v in p.variables]
+    >>> p.size, p.block_size, p.num_nodes
+    (9, 3, 3)
+    """
     def __init__(self, variables: list[Variables], factors: list[Factor],
                  gauge: str = "check") -> None:
         self.variables = variables
@@ -79,6 +110,31 @@ class Problem:
                       for f in self.factors]
 
     def key(self, var: Variables) -> int:
+        """The position of a variable batch in the problem.
+
+        Parameters
+        ----------
+        var : Variables
+            A handle of the graph.
+
+        Returns
+        -------
+        int
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> p = g.problem()
+        >>> states = [v.initial for v in p.variables]
+        >>> p.key(x)
+        0
+        """
         return self._key[id(var)]
 
     # ------------------------------------------------------------------ gauge
@@ -209,7 +265,31 @@ class Problem:
         return np.where(ok[:, None], d, self.nnz).ravel()
 
     def analysed(self, linear_solver: Any) -> Any:
-        """A linear solver (name or instance) that has analysed this problem's pattern."""
+        """A linear solver that has analysed this problem's pattern.
+
+        Parameters
+        ----------
+        linear_solver : str or LinearSolver
+            A name (see :func:`~microlie.optim.make_solver`) or an instance.
+
+        Returns
+        -------
+        LinearSolver
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> p = g.problem()
+        >>> states = [v.initial for v in p.variables]
+        >>> p.analysed("scipy").n
+        9
+        """
         from .linear import make_solver
 
         ls = make_solver(linear_solver, self.size, self.block_size)
@@ -217,20 +297,127 @@ class Problem:
         return ls
 
     def matrix(self, data: np.ndarray) -> sp.csc_matrix:
+        """The sparse ``H`` of CSC ``data`` in the problem's pattern.
+
+        Parameters
+        ----------
+        data : numpy.ndarray
+            Values in the pattern's order (``Linearization.data``).
+
+        Returns
+        -------
+        scipy.sparse.csc_matrix
+            ``(size, size)``, full symmetric storage.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> p = g.problem()
+        >>> states = [v.initial for v in p.variables]
+        >>> H = p.matrix(p.linearize(states).data)
+        >>> H.shape, bool(abs(H - H.T).max() == 0)
+        ((9, 9), True)
+        """
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
 
     # ------------------------------------------------------------------ evaluation
     def gather(self, f: Factor, states: list[np.ndarray]) -> list[Any]:
+        """The argument values of a factor batch.
+
+        Parameters
+        ----------
+        f : Factor
+            One of the problem's factors.
+        states : list of numpy.ndarray
+            The parameters of each variable batch, in graph order.
+
+        Returns
+        -------
+        list
+            One batch of elements (or ``(m, d)`` array) per argument of ``f``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> p = g.problem()
+        >>> states = [v.initial for v in p.variables]
+        >>> [a.batch_shape for a in p.gather(p.factors[1], states)]
+        [(2,), (2,)]
+        """
         return [var.wrap(states[self.key(var)][idx]) for var, idx in f.args]
 
     def whiten(self, f: Factor, r: np.ndarray) -> np.ndarray:
+        """Whitened residuals ``e = L r`` with the factor's square-root information ``L``.
+
+        Parameters
+        ----------
+        f : Factor
+            The factor batch.
+        r : numpy.ndarray
+            ``(m, dim)`` residuals.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(m, dim)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> p = g.problem()
+        >>> states = [v.initial for v in p.variables]
+        >>> p.whiten(p.factors[0], np.ones((1, 3))).tolist()  # unit noise
+        [[1.0, 1.0, 1.0]]
+        """
         L = f.noise.sqrt_info
         if L.ndim == 2:
             return r @ L.T
         return (L @ r[:, :, None])[:, :, 0]
 
     def costs(self, states: list[np.ndarray]) -> tuple[float, float]:
-        """Plain cost ``0.5 sum |e|^2`` and robust cost ``0.5 sum rho(|e|^2)``."""
+        """The plain cost ``0.5 sum |e|^2`` and the robust cost ``0.5 sum rho(|e|^2)``.
+
+        Parameters
+        ----------
+        states : list of numpy.ndarray
+            The parameters of each variable batch, in graph order.
+
+        Returns
+        -------
+        cost, robust_cost : float
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> p = g.problem()
+        >>> states = [v.initial for v in p.variables]
+        >>> p.costs(states)
+        (1.0, 1.0)
+        """
         c = rc = 0.0
         for f in self.factors:
             e = self.whiten(f, np.asarray(f.evaluate(self.gather(f, states), False)))
@@ -240,6 +427,34 @@ class Problem:
         return c, rc
 
     def linearize(self, states: list[np.ndarray]) -> Linearization:
+        """Linearise every factor at ``states`` and assemble ``H = J^T J`` and ``g = J^T e``
+        (whitened, robust weights with Triggs' correction where it applies).
+
+        Parameters
+        ----------
+        states : list of numpy.ndarray
+            The parameters of each variable batch, in graph order.
+
+        Returns
+        -------
+        Linearization
+            ``data`` (CSC values of ``H``), ``grad``, ``cost``, ``robust_cost`` and timings.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> p = g.problem()
+        >>> states = [v.initial for v in p.variables]
+        >>> lin = p.linearize(states)
+        >>> lin.grad.shape, lin.cost
+        ((9,), 1.0)
+        """
         t0 = time.perf_counter()
         hw, gw = [], []
         cost = rcost = 0.0
@@ -280,6 +495,37 @@ class Problem:
                               "total": t_end - t0})
 
     def retract(self, states: list[np.ndarray], dx: np.ndarray) -> list[np.ndarray]:
+        """The states after a step ``dx`` on the free variables (``X Exp(dx_block)``; fixed
+        variables unchanged).
+
+        Parameters
+        ----------
+        states : list of numpy.ndarray
+            The parameters of each variable batch, in graph order.
+        dx : numpy.ndarray
+            ``(size,)`` step in the problem's unknown order.
+
+        Returns
+        -------
+        list of numpy.ndarray
+            The new states.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> p = g.problem()
+        >>> states = [v.initial for v in p.variables]
+        >>> lin = p.linearize(states)
+        >>> dx = np.linalg.solve(p.matrix(lin.data).toarray(), -lin.grad)
+        >>> p.costs(p.retract(states, dx))[0] < 1e-20
+        True
+        """
         out = []
         for v, nodes, p in zip(self.variables, self.node_of, states, strict=False):
             free = np.flatnonzero(nodes >= 0)

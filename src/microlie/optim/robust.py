@@ -10,6 +10,8 @@ would make the Gauss-Newton matrix indefinite.
 ``scale`` is ``c`` in the residual's units (whitened, i.e. in standard deviations): residuals
 with ``|e|`` above about ``c`` are down-weighted.
 
+Examples
+--------
 >>> import numpy as np
 >>> h = Huber(1.0)
 >>> [float(v) for v in h.rho(np.array([0.25, 4.0]))]
@@ -25,7 +27,21 @@ __all__ = ["RobustLoss", "Huber", "Cauchy", "Tukey", "GemanMcClure", "DCS", "Bar
 
 
 class RobustLoss:
-    """Base class: ``evaluate(s)`` returns ``(rho, rho', rho'')`` as arrays of ``s``'s shape."""
+    """Base class of the losses: ``evaluate(s)`` returns ``(rho, rho', rho'')`` as arrays of
+    ``s``'s shape.
+
+    Parameters
+    ----------
+    scale : float
+        ``c``, in whitened units (standard deviations); positive.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import RobustLoss, Huber
+    >>> isinstance(Huber(2.0), RobustLoss), Huber(2.0).scale
+    (True, 2.0)
+    """
 
     def __init__(self, scale: float = 1.0) -> None:
         if not (np.isfinite(scale) and scale > 0):
@@ -33,13 +49,67 @@ class RobustLoss:
         self.scale = float(scale)
 
     def evaluate(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The loss and its first two derivatives at ``s = |e|^2``.
+
+        Parameters
+        ----------
+        s : numpy.ndarray
+            Squared whitened residual norms (non-negative).
+
+        Returns
+        -------
+        rho, drho, d2rho : numpy.ndarray
+            ``rho(s)``, ``rho'(s)`` and ``rho''(s)``, each of ``s``'s shape.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import Huber
+        >>> [v.tolist() for v in Huber(1.0).evaluate(np.array([4.0]))]
+        [[3.0], [0.5], [-0.0625]]
+        """
         raise NotImplementedError
 
     def rho(self, s: np.ndarray) -> np.ndarray:
+        """The loss ``rho(s)``.
+
+        Parameters
+        ----------
+        s : array_like
+            Squared whitened residual norms.
+
+        Returns
+        -------
+        numpy.ndarray
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import Huber
+        >>> Huber(1.0).rho(np.array([0.25, 4.0])).tolist()
+        [0.25, 3.0]
+        """
         return self.evaluate(np.asarray(s, dtype=np.float64))[0]
 
     def weight(self, s: np.ndarray) -> np.ndarray:
-        """The IRLS weight ``rho'(s)``."""
+        """The IRLS weight ``rho'(s)``.
+
+        Parameters
+        ----------
+        s : array_like
+            Squared whitened residual norms.
+
+        Returns
+        -------
+        numpy.ndarray
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import Cauchy
+        >>> Cauchy(1.0).weight(np.array([0.0, 1.0, 3.0])).tolist()
+        [1.0, 0.5, 0.25]
+        """
         return self.evaluate(np.asarray(s, dtype=np.float64))[1]
 
     def __repr__(self) -> str:
@@ -47,7 +117,20 @@ class RobustLoss:
 
 
 class Huber(RobustLoss):
-    """``rho = s`` for ``s <= c^2``, ``2 c sqrt(s) - c^2`` beyond (quadratic, then linear)."""
+    """``rho = s`` for ``s <= c^2``, ``2 c sqrt(s) - c^2`` beyond (quadratic, then linear).
+
+    Parameters
+    ----------
+    scale : float
+        ``c``, in whitened units (standard deviations); positive.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import Huber
+    >>> Huber(1.0).rho(np.array([0.25, 4.0])).tolist()
+    [0.25, 3.0]
+    """
 
     def evaluate(self, s):
         c = self.scale
@@ -59,7 +142,20 @@ class Huber(RobustLoss):
 
 
 class Cauchy(RobustLoss):
-    """``rho = c^2 log(1 + s / c^2)``."""
+    """``rho = c^2 log(1 + s / c^2)``.
+
+    Parameters
+    ----------
+    scale : float
+        ``c``, in whitened units (standard deviations); positive.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import Cauchy
+    >>> np.round(Cauchy(1.0).rho(np.array([1.0])), 6).tolist()
+    [0.693147]
+    """
 
     def evaluate(self, s):
         c2 = self.scale ** 2
@@ -69,7 +165,21 @@ class Cauchy(RobustLoss):
 
 class Tukey(RobustLoss):
     """Tukey's biweight: ``rho = c^2/3 (1 - (1 - s/c^2)^3)`` for ``s <= c^2``, constant beyond
-    (outliers get zero weight)."""
+    (outliers get zero weight).
+
+    Parameters
+    ----------
+    scale : float
+        ``c``, in whitened units (standard deviations); positive.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import Tukey
+    >>> s = np.array([4.0])
+    >>> np.round(Tukey(1.0).rho(s), 6).tolist(), Tukey(1.0).weight(s).tolist()
+    ([0.333333], [0.0])
+    """
 
     def evaluate(self, s):
         c2 = self.scale ** 2
@@ -80,7 +190,20 @@ class Tukey(RobustLoss):
 
 
 class GemanMcClure(RobustLoss):
-    """``rho = c^2 s / (c^2 + s)``."""
+    """``rho = c^2 s / (c^2 + s)``.
+
+    Parameters
+    ----------
+    scale : float
+        ``c``, in whitened units (standard deviations); positive.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import GemanMcClure
+    >>> GemanMcClure(1.0).rho(np.array([1.0])).tolist()
+    [0.5]
+    """
 
     def evaluate(self, s):
         c2 = self.scale ** 2
@@ -91,7 +214,20 @@ class GemanMcClure(RobustLoss):
 class DCS(RobustLoss):
     """Dynamic covariance scaling (Agarwal et al. 2013) with ``Phi = scale``: the residual is
     weighted by ``rho'(s) = min(1, 2 Phi / (Phi + s))^2``; integrated consistently this is
-    ``rho = s`` for ``s <= Phi`` and ``3 Phi - 4 Phi^2 / (Phi + s)`` beyond."""
+    ``rho = s`` for ``s <= Phi`` and ``3 Phi - 4 Phi^2 / (Phi + s)`` beyond.
+
+    Parameters
+    ----------
+    scale : float
+        ``Phi``, positive.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import DCS
+    >>> DCS(1.0).rho(np.array([3.0])).tolist(), DCS(1.0).weight(np.array([3.0])).tolist()
+    ([2.0], [0.25])
+    """
 
     def evaluate(self, s):
         p = self.scale
@@ -104,7 +240,22 @@ class DCS(RobustLoss):
 class Barron(RobustLoss):
     """Barron's general loss with shape ``alpha`` (not 0 or 2) and scale ``c``:
     ``rho = 2 c^2 |a-2|/a ((s / (c^2 |a-2|) + 1)^(a/2) - 1)`` (``alpha=1`` is pseudo-Huber,
-    ``alpha=-2`` Geman-McClure)."""
+    ``alpha=-2`` Geman-McClure).
+
+    Parameters
+    ----------
+    scale : float
+        ``c``, positive.
+    alpha : float
+        The shape, finite and not 0 or 2.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import Barron
+    >>> Barron(1.0, alpha=1.0).rho(np.array([3.0])).tolist()
+    [2.0]
+    """
 
     def __init__(self, scale: float = 1.0, alpha: float = 1.0) -> None:
         super().__init__(scale)
@@ -126,10 +277,23 @@ _LOSSES = {"huber": Huber, "cauchy": Cauchy, "tukey": Tukey, "gemanmcclure": Gem
 
 
 def make_loss(spec: str | RobustLoss | None) -> RobustLoss | None:
-    """``"huber:1.0"``, ``"cauchy"`` (scale 1), a RobustLoss, or None.
+    """A robust loss from a specification.
 
-    >>> make_loss("cauchy:2")
-    Cauchy(2.0)
+    Parameters
+    ----------
+    spec : str, RobustLoss or None
+        ``"name"`` or ``"name:scale"`` with name ``huber``, ``cauchy``, ``tukey``,
+        ``gemanmcclure``, ``dcs`` or ``barron`` (scale 1 if omitted), a loss, or ``None``.
+
+    Returns
+    -------
+    RobustLoss or None
+
+    Examples
+    --------
+    >>> from microlie.optim import make_loss
+    >>> make_loss("cauchy:2"), make_loss("huber"), make_loss(None)
+    (Cauchy(2.0), Huber(1.0), None)
     """
     if spec is None or isinstance(spec, RobustLoss):
         return spec

@@ -31,9 +31,35 @@ __all__ = ["Result", "IterationRecord", "SolverOptions", "solve"]
 
 @dataclass(frozen=True)
 class IterationRecord:
-    """One accepted (or final rejected) iteration: cost after it, step norm, the damping
-    (``lambda`` for LM, trust radius for dogleg, 0 for GN), time since the start, and the
-    number of linear solves it took."""
+    """One accepted (or final rejected) iteration of a solve.
+
+    Attributes
+    ----------
+    iteration : int
+        Its number (1-based).
+    cost : float
+        The robust cost after it.
+    step_norm : float
+        The norm of the step.
+    damping : float
+        ``lambda`` for LM, the trust radius for dogleg, 0 for GN.
+    time_s : float
+        Time since the start, seconds.
+    solves : int
+        The linear solves it took.
+
+    Examples
+    --------
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(1))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.exp([1.0, 2.0, 0.5])))
+    >>> res = g.optimize()
+    >>> rec = res.history[0]
+    >>> rec.iteration, rec.solves >= 1
+    (1, True)
+    """
 
     iteration: int
     cost: float
@@ -47,11 +73,41 @@ class IterationRecord:
 class Result:
     """The outcome of :meth:`FactorGraph.optimize`.
 
-    ``initial_cost`` / ``final_cost`` are ``0.5 * sum r^T Omega r`` without robust losses
-    (GTSAM's error); ``initial_robust_cost`` / ``final_robust_cost`` are the minimised
-    ``0.5 * sum rho(r^T Omega r)`` (equal to the plain ones without losses). ``time_s`` is the
-    solve time (analysis included, graph construction excluded); ``timings`` splits it into
-    linearise / assemble / factorise / solve / other.
+    Attributes
+    ----------
+    values : Values
+        The optimised values.
+    initial_cost, final_cost : float
+        ``0.5 * sum r^T Omega r`` without robust losses (GTSAM's error).
+    initial_robust_cost, final_robust_cost : float
+        The minimised ``0.5 * sum rho(r^T Omega r)`` (equal to the plain ones without losses).
+    iterations : int
+        Accepted iterations.
+    converged : bool
+        Whether a convergence test was met (not the iteration limit).
+    message : str
+        Why the solver stopped.
+    history : list of IterationRecord
+        One record per iteration.
+    time_s : float
+        Solve time, seconds (analysis included, graph construction excluded).
+    solver, linear_solver : str
+        What ran.
+    timings : dict
+        ``time_s`` split into linearise / assemble / factorise / solve / other.
+    gauge_fixed : list
+        ``(handle, index)`` of the variables held by ``gauge="fix_first"``.
+
+    Examples
+    --------
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(1))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.exp([1.0, 2.0, 0.5])))
+    >>> res = g.optimize()
+    >>> res.converged, res.initial_cost > res.final_cost, round(res.final_cost, 12)
+    (True, True, 0.0)
     """
 
     values: Values

@@ -22,11 +22,36 @@ def element(group: type[LieGroup], params: Any) -> LieGroup:
 
 
 class Variables:
-    """A handle to one batch of ``n`` variables of one type in a :class:`FactorGraph`.
+    """A handle to one batch of ``n`` variables of one type in a :class:`FactorGraph`
+    (returned by :meth:`FactorGraph.add_variables`; not built directly).
 
     ``group`` is a :class:`~microlie.LieGroup` subclass, or ``None`` for plain vectors of
-    dimension ``dof``. Variables are perturbed on the right (``X Exp(delta)``; ``x + delta`` for
-    vectors), so every Jacobian and every marginal covariance is in the right-perturbation frame.
+    dimension ``dof``. Variables are perturbed on the right (``X Exp(delta)``; ``x + delta``
+    for vectors), so every Jacobian and every marginal covariance is in the
+    right-perturbation frame.
+
+    Parameters
+    ----------
+    graph : FactorGraph
+        The owner.
+    key : int
+        Position in the graph.
+    values : LieGroup or array_like
+        A 1-D batch of elements or an ``(n, d)`` array.
+    fixed : optional
+        Indices, a mask or ``True`` for the constant ones.
+    name : str
+        The label.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(4), name="x")
+    >>> x.group.__name__, x.dof, len(x)
+    ('SE2', 3, 4)
     """
 
     __slots__ = ("graph", "key", "group", "dof", "n", "initial", "fixed", "name")
@@ -58,7 +83,35 @@ class Variables:
             self.fix(fixed)
 
     def indices(self, idx: Any, what: str = "index") -> np.ndarray:
-        """Validated integer indices into this batch."""
+        """Validated integer indices into this batch.
+
+        Parameters
+        ----------
+        idx : int, array_like or boolean mask
+            The selection.
+        what : str
+            What the indices are, for the error message.
+
+        Returns
+        -------
+        numpy.ndarray
+            1-D int64 indices.
+
+        Raises
+        ------
+        ValueError
+            Non-integer, out-of-range indices or a mask of the wrong shape.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(4), name="x")
+        >>> x.indices([True, False, True, False]).tolist(), x.indices(3).tolist()
+        ([0, 2], [3])
+        """
         a = np.asarray(idx)
         if a.dtype == bool:
             if a.shape != (self.n,):
@@ -75,7 +128,24 @@ class Variables:
         return a
 
     def fix(self, idx: Any = None) -> None:
-        """Hold the variables ``idx`` (all if None; or ``True``) constant."""
+        """Hold the variables ``idx`` constant.
+
+        Parameters
+        ----------
+        idx : optional
+            Indices or a mask; all if ``None`` or ``True`` (``False`` frees all).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(4), name="x")
+        >>> x.fix([0, 1])
+        >>> x.fixed.tolist()
+        [True, True, False, False]
+        """
         if idx is None or idx is True:
             self.fixed[:] = True
         elif idx is False:
@@ -85,6 +155,25 @@ class Variables:
         self.graph._changed()
 
     def unfix(self, idx: Any = None) -> None:
+        """Let the variables ``idx`` vary again.
+
+        Parameters
+        ----------
+        idx : optional
+            Indices or a mask; all if ``None``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(4), name="x")
+        >>> x.fix()
+        >>> x.unfix(0)
+        >>> x.fixed.tolist()
+        [False, True, True, True]
+        """
         if idx is None:
             self.fixed[:] = False
         else:
@@ -92,9 +181,54 @@ class Variables:
         self.graph._changed()
 
     def wrap(self, params: Any) -> Any:
+        """Parameters of this batch as group elements (vectors are returned as they are).
+
+        Parameters
+        ----------
+        params : numpy.ndarray
+            ``(k, params_dim)`` trusted parameters (not checked).
+
+        Returns
+        -------
+        LieGroup or numpy.ndarray
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(4), name="x")
+        >>> type(x.wrap(np.tile([0.0, 0, 1, 0], (2, 1)))).__name__
+        'SE2'
+        """
         return params if self.group is None else element(self.group, params)
 
     def retract(self, params: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """The parameters of ``X Exp(delta)`` (``x + delta`` for vectors).
+
+        Parameters
+        ----------
+        params : numpy.ndarray
+            ``(k, params_dim)`` parameters.
+        delta : numpy.ndarray
+            ``(k, dof)`` tangent steps.
+
+        Returns
+        -------
+        numpy.ndarray
+            The new parameters.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(4), name="x")
+        >>> x.retract(np.array([[0.0, 0, 1, 0]]), np.array([[1.0, 2.0, 0.0]])).tolist()
+        [[1.0, 2.0, 1.0, 0.0]]
+        """
         if self.group is None:
             return params + delta
         return np.asarray(element(self.group, params).plus(delta).params)
@@ -108,8 +242,27 @@ class Variables:
 
 
 class Values:
-    """Values of a graph's variables: ``values[handle]`` is the batch of that handle
-    (a group element batch, or an ``(n, d)`` array for vectors)."""
+    """Values of a graph's variables: ``values[handle]`` is the batch of that handle (a group
+    element batch, or an ``(n, d)`` array for vectors). Iterating gives the handles.
+
+    Parameters
+    ----------
+    handles : list of Variables
+        The graph's handles.
+    params : list of numpy.ndarray
+        One parameter array per handle.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(4), name="x")
+    >>> v = g.initial_values()
+    >>> len(v), v[x].batch_shape
+    (1, (4,))
+    """
 
     def __init__(self, handles: list[Variables], params: list[np.ndarray]) -> None:
         self._handles = list(handles)
@@ -119,6 +272,28 @@ class Values:
         return var.wrap(self._params[self._index(var)])
 
     def params(self, var: Variables) -> np.ndarray:
+        """The raw parameter array of a handle.
+
+        Parameters
+        ----------
+        var : Variables
+            A handle of the graph.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n, params_dim)`` (SE2: ``x, y, cos, sin``), or ``(n, d)`` for vectors.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(4), name="x")
+        >>> g.initial_values().params(x)[0].tolist()
+        [0.0, 0.0, 1.0, 0.0]
+        """
         return self._params[self._index(var)]
 
     def _index(self, var: Variables) -> int:
@@ -134,6 +309,22 @@ class Values:
         return len(self._handles)
 
     def items(self) -> Iterator[tuple[Variables, Any]]:
+        """The ``(handle, value)`` pairs, in graph order.
+
+        Yields
+        ------
+        tuple of (Variables, LieGroup or numpy.ndarray)
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(4), name="x")
+        >>> [(h.name, type(v).__name__) for h, v in g.initial_values().items()]
+        [('x', 'SE2')]
+        """
         for h in self._handles:
             yield h, self[h]
 

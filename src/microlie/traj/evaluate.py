@@ -45,6 +45,37 @@ def prepare(
 
     With timestamps on both sides they are associated (:func:`associate`); otherwise the
     trajectories must have the same length and are paired index by index.
+
+    Parameters
+    ----------
+    ref, est : Trajectory
+        Reference and estimate.
+    max_diff : float
+        Largest time difference of an associated pair, seconds.
+    offset : float
+        Added to the estimate's timestamps for the association.
+    t_start, t_end : float, optional
+        Time window (absolute seconds) applied to the reference before association.
+    downsample : int, optional
+        Keep at most this many poses of each trajectory (see :meth:`Trajectory.downsample`).
+    interpolate : {None, "se3", "split"}
+        Interpolate instead of pairing nearest stamps (see :func:`associate`).
+
+    Returns
+    -------
+    ref, est : Trajectory
+        The paired poses.
+    association : Association or None
+        ``None`` when paired by index.
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie import traj
+    >>> ref, est = (traj.read_tum(p) for p in example_paths())
+    >>> r, e, assoc = traj.prepare(ref, est, t_end=ref.timestamps[0] + 2.0)
+    >>> len(r) == len(e) == assoc.num_pairs
+    True
     """
     if downsample is not None:
         ref, est = ref.downsample(downsample), est.downsample(downsample)
@@ -67,11 +98,23 @@ def prepare(
 def describe_alignment(g: SE3 | Sim3 | None) -> dict[str, Any]:
     """The alignment transform as JSON-ready, labelled fields (``scale`` is 1 for SE(3)).
 
-    Example:
-        >>> from microlie import Sim3
-        >>> d = describe_alignment(Sim3.identity())
-        >>> sorted(d), d["scale"]
-        (['matrix', 'rotation_quat_xyzw', 'scale', 'translation'], 1.0)
+    Parameters
+    ----------
+    g : SE3, Sim3 or None
+        The transform returned by :func:`align`.
+
+    Returns
+    -------
+    dict
+        ``rotation_quat_xyzw``, ``translation``, ``scale`` and ``matrix``; empty for ``None``.
+
+    Examples
+    --------
+    >>> from microlie import Sim3
+    >>> from microlie.traj import describe_alignment
+    >>> d = describe_alignment(Sim3.identity())
+    >>> sorted(d), d["scale"]
+    (['matrix', 'rotation_quat_xyzw', 'scale', 'translation'], 1.0)
     """
     if g is None:
         return {}
@@ -124,12 +167,49 @@ def evaluate_ape(
     interpolate: str | None = None,
     project: str | None = None,
 ) -> PoseError:
-    """Preprocess, associate, align (``"none" | "se3" | "sim3" | "scale" | "origin"``),
-    optionally project, and compute the APE (module docstring for the order of the steps).
+    """Preprocess, associate, align, optionally project, and compute the APE (module docstring
+    for the order of the steps).
 
-    ``res.ref`` / ``res.est`` hold the paired reference and the aligned estimate; ``res.info``
-    the association counts, the alignment (``alignment_transform``, ``alignment_scale``) and
-    the preprocessing options used.
+    Parameters
+    ----------
+    ref, est : Trajectory
+        Reference and estimate (any lengths; paired by :func:`prepare`).
+    relation : str
+        See :func:`ape`.
+    align : {"none", "se3", "sim3", "scale", "origin"}
+        Alignment of the estimate to the reference (see :func:`align`).
+    n_align : int, optional
+        Use only the first ``n_align`` pairs to estimate the alignment.
+    max_diff : float
+        Largest time difference of an associated pair, seconds.
+    offset : float
+        Added to the estimate's timestamps for the association.
+    angle_unit : {"deg", "rad"}
+        The unit of ``relation="rot"``.
+    project : {None, "xy", "xz", "yz"}
+        Project both onto a plane after the alignment (2-D evaluation).
+    t_start, t_end : float, optional
+        Time window (absolute seconds) applied to the reference before association.
+    downsample : int, optional
+        Keep at most this many poses of each trajectory (see :meth:`Trajectory.downsample`).
+    interpolate : {None, "se3", "split"}
+        Interpolate instead of pairing nearest stamps (see :func:`associate`).
+
+    Returns
+    -------
+    PoseError
+        ``res.ref`` / ``res.est`` hold the paired reference and the aligned estimate;
+        ``res.info`` the association counts, the alignment (``alignment_transform``,
+        ``alignment_scale``) and the preprocessing options used.
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie import traj
+    >>> ref, est = (traj.read_tum(p) for p in example_paths())
+    >>> res = traj.evaluate_ape(ref, est, align="se3")
+    >>> round(res.stats["rmse"], 4), res.info["alignment_scale"]
+    (0.0617, 1.0)
     """
     pre = dict(max_diff=max_diff, offset=offset, t_start=t_start, t_end=t_end,
                downsample=downsample, interpolate=interpolate)
@@ -162,8 +242,46 @@ def evaluate_rpe(
     interpolate: str | None = None,
     project: str | None = None,
 ) -> PoseError:
-    """Preprocess, associate, optionally align and project, and compute the RPE (see
-    :func:`microlie.traj.rpe`; ``unit`` is ``"frames"``, ``"m"``, ``"deg"`` or ``"rad"``)."""
+    """Preprocess, associate, optionally align and project, and compute the RPE.
+
+    Parameters
+    ----------
+    ref, est : Trajectory
+        Reference and estimate (any lengths; paired by :func:`prepare`).
+    relation, delta, unit, all_pairs, rel_tol, pairs_from
+        See :func:`rpe` (``unit`` is ``"frames"``, ``"m"``, ``"deg"`` or ``"rad"``).
+    align : {"none", "se3", "sim3", "scale", "origin"}
+        Alignment of the estimate to the reference (see :func:`align`).
+    n_align : int, optional
+        Use only the first ``n_align`` pairs to estimate the alignment.
+    max_diff : float
+        Largest time difference of an associated pair, seconds.
+    offset : float
+        Added to the estimate's timestamps for the association.
+    angle_unit : {"deg", "rad"}
+        The unit of ``relation="rot"``.
+    project : {None, "xy", "xz", "yz"}
+        Project both onto a plane after the alignment (2-D evaluation).
+    t_start, t_end : float, optional
+        Time window (absolute seconds) applied to the reference before association.
+    downsample : int, optional
+        Keep at most this many poses of each trajectory (see :meth:`Trajectory.downsample`).
+    interpolate : {None, "se3", "split"}
+        Interpolate instead of pairing nearest stamps (see :func:`associate`).
+
+    Returns
+    -------
+    PoseError
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie import traj
+    >>> ref, est = (traj.read_tum(p) for p in example_paths())
+    >>> res = traj.evaluate_rpe(ref, est, relation="rot", delta=1, unit="m")
+    >>> res.metric, res.unit, res.info["delta_unit"]
+    ('rpe', 'deg', 'm')
+    """
     pre = dict(max_diff=max_diff, offset=offset, t_start=t_start, t_end=t_end,
                downsample=downsample, interpolate=interpolate)
     r, e, assoc, g = _pipeline(ref, est, align, n_align, project, pre)
@@ -185,6 +303,31 @@ def evaluate_kitti(
     offset: float = 0.0,
 ) -> KittiResult:
     """Pair the trajectories and compute the KITTI odometry metric (no alignment, as the
-    benchmark does: segment errors are invariant to a global rigid transform)."""
+    benchmark does: segment errors are invariant to a global rigid transform).
+
+    Parameters
+    ----------
+    ref, est : Trajectory
+        Reference and estimate.
+    lengths : sequence of float
+        Segment lengths, metres.
+    step : int
+        Index step between segment starts.
+    max_diff, offset : float
+        Association (see :func:`associate`), when both have timestamps.
+
+    Returns
+    -------
+    KittiResult
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.traj import Trajectory, evaluate_kitti
+    >>> x = np.c_[np.arange(0.0, 150.0), np.zeros((150, 2))]
+    >>> t = Trajectory.from_arrays(x, np.tile([0, 0, 0, 1.0], (150, 1)))
+    >>> evaluate_kitti(t, t).per_length
+    {100.0: (0.0, 0.0, 5)}
+    """
     r, e, _ = prepare(ref, est, max_diff=max_diff, offset=offset)
     return kitti_odometry(r, e, lengths, step)

@@ -273,11 +273,31 @@ def _quat_trajectory(
 def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None) -> Trajectory:
     """Read a TUM trajectory ``timestamp tx ty tz qx qy qz qw`` (quaternion scalar last).
 
-    Example:
-        >>> from microlie.data import example_paths
-        >>> traj = read_tum(example_paths()[0])
-        >>> len(traj), traj.poses.params.shape
-        (150, (150, 7))
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    quat_tol : float
+        Largest accepted ``| |q| - 1 |`` (quaternions are then normalised).
+    name : str, optional
+        The trajectory's label (default: the path).
+
+    Returns
+    -------
+    Trajectory
+
+    Raises
+    ------
+    ValueError
+        Naming the file and line of a malformed line (see the module docstring).
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import read_tum
+    >>> traj = read_tum(example_paths()[0])
+    >>> len(traj), traj.poses.params.shape
+    (150, (150, 7))
     """
     numbers, mat = _read_matrix(path, 8, what="timestamp tx ty tz qx qy qz qw")
     return _quat_trajectory(
@@ -286,7 +306,28 @@ def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None)
 
 
 def read_timestamps(path: PathLike) -> np.ndarray:
-    """Read one timestamp (seconds) per line, e.g. KITTI's ``times.txt``."""
+    """Read one timestamp (seconds) per line, e.g. KITTI's ``times.txt``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N,)`` float64 seconds.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.traj import read_timestamps
+    >>> path = os.path.join(tempfile.mkdtemp(), "times.txt")
+    >>> import numpy as np
+    >>> np.savetxt(path, [0.0, 0.1, 0.2])
+    >>> read_timestamps(path).tolist()
+    [0.0, 0.1, 0.2]
+    """
     return _read_matrix(path, 1, what="timestamp")[1][:, 0]
 
 
@@ -307,9 +348,36 @@ def read_kitti(
 ) -> Trajectory:
     """Read KITTI poses (12 numbers per line, row-major ``[R | t]``).
 
-    ``timestamps`` is an optional file (one time in seconds per line) or array; without it
-    the trajectory has no timestamps and is compared index by index. Rotations must satisfy
-    ``|R^T R - I| <= rot_tol`` and ``det R > 0``; they are then projected onto SO(3).
+    Rotations must satisfy ``|R^T R - I| <= rot_tol`` and ``det R > 0``; they are then
+    projected onto SO(3).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The poses file.
+    timestamps : str, os.PathLike or numpy.ndarray, optional
+        A times file (one time in seconds per line) or an array; without it the trajectory
+        has no timestamps and is compared index by index.
+    rot_tol : float
+        Largest accepted ``max |R^T R - I|``.
+    name : str, optional
+        The label (default: the path).
+
+    Returns
+    -------
+    Trajectory
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_kitti(path, traj)
+    >>> back = read_kitti(path)
+    >>> back.timestamps is None, bool(abs(back.positions - traj.positions).max() < 1e-12)
+    (True, True)
     """
     numbers, mat = _read_matrix(path, 12, what="row-major 3x4 [R|t]")
     m = mat.reshape(-1, 3, 4)
@@ -345,7 +413,33 @@ def read_euroc(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = Non
     """Read a EuRoC ground-truth CSV: ``t[ns], px, py, pz, qw, qx, qy, qz, ...``.
 
     Timestamps are converted from nanoseconds to seconds (``t_ns / 1e9`` in float64, as the
-    other tools do, so associations agree). The quaternion is scalar-*first* in this format.
+    other tools do, so associations agree). The quaternion is scalar-*first* in this format;
+    further columns are ignored.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The CSV file.
+    quat_tol : float
+        Largest accepted ``| |q| - 1 |``.
+    name : str, optional
+        The label (default: the path).
+
+    Returns
+    -------
+    Trajectory
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_euroc(path, traj)
+    >>> back = read_euroc(path)
+    >>> bool(abs(back.quat_xyzw - traj.quat_xyzw).max() < 1e-12)
+    True
     """
     numbers, mat = _read_matrix(
         path, 8, comma=True, at_least=True, what="timestamp[ns], px, py, pz, qw, qx, qy, qz"
@@ -363,10 +457,29 @@ def read_trajectory(
     timestamps: PathLike | None = None,
     topic: str | None = None,
 ) -> Trajectory:
-    """Read ``path`` in format ``fmt`` (``"tum"``, ``"kitti"``, ``"euroc"`` or ``"bag"``).
+    """Read ``path`` in format ``fmt``.
 
-    ``timestamps`` is KITTI's times file; ``topic`` the bag topic (see
-    :func:`microlie.traj.rosbag.read_bag`), required for ``"bag"``.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file (or bag).
+    fmt : {"tum", "kitti", "euroc", "bag"}
+        The format.
+    timestamps : str or os.PathLike, optional
+        KITTI's times file.
+    topic : str, optional
+        The bag topic (see :func:`microlie.traj.rosbag.read_bag`), required for ``"bag"``.
+
+    Returns
+    -------
+    Trajectory
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import read_trajectory
+    >>> len(read_trajectory(example_paths()[1], "tum"))
+    145
     """
     if fmt == "tum":
         return read_tum(path)
@@ -387,6 +500,26 @@ def write_tum(path: PathLike, traj: Trajectory, *, header: str | None = None) ->
     """Write ``traj`` as TUM text (``timestamp tx ty tz qx qy qz qw``, full precision).
 
     A trajectory without timestamps is written with its pose index as the timestamp.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    traj : Trajectory
+        The poses.
+    header : str, optional
+        The ``#`` comment line (default: the column names).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_tum(path, traj)
+    >>> bool(abs(read_tum(path).poses.params - traj.poses.params).max() < 1e-15)
+    True
     """
     stamps = traj.timestamps if traj.timestamps is not None else np.arange(len(traj), dtype=float)
     data = np.column_stack([stamps, traj.positions, traj.quat_xyzw])
@@ -395,7 +528,26 @@ def write_tum(path: PathLike, traj: Trajectory, *, header: str | None = None) ->
 
 
 def write_kitti(path: PathLike, traj: Trajectory) -> None:
-    """Write ``traj`` as KITTI poses (row-major 3x4 ``[R | t]``, full precision)."""
+    """Write ``traj`` as KITTI poses (row-major 3x4 ``[R | t]``, full precision; no timestamps).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    traj : Trajectory
+        The poses.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_kitti(path, traj)
+    >>> len(open(path).readline().split())
+    12
+    """
     m = traj.matrices()[:, :3, :].reshape(-1, 12)
     np.savetxt(path, m, fmt="%.17g")
 
@@ -405,6 +557,24 @@ def write_euroc(path: PathLike, traj: Trajectory) -> None:
 
     Timestamps are rounded to integer nanoseconds; a trajectory without timestamps is
     written with its pose index as the time in seconds.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    traj : Trajectory
+        The poses.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_euroc(path, traj)
+    >>> open(path).readline().startswith("#timestamp [ns]")
+    True
     """
     stamps = traj.timestamps if traj.timestamps is not None else np.arange(len(traj), dtype=float)
     q = traj.quat_xyzw
@@ -417,7 +587,28 @@ def write_euroc(path: PathLike, traj: Trajectory) -> None:
 
 
 def write_trajectory(path: PathLike, traj: Trajectory, fmt: str = "tum") -> None:
-    """Write ``traj`` in format ``fmt`` (``"tum"``, ``"kitti"`` or ``"euroc"``)."""
+    """Write ``traj`` in format ``fmt``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    traj : Trajectory
+        The poses.
+    fmt : {"tum", "kitti", "euroc"}
+        The format.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_trajectory(path, traj, "tum")
+    >>> len(read_tum(path)) == len(traj)
+    True
+    """
     writers = {"tum": write_tum, "kitti": write_kitti, "euroc": write_euroc}
     if fmt not in writers:
         raise ValueError(f"cannot write format {fmt!r}; expected one of {tuple(writers)}")

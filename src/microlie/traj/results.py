@@ -43,7 +43,38 @@ FORMAT_VERSION = 1
 
 @dataclass
 class Result:
-    """A metric result as saved on disk (no trajectories): see the module docstring."""
+    """A metric result as saved on disk (no trajectories): see the module docstring.
+
+    Attributes
+    ----------
+    metric, relation, label, unit : str
+        As in :class:`~microlie.traj.PoseError`.
+    stats : dict of str to float
+        The statistics of ``errors``.
+    errors : numpy.ndarray
+        ``(M,)`` per-pose (APE) or per-pair (RPE) errors.
+    timestamps : numpy.ndarray or None
+        ``(M,)`` estimate stamps of the errors (the first pose of each RPE pair).
+    pairs : numpy.ndarray or None
+        ``(M, 2)`` RPE index pairs.
+    ref_name, est_name : str or None
+        The trajectories' labels.
+    options : dict
+        The options of the run.
+    info : dict
+        Association, alignment and preprocessing details.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie import traj
+    >>> from microlie.data import example_paths
+    >>> res = traj.evaluate_ape(*(traj.read_tum(p) for p in example_paths()), align="se3")
+    >>> path = os.path.join(tempfile.mkdtemp(), "ape.json")
+    >>> back = traj.load_result(traj.save_result(res, path))
+    >>> back.metric, back.errors.size == res.errors.size
+    ('ape', True)
+    """
 
     metric: str
     relation: str
@@ -59,6 +90,24 @@ class Result:
     info: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
+        """The JSON document written by :func:`save_result`.
+
+        Returns
+        -------
+        dict
+            The attributes, plus ``microlie_result`` (format version) and ``microlie_version``.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> from microlie import traj
+        >>> from microlie.data import example_paths
+        >>> res = traj.evaluate_ape(*(traj.read_tum(p) for p in example_paths()), align="se3")
+        >>> path = os.path.join(tempfile.mkdtemp(), "ape.json")
+        >>> d = traj.load_result(traj.save_result(res, path)).to_json()
+        >>> d["microlie_result"], d["label"]
+        (1, 'APE w.r.t. translation part (m)')
+        """
         from microlie import __version__
 
         return {
@@ -98,17 +147,32 @@ def result_from_error(res: PoseError, options: dict[str, Any] | None = None) -> 
 def save_result(
     res: PoseError | Result, path: str | os.PathLike, options: dict[str, Any] | None = None
 ) -> Path:
-    """Write ``res`` to ``path`` as JSON (module docstring); returns the path.
+    """Write ``res`` to ``path`` as JSON (module docstring).
 
-    Example:
-        >>> import tempfile, os
-        >>> from microlie import traj
-        >>> from microlie.data import example_paths
-        >>> res = traj.evaluate_ape(*(traj.read_tum(p) for p in example_paths()), align="se3")
-        >>> path = os.path.join(tempfile.mkdtemp(), "ape.json")
-        >>> back = traj.load_result(traj.save_result(res, path, {"align": "se3"}))
-        >>> back.stats == res.stats, back.errors.shape == res.errors.shape
-        (True, True)
+    Parameters
+    ----------
+    res : PoseError or Result
+        The result to save.
+    path : str or os.PathLike
+        The file to write.
+    options : dict, optional
+        The run's options, stored with it.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie import traj
+    >>> from microlie.data import example_paths
+    >>> res = traj.evaluate_ape(*(traj.read_tum(p) for p in example_paths()), align="se3")
+    >>> path = os.path.join(tempfile.mkdtemp(), "ape.json")
+    >>> back = traj.load_result(traj.save_result(res, path, {"align": "se3"}))
+    >>> back.stats == res.stats, back.errors.shape == res.errors.shape
+    (True, True)
     """
     r = res if isinstance(res, Result) else result_from_error(res, options)
     if options is not None and isinstance(res, Result):
@@ -121,8 +185,29 @@ def save_result(
 def load_result(path: str | os.PathLike) -> Result:
     """Read a file written by :func:`save_result` (``microlie ape/rpe --save-results``).
 
-    Raises:
-        ValueError: the file is not a microlie result, or its errors and statistics disagree.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The JSON file.
+
+    Returns
+    -------
+    Result
+
+    Raises
+    ------
+    ValueError
+        The file is not a microlie result, or its errors and statistics disagree.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie import traj
+    >>> from microlie.data import example_paths
+    >>> res = traj.evaluate_ape(*(traj.read_tum(p) for p in example_paths()), align="se3")
+    >>> path = os.path.join(tempfile.mkdtemp(), "ape.json")
+    >>> traj.load_result(traj.save_result(res, path)).options
+    {}
     """
     try:
         d = json.loads(Path(path).read_text(encoding="utf-8"))

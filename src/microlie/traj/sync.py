@@ -45,15 +45,29 @@ def interpolate(traj: Trajectory, stamps: np.ndarray, method: str = "se3") -> Tr
       ``R_k Exp(f Log(R_k^T R_{k+1}))`` (slerp), as evo interpolates.
 
     Stamps outside ``[t_0, t_N-1]`` are clamped to the end poses (``f`` in ``[0, 1]``); a zero
-    interval (repeated stamps) gives ``f = 0``. ``traj`` needs at least two poses with
-    non-decreasing timestamps.
+    interval (repeated stamps) gives ``f = 0``.
 
-    Example:
-        >>> import numpy as np
-        >>> from microlie.traj import Trajectory, interpolate
-        >>> t = Trajectory.from_arrays([[0, 0, 0], [2, 0, 0]], [[0, 0, 0, 1], [0, 0, 0, 1]], [0, 1])
-        >>> interpolate(t, np.array([0.25])).positions
-        array([[0.5, 0. , 0. ]])
+    Parameters
+    ----------
+    traj : Trajectory
+        At least two poses with non-decreasing timestamps.
+    stamps : array_like
+        The query times, seconds.
+    method : {"se3", "split"}
+        The interpolation.
+
+    Returns
+    -------
+    Trajectory
+        One pose per stamp, with ``stamps`` as its timestamps.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.traj import Trajectory, interpolate
+    >>> t = Trajectory.from_arrays([[0, 0, 0], [2, 0, 0]], [[0, 0, 0, 1], [0, 0, 0, 1]], [0, 1])
+    >>> interpolate(t, np.array([0.25])).positions
+    array([[0.5, 0. , 0. ]])
     """
     if method not in INTERPOLATIONS:
         raise ValueError(f"unknown interpolation {method!r}; expected one of {INTERPOLATIONS}")
@@ -82,7 +96,28 @@ def match_timestamps(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Indices ``(iq, it)`` pairing each query stamp with its nearest ``target + offset`` stamp.
 
-    Pairs farther apart than ``max_diff`` (seconds) are left out; ``iq`` is increasing.
+    Pairs farther apart than ``max_diff`` are left out; ``iq`` is increasing.
+
+    Parameters
+    ----------
+    query, target : array_like
+        Timestamps, seconds.
+    max_diff : float
+        Largest accepted difference, seconds.
+    offset : float
+        Added to ``target`` before matching.
+
+    Returns
+    -------
+    iq, it : numpy.ndarray
+        Integer indices into ``query`` and ``target``.
+
+    Examples
+    --------
+    >>> from microlie.traj import match_timestamps
+    >>> iq, it = match_timestamps([0.0, 1.0, 2.0], [0.004, 1.5, 1.998], max_diff=0.01)
+    >>> iq.tolist(), it.tolist()
+    ([0, 2], [0, 2])
     """
     q = np.asarray(query, dtype=np.float64)
     t = np.asarray(target, dtype=np.float64) + offset
@@ -115,7 +150,25 @@ def match_timestamps(
 
 @dataclass(frozen=True)
 class Association:
-    """Result of :func:`associate`: the index pairs and some counts for reporting."""
+    """Result of :func:`associate` with ``return_info=True``: the index pairs and counts.
+
+    Attributes
+    ----------
+    index_first, index_second : numpy.ndarray
+        Indices of the paired poses in the first and the second trajectory.
+    max_pairs : int
+        The shorter trajectory's length (the most pairs possible).
+    duplicates_first, duplicates_second : int
+        Repeated timestamps in each trajectory.
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import read_tum, associate
+    >>> ref, est, info = associate(*(read_tum(p) for p in example_paths()), return_info=True)
+    >>> info.num_pairs == len(ref) == len(est), info.num_pairs <= info.max_pairs
+    (True, True)
+    """
 
     index_first: np.ndarray
     index_second: np.ndarray
@@ -139,19 +192,44 @@ def associate(
 ) -> tuple[Trajectory, Trajectory] | tuple[Trajectory, Trajectory, Association]:
     """Reduce two timestamped trajectories to their pose pairs with matching stamps.
 
-    Args:
-        first, second: usually (reference, estimate).
-        max_diff: largest accepted time difference, seconds.
-        offset: added to the timestamps of ``second`` for the matching only.
-        interpolate: ``None`` (nearest stamps), ``"se3"`` or ``"split"``: interpolate the
-            longer trajectory at the matched stamps of the shorter one (module docstring).
-        return_info: also return an :class:`Association` with the indices and duplicate counts.
+    Parameters
+    ----------
+    first, second : Trajectory
+        Usually (reference, estimate).
+    max_diff : float
+        Largest accepted time difference, seconds.
+    offset : float
+        Added to the timestamps of ``second`` for the matching only.
+    interpolate : {None, "se3", "split"}
+        ``None`` pairs nearest stamps; otherwise the longer trajectory is interpolated at the
+        matched stamps of the shorter one (see :func:`interpolate`).
+    return_info : bool
+        Also return an :class:`Association` with the indices and duplicate counts.
 
-    Warns:
-        TimestampWarning: a trajectory has repeated or decreasing timestamps.
+    Returns
+    -------
+    first, second : Trajectory
+        The paired poses, index by index.
+    info : Association
+        Only with ``return_info=True``.
 
-    Raises:
-        ValueError: a trajectory has no timestamps, or no pair is found.
+    Warns
+    -----
+    TimestampWarning
+        A trajectory has repeated or decreasing timestamps.
+
+    Raises
+    ------
+    ValueError
+        A trajectory has no timestamps, or no pair is found.
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import read_tum, associate
+    >>> ref, est = associate(*(read_tum(p) for p in example_paths()))
+    >>> len(ref) == len(est)
+    True
     """
     if first.timestamps is None or second.timestamps is None:
         raise ValueError("association needs timestamps on both trajectories")

@@ -1,0 +1,225 @@
+/* microlie_fast._lie: compiled NumPy kernels for microlie's kernel registry.
+ *
+ * Each kernel takes C-contiguous arrays of shape (N, k_i), all float64 or all float32 (the caller
+ * broadcasts and flattens batch axes), and returns a tuple of fresh arrays of that dtype, one per
+ * output, of shape (N, k) or (N, r, c) (see microlie._kernels.KERNELS).
+ *
+ * Layout: rows of 3, 4, 6 or 7 components do not vectorise in GCC (interleaved groups of 6 or 7
+ * are not supported), so each kernel works on blocks of S elements: the rows of a block are
+ * copied into structure-of-arrays buffers (component i of element j at buf[i * S + j], converted
+ * to double), an `omp simd` loop over the block evaluates the element formula of lie_math.h with
+ * unit-stride accesses (vectorised, with glibc's libmvec for tan, sin, cos and atan2), and the
+ * results are copied back to rows (rounded to float for float32 inputs). */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
+#include <numpy/arrayobject.h>
+
+#include "lie_math.h"
+
+typedef npy_intp ix;
+typedef void (*block_fn)(const double *restrict in, double *restrict out, ix m);
+
+typedef struct {
+    const char *name; /* the registry name, e.g. "SE3.exp" */
+    int nin;
+    int kin[2];      /* widths of the inputs */
+    int nout;
+    int rows[3];     /* output j has shape (N, rows[j]) if cols[j] == 0, else (N, rows, cols) */
+    int cols[3];
+    block_fn fn;
+} kernel;
+
+#define MAXW 96 /* total width of the inputs or outputs of one kernel, at most */
+
+static int width(const kernel *k, int j) { return k->rows[j] * (k->cols[j] ? k->cols[j] : 1); }
+
+/* AoS rows -> SoA block (double) and back, for float64 and float32 rows */
+#define COPY_FUNCS(T, SUF)                                                                     \
+    static void load_##SUF(const T *restrict x, int kw, ix m, double *restrict buf) {          \
+        for (ix j = 0; j < m; j++)                                                              \
+            for (int c = 0; c < kw; c++) buf[c * S + j] = (double)x[kw * j + c];              \
+    }                                                                                          \
+    static void store_##SUF(const double *restrict buf, int kw, ix m, T *restrict y) {         \
+        for (ix j = 0; j < m; j++)                                                              \
+            for (int c = 0; c < kw; c++) y[kw * j + c] = (T)buf[c * S + j];                   \
+    }
+COPY_FUNCS(double, f64)
+COPY_FUNCS(float, f32)
+
+/* rows with a constant width: the compiler unrolls the component loop */
+#define LOADK(KW)                                                                              \
+    static void load_f64_##KW(const double *restrict x, ix m, double *restrict buf) {          \
+        for (ix j = 0; j < m; j++)                                                              \
+            for (int c = 0; c < KW; c++) buf[c * S + j] = x[KW * j + c];                      \
+    }
+LOADK(3) LOADK(4) LOADK(6) LOADK(7)
+
+static void load_rows(int f32, const char *x, int kw, ix m, double *buf) {
+    if (f32) { load_f32((const float *)x, kw, m, buf); return; }
+    const double *d = (const double *)x;
+    switch (kw) {
+    case 3: load_f64_3(d, m, buf); break;
+    case 4: load_f64_4(d, m, buf); break;
+    case 6: load_f64_6(d, m, buf); break;
+    case 7: load_f64_7(d, m, buf); break;
+    default: load_f64(d, kw, m, buf);
+    }
+}
+
+static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *const *out) {
+    double ibuf[2 * 7 * S] __attribute__((aligned(64)));
+    double obuf[MAXW * S] __attribute__((aligned(64)));
+    size_t es = f32 ? sizeof(float) : sizeof(double);
+    int wo[3];
+    for (int j = 0; j < k->nout; j++) wo[j] = width(k, j);
+    for (ix i0 = 0; i0 < n; i0 += S) {
+        ix m = n - i0 < S ? n - i0 : S;
+        int off = 0;
+        for (int a = 0; a < k->nin; a++) {
+            load_rows(f32, in[a] + (size_t)(i0 * k->kin[a]) * es, k->kin[a], m, ibuf + off * S);
+            off += k->kin[a];
+        }
+        k->fn(ibuf, obuf, m);
+        off = 0;
+        for (int j = 0; j < k->nout; j++) {
+            char *y = out[j] + (size_t)(i0 * wo[j]) * es;
+            if (f32) store_f32(obuf + off * S, wo[j], m, (float *)y);
+            else store_f64(obuf + off * S, wo[j], m, (double *)y);
+            off += wo[j];
+        }
+    }
+}
+
+static PyObject *call(const kernel *k, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != k->nin) {
+        PyErr_Format(PyExc_TypeError, "%s: expected %d arguments, got %zd", k->name, k->nin,
+                     nargs);
+        return NULL;
+    }
+    ix n = -1;
+    int type = -1;
+    char *in[2];
+    for (int a = 0; a < k->nin; a++) {
+        PyObject *o = args[a];
+        if (!PyArray_Check(o)) {
+            PyErr_Format(PyExc_TypeError, "%s: argument %d is not a NumPy array", k->name, a);
+            return NULL;
+        }
+        PyArrayObject *x = (PyArrayObject *)o;
+        int t = PyArray_TYPE(x);
+        if ((t != NPY_DOUBLE && t != NPY_FLOAT) || (type >= 0 && t != type) ||
+            PyArray_NDIM(x) != 2 || PyArray_DIM(x, 1) != k->kin[a] ||
+            !PyArray_IS_C_CONTIGUOUS(x) || (n >= 0 && PyArray_DIM(x, 0) != n)) {
+            PyErr_Format(PyExc_ValueError,
+                         "%s: argument %d must be a C-contiguous float64 or float32 array of "
+                         "shape (N, %d), with the same N and dtype as the other arguments",
+                         k->name, a, k->kin[a]);
+            return NULL;
+        }
+        type = t;
+        n = PyArray_DIM(x, 0);
+        in[a] = PyArray_BYTES(x);
+    }
+    PyObject *res = PyTuple_New(k->nout);
+    if (!res) return NULL;
+    char *out[3];
+    for (int j = 0; j < k->nout; j++) {
+        npy_intp dims[3] = {n, k->rows[j], k->cols[j]};
+        PyObject *o = PyArray_SimpleNew(k->cols[j] ? 3 : 2, dims, type);
+        if (!o) {
+            Py_DECREF(res);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(res, j, o);
+        out[j] = PyArray_BYTES((PyArrayObject *)o);
+    }
+    int f32 = type == NPY_FLOAT;
+    if (n > 4 * S) {
+        Py_BEGIN_ALLOW_THREADS
+        evaluate(k, f32, n, in, out);
+        Py_END_ALLOW_THREADS
+    } else {
+        evaluate(k, f32, n, in, out);
+    }
+    return res;
+}
+
+/* the block function of an element operation of lie_math.h; input 0 occupies rows 0..KA-1 */
+#define BLOCK(FN, KA)                                                                          \
+    static void blk_##FN(const double *restrict in, double *restrict out, ix m) {               \
+        _Pragma("omp simd") for (ix j = 0; j < m; j++) FN(in + j, in + (KA) * S + j, out + j);  \
+    }
+
+#define KERNELS(X)                                                                             \
+    X(so3_exp, "SO3.exp", 1, 3, 0, 1, 4, 0, 0, 0, 0, 0)                                        \
+    X(so3_log, "SO3.log", 1, 4, 0, 1, 3, 0, 0, 0, 0, 0)                                        \
+    X(so3_inverse, "SO3.inverse", 1, 4, 0, 1, 4, 0, 0, 0, 0, 0)                                \
+    X(so3_compose, "SO3.compose", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0)                                \
+    X(so3_between, "SO3.between", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0)                                \
+    X(so3_act, "SO3.act", 2, 4, 3, 1, 3, 0, 0, 0, 0, 0)                                        \
+    X(so3_minus, "SO3.minus", 2, 4, 4, 1, 3, 0, 0, 0, 0, 0)                                    \
+    X(so3_jr, "SO3.jr", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0)                                          \
+    X(so3_jr_inv, "SO3.jr_inv", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0)                                  \
+    X(so3_exp_jac, "SO3.exp_jac", 1, 3, 0, 2, 4, 3, 0, 0, 3, 0)                                \
+    X(so3_act_jac, "SO3.act_jac", 2, 4, 3, 3, 3, 3, 3, 0, 3, 3)                                \
+    X(so3_inverse_jac, "SO3.inverse_jac", 1, 4, 0, 2, 4, 3, 0, 0, 3, 0)                        \
+    X(so3_compose_jac, "SO3.compose_jac", 2, 4, 4, 2, 4, 3, 0, 0, 3, 0)                        \
+    X(so3_between_jac, "SO3.between_jac", 2, 4, 4, 2, 4, 3, 0, 0, 3, 0)                        \
+    X(so3_minus_jac, "SO3.minus_jac", 2, 4, 4, 3, 3, 3, 3, 0, 3, 3)                            \
+    X(se3_exp, "SE3.exp", 1, 6, 0, 1, 7, 0, 0, 0, 0, 0)                                        \
+    X(se3_log, "SE3.log", 1, 7, 0, 1, 6, 0, 0, 0, 0, 0)                                        \
+    X(se3_inverse, "SE3.inverse", 1, 7, 0, 1, 7, 0, 0, 0, 0, 0)                                \
+    X(se3_compose, "SE3.compose", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0)                                \
+    X(se3_between, "SE3.between", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0)                                \
+    X(se3_act, "SE3.act", 2, 7, 3, 1, 3, 0, 0, 0, 0, 0)                                        \
+    X(se3_minus, "SE3.minus", 2, 7, 7, 1, 6, 0, 0, 0, 0, 0)                                    \
+    X(se3_jr, "SE3.jr", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0)                                          \
+    X(se3_jr_inv, "SE3.jr_inv", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0)                                  \
+    X(se3_exp_jac, "SE3.exp_jac", 1, 6, 0, 2, 7, 6, 0, 0, 6, 0)                                \
+    X(se3_act_jac, "SE3.act_jac", 2, 7, 3, 3, 3, 3, 3, 0, 6, 3)                                \
+    X(se3_inverse_jac, "SE3.inverse_jac", 1, 7, 0, 2, 7, 6, 0, 0, 6, 0)                        \
+    X(se3_compose_jac, "SE3.compose_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0)                        \
+    X(se3_between_jac, "SE3.between_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0)                        \
+    X(se3_minus_jac, "SE3.minus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6)
+
+#define DEFINE(FN, NAME, NIN, KA, KB, NOUT, R0, R1, R2, C0, C1, C2)                           \
+    BLOCK(FN, KA)                                                                              \
+    static const kernel k_##FN = {NAME, NIN, {KA, KB}, NOUT, {R0, R1, R2}, {C0, C1, C2},       \
+                                  blk_##FN};                                                   \
+    static PyObject *py_##FN(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {       \
+        (void)self;                                                                            \
+        return call(&k_##FN, args, nargs);                                                     \
+    }
+KERNELS(DEFINE)
+
+#define ENTRY(FN, NAME, ...) {#FN, (PyCFunction)(void (*)(void))py_##FN, METH_FASTCALL, NAME},
+static PyMethodDef methods[] = {KERNELS(ENTRY){NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_lie",
+                                    "Compiled SO(3)/SE(3) kernels for microlie.", -1, methods};
+
+PyMODINIT_FUNC PyInit__lie(void) {
+    import_array();
+    PyObject *m = PyModule_Create(&module);
+    if (!m) return NULL;
+    /* KERNELS: registry name -> function name, e.g. {"SE3.exp": "se3_exp"} */
+    PyObject *d = PyDict_New();
+    if (!d || PyModule_AddObject(m, "KERNELS", d) < 0) {
+        Py_XDECREF(d);
+        Py_DECREF(m);
+        return NULL;
+    }
+#define ADD(FN, NAME, ...)                                                                     \
+    {                                                                                          \
+        PyObject *s = PyUnicode_FromString(#FN);                                               \
+        if (!s || PyDict_SetItemString(d, NAME, s) < 0) {                                      \
+            Py_XDECREF(s);                                                                     \
+            Py_DECREF(m);                                                                      \
+            return NULL;                                                                       \
+        }                                                                                      \
+        Py_DECREF(s);                                                                          \
+    }
+    KERNELS(ADD)
+    return m;
+}
