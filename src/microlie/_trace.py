@@ -15,6 +15,7 @@ A kernel whose code takes a Python branch on a value (``if x > 0``, ``and``) can
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -22,17 +23,42 @@ __all__ = ["compile_scalar"]
 
 
 class _Rec:
-    """The record of one trace: the lines of code and a counter for fresh names."""
+    """The record of one trace: one ``(name, expression)`` per operation, in order."""
 
     def __init__(self) -> None:
-        self.lines: list[str] = []
-        self.n = 0
+        self.nodes: list[tuple[str, str]] = []
 
     def new(self, expr: str) -> _Sym:
-        name = f"v{self.n}"
-        self.n += 1
-        self.lines.append(f"    {name} = {expr}")
+        name = f"v{len(self.nodes)}"
+        self.nodes.append((name, expr))
         return _Sym(self, name)
+
+    def code(self, result: str) -> list[str]:
+        """The body: a value used once is written into its single use (fewer loads and stores,
+        and inside ``a if c else b`` only the branch taken is evaluated); the others are
+        assigned to local variables."""
+        uses: dict[str, int] = {}
+        for _, expr in self.nodes:
+            for name in _NAME.findall(expr):
+                uses[name] = uses.get(name, 0) + 1
+        for name in _NAME.findall(result):
+            uses[name] = uses.get(name, 0) + 2  # outputs stay variables
+        inline: dict[str, str] = {}
+        lines = []
+
+        def expand(expr: str) -> str:
+            return _NAME.sub(lambda m: inline.get(m.group(0), m.group(0)), expr)
+
+        for name, expr in self.nodes:
+            text = expand(expr)
+            if uses.get(name, 0) == 1 and len(text) < 400:
+                inline[name] = f"({text})"
+            elif uses.get(name, 0):
+                lines.append(f"    {name} = {text}")
+        return [*lines, f"    return {expand(result)}"]
+
+
+_NAME = re.compile(r"\bv\d+\b")
 
 
 def _ref(x: Any) -> str:
@@ -140,7 +166,7 @@ def compile_scalar(fn: Callable[..., Any], sizes: Sequence[int]) -> Callable[...
     args = ", ".join(f"a{i}" for i in range(len(sizes)))
     unpack = [f"    {', '.join(f'a{i}_{j}' for j in range(n))}, = a{i}"
               for i, n in enumerate(sizes)]
-    src = "\n".join([f"def kernel({args}):", *unpack, *rec.lines, f"    return {body}"])
+    src = "\n".join([f"def kernel({args}):", *unpack, *rec.code(body)])
     ns: dict[str, Any] = dict(_NAMESPACE)
     exec(compile(src, f"<traced {getattr(fn, '__qualname__', fn)}>", "exec"), ns)
     kernel: Callable[..., Any] = ns["kernel"]
