@@ -28,13 +28,21 @@ import numpy as np
 from microlie import SE3, SO3
 from microlie import _kernels as K
 
-SRC = Path(__file__).parent / "native" / "lie_native.cpp"
+HERE = Path(__file__).parent
+SRC = HERE / "native" / "lie_native.cpp"
+BLOCKED = HERE / "native" / "lie_blocked.c"
 FLAGS = ["-O3", "-march=native", "-fno-math-errno", "-fopenmp-simd", "-shared", "-fPIC"]
 
 
-def build() -> ctypes.CDLL:
+def build(blocked: bool = False) -> ctypes.CDLL:
+    """The plain native loops (lie_native.cpp) or the blocked ones (lie_blocked.c)."""
     out = Path(tempfile.mkdtemp()) / "liblie_native.so"
-    subprocess.run(["g++", *FLAGS, str(SRC), "-o", str(out), "-lmvec", "-lm"], check=True)
+    if blocked:
+        cmd = ["gcc", *FLAGS, "-std=c11", f"-I{HERE.parent / 'fast' / 'src' / 'microlie_fast'}",
+               str(BLOCKED)]
+    else:
+        cmd = ["g++", *FLAGS, str(SRC)]
+    subprocess.run([*cmd, "-o", str(out), "-lmvec", "-lm"], check=True)
     return ctypes.CDLL(str(out))
 
 
@@ -42,10 +50,32 @@ def ptr(a: np.ndarray) -> ctypes.c_void_p:
     return ctypes.c_void_p(a.ctypes.data)
 
 
-def native_call(lib: ctypes.CDLL, name: str, ins: list[np.ndarray], outs: list[np.ndarray]):
-    f = getattr(lib, "n_" + name)
+def native_call(lib: ctypes.CDLL, name: str, ins: list[np.ndarray], outs: list[np.ndarray],
+                prefix: str = "n_"):
+    """The native loop writing into preallocated (warm) outputs."""
+    f = getattr(lib, prefix + name)
     args = [ptr(a) for a in ins] + [ptr(o) for o in outs] + [ctypes.c_long(len(ins[0]))]
-    return lambda: f(*args)
+
+    def call():
+        return f(*args)
+    call.fresh = native_fresh(lib, name, ins, outs, prefix)  # type: ignore[attr-defined]
+    return call
+
+
+def native_fresh(lib: ctypes.CDLL, name: str, ins: list[np.ndarray], outs: list[np.ndarray],
+                 prefix: str = "n_"):
+    """The native loop writing into fresh outputs each call (what microlie returns): the
+    difference to :func:`native_call` is the cost of the new pages."""
+    f = getattr(lib, prefix + name)
+    n = ctypes.c_long(len(ins[0]))
+    pin = [ptr(a) for a in ins]
+    shapes = [o.shape for o in outs]
+
+    def call():
+        fresh = [np.empty(s) for s in shapes]
+        f(*pin, *[ptr(o) for o in fresh], n)
+        return fresh
+    return call
 
 
 def generic(name: str, fn):
@@ -84,7 +114,7 @@ def stat(ts: list[float], scale: float) -> tuple[float, float, float]:
 
 
 def batched(n: int, rounds: int) -> None:
-    lib = build()
+    lib, blk = build(), build(blocked=True)
     rng = np.random.default_rng(0)
     t3 = rng.standard_normal((n, 3))
     t6 = rng.standard_normal((n, 6))
@@ -93,7 +123,7 @@ def batched(n: int, rounds: int) -> None:
     v = rng.standard_normal((n, 3))
     o = {k: np.empty((n, k)) for k in (3, 4, 6, 7)}
     j18, j9, j36 = np.empty((n, 18)), np.empty((n, 9)), np.empty((n, 36))
-    cases = [
+    cases: list = [
         ("SO3.exp", lambda: SO3.exp(t3), native_call(lib, "so3_exp", [t3], [o[4]])),
         ("SO3.log", lambda: R.log(), native_call(lib, "so3_log", [R.params], [o[3]])),
         ("SE3.exp", lambda: SE3.exp(t6), native_call(lib, "se3_exp", [t6], [o[7]])),
@@ -111,18 +141,36 @@ def batched(n: int, rounds: int) -> None:
     fast_on = K.KERNELS["SE3.exp"].impl is not None
     print(f"batched, N = {n}, ns per element, median [q1, q3] of {rounds} interleaved rounds; "
           f"compiled kernels {'registered' if fast_on else 'NOT registered'}")
-    print(f"{'op':16s} {'fast':>20s} {'generic':>20s} {'native':>20s} "
-          f"{'fast/native':>11s} {'generic/native':>14s} {'generic/fast':>12s}")
+    print("native: into preallocated outputs; native+alloc: into fresh outputs each call, "
+          "like microlie; SE3.exp/log/exp_jac: native is the faster of the plain loop "
+          "(lie_native.cpp) and the blocked loop (lie_blocked.c), both printed below")
+    blocked = {"SE3.exp": native_call(blk, "se3_exp", [t6], [o[7]], "b_"),
+               "SE3.log": native_call(blk, "se3_log", [X.params], [o[6]], "b_"),
+               "SE3.exp_jac": native_call(blk, "se3_exp_jac", [t6], [o[7], j36], "b_")}
+    print(f"{'op':16s} {'fast':>20s} {'generic':>20s} {'native':>20s} {'native+alloc':>20s} "
+          f"{'fast/native':>11s} {'fast/n+alloc':>12s} {'generic/native':>14s} "
+          f"{'generic/fast':>12s}")
     for name, fn, nat in cases:
         fns = {"fast": fn, "generic": generic(name, fn)}
         if nat is not None:
             fns["native"] = nat
+            fns["native+alloc"] = nat.fresh
+        if name in blocked:
+            fns["blocked"], fns["blocked+alloc"] = blocked[name], blocked[name].fresh
         ts = interleaved(fns, rounds)
         s = {k: stat(t, 1e9 / n) for k, t in ts.items()}
+        if name in blocked:
+            print(f"  ({name}: plain {s['native'][0]:.1f} / {s['native+alloc'][0]:.1f}, "
+                  f"blocked {s['blocked'][0]:.1f} / {s['blocked+alloc'][0]:.1f} ns)")
+            for a in ("", "+alloc"):
+                if s["blocked" + a][0] < s["native" + a][0]:
+                    s["native" + a] = s["blocked" + a]
         cell = {k: f"{m:7.1f} [{a:6.1f},{b:6.1f}]" for k, (m, a, b) in s.items()}
-        nat_m = s["native"][0] if "native" in s else float("nan")
+        nat_m = s["native"][0] if "native" in s else float("nan")  # the faster native
+        nal_m = s["native+alloc"][0] if "native" in s else float("nan")
         print(f"{name:16s} {cell['fast']:>20s} {cell['generic']:>20s} "
-              f"{cell.get('native', '-'):>20s} {s['fast'][0] / nat_m:11.2f} "
+              f"{cell.get('native', '-'):>20s} {cell.get('native+alloc', '-'):>20s} "
+              f"{s['fast'][0] / nat_m:11.2f} {s['fast'][0] / nal_m:12.2f} "
               f"{s['generic'][0] / nat_m:14.2f} {s['generic'][0] / s['fast'][0]:12.2f}")
 
 

@@ -12,13 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from microlie import SE2, SE3, SE23, SO2, SO3, LieGroup, Sim3
+import microlie as ml
+from microlie import LieGroup
 
 IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
-# The generic suite runs on every group of this list: adding a group is one entry here (SE23 is
-# the entry "SE23" below). Group-specific test facts live on the class: ``_rotation_slice`` (the
-# rotation's entries of the tangent) and ``_exact_pi_element()`` (a rotation by exactly pi).
-GROUPS = [SO2, SE2, SO3, SE3, Sim3, SE23]
+# The generic suite (test_groups, test_autodiff, ...) runs on every group of this list: adding a
+# group to it is one entry here (SE_2(3) is the entry ``ml.SE23``). Group-specific test facts
+# live on the class: ``_rotation_slice`` (the rotation's entries of the tangent) and
+# ``_exact_pi_element()`` (a rotation by exactly pi); a Pose derives both from its rotation group.
+GROUPS = [ml.SO2, ml.SE2, ml.SO3, ml.SE3, ml.Sim3, ml.SE23]
 BACKENDS = ["numpy", "torch", "jax"]
 BATCH_SHAPES = [(), (1,), (3, 1, 2)]
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"

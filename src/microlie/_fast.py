@@ -29,6 +29,7 @@ def install() -> list[str]:
         K = importlib.import_module("microlie._kernels")  # the kernel registry
     except ImportError:
         return []
+    _installed.clear()
     for name, fn in getattr(_lie, "KERNELS", {}).items():  # {} from an older build
         if name in K.KERNELS:
             K.register(name, getattr(_lie, fn))

@@ -216,13 +216,25 @@ class _Null:
 
 
 class VectorGaussian:
-    """A Gaussian in ``R^n``: ``mean`` ``(*batch, n)`` and ``cov`` ``(*batch, n, n)``.
+    """A Gaussian in ``R^n``.
 
     The result of pushing a group Gaussian into a vector space (:meth:`Gaussian.act`,
     :meth:`Gaussian.log`, :func:`propagate` with an array value); also the input type of
     :meth:`Gaussian.from_tangent` and :meth:`Gaussian.plus`. There is no frame in ``R^n``.
 
+    Parameters
+    ----------
+    mean : array_like
+        ``(*batch, n)``.
+    cov : array_like
+        ``(*batch, n, n)``.
+    validate : bool
+        Check the covariance (finite, symmetric, positive semi-definite).
+
+    Examples
+    --------
     >>> import numpy as np
+    >>> from microlie import VectorGaussian
     >>> v = VectorGaussian(np.zeros(2), np.diag([4.0, 1.0]))
     >>> float(v.mahalanobis(np.array([2.0, 0.0])))
     1.0
@@ -283,17 +295,66 @@ class VectorGaussian:
         return f"VectorGaussian(dim={self.dim}, batch_shape={self.batch_shape})"
 
     def std(self) -> Array:
-        """Marginal standard deviations, ``sqrt(diag(cov))``."""
+        """Marginal standard deviations, ``sqrt(diag(cov))``.
+
+        Returns
+        -------
+        array
+            ``(*batch, n)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
+        >>> v = VectorGaussian(np.array([1.0, 2.0, 3.0]), np.diag([4.0, 1.0, 0.25]))
+        >>> v.std().tolist()
+        [2.0, 1.0, 0.5]
+        """
         return L.diag(self.cov) ** 0.5
 
     def marginal(self, indices: Sequence[int]) -> VectorGaussian:
-        """The marginal over the coordinates ``indices`` (e.g. ``(0, 1)`` for x and y)."""
+        """The marginal over the coordinates ``indices`` (e.g. ``(0, 1)`` for x and y).
+
+        Parameters
+        ----------
+        indices : sequence of int
+            The kept coordinates, in order.
+
+        Returns
+        -------
+        VectorGaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
+        >>> v = VectorGaussian(np.array([1.0, 2.0, 3.0]), np.diag([4.0, 1.0, 0.25]))
+        >>> m = v.marginal([2, 0])
+        >>> m.mean.tolist(), np.diag(m.cov).tolist()
+        ([3.0, 1.0], [0.25, 4.0])
+        """
         idx = [int(i) for i in indices]
         return VectorGaussian._make(self.mean[..., idx], self.cov[..., idx, :][..., :, idx])
 
     def sample(self, n: int | tuple[int, ...], rng: Any = None) -> Array:
-        """``n`` samples, shape ``(*n, *batch, dim)``, drawn with a NumPy generator.
+        """``n`` samples drawn with a NumPy generator.
 
+        Parameters
+        ----------
+        n : int or tuple of int
+            The sample shape.
+        rng : int or numpy.random.Generator, optional
+            The random source.
+
+        Returns
+        -------
+        array
+            ``(*n, *batch, dim)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
         >>> v = VectorGaussian(np.zeros(3), np.eye(3))
         >>> v.sample(5, rng=0).shape
         (5, 3)
@@ -302,21 +363,79 @@ class VectorGaussian:
         return self.mean + (_cov_factor(self) @ z[..., None])[..., 0]
 
     def mahalanobis(self, x: Any, squared: bool = False) -> Array:
-        """Mahalanobis distance ``sqrt((x - m)^T P^-1 (x - m))`` (``squared=True``: without
-        the square root, chi-square with ``dim`` degrees of freedom under the model)."""
+        """Mahalanobis distance ``sqrt((x - m)^T P^-1 (x - m))``.
+
+        Parameters
+        ----------
+        x : array_like
+            ``(*batch, n)`` points.
+        squared : bool
+            Without the square root (chi-square with ``dim`` degrees of freedom under the model).
+
+        Returns
+        -------
+        array
+            Shape ``batch``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
+        >>> v = VectorGaussian(np.array([1.0, 2.0, 3.0]), np.diag([4.0, 1.0, 0.25]))
+        >>> float(v.mahalanobis(np.array([3.0, 2.0, 3.5]), squared=True))
+        2.0
+        """
         d = _as_array(x, self.mean, "x") - self.mean
         return _mahalanobis(d, self.cov, squared, _rank(self))
 
     def log_density(self, x: Any) -> Array:
-        """``log N(x; mean, cov)`` (the covariance must be positive definite)."""
+        """``log N(x; mean, cov)`` (the covariance must be positive definite).
+
+        Parameters
+        ----------
+        x : array_like
+            ``(*batch, n)`` points.
+
+        Returns
+        -------
+        array
+            Shape ``batch``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
+        >>> v = VectorGaussian(np.array([1.0, 2.0, 3.0]), np.diag([4.0, 1.0, 0.25]))
+        >>> expected = -0.5 * np.log(np.linalg.det(2 * np.pi * v.cov))
+        >>> bool(np.isclose(v.log_density(v.mean), expected))
+        True
+        """
         d = _as_array(x, self.mean, "x") - self.mean
         return _log_normal(d, self.cov, _rank(self))
 
     def ellipse(self, nsigma: float = 2.0, num: int = 64, dims: tuple[int, int] = (0, 1)
                 ) -> Array:
-        """Points ``(*batch, num, 2)`` on the ``nsigma`` contour of the 2-D marginal over
-        ``dims`` (for plotting; no matplotlib needed).
+        """Points on the ``nsigma`` contour of the 2-D marginal over ``dims`` (for plotting; no
+        matplotlib needed).
 
+        Parameters
+        ----------
+        nsigma : float
+            The contour's Mahalanobis radius.
+        num : int
+            Number of points.
+        dims : tuple of int
+            The two coordinates.
+
+        Returns
+        -------
+        array
+            ``(*batch, num, 2)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
         >>> VectorGaussian(np.zeros(2), np.eye(2)).ellipse(1.0, num=4).round(12).tolist()
         [[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [-0.0, -1.0]]
         """
@@ -334,16 +453,26 @@ class Gaussian:
     """A Gaussian on a Lie group with an explicit error frame.
 
     ``frame="right"``: ``X = mean Exp(eps)`` (local error); ``frame="left"``:
-    ``X = Exp(eps) mean`` (global error); ``eps ~ N(0, cov)`` with ``cov`` of shape
-    ``(*batch, dof, dof)``, tangent translation first. ``mean`` and ``cov`` broadcast over the
-    leading batch axes; any array backend of the core works (NumPy, PyTorch, JAX).
+    ``X = Exp(eps) mean`` (global error); ``eps ~ N(0, cov)``, tangent translation first.
+    ``mean`` and ``cov`` broadcast over the leading batch axes; any array backend of the core
+    works (NumPy, PyTorch, JAX).
 
-    The covariance is checked: shape, finite, symmetric and positive semi-definite to
-    ``sqrt(eps)`` of its dtype (``ValueError``; ``validate=False`` keeps only the shape check).
-    ``frame`` has no default on purpose.
+    Parameters
+    ----------
+    mean : LieGroup
+        The mean element (any batch shape).
+    cov : array_like
+        ``(*batch, dof, dof)`` covariance of ``eps``.
+    frame : {"right", "left"}
+        The error frame; no default on purpose.
+    validate : bool
+        Check the covariance: shape, finite, symmetric and positive semi-definite to
+        ``sqrt(eps)`` of its dtype (``ValueError``); ``False`` keeps only the shape check.
 
+    Examples
+    --------
     >>> import numpy as np
-    >>> from microlie import SE3
+    >>> from microlie import SE3, Gaussian
     >>> X = Gaussian(SE3.identity(), 0.01 * np.eye(6), frame="right")
     >>> X.to_frame("left").frame
     'left'
@@ -393,10 +522,24 @@ class Gaussian:
 
     @classmethod
     def from_std(cls, mean: LieGroup, std: Any, *, frame: Frame) -> Gaussian:
-        """A Gaussian with diagonal covariance ``diag(std**2)`` (``std`` ``(..., dof)``, tangent
-        order translation first).
+        """A Gaussian with diagonal covariance ``diag(std**2)``.
 
-        >>> from microlie import SE2
+        Parameters
+        ----------
+        mean : LieGroup
+            The mean.
+        std : array_like
+            ``(..., dof)`` standard deviations, tangent order (translation first).
+        frame : {"right", "left"}
+            The error frame.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> from microlie import SE2, Gaussian
         >>> Gaussian.from_std(SE2.identity(), [0.1, 0.1, 0.01], frame="left").cov.diagonal()
         array([0.01  , 0.01  , 0.0001])
         """
@@ -433,7 +576,27 @@ class Gaussian:
     def frame_map(self, frame: Frame) -> Array:
         """The matrix ``T`` taking this Gaussian's error to the error in ``frame``
         (``eps_frame = T eps_self``): ``Ad_mean`` right to left, ``Ad_mean^-1`` left to right,
-        identity for the same frame."""
+        identity for the same frame.
+
+        Parameters
+        ----------
+        frame : {"right", "left"}
+            The target frame.
+
+        Returns
+        -------
+        array
+            ``(*batch, dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> bool(np.allclose(g.frame_map("left"), g.mean.adjoint()))
+        True
+        """
         _check_frame(frame)
         if frame == self.frame:
             return L.eye(self.dof, self.cov, self.cov.shape[:-2])
@@ -446,7 +609,19 @@ class Gaussian:
         ``P_right = Ad^-1 P_left Ad^-T`` (``Ad = Ad_mean``). Exact: ``mean Exp(e) =
         Exp(Ad e) mean`` holds for every ``e``.
 
-        >>> from microlie import SO3
+        Parameters
+        ----------
+        frame : {"right", "left"}
+            The target frame.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3, Gaussian
         >>> X = Gaussian(SO3.exp([0.0, 0.0, np.pi / 2]), np.diag([1.0, 0.0, 0.0]), frame="right")
         >>> X.to_frame("left").cov.round(12) + 0.0   # body x-axis error = world y-axis error
         array([[0., 0., 0.],
@@ -461,19 +636,73 @@ class Gaussian:
     # ------------------------------------------------------------------ errors and samples
     def error(self, X: LieGroup) -> Array:
         """The tangent error of ``X`` in this frame: ``Log(mean^-1 X)`` (right) or
-        ``Log(X mean^-1)`` (left); the inverse of :meth:`retract`."""
+        ``Log(X mean^-1)`` (left); the inverse of :meth:`retract`.
+
+        Parameters
+        ----------
+        X : LieGroup
+            An element of the mean's group (broadcast over the batch).
+
+        Returns
+        -------
+        array
+            ``(*batch, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> np.round(g.error(g.retract([0.1, 0.0, 0.2])), 12).tolist()
+        [0.1, 0.0, 0.2]
+        """
         self._same_group(X)
         return X.minus(self.mean) if self.frame == "right" else X.lminus(self.mean)
 
     def retract(self, eps: Any) -> LieGroup:
         """The element with error ``eps`` in this frame: ``mean Exp(eps)`` (right) or
-        ``Exp(eps) mean`` (left)."""
+        ``Exp(eps) mean`` (left).
+
+        Parameters
+        ----------
+        eps : array_like
+            ``(*batch, dof)`` tangent error.
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> bool(np.allclose(g.retract([0.0, 0.0, 0.0]).params, g.mean.params))
+        True
+        """
         return self.mean.plus(eps) if self.frame == "right" else self.mean.lplus(eps)
 
     def sample(self, n: int | tuple[int, ...], rng: Any = None) -> LieGroup:
-        """``n`` samples ``retract(eps_i)``, ``eps_i ~ N(0, cov)``; batch ``(*n, *batch)``.
+        """``n`` samples ``retract(eps_i)``, ``eps_i ~ N(0, cov)``.
 
-        >>> from microlie import SO3
+        Parameters
+        ----------
+        n : int or tuple of int
+            The sample shape.
+        rng : int or numpy.random.Generator, optional
+            The random source.
+
+        Returns
+        -------
+        LieGroup
+            Batch shape ``(*n, *batch)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3, Gaussian
         >>> Gaussian(SO3.identity(), 0.01 * np.eye(3), frame="left").sample(4, rng=0).batch_shape
         (4,)
         """
@@ -483,7 +712,29 @@ class Gaussian:
     def mahalanobis(self, X: LieGroup, squared: bool = False) -> Array:
         """Mahalanobis distance of ``X`` from the mean, ``sqrt(e^T P^-1 e)`` with ``e =``
         :meth:`error` ``(X)`` in this frame (frame-independent, since the frames differ by the
-        exact linear map ``Ad``)."""
+        exact linear map ``Ad``).
+
+        Parameters
+        ----------
+        X : LieGroup
+            An element of the mean's group (broadcast over the batch).
+        squared : bool
+            Return ``e^T P^-1 e`` (chi-square with ``dof`` degrees of freedom under the model).
+
+        Returns
+        -------
+        array
+            Shape ``batch``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> round(float(g.mahalanobis(g.retract([0.2, 0.0, 0.0]))), 12)  # 0.2 / 0.2
+        1.0
+        """
         return _mahalanobis(self.error(X), self.cov, squared, _rank(self))
 
     def log_density(self, X: LieGroup, haar: bool = False) -> Array:
@@ -494,6 +745,29 @@ class Gaussian:
         right error, right-invariant for a left error, normalised to the Lebesgue measure of the
         tangent space at the identity): ``- log |det Jr(e)|`` (right) or ``- log |det Jl(e)|``
         (left) is added. Frame-independent up to that measure.
+
+        Parameters
+        ----------
+        X : LieGroup
+            An element of the mean's group (broadcast over the batch).
+        haar : bool
+            The density with respect to the Haar measure instead of the tangent error's.
+
+        Returns
+        -------
+        array
+            Shape ``batch``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> P = np.diag([0.04, 0.01, 0.0025])
+        >>> expected = -0.5 * np.log(np.linalg.det(2 * np.pi * P))
+        >>> bool(np.isclose(g.log_density(g.mean), expected))
+        True
         """
         e = self.error(X)
         out = _log_normal(e, self.cov, _rank(self))
@@ -507,13 +781,29 @@ class Gaussian:
                   ) -> Gaussian | VectorGaussian:
         """Linearised distribution of ``value = f(X)`` (eq. 16): ``P_y = J P J^T``.
 
-        ``jacobian`` is ``d f / d X`` with perturbations on ``side`` for the input and, for a
-        group-valued ``f``, the output (``side="right"``: ``f(X Exp(e)) = f(X) Exp(J e)``;
-        ``side="left"``: ``f(Exp(e) X) = Exp(J e) f(X)``). This Gaussian is converted to
-        ``side`` first, and a group result is returned in frame ``side``. See :func:`propagate`
-        for several inputs.
+        This Gaussian is converted to ``side`` first, and a group result is returned in frame
+        ``side``. See :func:`propagate` for several inputs.
 
-        >>> from microlie import SO3
+        Parameters
+        ----------
+        value : LieGroup or array
+            ``f(mean)``.
+        jacobian : array_like
+            ``d f / d X`` with perturbations on ``side`` for the input and, for a group-valued
+            ``f``, the output (``side="right"``: ``f(X Exp(e)) = f(X) Exp(J e)``; ``side="left"``:
+            ``f(Exp(e) X) = Exp(J e) f(X)``).
+        side : {"right", "left"}
+            The perturbation side of ``jacobian``.
+
+        Returns
+        -------
+        Gaussian or VectorGaussian
+            A :class:`Gaussian` for a group ``value``, else a :class:`VectorGaussian`.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3, Gaussian
         >>> X = Gaussian(SO3.exp([0.1, 0.2, 0.3]), 1e-3 * np.eye(3), frame="right")
         >>> Y, J = X.mean.inverse(jac=True)         # right Jacobian of the inverse: -Ad_X
         >>> X.propagate(Y, J, side="right").frame
@@ -523,7 +813,22 @@ class Gaussian:
 
     def inverse(self) -> Gaussian:
         """Distribution of ``X^-1`` in this frame. Right: ``P = Ad_X P Ad_X^T``; left:
-        ``P = Ad_X^-1 P Ad_X^-T`` (both exact: the error maps linearly)."""
+        ``P = Ad_X^-1 P Ad_X^-T`` (both exact: the error maps linearly).
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> A = g.mean.adjoint()
+        >>> bool(np.allclose(g.inverse().cov, A @ g.cov @ A.T))
+        True
+        """
         Y, J = self.mean.inverse(jac=True, side=self.frame)
         return propagate(Y, [self], [J], side=self.frame)
 
@@ -531,9 +836,31 @@ class Gaussian:
         """Distribution of ``X Y`` (``other`` is ``Y``), in this Gaussian's frame (eq. 17).
 
         Right frame: ``P_Z = Ad_Y^-1 P_X Ad_Y^-T + P_Y``; left frame:
-        ``P_Z = P_X + Ad_X P_Y Ad_X^T``. ``other`` in the other frame is converted first; a
-        plain element is exact (zero covariance). ``cross_cov = E[eps_X eps_Y^T]`` with each
-        error in its own Gaussian's frame adds ``J_X C J_Y^T + J_Y C^T J_X^T``.
+        ``P_Z = P_X + Ad_X P_Y Ad_X^T``.
+
+        Parameters
+        ----------
+        other : Gaussian or LieGroup
+            ``Y``; a Gaussian in the other frame is converted first; a plain element is exact
+            (zero covariance).
+        cross_cov : array_like, optional
+            ``E[eps_X eps_Y^T]`` with each error in its own Gaussian's frame; adds
+            ``J_X C J_Y^T + J_Y C^T J_X^T``.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> Z = g.compose(g)
+        >>> Ai = g.mean.inverse().adjoint()
+        >>> bool(np.allclose(Z.cov, Ai @ g.cov @ Ai.T + g.cov))
+        True
         """
         Y = self._operand(other)
         Z, JX, JY = self.mean.compose(Y.mean, jac=True, side=self.frame)
@@ -541,8 +868,30 @@ class Gaussian:
 
     def between(self, other: Gaussian | LieGroup, cross_cov: Any = None) -> Gaussian:
         """Distribution of ``X^-1 Y`` (``other`` is ``Y``), in this Gaussian's frame. Right:
-        ``J_X = -Ad_(Y^-1 X)``, ``J_Y = I``. ``cross_cov`` as in :meth:`compose` (for two poses
-        with a joint covariance, this is their relative-pose uncertainty)."""
+        ``J_X = -Ad_(Y^-1 X)``, ``J_Y = I``.
+
+        Parameters
+        ----------
+        other : Gaussian or LieGroup
+            ``Y``.
+        cross_cov : array_like, optional
+            As in :meth:`compose` (for two poses with a joint covariance, this is their
+            relative-pose uncertainty).
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> D = g.between(g.mean)  # the mean itself is exact: only X's error remains
+        >>> bool(np.allclose(D.cov, g.cov))
+        True
+        """
         Y = self._operand(other)
         Z, JX, JY = self.mean.between(Y.mean, jac=True, side=self.frame)
         return self._binary(Z, JX, JY, Y, cross_cov)
@@ -551,10 +900,31 @@ class Gaussian:
             ) -> VectorGaussian:
         """Distribution of the moved points ``X . p`` in ``R^n`` (world coordinates).
 
-        ``points`` ``(..., point_dim)`` or a :class:`VectorGaussian` (or give ``points_cov``);
-        ``cross_cov = E[eps_X dp^T]`` (``eps_X`` in this frame). Without point noise
-        ``P_p' = J_X P J_X^T`` with ``J_X`` the point Jacobian of this frame's side
-        (SE(3) right: ``[R, -R hat(p)]``; left: ``[I, -hat(X p)]``).
+        Without point noise ``P_p' = J_X P J_X^T`` with ``J_X`` the point Jacobian of this
+        frame's side (SE(3) right: ``[R, -R hat(p)]``; left: ``[I, -hat(X p)]``).
+
+        Parameters
+        ----------
+        points : array_like or VectorGaussian
+            ``(..., point_dim)`` points, or a :class:`VectorGaussian` of them.
+        points_cov : array_like, optional
+            Their covariance (instead of a VectorGaussian).
+        cross_cov : array_like, optional
+            ``E[eps_X dp^T]`` (``eps_X`` in this frame).
+
+        Returns
+        -------
+        VectorGaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> p = g.act(np.array([0.0, 0.0]))  # the position: x and y variances, rotated
+        >>> np.round(p.mean, 12).tolist(), round(float(np.trace(p.cov)), 12)
+        ([1.0, 2.0], 0.05)
         """
         pts = self._vector(points, points_cov, self.group.point_dim, "points")
         out, JX, Jp = self.mean.act(pts.mean, jac=True, side=self.frame)
@@ -569,18 +939,51 @@ class Gaussian:
 
     def log(self) -> VectorGaussian:
         """Distribution of ``Log(X)`` in ``R^dof``: ``J = Jr^-1(Log mean)`` (right frame) or
-        ``Jl^-1(Log mean)`` (left frame)."""
+        ``Jl^-1(Log mean)`` (left frame).
+
+        Returns
+        -------
+        VectorGaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> L = g.log()
+        >>> J = SE2.jr_inv(g.mean.log())
+        >>> bool(np.allclose(L.cov, J @ g.cov @ J.T))
+        True
+        """
         tau, J = self.mean.log(jac=True, side=self.frame)
         return cast(VectorGaussian, propagate(tau, [self], [J], side=self.frame))
 
     @classmethod
     def from_tangent(cls, group: type[LieGroup], mean: Any, cov: Any = None, *,
                      frame: Frame) -> Gaussian:
-        """Distribution of ``Exp(tau)`` for ``tau ~ N(mean, cov)`` (``mean`` may be a
-        :class:`VectorGaussian`, then ``cov`` is omitted): mean ``Exp(mean)``, covariance
+        """Distribution of ``Exp(tau)`` for ``tau ~ N(mean, cov)``: mean ``Exp(mean)``, covariance
         ``Jr P Jr^T`` (right frame) or ``Jl P Jl^T`` (left frame), at ``mean``.
 
-        >>> from microlie import SO3
+        Parameters
+        ----------
+        group : type
+            The :class:`~microlie.LieGroup` subclass.
+        mean : array_like or VectorGaussian
+            The tangent mean (a VectorGaussian carries its covariance; then ``cov`` is omitted).
+        cov : array_like, optional
+            ``(*batch, dof, dof)``.
+        frame : {"right", "left"}
+            The error frame of the result.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3, Gaussian
         >>> g = Gaussian.from_tangent(SO3, [0.0, 0.0, 0.0], 1e-2 * np.eye(3), frame="right")
         >>> bool(np.allclose(g.cov, 1e-2 * np.eye(3)))     # Jr(0) = I
         True
@@ -593,8 +996,32 @@ class Gaussian:
     def plus(self, tau: Any, tau_cov: Any = None, cross_cov: Any = None) -> Gaussian:
         """Distribution of ``X (+) tau = X Exp(tau)`` with tangent noise ``tau ~ N(tau, tau_cov)``
         (a motion model step), in this frame. Right: ``P = Ad_Exp(tau)^-1 P Ad^-T
-        + Jr(tau) Q Jr(tau)^T``. ``tau`` may be a :class:`VectorGaussian`; ``cross_cov =
-        E[eps_X dtau^T]``."""
+        + Jr(tau) Q Jr(tau)^T``.
+
+        Parameters
+        ----------
+        tau : array_like or VectorGaussian
+            The step (a VectorGaussian carries its covariance).
+        tau_cov : array_like, optional
+            ``Q``, the step's covariance.
+        cross_cov : array_like, optional
+            ``E[eps_X dtau^T]``.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> step = np.array([1.0, 0.0, 0.0])
+        >>> out = g.plus(step, 0.01 * np.eye(3))
+        >>> bool(np.allclose(out.mean.params, g.mean.plus(step).params))
+        True
+        """
         t = self._vector(tau, tau_cov, self.dof, "tau")
         Z, JX, Jt = self.mean.plus(t.mean, jac=True, side=self.frame)
         return self._binary(Z, JX, Jt, t, cross_cov)
@@ -602,7 +1029,31 @@ class Gaussian:
     def lplus(self, tau: Any, tau_cov: Any = None, cross_cov: Any = None) -> Gaussian:
         """Distribution of ``tau (+) X = Exp(tau) X`` with tangent noise ``tau ~ N(tau,
         tau_cov)`` (a step applied in the world frame), in this frame. Left:
-        ``P = Ad_Exp(tau) P Ad_Exp(tau)^T + Jl(tau) Q Jl(tau)^T``. Arguments as :meth:`plus`."""
+        ``P = Ad_Exp(tau) P Ad_Exp(tau)^T + Jl(tau) Q Jl(tau)^T``.
+
+        Parameters
+        ----------
+        tau : array_like or VectorGaussian
+            The step.
+        tau_cov : array_like, optional
+            Its covariance.
+        cross_cov : array_like, optional
+            ``E[eps_X dtau^T]``.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> out = g.lplus(np.array([0.0, 0.0, 0.1]), 1e-4 * np.eye(3))
+        >>> bool(np.allclose(out.mean.params, g.mean.lplus([0.0, 0.0, 0.1]).params))
+        True
+        """
         t = self._vector(tau, tau_cov, self.dof, "tau")
         Z, JX, Jt = self.mean.lplus(t.mean, jac=True, side=self.frame)
         return self._binary(Z, JX, Jt, t, cross_cov)
@@ -614,21 +1065,36 @@ class Gaussian:
         Model: ``residual = z - h(mean) ~= H eps + v``, ``v ~ N(0, R)``, ``eps`` this Gaussian's
         error in its frame (so ``H`` is the Jacobian of ``h`` on this frame's side). Computes
         ``K = P H^T S^-1`` with ``S = H P H^T + R``, ``d = K residual``, the Joseph-form
-        covariance ``(I - K H) P (I - K H)^T + K R K^T``, and the new mean ``retract(d)``. With
-        ``reset`` the covariance is moved to the new mean's error: ``Jr(d) P Jr(d)^T`` (right)
-        or ``Jl(d) P Jl(d)^T`` (left), since ``mean Exp(d + x) ~= mean Exp(d) Exp(Jr(d) x)``.
+        covariance ``(I - K H) P (I - K H)^T + K R K^T``, and the new mean ``retract(d)``.
 
-        ``R`` is checked like every covariance (finite, symmetric, positive semi-definite).
         Rank-deficient ``P`` and ``R`` are handled exactly: when ``S`` is singular (the rank
         rule of docs/uncertainty.md, tolerance :data:`RANK_RTOL`, independent of units) a
         generalised inverse is used, so ``d`` stays in the range of ``P H^T`` (the mean never
         moves along a zero-variance direction), and a residual that has a component where
         ``S`` has zero variance (the measurement contradicts what both sides hold certain)
-        raises ``ValueError``. Under
-        ``jax.jit`` with a traced covariance the rank cannot be read: ``S`` must then be
-        invertible.
+        raises ``ValueError``. Under ``jax.jit`` with a traced covariance the rank cannot be
+        read: ``S`` must then be invertible.
 
-        >>> from microlie import SE2
+        Parameters
+        ----------
+        residual : array_like
+            ``(*batch, m)``, ``z - h(mean)``.
+        H : array_like
+            ``(*batch, m, dof)`` measurement Jacobian on this frame's side.
+        R : array_like
+            ``(*batch, m, m)`` measurement covariance (checked like every covariance).
+        reset : bool
+            Move the covariance to the new mean's error: ``Jr(d) P Jr(d)^T`` (right) or
+            ``Jl(d) P Jl(d)^T`` (left), since ``mean Exp(d + x) ~= mean Exp(d) Exp(Jr(d) x)``.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
         >>> g = Gaussian(SE2.identity(), np.diag([1.0, 1.0, 0.0]), frame="right")  # exact heading
         >>> out = g.update([0.5, 0.0], np.eye(2, 3), np.eye(2), reset=False)
         >>> out.mean.log().round(12).tolist(), np.diag(out.cov).round(12).tolist()
@@ -661,7 +1127,21 @@ class Gaussian:
         two estimates that differ along a direction in which both have zero variance raise
         ``ValueError``.
 
-        >>> from microlie import SE2
+        Parameters
+        ----------
+        other : Gaussian
+            Another estimate of the same element.
+        reset : bool
+            As in :meth:`update`.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
         >>> a = Gaussian(SE2.identity(), np.eye(3), frame="right")
         >>> bool(np.allclose(a.fuse(a).cov, 0.5 * np.eye(3)))
         True
@@ -748,15 +1228,32 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
 
     ``P = sum_i J_i P_i J_i^T + sum_(i,j) (J_i C_ij J_j^T + J_j C_ij^T J_i^T)``.
 
-    * ``jacobians[i]`` is ``d f / d x_i``, shape ``(*batch, m, dim_i)``; for group inputs and a
-      group output the perturbations are on ``side`` (right: ``X Exp(e)``; left: ``Exp(e) X``).
-      Group inputs in the other frame are converted exactly (``J_i Ad`` is used).
-    * ``cross_cov[(i, j)] = E[e_i e_j^T]`` (``i != j``), each error in its own input's frame;
-      inputs are independent otherwise.
-    * A group ``value`` gives a :class:`Gaussian` in frame ``side``; an array gives a
-      :class:`VectorGaussian`.
+    Parameters
+    ----------
+    value : LieGroup or array
+        ``f`` at the means. A group ``value`` gives a :class:`Gaussian` in frame ``side``; an
+        array gives a :class:`VectorGaussian`.
+    inputs : sequence of Gaussian or VectorGaussian
+        The independent (unless ``cross_cov``) inputs. Group inputs in the other frame are
+        converted exactly (``J_i Ad`` is used).
+    jacobians : sequence of array_like
+        ``jacobians[i]`` is ``d f / d x_i``, shape ``(*batch, m, dim_i)``; for group inputs and
+        a group output the perturbations are on ``side`` (right: ``X Exp(e)``; left:
+        ``Exp(e) X``).
+    side : {"right", "left"}
+        The perturbation side.
+    cross_cov : mapping, optional
+        ``cross_cov[(i, j)] = E[e_i e_j^T]`` (``i != j``), each error in its own input's frame.
 
-    >>> from microlie import SE2
+    Returns
+    -------
+    Gaussian or VectorGaussian
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2, Gaussian
+    >>> from microlie.uncertainty import propagate
     >>> X = Gaussian(SE2.identity(), 0.01 * np.eye(3), frame="right")
     >>> Y = Gaussian(SE2.from_xy_theta(1.0, 0.0, 0.5), 0.02 * np.eye(3), frame="right")
     >>> Z, JX, JY = X.mean.compose(Y.mean, jac=True)

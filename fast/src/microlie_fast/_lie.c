@@ -19,6 +19,8 @@
 
 typedef npy_intp ix;
 typedef void (*block_fn)(const double *restrict in, double *restrict out, ix m);
+typedef void (*plain_fn)(const double *restrict a, const double *restrict b, double *restrict o,
+                         ix n);
 
 typedef struct {
     const char *name; /* the registry name, e.g. "SE3.exp" */
@@ -28,6 +30,7 @@ typedef struct {
     int rows[3];     /* output j has shape (N, rows[j]) if cols[j] == 0, else (N, rows, cols) */
     int cols[3];
     block_fn fn;
+    plain_fn plain; /* a row loop for float64 (cheap formulas: the block copies would dominate) */
 } kernel;
 
 #define MAXW 96 /* total width of the inputs or outputs of one kernel, at most */
@@ -68,6 +71,10 @@ static void load_rows(int f32, const char *x, int kw, ix m, double *buf) {
 }
 
 static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *const *out) {
+    if (k->plain && !f32) {
+        k->plain((const double *)in[0], (const double *)in[k->nin - 1], (double *)out[0], n);
+        return;
+    }
     double ibuf[2 * 7 * S] __attribute__((aligned(64)));
     double obuf[MAXW * S] __attribute__((aligned(64)));
     size_t es = f32 ? sizeof(float) : sizeof(double);
@@ -151,42 +158,72 @@ static PyObject *call(const kernel *k, PyObject *const *args, Py_ssize_t nargs) 
         _Pragma("omp simd") for (ix j = 0; j < m; j++) FN(in + j, in + (KA) * S + j, out + j);  \
     }
 
-#define KERNELS(X)                                                                             \
-    X(so3_exp, "SO3.exp", 1, 3, 0, 1, 4, 0, 0, 0, 0, 0)                                        \
-    X(so3_log, "SO3.log", 1, 4, 0, 1, 3, 0, 0, 0, 0, 0)                                        \
-    X(so3_inverse, "SO3.inverse", 1, 4, 0, 1, 4, 0, 0, 0, 0, 0)                                \
-    X(so3_compose, "SO3.compose", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0)                                \
-    X(so3_between, "SO3.between", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0)                                \
-    X(so3_act, "SO3.act", 2, 4, 3, 1, 3, 0, 0, 0, 0, 0)                                        \
-    X(so3_minus, "SO3.minus", 2, 4, 4, 1, 3, 0, 0, 0, 0, 0)                                    \
-    X(so3_jr, "SO3.jr", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0)                                          \
-    X(so3_jr_inv, "SO3.jr_inv", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0)                                  \
-    X(so3_exp_jac, "SO3.exp_jac", 1, 3, 0, 2, 4, 3, 0, 0, 3, 0)                                \
-    X(so3_act_jac, "SO3.act_jac", 2, 4, 3, 3, 3, 3, 3, 0, 3, 3)                                \
-    X(so3_inverse_jac, "SO3.inverse_jac", 1, 4, 0, 2, 4, 3, 0, 0, 3, 0)                        \
-    X(so3_compose_jac, "SO3.compose_jac", 2, 4, 4, 2, 4, 3, 0, 0, 3, 0)                        \
-    X(so3_between_jac, "SO3.between_jac", 2, 4, 4, 2, 4, 3, 0, 0, 3, 0)                        \
-    X(so3_minus_jac, "SO3.minus_jac", 2, 4, 4, 3, 3, 3, 3, 0, 3, 3)                            \
-    X(se3_exp, "SE3.exp", 1, 6, 0, 1, 7, 0, 0, 0, 0, 0)                                        \
-    X(se3_log, "SE3.log", 1, 7, 0, 1, 6, 0, 0, 0, 0, 0)                                        \
-    X(se3_inverse, "SE3.inverse", 1, 7, 0, 1, 7, 0, 0, 0, 0, 0)                                \
-    X(se3_compose, "SE3.compose", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0)                                \
-    X(se3_between, "SE3.between", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0)                                \
-    X(se3_act, "SE3.act", 2, 7, 3, 1, 3, 0, 0, 0, 0, 0)                                        \
-    X(se3_minus, "SE3.minus", 2, 7, 7, 1, 6, 0, 0, 0, 0, 0)                                    \
-    X(se3_jr, "SE3.jr", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0)                                          \
-    X(se3_jr_inv, "SE3.jr_inv", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0)                                  \
-    X(se3_exp_jac, "SE3.exp_jac", 1, 6, 0, 2, 7, 6, 0, 0, 6, 0)                                \
-    X(se3_act_jac, "SE3.act_jac", 2, 7, 3, 3, 3, 3, 3, 0, 6, 3)                                \
-    X(se3_inverse_jac, "SE3.inverse_jac", 1, 7, 0, 2, 7, 6, 0, 0, 6, 0)                        \
-    X(se3_compose_jac, "SE3.compose_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0)                        \
-    X(se3_between_jac, "SE3.between_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0)                        \
-    X(se3_minus_jac, "SE3.minus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6)
+/* row loops of the cheap operations (quaternion products): as fast as the native loop, while
+ * the copies to and from blocks would double their time */
+#define PLAIN(FN, KA, KB, KO, BODY)                                                            \
+    static void pl_##FN(const double *restrict a, const double *restrict b, double *restrict o,  \
+                        ix n) {                                                                \
+        (void)b;                                                                               \
+        for (ix i = 0; i < n; i++) {                                                           \
+            const double *x = a + (KA) * i, *y = b + (KB) * i;                                 \
+            double *r = o + (KO) * i;                                                          \
+            (void)y;                                                                           \
+            BODY;                                                                              \
+        }                                                                                      \
+    }
+PLAIN(so3_inverse, 4, 0, 4, quat_conj(x, r))
+PLAIN(so3_compose, 4, 4, 4, quat_mul(x, y, r))
+PLAIN(so3_between, 4, 4, 4, double c[4]; quat_conj(x, c); quat_mul(c, y, r))
+PLAIN(se3_inverse, 7, 0, 7, se3_inverse_l(x, r))
+PLAIN(se3_compose, 7, 7, 7, se3_compose_l(x, y, r))
+PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi, y, r))
 
-#define DEFINE(FN, NAME, NIN, KA, KB, NOUT, R0, R1, R2, C0, C1, C2)                           \
+#define KERNELS(X)                                                                             \
+    X(so3_log_jac, "SO3.log_jac", 1, 4, 0, 2, 3, 3, 0, 0, 3, 0, 0)                            \
+    X(so3_matrix, "SO3.matrix", 1, 4, 0, 1, 3, 0, 0, 3, 0, 0, 0)                                \
+    X(so3_adjoint, "SO3.adjoint", 1, 4, 0, 1, 3, 0, 0, 3, 0, 0, 0)                              \
+    X(so3_adjoint_inv, "SO3.adjoint_inv", 1, 4, 0, 1, 3, 0, 0, 3, 0, 0, 0)                      \
+    X(so3_plus, "SO3.plus", 2, 4, 3, 1, 4, 0, 0, 0, 0, 0, 0)                                    \
+    X(se3_log_jac, "SE3.log_jac", 1, 7, 0, 2, 6, 6, 0, 0, 6, 0, 0)                              \
+    X(se3_matrix, "SE3.matrix", 1, 7, 0, 1, 4, 0, 0, 4, 0, 0, 0)                                \
+    X(se3_adjoint, "SE3.adjoint", 1, 7, 0, 1, 6, 0, 0, 6, 0, 0, 0)                              \
+    X(se3_adjoint_inv, "SE3.adjoint_inv", 1, 7, 0, 1, 6, 0, 0, 6, 0, 0, 0)                      \
+    X(se3_plus, "SE3.plus", 2, 7, 6, 1, 7, 0, 0, 0, 0, 0, 0)                                    \
+    X(so3_exp, "SO3.exp", 1, 3, 0, 1, 4, 0, 0, 0, 0, 0, 0)                                     \
+    X(so3_log, "SO3.log", 1, 4, 0, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(so3_inverse, "SO3.inverse", 1, 4, 0, 1, 4, 0, 0, 0, 0, 0, pl_so3_inverse)                \
+    X(so3_compose, "SO3.compose", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0, pl_so3_compose)                \
+    X(so3_between, "SO3.between", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0, pl_so3_between)                \
+    X(so3_act, "SO3.act", 2, 4, 3, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(so3_minus, "SO3.minus", 2, 4, 4, 1, 3, 0, 0, 0, 0, 0, 0)                                 \
+    X(so3_jr, "SO3.jr", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0, 0)                                       \
+    X(so3_jr_inv, "SO3.jr_inv", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0, 0)                               \
+    X(so3_exp_jac, "SO3.exp_jac", 1, 3, 0, 2, 4, 3, 0, 0, 3, 0, 0)                             \
+    X(so3_act_jac, "SO3.act_jac", 2, 4, 3, 3, 3, 3, 3, 0, 3, 3, 0)                             \
+    X(so3_inverse_jac, "SO3.inverse_jac", 1, 4, 0, 2, 4, 3, 0, 0, 3, 0, 0)                     \
+    X(so3_compose_jac, "SO3.compose_jac", 2, 4, 4, 2, 4, 3, 0, 0, 3, 0, 0)                     \
+    X(so3_between_jac, "SO3.between_jac", 2, 4, 4, 2, 4, 3, 0, 0, 3, 0, 0)                     \
+    X(so3_minus_jac, "SO3.minus_jac", 2, 4, 4, 3, 3, 3, 3, 0, 3, 3, 0)                         \
+    X(se3_exp, "SE3.exp", 1, 6, 0, 1, 7, 0, 0, 0, 0, 0, 0)                                     \
+    X(se3_log, "SE3.log", 1, 7, 0, 1, 6, 0, 0, 0, 0, 0, 0)                                     \
+    X(se3_inverse, "SE3.inverse", 1, 7, 0, 1, 7, 0, 0, 0, 0, 0, pl_se3_inverse)                \
+    X(se3_compose, "SE3.compose", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0, pl_se3_compose)                \
+    X(se3_between, "SE3.between", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0, pl_se3_between)                \
+    X(se3_act, "SE3.act", 2, 7, 3, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(se3_minus, "SE3.minus", 2, 7, 7, 1, 6, 0, 0, 0, 0, 0, 0)                                 \
+    X(se3_jr, "SE3.jr", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0, 0)                                       \
+    X(se3_jr_inv, "SE3.jr_inv", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0, 0)                               \
+    X(se3_exp_jac, "SE3.exp_jac", 1, 6, 0, 2, 7, 6, 0, 0, 6, 0, 0)                             \
+    X(se3_act_jac, "SE3.act_jac", 2, 7, 3, 3, 3, 3, 3, 0, 6, 3, 0)                             \
+    X(se3_inverse_jac, "SE3.inverse_jac", 1, 7, 0, 2, 7, 6, 0, 0, 6, 0, 0)                     \
+    X(se3_compose_jac, "SE3.compose_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0, 0)                     \
+    X(se3_between_jac, "SE3.between_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0, 0)                     \
+    X(se3_minus_jac, "SE3.minus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6, 0)
+
+#define DEFINE(FN, NAME, NIN, KA, KB, NOUT, R0, R1, R2, C0, C1, C2, PLAIN)                    \
     BLOCK(FN, KA)                                                                              \
     static const kernel k_##FN = {NAME, NIN, {KA, KB}, NOUT, {R0, R1, R2}, {C0, C1, C2},       \
-                                  blk_##FN};                                                   \
+                                  blk_##FN, PLAIN};                                            \
     static PyObject *py_##FN(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {       \
         (void)self;                                                                            \
         return call(&k_##FN, args, nargs);                                                     \

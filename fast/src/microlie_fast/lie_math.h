@@ -23,7 +23,7 @@ extern double atan2(double, double);
 
 #define LM_INLINE static inline __attribute__((always_inline))
 #ifndef S
-#define S 64 /* the block length: component i of an element is at x[i * S] */
+#define S 32 /* the block length: component i of an element is at x[i * S] */
 #endif
 
 LM_INLINE double horner(double x, const double *c, int n) {
@@ -465,3 +465,54 @@ EL(se3_minus_jac) { /* (tau, Jr^-1(tau), -Jl^-1(tau)) */
     NEG(Jl, 36);
     ST(o, t, 6); ST(o + 6 * S, Jr, 36); ST(o + 42 * S, Jl, 36);
 }
+
+EL(so3_log_jac) { /* (phi, Jr^-1(phi)) */
+    (void)b; double q[4] = LD4(a), phi[3], kl, aw, J[9];
+    quat_log(q, phi, &kl, &aw);
+    so3_jr_inv_m(phi, J);
+    ST(o, phi, 3); ST(o + 3 * S, J, 9);
+}
+EL(so3_matrix) { (void)b; double q[4] = LD4(a), R[9]; quat_matrix(q, R); ST(o, R, 9); }
+EL(so3_adjoint_inv) { /* Ad(q^-1) = R(q^-1) */
+    (void)b; double q[4] = LD4(a), c[4], R[9];
+    quat_conj(q, c);
+    quat_matrix(c, R);
+    ST(o, R, 9);
+}
+EL(so3_plus) { /* q Exp(t) */
+    double q[4] = LD4(a), w[3] = LD3(b), e[4], r[4];
+    so3_exp_l(w, e);
+    quat_mul(q, e, r);
+    ST(o, r, 4);
+}
+
+EL(se3_log_jac) { /* (tau, Jr^-1(tau)) */
+    (void)b; double p[7] = LD7(a), t[6], J[36];
+    se3_log_l(p, t);
+    se3_jr_inv_m(t, J, (double *)0);
+    ST(o, t, 6); ST(o + 6 * S, J, 36);
+}
+EL(se3_adjoint) { (void)b; double p[7] = LD7(a), J[36]; se3_adjoint_l(p, J); ST(o, J, 36); }
+EL(se3_adjoint_inv) {
+    (void)b; double p[7] = LD7(a), pi[7], J[36];
+    se3_inverse_l(p, pi);
+    se3_adjoint_l(pi, J);
+    ST(o, J, 36);
+}
+EL(se3_matrix) { /* [[R, t], [0, 1]] */
+    (void)b; double p[7] = LD7(a), R[9], M[16];
+    quat_matrix(p + 3, R);
+    for (int i = 0; i < 3; i++) {
+        M[4 * i] = R[3 * i]; M[4 * i + 1] = R[3 * i + 1]; M[4 * i + 2] = R[3 * i + 2];
+        M[4 * i + 3] = p[i];
+    }
+    M[12] = 0.0; M[13] = 0.0; M[14] = 0.0; M[15] = 1.0;
+    ST(o, M, 16);
+}
+EL(se3_plus) { /* p Exp(t) */
+    double p[7] = LD7(a), t[6] = LD6(b), e[7], r[7];
+    se3_exp_l(t, e);
+    se3_compose_l(p, e, r);
+    ST(o, r, 7);
+}
+EL(so3_adjoint) { (void)b; double q[4] = LD4(a), R[9]; quat_matrix(q, R); ST(o, R, 9); }

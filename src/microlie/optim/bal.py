@@ -34,9 +34,32 @@ __all__ = ["BALProblem", "read_bal", "write_bal"]
 
 @dataclass(frozen=True)
 class BALProblem:
-    """A BAL problem: ``cameras`` ``(n_cameras, 9)`` (rotvec, t, f, k1, k2), ``points``
-    ``(n_points, 3)``, ``camera_index``/``point_index`` ``(n_observations,)`` and
-    ``observations`` ``(n_observations, 2)`` in pixels."""
+    """A Bundle Adjustment in the Large problem, as stored in a BAL file.
+
+    Parameters
+    ----------
+    cameras : numpy.ndarray
+        ``(n_cameras, 9)``: rotation vector, translation, ``f``, ``k1``, ``k2``.
+    points : numpy.ndarray
+        ``(n_points, 3)``.
+    camera_index, point_index : numpy.ndarray
+        ``(n_observations,)`` the camera and point of each observation.
+    observations : numpy.ndarray
+        ``(n_observations, 2)`` in pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import BALProblem
+    >>> cams = np.zeros((2, 9))
+    >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+    >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+    >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+    >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+    >>> bal = BALProblem(cams, pts, ci, pi, uv)
+    >>> bal.cost()
+    0.0
+    """
 
     cameras: np.ndarray
     points: np.ndarray
@@ -57,7 +80,32 @@ class BALProblem:
         return int(self.observations.shape[0])
 
     def residuals(self, behind: str = "evaluate") -> np.ndarray:
-        """Reprojection residuals ``(n_observations, 2)`` of the BAL model at these values."""
+        """Reprojection residuals (predicted minus observed) of the BAL model at these values.
+
+        Parameters
+        ----------
+        behind : {"evaluate", "drop"}
+            Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
+            :mod:`microlie.optim.camera`.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_observations, 2)``, pixels.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> float(np.abs(bal.residuals()).max())
+        0.0
+        """
         from .bundle import rotvec_to_matrix
         from .camera import BALCamera, reproject
 
@@ -67,7 +115,32 @@ class BALProblem:
                          jac=False, behind=behind).residuals  # type: ignore[arg-type]
 
     def cost(self, behind: str = "evaluate") -> float:
-        """``0.5 * sum |r|^2`` in pixels (no robust loss)."""
+        """``0.5 * sum |r|^2`` in pixels (no robust loss).
+
+        Parameters
+        ----------
+        behind : {"evaluate", "drop"}
+            Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
+            :mod:`microlie.optim.camera`.
+
+        Returns
+        -------
+        float
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> moved = BALProblem(cams, pts + 0.01, ci, pi, uv)
+        >>> moved.cost() > 0
+        True
+        """
         r = self.residuals(behind)
         return 0.5 * float(np.sum(r * r))
 
@@ -80,7 +153,40 @@ def _open(src: str | os.PathLike | IO[str]) -> tuple[str, str]:
 
 
 def read_bal(src: str | os.PathLike | IO[str]) -> BALProblem:
-    """Read a BAL file (path or text stream); ``ValueError`` with ``file:line`` if malformed."""
+    """Read a BAL file.
+
+    Parameters
+    ----------
+    src : str, os.PathLike or text stream
+        The file or an open stream.
+
+    Returns
+    -------
+    BALProblem
+
+    Raises
+    ------
+    ValueError
+        A malformed file, with ``file:line``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import BALProblem
+    >>> cams = np.zeros((2, 9))
+    >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+    >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+    >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+    >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+    >>> bal = BALProblem(cams, pts, ci, pi, uv)
+    >>> import io
+    >>> from microlie.optim import read_bal, write_bal
+    >>> buf = io.StringIO()
+    >>> write_bal(buf, bal)
+    >>> back = read_bal(io.StringIO(buf.getvalue()))
+    >>> bool((back.points == bal.points).all())
+    True
+    """
     text, name = _open(src)
     raw = text.splitlines()
     numbers = [k + 1 for k, ln in enumerate(raw) if ln.strip()]   # blank lines are skipped
@@ -186,7 +292,32 @@ def _is_float(s: str) -> bool:
 
 
 def write_bal(dst: str | os.PathLike | IO[str], problem: BALProblem) -> None:
-    """Write ``problem`` in BAL format (shortest round-trip digits: reading it back is exact)."""
+    """Write ``problem`` in BAL format (shortest round-trip digits: reading it back is exact).
+
+    Parameters
+    ----------
+    dst : str, os.PathLike or text stream
+        The file or an open stream.
+    problem : BALProblem
+        The problem.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import BALProblem
+    >>> cams = np.zeros((2, 9))
+    >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+    >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+    >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+    >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+    >>> bal = BALProblem(cams, pts, ci, pi, uv)
+    >>> import io
+    >>> from microlie.optim import write_bal
+    >>> buf = io.StringIO()
+    >>> write_bal(buf, bal)
+    >>> buf.getvalue().split(chr(10))[0]
+    '2 6 12'
+    """
     p = problem
     buf = io.StringIO()
     buf.write(f"{p.n_cameras} {p.n_points} {p.n_observations}\n")

@@ -73,9 +73,40 @@ def camera_model(spec: str | CameraModel) -> CameraModel:
 
 @dataclass(frozen=True)
 class BundleProblem:
-    """Cameras ``(R, t, K)`` (world to camera: ``P = R X + t``), points ``X`` and observations
-    ``(camera_index, point_index, observations)``; ``model`` projects camera-frame points.
-    Arrays are stored as float64 (and intp indices), whatever the input dtype."""
+    """Cameras ``(R, t, K)`` (world to camera: ``P = R X + t``), points ``X`` and observations.
+    Arrays are stored as float64 (and intp indices), whatever the input dtype.
+
+    Parameters
+    ----------
+    rotations : numpy.ndarray
+        ``(n_cameras, 3, 3)`` world-to-camera rotations.
+    translations : numpy.ndarray
+        ``(n_cameras, 3)``.
+    intrinsics : numpy.ndarray
+        ``(n_cameras, k)`` in the order of ``model``.
+    points : numpy.ndarray
+        ``(n_points, 3)`` world points.
+    camera_index, point_index : numpy.ndarray
+        ``(n_observations,)``.
+    observations : numpy.ndarray
+        ``(n_observations, 2)`` pixels.
+    model : CameraModel
+        Projects camera-frame points (default :class:`BALCamera`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+    >>> cams = np.zeros((2, 9))
+    >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+    >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+    >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+    >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+    >>> bal = BALProblem(cams, pts, ci, pi, uv)
+    >>> problem = BundleProblem.from_bal(bal)
+    >>> problem.rotations.shape, problem.intrinsics.shape
+    ((2, 3, 3), (2, 3))
+    """
 
     rotations: np.ndarray
     translations: np.ndarray
@@ -123,12 +154,57 @@ class BundleProblem:
 
     @classmethod
     def from_bal(cls, bal: BALProblem) -> BundleProblem:
+        """The problem of a BAL file (rotation vectors to matrices, the BAL camera model).
+
+        Parameters
+        ----------
+        bal : BALProblem
+            The file's problem.
+
+        Returns
+        -------
+        BundleProblem
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> problem = BundleProblem.from_bal(bal)
+        >>> problem.cost()
+        0.0
+        """
         c = bal.cameras
         return cls(rotvec_to_matrix(c[:, :3]), c[:, 3:6].copy(), c[:, 6:9].copy(),
                    bal.points.copy(), bal.camera_index, bal.point_index, bal.observations,
                    BALCamera())
 
     def to_bal(self) -> BALProblem:
+        """Back to BAL storage (needs the BAL camera model).
+
+        Returns
+        -------
+        BALProblem
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> problem = BundleProblem.from_bal(bal)
+        >>> bool(np.allclose(problem.to_bal().cameras, cams))
+        True
+        """
         if not isinstance(self.model, BALCamera):
             raise ValueError("only problems with the BAL camera model can be written as BAL")
         cams = np.concatenate([matrix_to_rotvec(self.rotations), self.translations,
@@ -149,24 +225,123 @@ class BundleProblem:
         return 6 + self.model.n_intrinsics
 
     def poses(self) -> Any:
-        """The cameras as a batch of world-to-camera ``SE3`` elements ``(R, t)``."""
+        """The cameras as a batch of world-to-camera ``SE3`` elements ``(R, t)``.
+
+        Returns
+        -------
+        SE3
+            Batch ``(n_cameras,)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> problem = BundleProblem.from_bal(bal)
+        >>> problem.poses().batch_shape
+        (2,)
+        """
         from ..groups import SE3, SO3
 
         q = np.asarray(SO3.from_matrix(self.rotations, normalize=True).params)
         return SE3(np.concatenate([self.translations, q], axis=1))
 
     def residuals(self, behind: str = "evaluate") -> np.ndarray:
+        """Reprojection residuals (predicted minus observed).
+
+        Parameters
+        ----------
+        behind : {"evaluate", "drop"}
+            Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
+            :mod:`microlie.optim.camera`.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_observations, 2)``, pixels.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> problem = BundleProblem.from_bal(bal)
+        >>> problem.residuals().shape
+        (12, 2)
+        """
         return reproject(self.model, self.rotations, self.translations, self.intrinsics,
                          self.points, self.camera_index, self.point_index, self.observations,
                          jac=False, behind=behind).residuals  # type: ignore[arg-type]
 
     def cost(self, behind: str = "evaluate") -> float:
+        """``0.5 * sum |r|^2`` in pixels (no robust loss).
+
+        Parameters
+        ----------
+        behind : {"evaluate", "drop"}
+            Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
+            :mod:`microlie.optim.camera`.
+
+        Returns
+        -------
+        float
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> problem = BundleProblem.from_bal(bal)
+        >>> problem.cost()
+        0.0
+        """
         r = self.residuals(behind)
         return 0.5 * float(np.sum(r * r))
 
     def retract(self, dc: np.ndarray, dp: np.ndarray) -> BundleProblem:
-        """``R Exp(dphi)``, ``t + dt``, ``K + dK``, ``X + dX`` for camera steps ``(dt, dphi,
-        dK)`` ``(n_cameras, 6 + k)`` and point steps ``(n_points, 3)``."""
+        """The problem at ``R Exp(dphi)``, ``t + dt``, ``K + dK``, ``X + dX``.
+
+        Parameters
+        ----------
+        dc : numpy.ndarray
+            ``(n_cameras, 6 + k)`` camera steps ``(dt, dphi, dK)``.
+        dp : numpy.ndarray
+            ``(n_points, 3)`` point steps.
+
+        Returns
+        -------
+        BundleProblem
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> problem = BundleProblem.from_bal(bal)
+        >>> moved = problem.retract(np.zeros((2, 9)), np.ones((6, 3)))
+        >>> np.round(moved.points - problem.points, 12)[0].tolist()
+        [1.0, 1.0, 1.0]
+        """
         from ..groups import SO3
 
         dR = np.asarray(SO3.exp(dc[:, 3:6]).matrix())
@@ -190,13 +365,49 @@ class BundleIteration:
 
 @dataclass
 class BundleResult:
-    """Outcome of :func:`bundle_adjust`, with the fields of :class:`microlie.optim.solvers.Result`:
-    the optimised ``problem``; ``initial_cost`` / ``final_cost`` ``0.5 sum |r|^2`` in pixels
-    without the robust loss, ``initial_robust_cost`` / ``final_robust_cost`` the minimised
-    ``0.5 sum rho(|r|^2)`` (equal without a loss); ``iterations`` (tries, accepted or not, the
-    stopping one included); ``successful_steps`` (Ceres' count: accepted steps plus iteration
-    0); ``converged`` with the reason in ``message``; wall time ``time_s`` and its breakdown
-    ``timings``; ``history`` one :class:`BundleIteration` per try."""
+    """Outcome of :func:`bundle_adjust`, with the fields of :class:`microlie.optim.solvers.Result`.
+
+    Attributes
+    ----------
+    problem : BundleProblem
+        The optimised problem.
+    initial_cost, final_cost : float
+        ``0.5 sum |r|^2`` in pixels without the robust loss.
+    initial_robust_cost, final_robust_cost : float
+        The minimised ``0.5 sum rho(|r|^2)`` (equal without a loss).
+    iterations : int
+        Tries, accepted or not, the stopping one included.
+    successful_steps : int
+        Ceres' count: accepted steps plus iteration 0.
+    converged : bool
+        With the reason in ``message``.
+    message : str
+    time_s : float
+        Wall time, seconds; ``timings`` its breakdown.
+    history : list of BundleIteration
+        One per try.
+    timings : dict
+    behind, solver, linear_solver : str
+        The options used.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+    >>> cams = np.zeros((2, 9))
+    >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+    >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+    >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+    >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+    >>> bal = BALProblem(cams, pts, ci, pi, uv)
+    >>> problem = BundleProblem.from_bal(bal)
+    >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
+    >>> d[0] = 0.0  # point 0 is held at its true value
+    >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
+    >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
+    >>> res.converged, res.final_cost < 1e-6 * res.initial_cost
+    (True, True)
+    """
 
     problem: BundleProblem
     initial_cost: float
@@ -216,6 +427,30 @@ class BundleResult:
     _normal: Any = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary (costs, iterations, time, convergence).
+
+        Returns
+        -------
+        dict
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> problem = BundleProblem.from_bal(bal)
+        >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
+        >>> d[0] = 0.0  # point 0 is held at its true value
+        >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
+        >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
+        >>> sorted(res.to_dict())[:3]
+        ['converged', 'final_cost', 'final_robust_cost']
+        """
         return {"initial_cost": self.initial_cost, "final_cost": self.final_cost,
                 "initial_robust_cost": self.initial_robust_cost,
                 "final_robust_cost": self.final_robust_cost, "iterations": self.iterations,
@@ -223,12 +458,40 @@ class BundleResult:
                 "successful_steps": self.successful_steps}
 
     def camera_covariance(self, cameras: Sequence[int]) -> np.ndarray:
-        """Marginal covariances ``(len(cameras), d, d)`` of the camera tangents
-        ``(dt, dphi, dK)`` at the solution, from the reduced camera system: the camera block of
-        ``(J^T J)^-1`` is ``S^-1`` (``S`` the Schur complement of the points). With a free
-        gauge ``S`` is singular: the pseudo-inverse (minimum-norm gauge) is returned for a dense
-        ``S``; a sparse one (many cameras) needs the gauge held (``fix_cameras`` and a point).
-        Held unknowns have zero covariance."""
+        """Marginal covariances of the camera tangents ``(dt, dphi, dK)`` at the solution, from the
+        reduced camera system: the camera block of ``(J^T J)^-1`` is ``S^-1`` (``S`` the Schur
+        complement of the points). With a free gauge ``S`` is singular: the pseudo-inverse
+        (minimum-norm gauge) is returned for a dense ``S``; a sparse one (many cameras) needs the
+        gauge held (``fix_cameras`` and a point). Held unknowns have zero covariance.
+
+        Parameters
+        ----------
+        cameras : sequence of int
+            The cameras.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(len(cameras), d, d)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> problem = BundleProblem.from_bal(bal)
+        >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
+        >>> d[0] = 0.0  # point 0 is held at its true value
+        >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
+        >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
+        >>> res.camera_covariance([1]).shape
+        (1, 9, 9)
+        """
         d = self.problem.cam_dim
         idx = np.concatenate([np.arange(c * d, (c + 1) * d) for c in cameras])
         S = _undamped_schur(self)
@@ -272,7 +535,37 @@ class BundleResult:
         ``frame="right"``: ``T = Tbar Exp(rho, phi)``. The solver's translation step ``dt`` is
         in the camera frame, so ``rho = R^T dt`` (first order) and the SE(3) covariance is
         ``blockdiag(R^T, I) P blockdiag(R, I)`` of the pose block ``P`` of
-        :meth:`camera_covariance` (intrinsics are marginalised out)."""
+        :meth:`camera_covariance` (intrinsics are marginalised out).
+
+        Parameters
+        ----------
+        cameras : sequence of int
+            The cameras.
+
+        Returns
+        -------
+        list of Gaussian
+            One per camera.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+        >>> cams = np.zeros((2, 9))
+        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+        >>> bal = BALProblem(cams, pts, ci, pi, uv)
+        >>> problem = BundleProblem.from_bal(bal)
+        >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
+        >>> d[0] = 0.0  # point 0 is held at its true value
+        >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
+        >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
+        >>> g = res.marginals([1])[0]
+        >>> g.frame, g.cov.shape
+        ('right', (6, 6))
+        """
         from ..uncertainty import Gaussian
 
         covs = self.camera_covariance(cameras)
@@ -339,13 +632,57 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
                   jacobi_scaling: bool = True, verbose: bool = False) -> BundleResult:
     """Levenberg-Marquardt bundle adjustment (Ceres' rules, module docstring).
 
-    ``fix_cameras``: cameras whose *pose* is held (the gauge: one camera holds 6 of BAL's 7
-    degrees of freedom; the scale stays free and the damping handles it). ``fix_intrinsics``:
-    cameras whose intrinsics are held (``True``: all). ``fix_points``: held points.
+    Parameters
+    ----------
+    problem : BundleProblem or BALProblem
+        The starting point.
+    robust : str or RobustLoss, optional
+        A loss of :mod:`microlie.optim.robust` or a spec such as ``"huber:1.0"`` (scale in
+        pixels) applied to each observation's squared residual norm.
+    behind : {"evaluate", "drop"}
+        Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
+        :mod:`microlie.optim.camera`.
+    fix_cameras : sequence of int, optional
+        Cameras whose *pose* is held (the gauge: one camera holds 6 of BAL's 7 degrees of
+        freedom; the scale stays free and the damping handles it).
+    fix_points : sequence of int, optional
+        Held points.
+    fix_intrinsics : sequence of int or bool, optional
+        Cameras whose intrinsics are held (``True``: all).
+    linear_solver : str
+        The reduced camera system's solver (``"auto"``, ...; module docstring).
+    max_iter : int
+        Iteration limit.
+    function_tolerance, gradient_tolerance, parameter_tolerance : float
+        Ceres' convergence tests.
+    initial_radius : float
+        The initial trust radius (``1 / lambda``).
+    jacobi_scaling : bool
+        Scale the columns as Ceres does.
+    verbose : bool
+        One line per iteration on stderr.
 
-    ``robust``: a loss of :mod:`microlie.optim.robust` or a spec such as ``"huber:1.0"`` (scale
-    in pixels) applied to each observation's squared residual norm. ``behind``: ``"evaluate"``
-    (BAL convention) or ``"drop"`` (GTSAM/COLMAP), see :mod:`microlie.optim.camera`.
+    Returns
+    -------
+    BundleResult
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+    >>> cams = np.zeros((2, 9))
+    >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+    >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+    >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+    >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+    >>> bal = BALProblem(cams, pts, ci, pi, uv)
+    >>> problem = BundleProblem.from_bal(bal)
+    >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
+    >>> d[0] = 0.0  # point 0 is held at its true value
+    >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
+    >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
+    >>> res.converged, res.initial_cost > 1.0, res.final_cost < 1e-6 * res.initial_cost
+    (True, True, True)
     """
     t_start = time.perf_counter()
     if isinstance(problem, BALProblem):
@@ -604,9 +941,45 @@ def synthetic_scene(n_cameras: int = 5, n_points: int = 100, *, noise: float = 0
 def plot_bundle(initial: BundleProblem, optimised: BundleProblem, path: Any = None,
                 title: str | None = None, max_points: int = 20000) -> Any:
     """3-D views of the camera centres ``-R^T t`` and the points before (left) and after
-    (right); saved to ``path`` (PNG) when given. Builds a ``matplotlib.figure.Figure`` with the
-    Agg canvas (never pyplot, never the caller's backend) and returns it. The view is limited
-    to the 2-98 % range of the points (BAL files have a few far-away points)."""
+    (right). Builds a ``matplotlib.figure.Figure`` with the Agg canvas (never pyplot, never
+    the caller's backend). The view is limited to the 2-98 % range of the points (BAL files
+    have a few far-away points).
+
+    Parameters
+    ----------
+    initial, optimised : BundleProblem
+        The two states.
+    path : str or os.PathLike, optional
+        Save the figure there (PNG).
+    title : str, optional
+        The figure title.
+    max_points : int
+        Subsample the points drawn.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+    >>> cams = np.zeros((2, 9))
+    >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
+    >>> pts = np.random.default_rng(0).normal(size=(6, 3))
+    >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
+    >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
+    >>> bal = BALProblem(cams, pts, ci, pi, uv)
+    >>> problem = BundleProblem.from_bal(bal)
+    >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
+    >>> d[0] = 0.0  # point 0 is held at its true value
+    >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
+    >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
+    >>> from microlie.optim import plot_bundle
+    >>> fig = plot_bundle(BundleProblem.from_bal(noisy), res.problem)
+    >>> len(fig.axes)
+    2
+    """
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure

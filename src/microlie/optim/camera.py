@@ -73,6 +73,32 @@ class CameraModel:
         raise NotImplementedError
 
     def check_intrinsics(self, K: np.ndarray, n_cameras: int) -> np.ndarray:
+        """Validated intrinsics of ``n_cameras`` cameras.
+
+        Parameters
+        ----------
+        K : array_like
+            ``(n_cameras, n_intrinsics)``.
+        n_cameras : int
+            The expected number of cameras.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``K`` as float64.
+
+        Raises
+        ------
+        ValueError
+            Wrong shape or non-finite values (the message names the intrinsics).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALCamera
+        >>> BALCamera().check_intrinsics([[500.0, 0.0, 0.0]], 1).tolist()
+        [[500.0, 0.0, 0.0]]
+        """
         K = np.asarray(K, dtype=float)
         if K.shape != (n_cameras, self.n_intrinsics):
             raise ValueError(f"{self.name} intrinsics must have shape ({n_cameras}, "
@@ -85,16 +111,77 @@ class CameraModel:
 class BALCamera(CameraModel):
     """The BAL / Ceres ``SnavelyReprojectionError`` model, intrinsics ``(f, k1, k2)``.
 
-    ``p = -P_xy / P_z``; ``uv = f (1 + k1 |p|^2 + k2 |p|^4) p``. No principal point.
+    ``p = -P_xy / P_z``; ``uv = f (1 + k1 |p|^2 + k2 |p|^4) p``. No principal point; the
+    camera looks down its negative z axis.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import BALCamera
+    >>> uv, _, _ = BALCamera().project(np.array([[0.1, 0.2, -2.0]]), np.array([[500.0, 0, 0]]),
+    ...                                jac=False)
+    >>> uv.tolist()
+    [[25.0, 50.0]]
     """
 
     name = "bal"
     intrinsic_names = ("f", "k1", "k2")
 
     def in_front(self, P: np.ndarray) -> np.ndarray:
+        """Boolean mask of camera-frame points strictly in front of the camera (``P_z < 0``).
+
+        Parameters
+        ----------
+        P : numpy.ndarray
+            ``(n, 3)`` camera-frame points.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n,)`` boolean mask of the points strictly in front of the camera.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALCamera
+        >>> BALCamera().in_front(np.array([[0.1, 0.2, -2.0], [0.0, 0.0, 1.0]])).tolist()
+        [True, False]
+        """
         return P[:, 2] < 0.0
 
     def project(self, P, K, jac=True, out=None):
+        """Project camera-frame points to pixels.
+
+        Parameters
+        ----------
+        P : numpy.ndarray
+            ``(n, 3)`` camera-frame points.
+        K : numpy.ndarray
+            ``(n, k)`` intrinsics (per observation).
+        jac : bool
+            Also return the Jacobians.
+        out : numpy.ndarray, optional
+            ``(n, 2, 6 + k)``: the two Jacobians are written into its columns ``0:3`` and ``6:``
+            (the camera Jacobian's layout).
+
+        Returns
+        -------
+        uv : numpy.ndarray
+            ``(n, 2)`` pixels.
+        J_P : numpy.ndarray or None
+            ``(n, 2, 3)``, ``d uv / d P`` (``None`` when ``jac=False``).
+        J_K : numpy.ndarray or None
+            ``(n, 2, k)``, ``d uv / d K``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import BALCamera
+        >>> P, K = np.array([[0.1, 0.2, -2.0]]), np.array([[500.0, 0, 0]])
+        >>> uv, JP, JK = BALCamera().project(P, K)
+        >>> uv.tolist(), JP.shape, JK.shape
+        ([[25.0, 50.0]], (1, 2, 3), (1, 2, 3))
+        """
         n = P.shape[0]
         f, k1, k2 = K[:, 0], K[:, 1], K[:, 2]
         iz = -1.0 / P[:, 2]
@@ -136,6 +223,17 @@ class PinholeCamera(CameraModel):
     ``x = P_x / P_z``, ``y = P_y / P_z``, ``r^2 = x^2 + y^2``, ``a = 1 + k1 r^2 + k2 r^4``,
     ``x_d = a x + 2 p1 x y + p2 (r^2 + 2 x^2)``, ``y_d = a y + p1 (r^2 + 2 y^2) + 2 p2 x y``
     (OpenCV's radial-tangential model), ``uv = (fx x_d + cx, fy y_d + cy)``.
+
+    Parameters
+    ----------
+    distortion : bool
+        Add the four distortion coefficients.
+
+    Examples
+    --------
+    >>> from microlie.optim import PinholeCamera
+    >>> PinholeCamera().n_intrinsics, PinholeCamera(distortion=True).n_intrinsics
+    (4, 8)
     """
 
     name = "pinhole"
@@ -146,9 +244,60 @@ class PinholeCamera(CameraModel):
                                 else ("fx", "fy", "cx", "cy"))
 
     def in_front(self, P: np.ndarray) -> np.ndarray:
+        """Boolean mask of camera-frame points strictly in front of the camera (``P_z > 0``).
+
+        Parameters
+        ----------
+        P : numpy.ndarray
+            ``(n, 3)`` camera-frame points.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n,)`` boolean mask of the points strictly in front of the camera.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PinholeCamera
+        >>> PinholeCamera().in_front(np.array([[0.1, 0.2, 2.0], [0.0, 0.0, -1.0]])).tolist()
+        [True, False]
+        """
         return P[:, 2] > 0.0
 
     def project(self, P, K, jac=True, out=None):
+        """Project camera-frame points to pixels.
+
+        Parameters
+        ----------
+        P : numpy.ndarray
+            ``(n, 3)`` camera-frame points.
+        K : numpy.ndarray
+            ``(n, k)`` intrinsics (per observation).
+        jac : bool
+            Also return the Jacobians.
+        out : numpy.ndarray, optional
+            ``(n, 2, 6 + k)``: the two Jacobians are written into its columns ``0:3`` and ``6:``
+            (the camera Jacobian's layout).
+
+        Returns
+        -------
+        uv : numpy.ndarray
+            ``(n, 2)`` pixels.
+        J_P : numpy.ndarray or None
+            ``(n, 2, 3)``, ``d uv / d P`` (``None`` when ``jac=False``).
+        J_K : numpy.ndarray or None
+            ``(n, 2, k)``, ``d uv / d K``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PinholeCamera
+        >>> K = np.array([[500.0, 500.0, 320.0, 240.0]])
+        >>> uv, JP, JK = PinholeCamera().project(np.array([[0.1, 0.2, 2.0]]), K)
+        >>> uv.tolist(), JK.shape
+        ([[345.0, 290.0]], (1, 2, 4))
+        """
         n = P.shape[0]
         iz = 1.0 / P[:, 2]
         x, y = P[:, 0] * iz, P[:, 1] * iz
