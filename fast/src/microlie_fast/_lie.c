@@ -189,6 +189,16 @@ PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi
     X(se3_adjoint, "SE3.adjoint", 1, 7, 0, 1, 6, 0, 0, 6, 0, 0, 0)                              \
     X(se3_adjoint_inv, "SE3.adjoint_inv", 1, 7, 0, 1, 6, 0, 0, 6, 0, 0, 0)                      \
     X(se3_plus, "SE3.plus", 2, 7, 6, 1, 7, 0, 0, 0, 0, 0, 0)                                    \
+    X(so3_lplus, "SO3.lplus", 2, 4, 3, 1, 4, 0, 0, 0, 0, 0, 0)                                  \
+    X(so3_lminus, "SO3.lminus", 2, 4, 4, 1, 3, 0, 0, 0, 0, 0, 0)                                \
+    X(so3_plus_jac, "SO3.plus_jac", 2, 4, 3, 3, 4, 3, 3, 0, 3, 3, 0)                            \
+    X(so3_lplus_jac, "SO3.lplus_jac", 2, 4, 3, 2, 4, 3, 0, 0, 3, 0, 0)                          \
+    X(so3_lminus_jac, "SO3.lminus_jac", 2, 4, 4, 3, 3, 3, 3, 0, 3, 3, 0)                        \
+    X(se3_lplus, "SE3.lplus", 2, 7, 6, 1, 7, 0, 0, 0, 0, 0, 0)                                  \
+    X(se3_lminus, "SE3.lminus", 2, 7, 7, 1, 6, 0, 0, 0, 0, 0, 0)                                \
+    X(se3_plus_jac, "SE3.plus_jac", 2, 7, 6, 3, 7, 6, 6, 0, 6, 6, 0)                            \
+    X(se3_lplus_jac, "SE3.lplus_jac", 2, 7, 6, 2, 7, 6, 0, 0, 6, 0, 0)                          \
+    X(se3_lminus_jac, "SE3.lminus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6, 0)                        \
     X(so3_exp, "SO3.exp", 1, 3, 0, 1, 4, 0, 0, 0, 0, 0, 0)                                     \
     X(so3_log, "SO3.log", 1, 4, 0, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
     X(so3_inverse, "SO3.inverse", 1, 4, 0, 1, 4, 0, 0, 0, 0, 0, pl_so3_inverse)                \

@@ -516,3 +516,105 @@ EL(se3_plus) { /* p Exp(t) */
     ST(o, r, 7);
 }
 EL(so3_adjoint) { (void)b; double q[4] = LD4(a), R[9]; quat_matrix(q, R); ST(o, R, 9); }
+
+/* ---------------------------------------- left operations and the Jacobians of plus/lminus */
+
+LM_INLINE void mm6(const double *a, const double *b, double *o) {
+#pragma GCC unroll 64
+    for (int i = 0; i < 6; i++)
+#pragma GCC unroll 64
+        for (int j = 0; j < 6; j++)
+            o[6 * i + j] = a[6 * i] * b[j] + a[6 * i + 1] * b[6 + j] + a[6 * i + 2] * b[12 + j]
+                           + a[6 * i + 3] * b[18 + j] + a[6 * i + 4] * b[24 + j]
+                           + a[6 * i + 5] * b[30 + j];
+}
+
+EL(so3_lplus) { /* Exp(t) q */
+    double q[4] = LD4(a), w[3] = LD3(b), e[4], r[4];
+    so3_exp_l(w, e);
+    quat_mul(e, q, r);
+    ST(o, r, 4);
+}
+EL(so3_lminus) { /* Log(Y X^-1), inputs (Y, X) */
+    double y[4] = LD4(a), x[4] = LD4(b), c[4], z[4], phi[3], kl, aw;
+    quat_conj(x, c);
+    quat_mul(y, c, z);
+    quat_log(z, phi, &kl, &aw);
+    ST(o, phi, 3);
+}
+EL(so3_plus_jac) { /* (q Exp(t), Ad(Exp(t)^-1), Jr(t)) */
+    double q[4] = LD4(a), w[3] = LD3(b), e[4], r[4], c[4], R[9], J[9];
+    so3_exp_l(w, e);
+    quat_mul(q, e, r);
+    quat_conj(e, c);
+    quat_matrix(c, R);
+    so3_jr_m(w, J);
+    ST(o, r, 4); ST(o + 4 * S, R, 9); ST(o + 13 * S, J, 9);
+}
+EL(so3_lplus_jac) { /* (Exp(t) q, Ad(q^-1) Jr(t)) */
+    double q[4] = LD4(a), w[3] = LD3(b), e[4], r[4], c[4], R[9], J[9], M[9];
+    so3_exp_l(w, e);
+    quat_mul(e, q, r);
+    quat_conj(q, c);
+    quat_matrix(c, R);
+    so3_jr_m(w, J);
+    mm3(R, J, M);
+    ST(o, r, 4); ST(o + 4 * S, M, 9);
+}
+EL(so3_lminus_jac) { /* (tau, Jr^-1(tau) Ad_X, -Jr^-1(tau) Ad_X) */
+    double y[4] = LD4(a), x[4] = LD4(b), c[4], z[4], phi[3], kl, aw, J[9], R[9], M[9];
+    quat_conj(x, c);
+    quat_mul(y, c, z);
+    quat_log(z, phi, &kl, &aw);
+    so3_jr_inv_m(phi, J);
+    quat_matrix(x, R);
+    mm3(J, R, M);
+    ST(o, phi, 3); ST(o + 3 * S, M, 9);
+    NEG(M, 9);
+    ST(o + 12 * S, M, 9);
+}
+
+EL(se3_lplus) { /* Exp(t) p */
+    double p[7] = LD7(a), t[6] = LD6(b), e[7], r[7];
+    se3_exp_l(t, e);
+    se3_compose_l(e, p, r);
+    ST(o, r, 7);
+}
+EL(se3_lminus) { /* Log(Y X^-1), inputs (Y, X) */
+    double y[7] = LD7(a), x[7] = LD7(b), xi[7], z[7], t[6];
+    se3_inverse_l(x, xi);
+    se3_compose_l(y, xi, z);
+    se3_log_l(z, t);
+    ST(o, t, 6);
+}
+EL(se3_plus_jac) { /* (p Exp(t), Ad(Exp(t)^-1), Jr(t)) */
+    double p[7] = LD7(a), t[6] = LD6(b), e[7], r[7], ei[7], A[36], J[36];
+    se3_exp_l(t, e);
+    se3_compose_l(p, e, r);
+    se3_inverse_l(e, ei);
+    se3_adjoint_l(ei, A);
+    se3_jr_m(t, J);
+    ST(o, r, 7); ST(o + 7 * S, A, 36); ST(o + 43 * S, J, 36);
+}
+EL(se3_lplus_jac) { /* (Exp(t) p, Ad(p^-1) Jr(t)) */
+    double p[7] = LD7(a), t[6] = LD6(b), e[7], r[7], pi[7], A[36], J[36], M[36];
+    se3_exp_l(t, e);
+    se3_compose_l(e, p, r);
+    se3_inverse_l(p, pi);
+    se3_adjoint_l(pi, A);
+    se3_jr_m(t, J);
+    mm6(A, J, M);
+    ST(o, r, 7); ST(o + 7 * S, M, 36);
+}
+EL(se3_lminus_jac) { /* (tau, Jr^-1(tau) Ad_X, -Jr^-1(tau) Ad_X) */
+    double y[7] = LD7(a), x[7] = LD7(b), xi[7], z[7], t[6], J[36], A[36], M[36];
+    se3_inverse_l(x, xi);
+    se3_compose_l(y, xi, z);
+    se3_log_l(z, t);
+    se3_jr_inv_m(t, J, (double *)0);
+    se3_adjoint_l(x, A);
+    mm6(J, A, M);
+    ST(o, t, 6); ST(o + 6 * S, M, 36);
+    NEG(M, 36);
+    ST(o + 42 * S, M, 36);
+}
