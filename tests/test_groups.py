@@ -586,7 +586,7 @@ def test_sim3_exp_wide_scale_range(sigma, theta):
 def test_large_batches_take_the_chunked_path_and_agree(group, backend):
     """Batches above the chunk size (NumPy and CPU torch evaluate them in cache-sized chunks)
     give the same numbers as single elements."""
-    from microlie.groups import base
+    from microlie import _kernels as base
 
     G = group
     n = 2 * max(base.CHUNK, base.TORCH_CHUNK) + 17

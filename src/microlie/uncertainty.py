@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal, overload
+from typing import Any, Literal, cast, overload
 
 import numpy as np
 
@@ -288,8 +288,8 @@ class VectorGaussian:
 
     def __getitem__(self, index: Any) -> VectorGaussian:
         index = index if isinstance(index, tuple) else (index,)
-        return VectorGaussian._make(self.mean[(*index, slice(None))],
-                                    self.cov[(*index, slice(None), slice(None))])
+        return VectorGaussian._make(self.mean[index + (slice(None),)],
+                                    self.cov[index + (slice(None), slice(None))])
 
     def __repr__(self) -> str:
         return f"VectorGaussian(dim={self.dim}, batch_shape={self.batch_shape})"
@@ -565,7 +565,7 @@ class Gaussian:
 
     def __getitem__(self, index: Any) -> Gaussian:
         index = index if isinstance(index, tuple) else (index,)
-        return Gaussian._make(self.mean[index], self.cov[(*index, slice(None), slice(None))],
+        return Gaussian._make(self.mean[index], self.cov[index + (slice(None), slice(None))],
                               self.frame)
 
     def __repr__(self) -> str:
@@ -933,8 +933,9 @@ class Gaussian:
         if not _is_zero(pts):
             inputs.append(pts)
             jacs.append(Jp)
-        return propagate(out, inputs, jacs, side=self.frame,
-                         cross_cov=None if cross_cov is None else {(0, 1): cross_cov})
+        return cast(VectorGaussian, propagate(
+            out, inputs, jacs, side=self.frame,
+            cross_cov=None if cross_cov is None else {(0, 1): cross_cov}))
 
     def log(self) -> VectorGaussian:
         """Distribution of ``Log(X)`` in ``R^dof``: ``J = Jr^-1(Log mean)`` (right frame) or
@@ -956,7 +957,7 @@ class Gaussian:
         True
         """
         tau, J = self.mean.log(jac=True, side=self.frame)
-        return propagate(tau, [self], [J], side=self.frame)
+        return cast(VectorGaussian, propagate(tau, [self], [J], side=self.frame))
 
     @classmethod
     def from_tangent(cls, group: type[LieGroup], mean: Any, cov: Any = None, *,

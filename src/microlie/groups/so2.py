@@ -115,18 +115,18 @@ def rotation2_params(R: Array, normalize: bool, what: str) -> Array:
     xp = A.namespace(R)
     # the nearest rotation to [[a, b], [c, d]] has (cos, sin) along (a + d, c - b)
     cs = xp.stack([R[..., 0, 0] + R[..., 1, 1], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
-    if not normalize and not A.is_traced(R) and int(np.prod(tuple(R.shape[:-2]))):
-        Rt = xp.stack([R[..., 0, :], R[..., 1, :]], axis=-2)
-        RtR = xp.swapaxes(Rt, -1, -2) @ Rt if hasattr(xp, "swapaxes") else Rt.mT @ Rt
-        err = float(xp.max(xp.abs(RtR - xp.eye(2, dtype=R.dtype))))
+    v = A.host_values(R)
+    if not normalize and v is not None and v.size:
+        err = float(np.max(np.abs(np.swapaxes(v, -1, -2) @ v - np.eye(2))))
         tol = unit_tolerance(R.dtype)
         if err > tol:
             raise ValueError(f"{what}: matrix is not orthogonal (max |R^T R - I| = {err:.3g}, "
                              f"tolerance {tol:g}); pass normalize=True to project it")
-        det = R[..., 0, 0] * R[..., 1, 1] - R[..., 0, 1] * R[..., 1, 0]
-        if bool(xp.any(det < 0)):
+        if bool(np.any(np.linalg.det(v) < 0)):
             raise ValueError(f"{what}: matrix has determinant -1 (a reflection, not a rotation)")
     n = xp.sqrt(xp.sum(cs * cs, axis=-1, keepdims=True))
-    if not A.is_traced(n) and bool(xp.any(n == 0)):
-        raise ValueError(f"{what}: matrix has no nearest rotation (zero rotation part)")
+    if v is not None and v.size:
+        cv = np.stack([v[..., 0, 0] + v[..., 1, 1], v[..., 1, 0] - v[..., 0, 1]], axis=-1)
+        if bool(np.any(np.sum(cv * cv, axis=-1) == 0)):
+            raise ValueError(f"{what}: matrix has no nearest rotation (zero rotation part)")
     return cs / n

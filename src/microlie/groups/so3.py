@@ -12,8 +12,9 @@ import numpy as np
 from .. import _array as A
 from .. import _linalg as L
 from .._array import Array
+from .._kernels import Kernel, add, run
 from . import _math as M
-from .base import LieGroup, compute
+from .base import LieGroup
 
 # ---------------------------------------------------------------------------- coefficients
 
@@ -72,9 +73,9 @@ def quat_log_parts(o: Any, q: tuple) -> tuple:
     """``(phi, kl, aw)``: the rotation vector, ``kl = theta / |v|`` and ``aw = |w|``
     (``cos(theta/2)``), for callers that need the half-angle functions too."""
     x, y, z, w = q
-    # |w| as w * sign1(w) (sign1(0) = +1): its derivative at w = 0 is 1, where abs's is 0 in
-    # torch; at a rotation by exactly pi that derivative carries the change of the angle
-    aw = w * o.sign1(w)
+    # |w| whose derivative at w = 0 is 1 (abs's is 0 in torch): at a rotation by exactly pi
+    # that derivative carries the change of the angle
+    aw = o.abs1(w)
     n2 = x * x + y * y + z * z
     small = n2 < M.TINY2
     n = o.sqrt(n2 + small)
@@ -204,15 +205,18 @@ def unit_tolerance(dtype: Any) -> float:
 def checked_unit_quat(q: Array, normalize: bool, what: str, kind: str = "quaternion") -> Array:
     """``q / |q|`` after checking that ``|q|`` is 1 within tolerance (or ``normalize``).
 
-    Also serves SO(2)'s unit complex numbers (``kind``)."""
+    Also serves SO(2)'s unit complex numbers (``kind``). The check reads the values on the host
+    (:func:`microlie._array.host_values`): never on a traced value."""
     xp = A.namespace(q)
     n = xp.sqrt(xp.sum(q * q, axis=-1, keepdims=True))
-    if not A.is_traced(q):
+    v = A.host_values(q)
+    if v is not None and v.size:
+        nv = n if type(n) is np.ndarray else np.sqrt(np.sum(v * v, axis=-1))
         if normalize:
-            if bool(xp.any(n == 0)):
+            if bool(np.any(nv == 0)):
                 raise ValueError(f"{what}: a zero {kind} cannot be normalized")
         else:
-            dev = float(xp.max(xp.abs(n - 1.0))) if _numel(n) else 0.0
+            dev = float(np.max(np.abs(nv - 1.0)))
             tol = unit_tolerance(q.dtype)
             if dev > tol:
                 raise ValueError(
@@ -238,20 +242,17 @@ def checked_rotation_matrix(R: Array, normalize: bool, what: str) -> Array:
         d = xp.linalg.det(U @ Vt)
         sign = xp.stack([xp.ones_like(d), xp.ones_like(d), d], axis=-1)
         return (U * sign[..., None, :]) @ Vt
-    if A.is_traced(R) or _numel(R) == 0:
+    v = A.host_values(R)
+    if v is None or v.size == 0:
         return R
-    eye = xp.eye(3, dtype=R.dtype)
-    RtR = xp.matrix_transpose(R) @ R if hasattr(xp, "matrix_transpose") else \
-        xp.swapaxes(R, -1, -2) @ R
-    err = float(xp.max(xp.abs(RtR - eye)))
+    err = float(np.max(np.abs(np.swapaxes(v, -1, -2) @ v - np.eye(3))))
     tol = unit_tolerance(R.dtype)
     if err > tol:
         raise ValueError(
             f"{what}: matrix is not orthogonal (max |R^T R - I| = {err:.3g}, tolerance {tol:g}); "
             "pass normalize=True to project it onto SO(3)"
         )
-    det = xp.linalg.det(R)
-    if bool(xp.any(det < 0)):
+    if bool(np.any(np.linalg.det(v) < 0)):
         raise ValueError(f"{what}: matrix has determinant -1 (a reflection, not a rotation)")
     return R
 
@@ -334,6 +335,11 @@ class SO3(LieGroup):
     @classmethod
     def _jr_inv(cls, o, tau):
         return jr_inv(o, tau)
+
+    @classmethod
+    def _jr_inv_pair(cls, o, tau):
+        J = jr_inv(o, tau)
+        return J, M.transpose(J)  # Jl^-1(phi) = Jr^-1(-phi) = Jr^-1(phi)^T
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -419,6 +425,7 @@ class SO3(LieGroup):
                 out = out @ Ri
             else:
                 out = Ri @ out
+        assert out is not None  # seq has at least one axis
         return out
 
     def as_euler(self, seq: str, degrees: bool = False) -> Array:
@@ -443,7 +450,7 @@ class SO3(LieGroup):
     def as_rpy(self) -> Array:
         """``(roll, pitch, yaw)`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``, pitch in
         ``[-pi/2, pi/2]``."""
-        return compute(_rpy, (self.params,), self.params)
+        return run(_K_RPY, self.params)
 
 
 def check_euler_seq(seq: Any) -> None:
@@ -476,7 +483,13 @@ def _quat_from_matrix_array(R: Array) -> Array:
     """Unit quaternions ``(..., 4)`` of rotation matrices ``(..., 3, 3)``."""
     flat = R.reshape(*R.shape[:-2], 9) if A.is_numpy(R) else \
         A.namespace(R).reshape(R, (*R.shape[:-2], 9))
-    return compute(lambda o, m: matrix_to_quat(o, (m[0:3], m[3:6], m[6:9])), (flat,), R)
+    return run(_K_FROM_MATRIX, flat)
+
+
+_K_RPY = add(Kernel("SO3.rpy", SO3, _rpy, "p", [(3,)]))
+_K_FROM_MATRIX = add(Kernel("SO3.from_matrix", SO3,
+                            lambda o, m: matrix_to_quat(o, (m[0:3], m[3:6], m[6:9])),
+                            "m", [(4,)]))
 
 
 def _numel(x: Array) -> int:

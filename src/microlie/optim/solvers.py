@@ -175,7 +175,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
     ls = problem.analysed(o.linear_solver)
     lin = _linearize(problem, states, tm)
     c0, rc0 = lin.cost, lin.robust_cost
-    cur, cur_rc = states, rc0
+    cur, cur_c, cur_rc = states, c0, rc0
     history: list[IterationRecord] = []
     message, converged = f"reached max_iter={o.max_iter}", False
     if problem.size == 0:
@@ -257,7 +257,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         assert dx is not None
         step_norm = float(np.linalg.norm(dx))
         old_rc = cur_rc
-        cur, cur_rc = new, new_rc
+        cur, cur_c, cur_rc = new, new_c, new_rc
         history.append(IterationRecord(it, new_rc, step_norm, lam if o.solver != "gn" else 0.0,
                                        time.perf_counter() - t_start, solves))
         if show:
@@ -270,7 +270,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
             message, converged = why, True
             break
         lin = _linearize(problem, cur, tm)
-    final_c, final_rc = problem.costs(cur)
+    final_c, final_rc = cur_c, cur_rc  # evaluated at the last accepted point already
     total = time.perf_counter() - t_start
     timings = dict(tm.t)
     timings["other"] = total - sum(timings.values())

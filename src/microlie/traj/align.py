@@ -126,6 +126,7 @@ def align(
         raise ValueError(f"unknown alignment {method!r}; expected one of {ALIGNMENTS}")
     if method == "none":
         return est, None
+    g: SE3 | Sim3
     if method == "origin":
         g = ref.poses[0] @ est.poses[0].inverse()
         return est.transform(g), g
