@@ -13,12 +13,9 @@ __all__ = ["Variables", "Values", "element"]
 
 
 def element(group: type[LieGroup], params: Any) -> LieGroup:
-    """Wrap trusted parameters without checks (the public unchecked constructor once it
-    exists; the only place in ``optim`` that builds elements that way)."""
-    make = getattr(group, "from_params", None)
-    if make is not None:
-        return make(params, check=False)
-    return group._wrap(params)
+    """Wrap trusted parameters without checks (the public unchecked constructor; the only
+    place in ``optim`` that builds elements that way)."""
+    return group.from_params(params, check=False)
 
 
 class Variables:
