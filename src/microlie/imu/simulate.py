@@ -399,9 +399,8 @@ def integrate_states(
     dq = np.asarray(SO3.exp(w * dt).params)
     q = np.stack(_prefix_scan([np.ascontiguousarray(dq[:, i]) for i in range(4)]), -1)
     R0 = X0.rotation()
-    Rk = SO3(
-        np.concatenate([np.asarray(R0.params)[None], np.asarray((R0 @ SO3(q)).params)])
-    )
+    Rq = R0 @ SO3.from_params(q, check=False)
+    Rk = SO3(np.concatenate([np.asarray(R0.params)[None], np.asarray(Rq.params)]))
     f = Rk[:-1].act(a) + g  # navigation-frame acceleration on each step
     v = np.concatenate(
         [np.asarray(X0.velocity())[None], np.asarray(X0.velocity()) + np.cumsum(f * dt, 0)]
