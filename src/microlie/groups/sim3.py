@@ -195,13 +195,23 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
 class Sim3(Pose):
     """Similarity transforms in 3-D. Parameters ``(tx, ty, tz, qx, qy, qz, qw, s)``.
 
-    Tangent ``(rho, phi, sigma)``, ``s = exp(sigma)``; ``X.act(p) = s R p + t``. Right plus/minus
-    and right Jacobians by default. ``Exp(zeta) = (W rho, Exp(phi), e^sigma)`` with
+    Tangent ``(rho, phi, sigma)``, ``s = exp(sigma)``; ``X.act(p) = s R p + t``. Right
+    plus/minus and right Jacobians by default. ``Exp(zeta) = (W rho, Exp(phi), e^sigma)`` with
     ``W = int_0^1 e^(s sigma) Exp(s phi) ds``; ``Jr`` in closed form from the derivatives of
-    ``W rho``: ``Jr = [[e^-sigma R^T W, e^-sigma R^T d(W rho)/d phi, e^-sigma R^T d(W rho)/d sigma],
-    [0, Jr_SO3(phi), 0], [0, 0, 1]]``, ``Jr^-1`` by its block inverse. ``|sigma|`` (and
-    ``|log s|`` for ``log``) must not exceed :data:`SIGMA_MAX` ``= 50`` (``ValueError``).
+    ``W rho``: ``Jr = [[e^-sigma R^T W, e^-sigma R^T d(W rho)/d phi,
+    e^-sigma R^T d(W rho)/d sigma], [0, Jr_SO3(phi), 0], [0, 0, 1]]``, ``Jr^-1`` by its block
+    inverse. ``|sigma|`` (and ``|log s|`` for ``log``) must not exceed :data:`SIGMA_MAX`
+    ``= 50`` (``ValueError``).
 
+    Parameters
+    ----------
+    params : array_like
+        ``(*batch, 8)``: translation, quaternion ``(x, y, z, w)``, scale ``s > 0``.
+    normalize : bool
+        Normalise the quaternion instead of raising ``ValueError`` on a norm off 1.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import Sim3
     >>> S = Sim3.exp(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.log(2.0)]))
@@ -332,8 +342,29 @@ class Sim3(Pose):
     @classmethod
     def from_rotation_translation_scale(cls, rotation: SO3 | Any, translation: Any,
                                         scale: Any) -> Sim3:
-        """From a rotation (:class:`SO3` or matrices), translations ``(..., 3)`` and positive
-        scales ``(...)``; the batch axes broadcast."""
+        """From rotations, translations and scales; the batch axes broadcast.
+
+        Parameters
+        ----------
+        rotation : SO3 or array_like
+            Rotations or rotation matrices.
+        translation : array_like
+            ``(..., 3)``.
+        scale : array_like
+            ``(...)``, positive.
+
+        Returns
+        -------
+        Sim3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import Sim3, SO3
+        >>> S = Sim3.from_rotation_translation_scale(SO3.exp([0, 0, np.pi / 2]), [0, 0, 1.0], 3.0)
+        >>> np.round(S.act([1.0, 0.0, 0.0]), 12).tolist()
+        [0.0, 3.0, 1.0]
+        """
         T = SE3.from_rotation_translation(rotation, translation)
         s = A.as_float_array(scale, like=T.params)
         A.check_finite(s, "scale")
@@ -342,12 +373,52 @@ class Sim3(Pose):
 
     @classmethod
     def from_rotation_translation(cls, rotation: Any, translation: Any) -> Sim3:
-        """From a rotation and translations, with scale 1."""
+        """From a rotation and translations, with scale 1.
+
+        Parameters
+        ----------
+        rotation : SO3 or array_like
+            Rotations or rotation matrices.
+        translation : array_like
+            ``(..., 3)``.
+
+        Returns
+        -------
+        Sim3
+
+        Examples
+        --------
+        >>> from microlie import Sim3, SO3
+        >>> float(Sim3.from_rotation_translation(SO3.identity(), [1.0, 2.0, 3.0]).scale())
+        1.0
+        """
         return cls.from_rotation_translation_scale(rotation, translation, 1.0)
 
     @classmethod
     def from_matrix(cls, matrix: Any, normalize: bool = False) -> Sim3:
-        """From matrices ``[[s R, t], [0, 1]]`` ``(..., 4, 4)``; ``s = det(sR)^(1/3)``."""
+        """From matrices ``[[s R, t], [0, 1]]``; ``s = det(sR)^(1/3)``.
+
+        Parameters
+        ----------
+        matrix : array_like
+            ``(..., 4, 4)``.
+        normalize : bool
+            Project ``R`` onto the rotations instead of raising ``ValueError``.
+
+        Returns
+        -------
+        Sim3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import Sim3
+        >>> M = np.diag([2.0, 2.0, 2.0, 1.0])
+        >>> M[:3, 3] = [1.0, 2.0, 3.0]
+        >>> S = Sim3.from_matrix(M)
+        >>> round(float(S.scale()), 12), S.translation().tolist()
+        (2.0, [1.0, 2.0, 3.0])
+        """
         sR, t = cls._split_matrix(matrix, normalize)
         xp = A.namespace(sR)
         det = xp.linalg.det(sR)
@@ -359,7 +430,20 @@ class Sim3(Pose):
         return cls.from_rotation_translation_scale(R, t, s)
 
     def scale(self) -> Array:
-        """The scale ``s > 0`` (shape ``batch_shape``)."""
+        """The scale ``s > 0``.
+
+        Returns
+        -------
+        array
+            Shape ``batch_shape``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import Sim3
+        >>> round(float(Sim3.exp([0, 0, 0, 0, 0, 0, np.log(3.0)]).scale()), 12)
+        3.0
+        """
         return self.params[..., 7]
 
 
