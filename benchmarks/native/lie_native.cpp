@@ -1,0 +1,268 @@
+// A plain, vectorised C++ baseline for benchmarks/native.py: the SO(3)/SE(3) operations that
+// benchmarks/groups.py times, written as flat loops over arrays of parameters (the same row layout
+// as microlie: SO3 (qx,qy,qz,qw), SE3 (tx,ty,tz,qx,qy,qz,qw), tangents (rho, phi)).
+//
+// Built by the benchmark itself:  g++ -O3 -march=native -fno-math-errno -fopenmp-simd
+// The "declare simd" lines let GCC call glibc's libmvec for tan/atan2 inside vectorised loops
+// without -ffast-math (IEEE semantics kept). Output: one JSON object, ns per element (median).
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <random>
+#include <string>
+#include <vector>
+
+extern "C" {
+#pragma omp declare simd notinbranch
+double tan(double);
+#pragma omp declare simd notinbranch
+double atan2(double, double);
+}
+
+static inline void cross(const double a[3], const double b[3], double c[3]) {
+    c[0] = a[1] * b[2] - a[2] * b[1];
+    c[1] = a[2] * b[0] - a[0] * b[2];
+    c[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+// sin(t/2)/t and cos(t/2) from t^2 (Taylor below 1e-8)
+#pragma omp declare simd notinbranch
+static inline void half(double t2, double *k, double *ch) {
+    bool small = t2 < 1e-8;
+    double t = std::sqrt(small ? 1.0 : t2);
+    double u = tan(0.25 * t), u2 = u * u, r = 1.0 / (1.0 + u2);
+    *k = small ? 0.5 - t2 / 48.0 : 2.0 * r * u / t;
+    *ch = small ? 1.0 - 0.125 * t2 : (1.0 - u2) * r;
+}
+
+static inline void qrot(const double q[4], const double v[3], double out[3]) {
+    double u[3] = {q[0], q[1], q[2]}, c[3], d[3];
+    cross(u, v, c);
+    for (int i = 0; i < 3; i++) c[i] *= 2.0;
+    cross(u, c, d);
+    for (int i = 0; i < 3; i++) out[i] = v[i] + q[3] * c[i] + d[i];
+}
+
+static inline void qmul(const double a[4], const double b[4], double o[4]) {
+    o[0] = a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1];
+    o[1] = a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0];
+    o[2] = a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3];
+    o[3] = a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2];
+}
+
+static inline void qlog(const double q[4], double phi[3]) {
+    double n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
+    bool small = n2 < 1e-16;
+    double n = std::sqrt(small ? 1.0 : n2);
+    double aw = std::fabs(q[3]);
+    double kl = small ? 2.0 + n2 / 3.0 : 2.0 * atan2(n, aw) / n;
+    if (q[3] < 0) kl = -kl;
+    for (int i = 0; i < 3; i++) phi[i] = kl * q[i];
+}
+
+static void so3_exp(const double *tau, double *q, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        const double *w = tau + 3 * i;
+        double k, ch;
+        half(w[0] * w[0] + w[1] * w[1] + w[2] * w[2], &k, &ch);
+        double *o = q + 4 * i;
+        o[0] = k * w[0]; o[1] = k * w[1]; o[2] = k * w[2]; o[3] = ch;
+    }
+}
+
+static void so3_log(const double *q, double *phi, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) qlog(q + 4 * i, phi + 3 * i);
+}
+
+// (t - sin t)/t^3 from the half-angle functions
+static inline double coef_b(double t2, double k, double ch) {
+    return t2 < 1e-4 ? 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0 : (1.0 - 2.0 * k * ch) / t2;
+}
+
+// (1 - (t/2) cot(t/2)) / t^2
+static inline double coef_c(double t2, double k, double ch) {
+    return t2 < 1e-4 ? 1.0 / 12.0 + t2 / 720.0 + t2 * t2 / 30240.0 : (1.0 - ch / (2.0 * k)) / t2;
+}
+
+static void se3_exp(const double *tau, double *p, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        const double *rho = tau + 6 * i, *phi = rho + 3;
+        double t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2], k, ch;
+        half(t2, &k, &ch);
+        double a = 2.0 * k * k, b = coef_b(t2, k, ch), c[3], d[3];
+        cross(phi, rho, c);
+        cross(phi, c, d);
+        double *o = p + 7 * i;
+        for (int j = 0; j < 3; j++) o[j] = rho[j] + a * c[j] + b * d[j];
+        o[3] = k * phi[0]; o[4] = k * phi[1]; o[5] = k * phi[2]; o[6] = ch;
+    }
+}
+
+static void se3_log(const double *p, double *tau, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        const double *t = p + 7 * i, *q = t + 3;
+        double *rho = tau + 6 * i, *phi = rho + 3;
+        qlog(q, phi);
+        double t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2];
+        double s = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+        double th = std::sqrt(t2);
+        double k = t2 < 1e-16 ? 0.5 : s / th, ch = std::fabs(q[3]);
+        double c = coef_c(t2, k, ch), a[3], b[3];
+        cross(phi, t, a);
+        cross(phi, a, b);
+        for (int j = 0; j < 3; j++) rho[j] = t[j] - 0.5 * a[j] + c * b[j];
+    }
+}
+
+static void se3_compose(const double *p, const double *q, double *o, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        const double *a = p + 7 * i, *b = q + 7 * i;
+        double *r = o + 7 * i, t[3];
+        qrot(a + 3, b, t);
+        for (int j = 0; j < 3; j++) r[j] = a[j] + t[j];
+        qmul(a + 3, b + 3, r + 3);
+    }
+}
+
+static void se3_act(const double *p, const double *v, double *o, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        const double *a = p + 7 * i;
+        double t[3];
+        qrot(a + 3, v + 3 * i, t);
+        for (int j = 0; j < 3; j++) o[3 * i + j] = a[j] + t[j];
+    }
+}
+
+static inline void qmat(const double q[4], double R[9]) {
+    double x = q[0], y = q[1], z = q[2], w = q[3];
+    R[0] = 1 - 2 * (y * y + z * z); R[1] = 2 * (x * y - w * z); R[2] = 2 * (x * z + w * y);
+    R[3] = 2 * (x * y + w * z); R[4] = 1 - 2 * (x * x + z * z); R[5] = 2 * (y * z - w * x);
+    R[6] = 2 * (x * z - w * y); R[7] = 2 * (y * z + w * x); R[8] = 1 - 2 * (x * x + y * y);
+}
+
+// act with Jacobians: d/dT (right) = [R, -R hat(v)] (3x6), d/dv = R (3x3)
+static void se3_act_jac(const double *p, const double *v, double *o, double *JT, double *Jv,
+                        long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        const double *a = p + 7 * i, *x = v + 3 * i;
+        double R[9];
+        qmat(a + 3, R);
+        for (int r = 0; r < 3; r++) {
+            o[3 * i + r] = a[r] + R[3 * r] * x[0] + R[3 * r + 1] * x[1] + R[3 * r + 2] * x[2];
+            double *J = JT + 18 * i + 6 * r;
+            J[0] = R[3 * r]; J[1] = R[3 * r + 1]; J[2] = R[3 * r + 2];
+            // -R hat(x): row r = -(R_r x hat(x)) = R_r cross ... (R_r . hat(x))_j
+            J[3] = -(R[3 * r + 1] * x[2] - R[3 * r + 2] * x[1]);
+            J[4] = -(R[3 * r + 2] * x[0] - R[3 * r] * x[2]);
+            J[5] = -(R[3 * r] * x[1] - R[3 * r + 1] * x[0]);
+            for (int c = 0; c < 3; c++) Jv[9 * i + 3 * r + c] = R[3 * r + c];
+        }
+    }
+}
+
+// SO3 right Jacobian I + a hat(w) + b hat(w)^2 into a 6x6 (row stride 6) block
+static inline void so3_ihat(double a, double b, const double w[3], double *J, int ld) {
+    double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            J[r * ld + c] = (r == c ? 1.0 - b * t2 : 0.0) + b * w[r] * w[c];
+    J[0 * ld + 1] -= a * w[2]; J[0 * ld + 2] += a * w[1];
+    J[1 * ld + 0] += a * w[2]; J[1 * ld + 2] -= a * w[0];
+    J[2 * ld + 0] -= a * w[1]; J[2 * ld + 1] += a * w[0];
+}
+
+// SE3 exp with its right Jacobian Jr = [[Jr(phi), Q(-rho,-phi)], [0, Jr(phi)]]
+static void se3_exp_jac(const double *tau, double *p, double *J, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        const double *rho = tau + 6 * i, *phi = rho + 3;
+        double t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2], k, ch;
+        half(t2, &k, &ch);
+        double a = 2.0 * k * k, b = coef_b(t2, k, ch), c[3], d[3];
+        cross(phi, rho, c);
+        cross(phi, c, d);
+        double *o = p + 7 * i;
+        for (int j = 0; j < 3; j++) o[j] = rho[j] + a * c[j] + b * d[j];
+        o[3] = k * phi[0]; o[4] = k * phi[1]; o[5] = k * phi[2]; o[6] = ch;
+        double *Ji = J + 36 * i;
+        so3_ihat(-a, b, phi, Ji, 6);
+        so3_ihat(-a, b, phi, Ji + 21, 6);
+        // Q(-rho, -phi): closed form with P = hat(-rho), F = hat(-phi) (MATH.md section 4)
+        // (t^2 + 2 cos t - 2)/(2 t^4) and (2 t - 3 sin t + t cos t)/(2 t^5), from k and ch
+        double c3 = t2 < 1e-4 ? 1.0 / 24.0 - t2 / 720.0 : (1.0 - 4.0 * k * k) / (2.0 * t2);
+        double c4 = t2 < 1e-4 ? 1.0 / 120.0 - t2 / 2520.0
+                              : (3.0 - 6.0 * k * ch - 2.0 * k * k * t2) / (2.0 * t2 * t2);
+        double P[9] = {0, rho[2], -rho[1], -rho[2], 0, rho[0], rho[1], -rho[0], 0};
+        double F[9] = {0, phi[2], -phi[1], -phi[2], 0, phi[0], phi[1], -phi[0], 0};
+        double FP[9], PF[9], FPF[9], FF[9], FFP[9], PFF[9], FPFF[9], FFPF[9];
+        auto mm = [](const double *A, const double *B, double *C) {
+            for (int r = 0; r < 3; r++)
+                for (int s = 0; s < 3; s++)
+                    C[3 * r + s] = A[3 * r] * B[s] + A[3 * r + 1] * B[3 + s] + A[3 * r + 2] * B[6 + s];
+        };
+        mm(F, P, FP); mm(P, F, PF); mm(FP, F, FPF); mm(F, F, FF); mm(FF, P, FFP); mm(PF, F, PFF);
+        mm(FPF, F, FPFF); mm(F, FPF, FFPF);
+        for (int r = 0; r < 3; r++)
+            for (int s = 0; s < 3; s++) {
+                int e = 3 * r + s;
+                Ji[6 * r + 3 + s] = 0.5 * P[e] + b * (FP[e] + PF[e] + FPF[e])
+                                    + c3 * (FFP[e] + PFF[e] - 3.0 * FPF[e])
+                                    + c4 * (FPFF[e] + FFPF[e]);
+                Ji[6 * (r + 3) + s] = 0.0;
+            }
+    }
+}
+
+template <class F>
+static double median_ns(F f, long n, int reps) {
+    std::vector<double> t;
+    for (int r = 0; r < reps; r++) {
+        auto t0 = std::chrono::steady_clock::now();
+        f();
+        auto t1 = std::chrono::steady_clock::now();
+        t.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / n);
+    }
+    std::sort(t.begin(), t.end());
+    return t[t.size() / 2];
+}
+
+int main(int argc, char **argv) {
+    long n = argc > 1 ? std::atol(argv[1]) : 1000000;
+    int reps = argc > 2 ? std::atoi(argv[2]) : 11;
+    std::mt19937_64 g(0);
+    std::normal_distribution<double> N01;
+    std::vector<double> tau3(3 * n), tau6(6 * n), q(4 * n), p(7 * n), p2(7 * n), v(3 * n);
+    std::vector<double> o7(7 * n), o6(6 * n), o4(4 * n), o3(3 * n), J36(36 * n), J18(18 * n),
+        J9(9 * n);
+    for (auto &x : tau3) x = N01(g);
+    for (auto &x : tau6) x = N01(g);
+    for (auto &x : v) x = N01(g);
+    so3_exp(tau3.data(), q.data(), n);
+    se3_exp(tau6.data(), p.data(), n);
+    for (long i = 0; i < 6 * n; i++) tau6[i] *= 0.7;
+    se3_exp(tau6.data(), p2.data(), n);
+    std::printf("{\"n\": %ld", n);
+    std::printf(", \"SO3.exp\": %.3f", median_ns([&] { so3_exp(tau3.data(), o4.data(), n); }, n, reps));
+    std::printf(", \"SO3.log\": %.3f", median_ns([&] { so3_log(q.data(), o3.data(), n); }, n, reps));
+    std::printf(", \"SE3.exp\": %.3f", median_ns([&] { se3_exp(tau6.data(), o7.data(), n); }, n, reps));
+    std::printf(", \"SE3.log\": %.3f", median_ns([&] { se3_log(p.data(), o6.data(), n); }, n, reps));
+    std::printf(", \"SE3.compose\": %.3f",
+                median_ns([&] { se3_compose(p.data(), p2.data(), o7.data(), n); }, n, reps));
+    std::printf(", \"SE3.act\": %.3f", median_ns([&] { se3_act(p.data(), v.data(), o3.data(), n); }, n, reps));
+    std::printf(", \"SE3.act_jac\": %.3f",
+                median_ns([&] { se3_act_jac(p.data(), v.data(), o3.data(), J18.data(), J9.data(), n); }, n, reps));
+    std::printf(", \"SE3.exp_jac\": %.3f",
+                median_ns([&] { se3_exp_jac(tau6.data(), o7.data(), J36.data(), n); }, n, reps));
+    std::printf("}\n");
+    return 0;
+}

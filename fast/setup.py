@@ -1,0 +1,33 @@
+"""Build of the compiled kernels. Flags: -O3 with the host's vector ISA (this is a local build
+from source; a distributed wheel would target a fixed ISA level), math without errno so that
+GCC may vectorise calls, and glibc's libmvec for the vector versions of tan/sin/cos/atan2.
+Set MICROLIE_FAST_CFLAGS to override the flags (for example on a compiler without -march)."""
+
+import os
+import platform
+import sys
+
+import numpy as np
+from setuptools import Extension, setup
+
+flags = ["-O3", "-fno-math-errno", "-fopenmp-simd", "-std=c11"]
+libs = ["m"]
+if sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64"):
+    flags.append("-march=native")
+    libs.insert(0, "mvec")  # glibc's vector math library
+elif platform.machine() in ("arm64", "aarch64"):
+    flags.append("-mcpu=native")
+if os.environ.get("MICROLIE_FAST_CFLAGS"):
+    flags = os.environ["MICROLIE_FAST_CFLAGS"].split()
+
+setup(
+    ext_modules=[
+        Extension(
+            "microlie_fast._lie",
+            sources=["src/microlie_fast/_lie.c"],
+            include_dirs=[np.get_include(), "src/microlie_fast"],
+            extra_compile_args=flags,
+            libraries=libs,
+        )
+    ]
+)
