@@ -1,8 +1,11 @@
 """Small timing helpers shared by the benchmark scripts.
 
-Everything is measured with :func:`time.perf_counter`; the reported figure is the best (minimum)
-of several repeats, which is the least noisy estimate of what the code itself costs on a shared
-machine. The garbage collector is switched off inside a timed region (as :mod:`timeit` does).
+Everything is measured with :func:`time.perf_counter`, with the garbage collector switched off
+inside a timed region (as :mod:`timeit` does). A measurement is several rounds; the reported
+figure is the **median** of the rounds with its spread (interquartile range and min-max), never
+the best round alone: on a shared machine the minimum flatters whichever code happened to run
+in a quiet moment. Competing callables are measured **interleaved** (round-robin), so that a
+burst of load hits all of them alike, and compared through the ratio of their medians.
 """
 
 from __future__ import annotations
@@ -14,18 +17,34 @@ from dataclasses import dataclass
 
 
 @dataclass(frozen=True)
-class Timing:
-    """Best time of one call of a prepared callable, plus how it was measured."""
+class Stats:
+    """Seconds per call over the rounds of one measurement."""
 
-    best_s: float  # best (minimum) seconds for ONE call of the callable
-    number: int  # calls per repeat
-    repeat: int  # repeats
+    median: float
+    q1: float  # first quartile
+    q3: float  # third quartile
+    lo: float  # fastest round
+    hi: float  # slowest round
+    number: int  # calls per round
+    rounds: int
 
-    def per_element_ns(self, n: int) -> float:
-        return self.best_s / n * 1e9
+    @classmethod
+    def of(cls, per_call: list[float], number: int) -> Stats:
+        xs = sorted(per_call)
+        return cls(_quantile(xs, 0.5), _quantile(xs, 0.25), _quantile(xs, 0.75), xs[0], xs[-1],
+                   number, len(xs))
 
-    def us(self) -> float:
-        return self.best_s * 1e6
+    def spread(self) -> float:
+        """Interquartile range relative to the median (0.05 = 5%)."""
+        return (self.q3 - self.q1) / self.median if self.median > 0 else 0.0
+
+
+def _quantile(xs: list[float], q: float) -> float:
+    """Linear-interpolation quantile of sorted ``xs``."""
+    pos = q * (len(xs) - 1)
+    i = int(pos)
+    j = min(i + 1, len(xs) - 1)
+    return xs[i] + (xs[j] - xs[i]) * (pos - i)
 
 
 def run_loop(fn: Callable[[], object], number: int) -> float:
@@ -56,45 +75,40 @@ def calibrate(fn: Callable[[], object], target_s: float = 0.05, max_number: int 
         number *= 10
 
 
-def best_of(
-    fn: Callable[[], object],
-    *,
-    repeat: int = 5,
-    number: int | None = None,
-    target_s: float = 0.05,
-    warmup: int = 1,
-) -> Timing:
-    """Best-of-``repeat`` time of one call of ``fn``.
+def measure(fn: Callable[[], object], *, rounds: int = 7, number: int | None = None,
+            target_s: float = 0.05, warmup: int = 1) -> Stats:
+    """Median (and spread) of ``rounds`` rounds of ``number`` calls of ``fn``.
 
-    ``number`` loops per repeat; when ``None`` it is calibrated so one repeat takes about
-    ``target_s`` seconds (use that for the single-element latency regime; pass ``number=1`` for
-    the batched regime). ``warmup`` untimed calls come first (JIT caches, allocator, lazy imports).
+    ``number`` is calibrated so one round takes about ``target_s`` when ``None`` (the
+    single-element regime); pass ``number=1`` for large batches. ``warmup`` untimed calls come
+    first (JIT caches, allocator, lazy imports).
     """
     for _ in range(warmup):
         fn()
     if number is None:
         number = calibrate(fn, target_s)
-    best = min(run_loop(fn, number) for _ in range(repeat))
-    return Timing(best / number, number, repeat)
+    return Stats.of([run_loop(fn, number) / number for _ in range(rounds)], number)
 
 
-def best_interleaved(
+def interleaved(
     fns: Mapping[Hashable, Callable[[], object]], plan: Mapping[Hashable, tuple[int, int]]
-) -> dict[Hashable, float | Exception]:
-    """Best seconds per call of several callables, measured round-robin.
+) -> dict[Hashable, Stats | Exception]:
+    """Per-call statistics of several callables, measured round-robin.
 
-    ``plan[key] = (number, repeat)``. In each round every callable still due runs ``number``
+    ``plan[key] = (number, rounds)``. In each round every callable still due runs ``number``
     calls, so a burst of load from another process hits all of them alike instead of the one
-    that happened to be running; each keeps its best round. A callable that raises gets the
-    exception as its result and drops out.
+    that happened to be running. A callable that raises gets the exception as its result and
+    drops out.
     """
-    best: dict[Hashable, float | Exception] = {key: float("inf") for key in plan}
+    times: dict[Hashable, list[float]] = {key: [] for key in plan}
+    failed: dict[Hashable, Exception] = {}
     for rnd in range(max((rep for _, rep in plan.values()), default=0)):
-        for key, (number, repeat) in plan.items():
-            if rnd >= repeat or isinstance(best[key], Exception):
+        for key, (number, rounds) in plan.items():
+            if rnd >= rounds or key in failed:
                 continue
             try:
-                best[key] = min(best[key], run_loop(fns[key], number) / number)
+                times[key].append(run_loop(fns[key], number) / number)
             except Exception as e:  # reported by the caller
-                best[key] = e
-    return best
+                failed[key] = e
+    return {key: failed[key] if key in failed else Stats.of(times[key], plan[key][0])
+            for key in plan}

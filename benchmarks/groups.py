@@ -6,14 +6,16 @@
     python benchmarks/groups.py --peers-only         # peers without microlie
     python benchmarks/groups.py --backends jax,torch --peers jaxlie-jit pypose
     python benchmarks/groups.py --out results.md     # also write the markdown table
+    python benchmarks/groups.py --before-after 93dbac9 --n 100000 \
+        --out benchmarks/results/kernels-latest.md   # this checkout against an older commit
 
 microlie runs on each of its array backends (``--backends``, default all that import):
 ``microlie`` (NumPy), ``microlie-jax-jit`` (``jax.jit`` on float64 JAX arrays) and
 ``microlie-torch`` (float64 CPU tensors, autograd off). A second table compares the last two with
 the peer on the same array library (jaxlie-jit, PyPose).
 
-Two regimes per op: ``single`` (one element, microseconds per call, many loops, best of
-several repeats) and ``batch`` (N elements in one call, nanoseconds per element, best of 3-5
+Two regimes per op: ``single`` (one element, microseconds per call, many loops, median of
+several repeats) and ``batch`` (N elements in one call, nanoseconds per element, median of 3-5
 repeats). Peers without batching (GTSAM, spatialmath) run the batch regime as a Python loop over
 a smaller N (``--loop-n``), marked in the table.
 
@@ -78,6 +80,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="also write the markdown report to this file")
     p.add_argument("--json", default=None, help="also write the raw numbers to this JSON file")
+    p.add_argument(
+        "--before-after",
+        default=None,
+        metavar="REF",
+        help="instead of peers: time microlie at git REF (imported as microlie_before from a "
+        "git archive) against this checkout, interleaved, value and Jacobian operations of "
+        "SO3, SE3, Sim3 (single element and --n elements); prints ratios",
+    )
     args = p.parse_args(argv)
     if args.quick:
         args.n = args.n or 2_000
@@ -380,13 +390,13 @@ def time_cases(timing_mod, cases: dict, regime: str, args) -> dict:
         except Exception as e:
             out[name] = e
     fns = {name: cases[name].fn for name in plan}
-    for name, best in timing_mod.best_interleaved(fns, plan).items():
-        if isinstance(best, Exception):
-            out[name] = best
+    for name, st in timing_mod.interleaved(fns, plan).items():
+        if isinstance(st, Exception):
+            out[name] = st
         elif regime == "single":
-            out[name] = best * 1e6
+            out[name] = st.median * 1e6
         else:
-            out[name] = best / cases[name].n * 1e9
+            out[name] = st.median / cases[name].n * 1e9
     return out
 
 
@@ -570,8 +580,8 @@ def environment_lines(libs, args, loads: list[float]) -> list[str]:
         + (f", OPENBLAS_CORETYPE={coretype}" if coretype else ""),
         f"- threads: {args.threads} (BLAS/OpenMP env, torch.set_num_threads, XLA flags); "
         "float64 everywhere",
-        f"- single: µs per call, best of {args.repeat or (3 if args.quick else 7)} rounds of a "
-        "calibrated loop; batch: ns per element for one call on N elements, best of "
+        f"- single: µs per call, median of {args.repeat or (3 if args.quick else 7)} rounds of a "
+        "calibrated loop; batch: ns per element for one call on N elements, median of "
         f"{args.repeat or ('2' if args.quick else '3-5')} rounds; libraries alternate "
         "round-robin within each row",
         f"- load average (1 min): {loads[0]:.2f} at start, {min(loads):.2f}-{max(loads):.2f} "
@@ -586,9 +596,158 @@ def environment_lines(libs, args, loads: list[float]) -> list[str]:
     return lines
 
 
+# ------------------------------------------------------------------------- before / after
+
+BA_GROUPS = ("SO3", "SE3", "Sim3")
+BA_VALUE_OPS = ("exp", "log", "compose", "inverse", "act", "between", "minus", "plus")
+BA_JAC_OPS = ("exp_jac", "log_jac", "act_jac", "compose_jac", "between_jac", "minus_jac",
+              "plus_jac", "jr", "jr_inv")
+
+
+def _ba_cases(m, group: str, tau, p, q, v) -> dict:
+    """The timed callables of one library (module ``m``) on prepared NumPy inputs."""
+    G = getattr(m, group)
+    X, Y = G(p), G(q)
+    return {
+        "exp": lambda: G.exp(tau), "log": lambda: X.log(), "compose": lambda: X.compose(Y),
+        "inverse": lambda: X.inverse(), "act": lambda: X.act(v),
+        "between": lambda: X.between(Y), "minus": lambda: X.minus(Y),
+        "plus": lambda: X.plus(tau),
+        "exp_jac": lambda: G.exp(tau, jac=True), "log_jac": lambda: X.log(jac=True),
+        "act_jac": lambda: X.act(v, jac=True), "compose_jac": lambda: X.compose(Y, jac=True),
+        "between_jac": lambda: X.between(Y, jac=True),
+        "minus_jac": lambda: X.minus(Y, jac=True), "plus_jac": lambda: X.plus(tau, jac=True),
+        "jr": lambda: G.jr(tau), "jr_inv": lambda: G.jr_inv(tau),
+    }
+
+
+def _ba_flat(out) -> list:
+    import numpy as np
+
+    items = out if isinstance(out, tuple) else (out,)
+    return [np.asarray(getattr(x, "params", x)) for x in items]
+
+
+def _import_ref(ref: str):
+    """microlie at git ``ref``, extracted with ``git archive`` and imported as microlie_before
+    (its modules import each other relatively, so the renamed copy is self-contained)."""
+    import importlib
+    import io
+    import subprocess
+    import tarfile
+    import tempfile
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    data = subprocess.run(["git", "-C", root, "archive", ref, "src/microlie"],
+                          capture_output=True, check=True).stdout
+    tmp = tempfile.mkdtemp(prefix="microlie-before-")
+    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
+        tar.extractall(tmp, filter="data")
+    os.rename(os.path.join(tmp, "src", "microlie"), os.path.join(tmp, "microlie_before"))
+    sys.path.insert(0, tmp)
+    return importlib.import_module("microlie_before")
+
+
+def before_after(args) -> int:
+    """Time this checkout against ``args.before_after`` (see ``--before-after``)."""
+    import numpy as np
+
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import _timing
+
+    import microlie as new
+
+    old = _import_ref(args.before_after)
+    n = args.n if args.n != DEFAULT_N else 100_000
+    rounds = args.repeat or (3 if args.quick else 9)
+    loads = [_load()]
+    rng = np.random.default_rng(args.seed)
+    rows, bad = [], []
+    for group in BA_GROUPS:
+        G = getattr(new, group)
+        inputs = {}
+        for regime, shape in (("single", ()), ("batch", (n,))):
+            tau = rng.standard_normal((*shape, G.dof)) * 0.5
+            p = G.random(shape, rng=rng).params.copy()
+            q = G.random(shape, rng=rng).params.copy()
+            v = rng.standard_normal((*shape, G.point_dim))
+            inputs[regime] = (tau, p, q, v)
+        for op in BA_VALUE_OPS + BA_JAC_OPS:
+            for regime in ("single", "batch"):
+                fns = {lib: _ba_cases(m, group, *inputs[regime])[op]
+                       for lib, m in (("before", old), ("after", new))}
+                a, b = _ba_flat(fns["before"]()), _ba_flat(fns["after"]())
+                err = max(float(np.abs(x - y).max() / max(1.0, np.abs(x).max()))
+                          for x, y in zip(a, b, strict=True))
+                if not err <= 1e-9:  # never time a wrong result
+                    bad.append(f"{group}.{op} {regime}: before/after differ by {err:.1e}")
+                    log("  !! " + bad[-1])
+                    continue
+                if regime == "single":
+                    number = max(_timing.calibrate(f, 0.005 if args.quick else 0.02)
+                                 for f in fns.values())
+                else:
+                    number = 1
+                st = _timing.interleaved(fns, {k: (number, rounds) for k in fns})
+                loads.append(_load())
+                scale, unit = (1e6, "us") if regime == "single" else (1e9 / n, "ns/elem")
+                rows.append((group, op, regime, st["before"], st["after"], scale, unit))
+                log(f"  {group:5s} {op:12s} {regime:6s} before {st['before'].median * scale:9.3f}"
+                    f"  after {st['after'].median * scale:9.3f} {unit}")
+    report = _ba_render(rows, bad, args, n, rounds, loads)
+    print(report)
+    if args.out:
+        with open(args.out, "w") as f:
+            f.write(report + "\n")
+        log(f"wrote {args.out}")
+    return 1 if bad else 0
+
+
+def _ba_render(rows, bad, args, n, rounds, loads) -> str:
+    med = {(g, op, r): (b.median * sc, a.median * sc) for g, op, r, b, a, sc, _ in rows}
+    lines = [
+        f"# microlie before/after: {args.before_after} vs this checkout "
+        f"({microlie_source()})", "",
+        f"Command: `python benchmarks/groups.py --before-after {args.before_after} --n {n}`"
+        + (" --quick" if args.quick else ""), "",
+        f"- single: us per call (one element); batch: ns per element at N = {n:,}",
+        f"- median of {rounds} interleaved rounds (before/after alternate in each round); "
+        "spread = interquartile range / median",
+        f"- load average (1 min): {loads[0]:.2f} at start, {min(loads):.2f}-{max(loads):.2f} "
+        "during the run", f"- Python {platform.python_version()}, {platform.machine()}", "",
+        "| group | op | regime | before | after | speed-up (before/after) | spread b / a |",
+        "| --- | --- | --- | ---: | ---: | ---: | ---: |",
+    ]
+    for g, op, r, b, a, sc, _unit in rows:
+        lines.append(f"| {g} | {op} | {r} | {fmt_num(b.median * sc)} | {fmt_num(a.median * sc)} "
+                     f"| {b.median / a.median:.2f}x | {b.spread():.0%} / {a.spread():.0%} |")
+    lines += ["", "Goals (after):", ""]
+    for g in BA_GROUPS:
+        if (g, "minus", "batch") in med and (g, "minus_jac", "batch") in med:
+            ratio = med[(g, "minus_jac", "batch")][1] / med[(g, "minus", "batch")][1]
+            lines.append(f"- {g}: minus(jac=True) / minus() at N = {n:,}: {ratio:.2f} "
+                         "(goal <= 2.5)")
+    if ("Sim3", "jr", "batch") in med and ("SE3", "jr", "batch") in med:
+        ratio = med[("Sim3", "jr", "batch")][1] / med[("SE3", "jr", "batch")][1]
+        lines.append(f"- Sim3.jr / SE3.jr at N = {n:,}: {ratio:.2f} (goal <= 2)")
+    for op in ("exp", "log", "compose", "act"):
+        if ("SE3", op, "single") in med:
+            b, a = med[("SE3", op, "single")]
+            lines.append(f"- SE3.{op} single element: {b / a:.2f}x faster (goal >= 2)")
+    slower = [f"{g}.{op} {b / a:.2f}x" for (g, op, r), (b, a) in med.items()
+              if r == "batch" and op in BA_VALUE_OPS and b / a < 1.0]
+    lines.append("- batched value operations slower than before: "
+                 + (", ".join(slower) if slower else "none"))
+    if bad:
+        lines += ["", "Not timed (results differ):", ""] + [f"- {x}" for x in bad]
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     pin_threads(args.threads)
+    if args.before_after:
+        return before_after(args)
     loads = [_load()]
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))

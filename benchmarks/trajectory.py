@@ -1,23 +1,25 @@
 """Trajectory evaluation: microlie vs evo, side by side in one run.
 
 evo is GPL-3 and only *run* here (never imported by microlie). Run in an environment that has
-both::
+both (from the repository root)::
 
-    python3 -m venv /work/evo-venv && /work/evo-venv/bin/pip install evo==1.38.1
-    /work/evo-venv/bin/pip install -e .
-    /work/evo-venv/bin/python benchmarks/trajectory.py [--n 100000] [--no-write]
+    python3 -m venv /work/evo-venv && /work/evo-venv/bin/pip install evo==1.38.1 array-api-compat
+    PYTHONPATH=src /work/evo-venv/bin/python benchmarks/trajectory.py [--n 100000] [--no-write]
 
 Cases: a synthetic 1e5-pose pair (TUM files written to a temporary directory) and the fr2/desk
 files of ../shared/data. For each case both tools compute the same numbers (checked: the
 statistics must agree to 1e-9 relative, otherwise the script fails):
 
 * "metric": association + alignment + error + statistics on trajectories already in memory;
-* "end to end": the same, starting from reading the two files.
+* "end to end": the same, starting from reading the two files;
+* "command": the whole command as a user runs it, in a fresh process each time
+  (``microlie ape FMT GT EST -a`` vs ``evo_ape FMT GT EST -a``, text output discarded), on the
+  synthetic pair and on the real TUM, KITTI and EuRoC files: medians of interleaved runs with
+  the interquartile range.
 
-Times are the best of several repeats (``time.perf_counter``; evo's in-place alignment is
-given a fresh copy outside the timed region); the runs of the two tools alternate. The table
-goes into the "## Trajectory evaluation" section of BENCHMARKS.md (other sections are left
-alone).
+In-process times are the best of several repeats (``time.perf_counter``; evo's in-place
+alignment is given a fresh copy outside the timed region); the runs of the two tools
+alternate. The tables are written to ``benchmarks/results/trajectory-latest.md``.
 """
 
 from __future__ import annotations
@@ -27,7 +29,6 @@ import copy
 import gc
 import os
 import platform
-import re
 import subprocess
 import sys
 import tempfile
@@ -40,6 +41,84 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / ".." / "shared" / "data" / "trajectory" / "evo"
 SECTION = "## Trajectory evaluation"
+RESULTS = REPO / "benchmarks" / "results" / "trajectory-latest.md"
+EVO_BIN = Path(sys.executable).parent
+# (label, format word, GT, EST): the real files of ../shared/data for the command timing
+REAL = [
+    ("fr2/desk (TUM)", "tum", "fr2_desk_groundtruth.txt", "fr2_desk_ORB.txt"),
+    ("fr1/xyz (TUM)", "tum", "freiburg1_xyz-groundtruth.txt", "freiburg1_xyz-rgbdslam.txt"),
+    ("KITTI 00 (KITTI)", "kitti", "KITTI_00_gt.txt", "KITTI_00_ORB.txt"),
+    ("V1_02 (EuRoC)", "euroc", "V102_groundtruth.csv", "V102.txt"),
+]
+
+
+def _children_cpu() -> float:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def command_times(fmt: str, gt: Path, est: Path, repeat: int) -> list[list[float]]:
+    """Wall times of the two whole commands (fresh processes, runs interleaved) and their CPU
+    times (user + system of the finished child): ``[wall_ours, wall_evo, cpu_ours, cpu_evo]``."""
+    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+    ours = [sys.executable, "-m", "microlie.cli", "ape", fmt, str(gt), str(est), "-a"]
+    evo = [str(EVO_BIN / "evo_ape"), fmt, str(gt), str(est), "-a", "--no_warnings"]
+    out: list[list[float]] = [[], [], [], []]
+    for _ in range(repeat):
+        for k, cmd in enumerate((ours, evo)):
+            c0 = _children_cpu()
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL)
+            out[k].append(time.perf_counter() - t0)
+            out[k + 2].append(_children_cpu() - c0)
+    return out
+
+
+def _median_iqr(x: list[float]) -> str:
+    q1, q2, q3 = np.percentile(x, [25, 50, 75])
+    return f"{q2 * 1e3:.0f} ms [{q1 * 1e3:.0f}-{q3 * 1e3:.0f}]"
+
+
+def command_rows(cases: list[tuple[str, str, Path, Path]], repeat: int) -> list[dict]:
+    rows = []
+    for label, fmt, gt, est in cases:
+        a, b, cpu_a, cpu_b = command_times(fmt, gt, est, repeat)
+        ratio = np.asarray(b) / np.asarray(a)
+        rows.append(dict(case=label, ours=_median_iqr(a), evo=_median_iqr(b),
+                         ratio=float(np.median(ratio)), lo=float(np.percentile(ratio, 25)),
+                         hi=float(np.percentile(ratio, 75)), runs=repeat,
+                         cpu_ours=float(np.median(cpu_a)), cpu_evo=float(np.median(cpu_b)),
+                         cpu_ratio=float(np.median(np.asarray(cpu_b) / np.asarray(cpu_a)))))
+        print(f"command {label:22s} microlie {rows[-1]['ours']:>22s}  evo {rows[-1]['evo']:>22s}"
+              f"  x{rows[-1]['ratio']:.1f}", flush=True)
+    return rows
+
+
+def command_table(rows: list[dict]) -> str:
+    lines = [
+        "### The command, end to end",
+        "",
+        "`microlie ape FMT GT EST -a` against `evo_ape FMT GT EST -a --no_warnings`, each run in "
+        "a fresh process (interpreter start, imports, reading, association, SE(3) alignment, "
+        "APE, text output), the two commands alternating; median wall time with the "
+        "interquartile range, and the median of the per-round ratios evo / microlie with its "
+        "interquartile range. CPU: user + system seconds of each finished process (the "
+        "operating system's accounting; less sensitive to other jobs than wall time), medians "
+        "and the median per-round ratio.",
+        "",
+        "| files | runs | microlie wall | evo wall | wall speed-up (IQR) | microlie CPU | "
+        "evo CPU | CPU speed-up |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['case']} | {r['runs']} | {r['ours']} | {r['evo']} | "
+                     f"**{r['ratio']:.1f}x** ({r['lo']:.1f}-{r['hi']:.1f}) | "
+                     f"{r['cpu_ours'] * 1e3:.0f} ms | {r['cpu_evo'] * 1e3:.0f} ms | "
+                     f"**{r['cpu_ratio']:.1f}x** |")
+    return "\n".join(lines) + "\n"
 
 
 def _timed(fn: Callable[[], object], setup: Callable[[], object] | None) -> float:
@@ -272,29 +351,27 @@ def table(rows: list[dict], imports: dict[str, float], load: tuple[float, float]
         )
     lines += [
         "",
-        "Regenerate: `/work/evo-venv/bin/python benchmarks/trajectory.py` "
-        "(evo and microlie installed in one environment).",
+        "Regenerate: `PYTHONPATH=src /work/evo-venv/bin/python benchmarks/trajectory.py` "
+        "(evo 1.38.1 and microlie's dependencies in one environment; see the script's "
+        "docstring).",
         "",
     ]
     return "\n".join(lines)
 
 
-def write_section(text: str) -> None:
-    path = REPO / "BENCHMARKS.md"
-    old = path.read_text() if path.exists() else "# Benchmarks\n\n"
-    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(old):
-        new = pattern.sub(lambda _: text + "\n", old)
-    else:
-        new = old.rstrip("\n") + "\n\n" + text + "\n"
-    path.write_text(new)
-    print(f"wrote section {SECTION!r} of {path}")
+def write_results(text: str) -> None:
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(text)
+    print(f"wrote {RESULTS}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=100_000, help="synthetic trajectory length")
-    ap.add_argument("--no-write", action="store_true", help="do not touch BENCHMARKS.md")
+    ap.add_argument("--no-write", action="store_true",
+                    help="do not write benchmarks/results/trajectory-latest.md")
+    ap.add_argument("--command-runs", type=int, default=7,
+                    help="fresh-process runs of each command per file pair (default 7)")
     args = ap.parse_args()
     try:
         import evo  # noqa: F401
@@ -304,19 +381,24 @@ def main() -> None:
     imports = import_times()
     print("import times: " + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in imports.items()))
     rows = []
+    synth = f"synthetic {args.n:.0e}".replace("e+0", "e")
+    fr2_gt, fr2_est = DATA / "fr2_desk_groundtruth.txt", DATA / "fr2_desk_ORB.txt"
+    if not fr2_gt.exists():
+        sys.exit(f"{fr2_gt} not found: the benchmark needs ../shared/data")
     with tempfile.TemporaryDirectory() as tmp:
         gt, est = synthetic_pair(args.n, Path(tmp))
-        rows += run_case(f"synthetic {args.n:.0e}".replace("e+0", "e"), gt, est)
-    fr2_gt, fr2_est = DATA / "fr2_desk_groundtruth.txt", DATA / "fr2_desk_ORB.txt"
-    if fr2_gt.exists():
-        rows += run_case("fr2/desk (TUM)", fr2_gt, fr2_est)
-    else:
-        print(f"skipping fr2/desk: {fr2_gt} not found")
-    text = table(rows, imports, (load_start, os.getloadavg()[0]))
+        rows += run_case(synth, gt, est)
+        cmd_rows = command_rows([(synth + " (TUM)", "tum", gt, est)],
+                                max(3, args.command_runs // 2))
+    rows += run_case("fr2/desk (TUM)", fr2_gt, fr2_est)
+    cmd_rows += command_rows([(lab, fmt, DATA / g, DATA / e) for lab, fmt, g, e in REAL],
+                             args.command_runs)
+    load = (load_start, os.getloadavg()[0])
+    text = table(rows, imports, load) + "\n" + command_table(cmd_rows)
     print()
     print(text)
     if not args.no_write:
-        write_section(text)
+        write_results(text)
 
 
 if __name__ == "__main__":

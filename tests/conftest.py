@@ -12,12 +12,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from microlie import SE2, SE3, SO2, SO3, LieGroup, Sim3
+import microlie as ml
+from microlie import LieGroup
 
 IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
-GROUPS = [SO2, SE2, SO3, SE3, Sim3]  # adding a group to the generic suite is one entry here
+# The generic suite (test_groups, test_autodiff, ...) runs on every group of this list: adding a
+# group to it is one entry here (SE_2(3) is the entry ``ml.SE23``). Group-specific test facts
+# live on the class: ``_rotation_slice`` (the rotation's entries of the tangent) and
+# ``_exact_pi_element()`` (a rotation by exactly pi); a Pose derives both from its rotation group.
+GROUPS = [ml.SO2, ml.SE2, ml.SO3, ml.SE3, ml.Sim3, ml.SE23]
 BACKENDS = ["numpy", "torch", "jax"]
+BATCH_SHAPES = [(), (1,), (3, 1, 2)]
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+# fixture-generation scripts import peers (gtsam, cv2) that CI does not install: not test modules
+collect_ignore = ["fixtures"]
 
 
 def require(module: str):
@@ -78,6 +86,11 @@ def group(request):
     return request.param
 
 
+@pytest.fixture(params=BATCH_SHAPES, ids=lambda s: "batch" + "x".join(map(str, s)))
+def batch_shape(request):
+    return request.param
+
+
 @pytest.fixture(params=BACKENDS)
 def backend(request):
     if request.param == "torch":
@@ -89,15 +102,11 @@ def backend(request):
 
 # ------------------------------------------------------------------------ tangent vectors
 
-ROT_SLICE = {SO2: slice(0, 1), SE2: slice(2, 3), SO3: slice(0, 3), SE3: slice(3, 6),
-             Sim3: slice(3, 6)}
-
-
 def tangent_with_angle(G, rng: np.random.Generator, theta: float, size=None) -> np.ndarray:
     """A random tangent vector of ``G`` whose rotation angle is exactly ``theta``."""
     shape = () if size is None else (size,) if isinstance(size, int) else tuple(size)
     tau = rng.standard_normal((*shape, G.dof))
-    sl = ROT_SLICE[G]
+    sl = G._rotation_slice
     rot = tau[..., sl]
     n = rot.shape[-1]
     if n == 1:
@@ -109,7 +118,20 @@ def tangent_with_angle(G, rng: np.random.Generator, theta: float, size=None) -> 
 
 
 def rotation_angle(G, tau: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(tau[..., ROT_SLICE[G]], axis=-1)
+    return np.linalg.norm(tau[..., G._rotation_slice], axis=-1)
+
+
+def hard_elements(G, rng: np.random.Generator) -> dict:
+    """Sophus-style hard elements of ``G``: near the identity, a rotation by exactly pi (built
+    without rounding, and reached by composing two quarter turns), and a rotation whose
+    quaternion has ``w`` about 1e-11 (angle ``pi - 2e-11``)."""
+    half = G.exp(tangent_with_angle(G, rng, np.pi / 2))
+    return {
+        "near_identity": G.exp(1e-8 * rng.standard_normal(G.dof)),
+        "exact_pi": G._exact_pi_element(),
+        "pi_by_composition": half @ half,
+        "w_1e-11": G.exp(tangent_with_angle(G, rng, np.pi - 2e-11)),
+    }
 
 
 # ------------------------------------------------------------------------ finite differences

@@ -13,6 +13,7 @@ from conftest import (
     GROUPS,
     element,
     fd_jacobian,
+    hard_elements,
     require,
     rotation_angle,
     tangent_with_angle,
@@ -23,7 +24,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.linalg import expm, logm
 
-from microlie import SE2, SE3, SO2, SO3, LieGroup, Sim3
+from microlie import SE2, SE3, SE23, SO2, SO3, LieGroup, Sim3
 
 HARD_ANGLES = {"random": None, "tiny": 1e-9, "near_pi": np.pi - 1e-4}
 
@@ -58,7 +59,9 @@ def test_group_axioms(G, seed):
     # action is compatible with composition and with the matrix
     p = rng.standard_normal(G.point_dim)
     np.testing.assert_allclose((X @ Y).act(p), X.act(Y.act(p)), atol=1e-12)
-    ph = np.append(p, 1.0) if G.matrix_dim == G.point_dim + 1 else p
+    # homogeneous point (SE23's 5x5 matrix: (p, 1, 0))
+    ph = np.concatenate([p, np.eye(G.matrix_dim - G.point_dim)[0]]) \
+        if G.matrix_dim > G.point_dim else p
     np.testing.assert_allclose(X.act(p), (M(X) @ ph)[: G.point_dim], atol=1e-12)
 
 
@@ -187,20 +190,59 @@ def test_every_jacobian_against_finite_differences(G, where, side, bk, seed):
     backend_fixture_check(bk)
     rng = np.random.default_rng(seed)
     for op, args in _builders(G, rng, HARD_ANGLES[where]).items():
-        bargs = [element(G, x.params, bk) if isinstance(x, LieGroup) else to_backend(x, bk)
-                 for x in args]
-        if op == "exp":
-            f = lambda t: G.exp(t)  # noqa: E731
-            res = G.exp(bargs[0], jac=True, side=side)
-        else:
-            f = lambda *a, op=op: getattr(a[0], op)(*a[1:])  # noqa: E731
-            res = getattr(bargs[0], op)(*bargs[1:], jac=True, side=side)
-        jacs = [to_numpy(J) for J in res[1:]]
-        assert len(jacs) == len(args)
-        for i, J in enumerate(jacs):
-            J_fd = fd_jacobian(f, args, i, side=side)
-            err = np.abs(J - J_fd).max() / max(1.0, np.abs(J_fd).max())
-            assert err <= 1e-6, f"{G.__name__}.{op} d/darg{i} ({side}, {where}): {err:.2e}"
+        _check_against_fd(G, op, args, side, bk, where)
+
+
+def _check_against_fd(G, op, args, side, bk, where):
+    """``op(*args, jac=True)`` on backend ``bk`` against :func:`fd_jacobian` (NumPy)."""
+    bargs = [element(G, x.params, bk) if isinstance(x, LieGroup) else to_backend(x, bk)
+             for x in args]
+    if op == "exp":
+        f = lambda t: G.exp(t)  # noqa: E731
+        res = G.exp(bargs[0], jac=True, side=side)
+    else:
+        f = lambda *a: getattr(a[0], op)(*a[1:])  # noqa: E731
+        res = getattr(bargs[0], op)(*bargs[1:], jac=True, side=side)
+    jacs = [to_numpy(J) for J in res[1:]]
+    assert len(jacs) == len(args)
+    for i, J in enumerate(jacs):
+        J_fd = fd_jacobian(f, args, i, side=side)
+        err = np.abs(J - J_fd).max() / max(1.0, np.abs(J_fd).max())
+        assert err <= 1e-6, f"{G.__name__}.{op} d/darg{i} ({side}, {where}): {err:.2e}"
+
+
+def _hard_cases(G, rng):
+    """``(op, args)`` pairs with a hard element (conftest.hard_elements) as the group input.
+    ``Log`` of an element within the finite-difference step of pi is not differentiable (it
+    jumps to the other side), so ``log`` is taken at the near-identity element only; ``minus``
+    and ``lminus`` take hard elements as inputs and small differences as outputs."""
+    cases = []
+    small = lambda: 0.3 * tangent_with_angle(G, rng, 0.4)  # noqa: E731
+    for name, H in hard_elements(G, rng).items():
+        Y = G.exp(random_tangent(G, rng))
+        cases += [(name, "inverse", [H]), (name, "compose", [H, Y]), (name, "compose", [Y, H]),
+                  (name, "between", [H, H @ G.exp(small())]),
+                  (name, "act", [H, rng.standard_normal(G.point_dim)]),
+                  (name, "plus", [H, small()]), (name, "lplus", [H, small()]),
+                  (name, "minus", [H @ G.exp(small()), H]),
+                  (name, "lminus", [G.exp(small()) @ H, H])]
+        if name == "near_identity":
+            cases.append((name, "log", [H]))
+    for theta in (np.pi - 2e-11, np.pi, 1e-9):
+        cases.append((f"angle {theta}", "exp", [tangent_with_angle(G, rng, theta)]))
+    return cases
+
+
+@pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
+@pytest.mark.parametrize("side", ["right", "left"])
+@pytest.mark.parametrize("bk", ["numpy", "torch", "jax"])
+def test_jacobians_at_hard_elements_against_finite_differences(G, side, bk):
+    """Every Jacobian at a near-identity element and Sophus-style hard elements (angle exactly
+    pi, built exactly and by composition; quaternion w ~ 1e-11), on every backend."""
+    backend_fixture_check(bk)
+    rng = np.random.default_rng(26)
+    for name, op, args in _hard_cases(G, rng):
+        _check_against_fd(G, op, args, side, bk, name)
 
 
 def backend_fixture_check(bk):
@@ -276,19 +318,10 @@ def _matrix_error(X, Y):
 
 @pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
 def test_exactly_pi_has_valid_log(G):
-    # a rotation by exactly pi built from its matrix (no rounding in the input)
-    if G is SO3:
-        X = SO3.from_matrix(np.diag([1.0, -1.0, -1.0]))
-    elif G is SE3:
-        X = SE3.from_rotation_translation(SO3.from_matrix(np.diag([-1.0, 1.0, -1.0])),
-                                          [1.0, 2.0, 3.0])
-    elif G is Sim3:
-        X = Sim3.from_rotation_translation_scale(SO3.from_matrix(np.diag([-1.0, -1.0, 1.0])),
-                                                 [1.0, 2.0, 3.0], 2.0)
-    elif G is SO2:
-        X = SO2.from_matrix(-np.eye(2))
-    else:
-        X = SE2.from_matrix(np.array([[-1.0, 0, 1], [0, -1.0, 2], [0, 0, 1]]))
+    # a rotation by exactly pi built without rounding (the class's test fact)
+    X = G._exact_pi_element()
+    rot = X if not hasattr(G, "_rotation") else X.rotation()
+    np.testing.assert_array_equal(rot.params, type(rot)._exact_pi_element().params)
     L = X.log()
     assert np.isclose(rotation_angle(G, L), np.pi, atol=1e-15)
     np.testing.assert_allclose(G.exp(L).matrix(), X.matrix(), atol=1e-14)
@@ -330,30 +363,34 @@ def test_roundtrips_float32(G):
 # ------------------------------------------------------------------------ batches
 
 
-def test_batch_equals_elementwise(group, backend):
+def _all_outputs(G, X, Y, tau, p):
+    """Every operation and every Jacobian, flattened to a list of arrays."""
+    outs = [G.exp(tau, jac=True), X.log(jac=True), X.inverse(jac=True), X.compose(Y, jac=True),
+            X.between(Y, jac=True), X.act(p, jac=True), X.plus(tau, jac=True),
+            Y.minus(X, jac=True), X.lplus(tau, jac=True), Y.lminus(X, jac=True),
+            X.minus(Y, jac=True, side="left")]
+    flat = [to_numpy(o) for res in outs for o in res]
+    return flat + [to_numpy(X.adjoint()), to_numpy(X.matrix()), to_numpy(G.jr(tau)),
+                   to_numpy(G.jr_inv(tau))]
+
+
+def test_batch_shapes_equal_elementwise(group, backend, batch_shape):
+    """Batch shapes (), (1,) and (3, 1, 2): every operation and Jacobian has the batch shape
+    in front and equals the single-element (scalar path) result element by element."""
     G = group
     rng = np.random.default_rng(9)
-    X = G.random((4, 5), rng=rng)
-    Y = G.random((4, 5), rng=rng)
-    tau = rng.standard_normal((4, 5, G.dof))
-    p = rng.standard_normal((4, 5, G.point_dim))
-    Xb, Yb = element(G, X.params, backend), element(G, Y.params, backend)
-    tb, pb = to_backend(tau, backend), to_backend(p, backend)
-    batched = {
-        "compose": to_numpy(Xb @ Yb), "log": to_numpy(Xb.log()), "exp": to_numpy(G.exp(tb)),
-        "act": to_numpy(Xb.act(pb)), "adjoint": to_numpy(Xb.adjoint()),
-        "jr": to_numpy(G.jr(tb)), "minus": to_numpy(Yb.minus(Xb, jac=True)[2]),
-    }
-    for i in range(4):
-        for j in range(5):
-            x, y = X[i, j], Y[i, j]
-            single = {
-                "compose": (x @ y).params, "log": x.log(), "exp": G.exp(tau[i, j]).params,
-                "act": x.act(p[i, j]), "adjoint": x.adjoint(), "jr": G.jr(tau[i, j]),
-                "minus": y.minus(x, jac=True)[2],
-            }
-            for k, v in single.items():
-                np.testing.assert_allclose(batched[k][i, j], v, atol=1e-13, err_msg=k)
+    X, Y = G.random(batch_shape, rng=rng), G.random(batch_shape, rng=rng)
+    tau = 0.7 * rng.standard_normal((*batch_shape, G.dof))
+    p = rng.standard_normal((*batch_shape, G.point_dim))
+    batched = _all_outputs(G, element(G, X.params, backend), element(G, Y.params, backend),
+                           to_backend(tau, backend), to_backend(p, backend))
+    for idx in np.ndindex(*batch_shape):
+        x = G(X.params[idx]) if idx else X
+        y = G(Y.params[idx]) if idx else Y
+        single = _all_outputs(G, x, y, tau[idx], p[idx])
+        for k, (b, v) in enumerate(zip(batched, single, strict=True)):
+            assert b.shape == (*batch_shape, *v.shape), k
+            np.testing.assert_allclose(b[idx], v, atol=1e-13, rtol=1e-13, err_msg=str(k))
 
 
 def test_broadcasting(group, backend):
@@ -549,7 +586,7 @@ def test_sim3_exp_wide_scale_range(sigma, theta):
 def test_large_batches_take_the_chunked_path_and_agree(group, backend):
     """Batches above the chunk size (NumPy and CPU torch evaluate them in cache-sized chunks)
     give the same numbers as single elements."""
-    from microlie.groups import base
+    from microlie import _kernels as base
 
     G = group
     n = 2 * max(base.CHUNK, base.TORCH_CHUNK) + 17
@@ -566,3 +603,96 @@ def test_large_batches_take_the_chunked_path_and_agree(group, backend):
         np.testing.assert_allclose(res["exp"][i], G.exp(tau[i]).params, atol=1e-14)
         if i < 40000:
             np.testing.assert_allclose(res["jr"][i], G.jr(tau[i]), atol=1e-13)
+
+
+# ------------------------------------------------------------------------ regressions (issue 8)
+
+
+@pytest.mark.parametrize(("G", "bk"), [(G, "torch") for G in GROUPS]
+                         + [(G, "jax") for G in (SO3, SE3, Sim3)],
+                         ids=lambda x: x if isinstance(x, str) else x.__name__)
+def test_autodiff_through_log_at_exactly_pi(G, bk):
+    """At a rotation by exactly pi (quaternion w = 0) autodiff of ``Log(X Exp(d))`` equals the
+    analytic ``Jr^-1(Log X)``: along the rotation axis the angle moves one for one (torch's
+    d|w|/dw = 0 at 0 used to give 0 there)."""
+    backend_fixture_check(bk)
+    X = G._exact_pi_element()  # about x, w = 0 exactly
+    tau, J = X.log(jac=True)
+    sl = G._rotation_slice
+    axis = np.zeros(G.dof)
+    axis[sl.start] = 1.0
+    np.testing.assert_allclose((J @ axis)[sl], axis[sl], atol=1e-15)  # angle: one for one
+    # independently: the one-sided difference that turns the angle below pi
+    h = 1e-7
+    fd = (X.plus(-h * axis).log() - tau) / -h
+    np.testing.assert_allclose(fd, J @ axis, atol=1e-6)
+    d0 = np.zeros(G.dof)
+    if bk == "torch":
+        torch = require("torch")
+        Xt = G(torch.tensor(X.params))
+        Jad = torch.autograd.functional.jacobian(lambda d: Xt.plus(d).log(),
+                                                 torch.tensor(d0)).numpy()
+    else:
+        import jax
+        import jax.numpy as jnp
+
+        Xj = G(jnp.asarray(X.params))
+        Jad = np.asarray(jax.jacfwd(lambda d: Xj.plus(d).log())(jnp.asarray(d0)))
+    np.testing.assert_allclose(Jad, J, atol=1e-12)
+
+
+def test_from_matrix_normalize_rejects_degenerate_matrices():
+    """``normalize=True`` projects onto the nearest rotation; where that is not unique (the zero
+    matrix, rank 1) it raises instead of returning the identity."""
+    def homogeneous(n, block):
+        T = np.eye(n)
+        T[:block.shape[0], :block.shape[1]] = block
+        return T
+
+    rank1 = np.outer([1.0, 2.0, 3.0], [0.5, -1.0, 2.0])
+    z3, z2 = np.zeros((3, 3)), np.zeros((2, 2))
+    cases = [(SO3, z3, "rank < 2"), (SO3, rank1, "rank < 2"),
+             (SO3, np.stack([np.eye(3), z3]), "rank < 2"),
+             (SE3, homogeneous(4, z3), "rank < 2"), (SE23, homogeneous(5, z3), "rank < 2"),
+             (Sim3, homogeneous(4, z3), "positive determinant"),
+             (SO2, z2, "no nearest rotation"),
+             (SO2, np.array([[1.0, 2.0], [2.0, -1.0]]), "no nearest rotation"),
+             (SE2, homogeneous(3, z2), "no nearest rotation")]
+    for G, m, match in cases:
+        with pytest.raises(ValueError, match=match):
+            G.from_matrix(m, normalize=True)
+    # rank 2 still has a unique nearest rotation, and that is what is returned
+    np.testing.assert_allclose(SO3.from_matrix(np.diag([1.0, 1.0, 0.0]), normalize=True)
+                               .matrix(), np.eye(3), atol=1e-15)
+
+
+def test_from_euler_validated_like_scipy():
+    from itertools import product
+
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(25)
+    seqs = ["".join(p) for n in (1, 2, 3) for p in product("xyz", repeat=n)
+            if all(a != b for a, b in zip(p, p[1:], strict=False))]
+    for seq in seqs + [s.upper() for s in seqs]:
+        n = len(seq)
+        for shape in ((n,), (4, n), (2, 3, n)):
+            ang = rng.uniform(-3.0, 3.0, shape)
+            np.testing.assert_allclose(SO3.from_euler(seq, ang).matrix(),
+                                       Rotation.from_euler(seq, ang).as_matrix(), atol=1e-14,
+                                       err_msg=seq)
+        deg = rng.uniform(-170, 170, (5, n))
+        np.testing.assert_allclose(SO3.from_euler(seq, deg, degrees=True).matrix(),
+                                   Rotation.from_euler(seq, deg, degrees=True).as_matrix(),
+                                   atol=1e-14)
+    # one axis: a scalar angle is one rotation, as in SciPy
+    np.testing.assert_allclose(SO3.from_euler("y", 0.3).matrix(),
+                               Rotation.from_euler("y", 0.3).as_matrix(), atol=1e-15)
+    bad = [("xxy", [0.1, 0.2, 0.3]), ("zz", [0.1, 0.2]), ("xYz", [0.1, 0.2, 0.3]),
+           ("abc", [0.1, 0.2, 0.3]), ("", [0.1]), ("xyzx", [0.1, 0.2, 0.3, 0.4]),
+           ("xyz", [0.1, 0.2]), ("x", [0.1, 0.2]), ("XY", [0.1, 0.2, 0.3])]
+    for seq, ang in bad:
+        with pytest.raises(ValueError):
+            Rotation.from_euler(seq, ang)  # SciPy rejects it too
+        with pytest.raises(ValueError, match="Euler"):
+            SO3.from_euler(seq, ang)

@@ -161,7 +161,7 @@ def test_plot_command_png(tmp_path):
 def test_missing_matplotlib_is_a_clear_error(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib", None)
     code, _, err = run("ape", "--example", "--plot", str(tmp_path / "x.png"))
-    assert code == 2
+    assert code == 3  # missing optional dependency
     assert "pip install 'microlie[plot]'" in err
 
 
@@ -169,7 +169,7 @@ def test_malformed_file_exit_code(tmp_path):
     bad = tmp_path / "bad.txt"
     bad.write_text("0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0\n")
     code, _, err = run("ape", str(bad), str(bad))
-    assert code == 2
+    assert code == 1  # data error
     assert f"{bad}:2: expected 8 fields" in err
 
 

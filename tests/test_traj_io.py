@@ -207,7 +207,9 @@ def test_euroc_malformed(tmp_path, line, pattern):
 def test_empty_and_unknown_format(tmp_path):
     _expect(read_tum, tmp_path, "# only a comment\n", r"no data lines")
     with pytest.raises(ValueError, match="unknown trajectory format"):
-        read_trajectory(tmp_path / "bad.txt", "bag")
+        read_trajectory(tmp_path / "bad.txt", "g2o")
+    with pytest.raises(ValueError, match="needs a topic"):
+        read_trajectory(tmp_path / "bad.bag", "bag")
 
 
 def test_quaternion_tolerance_is_configurable(tmp_path):
@@ -234,6 +236,12 @@ def test_quaternion_tolerance_is_configurable(tmp_path):
         ("1 2 3\n4 5 6 # trailing\n", False),  # only whole-line comments
         ("1 2 3\n\u0661 2 3\n", False),  # non-ASCII digit (float() accepts it)
         ("1 2 3\n  \t \n4 5 6", False),  # whitespace-only line, no final newline
+        ("1 2 3\n4 5\n6 7 8 9\n", False),  # 9 numbers, but lines of 2 and 4 fields
+        ("1\t2 3\n4 5 6   \n", False),  # tabs and trailing spaces
+        ("1 2 3\n4 nan 6\n", False),  # not finite: the careful path names the field
+        ("1 2 3\n4 1e 6\n", False),  # not a number
+        ("1 2 3\n4 0x10 6\n", False),  # hexadecimal is not a number for float()
+        ("1 2 3\n4 5 6\x1f\n", False),  # \x1f separates fields for str.split only
         ("#t,x,y\n1,2,3,9\n4,5,6\n", True),  # extra columns ignored
         ("1,2,3\n   \n4,5,6\n", True),
         ("1 2 3\n4 5 6\n", True),  # spaces do not separate CSV fields

@@ -132,23 +132,23 @@ def test_align_methods_recover_transform():
     # est = g^-1 applied to gt, so aligning est must bring back gt (poses, not only positions)
     for g, method in ((g_se3, "se3"), (g_sim3, "sim3")):
         est = gt.transform(g.inverse())
-        aligned, found = T.align(est, gt, method)
+        aligned, found = T.align(gt, est, method)
         np.testing.assert_allclose(aligned.matrices(), gt.matrices(), atol=1e-11)
         np.testing.assert_allclose(found.params, g.params, atol=1e-11)
     # scale only: est = gt positions / 3
     est = T.Trajectory.from_arrays(gt.positions / 3, gt.quat_xyzw, gt.timestamps)
-    aligned, found = T.align(est, gt, "scale")
+    aligned, found = T.align(gt, est, "scale")
     np.testing.assert_allclose(aligned.positions, gt.positions, atol=1e-12)
     assert float(np.asarray(found.scale())) == pytest.approx(3.0, rel=1e-12)
     # origin: first poses coincide, relative motion unchanged
     est = _random_traj(60, 2)
-    aligned, _ = T.align(est, gt, "origin")
+    aligned, _ = T.align(gt, est, "origin")
     np.testing.assert_allclose(aligned.matrices()[0], gt.matrices()[0], atol=1e-12)
     m0 = est.matrices()
     m1 = aligned.matrices()
     np.testing.assert_allclose(np.linalg.inv(m1[0]) @ m1[5], np.linalg.inv(m0[0]) @ m0[5],
                                atol=1e-12)
-    same, g = T.align(est, gt, "none")
+    same, g = T.align(gt, est, "none")
     assert same is est and g is None
 
 
@@ -160,10 +160,10 @@ def test_align_first_n_only():
     p = est.positions.copy()
     p[10:] += 5.0
     est = T.Trajectory.from_arrays(p, est.quat_xyzw, est.timestamps)
-    _, found = T.align(est, gt, "se3", n=10)
+    _, found = T.align(gt, est, "se3", n=10)
     np.testing.assert_allclose(found.params, g.params, atol=1e-11)
     with pytest.raises(ValueError, match="unknown alignment"):
-        T.align(est, gt, "affine")
+        T.align(gt, est, "affine")
 
 
 def test_georeferenced_large_coordinates_alignment():

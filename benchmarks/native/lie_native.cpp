@@ -2,9 +2,10 @@
 // benchmarks/groups.py times, written as flat loops over arrays of parameters (the same row layout
 // as microlie: SO3 (qx,qy,qz,qw), SE3 (tx,ty,tz,qx,qy,qz,qw), tangents (rho, phi)).
 //
-// Built by the benchmark itself:  g++ -O3 -march=native -fno-math-errno -fopenmp-simd
+// Built by benchmarks/native.py into a shared library (called through ctypes, timed interleaved
+// with microlie):  g++ -O3 -march=native -fno-math-errno -fopenmp-simd -shared -fPIC -lmvec
 // The "declare simd" lines let GCC call glibc's libmvec for tan/atan2 inside vectorised loops
-// without -ffast-math (IEEE semantics kept). Output: one JSON object, ns per element (median).
+// without -ffast-math (IEEE semantics kept).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -223,46 +224,16 @@ static void se3_exp_jac(const double *tau, double *p, double *J, long n) {
     }
 }
 
-template <class F>
-static double median_ns(F f, long n, int reps) {
-    std::vector<double> t;
-    for (int r = 0; r < reps; r++) {
-        auto t0 = std::chrono::steady_clock::now();
-        f();
-        auto t1 = std::chrono::steady_clock::now();
-        t.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / n);
-    }
-    std::sort(t.begin(), t.end());
-    return t[t.size() / 2];
+// Entry points for benchmarks/native.py (ctypes): rows of doubles, n elements.
+extern "C" {
+void n_so3_exp(const double *a, double *o, long n) { so3_exp(a, o, n); }
+void n_so3_log(const double *a, double *o, long n) { so3_log(a, o, n); }
+void n_se3_exp(const double *a, double *o, long n) { se3_exp(a, o, n); }
+void n_se3_log(const double *a, double *o, long n) { se3_log(a, o, n); }
+void n_se3_compose(const double *a, const double *b, double *o, long n) { se3_compose(a, b, o, n); }
+void n_se3_act(const double *a, const double *b, double *o, long n) { se3_act(a, b, o, n); }
+void n_se3_act_jac(const double *a, const double *b, double *o, double *j1, double *j2, long n) {
+    se3_act_jac(a, b, o, j1, j2, n);
 }
-
-int main(int argc, char **argv) {
-    long n = argc > 1 ? std::atol(argv[1]) : 1000000;
-    int reps = argc > 2 ? std::atoi(argv[2]) : 11;
-    std::mt19937_64 g(0);
-    std::normal_distribution<double> N01;
-    std::vector<double> tau3(3 * n), tau6(6 * n), q(4 * n), p(7 * n), p2(7 * n), v(3 * n);
-    std::vector<double> o7(7 * n), o6(6 * n), o4(4 * n), o3(3 * n), J36(36 * n), J18(18 * n),
-        J9(9 * n);
-    for (auto &x : tau3) x = N01(g);
-    for (auto &x : tau6) x = N01(g);
-    for (auto &x : v) x = N01(g);
-    so3_exp(tau3.data(), q.data(), n);
-    se3_exp(tau6.data(), p.data(), n);
-    for (long i = 0; i < 6 * n; i++) tau6[i] *= 0.7;
-    se3_exp(tau6.data(), p2.data(), n);
-    std::printf("{\"n\": %ld", n);
-    std::printf(", \"SO3.exp\": %.3f", median_ns([&] { so3_exp(tau3.data(), o4.data(), n); }, n, reps));
-    std::printf(", \"SO3.log\": %.3f", median_ns([&] { so3_log(q.data(), o3.data(), n); }, n, reps));
-    std::printf(", \"SE3.exp\": %.3f", median_ns([&] { se3_exp(tau6.data(), o7.data(), n); }, n, reps));
-    std::printf(", \"SE3.log\": %.3f", median_ns([&] { se3_log(p.data(), o6.data(), n); }, n, reps));
-    std::printf(", \"SE3.compose\": %.3f",
-                median_ns([&] { se3_compose(p.data(), p2.data(), o7.data(), n); }, n, reps));
-    std::printf(", \"SE3.act\": %.3f", median_ns([&] { se3_act(p.data(), v.data(), o3.data(), n); }, n, reps));
-    std::printf(", \"SE3.act_jac\": %.3f",
-                median_ns([&] { se3_act_jac(p.data(), v.data(), o3.data(), J18.data(), J9.data(), n); }, n, reps));
-    std::printf(", \"SE3.exp_jac\": %.3f",
-                median_ns([&] { se3_exp_jac(tau6.data(), o7.data(), J36.data(), n); }, n, reps));
-    std::printf("}\n");
-    return 0;
+void n_se3_exp_jac(const double *a, double *o, double *j, long n) { se3_exp_jac(a, o, j, n); }
 }

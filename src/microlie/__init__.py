@@ -8,10 +8,12 @@ Conventions: tangent vectors are translation first (SE(3): ``(rho, phi)``), quat
 Jacobian is a right Jacobian unless ``side="left"`` is passed.
 """
 
-from . import uncertainty
-from .groups import SE2, SE3, SO2, SO3, LieGroup, Sim3
+from . import _fast, uncertainty
+from .groups import SE2, SE3, SE23, SO2, SO3, LieGroup, Product, R, Side, Sim3
 from .uncertainty import Gaussian, VectorGaussian
 
+_fast.install()  # the compiled kernels of microlie[fast], when installed
+
 __version__ = "0.1.0"
-__all__ = ["LieGroup", "SO2", "SE2", "SO3", "SE3", "Sim3", "Gaussian", "VectorGaussian",
-           "uncertainty", "__version__"]
+__all__ = ["LieGroup", "SO2", "SE2", "SO3", "SE3", "SE23", "Sim3", "Product", "R", "Gaussian",
+           "VectorGaussian", "Side", "uncertainty", "__version__"]

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -46,10 +45,7 @@ class _ScalarOps:
     def where(cond: bool, a: float, b: float) -> float:
         return a if cond else b
 
-    @staticmethod
-    def sign1(x: float) -> float:
-        """+1 for x >= 0, -1 otherwise (never 0)."""
-        return 1.0 if x >= 0 else -1.0
+    abs1 = staticmethod(abs)  # |x| (the derivative at 0 matters only to autodiff backends)
 
     @staticmethod
     def zeros_like(x: float) -> float:
@@ -81,9 +77,11 @@ class ArrayOps:
         self.abs = xp.abs
         self.where = xp.where
 
-    def sign1(self, x: Array) -> Array:
+    def abs1(self, x: Array) -> Array:
+        """``|x|`` as ``x * (+1 if x >= 0 else -1)``: the derivative at 0 is 1 (torch's ``abs``
+        has 0 there, which loses the angle of a rotation by exactly pi in ``Log``)."""
         one = self.xp.ones_like(x)
-        return self.xp.where(x >= 0, one, -one)
+        return x * self.xp.where(x >= 0, one, -one)
 
     def zeros_like(self, x: Array) -> Array:
         return self.xp.zeros_like(x)
@@ -94,6 +92,10 @@ class ArrayOps:
 
 class _NumpyOps(ArrayOps):
     """NumPy without the ``array-api-compat`` wrappers (fewer Python calls per op)."""
+
+    @staticmethod
+    def abs1(x: Array) -> Array:
+        return np.abs(x)  # no autodiff: the plain absolute value
 
     def __init__(self) -> None:
         super().__init__(np)
@@ -209,72 +211,33 @@ def components(x: Array) -> list[Array]:
     return [x[..., i] for i in range(x.shape[-1])]
 
 
-def scalar_components(x: np.ndarray) -> list[float]:
-    return x.tolist()
-
-
-def pack(ops: Any, comps: Sequence[Any], like: Array) -> Array:
-    """Stack components along a new last axis, in the backend and dtype of ``like``."""
-    if ops.is_scalar:
-        return np.array(comps, dtype=like.dtype)
-    xp = ops.xp
-    arrays = _broadcast(xp, comps, like)
-    return xp.stack(arrays, axis=-1)
-
-
-def pack_matrix(ops: Any, rows: Sequence[Sequence[Any]], like: Array) -> Array:
-    """Stack a nested tuple of components into an array of shape ``(*batch, rows, cols)``."""
-    if ops.is_scalar:
-        return np.array(rows, dtype=like.dtype)
-    xp = ops.xp
-    flat = [c for row in rows for c in row]
-    arrays = _broadcast(xp, flat, like)
-    n_cols = len(rows[0])
-    out = xp.stack(arrays, axis=-1)
-    return xp.reshape(out, (*out.shape[:-1], len(rows), n_cols))
-
-
-def _broadcast(xp: Any, comps: Sequence[Any], like: Array) -> list[Array]:
-    shape = None
-    uniform = True
-    for c in comps:
-        s = getattr(c, "shape", None)
-        if s is None or getattr(c, "ndim", 0) == 0 and not hasattr(c, "dtype"):
-            uniform = False
-            continue
-        if shape is None:
-            shape = tuple(s)
-        elif tuple(s) != shape:
-            uniform = False
-    if uniform and shape is not None:
-        return list(comps)
-    arrays = [
-        c if hasattr(c, "shape") else xp.asarray(c, dtype=like.dtype, device=_device(like))
-        for c in comps
-    ]
-    return list(xp.broadcast_arrays(*arrays))
+def host_values(x: Array) -> np.ndarray | None:
+    """The values of ``x`` as a NumPy array, or ``None`` when they are unknown (a JAX tracer, a
+    tensor under ``torch.compile``). Never forces a traced value: a concrete JAX array closed
+    over by a jitted function is read on the host, not through a (traced) JAX operation. Torch
+    tensors are detached first. For value checks only."""
+    if type(x) is np.ndarray:
+        return x
+    if is_torch(x):
+        return None if _torch_compiling(x) else x.detach().cpu().numpy()
+    if is_jax(x):
+        return None if is_traced(x) else np.asarray(x)
+    return np.asarray(x)
 
 
 def check_finite(x: Array, what: str) -> None:
-    """Raise ``ValueError`` if ``x`` holds NaN or inf (skipped under a JAX trace)."""
-    if is_numpy(x):
-        # one sum: NaN/inf make it non-finite (so can overflow of huge values, in which case
-        # the exact test decides). Not a BLAS call: no thread wake-up, no copy of a slice.
-        if x.ndim == 1 and x.size <= 16:  # one element: a Python sum is the cheapest test
-            bad = not math.isfinite(sum(x.tolist())) and not np.isfinite(x).all()
-        else:
-            bad = x.size and not math.isfinite(np.add.reduce(x, axis=None)) \
-                and not np.isfinite(x).all()
-        if bad:
-            raise ValueError(f"{what} contains NaN or infinite values")
+    """Raise ``ValueError`` if ``x`` holds NaN or inf (skipped for traced values)."""
+    v = host_values(x)
+    if v is None:
         return
-    if is_traced(x):
-        return
-    xp = namespace(x)
-    if is_torch(x):
-        x = x.detach()
-    # one reduction first (NaN/inf propagate through a sum); the exact test only if it fails
-    if not math.isfinite(float(xp.sum(x))) and not bool(xp.all(xp.isfinite(x))):
+    # one sum: NaN/inf make it non-finite (so can overflow of huge values, in which case the
+    # exact test decides). Not a BLAS call: no thread wake-up, no copy of a slice.
+    if v.ndim == 1 and v.size <= 16:  # one element: a Python sum is the cheapest test
+        bad = not math.isfinite(sum(v.tolist())) and not np.isfinite(v).all()
+    else:
+        bad = bool(v.size) and not math.isfinite(np.add.reduce(v, axis=None)) \
+            and not np.isfinite(v).all()
+    if bad:
         raise ValueError(f"{what} contains NaN or infinite values")
 
 
@@ -328,6 +291,6 @@ def _register_one(cls: type) -> None:
     jax.tree_util.register_pytree_node(
         cls,
         lambda x: ((x.params,), None),
-        lambda _, children: cls._wrap(children[0]),
+        lambda _, children: cls.from_params(children[0], check=False),  # type: ignore[attr-defined]
     )
     _REGISTERED.add(cls)

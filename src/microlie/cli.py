@@ -1,35 +1,60 @@
 """The ``microlie`` command: trajectory evaluation from the shell.
 
-Subcommands::
+Subcommands (``microlie COMMAND -h`` shows every option with an example)::
 
-    microlie ape GT EST [--format tum|kitti|euroc] [--align none|se3|sim3|scale|origin]
-                        [--relation trans|rot|full|se3|...] [--plot FILE] [--json]
-    microlie rpe GT EST ... --delta N --unit frames|m [--all-pairs]
-    microlie kitti GT EST [--format kitti|tum|euroc] [--json]
-    microlie plot FILES... -o FILE [--format ...] [--align se3|sim3|...]
+    microlie ape [tum|kitti|euroc] GT EST [-a [se3|sim3|scale|origin]] [-s] [-r RELATION] ...
+    microlie rpe [tum|kitti|euroc] GT EST [-d DELTA] [-u f|m|d|r] [--all_pairs] ...
+    microlie kitti GT EST                      # KITTI 100-800 m segment metric
+    microlie traj FILES... [--ref FILE] [-a ...] [--merge] [--plot FILE] [--save-as FMT DIR]
+    microlie res RESULTS.json... [--plot FILE] [--json]
+    microlie plot FILES... -o FILE [--plot-mode xy|xz|yz|zy|xyz]
+    microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] ...  # microlie.optim.command
 
-``--example`` replaces GT and EST by the small pair bundled with the package
-(``microlie.data.example_paths()``). ``--format euroc`` reads GT as a EuRoC CSV and the estimate
-as TUM (as estimates for EuRoC are usually written); ``--est-format`` overrides it.
+evo's spellings are accepted as aliases (``-a``, ``-s``, ``-as``, ``--align_origin``,
+``-r trans_part``, ``-u f``, ``--t_max_diff``, ``--t_offset``, ``--n_to_align``,
+``--all_pairs``, ``--save_results``, ``--plot_mode``, and the leading format word
+``microlie ape tum GT EST``; ``bag BAGFILE REF_TOPIC EST_TOPIC`` for a ROS bag).
+
+Exit status: 0 success; 1 a data or runtime error (unreadable or malformed file, no matching
+timestamps, degenerate alignment); 2 a usage error (unknown option, missing or conflicting
+arguments; argparse's meaning); 3 a missing optional dependency (matplotlib, rosbags).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import sys
-from collections.abc import Iterable, Iterator, Sequence
-from typing import TypeVar
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any, TextIO, TypeVar
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "EXIT_OK", "EXIT_ERROR", "EXIT_USAGE", "EXIT_DEPENDENCY"]
 
 T = TypeVar("T")
 
-_RELATIONS = ("trans", "rot", "full", "se3", "angle_deg", "angle_rad", "rot_part",
-              "point_distance")
+EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_DEPENDENCY = 0, 1, 2, 3
+
+FORMATS = ("tum", "kitti", "euroc")
+BAG_WORDS = ("bag", "bag2")
+ALIGNMENTS = ("none", "se3", "sim3", "scale", "origin")
+# native names and evo's; -r rot is the rotation angle in --angle-unit
+RELATIONS = ("trans", "rot", "full", "se3", "angle_deg", "angle_rad", "rot_part",
+             "point_distance", "trans_part")
+DELTA_UNITS = ("frames", "m", "deg", "rad", "f", "d", "r")
+PLOT_MODES = ("xy", "xz", "yx", "yz", "zx", "zy", "xyz")
+PLANES = ("xy", "xz", "yz")
 
 
-def _progress(items: Sequence[T], label: str, stream=None) -> Iterator[T]:
+class UsageError(Exception):
+    """Wrong or conflicting arguments found after parsing (exit status 2)."""
+
+
+# ----------------------------------------------------------------------------- helpers
+def _progress(items: Sequence[T], label: str, stream: TextIO | None = None) -> Iterator[T]:
     """Yield ``items``, drawing a text progress bar on a terminal (silent otherwise)."""
     stream = stream or sys.stderr
     show = len(items) > 1 and hasattr(stream, "isatty") and stream.isatty()
@@ -45,122 +70,435 @@ def _progress(items: Sequence[T], label: str, stream=None) -> Iterator[T]:
         stream.flush()
 
 
-def _read(path: str, fmt: str, times: str | None):
-    from .traj import read_trajectory
+def _normalize_argv(argv: list[str]) -> list[str]:
+    """evo's flag forms of the alignment options, rewritten to ``--align METHOD``.
 
-    return read_trajectory(path, fmt, timestamps=times)
+    Combined flags are split (``-as`` is ``-a -s``, i.e. sim3; ``-va`` is ``-v -a``);
+    ``-a`` / ``--align`` not followed by a method is
+    ``--align se3`` (evo's ``-a`` is a flag, ours takes an optional method, so that
+    ``microlie ape -a gt.txt est.txt`` keeps its positional arguments); the same for a bare
+    ``--interpolate`` (``se3``).
+    """
+    expanded: list[str] = []
+    for tok in argv:  # evo's combined flags: -as, -va, -vas, ...
+        if len(tok) > 2 and tok[0] == "-" and tok[1] != "-" and set(tok[1:]) <= set("asv"):
+            expanded += [f"-{c}" for c in tok[1:]]
+        else:
+            expanded.append(tok)
+    argv = expanded
+    out: list[str] = []
+    it = iter(range(len(argv)))
+    for i in it:
+        tok = argv[i]
+        if tok in ("-a", "--align", "--interpolate"):
+            name, values = ("--interpolate", ("se3", "split")) if tok == "--interpolate" else \
+                ("--align", ALIGNMENTS)
+            nxt = argv[i + 1] if i + 1 < len(argv) else None
+            if nxt is not None and nxt in values:
+                out += [name, nxt]
+                next(it, None)
+            else:
+                out += [name, values[0] if name == "--interpolate" else "se3"]
+        else:
+            out.append(tok)
+    return out
 
 
-def _load_pair(args: argparse.Namespace):
+def _is_bag(path: str) -> bool:
+    from .traj.rosbag import is_bag
+
+    return is_bag(path)
+
+
+class _Source:
+    """One trajectory to read: a file in a format, or a bag topic."""
+
+    def __init__(self, path: str, fmt: str, times: str | None = None,
+                 topic: str | None = None) -> None:
+        self.path, self.fmt, self.times, self.topic = path, fmt, times, topic
+
+    def read(self) -> Any:
+        from .traj import read_trajectory
+
+        if self.fmt == "bag" or _is_bag(self.path):
+            if not self.topic:
+                raise UsageError(f"{self.path} is a ROS bag: give its topic with --topic")
+            return read_trajectory(self.path, "bag", topic=self.topic)
+        return read_trajectory(self.path, self.fmt, timestamps=self.times)
+
+
+def _format_word(args: argparse.Namespace, n_files: int | None) -> None:
+    """Take evo's leading format word (``ape tum GT EST``) off the positional arguments."""
+    files = args.files
+    if files and files[0] in (*FORMATS, *BAG_WORDS) and not os.path.exists(files[0]) and (
+        n_files is None or len(files) == n_files + 1 or files[0] in BAG_WORDS
+    ):
+        word = files.pop(0)
+        word = "bag" if word in BAG_WORDS else word
+        if args.format is not None and args.format != word:
+            raise UsageError(f"format word {word!r} conflicts with --format {args.format}")
+        args.format = word
+
+
+def _two_sources(args: argparse.Namespace) -> tuple[_Source, _Source]:
+    """GT and EST sources of ape / rpe / kitti (files, format words, bag topics)."""
     if args.example:
         from .data import example_paths
 
+        if args.files:
+            raise UsageError("--example replaces GT and EST: give no files with it")
         gt_path, est_path = (str(p) for p in example_paths())
-        gt_fmt = est_fmt = "tum"
-    else:
-        if args.gt is None or args.est is None:
-            raise SystemExit("microlie: give GT and EST files, or --example")
-        gt_path, est_path = args.gt, args.est
-        gt_fmt = args.format
-        est_fmt = args.est_format or ("tum" if args.format == "euroc" else args.format)
-    jobs = [(gt_path, gt_fmt, args.gt_times), (est_path, est_fmt, args.est_times)]
-    ref, est = (_read(*job) for job in _progress(jobs, "reading"))
-    return ref, est
+        return _Source(gt_path, "tum"), _Source(est_path, "tum")
+    _format_word(args, 2)
+    fmt = args.format or args.default_format
+    if fmt == "bag" and len(args.files) == 3:  # evo: bag BAGFILE REF_TOPIC EST_TOPIC
+        bag, ref_topic, est_topic = args.files
+        return _Source(bag, "bag", topic=ref_topic), _Source(bag, "bag", topic=est_topic)
+    if len(args.files) != 2:
+        raise UsageError(f"give GT and EST files (got {len(args.files)} arguments), or --example")
+    gt_path, est_path = args.files
+    ref_fmt = args.ref_format or fmt
+    est_fmt = args.est_format or ("tum" if fmt == "euroc" else fmt)
+    ref_topic = args.ref_topic or args.topic
+    return (_Source(gt_path, ref_fmt, args.gt_times, ref_topic),
+            _Source(est_path, est_fmt, args.est_times, args.topic))
 
 
-def _add_common(p: argparse.ArgumentParser, metric: bool = True) -> None:
-    p.add_argument("gt", nargs="?", help="reference (ground-truth) trajectory file")
-    p.add_argument("est", nargs="?", help="estimated trajectory file")
+def _resolve_align(args: argparse.Namespace) -> str:
+    """One alignment method from ``--align``, ``-s/--correct_scale`` and ``--align_origin``."""
+    method = args.align
+    if args.align_origin:
+        if method not in (None, "origin") or args.correct_scale:
+            raise UsageError("--align_origin cannot be combined with -a/--align or -s")
+        return "origin"
+    if args.correct_scale:
+        if method in (None, "scale"):
+            return "scale"
+        if method in ("se3", "sim3"):
+            return "sim3"
+        raise UsageError(f"-s/--correct_scale cannot be combined with --align {method}")
+    return method or "none"
+
+
+def _interpolation(args: argparse.Namespace) -> str | None:
+    if args.sync_method == "interpolation":
+        if args.interpolate not in (None, "split"):
+            raise UsageError("--sync_method interpolation is --interpolate split")
+        return "split"
+    return args.interpolate
+
+
+def _relation(args: argparse.Namespace) -> str:
+    return "trans" if args.relation == "trans_part" else args.relation
+
+
+def _plot_mode(args: argparse.Namespace, fmt: str) -> str:
+    from .traj.plot import default_plot_mode
+
+    return args.plot_mode or default_plot_mode(fmt)
+
+
+# ----------------------------------------------------------------------------- parser
+def _add_files(p: argparse.ArgumentParser) -> None:
+    p.add_argument("files", nargs="*", metavar="[FORMAT] GT EST",
+                   help="reference (ground truth) and estimate files, optionally after a "
+                        "format word (tum, kitti, euroc; or bag BAGFILE REF_TOPIC EST_TOPIC)")
     p.add_argument("--example", action="store_true",
                    help="use the example pair bundled with microlie instead of GT and EST")
-    p.add_argument("--format", "-f", choices=("tum", "kitti", "euroc"), default="tum",
-                   help="file format of GT (and EST unless --est-format); default tum")
-    p.add_argument("--est-format", choices=("tum", "kitti", "euroc"), default=None,
-                   help="file format of EST (default: as --format; tum for euroc)")
-    p.add_argument("--gt-times", default=None, help="timestamps file for KITTI GT poses")
+    _add_formats(p)
+    p.add_argument("--gt-times", "--ref-times", dest="gt_times", default=None,
+                   help="timestamps file for KITTI GT poses")
     p.add_argument("--est-times", default=None, help="timestamps file for KITTI EST poses")
-    p.add_argument("--max-diff", type=float, default=0.01,
+
+
+def _add_formats(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--format", "-f", choices=(*FORMATS, "bag"), default=None,
+                   help="file format (default tum; the leading format word sets it too)")
+    p.add_argument("--ref-format", choices=(*FORMATS, "bag"), default=None,
+                   help="format of the reference (default: --format)")
+    p.add_argument("--est-format", choices=(*FORMATS, "bag"), default=None,
+                   help="format of the estimate(s) (default: --format; tum for euroc)")
+    p.add_argument("--topic", default=None,
+                   help="ROS bag topic of the estimate (and of the reference unless "
+                        "--ref-topic); /tf:PARENT.CHILD for tf frames")
+    p.add_argument("--ref-topic", default=None, help="ROS bag topic of the reference")
+
+
+def _add_sync(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("time association and preprocessing")
+    g.add_argument("--max-diff", "--t_max_diff", dest="max_diff", type=float, default=0.01,
                    help="max. timestamp difference for association, s (default 0.01)")
-    p.add_argument("--offset", type=float, default=0.0,
+    g.add_argument("--offset", "--t_offset", dest="offset", type=float, default=0.0,
                    help="time offset added to EST timestamps for association, s")
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
-    if metric:
-        p.add_argument("--align", "-a", choices=("none", "se3", "sim3", "scale", "origin"),
-                       default="none", help="alignment of EST to GT (default none)")
-        p.add_argument("--n-align", type=int, default=None,
-                       help="align on the first N pose pairs only")
-        p.add_argument("--relation", "-r", choices=_RELATIONS, default="trans",
-                       help="pose relation (default trans); rot = rotation angle")
-        p.add_argument("--angle-unit", choices=("deg", "rad"), default="deg",
-                       help="unit of --relation rot (default deg)")
-        p.add_argument("--plot", default=None, metavar="FILE",
-                       help="write an error plot (PNG, 1200x800 px) to FILE")
+    g.add_argument("--t-start", "--t_start", dest="t_start", type=float, default=None,
+                   help="only use reference poses at or after this time (absolute, s)")
+    g.add_argument("--t-end", "--t_end", dest="t_end", type=float, default=None,
+                   help="only use reference poses at or before this time (absolute, s)")
+    g.add_argument("--downsample", type=int, default=None, metavar="N",
+                   help="keep at most N poses of each trajectory (evenly spaced), before "
+                        "association")
+    g.add_argument("--interpolate", nargs="?", const="se3", choices=("se3", "split"),
+                   default=None,
+                   help="interpolate the denser trajectory at the matched stamps of the "
+                        "other: se3 geodesic (default) or split (linear + slerp, evo's)")
+    g.add_argument("--sync_method", choices=("nearest_time", "interpolation"),
+                   default="nearest_time", help="evo's spelling: interpolation = "
+                   "--interpolate split")
+
+
+def _add_align(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("alignment")
+    g.add_argument("--align", "-a", choices=ALIGNMENTS, default=None, metavar="METHOD",
+                   help="align EST to GT: se3 (default of a bare -a), sim3, scale, origin, none")
+    g.add_argument("--correct_scale", "-s", action="store_true",
+                   help="evo: correct the scale (with -a: sim3; alone: scale only)")
+    g.add_argument("--align_origin", action="store_true",
+                   help="evo: make the first poses coincide (= --align origin)")
+    g.add_argument("--n-align", "--n_to_align", dest="n_align", type=int, default=None,
+                   metavar="N", help="align on the first N pose pairs only")
+
+
+def _add_output(p: argparse.ArgumentParser, plot: bool = True) -> None:
+    g = p.add_argument_group("output")
+    g.add_argument("--json", action="store_true", help="print the result as JSON")
+    g.add_argument("-v", "--verbose", action="store_true",
+                   help="also print the alignment transform and scale, and file details")
+    g.add_argument("--no_warnings", action="store_true",
+                   help="accepted for evo compatibility (microlie never asks to confirm)")
+    if plot:
+        g.add_argument("--plot", "--save_plot", dest="plot", default=None, metavar="FILE",
+                       help="write a plot (PNG, 1200x800 px) to FILE")
+        g.add_argument("--plot-mode", "--plot_mode", dest="plot_mode", choices=PLOT_MODES,
+                       default=None,
+                       help="plane of the path plot (horizontal, vertical axis) or xyz for "
+                            "3-D; default xz for KITTI, xy otherwise")
+
+
+def _add_metric(p: argparse.ArgumentParser) -> None:
+    _add_files(p)
+    _add_sync(p)
+    _add_align(p)
+    g = p.add_argument_group("metric")
+    g.add_argument("--relation", "-r", "--pose_relation", dest="relation", choices=RELATIONS,
+                   default="trans", help="pose relation (default trans = evo's trans_part); "
+                   "rot = rotation angle in --angle-unit")
+    g.add_argument("--angle-unit", choices=("deg", "rad"), default="deg",
+                   help="unit of --relation rot (default deg)")
+    g.add_argument("--project-to-plane", "--project_to_plane", dest="project", choices=PLANES,
+                   default=None, help="project both trajectories onto a plane after the "
+                   "alignment (2-D evaluation)")
+    _add_output(p)
+    p.add_argument("--save-results", "--save_results", dest="save_results", default=None,
+                   metavar="FILE", help="save options, statistics, timestamps and per-pose "
+                   "errors as JSON (read by microlie res)")
+
+
+EXAMPLES = {
+    "ape": """examples:
+  microlie ape groundtruth.txt estimate.txt -a se3
+  microlie ape tum groundtruth.txt estimate.txt -a             (evo spelling)
+  microlie ape kitti 00.txt 00_est.txt -as -r angle_deg --plot ape.png
+  microlie ape euroc data.csv estimate.txt -a --save-results ape.json
+  microlie ape bag run.bag /ground_truth /odom -a""",
+    "rpe": """examples:
+  microlie rpe groundtruth.txt estimate.txt --delta 1 --unit m -r rot
+  microlie rpe tum groundtruth.txt estimate.txt -d 10 -u f --all_pairs
+  microlie rpe tum groundtruth.txt estimate.txt -d 30 -u d -r angle_deg""",
+    "kitti": """example:
+  microlie kitti 00.txt 00_est.txt --json""",
+    "traj": """examples:
+  microlie traj a.txt b.txt                          (poses, duration, length, rate)
+  microlie traj est.txt --ref gt.txt -a se3 --plot traj.png
+  microlie traj kitti 00.txt --save-as tum out/      (convert)
+  microlie traj part1.txt part2.txt --merge --save-as tum out/""",
+    "res": """example:
+  microlie ape gt.txt a.txt -a --save-results a.json
+  microlie ape gt.txt b.txt -a --save-results b.json
+  microlie res a.json b.json --plot res.png""",
+    "plot": """example:
+  microlie plot gt.txt est.txt -o traj.png -a se3 --plot-mode xz""",
+}
+
+
+def _sub(sub: Any, name: str, help_text: str) -> argparse.ArgumentParser:
+    return sub.add_parser(name, help=help_text, description=help_text, epilog=EXAMPLES[name],
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def _register_ape(sub: Any) -> None:
+    p = _sub(sub, "ape", "absolute pose error (APE)")
+    _add_metric(p)
+    p.set_defaults(func=_run_metric, default_format="tum")
+
+
+def _register_rpe(sub: Any) -> None:
+    p = _sub(sub, "rpe", "relative pose error (RPE)")
+    _add_metric(p)
+    g = p.add_argument_group("pairs")
+    g.add_argument("--delta", "-d", type=float, default=1.0, help="pair separation (default 1)")
+    g.add_argument("--unit", "-u", "--delta_unit", dest="unit", choices=DELTA_UNITS,
+                   default="frames", help="unit of --delta: frames (f), m, deg (d), rad (r)")
+    g.add_argument("--all-pairs", "--all_pairs", dest="all_pairs", action="store_true",
+                   help="all pairs separated by delta instead of consecutive ones")
+    g.add_argument("--delta-tol", "--delta_tol", dest="delta_tol", type=float, default=0.1,
+                   help="relative tolerance on delta in all-pairs m/deg/rad mode (default 0.1)")
+    g.add_argument("--pairs-from", choices=("est", "ref"), default="est",
+                   help="trajectory on which pairs are chosen (default est, as evo)")
+    g.add_argument("--pairs_from_reference", dest="pairs_from", action="store_const",
+                   const="ref", help="evo: --pairs-from ref")
+    p.set_defaults(func=_run_metric, default_format="tum")
+
+
+def _register_kitti(sub: Any) -> None:
+    p = _sub(sub, "kitti", "KITTI odometry metric (100-800 m segments)")
+    _add_files(p)
+    g = p.add_argument_group("time association")
+    g.add_argument("--max-diff", "--t_max_diff", dest="max_diff", type=float, default=0.01,
+                   help="max. timestamp difference for association, s (default 0.01)")
+    g.add_argument("--offset", "--t_offset", dest="offset", type=float, default=0.0,
+                   help="time offset added to EST timestamps for association, s")
+    p.add_argument("--step", type=int, default=10, help="start every STEP frames (default 10)")
+    _add_output(p, plot=False)
+    p.set_defaults(func=_run_kitti, default_format="kitti")
+
+
+def _register_traj(sub: Any) -> None:
+    p = _sub(sub, "traj", "inspect, align, merge, convert and plot trajectory files")
+    p.add_argument("files", nargs="*", metavar="[FORMAT] FILE",
+                   help="trajectory files, optionally after a format word (tum, kitti, "
+                        "euroc; or bag BAGFILE TOPIC...)")
+    _add_formats(p)
+    p.add_argument("--ref", default=None, help="reference file (aligned to with --align)")
+    _add_sync(p)
+    _add_align(p)
+    p.add_argument("--merge", action="store_true",
+                   help="merge the files into one trajectory, sorted by time")
+    p.add_argument("--project-to-plane", "--project_to_plane", dest="project", choices=PLANES,
+                   default=None, help="project the trajectories onto a plane")
+    p.add_argument("--save-as", nargs=2, metavar=("FORMAT", "DIR"), default=None,
+                   help="write every trajectory (after processing) in FORMAT (tum, kitti, "
+                        "euroc) to DIR")
+    _add_output(p)
+    p.set_defaults(func=_run_traj, default_format="tum", example=False)
+
+
+def _register_res(sub: Any) -> None:
+    p = _sub(sub, "res", "tabulate and plot results saved with --save-results")
+    p.add_argument("files", nargs="+", help="result files (JSON) written by ape/rpe")
+    p.add_argument("--json", action="store_true", help="print the table as JSON")
+    p.add_argument("--plot", "--save_plot", dest="plot", default=None, metavar="FILE",
+                   help="plot the errors and statistics side by side (PNG)")
+    p.set_defaults(func=_run_res)
+
+
+def _register_plot(sub: Any) -> None:
+    p = _sub(sub, "plot", "plot trajectories (path, xyz and rpy over time)")
+    p.add_argument("files", nargs="*", help="trajectory files; the first is the reference")
+    p.add_argument("--example", action="store_true", help="plot the bundled example pair")
+    p.add_argument("-o", "--output", required=True, help="output image file (PNG)")
+    _add_formats(p)
+    _add_align(p)
+    p.add_argument("--max-diff", "--t_max_diff", dest="max_diff", type=float, default=0.01,
+                   help="max. timestamp difference when aligning, s (default 0.01)")
+    p.add_argument("--plot-mode", "--plot_mode", dest="plot_mode", choices=PLOT_MODES,
+                   default=None, help="plane of the path plot; default xz for KITTI, xy "
+                   "otherwise")
+    p.set_defaults(func=_run_plot, default_format="tum")
+
+
+# Subcommands in the order ``microlie -h`` lists them; each entry adds one subparser whose
+# ``func(args, out, err)`` runs it. Another package's command is one more entry here.
+def _register_optimize(sub: Any) -> None:
+    from .optim.command import register  # argparse only: the solver is imported on use
+
+    register(sub)
+
+
+COMMANDS: list[Callable[[Any], None]] = [
+    _register_ape, _register_rpe, _register_kitti, _register_traj, _register_res,
+    _register_plot, _register_optimize,
+]
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``microlie`` command."""
+    from . import __version__
+
     parser = argparse.ArgumentParser(
         prog="microlie",
-        description="Trajectory evaluation with microlie (APE, RPE, KITTI metric, plots).",
+        description="microlie from the shell: trajectory evaluation (APE, RPE, KITTI metric, "
+                    "trajectory files, saved results, plots) and the other subcommands below.",
+        epilog="exit status: 0 ok, 1 data or runtime error, 2 usage error, 3 missing optional "
+               "dependency.\nexample: microlie ape tum groundtruth.txt estimate.txt -a",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    p = sub.add_parser("ape", help="absolute pose error")
-    _add_common(p)
-
-    p = sub.add_parser("rpe", help="relative pose error")
-    _add_common(p)
-    p.add_argument("--delta", "-d", type=float, default=1.0,
-                   help="pair separation (default 1)")
-    p.add_argument("--unit", "-u", choices=("frames", "m"), default="frames",
-                   help="unit of --delta (default frames)")
-    p.add_argument("--all-pairs", action="store_true",
-                   help="all pairs separated by delta instead of consecutive ones")
-    p.add_argument("--delta-tol", type=float, default=0.1,
-                   help="relative tolerance on delta in all-pairs metre mode (default 0.1)")
-    p.add_argument("--pairs-from", choices=("est", "ref"), default="est",
-                   help="trajectory on which pairs are chosen (default est, as evo)")
-
-    p = sub.add_parser("kitti", help="KITTI odometry metric (100-800 m segments)")
-    _add_common(p, metric=False)
-    p.set_defaults(format="kitti")
-    p.add_argument("--step", type=int, default=10, help="start every STEP frames (default 10)")
-
-    p = sub.add_parser("plot", help="plot trajectories (top, 3-D, xyz and rpy over time)")
-    p.add_argument("files", nargs="*", help="trajectory files; the first is the reference")
-    p.add_argument("--example", action="store_true", help="plot the bundled example pair")
-    p.add_argument("-o", "--output", required=True, help="output image file (PNG)")
-    p.add_argument("--format", "-f", choices=("tum", "kitti", "euroc"), default="tum",
-                   help="format of all files (default tum)")
-    p.add_argument("--align", "-a", choices=("none", "se3", "sim3", "scale", "origin"),
-                   default="none", help="align every other file to the first one")
-    p.add_argument("--max-diff", type=float, default=0.01,
-                   help="max. timestamp difference when aligning, s (default 0.01)")
+    parser.add_argument("--version", action="version", version=f"microlie {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for register in COMMANDS:
+        register(sub)
     return parser
 
 
-def _print_stats(title: str, stats: dict, out) -> None:
+# ----------------------------------------------------------------------------- ape / rpe
+STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max", "sse")
+
+
+def _print_stats(title: str, stats: dict, out: TextIO) -> None:
     out.write(title + "\n\n")
-    for key in ("rmse", "mean", "median", "std", "min", "max", "sse"):
+    for key in STAT_KEYS:
         out.write(f"{key:>10s}  {stats[key]:.6f}\n")
 
 
-def _title(res) -> str:
-    unit = f" ({res.unit})" if res.unit else ""
-    head = f"{res.metric.upper()} w.r.t. {res.relation}{unit}"
+_ALIGN_NAMES = {"se3": "SE(3) Umeyama", "sim3": "Sim(3) Umeyama", "scale": "scale only",
+                "origin": "origin", "none": "none"}
+
+
+def _alignment_line(info: dict) -> str:
+    method = info.get("alignment", "none")
+    line = f"alignment: {_ALIGN_NAMES[method]}"
+    if "aligned_poses" in info:
+        line += f" on the first {info['aligned_poses']} pose pairs"
+    if method in ("sim3", "scale"):
+        line += f", scale {info['alignment_scale']:.6f}"
+    return line
+
+
+def _title(res: Any) -> str:
     info = res.info
-    parts = []
+    lines = [res.label]
     if res.metric == "rpe":
-        parts.append(f"delta {info['delta']:g} {info['delta_unit']}"
-                     f"{', all pairs' if info['all_pairs'] else ''}")
-    parts.append(f"alignment {info.get('alignment', 'none')}")
+        lines.append(f"for delta = {info['delta']:g} {info['delta_unit']}"
+                     f"{' (all pairs)' if info['all_pairs'] else ''}")
+    lines.append(_alignment_line(info))
+    if info.get("project"):
+        lines.append(f"projected to the {info['project']} plane")
+    parts = []
     if "pairs" in info:
-        parts.append(f"{info['pairs']} of max. {info['max_pairs']} pose pairs associated")
+        parts.append(f"{info['pairs']} of max. {info['max_pairs']} pose pairs associated"
+                     + (f" ({info['interpolate']} interpolation)" if info.get("interpolate")
+                        else ""))
     parts.append(f"{res.errors.size} errors")
-    return head + "\n" + ", ".join(parts)
+    lines.append(", ".join(parts))
+    return "\n".join(lines)
 
 
-def _warn_duplicates(res, err) -> None:
+def _verbose_alignment(info: dict, out: TextIO) -> None:
+    tf = info.get("alignment_transform")
+    if not tf:
+        out.write("alignment transform: none\n\n")
+        return
+    out.write("alignment transform (applied to the estimate: p -> s R p + t, R_i -> R R_i)\n")
+    out.write("  rotation qx qy qz qw  " + " ".join(f"{v:.9f}" for v in
+                                                     tf["rotation_quat_xyzw"]) + "\n")
+    out.write("  translation           " + " ".join(f"{v:.9f}" for v in tf["translation"])
+              + "\n")
+    out.write(f"  scale                 {tf['scale']:.9f}\n  matrix\n")
+    for row in tf["matrix"]:
+        out.write("    " + " ".join(f"{v:13.9f}" for v in row) + "\n")
+    out.write("\n")
+
+
+def _warn_duplicates(res: Any, err: TextIO) -> None:
     dup = res.info.get("duplicate_timestamps")
     if dup:
         err.write(
@@ -169,40 +507,60 @@ def _warn_duplicates(res, err) -> None:
         )
 
 
-def _run_metric(args: argparse.Namespace, out, err) -> int:
+def _options(args: argparse.Namespace, keys: Sequence[str]) -> dict:
+    return {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+
+
+def _run_metric(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     from .traj import evaluate_ape, evaluate_rpe
 
-    ref, est = _load_pair(args)
-    common = dict(relation=args.relation, align=args.align, n_align=args.n_align,
-                  max_diff=args.max_diff, offset=args.offset, angle_unit=args.angle_unit)
+    ref_src, est_src = _two_sources(args)
+    common = dict(relation=_relation(args), align=_resolve_align(args), n_align=args.n_align,
+                  max_diff=args.max_diff, offset=args.offset, angle_unit=args.angle_unit,
+                  t_start=args.t_start, t_end=args.t_end, downsample=args.downsample,
+                  interpolate=_interpolation(args), project=args.project)
+    ref, est = (s.read() for s in _progress([ref_src, est_src], "reading"))
     if args.command == "ape":
         res = evaluate_ape(ref, est, **common)
     else:
-        res = evaluate_rpe(ref, est, delta=args.delta, unit=args.unit, all_pairs=args.all_pairs,
-                           rel_tol=args.delta_tol, pairs_from=args.pairs_from, **common)
+        common.update(delta=args.delta, unit=args.unit, all_pairs=args.all_pairs,
+                      rel_tol=args.delta_tol, pairs_from=args.pairs_from)
+        res = evaluate_rpe(ref, est, **common)
     _warn_duplicates(res, err)
     if args.json:
         d = res.to_dict()
         d["gt"], d["est"] = ref.name, est.name
         out.write(json.dumps(d, indent=2) + "\n")
     else:
+        if args.verbose:
+            out.write(f"reference {ref.name}: {len(ref)} poses\nestimate  {est.name}: "
+                      f"{len(est)} poses\n")
+            _verbose_alignment(res.info, out)
         _print_stats(_title(res), res.stats, out)
+    if args.save_results:
+        from .traj import save_result
+
+        save_result(res, args.save_results, {"command": args.command, **common})
+        err.write(f"results written to {args.save_results}\n")
     if args.plot:
         from .traj import plot as tplot
 
-        tplot.save(tplot.plot_error(res), args.plot)
+        mode = _plot_mode(args, ref_src.fmt)
+        tplot.save(tplot.plot_error(res, plot_mode=mode), args.plot)
         err.write(f"plot written to {args.plot}\n")
-    return 0
+    return EXIT_OK
 
 
-def _run_kitti(args: argparse.Namespace, out, err) -> int:
+# ----------------------------------------------------------------------------- kitti
+def _run_kitti(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     from .traj import evaluate_kitti
 
-    ref, est = _load_pair(args)
+    ref_src, est_src = _two_sources(args)
+    ref, est = ref_src.read(), est_src.read()
     res = evaluate_kitti(ref, est, step=args.step, max_diff=args.max_diff, offset=args.offset)
     if args.json:
         out.write(json.dumps(res.to_dict(), indent=2) + "\n")
-        return 0
+        return EXIT_OK
     out.write("KITTI odometry metric (segments of 100-800 m)\n\n")
     out.write(f"{'length':>8s} {'segments':>9s} {'t_err %':>9s} {'r_err deg/100m':>15s}\n")
     for length, (t, r, k) in res.per_length.items():
@@ -210,52 +568,228 @@ def _run_kitti(args: argparse.Namespace, out, err) -> int:
     out.write(f"\n{'average':>8s} {res.segments.shape[0]:9d} {res.t_err:9.4f} "
               f"{100 * res.r_err:15.4f}\n")
     out.write(f"\nt_err {res.t_err:.6f} %   r_err {res.r_err:.8f} deg/m\n")
-    return 0
+    return EXIT_OK
 
 
-def _run_plot(args: argparse.Namespace, out, err) -> int:
-    from .traj import align as talign
+# ----------------------------------------------------------------------------- traj
+def _sources(args: argparse.Namespace) -> list[_Source]:
+    _format_word(args, None)
+    fmt = args.est_format or args.format or args.default_format
+    if fmt == "bag" and args.files and _is_bag(args.files[0]) and len(args.files) > 1 and \
+            not _is_bag(args.files[1]):  # evo: bag BAGFILE TOPIC...
+        return [_Source(args.files[0], "bag", topic=t) for t in args.files[1:]]
+    return [_Source(f, fmt, topic=args.topic) for f in args.files]
+
+
+def _info(t: Any) -> dict:
+    d: dict[str, Any] = {"name": t.name, "poses": len(t), "path_length_m": t.path_length}
+    if t.timestamps is not None:
+        dur = float(t.timestamps[-1] - t.timestamps[0])
+        d.update(t_start=float(t.timestamps[0]), t_end=float(t.timestamps[-1]),
+                 duration_s=dur, rate_hz=(len(t) - 1) / dur if dur > 0 else None)
+    d["timestamp_problems"] = t.check()
+    return d
+
+
+def _align_to(ref: Any, t: Any, args: argparse.Namespace, method: str) -> tuple[Any, Any]:
+    """``t`` moved by the transform that aligns its paired poses onto ``ref``."""
+    from .traj import align, prepare
+
+    r, e, _ = prepare(ref, t, max_diff=args.max_diff, offset=args.offset,
+                      interpolate=_interpolation(args))
+    _, g = align(r, e, method, args.n_align)
+    return (t if g is None else t.transform(g)), g
+
+
+def _file_stem(name: str | None) -> str:
+    """Output file stem for a trajectory name: the file's stem; for a bag topic
+    ``run.bag:/tf:map.base`` the bag's stem and the topic (``run_tf_map_base``)."""
+    if not name:
+        return "trajectory"
+    path, _, topic = str(name).partition(":")
+    stem = Path(path).stem
+    if topic:
+        stem += "_" + "".join(c if c.isalnum() else "_" for c in topic.strip("/"))
+    return stem
+
+
+def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    from .traj import describe_alignment, merge, read_trajectory, write_trajectory
+
+    sources = _sources(args)
+    if not sources:
+        raise UsageError("give at least one trajectory file")
+    method = _resolve_align(args)
+    if method != "none" and not args.ref:
+        raise UsageError("--align needs --ref")
+    if args.save_as and args.save_as[0] not in FORMATS:
+        raise UsageError(f"--save-as format must be one of {FORMATS}, got {args.save_as[0]!r}")
+    trajs = [s.read() for s in _progress(sources, "reading")]
+    ref = None
+    if args.ref:
+        ref_fmt = args.ref_format or args.format or args.default_format
+        ref = read_trajectory(args.ref, "bag" if _is_bag(args.ref) else ref_fmt,
+                              topic=args.ref_topic or args.topic)
+    if args.merge:
+        trajs = [merge(trajs)]
+    pre = []
+    for t in trajs:
+        if args.t_start is not None or args.t_end is not None:
+            t = t.crop(args.t_start, args.t_end)
+        if args.downsample:
+            t = t.downsample(args.downsample)
+        pre.append(t)
+    trajs = pre
+    alignments = []
+    if ref is not None and method != "none":
+        moved = []
+        for t in trajs:
+            t2, g = _align_to(ref, t, args, method)
+            moved.append(t2)
+            alignments.append(describe_alignment(g))
+        trajs = moved
+    if args.project:
+        trajs = [t.project(args.project) for t in trajs]
+        ref = ref.project(args.project) if ref is not None else None
+    infos = [_info(t) for t in trajs]
+    for d, a in zip(infos, alignments, strict=False):
+        d["alignment"] = {"method": method, **a}
+    if args.json:
+        doc: dict[str, Any] = {"trajectories": infos}
+        if ref is not None:
+            doc["reference"] = _info(ref)
+        out.write(json.dumps(doc, indent=2) + "\n")
+    else:
+        rows = ([("reference", _info(ref))] if ref is not None else []) + \
+            [("", d) for d in infos]
+        for role, d in rows:
+            name = f"{d['name']}{' (reference)' if role else ''}"
+            line = f"{name}\n  poses {d['poses']}, path length {d['path_length_m']:.3f} m"
+            if "duration_s" in d:
+                rate = f"{d['rate_hz']:.3f} Hz" if d["rate_hz"] else "-"
+                line += (f", duration {d['duration_s']:.3f} s, rate {rate}, "
+                         f"t {d['t_start']:.6f} .. {d['t_end']:.6f}")
+            out.write(line + "\n")
+            if "alignment" in d:
+                a = d["alignment"]
+                out.write(f"  aligned to the reference: {_ALIGN_NAMES[a['method']]}"
+                          + (f", scale {a['scale']:.6f}" if "scale" in a else "") + "\n")
+                if args.verbose and "matrix" in a:
+                    for row in a["matrix"]:
+                        out.write("    " + " ".join(f"{v:13.9f}" for v in row) + "\n")
+            for problem in d["timestamp_problems"]:
+                out.write(f"  warning: {problem}\n")
+    if args.save_as:
+        fmt, folder = args.save_as
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        ext = {"tum": ".tum", "kitti": ".kitti", "euroc": ".csv"}[fmt]
+        for t in trajs:
+            stem = _file_stem(t.name)
+            target = Path(folder) / (stem + ext)
+            write_trajectory(target, t, fmt)
+            err.write(f"wrote {target}\n")
+    if args.plot:
+        from .traj import plot as tplot
+
+        shown = ([ref] if ref is not None else []) + trajs
+        fmt0 = args.ref_format if ref is not None and args.ref_format else sources[0].fmt
+        tplot.save(tplot.plot_trajectories(shown, plot_mode=_plot_mode(args, fmt0)), args.plot)
+        err.write(f"plot written to {args.plot}\n")
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------- res
+def _run_res(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    from .traj import load_result
+
+    results = [load_result(f) for f in args.files]
+    names = [Path(f).name for f in args.files]
+    labels = {r.label for r in results}
+    if len(labels) > 1:
+        err.write("warning: the results measure different things: " + "; ".join(sorted(labels))
+                  + "\n")
+    if args.json:
+        rows = [{"file": f, "label": r.label, "est": r.est_name, "num_errors": int(r.errors.size),
+                 "stats": r.stats, "options": r.options} for f, r in zip(args.files, results,
+                                                                         strict=True)]
+        out.write(json.dumps({"results": rows}, indent=2) + "\n")
+    else:
+        width = max(len(n) for n in names)
+        out.write(f"{' / '.join(sorted(labels))}\n\n")
+        out.write(f"{'result':<{width}s} {'errors':>7s} "
+                  + " ".join(f"{k:>12s}" for k in STAT_KEYS) + "\n")
+        for n, r in zip(names, results, strict=True):
+            out.write(f"{n:<{width}s} {r.errors.size:7d} "
+                      + " ".join(f"{r.stats[k]:12.6f}" for k in STAT_KEYS) + "\n")
+    if args.plot:
+        from .traj import plot as tplot
+
+        tplot.save(tplot.plot_results(results, names), args.plot)
+        err.write(f"plot written to {args.plot}\n")
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------- plot
+def _run_plot(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     from .traj import plot as tplot
-    from .traj import prepare, read_trajectory
 
-    files: Iterable[str] = args.files
-    fmt = args.format
     if args.example:
         from .data import example_paths
 
-        files = [str(p) for p in example_paths()]
-        fmt = "tum"
-    files = list(files)
-    if not files:
-        raise SystemExit("microlie plot: give at least one file (or --example)")
-    trajs = [read_trajectory(f, fmt) for f in _progress(files, "reading")]
-    if args.align != "none" and len(trajs) > 1:
-        ref = trajs[0]
-        aligned = [ref]
-        for t in trajs[1:]:
-            r, e, _ = prepare(ref, t, max_diff=args.max_diff)
-            _, g = talign(e, r, args.align)
-            aligned.append(t.transform(g))
-        trajs = aligned
-    tplot.save(tplot.plot_trajectories(trajs, labels=files), args.output)
+        sources = [_Source(str(p), "tum") for p in example_paths()]
+    else:
+        args.default_format = "tum"
+        _format_word(args, None)
+        if not args.files:
+            raise UsageError("give at least one file (or --example)")
+        fmt = args.format or "tum"
+        ref_fmt = args.ref_format or fmt
+        est_fmt = args.est_format or ("tum" if fmt == "euroc" else fmt)
+        sources = [_Source(f, ref_fmt if i == 0 else est_fmt,
+                           topic=(args.ref_topic or args.topic) if i == 0 else args.topic)
+                   for i, f in enumerate(args.files)]
+    trajs = [s.read() for s in _progress(sources, "reading")]
+    method = _resolve_align(args)
+    if method != "none" and len(trajs) > 1:
+        args.offset, args.interpolate, args.sync_method = 0.0, None, "nearest_time"
+        trajs = [trajs[0]] + [_align_to(trajs[0], t, args, method)[0] for t in trajs[1:]]
+    fig = tplot.plot_trajectories(trajs, labels=[s.path for s in sources],
+                                  plot_mode=_plot_mode(args, sources[0].fmt))
+    tplot.save(fig, args.output)
     err.write(f"plot written to {args.output}\n")
-    return 0
+    return EXIT_OK
 
 
-def main(argv: Sequence[str] | None = None, out=None, err=None) -> int:
-    """Entry point of the ``microlie`` console script; returns the exit status."""
+# ----------------------------------------------------------------------------- main
+def main(argv: Sequence[str] | None = None, out: TextIO | None = None,
+         err: TextIO | None = None) -> int:
+    """Entry point of the ``microlie`` console script; returns the exit status (module
+    docstring)."""
     out = out or sys.stdout
     err = err or sys.stderr
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    argv = _normalize_argv(list(sys.argv[1:] if argv is None else argv))
     try:
-        if args.command in ("ape", "rpe"):
-            return _run_metric(args, out, err)
-        if args.command == "kitti":
-            return _run_kitti(args, out, err)
-        return _run_plot(args, out, err)
-    except (ValueError, OSError, ImportError) as exc:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: 0 for --help / --version, 2 for usage errors
+        return int(exc.code or 0)
+    from .traj import TimestampWarning
+
+    try:
+        with warnings.catch_warnings():
+            # reported by the command itself (with the counts), not as a Python warning
+            warnings.simplefilter("ignore", TimestampWarning)
+            return int(args.func(args, out, err))
+    except UsageError as exc:
         err.write(f"microlie {args.command}: error: {exc}\n")
-        return 2
+        return EXIT_USAGE
+    except ImportError as exc:
+        err.write(f"microlie {args.command}: error: {exc}\n")
+        return EXIT_DEPENDENCY
+    except (ValueError, OSError) as exc:
+        err.write(f"microlie {args.command}: error: {exc}\n")
+        return EXIT_ERROR
 
 
 if __name__ == "__main__":  # pragma: no cover

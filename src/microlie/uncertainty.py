@@ -33,24 +33,24 @@ True
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal
+from typing import Any, Literal, cast, overload
 
 import numpy as np
 
 from . import _array as A
+from . import _linalg as L
 from ._array import Array
 from .groups.base import LieGroup
 
-__all__ = ["Gaussian", "VectorGaussian", "propagate", "FRAMES"]
+__all__ = ["Gaussian", "VectorGaussian", "propagate", "FRAMES", "RANK_RTOL"]
 
 Frame = Literal["right", "left"]
 FRAMES: tuple[str, str] = ("right", "left")
 _LOG_2PI = math.log(2.0 * math.pi)
 
 
-# ---------------------------------------------------------------------------- array helpers
+# ---------------------------------------------------------------------------- checks
 
 
 def _check_frame(frame: Any, what: str = "frame") -> str:
@@ -59,132 +59,206 @@ def _check_frame(frame: Any, what: str = "frame") -> str:
     return frame
 
 
-def _xp(x: Array) -> Any:
-    return A.namespace(x)
-
-
-def _mT(m: Array) -> Array:
-    """Transpose the last two axes."""
-    if A.is_numpy(m):
-        return np.swapaxes(m, -1, -2)
-    xp = _xp(m)
-    return xp.matrix_transpose(m) if hasattr(xp, "matrix_transpose") else m.transpose(-1, -2)
-
-
-def _sym(m: Array) -> Array:
-    return 0.5 * (m + _mT(m))
-
-
-def _eye(n: int, like: Array) -> Array:
-    if A.is_numpy(like):
-        return np.eye(n, dtype=like.dtype)
-    return _xp(like).eye(n, dtype=like.dtype, device=A._device(like))
-
-
-def _solve(a: Array, b: Array) -> Array:
-    """Solve ``a x = b`` for matrices ``b`` ``(..., n, k)`` (broadcasting the batch)."""
-    if A.is_numpy(a) and A.is_numpy(b):
-        return np.linalg.solve(a, b)
-    xp = A.namespace(a, b)
-    batch = tuple(np.broadcast_shapes(tuple(a.shape[:-2]), tuple(b.shape[:-2])))
-    a = xp.broadcast_to(a, (*batch, *a.shape[-2:]))
-    b = xp.broadcast_to(b, (*batch, *b.shape[-2:]))
-    return xp.linalg.solve(a, b)
-
-
-def _broadcast_to(x: Array, shape: tuple) -> Array:
-    if tuple(x.shape) == tuple(shape):
-        return x
-    if A.is_numpy(x):
-        return np.broadcast_to(x, shape)
-    return _xp(x).broadcast_to(x, shape)
-
-
-def _to_numpy(x: Array) -> np.ndarray:
-    if hasattr(x, "detach"):
-        x = x.detach().cpu()
-    return np.asarray(x)
-
-
-def _matrix_sqrt(P: Array) -> Array:
-    """``S`` with ``S S^T = P`` for symmetric positive semi-definite ``P`` (via ``eigh``)."""
-    if A.is_numpy(P):
-        w, V = np.linalg.eigh(P)
-        return V * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
-    xp = _xp(P)
-    w, V = xp.linalg.eigh(P)
-    return V * xp.sqrt(xp.clip(w, 0.0, None))[..., None, :]
-
-
-def _slogdet(P: Array) -> Array:
-    if A.is_numpy(P):
-        return np.linalg.slogdet(P)[1]
-    return _xp(P).linalg.slogdet(P)[1]
-
-
 def _as_array(x: Any, like: Array, what: str) -> Array:
     """``x`` as a float array of the backend of ``like`` (clear error on a backend mix)."""
     arr = A.as_float_array(x, like=like)
-    if A.namespace(arr) is not A.namespace(like):
+    if not L.same_backend(arr, like):
         raise ValueError(f"{what} is a {type(arr).__module__} array but the mean is a "
                          f"{type(like).__module__} array: use one array backend")
     return arr
 
 
-def check_covariance(P: Array, n: int, what: str = "covariance") -> None:
+def _check_finite(x: Array, what: str) -> np.ndarray | None:
+    """Raise ``ValueError`` if ``x`` holds NaN or inf; returns its values as NumPy (``None``
+    when they are unknown under a trace: no check, and no traced value is ever forced)."""
+    M = L.concrete(x)
+    if M is not None and M.size and not np.isfinite(M).all():
+        raise ValueError(f"{what} contains NaN or infinite values")
+    return M
+
+
+def check_covariance(P: Array, n: int, what: str = "covariance") -> bool:
     """Raise ``ValueError`` unless ``P`` is ``(..., n, n)``, finite, symmetric and PSD.
 
     Symmetry and positive semi-definiteness are checked to ``sqrt(eps)`` of the dtype relative to
-    the largest entry or eigenvalue of each matrix (skipped under a JAX trace).
+    the largest entry or eigenvalue of each matrix. The values are read without forcing a
+    traced one: under ``jax.jit`` a concrete (closed-over) covariance is checked, a traced one
+    is not. Returns True when every matrix is also known to have full rank by the rank rule.
     """
     A.check_last_dim(P, (n, n), what)
-    A.check_finite(P, what)
-    if A.is_traced(P) or int(np.prod(tuple(P.shape[:-2]))) == 0:
-        return
-    M = _to_numpy(P)
+    M = _check_finite(P, what)
+    if M is None or M.size == 0:
+        return False
     tol = math.sqrt(float(np.finfo(M.dtype).eps))
     M = M.astype(np.float64)
     scale = np.abs(M).max(axis=(-1, -2))
     asym = np.abs(M - np.swapaxes(M, -1, -2)).max(axis=(-1, -2))
     if np.any(asym > tol * scale):
         raise ValueError(f"{what} is not symmetric (max |P - P^T| = {asym.max():.3g})")
-    w = np.linalg.eigvalsh(0.5 * (M + np.swapaxes(M, -1, -2)))
+    M = 0.5 * (M + np.swapaxes(M, -1, -2))
+    piv = _pivots(M)
+    if piv is not None:  # positive definite: no eigenvalues needed
+        return _full_rank(M, piv, _rtol(P))
+    w = np.linalg.eigvalsh(M)
     if np.any(w[..., 0] < -tol * np.maximum(np.abs(w).max(axis=-1), 1e-300)):
         raise ValueError(f"{what} is not positive semi-definite (smallest eigenvalue "
                          f"{w[..., 0].min():.3g})")
+    return False
+
+
+# ---------------------------------------------------------------------------- rank rule
+
+#: Tolerance of the rank rule, by dtype: a coordinate is degenerate when the part of its
+#: variance not explained by the preceding coordinates is at most this fraction of it (SciPy's
+#: rank tolerances, ``1e6 eps`` in float64 = 2.2e-10 and ``1e3 eps`` in float32 = 1.2e-4, here
+#: relative to each coordinate's own variance, so the rule does not depend on units).
+RANK_RTOL: dict[str, float] = {"float64": 1e6 * float(np.finfo(np.float64).eps),
+                               "float32": 1e3 * float(np.finfo(np.float32).eps)}
+
+
+def _rtol(P: Array) -> float:
+    return RANK_RTOL["float32" if "float32" in str(P.dtype) else "float64"]
+
+
+def _pivots(M: np.ndarray) -> np.ndarray | None:
+    """The Cholesky pivots (squared diagonal of the factor) of symmetric float64 matrices, or
+    ``None`` when one of them is not positive definite."""
+    try:
+        return np.diagonal(np.linalg.cholesky(M), axis1=-2, axis2=-1) ** 2
+    except np.linalg.LinAlgError:
+        return None
+
+
+def _full_rank(M: np.ndarray, piv: np.ndarray, rtol: float) -> bool:
+    return bool(np.all(piv > rtol * np.diagonal(M, axis1=-2, axis2=-1)))
+
+
+class _Null:
+    """The degenerate coordinates of a batch of covariances (NumPy masks: constants for
+    autograd), found by a Cholesky elimination without pivoting.
+
+    Coordinate ``k`` is degenerate when its Schur complement (its variance left unexplained by
+    the coordinates before it) is ``<= rtol P_kk`` (:data:`RANK_RTOL`; a variance that is 0 or
+    negative is always degenerate). The rule is invariant to the units of each coordinate. The
+    others, ``m``, index a principal block ``P_mm`` of full rank, so
+    ``G = pad(P_mm^-1)`` (zero elsewhere) is a symmetric generalised inverse of ``P``:
+    ``e^T G e`` and ``P H^T G r`` are the same as with the pseudo-inverse for every ``e`` and
+    ``r`` in the range. A deviation ``e`` lies in that range (the support) when at every
+    degenerate coordinate ``|e - P G e|_k <= sqrt(rtol P_kk) + sqrt(eps) max(|e|, 1)`` (its
+    unexplained standard deviation counted as zero, plus rounding).
+    """
+
+    __slots__ = ("keep", "rank_loss", "rtol", "eps")
+
+    def __init__(self, keep: np.ndarray, rtol: float, eps: float) -> None:
+        self.keep = keep  # (*batch, n) float: 1 for the coordinates of the full-rank block
+        self.rank_loss = (keep == 0).sum(axis=-1)
+        self.rtol, self.eps = rtol, eps
+
+    @staticmethod
+    def of(P: Array) -> _Null | None:
+        """``None`` when every matrix has full rank, or when the values are unknown (traced)."""
+        M = L.concrete(P)
+        if M is None or M.size == 0:
+            return None
+        rtol = _rtol(P)
+        M = M.astype(np.float64)
+        n = M.shape[-1]
+        A_ = 0.5 * (M + np.swapaxes(M, -1, -2))
+        piv = _pivots(A_)  # the common case in one LAPACK call
+        if piv is not None and _full_rank(A_, piv, rtol):
+            return None
+        diag0 = np.diagonal(A_, axis1=-2, axis2=-1).copy()
+        bad = np.zeros(M.shape[:-1], dtype=bool)
+        for k in range(n):
+            d = A_[..., k, k]
+            z = d <= rtol * diag0[..., k]
+            bad[..., k] = z
+            col = np.where(z[..., None], 0.0, A_[..., :, k] / np.where(z, 1.0, d)[..., None])
+            A_ = A_ - col[..., :, None] * A_[..., k, None, :]
+            A_[..., k, :] = np.where(z[..., None], 0.0, A_[..., k, :])
+            A_[..., :, k] = np.where(z[..., None], 0.0, A_[..., :, k])
+        if not bad.any():
+            return None
+        eps = float(np.finfo(np.float32 if "float32" in str(P.dtype) else np.float64).eps)
+        return _Null((~bad).astype(np.float64), rtol, eps)
+
+    def pinv_solve(self, P: Array, b: Array) -> Array:
+        """``G b`` for matrices ``b`` ``(..., n, k)`` (differentiable in ``P`` and ``b``)."""
+        m, Pm = self._block(P)
+        return L.solve(Pm, m[..., :, None] * b) * m[..., :, None]
+
+    def _block(self, P: Array) -> tuple[Array, Array]:
+        """The mask ``m`` in the backend of ``P`` and ``P_mm`` padded with the identity."""
+        m = L.asarray(self.keep, P)
+        return m, P * (m[..., :, None] * m[..., None, :]) + L.diag_embed(1.0 - m)
+
+    def off_support(self, P: Array, e: Array) -> Array:
+        """Boolean ``(...)``: the deviation ``e`` ``(..., n)`` leaves the support of ``P``."""
+        r = e - (P @ self.pinv_solve(P, e[..., None]))[..., 0]
+        d = L.diag(P)
+        bad = L.asarray(1.0 - self.keep, e)
+        size = L.where((e * e).sum(-1) > 1.0, (e * e).sum(-1), 1.0) ** 0.5
+        tol = (self.rtol * d * (d > 0)) ** 0.5 + self.eps**0.5 * size[..., None]
+        return (bad * (r * r - tol * tol) > 0).any(-1)
+
+    def log_pdet(self, P: Array) -> Array:
+        """Log of the pseudo-determinant of ``P`` (the product of its nonzero eigenvalues):
+        ``det P_mm det(I + W^T W)``, ``W = P G`` on the degenerate rows (``P = T P_mm T^T`` with
+        ``T = [I; W]``)."""
+        n = int(P.shape[-1])
+        m, Pm = self._block(P)
+        W = (1.0 - m)[..., :, None] * (P @ self.pinv_solve(P, L.eye(n, P)))
+        return L.slogdet(Pm)[1] + L.slogdet(L.eye(n, P) + L.mT(W) @ W)[1]
 
 
 # ---------------------------------------------------------------------------- vector Gaussian
 
 
 class VectorGaussian:
-    """A Gaussian in ``R^n``: ``mean`` ``(*batch, n)`` and ``cov`` ``(*batch, n, n)``.
+    """A Gaussian in ``R^n``.
 
     The result of pushing a group Gaussian into a vector space (:meth:`Gaussian.act`,
     :meth:`Gaussian.log`, :func:`propagate` with an array value); also the input type of
     :meth:`Gaussian.from_tangent` and :meth:`Gaussian.plus`. There is no frame in ``R^n``.
 
+    Parameters
+    ----------
+    mean : array_like
+        ``(*batch, n)``.
+    cov : array_like
+        ``(*batch, n, n)``.
+    validate : bool
+        Check the covariance (finite, symmetric, positive semi-definite).
+
+    Examples
+    --------
     >>> import numpy as np
+    >>> from microlie import VectorGaussian
     >>> v = VectorGaussian(np.zeros(2), np.diag([4.0, 1.0]))
     >>> float(v.mahalanobis(np.array([2.0, 0.0])))
     1.0
     """
 
-    __slots__ = ("mean", "cov")
+    __slots__ = ("mean", "cov", "_null")
     mean: Array
     cov: Array
+    _null: Any
 
     def __init__(self, mean: Any, cov: Any, *, validate: bool = True) -> None:
         m = A.as_float_array(mean)
         if m.ndim < 1:
             raise ValueError("the mean of a VectorGaussian must have shape (..., n)")
-        A.check_finite(m, "VectorGaussian mean")
+        _check_finite(m, "VectorGaussian mean")
         P = _as_array(cov, m, "VectorGaussian covariance")
+        full = False
         if validate:
-            check_covariance(P, m.shape[-1], "VectorGaussian covariance")
+            full = check_covariance(P, m.shape[-1], "VectorGaussian covariance")
         else:
             A.check_last_dim(P, (m.shape[-1], m.shape[-1]), "VectorGaussian covariance")
-        self._init(*_broadcast_pair(m, P))
+        self._init(*_broadcast_pair(L.copy(m), L.copy(P)))
+        if full:
+            object.__setattr__(self, "_null", None)
 
     @classmethod
     def _make(cls, mean: Array, cov: Array) -> VectorGaussian:
@@ -193,10 +267,10 @@ class VectorGaussian:
         return obj
 
     def _init(self, mean: Array, cov: Array) -> None:
-        object.__setattr__(self, "mean", mean)
-        object.__setattr__(self, "cov", cov)
-        if A.is_jax(mean):
-            _register_jax(mean)
+        object.__setattr__(self, "mean", L.readonly(mean))
+        object.__setattr__(self, "cov", cov if cov is None else L.readonly(cov))
+        object.__setattr__(self, "_null", _UNSET)
+        L.activate_pytrees(mean)
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError("VectorGaussian objects are immutable")
@@ -214,61 +288,162 @@ class VectorGaussian:
 
     def __getitem__(self, index: Any) -> VectorGaussian:
         index = index if isinstance(index, tuple) else (index,)
-        return VectorGaussian._make(self.mean[(*index, slice(None))],
-                                    self.cov[(*index, slice(None), slice(None))])
+        return VectorGaussian._make(self.mean[index + (slice(None),)],
+                                    self.cov[index + (slice(None), slice(None))])
 
     def __repr__(self) -> str:
         return f"VectorGaussian(dim={self.dim}, batch_shape={self.batch_shape})"
 
     def std(self) -> Array:
-        """Marginal standard deviations, ``sqrt(diag(cov))``."""
-        return _diag(self.cov) ** 0.5
+        """Marginal standard deviations, ``sqrt(diag(cov))``.
+
+        Returns
+        -------
+        array
+            ``(*batch, n)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
+        >>> v = VectorGaussian(np.array([1.0, 2.0, 3.0]), np.diag([4.0, 1.0, 0.25]))
+        >>> v.std().tolist()
+        [2.0, 1.0, 0.5]
+        """
+        return L.diag(self.cov) ** 0.5
 
     def marginal(self, indices: Sequence[int]) -> VectorGaussian:
-        """The marginal over the coordinates ``indices`` (e.g. ``(0, 1)`` for x and y)."""
-        idx = list(indices)
-        if A.is_numpy(self.mean):
-            return VectorGaussian._make(self.mean[..., idx], self.cov[..., idx, :][..., :, idx])
-        xp = _xp(self.mean)
-        m = xp.stack([self.mean[..., i] for i in idx], axis=-1)
-        P = xp.stack([xp.stack([self.cov[..., i, j] for j in idx], axis=-1) for i in idx],
-                     axis=-2)
-        return VectorGaussian._make(m, P)
+        """The marginal over the coordinates ``indices`` (e.g. ``(0, 1)`` for x and y).
+
+        Parameters
+        ----------
+        indices : sequence of int
+            The kept coordinates, in order.
+
+        Returns
+        -------
+        VectorGaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
+        >>> v = VectorGaussian(np.array([1.0, 2.0, 3.0]), np.diag([4.0, 1.0, 0.25]))
+        >>> m = v.marginal([2, 0])
+        >>> m.mean.tolist(), np.diag(m.cov).tolist()
+        ([3.0, 1.0], [0.25, 4.0])
+        """
+        idx = [int(i) for i in indices]
+        return VectorGaussian._make(self.mean[..., idx], self.cov[..., idx, :][..., :, idx])
 
     def sample(self, n: int | tuple[int, ...], rng: Any = None) -> Array:
-        """``n`` samples, shape ``(*n, *batch, dim)``, drawn with a NumPy generator.
+        """``n`` samples drawn with a NumPy generator.
 
+        Parameters
+        ----------
+        n : int or tuple of int
+            The sample shape.
+        rng : int or numpy.random.Generator, optional
+            The random source.
+
+        Returns
+        -------
+        array
+            ``(*n, *batch, dim)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
         >>> v = VectorGaussian(np.zeros(3), np.eye(3))
         >>> v.sample(5, rng=0).shape
         (5, 3)
         """
         z = _standard_normal(n, (*self.batch_shape, self.dim), rng, self.mean)
-        return self.mean + (_matrix_sqrt(self.cov) @ z[..., None])[..., 0]
+        return self.mean + (_cov_factor(self) @ z[..., None])[..., 0]
 
     def mahalanobis(self, x: Any, squared: bool = False) -> Array:
-        """Mahalanobis distance ``sqrt((x - m)^T P^-1 (x - m))`` (``squared=True``: without
-        the square root, chi-square with ``dim`` degrees of freedom under the model)."""
+        """Mahalanobis distance ``sqrt((x - m)^T P^-1 (x - m))``.
+
+        Parameters
+        ----------
+        x : array_like
+            ``(*batch, n)`` points.
+        squared : bool
+            Without the square root (chi-square with ``dim`` degrees of freedom under the model).
+
+        Returns
+        -------
+        array
+            Shape ``batch``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
+        >>> v = VectorGaussian(np.array([1.0, 2.0, 3.0]), np.diag([4.0, 1.0, 0.25]))
+        >>> float(v.mahalanobis(np.array([3.0, 2.0, 3.5]), squared=True))
+        2.0
+        """
         d = _as_array(x, self.mean, "x") - self.mean
-        return _mahalanobis(d, self.cov, squared)
+        return _mahalanobis(d, self.cov, squared, _rank(self))
 
     def log_density(self, x: Any) -> Array:
-        """``log N(x; mean, cov)`` (the covariance must be positive definite)."""
+        """``log N(x; mean, cov)`` (the covariance must be positive definite).
+
+        Parameters
+        ----------
+        x : array_like
+            ``(*batch, n)`` points.
+
+        Returns
+        -------
+        array
+            Shape ``batch``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
+        >>> v = VectorGaussian(np.array([1.0, 2.0, 3.0]), np.diag([4.0, 1.0, 0.25]))
+        >>> expected = -0.5 * np.log(np.linalg.det(2 * np.pi * v.cov))
+        >>> bool(np.isclose(v.log_density(v.mean), expected))
+        True
+        """
         d = _as_array(x, self.mean, "x") - self.mean
-        return _log_normal(d, self.cov)
+        return _log_normal(d, self.cov, _rank(self))
 
     def ellipse(self, nsigma: float = 2.0, num: int = 64, dims: tuple[int, int] = (0, 1)
                 ) -> Array:
-        """Points ``(*batch, num, 2)`` on the ``nsigma`` contour of the 2-D marginal over
-        ``dims`` (for plotting; no matplotlib needed).
+        """Points on the ``nsigma`` contour of the 2-D marginal over ``dims`` (for plotting; no
+        matplotlib needed).
 
+        Parameters
+        ----------
+        nsigma : float
+            The contour's Mahalanobis radius.
+        num : int
+            Number of points.
+        dims : tuple of int
+            The two coordinates.
+
+        Returns
+        -------
+        array
+            ``(*batch, num, 2)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import VectorGaussian
         >>> VectorGaussian(np.zeros(2), np.eye(2)).ellipse(1.0, num=4).round(12).tolist()
         [[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [-0.0, -1.0]]
         """
         g = self.marginal(dims)
         t = np.linspace(0.0, 2.0 * np.pi, num, endpoint=False)
         circle = A.as_float_array(np.stack([np.cos(t), np.sin(t)], -1), like=g.mean)
-        S = _matrix_sqrt(g.cov)
-        return g.mean[..., None, :] + nsigma * (circle @ _mT(S))
+        S = L.sqrt_psd(g.cov)
+        return g.mean[..., None, :] + nsigma * (circle @ L.mT(S))
 
 
 # ---------------------------------------------------------------------------- group Gaussian
@@ -278,25 +453,36 @@ class Gaussian:
     """A Gaussian on a Lie group with an explicit error frame.
 
     ``frame="right"``: ``X = mean Exp(eps)`` (local error); ``frame="left"``:
-    ``X = Exp(eps) mean`` (global error); ``eps ~ N(0, cov)`` with ``cov`` of shape
-    ``(*batch, dof, dof)``, tangent translation first. ``mean`` and ``cov`` broadcast over the
-    leading batch axes; any array backend of the core works (NumPy, PyTorch, JAX).
+    ``X = Exp(eps) mean`` (global error); ``eps ~ N(0, cov)``, tangent translation first.
+    ``mean`` and ``cov`` broadcast over the leading batch axes; any array backend of the core
+    works (NumPy, PyTorch, JAX).
 
-    The covariance is checked: shape, finite, symmetric and positive semi-definite to
-    ``sqrt(eps)`` of its dtype (``ValueError``; ``validate=False`` keeps only the shape check).
-    ``frame`` has no default on purpose.
+    Parameters
+    ----------
+    mean : LieGroup
+        The mean element (any batch shape).
+    cov : array_like
+        ``(*batch, dof, dof)`` covariance of ``eps``.
+    frame : {"right", "left"}
+        The error frame; no default on purpose.
+    validate : bool
+        Check the covariance: shape, finite, symmetric and positive semi-definite to
+        ``sqrt(eps)`` of its dtype (``ValueError``); ``False`` keeps only the shape check.
 
+    Examples
+    --------
     >>> import numpy as np
-    >>> from microlie import SE3
+    >>> from microlie import SE3, Gaussian
     >>> X = Gaussian(SE3.identity(), 0.01 * np.eye(6), frame="right")
     >>> X.to_frame("left").frame
     'left'
     """
 
-    __slots__ = ("mean", "cov", "frame")
+    __slots__ = ("mean", "cov", "frame", "_null")
     mean: LieGroup
     cov: Array
-    frame: str
+    frame: Frame
+    _null: Any
 
     def __init__(self, mean: LieGroup, cov: Any, *, frame: Frame,
                  validate: bool = True) -> None:
@@ -305,25 +491,28 @@ class Gaussian:
         _check_frame(frame)
         P = _as_array(cov, mean.params, f"{type(mean).__name__} Gaussian covariance")
         what = f"{type(mean).__name__} Gaussian covariance"
+        full = False
         if validate:
-            check_covariance(P, mean.dof, what)
+            full = check_covariance(P, mean.dof, what)
         else:
             A.check_last_dim(P, (mean.dof, mean.dof), what)
-        params, P = _broadcast_pair(mean.params, P)
-        self._init(type(mean)._wrap(params), P, frame)
+        params, P = _broadcast_pair(mean.params, L.copy(P))
+        self._init(_element(mean, params), P, frame)
+        if full:  # the rank is known from the validation
+            object.__setattr__(self, "_null", None)
 
     @classmethod
-    def _make(cls, mean: LieGroup, cov: Array, frame: str) -> Gaussian:
+    def _make(cls, mean: LieGroup, cov: Array, frame: Frame) -> Gaussian:
         obj = object.__new__(cls)
         obj._init(mean, cov, frame)
         return obj
 
-    def _init(self, mean: LieGroup, cov: Array, frame: str) -> None:
+    def _init(self, mean: LieGroup, cov: Array, frame: Frame) -> None:
         object.__setattr__(self, "mean", mean)
-        object.__setattr__(self, "cov", cov)
+        object.__setattr__(self, "cov", cov if cov is None else L.readonly(cov))
         object.__setattr__(self, "frame", frame)
-        if A.is_jax(cov):
-            _register_jax(cov)
+        object.__setattr__(self, "_null", _UNSET)
+        L.activate_pytrees(cov)
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError("Gaussian objects are immutable")
@@ -333,20 +522,30 @@ class Gaussian:
 
     @classmethod
     def from_std(cls, mean: LieGroup, std: Any, *, frame: Frame) -> Gaussian:
-        """A Gaussian with diagonal covariance ``diag(std**2)`` (``std`` ``(..., dof)``, tangent
-        order translation first).
+        """A Gaussian with diagonal covariance ``diag(std**2)``.
 
-        >>> from microlie import SE2
+        Parameters
+        ----------
+        mean : LieGroup
+            The mean.
+        std : array_like
+            ``(..., dof)`` standard deviations, tangent order (translation first).
+        frame : {"right", "left"}
+            The error frame.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> from microlie import SE2, Gaussian
         >>> Gaussian.from_std(SE2.identity(), [0.1, 0.1, 0.01], frame="left").cov.diagonal()
         array([0.01  , 0.01  , 0.0001])
         """
         s = _as_array(std, mean.params, "std")
         A.check_last_dim(s, mean.dof, "std")
-        if A.is_numpy(s):
-            P = s[..., :, None] ** 2 * np.eye(mean.dof, dtype=s.dtype)
-        else:
-            P = s[..., :, None] ** 2 * _eye(mean.dof, s)
-        return cls(mean, P, frame=frame)
+        return cls(mean, L.diag_embed(s**2), frame=frame)
 
     # ------------------------------------------------------------------ container protocol
     @property
@@ -366,7 +565,7 @@ class Gaussian:
 
     def __getitem__(self, index: Any) -> Gaussian:
         index = index if isinstance(index, tuple) else (index,)
-        return Gaussian._make(self.mean[index], self.cov[(*index, slice(None), slice(None))],
+        return Gaussian._make(self.mean[index], self.cov[index + (slice(None), slice(None))],
                               self.frame)
 
     def __repr__(self) -> str:
@@ -377,10 +576,30 @@ class Gaussian:
     def frame_map(self, frame: Frame) -> Array:
         """The matrix ``T`` taking this Gaussian's error to the error in ``frame``
         (``eps_frame = T eps_self``): ``Ad_mean`` right to left, ``Ad_mean^-1`` left to right,
-        identity for the same frame."""
+        identity for the same frame.
+
+        Parameters
+        ----------
+        frame : {"right", "left"}
+            The target frame.
+
+        Returns
+        -------
+        array
+            ``(*batch, dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> bool(np.allclose(g.frame_map("left"), g.mean.adjoint()))
+        True
+        """
         _check_frame(frame)
         if frame == self.frame:
-            return _broadcast_to(_eye(self.dof, self.cov), tuple(self.cov.shape))
+            return L.eye(self.dof, self.cov, self.cov.shape[:-2])
         if frame == "left":
             return self.mean.adjoint()
         return self.mean.inverse().adjoint()
@@ -390,7 +609,19 @@ class Gaussian:
         ``P_right = Ad^-1 P_left Ad^-T`` (``Ad = Ad_mean``). Exact: ``mean Exp(e) =
         Exp(Ad e) mean`` holds for every ``e``.
 
-        >>> from microlie import SO3
+        Parameters
+        ----------
+        frame : {"right", "left"}
+            The target frame.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3, Gaussian
         >>> X = Gaussian(SO3.exp([0.0, 0.0, np.pi / 2]), np.diag([1.0, 0.0, 0.0]), frame="right")
         >>> X.to_frame("left").cov.round(12) + 0.0   # body x-axis error = world y-axis error
         array([[0., 0., 0.],
@@ -400,35 +631,111 @@ class Gaussian:
         if _check_frame(frame) == self.frame:
             return self
         T = self.frame_map(frame)
-        return Gaussian._make(self.mean, _sym(T @ self.cov @ _mT(T)), frame)
+        return Gaussian._make(self.mean, L.symmetrize(T @ self.cov @ L.mT(T)), frame)
 
     # ------------------------------------------------------------------ errors and samples
     def error(self, X: LieGroup) -> Array:
         """The tangent error of ``X`` in this frame: ``Log(mean^-1 X)`` (right) or
-        ``Log(X mean^-1)`` (left); the inverse of :meth:`retract`."""
+        ``Log(X mean^-1)`` (left); the inverse of :meth:`retract`.
+
+        Parameters
+        ----------
+        X : LieGroup
+            An element of the mean's group (broadcast over the batch).
+
+        Returns
+        -------
+        array
+            ``(*batch, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> np.round(g.error(g.retract([0.1, 0.0, 0.2])), 12).tolist()
+        [0.1, 0.0, 0.2]
+        """
         self._same_group(X)
         return X.minus(self.mean) if self.frame == "right" else X.lminus(self.mean)
 
     def retract(self, eps: Any) -> LieGroup:
         """The element with error ``eps`` in this frame: ``mean Exp(eps)`` (right) or
-        ``Exp(eps) mean`` (left)."""
+        ``Exp(eps) mean`` (left).
+
+        Parameters
+        ----------
+        eps : array_like
+            ``(*batch, dof)`` tangent error.
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> bool(np.allclose(g.retract([0.0, 0.0, 0.0]).params, g.mean.params))
+        True
+        """
         return self.mean.plus(eps) if self.frame == "right" else self.mean.lplus(eps)
 
     def sample(self, n: int | tuple[int, ...], rng: Any = None) -> LieGroup:
-        """``n`` samples ``retract(eps_i)``, ``eps_i ~ N(0, cov)``; batch ``(*n, *batch)``.
+        """``n`` samples ``retract(eps_i)``, ``eps_i ~ N(0, cov)``.
 
-        >>> from microlie import SO3
+        Parameters
+        ----------
+        n : int or tuple of int
+            The sample shape.
+        rng : int or numpy.random.Generator, optional
+            The random source.
+
+        Returns
+        -------
+        LieGroup
+            Batch shape ``(*n, *batch)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3, Gaussian
         >>> Gaussian(SO3.identity(), 0.01 * np.eye(3), frame="left").sample(4, rng=0).batch_shape
         (4,)
         """
         z = _standard_normal(n, (*self.batch_shape, self.dof), rng, self.cov)
-        return self.retract((_matrix_sqrt(self.cov) @ z[..., None])[..., 0])
+        return self.retract((_cov_factor(self) @ z[..., None])[..., 0])
 
     def mahalanobis(self, X: LieGroup, squared: bool = False) -> Array:
         """Mahalanobis distance of ``X`` from the mean, ``sqrt(e^T P^-1 e)`` with ``e =``
         :meth:`error` ``(X)`` in this frame (frame-independent, since the frames differ by the
-        exact linear map ``Ad``)."""
-        return _mahalanobis(self.error(X), self.cov, squared)
+        exact linear map ``Ad``).
+
+        Parameters
+        ----------
+        X : LieGroup
+            An element of the mean's group (broadcast over the batch).
+        squared : bool
+            Return ``e^T P^-1 e`` (chi-square with ``dof`` degrees of freedom under the model).
+
+        Returns
+        -------
+        array
+            Shape ``batch``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> round(float(g.mahalanobis(g.retract([0.2, 0.0, 0.0]))), 12)  # 0.2 / 0.2
+        1.0
+        """
+        return _mahalanobis(self.error(X), self.cov, squared, _rank(self))
 
     def log_density(self, X: LieGroup, haar: bool = False) -> Array:
         """Log-density of ``X``: ``log N(e; 0, P)`` with ``e =`` :meth:`error` ``(X)``.
@@ -438,12 +745,35 @@ class Gaussian:
         right error, right-invariant for a left error, normalised to the Lebesgue measure of the
         tangent space at the identity): ``- log |det Jr(e)|`` (right) or ``- log |det Jl(e)|``
         (left) is added. Frame-independent up to that measure.
+
+        Parameters
+        ----------
+        X : LieGroup
+            An element of the mean's group (broadcast over the batch).
+        haar : bool
+            The density with respect to the Haar measure instead of the tangent error's.
+
+        Returns
+        -------
+        array
+            Shape ``batch``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> P = np.diag([0.04, 0.01, 0.0025])
+        >>> expected = -0.5 * np.log(np.linalg.det(2 * np.pi * P))
+        >>> bool(np.isclose(g.log_density(g.mean), expected))
+        True
         """
         e = self.error(X)
-        out = _log_normal(e, self.cov)
+        out = _log_normal(e, self.cov, _rank(self))
         if haar:
             J = self.group.jr(e) if self.frame == "right" else self.group.jl(e)
-            out = out - _slogdet(J)
+            out = out - L.slogdet(J)[1]
         return out
 
     # ------------------------------------------------------------------ propagation
@@ -451,13 +781,29 @@ class Gaussian:
                   ) -> Gaussian | VectorGaussian:
         """Linearised distribution of ``value = f(X)`` (eq. 16): ``P_y = J P J^T``.
 
-        ``jacobian`` is ``d f / d X`` with perturbations on ``side`` for the input and, for a
-        group-valued ``f``, the output (``side="right"``: ``f(X Exp(e)) = f(X) Exp(J e)``;
-        ``side="left"``: ``f(Exp(e) X) = Exp(J e) f(X)``). This Gaussian is converted to
-        ``side`` first, and a group result is returned in frame ``side``. See :func:`propagate`
-        for several inputs.
+        This Gaussian is converted to ``side`` first, and a group result is returned in frame
+        ``side``. See :func:`propagate` for several inputs.
 
-        >>> from microlie import SO3
+        Parameters
+        ----------
+        value : LieGroup or array
+            ``f(mean)``.
+        jacobian : array_like
+            ``d f / d X`` with perturbations on ``side`` for the input and, for a group-valued
+            ``f``, the output (``side="right"``: ``f(X Exp(e)) = f(X) Exp(J e)``; ``side="left"``:
+            ``f(Exp(e) X) = Exp(J e) f(X)``).
+        side : {"right", "left"}
+            The perturbation side of ``jacobian``.
+
+        Returns
+        -------
+        Gaussian or VectorGaussian
+            A :class:`Gaussian` for a group ``value``, else a :class:`VectorGaussian`.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3, Gaussian
         >>> X = Gaussian(SO3.exp([0.1, 0.2, 0.3]), 1e-3 * np.eye(3), frame="right")
         >>> Y, J = X.mean.inverse(jac=True)         # right Jacobian of the inverse: -Ad_X
         >>> X.propagate(Y, J, side="right").frame
@@ -467,7 +813,22 @@ class Gaussian:
 
     def inverse(self) -> Gaussian:
         """Distribution of ``X^-1`` in this frame. Right: ``P = Ad_X P Ad_X^T``; left:
-        ``P = Ad_X^-1 P Ad_X^-T`` (both exact: the error maps linearly)."""
+        ``P = Ad_X^-1 P Ad_X^-T`` (both exact: the error maps linearly).
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> A = g.mean.adjoint()
+        >>> bool(np.allclose(g.inverse().cov, A @ g.cov @ A.T))
+        True
+        """
         Y, J = self.mean.inverse(jac=True, side=self.frame)
         return propagate(Y, [self], [J], side=self.frame)
 
@@ -475,9 +836,31 @@ class Gaussian:
         """Distribution of ``X Y`` (``other`` is ``Y``), in this Gaussian's frame (eq. 17).
 
         Right frame: ``P_Z = Ad_Y^-1 P_X Ad_Y^-T + P_Y``; left frame:
-        ``P_Z = P_X + Ad_X P_Y Ad_X^T``. ``other`` in the other frame is converted first; a
-        plain element is exact (zero covariance). ``cross_cov = E[eps_X eps_Y^T]`` with each
-        error in its own Gaussian's frame adds ``J_X C J_Y^T + J_Y C^T J_X^T``.
+        ``P_Z = P_X + Ad_X P_Y Ad_X^T``.
+
+        Parameters
+        ----------
+        other : Gaussian or LieGroup
+            ``Y``; a Gaussian in the other frame is converted first; a plain element is exact
+            (zero covariance).
+        cross_cov : array_like, optional
+            ``E[eps_X eps_Y^T]`` with each error in its own Gaussian's frame; adds
+            ``J_X C J_Y^T + J_Y C^T J_X^T``.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> Z = g.compose(g)
+        >>> Ai = g.mean.inverse().adjoint()
+        >>> bool(np.allclose(Z.cov, Ai @ g.cov @ Ai.T + g.cov))
+        True
         """
         Y = self._operand(other)
         Z, JX, JY = self.mean.compose(Y.mean, jac=True, side=self.frame)
@@ -485,8 +868,30 @@ class Gaussian:
 
     def between(self, other: Gaussian | LieGroup, cross_cov: Any = None) -> Gaussian:
         """Distribution of ``X^-1 Y`` (``other`` is ``Y``), in this Gaussian's frame. Right:
-        ``J_X = -Ad_(Y^-1 X)``, ``J_Y = I``. ``cross_cov`` as in :meth:`compose` (for two poses
-        with a joint covariance, this is their relative-pose uncertainty)."""
+        ``J_X = -Ad_(Y^-1 X)``, ``J_Y = I``.
+
+        Parameters
+        ----------
+        other : Gaussian or LieGroup
+            ``Y``.
+        cross_cov : array_like, optional
+            As in :meth:`compose` (for two poses with a joint covariance, this is their
+            relative-pose uncertainty).
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> D = g.between(g.mean)  # the mean itself is exact: only X's error remains
+        >>> bool(np.allclose(D.cov, g.cov))
+        True
+        """
         Y = self._operand(other)
         Z, JX, JY = self.mean.between(Y.mean, jac=True, side=self.frame)
         return self._binary(Z, JX, JY, Y, cross_cov)
@@ -495,34 +900,90 @@ class Gaussian:
             ) -> VectorGaussian:
         """Distribution of the moved points ``X . p`` in ``R^n`` (world coordinates).
 
-        ``points`` ``(..., point_dim)`` or a :class:`VectorGaussian` (or give ``points_cov``);
-        ``cross_cov = E[eps_X dp^T]`` (``eps_X`` in this frame). Without point noise
-        ``P_p' = J_X P J_X^T`` with ``J_X`` the point Jacobian of this frame's side
-        (SE(3) right: ``[R, -R hat(p)]``; left: ``[I, -hat(X p)]``).
+        Without point noise ``P_p' = J_X P J_X^T`` with ``J_X`` the point Jacobian of this
+        frame's side (SE(3) right: ``[R, -R hat(p)]``; left: ``[I, -hat(X p)]``).
+
+        Parameters
+        ----------
+        points : array_like or VectorGaussian
+            ``(..., point_dim)`` points, or a :class:`VectorGaussian` of them.
+        points_cov : array_like, optional
+            Their covariance (instead of a VectorGaussian).
+        cross_cov : array_like, optional
+            ``E[eps_X dp^T]`` (``eps_X`` in this frame).
+
+        Returns
+        -------
+        VectorGaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> p = g.act(np.array([0.0, 0.0]))  # the position: x and y variances, rotated
+        >>> np.round(p.mean, 12).tolist(), round(float(np.trace(p.cov)), 12)
+        ([1.0, 2.0], 0.05)
         """
         pts = self._vector(points, points_cov, self.group.point_dim, "points")
         out, JX, Jp = self.mean.act(pts.mean, jac=True, side=self.frame)
-        inputs, jacs = [self], [JX]
+        inputs: list[Gaussian | VectorGaussian] = [self]
+        jacs = [JX]
         if not _is_zero(pts):
             inputs.append(pts)
             jacs.append(Jp)
-        return propagate(out, inputs, jacs, side=self.frame,
-                         cross_cov=None if cross_cov is None else {(0, 1): cross_cov})
+        return cast(VectorGaussian, propagate(
+            out, inputs, jacs, side=self.frame,
+            cross_cov=None if cross_cov is None else {(0, 1): cross_cov}))
 
     def log(self) -> VectorGaussian:
         """Distribution of ``Log(X)`` in ``R^dof``: ``J = Jr^-1(Log mean)`` (right frame) or
-        ``Jl^-1(Log mean)`` (left frame)."""
+        ``Jl^-1(Log mean)`` (left frame).
+
+        Returns
+        -------
+        VectorGaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> L = g.log()
+        >>> J = SE2.jr_inv(g.mean.log())
+        >>> bool(np.allclose(L.cov, J @ g.cov @ J.T))
+        True
+        """
         tau, J = self.mean.log(jac=True, side=self.frame)
-        return propagate(tau, [self], [J], side=self.frame)
+        return cast(VectorGaussian, propagate(tau, [self], [J], side=self.frame))
 
     @classmethod
     def from_tangent(cls, group: type[LieGroup], mean: Any, cov: Any = None, *,
                      frame: Frame) -> Gaussian:
-        """Distribution of ``Exp(tau)`` for ``tau ~ N(mean, cov)`` (``mean`` may be a
-        :class:`VectorGaussian`, then ``cov`` is omitted): mean ``Exp(mean)``, covariance
+        """Distribution of ``Exp(tau)`` for ``tau ~ N(mean, cov)``: mean ``Exp(mean)``, covariance
         ``Jr P Jr^T`` (right frame) or ``Jl P Jl^T`` (left frame), at ``mean``.
 
-        >>> from microlie import SO3
+        Parameters
+        ----------
+        group : type
+            The :class:`~microlie.LieGroup` subclass.
+        mean : array_like or VectorGaussian
+            The tangent mean (a VectorGaussian carries its covariance; then ``cov`` is omitted).
+        cov : array_like, optional
+            ``(*batch, dof, dof)``.
+        frame : {"right", "left"}
+            The error frame of the result.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3, Gaussian
         >>> g = Gaussian.from_tangent(SO3, [0.0, 0.0, 0.0], 1e-2 * np.eye(3), frame="right")
         >>> bool(np.allclose(g.cov, 1e-2 * np.eye(3)))     # Jr(0) = I
         True
@@ -535,8 +996,32 @@ class Gaussian:
     def plus(self, tau: Any, tau_cov: Any = None, cross_cov: Any = None) -> Gaussian:
         """Distribution of ``X (+) tau = X Exp(tau)`` with tangent noise ``tau ~ N(tau, tau_cov)``
         (a motion model step), in this frame. Right: ``P = Ad_Exp(tau)^-1 P Ad^-T
-        + Jr(tau) Q Jr(tau)^T``. ``tau`` may be a :class:`VectorGaussian`; ``cross_cov =
-        E[eps_X dtau^T]``."""
+        + Jr(tau) Q Jr(tau)^T``.
+
+        Parameters
+        ----------
+        tau : array_like or VectorGaussian
+            The step (a VectorGaussian carries its covariance).
+        tau_cov : array_like, optional
+            ``Q``, the step's covariance.
+        cross_cov : array_like, optional
+            ``E[eps_X dtau^T]``.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> step = np.array([1.0, 0.0, 0.0])
+        >>> out = g.plus(step, 0.01 * np.eye(3))
+        >>> bool(np.allclose(out.mean.params, g.mean.plus(step).params))
+        True
+        """
         t = self._vector(tau, tau_cov, self.dof, "tau")
         Z, JX, Jt = self.mean.plus(t.mean, jac=True, side=self.frame)
         return self._binary(Z, JX, Jt, t, cross_cov)
@@ -544,7 +1029,31 @@ class Gaussian:
     def lplus(self, tau: Any, tau_cov: Any = None, cross_cov: Any = None) -> Gaussian:
         """Distribution of ``tau (+) X = Exp(tau) X`` with tangent noise ``tau ~ N(tau,
         tau_cov)`` (a step applied in the world frame), in this frame. Left:
-        ``P = Ad_Exp(tau) P Ad_Exp(tau)^T + Jl(tau) Q Jl(tau)^T``. Arguments as :meth:`plus`."""
+        ``P = Ad_Exp(tau) P Ad_Exp(tau)^T + Jl(tau) Q Jl(tau)^T``.
+
+        Parameters
+        ----------
+        tau : array_like or VectorGaussian
+            The step.
+        tau_cov : array_like, optional
+            Its covariance.
+        cross_cov : array_like, optional
+            ``E[eps_X dtau^T]``.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.from_xy_theta(1.0, 2.0, 0.5), np.diag([0.04, 0.01, 0.0025]),
+        ...              frame="right")
+        >>> out = g.lplus(np.array([0.0, 0.0, 0.1]), 1e-4 * np.eye(3))
+        >>> bool(np.allclose(out.mean.params, g.mean.lplus([0.0, 0.0, 0.1]).params))
+        True
+        """
         t = self._vector(tau, tau_cov, self.dof, "tau")
         Z, JX, Jt = self.mean.lplus(t.mean, jac=True, side=self.frame)
         return self._binary(Z, JX, Jt, t, cross_cov)
@@ -555,28 +1064,52 @@ class Gaussian:
 
         Model: ``residual = z - h(mean) ~= H eps + v``, ``v ~ N(0, R)``, ``eps`` this Gaussian's
         error in its frame (so ``H`` is the Jacobian of ``h`` on this frame's side). Computes
-        ``K = P H^T (H P H^T + R)^-1``, ``d = K residual``, the Joseph-form covariance
-        ``(I - K H) P (I - K H)^T + K R K^T``, and the new mean ``retract(d)``. With ``reset``
-        the covariance is moved to the new mean's error: ``Jr(d) P Jr(d)^T`` (right) or
-        ``Jl(d) P Jl(d)^T`` (left), since ``mean Exp(d + x) ~= mean Exp(d) Exp(Jr(d) x)``.
+        ``K = P H^T S^-1`` with ``S = H P H^T + R``, ``d = K residual``, the Joseph-form
+        covariance ``(I - K H) P (I - K H)^T + K R K^T``, and the new mean ``retract(d)``.
+
+        Rank-deficient ``P`` and ``R`` are handled exactly: when ``S`` is singular (the rank
+        rule of docs/uncertainty.md, tolerance :data:`RANK_RTOL`, independent of units) a
+        generalised inverse is used, so ``d`` stays in the range of ``P H^T`` (the mean never
+        moves along a zero-variance direction), and a residual that has a component where
+        ``S`` has zero variance (the measurement contradicts what both sides hold certain)
+        raises ``ValueError``. Under ``jax.jit`` with a traced covariance the rank cannot be
+        read: ``S`` must then be invertible.
+
+        Parameters
+        ----------
+        residual : array_like
+            ``(*batch, m)``, ``z - h(mean)``.
+        H : array_like
+            ``(*batch, m, dof)`` measurement Jacobian on this frame's side.
+        R : array_like
+            ``(*batch, m, m)`` measurement covariance (checked like every covariance).
+        reset : bool
+            Move the covariance to the new mean's error: ``Jr(d) P Jr(d)^T`` (right) or
+            ``Jl(d) P Jl(d)^T`` (left), since ``mean Exp(d + x) ~= mean Exp(d) Exp(Jr(d) x)``.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
+        >>> g = Gaussian(SE2.identity(), np.diag([1.0, 1.0, 0.0]), frame="right")  # exact heading
+        >>> out = g.update([0.5, 0.0], np.eye(2, 3), np.eye(2), reset=False)
+        >>> out.mean.log().round(12).tolist(), np.diag(out.cov).round(12).tolist()
+        ([0.25, 0.0, 0.0], [0.5, 0.5, 0.0])
         """
         P = self.cov
         r = _as_array(residual, P, "residual")
-        Hm = _as_array(H, P, "H")
-        Rm = _as_array(R, P, "R")
         m = int(r.shape[-1])
+        Hm = _as_array(H, P, "H")
         A.check_last_dim(Hm, (m, self.dof), "H")
-        A.check_last_dim(Rm, (m, m), "R")
-        PHt = P @ _mT(Hm)
-        S = Hm @ PHt + Rm
-        K = _mT(_solve(_sym(S), _mT(PHt)))
-        d = (K @ r[..., None])[..., 0]
-        IKH = _eye(self.dof, P) - K @ Hm
-        Pn = IKH @ P @ _mT(IKH) + K @ Rm @ _mT(K)
-        if reset:
-            J = self.group.jr(d) if self.frame == "right" else self.group.jl(d)
-            Pn = J @ Pn @ _mT(J)
-        return Gaussian._make(self.retract(d), _sym(Pn), self.frame)
+        _check_finite(r, "residual")
+        _check_finite(Hm, "H")
+        Rm = _as_array(R, P, "R")
+        check_covariance(Rm, m, "R")
+        return self._kalman(r, Hm, Rm, reset, "the residual")
 
     def fuse(self, other: Gaussian, *, reset: bool = True) -> Gaussian:
         """Fuse two independent Gaussians on the same element (the update of an error-state
@@ -589,7 +1122,26 @@ class Gaussian:
         :meth:`update` with ``H = I``. First order in ``e2`` and ``d``: accurate when the two
         means agree to within a few standard deviations and the covariances are small.
 
-        >>> from microlie import SE2
+        Rank-deficient covariances follow the rule of :meth:`update`: a Gaussian with
+        zero-variance directions fused with itself returns its mean (and half its covariance);
+        two estimates that differ along a direction in which both have zero variance raise
+        ``ValueError``.
+
+        Parameters
+        ----------
+        other : Gaussian
+            Another estimate of the same element.
+        reset : bool
+            As in :meth:`update`.
+
+        Returns
+        -------
+        Gaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2, Gaussian
         >>> a = Gaussian(SE2.identity(), np.eye(3), frame="right")
         >>> bool(np.allclose(a.fuse(a).cov, 0.5 * np.eye(3)))
         True
@@ -600,8 +1152,31 @@ class Gaussian:
         o = other.to_frame(self.frame)
         d = o.mean.minus(self.mean) if self.frame == "right" else o.mean.lminus(self.mean)
         Ji = self.group.jr_inv(d) if self.frame == "right" else self.group.jl_inv(d)
-        R = _sym(Ji @ o.cov @ _mT(Ji))
-        return self.update(d, _eye(self.dof, self.cov), R, reset=reset)
+        R = L.symmetrize(Ji @ o.cov @ L.mT(Ji))
+        return self._kalman(d, L.eye(self.dof, self.cov), R, reset,
+                            "the difference of the two means")
+
+    def _kalman(self, r: Array, H: Array, R: Array, reset: bool, what: str) -> Gaussian:
+        P = self.cov
+        PHt = P @ L.mT(H)
+        S = L.symmetrize(H @ PHt + R)
+        null = _Null.of(S)
+        if null is None:
+            K = L.mT(L.solve(S, L.mT(PHt)))
+        else:
+            off = L.concrete(null.off_support(S, r))
+            if off is not None and off.any():
+                raise ValueError(
+                    f"{what} is not in the range of H P H^T + R: it has a component along a "
+                    f"direction in which both covariances are zero (the two are incompatible)")
+            K = L.mT(null.pinv_solve(S, L.mT(PHt)))
+        d = (K @ r[..., None])[..., 0]
+        IKH = L.eye(self.dof, P) - K @ H
+        Pn = IKH @ P @ L.mT(IKH) + K @ R @ L.mT(K)
+        if reset:
+            J = self.group.jr(d) if self.frame == "right" else self.group.jl(d)
+            Pn = J @ Pn @ L.mT(J)
+        return Gaussian._make(self.retract(d), L.symmetrize(Pn), self.frame)
 
     # ------------------------------------------------------------------ helpers
     def _same_group(self, X: Any) -> None:
@@ -637,6 +1212,14 @@ class Gaussian:
 # ---------------------------------------------------------------------------- propagation
 
 
+@overload
+def propagate(value: LieGroup, inputs: Sequence[Gaussian | VectorGaussian],
+              jacobians: Sequence[Any], *, side: Frame,
+              cross_cov: Mapping[tuple[int, int], Any] | None = None) -> Gaussian: ...
+@overload
+def propagate(value: Any, inputs: Sequence[Gaussian | VectorGaussian],
+              jacobians: Sequence[Any], *, side: Frame,
+              cross_cov: Mapping[tuple[int, int], Any] | None = None) -> VectorGaussian: ...
 def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian],
               jacobians: Sequence[Any], *, side: Frame,
               cross_cov: Mapping[tuple[int, int], Any] | None = None
@@ -645,15 +1228,32 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
 
     ``P = sum_i J_i P_i J_i^T + sum_(i,j) (J_i C_ij J_j^T + J_j C_ij^T J_i^T)``.
 
-    * ``jacobians[i]`` is ``d f / d x_i``, shape ``(*batch, m, dim_i)``; for group inputs and a
-      group output the perturbations are on ``side`` (right: ``X Exp(e)``; left: ``Exp(e) X``).
-      Group inputs in the other frame are converted exactly (``J_i Ad`` is used).
-    * ``cross_cov[(i, j)] = E[e_i e_j^T]`` (``i != j``), each error in its own input's frame;
-      inputs are independent otherwise.
-    * A group ``value`` gives a :class:`Gaussian` in frame ``side``; an array gives a
-      :class:`VectorGaussian`.
+    Parameters
+    ----------
+    value : LieGroup or array
+        ``f`` at the means. A group ``value`` gives a :class:`Gaussian` in frame ``side``; an
+        array gives a :class:`VectorGaussian`.
+    inputs : sequence of Gaussian or VectorGaussian
+        The independent (unless ``cross_cov``) inputs. Group inputs in the other frame are
+        converted exactly (``J_i Ad`` is used).
+    jacobians : sequence of array_like
+        ``jacobians[i]`` is ``d f / d x_i``, shape ``(*batch, m, dim_i)``; for group inputs and
+        a group output the perturbations are on ``side`` (right: ``X Exp(e)``; left:
+        ``Exp(e) X``).
+    side : {"right", "left"}
+        The perturbation side.
+    cross_cov : mapping, optional
+        ``cross_cov[(i, j)] = E[e_i e_j^T]`` (``i != j``), each error in its own input's frame.
 
-    >>> from microlie import SE2
+    Returns
+    -------
+    Gaussian or VectorGaussian
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2, Gaussian
+    >>> from microlie.uncertainty import propagate
     >>> X = Gaussian(SE2.identity(), 0.01 * np.eye(3), frame="right")
     >>> Y = Gaussian(SE2.from_xy_theta(1.0, 0.0, 0.5), 0.02 * np.eye(3), frame="right")
     >>> Z, JX, JY = X.mean.compose(Y.mean, jac=True)
@@ -672,7 +1272,7 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
         m = value.dof
         ref = value.params
     else:
-        value = _as_array(value, like, "value")
+        value = L.copy(_as_array(value, like, "value"))
         m = int(value.shape[-1])
         ref = value
     eff = []
@@ -690,7 +1290,7 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
     for g, J in zip(inputs, eff, strict=True):
         if g.cov is None:
             continue
-        term = J @ g.cov @ _mT(J)
+        term = J @ g.cov @ L.mT(J)
         P = term if P is None else P + term
     for (i, j), C in (cross_cov or {}).items():
         if i == j or not (0 <= i < len(inputs) and 0 <= j < len(inputs)):
@@ -698,15 +1298,15 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
         ni, nj = eff[i].shape[-1], eff[j].shape[-1]
         Cm = _as_array(C, ref, f"cross_cov[{(i, j)}]")
         A.check_last_dim(Cm, (ni, nj), f"cross_cov[{(i, j)}]")
-        A.check_finite(Cm, f"cross_cov[{(i, j)}]")
-        term = eff[i] @ Cm @ _mT(eff[j])
-        P = P + term + _mT(term)
+        _check_finite(Cm, f"cross_cov[{(i, j)}]")
+        term = eff[i] @ Cm @ L.mT(eff[j])
+        P = P + term + L.mT(term)
     if P is None:
         raise ValueError("no input has a covariance")
-    P = _sym(P)
+    P = L.symmetrize(P)
     if isinstance(value, LieGroup):
         params, P = _broadcast_pair(value.params, P)
-        return Gaussian._make(type(value)._wrap(params), P, side)
+        return Gaussian._make(_element(value, params), P, side)
     mean, P = _broadcast_pair(value, P)
     return VectorGaussian._make(mean, P)
 
@@ -717,19 +1317,18 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
 def _broadcast_pair(v: Array, P: Array) -> tuple[Array, Array]:
     """Broadcast the batch axes of a vector ``(..., k)`` and a matrix ``(..., n, n)``."""
     batch = tuple(np.broadcast_shapes(tuple(v.shape[:-1]), tuple(P.shape[:-2])))
-    return (_broadcast_to(v, (*batch, v.shape[-1])), _broadcast_to(P, (*batch, *P.shape[-2:])))
+    return (L.broadcast_to(v, (*batch, v.shape[-1])), L.broadcast_to(P, (*batch, *P.shape[-2:])))
+
+
+def _element(X: LieGroup, params: Array) -> LieGroup:
+    """``X`` itself, or the element of its group with ``params`` (``X``'s broadcast)."""
+    return X if params is X.params else type(X).from_params(params, check=False)
 
 
 def _same_backend(a: Array, b: Array) -> None:
-    if a is not None and b is not None and A.namespace(a) is not A.namespace(b):
+    if a is not None and b is not None and not L.same_backend(a, b):
         raise ValueError(f"cannot mix array backends: {type(a).__module__} and "
                          f"{type(b).__module__} (convert one Gaussian first)")
-
-
-def _diag(P: Array) -> Array:
-    if A.is_numpy(P):
-        return np.diagonal(P, axis1=-2, axis2=-1)
-    return _xp(P).stack([P[..., i, i] for i in range(P.shape[-1])], axis=-1)
 
 
 def _is_zero(g: Any) -> bool:
@@ -746,7 +1345,7 @@ def _vector_input(x: Any, cov: Any, n: int, what: str, like: Array | None) -> Ve
         return x
     m = A.as_float_array(x) if like is None else _as_array(x, like, what)
     A.check_last_dim(m, n, what)
-    A.check_finite(m, what)
+    _check_finite(m, what)
     if cov is None:
         return VectorGaussian._make(m, None)
     return VectorGaussian(m, cov)
@@ -754,37 +1353,53 @@ def _vector_input(x: Any, cov: Any, n: int, what: str, like: Array | None) -> Ve
 
 def _standard_normal(n: int | tuple[int, ...], shape: tuple, rng: Any, like: Array) -> Array:
     size = (n,) if isinstance(n, (int, np.integer)) else tuple(n)
-    z = np.random.default_rng(rng).standard_normal((*size, *shape))
-    return A.as_float_array(z, like=like) if not A.is_numpy(like) else z.astype(like.dtype)
+    return L.asarray(np.random.default_rng(rng).standard_normal((*size, *shape)), like)
 
 
-def _mahalanobis(e: Array, P: Array, squared: bool) -> Array:
-    sol = _solve(P, e[..., None])[..., 0]
-    d2 = (e * sol).sum(-1) if A.is_numpy(e) else _xp(e).sum(e * sol, axis=-1)
+_UNSET: Any = object()  # "rank not computed yet" (distinct from None: "full rank or unknown")
+
+
+def _rank(g: Gaussian | VectorGaussian) -> _Null | None:
+    """The zero-variance directions of ``g.cov``, computed once per object."""
+    null = g._null
+    if null is _UNSET:
+        null = _Null.of(g.cov)
+        object.__setattr__(g, "_null", null)
+    return null
+
+
+def _cov_factor(g: Gaussian | VectorGaussian) -> Array:
+    """``S`` with ``S S^T = g.cov`` for sampling: the Cholesky factor when the covariance is
+    known to have full rank (its gradient is finite where ``eigh``'s is not: repeated
+    eigenvalues), else the symmetric square root from ``eigh`` (rank-deficient or traced)."""
+    if L.concrete(g.cov) is not None and _rank(g) is None:
+        return L.cholesky(g.cov)
+    return L.sqrt_psd(g.cov)
+
+
+def _mahalanobis(e: Array, P: Array, squared: bool, null: _Null | None) -> Array:
+    """``e^T P^-1 e`` (or its root); on a rank-deficient ``P`` (``null``, see :class:`_Null`)
+    the pseudo-inverse on the support and ``inf`` off it."""
+    if null is None:
+        d2 = (e * L.solve(P, e[..., None])[..., 0]).sum(-1)
+    else:
+        d2 = (e * null.pinv_solve(P, e[..., None])[..., 0]).sum(-1)
+        d2 = L.where(null.off_support(P, e), math.inf, d2)
     return d2 if squared else d2**0.5
 
 
-def _log_normal(e: Array, P: Array) -> Array:
+def _log_normal(e: Array, P: Array, null: _Null | None) -> Array:
+    """``log N(e; 0, P)``; on a rank-deficient ``P`` the density on its support (w.r.t. the
+    Lebesgue measure of the support, as SciPy's ``allow_singular=True``), ``-inf`` off it."""
     n = e.shape[-1]
-    return -0.5 * (_mahalanobis(e, P, True) + n * _LOG_2PI + _slogdet(P))
+    d2 = _mahalanobis(e, P, True, null)
+    if null is None:
+        return -0.5 * (d2 + n * _LOG_2PI + L.slogdet(P)[1])
+    rank = L.asarray(n - null.rank_loss, d2)
+    return -0.5 * (d2 + rank * _LOG_2PI + null.log_pdet(P))
 
 
-_JAX_REGISTERED = False
-
-
-def _register_jax(like: Array) -> None:
-    """Make :class:`Gaussian` and :class:`VectorGaussian` JAX pytrees (once JAX is in use)."""
-    global _JAX_REGISTERED
-    if _JAX_REGISTERED or "jax" not in sys.modules:
-        return
-    import jax
-
-    A.ops_for(like)  # also registers the group classes (the core does it on first use only)
-
-    _JAX_REGISTERED = True
-    jax.tree_util.register_pytree_node(
-        Gaussian, lambda g: ((g.mean, g.cov), g.frame),
-        lambda frame, ch: Gaussian._make(ch[0], ch[1], frame))
-    jax.tree_util.register_pytree_node(
-        VectorGaussian, lambda g: ((g.mean, g.cov), None),
-        lambda _, ch: VectorGaussian._make(ch[0], ch[1]))
+L.register_pytree(Gaussian, lambda g: ((g.mean, g.cov), g.frame),
+                  lambda frame, ch: Gaussian._make(ch[0], ch[1], frame))
+L.register_pytree(VectorGaussian, lambda g: ((g.mean, g.cov), None),
+                  lambda _, ch: VectorGaussian._make(ch[0], ch[1]))

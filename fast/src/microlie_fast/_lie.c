@@ -1,9 +1,15 @@
 /* microlie_fast._lie: compiled NumPy kernels for microlie's kernel registry.
  *
- * Each function takes C-contiguous float64 arrays of shape (N, k) (rows are elements; the
- * caller broadcasts and flattens batch axes) and returns a tuple of fresh float64 arrays, one per
- * output, of shape (N, k) or (N, r, c). The element formulas live in lie_math.h; the loops here
- * are `omp simd` loops that GCC vectorises, with glibc's libmvec for tan, sin, cos and atan2. */
+ * Each kernel takes C-contiguous arrays of shape (N, k_i), all float64 or all float32 (the caller
+ * broadcasts and flattens batch axes), and returns a tuple of fresh arrays of that dtype, one per
+ * output, of shape (N, k) or (N, r, c) (see microlie._kernels.KERNELS).
+ *
+ * Layout: rows of 3, 4, 6 or 7 components do not vectorise in GCC (interleaved groups of 6 or 7
+ * are not supported), so each kernel works on blocks of S elements: the rows of a block are
+ * copied into structure-of-arrays buffers (component i of element j at buf[i * S + j], converted
+ * to double), an `omp simd` loop over the block evaluates the element formula of lie_math.h with
+ * unit-stride accesses (vectorised, with glibc's libmvec for tan, sin, cos and atan2), and the
+ * results are copied back to rows (rounded to float for float32 inputs). */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
@@ -11,195 +17,256 @@
 
 #include "lie_math.h"
 
-/* a borrowed view of argument i as a C-contiguous (n, k) float64 array, or NULL with an error */
-static PyArrayObject *arg2d(PyObject *const *args, int i, npy_intp k, npy_intp *n) {
-    PyObject *o = args[i];
-    if (!PyArray_Check(o)) {
-        PyErr_Format(PyExc_TypeError, "argument %d: expected a NumPy array", i);
-        return NULL;
+typedef npy_intp ix;
+typedef void (*block_fn)(const double *restrict in, double *restrict out, ix m);
+typedef void (*plain_fn)(const double *restrict a, const double *restrict b, double *restrict o,
+                         ix n);
+
+typedef struct {
+    const char *name; /* the registry name, e.g. "SE3.exp" */
+    int nin;
+    int kin[2];      /* widths of the inputs */
+    int nout;
+    int rows[3];     /* output j has shape (N, rows[j]) if cols[j] == 0, else (N, rows, cols) */
+    int cols[3];
+    block_fn fn;
+    plain_fn plain; /* a row loop for float64 (cheap formulas: the block copies would dominate) */
+} kernel;
+
+#define MAXW 96 /* total width of the inputs or outputs of one kernel, at most */
+
+static int width(const kernel *k, int j) { return k->rows[j] * (k->cols[j] ? k->cols[j] : 1); }
+
+/* AoS rows -> SoA block (double) and back, for float64 and float32 rows */
+#define COPY_FUNCS(T, SUF)                                                                     \
+    static void load_##SUF(const T *restrict x, int kw, ix m, double *restrict buf) {          \
+        for (ix j = 0; j < m; j++)                                                              \
+            for (int c = 0; c < kw; c++) buf[c * S + j] = (double)x[kw * j + c];              \
+    }                                                                                          \
+    static void store_##SUF(const double *restrict buf, int kw, ix m, T *restrict y) {         \
+        for (ix j = 0; j < m; j++)                                                              \
+            for (int c = 0; c < kw; c++) y[kw * j + c] = (T)buf[c * S + j];                   \
     }
-    PyArrayObject *a = (PyArrayObject *)o;
-    if (PyArray_TYPE(a) != NPY_DOUBLE || PyArray_NDIM(a) != 2 || PyArray_DIM(a, 1) != k ||
-        !PyArray_IS_C_CONTIGUOUS(a)) {
-        PyErr_Format(PyExc_ValueError,
-                     "argument %d: expected a C-contiguous float64 array of shape (N, %zd)", i,
-                     (Py_ssize_t)k);
-        return NULL;
+COPY_FUNCS(double, f64)
+COPY_FUNCS(float, f32)
+
+/* rows with a constant width: the compiler unrolls the component loop */
+#define LOADK(KW)                                                                              \
+    static void load_f64_##KW(const double *restrict x, ix m, double *restrict buf) {          \
+        for (ix j = 0; j < m; j++)                                                              \
+            for (int c = 0; c < KW; c++) buf[c * S + j] = x[KW * j + c];                      \
     }
-    if (*n < 0) *n = PyArray_DIM(a, 0);
-    else if (PyArray_DIM(a, 0) != *n) {
-        PyErr_SetString(PyExc_ValueError, "arguments have different numbers of rows");
-        return NULL;
+LOADK(3) LOADK(4) LOADK(6) LOADK(7)
+
+static void load_rows(int f32, const char *x, int kw, ix m, double *buf) {
+    if (f32) { load_f32((const float *)x, kw, m, buf); return; }
+    const double *d = (const double *)x;
+    switch (kw) {
+    case 3: load_f64_3(d, m, buf); break;
+    case 4: load_f64_4(d, m, buf); break;
+    case 6: load_f64_6(d, m, buf); break;
+    case 7: load_f64_7(d, m, buf); break;
+    default: load_f64(d, kw, m, buf);
     }
-    return a;
 }
 
-static PyObject *new_out(npy_intp n, npy_intp r, npy_intp c) {
-    npy_intp dims[3] = {n, r, c};
-    return PyArray_SimpleNew(c > 0 ? 3 : 2, dims, NPY_DOUBLE);
+static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *const *out) {
+    if (k->plain && !f32) {
+        k->plain((const double *)in[0], (const double *)in[k->nin - 1], (double *)out[0], n);
+        return;
+    }
+    double ibuf[2 * 7 * S] __attribute__((aligned(64)));
+    double obuf[MAXW * S] __attribute__((aligned(64)));
+    size_t es = f32 ? sizeof(float) : sizeof(double);
+    int wo[3];
+    for (int j = 0; j < k->nout; j++) wo[j] = width(k, j);
+    for (ix i0 = 0; i0 < n; i0 += S) {
+        ix m = n - i0 < S ? n - i0 : S;
+        int off = 0;
+        for (int a = 0; a < k->nin; a++) {
+            load_rows(f32, in[a] + (size_t)(i0 * k->kin[a]) * es, k->kin[a], m, ibuf + off * S);
+            off += k->kin[a];
+        }
+        k->fn(ibuf, obuf, m);
+        off = 0;
+        for (int j = 0; j < k->nout; j++) {
+            char *y = out[j] + (size_t)(i0 * wo[j]) * es;
+            if (f32) store_f32(obuf + off * S, wo[j], m, (float *)y);
+            else store_f64(obuf + off * S, wo[j], m, (double *)y);
+            off += wo[j];
+        }
+    }
 }
 
-#define D(a) ((double *)PyArray_DATA((PyArrayObject *)(a)))
-
-#define CHECK_NARGS(want)                                                                   \
-    if (nargs != (want)) {                                                                  \
-        PyErr_Format(PyExc_TypeError, "expected %d arguments, got %zd", (want), nargs);     \
-        return NULL;                                                                        \
+static PyObject *call(const kernel *k, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != k->nin) {
+        PyErr_Format(PyExc_TypeError, "%s: expected %d arguments, got %zd", k->name, k->nin,
+                     nargs);
+        return NULL;
     }
-
-/* two inputs of widths KA, KB, one output of width KO */
-#define BINARY(NAME, KA, KB, KO, FN)                                                        \
-    static PyObject *NAME(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {        \
-        CHECK_NARGS(2);                                                                     \
-        npy_intp n = -1;                                                                    \
-        PyArrayObject *a = arg2d(args, 0, KA, &n);                                          \
-        if (!a) return NULL;                                                                \
-        PyArrayObject *b = arg2d(args, 1, KB, &n);                                          \
-        if (!b) return NULL;                                                                \
-        PyObject *o = new_out(n, KO, 0);                                                    \
-        if (!o) return NULL;                                                                \
-        const double *x = (const double *)PyArray_DATA(a), *z = (const double *)PyArray_DATA(b); \
-        double *y = D(o);                                                                   \
-        _Pragma("omp simd") for (npy_intp i = 0; i < n; i++)                                \
-            FN(x + KA * i, z + KB * i, y + KO * i);                                         \
-        PyObject *t = PyTuple_Pack(1, o);                                                   \
-        Py_DECREF(o);                                                                       \
-        return t;                                                                           \
+    ix n = -1;
+    int type = -1;
+    char *in[2];
+    for (int a = 0; a < k->nin; a++) {
+        PyObject *o = args[a];
+        if (!PyArray_Check(o)) {
+            PyErr_Format(PyExc_TypeError, "%s: argument %d is not a NumPy array", k->name, a);
+            return NULL;
+        }
+        PyArrayObject *x = (PyArrayObject *)o;
+        int t = PyArray_TYPE(x);
+        if ((t != NPY_DOUBLE && t != NPY_FLOAT) || (type >= 0 && t != type) ||
+            PyArray_NDIM(x) != 2 || PyArray_DIM(x, 1) != k->kin[a] ||
+            !PyArray_IS_C_CONTIGUOUS(x) || (n >= 0 && PyArray_DIM(x, 0) != n)) {
+            PyErr_Format(PyExc_ValueError,
+                         "%s: argument %d must be a C-contiguous float64 or float32 array of "
+                         "shape (N, %d), with the same N and dtype as the other arguments",
+                         k->name, a, k->kin[a]);
+            return NULL;
+        }
+        type = t;
+        n = PyArray_DIM(x, 0);
+        in[a] = PyArray_BYTES(x);
     }
-
-static PyObject *pack1(PyObject *o) {
-    PyObject *t = PyTuple_Pack(1, o);
-    Py_DECREF(o);
-    return t;
+    PyObject *res = PyTuple_New(k->nout);
+    if (!res) return NULL;
+    char *out[3];
+    for (int j = 0; j < k->nout; j++) {
+        npy_intp dims[3] = {n, k->rows[j], k->cols[j]};
+        PyObject *o = PyArray_SimpleNew(k->cols[j] ? 3 : 2, dims, type);
+        if (!o) {
+            Py_DECREF(res);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(res, j, o);
+        out[j] = PyArray_BYTES((PyArrayObject *)o);
+    }
+    int f32 = type == NPY_FLOAT;
+    if (n > 4 * S) {
+        Py_BEGIN_ALLOW_THREADS
+        evaluate(k, f32, n, in, out);
+        Py_END_ALLOW_THREADS
+    } else {
+        evaluate(k, f32, n, in, out);
+    }
+    return res;
 }
-#define UNARY(NAME, KI, KO, FN)                                                             \
-    static PyObject *NAME(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {        \
-        CHECK_NARGS(1);                                                                     \
-        npy_intp n = -1;                                                                    \
-        PyArrayObject *a = arg2d(args, 0, KI, &n);                                          \
-        if (!a) return NULL;                                                                \
-        PyObject *o = new_out(n, KO, 0);                                                    \
-        if (!o) return NULL;                                                                \
-        const double *x = (const double *)PyArray_DATA(a);                                  \
-        double *y = D(o);                                                                   \
-        _Pragma("omp simd") for (npy_intp i = 0; i < n; i++) FN(x + KI * i, y + KO * i);    \
-        return pack1(o);                                                                    \
+
+/* the block function of an element operation of lie_math.h; input 0 occupies rows 0..KA-1 */
+#define BLOCK(FN, KA)                                                                          \
+    static void blk_##FN(const double *restrict in, double *restrict out, ix m) {               \
+        _Pragma("omp simd") for (ix j = 0; j < m; j++) FN(in + j, in + (KA) * S + j, out + j);  \
     }
 
-/* one input of width KI, one (N, R, C) matrix output */
-#define UNARY_MAT(NAME, KI, R, C, FN)                                                       \
-    static PyObject *NAME(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {        \
-        CHECK_NARGS(1);                                                                     \
-        npy_intp n = -1;                                                                    \
-        PyArrayObject *a = arg2d(args, 0, KI, &n);                                          \
-        if (!a) return NULL;                                                                \
-        PyObject *o = new_out(n, R, C);                                                     \
-        if (!o) return NULL;                                                                \
-        const double *x = (const double *)PyArray_DATA(a);                                  \
-        double *y = D(o);                                                                   \
-        _Pragma("omp simd") for (npy_intp i = 0; i < n; i++) FN(x + KI * i, y + (R * C) * i); \
-        return pack1(o);                                                                    \
+/* row loops of the cheap operations (quaternion products): as fast as the native loop, while
+ * the copies to and from blocks would double their time */
+#define PLAIN(FN, KA, KB, KO, BODY)                                                            \
+    static void pl_##FN(const double *restrict a, const double *restrict b, double *restrict o,  \
+                        ix n) {                                                                \
+        (void)b;                                                                               \
+        for (ix i = 0; i < n; i++) {                                                           \
+            const double *x = a + (KA) * i, *y = b + (KB) * i;                                 \
+            double *r = o + (KO) * i;                                                          \
+            (void)y;                                                                           \
+            BODY;                                                                              \
+        }                                                                                      \
     }
+PLAIN(so3_inverse, 4, 0, 4, quat_conj(x, r))
+PLAIN(so3_compose, 4, 4, 4, quat_mul(x, y, r))
+PLAIN(so3_between, 4, 4, 4, double c[4]; quat_conj(x, c); quat_mul(c, y, r))
+PLAIN(se3_inverse, 7, 0, 7, se3_inverse_l(x, r))
+PLAIN(se3_compose, 7, 7, 7, se3_compose_l(x, y, r))
+PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi, y, r))
 
-LM_INLINE void so3_compose(const double *p, const double *q, double *o) { quat_mul(p, q, o); }
-LM_INLINE void so3_act(const double *q, const double *v, double *o) { quat_rotate(q, v, o); }
-LM_INLINE void so3_jr3(const double *w, double *J) { so3_jr(w, J, 3); }
-LM_INLINE void so3_jr_inv3(const double *w, double *J) { so3_jr_inv(w, J, 3); }
+#define KERNELS(X)                                                                             \
+    X(so3_log_jac, "SO3.log_jac", 1, 4, 0, 2, 3, 3, 0, 0, 3, 0, 0)                            \
+    X(so3_matrix, "SO3.matrix", 1, 4, 0, 1, 3, 0, 0, 3, 0, 0, 0)                                \
+    X(so3_adjoint, "SO3.adjoint", 1, 4, 0, 1, 3, 0, 0, 3, 0, 0, 0)                              \
+    X(so3_adjoint_inv, "SO3.adjoint_inv", 1, 4, 0, 1, 3, 0, 0, 3, 0, 0, 0)                      \
+    X(so3_plus, "SO3.plus", 2, 4, 3, 1, 4, 0, 0, 0, 0, 0, 0)                                    \
+    X(se3_log_jac, "SE3.log_jac", 1, 7, 0, 2, 6, 6, 0, 0, 6, 0, 0)                              \
+    X(se3_matrix, "SE3.matrix", 1, 7, 0, 1, 4, 0, 0, 4, 0, 0, 0)                                \
+    X(se3_adjoint, "SE3.adjoint", 1, 7, 0, 1, 6, 0, 0, 6, 0, 0, 0)                              \
+    X(se3_adjoint_inv, "SE3.adjoint_inv", 1, 7, 0, 1, 6, 0, 0, 6, 0, 0, 0)                      \
+    X(se3_plus, "SE3.plus", 2, 7, 6, 1, 7, 0, 0, 0, 0, 0, 0)                                    \
+    X(so3_lplus, "SO3.lplus", 2, 4, 3, 1, 4, 0, 0, 0, 0, 0, 0)                                  \
+    X(so3_lminus, "SO3.lminus", 2, 4, 4, 1, 3, 0, 0, 0, 0, 0, 0)                                \
+    X(so3_plus_jac, "SO3.plus_jac", 2, 4, 3, 3, 4, 3, 3, 0, 3, 3, 0)                            \
+    X(so3_lplus_jac, "SO3.lplus_jac", 2, 4, 3, 2, 4, 3, 0, 0, 3, 0, 0)                          \
+    X(so3_lminus_jac, "SO3.lminus_jac", 2, 4, 4, 3, 3, 3, 3, 0, 3, 3, 0)                        \
+    X(se3_lplus, "SE3.lplus", 2, 7, 6, 1, 7, 0, 0, 0, 0, 0, 0)                                  \
+    X(se3_lminus, "SE3.lminus", 2, 7, 7, 1, 6, 0, 0, 0, 0, 0, 0)                                \
+    X(se3_plus_jac, "SE3.plus_jac", 2, 7, 6, 3, 7, 6, 6, 0, 6, 6, 0)                            \
+    X(se3_lplus_jac, "SE3.lplus_jac", 2, 7, 6, 2, 7, 6, 0, 0, 6, 0, 0)                          \
+    X(se3_lminus_jac, "SE3.lminus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6, 0)                        \
+    X(so3_exp, "SO3.exp", 1, 3, 0, 1, 4, 0, 0, 0, 0, 0, 0)                                     \
+    X(so3_log, "SO3.log", 1, 4, 0, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(so3_inverse, "SO3.inverse", 1, 4, 0, 1, 4, 0, 0, 0, 0, 0, pl_so3_inverse)                \
+    X(so3_compose, "SO3.compose", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0, pl_so3_compose)                \
+    X(so3_between, "SO3.between", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0, pl_so3_between)                \
+    X(so3_act, "SO3.act", 2, 4, 3, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(so3_minus, "SO3.minus", 2, 4, 4, 1, 3, 0, 0, 0, 0, 0, 0)                                 \
+    X(so3_jr, "SO3.jr", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0, 0)                                       \
+    X(so3_jr_inv, "SO3.jr_inv", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0, 0)                               \
+    X(so3_exp_jac, "SO3.exp_jac", 1, 3, 0, 2, 4, 3, 0, 0, 3, 0, 0)                             \
+    X(so3_act_jac, "SO3.act_jac", 2, 4, 3, 3, 3, 3, 3, 0, 3, 3, 0)                             \
+    X(so3_inverse_jac, "SO3.inverse_jac", 1, 4, 0, 2, 4, 3, 0, 0, 3, 0, 0)                     \
+    X(so3_compose_jac, "SO3.compose_jac", 2, 4, 4, 2, 4, 3, 0, 0, 3, 0, 0)                     \
+    X(so3_between_jac, "SO3.between_jac", 2, 4, 4, 2, 4, 3, 0, 0, 3, 0, 0)                     \
+    X(so3_minus_jac, "SO3.minus_jac", 2, 4, 4, 3, 3, 3, 3, 0, 3, 3, 0)                         \
+    X(se3_exp, "SE3.exp", 1, 6, 0, 1, 7, 0, 0, 0, 0, 0, 0)                                     \
+    X(se3_log, "SE3.log", 1, 7, 0, 1, 6, 0, 0, 0, 0, 0, 0)                                     \
+    X(se3_inverse, "SE3.inverse", 1, 7, 0, 1, 7, 0, 0, 0, 0, 0, pl_se3_inverse)                \
+    X(se3_compose, "SE3.compose", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0, pl_se3_compose)                \
+    X(se3_between, "SE3.between", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0, pl_se3_between)                \
+    X(se3_act, "SE3.act", 2, 7, 3, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(se3_minus, "SE3.minus", 2, 7, 7, 1, 6, 0, 0, 0, 0, 0, 0)                                 \
+    X(se3_jr, "SE3.jr", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0, 0)                                       \
+    X(se3_jr_inv, "SE3.jr_inv", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0, 0)                               \
+    X(se3_exp_jac, "SE3.exp_jac", 1, 6, 0, 2, 7, 6, 0, 0, 6, 0, 0)                             \
+    X(se3_act_jac, "SE3.act_jac", 2, 7, 3, 3, 3, 3, 3, 0, 6, 3, 0)                             \
+    X(se3_inverse_jac, "SE3.inverse_jac", 1, 7, 0, 2, 7, 6, 0, 0, 6, 0, 0)                     \
+    X(se3_compose_jac, "SE3.compose_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0, 0)                     \
+    X(se3_between_jac, "SE3.between_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0, 0)                     \
+    X(se3_minus_jac, "SE3.minus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6, 0)
 
-UNARY(k_so3_exp, 3, 4, so3_exp)
-UNARY(k_so3_log, 4, 3, so3_log)
-UNARY(k_so3_inverse, 4, 4, so3_inverse)
-BINARY(k_so3_compose, 4, 4, 4, so3_compose)
-BINARY(k_so3_act, 4, 3, 3, so3_act)
-UNARY_MAT(k_so3_jr, 3, 3, 3, so3_jr3)
-UNARY_MAT(k_so3_jr_inv, 3, 3, 3, so3_jr_inv3)
-UNARY(k_se3_exp, 6, 7, se3_exp)
-UNARY(k_se3_log, 7, 6, se3_log)
-UNARY(k_se3_inverse, 7, 7, se3_inverse)
-BINARY(k_se3_compose, 7, 7, 7, se3_compose)
-BINARY(k_se3_act, 7, 3, 3, se3_act)
-UNARY_MAT(k_se3_jr, 6, 6, 6, se3_jr)
-UNARY_MAT(k_se3_jr_inv, 6, 6, 6, se3_jr_inv)
-
-/* act with both Jacobians: (p (N,KP), v (N,3)) -> (out (N,3), JX (N,3,DOF), Jv (N,3,3)) */
-#define ACT_JAC(NAME, KP, DOF, FN)                                                          \
-    static PyObject *NAME(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {        \
-        CHECK_NARGS(2);                                                                     \
-        npy_intp n = -1;                                                                    \
-        PyArrayObject *a = arg2d(args, 0, KP, &n);                                          \
-        if (!a) return NULL;                                                                \
-        PyArrayObject *b = arg2d(args, 1, 3, &n);                                           \
-        if (!b) return NULL;                                                                \
-        PyObject *o = new_out(n, 3, 0), *jx = new_out(n, 3, DOF), *jv = new_out(n, 3, 3);   \
-        if (!o || !jx || !jv) {                                                             \
-            Py_XDECREF(o); Py_XDECREF(jx); Py_XDECREF(jv);                                  \
-            return NULL;                                                                    \
-        }                                                                                   \
-        const double *p = (const double *)PyArray_DATA(a), *v = (const double *)PyArray_DATA(b); \
-        double *po = D(o), *pjx = D(jx), *pjv = D(jv);                                      \
-        _Pragma("omp simd") for (npy_intp i = 0; i < n; i++)                                \
-            FN(p + KP * i, v + 3 * i, po + 3 * i, pjx + 3 * DOF * i, pjv + 9 * i);          \
-        PyObject *t = PyTuple_Pack(3, o, jx, jv);                                           \
-        Py_DECREF(o); Py_DECREF(jx); Py_DECREF(jv);                                         \
-        return t;                                                                           \
+#define DEFINE(FN, NAME, NIN, KA, KB, NOUT, R0, R1, R2, C0, C1, C2, PLAIN)                    \
+    BLOCK(FN, KA)                                                                              \
+    static const kernel k_##FN = {NAME, NIN, {KA, KB}, NOUT, {R0, R1, R2}, {C0, C1, C2},       \
+                                  blk_##FN, PLAIN};                                            \
+    static PyObject *py_##FN(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {       \
+        (void)self;                                                                            \
+        return call(&k_##FN, args, nargs);                                                     \
     }
+KERNELS(DEFINE)
 
-ACT_JAC(k_se3_act_jac, 7, 6, se3_act_jac)
-ACT_JAC(k_so3_act_jac, 4, 3, so3_act_jac)
-
-/* exp with its right Jacobian: tau (N,DOF) -> (params (N,KP), Jr (N,DOF,DOF)) */
-#define EXP_JAC(NAME, DOF, KP, EXPF, JRF)                                                   \
-    static PyObject *NAME(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {        \
-        CHECK_NARGS(1);                                                                     \
-        npy_intp n = -1;                                                                    \
-        PyArrayObject *a = arg2d(args, 0, DOF, &n);                                         \
-        if (!a) return NULL;                                                                \
-        PyObject *o = new_out(n, KP, 0), *j = new_out(n, DOF, DOF);                         \
-        if (!o || !j) {                                                                     \
-            Py_XDECREF(o); Py_XDECREF(j);                                                   \
-            return NULL;                                                                    \
-        }                                                                                   \
-        const double *x = (const double *)PyArray_DATA(a);                                  \
-        double *po = D(o), *pj = D(j);                                                      \
-        _Pragma("omp simd") for (npy_intp i = 0; i < n; i++) {                              \
-            EXPF(x + DOF * i, po + KP * i);                                                 \
-            JRF(x + DOF * i, pj + DOF * DOF * i);                                           \
-        }                                                                                   \
-        PyObject *t = PyTuple_Pack(2, o, j);                                                \
-        Py_DECREF(o); Py_DECREF(j);                                                         \
-        return t;                                                                           \
-    }
-
-EXP_JAC(k_se3_exp_jac, 6, 7, se3_exp, se3_jr)
-EXP_JAC(k_so3_exp_jac, 3, 4, so3_exp, so3_jr3)
-
-#define ENTRY(name, fn, doc) {name, (PyCFunction)(void (*)(void))fn, METH_FASTCALL, doc}
-static PyMethodDef methods[] = {
-    ENTRY("so3_exp", k_so3_exp, "SO3 Exp: tau (N,3) -> (q (N,4),)"),
-    ENTRY("so3_log", k_so3_log, "SO3 Log: q (N,4) -> (phi (N,3),)"),
-    ENTRY("so3_inverse", k_so3_inverse, "SO3 inverse: q (N,4) -> (q (N,4),)"),
-    ENTRY("so3_compose", k_so3_compose, "SO3 compose: (q, r) (N,4) -> (q r (N,4),)"),
-    ENTRY("so3_act", k_so3_act, "SO3 act: (q (N,4), v (N,3)) -> (R v (N,3),)"),
-    ENTRY("so3_jr", k_so3_jr, "SO3 Jr: phi (N,3) -> (Jr (N,3,3),)"),
-    ENTRY("so3_jr_inv", k_so3_jr_inv, "SO3 Jr^-1: phi (N,3) -> (Jr^-1 (N,3,3),)"),
-    ENTRY("so3_act_jac", k_so3_act_jac, "SO3 act with Jacobians -> (Rv, d/dR, d/dv)"),
-    ENTRY("so3_exp_jac", k_so3_exp_jac, "SO3 Exp with Jr -> (q, Jr)"),
-    ENTRY("se3_exp", k_se3_exp, "SE3 Exp: tau (N,6) -> (p (N,7),)"),
-    ENTRY("se3_log", k_se3_log, "SE3 Log: p (N,7) -> (tau (N,6),)"),
-    ENTRY("se3_inverse", k_se3_inverse, "SE3 inverse: p (N,7) -> (p (N,7),)"),
-    ENTRY("se3_compose", k_se3_compose, "SE3 compose: (p, q) (N,7) -> (p q (N,7),)"),
-    ENTRY("se3_act", k_se3_act, "SE3 act: (p (N,7), v (N,3)) -> (R v + t (N,3),)"),
-    ENTRY("se3_jr", k_se3_jr, "SE3 Jr: tau (N,6) -> (Jr (N,6,6),)"),
-    ENTRY("se3_jr_inv", k_se3_jr_inv, "SE3 Jr^-1: tau (N,6) -> (Jr^-1 (N,6,6),)"),
-    ENTRY("se3_act_jac", k_se3_act_jac, "SE3 act with Jacobians -> (Tv, d/dT, d/dv)"),
-    ENTRY("se3_exp_jac", k_se3_exp_jac, "SE3 Exp with Jr -> (p, Jr)"),
-    {NULL, NULL, 0, NULL},
-};
+#define ENTRY(FN, NAME, ...) {#FN, (PyCFunction)(void (*)(void))py_##FN, METH_FASTCALL, NAME},
+static PyMethodDef methods[] = {KERNELS(ENTRY){NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_lie",
                                     "Compiled SO(3)/SE(3) kernels for microlie.", -1, methods};
 
 PyMODINIT_FUNC PyInit__lie(void) {
     import_array();
-    return PyModule_Create(&module);
+    PyObject *m = PyModule_Create(&module);
+    if (!m) return NULL;
+    /* KERNELS: registry name -> function name, e.g. {"SE3.exp": "se3_exp"} */
+    PyObject *d = PyDict_New();
+    if (!d || PyModule_AddObject(m, "KERNELS", d) < 0) {
+        Py_XDECREF(d);
+        Py_DECREF(m);
+        return NULL;
+    }
+#define ADD(FN, NAME, ...)                                                                     \
+    {                                                                                          \
+        PyObject *s = PyUnicode_FromString(#FN);                                               \
+        if (!s || PyDict_SetItemString(d, NAME, s) < 0) {                                      \
+            Py_XDECREF(s);                                                                     \
+            Py_DECREF(m);                                                                      \
+            return NULL;                                                                       \
+        }                                                                                      \
+        Py_DECREF(s);                                                                          \
+    }
+    KERNELS(ADD)
+    return m;
 }

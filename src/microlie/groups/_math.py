@@ -9,7 +9,10 @@ gradient can become NaN.
 from __future__ import annotations
 
 from fractions import Fraction
+from functools import reduce as _reduce
 from math import comb, factorial
+from operator import add as _add
+from operator import mul as _mul
 from typing import Any
 
 # Below this squared angle the closed forms that do not cancel (sin t / t, cos t) switch to a
@@ -49,7 +52,7 @@ def _bernoulli(n: int) -> list[Fraction]:
     """Bernoulli numbers B_0..B_n (B_1 = -1/2), from sum_k C(m+1, k) B_k = 0."""
     b = [Fraction(1)]
     for m in range(1, n + 1):
-        b.append(-sum(comb(m + 1, k) * b[k] for k in range(m)) / (m + 1))
+        b.append(-sum((comb(m + 1, k) * b[k] for k in range(m)), Fraction(0)) / (m + 1))
     return b
 
 
@@ -85,14 +88,16 @@ def hat3(v: tuple) -> tuple:
 
 
 def matmul(a: tuple, b: tuple) -> tuple:
-    n, m, p = len(a), len(b), len(b[0])
-    return tuple(
-        tuple(_sum(a[i][k] * b[k][j] for k in range(m)) for j in range(p)) for i in range(n)
-    )
+    if len(b) == 3:  # the common case, written out
+        b0, b1, b2 = b
+        return tuple(tuple(r0 * x + r1 * y + r2 * z for x, y, z in zip(b0, b1, b2, strict=True))
+                     for r0, r1, r2 in a)
+    cols = tuple(zip(*b, strict=True))
+    return tuple(tuple(_reduce(_add, map(_mul, row, col)) for col in cols) for row in a)
 
 
 def matvec(a: tuple, v: tuple) -> tuple:
-    return tuple(_sum(a[i][k] * v[k] for k in range(len(v))) for i in range(len(a)))
+    return tuple(_reduce(_add, map(_mul, row, v)) for row in a)
 
 
 def transpose(a: tuple) -> tuple:
@@ -134,11 +139,7 @@ def eye(n: int, like: Any) -> tuple:
 
 
 def _sum(it) -> Any:
-    it = iter(it)
-    acc = next(it)
-    for x in it:
-        acc = acc + x
-    return acc
+    return _reduce(_add, it)
 
 
 def det3(m: tuple) -> Any:

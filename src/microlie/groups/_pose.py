@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -10,11 +10,34 @@ from .. import _array as A
 from .._array import Array
 from .base import LieGroup
 
+if TYPE_CHECKING:
+    from typing_extensions import Self
+
 
 class Pose(LieGroup):
     """A group whose parameters start with a translation followed by a rotation's parameters."""
 
-    _rotation: ClassVar[type[LieGroup]]  # SO2 or SO3
+    _rotation: ClassVar[Any]  # SO2 or SO3
+    _rotation_slice: ClassVar[slice]  # test fact: the rotation's entries of the tangent
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        # test fact: the rotation's entries of the tangent, right after the translation's
+        rot = cls.__dict__.get("_rotation")
+        if rot is not None and "_rotation_slice" not in cls.__dict__:
+            cls._rotation_slice = slice(rot.point_dim, rot.point_dim + rot.dof)
+        super().__init_subclass__(**kwargs)
+
+    @classmethod
+    def _exact_pi_element(cls) -> Pose:
+        """An element whose rotation is by exactly pi (the rotation group's
+        ``_exact_pi_element``, no rounding), every other part non-zero: ``Exp(tau) X_pi`` with
+        ``tau`` zero on the rotation."""
+        n, r = cls._dims()
+        p = np.array(cls._identity_params)
+        p[n:r] = cls._rotation._exact_pi_element().params  # type: ignore[attr-defined]
+        tau = np.linspace(0.3, 1.1, cls.dof) * (-1.0) ** np.arange(cls.dof)
+        tau[cls._rotation_slice] = 0.0
+        return cls.exp(tau) @ cls(p)  # type: ignore[return-value]
 
     @classmethod
     def _dims(cls) -> tuple[int, int]:
@@ -29,9 +52,28 @@ class Pose(LieGroup):
         return xp.concat([p[..., :n], rot, p[..., r:]], axis=-1)
 
     @classmethod
-    def from_rotation_translation(cls, rotation: Any, translation: Any) -> Pose:
-        """From a rotation (an element of the rotation group, or rotation matrices) and
-        translations ``(..., n)``; the batch axes broadcast."""
+    def from_rotation_translation(cls, rotation: Any, translation: Any) -> Self:
+        """From a rotation and translations; the batch axes broadcast.
+
+        Parameters
+        ----------
+        rotation : LieGroup or array_like
+            An element of the rotation group (SO2 or SO3) or rotation matrices.
+        translation : array_like
+            ``(..., n)``.
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> T = SE3.from_rotation_translation(SO3.exp([0.0, 0.0, 0.5]), [[1.0, 2, 3], [4, 5, 6]])
+        >>> T.batch_shape, T.translation()[1].tolist()
+        ((2,), [4.0, 5.0, 6.0])
+        """
         R = rotation if isinstance(rotation, cls._rotation) else \
             cls._rotation.from_matrix(rotation)
         n, _ = cls._dims()
@@ -51,19 +93,63 @@ class Pose(LieGroup):
         return T[..., : m - 1, : m - 1], T[..., : m - 1, m - 1]
 
     @classmethod
-    def from_matrix(cls, matrix: Any, normalize: bool = False) -> Pose:
-        """From homogeneous matrices ``[[R, t], [0, 1]]``. ``R`` must be a rotation within
-        tolerance (``ValueError`` otherwise) unless ``normalize=True`` projects it."""
+    def from_matrix(cls, matrix: Any, normalize: bool = False) -> Self:
+        """From homogeneous matrices ``[[R, t], [0, 1]]``.
+
+        Parameters
+        ----------
+        matrix : array_like
+            ``(..., n + 1, n + 1)``.
+        normalize : bool
+            Project ``R`` onto the rotations; otherwise a matrix that is not a rotation within
+            tolerance raises ``ValueError``.
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> M = np.array([[0.0, -1.0, 1.0], [1.0, 0.0, 2.0], [0.0, 0.0, 1.0]])
+        >>> np.round(SE2.from_matrix(M).log(), 12)[2] == np.round(np.pi / 2, 12)
+        np.True_
+        """
         R, t = cls._split_matrix(matrix, normalize)
         return cls.from_rotation_translation(cls._rotation.from_matrix(R, normalize=normalize), t)
 
-    def rotation(self) -> LieGroup:
-        """The rotation part, an element of the rotation group."""
+    def rotation(self) -> Any:
+        """The rotation part, an element of the rotation group (SO2 or SO3).
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> from microlie import SE3
+        >>> T = SE3.exp([1.0, 2.0, 3.0, 0.0, 0.0, 0.5])
+        >>> type(T.rotation()).__name__, round(float(T.rotation().log()[2]), 12)
+        ('SO3', 0.5)
+        """
         n, r = self._dims()
         return self._rotation._wrap(self.params[..., n:r])
 
     def translation(self) -> Array:
-        """The translation part ``(..., n)``."""
+        """The translation part.
+
+        Returns
+        -------
+        array
+            ``(*batch, n)``.
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> SE2.from_xy_theta(1.0, 2.0, 0.3).translation().tolist()
+        [1.0, 2.0]
+        """
         return self.params[..., : self._dims()[0]]
 
 
@@ -76,11 +162,10 @@ def concat_last(*arrays: Array) -> Array:
 
 def check_bottom_row(T: Array, what: str) -> None:
     """The last row of a homogeneous matrix must be ``0 ... 0 1``."""
-    if A.is_traced(T) or not int(np.prod(tuple(T.shape[:-2]))):
+    v = A.host_values(T)
+    if v is None or not v.size:
         return
-    xp = A.namespace(T)
-    want = np.zeros(T.shape[-1])
+    want = np.zeros(v.shape[-1])
     want[-1] = 1.0
-    err = float(xp.max(xp.abs(T[..., -1, :] - xp.asarray(want, dtype=T.dtype))))
-    if err > 1e-9:
+    if float(np.max(np.abs(v[..., -1, :] - want))) > 1e-9:
         raise ValueError(f"{what}: the last row of a homogeneous matrix must be 0 ... 0 1")

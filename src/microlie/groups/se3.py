@@ -16,11 +16,15 @@ from .so3 import SO3
 
 
 def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
-    """The block ``Q(rho, phi)`` of the left Jacobian of SE(3) (MATH.md section 4).
+    """The block ``Q(rho, phi)`` of the left Jacobian of SE(3) (Sola et al. eq. 180, Barfoot's
+    ``Q``); the right Jacobian uses ``Q(-rho, -phi) = Q(rho, phi)^T``.
 
-    Written with ``hat(a) hat(b) = b a^T - (a.b) I``, which reduces the products of the
-    textbook formula to ``Q = P/2 + c1 (rho phi^T + phi rho^T - 2d I - d F)
-    + c2 (hat(phi x (phi x rho)) + d F) - 2 c3 d F^2`` with ``d = rho . phi``.
+    With ``hat(a) hat(b) = b a^T - (a.b) I`` the textbook products reduce to
+    ``Q = P/2 + c1 (rho phi^T + phi rho^T - 2d I - d F) + c2 (hat(phi x (phi x rho)) + d F)
+    - 2 c3 d F^2`` (``d = rho . phi``, ``P = hat(rho)``, ``F = hat(phi)``): a symmetric part
+    ``E = c1 (rho phi^T + phi rho^T) - 2 c3 d phi phi^T + (2 c3 d t^2 - 2 c1 d) I`` plus the
+    antisymmetric ``hat(w)``, ``w = rho/2 + (c2 - c1) d phi + c2 phi x (phi x rho)``. The
+    even and odd degrees in ``(rho, phi)`` are exactly these two parts, hence the transpose.
     """
     t2 = M.norm2(*phi)
     k, ch = so3.half_angle(o, t2)
@@ -33,21 +37,23 @@ def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
     c2 = o.where(small, M.horner(t2, M.C_COS4), (t2s + 2.0 * ct - 2.0) / (2.0 * t4))
     c3 = o.where(small, M.horner(t2, M.C_SIN5), (2.0 * t - 3.0 * st + t * ct) / (2.0 * t4 * t))
     d = M.dot(rho, phi)
-    F = M.hat3(phi)
-    F2 = so3.hat_sq(phi, t2)
-    P = M.hat3(rho)
-    G = M.hat3(M.cross(phi, M.cross(phi, rho)))
-    out = []
-    for i in range(3):
-        row = []
-        for j in range(3):
-            sym = rho[i] * phi[j] + phi[i] * rho[j] - (2.0 * d if i == j else 0.0)
-            row.append(
-                0.5 * P[i][j] + c1 * (sym - d * F[i][j]) + c2 * (G[i][j] + d * F[i][j])
-                - 2.0 * c3 * d * F2[i][j]
-            )
-        out.append(tuple(row))
-    return tuple(out)
+    a = M.cross(phi, M.cross(phi, rho))
+    e = (c2 - c1) * d
+    w = tuple(0.5 * rho[i] + e * phi[i] + c2 * a[i] for i in range(3))
+    f = 2.0 * c3 * d
+    diag = f * t2 - 2.0 * c1 * d
+    u = tuple(c1 * x for x in rho)
+    v = tuple(u[i] - f * phi[i] for i in range(3))  # E_ij = v_i phi_j + phi_i u_j (+ diag)
+    E = [[v[i] * phi[j] + phi[i] * u[j] for j in range(3)] for i in range(3)]
+    return ((E[0][0] + diag, E[0][1] - w[2], E[0][2] + w[1]),
+            (E[1][0] + w[2], E[1][1] + diag, E[1][2] - w[0]),
+            (E[2][0] - w[1], E[2][1] + w[0], E[2][2] + diag))
+
+
+def _jinv_block(Ji: tuple, Q: tuple) -> tuple:
+    """``[[Ji, -Ji Q Ji], [0, Ji]]``: the inverse of ``[[J, Q], [0, J]]`` with ``Ji = J^-1``."""
+    return M.blocks([[Ji, M.matmul(M.matmul(Ji, M.neg(Q)), Ji)],
+                     [M.zeros(3, 3, Ji[0][0]), Ji]])
 
 
 def v_times(o: Any, phi: tuple, t2: Any, k: Any, ch: Any, v: tuple) -> tuple:
@@ -60,16 +66,32 @@ def v_times(o: Any, phi: tuple, t2: Any, k: Any, ch: Any, v: tuple) -> tuple:
     return tuple(v[i] + a * c[i] + b * d[i] for i in range(3))
 
 
+def _block_transpose(m: tuple) -> tuple:
+    """Transpose each 3x3 block of a 6x6 component matrix (keeping the blocks in place)."""
+    return tuple(tuple(m[3 * (i // 3) + j % 3][3 * (j // 3) + i % 3] for j in range(6))
+                 for i in range(6))
+
+
 class SE3(Pose):
     """Rigid motions in 3-D. Parameters ``(tx, ty, tz, qx, qy, qz, qw)``.
 
-    Tangent ``tau = (rho, phi)`` (translation first, MATH.md section 4). ``X.act(p) = R p + t``.
-    Right plus/minus and right Jacobians by default; ``side="left"`` for left ones.
+    Tangent ``tau = (rho, phi)`` (translation first; Jacobians: Sola et al. eqs. 179-180).
+    ``X.act(p) = R p + t``. Right plus/minus and right Jacobians by default; ``side="left"``
+    for left ones.
 
+    Parameters
+    ----------
+    params : array_like
+        ``(*batch, 7)``: translation, then the quaternion ``(x, y, z, w)``.
+    normalize : bool
+        Normalise the quaternion instead of raising ``ValueError`` on a norm off 1.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE3
     >>> T = SE3.exp(np.array([1.0, 0.0, 0.0, 0.0, 0.0, np.pi / 2]))
-    >>> np.round(T.translation(), 6)
+    >>> np.round(T.translation(), 6)  # (2 / pi, 2 / pi, 0): a quarter screw
     array([0.63662, 0.63662, 0.     ])
     """
 
@@ -146,13 +168,17 @@ class SE3(Pose):
     def _jr(cls, o, tau):
         rho, phi = tau[:3], tau[3:]
         J = so3.jr(o, phi)
-        Q = q_block(o, tuple(-x for x in rho), tuple(-x for x in phi))
-        return M.blocks([[J, Q], [M.zeros(3, 3, rho[0]), J]])
+        return M.blocks([[J, M.transpose(q_block(o, rho, phi))], [M.zeros(3, 3, rho[0]), J]])
 
     @classmethod
     def _jr_inv(cls, o, tau):
         rho, phi = tau[:3], tau[3:]
-        Ji = so3.jr_inv(o, phi)
-        Q = q_block(o, tuple(-x for x in rho), tuple(-x for x in phi))
-        return M.blocks([[Ji, M.neg(M.matmul(Ji, M.matmul(Q, Ji)))],
-                         [M.zeros(3, 3, rho[0]), Ji]])
+        return _jinv_block(so3.jr_inv(o, phi), M.transpose(q_block(o, rho, phi)))
+
+    @classmethod
+    def _jr_inv_pair(cls, o, tau):
+        """``Jr^-1(tau)`` and ``Jl^-1(tau) = Jr^-1(-tau)``: every 3x3 block of the second is
+        the transpose of the first's (``Jl^-1_SO3 = (Jr^-1_SO3)^T``, ``Q(-rho, -phi) =
+        Q(rho, phi)^T``)."""
+        right = cls._jr_inv(o, tau)
+        return right, _block_transpose(right)

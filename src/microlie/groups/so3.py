@@ -10,9 +10,11 @@ from typing import Any
 import numpy as np
 
 from .. import _array as A
+from .. import _linalg as L
 from .._array import Array
+from .._kernels import Kernel, add, run
 from . import _math as M
-from .base import LieGroup, compute
+from .base import LieGroup
 
 # ---------------------------------------------------------------------------- coefficients
 
@@ -71,7 +73,9 @@ def quat_log_parts(o: Any, q: tuple) -> tuple:
     """``(phi, kl, aw)``: the rotation vector, ``kl = theta / |v|`` and ``aw = |w|``
     (``cos(theta/2)``), for callers that need the half-angle functions too."""
     x, y, z, w = q
-    aw = o.abs(w)
+    # |w| whose derivative at w = 0 is 1 (abs's is 0 in torch): at a rotation by exactly pi
+    # that derivative carries the change of the angle
+    aw = o.abs1(w)
     n2 = x * x + y * y + z * z
     small = n2 < M.TINY2
     n = o.sqrt(n2 + small)
@@ -201,15 +205,18 @@ def unit_tolerance(dtype: Any) -> float:
 def checked_unit_quat(q: Array, normalize: bool, what: str, kind: str = "quaternion") -> Array:
     """``q / |q|`` after checking that ``|q|`` is 1 within tolerance (or ``normalize``).
 
-    Also serves SO(2)'s unit complex numbers (``kind``)."""
+    Also serves SO(2)'s unit complex numbers (``kind``). The check reads the values on the host
+    (:func:`microlie._array.host_values`): never on a traced value."""
     xp = A.namespace(q)
     n = xp.sqrt(xp.sum(q * q, axis=-1, keepdims=True))
-    if not A.is_traced(q):
+    v = A.host_values(q)
+    if v is not None and v.size:
+        nv = n if type(n) is np.ndarray else np.sqrt(np.sum(v * v, axis=-1))
         if normalize:
-            if bool(xp.any(n == 0)):
+            if bool(np.any(nv == 0)):
                 raise ValueError(f"{what}: a zero {kind} cannot be normalized")
         else:
-            dev = float(xp.max(xp.abs(n - 1.0))) if _numel(n) else 0.0
+            dev = float(np.max(np.abs(nv - 1.0)))
             tol = unit_tolerance(q.dtype)
             if dev > tol:
                 raise ValueError(
@@ -219,28 +226,33 @@ def checked_unit_quat(q: Array, normalize: bool, what: str, kind: str = "quatern
     return q / n
 
 
+_RANK_TOL = 1e-12  # second singular value below this times the first: rank < 2
+
+
 def checked_rotation_matrix(R: Array, normalize: bool, what: str) -> Array:
     """Check ``R^T R = I`` and ``det R = +1`` within tolerance, or project with ``normalize``."""
     xp = A.namespace(R)
     if normalize:
-        U, _, Vt = xp.linalg.svd(R)
+        U, S, Vt = xp.linalg.svd(R)
+        sv = L.concrete(S)
+        # rank < 2 (the zero matrix included): every rotation about the null space is as near
+        if sv is not None and sv.size and bool(np.any(sv[..., 1] <= _RANK_TOL * sv[..., 0])):
+            raise ValueError(f"{what}: matrix has rank < 2, no unique nearest rotation "
+                             "(normalize=True cannot project it)")
         d = xp.linalg.det(U @ Vt)
         sign = xp.stack([xp.ones_like(d), xp.ones_like(d), d], axis=-1)
         return (U * sign[..., None, :]) @ Vt
-    if A.is_traced(R) or _numel(R) == 0:
+    v = A.host_values(R)
+    if v is None or v.size == 0:
         return R
-    eye = xp.eye(3, dtype=R.dtype)
-    RtR = xp.matrix_transpose(R) @ R if hasattr(xp, "matrix_transpose") else \
-        xp.swapaxes(R, -1, -2) @ R
-    err = float(xp.max(xp.abs(RtR - eye)))
+    err = float(np.max(np.abs(np.swapaxes(v, -1, -2) @ v - np.eye(3))))
     tol = unit_tolerance(R.dtype)
     if err > tol:
         raise ValueError(
             f"{what}: matrix is not orthogonal (max |R^T R - I| = {err:.3g}, tolerance {tol:g}); "
             "pass normalize=True to project it onto SO(3)"
         )
-    det = xp.linalg.det(R)
-    if bool(xp.any(det < 0)):
+    if bool(np.any(np.linalg.det(v) < 0)):
         raise ValueError(f"{what}: matrix has determinant -1 (a reflection, not a rotation)")
     return R
 
@@ -251,9 +263,19 @@ def checked_rotation_matrix(R: Array, normalize: bool, what: str) -> Array:
 class SO3(LieGroup):
     """3-D rotations. Parameters: unit quaternion ``(qx, qy, qz, qw)`` (scalar last).
 
-    Tangent: rotation vector ``phi`` (3,). ``Exp(phi)`` is Rodrigues' formula; ``Log`` is accurate
-    at 0 and up to and including ``theta = pi``. Right plus/minus and right Jacobians by default.
+    Tangent: rotation vector ``phi`` (3,). ``Exp(phi)`` is Rodrigues' formula; ``Log`` is
+    accurate at 0 and up to and including ``theta = pi``. Right plus/minus and right
+    Jacobians by default.
 
+    Parameters
+    ----------
+    params : array_like
+        ``(*batch, 4)`` quaternions ``(x, y, z, w)``.
+    normalize : bool
+        Normalise instead of raising ``ValueError`` on a norm off 1.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SO3
     >>> R = SO3.exp(np.array([0.0, 0.0, np.pi / 2]))
@@ -271,6 +293,13 @@ class SO3(LieGroup):
         [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
         [[0, -1, 0], [1, 0, 0], [0, 0, 0]],
     ], dtype=float)
+    # facts for the generic test suite: the rotation's entries of the tangent vector
+    _rotation_slice = slice(0, 3)
+
+    @classmethod
+    def _exact_pi_element(cls) -> SO3:
+        """The rotation by exactly pi about x, quaternion ``(1, 0, 0, 0)`` (``w = 0`` exactly)."""
+        return cls(np.array([1.0, 0.0, 0.0, 0.0]))
 
     @classmethod
     def _validate_params(cls, p: Array, normalize: bool) -> Array:
@@ -317,12 +346,38 @@ class SO3(LieGroup):
     def _jr_inv(cls, o, tau):
         return jr_inv(o, tau)
 
+    @classmethod
+    def _jr_inv_pair(cls, o, tau):
+        J = jr_inv(o, tau)
+        return J, M.transpose(J)  # Jl^-1(phi) = Jr^-1(-phi) = Jr^-1(phi)^T
+
     # ------------------------------------------------------------------ constructors
     @classmethod
     def from_matrix(cls, matrix: Any, normalize: bool = False) -> SO3:
-        """From rotation matrices ``(..., 3, 3)``. A matrix that is not orthogonal with
-        determinant +1 (within tolerance) raises ``ValueError`` unless ``normalize=True``, which
-        projects it onto the nearest rotation (SVD)."""
+        """From rotation matrices.
+
+        A matrix that is not orthogonal with determinant +1 (within tolerance) raises
+        ``ValueError`` unless ``normalize=True``, which projects it onto the nearest rotation (SVD).
+
+        Parameters
+        ----------
+        matrix : array_like
+            ``(..., 3, 3)``.
+        normalize : bool
+            Project instead of raising.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> M = SO3.exp([0.1, 0.2, 0.3]).matrix()
+        >>> bool(np.allclose(SO3.from_matrix(M).log(), [0.1, 0.2, 0.3]))
+        True
+        """
         R = A.as_float_array(matrix)
         A.check_last_dim(R, (3, 3), "SO3 matrix")
         A.check_finite(R, "SO3 matrix")
@@ -331,10 +386,32 @@ class SO3(LieGroup):
 
     @classmethod
     def from_quat(cls, quat: Any, scalar_first: bool = False, normalize: bool = False) -> SO3:
-        """From quaternions ``(x, y, z, w)`` (or ``(w, x, y, z)`` with ``scalar_first=True``).
+        """From quaternions.
 
         A norm that differs from 1 by more than the tolerance raises ``ValueError`` unless
         ``normalize=True``. ``q`` and ``-q`` are the same rotation.
+
+        Parameters
+        ----------
+        quat : array_like
+            ``(..., 4)``: ``(x, y, z, w)``, or ``(w, x, y, z)`` with ``scalar_first=True``.
+        scalar_first : bool
+            The order of ``quat``.
+        normalize : bool
+            Normalise instead of raising.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> a = SO3.from_quat([0.0, 0.0, np.sin(0.5), np.cos(0.5)])
+        >>> b = SO3.from_quat([np.cos(0.5), 0.0, 0.0, np.sin(0.5)], scalar_first=True)
+        >>> bool(np.allclose(a.log(), [0, 0, 1.0])), bool(np.allclose(a.matrix(), b.matrix()))
+        (True, True)
         """
         q = A.as_float_array(quat)
         A.check_last_dim(q, 4, "quaternion")
@@ -344,8 +421,27 @@ class SO3(LieGroup):
         return cls._wrap(checked_unit_quat(q, normalize, "SO3.from_quat"))
 
     def as_quat(self, scalar_first: bool = False, canonical: bool = False) -> Array:
-        """The quaternion ``(x, y, z, w)`` (``(w, x, y, z)`` with ``scalar_first``); with
-        ``canonical=True`` the representative with ``w >= 0``."""
+        """The quaternion of each rotation.
+
+        Parameters
+        ----------
+        scalar_first : bool
+            Return ``(w, x, y, z)`` instead of ``(x, y, z, w)``.
+        canonical : bool
+            The representative with ``w >= 0``.
+
+        Returns
+        -------
+        array
+            ``(*batch, 4)``.
+
+        Examples
+        --------
+        >>> from microlie import SO3
+        >>> R = SO3([0.0, 0.0, -0.6, -0.8])
+        >>> (R.as_quat(canonical=True) + 0.0).tolist(), R.as_quat(scalar_first=True).tolist()
+        ([0.0, 0.0, 0.6, 0.8], [-0.8, 0.0, 0.0, -0.6])
+        """
         q = self.params
         if canonical:
             xp = A.namespace(q)
@@ -354,25 +450,89 @@ class SO3(LieGroup):
 
     @classmethod
     def from_rotvec(cls, rotvec: Any, degrees: bool = False) -> SO3:
-        """From rotation vectors (axis times angle); same as :meth:`exp`."""
+        """From rotation vectors (axis times angle); the same as :meth:`exp`.
+
+        Parameters
+        ----------
+        rotvec : array_like
+            ``(..., 3)``.
+        degrees : bool
+            The angle is in degrees.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> R = SO3.from_rotvec([0.0, 0.0, 90.0], degrees=True)
+        >>> bool(np.allclose(R.log(), [0, 0, np.pi / 2]))
+        True
+        """
         v = A.as_float_array(rotvec)
         return cls.exp(v * (np.pi / 180.0) if degrees else v)
 
     def as_rotvec(self, degrees: bool = False) -> Array:
-        """Rotation vectors (axis times angle, angle in [0, pi]); same as :meth:`log`."""
+        """Rotation vectors (axis times angle, angle in ``[0, pi]``); the same as :meth:`log`.
+
+        Parameters
+        ----------
+        degrees : bool
+            Return the angle in degrees.
+
+        Returns
+        -------
+        array
+            ``(*batch, 3)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> np.round(SO3.exp([0.0, np.pi / 2, 0.0]).as_rotvec(degrees=True), 9).tolist()
+        [0.0, 90.0, 0.0]
+        """
         v = self.log()
         return v * (180.0 / np.pi) if degrees else v
 
     @classmethod
     def from_euler(cls, seq: str, angles: Any, degrees: bool = False) -> SO3:
-        """From Euler angles, SciPy's convention: ``seq`` of three letters from ``xyz``
-        (extrinsic, rotations about the fixed axes, applied left to right) or ``XYZ``
-        (intrinsic, about the moving axes). ``angles`` has shape ``(..., 3)``."""
-        if len(seq) != 3 or not (set(seq) <= set("xyz") or set(seq) <= set("XYZ")):
-            raise ValueError(
-                f"seq must be 3 letters, all from 'xyz' or all from 'XYZ', got {seq!r}")
+        """From Euler angles, SciPy's convention.
+
+        Parameters
+        ----------
+        seq : str
+            One to three letters, all from ``xyz`` (extrinsic: rotations about the fixed axes,
+            applied left to right) or all from ``XYZ`` (intrinsic: about the moving axes), no axis
+            twice in a row (``"xyx"`` is valid, ``"xxy"`` is not).
+        angles : array_like
+            ``(..., len(seq))`` (a scalar for one axis).
+        degrees : bool
+            Angles in degrees instead of radians.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> np.round(SO3.from_euler("z", 90, degrees=True).matrix(), 12)
+        array([[ 0., -1.,  0.],
+               [ 1.,  0.,  0.],
+               [ 0.,  0.,  1.]])
+        """
+        check_euler_seq(seq)
         a = A.as_float_array(angles)
-        A.check_last_dim(a, 3, "Euler angles")
+        if a.ndim == 0:
+            a = a[None]
+        if a.shape[-1] != len(seq):
+            raise ValueError(f"Euler angles: the last dimension must match the {len(seq)} axes "
+                             f"of seq {seq!r}, got shape {tuple(a.shape)}")
+        A.check_finite(a, "Euler angles")
         if degrees:
             a = a * (np.pi / 180.0)
         out = None
@@ -388,11 +548,32 @@ class SO3(LieGroup):
                 out = out @ Ri
             else:
                 out = Ri @ out
+        assert out is not None  # seq has at least one axis
         return out
 
     def as_euler(self, seq: str, degrees: bool = False) -> Array:
         """Euler angles (SciPy's convention and ranges) for NumPy arrays (through
-        ``scipy.spatial.transform.Rotation``). For all backends use :meth:`as_rpy`."""
+        ``scipy.spatial.transform.Rotation``). For all backends use :meth:`as_rpy`.
+
+        Parameters
+        ----------
+        seq : str
+            As in :meth:`from_euler`.
+        degrees : bool
+            Return degrees.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(*batch, len(seq))``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> np.round(SO3.from_euler("xyz", [10, 20, 30], degrees=True).as_euler("xyz", True), 9)
+        array([10., 20., 30.])
+        """
         if not A.is_numpy(self.params):
             raise TypeError("as_euler supports NumPy arrays only; use as_rpy() for other backends")
         from scipy.spatial.transform import Rotation
@@ -403,7 +584,25 @@ class SO3(LieGroup):
 
     @classmethod
     def from_rpy(cls, roll: Any, pitch: Any, yaw: Any) -> SO3:
-        """``R = Rz(yaw) Ry(pitch) Rx(roll)`` (roll about x first, in the fixed frame)."""
+        """``R = Rz(yaw) Ry(pitch) Rx(roll)`` (roll about x first, in the fixed frame).
+
+        Parameters
+        ----------
+        roll, pitch, yaw : array_like
+            Radians; they broadcast.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> a, b = SO3.from_rpy(0.1, 0.2, 0.3), SO3.from_euler("xyz", [0.1, 0.2, 0.3])
+        >>> bool(np.allclose(a.matrix(), b.matrix()))
+        True
+        """
         a = A.as_float_array(roll)
         xp = A.namespace(a)
         return cls.from_euler("xyz", xp.stack(xp.broadcast_arrays(
@@ -411,8 +610,32 @@ class SO3(LieGroup):
 
     def as_rpy(self) -> Array:
         """``(roll, pitch, yaw)`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``, pitch in
-        ``[-pi/2, pi/2]``."""
-        return compute(_rpy, (self.params,), self.params)
+        ``[-pi/2, pi/2]``; every backend.
+
+        Returns
+        -------
+        array
+            ``(*batch, 3)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> np.round(SO3.from_rpy(0.1, 0.2, 0.3).as_rpy(), 12).tolist()
+        [0.1, 0.2, 0.3]
+        """
+        return run(_K_RPY, self.params)
+
+
+def check_euler_seq(seq: Any) -> None:
+    """SciPy's rules for an Euler axis sequence (``ValueError`` naming the problem)."""
+    if not isinstance(seq, str) or not 1 <= len(seq) <= 3:
+        raise ValueError(f"Euler seq must be a string of 1 to 3 axes, got {seq!r}")
+    if not (set(seq) <= set("xyz") or set(seq) <= set("XYZ")):
+        raise ValueError("Euler seq axes must all be from 'xyz' (extrinsic) or all from 'XYZ' "
+                         f"(intrinsic), got {seq!r}")
+    if any(a == b for a, b in zip(seq, seq[1:], strict=False)):
+        raise ValueError(f"Euler seq must not repeat an axis consecutively, got {seq!r}")
 
 
 def _roll_quat(q: Array, to_scalar_last: bool) -> Array:
@@ -434,7 +657,13 @@ def _quat_from_matrix_array(R: Array) -> Array:
     """Unit quaternions ``(..., 4)`` of rotation matrices ``(..., 3, 3)``."""
     flat = R.reshape(*R.shape[:-2], 9) if A.is_numpy(R) else \
         A.namespace(R).reshape(R, (*R.shape[:-2], 9))
-    return compute(lambda o, m: matrix_to_quat(o, (m[0:3], m[3:6], m[6:9])), (flat,), R)
+    return run(_K_FROM_MATRIX, flat)
+
+
+_K_RPY = add(Kernel("SO3.rpy", SO3, _rpy, "p", [(3,)]))
+_K_FROM_MATRIX = add(Kernel("SO3.from_matrix", SO3,
+                            lambda o, m: matrix_to_quat(o, (m[0:3], m[3:6], m[6:9])),
+                            "m", [(4,)]))
 
 
 def _numel(x: Array) -> int:

@@ -15,7 +15,7 @@ Example:
 """
 
 from .align import ALIGNMENTS, align, umeyama
-from .evaluate import evaluate_ape, evaluate_kitti, evaluate_rpe, prepare
+from .evaluate import describe_alignment, evaluate_ape, evaluate_kitti, evaluate_rpe, prepare
 from .io import (
     FORMATS,
     read_euroc,
@@ -23,7 +23,9 @@ from .io import (
     read_timestamps,
     read_trajectory,
     read_tum,
+    write_euroc,
     write_kitti,
+    write_trajectory,
     write_tum,
 )
 from .metrics import (
@@ -34,18 +36,32 @@ from .metrics import (
     ape,
     kitti_odometry,
     pose_pairs,
+    relation_label,
     rpe,
     statistics,
 )
-from .sync import Association, associate, match_timestamps
-from .trajectory import Trajectory
+from .results import Result, load_result, save_result
+from .sync import INTERPOLATIONS, Association, associate, interpolate, match_timestamps
+from .trajectory import PLANES, TimestampWarning, Trajectory, merge
 
 __all__ = [
     "Trajectory",
+    "TimestampWarning",
+    "merge",
+    "PLANES",
+    "interpolate",
+    "INTERPOLATIONS",
+    "relation_label",
+    "describe_alignment",
     "read_tum",
     "write_tum",
     "read_kitti",
     "write_kitti",
+    "write_euroc",
+    "write_trajectory",
+    "save_result",
+    "load_result",
+    "Result",
     "read_euroc",
     "read_timestamps",
     "read_trajectory",

@@ -24,13 +24,41 @@ def umeyama(
     """Least-squares similarity ``(R, t, s)`` minimising ``sum |target_i - (s R source_i + t)|^2``.
 
     Umeyama, "Least-squares estimation of transformation parameters between two point
-    patterns", IEEE PAMI 13(4), 1991. ``source`` and ``target`` are ``(N, 3)`` arrays. Without
-    ``with_scale`` the returned ``s`` is 1. ``R`` is a proper rotation (reflections are
-    excluded by the sign correction of the smallest singular direction).
+    patterns", IEEE PAMI 13(4), 1991. ``R`` is a proper rotation (reflections are excluded by
+    the sign correction of the smallest singular direction).
 
-    Raises:
-        ValueError: shapes differ, or the points are degenerate (fewer than two independent
-            directions), so that the rotation is not determined.
+    Parameters
+    ----------
+    source, target : array_like
+        ``(N, 3)`` corresponding points.
+    with_scale : bool
+        Estimate ``s``; without it ``s`` is 1.
+
+    Returns
+    -------
+    R : numpy.ndarray
+        ``(3, 3)`` rotation.
+    t : numpy.ndarray
+        ``(3,)`` translation.
+    s : float
+        Scale.
+
+    Raises
+    ------
+    ValueError
+        Shapes differ, or the points are degenerate (fewer than two independent directions),
+        so that the rotation is not determined.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SO3
+    >>> from microlie.traj import umeyama
+    >>> x = np.random.default_rng(0).normal(size=(10, 3))
+    >>> R0 = SO3.exp([0.1, 0.2, 0.3]).matrix()
+    >>> R, t, s = umeyama(x, 2.0 * x @ R0.T + [1.0, 0, 0], with_scale=True)
+    >>> bool(np.allclose(R, R0)), bool(np.allclose(t, [1, 0, 0])), round(s, 9)
+    (True, True, 2.0)
     """
     x = np.asarray(source, dtype=np.float64)
     y = np.asarray(target, dtype=np.float64)
@@ -56,22 +84,41 @@ def umeyama(
 
 
 def align(
-    est: Trajectory,
     ref: Trajectory,
+    est: Trajectory,
     method: str = "se3",
     n: int | None = None,
 ) -> tuple[Trajectory, SE3 | Sim3 | None]:
-    """Align ``est`` to ``ref`` (same length, paired index by index).
+    """Align ``est`` to ``ref`` (same length, paired index by index; reference first, as in
+    every function of :mod:`microlie.traj`).
 
-    Args:
-        method: ``"se3"`` (rigid Umeyama), ``"sim3"`` (Umeyama with scale, for monocular
-            estimates), ``"scale"`` (only the Umeyama scale, no rotation or translation),
-            ``"origin"`` (make the first poses coincide: ``g = T_ref,0 T_est,0^-1``) or
-            ``"none"``.
-        n: use only the first ``n`` pose pairs to estimate the transform (all if ``None``).
+    Parameters
+    ----------
+    ref, est : Trajectory
+        Paired trajectories (see :func:`associate`).
+    method : {"se3", "sim3", "scale", "origin", "none"}
+        ``"se3"`` (rigid Umeyama), ``"sim3"`` (Umeyama with scale, for monocular
+        estimates), ``"scale"`` (only the Umeyama scale, no rotation or translation),
+        ``"origin"`` (make the first poses coincide: ``g = T_ref,0 T_est,0^-1``) or
+        ``"none"``.
+    n : int, optional
+        Use only the first ``n`` pose pairs to estimate the transform (all if ``None``).
 
-    Returns:
-        The aligned estimate and the transform that was applied (``None`` for ``"none"``).
+    Returns
+    -------
+    aligned : Trajectory
+        ``g`` applied to ``est`` (see :meth:`Trajectory.transform`).
+    g : SE3, Sim3 or None
+        The transform applied (``None`` for ``"none"``).
+
+    Examples
+    --------
+    >>> from microlie.traj import read_tum, associate, align
+    >>> from microlie.data import example_paths
+    >>> ref, est = associate(*(read_tum(p) for p in example_paths()))
+    >>> aligned, g = align(ref, est, "sim3")
+    >>> round(float(g.scale()), 4) > 0
+    True
     """
     if len(est) != len(ref):
         raise ValueError(f"align needs paired trajectories, got {len(est)} and {len(ref)} poses")
@@ -79,6 +126,7 @@ def align(
         raise ValueError(f"unknown alignment {method!r}; expected one of {ALIGNMENTS}")
     if method == "none":
         return est, None
+    g: SE3 | Sim3
     if method == "origin":
         g = ref.poses[0] @ est.poses[0].inverse()
         return est.transform(g), g

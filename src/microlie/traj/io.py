@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import warnings
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -34,13 +35,15 @@ __all__ = [
     "write_tum",
     "read_kitti",
     "write_kitti",
+    "write_euroc",
+    "write_trajectory",
     "read_euroc",
     "read_timestamps",
     "read_trajectory",
     "FORMATS",
 ]
 
-FORMATS = ("tum", "kitti", "euroc")
+FORMATS = ("tum", "kitti", "euroc", "bag")
 
 PathLike = str | os.PathLike
 
@@ -264,17 +267,37 @@ def _quat_trajectory(
     params = np.empty((q_xyzw.shape[0], 7))
     params[:, :3] = positions
     np.divide(q_xyzw, norms, out=params[:, 3:])
-    return Trajectory(SE3._wrap(params), np.ascontiguousarray(stamps), name)
+    return Trajectory(cast(SE3, SE3._wrap(params)), np.ascontiguousarray(stamps), name)
 
 
 def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None) -> Trajectory:
     """Read a TUM trajectory ``timestamp tx ty tz qx qy qz qw`` (quaternion scalar last).
 
-    Example:
-        >>> from microlie.data import example_paths
-        >>> traj = read_tum(example_paths()[0])
-        >>> len(traj), traj.poses.params.shape
-        (150, (150, 7))
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    quat_tol : float
+        Largest accepted ``| |q| - 1 |`` (quaternions are then normalised).
+    name : str, optional
+        The trajectory's label (default: the path).
+
+    Returns
+    -------
+    Trajectory
+
+    Raises
+    ------
+    ValueError
+        Naming the file and line of a malformed line (see the module docstring).
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import read_tum
+    >>> traj = read_tum(example_paths()[0])
+    >>> len(traj), traj.poses.params.shape
+    (150, (150, 7))
     """
     numbers, mat = _read_matrix(path, 8, what="timestamp tx ty tz qx qy qz qw")
     return _quat_trajectory(
@@ -283,7 +306,28 @@ def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None)
 
 
 def read_timestamps(path: PathLike) -> np.ndarray:
-    """Read one timestamp (seconds) per line, e.g. KITTI's ``times.txt``."""
+    """Read one timestamp (seconds) per line, e.g. KITTI's ``times.txt``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N,)`` float64 seconds.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.traj import read_timestamps
+    >>> path = os.path.join(tempfile.mkdtemp(), "times.txt")
+    >>> import numpy as np
+    >>> np.savetxt(path, [0.0, 0.1, 0.2])
+    >>> read_timestamps(path).tolist()
+    [0.0, 0.1, 0.2]
+    """
     return _read_matrix(path, 1, what="timestamp")[1][:, 0]
 
 
@@ -304,9 +348,36 @@ def read_kitti(
 ) -> Trajectory:
     """Read KITTI poses (12 numbers per line, row-major ``[R | t]``).
 
-    ``timestamps`` is an optional file (one time in seconds per line) or array; without it
-    the trajectory has no timestamps and is compared index by index. Rotations must satisfy
-    ``|R^T R - I| <= rot_tol`` and ``det R > 0``; they are then projected onto SO(3).
+    Rotations must satisfy ``|R^T R - I| <= rot_tol`` and ``det R > 0``; they are then
+    projected onto SO(3).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The poses file.
+    timestamps : str, os.PathLike or numpy.ndarray, optional
+        A times file (one time in seconds per line) or an array; without it the trajectory
+        has no timestamps and is compared index by index.
+    rot_tol : float
+        Largest accepted ``max |R^T R - I|``.
+    name : str, optional
+        The label (default: the path).
+
+    Returns
+    -------
+    Trajectory
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_kitti(path, traj)
+    >>> back = read_kitti(path)
+    >>> back.timestamps is None, bool(abs(back.positions - traj.positions).max() < 1e-12)
+    (True, True)
     """
     numbers, mat = _read_matrix(path, 12, what="row-major 3x4 [R|t]")
     m = mat.reshape(-1, 3, 4)
@@ -342,7 +413,33 @@ def read_euroc(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = Non
     """Read a EuRoC ground-truth CSV: ``t[ns], px, py, pz, qw, qx, qy, qz, ...``.
 
     Timestamps are converted from nanoseconds to seconds (``t_ns / 1e9`` in float64, as the
-    other tools do, so associations agree). The quaternion is scalar-*first* in this format.
+    other tools do, so associations agree). The quaternion is scalar-*first* in this format;
+    further columns are ignored.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The CSV file.
+    quat_tol : float
+        Largest accepted ``| |q| - 1 |``.
+    name : str, optional
+        The label (default: the path).
+
+    Returns
+    -------
+    Trajectory
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_euroc(path, traj)
+    >>> back = read_euroc(path)
+    >>> bool(abs(back.quat_xyzw - traj.quat_xyzw).max() < 1e-12)
+    True
     """
     numbers, mat = _read_matrix(
         path, 8, comma=True, at_least=True, what="timestamp[ns], px, py, pz, qw, qx, qy, qz"
@@ -354,15 +451,48 @@ def read_euroc(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = Non
 
 
 def read_trajectory(
-    path: PathLike, fmt: str = "tum", *, timestamps: PathLike | None = None
+    path: PathLike,
+    fmt: str = "tum",
+    *,
+    timestamps: PathLike | None = None,
+    topic: str | None = None,
 ) -> Trajectory:
-    """Read ``path`` in format ``fmt`` (``"tum"``, ``"kitti"`` or ``"euroc"``)."""
+    """Read ``path`` in format ``fmt``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file (or bag).
+    fmt : {"tum", "kitti", "euroc", "bag"}
+        The format.
+    timestamps : str or os.PathLike, optional
+        KITTI's times file.
+    topic : str, optional
+        The bag topic (see :func:`microlie.traj.rosbag.read_bag`), required for ``"bag"``.
+
+    Returns
+    -------
+    Trajectory
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import read_trajectory
+    >>> len(read_trajectory(example_paths()[1], "tum"))
+    145
+    """
     if fmt == "tum":
         return read_tum(path)
     if fmt == "kitti":
         return read_kitti(path, timestamps)
     if fmt == "euroc":
         return read_euroc(path)
+    if fmt == "bag":
+        if not topic:
+            raise ValueError(f"{path}: reading a bag needs a topic")
+        from .rosbag import read_bag
+
+        return read_bag(path, topic)
     raise ValueError(f"unknown trajectory format {fmt!r}; expected one of {FORMATS}")
 
 
@@ -370,6 +500,26 @@ def write_tum(path: PathLike, traj: Trajectory, *, header: str | None = None) ->
     """Write ``traj`` as TUM text (``timestamp tx ty tz qx qy qz qw``, full precision).
 
     A trajectory without timestamps is written with its pose index as the timestamp.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    traj : Trajectory
+        The poses.
+    header : str, optional
+        The ``#`` comment line (default: the column names).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_tum(path, traj)
+    >>> bool(abs(read_tum(path).poses.params - traj.poses.params).max() < 1e-15)
+    True
     """
     stamps = traj.timestamps if traj.timestamps is not None else np.arange(len(traj), dtype=float)
     data = np.column_stack([stamps, traj.positions, traj.quat_xyzw])
@@ -378,6 +528,88 @@ def write_tum(path: PathLike, traj: Trajectory, *, header: str | None = None) ->
 
 
 def write_kitti(path: PathLike, traj: Trajectory) -> None:
-    """Write ``traj`` as KITTI poses (row-major 3x4 ``[R | t]``, full precision)."""
+    """Write ``traj`` as KITTI poses (row-major 3x4 ``[R | t]``, full precision; no timestamps).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    traj : Trajectory
+        The poses.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_kitti(path, traj)
+    >>> len(open(path).readline().split())
+    12
+    """
     m = traj.matrices()[:, :3, :].reshape(-1, 12)
     np.savetxt(path, m, fmt="%.17g")
+
+
+def write_euroc(path: PathLike, traj: Trajectory) -> None:
+    """Write ``traj`` as a EuRoC CSV (``#timestamp [ns],p_x,p_y,p_z,q_w,q_x,q_y,q_z``).
+
+    Timestamps are rounded to integer nanoseconds; a trajectory without timestamps is
+    written with its pose index as the time in seconds.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    traj : Trajectory
+        The poses.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_euroc(path, traj)
+    >>> open(path).readline().startswith("#timestamp [ns]")
+    True
+    """
+    stamps = traj.timestamps if traj.timestamps is not None else np.arange(len(traj), dtype=float)
+    q = traj.quat_xyzw
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],"
+                "q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []\n")
+        for t, p, qq in zip(np.rint(stamps * 1e9).astype(np.int64).tolist(),
+                            traj.positions.tolist(), q.tolist(), strict=True):
+            f.write(f"{t},{p[0]!r},{p[1]!r},{p[2]!r},{qq[3]!r},{qq[0]!r},{qq[1]!r},{qq[2]!r}\n")
+
+
+def write_trajectory(path: PathLike, traj: Trajectory, fmt: str = "tum") -> None:
+    """Write ``traj`` in format ``fmt``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    traj : Trajectory
+        The poses.
+    fmt : {"tum", "kitti", "euroc"}
+        The format.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> traj = read_tum(example_paths()[0])
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> write_trajectory(path, traj, "tum")
+    >>> len(read_tum(path)) == len(traj)
+    True
+    """
+    writers = {"tum": write_tum, "kitti": write_kitti, "euroc": write_euroc}
+    if fmt not in writers:
+        raise ValueError(f"cannot write format {fmt!r}; expected one of {tuple(writers)}")
+    writers[fmt](path, traj)

@@ -37,6 +37,7 @@ from .trajectory import Trajectory
 
 __all__ = [
     "RELATIONS",
+    "relation_label",
     "statistics",
     "ape",
     "rpe",
@@ -52,8 +53,35 @@ _ALIASES = {"trans_part": "trans", "translation": "trans", "rotation": "rot"}
 KITTI_LENGTHS = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 
 
+def _median(e: np.ndarray) -> float:
+    """``np.median`` of a finite 1-D array, bit for bit, without the ``numpy.ma`` import that
+    ``np.median`` costs on first use (20 ms of a command's start)."""
+    k = e.size // 2
+    if e.size % 2:
+        return float(np.partition(e, k)[k])
+    p = np.partition(e, [k - 1, k])
+    return float((p[k - 1] + p[k]) / 2)
+
+
 def statistics(errors: np.ndarray) -> dict[str, float]:
-    """rmse, mean, median, std (population), min, max and sse of a 1-D error array."""
+    """Error statistics: rmse, mean, median, std (population), min, max and sse.
+
+    Parameters
+    ----------
+    errors : array_like
+        A non-empty 1-D array.
+
+    Returns
+    -------
+    dict of str to float
+
+    Examples
+    --------
+    >>> from microlie.traj import statistics
+    >>> s = statistics([3.0, 4.0])
+    >>> round(s["rmse"] ** 2, 12), s["mean"], s["std"], s["sse"]
+    (12.5, 3.5, 0.5, 25.0)
+    """
     e = np.asarray(errors, dtype=np.float64)
     if e.ndim != 1 or e.size == 0:
         raise ValueError("statistics need a non-empty 1-D error array")
@@ -61,7 +89,7 @@ def statistics(errors: np.ndarray) -> dict[str, float]:
     return {
         "rmse": float(np.sqrt(np.mean(sq))),
         "mean": float(np.mean(e)),
-        "median": float(np.median(e)),
+        "median": _median(e),
         "std": float(np.std(e)),
         "min": float(np.min(e)),
         "max": float(np.max(e)),
@@ -91,6 +119,40 @@ _UNITS = {
 }
 
 
+_NAMES = {
+    "trans": "translation part",
+    "point_distance": "point distance",
+    "angle_deg": "rotation angle",
+    "angle_rad": "rotation angle",
+    "rot_part": "rotation part",
+    "full": "full transformation",
+    "se3": "SE(3) logarithm norm",
+}
+
+
+def relation_label(relation: str) -> str:
+    """Human-readable name and unit of a pose relation.
+
+    Parameters
+    ----------
+    relation : str
+        One of :data:`RELATIONS` or an evo spelling (``trans_part``, ...).
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> from microlie.traj import relation_label
+    >>> relation_label("rot"), relation_label("trans_part"), relation_label("full")
+    ('rotation angle (deg)', 'translation part (m)', 'full transformation (unit-less)')
+    """
+    rel = _relation(relation, "deg") if relation != "rot" else "angle_deg"
+    unit = _UNITS[rel] or "unit-less"
+    return f"{_NAMES[rel]} ({unit})"
+
+
 def _pose_error_values(e: SE3, rel: str) -> np.ndarray:
     """The chosen scalar of a batch of error poses ``E``."""
     if rel == "trans":
@@ -113,17 +175,35 @@ def _pose_error_values(e: SE3, rel: str) -> np.ndarray:
 
 @dataclass
 class PoseError:
-    """Errors of one metric run.
+    """Errors of one metric run (returned by :func:`ape` and :func:`rpe`).
 
-    Attributes:
-        metric: ``"ape"`` or ``"rpe"``.
-        relation: the pose relation measured (see module docstring).
-        unit: unit of ``errors`` (``"m"``, ``"deg"``, ``"rad"`` or ``""``).
-        errors: ``(M,)`` error values.
-        stats: :func:`statistics` of ``errors``.
-        pairs: ``(M, 2)`` index pairs (RPE) or ``None`` (APE, index ``i`` itself).
-        ref, est: the paired (and, for APE, aligned) trajectories the errors refer to.
-        info: free-form description (alignment, delta, ...), JSON serialisable.
+    Attributes
+    ----------
+    metric : str
+        ``"ape"`` or ``"rpe"``.
+    relation : str
+        The pose relation measured (see the module docstring).
+    unit : str
+        Unit of ``errors`` (``"m"``, ``"deg"``, ``"rad"`` or ``""``).
+    errors : numpy.ndarray
+        ``(M,)`` error values.
+    stats : dict of str to float
+        :func:`statistics` of ``errors``.
+    pairs : numpy.ndarray or None
+        ``(M, 2)`` index pairs (RPE) or ``None`` (APE, index ``i`` itself).
+    ref, est : Trajectory or None
+        The paired (and, for APE, aligned) trajectories the errors refer to.
+    info : dict
+        Free-form description (alignment, delta, ...), JSON serialisable.
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> ref, est = associate(*(read_tum(p) for p in example_paths()))
+    >>> res = ape(ref, est)
+    >>> res.label, res.errors.shape == (len(ref),)
+    ('APE w.r.t. translation part (m)', True)
     """
 
     metric: str
@@ -136,11 +216,31 @@ class PoseError:
     est: Trajectory | None = None
     info: dict = field(default_factory=dict)
 
+    @property
+    def label(self) -> str:
+        """``"APE w.r.t. translation part (m)"`` and the like."""
+        return f"{self.metric.upper()} w.r.t. {relation_label(self.relation)}"
+
     def to_dict(self) -> dict:
-        """A JSON-ready summary (no arrays)."""
+        """A JSON-ready summary (no arrays).
+
+        Returns
+        -------
+        dict
+            ``metric``, ``relation``, ``label``, ``unit``, ``num_errors``, ``stats`` (and ``info``).
+
+        Examples
+        --------
+        >>> from microlie.data import example_paths
+        >>> from microlie.traj import *
+        >>> ref, est = associate(*(read_tum(p) for p in example_paths()))
+        >>> sorted(rpe(ref, est).to_dict())
+        ['info', 'label', 'metric', 'num_errors', 'relation', 'stats', 'unit']
+        """
         return {
             "metric": self.metric,
             "relation": self.relation,
+            "label": self.label,
             "unit": self.unit,
             "num_errors": int(self.errors.size),
             "stats": dict(self.stats),
@@ -161,14 +261,30 @@ def ape(
 ) -> PoseError:
     """Absolute pose error of paired (and, if wanted, already aligned) trajectories.
 
-    Example (the bundled pair; the estimate's rmse after an SE(3) alignment is 0.0617 m):
-        >>> from microlie.data import example_paths
-        >>> from microlie.traj import align, associate, read_tum
-        >>> ref, est = (read_tum(p) for p in example_paths())
-        >>> ref, est = associate(ref, est)
-        >>> res = ape(ref, align(est, ref, "se3")[0], "trans")
-        >>> round(float(res.stats["rmse"]), 4)
-        0.0617
+    Parameters
+    ----------
+    ref, est : Trajectory
+        Paired pose by pose (see :func:`associate`).
+    relation : str
+        What is measured on ``E_i = Q_i^-1 P_i`` (see the module docstring).
+    angle_unit : {"deg", "rad"}
+        The unit of ``relation="rot"``.
+
+    Returns
+    -------
+    PoseError
+
+    Examples
+    --------
+    The bundled pair; the estimate's rmse after an SE(3) alignment is 0.0617 m:
+
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import align, ape, associate, read_tum
+    >>> ref, est = (read_tum(p) for p in example_paths())
+    >>> ref, est = associate(ref, est)
+    >>> res = ape(ref, align(ref, est, "se3")[0], "trans")
+    >>> round(float(res.stats["rmse"]), 4)
+    0.0617
     """
     _check_paired(ref, est)
     rel = _relation(relation, angle_unit)
@@ -188,20 +304,54 @@ def pose_pairs(
     all_pairs: bool = False,
     rel_tol: float = 0.1,
 ) -> np.ndarray:
-    """Index pairs ``(i, j)`` of ``traj`` separated by ``delta`` frames or metres.
+    """Index pairs ``(i, j)`` of ``traj`` separated by ``delta`` frames, metres or degrees.
 
     * frames, consecutive: ``(0, d), (d, 2d), ...``; all pairs: ``(i, i + d)`` for every ``i``.
     * metres, consecutive: walk along the path summing the step lengths; each time the sum
       reaches ``delta`` the current index closes a pair and the sum restarts at 0.
     * metres, all pairs: for every ``i`` the ``j > i`` whose travelled distance from ``i`` is
       closest to ``delta`` (first such ``j`` on ties), kept if within ``rel_tol * delta``.
+    * degrees / radians, consecutive: as metres with the rotation angles of consecutive
+      relative orientations summed; all pairs: *every* ``j > i`` whose direct relative
+      rotation angle is within ``rel_tol * delta`` of ``delta`` (evo's rules).
 
-    Returns an ``(M, 2)`` integer array; raises ``ValueError`` if it would be empty.
+    Parameters
+    ----------
+    traj : Trajectory
+        The trajectory the pairs are chosen on.
+    delta : float
+        The separation (an integer for frames).
+    unit : {"frames", "f", "m", "deg", "d", "rad", "r"}
+        The unit of ``delta``.
+    all_pairs : bool
+        Every admissible pair instead of consecutive, non-overlapping ones.
+    rel_tol : float
+        Relative tolerance of the all-pairs metre and angle modes.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(M, 2)`` integer pairs.
+
+    Raises
+    ------
+    ValueError
+        No pair fits.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.traj import Trajectory, pose_pairs
+    >>> t = Trajectory.from_arrays(np.c_[np.arange(6.0), np.zeros((6, 2))],
+    ...                            np.tile([0, 0, 0, 1.0], (6, 1)))
+    >>> pose_pairs(t, 2).tolist(), pose_pairs(t, 2.0, "m").tolist()
+    ([[0, 2], [2, 4]], [[0, 2], [2, 4]])
     """
     n = len(traj)
-    if delta <= 0:
+    if not delta > 0:
         raise ValueError(f"delta must be positive, got {delta}")
-    if unit in ("frames", "f"):
+    unit = _delta_unit(unit)
+    if unit == "frames":
         if float(delta) != int(delta):
             raise ValueError(f"a frame delta must be an integer, got {delta}")
         d = int(delta)
@@ -211,23 +361,25 @@ def pose_pairs(
         else:
             ids = np.arange(0, n, d)
             pairs = np.stack([ids[:-1], ids[1:]], axis=1)
-    elif unit in ("m", "meters", "metres"):
+    elif unit == "m":
         steps = traj.step_lengths()
         if all_pairs:
             pairs = _all_pairs_by_distance(np.concatenate([[0.0], np.cumsum(steps)]),
                                            float(delta), float(delta) * rel_tol)
         else:
-            ids = [0]
-            acc = 0.0
-            for k, s in enumerate(steps.tolist(), start=1):
-                acc += s
-                if acc >= delta:
-                    ids.append(k)
-                    acc = 0.0
-            a = np.asarray(ids)
-            pairs = np.stack([a[:-1], a[1:]], axis=1)
+            pairs = _consecutive_by_sum(steps, float(delta))
     else:
-        raise ValueError(f"unknown delta unit {unit!r}; expected 'frames' or 'm'")
+        bound = 180.0 if unit == "deg" else np.pi
+        if delta > bound:
+            raise ValueError(f"an angle delta must be at most {bound:g} {unit}, got {delta}")
+        rad = float(np.deg2rad(delta)) if unit == "deg" else float(delta)
+        tol = float(np.deg2rad(delta * rel_tol)) if unit == "deg" else float(delta * rel_tol)
+        rot = traj.poses.rotation()
+        if all_pairs:
+            pairs = _all_pairs_by_angle(rot, rad, tol)
+        else:
+            steps = _angles(rot[:-1].between(rot[1:])) if n > 1 else np.zeros(0)
+            pairs = _consecutive_by_sum(steps, rad)
     pairs = pairs.astype(np.intp).reshape(-1, 2)
     if pairs.shape[0] == 0:
         raise ValueError(
@@ -235,6 +387,55 @@ def pose_pairs(
             f"({traj.path_length:.3f} m): use a smaller delta"
         )
     return pairs
+
+
+_DELTA_UNITS = {"frames": "frames", "f": "frames", "m": "m", "meters": "m", "metres": "m",
+                "deg": "deg", "d": "deg", "degrees": "deg", "rad": "rad", "r": "rad",
+                "radians": "rad"}
+
+
+def _delta_unit(unit: str) -> str:
+    try:
+        return _DELTA_UNITS[unit]
+    except KeyError:
+        raise ValueError(
+            f"unknown delta unit {unit!r}; expected 'frames', 'm', 'deg' or 'rad'"
+        ) from None
+
+
+def _angles(rot) -> np.ndarray:
+    """Rotation angles (rad) of a batch of SO(3) elements."""
+    phi = np.asarray(rot.log())
+    return np.sqrt(np.einsum("ij,ij->i", phi, phi))
+
+
+def _consecutive_by_sum(steps: np.ndarray, delta: float) -> np.ndarray:
+    """Walk the steps summing them; each time the sum reaches ``delta`` the current index closes
+    a pair, opens the next one, and the sum restarts at 0 (pose 0 opens the first pair)."""
+    ids = [0]
+    acc = 0.0
+    for k, s in enumerate(steps.tolist(), start=1):
+        acc += s
+        if acc >= delta:
+            ids.append(k)
+            acc = 0.0
+    a = np.asarray(ids)
+    return np.stack([a[:-1], a[1:]], axis=1)
+
+
+def _all_pairs_by_angle(rot, delta: float, tol: float) -> np.ndarray:
+    """Every ``(i, j > i)`` whose relative rotation angle is within ``tol`` of ``delta``."""
+    n = rot.batch_shape[0]
+    out = []
+    block = max(1, 1_000_000 // max(n, 1))
+    for s in range(0, n - 1, block):
+        i = np.arange(s, min(s + block, n - 1))
+        ii, jj = np.nonzero(np.arange(n)[None, :] > i[:, None])
+        ii = i[ii]
+        ang = _angles(rot[ii].between(rot[jj]))
+        ok = (ang >= delta - tol) & (ang <= delta + tol)
+        out.append(np.stack([ii[ok], jj[ok]], axis=1))
+    return np.concatenate(out) if out else np.zeros((0, 2), dtype=np.intp)
 
 
 def _all_pairs_by_distance(dist: np.ndarray, delta: float, tol: float) -> np.ndarray:
@@ -272,16 +473,44 @@ def rpe(
     angle_unit: str = "deg",
     pairs: np.ndarray | None = None,
 ) -> PoseError:
-    """Relative pose error over pose pairs ``delta`` frames or metres apart.
+    """Relative pose error over pose pairs ``delta`` frames, metres or degrees apart.
 
-    Args:
-        relation: see the module docstring (``point_distance`` compares the lengths of the
-            displacements only).
-        delta, unit: pair separation, ``unit`` in ``{"frames", "m"}``.
-        all_pairs: every admissible pair instead of consecutive, non-overlapping ones.
-        rel_tol: relative tolerance on the distance in all-pairs metre mode.
-        pairs_from: choose pairs on the ``"est"`` (evo's default) or ``"ref"`` trajectory.
-        pairs: explicit ``(M, 2)`` index pairs; then ``delta``/``unit``/``all_pairs`` are unused.
+    The error pose of a pair ``(i, j)`` is ``E_ij = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)``.
+
+    Parameters
+    ----------
+    ref, est : Trajectory
+        Paired pose by pose (see :func:`associate`).
+    relation : str
+        See the module docstring (``point_distance`` compares the lengths of the
+        displacements only).
+    delta : float
+        Pair separation.
+    unit : {"frames", "m", "deg", "rad"}
+        Unit of ``delta`` (see :func:`pose_pairs`).
+    all_pairs : bool
+        Every admissible pair instead of consecutive, non-overlapping ones.
+    rel_tol : float
+        Relative tolerance of the all-pairs modes.
+    pairs_from : {"est", "ref"}
+        Choose pairs on the estimate (evo's default) or the reference.
+    angle_unit : {"deg", "rad"}
+        The unit of ``relation="rot"``.
+    pairs : numpy.ndarray, optional
+        Explicit ``(M, 2)`` index pairs; then ``delta``, ``unit`` and ``all_pairs`` are unused.
+
+    Returns
+    -------
+    PoseError
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import *
+    >>> ref, est = associate(*(read_tum(p) for p in example_paths()))
+    >>> res = rpe(ref, est, "rot", delta=1, unit="m")
+    >>> res.unit, res.pairs.shape[1]
+    ('deg', 2)
     """
     _check_paired(ref, est)
     rel = _relation(relation, angle_unit)
@@ -304,7 +533,7 @@ def rpe(
         q_rel = ref.poses[i].between(ref.poses[j])
         p_rel = est.poses[i].between(est.poses[j])
         err = _pose_error_values(q_rel.between(p_rel), rel)
-    info = {"delta": delta, "delta_unit": "frames" if unit in ("frames", "f") else "m",
+    info = {"delta": delta, "delta_unit": _delta_unit(unit),
             "all_pairs": all_pairs, "pairs_from": pairs_from}
     return PoseError("rpe", rel, _UNITS[rel], err, statistics(err), pairs, ref, est, info)
 
@@ -313,11 +542,28 @@ def rpe(
 class KittiResult:
     """KITTI odometry metric (Geiger et al., CVPR 2012; the devkit's ``evaluate_odometry``).
 
-    Attributes:
-        t_err: average translational error in percent (``100 * |t(E)| / length``).
-        r_err: average rotational error in degrees per metre (``angle(E) / length``).
-        per_length: ``{length: (t_err %, r_err deg/m, number of segments)}``.
-        segments: ``(K, 4)`` rows ``(first index, length, t_err ratio, r_err rad/m)``.
+    Attributes
+    ----------
+    t_err : float
+        Average translational error in percent (``100 * |t(E)| / length``).
+    r_err : float
+        Average rotational error in degrees per metre (``angle(E) / length``).
+    per_length : dict
+        ``{length: (t_err %, r_err deg/m, number of segments)}``.
+    segments : numpy.ndarray
+        ``(K, 4)`` rows ``(first index, length, t_err ratio, r_err rad/m)``.
+
+    Examples
+    --------
+    A straight 300 m path estimated 1 % too long:
+
+    >>> import numpy as np
+    >>> from microlie.traj import Trajectory, kitti_odometry
+    >>> x = np.c_[np.arange(0.0, 300.5, 0.5), np.zeros((601, 2))]
+    >>> q = np.tile([0, 0, 0, 1.0], (601, 1))
+    >>> res = kitti_odometry(Trajectory.from_arrays(x, q), Trajectory.from_arrays(1.01 * x, q))
+    >>> sorted(res.per_length), round(res.t_err, 2), res.r_err
+    ([100.0, 200.0], 1.0, 0.0)
     """
 
     t_err: float
@@ -326,6 +572,23 @@ class KittiResult:
     segments: np.ndarray
 
     def to_dict(self) -> dict:
+        """A JSON-ready summary (no arrays).
+
+        Returns
+        -------
+        dict
+            ``t_err_percent``, ``r_err_deg_per_m``, ``r_err_deg_per_100m``, ``num_segments`` and
+            ``per_length``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.traj import Trajectory, kitti_odometry
+        >>> x = np.c_[np.arange(0.0, 150.0), np.zeros((150, 2))]
+        >>> t = Trajectory.from_arrays(x, np.tile([0, 0, 0, 1.0], (150, 1)))
+        >>> kitti_odometry(t, t).to_dict()["t_err_percent"]
+        0.0
+        """
         return {
             "metric": "kitti",
             "t_err_percent": self.t_err,
@@ -352,6 +615,34 @@ def kitti_odometry(
     The segment error is ``E = (P_f^-1 P_l)^-1 (Q_f^-1 Q_l)``; it contributes
     ``|t(E)| / L`` and ``angle(E) / L``. Results are the plain means over all segments, in %
     and deg/m. Segments running past the end are skipped.
+
+    Parameters
+    ----------
+    ref, est : Trajectory
+        Paired pose by pose.
+    lengths : sequence of float
+        Segment lengths, metres (default 100, 200, ..., 800).
+    step : int
+        Index step between segment starts (the devkit's 10).
+
+    Returns
+    -------
+    KittiResult
+
+    Raises
+    ------
+    ValueError
+        No segment fits in the reference path.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.traj import Trajectory, kitti_odometry
+    >>> x = np.c_[np.arange(0.0, 300.5, 0.5), np.zeros((601, 2))]
+    >>> q = np.tile([0, 0, 0, 1.0], (601, 1))
+    >>> res = kitti_odometry(Trajectory.from_arrays(x, q), Trajectory.from_arrays(1.01 * x, q))
+    >>> round(res.t_err, 2)
+    1.0
     """
     _check_paired(ref, est)
     dist = ref.distances()

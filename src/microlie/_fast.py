@@ -1,0 +1,42 @@
+"""The optional compiled kernels (``pip install "microlie[fast]"``; from a checkout
+``pip install ./fast``).
+
+When the package ``microlie_fast`` is importable, :func:`install` (called once by
+``import microlie``) registers its functions as the NumPy replacements of the kernels they
+implement (see :func:`microlie._kernels.register`): SO(3) and SE(3) values and fused Jacobians,
+float64 and float32 (computed in float64, rounded once). Set the environment variable
+``MICROLIE_FAST=0`` to keep the generic NumPy kernels. The classes and their results do not
+change: each compiled kernel agrees with the generic one to rounding (``tests/test_kernels.py``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+
+__all__ = ["install", "installed"]
+
+_installed: list[str] = []
+
+
+def install() -> list[str]:
+    """Register the compiled kernels (if ``microlie_fast`` is importable and
+    ``MICROLIE_FAST`` is not ``0``); return the names of the kernels registered."""
+    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
+        return []
+    try:
+        _lie = importlib.import_module("microlie_fast._lie")
+        K = importlib.import_module("microlie._kernels")  # the kernel registry
+    except ImportError:
+        return []
+    _installed.clear()
+    for name, fn in getattr(_lie, "KERNELS", {}).items():  # {} from an older build
+        if name in K.KERNELS:
+            K.register(name, getattr(_lie, fn))
+            _installed.append(name)
+    return list(_installed)
+
+
+def installed() -> list[str]:
+    """Names of the kernels that :func:`install` registered in this process."""
+    return list(_installed)

@@ -1,0 +1,18 @@
+"""Inertial estimation: IMU preintegration, IMU factors, synthetic IMU data, filters.
+
+Conventions: navigation states are ``SE23`` elements (tangent ``(rho, phi, nu)``: position,
+rotation, velocity); biases are ordered ``(b_g, b_a)`` (gyroscope, accelerometer); the
+preintegration covariance is in the order ``(dphi, dv, dp)`` (Forster et al. 2017).
+
+>>> from microlie.imu import Preintegration
+"""
+
+from .factors import BiasRandomWalkFactor, ImuFactor
+from .filters import ErrorStateEKF, InvariantEKF
+from .preintegration import Preintegration
+from .residual import Deltas, imu_residual
+from .simulate import EUROC_ADIS16448, ImuData, SmoothTrajectory, simulate_imu
+
+__all__ = ["Preintegration", "ImuFactor", "BiasRandomWalkFactor", "Deltas", "imu_residual",
+           "EUROC_ADIS16448", "ImuData", "SmoothTrajectory", "simulate_imu", "ErrorStateEKF",
+           "InvariantEKF"]

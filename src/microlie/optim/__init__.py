@@ -1,0 +1,88 @@
+"""Factor graphs on Lie groups: sparse non-linear least squares (``../shared/MATH.md`` sec. 8).
+
+API in one paragraph: ``g = FactorGraph()``; ``poses = g.add_variables(SE3_batch, fixed=...)``
+adds one batch of variables of one type (any :class:`~microlie.LieGroup`, or an ``(n, d)``
+array of vectors) and returns a handle; factors are batches too:
+``PriorFactor(poses, idx, Z, noise)`` (``r = X (-) Z``), ``BetweenFactor(poses, i, j, Z, noise)``
+(``r = (X_i^-1 X_j) (-) Z_ij``) and ``CustomFactor(fn, [(var, idx), ...], dim, noise,
+jac="numerical"|"analytic"|"jax"|"torch")``, each added with ``g.add(...)``; noise models are
+``Information``, ``SqrtInformation``, ``Covariance``, ``Diagonal``, ``Isotropic``; robust losses
+(``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
+``DCS``, ``Barron``, applied as in Ceres. ``result = g.optimize(solver="lm"|"gn"|"dogleg",
+linear_solver="auto"|"supernodal"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
+:class:`Result` with ``values`` (``result.values[poses]`` is the optimised batch),
+``initial_cost``, ``final_cost`` (``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``,
+``converged``, ``message``, ``history`` and ``time_s``; a graph without a prior or a fixed
+variable is a ``GaugeError`` unless ``gauge="fix_first"``. ``g.marginals(result.values, poses,
+idx)`` gives :class:`~microlie.Gaussian` marginals in the right-perturbation frame.
+Conventions: every variable is perturbed on the right (``X Exp(delta)``), every Jacobian is a
+right Jacobian, tangents are translation first.
+
+Pose-graph files: :mod:`microlie.optim.g2o`, :mod:`microlie.optim.toro` (both return a
+:class:`microlie.optim.pose_graph.PoseGraph`); initialisation: :mod:`microlie.optim.init`.
+"""
+
+# Submodules load on first use (PEP 562), so that ``microlie optimize``'s argument parser and the
+# file readers (``microlie.optim.g2o``) do not pay for the solver's SciPy imports.
+import importlib
+from typing import TYPE_CHECKING, Any
+
+_LAZY = {
+    "bal": ("BALProblem", "read_bal", "write_bal"),
+    "bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
+    "camera": ("BALCamera", "PinholeCamera"),
+    "factors": ("BetweenFactor", "CustomFactor", "Factor", "PriorFactor"),
+    "graph": ("FactorGraph", "from_pose_graph"),
+    "linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
+    "noise": ("Covariance", "Diagonal", "Information", "Isotropic", "NoiseModel",
+              "SqrtInformation", "Unit"),
+    "problem": ("GaugeError", "Problem"),
+    "robust": ("DCS", "Barron", "Cauchy", "GemanMcClure", "Huber", "RobustLoss", "Tukey",
+               "make_loss"),
+    "solvers": ("IterationRecord", "Result"),
+    "variables": ("Values", "Variables"),
+}
+_WHERE = {name: module for module, names in _LAZY.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_WHERE])
+
+
+if TYPE_CHECKING:
+    from .bal import BALProblem, read_bal, write_bal
+    from .bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
+    from .camera import BALCamera, PinholeCamera
+    from .factors import BetweenFactor, CustomFactor, Factor, PriorFactor
+    from .graph import FactorGraph, from_pose_graph
+    from .linear import LinearSolver, SingularSystemError, available_solvers, make_solver
+    from .noise import (
+        Covariance,
+        Diagonal,
+        Information,
+        Isotropic,
+        NoiseModel,
+        SqrtInformation,
+        Unit,
+    )
+    from .problem import GaugeError, Problem
+    from .robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
+    from .solvers import IterationRecord, Result
+    from .variables import Values, Variables
+
+__all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "PriorFactor",
+           "BetweenFactor", "CustomFactor", "NoiseModel", "Information", "SqrtInformation",
+           "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
+           "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
+           "LinearSolver", "SingularSystemError", "GaugeError", "Problem", "available_solvers",
+           "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
+           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera"]

@@ -1,0 +1,394 @@
+"""Levenberg-Marquardt, Gauss-Newton and Powell's dogleg on a :class:`Problem`.
+
+Every solver works on the whitened, robustly corrected normal equations
+``H dx = -g`` (``H = sum A^T A``, ``g = sum A^T e``) assembled in the problem's fixed pattern,
+retracts ``X <- X Exp(dx)`` per variable, and keeps the best point: the returned values never
+have a higher (robust) cost than the start.
+
+Levenberg-Marquardt follows GTSAM's ``LevenbergMarquardtParams()`` defaults: damping
+``H + lambda I`` (or ``lambda diag(H)`` with ``diagonal_damping=True``), ``lambda`` starts at
+``1e-5``, is divided by 10 after an accepted step and multiplied by 10 after a rejected one,
+and the run stops when ``lambda`` exceeds ``1e5``. Stopping rules (all solvers): relative cost
+decrease below ``rel_tol``, absolute decrease below ``abs_tol``, cost below ``cost_tol``, step
+norm below ``step_tol``, or ``max_iter`` iterations.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .linear import LinearSolver, SingularSystemError
+from .problem import Problem
+from .variables import Values
+
+__all__ = ["Result", "IterationRecord", "SolverOptions", "solve"]
+
+
+@dataclass(frozen=True)
+class IterationRecord:
+    """One accepted (or final rejected) iteration of a solve.
+
+    Attributes
+    ----------
+    iteration : int
+        Its number (1-based).
+    cost : float
+        The robust cost after it.
+    step_norm : float
+        The norm of the step.
+    damping : float
+        ``lambda`` for LM, the trust radius for dogleg, 0 for GN.
+    time_s : float
+        Time since the start, seconds.
+    solves : int
+        The linear solves it took.
+
+    Examples
+    --------
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(1))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.exp([1.0, 2.0, 0.5])))
+    >>> res = g.optimize()
+    >>> rec = res.history[0]
+    >>> rec.iteration, rec.solves >= 1
+    (1, True)
+    """
+
+    iteration: int
+    cost: float
+    step_norm: float
+    damping: float
+    time_s: float
+    solves: int
+
+
+@dataclass
+class Result:
+    """The outcome of :meth:`FactorGraph.optimize`.
+
+    Attributes
+    ----------
+    values : Values
+        The optimised values.
+    initial_cost, final_cost : float
+        ``0.5 * sum r^T Omega r`` without robust losses (GTSAM's error).
+    initial_robust_cost, final_robust_cost : float
+        The minimised ``0.5 * sum rho(r^T Omega r)`` (equal to the plain ones without losses).
+    iterations : int
+        Accepted iterations.
+    converged : bool
+        Whether a convergence test was met (not the iteration limit).
+    message : str
+        Why the solver stopped.
+    history : list of IterationRecord
+        One record per iteration.
+    time_s : float
+        Solve time, seconds (analysis included, graph construction excluded).
+    solver, linear_solver : str
+        What ran.
+    timings : dict
+        ``time_s`` split into linearise / assemble / factorise / solve / other.
+    gauge_fixed : list
+        ``(handle, index)`` of the variables held by ``gauge="fix_first"``.
+
+    Examples
+    --------
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(1))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.exp([1.0, 2.0, 0.5])))
+    >>> res = g.optimize()
+    >>> res.converged, res.initial_cost > res.final_cost, round(res.final_cost, 12)
+    (True, True, 0.0)
+    """
+
+    values: Values
+    initial_cost: float
+    final_cost: float
+    initial_robust_cost: float
+    final_robust_cost: float
+    iterations: int
+    converged: bool
+    message: str
+    history: list[IterationRecord]
+    time_s: float
+    solver: str
+    linear_solver: str
+    timings: dict = field(default_factory=dict)
+    gauge_fixed: list = field(default_factory=list)
+
+    def __repr__(self) -> str:
+        return (f"Result({self.solver}: cost {self.initial_cost:.10g} -> {self.final_cost:.10g}"
+                f" in {self.iterations} iterations, {self.time_s * 1e3:.1f} ms, "
+                f"converged={self.converged}: {self.message})")
+
+
+@dataclass
+class SolverOptions:
+    """The options of one solve (the keyword arguments of :meth:`FactorGraph.optimize`).
+
+    Parameters
+    ----------
+    solver : {"lm", "gn", "dogleg"}
+        Levenberg-Marquardt, Gauss-Newton or Powell's dogleg.
+    linear_solver : str or LinearSolver
+        See :func:`~microlie.optim.make_solver`.
+    max_iter : int
+        Iteration limit.
+    rel_tol, abs_tol, cost_tol, step_tol : float
+        Convergence tests.
+    lambda_initial, lambda_factor, lambda_max, lambda_min : float
+        LM damping: start, growth factor and bounds.
+    diagonal_damping : bool
+        Damp with ``diag(H)`` (Marquardt) instead of the identity.
+    radius_initial : float
+        The dogleg trust radius at the start.
+    verbose : bool, optional
+        One line per iteration on stderr (default: when stderr is a terminal).
+
+    Examples
+    --------
+    >>> from microlie.optim.solvers import SolverOptions
+    >>> SolverOptions(solver="gn").lambda_initial
+    1e-05
+    """
+    solver: str = "lm"
+    linear_solver: str | LinearSolver = "auto"
+    max_iter: int = 100
+    rel_tol: float = 1e-5
+    abs_tol: float = 1e-5
+    cost_tol: float = 0.0
+    step_tol: float = 0.0
+    lambda_initial: float = 1e-5
+    lambda_factor: float = 10.0
+    lambda_max: float = 1e5
+    lambda_min: float = 0.0
+    diagonal_damping: bool = False
+    radius_initial: float = 1.0
+    verbose: bool | None = None
+
+
+class _Timer:
+    def __init__(self) -> None:
+        self.t = {"linearize": 0.0, "assemble": 0.0, "factorize": 0.0, "solve": 0.0,
+                  "cost": 0.0, "retract": 0.0}
+
+
+def _converged(o: SolverOptions, old: float, new: float) -> str | None:
+    dec = old - new
+    if new <= o.cost_tol:
+        return f"cost {new:.6g} below cost_tol"
+    if dec >= 0 and dec < o.abs_tol:
+        return f"absolute cost decrease {dec:.3g} below abs_tol"
+    if dec >= 0 and old > 0 and dec / old < o.rel_tol:
+        return f"relative cost decrease {dec / old:.3g} below rel_tol"
+    return None
+
+
+def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Result:
+    """Run the chosen solver on a problem from ``states`` (what :meth:`FactorGraph.optimize`
+    calls).
+
+    Parameters
+    ----------
+    problem : Problem
+        The linearisable problem.
+    states : list of numpy.ndarray
+        The starting parameters of each variable batch.
+    o : SolverOptions
+        The options.
+
+    Returns
+    -------
+    Result
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(3))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+    >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+    >>> from microlie.optim.solvers import SolverOptions, solve
+    >>> p = g.problem()
+    >>> res = solve(p, [v.initial for v in p.variables], SolverOptions(solver="gn"))
+    >>> res.converged, round(res.final_cost, 12)
+    (True, 0.0)
+    """
+    if o.solver not in ("lm", "gn", "dogleg"):
+        raise ValueError(f"solver must be 'lm', 'gn' or 'dogleg', got {o.solver!r}")
+    t_start = time.perf_counter()
+    tm = _Timer()
+    show = bool(o.verbose) if o.verbose is not None else sys.stderr.isatty()
+    ls = problem.analysed(o.linear_solver)
+    lin = _linearize(problem, states, tm)
+    c0, rc0 = lin.cost, lin.robust_cost
+    cur, cur_c, cur_rc = states, c0, rc0
+    history: list[IterationRecord] = []
+    message, converged = f"reached max_iter={o.max_iter}", False
+    if problem.size == 0:
+        message, converged = "no free variables", True
+    lam = o.lambda_initial
+    radius = o.radius_initial
+    it = 0
+    while problem.size and it < o.max_iter:
+        it += 1
+        solves = 0
+        accepted = False
+        stop = None
+        if o.solver == "lm":
+            while True:
+                damped = lin.data.copy()
+                dg = lin.data[problem.diag_pos]
+                damped[problem.diag_pos] += lam * (np.maximum(dg, 1e-12)
+                                                   if o.diagonal_damping else 1.0)
+                solves += 1
+                try:
+                    dx = _factor_solve(ls, damped, -lin.grad, tm)
+                except SingularSystemError:
+                    dx = None
+                if dx is not None:
+                    new, new_c, new_rc = _try(problem, cur, dx, tm)
+                    if new_rc < cur_rc:
+                        accepted = True
+                        lam = max(lam / o.lambda_factor, o.lambda_min)
+                        break
+                lam *= o.lambda_factor
+                if lam > o.lambda_max:
+                    stop = f"lambda exceeded {o.lambda_max:g} without decreasing the cost"
+                    break
+        elif o.solver == "gn":
+            solves += 1
+            dx = _factor_solve(ls, lin.data, -lin.grad, tm, gn=True)
+            new, new_c, new_rc = _try(problem, cur, dx, tm)
+            if new_rc < cur_rc:
+                accepted = True
+            elif new_rc - cur_rc <= max(o.abs_tol, o.rel_tol * cur_rc):
+                stop = "converged: the Gauss-Newton step no longer decreases the cost"
+            else:
+                stop = "the Gauss-Newton step did not decrease the cost"
+        else:  # dogleg
+            gn_dx = None
+            g = lin.grad
+            H = problem.matrix(lin.data)
+            Hg = H @ g
+            gHg = float(g @ Hg)
+            sd = -(float(g @ g) / gHg) * g if gHg > 0 else -g
+            while True:
+                if gn_dx is None:
+                    solves += 1
+                    gn_dx = _factor_solve(ls, lin.data, -g, tm, gn=True)
+                dx = _dogleg_step(gn_dx, sd, radius)
+                pred = -(float(g @ dx) + 0.5 * float(dx @ (H @ dx)))
+                new, new_c, new_rc = _try(problem, cur, dx, tm)
+                actual = cur_rc - new_rc
+                rho = actual / pred if pred > 0 else -1.0
+                step = float(np.linalg.norm(dx))
+                if rho > 0.75:
+                    radius = max(radius, 3.0 * step)
+                elif rho < 0.25:
+                    radius = 0.5 * step if step > 0 else 0.5 * radius
+                if actual > 0:
+                    accepted = True
+                    break
+                if radius < 1e-12 * (1.0 + float(np.linalg.norm(_vec(cur)))):
+                    stop = "trust region collapsed without decreasing the cost"
+                    break
+            lam = radius
+        if not accepted:
+            message = stop or "no decrease"
+            converged = o.solver != "gn" or message.startswith("converged")
+            history.append(IterationRecord(it, cur_rc, 0.0, lam, time.perf_counter() - t_start,
+                                           solves))
+            it -= 1
+            break
+        assert dx is not None
+        step_norm = float(np.linalg.norm(dx))
+        old_rc = cur_rc
+        cur, cur_c, cur_rc = new, new_c, new_rc
+        history.append(IterationRecord(it, new_rc, step_norm, lam if o.solver != "gn" else 0.0,
+                                       time.perf_counter() - t_start, solves))
+        if show:
+            print(f"{o.solver} iter {it:3d}  cost {new_rc:.10g}  step {step_norm:.3e}  "
+                  f"{'lambda' if o.solver == 'lm' else 'radius'} {lam:.1e}", file=sys.stderr)
+        why = _converged(o, old_rc, new_rc)
+        if why is None and step_norm <= o.step_tol:
+            why = f"step norm {step_norm:.3g} below step_tol"
+        if why is not None:
+            message, converged = why, True
+            break
+        lin = _linearize(problem, cur, tm)
+    final_c, final_rc = cur_c, cur_rc  # evaluated at the last accepted point already
+    total = time.perf_counter() - t_start
+    timings = dict(tm.t)
+    timings["other"] = total - sum(timings.values())
+    vals = Values(problem.variables, cur)
+    return Result(vals, c0, final_c, rc0, final_rc, it, converged, message, history, total,
+                  o.solver, ls.name, timings, list(problem.gauge_fixed))
+
+
+def _vec(states: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate([s.ravel() for s in states]) if states else np.zeros(0)
+
+
+def _linearize(problem: Problem, states: list[np.ndarray], tm: _Timer) -> Any:
+    lin = problem.linearize(states)
+    tm.t["linearize"] += lin.times["linearize"] + lin.times["products"]
+    tm.t["assemble"] += lin.times["assemble"]
+    return lin
+
+
+def _factor_solve(ls: LinearSolver, data: np.ndarray, b: np.ndarray, tm: _Timer,
+                  gn: bool = False) -> np.ndarray:
+    t0 = time.perf_counter()
+    try:
+        ls.factorize(data)
+    except SingularSystemError as e:
+        if gn:
+            raise SingularSystemError(
+                f"{e}: the Gauss-Newton system is rank deficient (a gauge freedom or an "
+                f"unobservable variable); add priors or use solver='lm'") from None
+        raise
+    finally:
+        tm.t["factorize"] += time.perf_counter() - t0
+    t1 = time.perf_counter()
+    try:
+        return ls.solve(b)
+    finally:
+        tm.t["solve"] += time.perf_counter() - t1
+
+
+def _try(problem: Problem, cur: list[np.ndarray], dx: np.ndarray, tm: _Timer) -> tuple:
+    t0 = time.perf_counter()
+    new = problem.retract(cur, dx)
+    t1 = time.perf_counter()
+    c, rc = problem.costs(new)
+    t2 = time.perf_counter()
+    tm.t["retract"] += t1 - t0
+    tm.t["cost"] += t2 - t1
+    if not np.isfinite(rc):
+        rc = np.inf
+    return new, c, rc
+
+
+def _dogleg_step(gn: np.ndarray, sd: np.ndarray, radius: float) -> np.ndarray:
+    ngn = float(np.linalg.norm(gn))
+    if ngn <= radius:
+        return gn
+    nsd = float(np.linalg.norm(sd))
+    if nsd >= radius:
+        return sd * (radius / nsd)
+    d = gn - sd
+    a, b, c = float(d @ d), 2.0 * float(sd @ d), nsd * nsd - radius * radius
+    tau = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
+    return sd + tau * d

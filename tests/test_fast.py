@@ -1,0 +1,155 @@
+"""The optional compiled kernels (microlie[fast], ``pip install ./fast``): every one agrees with
+the generic kernel it replaces on the hard inputs (float64 and float32, batched and single), the
+generated header matches microlie.groups._math, ``MICROLIE_FAST=0`` disables them, bad arguments
+are errors. The reference is the generic component kernel (independent code: NumPy formulas of
+microlie.groups, not the C element functions)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import require, tangent_with_angle
+
+ROOT = Path(__file__).resolve().parents[1]
+HARD = (0.0, 1e-12, 1e-7, 1e-4, 0.7, 3.0, np.pi - 1e-6, np.pi)
+
+
+def _compiled():
+    """The registry and the names of the installed compiled kernels (re-registered: another
+    test may have swapped a replacement)."""
+    if os.environ.get("MICROLIE_FAST") == "0":
+        pytest.skip("MICROLIE_FAST=0: the generic kernels only")
+    require("microlie_fast")
+    try:
+        K = importlib.import_module("microlie._kernels")
+    except ImportError:
+        pytest.skip("the kernel registry (microlie._kernels) is not on this branch yet")
+    from microlie import _fast
+
+    names = _fast.install()
+    assert {"SO3.exp", "SO3.log", "SE3.exp", "SE3.log", "SE3.compose", "SE3.act",
+            "SE3.exp_jac", "SE3.act_jac", "SE3.minus_jac", "SE3.between_jac", "SE3.jr",
+            "SE3.jr_inv"} <= set(names)
+    return K, names
+
+
+def _exact_pi_params(G, rng, n):
+    """Parameters of rotations by exactly pi (w = 0 exactly), and some with w < 0."""
+    q = rng.standard_normal((n, 4))
+    q[: n // 2, 3] = 0.0
+    q[: 2] = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[n // 2:, 3] = -np.abs(q[n // 2:, 3])
+    if G.param_dim == 4:
+        return q
+    return np.concatenate([rng.standard_normal((n, 3)), q], axis=1)
+
+
+def _inputs(k, dtype, rng):
+    G = k.group
+    taus = np.concatenate([tangent_with_angle(G, rng, th, 4) for th in HARD])
+    out = []
+    for kind in k.ins:
+        if kind == "t":
+            x = taus
+        elif kind == "p":
+            x = np.concatenate([G.exp(taus).params, _exact_pi_params(G, rng, 8)])[: len(taus)]
+            x = rng.permutation(x)
+        elif kind == "v":
+            x = rng.standard_normal((len(taus), G.point_dim)) * 10.0
+        else:
+            raise AssertionError(f"unknown input kind {kind!r} of {k.name}")
+        out.append(np.ascontiguousarray(x, dtype=dtype))
+    return out
+
+
+def test_compiled_kernels_agree_with_the_generic_kernels():
+    K, names = _compiled()
+    rng = np.random.default_rng(11)
+    for name in names:
+        k = K.KERNELS[name]
+        assert k.impl is not None, name
+        for dtype, tol in ((np.float64, 1e-13), (np.float32, 2e-6)):
+            ins = _inputs(k, dtype, rng)
+            n = len(ins[0])
+            for case in [ins, *([x[i] for x in ins] for i in (0, 5, n - 1))]:
+                got = K.run(k, *case)
+                impl, k.impl = k.impl, None
+                try:
+                    want = K.run(k, *case)
+                finally:
+                    k.impl = impl
+                got = got if isinstance(got, tuple) else (got,)
+                want = want if isinstance(want, tuple) else (want,)
+                for g, w in zip(got, want, strict=True):
+                    assert g.dtype == w.dtype == dtype and g.shape == w.shape, name
+                    scale = max(1.0, float(np.abs(w).max()))
+                    err = float(np.abs(g.astype(float) - w.astype(float)).max()) / scale
+                    assert err <= tol, f"{name} {np.dtype(dtype).name} {g.shape}: {err:.2e}"
+
+
+def test_compiled_kernels_are_used_by_the_classes():
+    K, _ = _compiled()
+    from microlie import SE3
+
+    k = K.KERNELS["SE3.exp"]
+    calls = []
+    impl = k.impl
+
+    def counting(t):
+        calls.append(t.shape)
+        return impl(t)
+    K.register("SE3.exp", counting)
+    try:
+        SE3.exp(np.zeros((5, 6)))
+    finally:
+        K.register("SE3.exp", impl)
+    assert calls == [(5, 6)]
+
+
+def _gen():
+    spec = importlib.util.spec_from_file_location("gen_coeffs", ROOT / "fast" / "gen_coeffs.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_coefficient_header_is_generated_from_the_generic_series():
+    gen = _gen()
+    assert gen.HEADER.read_text() == gen.render(), "run: PYTHONPATH=src python fast/gen_coeffs.py"
+    from microlie.groups import _math as M
+
+    text = gen.render()
+    assert repr(M.C_COT[-1]) in text and f"#define SMALL2 {M.SMALL2!r}" in text
+
+
+def test_environment_variable_disables_the_compiled_kernels():
+    if os.environ.get("MICROLIE_FAST") != "0":
+        require("microlie_fast")
+    code = "from microlie import _fast; print(len(_fast.installed()), _fast.install())"
+    env = dict(os.environ, MICROLIE_FAST="0")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == ["0", "[]"]
+
+
+def test_compiled_kernel_rejects_bad_arguments():
+    if os.environ.get("MICROLIE_FAST") == "0":
+        pytest.skip("MICROLIE_FAST=0")
+    lie = require("microlie_fast._lie")
+    with pytest.raises(ValueError, match=r"SE3.exp: argument 0 .*\(N, 6\)"):
+        lie.se3_exp(np.zeros((2, 5)))
+    with pytest.raises(ValueError, match="same N and dtype"):
+        lie.se3_compose(np.zeros((2, 7)), np.zeros((2, 7), dtype=np.float32))
+    with pytest.raises(ValueError, match="C-contiguous"):
+        lie.so3_exp(np.zeros((3, 6))[:, ::2])
+    with pytest.raises(TypeError, match="expected 2 arguments"):
+        lie.so3_act(np.zeros((1, 4)))
+    (q,) = lie.so3_exp(np.zeros((0, 3)))
+    assert q.shape == (0, 4)
