@@ -24,7 +24,9 @@ PUBLIC_MODULES = ["microlie", "microlie.traj", "microlie.optim", "microlie.imu",
                   # submodules with a public surface of their own (files, plots, bags)
                   "microlie.traj.plot", "microlie.traj.rosbag", "microlie.optim.g2o",
                   "microlie.optim.toro", "microlie.optim.init", "microlie.optim.pose_graph",
-                  "microlie.optim.plot"]
+                  "microlie.optim.plot", "microlie.imu.simulate", "microlie.optim.variables",
+                  "microlie.optim.noise", "microlie.optim.solvers", "microlie.optim.problem",
+                  "microlie.optim.camera", "microlie.optim.bundle"]
 
 
 def _sections(doc: str) -> set[str]:
