@@ -90,7 +90,7 @@ def check_covariance(P: Array, n: int, what: str = "covariance") -> bool:
     if M is None or M.size == 0:
         return False
     tol = math.sqrt(float(np.finfo(M.dtype).eps))
-    M = M.astype(np.float64)
+    M = M.astype(np.float64, copy=False)
     scale = np.abs(M).max(axis=(-1, -2))
     asym = np.abs(M - np.swapaxes(M, -1, -2)).max(axis=(-1, -2))
     if np.any(asym > tol * scale):
@@ -162,7 +162,7 @@ class _Null:
         if M is None or M.size == 0:
             return None
         rtol = _rtol(P)
-        M = M.astype(np.float64)
+        M = M.astype(np.float64, copy=False)
         n = M.shape[-1]
         A_ = 0.5 * (M + np.swapaxes(M, -1, -2))
         piv = _pivots(A_)  # the common case in one LAPACK call

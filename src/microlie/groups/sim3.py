@@ -176,13 +176,18 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
     u = M.cross(phi, rho)
     v = M.cross(phi, u)
     d = M.dot(phi, rho)
-    P = M.hat3(rho)
     # d(W rho)/d phi = -b hat(rho) + c (phi rho^T + (phi.rho) I - 2 rho phi^T)
     #                  + 2 b_t (phi x rho) phi^T + 2 c_t (phi x (phi x rho)) phi^T
-    Mphi = tuple(
-        tuple(-b * P[i][j] + c * (phi[i] * rho[j] - 2.0 * rho[i] * phi[j] + (d if i == j else 0.0))
-              + 2.0 * (b_t * u[i] + c_t * v[i]) * phi[j] for j in range(3))
-        for i in range(3))
+    #                = (c phi) rho^T + w phi^T - b hat(rho) + c (phi.rho) I,
+    # with w = 2 (b_t u + c_t v - c rho)
+    cp = tuple(c * x for x in phi)
+    w = tuple(2.0 * (b_t * u[i] + c_t * v[i] - c * rho[i]) for i in range(3))
+    br0, br1, br2 = (b * x for x in rho)
+    cd = c * d
+    g = tuple(tuple(cp[i] * rho[j] + w[i] * phi[j] for j in range(3)) for i in range(3))
+    Mphi = ((g[0][0] + cd, g[0][1] + br2, g[0][2] - br1),
+            (g[1][0] - br2, g[1][1] + cd, g[1][2] + br0),
+            (g[2][0] + br1, g[2][1] - br0, g[2][2] + cd))
     msig = tuple(a_s * rho[i] + b_s * u[i] + c_s * v[i] for i in range(3))
     return phi, t2, (a, b, c), E, (sinc, h, cb, k, ch), Mphi, msig
 

@@ -30,7 +30,33 @@ class GaugeError(ValueError):
 
 @dataclass
 class Linearization:
-    """``H`` (CSC data in the problem's pattern), gradient ``g = J^T e``, costs, timings."""
+    """One linearisation of a :class:`Problem` (returned by :meth:`Problem.linearize`).
+
+    Attributes
+    ----------
+    data : numpy.ndarray
+        ``H = J^T J`` (whitened, robust weights applied) as CSC data in the problem's pattern.
+    grad : numpy.ndarray
+        ``g = J^T e``.
+    cost, robust_cost : float
+        The plain and the robust cost at the linearisation point.
+    times : dict
+        Timings of the parts, seconds.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(3))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+    >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+    >>> p = g.problem()
+    >>> lin = p.linearize([v.initial for v in p.variables])
+    >>> lin.data.shape == p.indices.shape, lin.cost
+    (True, 1.0)
+    """
 
     data: np.ndarray
     grad: np.ndarray

@@ -133,6 +133,33 @@ class Result:
 
 @dataclass
 class SolverOptions:
+    """The options of one solve (the keyword arguments of :meth:`FactorGraph.optimize`).
+
+    Parameters
+    ----------
+    solver : {"lm", "gn", "dogleg"}
+        Levenberg-Marquardt, Gauss-Newton or Powell's dogleg.
+    linear_solver : str or LinearSolver
+        See :func:`~microlie.optim.make_solver`.
+    max_iter : int
+        Iteration limit.
+    rel_tol, abs_tol, cost_tol, step_tol : float
+        Convergence tests.
+    lambda_initial, lambda_factor, lambda_max, lambda_min : float
+        LM damping: start, growth factor and bounds.
+    diagonal_damping : bool
+        Damp with ``diag(H)`` (Marquardt) instead of the identity.
+    radius_initial : float
+        The dogleg trust radius at the start.
+    verbose : bool, optional
+        One line per iteration on stderr (default: when stderr is a terminal).
+
+    Examples
+    --------
+    >>> from microlie.optim.solvers import SolverOptions
+    >>> SolverOptions(solver="gn").lambda_initial
+    1e-05
+    """
     solver: str = "lm"
     linear_solver: str | LinearSolver = "auto"
     max_iter: int = 100
@@ -167,6 +194,37 @@ def _converged(o: SolverOptions, old: float, new: float) -> str | None:
 
 
 def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Result:
+    """Run the chosen solver on a problem from ``states`` (what :meth:`FactorGraph.optimize`
+    calls).
+
+    Parameters
+    ----------
+    problem : Problem
+        The linearisable problem.
+    states : list of numpy.ndarray
+        The starting parameters of each variable batch.
+    o : SolverOptions
+        The options.
+
+    Returns
+    -------
+    Result
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(3))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+    >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+    >>> from microlie.optim.solvers import SolverOptions, solve
+    >>> p = g.problem()
+    >>> res = solve(p, [v.initial for v in p.variables], SolverOptions(solver="gn"))
+    >>> res.converged, round(res.final_cost, 12)
+    (True, 0.0)
+    """
     if o.solver not in ("lm", "gn", "dogleg"):
         raise ValueError(f"solver must be 'lm', 'gn' or 'dogleg', got {o.solver!r}")
     t_start = time.perf_counter()
