@@ -34,10 +34,7 @@ def element(group: type[LieGroup], params: Any) -> LieGroup:
     >>> element(SO2, [[1.0, 0.0]]).batch_shape
     (1,)
     """
-    make = getattr(group, "from_params", None)
-    if make is not None:
-        return make(params, check=False)
-    return group._wrap(params)
+    return group.from_params(params, check=False)
 
 
 class Variables:
