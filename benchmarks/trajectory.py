@@ -17,26 +17,31 @@ statistics must agree to 1e-9 relative, otherwise the script fails):
   synthetic pair and on the real TUM, KITTI and EuRoC files: medians of interleaved runs with
   the interquartile range.
 
-In-process times are the best of several repeats (``time.perf_counter``; evo's in-place
-alignment is given a fresh copy outside the timed region); the runs of the two tools
-alternate. The tables are written to ``benchmarks/results/trajectory-latest.md``.
+Every figure is the median of interleaved rounds (the two tools alternate, one round each,
+``benchmarks/_timing.py``) with its spread; a speed-up is the ratio of the medians, with the
+range spanned by the rounds (in process: evo's fastest / microlie's slowest to evo's slowest /
+microlie's fastest; commands: the interquartile range of the per-round ratios). evo's
+in-place alignment gets a fresh copy made before timing. ``--rounds`` / ``--command-runs``
+set the rounds (lower them on a slow machine). The tables are written to
+``benchmarks/results/trajectory-latest.md``.
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
-import gc
 import os
 import platform
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import Stats, calibrate, interleaved  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / ".." / "shared" / "data" / "trajectory" / "evo"
@@ -77,21 +82,32 @@ def command_times(fmt: str, gt: Path, est: Path, repeat: int) -> list[list[float
     return out
 
 
-def _median_iqr(x: list[float]) -> str:
-    q1, q2, q3 = np.percentile(x, [25, 50, 75])
-    return f"{q2 * 1e3:.0f} ms [{q1 * 1e3:.0f}-{q3 * 1e3:.0f}]"
+def _ms(s: Stats, digits: int = 0) -> str:
+    """``median ms [q1-q3]`` with ``digits`` decimals."""
+    return f"{s.median * 1e3:.{digits}f} ms [{s.q1 * 1e3:.{digits}f}-{s.q3 * 1e3:.{digits}f}]"
+
+
+def _ms_range(s: Stats, digits: int) -> str:
+    """``median ms [min-max]`` with ``digits`` decimals."""
+    return f"{s.median * 1e3:.{digits}f} ms [{s.lo * 1e3:.{digits}f}-{s.hi * 1e3:.{digits}f}]"
+
+
+def _speedup(ours: Stats, evo: Stats) -> tuple[float, float, float]:
+    """Ratio of the medians evo / microlie and the range the rounds allow."""
+    return evo.median / ours.median, evo.lo / ours.hi, evo.hi / ours.lo
 
 
 def command_rows(cases: list[tuple[str, str, Path, Path]], repeat: int) -> list[dict]:
     rows = []
     for label, fmt, gt, est in cases:
         a, b, cpu_a, cpu_b = command_times(fmt, gt, est, repeat)
-        ratio = np.asarray(b) / np.asarray(a)
-        rows.append(dict(case=label, ours=_median_iqr(a), evo=_median_iqr(b),
-                         ratio=float(np.median(ratio)), lo=float(np.percentile(ratio, 25)),
-                         hi=float(np.percentile(ratio, 75)), runs=repeat,
-                         cpu_ours=float(np.median(cpu_a)), cpu_evo=float(np.median(cpu_b)),
-                         cpu_ratio=float(np.median(np.asarray(cpu_b) / np.asarray(cpu_a)))))
+        ratio = Stats.of([y / x for x, y in zip(a, b, strict=True)], 1)
+        cpu_ratio = Stats.of([y / x for x, y in zip(cpu_a, cpu_b, strict=True)], 1)
+        rows.append(dict(case=label, ours=_ms(Stats.of(a, 1)), evo=_ms(Stats.of(b, 1)),
+                         ratio=ratio.median, lo=ratio.q1, hi=ratio.q3, runs=repeat,
+                         cpu_ours=Stats.of(cpu_a, 1).median, cpu_evo=Stats.of(cpu_b, 1).median,
+                         cpu_ratio=cpu_ratio.median, cpu_lo=cpu_ratio.q1,
+                         cpu_hi=cpu_ratio.q3))
         print(f"command {label:22s} microlie {rows[-1]['ours']:>22s}  evo {rows[-1]['evo']:>22s}"
               f"  x{rows[-1]['ratio']:.1f}", flush=True)
     return rows
@@ -107,56 +123,36 @@ def command_table(rows: list[dict]) -> str:
         "interquartile range, and the median of the per-round ratios evo / microlie with its "
         "interquartile range. CPU: user + system seconds of each finished process (the "
         "operating system's accounting; less sensitive to other jobs than wall time), medians "
-        "and the median per-round ratio.",
+        "and the median per-round ratio with its interquartile range.",
         "",
         "| files | runs | microlie wall | evo wall | wall speed-up (IQR) | microlie CPU | "
-        "evo CPU | CPU speed-up |",
+        "evo CPU | CPU speed-up (IQR) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(f"| {r['case']} | {r['runs']} | {r['ours']} | {r['evo']} | "
                      f"**{r['ratio']:.1f}x** ({r['lo']:.1f}-{r['hi']:.1f}) | "
                      f"{r['cpu_ours'] * 1e3:.0f} ms | {r['cpu_evo'] * 1e3:.0f} ms | "
-                     f"**{r['cpu_ratio']:.1f}x** |")
+                     f"**{r['cpu_ratio']:.1f}x** ({r['cpu_lo']:.1f}-{r['cpu_hi']:.1f}) |")
     return "\n".join(lines) + "\n"
 
 
-def _timed(fn: Callable[[], object], setup: Callable[[], object] | None) -> float:
-    arg = setup() if setup else None
-    gc.collect()
-    gc.disable()
-    try:
-        t0 = time.perf_counter()
-        fn(arg) if setup else fn()
-        return time.perf_counter() - t0
-    finally:
-        gc.enable()
+def median_times(ours, evo, rounds: int, evo_fresh=None) -> tuple[Stats, Stats]:
+    """Interleaved medians of ``ours()`` and ``evo()`` over ``rounds`` rounds each.
 
-
-def best_times(
-    jobs: list[tuple[Callable[[], object], Callable[[], object] | None, int]],
-    min_total: float = 0.3,
-) -> list[float]:
-    """Best wall time of each job ``(fn, setup, repeat)``: ``fn(setup())`` (or ``fn()``).
-
-    The jobs run in alternation (one run of each per round), so that load from other
-    processes hits all of them alike; each runs at least ``repeat`` times and, if fast,
-    until it has taken ``min_total`` seconds (at most 50 runs).
+    microlie's calls are batched to ~50 ms per round when fast (``_timing.calibrate``); evo's
+    run once per round. With ``evo_fresh`` (a factory of fresh inputs), evo's callable takes
+    one of them, all made before timing (evo aligns in place).
     """
-    best = [float("inf")] * len(jobs)
-    spent = [0.0] * len(jobs)
-    runs = [0] * len(jobs)
-    while True:
-        todo = [i for i, (_, _, rep) in enumerate(jobs)
-                if runs[i] < rep or (spent[i] < min_total and runs[i] < 50)]
-        if not todo:
-            return best
-        for i in todo:
-            fn, setup, _ = jobs[i]
-            dt = _timed(fn, setup)
-            best[i] = min(best[i], dt)
-            spent[i] += dt
-            runs[i] += 1
+    number = calibrate(ours)
+    if evo_fresh is not None:
+        inputs = iter([evo_fresh() for _ in range(rounds)])
+        fn, evo = evo, lambda: fn(*next(inputs))
+    res = interleaved({"ours": ours, "evo": evo}, {"ours": (number, rounds), "evo": (1, rounds)})
+    for v in res.values():
+        if isinstance(v, Exception):
+            raise v
+    return res["ours"], res["evo"]  # type: ignore[return-value]
 
 
 def synthetic_pair(n: int, folder: Path) -> tuple[Path, Path]:
@@ -240,7 +236,7 @@ KINDS = {
 }
 
 
-def run_case(label: str, gt: Path, est: Path) -> list[dict]:
+def run_case(label: str, gt: Path, est: Path, rounds: int) -> list[dict]:
     rows = []
     o_ref, o_est = ours_read(gt), ours_read(est)
     e_ref, e_est = evo_read(gt), evo_read(est)
@@ -252,15 +248,13 @@ def run_case(label: str, gt: Path, est: Path) -> list[dict]:
         s_ours = res.stats
         s_evo = evo_metric(kind, copy.deepcopy(e_ref), copy.deepcopy(e_est))
         worst = check_same(s_ours, s_evo, f"{label} {kind}")
-        t_ours, t_evo = best_times([
-            (lambda k=kind: ours_metric(k, o_ref, o_est), None, 5),
-            (lambda pair, k=kind: evo_metric(k, *pair),
-             lambda: (copy.deepcopy(e_ref), copy.deepcopy(e_est)), 3),
-        ])
-        t_ours_e2e, t_evo_e2e = best_times([
-            (lambda k=kind: ours_metric(k, ours_read(gt), ours_read(est)), None, 5),
-            (lambda k=kind: evo_metric(k, evo_read(gt), evo_read(est)), None, 3),
-        ])
+        t_ours, t_evo = median_times(
+            lambda k=kind: ours_metric(k, o_ref, o_est),
+            lambda a, b, k=kind: evo_metric(k, a, b), rounds,
+            evo_fresh=lambda: (copy.deepcopy(e_ref), copy.deepcopy(e_est)))
+        t_ours_e2e, t_evo_e2e = median_times(
+            lambda k=kind: ours_metric(k, ours_read(gt), ours_read(est)),
+            lambda k=kind: evo_metric(k, evo_read(gt), evo_read(est)), rounds)
         row = dict(
             case=label,
             metric=title,
@@ -272,13 +266,14 @@ def run_case(label: str, gt: Path, est: Path) -> list[dict]:
             evo=t_evo,
             ours_e2e=t_ours_e2e,
             evo_e2e=t_evo_e2e,
+            rounds=rounds,
         )
         rows.append(row)
         print(
-            f"{label:22s} {title:28s} metric: microlie {t_ours * 1e3:8.2f} ms  evo "
-            f"{t_evo * 1e3:9.2f} ms  x{t_evo / t_ours:6.1f} | end to end: microlie "
-            f"{t_ours_e2e * 1e3:8.2f} ms  evo {t_evo_e2e * 1e3:9.2f} ms  "
-            f"x{t_evo_e2e / t_ours_e2e:6.1f} | max rel. diff {worst:.1e}",
+            f"{label:22s} {title:28s} metric: microlie {t_ours.median * 1e3:8.2f} ms  evo "
+            f"{t_evo.median * 1e3:9.2f} ms  x{_speedup(t_ours, t_evo)[0]:6.1f} | end to end: "
+            f"microlie {t_ours_e2e.median * 1e3:8.2f} ms  evo {t_evo_e2e.median * 1e3:9.2f} ms"
+            f"  x{_speedup(t_ours_e2e, t_evo_e2e)[0]:6.1f} | max rel. diff {worst:.1e}",
             flush=True,
         )
     return rows
@@ -292,19 +287,19 @@ IMPORTS = {
 
 
 def import_times(repeat: int = 5) -> dict[str, float]:
-    """Best import time (s) of each tool's modules in a fresh interpreter, interleaved.
+    """Median import time (s) of each tool's modules in a fresh interpreter, interleaved.
 
     Not part of the end-to-end columns (there both tools are already imported, as in a
     library call): reported separately because a command-line run pays it once.
     """
-    best = dict.fromkeys(IMPORTS, float("inf"))
+    times: dict[str, list[float]] = {key: [] for key in IMPORTS}
     for _ in range(repeat):
         for key, stmt in IMPORTS.items():
             code = f"import time; t = time.perf_counter(); {stmt}; print(time.perf_counter() - t)"
             out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                                  check=True).stdout
-            best[key] = min(best[key], float(out))
-    return best
+            times[key].append(float(out))
+    return {key: Stats.of(v, 1).median for key, v in times.items()}
 
 
 def table(rows: list[dict], imports: dict[str, float], load: tuple[float, float]) -> str:
@@ -318,13 +313,17 @@ def table(rows: list[dict], imports: dict[str, float], load: tuple[float, float]
         f"`benchmarks/trajectory.py`, microlie {microlie.__version__} vs evo "
         f"{evo.__version__.lstrip('v')}, measured in the same run on {platform.machine()} "
         f"({os.cpu_count()} CPUs), Python {platform.python_version()}, NumPy {np.__version__}. "
-        'Best of several repeats, runs of the two tools alternating. "Metric": association + '
+        f"Medians of {rows[0]['rounds']} interleaved rounds per tool (runs of the two tools "
+        "alternating; a fast microlie call is repeated to ~50 ms per round) with [min-max] of "
+        "the rounds; speed-up = ratio of the medians evo / microlie, in parentheses the range "
+        "the rounds span (evo's fastest / microlie's slowest to evo's slowest / microlie's "
+        'fastest). "Metric": association + '
         'alignment + errors + statistics on trajectories in memory; "end to end": the same '
         "starting from the two TUM files "
         "(synthetic files written with 6-decimal stamps and 9-decimal values, as SLAM "
         "systems write them): read both files, associate, align, errors, statistics, "
         "no printing or plotting; both tools are imported before timing (import times, "
-        "fresh interpreter, best of 5: numpy "
+        "fresh interpreter, median of 5: numpy "
         f"{imports['numpy'] * 1e3:.0f} ms, `microlie.traj` {imports['microlie'] * 1e3:.0f} ms, "
         f"evo's file_interface + metrics + sync {imports['evo'] * 1e3:.0f} ms, each "
         "including numpy). microlie's end-to-end time is mostly reading: `numpy.loadtxt` "
@@ -342,12 +341,14 @@ def table(rows: list[dict], imports: dict[str, float], load: tuple[float, float]
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        m, m_lo, m_hi = _speedup(r["ours"], r["evo"])
+        e, e_lo, e_hi = _speedup(r["ours_e2e"], r["evo_e2e"])
         lines.append(
             f"| {r['case']} | {r['metric']} | {r['poses']} | {r['pairs']} | "
-            f"{r['ours'] * 1e3:.2f} ms | "
-            f"{r['evo'] * 1e3:.1f} ms | **{r['evo'] / r['ours']:.0f}x** | "
-            f"{r['ours_e2e'] * 1e3:.1f} ms | {r['evo_e2e'] * 1e3:.1f} ms | "
-            f"**{r['evo_e2e'] / r['ours_e2e']:.1f}x** | {r['rel']:.0e} |"
+            f"{_ms_range(r['ours'], 2)} | {_ms_range(r['evo'], 0)} | "
+            f"**{m:.0f}x** ({m_lo:.0f}-{m_hi:.0f}) | "
+            f"{_ms_range(r['ours_e2e'], 1)} | {_ms_range(r['evo_e2e'], 0)} | "
+            f"**{e:.1f}x** ({e_lo:.1f}-{e_hi:.1f}) | {r['rel']:.0e} |"
         )
     lines += [
         "",
@@ -370,6 +371,8 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=100_000, help="synthetic trajectory length")
     ap.add_argument("--no-write", action="store_true",
                     help="do not write benchmarks/results/trajectory-latest.md")
+    ap.add_argument("--rounds", type=int, default=5,
+                    help="interleaved in-process rounds per tool and metric (default 5)")
     ap.add_argument("--command-runs", type=int, default=7,
                     help="fresh-process runs of each command per file pair (default 7)")
     args = ap.parse_args()
@@ -387,10 +390,10 @@ def main() -> None:
         sys.exit(f"{fr2_gt} not found: the benchmark needs ../shared/data")
     with tempfile.TemporaryDirectory() as tmp:
         gt, est = synthetic_pair(args.n, Path(tmp))
-        rows += run_case(synth, gt, est)
+        rows += run_case(synth, gt, est, args.rounds)
         cmd_rows = command_rows([(synth + " (TUM)", "tum", gt, est)],
-                                max(3, args.command_runs // 2))
-    rows += run_case("fr2/desk (TUM)", fr2_gt, fr2_est)
+                                max(3, args.command_runs - 2))
+    rows += run_case("fr2/desk (TUM)", fr2_gt, fr2_est, args.rounds)
     cmd_rows += command_rows([(lab, fmt, DATA / g, DATA / e) for lab, fmt, g, e in REAL],
                              args.command_runs)
     load = (load_start, os.getloadavg()[0])
