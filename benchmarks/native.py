@@ -38,7 +38,8 @@ def build(blocked: bool = False) -> ctypes.CDLL:
     """The plain native loops (lie_native.cpp) or the blocked ones (lie_blocked.c)."""
     out = Path(tempfile.mkdtemp()) / "liblie_native.so"
     if blocked:
-        cmd = ["gcc", *FLAGS, "-std=c11", f"-I{HERE.parent / 'fast' / 'src' / 'microlie_fast'}",
+        cmd = ["gcc", *FLAGS, "-std=c11", "-DLM_LIBMVEC",
+               f"-I{HERE.parent / 'fast' / 'src' / 'microlie_fast'}",
                str(BLOCKED)]
     else:
         cmd = ["g++", *FLAGS, str(SRC)]

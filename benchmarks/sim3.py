@@ -7,6 +7,7 @@ Run from the repository root::
     PYTHONPATH=src python benchmarks/sim3.py [--n 100000] [--rounds 15]
 
 ``--generic`` also times ``Sim3._jr_series`` (the generic series the closed form replaced).
+Both columns use the generic NumPy kernels (``MICROLIE_FAST=0``) unless ``--fast`` is given.
 """
 
 from __future__ import annotations
@@ -14,11 +15,17 @@ from __future__ import annotations
 import argparse
 import gc
 import os
+import sys
 import time
 
 import numpy as np
 
-from microlie import SE3, Sim3
+# the generic NumPy kernels on both sides: SE3's compiled replacements (microlie_fast, when
+# installed) are a different comparison; pass --fast to keep them
+if "--fast" not in sys.argv:
+    os.environ["MICROLIE_FAST"] = "0"
+
+from microlie import SE3, Sim3  # noqa: E402
 
 
 def _per_call(fn, number: int) -> float:
@@ -37,6 +44,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=100_000)
     ap.add_argument("--rounds", type=int, default=15)
     ap.add_argument("--generic", action="store_true")
+    ap.add_argument("--fast", action="store_true", help="keep compiled kernels if installed")
     args = ap.parse_args()
     rng = np.random.default_rng(0)
     n = args.n

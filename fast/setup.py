@@ -15,6 +15,7 @@ libs = ["m"]
 if sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64"):
     flags.append("-march=native")
     libs.insert(0, "mvec")  # glibc's vector math library
+    flags.append("-DLM_LIBMVEC")
 elif platform.machine() in ("arm64", "aarch64"):
     flags.append("-mcpu=native")
 if os.environ.get("MICROLIE_FAST_CFLAGS"):

@@ -4,7 +4,7 @@
  * back; outputs preallocated. This is what a careful C programmer gets on microlie's row layout
  * for the operations whose rows of 6 or 7 do not vectorise as plain loops (lie_native.cpp).
  * Built by benchmarks/native.py: gcc -O3 -march=native -fno-math-errno -fopenmp-simd -std=c11
- * -shared -fPIC -I fast/src/microlie_fast -lmvec */
+ * -DLM_LIBMVEC -shared -fPIC -I fast/src/microlie_fast -lmvec */
 #include "lie_math.h"
 
 typedef long ix;

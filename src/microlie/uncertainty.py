@@ -90,7 +90,7 @@ def check_covariance(P: Array, n: int, what: str = "covariance") -> bool:
     if M is None or M.size == 0:
         return False
     tol = math.sqrt(float(np.finfo(M.dtype).eps))
-    M = M.astype(np.float64)
+    M = M.astype(np.float64, copy=False)
     scale = np.abs(M).max(axis=(-1, -2))
     asym = np.abs(M - np.swapaxes(M, -1, -2)).max(axis=(-1, -2))
     if np.any(asym > tol * scale):
@@ -162,7 +162,7 @@ class _Null:
         if M is None or M.size == 0:
             return None
         rtol = _rtol(P)
-        M = M.astype(np.float64)
+        M = M.astype(np.float64, copy=False)
         n = M.shape[-1]
         A_ = 0.5 * (M + np.swapaxes(M, -1, -2))
         piv = _pivots(A_)  # the common case in one LAPACK call
@@ -497,7 +497,7 @@ class Gaussian:
         else:
             A.check_last_dim(P, (mean.dof, mean.dof), what)
         params, P = _broadcast_pair(mean.params, L.copy(P))
-        self._init(type(mean)._wrap(params), P, frame)
+        self._init(_element(mean, params), P, frame)
         if full:  # the rank is known from the validation
             object.__setattr__(self, "_null", None)
 
@@ -1306,7 +1306,7 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
     P = L.symmetrize(P)
     if isinstance(value, LieGroup):
         params, P = _broadcast_pair(value.params, P)
-        return Gaussian._make(type(value)._wrap(params), P, side)
+        return Gaussian._make(_element(value, params), P, side)
     mean, P = _broadcast_pair(value, P)
     return VectorGaussian._make(mean, P)
 
@@ -1318,6 +1318,11 @@ def _broadcast_pair(v: Array, P: Array) -> tuple[Array, Array]:
     """Broadcast the batch axes of a vector ``(..., k)`` and a matrix ``(..., n, n)``."""
     batch = tuple(np.broadcast_shapes(tuple(v.shape[:-1]), tuple(P.shape[:-2])))
     return (L.broadcast_to(v, (*batch, v.shape[-1])), L.broadcast_to(P, (*batch, *P.shape[-2:])))
+
+
+def _element(X: LieGroup, params: Array) -> LieGroup:
+    """``X`` itself, or the element of its group with ``params`` (``X``'s broadcast)."""
+    return X if params is X.params else type(X).from_params(params, check=False)
 
 
 def _same_backend(a: Array, b: Array) -> None:

@@ -11,7 +11,9 @@
 #include "coeffs.h"
 
 /* glibc's libmvec supplies vector versions of these; declaring them lets GCC vectorise loops
- * that call them without -ffast-math (IEEE semantics are kept). */
+ * that call them without -ffast-math (IEEE semantics are kept). Only where setup.py links
+ * libmvec (LM_LIBMVEC: Linux x86-64); elsewhere the loops call the scalar functions. */
+#ifdef LM_LIBMVEC
 #pragma omp declare simd notinbranch
 extern double tan(double);
 #pragma omp declare simd notinbranch
@@ -20,6 +22,7 @@ extern double sin(double);
 extern double cos(double);
 #pragma omp declare simd notinbranch
 extern double atan2(double, double);
+#endif
 
 #define LM_INLINE static inline __attribute__((always_inline))
 #ifndef S

@@ -53,8 +53,27 @@ class Pose(LieGroup):
 
     @classmethod
     def from_rotation_translation(cls, rotation: Any, translation: Any) -> Self:
-        """From a rotation (an element of the rotation group, or rotation matrices) and
-        translations ``(..., n)``; the batch axes broadcast."""
+        """From a rotation and translations; the batch axes broadcast.
+
+        Parameters
+        ----------
+        rotation : LieGroup or array_like
+            An element of the rotation group (SO2 or SO3) or rotation matrices.
+        translation : array_like
+            ``(..., n)``.
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> T = SE3.from_rotation_translation(SO3.exp([0.0, 0.0, 0.5]), [[1.0, 2, 3], [4, 5, 6]])
+        >>> T.batch_shape, T.translation()[1].tolist()
+        ((2,), [4.0, 5.0, 6.0])
+        """
         R = rotation if isinstance(rotation, cls._rotation) else \
             cls._rotation.from_matrix(rotation)
         n, _ = cls._dims()
@@ -75,18 +94,62 @@ class Pose(LieGroup):
 
     @classmethod
     def from_matrix(cls, matrix: Any, normalize: bool = False) -> Self:
-        """From homogeneous matrices ``[[R, t], [0, 1]]``. ``R`` must be a rotation within
-        tolerance (``ValueError`` otherwise) unless ``normalize=True`` projects it."""
+        """From homogeneous matrices ``[[R, t], [0, 1]]``.
+
+        Parameters
+        ----------
+        matrix : array_like
+            ``(..., n + 1, n + 1)``.
+        normalize : bool
+            Project ``R`` onto the rotations; otherwise a matrix that is not a rotation within
+            tolerance raises ``ValueError``.
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> M = np.array([[0.0, -1.0, 1.0], [1.0, 0.0, 2.0], [0.0, 0.0, 1.0]])
+        >>> np.round(SE2.from_matrix(M).log(), 12)[2] == np.round(np.pi / 2, 12)
+        np.True_
+        """
         R, t = cls._split_matrix(matrix, normalize)
         return cls.from_rotation_translation(cls._rotation.from_matrix(R, normalize=normalize), t)
 
     def rotation(self) -> Any:
-        """The rotation part, an element of the rotation group."""
+        """The rotation part, an element of the rotation group (SO2 or SO3).
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> from microlie import SE3
+        >>> T = SE3.exp([1.0, 2.0, 3.0, 0.0, 0.0, 0.5])
+        >>> type(T.rotation()).__name__, round(float(T.rotation().log()[2]), 12)
+        ('SO3', 0.5)
+        """
         n, r = self._dims()
         return self._rotation._wrap(self.params[..., n:r])
 
     def translation(self) -> Array:
-        """The translation part ``(..., n)``."""
+        """The translation part.
+
+        Returns
+        -------
+        array
+            ``(*batch, n)``.
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> SE2.from_xy_theta(1.0, 2.0, 0.3).translation().tolist()
+        [1.0, 2.0]
+        """
         return self.params[..., : self._dims()[0]]
 
 

@@ -199,7 +199,24 @@ class LieGroup:
     """A batch of elements of a matrix Lie group, wrapping one parameter array.
 
     ``X.params`` has shape ``(*batch, param_dim)``; every operation broadcasts over the leading
-    batch axes. Elements are immutable (NumPy parameters are read-only arrays).
+    batch axes. Elements are immutable (NumPy parameters are read-only arrays). Conventions:
+    tangent vectors translation first, right ``plus``/``minus`` (``X Exp(tau)``,
+    ``Log(X^-1 Y)``), right Jacobians unless ``side="left"``, quaternions ``(x, y, z, w)``.
+
+    Parameters
+    ----------
+    params : array_like
+        ``(*batch, param_dim)`` parameters (NumPy, PyTorch or JAX), checked.
+    normalize : bool
+        Project slightly-off parameters onto the group instead of raising ``ValueError``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SO3
+    >>> R = SO3([0.0, 0.0, np.sin(0.25), np.cos(0.25)])  # (x, y, z, w): 0.5 rad about z
+    >>> R.batch_shape, np.round(R.log(), 12).tolist()
+    ((), [0.0, 0.0, 0.5])
     """
 
     dof: ClassVar[int]
@@ -335,7 +352,28 @@ class LieGroup:
     @classmethod
     def identity(cls, batch_shape: tuple[int, ...] | int = (), dtype: Any = None,
                  like: Array | None = None) -> Self:
-        """The identity element, repeated over ``batch_shape``."""
+        """The identity element, repeated over ``batch_shape``.
+
+        Parameters
+        ----------
+        batch_shape : int or tuple of int
+            The batch shape.
+        dtype : dtype, optional
+            Float type (default float64).
+        like : array, optional
+            Put the result in this array's backend, dtype and device.
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> SE3.identity(3).params[0].tolist()
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+        """
         batch_shape = (batch_shape,) if isinstance(batch_shape, int) else tuple(batch_shape)
         p = np.broadcast_to(np.asarray(cls._identity_params, dtype=dtype or np.float64),
                             (*batch_shape, cls.param_dim)).copy()
@@ -345,16 +383,52 @@ class LieGroup:
     def random(cls, batch_shape: tuple[int, ...] | int = (), rng: Any = None,
                dtype: Any = None, like: Array | None = None) -> Self:
         """Random elements: uniform rotations, standard normal translations, scales
-        ``exp(N(0, 1/4))``. ``rng`` is a seed or ``numpy.random.Generator``; ``like`` puts the
-        result in another array's backend, dtype and device."""
+        ``exp(N(0, 1/4))``.
+
+        Parameters
+        ----------
+        batch_shape : int or tuple of int
+            The batch shape.
+        rng : int or numpy.random.Generator, optional
+            A seed or a generator.
+        dtype : dtype, optional
+            Float type (default float64).
+        like : array, optional
+            Put the result in this array's backend, dtype and device.
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> R = SO3.random((2, 5), rng=0)
+        >>> R.batch_shape, bool(np.allclose(np.linalg.norm(R.params, axis=-1), 1.0))
+        ((2, 5), True)
+        """
         rng = np.random.default_rng(rng)
         batch_shape = (batch_shape,) if isinstance(batch_shape, int) else tuple(batch_shape)
         p = cls._random_params(rng, batch_shape).astype(dtype or np.float64)
         return cls._new(p if like is None else A.as_float_array(p, like=like))
 
     def normalize(self) -> Self:
-        """Project the parameters back onto the group (e.g. renormalise a quaternion that
-        drifted over a long chain of products)."""
+        """Project the parameters back onto the group (e.g. renormalise a quaternion that drifted
+        over a long chain of products).
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> R = SO3([0.0, 0.0, 0.0, 1.0 + 1e-9], normalize=True).normalize()
+        >>> float(np.linalg.norm(R.params))
+        1.0
+        """
         return type(self)(self.params, normalize=True)
 
     # ------------------------------------------------------------------ container protocol
@@ -496,7 +570,25 @@ class LieGroup:
 
     @classmethod
     def hat(cls, tau: Any) -> Array:
-        """The Lie algebra matrix of ``tau``: shape ``(*batch, n, n)``."""
+        """The Lie algebra matrix of ``tau``.
+
+        Parameters
+        ----------
+        tau : array_like
+            ``(*batch, dof)`` tangent vectors (translation first).
+
+        Returns
+        -------
+        array
+            ``(*batch, n, n)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> SO3.hat([1.0, 2.0, 3.0]).tolist()
+        [[0.0, -3.0, 2.0], [3.0, 0.0, -1.0], [-2.0, 1.0, 0.0]]
+        """
         t = cls._tangent(tau)
         g = cls._const(cls._generators, t)
         return (t[..., :, None, None] * g).sum(-3) if A.is_numpy(t) else \
@@ -504,7 +596,26 @@ class LieGroup:
 
     @classmethod
     def vee(cls, M: Any) -> Array:
-        """The tangent vector of a Lie algebra matrix (inverse of :meth:`hat`)."""
+        """The tangent vector of a Lie algebra matrix (inverse of :meth:`hat`).
+
+        Parameters
+        ----------
+        M : array_like
+            ``(*batch, n, n)`` Lie algebra matrices.
+
+        Returns
+        -------
+        array
+            ``(*batch, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> tau = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+        >>> bool(np.allclose(SE3.vee(SE3.hat(tau)), tau))
+        True
+        """
         m = A.as_float_array(M)
         n = cls.matrix_dim
         A.check_last_dim(m, (n, n), f"{cls.__name__} Lie algebra matrix")
@@ -515,7 +626,25 @@ class LieGroup:
 
     @classmethod
     def bracket(cls, a: Any, b: Any) -> Array:
-        """Lie bracket ``[a, b] = vee(hat(a) hat(b) - hat(b) hat(a)) = ad(a) b``."""
+        """Lie bracket ``[a, b] = vee(hat(a) hat(b) - hat(b) hat(a)) = ad(a) b``.
+
+        Parameters
+        ----------
+        a, b : array_like
+            ``(*batch, dof)`` tangent vectors.
+
+        Returns
+        -------
+        array
+            ``(*batch, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> SO3.bracket([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]).tolist()  # so(3): the cross product
+        [0.0, 0.0, 1.0]
+        """
         ha, hb = cls.hat(a), cls.hat(b)
         return cls.vee(ha @ hb - hb @ ha)
 
@@ -581,7 +710,26 @@ class LieGroup:
 
     @classmethod
     def ad(cls, tau: Any) -> Array:
-        """The small adjoint matrix ``ad_tau`` (``ad(a) @ b == bracket(a, b)``)."""
+        """The small adjoint matrix ``ad_tau`` (``ad(a) @ b == bracket(a, b)``).
+
+        Parameters
+        ----------
+        tau : array_like
+            ``(*batch, dof)`` tangent vectors (translation first).
+
+        Returns
+        -------
+        array
+            ``(*batch, dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> a, b = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6]), np.array([1.0, 0, 0, 0, 1.0, 0])
+        >>> bool(np.allclose(SE3.ad(a) @ b, SE3.bracket(a, b)))
+        True
+        """
         t = cls._tangent(tau)
         h = cls.hat(t)
         g = cls._const(cls._generators, t)
@@ -591,22 +739,99 @@ class LieGroup:
 
     @classmethod
     def jr(cls, tau: Any) -> Array:
-        """Right Jacobian ``Jr(tau)``: ``Exp(tau + d) ~= Exp(tau) Exp(Jr(tau) d)``."""
+        """Right Jacobian ``Jr(tau)``: ``Exp(tau + d) ~= Exp(tau) Exp(Jr(tau) d)``.
+
+        Parameters
+        ----------
+        tau : array_like
+            ``(*batch, dof)`` tangent vectors (translation first).
+
+        Returns
+        -------
+        array
+            ``(*batch, dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> tau, d = np.array([0.3, -0.2, 0.5]), 1e-7 * np.array([1.0, 2.0, -1.0])
+        >>> lhs = SO3.exp(tau + d).minus(SO3.exp(tau))
+        >>> bool(np.allclose(lhs, SO3.jr(tau) @ d, atol=1e-13))
+        True
+        """
         return run(cls._K["jr"], cls._tangent(tau, kernel_checks=True))
 
     @classmethod
     def jl(cls, tau: Any) -> Array:
-        """Left Jacobian ``Jl(tau) = Jr(-tau)``: ``Exp(tau + d) ~= Exp(Jl(tau) d) Exp(tau)``."""
+        """Left Jacobian ``Jl(tau) = Jr(-tau)``: ``Exp(tau + d) ~= Exp(Jl(tau) d) Exp(tau)``.
+
+        Parameters
+        ----------
+        tau : array_like
+            ``(*batch, dof)`` tangent vectors (translation first).
+
+        Returns
+        -------
+        array
+            ``(*batch, dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> tau = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+        >>> bool(np.allclose(SE3.jl(tau), SE3.jr(-tau)))
+        True
+        """
         return cls.jr(-cls._tangent(tau))
 
     @classmethod
     def jr_inv(cls, tau: Any) -> Array:
-        """Inverse of the right Jacobian."""
+        """Inverse of the right Jacobian.
+
+        Parameters
+        ----------
+        tau : array_like
+            ``(*batch, dof)`` tangent vectors (translation first).
+
+        Returns
+        -------
+        array
+            ``(*batch, dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> tau = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+        >>> bool(np.allclose(SE3.jr_inv(tau) @ SE3.jr(tau), np.eye(6)))
+        True
+        """
         return run(cls._K["jr_inv"], cls._tangent(tau, kernel_checks=True))
 
     @classmethod
     def jl_inv(cls, tau: Any) -> Array:
-        """Inverse of the left Jacobian, ``Jl^-1(tau) = Jr^-1(-tau)``."""
+        """Inverse of the left Jacobian, ``Jl^-1(tau) = Jr^-1(-tau)``.
+
+        Parameters
+        ----------
+        tau : array_like
+            ``(*batch, dof)`` tangent vectors (translation first).
+
+        Returns
+        -------
+        array
+            ``(*batch, dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> tau = np.array([0.3, -0.2, 0.5])
+        >>> bool(np.allclose(SO3.jl_inv(tau) @ SO3.jl(tau), np.eye(3)))
+        True
+        """
         return cls.jr_inv(-cls._tangent(tau))
 
     @classmethod
@@ -643,8 +868,33 @@ class LieGroup:
 
     @classmethod
     def exp(cls, tau: Any, jac: bool = False, side: Side = "right") -> Any:
-        """``Exp(tau) = exp(hat(tau))`` (eq. 23). With ``jac=True`` also ``d Exp / d tau``:
-        ``Jr(tau)`` for ``side="right"``, ``Jl(tau)`` for ``side="left"``."""
+        """``Exp(tau) = exp(hat(tau))`` (eq. 23).
+
+        Parameters
+        ----------
+        tau : array_like
+            ``(*batch, dof)`` tangent vectors (translation first).
+        jac : bool
+            Also return the Jacobians, in argument order.
+        side : {"right", "left"}
+            Which Jacobians: right (perturbation ``X Exp(d)``, default) or left (``Exp(d) X``).
+
+        Returns
+        -------
+        X : LieGroup
+        J : array
+            With ``jac=True``: ``d Exp / d tau``, ``Jr(tau)`` (right) or ``Jl(tau)`` (left).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from scipy.linalg import expm
+        >>> from microlie import SE3
+        >>> tau = np.array([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])  # (rho, phi)
+        >>> X, J = SE3.exp(tau, jac=True)
+        >>> bool(np.allclose(X.matrix(), expm(SE3.hat(tau)))), bool(np.allclose(J, SE3.jr(tau)))
+        (True, True)
+        """
         t = cls._tangent(tau, kernel_checks=True)
         if not jac:
             return cls._adopt(run(cls._K["exp"], t))
@@ -659,8 +909,31 @@ class LieGroup:
     def log(self, jac: bool, side: Side = ...) -> Array | tuple[Array, Array]: ...
 
     def log(self, jac: bool = False, side: Side = "right") -> Any:
-        """``Log(X) = vee(log(X))`` (eq. 24). With ``jac=True`` also ``d Log / d X``:
-        ``Jr^-1(Log X)`` right, ``Jl^-1(Log X)`` left."""
+        """``Log(X) = vee(log(X))`` (eq. 24), the inverse of :meth:`exp`.
+
+        Parameters
+        ----------
+        jac : bool
+            Also return the Jacobians, in argument order.
+        side : {"right", "left"}
+            Which Jacobians: right (perturbation ``X Exp(d)``, default) or left (``Exp(d) X``).
+
+        Returns
+        -------
+        tau : array
+            ``(*batch, dof)``.
+        J : array
+            With ``jac=True``: ``d Log / d X``, ``Jr^-1(Log X)`` (right) or ``Jl^-1(Log X)`` (left).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> tau = np.array([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])
+        >>> t, J = SE3.exp(tau).log(jac=True)
+        >>> bool(np.allclose(t, tau)), bool(np.allclose(J, SE3.jr_inv(tau)))
+        (True, True)
+        """
         if not jac:
             return self._tangent_out(run(self._K["log"], self.params))
         tau, J = run(self._K["log_jac"], self.params)
@@ -675,7 +948,30 @@ class LieGroup:
     def inverse(self, jac: bool, side: Side = ...) -> Self | tuple[Self, Array]: ...
 
     def inverse(self, jac: bool = False, side: Side = "right") -> Any:
-        """``X^-1``. Jacobian: ``-Ad_X`` (right), ``-Ad_X^-1`` (left)."""
+        """``X^-1``.
+
+        Parameters
+        ----------
+        jac : bool
+            Also return the Jacobians, in argument order.
+        side : {"right", "left"}
+            Which Jacobians: right (perturbation ``X Exp(d)``, default) or left (``Exp(d) X``).
+
+        Returns
+        -------
+        Y : LieGroup
+        J : array
+            With ``jac=True``: ``-Ad_X`` (right), ``-Ad_X^-1`` (left).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> X = SE3.random(rng=0)
+        >>> Y, J = X.inverse(jac=True)
+        >>> bool(np.allclose((X @ Y).matrix(), np.eye(4))), bool(np.allclose(J, -X.adjoint()))
+        (True, True)
+        """
         if not jac:
             return self._adopt(run(self._K["inverse"], self.params))
         p, J = run(self._K["inverse_jac"], self.params)
@@ -691,7 +987,34 @@ class LieGroup:
                 side: Side = ...) -> Self | tuple[Self, Array, Array]: ...
 
     def compose(self, other: Self, jac: bool = False, side: Side = "right") -> Any:
-        """``X Y``. Jacobians: ``Ad_Y^-1`` and ``I`` (right); ``I`` and ``Ad_X`` (left)."""
+        """``X Y`` (also ``X @ Y``).
+
+        Parameters
+        ----------
+        other : LieGroup
+            ``Y``, of the same group (batches broadcast).
+        jac : bool
+            Also return the Jacobians, in argument order.
+        side : {"right", "left"}
+            Which Jacobians: right (perturbation ``X Exp(d)``, default) or left (``Exp(d) X``).
+
+        Returns
+        -------
+        Z : LieGroup
+        J_X, J_Y : array
+            With ``jac=True``: ``Ad_Y^-1`` and ``I`` (right); ``I`` and ``Ad_X`` (left).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> X, Y = SE3.random(2, rng=0)
+        >>> Z, JX, JY = X.compose(Y, jac=True)
+        >>> bool(np.allclose(Z.matrix(), X.matrix() @ Y.matrix()))
+        True
+        >>> bool(np.allclose(JX, Y.inverse().adjoint())), bool(np.allclose(JY, np.eye(6)))
+        (True, True)
+        """
         if type(other) is not type(self):
             self._same_group(other)
         if not jac:
@@ -715,7 +1038,31 @@ class LieGroup:
                 side: Side = ...) -> Self | tuple[Self, Array, Array]: ...
 
     def between(self, other: Self, jac: bool = False, side: Side = "right") -> Any:
-        """``X^-1 Y``. Jacobians (right): ``-Ad_(Y^-1 X)`` and ``I``."""
+        """``X^-1 Y``.
+
+        Parameters
+        ----------
+        other : LieGroup
+            ``Y``.
+        jac : bool
+            Also return the Jacobians, in argument order.
+        side : {"right", "left"}
+            Which Jacobians: right (perturbation ``X Exp(d)``, default) or left (``Exp(d) X``).
+
+        Returns
+        -------
+        Z : LieGroup
+        J_X, J_Y : array
+            With ``jac=True`` (right): ``-Ad_(Y^-1 X)`` and ``I``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> X, Y = SE3.random(2, rng=1)
+        >>> bool(np.allclose(X.between(Y).matrix(), np.linalg.inv(X.matrix()) @ Y.matrix()))
+        True
+        """
         self._same_group(other)
         if not jac:
             return self._adopt(run(self._K["between"], self.params, other.params))
@@ -733,9 +1080,37 @@ class LieGroup:
             side: Side = ...) -> Array | tuple[Array, Array, Array]: ...
 
     def act(self, points: Any, jac: bool = False, side: Side = "right") -> Any:
-        """Act on points ``(..., point_dim)``: ``X . p``. Jacobians: ``d/dX`` (right, or left with
-        ``side="left"``) and ``d/dp``, with the value in one evaluation. The result dtype is the
-        promotion of the element's and the points' dtypes."""
+        """Act on points: ``X . p`` (``R p + t`` for SE(3), ``s R p + t`` for Sim(3)). The result
+        dtype is the promotion of the element's and the points' dtypes.
+
+        Parameters
+        ----------
+        points : array_like
+            ``(*batch, point_dim)``.
+        jac : bool
+            Also return the Jacobians, in argument order.
+        side : {"right", "left"}
+            Which Jacobians: right (perturbation ``X Exp(d)``, default) or left (``Exp(d) X``).
+
+        Returns
+        -------
+        q : array
+            ``(*batch, point_dim)``.
+        J_X, J_p : array
+            With ``jac=True``: ``d q / d X`` (right, or left with ``side="left"``) and
+            ``d q / d p``, with the value in one evaluation.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> X, p = SE3.random(rng=2), np.array([1.0, 2.0, 3.0])
+        >>> q, JX, Jp = X.act(p, jac=True)
+        >>> bool(np.allclose(q, X.matrix()[:3, :3] @ p + X.translation()))
+        True
+        >>> bool(np.allclose(Jp, X.rotation().matrix())), JX.shape
+        (True, (3, 6))
+        """
         p = self.params
         if type(points) is np.ndarray and points.shape == self._vshape and not jac \
                 and type(p) is np.ndarray and p.ndim == 1 and points.dtype is p.dtype:
@@ -751,11 +1126,38 @@ class LieGroup:
         return _left_vec(side, out, [(JX, self), (JV, None)])
 
     def adjoint(self) -> Array:
-        """The adjoint matrix ``Ad_X`` (eqs. 29-30): ``X Exp(tau) = Exp(Ad_X tau) X``."""
+        """The adjoint matrix ``Ad_X`` (eqs. 29-30): ``X Exp(tau) = Exp(Ad_X tau) X``.
+
+        Returns
+        -------
+        array
+            ``(*batch, dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> X, tau = SE3.random(rng=3), np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+        >>> bool(np.allclose(X.plus(tau).matrix(), X.lplus(X.adjoint() @ tau).matrix()))
+        True
+        """
         return run(self._K["adjoint"], self.params)
 
     def matrix(self) -> Array:
-        """The homogeneous matrix of the element, shape ``(*batch, n, n)``."""
+        """The homogeneous matrix of the element (the rotation matrix for SO(2), SO(3)).
+
+        Returns
+        -------
+        array
+            ``(*batch, n, n)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> SE3.exp([1.0, 2.0, 3.0, 0.0, 0.0, 0.0]).matrix()[:3, 3].tolist()
+        [1.0, 2.0, 3.0]
+        """
         return run(self._K["matrix"], self.params)
 
     # ------------------------------------------------------------------ plus / minus
@@ -769,8 +1171,31 @@ class LieGroup:
              side: Side = ...) -> Self | tuple[Self, Array, Array]: ...
 
     def plus(self, tau: Any, jac: bool = False, side: Side = "right") -> Any:
-        """Right plus ``X (+) tau = X Exp(tau)`` (eq. 25). Jacobians (right):
-        ``Ad_Exp(tau)^-1`` and ``Jr(tau)``."""
+        """Right plus ``X (+) tau = X Exp(tau)`` (eq. 25).
+
+        Parameters
+        ----------
+        tau : array_like
+            ``(*batch, dof)`` tangent vectors (translation first).
+        jac : bool
+            Also return the Jacobians, in argument order.
+        side : {"right", "left"}
+            Which Jacobians: right (perturbation ``X Exp(d)``, default) or left (``Exp(d) X``).
+
+        Returns
+        -------
+        Y : LieGroup
+        J_X, J_tau : array
+            With ``jac=True`` (right): ``Ad_Exp(tau)^-1`` and ``Jr(tau)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> X, tau = SE3.random(rng=4), np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+        >>> bool(np.allclose(X.plus(tau).matrix(), (X @ SE3.exp(tau)).matrix()))
+        True
+        """
         t = self._tangent(tau, like=self.params, kernel_checks=True)
         if not jac:
             return self._adopt(run(self._K["plus"], self.params, t))
@@ -787,8 +1212,34 @@ class LieGroup:
               side: Side = ...) -> Array | tuple[Array, Array, Array]: ...
 
     def minus(self, other: Self, jac: bool = False, side: Side = "right") -> Any:
-        """Right minus ``Y (-) X = Log(X^-1 Y)`` for ``Y.minus(X)`` (eq. 26). Jacobians (right)
-        with respect to ``Y`` and ``X``: ``Jr^-1(tau)``, ``-Jl^-1(tau)``."""
+        """Right minus ``Y (-) X = Log(X^-1 Y)`` for ``Y.minus(X)`` (eq. 26); inverse of
+        :meth:`plus`.
+
+        Parameters
+        ----------
+        other : LieGroup
+            ``X``.
+        jac : bool
+            Also return the Jacobians, in argument order.
+        side : {"right", "left"}
+            Which Jacobians: right (perturbation ``X Exp(d)``, default) or left (``Exp(d) X``).
+
+        Returns
+        -------
+        tau : array
+            ``(*batch, dof)``.
+        J_Y, J_X : array
+            With ``jac=True`` (right): ``Jr^-1(tau)`` and ``-Jl^-1(tau)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> X, tau = SE3.random(rng=5), np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+        >>> t, JY, JX = X.plus(tau).minus(X, jac=True)
+        >>> bool(np.allclose(t, tau)), bool(np.allclose(JX, -SE3.jl_inv(tau)))
+        (True, True)
+        """
         self._same_group(other)
         if not jac:
             return self._tangent_out(run(self._K["minus"], self.params, other.params))
@@ -805,8 +1256,31 @@ class LieGroup:
               side: Side = ...) -> Self | tuple[Self, Array, Array]: ...
 
     def lplus(self, tau: Any, jac: bool = False, side: Side = "right") -> Any:
-        """Left plus ``tau (+) X = Exp(tau) X`` (eq. 27). Jacobians (right): ``I`` and
-        ``Ad_X^-1 Jr(tau)``."""
+        """Left plus ``tau (+) X = Exp(tau) X`` (eq. 27).
+
+        Parameters
+        ----------
+        tau : array_like
+            ``(*batch, dof)`` tangent vectors (translation first).
+        jac : bool
+            Also return the Jacobians, in argument order.
+        side : {"right", "left"}
+            Which Jacobians: right (perturbation ``X Exp(d)``, default) or left (``Exp(d) X``).
+
+        Returns
+        -------
+        Y : LieGroup
+        J_X, J_tau : array
+            With ``jac=True`` (right): ``I`` and ``Ad_X^-1 Jr(tau)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> X, tau = SE3.random(rng=6), np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+        >>> bool(np.allclose(X.lplus(tau).matrix(), (SE3.exp(tau) @ X).matrix()))
+        True
+        """
         t = self._tangent(tau, like=self.params, kernel_checks=True)
         if not jac:
             return self._adopt(run(self._K["lplus"], self.params, t))
@@ -824,8 +1298,33 @@ class LieGroup:
                side: Side = ...) -> Array | tuple[Array, Array, Array]: ...
 
     def lminus(self, other: Self, jac: bool = False, side: Side = "right") -> Any:
-        """Left minus ``Y (-) X = Log(Y X^-1)`` for ``Y.lminus(X)`` (eq. 28). Jacobians
-        (right) with respect to ``Y`` and ``X``: ``Jr^-1(tau) Ad_X`` and its negative."""
+        """Left minus ``Y (-) X = Log(Y X^-1)`` for ``Y.lminus(X)`` (eq. 28); inverse of
+        :meth:`lplus`.
+
+        Parameters
+        ----------
+        other : LieGroup
+            ``X``.
+        jac : bool
+            Also return the Jacobians, in argument order.
+        side : {"right", "left"}
+            Which Jacobians: right (perturbation ``X Exp(d)``, default) or left (``Exp(d) X``).
+
+        Returns
+        -------
+        tau : array
+            ``(*batch, dof)``.
+        J_Y, J_X : array
+            With ``jac=True`` (right): ``Jr^-1(tau) Ad_X`` and its negative.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> X, tau = SE3.random(rng=7), np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+        >>> bool(np.allclose(X.lplus(tau).lminus(X), tau))
+        True
+        """
         self._same_group(other)
         if not jac:
             return self._tangent_out(run(self._K["lminus"], self.params, other.params))
@@ -833,8 +1332,27 @@ class LieGroup:
         return _left_vec(side, self._tangent_out(tau), [(JY, self), (JX, other)])
 
     def interpolate(self, other: Self, t: Any) -> Self:
-        """``X (+) t (Y (-) X)``: ``t = 0`` gives ``X``, ``t = 1`` gives ``Y``; ``t`` broadcasts
-        against the batch."""
+        """The geodesic ``X (+) t (Y (-) X)``: ``t = 0`` gives ``X``, ``t = 1`` gives ``Y``.
+
+        Parameters
+        ----------
+        other : LieGroup
+            ``Y``.
+        t : float or array_like
+            Fractions; broadcast against the batch.
+
+        Returns
+        -------
+        LieGroup
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE3, SO3
+        >>> X, Y = SO3.identity(), SO3.exp([0.0, 0.0, 1.0])
+        >>> np.round(X.interpolate(Y, np.array([0.25, 0.5])).log(), 12).tolist()
+        [[0.0, 0.0, 0.25], [0.0, 0.0, 0.5]]
+        """
         d = other.minus(self)
         tt = A.as_float_array(t, like=d)
         return self.plus(tt[..., None] * d)

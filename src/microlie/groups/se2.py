@@ -31,6 +31,15 @@ class SE2(Pose):
     Tangent ``(rho_x, rho_y, theta)`` (translation first, as manif and GTSAM's Pose2).
     ``X.act(p) = R p + t``. Right plus/minus and right Jacobians by default.
 
+    Parameters
+    ----------
+    params : array_like
+        ``(*batch, 4)``.
+    normalize : bool
+        Normalise ``(cos, sin)`` instead of raising ``ValueError`` on a norm off 1.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE2
     >>> T = SE2.from_xy_theta(1.0, 2.0, np.pi / 2)
@@ -135,7 +144,25 @@ class SE2(Pose):
     # ------------------------------------------------------------------ constructors
     @classmethod
     def from_xy_theta(cls, x: Any, y: Any, theta: Any) -> SE2:
-        """From positions and headings (radians); all broadcast."""
+        """From positions and headings; all broadcast.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Positions.
+        theta : array_like
+            Headings, radians.
+
+        Returns
+        -------
+        SE2
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> SE2.from_xy_theta([0.0, 1.0], 2.0, 0.0).params.tolist()
+        [[0.0, 2.0, 1.0, 0.0], [1.0, 2.0, 1.0, 0.0]]
+        """
         xx = A.as_float_array(x)
         xp = A.namespace(xx)
         x, y, th = xp.broadcast_arrays(xx, A.as_float_array(y, like=xx),
@@ -143,7 +170,19 @@ class SE2(Pose):
         return cls._wrap(xp.stack([x, y, xp.cos(th), xp.sin(th)], axis=-1))
 
     def angle(self) -> Array:
-        """The heading in ``(-pi, pi]``, shape ``batch_shape``."""
+        """The heading in ``(-pi, pi]``.
+
+        Returns
+        -------
+        array
+            Shape ``batch_shape``.
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> round(float(SE2.from_xy_theta(1.0, 2.0, 0.3).angle()), 12)
+        0.3
+        """
         xp = A.namespace(self.params)
         return xp.atan2(self.params[..., 3], self.params[..., 2])
 

@@ -76,13 +76,22 @@ class SE3(Pose):
     """Rigid motions in 3-D. Parameters ``(tx, ty, tz, qx, qy, qz, qw)``.
 
     Tangent ``tau = (rho, phi)`` (translation first; Jacobians: Sola et al. eqs. 179-180).
-    ``X.act(p) = R p + t``. Right plus/minus and right Jacobians by default; ``side="left"`` for
-    left ones.
+    ``X.act(p) = R p + t``. Right plus/minus and right Jacobians by default; ``side="left"``
+    for left ones.
 
+    Parameters
+    ----------
+    params : array_like
+        ``(*batch, 7)``: translation, then the quaternion ``(x, y, z, w)``.
+    normalize : bool
+        Normalise the quaternion instead of raising ``ValueError`` on a norm off 1.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE3
     >>> T = SE3.exp(np.array([1.0, 0.0, 0.0, 0.0, 0.0, np.pi / 2]))
-    >>> np.round(T.translation(), 6)
+    >>> np.round(T.translation(), 6)  # (2 / pi, 2 / pi, 0): a quarter screw
     array([0.63662, 0.63662, 0.     ])
     """
 

@@ -176,13 +176,18 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
     u = M.cross(phi, rho)
     v = M.cross(phi, u)
     d = M.dot(phi, rho)
-    P = M.hat3(rho)
     # d(W rho)/d phi = -b hat(rho) + c (phi rho^T + (phi.rho) I - 2 rho phi^T)
     #                  + 2 b_t (phi x rho) phi^T + 2 c_t (phi x (phi x rho)) phi^T
-    Mphi = tuple(
-        tuple(-b * P[i][j] + c * (phi[i] * rho[j] - 2.0 * rho[i] * phi[j] + (d if i == j else 0.0))
-              + 2.0 * (b_t * u[i] + c_t * v[i]) * phi[j] for j in range(3))
-        for i in range(3))
+    #                = (c phi) rho^T + w phi^T - b hat(rho) + c (phi.rho) I,
+    # with w = 2 (b_t u + c_t v - c rho)
+    cp = tuple(c * x for x in phi)
+    w = tuple(2.0 * (b_t * u[i] + c_t * v[i] - c * rho[i]) for i in range(3))
+    br0, br1, br2 = (b * x for x in rho)
+    cd = c * d
+    g = tuple(tuple(cp[i] * rho[j] + w[i] * phi[j] for j in range(3)) for i in range(3))
+    Mphi = ((g[0][0] + cd, g[0][1] + br2, g[0][2] - br1),
+            (g[1][0] - br2, g[1][1] + cd, g[1][2] + br0),
+            (g[2][0] + br1, g[2][1] - br0, g[2][2] + cd))
     msig = tuple(a_s * rho[i] + b_s * u[i] + c_s * v[i] for i in range(3))
     return phi, t2, (a, b, c), E, (sinc, h, cb, k, ch), Mphi, msig
 
@@ -190,13 +195,23 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
 class Sim3(Pose):
     """Similarity transforms in 3-D. Parameters ``(tx, ty, tz, qx, qy, qz, qw, s)``.
 
-    Tangent ``(rho, phi, sigma)``, ``s = exp(sigma)``; ``X.act(p) = s R p + t``. Right plus/minus
-    and right Jacobians by default. ``Exp(zeta) = (W rho, Exp(phi), e^sigma)`` with
+    Tangent ``(rho, phi, sigma)``, ``s = exp(sigma)``; ``X.act(p) = s R p + t``. Right
+    plus/minus and right Jacobians by default. ``Exp(zeta) = (W rho, Exp(phi), e^sigma)`` with
     ``W = int_0^1 e^(s sigma) Exp(s phi) ds``; ``Jr`` in closed form from the derivatives of
-    ``W rho``: ``Jr = [[e^-sigma R^T W, e^-sigma R^T d(W rho)/d phi, e^-sigma R^T d(W rho)/d sigma],
-    [0, Jr_SO3(phi), 0], [0, 0, 1]]``, ``Jr^-1`` by its block inverse. ``|sigma|`` (and
-    ``|log s|`` for ``log``) must not exceed :data:`SIGMA_MAX` ``= 50`` (``ValueError``).
+    ``W rho``: ``Jr = [[e^-sigma R^T W, e^-sigma R^T d(W rho)/d phi,
+    e^-sigma R^T d(W rho)/d sigma], [0, Jr_SO3(phi), 0], [0, 0, 1]]``, ``Jr^-1`` by its block
+    inverse. ``|sigma|`` (and ``|log s|`` for ``log``) must not exceed :data:`SIGMA_MAX`
+    ``= 50`` (``ValueError``).
 
+    Parameters
+    ----------
+    params : array_like
+        ``(*batch, 8)``: translation, quaternion ``(x, y, z, w)``, scale ``s > 0``.
+    normalize : bool
+        Normalise the quaternion instead of raising ``ValueError`` on a norm off 1.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import Sim3
     >>> S = Sim3.exp(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.log(2.0)]))
@@ -327,8 +342,29 @@ class Sim3(Pose):
     @classmethod
     def from_rotation_translation_scale(cls, rotation: SO3 | Any, translation: Any,
                                         scale: Any) -> Sim3:
-        """From a rotation (:class:`SO3` or matrices), translations ``(..., 3)`` and positive
-        scales ``(...)``; the batch axes broadcast."""
+        """From rotations, translations and scales; the batch axes broadcast.
+
+        Parameters
+        ----------
+        rotation : SO3 or array_like
+            Rotations or rotation matrices.
+        translation : array_like
+            ``(..., 3)``.
+        scale : array_like
+            ``(...)``, positive.
+
+        Returns
+        -------
+        Sim3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import Sim3, SO3
+        >>> S = Sim3.from_rotation_translation_scale(SO3.exp([0, 0, np.pi / 2]), [0, 0, 1.0], 3.0)
+        >>> np.round(S.act([1.0, 0.0, 0.0]), 12).tolist()
+        [0.0, 3.0, 1.0]
+        """
         T = SE3.from_rotation_translation(rotation, translation)
         s = A.as_float_array(scale, like=T.params)
         A.check_finite(s, "scale")
@@ -337,12 +373,52 @@ class Sim3(Pose):
 
     @classmethod
     def from_rotation_translation(cls, rotation: Any, translation: Any) -> Sim3:
-        """From a rotation and translations, with scale 1."""
+        """From a rotation and translations, with scale 1.
+
+        Parameters
+        ----------
+        rotation : SO3 or array_like
+            Rotations or rotation matrices.
+        translation : array_like
+            ``(..., 3)``.
+
+        Returns
+        -------
+        Sim3
+
+        Examples
+        --------
+        >>> from microlie import Sim3, SO3
+        >>> float(Sim3.from_rotation_translation(SO3.identity(), [1.0, 2.0, 3.0]).scale())
+        1.0
+        """
         return cls.from_rotation_translation_scale(rotation, translation, 1.0)
 
     @classmethod
     def from_matrix(cls, matrix: Any, normalize: bool = False) -> Sim3:
-        """From matrices ``[[s R, t], [0, 1]]`` ``(..., 4, 4)``; ``s = det(sR)^(1/3)``."""
+        """From matrices ``[[s R, t], [0, 1]]``; ``s = det(sR)^(1/3)``.
+
+        Parameters
+        ----------
+        matrix : array_like
+            ``(..., 4, 4)``.
+        normalize : bool
+            Project ``R`` onto the rotations instead of raising ``ValueError``.
+
+        Returns
+        -------
+        Sim3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import Sim3
+        >>> M = np.diag([2.0, 2.0, 2.0, 1.0])
+        >>> M[:3, 3] = [1.0, 2.0, 3.0]
+        >>> S = Sim3.from_matrix(M)
+        >>> round(float(S.scale()), 12), S.translation().tolist()
+        (2.0, [1.0, 2.0, 3.0])
+        """
         sR, t = cls._split_matrix(matrix, normalize)
         xp = A.namespace(sR)
         det = xp.linalg.det(sR)
@@ -354,7 +430,20 @@ class Sim3(Pose):
         return cls.from_rotation_translation_scale(R, t, s)
 
     def scale(self) -> Array:
-        """The scale ``s > 0`` (shape ``batch_shape``)."""
+        """The scale ``s > 0``.
+
+        Returns
+        -------
+        array
+            Shape ``batch_shape``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import Sim3
+        >>> round(float(Sim3.exp([0, 0, 0, 0, 0, 0, np.log(3.0)]).scale()), 12)
+        3.0
+        """
         return self.params[..., 7]
 
 

@@ -17,6 +17,15 @@ class SO2(LieGroup):
 
     ``Jr = Jl = 1`` and ``Ad = 1`` (the group is commutative).
 
+    Parameters
+    ----------
+    params : array_like
+        ``(*batch, 2)`` unit complex numbers ``(cos, sin)``.
+    normalize : bool
+        Normalise instead of raising ``ValueError`` on a norm off 1.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SO2
     >>> R = SO2.from_angle(np.pi / 2)
@@ -93,17 +102,65 @@ class SO2(LieGroup):
 
     @classmethod
     def from_angle(cls, theta: Any) -> SO2:
-        """From angles (radians) of any shape."""
+        """From angles (radians) of any shape.
+
+        Parameters
+        ----------
+        theta : array_like
+            Angles; their shape is the batch shape.
+
+        Returns
+        -------
+        SO2
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO2
+        >>> SO2.from_angle([0.0, np.pi]).params.round(12).tolist()
+        [[1.0, 0.0], [-1.0, 0.0]]
+        """
         t = A.as_float_array(theta)
         return cls.exp(t[..., None])
 
     def angle(self) -> Array:
-        """The angle in ``(-pi, pi]``, shape ``batch_shape``."""
+        """The angle in ``(-pi, pi]``.
+
+        Returns
+        -------
+        array
+            Shape ``batch_shape``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO2
+        >>> round(float(SO2.from_angle(3 * np.pi / 2).angle()), 12) == round(-np.pi / 2, 12)
+        True
+        """
         return self.log()[..., 0]
 
     @classmethod
     def from_matrix(cls, matrix: Any, normalize: bool = False) -> SO2:
-        """From rotation matrices ``(..., 2, 2)`` (orthogonal, determinant +1)."""
+        """From rotation matrices (orthogonal, determinant +1).
+
+        Parameters
+        ----------
+        matrix : array_like
+            ``(..., 2, 2)``.
+        normalize : bool
+            Project onto the rotations instead of raising ``ValueError``.
+
+        Returns
+        -------
+        SO2
+
+        Examples
+        --------
+        >>> from microlie import SO2
+        >>> SO2.from_matrix([[0.0, -1.0], [1.0, 0.0]]).params.tolist()
+        [0.0, 1.0]
+        """
         R = A.as_float_array(matrix)
         A.check_last_dim(R, (2, 2), "SO2 matrix")
         A.check_finite(R, "SO2 matrix")

@@ -263,9 +263,19 @@ def checked_rotation_matrix(R: Array, normalize: bool, what: str) -> Array:
 class SO3(LieGroup):
     """3-D rotations. Parameters: unit quaternion ``(qx, qy, qz, qw)`` (scalar last).
 
-    Tangent: rotation vector ``phi`` (3,). ``Exp(phi)`` is Rodrigues' formula; ``Log`` is accurate
-    at 0 and up to and including ``theta = pi``. Right plus/minus and right Jacobians by default.
+    Tangent: rotation vector ``phi`` (3,). ``Exp(phi)`` is Rodrigues' formula; ``Log`` is
+    accurate at 0 and up to and including ``theta = pi``. Right plus/minus and right
+    Jacobians by default.
 
+    Parameters
+    ----------
+    params : array_like
+        ``(*batch, 4)`` quaternions ``(x, y, z, w)``.
+    normalize : bool
+        Normalise instead of raising ``ValueError`` on a norm off 1.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SO3
     >>> R = SO3.exp(np.array([0.0, 0.0, np.pi / 2]))
@@ -344,9 +354,30 @@ class SO3(LieGroup):
     # ------------------------------------------------------------------ constructors
     @classmethod
     def from_matrix(cls, matrix: Any, normalize: bool = False) -> SO3:
-        """From rotation matrices ``(..., 3, 3)``. A matrix that is not orthogonal with
-        determinant +1 (within tolerance) raises ``ValueError`` unless ``normalize=True``, which
-        projects it onto the nearest rotation (SVD)."""
+        """From rotation matrices.
+
+        A matrix that is not orthogonal with determinant +1 (within tolerance) raises
+        ``ValueError`` unless ``normalize=True``, which projects it onto the nearest rotation (SVD).
+
+        Parameters
+        ----------
+        matrix : array_like
+            ``(..., 3, 3)``.
+        normalize : bool
+            Project instead of raising.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> M = SO3.exp([0.1, 0.2, 0.3]).matrix()
+        >>> bool(np.allclose(SO3.from_matrix(M).log(), [0.1, 0.2, 0.3]))
+        True
+        """
         R = A.as_float_array(matrix)
         A.check_last_dim(R, (3, 3), "SO3 matrix")
         A.check_finite(R, "SO3 matrix")
@@ -355,10 +386,32 @@ class SO3(LieGroup):
 
     @classmethod
     def from_quat(cls, quat: Any, scalar_first: bool = False, normalize: bool = False) -> SO3:
-        """From quaternions ``(x, y, z, w)`` (or ``(w, x, y, z)`` with ``scalar_first=True``).
+        """From quaternions.
 
         A norm that differs from 1 by more than the tolerance raises ``ValueError`` unless
         ``normalize=True``. ``q`` and ``-q`` are the same rotation.
+
+        Parameters
+        ----------
+        quat : array_like
+            ``(..., 4)``: ``(x, y, z, w)``, or ``(w, x, y, z)`` with ``scalar_first=True``.
+        scalar_first : bool
+            The order of ``quat``.
+        normalize : bool
+            Normalise instead of raising.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> a = SO3.from_quat([0.0, 0.0, np.sin(0.5), np.cos(0.5)])
+        >>> b = SO3.from_quat([np.cos(0.5), 0.0, 0.0, np.sin(0.5)], scalar_first=True)
+        >>> bool(np.allclose(a.log(), [0, 0, 1.0])), bool(np.allclose(a.matrix(), b.matrix()))
+        (True, True)
         """
         q = A.as_float_array(quat)
         A.check_last_dim(q, 4, "quaternion")
@@ -368,8 +421,27 @@ class SO3(LieGroup):
         return cls._wrap(checked_unit_quat(q, normalize, "SO3.from_quat"))
 
     def as_quat(self, scalar_first: bool = False, canonical: bool = False) -> Array:
-        """The quaternion ``(x, y, z, w)`` (``(w, x, y, z)`` with ``scalar_first``); with
-        ``canonical=True`` the representative with ``w >= 0``."""
+        """The quaternion of each rotation.
+
+        Parameters
+        ----------
+        scalar_first : bool
+            Return ``(w, x, y, z)`` instead of ``(x, y, z, w)``.
+        canonical : bool
+            The representative with ``w >= 0``.
+
+        Returns
+        -------
+        array
+            ``(*batch, 4)``.
+
+        Examples
+        --------
+        >>> from microlie import SO3
+        >>> R = SO3([0.0, 0.0, -0.6, -0.8])
+        >>> (R.as_quat(canonical=True) + 0.0).tolist(), R.as_quat(scalar_first=True).tolist()
+        ([0.0, 0.0, 0.6, 0.8], [-0.8, 0.0, 0.0, -0.6])
+        """
         q = self.params
         if canonical:
             xp = A.namespace(q)
@@ -378,23 +450,74 @@ class SO3(LieGroup):
 
     @classmethod
     def from_rotvec(cls, rotvec: Any, degrees: bool = False) -> SO3:
-        """From rotation vectors (axis times angle); same as :meth:`exp`."""
+        """From rotation vectors (axis times angle); the same as :meth:`exp`.
+
+        Parameters
+        ----------
+        rotvec : array_like
+            ``(..., 3)``.
+        degrees : bool
+            The angle is in degrees.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> R = SO3.from_rotvec([0.0, 0.0, 90.0], degrees=True)
+        >>> bool(np.allclose(R.log(), [0, 0, np.pi / 2]))
+        True
+        """
         v = A.as_float_array(rotvec)
         return cls.exp(v * (np.pi / 180.0) if degrees else v)
 
     def as_rotvec(self, degrees: bool = False) -> Array:
-        """Rotation vectors (axis times angle, angle in [0, pi]); same as :meth:`log`."""
+        """Rotation vectors (axis times angle, angle in ``[0, pi]``); the same as :meth:`log`.
+
+        Parameters
+        ----------
+        degrees : bool
+            Return the angle in degrees.
+
+        Returns
+        -------
+        array
+            ``(*batch, 3)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> np.round(SO3.exp([0.0, np.pi / 2, 0.0]).as_rotvec(degrees=True), 9).tolist()
+        [0.0, 90.0, 0.0]
+        """
         v = self.log()
         return v * (180.0 / np.pi) if degrees else v
 
     @classmethod
     def from_euler(cls, seq: str, angles: Any, degrees: bool = False) -> SO3:
-        """From Euler angles, SciPy's convention: ``seq`` of one to three letters, all from
-        ``xyz`` (extrinsic: rotations about the fixed axes, applied left to right) or all from
-        ``XYZ`` (intrinsic: about the moving axes), no axis twice in a row (``"xyx"`` is valid,
-        ``"xxy"`` is not). ``angles`` has shape ``(..., len(seq))`` (a scalar for one axis);
-        radians, or degrees with ``degrees=True``.
+        """From Euler angles, SciPy's convention.
 
+        Parameters
+        ----------
+        seq : str
+            One to three letters, all from ``xyz`` (extrinsic: rotations about the fixed axes,
+            applied left to right) or all from ``XYZ`` (intrinsic: about the moving axes), no axis
+            twice in a row (``"xyx"`` is valid, ``"xxy"`` is not).
+        angles : array_like
+            ``(..., len(seq))`` (a scalar for one axis).
+        degrees : bool
+            Angles in degrees instead of radians.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
         >>> import numpy as np
         >>> from microlie import SO3
         >>> np.round(SO3.from_euler("z", 90, degrees=True).matrix(), 12)
@@ -430,7 +553,27 @@ class SO3(LieGroup):
 
     def as_euler(self, seq: str, degrees: bool = False) -> Array:
         """Euler angles (SciPy's convention and ranges) for NumPy arrays (through
-        ``scipy.spatial.transform.Rotation``). For all backends use :meth:`as_rpy`."""
+        ``scipy.spatial.transform.Rotation``). For all backends use :meth:`as_rpy`.
+
+        Parameters
+        ----------
+        seq : str
+            As in :meth:`from_euler`.
+        degrees : bool
+            Return degrees.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(*batch, len(seq))``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> np.round(SO3.from_euler("xyz", [10, 20, 30], degrees=True).as_euler("xyz", True), 9)
+        array([10., 20., 30.])
+        """
         if not A.is_numpy(self.params):
             raise TypeError("as_euler supports NumPy arrays only; use as_rpy() for other backends")
         from scipy.spatial.transform import Rotation
@@ -441,7 +584,25 @@ class SO3(LieGroup):
 
     @classmethod
     def from_rpy(cls, roll: Any, pitch: Any, yaw: Any) -> SO3:
-        """``R = Rz(yaw) Ry(pitch) Rx(roll)`` (roll about x first, in the fixed frame)."""
+        """``R = Rz(yaw) Ry(pitch) Rx(roll)`` (roll about x first, in the fixed frame).
+
+        Parameters
+        ----------
+        roll, pitch, yaw : array_like
+            Radians; they broadcast.
+
+        Returns
+        -------
+        SO3
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> a, b = SO3.from_rpy(0.1, 0.2, 0.3), SO3.from_euler("xyz", [0.1, 0.2, 0.3])
+        >>> bool(np.allclose(a.matrix(), b.matrix()))
+        True
+        """
         a = A.as_float_array(roll)
         xp = A.namespace(a)
         return cls.from_euler("xyz", xp.stack(xp.broadcast_arrays(
@@ -449,7 +610,20 @@ class SO3(LieGroup):
 
     def as_rpy(self) -> Array:
         """``(roll, pitch, yaw)`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``, pitch in
-        ``[-pi/2, pi/2]``."""
+        ``[-pi/2, pi/2]``; every backend.
+
+        Returns
+        -------
+        array
+            ``(*batch, 3)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO3
+        >>> np.round(SO3.from_rpy(0.1, 0.2, 0.3).as_rpy(), 12).tolist()
+        [0.1, 0.2, 0.3]
+        """
         return run(_K_RPY, self.params)
 
 

@@ -88,7 +88,7 @@ class ImuFactor(Factor):
         errors are in the frame of ``dR`` (``dR^T`` times ours), as GTSAM's."""
         from ..groups import SO3
 
-        Rt = np.swapaxes(np.asarray(SO3(d.q).matrix()), -1, -2)
+        Rt = np.swapaxes(np.asarray(SO3.from_params(d.q, check=False).matrix()), -1, -2)
         T = np.zeros((len(d), 9, 9))
         T[:, 0:3, 0:3] = np.eye(3)
         T[:, 3:6, 3:6] = Rt

@@ -349,7 +349,7 @@ class ErrorStateEKF(_ImuFilter):
     @property
     def state(self) -> Any:
         Rq = SO3.from_matrix(self.Rm, normalize=True)
-        return ESKF_STATE.from_parts(Rq, *(R(3)(x) for x in
+        return ESKF_STATE.from_parts(Rq, *(R(3).from_params(x, check=False) for x in
                                           (self.p, self.v, self.bg, self.ba)))
 
 
@@ -436,4 +436,5 @@ class InvariantEKF(_ImuFilter):
     def state(self) -> Any:
         Rq = SO3.from_matrix(self.Rm, normalize=True)
         X = SE23.from_rotation_translation(Rq, self.p, self.v)
-        return IEKF_STATE.from_parts(X, R(3)(self.bg), R(3)(self.ba))
+        return IEKF_STATE.from_parts(X, R(3).from_params(self.bg, check=False),
+                                     R(3).from_params(self.ba, check=False))

@@ -202,7 +202,7 @@ class Preintegration:
     def delta_rotation(self) -> SO3:
         """``dR_ij`` as an ``SO3`` element."""
         self._flush()
-        return SO3(self._q.copy())
+        return SO3.from_params(self._q, check=False)
 
     @property
     def delta_velocity(self) -> np.ndarray:

@@ -115,7 +115,7 @@ class Deltas:
         c = (self.J @ db[:, :, None])[..., 0]
         if self.scheme == "manifold":
             e = c[:, :3]
-            dR = SO3(self.q) @ SO3.exp(e)
+            dR = SO3.from_params(self.q, check=False) @ SO3.exp(e)
             K = SO3.jr(e) @ self.J[:, :3]
         else:
             th = self.theta + (self.H[:, :3] @ db[:, :, None])[..., 0]

@@ -60,8 +60,32 @@ GRAVITY = np.array([0.0, 0.0, -9.81])
 
 
 def load_euroc_groundtruth(path: str | Path) -> tuple[np.ndarray, SE3]:
-    """Times (s) and body poses (``SE3``, world from body) of an EuRoC ground-truth CSV
-    (``#timestamp[ns], p_RS_R_xyz, q_RS_wxyz, ...``)."""
+    """Times and body poses of a EuRoC ground-truth CSV
+    (``#timestamp[ns], p_RS_R_xyz, q_RS_wxyz, ...``; quaternion scalar first in the file).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The CSV file.
+
+    Returns
+    -------
+    t : numpy.ndarray
+        ``(N,)`` seconds since the first stamp.
+    poses : SE3
+        ``(N,)`` world-from-body poses.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.imu.simulate import load_euroc_groundtruth
+    >>> path = os.path.join(tempfile.mkdtemp(), "gt.csv")
+    >>> np.savetxt(path, [[1e9, 1, 2, 3, 1, 0, 0, 0], [2e9, 4, 5, 6, 0, 0, 0, 1]], delimiter=",")
+    >>> t, T = load_euroc_groundtruth(path)
+    >>> t.tolist(), T.params[1].tolist()  # a 180-degree turn about z in the second row
+    ([0.0, 1.0], [4.0, 5.0, 6.0, 0.0, 0.0, 1.0, 0.0])
+    """
     a = np.loadtxt(path, delimiter=",", comments="#")
     if a.ndim != 2 or a.shape[1] < 8:
         raise ValueError(f"{path}: expected EuRoC ground truth with >= 8 columns")
@@ -334,9 +358,39 @@ class ImuData:
 def integrate_states(
     X0: SE23, accel: np.ndarray, gyro: np.ndarray, dt: float, gravity: Any = GRAVITY
 ) -> SE23:
-    """States ``X_0 .. X_N`` (``SE23``) from bias-free samples ``(N, 3)`` by the first-order
-    scheme ``R' = R Exp(w dt)``, ``v' = v + (R f + g) dt``, ``p' = p + v dt + (R f + g) dt^2/2``
-    (the scheme of :class:`Preintegration`), vectorised: prefix products and cumulative sums."""
+    """States ``X_0 .. X_N`` from bias-free samples by the first-order scheme
+    ``R' = R Exp(w dt)``, ``v' = v + (R f + g) dt``, ``p' = p + v dt + (R f + g) dt^2/2`` (the
+    scheme of :class:`Preintegration`), vectorised: prefix products and cumulative sums.
+
+    Parameters
+    ----------
+    X0 : SE23
+        The initial state ``(R, p, v)``.
+    accel, gyro : numpy.ndarray
+        ``(N, 3)`` specific force and angular rate in the body frame.
+    dt : float
+        The sample interval, seconds.
+    gravity : array_like
+        Gravity in the world frame.
+
+    Returns
+    -------
+    SE23
+        ``(N + 1,)`` states.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE23
+    >>> from microlie.imu.simulate import integrate_states
+    >>> n = 100  # one second of 1 m/s^2 forward, gravity compensated
+    >>> f, w = np.tile([1.0, 0, 9.81], (n, 1)), np.zeros((n, 3))
+    >>> X = integrate_states(SE23.identity(), f, w, 0.01)
+    >>> X.batch_shape, np.round(X[-1].velocity(), 12).tolist()
+    ((101,), [1.0, 0.0, 0.0])
+    >>> np.round(X[-1].translation(), 12).tolist()
+    [0.5, 0.0, 0.0]
+    """
     from .preintegration import _prefix_scan
 
     a = np.asarray(accel, dtype=np.float64)
@@ -345,9 +399,8 @@ def integrate_states(
     dq = np.asarray(SO3.exp(w * dt).params)
     q = np.stack(_prefix_scan([np.ascontiguousarray(dq[:, i]) for i in range(4)]), -1)
     R0 = X0.rotation()
-    Rk = SO3(
-        np.concatenate([np.asarray(R0.params)[None], np.asarray((R0 @ SO3(q)).params)])
-    )
+    Rq = R0 @ SO3.from_params(q, check=False)
+    Rk = SO3(np.concatenate([np.asarray(R0.params)[None], np.asarray(Rq.params)]))
     f = Rk[:-1].act(a) + g  # navigation-frame acceleration on each step
     v = np.concatenate(
         [np.asarray(X0.velocity())[None], np.asarray(X0.velocity()) + np.cumsum(f * dt, 0)]

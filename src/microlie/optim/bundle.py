@@ -47,21 +47,75 @@ __all__ = ["BundleProblem", "BundleResult", "BundleIteration", "bundle_adjust", 
 
 
 def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(n, 3, 3)`` of angle-axis vectors ``(n, 3)`` (``SO3.exp``)."""
+    """Rotation matrices of angle-axis vectors (``SO3.exp``).
+
+    Parameters
+    ----------
+    w : numpy.ndarray
+        ``(n, 3)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, 3, 3)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.bundle import matrix_to_rotvec, rotvec_to_matrix
+    >>> w = np.array([[0.1, 0.2, 0.3]])
+    >>> bool(np.allclose(matrix_to_rotvec(rotvec_to_matrix(w)), w))
+    True
+    """
     from ..groups import SO3
 
     return np.asarray(SO3.exp(np.asarray(w, dtype=float)).matrix())
 
 
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
-    """Angle-axis vectors ``(n, 3)`` of rotation matrices (``SO3.log``)."""
+    """Angle-axis vectors of rotation matrices (``SO3.log``).
+
+    Parameters
+    ----------
+    R : numpy.ndarray
+        ``(n, 3, 3)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, 3)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.bundle import matrix_to_rotvec
+    >>> Rz = np.array([[[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]])
+    >>> bool(np.allclose(matrix_to_rotvec(Rz), [[0, 0, np.pi / 2]]))
+    True
+    """
     from ..groups import SO3
 
     return np.asarray(SO3.from_matrix(np.asarray(R), normalize=True).log())
 
 
 def camera_model(spec: str | CameraModel) -> CameraModel:
-    """``"bal"``, ``"pinhole"``, ``"pinhole-radtan"`` or a :class:`CameraModel`."""
+    """A camera model by name.
+
+    Parameters
+    ----------
+    spec : str or CameraModel
+        ``"bal"``, ``"pinhole"``, ``"pinhole-radtan"`` or a model (returned as is).
+
+    Returns
+    -------
+    CameraModel
+
+    Examples
+    --------
+    >>> from microlie.optim.bundle import camera_model
+    >>> type(camera_model("pinhole-radtan")).__name__, camera_model("pinhole-radtan").n_intrinsics
+    ('PinholeCamera', 8)
+    """
     if isinstance(spec, CameraModel):
         return spec
     models = {"bal": BALCamera, "pinhole": PinholeCamera,
@@ -352,8 +406,31 @@ class BundleProblem:
 
 @dataclass(frozen=True)
 class BundleIteration:
-    """One try: its number, the cost after it (the candidate's for a rejected try), whether it
-    was accepted, the step quality ``rho``, the trust radius used and the step norm."""
+    """One try of :func:`bundle_adjust`.
+
+    Attributes
+    ----------
+    iteration : int
+        Its number.
+    cost : float
+        The cost after it (the candidate's for a rejected try).
+    accepted : bool
+        Whether the step was taken.
+    rho : float
+        The step quality (actual over predicted decrease).
+    radius : float
+        The trust radius used.
+    step_norm : float
+        The step norm.
+
+    Examples
+    --------
+    >>> from microlie.optim.bundle import bundle_adjust, synthetic_scene
+    >>> truth, start = synthetic_scene(3, 20, seed=1)
+    >>> rec = bundle_adjust(start, fix_cameras=[0]).history[0]
+    >>> rec.iteration, isinstance(rec.accepted, bool)
+    (1, True)
+    """
 
     iteration: int
     cost: float
@@ -890,12 +967,35 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
 def synthetic_scene(n_cameras: int = 5, n_points: int = 100, *, noise: float = 0.5,
                     perturb: float = 0.05, seed: int = 0, model: str | CameraModel = "bal",
                     distance: float = 6.0) -> tuple[BundleProblem, BundleProblem]:
-    """An arc of cameras at ``distance`` looking at a point cloud in ``[-1, 1]^3``:
-    ``(truth, start)``.
+    """An arc of cameras at ``distance`` looking at a point cloud in ``[-1, 1]^3``; every camera
+    sees every point.
 
-    ``truth`` holds the true cameras and points with observations perturbed by ``noise``
-    pixels; ``start`` is the same problem with cameras and points perturbed (rotation about
-    ``perturb`` rad, translation and points ``perturb`` units). Every camera sees every point.
+    Parameters
+    ----------
+    n_cameras, n_points : int
+        The sizes.
+    noise : float
+        Pixel noise on the observations of ``truth``.
+    perturb : float
+        Perturbation of ``start``: rotation about ``perturb`` rad, translation and points
+        ``perturb`` units.
+    seed : int
+        The random seed.
+    model : str or CameraModel
+        See :func:`camera_model`.
+    distance : float
+        The cameras' distance to the cloud.
+
+    Returns
+    -------
+    truth, start : BundleProblem
+
+    Examples
+    --------
+    >>> from microlie.optim.bundle import synthetic_scene
+    >>> truth, start = synthetic_scene(4, 30, noise=0.0)
+    >>> truth.observations.shape, round(truth.cost(), 9), start.cost() > 0
+    ((120, 2), 0.0, True)
     """
     rng = np.random.default_rng(seed)
     mdl = camera_model(model)

@@ -52,7 +52,15 @@ BEHIND: tuple[str, str] = ("evaluate", "drop")
 
 
 class CameraModel:
-    """A projection ``uv = project(P, K)`` of camera-frame points ``P`` with intrinsics ``K``."""
+    """A projection ``uv = project(P, K)`` of camera-frame points ``P`` with intrinsics ``K``
+    (the base of :class:`BALCamera` and :class:`PinholeCamera`).
+
+    Examples
+    --------
+    >>> from microlie.optim.camera import BALCamera, CameraModel, PinholeCamera
+    >>> [isinstance(m, CameraModel) for m in (BALCamera(), PinholeCamera())]
+    [True, True]
+    """
 
     name: str = ""
     intrinsic_names: tuple[str, ...] = ()
@@ -62,14 +70,59 @@ class CameraModel:
         return len(self.intrinsic_names)
 
     def in_front(self, P: np.ndarray) -> np.ndarray:
-        """Boolean mask of camera-frame points strictly in front of the camera."""
+        """Boolean mask of camera-frame points strictly in front of the camera.
+
+        Parameters
+        ----------
+        P : numpy.ndarray
+            ``(n, 3)`` camera-frame points.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n,)`` booleans.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PinholeCamera
+        >>> PinholeCamera().in_front(np.array([[0.0, 0.0, 1.0]])).tolist()
+        [True]
+        """
         raise NotImplementedError
 
     def project(self, P: np.ndarray, K: np.ndarray, jac: bool = True,
                 out: np.ndarray | None = None) -> tuple[Any, Any, Any]:
-        """Pixels ``(n, 2)``, ``d uv / d P`` ``(n, 2, 3)`` and ``d uv / d K`` ``(n, 2, k)``
-        (both ``None`` when ``jac=False``). With ``out`` ``(n, 2, 6 + k)`` the two Jacobians
-        are written into its columns ``0:3`` and ``6:`` (the camera Jacobian's layout)."""
+        """Pixels and Jacobians of camera-frame points.
+
+        Parameters
+        ----------
+        P : numpy.ndarray
+            ``(n, 3)`` camera-frame points.
+        K : numpy.ndarray
+            ``(n, k)`` intrinsics.
+        jac : bool
+            Also return the Jacobians.
+        out : numpy.ndarray, optional
+            ``(n, 2, 6 + k)``: the two Jacobians are written into its columns ``0:3`` and ``6:``
+            (the camera Jacobian's layout).
+
+        Returns
+        -------
+        uv : numpy.ndarray
+            ``(n, 2)``.
+        J_P, J_K : numpy.ndarray or None
+            ``d uv / d P`` ``(n, 2, 3)`` and ``d uv / d K`` ``(n, 2, k)`` (``None`` when
+            ``jac=False``).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PinholeCamera
+        >>> K = np.array([[500.0, 500.0, 320.0, 240.0]])
+        >>> PinholeCamera().project(np.array([[0.0, 0.0, 2.0]]), K, jac=False)[0].tolist()
+        [[320.0, 240.0]]
+        """
         raise NotImplementedError
 
     def check_intrinsics(self, K: np.ndarray, n_cameras: int) -> np.ndarray:
@@ -353,11 +406,29 @@ class PinholeCamera(CameraModel):
 
 @dataclass(frozen=True)
 class Reprojection:
-    """Residuals ``uv - observed`` ``(n, 2)`` with Jacobians (``None`` unless requested).
+    """Reprojection residuals ``uv - observed`` with Jacobians (returned by :func:`reproject`).
 
-    ``J_cam`` ``(n, 2, 6 + k)`` is with respect to the camera tangent ``(dt, dphi, dK)``,
-    ``J_point`` ``(n, 2, 3)`` with respect to the world point. ``valid`` marks the observations
-    that were evaluated (all of them unless ``behind="drop"``).
+    Attributes
+    ----------
+    residuals : numpy.ndarray
+        ``(n, 2)`` pixels.
+    J_cam : numpy.ndarray or None
+        ``(n, 2, 6 + k)`` with respect to the camera tangent ``(dt, dphi, dK)``.
+    J_point : numpy.ndarray or None
+        ``(n, 2, 3)`` with respect to the world point.
+    valid : numpy.ndarray
+        The observations that were evaluated (all of them unless ``behind="drop"``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.camera import BALCamera, reproject, transform_points
+    >>> R, t = np.eye(3)[None], np.array([[0.0, 0.0, -5.0]])
+    >>> K, X = np.array([[500.0, 0.0, 0.0]]), np.array([[0.1, 0.2, 0.0], [0.0, 0.0, 1.0]])
+    >>> cam, pt = np.array([0, 0]), np.array([0, 1])
+    >>> rep = reproject(BALCamera(), R, t, K, X, cam, pt, np.zeros((2, 2)))
+    >>> rep.J_cam.shape, rep.J_point.shape, rep.valid.tolist()
+    ((2, 2, 9), (2, 2, 3), [True, True])
     """
 
     residuals: np.ndarray
@@ -368,8 +439,34 @@ class Reprojection:
 
 def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray, cam: np.ndarray,
                      pt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``P = R[cam] X[pt] + t[cam]`` for every observation; also returns the gathered ``R``
-    and ``X`` (used by the Jacobians)."""
+    """``P = R[cam] X[pt] + t[cam]`` for every observation.
+
+    Parameters
+    ----------
+    R, t : numpy.ndarray
+        ``(n_cameras, 3, 3)`` and ``(n_cameras, 3)`` world-to-camera transforms.
+    X : numpy.ndarray
+        ``(n_points, 3)``.
+    cam, pt : numpy.ndarray
+        ``(n,)`` indices.
+
+    Returns
+    -------
+    P : numpy.ndarray
+        ``(n, 3)`` camera-frame points.
+    R_obs, X_obs : numpy.ndarray
+        The gathered ``R`` and ``X`` (used by the Jacobians).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.camera import BALCamera, reproject, transform_points
+    >>> R, t = np.eye(3)[None], np.array([[0.0, 0.0, -5.0]])
+    >>> K, X = np.array([[500.0, 0.0, 0.0]]), np.array([[0.1, 0.2, 0.0], [0.0, 0.0, 1.0]])
+    >>> cam, pt = np.array([0, 0]), np.array([0, 1])
+    >>> transform_points(R, t, X, cam, pt)[0].tolist()
+    [[0.1, 0.2, -5.0], [0.0, 0.0, -4.0]]
+    """
     Rc = np.take(R, cam, axis=0)
     Xo = np.take(X, pt, axis=0)
     P = np.matmul(Rc, Xo[:, :, None])[:, :, 0]
@@ -382,10 +479,44 @@ def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X
               behind: Behind = "evaluate") -> Reprojection:
     """Reprojection residuals of all observations ``(cam[i], pt[i], observed[i])`` at once.
 
-    ``R`` ``(n_cameras, 3, 3)`` and ``t`` ``(n_cameras, 3)`` map world to camera, ``K`` is
-    ``(n_cameras, k)``, ``X`` ``(n_points, 3)``. Jacobians: ``d r / d dt = A``,
-    ``d r / d dphi = -A R [X]_x`` (right perturbation ``R Exp(dphi)``),
-    ``d r / d X = A R`` with ``A = d uv / d P``.
+    Jacobians: ``d r / d dt = A``, ``d r / d dphi = -A R [X]_x`` (right perturbation
+    ``R Exp(dphi)``), ``d r / d X = A R`` with ``A = d uv / d P``.
+
+    Parameters
+    ----------
+    model : CameraModel
+        The projection.
+    R : numpy.ndarray
+        ``(n_cameras, 3, 3)`` world-to-camera rotations.
+    t : numpy.ndarray
+        ``(n_cameras, 3)`` world-to-camera translations.
+    K : numpy.ndarray
+        ``(n_cameras, k)`` intrinsics.
+    X : numpy.ndarray
+        ``(n_points, 3)`` world points.
+    cam, pt : numpy.ndarray
+        ``(n,)`` camera and point of each observation.
+    observed : numpy.ndarray
+        ``(n, 2)`` pixels.
+    jac : bool
+        Also compute the Jacobians.
+    behind : {"evaluate", "drop"}
+        Points behind a camera: evaluated (BAL) or dropped (GTSAM/COLMAP).
+
+    Returns
+    -------
+    Reprojection
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.camera import BALCamera, reproject, transform_points
+    >>> R, t = np.eye(3)[None], np.array([[0.0, 0.0, -5.0]])
+    >>> K, X = np.array([[500.0, 0.0, 0.0]]), np.array([[0.1, 0.2, 0.0], [0.0, 0.0, 1.0]])
+    >>> cam, pt = np.array([0, 0]), np.array([0, 1])
+    >>> rep = reproject(BALCamera(), R, t, K, X, cam, pt, np.zeros((2, 2)), jac=False)
+    >>> np.round(rep.residuals, 12).tolist()  # -f P_xy / P_z with P = X + (0, 0, -5)
+    [[10.0, 20.0], [0.0, 0.0]]
     """
     if behind not in BEHIND:
         raise ValueError(f"behind must be one of {BEHIND}, got {behind!r}")

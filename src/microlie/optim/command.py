@@ -40,8 +40,32 @@ INITS = ("auto", "file", "odometry", "chordal")
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
-    """Add the ``optimize`` subcommand to ``subparsers`` (from ``add_subparsers()``); its
-    arguments carry ``func`` (:func:`run`), called with ``(args, out, err)``."""
+    r"""Add the ``optimize`` subcommand to ``subparsers``; its arguments carry ``func``
+    (:func:`run`), called with ``(args, out, err)``.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        From ``ArgumentParser.add_subparsers()``.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The subcommand's parser.
+
+    Examples
+    --------
+    >>> import argparse, io, json, os, tempfile
+    >>> from microlie.optim.command import register
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    >>> parser = argparse.ArgumentParser(prog="microlie")
+    >>> _ = register(parser.add_subparsers())
+    >>> args = parser.parse_args(["optimize", path, "--json"])
+    >>> args.func(args, io.StringIO(), io.StringIO())
+    0
+    """
     p = subparsers.add_parser(
         "optimize", help="optimise a pose graph (g2o, TORO) or a bundle adjustment (BAL)",
         description="Optimise a pose graph read from IN; report costs (GTSAM's "
@@ -74,7 +98,36 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def detect_format(path: str | Path) -> str:
-    """``g2o``, ``toro`` or ``bal`` from the first data line of the file."""
+    r"""The format of a file from its first data line.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file.
+
+    Returns
+    -------
+    str
+        ``"g2o"``, ``"toro"`` or ``"bal"``.
+
+    Raises
+    ------
+    ValueError
+        No known format.
+
+    Examples
+    --------
+    >>> import argparse, io, json, os, tempfile
+    >>> from microlie.optim.command import register
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    >>> parser = argparse.ArgumentParser(prog="microlie")
+    >>> _ = register(parser.add_subparsers())
+    >>> from microlie.optim.command import detect_format
+    >>> detect_format(path)
+    'g2o'
+    """
     with open(path, encoding="utf-8") as f:
         for line in f:
             toks = line.split()
@@ -101,7 +154,36 @@ def _handler(fmt: str) -> Any:
 
 
 def run(args: argparse.Namespace, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    """Run ``microlie optimize`` with parsed ``args``; returns the exit status."""
+    r"""Run ``microlie optimize`` with parsed ``args``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        From the parser of :func:`register`.
+    out, err : text streams, optional
+        Where the report and the messages go (default stdout and stderr).
+
+    Returns
+    -------
+    int
+        The exit status (0 on success).
+
+    Examples
+    --------
+    >>> import argparse, io, json, os, tempfile
+    >>> from microlie.optim.command import register
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    >>> parser = argparse.ArgumentParser(prog="microlie")
+    >>> _ = register(parser.add_subparsers())
+    >>> from microlie.optim.command import run
+    >>> out = io.StringIO()
+    >>> run(parser.parse_args(["optimize", path, "--json"]), out, io.StringIO())
+    0
+    >>> round(json.loads(out.getvalue())["final_cost"], 12)
+    0.0
+    """
     out = out or sys.stdout
     err = err or sys.stderr
     fmt = detect_format(args.input) if args.format == "auto" else args.format
@@ -145,7 +227,35 @@ def _write(path: str, graph: Any, poses: Any, fmt: str) -> None:
 
 
 def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
-    """Read, initialise, optimise, write and plot one pose graph; the JSON report."""
+    r"""Read, initialise, optimise, write and plot one pose graph.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        From the parser of :func:`register` (with ``format`` resolved).
+    err : text stream
+        Where messages go.
+
+    Returns
+    -------
+    dict
+        The JSON report.
+
+    Examples
+    --------
+    >>> import argparse, io, json, os, tempfile
+    >>> from microlie.optim.command import register
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    >>> parser = argparse.ArgumentParser(prog="microlie")
+    >>> _ = register(parser.add_subparsers())
+    >>> from microlie.optim.command import run_pose_graph
+    >>> args = parser.parse_args(["optimize", path, "--format", "g2o"])
+    >>> report = run_pose_graph(args, io.StringIO())
+    >>> report["initial_cost"] > report["final_cost"]
+    True
+    """
     from .init import InitMethod, initialize
 
     t0 = time.perf_counter()

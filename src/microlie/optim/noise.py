@@ -268,7 +268,36 @@ class Unit(Isotropic):
 
 
 def as_noise(noise: Any, dim: int, what: str) -> NoiseModel:
-    """``None`` is unit noise; a NoiseModel is checked against the residual dimension."""
+    """The noise model of a factor: ``None`` is unit noise; a NoiseModel is checked against the
+    residual dimension.
+
+    Parameters
+    ----------
+    noise : NoiseModel or None
+        The model.
+    dim : int
+        The residual dimension.
+    what : str
+        The factor's name, for the error message.
+
+    Returns
+    -------
+    NoiseModel
+
+    Raises
+    ------
+    ValueError
+        The model's dimension is not ``dim``.
+
+    Examples
+    --------
+    >>> from microlie.optim import Diagonal
+    >>> from microlie.optim.noise import as_noise
+    >>> as_noise(None, 3, "prior").sqrt_info.tolist() == [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
+    True
+    >>> as_noise(Diagonal([1.0, 2.0]), 2, "prior").dim
+    2
+    """
     if noise is None:
         return Unit(dim)
     if not isinstance(noise, NoiseModel):

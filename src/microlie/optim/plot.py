@@ -29,8 +29,40 @@ def _segments(graph: PoseGraph, X: LieGroup) -> tuple[np.ndarray, np.ndarray]:
 
 def plot_pose_graph(graph: PoseGraph, initial: LieGroup, optimised: LieGroup,
                     path: str | Path | None = None, title: str | None = None) -> Any:
-    """Figure with the initial (left) and optimised (right) graph; saved to ``path`` (PNG,
-    1200 x 600 px) when given. Returns the ``Figure``."""
+    r"""Figure with the initial (left) and optimised (right) graph, built with the Agg canvas
+    (the caller's matplotlib state is left alone).
+
+    Parameters
+    ----------
+    graph : PoseGraph
+        The graph (its edges are drawn).
+    initial, optimised : LieGroup
+        Poses aligned with ``graph.ids``.
+    path : str or pathlib.Path, optional
+        Save the figure there (PNG, 1200 x 600 px).
+    title : str, optional
+        The figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> graph = read_g2o(path)
+    >>> from microlie.optim.init import odometry
+    >>> from microlie.optim.plot import plot_pose_graph
+    >>> fig = plot_pose_graph(graph, graph.poses, odometry(graph))
+    >>> len(fig.axes)
+    2
+    """
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.collections import LineCollection

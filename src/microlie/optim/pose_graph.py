@@ -36,8 +36,28 @@ class PoseGraph:
     ``i``, ``j`` and ``fixed`` hold vertex *ids* as in the file; ``ids`` is sorted and
     ``poses[k]`` (when present) is the pose of ``ids[k]``. An edge says ``Z ~ X_i^-1 X_j``.
 
+    Parameters
+    ----------
+    group : type
+        The pose group (SE2 or SE3).
+    ids : numpy.ndarray
+        ``(V,)`` sorted vertex ids.
+    poses : LieGroup or None
+        ``(V,)`` initial poses, or ``None`` without vertex lines.
+    i, j : numpy.ndarray
+        ``(E,)`` edge endpoint ids.
+    measurements : LieGroup
+        ``(E,)`` relative poses ``Z``.
+    information : numpy.ndarray
+        ``(E, d, d)`` information matrices, tangent translation first.
+    fixed : numpy.ndarray
+        Ids of fixed vertices.
+
+    Examples
+    --------
     >>> import numpy as np
     >>> from microlie import SE2
+    >>> from microlie.optim.pose_graph import PoseGraph
     >>> g = PoseGraph(SE2, ids=np.array([0, 1]), poses=SE2.from_xy_theta([0., 1.], [0., 0.], 0.),
     ...               i=np.array([0]), j=np.array([1]),
     ...               measurements=SE2.from_xy_theta([1.1], [0.], [0.]),
@@ -97,7 +117,36 @@ class PoseGraph:
         return int(self.i.size)
 
     def index(self, ids: Any) -> np.ndarray:
-        """Positions in ``ids`` (and in ``poses``) of the given vertex ids."""
+        r"""Positions in ``ids`` (and in ``poses``) of the given vertex ids.
+
+        Parameters
+        ----------
+        ids : array_like
+            Vertex ids of the graph.
+
+        Returns
+        -------
+        numpy.ndarray
+            Integer positions.
+
+        Raises
+        ------
+        ValueError
+            An id that is not a vertex.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from microlie.optim.g2o import read_g2o
+        >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+        >>> _ = open(path, "w").write(
+        ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+        ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+        >>> graph = read_g2o(path)
+        >>> graph.index([2, 0]).tolist()
+        [2, 0]
+        """
         ids = np.asarray(ids, dtype=np.int64)
         k = np.searchsorted(self.ids, ids)
         bad = (k >= self.ids.size) | (self.ids[np.minimum(k, self.ids.size - 1)] != ids)
@@ -106,38 +155,157 @@ class PoseGraph:
         return k
 
     def edge_index(self) -> tuple[np.ndarray, np.ndarray]:
-        """Positions ``(ii, jj)`` in ``poses`` of the edges' endpoints."""
+        r"""Positions ``(ii, jj)`` in ``poses`` of the edges' endpoints.
+
+        Returns
+        -------
+        ii, jj : numpy.ndarray
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from microlie.optim.g2o import read_g2o
+        >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+        >>> _ = open(path, "w").write(
+        ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+        ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+        >>> graph = read_g2o(path)
+        >>> [a.tolist() for a in graph.edge_index()]
+        [[0, 1], [1, 2]]
+        """
         return self.index(self.i), self.index(self.j)
 
     def replace(self, **changes: Any) -> PoseGraph:
-        """A copy with some fields replaced (for example ``poses=...``)."""
+        r"""A copy with some fields replaced (for example ``poses=...``).
+
+        Parameters
+        ----------
+        **changes
+            Field values.
+
+        Returns
+        -------
+        PoseGraph
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from microlie.optim.g2o import read_g2o
+        >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+        >>> _ = open(path, "w").write(
+        ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+        ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+        >>> graph = read_g2o(path)
+        >>> from microlie import SE2
+        >>> graph.replace(poses=SE2.from_xy_theta([0.0, 1.0, 2.0], 0.0, 0.0)).cost()
+        0.0
+        """
         return dataclasses.replace(self, **changes)
 
     # ------------------------------------------------------------------ cost
     def residuals(self, poses: LieGroup | None = None) -> np.ndarray:
-        """Edge residuals ``Log(Z^-1 X_i^-1 X_j)``, shape ``(E, d)``, in our tangent order."""
+        r"""Edge residuals ``Log(Z^-1 X_i^-1 X_j)`` in our tangent order.
+
+        Parameters
+        ----------
+        poses : LieGroup, optional
+            Poses aligned with ``ids`` (default: the graph's own).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(E, d)``.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from microlie.optim.g2o import read_g2o
+        >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+        >>> _ = open(path, "w").write(
+        ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+        ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+        >>> graph = read_g2o(path)
+        >>> np.round(graph.residuals(), 12).tolist()
+        [[-0.1, 0.0, 0.0], [0.2, 0.0, 0.0]]
+        """
         X = self._poses(poses)
         ii, jj = self.edge_index()
         return np.asarray(X[ii].between(X[jj]).minus(self.measurements))
 
     def cost(self, poses: LieGroup | None = None) -> float:
-        """GTSAM's error ``0.5 sum_e r_e^T Omega_e r_e`` over the edges (no prior terms)."""
+        r"""GTSAM's error ``0.5 sum_e r_e^T Omega_e r_e`` over the edges (no prior terms).
+
+        Parameters
+        ----------
+        poses : LieGroup, optional
+            Poses aligned with ``ids`` (default: the graph's own).
+
+        Returns
+        -------
+        float
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from microlie.optim.g2o import read_g2o
+        >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+        >>> _ = open(path, "w").write(
+        ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+        ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+        >>> graph = read_g2o(path)
+        >>> round(graph.cost(), 12)  # 0.5 * (0.1^2 + 0.2^2)
+        0.025
+        """
         r = self.residuals(poses)
         return 0.5 * float(np.einsum("ei,eij,ej->", r, self.information, r))
 
     # ------------------------------------------------------------------ to the solver
     def to_factor_graph(self, poses: LieGroup | None = None, *, loss: Any = None,
                         gauge: str = "prior", prior_sigma: float = 1e-6) -> tuple[Any, Any]:
-        """Build a :class:`~microlie.optim.FactorGraph` of this graph's edges.
+        r"""Build a :class:`~microlie.optim.FactorGraph` of this graph's edges.
 
-        Returns ``(factor_graph, handle)``; ``result.values[handle]`` is then the optimised
-        batch aligned with ``ids``. ``poses`` is the start (default: the file's). One
-        ``BetweenFactor`` batch holds every edge with its information matrix and ``loss``
-        (a robust loss or a spec such as ``"huber:1.0"``). The gauge: the file's fixed
-        vertices when it has ``FIX`` lines; otherwise ``gauge="prior"`` (default, as GTSAM)
-        adds a prior on the first pose at its start value with standard deviation
-        ``prior_sigma`` (a term :meth:`cost` leaves out), ``gauge="fix"`` holds the first pose
-        constant, ``gauge="none"`` adds nothing (the solver then asks for a gauge).
+        One ``BetweenFactor`` batch holds every edge with its information matrix and ``loss``.
+        The gauge: the file's fixed vertices when it has ``FIX`` lines; otherwise
+        ``gauge="prior"`` (default, as GTSAM) adds a prior on the first pose at its start value
+        with standard deviation ``prior_sigma`` (a term :meth:`cost` leaves out), ``gauge="fix"``
+        holds the first pose constant, ``gauge="none"`` adds nothing (the solver then asks for a
+        gauge).
+
+        Parameters
+        ----------
+        poses : LieGroup, optional
+            The start (default: the file's).
+        loss : str or RobustLoss, optional
+            A robust loss or a spec such as ``"huber:1.0"``.
+        gauge : {"prior", "fix", "none"}
+            See above.
+        prior_sigma : float
+            The gauge prior's standard deviation.
+
+        Returns
+        -------
+        factor_graph : FactorGraph
+        handle : Variables
+            ``result.values[handle]`` is the optimised batch aligned with ``ids``.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from microlie.optim.g2o import read_g2o
+        >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+        >>> _ = open(path, "w").write(
+        ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+        ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+        >>> graph = read_g2o(path)
+        >>> fg, x = graph.to_factor_graph(gauge="fix")
+        >>> res = fg.optimize()
+        >>> np.round(res.values[x].translation()[:, 0], 9).tolist()
+        [0.0, 1.0, 2.0]
         """
         from .factors import BetweenFactor, PriorFactor
         from .graph import FactorGraph
@@ -169,7 +337,27 @@ class PoseGraph:
 
 
 def symmetric_from_upper(values: np.ndarray, d: int) -> np.ndarray:
-    """``(E, d(d+1)/2)`` upper-triangle entries, row by row, to symmetric ``(E, d, d)``."""
+    """Upper-triangle entries, row by row, to symmetric matrices.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(E, d(d+1)/2)``.
+    d : int
+        The matrix size.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(E, d, d)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.pose_graph import symmetric_from_upper
+    >>> symmetric_from_upper(np.array([[1.0, 2.0, 3.0]]), 2)[0].tolist()
+    [[1.0, 2.0], [2.0, 3.0]]
+    """
     r, c = np.triu_indices(d)
     M = np.zeros((values.shape[0], d, d))
     M[:, r, c] = values
@@ -180,8 +368,26 @@ def symmetric_from_upper(values: np.ndarray, d: int) -> np.ndarray:
 # ---------------------------------------------------------------------- the line parser
 @dataclass(frozen=True)
 class VertexTag:
-    """A vertex line ``TAG id v_1 ... v_n``; ``to_params`` maps ``(V, n)`` values to group
-    parameters ``(V, param_dim)``."""
+    """A vertex line ``TAG id v_1 ... v_n`` of a pose-graph format.
+
+    Parameters
+    ----------
+    group : type
+        The pose group.
+    n : int
+        Number of values after the id.
+    to_params : callable
+        Maps ``(V, n)`` values to group parameters ``(V, param_dim)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim.pose_graph import VertexTag
+    >>> tag = VertexTag(SE2, 3, lambda v: SE2.from_xy_theta(v[:, 0], v[:, 1], v[:, 2]).params)
+    >>> tag.to_params(np.array([[1.0, 2.0, 0.0]])).tolist()
+    [[1.0, 2.0, 1.0, 0.0]]
+    """
 
     group: type[LieGroup]
     n: int
@@ -190,9 +396,31 @@ class VertexTag:
 
 @dataclass(frozen=True)
 class EdgeTag:
-    """An edge line ``TAG i j z_1 ... z_n w_1 ... w_m``; ``to_params`` maps the measurement
-    values to group parameters, ``to_information`` maps ``(E, m)`` values to ``(E, d, d)``
-    information matrices in our tangent order."""
+    """An edge line ``TAG i j z_1 ... z_n w_1 ... w_m`` of a pose-graph format.
+
+    Parameters
+    ----------
+    group : type
+        The pose group.
+    n : int
+        Number of measurement values.
+    m : int
+        Number of information values.
+    to_params : callable
+        Maps the ``(E, n)`` measurement values to group parameters.
+    to_information : callable
+        Maps ``(E, m)`` values to ``(E, d, d)`` information matrices in our tangent order.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim.pose_graph import EdgeTag, symmetric_from_upper
+    >>> tag = EdgeTag(SE2, 3, 6, lambda z: SE2.from_xy_theta(z[:, 0], z[:, 1], z[:, 2]).params,
+    ...               lambda w: symmetric_from_upper(w, 3))
+    >>> tag.to_information(np.array([[1.0, 0, 0, 2.0, 0, 3.0]]))[0].diagonal().tolist()
+    [1.0, 2.0, 3.0]
+    """
 
     group: type[LieGroup]
     n: int
@@ -213,12 +441,42 @@ class _Lines:
 def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
                      edge_tags: dict[str, EdgeTag], fix_tag: str | None = None,
                      kind: str = "pose-graph") -> PoseGraph:
-    """Parse a line-based pose-graph file with the given tags (see :mod:`.g2o`, :mod:`.toro`).
+    r"""Parse a line-based pose-graph file with the given tags (see :mod:`.g2o`, :mod:`.toro`).
 
     Blank lines and lines starting with ``#`` are skipped. Every other line must start with a
     known tag and have exactly its number of fields; anything else is a ``ValueError`` naming
-    ``FILE:LINE``. Lines are grouped by tag and each group's numbers are converted in one call;
-    a group that fails is re-read line by line to name the first bad line.
+    ``FILE:LINE``. Lines are grouped by tag and each group's numbers are converted in one
+    call; a group that fails is re-read line by line to name the first bad line.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file.
+    vertex_tags, edge_tags : dict
+        Tag name to :class:`VertexTag` / :class:`EdgeTag`.
+    fix_tag : str, optional
+        The fixed-vertex tag (``"FIX"`` for g2o).
+    kind : str
+        The format's name, for messages.
+
+    Returns
+    -------
+    PoseGraph
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> graph = read_g2o(path)
+    >>> from microlie.optim.g2o import EDGE_TAGS, VERTEX_TAGS
+    >>> from microlie.optim.pose_graph import parse_pose_graph
+    >>> len(parse_pose_graph(path, VERTEX_TAGS, EDGE_TAGS, "FIX").ids)
+    3
     """
     path = Path(path)
     name = str(path)

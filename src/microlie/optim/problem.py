@@ -30,7 +30,33 @@ class GaugeError(ValueError):
 
 @dataclass
 class Linearization:
-    """``H`` (CSC data in the problem's pattern), gradient ``g = J^T e``, costs, timings."""
+    """One linearisation of a :class:`Problem` (returned by :meth:`Problem.linearize`).
+
+    Attributes
+    ----------
+    data : numpy.ndarray
+        ``H = J^T J`` (whitened, robust weights applied) as CSC data in the problem's pattern.
+    grad : numpy.ndarray
+        ``g = J^T e``.
+    cost, robust_cost : float
+        The plain and the robust cost at the linearisation point.
+    times : dict
+        Timings of the parts, seconds.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(3))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+    >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+    >>> p = g.problem()
+    >>> lin = p.linearize([v.initial for v in p.variables])
+    >>> lin.data.shape == p.indices.shape, lin.cost
+    (True, 1.0)
+    """
 
     data: np.ndarray
     grad: np.ndarray
@@ -84,6 +110,7 @@ class Problem:
             if self.gauge_fixed:
                 self._number()
         self._build_pattern()
+        self._lt_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def _number(self) -> None:
         """One node per free variable, in graph order (gauge-fixed ones count as fixed)."""
@@ -463,10 +490,11 @@ class Problem:
             ta = time.perf_counter()
             r, Js = f.evaluate(self.gather(f, states), True)
             r = np.asarray(r, dtype=np.float64)
+            Js = [np.asarray(j, dtype=np.float64) for j in Js]
             J = Js[0] if len(Js) == 1 else np.concatenate(Js, axis=2)  # (m, d, D)
             L = f.noise.sqrt_info
             e = self.whiten(f, r)
-            A = L @ np.asarray(J, dtype=np.float64)
+            A = L @ J
             s = np.einsum("mi,mi->m", e, e)
             cost += 0.5 * float(s.sum())
             if f.loss is not None:
@@ -476,23 +504,34 @@ class Problem:
                 eA = np.einsum("mi,mij->mj", e, A)
                 A = sq[:, None, None] * (A - (aos[:, None] * e)[:, :, None] * eA[:, None, :])
                 e = scale[:, None] * e
+                At = np.ascontiguousarray(np.swapaxes(A, 1, 2))
             else:
                 rcost += 0.5 * float(s.sum())
+                # A^T as a product of contiguous arrays: batched matmul on a transposed view
+                # is 3x slower than on contiguous operands (measured, NumPy 2.4)
+                Jt = np.concatenate([np.swapaxes(j, 1, 2) for j in Js], axis=1)
+                At = Jt @ self._sqrt_info_t(f)
             tb = time.perf_counter()
             t_lin += tb - ta
-            At = np.swapaxes(A, 1, 2)
             hw.append((At @ A).ravel())
             gw.append((At @ e[:, :, None]).ravel())
             t_prod += time.perf_counter() - tb
         tc = time.perf_counter()
-        data = np.bincount(self.hdest, weights=np.concatenate(hw) if hw else None,
-                           minlength=self.nnz + 1)[: self.nnz]
-        grad = np.bincount(self.gdest, weights=np.concatenate(gw) if gw else None,
-                           minlength=self.size + 1)[: self.size]
+        data = np.bincount(self.hdest, weights=_joined(hw), minlength=self.nnz + 1)[: self.nnz]
+        grad = np.bincount(self.gdest, weights=_joined(gw), minlength=self.size + 1)[: self.size]
         t_end = time.perf_counter()
         return Linearization(data, grad, cost, rcost,
                              {"linearize": t_lin, "products": t_prod, "assemble": t_end - tc,
                               "total": t_end - t0})
+
+    def _sqrt_info_t(self, f: Factor) -> np.ndarray:
+        """``L^T`` of a factor's noise, contiguous (cached per noise matrix)."""
+        L = f.noise.sqrt_info
+        hit = self._lt_cache.get(id(f))
+        if hit is None or hit[0] is not L:
+            hit = (L, np.ascontiguousarray(np.swapaxes(L, -1, -2)))
+            self._lt_cache[id(f)] = hit
+        return hit[1]
 
     def retract(self, states: list[np.ndarray], dx: np.ndarray) -> list[np.ndarray]:
         """The states after a step ``dx`` on the free variables (``X Exp(dx_block)``; fixed
@@ -539,3 +578,8 @@ class Problem:
             out.append(q)
         return out
 
+
+def _joined(parts: list[np.ndarray]) -> np.ndarray | None:
+    if not parts:
+        return None
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)

@@ -41,9 +41,26 @@ _PAIR_CHUNK = 1 << 17  # observation pairs gathered at once when forming the red
 class SchurStructure:
     """The sparsity of a bundle-adjustment problem, analysed once.
 
-    ``cam`` and ``pt`` give the camera and point of each observation; the observations must be
-    sorted by camera, then point (``np.lexsort((pt, cam))`` order), which the solver does once:
-    each camera's observations are then one contiguous block.
+    The observations must be sorted by camera, then point (``np.lexsort((pt, cam))`` order),
+    which the solver does once: each camera's observations are then one contiguous block.
+
+    Parameters
+    ----------
+    cam, pt : numpy.ndarray
+        ``(n_obs,)`` the camera and point of each observation.
+    n_cameras, n_points : int
+        The sizes.
+    cam_dim : int
+        Unknowns per camera (``6 + k``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.schur import NormalEquations, SchurStructure
+    >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
+    >>> s = SchurStructure(cam, pt, 2, 3, 9)
+    >>> s.sparse_reduced()  # 18 camera unknowns: dense
+    False
     """
 
     def __init__(self, cam: np.ndarray, pt: np.ndarray, n_cameras: int, n_points: int,
@@ -94,9 +111,28 @@ class SchurStructure:
         self.block_density = (2 * len(ukey) + n_cameras) / max(n_cameras, 1) ** 2
 
     def sparse_reduced(self, kind: str = "auto") -> bool:
-        """Whether ``kind`` factorises the reduced camera system sparsely: ``"auto"`` does when
-        it has more than ``DENSE_LIMIT`` unknowns and is sparse (fewer than ``SPARSE_DENSITY``
-        of its blocks nonzero), or more than ``DENSE_MAX`` unknowns."""
+        """Whether ``kind`` factorises the reduced camera system sparsely: ``"auto"`` does when it
+        has more than ``DENSE_LIMIT`` unknowns and is sparse (fewer than ``SPARSE_DENSITY`` of its
+        blocks nonzero), or more than ``DENSE_MAX`` unknowns.
+
+        Parameters
+        ----------
+        kind : {"auto", "dense", "sparse", "full"}
+            The linear solver kind.
+
+        Returns
+        -------
+        bool
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
+        >>> s = SchurStructure(cam, pt, 2, 3, 9)
+        >>> s.sparse_reduced("auto"), s.sparse_reduced("sparse")
+        (False, True)
+        """
         if kind != "auto":
             return kind == "sparse"
         n = self.n_cameras * self.cam_dim
@@ -104,7 +140,30 @@ class SchurStructure:
 
     def buffer(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
         """A scratch array kept between iterations (fresh large arrays cost page faults that
-        measured as much as the arithmetic on them)."""
+        measured as much as the arithmetic on them).
+
+        Parameters
+        ----------
+        name : str
+            The buffer's key.
+        shape : tuple of int
+            Its shape (a new array when it changes).
+
+        Returns
+        -------
+        numpy.ndarray
+            Uninitialised contents.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
+        >>> s = SchurStructure(cam, pt, 2, 3, 9)
+        >>> b = s.buffer("tmp", (2, 3))
+        >>> s.buffer("tmp", (2, 3)) is b
+        True
+        """
         ws = self.__dict__.setdefault("_workspace", {})
         a = ws.get(name)
         if a is None or a.shape != shape:
@@ -112,14 +171,54 @@ class SchurStructure:
         return a
 
     def point_sum(self, v: np.ndarray) -> np.ndarray:
-        """Sums ``(n_points, k)`` of per-observation rows ``v`` ``(n_obs, k)`` by point."""
+        """Per-point sums of per-observation rows.
+
+        Parameters
+        ----------
+        v : numpy.ndarray
+            ``(n_obs, k)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_points, k)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
+        >>> s = SchurStructure(cam, pt, 2, 3, 9)
+        >>> s.point_sum(np.ones((6, 2))).tolist()  # every point is seen twice
+        [[2.0, 2.0], [2.0, 2.0], [2.0, 2.0]]
+        """
         out = np.empty((self.n_points, v.shape[1]))
         for k in range(v.shape[1]):
             out[:, k] = np.bincount(self.pt, weights=v[:, k], minlength=self.n_points)
         return out
 
     def camera_jacobian_csr(self, Jc: np.ndarray) -> sp.csr_matrix:
-        """The camera Jacobian ``(2 n_obs, n_cameras d)`` as CSR (two rows per observation)."""
+        """The camera Jacobian as a sparse matrix (two rows per observation).
+
+        Parameters
+        ----------
+        Jc : numpy.ndarray
+            ``(n_obs, 2, d)``.
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix
+            ``(2 n_obs, n_cameras d)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
+        >>> s = SchurStructure(cam, pt, 2, 3, 9)
+        >>> s.camera_jacobian_csr(np.ones((6, 2, 9))).shape
+        (12, 18)
+        """
         n, d = self.n_obs, self.cam_dim
         cols = self.cam[:, None] * d + np.arange(d)[None, :]
         indices = np.repeat(cols, 2, axis=0).ravel()
@@ -147,12 +246,48 @@ def _chol3_inv(v: np.ndarray) -> tuple[np.ndarray, ...]:
 
 @dataclass
 class NormalEquations:
-    """One linearisation: residuals ``r`` ``(n, 2)`` and Jacobians ``Jc`` ``(n, 2, d)``,
-    ``Jp`` ``(n, 2, 3)`` (observations sorted by camera, already weighted and scaled).
+    """One linearisation of a bundle-adjustment problem: residuals and Jacobians of the
+    observations (sorted by camera, already weighted and scaled).
 
-    ``fixed_cameras`` is a ``(n_cameras, d)`` mask of held camera unknowns (a camera's pose,
-    its intrinsics or both), ``fixed_points`` a ``(n_points,)`` mask of held points; held
-    unknowns get a zero step."""
+    Parameters
+    ----------
+    structure : SchurStructure
+        The analysed sparsity.
+    r : numpy.ndarray
+        ``(n, 2)`` residuals.
+    Jc : numpy.ndarray
+        ``(n, 2, d)`` camera Jacobians.
+    Jp : numpy.ndarray
+        ``(n, 2, 3)`` point Jacobians.
+    fixed_cameras : numpy.ndarray, optional
+        ``(n_cameras, d)`` mask of held camera unknowns (a camera's pose, its intrinsics or
+        both); held unknowns get a zero step.
+    fixed_points : numpy.ndarray, optional
+        ``(n_points,)`` mask of held points.
+    timings : dict
+        Accumulates the time of the parts.
+    full_backend : str
+        The sparse solver of the ``"full"`` kind.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.schur import NormalEquations, SchurStructure
+    >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
+    >>> s = SchurStructure(cam, pt, 2, 3, 9)
+    >>> rng = np.random.default_rng(0)
+    >>> r, Jc = rng.normal(size=(6, 2)), rng.normal(size=(6, 2, 9))
+    >>> Jp = rng.normal(size=(6, 2, 3))
+    >>> ne = NormalEquations(s, r, Jc, Jp)
+    >>> Dc2, Dp2 = np.ones((2, 9)), np.ones((3, 3))  # unit damping
+    >>> J = np.zeros((12, 27))  # the dense Jacobian, to check against
+    >>> for k in range(6):
+    ...     J[2 * k:2 * k + 2, 9 * cam[k]:9 * cam[k] + 9] = Jc[k]
+    ...     J[2 * k:2 * k + 2, 18 + 3 * pt[k]:21 + 3 * pt[k]] = Jp[k]
+    >>> H = ne.full_matrix(Dc2, Dp2).toarray()
+    >>> bool(np.allclose(H, J.T @ J + np.eye(27)))
+    True
+    """
 
     structure: SchurStructure
     r: np.ndarray
@@ -199,7 +334,39 @@ class NormalEquations:
 
     # ------------------------------------------------------------------ products with J
     def jvp(self, dc: np.ndarray, dp: np.ndarray) -> np.ndarray:
-        """``J_c dc + J_p dp`` as ``(n, 2)``."""
+        """``J_c dc + J_p dp``.
+
+        Parameters
+        ----------
+        dc : numpy.ndarray
+            ``(n_cameras, d)`` camera step.
+        dp : numpy.ndarray
+            ``(n_points, 3)`` point step.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n, 2)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
+        >>> s = SchurStructure(cam, pt, 2, 3, 9)
+        >>> rng = np.random.default_rng(0)
+        >>> r, Jc = rng.normal(size=(6, 2)), rng.normal(size=(6, 2, 9))
+        >>> Jp = rng.normal(size=(6, 2, 3))
+        >>> ne = NormalEquations(s, r, Jc, Jp)
+        >>> Dc2, Dp2 = np.ones((2, 9)), np.ones((3, 3))  # unit damping
+        >>> J = np.zeros((12, 27))  # the dense Jacobian, to check against
+        >>> for k in range(6):
+        ...     J[2 * k:2 * k + 2, 9 * cam[k]:9 * cam[k] + 9] = Jc[k]
+        ...     J[2 * k:2 * k + 2, 18 + 3 * pt[k]:21 + 3 * pt[k]] = Jp[k]
+        >>> dc, dp = np.ones((2, 9)), np.ones((3, 3))
+        >>> bool(np.allclose(ne.jvp(dc, dp).ravel(), J @ np.ones(27)))
+        True
+        """
         st = self.structure
         cached = getattr(self, "_jc_dc", None)
         if cached is not None and cached[0] is dc:
@@ -212,9 +379,42 @@ class NormalEquations:
     # ------------------------------------------------------------------ the damped solve
     def solve(self, Dc2: np.ndarray, Dp2: np.ndarray, kind: LinearSolverKind = "auto"
               ) -> tuple[np.ndarray, np.ndarray] | None:
-        """Solve ``(J^T J + diag(D^2)) delta = -J^T r``; ``Dc2`` ``(n_cameras, d)`` and ``Dp2``
-        ``(n_points, 3)`` are the squared damping diagonals. Returns ``(dc, dp)`` or ``None``
-        when the system is not positive definite."""
+        """Solve ``(J^T J + diag(D^2)) delta = -J^T r`` by the Schur complement of the points.
+
+        Parameters
+        ----------
+        Dc2 : numpy.ndarray
+            ``(n_cameras, d)`` squared damping diagonal of the cameras.
+        Dp2 : numpy.ndarray
+            ``(n_points, 3)`` squared damping diagonal of the points.
+        kind : {"auto", "dense", "sparse", "full"}
+            How: the reduced camera system dense or sparse, or the full system.
+
+        Returns
+        -------
+        tuple of numpy.ndarray or None
+            ``(dc, dp)``, or ``None`` when the system is not positive definite.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
+        >>> s = SchurStructure(cam, pt, 2, 3, 9)
+        >>> rng = np.random.default_rng(0)
+        >>> r, Jc = rng.normal(size=(6, 2)), rng.normal(size=(6, 2, 9))
+        >>> Jp = rng.normal(size=(6, 2, 3))
+        >>> ne = NormalEquations(s, r, Jc, Jp)
+        >>> Dc2, Dp2 = np.ones((2, 9)), np.ones((3, 3))  # unit damping
+        >>> J = np.zeros((12, 27))  # the dense Jacobian, to check against
+        >>> for k in range(6):
+        ...     J[2 * k:2 * k + 2, 9 * cam[k]:9 * cam[k] + 9] = Jc[k]
+        ...     J[2 * k:2 * k + 2, 18 + 3 * pt[k]:21 + 3 * pt[k]] = Jp[k]
+        >>> dc, dp = ne.solve(Dc2, Dp2)
+        >>> x = np.linalg.solve(J.T @ J + np.eye(27), -J.T @ r.ravel())
+        >>> bool(np.allclose(np.r_[dc.ravel(), dp.ravel()], x))
+        True
+        """
         if kind not in LINEAR_SOLVERS:
             raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {kind!r}")
         if kind == "full":
@@ -254,10 +454,43 @@ class NormalEquations:
 
     def reduced_system(self, Dc2: np.ndarray, Dp2: np.ndarray, sparse: bool = False
                        ) -> tuple | None:
-        """The reduced camera system ``(S, rhs)`` (dense, or sparse CSC with ``sparse=True``;
-        held unknowns replaced by unit rows)
-        with the points' inverse Cholesky factors and gradient; ``None`` when a point block is
-        not positive definite."""
+        """The reduced camera system ``S dc = rhs`` (held unknowns replaced by unit rows), with the
+        points' inverse Cholesky factors and gradient.
+
+        Parameters
+        ----------
+        Dc2 : numpy.ndarray
+            ``(n_cameras, d)`` squared damping diagonal of the cameras.
+        Dp2 : numpy.ndarray
+            ``(n_points, 3)`` squared damping diagonal of the points.
+        sparse : bool
+            Return ``S`` as sparse CSC instead of dense.
+
+        Returns
+        -------
+        tuple or None
+            ``(S, rhs, ...)``; ``None`` when a point block is not positive definite.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
+        >>> s = SchurStructure(cam, pt, 2, 3, 9)
+        >>> rng = np.random.default_rng(0)
+        >>> r, Jc = rng.normal(size=(6, 2)), rng.normal(size=(6, 2, 9))
+        >>> Jp = rng.normal(size=(6, 2, 3))
+        >>> ne = NormalEquations(s, r, Jc, Jp)
+        >>> Dc2, Dp2 = np.ones((2, 9)), np.ones((3, 3))  # unit damping
+        >>> J = np.zeros((12, 27))  # the dense Jacobian, to check against
+        >>> for k in range(6):
+        ...     J[2 * k:2 * k + 2, 9 * cam[k]:9 * cam[k] + 9] = Jc[k]
+        ...     J[2 * k:2 * k + 2, 18 + 3 * pt[k]:21 + 3 * pt[k]] = Jp[k]
+        >>> S, rhs = ne.reduced_system(Dc2, Dp2)[:2]
+        >>> dc = ne.solve(Dc2, Dp2)[0]
+        >>> bool(np.allclose(np.linalg.solve(S, rhs), dc.ravel()))
+        True
+        """
         st, d = self.structure, self.structure.cam_dim
         V = self.V.copy()
         V[:, 0] += Dp2[:, 0]
@@ -380,7 +613,38 @@ class NormalEquations:
 
     # ------------------------------------------------------------------ reference: full system
     def full_matrix(self, Dc2: np.ndarray, Dp2: np.ndarray) -> sp.csc_matrix:
-        """The damped normal matrix ``J^T J + diag(D^2)`` over (cameras, points), sparse."""
+        """The damped normal matrix ``J^T J + diag(D^2)`` over (cameras, points).
+
+        Parameters
+        ----------
+        Dc2 : numpy.ndarray
+            ``(n_cameras, d)`` squared damping diagonal of the cameras.
+        Dp2 : numpy.ndarray
+            ``(n_points, 3)`` squared damping diagonal of the points.
+
+        Returns
+        -------
+        scipy.sparse.csc_matrix
+            ``(n_cameras d + 3 n_points)`` square.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
+        >>> s = SchurStructure(cam, pt, 2, 3, 9)
+        >>> rng = np.random.default_rng(0)
+        >>> r, Jc = rng.normal(size=(6, 2)), rng.normal(size=(6, 2, 9))
+        >>> Jp = rng.normal(size=(6, 2, 3))
+        >>> ne = NormalEquations(s, r, Jc, Jp)
+        >>> Dc2, Dp2 = np.ones((2, 9)), np.ones((3, 3))  # unit damping
+        >>> J = np.zeros((12, 27))  # the dense Jacobian, to check against
+        >>> for k in range(6):
+        ...     J[2 * k:2 * k + 2, 9 * cam[k]:9 * cam[k] + 9] = Jc[k]
+        ...     J[2 * k:2 * k + 2, 18 + 3 * pt[k]:21 + 3 * pt[k]] = Jp[k]
+        >>> ne.full_matrix(Dc2, Dp2).shape
+        (27, 27)
+        """
         st = self.structure
         n, d = st.n_obs, st.cam_dim
         cols_p = st.n_cameras * d + st.pt[:, None] * 3 + np.arange(3)[None, :]

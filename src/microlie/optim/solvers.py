@@ -133,6 +133,33 @@ class Result:
 
 @dataclass
 class SolverOptions:
+    """The options of one solve (the keyword arguments of :meth:`FactorGraph.optimize`).
+
+    Parameters
+    ----------
+    solver : {"lm", "gn", "dogleg"}
+        Levenberg-Marquardt, Gauss-Newton or Powell's dogleg.
+    linear_solver : str or LinearSolver
+        See :func:`~microlie.optim.make_solver`.
+    max_iter : int
+        Iteration limit.
+    rel_tol, abs_tol, cost_tol, step_tol : float
+        Convergence tests.
+    lambda_initial, lambda_factor, lambda_max, lambda_min : float
+        LM damping: start, growth factor and bounds.
+    diagonal_damping : bool
+        Damp with ``diag(H)`` (Marquardt) instead of the identity.
+    radius_initial : float
+        The dogleg trust radius at the start.
+    verbose : bool, optional
+        One line per iteration on stderr (default: when stderr is a terminal).
+
+    Examples
+    --------
+    >>> from microlie.optim.solvers import SolverOptions
+    >>> SolverOptions(solver="gn").lambda_initial
+    1e-05
+    """
     solver: str = "lm"
     linear_solver: str | LinearSolver = "auto"
     max_iter: int = 100
@@ -167,6 +194,37 @@ def _converged(o: SolverOptions, old: float, new: float) -> str | None:
 
 
 def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Result:
+    """Run the chosen solver on a problem from ``states`` (what :meth:`FactorGraph.optimize`
+    calls).
+
+    Parameters
+    ----------
+    problem : Problem
+        The linearisable problem.
+    states : list of numpy.ndarray
+        The starting parameters of each variable batch.
+    o : SolverOptions
+        The options.
+
+    Returns
+    -------
+    Result
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(3))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+    >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+    >>> from microlie.optim.solvers import SolverOptions, solve
+    >>> p = g.problem()
+    >>> res = solve(p, [v.initial for v in p.variables], SolverOptions(solver="gn"))
+    >>> res.converged, round(res.final_cost, 12)
+    (True, 0.0)
+    """
     if o.solver not in ("lm", "gn", "dogleg"):
         raise ValueError(f"solver must be 'lm', 'gn' or 'dogleg', got {o.solver!r}")
     t_start = time.perf_counter()
@@ -175,7 +233,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
     ls = problem.analysed(o.linear_solver)
     lin = _linearize(problem, states, tm)
     c0, rc0 = lin.cost, lin.robust_cost
-    cur, cur_rc = states, rc0
+    cur, cur_c, cur_rc = states, c0, rc0
     history: list[IterationRecord] = []
     message, converged = f"reached max_iter={o.max_iter}", False
     if problem.size == 0:
@@ -257,7 +315,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         assert dx is not None
         step_norm = float(np.linalg.norm(dx))
         old_rc = cur_rc
-        cur, cur_rc = new, new_rc
+        cur, cur_c, cur_rc = new, new_c, new_rc
         history.append(IterationRecord(it, new_rc, step_norm, lam if o.solver != "gn" else 0.0,
                                        time.perf_counter() - t_start, solves))
         if show:
@@ -270,7 +328,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
             message, converged = why, True
             break
         lin = _linearize(problem, cur, tm)
-    final_c, final_rc = problem.costs(cur)
+    final_c, final_rc = cur_c, cur_rc  # evaluated at the last accepted point already
     total = time.perf_counter() - t_start
     timings = dict(tm.t)
     timings["other"] = total - sum(timings.values())

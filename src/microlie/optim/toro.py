@@ -65,8 +65,40 @@ EDGE_TAGS = {
 
 
 def read_toro(path: str | Path) -> PoseGraph:
-    """Read a TORO pose graph (2-D or 3-D); information matrices come back in our tangent
-    order (see the module docstring for TORO's 2-D order)."""
+    r"""Read a TORO pose graph (2-D or 3-D); information matrices come back in our tangent
+    order (see the module docstring for TORO's 2-D order).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file.
+
+    Returns
+    -------
+    PoseGraph
+
+    Raises
+    ------
+    ValueError
+        A malformed line, naming ``FILE:LINE``.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> graph = read_g2o(path)
+    >>> from microlie.optim.toro import read_toro, write_toro
+    >>> out = os.path.join(os.path.dirname(path), "out.graph")
+    >>> write_toro(out, graph)
+    >>> back = read_toro(out)
+    >>> round(back.cost(), 12), bool(np.allclose(back.information, graph.information))
+    (0.025, True)
+    """
     return parse_pose_graph(path, VERTEX_TAGS, EDGE_TAGS, kind="TORO")
 
 
@@ -81,8 +113,34 @@ def _toro_values(X: LieGroup) -> np.ndarray:
 
 
 def write_toro(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None) -> None:
-    """Write ``graph`` as TORO, with ``poses`` (default: the graph's own) as vertex lines.
-    TORO has no fixed-vertex line: a graph with fixed ids is refused."""
+    r"""Write ``graph`` as TORO, with ``poses`` as vertex lines. TORO has no fixed-vertex line:
+    a graph with fixed ids is refused (``ValueError``).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file to write.
+    graph : PoseGraph
+        The graph.
+    poses : LieGroup, optional
+        Poses aligned with ``ids`` (default: the graph's own).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> graph = read_g2o(path)
+    >>> from microlie.optim.toro import write_toro
+    >>> out = os.path.join(os.path.dirname(path), "out.graph")
+    >>> write_toro(out, graph)
+    >>> open(out).readline().split()[0]
+    'VERTEX2'
+    """
     if graph.fixed.size:
         raise ValueError("TORO files cannot hold fixed vertices; write g2o instead")
     X = graph.poses if poses is None else graph._poses(poses)

@@ -13,12 +13,28 @@ __all__ = ["Variables", "Values", "element"]
 
 
 def element(group: type[LieGroup], params: Any) -> LieGroup:
-    """Wrap trusted parameters without checks (the public unchecked constructor once it
-    exists; the only place in ``optim`` that builds elements that way)."""
-    make = getattr(group, "from_params", None)
-    if make is not None:
-        return make(params, check=False)
-    return group._wrap(params)
+    """Wrap trusted parameters without checks (``group.from_params(params, check=False)``; the
+    only place in ``optim`` that builds elements that way).
+
+    Parameters
+    ----------
+    group : type
+        The :class:`~microlie.LieGroup` subclass.
+    params : array_like
+        ``(..., param_dim)`` valid parameters.
+
+    Returns
+    -------
+    LieGroup
+
+    Examples
+    --------
+    >>> from microlie import SO2
+    >>> from microlie.optim.variables import element
+    >>> element(SO2, [[1.0, 0.0]]).batch_shape
+    (1,)
+    """
+    return group.from_params(params, check=False)
 
 
 class Variables:

@@ -49,7 +49,20 @@ REF_STYLE = {"ls": "--", "color": "0.35"}
 
 def require_matplotlib() -> Any:
     """A new, empty ``Figure`` factory on the Agg canvas, or an ImportError saying what to
-    install. Does not import pyplot and does not change the matplotlib backend."""
+    install. Does not import pyplot and does not change the matplotlib backend.
+
+    Returns
+    -------
+    callable
+        Builds a ``matplotlib.figure.Figure`` with an Agg canvas.
+
+    Examples
+    --------
+    >>> from microlie.traj.plot import require_matplotlib
+    >>> fig = require_matplotlib()()
+    >>> type(fig.canvas).__name__
+    'FigureCanvasAgg'
+    """
     try:
         import matplotlib  # noqa: F401 - fails first if matplotlib is absent
         from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -66,7 +79,24 @@ def require_matplotlib() -> Any:
 
 
 def default_plot_mode(fmt: str) -> str:
-    """``"xz"`` for KITTI (camera frame: y points down), ``"xy"`` otherwise."""
+    """The default plane of a format: ``"xz"`` for KITTI (camera frame: y points down),
+    ``"xy"`` otherwise.
+
+    Parameters
+    ----------
+    fmt : str
+        ``"tum"``, ``"kitti"``, ``"euroc"`` or ``"bag"``.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> from microlie.traj.plot import default_plot_mode
+    >>> default_plot_mode("kitti"), default_plot_mode("tum")
+    ('xz', 'xy')
+    """
     return "xz" if fmt == "kitti" else "xy"
 
 
@@ -148,18 +178,34 @@ def plot_trajectories(
     plot_mode: str = "xy",
 ) -> Any:
     """Overview figure of one or more trajectories (the first is drawn as the reference,
-    dashed grey, when there are several).
+    dashed grey, when there are several), on one common time origin.
 
-    Returns a ``matplotlib.figure.Figure``: the path in ``plot_mode`` (gid ``"path"``), x/y/z
-    over time (gids ``"x"``, ``"y"``, ``"z"``) and roll/pitch/yaw in degrees (gids
-    ``"roll"``, ``"pitch"``, ``"yaw"``); each line carries its trajectory's label.
+    Parameters
+    ----------
+    trajs : sequence of Trajectory
+        The trajectories.
+    labels : sequence of str, optional
+        Legend labels (default: the names).
+    plot_mode : {"xy", "xz", "yz", "zy", "xyz"}
+        The plane of the path (``"xyz"``: a 3-D view).
+    title : str, optional
+        The figure title.
 
-    Example:
-        >>> from microlie.traj import plot, read_tum
-        >>> from microlie.data import example_paths
-        >>> fig = plot.plot_trajectories([read_tum(p) for p in example_paths()], plot_mode="xz")
-        >>> [a.get_xlabel() for a in fig.axes if a.get_gid() == "path"]
-        ['x (m)']
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The path in ``plot_mode`` (gid ``"path"``), x/y/z over time (gids ``"x"``, ``"y"``,
+        ``"z"``) and roll/pitch/yaw in degrees (gids ``"roll"``, ``"pitch"``, ``"yaw"``); each
+        line carries its trajectory's label.
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import plot, read_tum, evaluate_ape
+    >>> ref, est = (read_tum(p) for p in example_paths())
+    >>> fig = plot.plot_trajectories([ref, est], plot_mode="xz")
+    >>> [a.get_xlabel() for a in fig.axes if a.get_gid() == "path"]
+    ['x (m)']
     """
     new_figure = require_matplotlib()
     dims = _check_mode(plot_mode)
@@ -198,8 +244,30 @@ def plot_trajectories(
 def plot_error(res: PoseError, title: str | None = None, plot_mode: str = "xy") -> Any:
     """The (aligned) estimate's path on ``plot_mode`` coloured by error (gid ``"path"``; the
     reference dashed), and the error sequence with rmse / mean / median (gid ``"error"``).
+    The error of an RPE pair is drawn at the pair's first pose.
 
-    The error of an RPE pair is drawn at the pair's first pose."""
+    Parameters
+    ----------
+    res : PoseError
+        From :func:`~microlie.traj.evaluate_ape` or :func:`~microlie.traj.evaluate_rpe`.
+    plot_mode : {"xy", "xz", "yz", "zy", "xyz"}
+        The plane of the path (``"xyz"``: a 3-D view).
+    title : str, optional
+        The figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import plot, read_tum, evaluate_ape
+    >>> ref, est = (read_tum(p) for p in example_paths())
+    >>> fig = plot.plot_error(evaluate_ape(ref, est, align="se3"))
+    >>> sorted(a.get_gid() for a in fig.axes if a.get_gid())
+    ['error', 'path']
+    """
     new_figure = require_matplotlib()
     if res.ref is None or res.est is None:
         raise ValueError("the result carries no trajectories to plot")
@@ -229,9 +297,33 @@ def plot_error(res: PoseError, title: str | None = None, plot_mode: str = "xy") 
 
 
 def plot_results(results: Sequence[Any], labels: Sequence[str], title: str | None = None) -> Any:
-    """Saved results (:class:`~microlie.traj.results.Result`) side by side: the errors over
-    time from one common origin (gid ``"errors"``) and rmse / mean / median / std as grouped
-    bars (gid ``"stats"``)."""
+    """Saved results side by side: the errors over time from one common origin (gid
+    ``"errors"``) and rmse / mean / median / std as grouped bars (gid ``"stats"``).
+
+    Parameters
+    ----------
+    results : sequence of Result
+        :class:`~microlie.traj.results.Result` objects (from :func:`~microlie.traj.load_result`).
+    labels : sequence of str
+        One label per result.
+    title : str, optional
+        The figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import plot, read_tum, evaluate_ape
+    >>> ref, est = (read_tum(p) for p in example_paths())
+    >>> from microlie.traj.results import result_from_error
+    >>> runs = [result_from_error(evaluate_ape(ref, est, align=a)) for a in ("none", "se3")]
+    >>> fig = plot.plot_results(runs, ["raw", "aligned"])
+    >>> sorted(a.get_gid() for a in fig.axes if a.get_gid())
+    ['errors', 'stats']
+    """
     new_figure = require_matplotlib()
     fig = new_figure()
     gs = fig.add_gridspec(1, 2)
@@ -263,7 +355,30 @@ def plot_results(results: Sequence[Any], labels: Sequence[str], title: str | Non
 
 
 def save(fig: Any, path: str | Path) -> Path:
-    """Save ``fig`` at :data:`DPI`, :data:`FIGSIZE` (format from the file suffix)."""
+    """Save ``fig`` at :data:`DPI`, :data:`FIGSIZE` (format from the file suffix).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure.
+    path : str or pathlib.Path
+        The file.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Examples
+    --------
+    >>> from microlie.data import example_paths
+    >>> from microlie.traj import plot, read_tum, evaluate_ape
+    >>> ref, est = (read_tum(p) for p in example_paths())
+    >>> import os, tempfile
+    >>> out = plot.save(plot.plot_trajectories([ref]), os.path.join(tempfile.mkdtemp(), "t.png"))
+    >>> out.suffix, out.stat().st_size > 0
+    ('.png', True)
+    """
     path = Path(path)
     fig.set_size_inches(*FIGSIZE)
     fig.savefig(path, dpi=DPI)

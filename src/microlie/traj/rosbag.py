@@ -40,7 +40,23 @@ _TF = "tf2_msgs/msg/TFMessage"
 
 
 def is_bag(path: str | os.PathLike) -> bool:
-    """Whether ``path`` looks like a ROS bag (``.bag``, ``.db3``, ``.mcap`` or a ROS 2 folder)."""
+    """Whether ``path`` looks like a ROS bag (``.bag``, ``.db3``, ``.mcap`` or a ROS 2 folder).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file or directory.
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> from microlie.traj.rosbag import is_bag
+    >>> is_bag("run.bag"), is_bag("run.mcap"), is_bag("trajectory.txt")
+    (True, True, False)
+    """
     p = Path(path)
     return p.suffix in (".bag", ".db3", ".mcap") or (p.is_dir() and (p / "metadata.yaml").exists())
 
@@ -74,7 +90,25 @@ def _open(path: str | os.PathLike) -> Any:
 
 
 def bag_topics(path: str | os.PathLike) -> dict[str, str]:
-    """``{topic: message type}`` of the bag at ``path``."""
+    """``{topic: message type}`` of the bag at ``path``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The bag.
+
+    Returns
+    -------
+    dict of str to str
+
+    Examples
+    --------
+    Needs a bag file:
+
+    >>> from microlie.traj.rosbag import bag_topics
+    >>> bag_topics("run.bag")  # doctest: +SKIP
+    {'/pose': 'geometry_msgs/msg/PoseStamped', '/tf': 'tf2_msgs/msg/TFMessage'}
+    """
     with _open(path) as reader:
         return {c.topic: c.msgtype for c in reader.connections}
 
@@ -88,11 +122,35 @@ def read_bag(
 ) -> Trajectory:
     """Read the poses of ``topic`` (module docstring) from the bag at ``path``.
 
-    Raises:
-        ValueError: the topic is missing or of an unsupported type, has no message (or no
-            transform between the frames), or a quaternion is off unit norm by more than
-            ``quat_tol``.
-        ImportError: ``rosbags`` is not installed.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ROS 1 ``.bag`` file, a ROS 2 bag directory or its ``.db3`` / ``.mcap`` file.
+    topic : str
+        A pose topic, or ``"/tf:PARENT.CHILD"`` for the transforms between two frames.
+    quat_tol : float
+        Largest accepted ``| |q| - 1 |``.
+    name : str, optional
+        The trajectory's label (default: the path and topic).
+
+    Returns
+    -------
+    Trajectory
+
+    Raises
+    ------
+    ValueError
+        The topic is missing or of an unsupported type, has no message (or no transform
+        between the frames), or a quaternion is off unit norm by more than ``quat_tol``.
+    ImportError
+        ``rosbags`` is not installed.
+
+    Examples
+    --------
+    Needs a bag file (the tests write their own):
+
+    >>> from microlie.traj.rosbag import read_bag
+    >>> traj = read_bag("run.bag", "/tf:map.base_link")  # doctest: +SKIP
     """
     frames: tuple[str, str] | None = None
     wanted = topic
