@@ -58,6 +58,7 @@ __all__ = ["Kernel", "KERNELS", "run", "run_floats", "register", "replacements",
 # element-wise temporaries of one formula stay in the CPU cache (about twice as fast at 1e6).
 CHUNK = 8192
 TORCH_CHUNK = 16384  # torch's per-call overhead is higher than NumPy's: larger chunks
+_WIDE = 8  # outputs with more components than this are filled through a transposed buffer
 
 Shape = tuple[int, ...]
 
@@ -243,8 +244,9 @@ def _fsum(r: Any) -> float:
 
 
 def _not_finite(k: Kernel) -> str:
-    return (f"{k.name}: the result is not finite (an input is too large, e.g. an angle or a "
-            "log-scale whose exponential overflows)")
+    return (f"{k.name}: the result is not finite: an input contains NaN or infinite values, or "
+            "is too large (e.g. an angle whose square or a log-scale whose exponential "
+            "overflows)")
 
 
 def _check_outputs(k: Kernel, outs: Sequence[Array]) -> None:
@@ -279,14 +281,25 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
         return None
     flats = [a.reshape(n, a.shape[-1]) if a.ndim > 1 else a.tolist() for a in arrays]
     outs = [np.empty((n, math.prod(s)), dtype=dt) for s in k.outs]
+    # wide outputs (Jacobians) are filled component by component into a contiguous buffer and
+    # transposed into place once per chunk: column writes with a long row stride cost about
+    # twice as much (each cache line of the output is written in many pieces)
+    width = max(math.prod(s) for s in k.outs)
+    buf = np.empty((width, CHUNK), dtype=dt) if width > _WIDE else None
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
         r = fn(NUMPY, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
                         for f in flats])
         for res, out, shape in zip([r] if k._flat else r, outs, k.outs, strict=True):
             flat = res if len(shape) == 1 else [c for row in res for c in row]
-            for j, c in enumerate(flat):
-                out[s:e, j] = c
+            if buf is not None and len(flat) > _WIDE:
+                b = buf[:len(flat), :e - s]
+                for j, c in enumerate(flat):
+                    b[j] = c
+                out[s:e] = b.T
+            else:
+                for j, c in enumerate(flat):
+                    out[s:e, j] = c
     return [o.reshape(*batch, *shape) for o, shape in zip(outs, k.outs, strict=True)]
 
 
