@@ -22,7 +22,6 @@ from __future__ import annotations
 import os
 import warnings
 from pathlib import Path
-from typing import cast
 
 import numpy as np
 
@@ -267,7 +266,7 @@ def _quat_trajectory(
     params = np.empty((q_xyzw.shape[0], 7))
     params[:, :3] = positions
     np.divide(q_xyzw, norms, out=params[:, 3:])
-    return Trajectory(cast(SE3, SE3._wrap(params)), np.ascontiguousarray(stamps), name)
+    return Trajectory(SE3.from_params(params, check=False), np.ascontiguousarray(stamps), name)
 
 
 def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None) -> Trajectory:
