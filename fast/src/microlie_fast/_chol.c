@@ -118,7 +118,7 @@ static PyObject *factor(PyObject *self, PyObject *args) {
     Py_BEGIN_ALLOW_THREADS
     memset(Lx, 0, (size_t)nx * sizeof(double));
     for (i64 e = 0; e < ne; e++) Lx[amap[e]] = data[e];
-    Lx[nx - 1] = 0.0; /* the dump slot of the strict upper triangle */
+    /* the entries of the strict upper triangle went to the dump block after the panels */
     char cL = 'L', cR = 'R', cT = 'T', cN = 'N';
     double one = 1.0, zero = 0.0;
     for (i64 s = 0; s < ns; s++) {

@@ -38,8 +38,6 @@ __all__ = ["SupernodalSolver"]
 
 # relaxed amalgamation: (max merged columns, max fraction of explicit zeros)
 _RELAX = ((4, 0.8), (16, 0.1), (48, 0.05))
-# supernodes with at least this many columns are factorised one by one with LAPACK (NumPy loop)
-_BIG = 24
 
 _NOT_PD = ("the linear system is not positive definite (a pivot of the Cholesky "
            "factorisation is not positive)")
@@ -108,7 +106,7 @@ class SupernodalSolver(LinearSolver):
         bstart = _amalgamate(sn_start, L, nb)
         self.sperm = (perm[:, None] * bs + np.arange(bs)).ravel()  # scalar: new -> old
         self._symbolic(bstart, L, n, nb, bs)
-        self._numpy_plan: list[Any] | None = None
+        self._numpy_plan: list[Any] | None = None if self._c is not None else self._plan()
 
     def _symbolic(self, bstart: np.ndarray, L: Any, n: int, nb: int, bs: int) -> None:
         """Panels, row structures, the assembly map and the update pairs (vectorised)."""
@@ -190,7 +188,7 @@ class SupernodalSolver(LinearSolver):
 
     def factorize(self, data: np.ndarray) -> None:
         data = np.ascontiguousarray(data, dtype=np.float64)
-        Lx = np.zeros(self.nx + 1)
+        Lx = np.zeros(self.nx + self.bs)  # the panels, then a dump block
         if self._c is not None:
             info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
                                   self.rows, self.rptr, self.pptr, self.pt, self.pa,
@@ -199,57 +197,82 @@ class SupernodalSolver(LinearSolver):
                 raise SingularSystemError(_NOT_PD)
         else:
             Lx[self.amap] = data
-            Lx[self.nx] = 0.0
             self._factor_numpy(Lx)
         self.Lx = Lx
 
     def _plan(self) -> list[Any]:
-        """Steps of the NumPy loop: per level of the supernodal tree (leaves first), the
-        supernodes with at least ``_BIG`` columns one by one, the others batched by shape,
-        with the flat update maps (W index -> panel index) of each step."""
+        """Steps of the NumPy loop: per level of the supernodal elimination tree (leaves
+        first; supernodes of one level are independent), the supernodes of equal shape as one
+        batch, with the flat update maps of each batch (vectorised over all update pairs):
+        ``src`` indexes the batch's stacked updates ``W`` (``(G, u, u)``, C order) and ``dst``
+        the panels; a batch of several supernodes sums its contributions to one destination
+        with ``bincount`` over its distinct destinations ``udst`` first."""
         ns = self.ns
         lev = np.zeros(ns, np.int64)
         for s, p in enumerate(self.sparent.tolist()):
             if p >= 0 and lev[p] <= lev[s]:
                 lev[p] = lev[s] + 1
-        steps: list[Any] = []
         order = np.lexsort((self.m, self.k, lev))
         keys = np.stack([lev[order], self.k[order], self.m[order]])
-        cut = np.flatnonzero(np.any(keys[:, 1:] != keys[:, :-1], axis=0)) + 1
-        for grp in np.split(order, cut):
+        cut = np.r_[0, np.flatnonzero(np.any(keys[:, 1:] != keys[:, :-1], axis=0)) + 1,
+                    ns]
+        gid = np.empty(ns, np.int64)
+        pos = np.empty(ns, np.int64)  # position in its batch
+        gid[order] = np.repeat(np.arange(cut.size - 1), np.diff(cut))
+        pos[order] = np.arange(ns) - np.repeat(cut[:-1], np.diff(cut))
+        # every update entry, in blocks of bs consecutive rows (all offsets are multiples of
+        # bs): pair p, W column j in [a, b), W rows a + bs * ii .. + bs (ii < (u - a) / bs)
+        bs = self.bs
+        u = self.m - self.k
+        ps = np.repeat(np.arange(ns), np.diff(self.pptr))
+        a, b = self.pa, self.pb
+        wa = (u[ps] - a) // bs
+        cnt = (b - a) * wa
+        pid = np.repeat(np.arange(ps.size), cnt)
+        e = np.arange(int(cnt.sum())) - np.repeat(np.r_[0, np.cumsum(cnt)][:-1], cnt)
+        wap = wa[pid]
+        jj, ii = a[pid] + e // wap, (e % wap) * bs  # ii counts from a
+        sp_, t = ps[pid], self.pt[pid]
+        us = u[sp_]
+        src = (pos[sp_] * us * us + jj * us + a[pid] + ii) // bs
+        col = self.rows[self.rptr[sp_] + self.k[sp_] + jj] - self.c0[t]
+        dst = (self.px[t] + col * self.m[t] + self.rel[self.relptr[pid] + ii]) // bs
+        eg = gid[sp_]
+        so = np.argsort(eg, kind="stable")
+        bounds = np.searchsorted(eg[so], np.arange(cut.size))
+        steps: list[Any] = []
+        for g in range(cut.size - 1):
+            grp = order[cut[g]:cut[g + 1]]
             k, m = int(self.k[grp[0]]), int(self.m[grp[0]])
-            if k >= _BIG:
-                steps += [(np.array([s]), k, m, *self._flatmap(np.array([s])))
-                          for s in grp.tolist()]
-            else:
-                steps.append((grp, k, m, *self._flatmap(grp)))
+            sel = so[bounds[g]:bounds[g + 1]]
+            gsrc, gdst = src[sel], dst[sel]
+            udst = S = None
+            if grp.size > 1 and gdst.size:
+                # the sum of the contributions to each distinct destination block
+                udst, inv = np.unique(gdst, return_inverse=True)
+                S = sp.csr_matrix((np.ones(gdst.size), (inv.ravel(), np.arange(gdst.size))),
+                                  shape=(udst.size, gdst.size))
+            ridx = self.rows[self.rptr[grp][:, None] + k + np.arange(m - k)]
+            urow = rinv = None
+            if grp.size > 1 and ridx.size:
+                urow, rinv = np.unique(ridx, return_inverse=True)
+                rinv = rinv.ravel()
+            cidx = self.c0[grp][:, None] + np.arange(k)
+            gidx = self.px[grp][:, None] // bs + np.arange(m * k // bs)
+            steps.append({"grp": grp, "k": k, "m": m, "src": gsrc, "dst": gdst, "udst": udst,
+                          "S": S, "gidx": gidx, "cidx": cidx, "ridx": ridx,
+                          "urow": urow, "rinv": rinv})
         return steps
-
-    def _flatmap(self, grp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """For the supernodes ``grp`` (equal shapes): source indices into their stacked
-        updates ``W`` (``(G, u, u)``, C order) and destination indices in the panels."""
-        src, dst = [], []
-        u = int(self.m[grp[0]] - self.k[grp[0]])
-        for g, s in enumerate(grp.tolist()):
-            k = int(self.k[s])
-            r0 = int(self.rptr[s]) + k
-            for p in range(int(self.pptr[s]), int(self.pptr[s + 1])):
-                t, a, b = int(self.pt[p]), int(self.pa[p]), int(self.pb[p])
-                rel = self.rel[self.relptr[p]:self.relptr[p + 1]]
-                col = self.rows[r0 + a:r0 + b] - self.c0[t]
-                jj = np.arange(a, b)
-                ii = np.arange(a, u)
-                src.append((g * u * u + jj[:, None] * u + ii[None, :]).ravel())
-                dst.append((self.px[t] + col[:, None] * self.m[t] + rel[None, :]).ravel())
-        if not src:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        return np.concatenate(src), np.concatenate(dst)
 
     def _factor_numpy(self, Lx: np.ndarray) -> None:
         if self._numpy_plan is None:
             self._numpy_plan = self._plan()
-        potrf, trsm, syrk = lapack.dpotrf, blas.dtrsm, blas.dsyrk
-        for grp, k, m, src, dst in self._numpy_plan:
+        potrf, trsm, syrk, trtri = lapack.dpotrf, blas.dtrsm, blas.dsyrk, lapack.dtrtri
+        bs = self.bs
+        Lb = Lx.reshape(-1, bs)  # Lx in blocks of bs consecutive entries (one row run)
+        factors = []
+        for st in self._numpy_plan:
+            grp, k, m = st["grp"], st["k"], st["m"]
             u = m - k
             if grp.size == 1:
                 p0 = int(self.px[grp[0]])
@@ -258,27 +281,33 @@ class SupernodalSolver(LinearSolver):
                 if info != 0:
                     raise SingularSystemError(_NOT_PD)
                 P[:k] = L11
+                Linv = trtri(L11, lower=1)[0]
                 if u:
                     L21 = trsm(1.0, L11, P[k:], side=1, lower=1, trans_a=1)
                     P[k:] = L21
                     W = syrk(1.0, L21, lower=1)  # (u, u), lower triangle (F order)
                     # src indexes W in C order as j * u + i: that is W.T's lower triangle
-                    Lx[dst] -= W.T.ravel()[src]
+                    Lb[st["dst"]] -= W.T.reshape(-1, bs)[st["src"]]
+                    factors.append((Linv[None], L21.T[None]))
+                else:
+                    factors.append((Linv[None], np.zeros((1, k, 0))))
                 continue
             G = grp.size
-            gidx = self.px[grp][:, None] + np.arange(m * k)
-            Q = Lx[gidx].reshape(G, k, m)  # Q[g, c, r] = panel[r, c]
+            Q = Lb[st["gidx"]].reshape(G, k, m)  # Q[g, c, r] = panel[r, c]
             try:
                 L11 = np.linalg.cholesky(np.swapaxes(Q[:, :, :k], 1, 2))
             except np.linalg.LinAlgError:
                 raise SingularSystemError(_NOT_PD) from None
+            Linv = np.linalg.inv(L11)
             Q[:, :, :k] = np.swapaxes(L11, 1, 2)
+            L21T = Linv @ Q[:, :, k:]  # (G, k, u) = L21^T
+            Q[:, :, k:] = L21T
+            Lb[st["gidx"]] = Q.reshape(G, k * m // bs, bs)
             if u:
-                L21T = np.linalg.inv(L11) @ Q[:, :, k:]  # (G, k, u) = L21^T
-                Q[:, :, k:] = L21T
                 W = np.swapaxes(L21T, 1, 2) @ L21T  # (G, u, u), symmetric
-                np.subtract.at(Lx, dst, W.ravel()[src])
-            Lx[gidx] = Q.reshape(G, -1)
+                Lb[st["udst"]] -= st["S"] @ W.reshape(-1, bs)[st["src"]]
+            factors.append((Linv, L21T))
+        self._factors = factors
 
     # ---- solve -----------------------------------------------------------------------------
 
@@ -290,6 +319,7 @@ class SupernodalSolver(LinearSolver):
             self._c.solve(self.Lx, y, self.c0, self.k, self.m, self.px, self.rows,
                           self.rptr, self.usize)
         else:
+            y = np.ascontiguousarray(y)
             self._solve_numpy(y)
         x = np.empty_like(y)
         x[self.sperm] = y
@@ -299,22 +329,28 @@ class SupernodalSolver(LinearSolver):
         return x[:, 0] if vec else x
 
     def _solve_numpy(self, y: np.ndarray) -> None:
-        trsm, gemm = blas.dtrsm, blas.dgemm
-        Lx = self.Lx
-        spans = list(zip(self.c0.tolist(), self.k.tolist(), self.m.tolist(),
-                         self.px.tolist(), self.rptr[:-1].tolist(), strict=True))
-        for c0, k, m, p0, r0 in spans:
-            P = Lx[p0:p0 + m * k].reshape(k, m).T
-            yc = trsm(1.0, P[:k], y[c0:c0 + k], lower=1)
-            y[c0:c0 + k] = yc
-            if m > k:
-                y[self.rows[r0 + k:r0 + m]] -= P[k:] @ yc
-        for c0, k, m, p0, r0 in reversed(spans):
-            P = Lx[p0:p0 + m * k].reshape(k, m).T
-            rhs = y[c0:c0 + k]
-            if m > k:
-                rhs = rhs - gemm(1.0, P[k:], y[self.rows[r0 + k:r0 + m]], trans_a=1)
-            y[c0:c0 + k] = trsm(1.0, P[:k], rhs, lower=1, trans_a=1)
+        """Forward by levels (a batch's updates to shared rows summed by ``bincount``), then
+        backward in the reverse order; ``y`` is ``(n, nrhs)``, C order."""
+        nr = y.shape[1]
+        plan = list(zip(self._numpy_plan or [], self._factors, strict=True))
+        for st, (Linv, L21T) in plan:
+            cidx, ridx = st["cidx"], st["ridx"]
+            yc = Linv @ y[cidx]  # (G, k, nr)
+            y[cidx] = yc
+            if ridx.shape[1]:
+                upd = np.swapaxes(L21T, 1, 2) @ yc  # (G, u, nr)
+                if st["urow"] is None:
+                    y[ridx[0]] -= upd[0]
+                elif nr == 1:
+                    y[st["urow"], 0] -= np.bincount(st["rinv"], upd.ravel(), st["urow"].size)
+                else:
+                    np.subtract.at(y, ridx, upd)
+        for st, (Linv, L21T) in reversed(plan):
+            cidx, ridx = st["cidx"], st["ridx"]
+            rhs = y[cidx]
+            if ridx.shape[1]:
+                rhs = rhs - L21T @ y[ridx]
+            y[cidx] = np.swapaxes(Linv, 1, 2) @ rhs
 
 
 def _closed(L: Any, nb: int) -> Any:
