@@ -4,7 +4,11 @@ evo is GPL-3 and only *run* here (never imported by microlie). Run in an environ
 both (from the repository root)::
 
     python3 -m venv /work/evo-venv && /work/evo-venv/bin/pip install evo==1.38.1 array-api-compat
+    /work/evo-venv/bin/pip install ./fast   # microlie[fast]: the compiled kernels and file reader
     PYTHONPATH=src /work/evo-venv/bin/python benchmarks/trajectory.py [--n 100000] [--no-write]
+
+Without ``microlie_fast`` (or with ``MICROLIE_FAST=0``) microlie reads files with NumPy's
+``loadtxt``; the command table has a row for that default install on the 1e5 pair.
 
 Cases: a synthetic 1e5-pose pair (TUM files written to a temporary directory) and the fr2/desk
 files of ../shared/data. For each case both tools compute the same numbers (checked: the
