@@ -29,6 +29,13 @@ setup(
             include_dirs=[np.get_include(), "src/microlie_fast"],
             extra_compile_args=flags,
             libraries=libs,
-        )
+        ),
+        Extension(
+            "microlie_fast._graph",
+            sources=["src/microlie_fast/_graph.c"],
+            include_dirs=[np.get_include(), "src/microlie_fast"],
+            extra_compile_args=flags,
+            libraries=libs,
+        ),
     ]
 )
