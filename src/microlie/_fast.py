@@ -7,6 +7,8 @@ implement (see :func:`microlie._kernels.register`): SO(3) and SE(3) values and f
 float64 and float32 (computed in float64, rounded once). Set the environment variable
 ``MICROLIE_FAST=0`` to keep the generic NumPy kernels. The classes and their results do not
 change: each compiled kernel agrees with the generic one to rounding (``tests/test_kernels.py``).
+Large outputs reuse freed blocks (bounded by ``MICROLIE_FAST_CACHE_MB``, default 256; see
+``microlie_fast``).
 """
 
 from __future__ import annotations
