@@ -37,5 +37,11 @@ setup(
             extra_compile_args=flags,
             libraries=libs,
         ),
+        Extension(  # the reader of numeric text tables (microlie.traj.io)
+            "microlie_fast._text",
+            sources=["src/microlie_fast/_text.c"],
+            include_dirs=[np.get_include()],
+            extra_compile_args=flags,
+        ),
     ]
 )

@@ -29,6 +29,7 @@ import numpy as np
 
 from .. import _array as A
 from .. import _kernels as K
+from .. import _linalg as L
 from .._array import Array
 from .._kernels import Kernel, run
 from . import _math as M
@@ -52,27 +53,6 @@ def _check_side(side: str) -> None:
 
 def _neg(v: Sequence[Any]) -> tuple:
     return tuple(-c for c in v)
-
-
-def _eye(n: int, like: Array, batch_shape: tuple) -> Array:
-    if A.is_numpy(like):
-        return np.broadcast_to(np.eye(n, dtype=like.dtype), (*batch_shape, n, n))
-    xp = A.namespace(like)
-    e = xp.eye(n, dtype=like.dtype, device=A._device(like))
-    return xp.broadcast_to(e, (*batch_shape, n, n))
-
-
-def _swap_last(m: Array) -> Array:
-    if A.is_numpy(m):
-        return np.swapaxes(m, -1, -2)
-    xp = A.namespace(m)
-    return xp.matrix_transpose(m) if hasattr(xp, "matrix_transpose") else m.transpose(-1, -2)
-
-
-def _inv(m: Array) -> Array:
-    if A.is_numpy(m):
-        return np.linalg.inv(m)
-    return A.namespace(m).linalg.inv(m)
 
 
 def _build_kernels(cls: Any) -> dict[str, Kernel]:
@@ -169,7 +149,7 @@ def _jr_array_kernels(cls: Any, k: dict[str, Kernel]) -> dict[str, Any]:
     jr = cls._jr_series
 
     def jr_inv(t: Array) -> Array:
-        return _inv(jr(t))
+        return L.inv(jr(t))
 
     def log_jac(p: Array) -> tuple:
         tau = run(k["log"], p)
@@ -287,10 +267,7 @@ class LieGroup:
         """
         if check:
             return cls(params)
-        if A.is_numpy_like(params):
-            p = A.as_float_array(params)
-            return cls._new(p.copy() if p is params else p)
-        return cls._wrap(params)
+        return cls._new(A.owned_array(params))
 
     @classmethod
     def _new(cls, params: Array) -> Self:
@@ -563,10 +540,7 @@ class LieGroup:
 
     @classmethod
     def _const(cls, value: np.ndarray, like: Array) -> Array:
-        if A.is_numpy(like):
-            return value.astype(like.dtype, copy=False)
-        xp = A.namespace(like)
-        return xp.asarray(value, dtype=like.dtype, device=A._device(like))
+        return L.asarray(value, like)
 
     @classmethod
     def hat(cls, tau: Any) -> Array:
@@ -591,8 +565,7 @@ class LieGroup:
         """
         t = cls._tangent(tau)
         g = cls._const(cls._generators, t)
-        return (t[..., :, None, None] * g).sum(-3) if A.is_numpy(t) else \
-            A.namespace(t).sum(t[..., :, None, None] * g, axis=-3)
+        return A.namespace(t).sum(t[..., :, None, None] * g, axis=-3)
 
     @classmethod
     def vee(cls, M: Any) -> Array:
@@ -620,9 +593,7 @@ class LieGroup:
         n = cls.matrix_dim
         A.check_last_dim(m, (n, n), f"{cls.__name__} Lie algebra matrix")
         gp = cls._const(cls._vee_matrix, m)
-        flat = m.reshape(*m.shape[:-2], n * n) if A.is_numpy(m) else \
-            A.namespace(m).reshape(m, (*m.shape[:-2], n * n))
-        return flat @ gp
+        return L.reshape(m, (*m.shape[:-2], n * n)) @ gp
 
     @classmethod
     def bracket(cls, a: Any, b: Any) -> Array:
@@ -735,7 +706,7 @@ class LieGroup:
         g = cls._const(cls._generators, t)
         cols = h[..., None, :, :] @ g - g @ h[..., None, :, :]  # (*batch, dof, n, n)
         v = cls.vee(cols)  # (*batch, dof(column), dof(row))
-        return _swap_last(v)
+        return L.mT(v)
 
     @classmethod
     def jr(cls, tau: Any) -> Array:
@@ -842,7 +813,7 @@ class LieGroup:
         series ``sum_k (-ad)^k / (k+1)!`` on ``tau / 2**halvings`` (Horner form).
         """
         batch = tuple(t.shape[:-1])
-        eye = _eye(cls.dof, t, batch)
+        eye = L.eye(cls.dof, t, batch)
         small = t / 2.0**halvings
         neg_ad = -cls.ad(small)
         acc = eye * (1.0 / factorial(terms + 1))
@@ -1021,7 +992,7 @@ class LieGroup:
             return self._adopt(run(self._K["compose"], self.params, other.params))
         p, J1 = run(self._K["compose_jac"], self.params, other.params)
         Z = self._adopt(p)
-        return Z._left(side, [(J1, self), (_eye(self.dof, p, Z.batch_shape), other)])
+        return Z._left(side, [(J1, self), (L.eye(self.dof, p, Z.batch_shape), other)])
 
     def __matmul__(self, other: Self) -> Self:
         if not isinstance(other, LieGroup):
@@ -1068,7 +1039,7 @@ class LieGroup:
             return self._adopt(run(self._K["between"], self.params, other.params))
         p, J1 = run(self._K["between_jac"], self.params, other.params)
         Z = self._adopt(p)
-        return Z._left(side, [(J1, self), (_eye(self.dof, p, Z.batch_shape), other)])
+        return Z._left(side, [(J1, self), (L.eye(self.dof, p, Z.batch_shape), other)])
 
     @overload
     def act(self, points: Any, jac: Literal[False] = ..., side: Side = ...) -> Array: ...
@@ -1286,7 +1257,7 @@ class LieGroup:
             return self._adopt(run(self._K["lplus"], self.params, t))
         p, J2 = run(self._K["lplus_jac"], self.params, t)
         Z = self._adopt(p)
-        return Z._left(side, [(_eye(self.dof, p, Z.batch_shape), self), (J2, None)])
+        return Z._left(side, [(L.eye(self.dof, p, Z.batch_shape), self), (J2, None)])
 
     @overload
     def lminus(self, other: Self, jac: Literal[False] = ..., side: Side = ...) -> Array: ...
