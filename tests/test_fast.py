@@ -150,3 +150,51 @@ def test_compiled_kernel_rejects_bad_arguments():
         lie.so3_act(np.zeros((1, 4)))
     (q,) = lie.so3_exp(np.zeros((0, 3)))
     assert q.shape == (0, 4)
+
+
+def test_output_cache_reuses_freed_blocks_and_never_a_live_one():
+    """Large outputs come from a cache of freed blocks (warm pages): a freed block is reused,
+    an array still alive never shares memory with a new result, and the limit 0 disables it."""
+    if os.environ.get("MICROLIE_FAST") == "0":
+        pytest.skip("MICROLIE_FAST=0")
+    lie = require("microlie_fast._lie")
+    from microlie import SE3
+
+    rng = np.random.default_rng(3)
+    tau = rng.standard_normal((60_000, 6))  # outputs of 3.4 MB: above the 1 MB threshold
+    want = SE3.exp(tau).params.copy()
+    old = lie.set_cache_limit(64)
+    try:
+        (a,) = lie.se3_exp(tau)
+        addr = a.ctypes.data
+        (b,) = lie.se3_exp(tau)  # a is alive: b must be another block
+        assert b.ctypes.data != addr and not np.shares_memory(a, b)
+        np.testing.assert_array_equal(a, want)
+        np.testing.assert_array_equal(b, want)
+        del a
+        assert lie.cache_info()["blocks"] >= 1
+        (c,) = lie.se3_exp(tau[::-1].copy())  # the freed block, overwritten completely
+        assert c.ctypes.data == addr and c.flags.writeable and c.flags.c_contiguous
+        np.testing.assert_array_equal(c, want[::-1])
+        del b, c
+        assert lie.set_cache_limit(0) == 64  # 0: empties the cache and allocates fresh
+        assert lie.cache_info()["blocks"] == 0
+        (d,) = lie.se3_exp(tau)
+        assert d.base is None
+        np.testing.assert_array_equal(d, want)
+    finally:
+        lie.set_cache_limit(old)
+    with pytest.raises(ValueError, match=">= 0"):
+        lie.set_cache_limit(-1)
+
+
+def test_output_cache_limit_from_the_environment_is_validated():
+    require("microlie_fast._lie")
+    code = "import microlie_fast._lie as L; print(L.cache_info()['limit'])"
+    env = dict(os.environ, MICROLIE_FAST_CACHE_MB="3")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == [str(3 << 20)]
+    env["MICROLIE_FAST_CACHE_MB"] = "lots"
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert r.returncode != 0 and "MICROLIE_FAST_CACHE_MB must be a whole number" in r.stderr

@@ -7,14 +7,18 @@ implement (see :func:`microlie._kernels.register`): SO(3) and SE(3) values and f
 float64 and float32 (computed in float64, rounded once). Set the environment variable
 ``MICROLIE_FAST=0`` to keep the generic NumPy kernels. The classes and their results do not
 change: each compiled kernel agrees with the generic one to rounding (``tests/test_kernels.py``).
+Large outputs reuse freed blocks (bounded by ``MICROLIE_FAST_CACHE_MB``, default 256; see
+``microlie_fast``).
 """
 
 from __future__ import annotations
 
 import importlib
 import os
+from collections.abc import Callable
+from typing import Any
 
-__all__ = ["install", "installed"]
+__all__ = ["install", "installed", "text_parser"]
 
 _installed: list[str] = []
 
@@ -40,3 +44,14 @@ def install() -> list[str]:
 def installed() -> list[str]:
     """Names of the kernels that :func:`install` registered in this process."""
     return list(_installed)
+
+
+def text_parser() -> Callable[..., Any] | None:
+    """The compiled reader of numeric text tables, ``microlie_fast._text.parse_table``
+    (used by :mod:`microlie.traj.io`), or ``None`` (not installed, or ``MICROLIE_FAST=0``)."""
+    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
+        return None
+    try:
+        return importlib.import_module("microlie_fast._text").parse_table
+    except (ImportError, AttributeError):  # not installed, or an older build without it
+        return None

@@ -14,6 +14,11 @@
 #include <Python.h>
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
 #include <numpy/arrayobject.h>
+#include <stdint.h>
+#include <stdlib.h>
+#ifdef __linux__
+#include <sys/mman.h>
+#endif
 
 #include "lie_math.h"
 
@@ -98,6 +103,123 @@ static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *cons
     }
 }
 
+/* ------------------------------------------------------------------ the output cache
+ * A fresh output array of many megabytes costs a page fault per page on its first write (the
+ * kernel zeroes each page): for the cheap operations that is as much as the formula (issue 11).
+ * Large outputs therefore come from a small cache of blocks: when the array that owned a block
+ * is freed, the block is kept (up to CACHE_SLOTS blocks and cache_limit bytes in all, the oldest
+ * evicted first) and the next output of a fitting size reuses it with its pages already mapped.
+ * The arrays are ordinary writable C-contiguous ndarrays whose base is a capsule returning the
+ * block to the cache. Outputs below CACHE_MIN bytes use NumPy's own allocator. The limit is
+ * MICROLIE_FAST_CACHE_MB (default 256; 0 disables the cache) or set_cache_limit(). The cache is
+ * only touched with the GIL held (allocation here, release in the capsule destructor). */
+#define CACHE_MIN ((size_t)1 << 20)
+#define CACHE_SLOTS 8
+#define HUGE ((size_t)2 << 20) /* blocks are rounded up to whole 2 MiB (transparent huge) pages */
+
+typedef struct {
+    void *p;
+    size_t cap;
+} block;
+static block cache[CACHE_SLOTS];
+static int ncache;
+static size_t cache_bytes, cache_limit = (size_t)256 << 20;
+
+static void cache_evict_oldest(void) {
+    free(cache[0].p);
+    cache_bytes -= cache[0].cap;
+    for (int i = 1; i < ncache; i++) cache[i - 1] = cache[i];
+    ncache--;
+}
+
+static void cache_put(void *p, size_t cap) {
+    if (cap > cache_limit) {
+        free(p);
+        return;
+    }
+    while (ncache > 0 && (ncache == CACHE_SLOTS || cache_bytes + cap > cache_limit))
+        cache_evict_oldest();
+    cache[ncache].p = p;
+    cache[ncache].cap = cap;
+    ncache++;
+    cache_bytes += cap;
+}
+
+/* a block of at least n bytes: the smallest cached one that fits without wasting more than a
+ * quarter, else a new one */
+static void *cache_get(size_t n, size_t *cap) {
+    int best = -1;
+    for (int i = 0; i < ncache; i++)
+        if (cache[i].cap >= n && cache[i].cap - n <= n / 4 + HUGE &&
+            (best < 0 || cache[i].cap < cache[best].cap))
+            best = i;
+    if (best >= 0) {
+        void *p = cache[best].p;
+        *cap = cache[best].cap;
+        cache_bytes -= *cap;
+        for (int i = best + 1; i < ncache; i++) cache[i - 1] = cache[i];
+        ncache--;
+        return p;
+    }
+    *cap = (n + HUGE - 1) / HUGE * HUGE;
+    void *p = aligned_alloc(HUGE, *cap);
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+    if (p) madvise(p, *cap, MADV_HUGEPAGE);
+#endif
+    return p;
+}
+
+static void cache_release(PyObject *capsule) {
+    void *p = PyCapsule_GetPointer(capsule, "microlie_fast.block");
+    size_t cap = (size_t)(uintptr_t)PyCapsule_GetContext(capsule);
+    if (p) cache_put(p, cap);
+}
+
+static PyObject *new_output(int nd, npy_intp *dims, int type) {
+    size_t n = (size_t)PyArray_MultiplyList(dims, nd) * (type == NPY_FLOAT ? 4 : 8);
+    if (n < CACHE_MIN || cache_limit == 0) return PyArray_SimpleNew(nd, dims, type);
+    size_t cap;
+    void *p = cache_get(n, &cap);
+    if (!p) return PyErr_NoMemory();
+    PyObject *capsule = PyCapsule_New(p, "microlie_fast.block", cache_release);
+    if (!capsule || PyCapsule_SetContext(capsule, (void *)(uintptr_t)cap) < 0) {
+        Py_XDECREF(capsule);
+        cache_put(p, cap);
+        return NULL;
+    }
+    PyObject *a = PyArray_New(&PyArray_Type, nd, dims, type, NULL, p, 0, NPY_ARRAY_CARRAY, NULL);
+    if (!a) {
+        Py_DECREF(capsule); /* returns the block */
+        return NULL;
+    }
+    if (PyArray_SetBaseObject((PyArrayObject *)a, capsule) < 0) { /* steals capsule */
+        Py_DECREF(a);
+        return NULL;
+    }
+    return a;
+}
+
+static PyObject *set_cache_limit(PyObject *self, PyObject *arg) {
+    (void)self;
+    long long mb = PyLong_AsLongLong(arg);
+    if (mb == -1 && PyErr_Occurred()) return NULL;
+    if (mb < 0) {
+        PyErr_SetString(PyExc_ValueError, "set_cache_limit: the limit (MB) must be >= 0");
+        return NULL;
+    }
+    long long old = (long long)(cache_limit >> 20);
+    cache_limit = (size_t)mb << 20;
+    while (ncache > 0 && cache_bytes > cache_limit) cache_evict_oldest();
+    return PyLong_FromLongLong(old);
+}
+
+static PyObject *cache_info(PyObject *self, PyObject *unused) {
+    (void)self;
+    (void)unused;
+    return Py_BuildValue("{s:n,s:n,s:n}", "blocks", (Py_ssize_t)ncache, "bytes",
+                         (Py_ssize_t)cache_bytes, "limit", (Py_ssize_t)cache_limit);
+}
+
 static PyObject *call(const kernel *k, PyObject *const *args, Py_ssize_t nargs) {
     if (nargs != k->nin) {
         PyErr_Format(PyExc_TypeError, "%s: expected %d arguments, got %zd", k->name, k->nin,
@@ -133,7 +255,7 @@ static PyObject *call(const kernel *k, PyObject *const *args, Py_ssize_t nargs) 
     char *out[3];
     for (int j = 0; j < k->nout; j++) {
         npy_intp dims[3] = {n, k->rows[j], k->cols[j]};
-        PyObject *o = PyArray_SimpleNew(k->cols[j] ? 3 : 2, dims, type);
+        PyObject *o = new_output(k->cols[j] ? 3 : 2, dims, type);
         if (!o) {
             Py_DECREF(res);
             return NULL;
@@ -164,7 +286,7 @@ static PyObject *call(const kernel *k, PyObject *const *args, Py_ssize_t nargs) 
     static void pl_##FN(const double *restrict a, const double *restrict b, double *restrict o,  \
                         ix n) {                                                                \
         (void)b;                                                                               \
-        for (ix i = 0; i < n; i++) {                                                           \
+        _Pragma("omp simd") for (ix i = 0; i < n; i++) {                                       \
             const double *x = a + (KA) * i, *y = b + (KB) * i;                                 \
             double *r = o + (KO) * i;                                                          \
             (void)y;                                                                           \
@@ -177,6 +299,14 @@ PLAIN(so3_between, 4, 4, 4, double c[4]; quat_conj(x, c); quat_mul(c, y, r))
 PLAIN(se3_inverse, 7, 0, 7, se3_inverse_l(x, r))
 PLAIN(se3_compose, 7, 7, 7, se3_compose_l(x, y, r))
 PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi, y, r))
+PLAIN(so3_exp, 3, 0, 4, so3_exp_l(x, r))
+static inline void so3_log_row(const double *q, double *phi) {
+    double kl, aw;
+    quat_log(q, phi, &kl, &aw);
+}
+PLAIN(so3_log, 4, 0, 3, so3_log_row(x, r))
+PLAIN(so3_act, 4, 3, 3, quat_rotate(x, y, r))
+PLAIN(se3_act, 7, 3, 3, quat_rotate(x + 3, y, r); r[0] += x[0]; r[1] += x[1]; r[2] += x[2])
 
 #define KERNELS(X)                                                                             \
     X(so3_log_jac, "SO3.log_jac", 1, 4, 0, 2, 3, 3, 0, 0, 3, 0, 0)                            \
@@ -199,12 +329,12 @@ PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi
     X(se3_plus_jac, "SE3.plus_jac", 2, 7, 6, 3, 7, 6, 6, 0, 6, 6, 0)                            \
     X(se3_lplus_jac, "SE3.lplus_jac", 2, 7, 6, 2, 7, 6, 0, 0, 6, 0, 0)                          \
     X(se3_lminus_jac, "SE3.lminus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6, 0)                        \
-    X(so3_exp, "SO3.exp", 1, 3, 0, 1, 4, 0, 0, 0, 0, 0, 0)                                     \
-    X(so3_log, "SO3.log", 1, 4, 0, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(so3_exp, "SO3.exp", 1, 3, 0, 1, 4, 0, 0, 0, 0, 0, pl_so3_exp)                                     \
+    X(so3_log, "SO3.log", 1, 4, 0, 1, 3, 0, 0, 0, 0, 0, pl_so3_log)                                     \
     X(so3_inverse, "SO3.inverse", 1, 4, 0, 1, 4, 0, 0, 0, 0, 0, pl_so3_inverse)                \
     X(so3_compose, "SO3.compose", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0, pl_so3_compose)                \
     X(so3_between, "SO3.between", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0, pl_so3_between)                \
-    X(so3_act, "SO3.act", 2, 4, 3, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(so3_act, "SO3.act", 2, 4, 3, 1, 3, 0, 0, 0, 0, 0, pl_so3_act)                                     \
     X(so3_minus, "SO3.minus", 2, 4, 4, 1, 3, 0, 0, 0, 0, 0, 0)                                 \
     X(so3_jr, "SO3.jr", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0, 0)                                       \
     X(so3_jr_inv, "SO3.jr_inv", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0, 0)                               \
@@ -219,7 +349,7 @@ PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi
     X(se3_inverse, "SE3.inverse", 1, 7, 0, 1, 7, 0, 0, 0, 0, 0, pl_se3_inverse)                \
     X(se3_compose, "SE3.compose", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0, pl_se3_compose)                \
     X(se3_between, "SE3.between", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0, pl_se3_between)                \
-    X(se3_act, "SE3.act", 2, 7, 3, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(se3_act, "SE3.act", 2, 7, 3, 1, 3, 0, 0, 0, 0, 0, pl_se3_act)                                     \
     X(se3_minus, "SE3.minus", 2, 7, 7, 1, 6, 0, 0, 0, 0, 0, 0)                                 \
     X(se3_jr, "SE3.jr", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0, 0)                                       \
     X(se3_jr_inv, "SE3.jr_inv", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0, 0)                               \
@@ -241,7 +371,14 @@ PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi
 KERNELS(DEFINE)
 
 #define ENTRY(FN, NAME, ...) {#FN, (PyCFunction)(void (*)(void))py_##FN, METH_FASTCALL, NAME},
-static PyMethodDef methods[] = {KERNELS(ENTRY){NULL, NULL, 0, NULL}};
+static PyMethodDef methods[] = {
+    KERNELS(ENTRY)
+    {"set_cache_limit", set_cache_limit, METH_O,
+     "set_cache_limit(mb) -> the previous limit: bytes of freed large outputs kept for reuse "
+     "(0: none)"},
+    {"cache_info", cache_info, METH_NOARGS,
+     "cache_info() -> {'blocks', 'bytes', 'limit'} of the output cache"},
+    {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_lie",
                                     "Compiled SO(3)/SE(3) kernels for microlie.", -1, methods};
@@ -250,6 +387,19 @@ PyMODINIT_FUNC PyInit__lie(void) {
     import_array();
     PyObject *m = PyModule_Create(&module);
     if (!m) return NULL;
+    const char *env = getenv("MICROLIE_FAST_CACHE_MB");
+    if (env && *env) {
+        char *end;
+        long long mb = strtoll(env, &end, 10);
+        if (*end || mb < 0) {
+            PyErr_Format(PyExc_ValueError,
+                         "MICROLIE_FAST_CACHE_MB must be a whole number of megabytes >= 0, got "
+                         "'%s'", env);
+            Py_DECREF(m);
+            return NULL;
+        }
+        cache_limit = (size_t)mb << 20;
+    }
     /* KERNELS: registry name -> function name, e.g. {"SE3.exp": "se3_exp"} */
     PyObject *d = PyDict_New();
     if (!d || PyModule_AddObject(m, "KERNELS", d) < 0) {
