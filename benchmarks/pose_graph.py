@@ -146,8 +146,8 @@ def measure(args, backends, lines_out: list) -> list[dict]:
                  make_solver("auto", prob.size, prob.block_size,
                              available=["scipy", "supernodal", "dense"]).name]
         out.append({
-            "name": name, "start": start, "setup": setup, "analysis": analysis, "t_g": t_g, "git": res_g[1],
-            "gcost": gcost, "t_us": t_us, "picks": picks,
+            "name": name, "start": start, "setup": setup, "analysis": analysis, "t_g": t_g,
+            "git": res_g[1], "gcost": gcost, "t_us": t_us, "picks": picks,
             "costs": {b: (pg.cost(r.values[handle]), r.iterations) for b, r in res_us.items()},
             "timings": {b: (r.timings, r.time_s) for b, r in res_us.items()},
         })
