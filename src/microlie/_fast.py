@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import importlib
 import os
+from collections.abc import Callable
+from typing import Any
 
-__all__ = ["install", "installed"]
+__all__ = ["install", "installed", "text_parser"]
 
 _installed: list[str] = []
 
@@ -42,3 +44,14 @@ def install() -> list[str]:
 def installed() -> list[str]:
     """Names of the kernels that :func:`install` registered in this process."""
     return list(_installed)
+
+
+def text_parser() -> Callable[..., Any] | None:
+    """The compiled reader of numeric text tables, ``microlie_fast._text.parse_table``
+    (used by :mod:`microlie.traj.io`), or ``None`` (not installed, or ``MICROLIE_FAST=0``)."""
+    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
+        return None
+    try:
+        return importlib.import_module("microlie_fast._text").parse_table
+    except (ImportError, AttributeError):  # not installed, or an older build without it
+        return None

@@ -19,13 +19,14 @@ are projected onto SO(3) (nearest rotation in the Frobenius norm, via SVD) befor
 
 from __future__ import annotations
 
+import codecs
 import os
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from microlie import SE3
+from microlie import SE3, _fast
 
 from .trajectory import Trajectory
 
@@ -229,7 +230,19 @@ class _LineNumbers:
 def _read_matrix(
     path: PathLike, ncols: int, *, comma: bool = False, at_least: bool = False, what: str = ""
 ) -> tuple[_LineNumbers, np.ndarray]:
-    """(line numbers of the data rows, float matrix) of a numeric text file."""
+    """(line numbers of the data rows, float matrix) of a numeric text file.
+
+    With ``microlie[fast]`` the bytes are parsed by the compiled reader (same values as
+    ``float``); a file it does not take (anything but plain ASCII numbers, see
+    ``microlie_fast._text``) goes through the NumPy and line-by-line paths below.
+    """
+    parse = _fast.text_parser()
+    if parse is not None:
+        data = Path(path).read_bytes()
+        body = memoryview(data)[3:] if data.startswith(codecs.BOM_UTF8) else data
+        mat = parse(body, ncols, comma, at_least)
+        if mat is not None:
+            return _LineNumbers(path, comma), mat
     text = Path(path).read_text(encoding="utf-8-sig")
     mat = _fast_matrix(path, text, ncols, comma, at_least)
     if mat is not None:
