@@ -20,9 +20,12 @@ are projected onto SO(3) (nearest rotation in the Frobenius norm, via SVD) befor
 from __future__ import annotations
 
 import codecs
+import mmap
 import os
 import warnings
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -227,6 +230,29 @@ class _LineNumbers:
         return self._known[i]
 
 
+def _compiled_matrix(
+    parse: Callable[..., np.ndarray | None], path: PathLike, ncols: int, comma: bool,
+    at_least: bool
+) -> np.ndarray | None:
+    """``parse`` (the compiled reader) on the bytes of ``path``, memory-mapped when possible
+    (no copy of the file), without a UTF-8 byte order mark."""
+    with open(path, "rb") as f:
+        try:
+            data: Any = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        except (OSError, ValueError):  # empty file, pipe, ...
+            data = f.read()
+        try:
+            view = memoryview(data)
+            try:
+                return parse(view[3:] if view[:3] == codecs.BOM_UTF8 else view, ncols, comma,
+                             at_least)
+            finally:
+                view.release()
+        finally:
+            if isinstance(data, mmap.mmap):
+                data.close()
+
+
 def _read_matrix(
     path: PathLike, ncols: int, *, comma: bool = False, at_least: bool = False, what: str = ""
 ) -> tuple[_LineNumbers, np.ndarray]:
@@ -238,9 +264,7 @@ def _read_matrix(
     """
     parse = _fast.text_parser()
     if parse is not None:
-        data = Path(path).read_bytes()
-        body = memoryview(data)[3:] if data.startswith(codecs.BOM_UTF8) else data
-        mat = parse(body, ncols, comma, at_least)
+        mat = _compiled_matrix(parse, path, ncols, comma, at_least)
         if mat is not None:
             return _LineNumbers(path, comma), mat
     text = Path(path).read_text(encoding="utf-8-sig")
