@@ -8,22 +8,15 @@ Conventions: tangent vectors are translation first (SE(3): ``(rho, phi)``), quat
 Jacobian is a right Jacobian unless ``side="left"`` is passed.
 """
 
-import gc as _gc
 from typing import TYPE_CHECKING, Any
 
-# No cyclic garbage collection while the modules load (NumPy's and ours: some 7% of the
-# import time goes to collections that find nothing); the collector's state is restored.
-_gc_was_enabled = _gc.isenabled()
-_gc.disable()
-try:
+from ._gcwindow import no_collection as _no_collection
+
+with _no_collection():  # NumPy's and our modules load without cyclic collections
     from . import _fast
     from .groups import SE2, SE3, SE23, SO2, SO3, LieGroup, Product, R, Side, Sim3
 
     _fast.install()  # the compiled kernels of microlie[fast], when installed
-finally:
-    if _gc_was_enabled:
-        _gc.enable()
-    del _gc_was_enabled
 
 __version__ = "0.1.0"
 
