@@ -30,6 +30,13 @@ setup(
             extra_compile_args=flags,
             libraries=libs,
         ),
+        Extension(
+            "microlie_fast._graph",
+            sources=["src/microlie_fast/_graph.c"],
+            include_dirs=[np.get_include(), "src/microlie_fast"],
+            extra_compile_args=flags,
+            libraries=libs,
+        ),
         Extension(  # the reader of numeric text tables (microlie.traj.io)
             "microlie_fast._text",
             sources=["src/microlie_fast/_text.c"],

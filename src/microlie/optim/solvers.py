@@ -240,6 +240,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         message, converged = "no free variables", True
     lam = o.lambda_initial
     radius = o.radius_initial
+    damped = None
     it = 0
     while problem.size and it < o.max_iter:
         it += 1
@@ -248,7 +249,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         stop = None
         if o.solver == "lm":
             while True:
-                damped = lin.data.copy()
+                damped = _copy(lin.data, damped)
                 dg = lin.data[problem.diag_pos]
                 damped[problem.diag_pos] += lam * (np.maximum(dg, 1e-12)
                                                    if o.diagonal_damping else 1.0)
@@ -327,7 +328,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         if why is not None:
             message, converged = why, True
             break
-        lin = _linearize(problem, cur, tm)
+        lin = _linearize(problem, cur, tm, old=lin)
     final_c, final_rc = cur_c, cur_rc  # evaluated at the last accepted point already
     total = time.perf_counter() - t_start
     timings = dict(tm.t)
@@ -341,11 +342,20 @@ def _vec(states: list[np.ndarray]) -> np.ndarray:
     return np.concatenate([s.ravel() for s in states]) if states else np.zeros(0)
 
 
-def _linearize(problem: Problem, states: list[np.ndarray], tm: _Timer) -> Any:
-    lin = problem.linearize(states)
-    tm.t["linearize"] += lin.times["linearize"] + lin.times["products"]
+def _linearize(problem: Problem, states: list[np.ndarray], tm: _Timer, old: Any = None
+               ) -> Any:
+    lin = problem.linearize(states, out=old)
+    tm.t["linearize"] += lin.times["linearize"] + lin.times["products"] + lin.times["compiled"]
     tm.t["assemble"] += lin.times["assemble"]
     return lin
+
+
+def _copy(src: np.ndarray, buf: np.ndarray | None) -> np.ndarray:
+    """``src`` copied into ``buf`` (allocated on first use)."""
+    if buf is None:
+        return src.copy()
+    np.copyto(buf, src)
+    return buf
 
 
 def _factor_solve(ls: LinearSolver, data: np.ndarray, b: np.ndarray, tm: _Timer,
