@@ -90,7 +90,8 @@ class Result:
     history : list of IterationRecord
         One record per iteration.
     time_s : float
-        Solve time, seconds (analysis included, graph construction excluded).
+        Solve time, seconds (graph construction excluded; the linear solver's symbolic analysis
+        included on the first solve of a problem only: it is kept with the problem).
     solver, linear_solver : str
         What ran.
     timings : dict
