@@ -50,5 +50,12 @@ setup(
             include_dirs=[np.get_include()],
             extra_compile_args=flags,
         ),
+        # the numeric supernodal Cholesky loop on SciPy's BLAS/LAPACK (capsules, no BLAS link)
+        Extension(
+            "microlie_fast._chol",
+            sources=["src/microlie_fast/_chol.c"],
+            include_dirs=[np.get_include()],
+            extra_compile_args=flags,
+        ),
     ]
 )

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from conftest import require
 
-from microlie import SE3
+from microlie import SE2, SE3
 from microlie.optim import BetweenFactor, FactorGraph, Information, Isotropic, PriorFactor
 from microlie.optim.problem import Problem
 
@@ -50,50 +50,58 @@ class _generic:
             K.register(n, impl)
 
 
-def _hard_graph(rng, per_edge_noise=True, loss=None, exact_pi=True):
+def _tangent(G, rng, angle=None):
+    """A tangent vector of G (translation first) with a random rotation of ``angle``."""
+    if G is SE2:
+        th = rng.uniform(-2, 2) if angle is None else angle
+        return np.concatenate([rng.standard_normal(2), [th]])
+    ax = rng.standard_normal(3)
+    ax /= np.linalg.norm(ax)
+    th = rng.uniform(0, 2) if angle is None else angle
+    return np.concatenate([rng.standard_normal(3), th * ax])
+
+
+def _hard_graph(rng, G=SE3, per_edge_noise=True, loss=None, exact_pi=True):
     """Poses 0..n-1 (0 and 3 fixed); a chain, loop closures, a duplicate edge, and edges whose
     residual at the start has rotation angle 0, 1e-12, pi - 1e-6 and exactly pi."""
-    n = 14
-    X = SE3.exp(np.concatenate([rng.standard_normal((n, 3)),
-                                rng.uniform(-2, 2, (n, 3))], axis=1)).params.copy()
+    n, d = 14, G.dof
+    X = G.exp(np.stack([_tangent(G, rng) for _ in range(n)])).params.copy()
     # hard residuals: X_i = identity, Z = identity, X_j = Exp(angle about an axis)
-    hard = {10: 0.0, 11: 1e-12, 12: np.pi - 1e-6}
-    X[9] = [0, 0, 0, 0, 0, 0, 1]
-    for j, th in hard.items():
-        ax = rng.standard_normal(3)
-        ax /= np.linalg.norm(ax)
-        X[j] = SE3.exp(np.concatenate([rng.standard_normal(3), th * ax])).params
-    X[13] = [0.3, -0.2, 0.5, 0.0, 0.0, 1.0, 0.0]  # a rotation by exactly pi (w = 0)
+    X[9] = G.identity().params
+    for j, th in {10: 0.0, 11: 1e-12, 12: np.pi - 1e-6}.items():
+        X[j] = G.exp(_tangent(G, rng, th)).params
+    # a rotation by exactly pi (w = 0; cos = -1, sin = 0)
+    X[13] = [0.3, -0.2, 0.5, 0.0, 0.0, 1.0, 0.0] if G is SE3 else [0.3, -0.2, -1.0, 0.0]
     ii = list(range(9)) + [0, 2, 5, 1, 1] + [9, 9, 9, 9]
     jj = list(range(1, 10)) + [7, 8, 11, 6, 6] + [10, 11, 12, 13]
     if not exact_pi:
         ii, jj = ii[:-1], jj[:-1]
     m = len(ii)
-    Xs = SE3(X)
+    Xs = G(X)
     Z = Xs[np.array(ii)].inverse().compose(Xs[np.array(jj)]).compose(
-        SE3.exp(0.1 * rng.standard_normal((m, 6))))
+        G.exp(0.1 * rng.standard_normal((m, d))))
     Zp = Z.params.copy()
-    Zp[-4 + (not exact_pi):] = [0, 0, 0, 0, 0, 0, 1]  # the hard edges measure the identity
-    Z = SE3(Zp)
+    Zp[-4 + (not exact_pi):] = G.identity().params  # the hard edges measure the identity
+    Z = G(Zp)
     if per_edge_noise:
-        B = rng.standard_normal((m, 6, 6))
-        noise = Information(B @ np.swapaxes(B, 1, 2) + 0.5 * np.eye(6))
+        B = rng.standard_normal((m, d, d))
+        noise = Information(B @ np.swapaxes(B, 1, 2) + 0.5 * np.eye(d))
     else:
-        B = rng.standard_normal((6, 6))
-        noise = Information(B @ B.T + 0.5 * np.eye(6))
+        B = rng.standard_normal((d, d))
+        noise = Information(B @ B.T + 0.5 * np.eye(d))
     fg = FactorGraph()
-    x = fg.add_variables(SE3(X), fixed=[0, 3] if exact_pi else [0, 3, 13])
+    x = fg.add_variables(G(X), fixed=[0, 3] if exact_pi else [0, 3, 13])
     fg.add(BetweenFactor(x, ii, jj, Z, noise, loss=loss))
-    fg.add(PriorFactor(x, [4, 6], SE3.exp(0.2 * rng.standard_normal((2, 6))),
-                       Isotropic(6, 0.5)))
+    fg.add(PriorFactor(x, [4, 6], G.exp(0.2 * rng.standard_normal((2, d))), Isotropic(d, 0.5)))
     return fg
 
 
+@pytest.mark.parametrize("G", [SE3, SE2], ids=["SE3", "SE2"])
 @pytest.mark.parametrize("per_edge", [True, False])
 @pytest.mark.parametrize("loss", [None, "huber:0.5", "cauchy:1.0"])
-def test_same_linear_system(graph_mod, monkeypatch, per_edge, loss):
+def test_same_linear_system(graph_mod, monkeypatch, G, per_edge, loss):
     rng = np.random.default_rng(7)
-    fg = _hard_graph(rng, per_edge, loss)
+    fg = _hard_graph(rng, G, per_edge, loss)
     pc = Problem(fg.variables, fg.factors, "check")
     assert pc.plans[0] is not None and pc.plans[1] is None  # between compiled, prior NumPy
     pn = _generic_problem(fg, monkeypatch)
@@ -118,11 +126,12 @@ def test_same_linear_system(graph_mod, monkeypatch, per_edge, loss):
     np.testing.assert_array_equal(again.data, got.data)
 
 
-def test_against_dense_jacobian(graph_mod):
+@pytest.mark.parametrize("G", [SE3, SE2], ids=["SE3", "SE2"])
+def test_against_dense_jacobian(graph_mod, G):
     """H = J^T J and g = J^T e against a central-difference Jacobian of the whitened residuals
     (without the edge at exactly pi, where Log is not differentiable: the axis flips)."""
     rng = np.random.default_rng(3)
-    fg = _hard_graph(rng, True, None, exact_pi=False)
+    fg = _hard_graph(rng, G, True, None, exact_pi=False)
     p = Problem(fg.variables, fg.factors, "check")
     f = p.factors[0]
     states = [v.initial for v in p.variables]
@@ -131,6 +140,7 @@ def test_against_dense_jacobian(graph_mod):
     def e_of(st):
         r = np.asarray(f.evaluate(p.gather(f, st), False))
         return np.einsum("mij,mj->mi", L, r).ravel()
+
 
     e0 = e_of(states)
     h = 1e-6
@@ -141,15 +151,16 @@ def test_against_dense_jacobian(graph_mod):
         J[:, k] = (e_of(p.retract(states, d)) - e_of(p.retract(states, -d))) / (2 * h)
     data, grad = np.zeros(p.nnz), np.zeros(p.size)
     s = p.plans[0].normal(states, data, grad, None)
-    np.testing.assert_allclose(s, (e0.reshape(-1, 6) ** 2).sum(1), rtol=1e-12)
+    np.testing.assert_allclose(s, (e0.reshape(-1, G.dof) ** 2).sum(1), rtol=1e-12)
     H = p.matrix(data).toarray()
     np.testing.assert_allclose(H, J.T @ J, atol=1e-6 * np.abs(H).max())
     np.testing.assert_allclose(grad, J.T @ e0, atol=1e-6 * np.abs(grad).max())
 
 
-def test_same_solution(graph_mod, monkeypatch):
+@pytest.mark.parametrize("G", [SE3, SE2], ids=["SE3", "SE2"])
+def test_same_solution(graph_mod, monkeypatch, G):
     rng = np.random.default_rng(11)
-    fg = _hard_graph(rng, True, "huber:1.0")
+    fg = _hard_graph(rng, G, True, "huber:1.0")
     res = fg.optimize(max_iter=30)
     monkeypatch.setenv("MICROLIE_FAST", "0")
     fg._changed()  # rebuild the problem on the NumPy path
@@ -193,3 +204,12 @@ def test_bad_arguments(graph_mod):
         graph_mod.se3_between_normal(*args[:6], bad, *args[7:])
     with pytest.raises(TypeError, match="expected 12 arguments"):
         graph_mod.se3_between_normal(*args[:5])
+    with pytest.raises(ValueError, match="X must be"):  # SE(3) parameters to the SE(2) loop
+        graph_mod.se2_between_normal(*args)
+
+
+def test_series_coefficients(graph_mod):
+    """The h cot h series of the SE(2) loop is microlie's."""
+    from microlie.groups import _math
+
+    assert graph_mod.X_COT == tuple(_math.X_COT)

@@ -1,7 +1,7 @@
 """The compiled edge loops of ``microlie-fast`` for factor batches (``pip install
 "microlie[fast]"``; from a checkout ``pip install ./fast``).
 
-A batch of SE(3) :class:`~microlie.optim.BetweenFactor` edges is linearised in one pass of
+A batch of SE(3) or SE(2) :class:`~microlie.optim.BetweenFactor` edges is linearised in one pass of
 ``microlie_fast._graph``: residuals, right Jacobians, whitening, the robust correction, the block
 products ``A^T A`` and ``A^T e``, added straight into the CSC values of the problem's fixed
 pattern. The NumPy path of :class:`~microlie.optim.problem.Problem` stays the reference and the
@@ -26,6 +26,8 @@ from .factors import BetweenFactor, Factor
 __all__ = ["available", "EdgePlan", "plan"]
 
 _module: Any = None
+# the groups with a compiled BetweenFactor loop: class name -> kernel prefix
+_KERNELS = {"SE3": "se3", "SE2": "se2"}
 
 
 def _graph() -> Any:
@@ -204,8 +206,10 @@ def plan(problem: Any, f: Factor) -> EdgePlan | None:
     if mod is None or type(f) is not BetweenFactor:
         return None
     (var, ii), (_, jj) = f.args
-    if var.group is None or var.group.__name__ != "SE3" or f.dim != 6:
+    name = _KERNELS.get(var.group.__name__ if var.group is not None else "")
+    if name is None or not hasattr(mod, f"{name}_between_normal"):
         return None
+    d = f.dim
     k = problem.key(var)
     ni, nj = (problem.node_of[k][ii], problem.node_of[k][jj])
     starts = np.stack([problem.block_start(a, b) for a in (ni, nj) for b in (ni, nj)], axis=1)
@@ -213,9 +217,10 @@ def plan(problem: Any, f: Factor) -> EdgePlan | None:
     goff = np.stack([np.where(n >= 0, problem.node_off[np.maximum(n, 0)], -1) for n in (ni, nj)],
                     axis=1)
     L = f.noise.sqrt_info
-    L = np.ascontiguousarray(L.reshape(-1, 6, 6), dtype=np.float64)
+    L = np.ascontiguousarray(L.reshape(-1, d, d), dtype=np.float64)
     Z = np.ascontiguousarray(f.Z.params, dtype=np.float64)
-    return EdgePlan((mod.se3_between_cost, mod.se3_between_normal), k,
+    kernels = (getattr(mod, f"{name}_between_cost"), getattr(mod, f"{name}_between_normal"))
+    return EdgePlan(kernels, k,
                     np.ascontiguousarray(ii, np.int64), np.ascontiguousarray(jj, np.int64), Z, L,
                     np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(lens, np.int64),
                     np.ascontiguousarray(goff, np.int64))

@@ -370,7 +370,8 @@ class Problem:
         return np.where(nodes >= 0, ip[c + 1] - ip[c], 0)
 
     def analysed(self, linear_solver: Any) -> Any:
-        """A linear solver that has analysed this problem's pattern.
+        """A linear solver that has analysed this problem's pattern (for a backend given by
+        name, analysed once per problem and reused).
 
         Parameters
         ----------
@@ -398,7 +399,15 @@ class Problem:
         from .linear import make_solver
 
         ls = make_solver(linear_solver, self.size, self.block_size)
+        if isinstance(linear_solver, str):
+            # the symbolic analysis runs once per problem and backend (as GTSAM orders once,
+            # in its optimizer's constructor); later solves refactorise the cached solver
+            cache = self.__dict__.setdefault("_analysed", {})
+            if ls.name in cache:
+                return cache[ls.name]
         ls.analyse(self.indptr, self.indices, self.size, self.block_size)
+        if isinstance(linear_solver, str):
+            cache[ls.name] = ls
         return ls
 
     def matrix(self, data: np.ndarray) -> sp.csc_matrix:

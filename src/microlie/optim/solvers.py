@@ -90,7 +90,8 @@ class Result:
     history : list of IterationRecord
         One record per iteration.
     time_s : float
-        Solve time, seconds (analysis included, graph construction excluded).
+        Solve time, seconds (graph construction excluded; the linear solver's symbolic analysis
+        included on the first solve of a problem only: it is kept with the problem).
     solver, linear_solver : str
         What ran.
     timings : dict
@@ -240,7 +241,6 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         message, converged = "no free variables", True
     lam = o.lambda_initial
     radius = o.radius_initial
-    damped = None
     it = 0
     while problem.size and it < o.max_iter:
         it += 1
@@ -248,16 +248,19 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         accepted = False
         stop = None
         if o.solver == "lm":
+            dg = lin.data[problem.diag_pos]  # the undamped diagonal (a copy)
             while True:
-                damped = _copy(lin.data, damped)
-                dg = lin.data[problem.diag_pos]
-                damped[problem.diag_pos] += lam * (np.maximum(dg, 1e-12)
-                                                   if o.diagonal_damping else 1.0)
+                # damp in place and restore the diagonal exactly after the solve (no copy of
+                # the whole matrix per trial)
+                lin.data[problem.diag_pos] = dg + lam * (np.maximum(dg, 1e-12)
+                                                         if o.diagonal_damping else 1.0)
                 solves += 1
                 try:
-                    dx = _factor_solve(ls, damped, -lin.grad, tm)
+                    dx = _factor_solve(ls, lin.data, -lin.grad, tm)
                 except SingularSystemError:
                     dx = None
+                finally:
+                    lin.data[problem.diag_pos] = dg
                 if dx is not None:
                     new, new_c, new_rc = _try(problem, cur, dx, tm)
                     if new_rc < cur_rc:
@@ -348,14 +351,6 @@ def _linearize(problem: Problem, states: list[np.ndarray], tm: _Timer, old: Any 
     tm.t["linearize"] += lin.times["linearize"] + lin.times["products"] + lin.times["compiled"]
     tm.t["assemble"] += lin.times["assemble"]
     return lin
-
-
-def _copy(src: np.ndarray, buf: np.ndarray | None) -> np.ndarray:
-    """``src`` copied into ``buf`` (allocated on first use)."""
-    if buf is None:
-        return src.copy()
-    np.copyto(buf, src)
-    return buf
 
 
 def _factor_solve(ls: LinearSolver, data: np.ndarray, b: np.ndarray, tm: _Timer,
