@@ -44,6 +44,12 @@ setup(
             extra_compile_args=flags,
             libraries=libs,
         ),
+        Extension(  # the Schur complement of bundle adjustment (microlie.optim.schur)
+            "microlie_fast._schur",
+            sources=["src/microlie_fast/_schur.c"],
+            include_dirs=[np.get_include()],
+            extra_compile_args=flags,
+        ),
         Extension(  # the reader of numeric text tables (microlie.traj.io)
             "microlie_fast._text",
             sources=["src/microlie_fast/_text.c"],

@@ -10,8 +10,10 @@ Jacobian is a right Jacobian unless ``side="left"`` is passed.
 
 from typing import TYPE_CHECKING, Any
 
-from ._gcwindow import no_collection as _no_collection
+from ._startup import command_blas_threads as _command_blas_threads
+from ._startup import no_collection as _no_collection
 
+_command_blas_threads()  # `microlie ape ...`: one BLAS thread (see microlie._startup)
 with _no_collection():  # NumPy's and our modules load without cyclic collections
     from . import _fast
     from .groups import SE2, SE3, SE23, SO2, SO3, LieGroup, Product, R, Side, Sim3

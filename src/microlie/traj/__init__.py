@@ -14,7 +14,7 @@ Example:
     True
 """
 
-from .._gcwindow import no_collection as _no_collection
+from .._startup import no_collection as _no_collection
 
 with _no_collection():  # see microlie/__init__.py
     from .align import ALIGNMENTS, align, umeyama
