@@ -64,8 +64,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "jax (microlie-jax-jit), torch (microlie-torch); default: all that import",
     )
     p.add_argument("--peers-only", action="store_true", help="do not run microlie")
-    p.add_argument("--groups", nargs="+", default=None, help="subset of SO3 SE3")
-    p.add_argument("--ops", nargs="+", default=None, help="subset of exp log compose act exp_jac")
+    p.add_argument("--groups", nargs="+", default=None,
+                   help="subset of SO3 SE3 (with --before-after: of SO3 SE3 Sim3)")
+    p.add_argument("--ops", nargs="+", default=None,
+                   help="subset of exp log compose act exp_jac (with --before-after: of its "
+                   "value and Jacobian operations, e.g. minus minus_jac jr)")
     p.add_argument("--regimes", nargs="+", default=None, help="subset of single batch")
     p.add_argument(
         "--loop-n",
@@ -663,7 +666,7 @@ def before_after(args) -> int:
     loads = [_load()]
     rng = np.random.default_rng(args.seed)
     rows, bad = [], []
-    for group in BA_GROUPS:
+    for group in args.groups or BA_GROUPS:
         G = getattr(new, group)
         inputs = {}
         for regime, shape in (("single", ()), ("batch", (n,))):
@@ -672,8 +675,8 @@ def before_after(args) -> int:
             q = G.random(shape, rng=rng).params.copy()
             v = rng.standard_normal((*shape, G.point_dim))
             inputs[regime] = (tau, p, q, v)
-        for op in BA_VALUE_OPS + BA_JAC_OPS:
-            for regime in ("single", "batch"):
+        for op in args.ops or BA_VALUE_OPS + BA_JAC_OPS:
+            for regime in args.regimes or ("single", "batch"):
                 fns = {lib: _ba_cases(m, group, *inputs[regime])[op]
                        for lib, m in (("before", old), ("after", new))}
                 a, b = _ba_flat(fns["before"]()), _ba_flat(fns["after"]())

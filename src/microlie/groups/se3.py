@@ -5,6 +5,7 @@ Tangent vectors are ``tau = (rho, phi)``: translation part first, then the rotat
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -29,13 +30,7 @@ def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
     t2 = M.norm2(*phi)
     k, ch = so3.half_angle(o, t2)
     c1 = so3.coef_b(o, t2, k, ch)
-    small = t2 < M.SMALL2
-    t2s = t2 + small
-    t = o.sqrt(t2s)
-    st, ct = o.sin(t), o.cos(t)
-    t4 = t2s * t2s
-    c2 = o.where(small, M.horner(t2, M.C_COS4), (t2s + 2.0 * ct - 2.0) / (2.0 * t4))
-    c3 = o.where(small, M.horner(t2, M.C_SIN5), (2.0 * t - 3.0 * st + t * ct) / (2.0 * t4 * t))
+    c2, c3 = o.select(t2 < M.SMALL2, _q_series, partial(_q_closed, o), t2)
     d = M.dot(rho, phi)
     a = M.cross(phi, M.cross(phi, rho))
     e = (c2 - c1) * d
@@ -48,6 +43,19 @@ def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
     return ((E[0][0] + diag, E[0][1] - w[2], E[0][2] + w[1]),
             (E[1][0] + w[2], E[1][1] + diag, E[1][2] - w[0]),
             (E[2][0] - w[1], E[2][1] + w[0], E[2][2] + diag))
+
+
+def _q_series(t2: Any) -> tuple:
+    return M.horner(t2, M.C_COS4), M.horner(t2, M.C_SIN5)
+
+
+def _q_closed(o: Any, t2: Any) -> tuple:
+    """``(t^2 + 2 cos t - 2) / (2 t^4)`` and ``(2 t - 3 sin t + t cos t) / (2 t^5)``."""
+    t2s = t2 + (t2 < M.SMALL2)  # safe substitute below SMALL2
+    t = o.sqrt(t2s)
+    st, ct = o.sin(t), o.cos(t)
+    t4 = t2s * t2s
+    return (t2s + 2.0 * ct - 2.0) / (2.0 * t4), (2.0 * t - 3.0 * st + t * ct) / (2.0 * t4 * t)
 
 
 def _jinv_block(Ji: tuple, Q: tuple) -> tuple:

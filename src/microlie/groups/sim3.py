@@ -14,6 +14,7 @@ references only up to there.
 from __future__ import annotations
 
 from fractions import Fraction
+from functools import partial
 from math import factorial
 from typing import Any
 
@@ -54,19 +55,41 @@ def phi_functions(o: Any, sigma: Any) -> tuple[Any, Any, Any, Any, Any]:
     """``(e^x, phi_1, phi_2, phi_3, phi_4)`` at ``x = sigma``, with ``phi_0 = e^x`` and
     ``phi_(n+1) = (phi_n - 1/n!) / x``: ``phi_1 = (e^x - 1)/x``, ``phi_2 = (e^x - 1 - x)/x^2``,
     ... (``phi_n' = phi_n - n phi_(n+1)``). Taylor series below ``|x| = 2``, recurrence above."""
-    E = o.exp(sigma)
-    small = o.abs(sigma) < _PHI_SMALL
-    f_s = M.horner(sigma, _PHI4)
-    e_s = 1.0 / 6.0 + sigma * f_s
-    d_s = 0.5 + sigma * e_s
-    a_s = 1.0 + sigma * d_s
-    x = o.where(small, 3.0, sigma)  # safe substitute: never 0 on the branch that is kept
-    a_c = o.expm1(x) / x
-    d_c = (a_c - 1.0) / x
-    e_c = (d_c - 0.5) / x
-    f_c = (e_c - 1.0 / 6.0) / x
-    return (E, o.where(small, a_s, a_c), o.where(small, d_s, d_c), o.where(small, e_s, e_c),
-            o.where(small, f_s, f_c))
+    a, d, e, f = o.select(o.abs(sigma) < _PHI_SMALL, _phi_series, partial(_phi_closed, o),
+                          sigma)
+    return o.exp(sigma), a, d, e, f
+
+
+def _phi_series(sigma: Any) -> tuple:
+    f = M.horner(sigma, _PHI4)
+    e = 1.0 / 6.0 + sigma * f
+    d = 0.5 + sigma * e
+    return 1.0 + sigma * d, d, e, f
+
+
+def _phi_closed(o: Any, sigma: Any) -> tuple:
+    x = o.where(o.abs(sigma) < _PHI_SMALL, 3.0, sigma)  # safe substitute: never 0 where kept
+    a = o.expm1(x) / x
+    d = (a - 1.0) / x
+    e = (d - 0.5) / x
+    return a, d, e, (e - 1.0 / 6.0) / x
+
+
+def _c4(t2: Any, h: Any) -> Any:
+    return M.horner(t2, M.C_COS4)
+
+
+def _c4_closed(t2: Any, h: Any) -> Any:
+    return (0.5 - h) / (t2 + (t2 < M.SMALL2))  # (t^2 + 2 cos t - 2)/(2 t^4)
+
+
+def _c56(t2: Any, cb: Any, h: Any, c4: Any) -> tuple:
+    return M.horner(t2, M.C_SIN5), M.horner(t2, _C_COS6)
+
+
+def _c56_closed(t2: Any, cb: Any, h: Any, c4: Any) -> tuple:
+    ts = t2 + (t2 < M.SMALL2)
+    return (3.0 * cb - h) / (2.0 * ts), (2.0 * c4 - 0.5 * cb) / ts
 
 
 def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
@@ -89,8 +112,7 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     cos = 1.0 - t2 * h
     cb = so3.coef_b(o, t2, k, ch)  # (t - sin t)/t^3
     small = t2 < M.SMALL2
-    ts = t2 + small
-    c4 = o.where(small, M.horner(t2, M.C_COS4), (0.5 - h) / ts)  # (t^2 + 2 cos t - 2)/(2 t^4)
+    c4 = o.select(small, _c4, _c4_closed, t2, h)  # (t^2 + 2 cos t - 2)/(2 t^4)
     k3 = k * k - 0.5 * cb  # (sin t - t cos t)/(2 t^3)
     z2 = sigma * sigma + t2
     tiny = z2 < _TINY
@@ -105,8 +127,8 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     c = o.where(tiny, 1.0 / 6.0 + sigma / 8.0, ws * Pc + wt * Qc)
     if not derivatives:
         return (a, b, c), (E, sinc, h, k, ch)
-    c5 = o.where(small, M.horner(t2, M.C_SIN5), (3.0 * cb - h) / (2.0 * ts))  # -d cb / d t2
-    c6 = o.where(small, M.horner(t2, _C_COS6), (2.0 * c4 - 0.5 * cb) / ts)  # -d c4 / d t2
+    # c5 = -d cb / d t2, c6 = -d c4 / d t2
+    c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, h, c4)
     ht = c4 - 0.5 * cb  # d h / d t2 (and d sinc / d t2 = -k3, d cos / d t2 = -sinc / 2)
     k3t = 0.5 * (ht + c5)
     ad, de = a - d, d - 2.0 * e  # phi_1', phi_2'

@@ -39,17 +39,33 @@ def half_angle(o: Any, t2: Any) -> tuple[Any, Any]:
 
 
 def coef_b(o: Any, t2: Any, k: Any, ch: Any) -> Any:
-    """``(t - sin t) / t^3 = (1 - 2 k ch) / t^2`` given ``half_angle``'s ``k, ch``."""
-    small = t2 < M.SMALL2
-    return o.where(small, M.horner(t2, M.C_T_SIN), (1.0 - 2.0 * k * ch) / (t2 + small))
+    """``(t - sin t) / t^3 = (1 - 2 k ch) / t^2`` given ``half_angle``'s ``k, ch`` (the Taylor
+    series below ``SMALL2``, each branch evaluated only where it is used)."""
+    return o.select(t2 < M.SMALL2, _b_series, _b_closed, t2, k, ch)
+
+
+def _b_series(t2: Any, k: Any, ch: Any) -> Any:
+    return M.horner(t2, M.C_T_SIN)
+
+
+def _b_closed(t2: Any, k: Any, ch: Any) -> Any:
+    return (1.0 - 2.0 * k * ch) / (t2 + (t2 < M.SMALL2))  # safe substitute below SMALL2
 
 
 def coef_c(o: Any, t2: Any, k: Any, ch: Any) -> Any:
     """``(1 - (t/2) cot(t/2)) / t^2 = (1 - ch / (2 k)) / t^2``, the ``hat(phi)^2`` coefficient
     of ``Jr^-1``, given ``half_angle``'s ``k, ch``."""
+    return o.select(t2 < M.SMALL2, _c_series, _c_closed, t2, k, ch)
+
+
+def _c_series(t2: Any, k: Any, ch: Any) -> Any:
+    return M.horner(t2, M.C_COT)
+
+
+def _c_closed(t2: Any, k: Any, ch: Any) -> Any:
     small = t2 < M.SMALL2
     ks = k + small  # k > 0 on the branch that is kept
-    return o.where(small, M.horner(t2, M.C_COT), (1.0 - ch / (2.0 * ks)) / (t2 + small))
+    return (1.0 - ch / (2.0 * ks)) / (t2 + small)
 
 
 # ---------------------------------------------------------------------------- quaternions
