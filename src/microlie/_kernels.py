@@ -280,27 +280,26 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
     if fn is None or n < 2 * CHUNK or any(a.ndim > 1 and a.shape[:-1] != batch for a in arrays):
         return None
     flats = [a.reshape(n, a.shape[-1]) if a.ndim > 1 else a.tolist() for a in arrays]
-    outs = [np.empty((n, math.prod(s)), dtype=dt) for s in k.outs]
-    # wide outputs (Jacobians) are filled component by component into a contiguous buffer and
-    # transposed into place once per chunk: column writes with a long row stride cost about
-    # twice as much (each cache line of the output is written in many pieces)
-    width = max(math.prod(s) for s in k.outs)
-    buf = np.empty((width, CHUNK), dtype=dt) if width > _WIDE else None
+    # wide outputs (Jacobians, matrices) are stored component-major, ``(r * c, n)``, and
+    # returned as a ``(*batch, r, c)`` view: every component is one contiguous write, where a
+    # row-major result costs a transposition (about 1-2 ns per value, more than computing it)
+    wide = [math.prod(s) > _WIDE for s in k.outs]
+    outs = [np.empty((math.prod(s), n) if w else (n, math.prod(s)), dtype=dt)
+            for s, w in zip(k.outs, wide, strict=True)]
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
         r = fn(NUMPY, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
                         for f in flats])
-        for res, out, shape in zip([r] if k._flat else r, outs, k.outs, strict=True):
+        for res, out, shape, w in zip([r] if k._flat else r, outs, k.outs, wide, strict=True):
             flat = res if len(shape) == 1 else [c for row in res for c in row]
-            if buf is not None and len(flat) > _WIDE:
-                b = buf[:len(flat), :e - s]
+            if w:
                 for j, c in enumerate(flat):
-                    b[j] = c
-                out[s:e] = b.T
+                    out[j, s:e] = c
             else:
                 for j, c in enumerate(flat):
                     out[s:e, j] = c
-    return [o.reshape(*batch, *shape) for o, shape in zip(outs, k.outs, strict=True)]
+    return [o.T.reshape(*batch, *shape) if w else o.reshape(*batch, *shape)
+            for o, shape, w in zip(outs, k.outs, wide, strict=True)]
 
 
 def _run_arrays(k: Kernel, arrays: Sequence[np.ndarray]) -> Any:

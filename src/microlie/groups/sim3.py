@@ -193,8 +193,15 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
     """``W``, ``R^T``, ``d(W rho)/d phi``, ``d(W rho)/d sigma`` and the SO(3) pieces."""
     rho, phi, sigma = tau[:3], tau[3:6], tau[6]
     t2 = M.norm2(*phi)
-    (a, b, c), (E, sinc, h, k, ch), (a_s, b_s, c_s, b_t, c_t), cb = coefficients(
-        o, sigma, t2, derivatives=True)
+    co = coefficients(o, sigma, t2, derivatives=True)
+    return (phi, t2, co[0], co[1][0], (co[1][1], co[1][2], co[3], co[1][3], co[1][4]),
+            *_w_rho_slopes(rho, phi, co))
+
+
+def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
+    """``d(W rho)/d phi`` (3x3) and ``d(W rho)/d sigma`` (3) from :func:`coefficients`'s
+    output with ``derivatives=True``."""
+    (a, b, c), _, (a_s, b_s, c_s, b_t, c_t), _ = co
     u = M.cross(phi, rho)
     v = M.cross(phi, u)
     d = M.dot(phi, rho)
@@ -211,7 +218,7 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
             (g[1][0] - br2, g[1][1] + cd, g[1][2] + br0),
             (g[2][0] + br1, g[2][1] - br0, g[2][2] + cd))
     msig = tuple(a_s * rho[i] + b_s * u[i] + c_s * v[i] for i in range(3))
-    return phi, t2, (a, b, c), E, (sinc, h, cb, k, ch), Mphi, msig
+    return Mphi, msig
 
 
 class Sim3(Pose):
@@ -301,7 +308,7 @@ class Sim3(Pose):
         top = M.matmul(RtM, tuple((*Mphi[i], msig[i]) for i in range(3)))
         A = poly_matrix(poly_mul(Rt, W, t2), phi, t2)
         J = so3.i_hat_sq(-h, cb, phi, t2)
-        return _assemble(A, top, J, phi[0])
+        return _assemble(A, top, J, 1.0)
 
     @classmethod
     def _jr_inv(cls, o, tau):
@@ -312,7 +319,43 @@ class Sim3(Pose):
         WiM = M.matmul(poly_matrix(Wi, phi, t2), tuple((*Mphi[i], msig[i]) for i in range(3)))
         B = M.matmul(tuple(r[:3] for r in WiM), Ji)
         top = tuple((*(-x for x in B[i]), -WiM[i][3]) for i in range(3))
-        return _assemble(A, top, Ji, phi[0])
+        return _assemble(A, top, Ji, 1.0)
+
+    @staticmethod
+    def _minus_jac(o, y, x):
+        """``tau = Log(x^-1 y)``, ``Jr^-1(tau)`` and ``-Jl^-1(tau)`` in one pass.
+
+        ``Jr^-1`` as :meth:`_jr_inv` (``[[A, B, b], [0, Ji, 0], [0, 0, 1]]``, ``A = e^sigma
+        W^-1 R``, ``(B | b) = -W^-1 (d(W rho)/d phi Ji | d(W rho)/d sigma)``), with the
+        coefficients of ``Log`` (half-angle functions from the quaternion). ``Jl^-1(tau) =
+        Jr^-1(tau) Ad_Exp(-tau)``, and with ``t = W rho`` (the translation of ``Exp(tau)``) its
+        blocks reduce to ``[[W^-1, -W^-1 hat(t) + B R^T, rho + b], [0, Ji^T, 0], [0, 0, 1]]``,
+        where ``B R^T = -W^-1 d(W rho)/d phi Ji^T``.
+        """
+        z = Sim3._compose(o, Sim3._inverse(o, x), y)
+        t, q, s = z[:3], z[3:7], z[7]
+        phi, kl, aw = so3.quat_log_parts(o, q)
+        sigma = o.log(s)
+        t2 = M.norm2(*phi)
+        k, ch = 1.0 / kl, aw
+        co = coefficients(o, sigma, t2, k, ch, derivatives=True)
+        W, (E, sinc, h, _, _) = co[0], co[1]
+        Wi = poly_inv(W, t2)
+        rho = poly_apply(Wi, phi, t)  # as Sim3._log
+        Mphi, msig = _w_rho_slopes(rho, phi, co)
+        A = poly_matrix(poly_mul(Wi, (E, E * sinc, E * h), t2), phi, t2)  # e^sigma W^-1 R
+        Ji, mJit = so3.jr_inv_pair_c(so3.coef_c(o, t2, k, ch), phi, t2)
+        WiMat = poly_matrix(Wi, phi, t2)
+        nWiM = M.matmul(WiMat, tuple((*(-x for x in Mphi[i]), -msig[i]) for i in range(3)))
+        B = M.matmul(tuple(r[:3] for r in nWiM), Ji)
+        # -(B R^T - W^-1 hat(t)) = W^-1 hat(t) - nWiM_phi Ji^T = W^-1 hat(t) + nWiM_phi mJit
+        Ht = tuple(M.cross(r, t) for r in WiMat)  # W^-1 hat(t): row i is (row i of W^-1) x t
+        Pn = M.matmul(tuple(r[:3] for r in nWiM), mJit)
+        top_r = tuple((*B[i], nWiM[i][3]) for i in range(3))
+        top_l = tuple((*(Ht[i][j] + Pn[i][j] for j in range(3)), -rho[i] - nWiM[i][3])
+                      for i in range(3))
+        return ((*rho, *phi, sigma), _assemble(A, top_r, Ji, 1.0),
+                _assemble(M.neg(WiMat), top_l, mJit, -1.0))
 
     @staticmethod
     def _compose(o, p, q):
@@ -475,12 +518,11 @@ def check_positive_scale(s: Array) -> None:
         raise ValueError("Sim3: scale must be positive")
 
 
-def _assemble(A: tuple, top: tuple, J: tuple, like: Any) -> tuple:
-    """``[[A, top], [0, J, 0], [0, 0, 1]]`` with ``top`` the 3x4 block right of ``A``."""
-    z = 0.0 * like
+def _assemble(A: tuple, top: tuple, J: tuple, one: Any) -> tuple:
+    """``[[A, top], [0, J, 0], [0, 0, one]]`` with ``top`` the 3x4 block right of ``A``."""
     return (tuple((*A[i], *top[i]) for i in range(3))
-            + tuple((z, z, z, *J[i], z) for i in range(3))
-            + ((z, z, z, z, z, z, z + 1.0),))
+            + tuple((0.0, 0.0, 0.0, *J[i], 0.0) for i in range(3))
+            + ((0.0, 0.0, 0.0, 0.0, 0.0, 0.0, one),))
 
 
 def check_sigma(tau: Array, what: str) -> None:
