@@ -14,6 +14,11 @@ kernels under ``"<Group>.<op>"`` when its class is created, e.g. ``"SO3.exp"``, 
   stay in the CPU cache; large CPU torch tensors likewise (joined with ``cat``, autograd intact);
 * everything else (JAX, torch, small NumPy batches) runs once on whole arrays.
 
+Matrix outputs of more than 8 entries (Jacobians, adjoints) of NumPy batches are views of
+component-major arrays: shape ``(*batch, r, c)``, memory order ``(r, c, *batch)``. Each entry is
+then one contiguous write (a row-major result costs a transposition that takes as long as the
+formula); ``np.ascontiguousarray`` gives a row-major copy where one is needed.
+
 The result dtype is the promotion of the input dtypes (NumPy's rules) on every path. Kernels
 flagged ``finite`` (those with tangent-vector inputs, where a huge angle or scale can overflow)
 raise ``ValueError`` on a non-finite result, on every path (skipped for traced values).
@@ -58,7 +63,7 @@ __all__ = ["Kernel", "KERNELS", "run", "run_floats", "register", "replacements",
 # element-wise temporaries of one formula stay in the CPU cache (about twice as fast at 1e6).
 CHUNK = 8192
 TORCH_CHUNK = 16384  # torch's per-call overhead is higher than NumPy's: larger chunks
-_WIDE = 8  # outputs with more components than this are filled through a transposed buffer
+_WIDE = 8  # matrix outputs with more components than this are stored component-major
 
 Shape = tuple[int, ...]
 
@@ -261,6 +266,11 @@ def _pack(ops: Any, comps: Any, shape: Shape, dt: Any, batch: Shape) -> Array:
     """Stack output components (a vector, or rows of a matrix) into ``(*batch, *shape)``."""
     flat = comps if len(shape) == 1 else [c for row in comps for c in row]
     if ops is NUMPY:
+        if len(shape) == 2 and len(flat) > _WIDE:  # component-major, as in _chunked
+            out = np.empty((len(flat), *batch), dtype=dt)
+            for j, c in enumerate(flat):
+                out[j] = c
+            return np.moveaxis(out, 0, -1).reshape(*batch, *shape)
         out = np.empty((*batch, len(flat)), dtype=dt)
         for j, c in enumerate(flat):
             out[..., j] = c
@@ -280,26 +290,34 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
     if fn is None or n < 2 * CHUNK or any(a.ndim > 1 and a.shape[:-1] != batch for a in arrays):
         return None
     flats = [a.reshape(n, a.shape[-1]) if a.ndim > 1 else a.tolist() for a in arrays]
-    # wide outputs (Jacobians, matrices) are stored component-major, ``(r * c, n)``, and
-    # returned as a ``(*batch, r, c)`` view: every component is one contiguous write, where a
-    # row-major result costs a transposition (about 1-2 ns per value, more than computing it)
-    wide = [math.prod(s) > _WIDE for s in k.outs]
-    outs = [np.empty((math.prod(s), n) if w else (n, math.prod(s)), dtype=dt)
-            for s, w in zip(k.outs, wide, strict=True)]
+    # matrix outputs (Jacobians) are stored component-major, ``(r * c, n)``, and returned as
+    # ``(*batch, r, c)`` views: each component is one contiguous write, where a row-major
+    # result costs a transposition (1-2 ns per value, as much as computing it). Wide vectors
+    # (parameters of product groups) stay row-major, filled through a transposed buffer.
+    soa = [len(s) == 2 and math.prod(s) > _WIDE for s in k.outs]
+    outs = [np.empty((math.prod(s), n) if m else (n, math.prod(s)), dtype=dt)
+            for s, m in zip(k.outs, soa, strict=True)]
+    width = max((s[0] for s, m in zip(k.outs, soa, strict=True) if not m), default=0)
+    buf = np.empty((width, CHUNK), dtype=dt) if width > _WIDE else None
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
         r = fn(NUMPY, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
                         for f in flats])
-        for res, out, shape, w in zip([r] if k._flat else r, outs, k.outs, wide, strict=True):
-            flat = res if len(shape) == 1 else [c for row in res for c in row]
-            if w:
-                for j, c in enumerate(flat):
+        for res, out, shape, m in zip([r] if k._flat else r, outs, k.outs, soa, strict=True):
+            if m:
+                for j, c in enumerate(c for row in res for c in row):
                     out[j, s:e] = c
+            elif buf is not None and len(res) > _WIDE:
+                b = buf[:len(res), :e - s]
+                for j, c in enumerate(res):
+                    b[j] = c
+                out[s:e] = b.T
             else:
-                for j, c in enumerate(flat):
+                for j, c in enumerate(res if len(shape) == 1 else
+                                      [c for row in res for c in row]):
                     out[s:e, j] = c
-    return [o.T.reshape(*batch, *shape) if w else o.reshape(*batch, *shape)
-            for o, shape, w in zip(outs, k.outs, wide, strict=True)]
+    return [o.T.reshape(*batch, *shape) if m else o.reshape(*batch, *shape)
+            for o, shape, m in zip(outs, k.outs, soa, strict=True)]
 
 
 def _run_arrays(k: Kernel, arrays: Sequence[np.ndarray]) -> Any:
