@@ -45,7 +45,10 @@ without touching the group classes; ``register(name, None)`` restores the generi
 from __future__ import annotations
 
 import math
+import os
 import struct
+import sys
+import threading
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
@@ -267,11 +270,11 @@ def _pack(ops: Any, comps: Any, shape: Shape, dt: Any, batch: Shape) -> Array:
     flat = comps if len(shape) == 1 else [c for row in comps for c in row]
     if ops is NUMPY:
         if len(shape) == 2 and len(flat) > _WIDE:  # component-major, as in _chunked
-            out = np.empty((len(flat), *batch), dtype=dt)
+            out = _empty((len(flat), *batch), dt)
             for j, c in enumerate(flat):
                 out[j] = c
             return np.moveaxis(out, 0, -1).reshape(*batch, *shape)
-        out = np.empty((*batch, len(flat)), dtype=dt)
+        out = _empty((*batch, len(flat)), dt)
         for j, c in enumerate(flat):
             out[..., j] = c
         return out.reshape(*batch, *shape) if len(shape) > 1 else out
@@ -282,6 +285,73 @@ def _pack(ops: Any, comps: Any, shape: Shape, dt: Any, batch: Shape) -> Array:
     arrays = [xp.broadcast_to(c, batch) if tuple(c.shape) != batch else c for c in arrays]
     out = xp.stack(arrays, axis=-1)
     return xp.reshape(out, (*batch, *shape)) if len(shape) > 1 else out
+
+
+# ---------------------------------------------------------------------------- output blocks
+#
+# A fresh output of many megabytes costs a page fault per page on its first write (the kernel
+# zeroes it), as much as computing it. Large outputs therefore come from a small pool of blocks
+# that stay mapped: a block is handed out again once no array refers to it any more (its
+# reference count is back to the pool's own), so a live result never shares memory with a new
+# one. Outputs below ``_POOL_MIN`` bytes use NumPy's allocator. The pool holds at most
+# MICROLIE_CACHE_MB megabytes (default 256; 0 disables it); the compiled kernels keep their own
+# (MICROLIE_FAST_CACHE_MB).
+
+_POOL_MIN = 1 << 20
+_POOL_SLOTS = 16
+
+
+def _pool_limit() -> int:
+    text = os.environ.get("MICROLIE_CACHE_MB", "256")
+    try:
+        mb = float(text)
+    except ValueError:
+        mb = -1.0
+    if not mb >= 0:
+        raise ValueError(f"MICROLIE_CACHE_MB must be a number of megabytes >= 0, got {text!r}")
+    return int(mb * (1 << 20))
+
+
+_POOL_LIMIT = _pool_limit()
+_pool: list[np.ndarray] = []  # owned byte blocks, oldest first
+_pool_lock = threading.Lock()
+
+
+def _refs(block: np.ndarray) -> int:
+    return sys.getrefcount(block)
+
+
+def _free_count() -> int:
+    """References to a block held by the pool only, seen from a loop over the pool."""
+    for block in [np.empty(0)]:
+        return _refs(block)
+    raise AssertionError
+
+
+_FREE = _free_count()
+
+
+def _empty(shape: Shape, dt: Any) -> np.ndarray:
+    """An uninitialised array, from the pool of warm blocks when it is large."""
+    dt = np.dtype(dt)
+    nbytes = math.prod(shape) * dt.itemsize
+    if nbytes < _POOL_MIN or nbytes > _POOL_LIMIT:
+        return np.empty(shape, dtype=dt)
+    with _pool_lock:
+        for block in _pool:
+            if block.nbytes == nbytes and _refs(block) <= _FREE:
+                break
+        else:
+            block = np.empty(nbytes, dtype=np.uint8)
+            free = [b for b in _pool if _refs(b) <= _FREE]
+            total = sum(b.nbytes for b in _pool) + nbytes
+            while free and (total > _POOL_LIMIT or len(_pool) >= _POOL_SLOTS):
+                old = free.pop(0)
+                total -= old.nbytes
+                _pool.remove(old)
+            if total <= _POOL_LIMIT and len(_pool) < _POOL_SLOTS:
+                _pool.append(block)
+        return block.view(dt).reshape(shape)
 
 
 def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> Any:
@@ -295,7 +365,7 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
     # result costs a transposition (1-2 ns per value, as much as computing it). Wide vectors
     # (parameters of product groups) stay row-major, filled through a transposed buffer.
     soa = [len(s) == 2 and math.prod(s) > _WIDE for s in k.outs]
-    outs = [np.empty((math.prod(s), n) if m else (n, math.prod(s)), dtype=dt)
+    outs = [_empty((math.prod(s), n) if m else (n, math.prod(s)), dt)
             for s, m in zip(k.outs, soa, strict=True)]
     width = max((s[0] for s, m in zip(k.outs, soa, strict=True) if not m), default=0)
     buf = np.empty((width, CHUNK), dtype=dt) if width > _WIDE else None
