@@ -666,7 +666,7 @@ def before_after(args) -> int:
     loads = [_load()]
     rng = np.random.default_rng(args.seed)
     rows, bad = [], []
-    for group in args.groups or BA_GROUPS:
+    for group in args.groups or BA_GROUPS:  # --groups / --ops / --regimes: subsets
         G = getattr(new, group)
         inputs = {}
         for regime, shape in (("single", ()), ("batch", (n,))):

@@ -169,3 +169,21 @@ def test_bad_arguments():
         parse(b"1\n", 0, False, False)
     with pytest.raises(TypeError):
         parse("1\n", 1, False, False)  # str, not bytes
+
+
+@pytest.mark.parametrize("text", [b"", b"\xef\xbb\xbf", b"\xef\xbb\xbf1 0 0 0 0 0 0 1\n"])
+def test_empty_file_and_byte_order_mark(tmp_path, monkeypatch, text):
+    _parse()
+    from microlie.traj import read_tum
+
+    f = tmp_path / "e.txt"
+    f.write_bytes(text)  # an empty file cannot be memory-mapped: read instead
+    results = []
+    for env in ("1", "0"):
+        monkeypatch.setenv("MICROLIE_FAST", env)
+        try:
+            results.append(read_tum(f).poses.params.tolist())
+        except ValueError as e:
+            results.append(str(e))
+    assert results[0] == results[1]
+    assert (results[0] == [[0, 0, 0, 0, 0, 0, 1.0]]) == (len(text) > 3)

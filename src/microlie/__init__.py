@@ -10,10 +10,15 @@ Jacobian is a right Jacobian unless ``side="left"`` is passed.
 
 from typing import TYPE_CHECKING, Any
 
-from . import _fast
-from .groups import SE2, SE3, SE23, SO2, SO3, LieGroup, Product, R, Side, Sim3
+from ._startup import command_blas_threads as _command_blas_threads
+from ._startup import no_collection as _no_collection
 
-_fast.install()  # the compiled kernels of microlie[fast], when installed
+_command_blas_threads()  # `microlie ape ...`: one BLAS thread (see microlie._startup)
+with _no_collection():  # NumPy's and our modules load without cyclic collections
+    from . import _fast
+    from .groups import SE2, SE3, SE23, SO2, SO3, LieGroup, Product, R, Side, Sim3
+
+    _fast.install()  # the compiled kernels of microlie[fast], when installed
 
 __version__ = "0.1.0"
 

@@ -3,8 +3,8 @@
 
 When the package ``microlie_fast`` is importable, :func:`install` (called once by
 ``import microlie``) registers its functions as the NumPy replacements of the kernels they
-implement (see :func:`microlie._kernels.register`): SO(3) and SE(3) values and fused Jacobians,
-float64 and float32 (computed in float64, rounded once). Set the environment variable
+implement (see :func:`microlie._kernels.register`): SO(3), SE(3) and Sim(3) values and fused
+Jacobians, float64 and float32 (computed in float64, rounded once). Set the environment variable
 ``MICROLIE_FAST=0`` to keep the generic NumPy kernels. The classes and their results do not
 change: each compiled kernel agrees with the generic one to rounding (``tests/test_kernels.py``).
 Large outputs reuse freed blocks (bounded by ``MICROLIE_FAST_CACHE_MB``, default 256; see

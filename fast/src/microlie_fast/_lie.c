@@ -21,6 +21,7 @@
 #endif
 
 #include "lie_math.h"
+#include "sim3_math.h"
 
 typedef npy_intp ix;
 typedef void (*block_fn)(const double *restrict in, double *restrict out, ix m);
@@ -38,7 +39,8 @@ typedef struct {
     plain_fn plain; /* a row loop for float64 (cheap formulas: the block copies would dominate) */
 } kernel;
 
-#define MAXW 96 /* total width of the inputs or outputs of one kernel, at most */
+#define MAXW 112 /* total width of the outputs of one kernel, at most */
+#define MAXK 8   /* width of one input, at most */
 
 static int width(const kernel *k, int j) { return k->rows[j] * (k->cols[j] ? k->cols[j] : 1); }
 
@@ -61,7 +63,7 @@ COPY_FUNCS(float, f32)
         for (ix j = 0; j < m; j++)                                                              \
             for (int c = 0; c < KW; c++) buf[c * S + j] = x[KW * j + c];                      \
     }
-LOADK(3) LOADK(4) LOADK(6) LOADK(7)
+LOADK(3) LOADK(4) LOADK(6) LOADK(7) LOADK(8)
 
 static void load_rows(int f32, const char *x, int kw, ix m, double *buf) {
     if (f32) { load_f32((const float *)x, kw, m, buf); return; }
@@ -71,6 +73,7 @@ static void load_rows(int f32, const char *x, int kw, ix m, double *buf) {
     case 4: load_f64_4(d, m, buf); break;
     case 6: load_f64_6(d, m, buf); break;
     case 7: load_f64_7(d, m, buf); break;
+    case 8: load_f64_8(d, m, buf); break;
     default: load_f64(d, kw, m, buf);
     }
 }
@@ -80,7 +83,7 @@ static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *cons
         k->plain((const double *)in[0], (const double *)in[k->nin - 1], (double *)out[0], n);
         return;
     }
-    double ibuf[2 * 7 * S] __attribute__((aligned(64)));
+    double ibuf[2 * MAXK * S] __attribute__((aligned(64)));
     double obuf[MAXW * S] __attribute__((aligned(64)));
     size_t es = f32 ? sizeof(float) : sizeof(double);
     int wo[3];
@@ -299,6 +302,10 @@ PLAIN(so3_between, 4, 4, 4, double c[4]; quat_conj(x, c); quat_mul(c, y, r))
 PLAIN(se3_inverse, 7, 0, 7, se3_inverse_l(x, r))
 PLAIN(se3_compose, 7, 7, 7, se3_compose_l(x, y, r))
 PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi, y, r))
+PLAIN(sim3_inverse, 8, 0, 8, sim3_inverse_l(x, r))
+PLAIN(sim3_compose, 8, 8, 8, sim3_compose_l(x, y, r))
+PLAIN(sim3_between, 8, 8, 8, double xi[8]; sim3_inverse_l(x, xi); sim3_compose_l(xi, y, r))
+PLAIN(sim3_act, 8, 3, 3, sim3_act_l(x, y, r))
 PLAIN(so3_exp, 3, 0, 4, so3_exp_l(x, r))
 static inline void so3_log_row(const double *q, double *phi) {
     double kl, aw;
@@ -358,7 +365,25 @@ PLAIN(se3_act, 7, 3, 3, quat_rotate(x + 3, y, r); r[0] += x[0]; r[1] += x[1]; r[
     X(se3_inverse_jac, "SE3.inverse_jac", 1, 7, 0, 2, 7, 6, 0, 0, 6, 0, 0)                     \
     X(se3_compose_jac, "SE3.compose_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0, 0)                     \
     X(se3_between_jac, "SE3.between_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0, 0)                     \
-    X(se3_minus_jac, "SE3.minus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6, 0)
+    X(se3_minus_jac, "SE3.minus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6, 0)                         \
+    X(sim3_exp, "Sim3.exp", 1, 7, 0, 1, 8, 0, 0, 0, 0, 0, 0)                                   \
+    X(sim3_log, "Sim3.log", 1, 8, 0, 1, 7, 0, 0, 0, 0, 0, 0)                                   \
+    X(sim3_compose, "Sim3.compose", 2, 8, 8, 1, 8, 0, 0, 0, 0, 0, pl_sim3_compose)                           \
+    X(sim3_inverse, "Sim3.inverse", 1, 8, 0, 1, 8, 0, 0, 0, 0, 0, pl_sim3_inverse)                           \
+    X(sim3_between, "Sim3.between", 2, 8, 8, 1, 8, 0, 0, 0, 0, 0, pl_sim3_between)                           \
+    X(sim3_act, "Sim3.act", 2, 8, 3, 1, 3, 0, 0, 0, 0, 0, pl_sim3_act)                                   \
+    X(sim3_minus, "Sim3.minus", 2, 8, 8, 1, 7, 0, 0, 0, 0, 0, 0)                               \
+    X(sim3_plus, "Sim3.plus", 2, 8, 7, 1, 8, 0, 0, 0, 0, 0, 0)                                 \
+    X(sim3_matrix, "Sim3.matrix", 1, 8, 0, 1, 4, 0, 0, 4, 0, 0, 0)                             \
+    X(sim3_adjoint, "Sim3.adjoint", 1, 8, 0, 1, 7, 0, 0, 7, 0, 0, 0)                           \
+    X(sim3_act_jac, "Sim3.act_jac", 2, 8, 3, 3, 3, 3, 3, 0, 7, 3, 0)                           \
+    X(sim3_jr, "Sim3.jr", 1, 7, 0, 1, 7, 0, 0, 7, 0, 0, 0)                                     \
+    X(sim3_jr_inv, "Sim3.jr_inv", 1, 7, 0, 1, 7, 0, 0, 7, 0, 0, 0)                             \
+    X(sim3_exp_jac, "Sim3.exp_jac", 1, 7, 0, 2, 8, 7, 0, 0, 7, 0, 0)                           \
+    X(sim3_log_jac, "Sim3.log_jac", 1, 8, 0, 2, 7, 7, 0, 0, 7, 0, 0)                           \
+    X(sim3_minus_jac, "Sim3.minus_jac", 2, 8, 8, 3, 7, 7, 7, 0, 7, 7, 0)                       \
+    X(sim3_between_jac, "Sim3.between_jac", 2, 8, 8, 2, 8, 7, 0, 0, 7, 0, 0)                   \
+    X(sim3_compose_jac, "Sim3.compose_jac", 2, 8, 8, 2, 8, 7, 0, 0, 7, 0, 0)
 
 #define DEFINE(FN, NAME, NIN, KA, KB, NOUT, R0, R1, R2, C0, C1, C2, PLAIN)                    \
     BLOCK(FN, KA)                                                                              \
@@ -381,7 +406,7 @@ static PyMethodDef methods[] = {
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_lie",
-                                    "Compiled SO(3)/SE(3) kernels for microlie.", -1, methods};
+                                    "Compiled SO(3)/SE(3)/Sim(3) kernels for microlie.", -1, methods};
 
 PyMODINIT_FUNC PyInit__lie(void) {
     import_array();

@@ -124,11 +124,9 @@ static inline const unsigned char *digit_run(const unsigned char *p, const unsig
 static int parse_field(const unsigned char **pp, const unsigned char *le,
                        const unsigned char *bufend, double *out) {
     const unsigned char *p = *pp, *start = p;
-    int neg = 0;
-    if (p < le && (*p == '-' || *p == '+')) {
-        neg = *p == '-';
-        p++;
-    }
+    /* the sign without a branch (signs are random in most columns); le[0] is readable */
+    int neg = p < le && *p == '-';
+    p += neg | (p < le && *p == '+');
     uint64_t m = 0;
     int nd = 0, digits = 0, slow = 0;
     long e10 = 0;
@@ -155,7 +153,10 @@ static int parse_field(const unsigned char **pp, const unsigned char *le,
     if (!slow && m <= ((uint64_t)1 << 53) && e10 >= -22 && e10 <= 22) {
         v = (double)m;
         v = e10 < 0 ? v / POW10[-e10] : v * POW10[e10];
-        if (neg) v = -v;
+        uint64_t bits;
+        memcpy(&bits, &v, 8);
+        bits ^= (uint64_t)neg << 63; /* -v without a branch (-0.0 for "-0", as float()) */
+        memcpy(&v, &bits, 8);
     } else {
         char buf[MAX_SLOW_FIELD + 1];
         Py_ssize_t len = p - start;

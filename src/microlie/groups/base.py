@@ -34,6 +34,7 @@ from .. import _linalg as L
 from .._array import Array
 from .._kernels import Kernel, run
 from . import _math as M
+from . import _single
 
 if TYPE_CHECKING:
     from typing_extensions import Self
@@ -228,8 +229,20 @@ class LieGroup:
     # formulas are verified), applied to every tangent input and output; None: no limit.
     _range_check: ClassVar[Any] = None  # or a staticmethod f(tau) -> None
 
-    __slots__ = ("params",)
+    # the single-element fast path (see :mod:`microlie.groups._single`): one function per
+    # operation that returns None unless its inputs are single float64 NumPy values
+    _one_exp: ClassVar[Callable[..., Any]]
+    _one_log: ClassVar[Callable[..., Any]]
+    _one_inverse: ClassVar[Callable[..., Any]]
+    _one_compose: ClassVar[Callable[..., Any]]
+    _one_between: ClassVar[Callable[..., Any]]
+    _one_act: ClassVar[Callable[..., Any]]
+    _one_plus: ClassVar[Callable[..., Any]]
+    _one_minus: ClassVar[Callable[..., Any]]
+
+    __slots__ = ("params", "_floats")
     params: Array
+    _floats: list[float] | tuple[float, ...] | None  # a single float64 element's params
 
     # ------------------------------------------------------------------ construction
     def __init__(self, params: Any, *, normalize: bool = False) -> None:
@@ -241,6 +254,7 @@ class LieGroup:
             q = q.copy() if q is params else q
             _setflags(q, write=False)
         _set_params(self, q)
+        _set_floats(self, _owned_floats(q))
 
     @classmethod
     def from_params(cls, params: Any, check: bool = True) -> Self:
@@ -278,6 +292,7 @@ class LieGroup:
         if type(params) is np.ndarray:
             _setflags(params, write=False)
         _set_params(obj, params)
+        _set_floats(obj, _owned_floats(params))
         return obj
 
     @classmethod
@@ -285,6 +300,7 @@ class LieGroup:
         """Wrap a kernel's output (already read-only)."""
         obj = object.__new__(cls)
         _set_params(obj, params)
+        _set_floats(obj, _owned_floats(params))
         return obj
 
     @classmethod
@@ -296,6 +312,7 @@ class LieGroup:
             params = params.view()
             _setflags(params, write=False)
         _set_params(obj, params)
+        _set_floats(obj, None)
         return obj
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -311,6 +328,8 @@ class LieGroup:
         cls._tshape, cls._vshape = (d,), (cls.point_dim,)
         cls._vee_matrix = np.linalg.pinv(cls._generators.reshape(d, n * n))
         cls._K = _build_kernels(cls)
+        for op, fn in _single.build(cls, _set_params, _set_floats).items():
+            setattr(cls, f"_one_{op}", staticmethod(fn))
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError(f"{type(self).__name__} elements are immutable")
@@ -868,6 +887,10 @@ class LieGroup:
         >>> bool(np.allclose(X.matrix(), expm(SE3.hat(tau)))), bool(np.allclose(J, SE3.jr(tau)))
         (True, True)
         """
+        if not jac:
+            X = cls._one_exp(tau)
+            if X is not None:
+                return X
         t = cls._tangent(tau, kernel_checks=True)
         if not jac:
             return cls._adopt(run(cls._K["exp"], t))
@@ -908,6 +931,9 @@ class LieGroup:
         (True, True)
         """
         if not jac:
+            t = self._one_log(self)
+            if t is not None:
+                return t
             return self._tangent_out(run(self._K["log"], self.params))
         tau, J = run(self._K["log_jac"], self.params)
         return _left_vec(side, self._tangent_out(tau), [(J, self)])
@@ -946,6 +972,9 @@ class LieGroup:
         (True, True)
         """
         if not jac:
+            Y = self._one_inverse(self)
+            if Y is not None:
+                return Y
             return self._adopt(run(self._K["inverse"], self.params))
         p, J = run(self._K["inverse_jac"], self.params)
         return self._adopt(p)._left(side, [(J, self)])
@@ -988,6 +1017,10 @@ class LieGroup:
         >>> bool(np.allclose(JX, Y.inverse().adjoint())), bool(np.allclose(JY, np.eye(6)))
         (True, True)
         """
+        if not jac:
+            Z = self._one_compose(self, other)
+            if Z is not None:
+                return Z
         if type(other) is not type(self):
             self._same_group(other)
         if not jac:
@@ -997,6 +1030,9 @@ class LieGroup:
         return Z._left(side, [(J1, self), (L.eye(self.dof, p, Z.batch_shape), other)])
 
     def __matmul__(self, other: Self) -> Self:
+        Z = self._one_compose(self, other)
+        if Z is not None:
+            return Z
         if not isinstance(other, LieGroup):
             return NotImplemented
         return self.compose(other)
@@ -1036,6 +1072,10 @@ class LieGroup:
         >>> bool(np.allclose(X.between(Y).matrix(), np.linalg.inv(X.matrix()) @ Y.matrix()))
         True
         """
+        if not jac:
+            Z = self._one_between(self, other)
+            if Z is not None:
+                return Z
         self._same_group(other)
         if not jac:
             return self._adopt(run(self._K["between"], self.params, other.params))
@@ -1085,11 +1125,10 @@ class LieGroup:
         (True, (3, 6))
         """
         p = self.params
-        if type(points) is np.ndarray and points.shape == self._vshape and not jac \
-                and type(p) is np.ndarray and p.ndim == 1 and points.dtype is p.dtype:
-            vals = points.tolist()  # one point, the common case: checked and evaluated once
-            if math.isfinite(sum(vals)):
-                return K.run_floats(self._K["act"], (p.tolist(), vals), p.dtype)
+        if not jac:
+            q = self._one_act(self, points)
+            if q is not None:
+                return q
         v = A.as_float_array(points, like=p)
         A.check_last_dim(v, self.point_dim, "points")
         A.check_finite(v, "points")
@@ -1169,6 +1208,10 @@ class LieGroup:
         >>> bool(np.allclose(X.plus(tau).matrix(), (X @ SE3.exp(tau)).matrix()))
         True
         """
+        if not jac:
+            Y = self._one_plus(self, tau)
+            if Y is not None:
+                return Y
         t = self._tangent(tau, like=self.params, kernel_checks=True)
         if not jac:
             return self._adopt(run(self._K["plus"], self.params, t))
@@ -1213,6 +1256,10 @@ class LieGroup:
         >>> bool(np.allclose(t, tau)), bool(np.allclose(JX, -SE3.jl_inv(tau)))
         (True, True)
         """
+        if not jac:
+            t = self._one_minus(self, other)
+            if t is not None:
+                return t
         self._same_group(other)
         if not jac:
             return self._tangent_out(run(self._K["minus"], self.params, other.params))
@@ -1486,10 +1533,21 @@ def _batch_axis(axis: int, ndim: int, what: str) -> int:
     return axis if axis >= 0 else axis - 1
 
 
+def _owned_floats(p: Array) -> list[float] | None:
+    """The Python floats of the parameters of a single float64 NumPy element, kept beside its
+    ``params`` for the single-element fast path (only for arrays the element owns: they never
+    change); None for anything else."""
+    if type(p) is np.ndarray and p.ndim == 1 and p.dtype is _F64:
+        return p.tolist()  # type: ignore[no-any-return]
+    return None
+
+
 def _unpickle(cls: type[LieGroup], params: Array) -> LieGroup:
     return cls.from_params(params, check=False)
 
 
 _set_params = LieGroup.__dict__["params"].__set__
+_set_floats = LieGroup.__dict__["_floats"].__set__
+_F64 = np.dtype(np.float64)
 _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 _setflags = np.ndarray.setflags

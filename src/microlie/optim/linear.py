@@ -188,16 +188,20 @@ def splu_symmetric(A: Any, order: str) -> Any:
 
 
 def block_graph(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> Any:
-    """The block graph of a pattern as a symmetric, strongly diagonally dominant matrix with
-    random off-diagonal values (so that a numeric factorisation shows the symbolic fill: equal
-    values could cancel exactly)."""
+    """The block graph of a pattern as a weighted graph Laplacian plus ``0.1 I`` (random
+    positive weights). Its numeric factorisation shows the symbolic fill: the Schur
+    complements of an M-matrix keep non-positive off-diagonals, so fill entries are sums of
+    terms of one sign (no cancellation) and decay slowly (a strongly diagonally dominant matrix
+    lets deep fill underflow to exact zeros, which SuperLU's ``L`` then omits)."""
     nb = n // bs
     cols = np.repeat(np.arange(n), np.diff(indptr))
     B = sp.csc_matrix((np.ones(indices.size), (indices // bs, cols // bs)), shape=(nb, nb))
     B = sp.triu(B, 1).tocoo()
     w = np.random.default_rng(0).uniform(0.5, 1.0, B.nnz)
-    B = sp.coo_matrix((w, (B.row, B.col)), shape=(nb, nb))
-    return (B + B.T + sp.eye(nb) * (nb + 1.0)).tocsc()
+    B = sp.coo_matrix((-w, (B.row, B.col)), shape=(nb, nb))
+    B = B + B.T
+    deg = -np.asarray(B.sum(axis=1)).ravel()
+    return (B + sp.diags(deg + 0.1)).tocsc()
 
 
 def block_order(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> np.ndarray:
