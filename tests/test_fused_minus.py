@@ -156,3 +156,15 @@ def test_output_pool_limit_from_the_environment():
     bad = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env={**os.environ, "MICROLIE_CACHE_MB": "-1"})
     assert bad.returncode != 0 and "MICROLIE_CACHE_MB must be" in bad.stderr
+
+
+def test_output_pool_evicts_the_oldest_free_blocks():
+    from microlie import _kernels as Kn
+
+    held = [Kn._empty((1 << 18, 1 + i % 3), np.float64) for i in range(Kn._POOL_SLOTS + 4)]
+    assert len(Kn._pool) <= Kn._POOL_SLOTS
+    del held
+    sizes = [Kn._empty((1 << 18, 5 + i), np.float64) for i in range(Kn._POOL_SLOTS + 2)]
+    assert len(Kn._pool) <= Kn._POOL_SLOTS
+    assert sum(b.nbytes for b in Kn._pool) <= Kn._POOL_LIMIT
+    assert len({s.__array_interface__["data"][0] for s in sizes}) == len(sizes)  # all alive

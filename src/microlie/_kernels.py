@@ -352,10 +352,13 @@ def _empty(shape: Shape, dt: Any) -> np.ndarray:
             block = np.empty(nbytes, dtype=np.uint8)
             free = [b for b in _pool if _refs(b) <= _FREE]
             total = sum(b.nbytes for b in _pool) + nbytes
-            while free and (total > _POOL_LIMIT or len(_pool) >= _POOL_SLOTS):
+            gone: set[int] = set()  # evict the oldest free blocks (by identity)
+            while free and (total > _POOL_LIMIT or len(_pool) - len(gone) >= _POOL_SLOTS):
                 old = free.pop(0)
                 total -= old.nbytes
-                _pool.remove(old)
+                gone.add(id(old))
+            _pool[:] = [b for b in _pool if id(b) not in gone]
+            del free
             if total <= _POOL_LIMIT and len(_pool) < _POOL_SLOTS:
                 _pool.append(block)
         return block.view(dt).reshape(shape)

@@ -345,17 +345,17 @@ class Sim3(Pose):
         Mphi, msig = _w_rho_slopes(rho, phi, co)
         A = poly_matrix(poly_mul(Wi, (E, E * sinc, E * h), t2), phi, t2)  # e^sigma W^-1 R
         Ji, mJit = so3.jr_inv_pair_c(so3.coef_c(o, t2, k, ch), phi, t2)
-        WiMat = poly_matrix(Wi, phi, t2)
-        nWiM = M.matmul(WiMat, tuple((*(-x for x in Mphi[i]), -msig[i]) for i in range(3)))
-        B = M.matmul(tuple(r[:3] for r in nWiM), Ji)
-        # -(B R^T - W^-1 hat(t)) = W^-1 hat(t) - nWiM_phi Ji^T = W^-1 hat(t) + nWiM_phi mJit
-        Ht = tuple(M.cross(r, t) for r in WiMat)  # W^-1 hat(t): row i is (row i of W^-1) x t
-        Pn = M.matmul(tuple(r[:3] for r in nWiM), mJit)
+        nWi = poly_matrix((-Wi[0], -Wi[1], -Wi[2]), phi, t2)  # -W^-1
+        nWiM = M.matmul(nWi, tuple((*Mphi[i], msig[i]) for i in range(3)))
+        X = tuple(r[:3] for r in nWiM)
+        # -(B R^T - W^-1 hat(t)) = W^-1 hat(t) - X Ji^T = X mJit - (-W^-1) hat(t)
+        nHt = tuple(M.cross(r, t) for r in nWi)  # row i of (-W^-1) hat(t): (row i) x t
+        B, Pn = M.matmul(X, Ji), M.matmul(X, mJit)
         top_r = tuple((*B[i], nWiM[i][3]) for i in range(3))
-        top_l = tuple((*(Ht[i][j] + Pn[i][j] for j in range(3)), -rho[i] - nWiM[i][3])
+        top_l = tuple((*(Pn[i][j] - nHt[i][j] for j in range(3)), -rho[i] - nWiM[i][3])
                       for i in range(3))
         return ((*rho, *phi, sigma), _assemble(A, top_r, Ji, 1.0),
-                _assemble(M.neg(WiMat), top_l, mJit, -1.0))
+                _assemble(nWi, top_l, mJit, -1.0))
 
     @staticmethod
     def _compose(o, p, q):
