@@ -164,3 +164,17 @@ def test_compiled_switch(monkeypatch):
     with pytest.raises(ImportError, match="microlie-fast"):
         SupernodalSolver(compiled=True)
     assert make_solver("supernodal").name == "supernodal"
+
+
+def test_auto_picks_by_installation(monkeypatch):
+    """2-D default install: SuperLU without the compiled loop, the supernodal Cholesky with
+    it; 3-D default install: the supernodal Cholesky; small problems: dense."""
+    default = ["scipy", "supernodal", "dense"]
+    assert make_solver("auto", 100, 3, default).name == "dense"
+    assert make_solver("auto", 5000, 6, default).name == "supernodal"
+    monkeypatch.setenv("MICROLIE_FAST", "0")
+    assert make_solver("auto", 5000, 3, default).name == "scipy"
+    if HAVE_C:
+        monkeypatch.setenv("MICROLIE_FAST", "1")
+        assert make_solver("auto", 5000, 3, default).name == "supernodal"
+        assert make_solver("auto", 5000, 3, default).__dict__["_c"] is not None

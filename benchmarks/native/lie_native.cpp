@@ -192,6 +192,29 @@ static inline void so3_ihat(double a, double b, const double w[3], double *J, in
     J[2 * ld + 0] -= a * w[1]; J[2 * ld + 1] += a * w[0];
 }
 
+// Q(rho, phi) (Barfoot's left-Jacobian block, MATH.md section 4) from the half-angle functions
+// of |phi|: (t^2 + 2 cos t - 2)/(2 t^4) and (2 t - 3 sin t + t cos t)/(2 t^5) from k and ch
+static inline void q_block(const double rho[3], const double phi[3], double t2, double k,
+                           double ch, double Q[9]) {
+    double b = coef_b(t2, k, ch);
+    double c3 = t2 < 1e-4 ? 1.0 / 24.0 - t2 / 720.0 : (1.0 - 4.0 * k * k) / (2.0 * t2);
+    double c4 = t2 < 1e-4 ? 1.0 / 120.0 - t2 / 2520.0
+                          : (3.0 - 6.0 * k * ch - 2.0 * k * k * t2) / (2.0 * t2 * t2);
+    double P[9] = {0, -rho[2], rho[1], rho[2], 0, -rho[0], -rho[1], rho[0], 0};
+    double F[9] = {0, -phi[2], phi[1], phi[2], 0, -phi[0], -phi[1], phi[0], 0};
+    double FP[9], PF[9], FPF[9], FF[9], FFP[9], PFF[9], FPFF[9], FFPF[9];
+    auto mm = [](const double *A, const double *B, double *C) {
+        for (int r = 0; r < 3; r++)
+            for (int s = 0; s < 3; s++)
+                C[3 * r + s] = A[3 * r] * B[s] + A[3 * r + 1] * B[3 + s] + A[3 * r + 2] * B[6 + s];
+    };
+    mm(F, P, FP); mm(P, F, PF); mm(FP, F, FPF); mm(F, F, FF); mm(FF, P, FFP); mm(PF, F, PFF);
+    mm(FPF, F, FPFF); mm(F, FPF, FFPF);
+    for (int e = 0; e < 9; e++)
+        Q[e] = 0.5 * P[e] + b * (FP[e] + PF[e] + FPF[e]) + c3 * (FFP[e] + PFF[e] - 3.0 * FPF[e])
+               + c4 * (FPFF[e] + FFPF[e]);
+}
+
 // SE3 exp with its right Jacobian Jr = [[Jr(phi), Q(-rho,-phi)], [0, Jr(phi)]]
 static void se3_exp_jac(const double *tau, double *p, double *J, long n) {
 #pragma omp simd
@@ -208,27 +231,11 @@ static void se3_exp_jac(const double *tau, double *p, double *J, long n) {
         double *Ji = J + 36 * i;
         so3_ihat(-a, b, phi, Ji, 6);
         so3_ihat(-a, b, phi, Ji + 21, 6);
-        // Q(-rho, -phi): closed form with P = hat(-rho), F = hat(-phi) (MATH.md section 4)
-        // (t^2 + 2 cos t - 2)/(2 t^4) and (2 t - 3 sin t + t cos t)/(2 t^5), from k and ch
-        double c3 = t2 < 1e-4 ? 1.0 / 24.0 - t2 / 720.0 : (1.0 - 4.0 * k * k) / (2.0 * t2);
-        double c4 = t2 < 1e-4 ? 1.0 / 120.0 - t2 / 2520.0
-                              : (3.0 - 6.0 * k * ch - 2.0 * k * k * t2) / (2.0 * t2 * t2);
-        double P[9] = {0, rho[2], -rho[1], -rho[2], 0, rho[0], rho[1], -rho[0], 0};
-        double F[9] = {0, phi[2], -phi[1], -phi[2], 0, phi[0], phi[1], -phi[0], 0};
-        double FP[9], PF[9], FPF[9], FF[9], FFP[9], PFF[9], FPFF[9], FFPF[9];
-        auto mm = [](const double *A, const double *B, double *C) {
-            for (int r = 0; r < 3; r++)
-                for (int s = 0; s < 3; s++)
-                    C[3 * r + s] = A[3 * r] * B[s] + A[3 * r + 1] * B[3 + s] + A[3 * r + 2] * B[6 + s];
-        };
-        mm(F, P, FP); mm(P, F, PF); mm(FP, F, FPF); mm(F, F, FF); mm(FF, P, FFP); mm(PF, F, PFF);
-        mm(FPF, F, FPFF); mm(F, FPF, FFPF);
+        double mr[3] = {-rho[0], -rho[1], -rho[2]}, mp[3] = {-phi[0], -phi[1], -phi[2]}, Q[9];
+        q_block(mr, mp, t2, k, ch, Q);  // Q(-rho, -phi)
         for (int r = 0; r < 3; r++)
             for (int s = 0; s < 3; s++) {
-                int e = 3 * r + s;
-                Ji[6 * r + 3 + s] = 0.5 * P[e] + b * (FP[e] + PF[e] + FPF[e])
-                                    + c3 * (FFP[e] + PFF[e] - 3.0 * FPF[e])
-                                    + c4 * (FPFF[e] + FFPF[e]);
+                Ji[6 * r + 3 + s] = Q[3 * r + s];
                 Ji[6 * (r + 3) + s] = 0.0;
             }
     }
@@ -344,29 +351,6 @@ static void se3_between_jac(const double *p, const double *q, double *z, double 
                 Ji[6 * (r + 3) + 3 + c] = -R[3 * r + c];
             }
     }
-}
-
-// Q(rho, phi) (Barfoot's left-Jacobian block) from the half-angle functions of |phi|, as
-// se3_exp_jac above computes Q(-rho, -phi): the same closed form with P = hat(rho), F = hat(phi)
-static inline void q_block(const double rho[3], const double phi[3], double t2, double k,
-                           double ch, double Q[9]) {
-    double b = coef_b(t2, k, ch);
-    double c3 = t2 < 1e-4 ? 1.0 / 24.0 - t2 / 720.0 : (1.0 - 4.0 * k * k) / (2.0 * t2);
-    double c4 = t2 < 1e-4 ? 1.0 / 120.0 - t2 / 2520.0
-                          : (3.0 - 6.0 * k * ch - 2.0 * k * k * t2) / (2.0 * t2 * t2);
-    double P[9] = {0, -rho[2], rho[1], rho[2], 0, -rho[0], -rho[1], rho[0], 0};
-    double F[9] = {0, -phi[2], phi[1], phi[2], 0, -phi[0], -phi[1], phi[0], 0};
-    double FP[9], PF[9], FPF[9], FF[9], FFP[9], PFF[9], FPFF[9], FFPF[9];
-    auto mm = [](const double *A, const double *B, double *C) {
-        for (int r = 0; r < 3; r++)
-            for (int s = 0; s < 3; s++)
-                C[3 * r + s] = A[3 * r] * B[s] + A[3 * r + 1] * B[3 + s] + A[3 * r + 2] * B[6 + s];
-    };
-    mm(F, P, FP); mm(P, F, PF); mm(FP, F, FPF); mm(F, F, FF); mm(FF, P, FFP); mm(PF, F, PFF);
-    mm(FPF, F, FPFF); mm(F, FPF, FFPF);
-    for (int e = 0; e < 9; e++)
-        Q[e] = 0.5 * P[e] + b * (FP[e] + PF[e] + FPF[e]) + c3 * (FFP[e] + PFF[e] - 3.0 * FPF[e])
-               + c4 * (FPFF[e] + FFPF[e]);
 }
 
 // [[Ji, -Ji Q Ji], [0, Ji]] into a 6x6, times s

@@ -10,15 +10,14 @@ Jacobian is a right Jacobian unless ``side="left"`` is passed.
 
 from typing import TYPE_CHECKING, Any
 
-from ._startup import command_blas_threads as _command_blas_threads
-from ._startup import no_collection as _no_collection
+from ._startup import command_setup as _command_setup
 
-_command_blas_threads()  # `microlie ape ...`: one BLAS thread (see microlie._startup)
-with _no_collection():  # NumPy's and our modules load without cyclic collections
-    from . import _fast
-    from .groups import SE2, SE3, SE23, SO2, SO3, LieGroup, Product, R, Side, Sim3
+_command_setup()  # `microlie ape ...`: one BLAS thread, no cyclic GC (see microlie._startup)
 
-    _fast.install()  # the compiled kernels of microlie[fast], when installed
+from . import _fast  # noqa: E402 - after the command's set-up, before NumPy loads
+from .groups import SE2, SE3, SE23, SO2, SO3, LieGroup, Product, R, Side, Sim3  # noqa: E402
+
+_fast.install()  # the compiled kernels of microlie[fast], when installed
 
 __version__ = "0.1.0"
 

@@ -1,14 +1,13 @@
-"""What happens while microlie loads: no cyclic garbage collection, and one BLAS thread for the
-trajectory commands.
+"""Start-up of the trajectory commands (``microlie ape``, ``rpe``, ``kitti``, ``traj``, ``res``,
+``plot``): one BLAS thread and no cyclic garbage collection.
 
-* Importing NumPy and microlie allocates tens of thousands of long-lived objects; the collector
-  runs over them again and again while they load and finds nothing to free (some 7% of the
-  import time). ``with no_collection(): ...`` suspends it for the block and restores its state.
-* The trajectory commands (``microlie ape``, ``rpe``, ``kitti``, ``traj``, ``res``, ``plot``) do
-  no large BLAS work (their products are 3 x N or 3 x 3), while starting OpenBLAS's thread pool
-  costs some 25 ms of CPU per run. :func:`command_blas_threads`, called before NumPy is imported,
-  sets ``OPENBLAS_NUM_THREADS=1`` for those commands only, and only when neither it nor
-  ``OMP_NUM_THREADS`` is set. A program that imports microlie is never affected.
+These commands do no large BLAS work (their products are 3 x N or 3 x 3) while starting
+OpenBLAS's thread pool costs some 25 ms of CPU per run, and their processes are short and
+create little cyclic garbage while the collector would walk the tens of thousands of objects
+of the loaded modules again and again (some 4% of a run). :func:`command_setup`, called by
+``import microlie`` before NumPy loads, therefore sets ``OPENBLAS_NUM_THREADS=1`` (unless it or
+``OMP_NUM_THREADS`` is set) and turns the collector off, in those command processes only. A
+program that imports microlie is never affected.
 """
 
 from __future__ import annotations
@@ -16,51 +15,15 @@ from __future__ import annotations
 import gc
 import os
 import sys
-from types import TracebackType
 
-__all__ = ["no_collection", "command_blas_threads", "TRAJECTORY_COMMANDS"]
+__all__ = ["command_setup", "TRAJECTORY_COMMANDS"]
 
 TRAJECTORY_COMMANDS = ("ape", "rpe", "kitti", "traj", "res", "plot")
 
 
-class no_collection:  # noqa: N801 - used like a function: ``with no_collection(): ...``
-    """Suspend the cyclic garbage collector for a ``with`` block (its state is restored).
-
-    Examples
-    --------
-    >>> import gc
-    >>> from microlie._startup import no_collection
-    >>> with no_collection():
-    ...     gc.isenabled()
-    False
-    >>> gc.isenabled()
-    True
-    """
-
-    def __enter__(self) -> None:
-        self._enabled = gc.isenabled()
-        gc.disable()
-
-    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        if self._enabled:
-            gc.enable()
-
-
 def _trajectory_command(orig_argv: list[str], argv: list[str]) -> bool:
-    """Whether this process is ``microlie CMD ...`` or ``python -m microlie.cli CMD ...`` with a
-    trajectory command ``CMD``."""
-    if argv and os.path.basename(argv[0]) in ("microlie", "microlie.exe"):  # console script
-        return len(argv) > 1 and argv[1] in TRAJECTORY_COMMANDS
-    for i, tok in enumerate(orig_argv[:-2]):
-        if tok == "-m":
-            return orig_argv[i + 1] == "microlie.cli" and orig_argv[i + 2] in TRAJECTORY_COMMANDS
-    return False
-
-
-def command_blas_threads() -> bool:
-    """Set ``OPENBLAS_NUM_THREADS=1`` if this process is a trajectory command that NumPy has not
-    been imported in yet and the user set no thread count (module docstring); whether it did.
+    """Whether this process is ``microlie CMD ...`` (the console script) or
+    ``python -m microlie.cli CMD ...`` with a trajectory command ``CMD``.
 
     Examples
     --------
@@ -72,10 +35,27 @@ def command_blas_threads() -> bool:
     >>> _trajectory_command(["python", "script.py"], ["script.py", "ape"])
     False
     """
-    if "numpy" in sys.modules or "OPENBLAS_NUM_THREADS" in os.environ or \
-            "OMP_NUM_THREADS" in os.environ:
-        return False
+    if argv and os.path.basename(argv[0]) in ("microlie", "microlie.exe"):  # console script
+        return len(argv) > 1 and argv[1] in TRAJECTORY_COMMANDS
+    for i, tok in enumerate(orig_argv[:-2]):
+        if tok == "-m":
+            return orig_argv[i + 1] == "microlie.cli" and orig_argv[i + 2] in TRAJECTORY_COMMANDS
+    return False
+
+
+def command_setup() -> bool:
+    """In a trajectory command's process: one BLAS thread (unless the user set a thread count;
+    only before NumPy is imported) and no cyclic garbage collection. Returns whether this is
+    such a process (module docstring).
+
+    Returns
+    -------
+    bool
+    """
     if not _trajectory_command(list(getattr(sys, "orig_argv", [])), sys.argv):
         return False
-    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    if "numpy" not in sys.modules and "OPENBLAS_NUM_THREADS" not in os.environ and \
+            "OMP_NUM_THREADS" not in os.environ:
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    gc.disable()
     return True

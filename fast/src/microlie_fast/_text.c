@@ -151,12 +151,11 @@ static int parse_field(const unsigned char **pp, const unsigned char *le,
     if (p > le) return 1; /* cannot happen: le is not a digit */
     double v;
     if (!slow && m <= ((uint64_t)1 << 53) && e10 >= -22 && e10 <= 22) {
-        v = (double)m;
-        v = e10 < 0 ? v / POW10[-e10] : v * POW10[e10];
-        uint64_t bits;
-        memcpy(&bits, &v, 8);
-        bits ^= (uint64_t)neg << 63; /* -v without a branch (-0.0 for "-0", as float()) */
-        memcpy(&v, &bits, 8);
+        /* the sign on the exact mantissa (a select, before the one rounding operation, which
+         * is symmetric; "-0" gives -0.0 as float() does) */
+        double dm = (double)m;
+        dm = neg ? -dm : dm;
+        v = e10 < 0 ? dm / POW10[-e10] : dm * POW10[e10];
     } else {
         char buf[MAX_SLOW_FIELD + 1];
         Py_ssize_t len = p - start;

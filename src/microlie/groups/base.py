@@ -328,7 +328,7 @@ class LieGroup:
         cls._tshape, cls._vshape = (d,), (cls.point_dim,)
         cls._vee_matrix = np.linalg.pinv(cls._generators.reshape(d, n * n))
         cls._K = _build_kernels(cls)
-        for op, fn in _single.build(cls, _set_params, _set_floats).items():
+        for op, fn in _single.build(cls).items():
             setattr(cls, f"_one_{op}", staticmethod(fn))
 
     def __setattr__(self, name: str, value: Any) -> None:

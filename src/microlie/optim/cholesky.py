@@ -205,8 +205,8 @@ class SupernodalSolver(LinearSolver):
         first; supernodes of one level are independent), the supernodes of equal shape as one
         batch, with the flat update maps of each batch (vectorised over all update pairs):
         ``src`` indexes the batch's stacked updates ``W`` (``(G, u, u)``, C order) and ``dst``
-        the panels; a batch of several supernodes sums its contributions to one destination
-        with ``bincount`` over its distinct destinations ``udst`` first."""
+        the panels, sorted by destination; a batch of several supernodes sums its contributions
+        to one destination (``reduceat`` from ``starts``) first."""
         ns = self.ns
         lev = np.zeros(ns, np.int64)
         for s, p in enumerate(self.sparent.tolist()):
@@ -245,13 +245,14 @@ class SupernodalSolver(LinearSolver):
             grp = order[cut[g]:cut[g + 1]]
             k, m = int(self.k[grp[0]]), int(self.m[grp[0]])
             sel = so[bounds[g]:bounds[g + 1]]
-            gsrc, gdst = src[sel], dst[sel]
-            udst = S = None
+            # sorted by destination (sequential writes); a batch of several supernodes sums
+            # the contributions to one destination block (consecutive after the sort) first
+            so2 = np.argsort(dst[sel], kind="stable")
+            gsrc, gdst = src[sel][so2], dst[sel][so2]
+            starts = None
             if grp.size > 1 and gdst.size:
-                # the sum of the contributions to each distinct destination block
-                udst, inv = np.unique(gdst, return_inverse=True)
-                S = sp.csr_matrix((np.ones(gdst.size), (inv.ravel(), np.arange(gdst.size))),
-                                  shape=(udst.size, gdst.size))
+                starts = np.flatnonzero(np.r_[True, gdst[1:] != gdst[:-1]])
+                gdst = gdst[starts]
             ridx = self.rows[self.rptr[grp][:, None] + k + np.arange(m - k)]
             urow = rinv = None
             if grp.size > 1 and ridx.size:
@@ -259,8 +260,8 @@ class SupernodalSolver(LinearSolver):
                 rinv = rinv.ravel()
             cidx = self.c0[grp][:, None] + np.arange(k)
             gidx = self.px[grp][:, None] // bs + np.arange(m * k // bs)
-            steps.append({"grp": grp, "k": k, "m": m, "src": gsrc, "dst": gdst, "udst": udst,
-                          "S": S, "gidx": gidx, "cidx": cidx, "ridx": ridx,
+            steps.append({"grp": grp, "k": k, "m": m, "src": gsrc, "dst": gdst,
+                          "starts": starts, "gidx": gidx, "cidx": cidx, "ridx": ridx,
                           "urow": urow, "rinv": rinv})
         return steps
 
@@ -287,13 +288,15 @@ class SupernodalSolver(LinearSolver):
                     P[k:] = L21
                     W = syrk(1.0, L21, lower=1)  # (u, u), lower triangle (F order)
                     # src indexes W in C order as j * u + i: that is W.T's lower triangle
-                    Lb[st["dst"]] -= W.T.reshape(-1, bs)[st["src"]]
+                    d = st["dst"]
+                    Lb[d] = np.take(Lb, d, axis=0) - np.take(W.T.reshape(-1, bs), st["src"],
+                                                             axis=0)
                     factors.append((Linv[None], L21.T[None]))
                 else:
                     factors.append((Linv[None], np.zeros((1, k, 0))))
                 continue
             G = grp.size
-            Q = Lb[st["gidx"]].reshape(G, k, m)  # Q[g, c, r] = panel[r, c]
+            Q = np.take(Lb, st["gidx"], axis=0).reshape(G, k, m)  # Q[g, c, r] = panel[r, c]
             try:
                 L11 = np.linalg.cholesky(np.swapaxes(Q[:, :, :k], 1, 2))
             except np.linalg.LinAlgError:
@@ -305,7 +308,9 @@ class SupernodalSolver(LinearSolver):
             Lb[st["gidx"]] = Q.reshape(G, k * m // bs, bs)
             if u:
                 W = np.swapaxes(L21T, 1, 2) @ L21T  # (G, u, u), symmetric
-                Lb[st["udst"]] -= st["S"] @ W.reshape(-1, bs)[st["src"]]
+                d = st["dst"]
+                vals = np.take(W.reshape(-1, bs), st["src"], axis=0)
+                Lb[d] = np.take(Lb, d, axis=0) - np.add.reduceat(vals, st["starts"], axis=0)
             factors.append((Linv, L21T))
         self._factors = factors
 

@@ -138,6 +138,12 @@ class Problem:
         self.block_size = int(np.gcd.reduce(self.node_dof)) if nn else 1
         self.fargs = [[node_of[self._key[id(var)]][idx] for var, idx in f.args]
                       for f in self.factors]
+        # per variable batch: its free rows (None: all) and their entries of a step dx
+        self._steps = []
+        for v, nodes in zip(self.variables, node_of, strict=True):
+            free = np.flatnonzero(nodes >= 0)
+            idx = self.node_off[nodes[free]][:, None] + np.arange(v.dof)
+            self._steps.append((None if free.size == v.n else free, idx))
 
     def key(self, var: Variables) -> int:
         """The position of a variable batch in the problem.
@@ -553,8 +559,8 @@ class Problem:
         states : list of numpy.ndarray
             The parameters of each variable batch, in graph order.
         out : Linearization, optional
-            A linearisation of this problem that is no longer needed: its arrays are
-            overwritten and returned (saves allocating and faulting in fresh memory).
+            A linearisation of this problem that is no longer needed: its arrays may be
+            overwritten and reused (saves allocating and faulting in fresh memory).
 
         Returns
         -------
@@ -577,7 +583,8 @@ class Problem:
         ((9,), 1.0)
         """
         t0 = time.perf_counter()
-        if out is not None:
+        compiled_any = any(pl is not None for pl in self.plans)
+        if out is not None and compiled_any:
             data, grad = out.data, out.grad
             data.fill(0.0)
             grad.fill(0.0)
@@ -628,10 +635,13 @@ class Problem:
             t_prod += time.perf_counter() - tb
         tc = time.perf_counter()
         if hw:
-            data += np.bincount(self.hdest, weights=_joined(hw), minlength=self.nnz + 1
-                                )[: self.nnz]
-            grad += np.bincount(self.gdest, weights=_joined(gw), minlength=self.size + 1
-                                )[: self.size]
+            hd = np.bincount(self.hdest, weights=_joined(hw), minlength=self.nnz + 1)[: self.nnz]
+            gd = np.bincount(self.gdest, weights=_joined(gw), minlength=self.size + 1)[: self.size]
+            if compiled_any:
+                data += hd
+                grad += gd
+            else:  # bincount's fresh arrays are the result
+                data, grad = hd, gd
         t_end = time.perf_counter()
         return Linearization(data, grad, cost, rcost,
                              {"linearize": t_lin, "products": t_prod, "compiled": t_fused,
@@ -670,16 +680,16 @@ class Problem:
         True
         """
         out = []
-        for v, nodes, p in zip(self.variables, self.node_of, states, strict=False):
-            free = np.flatnonzero(nodes >= 0)
-            if free.size == 0:
+        for v, p, (free, idx) in zip(self.variables, states, self._steps, strict=False):
+            if free is None:  # every variable free: no gather or scatter
+                q = v.retract(p, dx[idx])
+                out.append(q if q.flags.writeable else q.copy())
+            elif free.size == 0:
                 out.append(p)
-                continue
-            off = self.node_off[nodes[free]]
-            d = dx[off[:, None] + np.arange(v.dof)]
-            q = p.copy()
-            q[free] = v.retract(p[free], d)
-            out.append(q)
+            else:
+                q = p.copy()
+                q[free] = v.retract(p[free], dx[idx])
+                out.append(q)
         return out
 
 

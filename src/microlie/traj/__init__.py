@@ -14,38 +14,35 @@ Example:
     True
 """
 
-from .._startup import no_collection as _no_collection
-
-with _no_collection():  # see microlie/__init__.py
-    from .align import ALIGNMENTS, align, umeyama
-    from .evaluate import describe_alignment, evaluate_ape, evaluate_kitti, evaluate_rpe, prepare
-    from .io import (
-        FORMATS,
-        read_euroc,
-        read_kitti,
-        read_timestamps,
-        read_trajectory,
-        read_tum,
-        write_euroc,
-        write_kitti,
-        write_trajectory,
-        write_tum,
-    )
-    from .metrics import (
-        KITTI_LENGTHS,
-        RELATIONS,
-        KittiResult,
-        PoseError,
-        ape,
-        kitti_odometry,
-        pose_pairs,
-        relation_label,
-        rpe,
-        statistics,
-    )
-    from .results import Result, load_result, save_result
-    from .sync import INTERPOLATIONS, Association, associate, interpolate, match_timestamps
-    from .trajectory import PLANES, TimestampWarning, Trajectory, merge
+from .align import ALIGNMENTS, align, umeyama
+from .evaluate import describe_alignment, evaluate_ape, evaluate_kitti, evaluate_rpe, prepare
+from .io import (
+    FORMATS,
+    read_euroc,
+    read_kitti,
+    read_timestamps,
+    read_trajectory,
+    read_tum,
+    write_euroc,
+    write_kitti,
+    write_trajectory,
+    write_tum,
+)
+from .metrics import (
+    KITTI_LENGTHS,
+    RELATIONS,
+    KittiResult,
+    PoseError,
+    ape,
+    kitti_odometry,
+    pose_pairs,
+    relation_label,
+    rpe,
+    statistics,
+)
+from .results import Result, load_result, save_result
+from .sync import INTERPOLATIONS, Association, associate, interpolate, match_timestamps
+from .trajectory import PLANES, TimestampWarning, Trajectory, merge
 
 __all__ = [
     "Trajectory",

@@ -70,7 +70,7 @@ def umeyama(
     xc = x - mx
     yc = y - my
     var_x = np.einsum("ij,ij->", xc, xc) / n
-    cov = np.einsum("ki,kj->ij", yc, xc) / n  # not BLAS: a 3 x 3 result wakes its threads
+    cov = (yc.T @ xc) / n
     u, d, vt = np.linalg.svd(cov)
     if not d[1] > 1e-12 * d[0]:  # rank < 2 (up to rounding): rotation undetermined
         raise ValueError("degenerate point sets: Umeyama alignment is not determined")

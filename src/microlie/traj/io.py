@@ -280,18 +280,19 @@ def _quat_trajectory(
     path: PathLike,
     numbers: _LineNumbers,
     stamps: np.ndarray,
-    positions: np.ndarray,
-    q_xyzw: np.ndarray,
+    params: np.ndarray,
     tol: float,
     name: str | None,
 ) -> Trajectory:
-    """Check ``|q| = 1`` within ``tol`` (naming the line) and build the normalised poses.
+    """Check ``|q| = 1`` within ``tol`` (naming the line) and build the normalised poses from
+    ``params``, an ``(N, 7)`` array ``[t, q_xyzw]`` (a view of the reader's matrix: the
+    quaternions are normalised in place).
 
-    The rows are already known to be finite (the readers check every field), so the SE(3)
-    parameters ``[t, q / |q|]`` are assembled here in one pass and wrapped without the
-    group constructors' checks; the values are bit-identical to
+    The rows are already known to be finite (the readers check every field), so the poses are
+    wrapped without the group constructors' checks; the values are bit-identical to
     ``Trajectory.from_arrays(positions, q_xyzw)`` (same ``q / sqrt(sum(q * q))``).
     """
+    q_xyzw = params[:, 3:]
     # |q|^2 = ((x^2 + y^2) + z^2) + w^2, the order of np.sum over the last axis, one column at
     # a time (a reduction over an axis of 4 is slow)
     sq = q_xyzw[:, 0] * q_xyzw[:, 0]
@@ -305,9 +306,7 @@ def _quat_trajectory(
             f"{path}:{numbers[i]}: quaternion is not unit norm (|q| = {norms[i]:.6g}, "
             f"tolerance {tol:g})"
         )
-    params = np.empty((q_xyzw.shape[0], 7))
-    params[:, :3] = positions
-    np.divide(q_xyzw, norms[:, None], out=params[:, 3:])
+    q_xyzw /= norms[:, None]
     return Trajectory(SE3.from_params(params, check=False), np.ascontiguousarray(stamps), name)
 
 
@@ -341,9 +340,7 @@ def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None)
     (150, (150, 7))
     """
     numbers, mat = _read_matrix(path, 8, what="timestamp tx ty tz qx qy qz qw")
-    return _quat_trajectory(
-        path, numbers, mat[:, 0], mat[:, 1:4], mat[:, 4:8], quat_tol, name or str(path)
-    )
+    return _quat_trajectory(path, numbers, mat[:, 0], mat[:, 1:], quat_tol, name or str(path))
 
 
 def read_timestamps(path: PathLike) -> np.ndarray:
@@ -485,10 +482,8 @@ def read_euroc(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = Non
     numbers, mat = _read_matrix(
         path, 8, comma=True, at_least=True, what="timestamp[ns], px, py, pz, qw, qx, qy, qz"
     )
-    q_xyzw = np.roll(mat[:, 4:8], -1, axis=1)
-    return _quat_trajectory(
-        path, numbers, mat[:, 0] / 1e9, mat[:, 1:4], q_xyzw, quat_tol, name or str(path)
-    )
+    params = mat[:, [1, 2, 3, 5, 6, 7, 4]]  # [p, q_xyzw]: the file's quaternion is w first
+    return _quat_trajectory(path, numbers, mat[:, 0] / 1e9, params, quat_tol, name or str(path))
 
 
 def read_trajectory(
