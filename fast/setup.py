@@ -37,6 +37,13 @@ setup(
             extra_compile_args=flags,
             libraries=libs,
         ),
+        Extension(  # one-element entry points (microlie.groups._single)
+            "microlie_fast._one",
+            sources=["src/microlie_fast/_one.c"],
+            include_dirs=[np.get_include(), "src/microlie_fast"],
+            extra_compile_args=flags,
+            libraries=libs,
+        ),
         Extension(  # the Schur complement of bundle adjustment (microlie.optim.schur)
             "microlie_fast._schur",
             sources=["src/microlie_fast/_schur.c"],

@@ -4,13 +4,27 @@ everything else, and indistinguishable from the generic path in values and in er
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
-from conftest import GROUPS, hard_elements
+from conftest import GROUPS, hard_elements, require
 from scipy.linalg import expm
 
 import microlie as ml
+from microlie.groups import _single
 from microlie.groups._single import OPS
+
+
+@pytest.fixture(autouse=True, params=["installed", "python"])
+def implementation(request, monkeypatch):
+    """Every test runs on the functions in use (the compiled SO3/SE3 ones when microlie[fast]
+    is installed) and on the Python ones of every group."""
+    if request.param == "python":
+        for G in GROUPS:
+            for op, fn in _single.build(G).items():
+                monkeypatch.setattr(G, f"_one_{op}", staticmethod(fn))
+    return request.param
 
 
 def _inputs(G, rng):
@@ -209,3 +223,45 @@ def test_a_long_chain_matches_the_generic_path(monkeypatch):
     for s in step_list:
         Y = Y @ s
     np.testing.assert_allclose(X.params, Y.params, rtol=0, atol=1e-13)
+
+
+def test_compiled_one_element_functions_are_in_use(implementation):
+    if implementation != "installed":
+        pytest.skip("the compiled functions are the installed ones")
+    if os.environ.get("MICROLIE_FAST") == "0":
+        pytest.skip("MICROLIE_FAST=0: the Python functions only")
+    one = require("microlie_fast._one")
+    from microlie import _fast
+
+    names = {f"{g}.{op}" for g in ("SO3", "SE3") for op in OPS}
+    assert set(_fast.installed_single()) == names
+    for name in names:
+        g, op = name.split(".")
+        assert getattr(getattr(ml, g), f"_one_{op}") is getattr(one, f"{g.lower()}_{op}")
+    X = ml.SE3.random(rng=0)
+    with pytest.raises(TypeError, match="expected 2 arguments"):
+        one.se3_compose(X)
+    assert type(X @ X) is ml.SE3 and (X @ X)._floats is None  # built in C
+    assert sorted(one.OPS) == ["SE3", "SO3"] and sorted(one.OPS["SE3"]) == sorted(OPS)
+
+
+def test_unusual_layouts_fall_back_or_are_read_correctly():
+    """A strided or byte-swapped parameter array, an element of a subclass: declined by the
+    compiled functions (the Python ones read any layout), right values either way."""
+    X, Y = ml.SE3.random(rng=11), ml.SE3.random(rng=12)
+    want = X.matrix() @ Y.matrix()
+    wide = np.zeros((7, 2))
+    wide[:, 0] = X.params
+    strided = ml.SE3._wrap(wide[:, 0])
+    swapped = ml.SE3._wrap(X.params.astype(">f8"))
+    for Z in (strided, swapped):
+        np.testing.assert_allclose((Z @ Y).matrix(), want, atol=1e-14)
+        np.testing.assert_allclose(Z.act(np.ones(3)), X.act(np.ones(3)), atol=1e-14)
+
+    class Sub(ml.SE3):
+        pass
+
+    A, B = Sub(X.params), Sub(Y.params)
+    assert ml.SE3._one_compose(A, B) is None  # not an SE3 exactly
+    assert type(A @ B) is Sub
+    np.testing.assert_allclose((A @ B).matrix(), want, atol=1e-14)

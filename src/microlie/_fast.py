@@ -7,8 +7,9 @@ implement (see :func:`microlie._kernels.register`): SO(3), SE(3) and Sim(3) valu
 Jacobians, float64 and float32 (computed in float64, rounded once). Set the environment variable
 ``MICROLIE_FAST=0`` to keep the generic NumPy kernels. The classes and their results do not
 change: each compiled kernel agrees with the generic one to rounding (``tests/test_kernels.py``).
-Large outputs reuse freed blocks (bounded by ``MICROLIE_FAST_CACHE_MB``, default 256; see
-``microlie_fast``).
+Single float64 SO(3)/SE(3) elements go through the one-element C functions of
+``microlie_fast._one`` (:func:`installed_single`). Large outputs reuse freed blocks (bounded by
+``MICROLIE_FAST_CACHE_MB``, default 256; see ``microlie_fast``).
 """
 
 from __future__ import annotations
@@ -18,9 +19,10 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["install", "installed", "text_parser"]
+__all__ = ["install", "installed", "installed_single", "text_parser"]
 
 _installed: list[str] = []
+_single: list[str] = []
 
 
 def install() -> list[str]:
@@ -38,12 +40,24 @@ def install() -> list[str]:
         if name in K.KERNELS:
             K.register(name, getattr(_lie, fn))
             _installed.append(name)
+    try:  # the one-element entry points (absent from an older build)
+        one = importlib.import_module("microlie_fast._one")
+    except ImportError:
+        one = None
+    if one is not None:
+        _single[:] = importlib.import_module("microlie.groups._single").use_compiled(one)
     return list(_installed)
 
 
 def installed() -> list[str]:
     """Names of the kernels that :func:`install` registered in this process."""
     return list(_installed)
+
+
+def installed_single() -> list[str]:
+    """Operations whose single-element fast path :func:`install` switched to the compiled
+    one-element functions (``"SE3.compose"``, ...; see :mod:`microlie.groups._single`)."""
+    return list(_single)
 
 
 def text_parser() -> Callable[..., Any] | None:

@@ -44,10 +44,13 @@ _new = object.__new__
 _FAIL = (ValueError, OverflowError, ZeroDivisionError)
 
 
-def build(cls: Any, set_params: Callable[..., Any], set_floats: Callable[..., Any]
-          ) -> dict[str, Callable[..., Any]]:
-    """The single-element functions of group ``cls`` (one per entry of :data:`OPS`)."""
-    return {op: _make(cls, op, set_params, set_floats) for op in OPS}
+def build(cls: Any) -> dict[str, Callable[..., Any]]:
+    """The single-element functions of group ``cls`` (one per entry of :data:`OPS`), in
+    Python."""
+    from .base import LieGroup
+
+    slots = LieGroup.__dict__
+    return {op: _make(cls, op, slots["params"].__set__, slots["_floats"].__set__) for op in OPS}
 
 
 def _floats_of(x: Any) -> list[float] | tuple[float, ...] | None:
@@ -132,3 +135,23 @@ def _make(cls: Any, op: str, set_params: Callable[..., Any], set_floats: Callabl
     one = variants.get(ins, one_e_vector)
     one.__name__ = one.__qualname__ = f"{cls.__name__}_one_{op}"
     return one
+
+
+def use_compiled(one: Any) -> list[str]:
+    """Use the one-element C functions of ``one`` (the module ``microlie_fast._one``) for the
+    groups and operations it implements; return their names (``"SE3.exp"``, ...). Its functions
+    follow the contract of the Python ones above (``None`` for anything they do not handle)."""
+    from .. import groups
+    from .base import LieGroup
+
+    one.setup(LieGroup.__dict__["params"], LieGroup.__dict__["_floats"], groups.SO3, groups.SE3)
+    done = []
+    for name, fns in one.OPS.items():
+        cls = getattr(groups, name)
+        if cls._range_check is not None:  # the C functions do not check tangent ranges
+            continue
+        for op, fn in fns.items():
+            if op in OPS:
+                setattr(cls, f"_one_{op}", staticmethod(getattr(one, fn)))
+                done.append(f"{name}.{op}")
+    return done
