@@ -270,8 +270,33 @@ def _pack(ops: Any, comps: Any, shape: Shape, dt: Any, batch: Shape) -> Array:
     arrays = [c if hasattr(c, "shape") else xp.asarray(c, dtype=dt, device=A._device(like))
               for c in flat]
     arrays = [xp.broadcast_to(c, batch) if tuple(c.shape) != batch else c for c in arrays]
-    out = xp.stack(arrays, axis=-1)
+    out = _stack_blocks(xp, arrays, ops.blocks) if ops.blocks else xp.stack(arrays, axis=-1)
     return xp.reshape(out, (*batch, *shape)) if len(shape) > 1 else out
+
+
+def _stack_blocks(xp: Any, arrays: list, blocks: dict) -> Array:
+    """``stack(arrays, -1)`` where each run of consecutive ``k * v_i`` products of one factor
+    ``k`` (recorded by ``ops.times``) becomes one broadcast product ``k[..., None] * v``: the
+    same multiplications, but XLA then computes ``k`` once rather than once per column."""
+    parts, i = [], 0
+    while i < len(arrays):
+        b = blocks.get(id(arrays[i]))
+        if b is None or b[0] is not arrays[i] or not hasattr(b[1], "shape"):
+            parts.append(arrays[i][..., None])
+            i += 1
+            continue
+        k, vs = b[1], [b[2]]
+        i += 1
+        while i < len(arrays):
+            b = blocks.get(id(arrays[i]))
+            if b is None or b[0] is not arrays[i] or b[1] is not k:
+                break
+            vs.append(b[2])
+            i += 1
+        shape = tuple(arrays[i - 1].shape)  # the batch shape
+        v = xp.stack([xp.broadcast_to(c, shape) for c in vs], axis=-1)
+        parts.append(xp.broadcast_to(k, shape)[..., None] * v)
+    return parts[0] if len(parts) == 1 else xp.concat(parts, axis=-1)
 
 
 def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> Any:
@@ -338,8 +363,13 @@ def _run_foreign(k: Kernel, arrays: Sequence[Array]) -> Any:
     foreign = next(a for a in arrays if type(a) is not np.ndarray)
     arrays = [A.as_float_array(a, like=foreign) if type(a) is np.ndarray else a
               for a in arrays]
-    o = A.ops_for(*arrays)
-    batch = tuple(np.broadcast_shapes(*(tuple(a.shape[:-1]) for a in arrays)))
+    batch = () if all(a.ndim == 1 for a in arrays) else \
+        tuple(np.broadcast_shapes(*(tuple(a.shape[:-1]) for a in arrays)))
+    if not batch:  # one element: on Python floats when no autograd/trace needs tensor ops
+        lists = A.element_floats(arrays)
+        if lists is not None:
+            return _single_like(k, lists, foreign)
+    o = A.kernel_ops(arrays, math.prod(batch))
     dt = foreign.dtype
     for a in arrays:
         if a.dtype != dt:  # mixed dtypes: evaluate in the promoted one (0-d operands included)
@@ -355,6 +385,20 @@ def _run_foreign(k: Kernel, arrays: Sequence[Array]) -> Any:
     if k.finite:
         _check_outputs(k, out)
     return out[0] if k._flat else tuple(out)
+
+
+def _single_like(k: Kernel, lists: list, like: Array) -> Any:
+    """:func:`_single` with outputs of the array library of ``like`` (a CPU torch tensor)."""
+    f = k._scalar or _scalar_function(k)
+    try:
+        r = f(*lists)
+    except (ValueError, OverflowError, ZeroDivisionError) as e:
+        raise ValueError(_not_finite(k)) from e
+    outs = [r] if k._flat else r
+    if k.finite and not math.isfinite(sum(_fsum(x) for x in outs)):
+        raise ValueError(_not_finite(k))
+    res = [A.floats_like(x, like) for x in outs]
+    return res[0] if k._flat else tuple(res)
 
 
 def _chunked_torch(o: Any, k: Kernel, arrays: Sequence[Array], batch: Shape, dt: Any) -> Any:

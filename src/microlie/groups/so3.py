@@ -28,13 +28,9 @@ def half_angle(o: Any, t2: Any) -> tuple[Any, Any]:
     """
     small = t2 < M.TINY2
     t = o.sqrt(t2 + small)
-    # sin(t/2) and cos(t/2) from u = tan(t/4): one vectorised tan instead of sin and cos
-    # (several times cheaper in NumPy); exact for every t, with no pole below t = 2 pi
-    u = o.tan(0.25 * t)
-    u2 = u * u
-    r = 1.0 / (1.0 + u2)
-    k = o.where(small, 0.5 - t2 * (1.0 / 48.0), (2.0 * r) * u / t)
-    ch = o.where(small, 1.0 - 0.125 * t2, (1.0 - u2) * r)
+    sh, ch = o.half_sincos(t)  # NumPy: from one tan(t/4), see microlie._array
+    k = o.where(small, 0.5 - t2 * (1.0 / 48.0), sh / t)
+    ch = o.where(small, 1.0 - 0.125 * t2, ch)
     return k, ch
 
 
@@ -57,7 +53,7 @@ def coef_c(o: Any, t2: Any, k: Any, ch: Any) -> Any:
 
 def quat_exp(o: Any, w: tuple) -> tuple:
     k, ch = half_angle(o, M.norm2(*w))
-    return (k * w[0], k * w[1], k * w[2], ch)
+    return (*o.times(k, w), ch)
 
 
 def quat_log(o: Any, q: tuple) -> tuple:
@@ -82,7 +78,7 @@ def quat_log_parts(o: Any, q: tuple) -> tuple:
     # 2 atan2(n, |w|) / n; for a unit quaternion and tiny n it is 2 asin(n) / n = 2 + n^2/3
     kl = o.where(small, 2.0 + n2 * (1.0 / 3.0), 2.0 * o.atan2(n, aw) / n)
     ks = kl - 2.0 * (kl * (w < 0))  # w < 0: use -q
-    return (ks * x, ks * y, ks * z), kl, aw
+    return o.times(ks, (x, y, z)), kl, aw
 
 
 def quat_mul(a: tuple, b: tuple) -> tuple:
