@@ -27,15 +27,6 @@ import numpy as np
 Array = Any  # a NumPy, PyTorch or JAX array
 
 
-def tan_half_sincos(o: Any, x: Any) -> tuple[Any, Any]:
-    """``(sin(x/2), cos(x/2))`` from ``u = tan(x/4)``: one tan instead of a sin and a cos
-    (several times cheaper in NumPy), exact for every ``x``, with no pole below ``2 pi``."""
-    u = o.tan(0.25 * x)
-    u2 = u * u
-    r = 1.0 / (1.0 + u2)
-    return (2.0 * r) * u, (1.0 - u2) * r
-
-
 def times(k: Any, v: Any) -> tuple:
     """``(k * v[0], k * v[1], ...)``."""
     return tuple(k * c for c in v)
@@ -68,9 +59,6 @@ class _ScalarOps:
     @staticmethod
     def ones_like(x: float) -> float:
         return 1.0
-
-    def half_sincos(self, x: float) -> tuple[float, float]:
-        return tan_half_sincos(self, x)
 
     times = staticmethod(times)
 
@@ -107,11 +95,6 @@ class ArrayOps:
 
     def ones_like(self, x: Array) -> Array:
         return self.xp.ones_like(x)
-
-    def half_sincos(self, x: Array) -> tuple[Array, Array]:
-        """``(sin(x/2), cos(x/2))`` (NumPy and Python floats use :func:`tan_half_sincos`)."""
-        h = 0.5 * x
-        return self.sin(h), self.cos(h)
 
     #: ``times(k, v)``: the components of a common factor ``k`` times a vector ``v``
     times = staticmethod(times)
@@ -153,9 +136,6 @@ class _NumpyOps(ArrayOps):
         super().__init__(np)
         self.atan2 = np.arctan2
         self.where = np.where
-
-    def half_sincos(self, x: Array) -> tuple[Array, Array]:
-        return tan_half_sincos(self, x)
 
 
 NUMPY = _NumpyOps()

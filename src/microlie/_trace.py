@@ -19,7 +19,7 @@ import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from ._array import tan_half_sincos, times
+from ._array import times
 
 __all__ = ["compile_scalar"]
 
@@ -133,9 +133,6 @@ class _Ops:
 
     def abs1(self, x: Any) -> _Sym:
         return self._call("abs", x)
-
-    def half_sincos(self, x: Any) -> tuple[Any, Any]:
-        return tan_half_sincos(self, x)
 
     times = staticmethod(times)
 

@@ -28,9 +28,13 @@ def half_angle(o: Any, t2: Any) -> tuple[Any, Any]:
     """
     small = t2 < M.TINY2
     t = o.sqrt(t2 + small)
-    sh, ch = o.half_sincos(t)  # NumPy: from one tan(t/4), see microlie._array
-    k = o.where(small, 0.5 - t2 * (1.0 / 48.0), sh / t)
-    ch = o.where(small, 1.0 - 0.125 * t2, ch)
+    # sin(t/2) and cos(t/2) from u = tan(t/4): one vectorised tan instead of sin and cos
+    # (several times cheaper in NumPy); exact for every t, with no pole below t = 2 pi
+    u = o.tan(0.25 * t)
+    u2 = u * u
+    r = 1.0 / (1.0 + u2)
+    k = o.where(small, 0.5 - t2 * (1.0 / 48.0), (2.0 * r) * u / t)
+    ch = o.where(small, 1.0 - 0.125 * t2, (1.0 - u2) * r)
     return k, ch
 
 
