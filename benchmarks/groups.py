@@ -677,7 +677,7 @@ def before_after(args) -> int:
     loads = [_load()]
     rng = np.random.default_rng(args.seed)
     rows, bad = [], []
-    for group in BA_GROUPS:
+    for group in args.groups or BA_GROUPS:  # --groups / --ops / --regimes: subsets
         G = getattr(new, group)
         inputs = {}
         for regime, shape in (("single", ()), ("batch", (n,))):
@@ -686,8 +686,8 @@ def before_after(args) -> int:
             q = G.random(shape, rng=rng).params.copy()
             v = rng.standard_normal((*shape, G.point_dim))
             inputs[regime] = (tau, p, q, v)
-        for op in BA_VALUE_OPS + BA_JAC_OPS:
-            for regime in ("single", "batch"):
+        for op in args.ops or BA_VALUE_OPS + BA_JAC_OPS:
+            for regime in args.regimes or ("single", "batch"):
                 fns = {lib: _ba_cases(m, group, *inputs[regime])[op]
                        for lib, m in (("before", old), ("after", new))}
                 a, b = _ba_flat(fns["before"]()), _ba_flat(fns["after"]())

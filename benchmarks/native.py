@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import gc
 import os
 import statistics
 import subprocess
@@ -25,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from microlie import SE3, SO3
+from microlie import SE3, SO3, Sim3
 from microlie import _kernels as K
 
 HERE = Path(__file__).parent
@@ -51,32 +52,28 @@ def ptr(a: np.ndarray) -> ctypes.c_void_p:
     return ctypes.c_void_p(a.ctypes.data)
 
 
-def native_call(lib: ctypes.CDLL, name: str, ins: list[np.ndarray], outs: list[np.ndarray],
-                prefix: str = "n_"):
-    """The native loop writing into preallocated (warm) outputs."""
-    f = getattr(lib, prefix + name)
-    args = [ptr(a) for a in ins] + [ptr(o) for o in outs] + [ctypes.c_long(len(ins[0]))]
-
-    def call():
-        return f(*args)
-    call.fresh = native_fresh(lib, name, ins, outs, prefix)  # type: ignore[attr-defined]
-    return call
-
-
-def native_fresh(lib: ctypes.CDLL, name: str, ins: list[np.ndarray], outs: list[np.ndarray],
-                 prefix: str = "n_"):
-    """The native loop writing into fresh outputs each call (what microlie returns): the
-    difference to :func:`native_call` is the cost of the new pages."""
-    f = getattr(lib, prefix + name)
+def native_fn(lib: ctypes.CDLL, name: str, ins: list[np.ndarray], shapes: list[tuple],
+              fresh: bool):
+    """The native loop ``name`` of ``lib`` on ``ins``: writing into outputs allocated once
+    (warm pages, what a C++ program reusing its buffers gets) or, with ``fresh``, into new
+    outputs on each call (what an API returning new arrays pays: the first touch of each page)."""
+    f = getattr(lib, name)
     n = ctypes.c_long(len(ins[0]))
     pin = [ptr(a) for a in ins]
-    shapes = [o.shape for o in outs]
+    warm = [np.empty(s) for s in shapes]
+    for w in warm:
+        w.fill(0.0)
+    pw = [ptr(o) for o in warm]
 
-    def call():
-        fresh = [np.empty(s) for s in shapes]
-        f(*pin, *[ptr(o) for o in fresh], n)
-        return fresh
-    return call
+    def call_warm():
+        f(*pin, *pw, n)
+        return warm
+
+    def call_fresh():
+        outs = [np.empty(s) for s in shapes]
+        f(*pin, *[ptr(o) for o in outs], n)
+        return outs
+    return call_fresh if fresh else call_warm
 
 
 def generic(name: str, fn):
@@ -92,19 +89,45 @@ def generic(name: str, fn):
     return call
 
 
+def uncached(fn):
+    """``fn`` with the output cache of microlie_fast switched off (fresh pages every call)."""
+    lie = sys.modules.get("microlie_fast._lie")
+    if lie is None or not hasattr(lie, "set_cache_limit"):
+        return None
+
+    def call():
+        old = lie.set_cache_limit(0)
+        try:
+            return fn()
+        finally:
+            lie.set_cache_limit(old)
+    return call
+
+
+CLOCK = {"cpu": time.thread_time, "wall": time.perf_counter}
+clock = time.thread_time
+clock_name = "cpu"
+
+
 def timed(fn, number: int = 1) -> float:
-    t0 = time.perf_counter()
-    for _ in range(number):
-        fn()
-    return (time.perf_counter() - t0) / number
+    gc.disable()
+    try:
+        t0 = clock()
+        for _ in range(number):
+            fn()
+        return (clock() - t0) / number
+    finally:
+        gc.enable()
 
 
 def interleaved(fns: dict, rounds: int, number: int = 1) -> dict:
-    for f in fns.values():
-        f()  # warm up
+    """Round-robin rounds; in each, every variant is called once untimed before its timed
+    calls, so that each is measured in its steady state (e.g. microlie_fast's output cache,
+    which another variant may have emptied, is refilled) rather than after its neighbour."""
     times: dict = {k: [] for k in fns}
     for _ in range(rounds):
         for k, f in fns.items():
+            f()
             times[k].append(timed(f, number))
     return times
 
@@ -114,65 +137,90 @@ def stat(ts: list[float], scale: float) -> tuple[float, float, float]:
     return statistics.median(ts) * scale, q[0], q[2]
 
 
-def batched(n: int, rounds: int) -> None:
+def batched(n: int, rounds: int, only: list[str] | None = None) -> None:
     lib, blk = build(), build(blocked=True)
     rng = np.random.default_rng(0)
     t3 = rng.standard_normal((n, 3))
     t6 = rng.standard_normal((n, 6))
-    R = SO3.exp(t3)
+    R, Q = SO3.exp(t3), SO3.exp(rng.standard_normal((n, 3)))
     X, Y = SE3.exp(t6), SE3.exp(rng.standard_normal((n, 6)))
     v = rng.standard_normal((n, 3))
-    o = {k: np.empty((n, k)) for k in (3, 4, 6, 7)}
-    j18, j9, j36 = np.empty((n, 18)), np.empty((n, 9)), np.empty((n, 36))
+    r, q, x, y = R.params, Q.params, X.params, Y.params
+    z7 = rng.standard_normal((n, 7))
+    S, U = Sim3.exp(z7), Sim3.exp(rng.standard_normal((n, 7)))
+    s8, u8 = S.params, U.params
+    # name, microlie's call, the kernel's inputs, native loops (plain n_, blocked b_)
     cases: list = [
-        ("SO3.exp", lambda: SO3.exp(t3), native_call(lib, "so3_exp", [t3], [o[4]])),
-        ("SO3.log", lambda: R.log(), native_call(lib, "so3_log", [R.params], [o[3]])),
-        ("SE3.exp", lambda: SE3.exp(t6), native_call(lib, "se3_exp", [t6], [o[7]])),
-        ("SE3.log", lambda: X.log(), native_call(lib, "se3_log", [X.params], [o[6]])),
-        ("SE3.compose", lambda: X @ Y,
-         native_call(lib, "se3_compose", [X.params, Y.params], [o[7]])),
-        ("SE3.act", lambda: X.act(v), native_call(lib, "se3_act", [X.params, v], [o[3]])),
-        ("SE3.exp_jac", lambda: SE3.exp(t6, jac=True),
-         native_call(lib, "se3_exp_jac", [t6], [o[7], j36])),
-        ("SE3.act_jac", lambda: X.act(v, jac=True),
-         native_call(lib, "se3_act_jac", [X.params, v], [o[3], j18, j9])),
-        ("SE3.minus_jac", lambda: Y.minus(X, jac=True), None),
-        ("SE3.between_jac", lambda: X.between(Y, jac=True), None),
+        ("SO3.exp", lambda: SO3.exp(t3), [t3], ["n_"]),
+        ("SO3.log", lambda: R.log(), [r], ["n_"]),
+        ("SO3.compose", lambda: R @ Q, [r, q], ["n_"]),
+        ("SO3.act", lambda: R.act(v), [r, v], ["n_"]),
+        ("SE3.exp", lambda: SE3.exp(t6), [t6], ["n_", "b_"]),
+        ("SE3.log", lambda: X.log(), [x], ["n_", "b_"]),
+        ("SE3.compose", lambda: X @ Y, [x, y], ["n_"]),
+        ("SE3.act", lambda: X.act(v), [x, v], ["n_"]),
+        ("SO3.exp_jac", lambda: SO3.exp(t3, jac=True), [t3], ["n_"]),
+        ("SO3.act_jac", lambda: R.act(v, jac=True), [r, v], ["n_"]),
+        ("SO3.minus_jac", lambda: Q.minus(R, jac=True), [q, r], ["n_"]),
+        ("SO3.between_jac", lambda: R.between(Q, jac=True), [r, q], ["n_"]),
+        ("SE3.exp_jac", lambda: SE3.exp(t6, jac=True), [t6], ["n_", "b_"]),
+        ("SE3.act_jac", lambda: X.act(v, jac=True), [x, v], ["n_"]),
+        ("SE3.minus_jac", lambda: Y.minus(X, jac=True), [y, x], ["n_", "b_"]),
+        ("SE3.between_jac", lambda: X.between(Y, jac=True), [x, y], ["n_", "b_"]),
+        # Sim3: no native loop (fast against the generic NumPy kernels only)
+        ("Sim3.exp", lambda: Sim3.exp(z7), [z7], []),
+        ("Sim3.log", lambda: S.log(), [s8], []),
+        ("Sim3.compose", lambda: S @ U, [s8, u8], []),
+        ("Sim3.act", lambda: S.act(v), [s8, v], []),
+        ("Sim3.jr", lambda: Sim3.jr(z7), [z7], []),
+        ("Sim3.jr_inv", lambda: Sim3.jr_inv(z7), [z7], []),
+        ("Sim3.minus_jac", lambda: U.minus(S, jac=True), [u8, s8], []),
     ]
     fast_on = K.KERNELS["SE3.exp"].impl is not None
-    print(f"batched, N = {n}, ns per element, median [q1, q3] of {rounds} interleaved rounds; "
-          f"compiled kernels {'registered' if fast_on else 'NOT registered'}")
-    print("native: into preallocated outputs; native+alloc: into fresh outputs each call, "
-          "like microlie; SE3.exp/log/exp_jac: native is the faster of the plain loop "
-          "(lie_native.cpp) and the blocked loop (lie_blocked.c), both printed below")
-    blocked = {"SE3.exp": native_call(blk, "se3_exp", [t6], [o[7]], "b_"),
-               "SE3.log": native_call(blk, "se3_log", [X.params], [o[6]], "b_"),
-               "SE3.exp_jac": native_call(blk, "se3_exp_jac", [t6], [o[7], j36], "b_")}
-    print(f"{'op':16s} {'fast':>20s} {'generic':>20s} {'native':>20s} {'native+alloc':>20s} "
-          f"{'fast/native':>11s} {'fast/n+alloc':>12s} {'generic/native':>14s} "
-          f"{'generic/fast':>12s}")
-    for name, fn, nat in cases:
-        fns = {"fast": fn, "generic": generic(name, fn)}
-        if nat is not None:
-            fns["native"] = nat
-            fns["native+alloc"] = nat.fresh
-        if name in blocked:
-            fns["blocked"], fns["blocked+alloc"] = blocked[name], blocked[name].fresh
+    print(f"batched, N = {n}, ns per element ({clock_name} time), median [q1, q3] of {rounds} "
+          f"interleaved rounds; compiled kernels {'registered' if fast_on else 'NOT registered'}")
+    print("fast: microlie with the extra (its output cache on); fast-nc: the same with the cache "
+          "off; generic: the NumPy kernels; native: the faster C loop (plain lie_native.cpp or "
+          "blocked lie_blocked.c) into outputs allocated once; native+a: the same loop into "
+          "fresh outputs each call (both agree with microlie to 1e-9, checked)")
+    cols = ["fast", "fast-nc", "generic", "native", "native+a"]
+    print(f"{'op':16s} " + " ".join(f"{c:>21s}" for c in cols)
+          + f" {'fast/nat':>8s} {'fast/nat+a':>10s} {'fast-nc/nat':>11s} {'gen/nat':>8s}")
+    for name, fn, ins, variants in cases:
+        if only and name not in only:
+            continue
+        k = K.KERNELS[name]
+        want = K.run(k, *ins)
+        want = want if isinstance(want, tuple) else (want,)
+        shapes = [(n, int(np.prod(w.shape[1:]))) for w in want]
+        base = name.lower().replace(".", "_")
+        best = None
+        fns = {"fast": fn, "fast-nc": uncached(fn), "generic": generic(name, fn)}
+        for pre in variants:
+            lb = lib if pre == "n_" else blk
+            f = native_fn(lb, pre + base, ins, shapes, fresh=False)
+            for g, w in zip(f(), want, strict=True):  # the native loop computes the same thing
+                err = float(np.abs(g - w.reshape(n, -1)).max())
+                assert err < 1e-9, f"native {pre}{base} disagrees with microlie: {err:.2e}"
+            t = statistics.median(timed(f) for _ in range(3))
+            if best is None or t < best[0]:
+                best = (t, lb, pre)
+        if best is not None:
+            fns["native"] = native_fn(best[1], best[2] + base, ins, shapes, fresh=False)
+            fns["native+a"] = native_fn(best[1], best[2] + base, ins, shapes, fresh=True)
+        fns = {c: f for c, f in fns.items() if f is not None}
         ts = interleaved(fns, rounds)
-        s = {k: stat(t, 1e9 / n) for k, t in ts.items()}
-        if name in blocked:
-            print(f"  ({name}: plain {s['native'][0]:.1f} / {s['native+alloc'][0]:.1f}, "
-                  f"blocked {s['blocked'][0]:.1f} / {s['blocked+alloc'][0]:.1f} ns)")
-            for a in ("", "+alloc"):
-                if s["blocked" + a][0] < s["native" + a][0]:
-                    s["native" + a] = s["blocked" + a]
-        cell = {k: f"{m:7.1f} [{a:6.1f},{b:6.1f}]" for k, (m, a, b) in s.items()}
-        nat_m = s["native"][0] if "native" in s else float("nan")  # the faster native
-        nal_m = s["native+alloc"][0] if "native" in s else float("nan")
-        print(f"{name:16s} {cell['fast']:>20s} {cell['generic']:>20s} "
-              f"{cell.get('native', '-'):>20s} {cell.get('native+alloc', '-'):>20s} "
-              f"{s['fast'][0] / nat_m:11.2f} {s['fast'][0] / nal_m:12.2f} "
-              f"{s['generic'][0] / nat_m:14.2f} {s['generic'][0] / s['fast'][0]:12.2f}")
+        s = {c: stat(t, 1e9 / n) for c, t in ts.items()}
+        cell = {c: f"{m:7.1f} [{a:6.1f},{b:6.1f}]" for c, (m, a, b) in s.items()}
+        m = {c: v[0] for c, v in s.items()}
+        nan = float("nan")
+        nat, nat_a, nc = m.get("native", nan), m.get("native+a", nan), m.get("fast-nc", nan)
+        label = name + ("*" if best is not None and best[2] == "b_" else "")
+        print(f"{label:16s} " + " ".join(f"{cell.get(c, '-'):>21s}" for c in cols)
+              + f" {m['fast'] / nat:8.2f} {m['fast'] / nat_a:10.2f}"
+              f" {nc / nat:11.2f} {m['generic'] / nat:8.2f}"
+              + ("" if best else f"   generic/fast {m['generic'] / m['fast']:.2f}"))
+    print("(* = the blocked native loop was the faster)")
 
 
 def single(rounds: int) -> None:
@@ -209,13 +257,22 @@ def single(rounds: int) -> None:
 
 
 def main() -> None:
+    global clock, clock_name
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--clock", choices=sorted(CLOCK), default="cpu",
+                    help="cpu: the thread's CPU time (user + system, page faults included; "
+                    "robust to other processes on a loaded machine); wall: elapsed time")
+    ap.add_argument("--only", nargs="*", help="operations to run (e.g. SE3.compose)")
+    ap.add_argument("--no-single", action="store_true", help="skip the one-element table")
     a = ap.parse_args()
-    print(f"load: {os.getloadavg()}, python {sys.version.split()[0]}")
-    batched(a.n, a.rounds)
-    single(a.rounds)
+    clock, clock_name = CLOCK[a.clock], a.clock
+    print(f"load: {tuple(round(x, 2) for x in os.getloadavg())}, python "
+          f"{sys.version.split()[0]}, numpy {np.__version__}")
+    batched(a.n, a.rounds, a.only)
+    if not a.no_single:
+        single(a.rounds)
 
 
 if __name__ == "__main__":

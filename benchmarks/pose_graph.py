@@ -2,7 +2,14 @@
 
 Run (benchmark environment, one command)::
 
-    PYTHONPATH=src /work/bench-venv/bin/python benchmarks/pose_graph.py [--repeat 5] [--graphs ...]
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=src /work/bench-venv/bin/python benchmarks/pose_graph.py \
+        --repeat 3 --out benchmarks/results/pose_graph-latest.md [--graphs ...]
+
+Two passes, each interleaved with GTSAM: pass 1 in this process (with the compiled extra
+``microlie-fast`` when it is installed: its group kernels and the SE(3) edge loop of
+``microlie.optim.compiled``), every backend; pass 2 in a fresh process with ``MICROLIE_FAST=0``
+(the default install: NumPy and SciPy only) on the default-install backends (skip it with
+``--no-default-pass``).
 
 For each graph both solvers start from the same poses (the file's vertices; ais2klinik from
 microlie's chordal initialisation, kitti_00 from the odometry chain) and hold pose 0 (GTSAM: a
@@ -10,8 +17,9 @@ prior with sigma 1e-6, excluded from the reported cost; microlie: pose 0 fixed).
 ``LevenbergMarquardtOptimizer(graph, initial, LevenbergMarquardtParams()).optimize()`` with the
 default parameters; only ``optimize()`` is timed (the optimizer is constructed outside the timed
 region). microlie runs ``FactorGraph.optimize()`` (LM, the same lambda schedule and default
-tolerances as GTSAM); its time includes the linear solver's one-off symbolic analysis, but not
-building the graph and its pattern (``FactorGraph.problem()``, printed as "setup"). Runs
+tolerances as GTSAM); neither its graph and pattern (``FactorGraph.problem()``) nor the linear
+solver's symbolic analysis (once per problem and backend, ``Problem.analysed``; GTSAM's ordering
+runs in its untimed constructor) is timed: both are printed, as "setup" and "analysis". Runs
 alternate GTSAM, microlie-backend-1, microlie-backend-2, ... ``--repeat`` times after one
 warm-up; the table gives medians, the ratio of medians, and the spread of the per-round ratios.
 Every BLAS/LAPACK library is held to one thread (GTSAM's wheel is single-threaded).
@@ -32,16 +40,18 @@ for _v in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import statistics  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 from microlie import SE2  # noqa: E402
-from microlie.optim import available_solvers, from_pose_graph, make_solver  # noqa: E402
+from microlie.optim import available_solvers, compiled, from_pose_graph, make_solver  # noqa: E402
 from microlie.optim.g2o import read_g2o  # noqa: E402
 from microlie.optim.init import initialize  # noqa: E402
 
@@ -99,35 +109,11 @@ def run_gtsam(gtsam, graph, init):
     return time.perf_counter() - t0, res, opt.iterations()
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--graphs", nargs="*", default=list(GRAPHS), choices=list(GRAPHS))
-    ap.add_argument("--backends", nargs="*", default=None,
-                    help="microlie linear solvers (default: supernodal, pardiso, qdldl, scipy "
-                         "where installed)")
-    ap.add_argument("--out", default=None, help="also write the markdown table to this file")
-    args = ap.parse_args(argv)
+def measure(args, backends, lines_out: list) -> list[dict]:
+    """Interleaved runs of GTSAM and microlie on each graph: one dict per graph."""
     import gtsam
 
-    avail = available_solvers()
-    backends = args.backends or [b for b in ("supernodal", "pardiso", "qdldl", "scipy")
-                                 if b in avail]
-    lines = []
-    load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
-    head = (f"pose_graph.py, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-            f"repeat {args.repeat}, one BLAS thread; `uptime`: {load}")
-    print(head)
-    lines += [head, ""]
-    cols = " | ".join(f"{b} ms (ratio, spread)" for b in backends)
-    hdr = (f"| graph | start | GTSAM LM ms (it) | {cols} | GTSAM cost | "
-           + " | ".join(f"{b} cost (it)" for b in backends) + " |")
-    sep = "|" + "---|" * (5 + 2 * len(backends))
-    print(hdr)
-    print(sep)
-    lines += [hdr, sep]
-    breakdowns = []
-    summary = []
+    out = []
     for name in args.graphs:
         fname, start = GRAPHS[name]
         path = DATA / fname
@@ -135,8 +121,13 @@ def main(argv=None) -> int:
         X0 = initialize(pg, start)
         fg, handle = from_pose_graph(pg, X0)
         t0 = time.perf_counter()
-        fg.problem()  # the fixed pattern and scatter plan, built once per graph (not timed)
+        prob = fg.problem()  # the fixed pattern and scatter plan, built once per graph (not timed)
         setup = time.perf_counter() - t0
+        analysis = {}
+        for b in backends:  # the symbolic analysis, once per problem and backend (not timed)
+            t0 = time.perf_counter()
+            prob.analysed(b)
+            analysis[b] = time.perf_counter() - t0
         ggraph, ginit = gtsam_problem(gtsam, path, pg, X0)
         t_g, t_us = [], {b: [] for b in backends}
         res_us, res_g = {}, None
@@ -151,46 +142,129 @@ def main(argv=None) -> int:
                 t_g.append(tg)
             res_g = (gres, git)
         gcost = pg.cost(gtsam_poses(gtsam, pg, res_g[0]))
-        mg = statistics.median(t_g)
-        cells, costs = [], []
-        for b in backends:
-            mu = statistics.median(t_us[b])
-            ratios = [u / g for u, g in zip(t_us[b], t_g, strict=True)]
-            cells.append(f"{mu * 1e3:.0f} ({mu / mg:.2f}x, {min(ratios):.2f}-{max(ratios):.2f})")
-            r = res_us[b]
-            costs.append(f"{pg.cost(r.values[handle]):.10g} ({r.iterations})")
-            breakdowns.append((name, b, r.timings, r.time_s, setup))
-        prob = fg.problem()
         picks = [make_solver("auto", prob.size, prob.block_size).name,
                  make_solver("auto", prob.size, prob.block_size,
                              available=["scipy", "supernodal", "dense"]).name]
-        summary.append((name, *[(b, statistics.median(t_us[b]) / mg if b in t_us else None)
-                                for b in picks]))
-        row = (f"| {name} | {start} | {mg * 1e3:.0f} ({res_g[1]}) | " + " | ".join(cells)
-               + f" | {gcost:.10g} | " + " | ".join(costs) + " |")
-        print(row, flush=True)
-        lines.append(row)
-    lines += ["", "Ratio to GTSAM (median time) of linear_solver='auto': with every backend of "
-              "this environment installed (goal <= 0.5x) and with the default install, NumPy "
-              "and SciPy only (goal <= 1.0x):", "",
-              "| graph | auto, all installed | auto, default install |", "|---|---|---|"]
-    for name, best, default in summary:
-        cell = [f"{b} {r:.2f}x" if r is not None else f"{b} (not run)" for b, r in (best, default)]
-        lines.append(f"| {name} | {cell[0]} | {cell[1]} |")
-    lines += ["", "Breakdown of microlie's last run (ms): linearise (residuals, Jacobians and "
-              "block products) / assemble (scatter into the fixed pattern) / factorise "
-              "(including the one-off analysis) / solve / cost (trial points) / other (the "
-              "linear solver's symbolic analysis, damping, bookkeeping); 'setup' is the "
-              "graph's pattern and scatter plan, built once per graph before the timed solve "
-              "(like GTSAM's optimizer constructor, which is not timed either)", "",
-              "| graph | backend | linearize | assemble | factorize | solve | cost+retract | "
-              "other | total | setup (not timed) |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for name, b, t, tot, setup in breakdowns:
-        lines.append(f"| {name} | {b} | {t['linearize'] * 1e3:.1f} | {t['assemble'] * 1e3:.1f}"
-                     f" | {t['factorize'] * 1e3:.1f} | {t['solve'] * 1e3:.1f} | "
-                     f"{(t['cost'] + t['retract']) * 1e3:.1f} | {t['other'] * 1e3:.1f} | "
-                     f"{tot * 1e3:.1f} | {setup * 1e3:.1f} |")
-    print("\n".join(lines[3 + len(args.graphs) + 2:]))
+        out.append({
+            "name": name, "start": start, "setup": setup, "analysis": analysis, "t_g": t_g,
+            "git": res_g[1], "gcost": gcost, "t_us": t_us, "picks": picks,
+            "costs": {b: (pg.cost(r.values[handle]), r.iterations) for b, r in res_us.items()},
+            "timings": {b: (r.timings, r.time_s) for b, r in res_us.items()},
+        })
+        lines_out.append(f"{name}: done")
+        print(f"{name}: done", file=sys.stderr, flush=True)
+    return out
+
+
+def table(results: list[dict], backends: list[str], label: str) -> list[str]:
+    cols = " | ".join(f"{b} ms (ratio, spread)" for b in backends)
+    lines = [f"| graph | start | GTSAM LM ms (it) | {cols} | GTSAM cost | "
+             + " | ".join(f"{b} cost (it)" for b in backends) + " |",
+             "|" + "---|" * (4 + 2 * len(backends))]
+    for g in results:
+        mg = statistics.median(g["t_g"])
+        cells, costs = [], []
+        for b in backends:
+            mu = statistics.median(g["t_us"][b])
+            ratios = [u / t for u, t in zip(g["t_us"][b], g["t_g"], strict=True)]
+            cells.append(f"{mu * 1e3:.0f} ({mu / mg:.2f}x, {min(ratios):.2f}-{max(ratios):.2f})")
+            c, it = g["costs"][b]
+            costs.append(f"{c:.10g} ({it})")
+        lines.append(f"| {g['name']} | {g['start']} | {mg * 1e3:.0f} ({g['git']}) | "
+                     + " | ".join(cells) + f" | {g['gcost']:.10g} | " + " | ".join(costs) + " |")
+    return [f"{label}:", ""] + lines
+
+
+def breakdown(results: list[dict], label: str) -> list[str]:
+    lines = [f"{label}:", "",
+             "| graph | backend | linearize | assemble | factorize | solve | cost+retract | "
+             "other | total | setup (not timed) | analysis (not timed) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for g in results:
+        for b, (t, tot) in g["timings"].items():
+            lines.append(
+                f"| {g['name']} | {b} | {t['linearize'] * 1e3:.1f} | {t['assemble'] * 1e3:.1f}"
+                f" | {t['factorize'] * 1e3:.1f} | {t['solve'] * 1e3:.1f} | "
+                f"{(t['cost'] + t['retract']) * 1e3:.1f} | {t['other'] * 1e3:.1f} | "
+                f"{tot * 1e3:.1f} | {g['setup'] * 1e3:.1f} | "
+                f"{g['analysis'][b] * 1e3:.1f} |")
+    return lines
+
+
+def ratio(g: dict, backend: str) -> str:
+    if backend not in g["t_us"]:
+        return f"{backend} (not run)"
+    return f"{backend} {statistics.median(g['t_us'][backend]) / statistics.median(g['t_g']):.2f}x"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--graphs", nargs="*", default=list(GRAPHS), choices=list(GRAPHS))
+    ap.add_argument("--backends", nargs="*", default=None,
+                    help="microlie linear solvers (default: supernodal, pardiso, qdldl, scipy "
+                         "where installed)")
+    ap.add_argument("--no-default-pass", action="store_true",
+                    help="skip the second pass without the compiled extra (MICROLIE_FAST=0)")
+    ap.add_argument("--child-json", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--out", default=None, help="also write the markdown table to this file")
+    args = ap.parse_args(argv)
+
+    avail = available_solvers()
+    backends = args.backends or [b for b in ("supernodal", "pardiso", "qdldl", "scipy")
+                                 if b in avail]
+    if args.child_json:  # the MICROLIE_FAST=0 pass, run by the parent in a fresh process
+        res = measure(args, backends, [])
+        Path(args.child_json).write_text(json.dumps(res))
+        return 0
+    fast = compiled.available()
+    load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    head = (f"pose_graph.py, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+            f"repeat {args.repeat}, one BLAS thread; compiled extra (microlie_fast): "
+            f"{'on' if fast else 'OFF'}; `uptime` at the start: {load}")
+    print(head, flush=True)
+    res = measure(args, backends, [])
+    lines = [head, ""]
+    lines += table(res, backends, f"Pass 1, {'with' if fast else 'without'} the compiled "
+                                  "extra, every backend of this environment")
+    default_res = None
+    default_backends = [b for b in ("supernodal", "scipy") if b in backends]
+    if not args.no_default_pass and fast and default_backends:
+        with tempfile.TemporaryDirectory() as tmp:
+            js = Path(tmp) / "default.json"
+            env = dict(os.environ, MICROLIE_FAST="0")
+            cmd = [sys.executable, __file__, "--repeat", str(args.repeat), "--graphs",
+                   *args.graphs, "--backends", *default_backends, "--child-json", str(js)]
+            subprocess.run(cmd, env=env, check=True)
+            default_res = json.loads(js.read_text())
+        lines += [""] + table(default_res, default_backends,
+                              "Pass 2, MICROLIE_FAST=0 (the default install: NumPy and SciPy "
+                              "only), in a fresh process, again interleaved with GTSAM")
+    load_end = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    lines += ["", f"`uptime` at the end: {load_end}", "",
+              "Ratio to GTSAM (median time) of linear_solver='auto': with everything of this "
+              "environment installed, the compiled extra included (goal <= 0.5x); the default "
+              "install, NumPy and SciPy only, without the extra (goal <= 1.0x); the default "
+              "install's backend with the compiled extra (issue 11: <= 0.5x):", "",
+              "| graph | auto, all installed | auto, default install | default backend + extra |",
+              "|---|---|---|---|"]
+    for k, g in enumerate(res):
+        best, dflt = g["picks"]
+        d = ratio(default_res[k], dflt) if default_res else (
+            ratio(g, dflt) + (" (extra on)" if fast else ""))
+        lines.append(f"| {g['name']} | {ratio(g, best)} | {d} | "
+                     f"{ratio(g, dflt) if fast else '(extra not installed)'} |")
+    note = ("Breakdown of microlie's last run (ms): linearise (residuals, Jacobians and block "
+            "products; with the compiled extra the SE(3) edges' scatter into the pattern is "
+            "inside it) / assemble (bincount scatter of the NumPy-path factors) / factorise "
+            "/ solve / cost (trial points) / other (damping, bookkeeping); 'setup' is the "
+            "graph's pattern and scatter plan, built once per graph, and 'analysis' the linear "
+            "solver's symbolic analysis, once per problem and backend, both before the timed "
+            "solve (like GTSAM's optimizer constructor, which is not timed either)")
+    lines += [""] + breakdown(res, f"{note}; pass 1")
+    if default_res:
+        lines += [""] + breakdown(default_res, "Pass 2 (MICROLIE_FAST=0)")
+    print("\n".join(lines[2:]))
     if args.out:
         Path(args.out).write_text("\n".join(lines) + "\n")
     return 0

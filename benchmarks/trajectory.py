@@ -4,7 +4,11 @@ evo is GPL-3 and only *run* here (never imported by microlie). Run in an environ
 both (from the repository root)::
 
     python3 -m venv /work/evo-venv && /work/evo-venv/bin/pip install evo==1.38.1 array-api-compat
+    /work/evo-venv/bin/pip install ./fast   # microlie[fast]: the compiled kernels and file reader
     PYTHONPATH=src /work/evo-venv/bin/python benchmarks/trajectory.py [--n 100000] [--no-write]
+
+Without ``microlie_fast`` (or with ``MICROLIE_FAST=0``) microlie reads files with NumPy's
+``loadtxt``; the command table has a row for that default install on the 1e5 pair.
 
 Cases: a synthetic 1e5-pose pair (TUM files written to a temporary directory) and the fr2/desk
 files of ../shared/data. For each case both tools compute the same numbers (checked: the
@@ -65,10 +69,13 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def command_times(fmt: str, gt: Path, est: Path, repeat: int) -> list[list[float]]:
+def command_times(fmt: str, gt: Path, est: Path, repeat: int,
+                  extra_env: dict | None = None) -> list[list[float]]:
     """Wall times of the two whole commands (fresh processes, runs interleaved) and their CPU
-    times (user + system of the finished child): ``[wall_ours, wall_evo, cpu_ours, cpu_evo]``."""
+    times (user + system of the finished child): ``[wall_ours, wall_evo, cpu_ours, cpu_evo]``.
+    ``extra_env`` is added to microlie's environment (e.g. ``MICROLIE_FAST=0``)."""
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+    ours_env = dict(env, **(extra_env or {}))
     ours = [sys.executable, "-m", "microlie.cli", "ape", fmt, str(gt), str(est), "-a"]
     evo = [str(EVO_BIN / "evo_ape"), fmt, str(gt), str(est), "-a", "--no_warnings"]
     out: list[list[float]] = [[], [], [], []]
@@ -76,8 +83,8 @@ def command_times(fmt: str, gt: Path, est: Path, repeat: int) -> list[list[float
         for k, cmd in enumerate((ours, evo)):
             c0 = _children_cpu()
             t0 = time.perf_counter()
-            subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL,
-                           stderr=subprocess.DEVNULL)
+            subprocess.run(cmd, check=True, env=ours_env if k == 0 else env,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             out[k].append(time.perf_counter() - t0)
             out[k + 2].append(_children_cpu() - c0)
     return out
@@ -98,10 +105,11 @@ def _speedup(ours: Stats, evo: Stats) -> tuple[float, float, float]:
     return evo.median / ours.median, evo.lo / ours.hi, evo.hi / ours.lo
 
 
-def command_rows(cases: list[tuple[str, str, Path, Path]], repeat: int) -> list[dict]:
+def command_rows(cases: list[tuple[str, str, Path, Path]], repeat: int,
+                 extra_env: dict | None = None) -> list[dict]:
     rows = []
     for label, fmt, gt, est in cases:
-        a, b, cpu_a, cpu_b = command_times(fmt, gt, est, repeat)
+        a, b, cpu_a, cpu_b = command_times(fmt, gt, est, repeat, extra_env)
         ratio = Stats.of([y / x for x, y in zip(a, b, strict=True)], 1)
         cpu_ratio = Stats.of([y / x for x, y in zip(cpu_a, cpu_b, strict=True)], 1)
         rows.append(dict(case=label, ours=_ms(Stats.of(a, 1)), evo=_ms(Stats.of(b, 1)),
@@ -328,9 +336,11 @@ def table(rows: list[dict], imports: dict[str, float],
         "fresh interpreter, median of 5: numpy "
         f"{imports['numpy'] * 1e3:.0f} ms, `microlie.traj` {imports['microlie'] * 1e3:.0f} ms, "
         f"evo's file_interface + metrics + sync {imports['evo'] * 1e3:.0f} ms, each "
-        "including numpy). microlie's end-to-end time is mostly reading: `numpy.loadtxt` "
-        "parsing the files (about 85% on fr2/desk; a malformed file falls back to a "
-        "line-by-line parser that names the bad line). "
+        "including numpy). microlie reads the files with its compiled reader "
+        "(`microlie_fast._text`, microlie[fast]) when it is installed, otherwise with "
+        "`numpy.loadtxt` (the MICROLIE_FAST=0 row of the command table); both give the values "
+        "of Python's `float`, and a malformed file falls back to a line-by-line parser that "
+        "names the bad line. "
         "Both tools' statistics agree to the stated relative difference in every row "
         "(the 2e-9 row: its smallest error is 1.5e-4 m on coordinates up to 4e3 m, where both "
         "tools carry ~1e-13 m of rounding). "
@@ -388,6 +398,10 @@ def main() -> None:
 
     # fr2/desk's ground truth has one repeated stamp: expected, warned once per read
     warnings.simplefilter("ignore", TimestampWarning)
+    from microlie import _fast
+
+    fast_reader = _fast.text_parser() is not None
+    print(f"compiled file reader (microlie[fast]): {'yes' if fast_reader else 'no'}")
     load_start = os.getloadavg()
     imports = import_times()
     print("import times: " + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in imports.items()))
@@ -401,11 +415,16 @@ def main() -> None:
         rows += run_case(synth, gt, est, args.rounds)
         cmd_rows = command_rows([(synth + " (TUM)", "tum", gt, est)],
                                 max(3, args.command_runs - 2))
+        if fast_reader:  # the default install (no microlie[fast]): NumPy's loadtxt reads
+            cmd_rows += command_rows([(synth + " (TUM), MICROLIE_FAST=0", "tum", gt, est)],
+                                     max(3, args.command_runs - 2), {"MICROLIE_FAST": "0"})
     rows += run_case("fr2/desk (TUM)", fr2_gt, fr2_est, args.rounds)
     cmd_rows += command_rows([(lab, fmt, DATA / g, DATA / e) for lab, fmt, g, e in REAL],
                              args.command_runs)
     load = (load_start, os.getloadavg())
-    text = table(rows, imports, load) + "\n" + command_table(cmd_rows)
+    text = (table(rows, imports, load) + "\n" + command_table(cmd_rows)
+            + f"\nmicrolie's compiled file reader (microlie[fast]): "
+            f"{'installed' if fast_reader else 'not installed'}.\n")
     print()
     print(text)
     if not args.no_write:

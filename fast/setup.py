@@ -29,6 +29,39 @@ setup(
             include_dirs=[np.get_include(), "src/microlie_fast"],
             extra_compile_args=flags,
             libraries=libs,
-        )
+        ),
+        Extension(
+            "microlie_fast._graph",
+            sources=["src/microlie_fast/_graph.c"],
+            include_dirs=[np.get_include(), "src/microlie_fast"],
+            extra_compile_args=flags,
+            libraries=libs,
+        ),
+        Extension(  # one-element entry points (microlie.groups._single)
+            "microlie_fast._one",
+            sources=["src/microlie_fast/_one.c"],
+            include_dirs=[np.get_include(), "src/microlie_fast"],
+            extra_compile_args=flags,
+            libraries=libs,
+        ),
+        Extension(  # the Schur complement of bundle adjustment (microlie.optim.schur)
+            "microlie_fast._schur",
+            sources=["src/microlie_fast/_schur.c"],
+            include_dirs=[np.get_include()],
+            extra_compile_args=flags,
+        ),
+        Extension(  # the reader of numeric text tables (microlie.traj.io)
+            "microlie_fast._text",
+            sources=["src/microlie_fast/_text.c"],
+            include_dirs=[np.get_include()],
+            extra_compile_args=flags,
+        ),
+        # the numeric supernodal Cholesky loop on SciPy's BLAS/LAPACK (capsules, no BLAS link)
+        Extension(
+            "microlie_fast._chol",
+            sources=["src/microlie_fast/_chol.c"],
+            include_dirs=[np.get_include()],
+            extra_compile_args=flags,
+        ),
     ]
 )

@@ -130,7 +130,8 @@ def test_random_points_and_batches_against_reference():
         Jr, Jri, _ = reference(z)
         assert max(_block_errors(J, Jr)) <= 1e-12, z
         assert max(_block_errors(Ji, Jri)) <= 1e-12, z
-        np.testing.assert_array_equal(J, Sim3.jr(z))  # the single-element path agrees
+        # the single-element path agrees (to rounding: batches may run the compiled kernel)
+        np.testing.assert_allclose(Sim3.jr(z), J, rtol=0, atol=1e-14 * max(1.0, abs(J).max()))
 
 
 def test_the_old_generic_series_was_wrong_at_large_sigma():

@@ -21,6 +21,12 @@ typedef long ix;
     }
 LOAD(6) LOAD(7) STORE(6) STORE(7) STORE(36)
 
+/* two inputs of 7 into one block buffer (rows 0..6 and 7..13) */
+static void load_77(const double *a, const double *b, ix m, double *buf) {
+    load_7(a, m, buf);
+    load_7(b, m, buf + 7 * S);
+}
+
 void b_se3_exp(const double *t, double *p, ix n) {
     double ib[6 * S] __attribute__((aligned(64))), ob[7 * S] __attribute__((aligned(64)));
     for (ix i0 = 0; i0 < n; i0 += S) {
@@ -52,5 +58,30 @@ void b_se3_exp_jac(const double *t, double *p, double *J, ix n) {
         for (ix j = 0; j < m; j++) se3_exp_jac(ib + j, ib + j, ob + j);
         store_7(ob, m, p + 7 * i0);
         store_36(ob + 7 * S, m, J + 36 * i0);
+    }
+}
+
+void b_se3_between_jac(const double *p, const double *q, double *z, double *J, ix n) {
+    double ib[14 * S] __attribute__((aligned(64))), ob[43 * S] __attribute__((aligned(64)));
+    for (ix i0 = 0; i0 < n; i0 += S) {
+        ix m = n - i0 < S ? n - i0 : S;
+        load_77(p + 7 * i0, q + 7 * i0, m, ib);
+#pragma omp simd
+        for (ix j = 0; j < m; j++) se3_between_jac(ib + j, ib + 7 * S + j, ob + j);
+        store_7(ob, m, z + 7 * i0);
+        store_36(ob + 7 * S, m, J + 36 * i0);
+    }
+}
+
+void b_se3_minus_jac(const double *y, const double *x, double *t, double *Jy, double *Jx, ix n) {
+    double ib[14 * S] __attribute__((aligned(64))), ob[78 * S] __attribute__((aligned(64)));
+    for (ix i0 = 0; i0 < n; i0 += S) {
+        ix m = n - i0 < S ? n - i0 : S;
+        load_77(y + 7 * i0, x + 7 * i0, m, ib);
+#pragma omp simd
+        for (ix j = 0; j < m; j++) se3_minus_jac(ib + j, ib + 7 * S + j, ob + j);
+        store_6(ob, m, t + 6 * i0);
+        store_36(ob + 6 * S, m, Jy + 36 * i0);
+        store_36(ob + 42 * S, m, Jx + 36 * i0);
     }
 }

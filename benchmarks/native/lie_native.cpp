@@ -133,6 +133,16 @@ static void se3_compose(const double *p, const double *q, double *o, long n) {
     }
 }
 
+static void so3_compose(const double *p, const double *q, double *o, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) qmul(p + 4 * i, q + 4 * i, o + 4 * i);
+}
+
+static void so3_act(const double *q, const double *v, double *o, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) qrot(q + 4 * i, v + 3 * i, o + 3 * i);
+}
+
 static void se3_act(const double *p, const double *v, double *o, long n) {
 #pragma omp simd
     for (long i = 0; i < n; i++) {
@@ -182,6 +192,29 @@ static inline void so3_ihat(double a, double b, const double w[3], double *J, in
     J[2 * ld + 0] -= a * w[1]; J[2 * ld + 1] += a * w[0];
 }
 
+// Q(rho, phi) (Barfoot's left-Jacobian block, MATH.md section 4) from the half-angle functions
+// of |phi|: (t^2 + 2 cos t - 2)/(2 t^4) and (2 t - 3 sin t + t cos t)/(2 t^5) from k and ch
+static inline void q_block(const double rho[3], const double phi[3], double t2, double k,
+                           double ch, double Q[9]) {
+    double b = coef_b(t2, k, ch);
+    double c3 = t2 < 1e-4 ? 1.0 / 24.0 - t2 / 720.0 : (1.0 - 4.0 * k * k) / (2.0 * t2);
+    double c4 = t2 < 1e-4 ? 1.0 / 120.0 - t2 / 2520.0
+                          : (3.0 - 6.0 * k * ch - 2.0 * k * k * t2) / (2.0 * t2 * t2);
+    double P[9] = {0, -rho[2], rho[1], rho[2], 0, -rho[0], -rho[1], rho[0], 0};
+    double F[9] = {0, -phi[2], phi[1], phi[2], 0, -phi[0], -phi[1], phi[0], 0};
+    double FP[9], PF[9], FPF[9], FF[9], FFP[9], PFF[9], FPFF[9], FFPF[9];
+    auto mm = [](const double *A, const double *B, double *C) {
+        for (int r = 0; r < 3; r++)
+            for (int s = 0; s < 3; s++)
+                C[3 * r + s] = A[3 * r] * B[s] + A[3 * r + 1] * B[3 + s] + A[3 * r + 2] * B[6 + s];
+    };
+    mm(F, P, FP); mm(P, F, PF); mm(FP, F, FPF); mm(F, F, FF); mm(FF, P, FFP); mm(PF, F, PFF);
+    mm(FPF, F, FPFF); mm(F, FPF, FFPF);
+    for (int e = 0; e < 9; e++)
+        Q[e] = 0.5 * P[e] + b * (FP[e] + PF[e] + FPF[e]) + c3 * (FFP[e] + PFF[e] - 3.0 * FPF[e])
+               + c4 * (FPFF[e] + FFPF[e]);
+}
+
 // SE3 exp with its right Jacobian Jr = [[Jr(phi), Q(-rho,-phi)], [0, Jr(phi)]]
 static void se3_exp_jac(const double *tau, double *p, double *J, long n) {
 #pragma omp simd
@@ -198,29 +231,172 @@ static void se3_exp_jac(const double *tau, double *p, double *J, long n) {
         double *Ji = J + 36 * i;
         so3_ihat(-a, b, phi, Ji, 6);
         so3_ihat(-a, b, phi, Ji + 21, 6);
-        // Q(-rho, -phi): closed form with P = hat(-rho), F = hat(-phi) (MATH.md section 4)
-        // (t^2 + 2 cos t - 2)/(2 t^4) and (2 t - 3 sin t + t cos t)/(2 t^5), from k and ch
-        double c3 = t2 < 1e-4 ? 1.0 / 24.0 - t2 / 720.0 : (1.0 - 4.0 * k * k) / (2.0 * t2);
-        double c4 = t2 < 1e-4 ? 1.0 / 120.0 - t2 / 2520.0
-                              : (3.0 - 6.0 * k * ch - 2.0 * k * k * t2) / (2.0 * t2 * t2);
-        double P[9] = {0, rho[2], -rho[1], -rho[2], 0, rho[0], rho[1], -rho[0], 0};
-        double F[9] = {0, phi[2], -phi[1], -phi[2], 0, phi[0], phi[1], -phi[0], 0};
-        double FP[9], PF[9], FPF[9], FF[9], FFP[9], PFF[9], FPFF[9], FFPF[9];
-        auto mm = [](const double *A, const double *B, double *C) {
-            for (int r = 0; r < 3; r++)
-                for (int s = 0; s < 3; s++)
-                    C[3 * r + s] = A[3 * r] * B[s] + A[3 * r + 1] * B[3 + s] + A[3 * r + 2] * B[6 + s];
-        };
-        mm(F, P, FP); mm(P, F, PF); mm(FP, F, FPF); mm(F, F, FF); mm(FF, P, FFP); mm(PF, F, PFF);
-        mm(FPF, F, FPFF); mm(F, FPF, FFPF);
+        double mr[3] = {-rho[0], -rho[1], -rho[2]}, mp[3] = {-phi[0], -phi[1], -phi[2]}, Q[9];
+        q_block(mr, mp, t2, k, ch, Q);  // Q(-rho, -phi)
         for (int r = 0; r < 3; r++)
             for (int s = 0; s < 3; s++) {
-                int e = 3 * r + s;
-                Ji[6 * r + 3 + s] = 0.5 * P[e] + b * (FP[e] + PF[e] + FPF[e])
-                                    + c3 * (FFP[e] + PFF[e] - 3.0 * FPF[e])
-                                    + c4 * (FPFF[e] + FFPF[e]);
+                Ji[6 * r + 3 + s] = Q[3 * r + s];
                 Ji[6 * (r + 3) + s] = 0.0;
             }
+    }
+}
+
+// ------------------------------------------------------------ more Jacobian operations
+// (the acceptance list of issue 11: exp, minus, between, act with jac=True, SO3 and SE3)
+
+static inline void qconj(const double q[4], double o[4]) {
+    o[0] = -q[0]; o[1] = -q[1]; o[2] = -q[2]; o[3] = q[3];
+}
+
+// I + a hat(w) + b hat(w)^2 into a 3x3 block with row stride ld, times s
+static inline void ihat(double a, double b, const double w[3], double *J, int ld) {
+    so3_ihat(a, b, w, J, ld);
+}
+
+static void so3_exp_jac(const double *tau, double *q, double *J, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        const double *w = tau + 3 * i;
+        double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2], k, ch;
+        half(t2, &k, &ch);
+        double *o = q + 4 * i;
+        o[0] = k * w[0]; o[1] = k * w[1]; o[2] = k * w[2]; o[3] = ch;
+        ihat(-2.0 * k * k, coef_b(t2, k, ch), w, J + 9 * i, 3);
+    }
+}
+
+// R v, d/dR (right) = -R hat(v), d/dv = R
+static void so3_act_jac(const double *q, const double *v, double *o, double *JR, double *Jv,
+                        long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        const double *x = v + 3 * i;
+        double R[9];
+        qmat(q + 4 * i, R);
+        for (int r = 0; r < 3; r++) {
+            o[3 * i + r] = R[3 * r] * x[0] + R[3 * r + 1] * x[1] + R[3 * r + 2] * x[2];
+            double *J = JR + 9 * i + 3 * r;
+            J[0] = -(R[3 * r + 1] * x[2] - R[3 * r + 2] * x[1]);
+            J[1] = -(R[3 * r + 2] * x[0] - R[3 * r] * x[2]);
+            J[2] = -(R[3 * r] * x[1] - R[3 * r + 1] * x[0]);
+            for (int c = 0; c < 3; c++) Jv[9 * i + 3 * r + c] = R[3 * r + c];
+        }
+    }
+}
+
+// z = p^-1 q and d z / d p = -Ad(z^-1) = -R(z)^T (d z / d q = I is not written)
+static void so3_between_jac(const double *p, const double *q, double *z, double *J, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        double c[4], R[9];
+        qconj(p + 4 * i, c);
+        double *o = z + 4 * i;
+        qmul(c, q + 4 * i, o);
+        qmat(o, R);
+        for (int r = 0; r < 3; r++)
+            for (int s = 0; s < 3; s++) J[9 * i + 3 * r + s] = -R[3 * s + r];
+    }
+}
+
+// tau = Log(x^-1 y), d tau / d y = Jr^-1(tau), d tau / d x = -Jl^-1(tau) = -Jr^-1(tau)^T
+static void so3_minus_jac(const double *y, const double *x, double *tau, double *Jy, double *Jx,
+                          long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        double c[4], z[4];
+        qconj(x + 4 * i, c);
+        qmul(c, y + 4 * i, z);
+        double *w = tau + 3 * i;
+        qlog(z, w);
+        double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
+        double s = std::sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2]);
+        double k = t2 < 1e-16 ? 0.5 : s / std::sqrt(t2), ch = std::fabs(z[3]);
+        double *A = Jy + 9 * i, *B = Jx + 9 * i;
+        ihat(0.5, coef_c(t2, k, ch), w, A, 3);
+        for (int r = 0; r < 3; r++)
+            for (int q = 0; q < 3; q++) B[3 * r + q] = -A[3 * q + r];
+    }
+}
+
+// inverse of an SE3 row
+static inline void se3_inv(const double *a, double *o) {
+    qconj(a + 3, o + 3);
+    double t[3];
+    qrot(o + 3, a, t);
+    o[0] = -t[0]; o[1] = -t[1]; o[2] = -t[2];
+}
+
+// z = p^-1 q and d z / d p = -Ad(z^-1), Ad(g) = [[R, hat(t) R], [0, R]]
+static void se3_between_jac(const double *p, const double *q, double *z, double *J, long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        const double *a = p + 7 * i, *b = q + 7 * i;
+        double pi[7], zi[7], t[3], R[9];
+        double *o = z + 7 * i;
+        se3_inv(a, pi);
+        qrot(pi + 3, b, t);
+        for (int j = 0; j < 3; j++) o[j] = pi[j] + t[j];
+        qmul(pi + 3, b + 3, o + 3);
+        se3_inv(o, zi);
+        qmat(zi + 3, R);
+        double *Ji = J + 36 * i;
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++) {
+                // (hat(t) R)_{rc} = t x R_col c
+                int r1 = (r + 1) % 3, r2 = (r + 2) % 3;
+                double tr = zi[r1] * R[3 * r2 + c] - zi[r2] * R[3 * r1 + c];
+                Ji[6 * r + c] = -R[3 * r + c];
+                Ji[6 * r + 3 + c] = -tr;
+                Ji[6 * (r + 3) + c] = 0.0;
+                Ji[6 * (r + 3) + 3 + c] = -R[3 * r + c];
+            }
+    }
+}
+
+// [[Ji, -Ji Q Ji], [0, Ji]] into a 6x6, times s
+static inline void jinv6(const double Ji[9], const double Q[9], double s, double *J) {
+    double T[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            T[3 * r + c] = Q[3 * r] * Ji[c] + Q[3 * r + 1] * Ji[3 + c] + Q[3 * r + 2] * Ji[6 + c];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            double m = Ji[3 * r] * T[c] + Ji[3 * r + 1] * T[3 + c] + Ji[3 * r + 2] * T[6 + c];
+            J[6 * r + c] = s * Ji[3 * r + c];
+            J[6 * r + 3 + c] = -s * m;
+            J[6 * (r + 3) + c] = 0.0;
+            J[6 * (r + 3) + 3 + c] = s * Ji[3 * r + c];
+        }
+}
+
+// tau = Log(x^-1 y), d tau / d y = Jr^-1(tau), d tau / d x = -Jl^-1(tau) = -Jr^-1(-tau)
+static void se3_minus_jac(const double *y, const double *x, double *tau, double *Jy, double *Jx,
+                          long n) {
+#pragma omp simd
+    for (long i = 0; i < n; i++) {
+        double xi[7], z[7], t[3];
+        se3_inv(x + 7 * i, xi);
+        qrot(xi + 3, y + 7 * i, t);
+        for (int j = 0; j < 3; j++) z[j] = xi[j] + t[j];
+        qmul(xi + 3, y + 7 * i + 3, z + 3);
+        double *rho = tau + 6 * i, *phi = rho + 3;
+        qlog(z + 3, phi);
+        double t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2];
+        double s = std::sqrt(z[3] * z[3] + z[4] * z[4] + z[5] * z[5]);
+        double k = t2 < 1e-16 ? 0.5 : s / std::sqrt(t2), ch = std::fabs(z[6]);
+        double c = coef_c(t2, k, ch), a[3], b[3];
+        cross(phi, z, a);
+        cross(phi, a, b);
+        for (int j = 0; j < 3; j++) rho[j] = z[j] - 0.5 * a[j] + c * b[j];
+        double Ji[9], Jt[9], Qm[9], Qp[9], mr[3] = {-rho[0], -rho[1], -rho[2]},
+                                          mp[3] = {-phi[0], -phi[1], -phi[2]};
+        ihat(0.5, c, phi, Ji, 3);  // Jr^-1(phi); Jl^-1(phi) = Jr^-1(-phi) = Ji^T
+        for (int r = 0; r < 3; r++)
+            for (int q = 0; q < 3; q++) Jt[3 * r + q] = Ji[3 * q + r];
+        q_block(mr, mp, t2, k, ch, Qm);  // Q(-rho, -phi): Jr^-1(tau)'s block
+        q_block(rho, phi, t2, k, ch, Qp);  // Q(rho, phi): Jl^-1(tau)'s block
+        jinv6(Ji, Qm, 1.0, Jy + 36 * i);
+        jinv6(Jt, Qp, -1.0, Jx + 36 * i);
     }
 }
 
@@ -231,9 +407,29 @@ void n_so3_log(const double *a, double *o, long n) { so3_log(a, o, n); }
 void n_se3_exp(const double *a, double *o, long n) { se3_exp(a, o, n); }
 void n_se3_log(const double *a, double *o, long n) { se3_log(a, o, n); }
 void n_se3_compose(const double *a, const double *b, double *o, long n) { se3_compose(a, b, o, n); }
+void n_so3_compose(const double *a, const double *b, double *o, long n) { so3_compose(a, b, o, n); }
+void n_so3_act(const double *a, const double *b, double *o, long n) { so3_act(a, b, o, n); }
 void n_se3_act(const double *a, const double *b, double *o, long n) { se3_act(a, b, o, n); }
 void n_se3_act_jac(const double *a, const double *b, double *o, double *j1, double *j2, long n) {
     se3_act_jac(a, b, o, j1, j2, n);
 }
 void n_se3_exp_jac(const double *a, double *o, double *j, long n) { se3_exp_jac(a, o, j, n); }
+void n_so3_exp_jac(const double *a, double *o, double *j, long n) { so3_exp_jac(a, o, j, n); }
+void n_so3_act_jac(const double *a, const double *b, double *o, double *j1, double *j2, long n) {
+    so3_act_jac(a, b, o, j1, j2, n);
+}
+void n_so3_between_jac(const double *a, const double *b, double *o, double *j, long n) {
+    so3_between_jac(a, b, o, j, n);
+}
+void n_so3_minus_jac(const double *a, const double *b, double *o, double *j1, double *j2,
+                     long n) {
+    so3_minus_jac(a, b, o, j1, j2, n);
+}
+void n_se3_between_jac(const double *a, const double *b, double *o, double *j, long n) {
+    se3_between_jac(a, b, o, j, n);
+}
+void n_se3_minus_jac(const double *a, const double *b, double *o, double *j1, double *j2,
+                     long n) {
+    se3_minus_jac(a, b, o, j1, j2, n);
+}
 }

@@ -233,6 +233,16 @@ def as_float_array(x: Any, like: Array | None = None, dtype: Any = None) -> Arra
 _NP_FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 
 
+def owned_array(x: Any) -> Array:
+    """``x`` as an array that aliases no caller's NumPy array: NumPy input (and lists) as a
+    floating array, copied if it is the caller's own; torch and JAX arrays as they are (JAX's
+    are immutable, torch's keep their autograd graph)."""
+    if not is_numpy_like(x):
+        return x
+    p = as_float_array(x)
+    return p.copy() if p is x else p
+
+
 def is_numpy_like(x: Any) -> bool:
     return isinstance(x, (np.ndarray, np.generic, list, tuple, float, int))
 

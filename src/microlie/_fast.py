@@ -3,20 +3,26 @@
 
 When the package ``microlie_fast`` is importable, :func:`install` (called once by
 ``import microlie``) registers its functions as the NumPy replacements of the kernels they
-implement (see :func:`microlie._kernels.register`): SO(3) and SE(3) values and fused Jacobians,
-float64 and float32 (computed in float64, rounded once). Set the environment variable
+implement (see :func:`microlie._kernels.register`): SO(3), SE(3) and Sim(3) values and fused
+Jacobians, float64 and float32 (computed in float64, rounded once). Set the environment variable
 ``MICROLIE_FAST=0`` to keep the generic NumPy kernels. The classes and their results do not
 change: each compiled kernel agrees with the generic one to rounding (``tests/test_kernels.py``).
+Single float64 SO(3)/SE(3) elements go through the one-element C functions of
+``microlie_fast._one`` (:func:`installed_single`). Large outputs reuse freed blocks (bounded by
+``MICROLIE_FAST_CACHE_MB``, default 256; see ``microlie_fast``).
 """
 
 from __future__ import annotations
 
 import importlib
 import os
+from collections.abc import Callable
+from typing import Any
 
-__all__ = ["install", "installed"]
+__all__ = ["install", "installed", "installed_single", "text_parser"]
 
 _installed: list[str] = []
+_single: list[str] = []
 
 
 def install() -> list[str]:
@@ -34,9 +40,32 @@ def install() -> list[str]:
         if name in K.KERNELS:
             K.register(name, getattr(_lie, fn))
             _installed.append(name)
+    try:  # the one-element entry points (absent from an older build)
+        one = importlib.import_module("microlie_fast._one")
+    except ImportError:
+        one = None
+    if one is not None:
+        _single[:] = importlib.import_module("microlie.groups._single").use_compiled(one)
     return list(_installed)
 
 
 def installed() -> list[str]:
     """Names of the kernels that :func:`install` registered in this process."""
     return list(_installed)
+
+
+def installed_single() -> list[str]:
+    """Operations whose single-element fast path :func:`install` switched to the compiled
+    one-element functions (``"SE3.compose"``, ...; see :mod:`microlie.groups._single`)."""
+    return list(_single)
+
+
+def text_parser() -> Callable[..., Any] | None:
+    """The compiled reader of numeric text tables, ``microlie_fast._text.parse_table``
+    (used by :mod:`microlie.traj.io`), or ``None`` (not installed, or ``MICROLIE_FAST=0``)."""
+    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
+        return None
+    try:
+        return importlib.import_module("microlie_fast._text").parse_table
+    except (ImportError, AttributeError):  # not installed, or an older build without it
+        return None

@@ -51,8 +51,8 @@ from . import _array as A
 from ._array import NUMPY, SCALAR, Array
 from ._trace import compile_scalar
 
-__all__ = ["Kernel", "KERNELS", "run", "run_floats", "register", "replacements", "CHUNK",
-           "TORCH_CHUNK"]
+__all__ = ["Kernel", "KERNELS", "run", "run_floats", "scalar_function", "register",
+           "replacements", "CHUNK", "TORCH_CHUNK"]
 
 # Large NumPy batches are evaluated in chunks of this many elements, so that the dozens of
 # element-wise temporaries of one formula stay in the CPU cache (about twice as fast at 1e6).
@@ -145,6 +145,13 @@ def run_floats(k: Kernel, lists: tuple, dt: Any) -> Any:
     if k.fn is None:
         return run(k, *[np.array(x, dtype=dt) for x in lists])
     return _single(k, lists, dt)
+
+
+def scalar_function(k: Kernel) -> Callable[..., Any]:
+    """The function of Python floats that evaluates ``k`` on one element: ``f(*lists)`` takes
+    one list (or tuple) of floats per input and returns a tuple of floats per output (rows of
+    tuples for a matrix), as the traced straight-line code of :mod:`microlie._trace`."""
+    return k._scalar or _scalar_function(k)
 
 
 def _single(k: Kernel, lists: tuple, dt: Any) -> Any:

@@ -31,7 +31,7 @@ from ._array import Array
 __all__ = [
     "mT", "eye", "zeros", "solve", "inv", "cholesky", "cho_solve", "solve_triangular", "eigh",
     "eigvalsh", "det", "slogdet", "symmetrize", "diag", "diag_embed", "sqrt_psd",
-    "broadcast_to", "broadcast_batch", "numel", "concat", "stack", "where", "asarray",
+    "broadcast_to", "broadcast_batch", "numel", "reshape", "concat", "stack", "where", "asarray",
     "same_backend", "copy", "readonly", "concrete", "register_pytree", "activate_pytrees",
 ]
 
@@ -71,6 +71,13 @@ def mT(a: Array) -> Array:
 def numel(a: Array) -> int:
     """Number of elements of ``a`` (``math.prod(a.shape)``; 1 for a scalar)."""
     return math.prod(tuple(a.shape))
+
+
+def reshape(a: Array, shape: Sequence[int]) -> Array:
+    """``a`` with the shape ``shape`` (a view where possible)."""
+    if isinstance(a, np.ndarray):
+        return a.reshape(tuple(shape))
+    return _xp(a).reshape(a, tuple(shape))
 
 
 def broadcast_to(a: Array, shape: Sequence[int]) -> Array:

@@ -420,8 +420,9 @@ COMMANDS: list[Callable[[Any], None]] = [
 ]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the ``microlie`` command."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser of the ``microlie`` command (with ``command``, e.g. ``"ape"``: only
+    that subcommand, which is all :func:`main` needs to run it)."""
     from . import __version__
 
     parser = argparse.ArgumentParser(
@@ -435,7 +436,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"microlie {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for register in COMMANDS:
-        register(sub)
+        if command is None or register.__name__ == f"_register_{command}":
+            register(sub)
     return parser
 
 
@@ -767,8 +769,10 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None,
     docstring)."""
     out = out or sys.stdout
     err = err or sys.stderr
-    parser = build_parser()
     argv = _normalize_argv(list(sys.argv[1:] if argv is None else argv))
+    # the subcommand's parser only (``microlie -h``, ``--version`` and errors: all of them)
+    names = {r.__name__.removeprefix("_register_") for r in COMMANDS}
+    parser = build_parser(argv[0] if argv and argv[0] in names else None)
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             args = parser.parse_args(argv)

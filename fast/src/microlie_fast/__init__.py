@@ -6,6 +6,12 @@ environment variable ``MICROLIE_FAST=0`` is set (``microlie._fast``). ``_lie.KER
 registry name (``"SE3.exp"``) to the function of ``_lie`` that implements it; each function takes
 C-contiguous arrays of shape ``(N, k)``, all float64 or all float32, and returns a tuple of fresh
 arrays of that dtype, one per output.
+
+Outputs of 1 MB or more come from a small cache of freed blocks, so that a loop over large
+batches reuses memory whose pages are already mapped instead of paying a page fault per 4 KB page
+on every call: ``_lie.set_cache_limit(mb)`` (returns the previous limit) and the environment
+variable ``MICROLIE_FAST_CACHE_MB`` bound the memory kept (default 256; 0 disables the cache);
+``_lie.cache_info()`` reports it. A block is only reused after the array that owned it is freed.
 """
 
 from . import _lie

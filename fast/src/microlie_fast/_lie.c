@@ -14,8 +14,14 @@
 #include <Python.h>
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
 #include <numpy/arrayobject.h>
+#include <stdint.h>
+#include <stdlib.h>
+#ifdef __linux__
+#include <sys/mman.h>
+#endif
 
 #include "lie_math.h"
+#include "sim3_math.h"
 
 typedef npy_intp ix;
 typedef void (*block_fn)(const double *restrict in, double *restrict out, ix m);
@@ -33,7 +39,8 @@ typedef struct {
     plain_fn plain; /* a row loop for float64 (cheap formulas: the block copies would dominate) */
 } kernel;
 
-#define MAXW 96 /* total width of the inputs or outputs of one kernel, at most */
+#define MAXW 112 /* total width of the outputs of one kernel, at most */
+#define MAXK 8   /* width of one input, at most */
 
 static int width(const kernel *k, int j) { return k->rows[j] * (k->cols[j] ? k->cols[j] : 1); }
 
@@ -56,7 +63,7 @@ COPY_FUNCS(float, f32)
         for (ix j = 0; j < m; j++)                                                              \
             for (int c = 0; c < KW; c++) buf[c * S + j] = x[KW * j + c];                      \
     }
-LOADK(3) LOADK(4) LOADK(6) LOADK(7)
+LOADK(3) LOADK(4) LOADK(6) LOADK(7) LOADK(8)
 
 static void load_rows(int f32, const char *x, int kw, ix m, double *buf) {
     if (f32) { load_f32((const float *)x, kw, m, buf); return; }
@@ -66,6 +73,7 @@ static void load_rows(int f32, const char *x, int kw, ix m, double *buf) {
     case 4: load_f64_4(d, m, buf); break;
     case 6: load_f64_6(d, m, buf); break;
     case 7: load_f64_7(d, m, buf); break;
+    case 8: load_f64_8(d, m, buf); break;
     default: load_f64(d, kw, m, buf);
     }
 }
@@ -75,7 +83,7 @@ static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *cons
         k->plain((const double *)in[0], (const double *)in[k->nin - 1], (double *)out[0], n);
         return;
     }
-    double ibuf[2 * 7 * S] __attribute__((aligned(64)));
+    double ibuf[2 * MAXK * S] __attribute__((aligned(64)));
     double obuf[MAXW * S] __attribute__((aligned(64)));
     size_t es = f32 ? sizeof(float) : sizeof(double);
     int wo[3];
@@ -96,6 +104,123 @@ static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *cons
             off += wo[j];
         }
     }
+}
+
+/* ------------------------------------------------------------------ the output cache
+ * A fresh output array of many megabytes costs a page fault per page on its first write (the
+ * kernel zeroes each page): for the cheap operations that is as much as the formula (issue 11).
+ * Large outputs therefore come from a small cache of blocks: when the array that owned a block
+ * is freed, the block is kept (up to CACHE_SLOTS blocks and cache_limit bytes in all, the oldest
+ * evicted first) and the next output of a fitting size reuses it with its pages already mapped.
+ * The arrays are ordinary writable C-contiguous ndarrays whose base is a capsule returning the
+ * block to the cache. Outputs below CACHE_MIN bytes use NumPy's own allocator. The limit is
+ * MICROLIE_FAST_CACHE_MB (default 256; 0 disables the cache) or set_cache_limit(). The cache is
+ * only touched with the GIL held (allocation here, release in the capsule destructor). */
+#define CACHE_MIN ((size_t)1 << 20)
+#define CACHE_SLOTS 8
+#define HUGE ((size_t)2 << 20) /* blocks are rounded up to whole 2 MiB (transparent huge) pages */
+
+typedef struct {
+    void *p;
+    size_t cap;
+} block;
+static block cache[CACHE_SLOTS];
+static int ncache;
+static size_t cache_bytes, cache_limit = (size_t)256 << 20;
+
+static void cache_evict_oldest(void) {
+    free(cache[0].p);
+    cache_bytes -= cache[0].cap;
+    for (int i = 1; i < ncache; i++) cache[i - 1] = cache[i];
+    ncache--;
+}
+
+static void cache_put(void *p, size_t cap) {
+    if (cap > cache_limit) {
+        free(p);
+        return;
+    }
+    while (ncache > 0 && (ncache == CACHE_SLOTS || cache_bytes + cap > cache_limit))
+        cache_evict_oldest();
+    cache[ncache].p = p;
+    cache[ncache].cap = cap;
+    ncache++;
+    cache_bytes += cap;
+}
+
+/* a block of at least n bytes: the smallest cached one that fits without wasting more than a
+ * quarter, else a new one */
+static void *cache_get(size_t n, size_t *cap) {
+    int best = -1;
+    for (int i = 0; i < ncache; i++)
+        if (cache[i].cap >= n && cache[i].cap - n <= n / 4 + HUGE &&
+            (best < 0 || cache[i].cap < cache[best].cap))
+            best = i;
+    if (best >= 0) {
+        void *p = cache[best].p;
+        *cap = cache[best].cap;
+        cache_bytes -= *cap;
+        for (int i = best + 1; i < ncache; i++) cache[i - 1] = cache[i];
+        ncache--;
+        return p;
+    }
+    *cap = (n + HUGE - 1) / HUGE * HUGE;
+    void *p = aligned_alloc(HUGE, *cap);
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+    if (p) madvise(p, *cap, MADV_HUGEPAGE);
+#endif
+    return p;
+}
+
+static void cache_release(PyObject *capsule) {
+    void *p = PyCapsule_GetPointer(capsule, "microlie_fast.block");
+    size_t cap = (size_t)(uintptr_t)PyCapsule_GetContext(capsule);
+    if (p) cache_put(p, cap);
+}
+
+static PyObject *new_output(int nd, npy_intp *dims, int type) {
+    size_t n = (size_t)PyArray_MultiplyList(dims, nd) * (type == NPY_FLOAT ? 4 : 8);
+    if (n < CACHE_MIN || cache_limit == 0) return PyArray_SimpleNew(nd, dims, type);
+    size_t cap;
+    void *p = cache_get(n, &cap);
+    if (!p) return PyErr_NoMemory();
+    PyObject *capsule = PyCapsule_New(p, "microlie_fast.block", cache_release);
+    if (!capsule || PyCapsule_SetContext(capsule, (void *)(uintptr_t)cap) < 0) {
+        Py_XDECREF(capsule);
+        cache_put(p, cap);
+        return NULL;
+    }
+    PyObject *a = PyArray_New(&PyArray_Type, nd, dims, type, NULL, p, 0, NPY_ARRAY_CARRAY, NULL);
+    if (!a) {
+        Py_DECREF(capsule); /* returns the block */
+        return NULL;
+    }
+    if (PyArray_SetBaseObject((PyArrayObject *)a, capsule) < 0) { /* steals capsule */
+        Py_DECREF(a);
+        return NULL;
+    }
+    return a;
+}
+
+static PyObject *set_cache_limit(PyObject *self, PyObject *arg) {
+    (void)self;
+    long long mb = PyLong_AsLongLong(arg);
+    if (mb == -1 && PyErr_Occurred()) return NULL;
+    if (mb < 0) {
+        PyErr_SetString(PyExc_ValueError, "set_cache_limit: the limit (MB) must be >= 0");
+        return NULL;
+    }
+    long long old = (long long)(cache_limit >> 20);
+    cache_limit = (size_t)mb << 20;
+    while (ncache > 0 && cache_bytes > cache_limit) cache_evict_oldest();
+    return PyLong_FromLongLong(old);
+}
+
+static PyObject *cache_info(PyObject *self, PyObject *unused) {
+    (void)self;
+    (void)unused;
+    return Py_BuildValue("{s:n,s:n,s:n}", "blocks", (Py_ssize_t)ncache, "bytes",
+                         (Py_ssize_t)cache_bytes, "limit", (Py_ssize_t)cache_limit);
 }
 
 static PyObject *call(const kernel *k, PyObject *const *args, Py_ssize_t nargs) {
@@ -133,7 +258,7 @@ static PyObject *call(const kernel *k, PyObject *const *args, Py_ssize_t nargs) 
     char *out[3];
     for (int j = 0; j < k->nout; j++) {
         npy_intp dims[3] = {n, k->rows[j], k->cols[j]};
-        PyObject *o = PyArray_SimpleNew(k->cols[j] ? 3 : 2, dims, type);
+        PyObject *o = new_output(k->cols[j] ? 3 : 2, dims, type);
         if (!o) {
             Py_DECREF(res);
             return NULL;
@@ -164,7 +289,7 @@ static PyObject *call(const kernel *k, PyObject *const *args, Py_ssize_t nargs) 
     static void pl_##FN(const double *restrict a, const double *restrict b, double *restrict o,  \
                         ix n) {                                                                \
         (void)b;                                                                               \
-        for (ix i = 0; i < n; i++) {                                                           \
+        _Pragma("omp simd") for (ix i = 0; i < n; i++) {                                       \
             const double *x = a + (KA) * i, *y = b + (KB) * i;                                 \
             double *r = o + (KO) * i;                                                          \
             (void)y;                                                                           \
@@ -177,6 +302,18 @@ PLAIN(so3_between, 4, 4, 4, double c[4]; quat_conj(x, c); quat_mul(c, y, r))
 PLAIN(se3_inverse, 7, 0, 7, se3_inverse_l(x, r))
 PLAIN(se3_compose, 7, 7, 7, se3_compose_l(x, y, r))
 PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi, y, r))
+PLAIN(sim3_inverse, 8, 0, 8, sim3_inverse_l(x, r))
+PLAIN(sim3_compose, 8, 8, 8, sim3_compose_l(x, y, r))
+PLAIN(sim3_between, 8, 8, 8, double xi[8]; sim3_inverse_l(x, xi); sim3_compose_l(xi, y, r))
+PLAIN(sim3_act, 8, 3, 3, sim3_act_l(x, y, r))
+PLAIN(so3_exp, 3, 0, 4, so3_exp_l(x, r))
+static inline void so3_log_row(const double *q, double *phi) {
+    double kl, aw;
+    quat_log(q, phi, &kl, &aw);
+}
+PLAIN(so3_log, 4, 0, 3, so3_log_row(x, r))
+PLAIN(so3_act, 4, 3, 3, quat_rotate(x, y, r))
+PLAIN(se3_act, 7, 3, 3, quat_rotate(x + 3, y, r); r[0] += x[0]; r[1] += x[1]; r[2] += x[2])
 
 #define KERNELS(X)                                                                             \
     X(so3_log_jac, "SO3.log_jac", 1, 4, 0, 2, 3, 3, 0, 0, 3, 0, 0)                            \
@@ -199,12 +336,12 @@ PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi
     X(se3_plus_jac, "SE3.plus_jac", 2, 7, 6, 3, 7, 6, 6, 0, 6, 6, 0)                            \
     X(se3_lplus_jac, "SE3.lplus_jac", 2, 7, 6, 2, 7, 6, 0, 0, 6, 0, 0)                          \
     X(se3_lminus_jac, "SE3.lminus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6, 0)                        \
-    X(so3_exp, "SO3.exp", 1, 3, 0, 1, 4, 0, 0, 0, 0, 0, 0)                                     \
-    X(so3_log, "SO3.log", 1, 4, 0, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(so3_exp, "SO3.exp", 1, 3, 0, 1, 4, 0, 0, 0, 0, 0, pl_so3_exp)                                     \
+    X(so3_log, "SO3.log", 1, 4, 0, 1, 3, 0, 0, 0, 0, 0, pl_so3_log)                                     \
     X(so3_inverse, "SO3.inverse", 1, 4, 0, 1, 4, 0, 0, 0, 0, 0, pl_so3_inverse)                \
     X(so3_compose, "SO3.compose", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0, pl_so3_compose)                \
     X(so3_between, "SO3.between", 2, 4, 4, 1, 4, 0, 0, 0, 0, 0, pl_so3_between)                \
-    X(so3_act, "SO3.act", 2, 4, 3, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(so3_act, "SO3.act", 2, 4, 3, 1, 3, 0, 0, 0, 0, 0, pl_so3_act)                                     \
     X(so3_minus, "SO3.minus", 2, 4, 4, 1, 3, 0, 0, 0, 0, 0, 0)                                 \
     X(so3_jr, "SO3.jr", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0, 0)                                       \
     X(so3_jr_inv, "SO3.jr_inv", 1, 3, 0, 1, 3, 0, 0, 3, 0, 0, 0)                               \
@@ -219,7 +356,7 @@ PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi
     X(se3_inverse, "SE3.inverse", 1, 7, 0, 1, 7, 0, 0, 0, 0, 0, pl_se3_inverse)                \
     X(se3_compose, "SE3.compose", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0, pl_se3_compose)                \
     X(se3_between, "SE3.between", 2, 7, 7, 1, 7, 0, 0, 0, 0, 0, pl_se3_between)                \
-    X(se3_act, "SE3.act", 2, 7, 3, 1, 3, 0, 0, 0, 0, 0, 0)                                     \
+    X(se3_act, "SE3.act", 2, 7, 3, 1, 3, 0, 0, 0, 0, 0, pl_se3_act)                                     \
     X(se3_minus, "SE3.minus", 2, 7, 7, 1, 6, 0, 0, 0, 0, 0, 0)                                 \
     X(se3_jr, "SE3.jr", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0, 0)                                       \
     X(se3_jr_inv, "SE3.jr_inv", 1, 6, 0, 1, 6, 0, 0, 6, 0, 0, 0)                               \
@@ -228,7 +365,25 @@ PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi
     X(se3_inverse_jac, "SE3.inverse_jac", 1, 7, 0, 2, 7, 6, 0, 0, 6, 0, 0)                     \
     X(se3_compose_jac, "SE3.compose_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0, 0)                     \
     X(se3_between_jac, "SE3.between_jac", 2, 7, 7, 2, 7, 6, 0, 0, 6, 0, 0)                     \
-    X(se3_minus_jac, "SE3.minus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6, 0)
+    X(se3_minus_jac, "SE3.minus_jac", 2, 7, 7, 3, 6, 6, 6, 0, 6, 6, 0)                         \
+    X(sim3_exp, "Sim3.exp", 1, 7, 0, 1, 8, 0, 0, 0, 0, 0, 0)                                   \
+    X(sim3_log, "Sim3.log", 1, 8, 0, 1, 7, 0, 0, 0, 0, 0, 0)                                   \
+    X(sim3_compose, "Sim3.compose", 2, 8, 8, 1, 8, 0, 0, 0, 0, 0, pl_sim3_compose)                           \
+    X(sim3_inverse, "Sim3.inverse", 1, 8, 0, 1, 8, 0, 0, 0, 0, 0, pl_sim3_inverse)                           \
+    X(sim3_between, "Sim3.between", 2, 8, 8, 1, 8, 0, 0, 0, 0, 0, pl_sim3_between)                           \
+    X(sim3_act, "Sim3.act", 2, 8, 3, 1, 3, 0, 0, 0, 0, 0, pl_sim3_act)                                   \
+    X(sim3_minus, "Sim3.minus", 2, 8, 8, 1, 7, 0, 0, 0, 0, 0, 0)                               \
+    X(sim3_plus, "Sim3.plus", 2, 8, 7, 1, 8, 0, 0, 0, 0, 0, 0)                                 \
+    X(sim3_matrix, "Sim3.matrix", 1, 8, 0, 1, 4, 0, 0, 4, 0, 0, 0)                             \
+    X(sim3_adjoint, "Sim3.adjoint", 1, 8, 0, 1, 7, 0, 0, 7, 0, 0, 0)                           \
+    X(sim3_act_jac, "Sim3.act_jac", 2, 8, 3, 3, 3, 3, 3, 0, 7, 3, 0)                           \
+    X(sim3_jr, "Sim3.jr", 1, 7, 0, 1, 7, 0, 0, 7, 0, 0, 0)                                     \
+    X(sim3_jr_inv, "Sim3.jr_inv", 1, 7, 0, 1, 7, 0, 0, 7, 0, 0, 0)                             \
+    X(sim3_exp_jac, "Sim3.exp_jac", 1, 7, 0, 2, 8, 7, 0, 0, 7, 0, 0)                           \
+    X(sim3_log_jac, "Sim3.log_jac", 1, 8, 0, 2, 7, 7, 0, 0, 7, 0, 0)                           \
+    X(sim3_minus_jac, "Sim3.minus_jac", 2, 8, 8, 3, 7, 7, 7, 0, 7, 7, 0)                       \
+    X(sim3_between_jac, "Sim3.between_jac", 2, 8, 8, 2, 8, 7, 0, 0, 7, 0, 0)                   \
+    X(sim3_compose_jac, "Sim3.compose_jac", 2, 8, 8, 2, 8, 7, 0, 0, 7, 0, 0)
 
 #define DEFINE(FN, NAME, NIN, KA, KB, NOUT, R0, R1, R2, C0, C1, C2, PLAIN)                    \
     BLOCK(FN, KA)                                                                              \
@@ -241,15 +396,35 @@ PLAIN(se3_between, 7, 7, 7, double xi[7]; se3_inverse_l(x, xi); se3_compose_l(xi
 KERNELS(DEFINE)
 
 #define ENTRY(FN, NAME, ...) {#FN, (PyCFunction)(void (*)(void))py_##FN, METH_FASTCALL, NAME},
-static PyMethodDef methods[] = {KERNELS(ENTRY){NULL, NULL, 0, NULL}};
+static PyMethodDef methods[] = {
+    KERNELS(ENTRY)
+    {"set_cache_limit", set_cache_limit, METH_O,
+     "set_cache_limit(mb) -> the previous limit: bytes of freed large outputs kept for reuse "
+     "(0: none)"},
+    {"cache_info", cache_info, METH_NOARGS,
+     "cache_info() -> {'blocks', 'bytes', 'limit'} of the output cache"},
+    {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_lie",
-                                    "Compiled SO(3)/SE(3) kernels for microlie.", -1, methods};
+                                    "Compiled SO(3)/SE(3)/Sim(3) kernels for microlie.", -1, methods};
 
 PyMODINIT_FUNC PyInit__lie(void) {
     import_array();
     PyObject *m = PyModule_Create(&module);
     if (!m) return NULL;
+    const char *env = getenv("MICROLIE_FAST_CACHE_MB");
+    if (env && *env) {
+        char *end;
+        long long mb = strtoll(env, &end, 10);
+        if (*end || mb < 0) {
+            PyErr_Format(PyExc_ValueError,
+                         "MICROLIE_FAST_CACHE_MB must be a whole number of megabytes >= 0, got "
+                         "'%s'", env);
+            Py_DECREF(m);
+            return NULL;
+        }
+        cache_limit = (size_t)mb << 20;
+    }
     /* KERNELS: registry name -> function name, e.g. {"SE3.exp": "se3_exp"} */
     PyObject *d = PyDict_New();
     if (!d || PyModule_AddObject(m, "KERNELS", d) < 0) {

@@ -29,9 +29,11 @@ import numpy as np
 
 from .. import _array as A
 from .. import _kernels as K
+from .. import _linalg as L
 from .._array import Array
 from .._kernels import Kernel, run
 from . import _math as M
+from . import _single
 
 if TYPE_CHECKING:
     from typing_extensions import Self
@@ -52,27 +54,6 @@ def _check_side(side: str) -> None:
 
 def _neg(v: Sequence[Any]) -> tuple:
     return tuple(-c for c in v)
-
-
-def _eye(n: int, like: Array, batch_shape: tuple) -> Array:
-    if A.is_numpy(like):
-        return np.broadcast_to(np.eye(n, dtype=like.dtype), (*batch_shape, n, n))
-    xp = A.namespace(like)
-    e = xp.eye(n, dtype=like.dtype, device=A._device(like))
-    return xp.broadcast_to(e, (*batch_shape, n, n))
-
-
-def _swap_last(m: Array) -> Array:
-    if A.is_numpy(m):
-        return np.swapaxes(m, -1, -2)
-    xp = A.namespace(m)
-    return xp.matrix_transpose(m) if hasattr(xp, "matrix_transpose") else m.transpose(-1, -2)
-
-
-def _inv(m: Array) -> Array:
-    if A.is_numpy(m):
-        return np.linalg.inv(m)
-    return A.namespace(m).linalg.inv(m)
 
 
 def _build_kernels(cls: Any) -> dict[str, Kernel]:
@@ -169,7 +150,7 @@ def _jr_array_kernels(cls: Any, k: dict[str, Kernel]) -> dict[str, Any]:
     jr = cls._jr_series
 
     def jr_inv(t: Array) -> Array:
-        return _inv(jr(t))
+        return L.inv(jr(t))
 
     def log_jac(p: Array) -> tuple:
         tau = run(k["log"], p)
@@ -246,8 +227,20 @@ class LieGroup:
     # formulas are verified), applied to every tangent input and output; None: no limit.
     _range_check: ClassVar[Any] = None  # or a staticmethod f(tau) -> None
 
-    __slots__ = ("params",)
+    # the single-element fast path (see :mod:`microlie.groups._single`): one function per
+    # operation that returns None unless its inputs are single float64 NumPy values
+    _one_exp: ClassVar[Callable[..., Any]]
+    _one_log: ClassVar[Callable[..., Any]]
+    _one_inverse: ClassVar[Callable[..., Any]]
+    _one_compose: ClassVar[Callable[..., Any]]
+    _one_between: ClassVar[Callable[..., Any]]
+    _one_act: ClassVar[Callable[..., Any]]
+    _one_plus: ClassVar[Callable[..., Any]]
+    _one_minus: ClassVar[Callable[..., Any]]
+
+    __slots__ = ("params", "_floats")
     params: Array
+    _floats: list[float] | tuple[float, ...] | None  # a single float64 element's params
 
     # ------------------------------------------------------------------ construction
     def __init__(self, params: Any, *, normalize: bool = False) -> None:
@@ -259,6 +252,7 @@ class LieGroup:
             q = q.copy() if q is params else q
             _setflags(q, write=False)
         _set_params(self, q)
+        _set_floats(self, _owned_floats(q))
 
     @classmethod
     def from_params(cls, params: Any, check: bool = True) -> Self:
@@ -287,10 +281,7 @@ class LieGroup:
         """
         if check:
             return cls(params)
-        if A.is_numpy_like(params):
-            p = A.as_float_array(params)
-            return cls._new(p.copy() if p is params else p)
-        return cls._wrap(params)
+        return cls._new(A.owned_array(params))
 
     @classmethod
     def _new(cls, params: Array) -> Self:
@@ -299,6 +290,7 @@ class LieGroup:
         if type(params) is np.ndarray:
             _setflags(params, write=False)
         _set_params(obj, params)
+        _set_floats(obj, _owned_floats(params))
         return obj
 
     @classmethod
@@ -306,6 +298,7 @@ class LieGroup:
         """Wrap a kernel's output (already read-only)."""
         obj = object.__new__(cls)
         _set_params(obj, params)
+        _set_floats(obj, _owned_floats(params))
         return obj
 
     @classmethod
@@ -317,6 +310,7 @@ class LieGroup:
             params = params.view()
             _setflags(params, write=False)
         _set_params(obj, params)
+        _set_floats(obj, None)
         return obj
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -332,6 +326,8 @@ class LieGroup:
         cls._tshape, cls._vshape = (d,), (cls.point_dim,)
         cls._vee_matrix = np.linalg.pinv(cls._generators.reshape(d, n * n))
         cls._K = _build_kernels(cls)
+        for op, fn in _single.build(cls).items():
+            setattr(cls, f"_one_{op}", staticmethod(fn))
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError(f"{type(self).__name__} elements are immutable")
@@ -563,10 +559,7 @@ class LieGroup:
 
     @classmethod
     def _const(cls, value: np.ndarray, like: Array) -> Array:
-        if A.is_numpy(like):
-            return value.astype(like.dtype, copy=False)
-        xp = A.namespace(like)
-        return xp.asarray(value, dtype=like.dtype, device=A._device(like))
+        return L.asarray(value, like)
 
     @classmethod
     def hat(cls, tau: Any) -> Array:
@@ -591,8 +584,7 @@ class LieGroup:
         """
         t = cls._tangent(tau)
         g = cls._const(cls._generators, t)
-        return (t[..., :, None, None] * g).sum(-3) if A.is_numpy(t) else \
-            A.namespace(t).sum(t[..., :, None, None] * g, axis=-3)
+        return A.namespace(t).sum(t[..., :, None, None] * g, axis=-3)
 
     @classmethod
     def vee(cls, M: Any) -> Array:
@@ -620,9 +612,7 @@ class LieGroup:
         n = cls.matrix_dim
         A.check_last_dim(m, (n, n), f"{cls.__name__} Lie algebra matrix")
         gp = cls._const(cls._vee_matrix, m)
-        flat = m.reshape(*m.shape[:-2], n * n) if A.is_numpy(m) else \
-            A.namespace(m).reshape(m, (*m.shape[:-2], n * n))
-        return flat @ gp
+        return L.reshape(m, (*m.shape[:-2], n * n)) @ gp
 
     @classmethod
     def bracket(cls, a: Any, b: Any) -> Array:
@@ -735,7 +725,7 @@ class LieGroup:
         g = cls._const(cls._generators, t)
         cols = h[..., None, :, :] @ g - g @ h[..., None, :, :]  # (*batch, dof, n, n)
         v = cls.vee(cols)  # (*batch, dof(column), dof(row))
-        return _swap_last(v)
+        return L.mT(v)
 
     @classmethod
     def jr(cls, tau: Any) -> Array:
@@ -842,7 +832,7 @@ class LieGroup:
         series ``sum_k (-ad)^k / (k+1)!`` on ``tau / 2**halvings`` (Horner form).
         """
         batch = tuple(t.shape[:-1])
-        eye = _eye(cls.dof, t, batch)
+        eye = L.eye(cls.dof, t, batch)
         small = t / 2.0**halvings
         neg_ad = -cls.ad(small)
         acc = eye * (1.0 / factorial(terms + 1))
@@ -895,6 +885,10 @@ class LieGroup:
         >>> bool(np.allclose(X.matrix(), expm(SE3.hat(tau)))), bool(np.allclose(J, SE3.jr(tau)))
         (True, True)
         """
+        if not jac:
+            X = cls._one_exp(tau)
+            if X is not None:
+                return X
         t = cls._tangent(tau, kernel_checks=True)
         if not jac:
             return cls._adopt(run(cls._K["exp"], t))
@@ -935,6 +929,9 @@ class LieGroup:
         (True, True)
         """
         if not jac:
+            t = self._one_log(self)
+            if t is not None:
+                return t
             return self._tangent_out(run(self._K["log"], self.params))
         tau, J = run(self._K["log_jac"], self.params)
         return _left_vec(side, self._tangent_out(tau), [(J, self)])
@@ -973,6 +970,9 @@ class LieGroup:
         (True, True)
         """
         if not jac:
+            Y = self._one_inverse(self)
+            if Y is not None:
+                return Y
             return self._adopt(run(self._K["inverse"], self.params))
         p, J = run(self._K["inverse_jac"], self.params)
         return self._adopt(p)._left(side, [(J, self)])
@@ -1015,15 +1015,22 @@ class LieGroup:
         >>> bool(np.allclose(JX, Y.inverse().adjoint())), bool(np.allclose(JY, np.eye(6)))
         (True, True)
         """
+        if not jac:
+            Z = self._one_compose(self, other)
+            if Z is not None:
+                return Z
         if type(other) is not type(self):
             self._same_group(other)
         if not jac:
             return self._adopt(run(self._K["compose"], self.params, other.params))
         p, J1 = run(self._K["compose_jac"], self.params, other.params)
         Z = self._adopt(p)
-        return Z._left(side, [(J1, self), (_eye(self.dof, p, Z.batch_shape), other)])
+        return Z._left(side, [(J1, self), (L.eye(self.dof, p, Z.batch_shape), other)])
 
     def __matmul__(self, other: Self) -> Self:
+        Z = self._one_compose(self, other)
+        if Z is not None:
+            return Z
         if not isinstance(other, LieGroup):
             return NotImplemented
         return self.compose(other)
@@ -1063,12 +1070,16 @@ class LieGroup:
         >>> bool(np.allclose(X.between(Y).matrix(), np.linalg.inv(X.matrix()) @ Y.matrix()))
         True
         """
+        if not jac:
+            Z = self._one_between(self, other)
+            if Z is not None:
+                return Z
         self._same_group(other)
         if not jac:
             return self._adopt(run(self._K["between"], self.params, other.params))
         p, J1 = run(self._K["between_jac"], self.params, other.params)
         Z = self._adopt(p)
-        return Z._left(side, [(J1, self), (_eye(self.dof, p, Z.batch_shape), other)])
+        return Z._left(side, [(J1, self), (L.eye(self.dof, p, Z.batch_shape), other)])
 
     @overload
     def act(self, points: Any, jac: Literal[False] = ..., side: Side = ...) -> Array: ...
@@ -1112,11 +1123,10 @@ class LieGroup:
         (True, (3, 6))
         """
         p = self.params
-        if type(points) is np.ndarray and points.shape == self._vshape and not jac \
-                and type(p) is np.ndarray and p.ndim == 1 and points.dtype is p.dtype:
-            vals = points.tolist()  # one point, the common case: checked and evaluated once
-            if math.isfinite(sum(vals)):
-                return K.run_floats(self._K["act"], (p.tolist(), vals), p.dtype)
+        if not jac:
+            q = self._one_act(self, points)
+            if q is not None:
+                return q
         v = A.as_float_array(points, like=p)
         A.check_last_dim(v, self.point_dim, "points")
         A.check_finite(v, "points")
@@ -1196,6 +1206,10 @@ class LieGroup:
         >>> bool(np.allclose(X.plus(tau).matrix(), (X @ SE3.exp(tau)).matrix()))
         True
         """
+        if not jac:
+            Y = self._one_plus(self, tau)
+            if Y is not None:
+                return Y
         t = self._tangent(tau, like=self.params, kernel_checks=True)
         if not jac:
             return self._adopt(run(self._K["plus"], self.params, t))
@@ -1240,6 +1254,10 @@ class LieGroup:
         >>> bool(np.allclose(t, tau)), bool(np.allclose(JX, -SE3.jl_inv(tau)))
         (True, True)
         """
+        if not jac:
+            t = self._one_minus(self, other)
+            if t is not None:
+                return t
         self._same_group(other)
         if not jac:
             return self._tangent_out(run(self._K["minus"], self.params, other.params))
@@ -1286,7 +1304,7 @@ class LieGroup:
             return self._adopt(run(self._K["lplus"], self.params, t))
         p, J2 = run(self._K["lplus_jac"], self.params, t)
         Z = self._adopt(p)
-        return Z._left(side, [(_eye(self.dof, p, Z.batch_shape), self), (J2, None)])
+        return Z._left(side, [(L.eye(self.dof, p, Z.batch_shape), self), (J2, None)])
 
     @overload
     def lminus(self, other: Self, jac: Literal[False] = ..., side: Side = ...) -> Array: ...
@@ -1513,10 +1531,21 @@ def _batch_axis(axis: int, ndim: int, what: str) -> int:
     return axis if axis >= 0 else axis - 1
 
 
+def _owned_floats(p: Array) -> list[float] | None:
+    """The Python floats of the parameters of a single float64 NumPy element, kept beside its
+    ``params`` for the single-element fast path (only for arrays the element owns: they never
+    change); None for anything else."""
+    if type(p) is np.ndarray and p.ndim == 1 and p.dtype is _F64:
+        return p.tolist()  # type: ignore[no-any-return]
+    return None
+
+
 def _unpickle(cls: type[LieGroup], params: Array) -> LieGroup:
     return cls.from_params(params, check=False)
 
 
 _set_params = LieGroup.__dict__["params"].__set__
+_set_floats = LieGroup.__dict__["_floats"].__set__
+_F64 = np.dtype(np.float64)
 _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 _setflags = np.ndarray.setflags

@@ -574,7 +574,7 @@ class SO3(LieGroup):
         >>> np.round(SO3.from_euler("xyz", [10, 20, 30], degrees=True).as_euler("xyz", True), 9)
         array([10., 20., 30.])
         """
-        if not A.is_numpy(self.params):
+        if A.namespace(self.params) is not np:
             raise TypeError("as_euler supports NumPy arrays only; use as_rpy() for other backends")
         from scipy.spatial.transform import Rotation
 
@@ -655,9 +655,7 @@ def _rpy(o: Any, p: tuple) -> tuple:
 
 def _quat_from_matrix_array(R: Array) -> Array:
     """Unit quaternions ``(..., 4)`` of rotation matrices ``(..., 3, 3)``."""
-    flat = R.reshape(*R.shape[:-2], 9) if A.is_numpy(R) else \
-        A.namespace(R).reshape(R, (*R.shape[:-2], 9))
-    return run(_K_FROM_MATRIX, flat)
+    return run(_K_FROM_MATRIX, L.reshape(R, (*R.shape[:-2], 9)))
 
 
 _K_RPY = add(Kernel("SO3.rpy", SO3, _rpy, "p", [(3,)]))
@@ -665,6 +663,3 @@ _K_FROM_MATRIX = add(Kernel("SO3.from_matrix", SO3,
                             lambda o, m: matrix_to_quat(o, (m[0:3], m[3:6], m[6:9])),
                             "m", [(4,)]))
 
-
-def _numel(x: Array) -> int:
-    return int(np.prod(tuple(x.shape)))

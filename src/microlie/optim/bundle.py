@@ -578,7 +578,7 @@ class BundleResult:
             keep = ~self._normal.fixed_cameras.reshape(-1)
         cov = np.zeros((len(idx), len(idx)))
         sel = keep[idx]
-        if not isinstance(S, np.ndarray):
+        if _issparse(S):
             from .linear import SingularSystemError, make_solver
 
             solver = make_solver("auto", n)
@@ -656,6 +656,13 @@ class BundleResult:
             Pse3 = T @ P[:6, :6] @ T.T
             out.append(Gaussian(poses[c], 0.5 * (Pse3 + Pse3.T), frame="right"))
         return out
+
+
+def _issparse(S: Any) -> bool:
+    """A SciPy sparse matrix (the sparse reduced camera system), not a dense array."""
+    import scipy.sparse
+
+    return bool(scipy.sparse.issparse(S))
 
 
 def _undamped_schur(res: BundleResult) -> Any:

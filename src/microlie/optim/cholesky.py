@@ -1,22 +1,36 @@
-"""A supernodal multifrontal Cholesky on the block pattern, in NumPy and LAPACK only.
+"""A supernodal Cholesky on the block pattern, in NumPy and LAPACK (and one C call with the
+optional compiled extension).
 
-Our normal equations have dense ``d x d`` blocks (3 for SE2, 6 for SE3), so the analysis works
-on the block graph (36 times smaller than the scalar one): a minimum-degree order of the block
-graph (SuperLU's ``MMD_AT_PLUS_A`` on a tiny block matrix), the block elimination tree and
-column structures, fundamental supernodes merged by relaxed amalgamation (as CHOLMOD does),
-and for every supernode the precomputed gather indices of its frontal matrix. Each numeric
-factorisation then runs, per supernode in elimination order: assemble the front (original
-entries and the children's update matrices), ``potrf`` on the pivot block, ``trsm`` for the
-rows below, ``syrk`` for the update matrix. The solve runs the supernodes forward and back.
+Our normal equations have dense ``d x d`` blocks (3 for SE2, 6 for SE3), so the symbolic
+analysis works on the block graph (36 times smaller than the scalar one): a minimum-degree
+order of the block graph (SuperLU's ``MMD_AT_PLUS_A`` on a tiny block matrix), the block
+elimination tree and column structures, fundamental supernodes merged by relaxed amalgamation
+(as CHOLMOD does), and, vectorised over all supernodes, the scatter maps of the numeric phase.
+It runs once per pattern (:meth:`SupernodalSolver.analyse`).
+
+The factor is stored as one array of dense panels: supernode ``s`` owns the ``m_s x k_s``
+column-major panel of its ``k_s`` columns and their ``m_s`` rows (the ``k_s x k_s`` diagonal
+block first). The numeric factorisation is right-looking: scatter the matrix into the panels
+(one indexed assignment), then for each supernode in elimination order ``potrf`` on its
+diagonal block, ``trsm`` for the rows below, ``syrk`` for the update ``W = L21 L21^T``, and
+subtract ``W`` from the panels of its ancestors through precomputed relative row indices.
+With ``microlie-fast`` installed (``pip install "microlie[fast]"``) the whole loop is one C call
+on SciPy's own BLAS/LAPACK (``microlie_fast._chol``); without it, independent supernodes of a
+level of the supernodal elimination tree with equal shapes are factorised as one batch of
+NumPy's stacked ``cholesky``/``matmul`` and large ones one by one with SciPy's LAPACK wrappers.
+``MICROLIE_FAST=0`` keeps the NumPy loop. Both compute the same factor.
 """
 
 from __future__ import annotations
 
+import importlib
+import os
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp  # type: ignore[import-untyped]
 from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
+from scipy.sparse.csgraph import depth_first_order  # type: ignore[import-untyped]
 
 from .linear import LinearSolver, SingularSystemError, block_graph, splu_symmetric
 
@@ -25,204 +39,293 @@ __all__ = ["SupernodalSolver"]
 # relaxed amalgamation: (max merged columns, max fraction of explicit zeros)
 _RELAX = ((4, 0.8), (16, 0.1), (48, 0.05))
 
+_NOT_PD = ("the linear system is not positive definite (a pivot of the Cholesky "
+           "factorisation is not positive)")
+
+
+def _compiled() -> Any:
+    """The compiled supernode loop (``microlie_fast._chol``) or ``None``."""
+    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
+        return None
+    try:
+        return importlib.import_module("microlie_fast._chol")
+    except ImportError:
+        return None
+
 
 class SupernodalSolver(LinearSolver):
-    """Supernodal multifrontal Cholesky (NumPy/LAPACK) on blocks of ``block_size`` unknowns
-    (the greatest common divisor of the variables' dimensions)."""
+    """Supernodal Cholesky (NumPy/LAPACK, or one C call with ``microlie-fast``) on blocks of
+    ``block_size`` unknowns (the greatest common divisor of the variables' dimensions).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.cholesky import SupernodalSolver
+    >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
+    >>> s = SupernodalSolver()
+    >>> s.analyse(A.indptr, A.indices, 3)
+    >>> s.factorize(A.data)
+    >>> np.round(s.solve(np.array([5.0, 4.0, 2.0])), 12).tolist()
+    [1.0, 1.0, 1.0]
+    """
 
     name = "supernodal"
+
+    def __init__(self, compiled: bool | None = None) -> None:
+        """``compiled``: use the C loop (``True``: it must be installed), the NumPy loop
+        (``False``), or the C loop when installed (``None``, the default)."""
+        mod = _compiled() if compiled is not False else None
+        if compiled and mod is None:
+            raise ImportError("the compiled supernode loop needs microlie-fast "
+                              "(pip install 'microlie[fast]') and MICROLIE_FAST != 0")
+        self._c = mod
 
     def analyse(self, indptr, indices, n, block_size=1):
         super().analyse(indptr, indices, n)
         bs = block_size if block_size > 0 and n % block_size == 0 else 1
-        self.bs = bs
         nb = n // bs
         B = block_graph(indptr, indices, n, bs)
         # SuperLU's L is the factor of B[q][:, q] with q = argsort(perm_c), whatever the
         # requested order (it postorders the elimination tree itself)
         lu = splu_symmetric(B, "MMD_AT_PLUS_A")
         perm = np.argsort(lu.perm_c)
-        parent = _etree(lu.L.tocsc(), nb)
-        perm = perm[_postorder(parent, nb)]
-        lu = splu_symmetric(B[perm][:, perm].tocsc(), "NATURAL")
-        perm = perm[np.argsort(lu.perm_c)]
         L = _closed(lu.L.tocsc(), nb)
+        # a postorder of the elimination tree is an equivalent order (same fill) in which
+        # subtrees, hence supernodes, are contiguous: relabel L's pattern
+        po = _postorder(_etree(L, nb), nb)
+        perm = perm[po]
+        L = L[po][:, po].tocsc()
+        L.sort_indices()
         parent = _etree(L, nb)
         count = np.diff(L.indptr)  # column counts incl. the diagonal
         nchild = np.bincount(parent[parent >= 0], minlength=nb)
         j = np.arange(1, nb)
         cont = (parent[j - 1] == j) & (nchild[j] == 1) & (count[j - 1] == count[j] + 1)
-        sn_start = np.r_[0, j[~cont]]
-        ends = np.r_[sn_start[1:], nb]
-        struct = [L.indices[L.indptr[a]:L.indptr[a + 1]] for a in range(nb)]
-        snodes = _amalgamate(list(zip(sn_start.tolist(), ends.tolist(), strict=True)), struct)
-        self.perm_blocks = perm
+        sn_start = np.r_[0, j[~cont]].astype(np.int64)
+        bstart = _amalgamate(sn_start, L, nb)
         self.sperm = (perm[:, None] * bs + np.arange(bs)).ravel()  # scalar: new -> old
-        self._build(snodes, L, n, nb, bs)
+        self._symbolic(bstart, L, n, nb, bs)
+        self._numpy_plan: list[Any] | None = None if self._c is not None else self._plan()
 
-    def _build(self, snodes, L, n, nb, bs):
-        ns = len(snodes)
-        sn_of = np.empty(nb, np.int64)
-        for k, (a, b) in enumerate(snodes):
-            sn_of[a:b] = k
-        fronts = []
-        for a, b in snodes:
-            r = np.unique(L.indices[L.indptr[a]:L.indptr[b]])
-            blocks = np.concatenate([np.arange(a, b), r[r >= b]])
-            idx = (blocks[:, None] * bs + np.arange(bs)).ravel()
-            fronts.append((idx, (b - a) * bs))
-        sparent = [int(sn_of[f[0][f[1]] // bs]) if f[0].size > f[1] else -1 for f in fronts]
-        children: list[list[int]] = [[] for _ in range(ns)]
-        for k, p in enumerate(sparent):
-            if p >= 0:
-                children[p].append(k)
-        # original lower-triangle entries of the permuted matrix, grouped by supernode
+    def _symbolic(self, bstart: np.ndarray, L: Any, n: int, nb: int, bs: int) -> None:
+        """Panels, row structures, the assembly map and the update pairs (vectorised)."""
+        ns = bstart.size
+        bend = np.r_[bstart[1:], nb]
+        sn_of_b = np.repeat(np.arange(ns), bend - bstart)
+        # block row structure of each supernode: the union of its columns' structures
+        bcol = np.repeat(np.arange(nb), np.diff(L.indptr))
+        key = np.unique(sn_of_b[bcol] * nb + L.indices.astype(np.int64))
+        bsid, brow = key // nb, key % nb
+        bm = np.bincount(bsid, minlength=ns)
+        bk = bend - bstart
+        brptr = np.r_[0, np.cumsum(bm)]
+        k, m = bk * bs, bm * bs
+        c0 = bstart * bs
+        px = np.r_[0, np.cumsum(m * k)]
+        rows = (brow[:, None] * bs + np.arange(bs)).ravel()
+        rptr = brptr * bs
+        # supernodal parent: the owner of the first row below the diagonal block
+        has = bm > bk
+        sparent = np.full(ns, -1, np.int64)
+        sparent[has] = sn_of_b[brow[brptr[:-1][has] + bk[has]]]
+        self.ns, self.bs, self.nx = ns, bs, int(px[-1])
+        self.c0, self.k, self.m, self.px = c0, k, m, px[:-1].copy()
+        self.rows, self.rptr, self.sparent = rows, rptr, sparent
+        # assembly: pattern entry e (old numbering) -> its place in the panels, or the dump
+        # slot nx for the strict upper triangle
         inv_s = np.empty(n, np.int64)
         inv_s[self.sperm] = np.arange(n)
         cols_old = np.repeat(np.arange(n), np.diff(self.indptr))
-        rnew, cnew = inv_s[self.indices], inv_s[cols_old]
-        keep = rnew >= cnew
-        src_all = np.flatnonzero(keep)
-        r_all, c_all = rnew[keep], cnew[keep]
-        csn = sn_of[c_all // bs]
-        order = np.argsort(csn, kind="stable")
-        src_all, r_all, c_all, csn = src_all[order], r_all[order], c_all[order], csn[order]
-        bounds = np.searchsorted(csn, np.arange(ns + 1))
-        # update pool: one u x u block (row-major) per supernode with rows below
-        usize = [f[0].size - f[1] for f in fronts]
-        poff = np.concatenate([[0], np.cumsum([u * u for u in usize])]).astype(np.int64)
-        self.pool_size = int(poff[-1])
-        pos = np.full(n, -1, np.int64)
-        info = []
-        for k, (idx, kc) in enumerate(fronts):
-            m = idx.size
-            pos[idx] = np.arange(m)
-            s0, s1 = bounds[k], bounds[k + 1]
-            rr = pos[r_all[s0:s1]]
-            if rr.size and rr.min() < 0:
-                raise AssertionError("supernodal analysis: an entry outside its front")
-            dst = rr * m + (c_all[s0:s1] - idx[0])
-            adds = []
-            for c in children[k]:
-                cidx, ckc = fronts[c]
-                rel = pos[cidx[ckc:]]
-                u = rel.size
-                # the child's rows fall into runs of consecutive rows of this front: one
-                # slice addition per pair of runs (lower triangle only; at least block_size
-                # rows per run), much faster than a fancy-indexed scatter
-                cut = (np.flatnonzero(rel[1:] - rel[:-1] != 1) + 1).tolist()
-                r0 = rel[[0, *cut]].tolist()
-                runs = [(slice(r, r + b - a), slice(a, b))
-                        for r, a, b in zip(r0, [0, *cut], [*cut, u], strict=True)]
-                pairs = [(fr, fc, cr, cc) for i, (fr, cr) in enumerate(runs)
-                         for fc, cc in runs[:i + 1]]
-                adds.append((int(poff[c]), u, pairs))
-            pos[idx] = -1
-            info.append({"idx": idx, "m": m, "k": kc, "src": src_all[s0:s1], "dst": dst,
-                         "c0": int(idx[0]), "rows": idx[kc:],
-                         "adds": adds,
-                         "poff": int(poff[k]), "u": usize[k]})
-        # leaves (no children), batched by shape; the other supernodes one by one
-        groups: dict[tuple[int, int], list[int]] = {}
-        inner = []
-        for k, f in enumerate(info):
-            if not children[k] and f["u"] > 0:
-                groups.setdefault((f["m"], f["k"]), []).append(k)
-            else:
-                inner.append(k)
-        self.leaf_groups = []
-        for (m, kc), ks in groups.items():
-            G = len(ks)
-            u = m - kc
-            dst = np.concatenate([g * m * m + info[k]["dst"] for g, k in enumerate(ks)])
-            src = np.concatenate([info[k]["src"] for k in ks])
-            pidx = (np.array([info[k]["poff"] for k in ks])[:, None] + np.arange(u * u)).ravel()
-            cidx = np.stack([info[k]["idx"][:kc] for k in ks])
-            ridx = np.stack([info[k]["idx"][kc:] for k in ks])
-            self.leaf_groups.append({"G": G, "m": m, "k": kc, "dst": dst, "src": src,
-                                     "pidx": pidx, "cidx": cidx, "ridx": ridx})
-        self.inner = [info[k] for k in inner]
-        self.nsuper = ns
+        rn, cn = inv_s[self.indices], inv_s[cols_old]
+        low = rn >= cn
+        s = sn_of_b[cn[low] // bs]
+        gkey = np.repeat(np.arange(ns), m) * n + rows
+        pos = np.searchsorted(gkey, s * n + rn[low])
+        if pos.size and not np.array_equal(gkey[np.minimum(pos, gkey.size - 1)],
+                                           s * n + rn[low]):
+            raise AssertionError("supernodal analysis: an entry outside its supernode")
+        amap = np.full(self.indices.size, self.nx, np.int64)
+        amap[low] = px[s] + (cn[low] - c0[s]) * m[s] + pos - rptr[s]
+        self.amap = amap
+        # update pairs (s, t): the rows below s's diagonal block owned by ancestor t form the
+        # run [a, b) of s's below rows; rel are the local rows in t of s's below rows a..u-1
+        bu = bm - bk
+        blocal = np.arange(brow.size) - np.repeat(brptr[:-1], bm)  # index within s
+        isb = blocal >= np.repeat(bk, bm)
+        b_s = np.repeat(np.arange(ns), bm)[isb]
+        b_row = brow[isb]
+        b_t = sn_of_b[b_row]
+        b_i = blocal[isb] - np.repeat(bk, bm)[isb]  # index among s's below rows
+        new = np.r_[True, (b_s[1:] != b_s[:-1]) | (b_t[1:] != b_t[:-1])] if b_s.size else \
+            np.zeros(0, bool)
+        first = np.flatnonzero(new)
+        ps, pt, pa = b_s[first], b_t[first], b_i[first]
+        pb = np.r_[pa[1:], 0]
+        last = np.r_[ps[1:] != ps[:-1], True] if ps.size else np.zeros(0, bool)
+        pb[last] = bu[ps[last]]
+        lens = bu[ps] - pa  # block rows a..u-1 of each pair
+        tot = int(lens.sum())
+        start = np.r_[0, np.cumsum(lens)]
+        # the block rows of s's below part, from a on, looked up in t's structure
+        sbelow0 = np.r_[0, np.cumsum(bu)]  # offsets of each s's below rows in b_row
+        idx = np.repeat(sbelow0[ps] + pa - start[:-1], lens) + np.arange(tot)
+        t_rep = np.repeat(pt, lens)
+        q = b_row[idx] + t_rep * nb
+        bpos = np.searchsorted(key, q)
+        if bpos.size and not np.array_equal(key[np.minimum(bpos, key.size - 1)], q):
+            raise AssertionError("supernodal analysis: an update outside its target")
+        relb = bpos - brptr[t_rep]
+        self.rel = (relb[:, None] * bs + np.arange(bs)).ravel()
+        self.relptr = start * bs
+        self.pptr = np.searchsorted(ps, np.arange(ns + 1)).astype(np.int64)
+        self.pt, self.pa, self.pb = pt, pa * bs, pb * bs
+        u = (m - k)
+        self.wsize = int((u * u).max()) if ns else 0
+        self.usize = int(u.max()) if ns else 0
+
+    # ---- numeric factorisation -------------------------------------------------------------
 
     def factorize(self, data: np.ndarray) -> None:
-        pool = np.empty(self.pool_size)
-        self.L_leaf = []
-        for g in self.leaf_groups:
-            G, m, kc = g["G"], g["m"], g["k"]
-            F = np.zeros(G * m * m)
-            F[g["dst"]] = data[g["src"]]
-            F = F.reshape(G, m, m)
-            F11 = F[:, :kc, :kc]
-            F11 = np.tril(F11) + np.swapaxes(np.tril(F11, -1), 1, 2)
-            try:
-                L11 = np.linalg.cholesky(F11)
-            except np.linalg.LinAlgError:
-                raise SingularSystemError("the linear system is not positive definite (a "
-                                          "pivot of the Cholesky factorisation is not "
-                                          "positive)") from None
-            L21 = np.swapaxes(np.linalg.solve(L11, np.swapaxes(F[:, kc:, :kc], 1, 2)), 1, 2)
-            U = F[:, kc:, kc:] - L21 @ np.swapaxes(L21, 1, 2)
-            pool[g["pidx"]] = U.ravel()
-            self.L_leaf.append((np.linalg.inv(L11), L21))
+        data = np.ascontiguousarray(data, dtype=np.float64)
+        Lx = np.zeros(self.nx + self.bs)  # the panels, then a dump block
+        if self._c is not None:
+            info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
+                                  self.rows, self.rptr, self.pptr, self.pt, self.pa,
+                                  self.pb, self.relptr, self.rel, self.wsize)
+            if info:
+                raise SingularSystemError(_NOT_PD)
+        else:
+            Lx[self.amap] = data
+            self._factor_numpy(Lx)
+        self.Lx = Lx
+
+    def _plan(self) -> list[Any]:
+        """Steps of the NumPy loop: per level of the supernodal elimination tree (leaves
+        first; supernodes of one level are independent), the supernodes of equal shape as one
+        batch, with the flat update maps of each batch (vectorised over all update pairs):
+        ``src`` indexes the batch's stacked updates ``W`` (``(G, u, u)``, C order) and ``dst``
+        the panels, sorted by destination; a batch of several supernodes sums its contributions
+        to one destination (``reduceat`` from ``starts``) first."""
+        ns = self.ns
+        lev = np.zeros(ns, np.int64)
+        for s, p in enumerate(self.sparent.tolist()):
+            if p >= 0 and lev[p] <= lev[s]:
+                lev[p] = lev[s] + 1
+        order = np.lexsort((self.m, self.k, lev))
+        keys = np.stack([lev[order], self.k[order], self.m[order]])
+        cut = np.r_[0, np.flatnonzero(np.any(keys[:, 1:] != keys[:, :-1], axis=0)) + 1,
+                    ns]
+        gid = np.empty(ns, np.int64)
+        pos = np.empty(ns, np.int64)  # position in its batch
+        gid[order] = np.repeat(np.arange(cut.size - 1), np.diff(cut))
+        pos[order] = np.arange(ns) - np.repeat(cut[:-1], np.diff(cut))
+        # every update entry, in blocks of bs consecutive rows (all offsets are multiples of
+        # bs): pair p, W column j in [a, b), W rows a + bs * ii .. + bs (ii < (u - a) / bs)
+        bs = self.bs
+        u = self.m - self.k
+        ps = np.repeat(np.arange(ns), np.diff(self.pptr))
+        a, b = self.pa, self.pb
+        wa = (u[ps] - a) // bs
+        cnt = (b - a) * wa
+        pid = np.repeat(np.arange(ps.size), cnt)
+        e = np.arange(int(cnt.sum())) - np.repeat(np.r_[0, np.cumsum(cnt)][:-1], cnt)
+        wap = wa[pid]
+        jj, ii = a[pid] + e // wap, (e % wap) * bs  # ii counts from a
+        sp_, t = ps[pid], self.pt[pid]
+        us = u[sp_]
+        src = (pos[sp_] * us * us + jj * us + a[pid] + ii) // bs
+        col = self.rows[self.rptr[sp_] + self.k[sp_] + jj] - self.c0[t]
+        dst = (self.px[t] + col * self.m[t] + self.rel[self.relptr[pid] + ii]) // bs
+        eg = gid[sp_]
+        so = np.argsort(eg, kind="stable")
+        bounds = np.searchsorted(eg[so], np.arange(cut.size))
+        steps: list[Any] = []
+        for g in range(cut.size - 1):
+            grp = order[cut[g]:cut[g + 1]]
+            k, m = int(self.k[grp[0]]), int(self.m[grp[0]])
+            sel = so[bounds[g]:bounds[g + 1]]
+            # sorted by destination (sequential writes); a batch of several supernodes sums
+            # the contributions to one destination block (consecutive after the sort) first
+            so2 = np.argsort(dst[sel], kind="stable")
+            gsrc, gdst = src[sel][so2], dst[sel][so2]
+            starts = None
+            if grp.size > 1 and gdst.size:
+                starts = np.flatnonzero(np.r_[True, gdst[1:] != gdst[:-1]])
+                gdst = gdst[starts]
+            ridx = self.rows[self.rptr[grp][:, None] + k + np.arange(m - k)]
+            urow = rinv = None
+            if grp.size > 1 and ridx.size:
+                urow, rinv = np.unique(ridx, return_inverse=True)
+                rinv = rinv.ravel()
+            cidx = self.c0[grp][:, None] + np.arange(k)
+            gidx = self.px[grp][:, None] // bs + np.arange(m * k // bs)
+            steps.append({"grp": grp, "k": k, "m": m, "src": gsrc, "dst": gdst,
+                          "starts": starts, "gidx": gidx, "cidx": cidx, "ridx": ridx,
+                          "urow": urow, "rinv": rinv})
+        return steps
+
+    def _factor_numpy(self, Lx: np.ndarray) -> None:
+        if self._numpy_plan is None:
+            self._numpy_plan = self._plan()
         potrf, trsm, syrk, trtri = lapack.dpotrf, blas.dtrsm, blas.dsyrk, lapack.dtrtri
-        self.L_inner = []
-        for f in self.inner:
-            m, kc = f["m"], f["k"]
-            F = np.zeros(m * m)
-            F[f["dst"]] = data[f["src"]]
-            F = F.reshape(m, m)
-            for off, u, pairs in f["adds"]:
-                # extend-add of a child's update (only lower triangles are valid and read)
-                C = pool[off:off + u * u].reshape(u, u)
-                for fr, fc, cr, cc in pairs:
-                    F[fr, fc] += C[cr, cc]
-            L11, info = potrf(F[:kc, :kc], lower=1, clean=1, overwrite_a=0)
-            if info != 0:
-                raise SingularSystemError("the linear system is not positive definite (a "
-                                          "pivot of the Cholesky factorisation is not positive)")
-            if m > kc:
-                L21 = trsm(1.0, L11, F[kc:, :kc], side=1, lower=1, trans_a=1)
-                # U = F22 - L21 L21^T written in place into the pool (row-major lower
-                # triangle = column-major upper of the transpose); only lower triangles are
-                # read downstream, so no symmetrisation
-                u = m - kc
-                V = pool[f["poff"]:f["poff"] + u * u].reshape(u, u)
-                V[...] = F[kc:, kc:]
-                syrk(-1.0, L21, beta=1.0, c=V.T, trans=0, lower=0, overwrite_c=1)
-            else:
-                L21 = np.zeros((0, kc))
-            Linv, _ = trtri(L11, lower=1)  # the solves become matrix products
-            self.L_inner.append((Linv, L21))
+        bs = self.bs
+        Lb = Lx.reshape(-1, bs)  # Lx in blocks of bs consecutive entries (one row run)
+        factors = []
+        for st in self._numpy_plan:
+            grp, k, m = st["grp"], st["k"], st["m"]
+            u = m - k
+            if grp.size == 1:
+                p0 = int(self.px[grp[0]])
+                P = Lx[p0:p0 + m * k].reshape(k, m).T  # the F-order (m, k) panel
+                L11, info = potrf(P[:k], lower=1, clean=1)
+                if info != 0:
+                    raise SingularSystemError(_NOT_PD)
+                P[:k] = L11
+                Linv = trtri(L11, lower=1)[0]
+                if u:
+                    L21 = trsm(1.0, L11, P[k:], side=1, lower=1, trans_a=1)
+                    P[k:] = L21
+                    W = syrk(1.0, L21, lower=1)  # (u, u), lower triangle (F order)
+                    # src indexes W in C order as j * u + i: that is W.T's lower triangle
+                    d = st["dst"]
+                    Lb[d] = np.take(Lb, d, axis=0) - np.take(W.T.reshape(-1, bs), st["src"],
+                                                             axis=0)
+                    factors.append((Linv[None], L21.T[None]))
+                else:
+                    factors.append((Linv[None], np.zeros((1, k, 0))))
+                continue
+            G = grp.size
+            Q = np.take(Lb, st["gidx"], axis=0).reshape(G, k, m)  # Q[g, c, r] = panel[r, c]
+            try:
+                L11 = np.linalg.cholesky(np.swapaxes(Q[:, :, :k], 1, 2))
+            except np.linalg.LinAlgError:
+                raise SingularSystemError(_NOT_PD) from None
+            Linv = np.linalg.inv(L11)
+            Q[:, :, :k] = np.swapaxes(L11, 1, 2)
+            L21T = Linv @ Q[:, :, k:]  # (G, k, u) = L21^T
+            Q[:, :, k:] = L21T
+            Lb[st["gidx"]] = Q.reshape(G, k * m // bs, bs)
+            if u:
+                W = np.swapaxes(L21T, 1, 2) @ L21T  # (G, u, u), symmetric
+                d = st["dst"]
+                vals = np.take(W.reshape(-1, bs), st["src"], axis=0)
+                Lb[d] = np.take(Lb, d, axis=0) - np.add.reduceat(vals, st["starts"], axis=0)
+            factors.append((Linv, L21T))
+        self._factors = factors
+
+    # ---- solve -----------------------------------------------------------------------------
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         b = np.asarray(b, dtype=np.float64)
         vec = b.ndim == 1
-        y = (b[:, None] if vec else b)[self.sperm].copy()
-        nr = y.shape[1]
-        for g, (Li, L21) in zip(self.leaf_groups, self.L_leaf, strict=True):
-            yc = Li @ y[g["cidx"]]  # (G, kc, nr)
-            y[g["cidx"]] = yc
-            upd = L21 @ yc  # (G, u, nr)
-            if nr > 1:
-                np.subtract.at(y, g["ridx"], upd)
-            else:
-                y[:, 0] -= np.bincount(g["ridx"].ravel(), weights=upd.ravel(),
-                                       minlength=y.shape[0])
-        for f, (Li, L21) in zip(self.inner, self.L_inner, strict=True):
-            c0, kc = f["c0"], f["k"]
-            yc = Li @ y[c0:c0 + kc]
-            y[c0:c0 + kc] = yc
-            if L21.shape[0]:
-                y[f["rows"]] -= L21 @ yc
-        for f, (Li, L21) in zip(reversed(self.inner), reversed(self.L_inner), strict=True):
-            c0, kc = f["c0"], f["k"]
-            rhs = y[c0:c0 + kc]
-            if L21.shape[0]:
-                rhs = rhs - L21.T @ y[f["rows"]]
-            y[c0:c0 + kc] = Li.T @ rhs
-        for g, (Li, L21) in zip(self.leaf_groups, self.L_leaf, strict=True):
-            rhs = y[g["cidx"]] - np.swapaxes(L21, 1, 2) @ y[g["ridx"]]
-            y[g["cidx"]] = np.swapaxes(Li, 1, 2) @ rhs
+        y = np.asfortranarray((b[:, None] if vec else b)[self.sperm])
+        if self._c is not None:
+            self._c.solve(self.Lx, y, self.c0, self.k, self.m, self.px, self.rows,
+                          self.rptr, self.usize)
+        else:
+            y = np.ascontiguousarray(y)
+            self._solve_numpy(y)
         x = np.empty_like(y)
         x[self.sperm] = y
         if not np.all(np.isfinite(x)):
@@ -230,34 +333,59 @@ class SupernodalSolver(LinearSolver):
                                       "finite)")
         return x[:, 0] if vec else x
 
+    def _solve_numpy(self, y: np.ndarray) -> None:
+        """Forward by levels (a batch's updates to shared rows summed by ``bincount``), then
+        backward in the reverse order; ``y`` is ``(n, nrhs)``, C order."""
+        nr = y.shape[1]
+        plan = list(zip(self._numpy_plan or [], self._factors, strict=True))
+        for st, (Linv, L21T) in plan:
+            cidx, ridx = st["cidx"], st["ridx"]
+            yc = Linv @ y[cidx]  # (G, k, nr)
+            y[cidx] = yc
+            if ridx.shape[1]:
+                upd = np.swapaxes(L21T, 1, 2) @ yc  # (G, u, nr)
+                if st["urow"] is None:
+                    y[ridx[0]] -= upd[0]
+                elif nr == 1:
+                    y[st["urow"], 0] -= np.bincount(st["rinv"], upd.ravel(), st["urow"].size)
+                else:
+                    np.subtract.at(y, ridx, upd)
+        for st, (Linv, L21T) in reversed(plan):
+            cidx, ridx = st["cidx"], st["ridx"]
+            rhs = y[cidx]
+            if ridx.shape[1]:
+                rhs = rhs - L21T @ y[ridx]
+            y[cidx] = np.swapaxes(Linv, 1, 2) @ rhs
+
 
 def _closed(L: Any, nb: int) -> Any:
-    """The symbolic Cholesky pattern containing SuperLU's numeric ``L``: SuperLU can drop an
-    entry that cancelled exactly, so close the pattern under ``struct(j) - {p} <= struct(p)``
-    (``p`` the parent of ``j``). The check is vectorised; the (rare) repair loops."""
-    L = sp.tril(L, -1).tocsc()
-    L.sort_indices()
-    cols = np.repeat(np.arange(nb), np.diff(L.indptr))
-    rows = L.indices.astype(np.int64)
-    parent = np.full(nb, -1, np.int64)
-    has = np.diff(L.indptr) > 0
-    parent[has] = rows[L.indptr[:-1][has]]
-    keys = cols * nb + rows  # sorted: by column, then row
-    p = parent[cols]
-    need = rows != p
-    want = p[need] * nb + rows[need]
-    k = np.searchsorted(keys, want)
-    ok = (k < keys.size) & (keys[np.minimum(k, keys.size - 1)] == want)
-    if not ok.all():
-        struct = [rows[L.indptr[j]:L.indptr[j + 1]] for j in range(nb)]
-        for j in range(nb):
-            sj = struct[j]
-            if sj.size > 1:
-                struct[sj[0]] = np.union1d(struct[sj[0]], sj[1:])
-        cnt = np.array([x.size for x in struct])
-        L = sp.csc_matrix((np.ones(cnt.sum()), np.concatenate(struct),
-                           np.concatenate([[0], np.cumsum(cnt)])), shape=(nb, nb))
-    return (L + sp.eye(nb)).tocsc()
+    """The symbolic Cholesky pattern containing SuperLU's numeric ``L`` (with the diagonal,
+    sorted): SuperLU can drop an entry that cancelled exactly, so close the pattern under
+    ``struct(j) - {p} <= struct(p)`` (``p`` the parent of ``j``), one vectorised pass over all
+    entries at a time until nothing is missing (a few passes: only dropped entries propagate)."""
+    L = sp.tril(L, -1).tocoo()
+    keys = np.unique(L.col.astype(np.int64) * nb + L.row)  # by column, then row
+    while True:
+        cols, rows = keys // nb, keys % nb
+        start = np.searchsorted(cols, np.arange(nb))
+        has = np.zeros(nb, bool)
+        has[cols] = True
+        parent = np.full(nb, -1, np.int64)
+        parent[has] = rows[start[has]]
+        p = parent[cols]
+        need = rows != p
+        want = p[need] * nb + rows[need]
+        k = np.searchsorted(keys, want)
+        miss = (k >= keys.size) | (keys[np.minimum(k, keys.size - 1)] != want)
+        if not miss.any():
+            break
+        keys = np.union1d(keys, want[miss])
+    cols, rows = keys // nb, keys % nb
+    d = np.arange(nb, dtype=np.int64)
+    out = sp.csc_matrix((np.ones(keys.size + nb), (np.r_[rows, d], np.r_[cols, d])),
+                        shape=(nb, nb))
+    out.sort_indices()
+    return out
 
 
 def _etree(L: Any, nb: int) -> np.ndarray:
@@ -271,48 +399,46 @@ def _etree(L: Any, nb: int) -> np.ndarray:
 
 
 def _postorder(parent: np.ndarray, nb: int) -> np.ndarray:
-    children: list[list[int]] = [[] for _ in range(nb)]
-    roots: list[int] = []
-    for j in range(nb):
-        p = int(parent[j])
-        (children[p] if p >= 0 else roots).append(j)
-    out: list[int] = []
-    stack = [(r, 0) for r in reversed(roots)]
-    while stack:
-        node, state = stack.pop()
-        if state == 0:
-            stack.append((node, 1))
-            for c in reversed(children[node]):
-                stack.append((c, 0))
-        else:
-            out.append(node)
-    return np.array(out, dtype=np.int64)
+    """A postorder of the forest ``parent`` (children before parents, subtrees contiguous):
+    the reversed preorder of SciPy's compiled depth-first search from a virtual root, with the
+    nodes relabelled ``nb - 1 - j`` so that children are visited in descending order."""
+    p = np.where(parent < 0, nb, nb - 1 - parent)
+    tree = sp.csr_matrix((np.ones(nb), (p, nb - 1 - np.arange(nb))), shape=(nb + 1, nb + 1))
+    pre = depth_first_order(tree, nb, directed=True, return_predecessors=False)
+    return (nb - 1 - pre[1:])[::-1].astype(np.int64)
 
 
-def _amalgamate(snodes: list[tuple[int, int]], struct: list[np.ndarray]
-                ) -> list[tuple[int, int]]:
-    """Merge a supernode into the next one (its parent, contiguous) when the merged one stays
-    small or adds few explicit zeros."""
-    out: list[list[Any]] = []  # [start, end, rows(set), nnz_true]
-    for a, b in snodes:
-        rows = set(struct[a][struct[a] >= b].tolist())
+def _amalgamate(sn_start: np.ndarray, L: Any, nb: int) -> np.ndarray:
+    """Relaxed amalgamation: merge a supernode into the next one (its parent, contiguous)
+    when the merged one stays small or adds few explicit zeros (CHOLMOD's rule with its
+    default limits). Returns the first block column of each merged supernode."""
+    ends = np.r_[sn_start[1:], nb]
+    # the rows below a fundamental supernode are those of its last column
+    cnt = np.diff(L.indptr)
+    below = (cnt[ends - 1] - 1).tolist()  # rows strictly below the supernode's last column
+    parent_row = np.full(nb, -1, np.int64)
+    has = cnt > 1
+    parent_row[has] = L.indices[L.indptr[1:][has] - cnt[has] + 1]
+    first_below = parent_row[ends - 1].tolist()
+    (r0, z0), (r1, z1), (r2, z2) = _RELAX
+    out: list[list[int]] = []  # [start, end, rows below (count), true nonzeros]
+    for a, b, nbel, fb in zip(sn_start.tolist(), ends.tolist(), below, first_below,
+                              strict=True):
         k = b - a
-        # true nonzeros of the supernode's columns (dense triangle + rows below)
-        true = k * (k + 1) // 2 + k * len(rows)
-        cur = [a, b, rows, true]
+        cur = [a, b, nbel, k * (k + 1) // 2 + k * nbel]
         while out:
-            pa, pb, prow, ptrue = out[-1]
-            if pb != a or a not in prow:  # not contiguous or not the parent
+            pa, pb, prow, ptrue, pfb = out[-1]
+            if pb != a or pfb != a:  # not contiguous, or a is not the child's parent
                 break
-            # a supernode with several children: only the last (contiguous) one merges
-            merged_rows = (prow - set(range(a, b))) | rows
+            # the child's rows below (minus a's columns) are in the parent's structure, so
+            # the merged supernode has the parent's rows below
             k2 = b - pa
-            total = k2 * (k2 + 1) // 2 + k2 * len(merged_rows)
+            total = k2 * (k2 + 1) // 2 + k2 * nbel
             zeros = 1.0 - (ptrue + cur[3]) / total
-            ok = any(k2 <= mx and zeros <= z for mx, z in _RELAX)
-            if not ok:
+            if not ((k2 <= r0 and zeros <= z0) or (k2 <= r1 and zeros <= z1)
+                    or (k2 <= r2 and zeros <= z2)):
                 break
             out.pop()
-            cur = [pa, b, merged_rows, ptrue + cur[3]]
-        out.append(cur)
-    return [(a, b) for a, b, _, _ in out]
+            cur = [pa, b, nbel, ptrue + cur[3]]
+        out.append([*cur, fb])
+    return np.array([o[0] for o in out], dtype=np.int64)

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import _autodiff
 from .noise import NoiseModel, as_noise
 from .robust import RobustLoss, make_loss
 from .variables import Variables, element
@@ -338,7 +339,7 @@ class CustomFactor(Factor):
             r = self._residual(values)
             return (r, self._numerical(values)) if jac else r
         if self._ad is None:
-            self._ad = _make_jax(self) if self.mode == "jax" else _make_torch(self)
+            self._ad = _make_autodiff(self)
         return self._ad(values, jac)
 
     def _numerical(self, values: list[Any]) -> list[np.ndarray]:
@@ -363,60 +364,16 @@ def _parts(factor: CustomFactor, values: list[Any]) -> list[np.ndarray]:
             for (var, _), v in zip(factor.args, values, strict=False)]
 
 
-def _make_jax(factor: CustomFactor) -> Callable[[list[Any], bool], Any]:
-    import jax
-    import jax.numpy as jnp
-
-    jax.config.update("jax_enable_x64", True)
+def _make_autodiff(factor: CustomFactor) -> Callable[[list[Any], bool], Any]:
+    """The residuals and Jacobians of ``factor`` by JAX or torch (:mod:`microlie._autodiff`):
+    ``fn`` of the perturbed arguments ``X_k Exp(delta_k)`` (``x + delta`` for vectors)."""
     groups = [var.group for var, _ in factor.args]
 
-    def single(deltas, params, data):
-        vals = []
-        for G, d, p in zip(groups, deltas, params, strict=False):
-            vals.append(p + d if G is None else element(G, p).plus(d))
-        return jnp.asarray(factor.fn(*vals, *data)).reshape(factor.dim)
-
-    def both(deltas, params, data):
-        return single(deltas, params, data), jax.jacfwd(single)(deltas, params, data)
-
-    batched = jax.jit(jax.vmap(both))
-    forward = jax.jit(jax.vmap(single))
-
-    def run(values, jac):
-        ps = [jnp.asarray(p) for p in _parts(factor, values)]
-        ds = [jnp.zeros((factor.count, var.dof)) for var, _ in factor.args]
-        data = [jnp.asarray(d) for d in factor.data]
-        if not jac:
-            return np.asarray(forward(ds, ps, data))
-        r, Js = batched(ds, ps, data)
-        return np.asarray(r), [np.asarray(J) for J in Js]
-
-    return run
-
-
-def _make_torch(factor: CustomFactor) -> Callable[[list[Any], bool], Any]:
-    import torch
-
-    groups = [var.group for var, _ in factor.args]
-
-    def run(values, jac):
-        ps = [torch.as_tensor(np.array(p, dtype=np.float64)) for p in _parts(factor, values)]
-        ds = [torch.zeros((factor.count, var.dof), dtype=torch.float64, requires_grad=jac)
-              for var, _ in factor.args]
+    def f(deltas, params, data):
         vals = [p + d if G is None else element(G, p).plus(d)
-                for G, d, p in zip(groups, ds, ps, strict=True)]
-        r = torch.as_tensor(factor.fn(*vals, *[torch.as_tensor(d) for d in factor.data]))
-        r = r.reshape(factor.count, factor.dim)
-        if not jac:
-            return r.detach().numpy()
-        # row m of r depends on row m of each delta only: one backward pass per residual
-        # component gives every factor's Jacobian row at once
-        Js = [np.zeros((factor.count, factor.dim, var.dof)) for var, _ in factor.args]
-        for a in range(factor.dim):
-            gs = torch.autograd.grad(r[:, a].sum(), ds, retain_graph=True, allow_unused=True)
-            for J, g in zip(Js, gs, strict=True):
-                if g is not None:
-                    J[:, a, :] = g.detach().numpy()
-        return r.detach().numpy(), Js
+                for G, d, p in zip(groups, deltas, params, strict=True)]
+        return factor.fn(*vals, *data)
 
-    return run
+    run = _autodiff.residual_jacobians(factor.mode, f, [var.dof for var, _ in factor.args],
+                                       factor.count, factor.dim)
+    return lambda values, jac: run(_parts(factor, values), factor.data, jac)

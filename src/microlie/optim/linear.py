@@ -188,16 +188,20 @@ def splu_symmetric(A: Any, order: str) -> Any:
 
 
 def block_graph(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> Any:
-    """The block graph of a pattern as a symmetric, strongly diagonally dominant matrix with
-    random off-diagonal values (so that a numeric factorisation shows the symbolic fill: equal
-    values could cancel exactly)."""
+    """The block graph of a pattern as a weighted graph Laplacian plus ``0.1 I`` (random
+    positive weights). Its numeric factorisation shows the symbolic fill: the Schur
+    complements of an M-matrix keep non-positive off-diagonals, so fill entries are sums of
+    terms of one sign (no cancellation) and decay slowly (a strongly diagonally dominant matrix
+    lets deep fill underflow to exact zeros, which SuperLU's ``L`` then omits)."""
     nb = n // bs
     cols = np.repeat(np.arange(n), np.diff(indptr))
     B = sp.csc_matrix((np.ones(indices.size), (indices // bs, cols // bs)), shape=(nb, nb))
     B = sp.triu(B, 1).tocoo()
     w = np.random.default_rng(0).uniform(0.5, 1.0, B.nnz)
-    B = sp.coo_matrix((w, (B.row, B.col)), shape=(nb, nb))
-    return (B + B.T + sp.eye(nb) * (nb + 1.0)).tocsc()
+    B = sp.coo_matrix((-w, (B.row, B.col)), shape=(nb, nb))
+    B = B + B.T
+    deg = -np.asarray(B.sum(axis=1)).ravel()
+    return (B + sp.diags(deg + 0.1)).tocsc()
 
 
 def block_order(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> np.ndarray:
@@ -351,6 +355,13 @@ class DenseSolver(LinearSolver):
         return _checked(sla.cho_solve(self._c, b, check_finite=False))
 
 
+def _compiled_cholesky() -> bool:
+    """Whether the supernodal Cholesky runs its compiled loop here."""
+    from .cholesky import _compiled
+
+    return _compiled() is not None
+
+
 def _supernodal() -> type[LinearSolver]:
     from .cholesky import SupernodalSolver
 
@@ -386,10 +397,12 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
     """A linear solver by name.
 
     ``"auto"`` chooses by what is installed and by the measurements of
-    ``benchmarks/pose_graph.py``: below 300 unknowns the dense Cholesky; for 3-D problems
-    (blocks of 6 or more) PARDISO, else the supernodal Cholesky; for 2-D problems qdldl, else
-    PARDISO, else SuperLU (on 2-D pose graphs SuperLU beat the supernodal Cholesky, whose
-    per-supernode overhead dominates with 3x3 blocks).
+    ``benchmarks/pose_graph.py`` and ``benchmarks/cholesky.py``: below 300 unknowns the dense
+    Cholesky; for 3-D problems (blocks of 6 or more) PARDISO, else the supernodal Cholesky; for
+    2-D problems qdldl, else PARDISO, else the supernodal Cholesky when its compiled loop is
+    installed (``microlie[fast]``), else SuperLU (on 2-D pose graphs SuperLU beat the NumPy
+    loop of the supernodal Cholesky, whose per-batch overhead dominates with 3x3 blocks; the
+    compiled loop beat SuperLU 2-5x).
 
     Parameters
     ----------
@@ -427,7 +440,12 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
         if n < 300:
             return DenseSolver()
         avail = available_solvers() if available is None else available
-        prefs = ("pardiso", "supernodal") if block_size >= 6 else ("qdldl", "pardiso", "scipy")
+        if block_size >= 6:
+            prefs: tuple[str, ...] = ("pardiso", "supernodal")
+        elif _compiled_cholesky():
+            prefs = ("qdldl", "pardiso", "supernodal", "scipy")
+        else:
+            prefs = ("qdldl", "pardiso", "scipy")
         return SOLVERS[next(k for k in prefs if k in avail)]()()
     make = SOLVERS.get(name)
     if make is None:

@@ -17,6 +17,7 @@ import numpy as np
 import scipy.sparse as sp  # type: ignore[import-untyped]
 from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
 
+from . import compiled
 from .factors import Factor
 from .robust import corrected_weights
 from .variables import Variables
@@ -110,7 +111,9 @@ class Problem:
             if self.gauge_fixed:
                 self._number()
         self._build_pattern()
-        self._lt_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        # the compiled edge loop of each factor batch (None: the NumPy path)
+        self.plans = [compiled.plan(self, f) for f in factors]
+        self._build_scatter()
 
     def _number(self) -> None:
         """One node per free variable, in graph order (gauge-fixed ones count as fixed)."""
@@ -135,6 +138,12 @@ class Problem:
         self.block_size = int(np.gcd.reduce(self.node_dof)) if nn else 1
         self.fargs = [[node_of[self._key[id(var)]][idx] for var, idx in f.args]
                       for f in self.factors]
+        # per variable batch: its free rows (None: all) and their entries of a step dx
+        self._steps = []
+        for v, nodes in zip(self.variables, node_of, strict=True):
+            free = np.flatnonzero(nodes >= 0)
+            idx = self.node_off[nodes[free]][:, None] + np.arange(v.dof)
+            self._steps.append((None if free.size == v.n else free, idx))
 
     def key(self, var: Variables) -> int:
         """The position of a variable batch in the problem.
@@ -258,10 +267,16 @@ class Problem:
             offs = self.node_off[:-1][self.node_dof == d][:, None] + np.arange(d)
             diag[offs.ravel()] = dp.ravel()
         self.diag_pos = diag
-        # scatter indices per factor: the whole (D x D) block of A^T A (D = sum of the
-        # arguments' dofs), row-major, and the (D,) gradient
+        self._uniq, self._pbase, self._pos = uniq, pbase, pos
+
+    def _build_scatter(self) -> None:
+        """Scatter indices of the NumPy-path factors: the whole (D x D) block of A^T A
+        (D = sum of the arguments' dofs), row-major, and the (D,) gradient."""
+        nn, uniq, pbase, pos = self.num_nodes, self._uniq, self._pbase, self._pos
         hdest, gdest = [], []
-        for f, nodes in zip(self.factors, self.fargs, strict=True):
+        for f, nodes, pl in zip(self.factors, self.fargs, self.plans, strict=True):
+            if pl is not None:
+                continue
             dofs = [var.dof for var, _ in f.args]
             offs = np.concatenate([[0], np.cumsum(dofs)])
             D = int(offs[-1])
@@ -291,8 +306,78 @@ class Problem:
         d = pos[np.minimum(pbase[p][:, None] + local, self.nnz - 1)]
         return np.where(ok[:, None], d, self.nnz).ravel()
 
+    def block_start(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """CSC positions of entry (0, 0) of the blocks ``(a[k], b[k])`` of ``H``.
+
+        Every scalar column of a block column holds the same rows, so entry ``(r, c)`` of a block
+        is at ``block_start + c * column_length(b) + r``.
+
+        Parameters
+        ----------
+        a, b : numpy.ndarray
+            Node numbers (``-1``: a fixed variable), the same shape.
+
+        Returns
+        -------
+        numpy.ndarray
+            int64 positions in ``Linearization.data``, ``-1`` where ``a`` or ``b`` is fixed.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> p = g.problem()
+        >>> p.block_start(np.array([0, 1, -1]), np.array([0, 0, 1])).tolist()
+        [0, 3, -1]
+        """
+        a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
+        nn = self.num_nodes
+        ok = (a >= 0) & (b >= 0)
+        k = np.searchsorted(self._uniq, np.where(ok, a * nn + b, 0))
+        k = np.minimum(k, self._uniq.size - 1)
+        found = ok & (self._uniq[k] == a * nn + b)
+        if np.any(ok & ~found):
+            raise KeyError("block not in the pattern")
+        return np.where(found, self._pos[self._pbase[k]], -1)
+
+    def column_length(self, nodes: np.ndarray) -> np.ndarray:
+        """The number of stored rows in each scalar column of the block columns ``nodes``.
+
+        Parameters
+        ----------
+        nodes : numpy.ndarray
+            Node numbers (``-1``: fixed, length 0).
+
+        Returns
+        -------
+        numpy.ndarray
+            int64 lengths.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> g.problem().column_length(np.array([0, 1, -1])).tolist()  # node 1 meets 0 and 2
+        [6, 9, 0]
+        """
+        nodes = np.asarray(nodes, np.int64)
+        c = self.node_off[np.maximum(nodes, 0)]
+        ip = self.indptr.astype(np.int64)
+        return np.where(nodes >= 0, ip[c + 1] - ip[c], 0)
+
     def analysed(self, linear_solver: Any) -> Any:
-        """A linear solver that has analysed this problem's pattern.
+        """A linear solver that has analysed this problem's pattern (for a backend given by
+        name, analysed once per problem and reused).
 
         Parameters
         ----------
@@ -320,7 +405,15 @@ class Problem:
         from .linear import make_solver
 
         ls = make_solver(linear_solver, self.size, self.block_size)
+        if isinstance(linear_solver, str):
+            # the symbolic analysis runs once per problem and backend (as GTSAM orders once,
+            # in its optimizer's constructor); later solves refactorise the cached solver
+            cache = self.__dict__.setdefault("_analysed", {})
+            if ls.name in cache:
+                return cache[ls.name]
         ls.analyse(self.indptr, self.indices, self.size, self.block_size)
+        if isinstance(linear_solver, str):
+            cache[ls.name] = ls
         return ls
 
     def matrix(self, data: np.ndarray) -> sp.csc_matrix:
@@ -417,7 +510,7 @@ class Problem:
         L = f.noise.sqrt_info
         if L.ndim == 2:
             return r @ L.T
-        return (L @ r[:, :, None])[:, :, 0]
+        return np.einsum("mij,mj->mi", L, r)
 
     def costs(self, states: list[np.ndarray]) -> tuple[float, float]:
         """The plain cost ``0.5 sum |e|^2`` and the robust cost ``0.5 sum rho(|e|^2)``.
@@ -446,14 +539,18 @@ class Problem:
         (1.0, 1.0)
         """
         c = rc = 0.0
-        for f in self.factors:
-            e = self.whiten(f, np.asarray(f.evaluate(self.gather(f, states), False)))
-            s = np.einsum("mi,mi->m", e, e)
+        for f, pl in zip(self.factors, self.plans, strict=True):
+            if pl is not None:
+                s = pl.cost(states)
+            else:
+                e = self.whiten(f, np.asarray(f.evaluate(self.gather(f, states), False)))
+                s = np.einsum("mi,mi->m", e, e)
             c += 0.5 * float(s.sum())
             rc += 0.5 * float((f.loss.rho(s) if f.loss is not None else s).sum())
         return c, rc
 
-    def linearize(self, states: list[np.ndarray]) -> Linearization:
+    def linearize(self, states: list[np.ndarray], out: Linearization | None = None
+                  ) -> Linearization:
         """Linearise every factor at ``states`` and assemble ``H = J^T J`` and ``g = J^T e``
         (whitened, robust weights with Triggs' correction where it applies).
 
@@ -461,6 +558,9 @@ class Problem:
         ----------
         states : list of numpy.ndarray
             The parameters of each variable batch, in graph order.
+        out : Linearization, optional
+            A linearisation of this problem that is no longer needed: its arrays may be
+            overwritten and reused (saves allocating and faulting in fresh memory).
 
         Returns
         -------
@@ -483,18 +583,37 @@ class Problem:
         ((9,), 1.0)
         """
         t0 = time.perf_counter()
+        compiled_any = any(pl is not None for pl in self.plans)
+        if out is not None and compiled_any:
+            data, grad = out.data, out.grad
+            data.fill(0.0)
+            grad.fill(0.0)
+        else:
+            data, grad = np.zeros(self.nnz), np.zeros(self.size)
         hw, gw = [], []
         cost = rcost = 0.0
-        t_lin = t_prod = 0.0
-        for f in self.factors:
+        t_lin = t_prod = t_fused = 0.0
+        for f, pl in zip(self.factors, self.plans, strict=True):
             ta = time.perf_counter()
+            if pl is not None:  # the compiled edge loop: evaluation, products and scatter
+                wts = None
+                if f.loss is not None:
+                    s = pl.cost(states)
+                    rho, scale, aos = corrected_weights(f.loss, s)
+                    sq = np.sqrt(np.maximum(f.loss.evaluate(s)[1], 0.0))
+                    wts = np.ascontiguousarray(np.stack([sq, scale, aos], axis=1))
+                s = pl.normal(states, data, grad, wts)
+                cost += 0.5 * float(s.sum())
+                rcost += 0.5 * float((rho if f.loss is not None else s).sum())
+                t_fused += time.perf_counter() - ta
+                continue
             r, Js = f.evaluate(self.gather(f, states), True)
             r = np.asarray(r, dtype=np.float64)
-            Js = [np.asarray(j, dtype=np.float64) for j in Js]
-            J = Js[0] if len(Js) == 1 else np.concatenate(Js, axis=2)  # (m, d, D)
             L = f.noise.sqrt_info
             e = self.whiten(f, r)
-            A = L @ J
+            # A = L [J_1 ... J_K], (m, d, D)
+            As = [L @ np.asarray(j, dtype=np.float64) for j in Js]
+            A = As[0] if len(As) == 1 else np.concatenate(As, axis=2)
             s = np.einsum("mi,mi->m", e, e)
             cost += 0.5 * float(s.sum())
             if f.loss is not None:
@@ -504,34 +623,29 @@ class Problem:
                 eA = np.einsum("mi,mij->mj", e, A)
                 A = sq[:, None, None] * (A - (aos[:, None] * e)[:, :, None] * eA[:, None, :])
                 e = scale[:, None] * e
-                At = np.ascontiguousarray(np.swapaxes(A, 1, 2))
             else:
                 rcost += 0.5 * float(s.sum())
-                # A^T as a product of contiguous arrays: batched matmul on a transposed view
-                # is 3x slower than on contiguous operands (measured, NumPy 2.4)
-                Jt = np.concatenate([np.swapaxes(j, 1, 2) for j in Js], axis=1)
-                At = Jt @ self._sqrt_info_t(f)
+            # A^T contiguous: batched matmul on a transposed view is 3x slower than on
+            # contiguous operands (measured, NumPy 2.4)
+            At = np.ascontiguousarray(np.swapaxes(A, 1, 2))
             tb = time.perf_counter()
             t_lin += tb - ta
             hw.append((At @ A).ravel())
             gw.append((At @ e[:, :, None]).ravel())
             t_prod += time.perf_counter() - tb
         tc = time.perf_counter()
-        data = np.bincount(self.hdest, weights=_joined(hw), minlength=self.nnz + 1)[: self.nnz]
-        grad = np.bincount(self.gdest, weights=_joined(gw), minlength=self.size + 1)[: self.size]
+        if hw:
+            hd = np.bincount(self.hdest, weights=_joined(hw), minlength=self.nnz + 1)[: self.nnz]
+            gd = np.bincount(self.gdest, weights=_joined(gw), minlength=self.size + 1)[: self.size]
+            if compiled_any:
+                data += hd
+                grad += gd
+            else:  # bincount's fresh arrays are the result
+                data, grad = hd, gd
         t_end = time.perf_counter()
         return Linearization(data, grad, cost, rcost,
-                             {"linearize": t_lin, "products": t_prod, "assemble": t_end - tc,
-                              "total": t_end - t0})
-
-    def _sqrt_info_t(self, f: Factor) -> np.ndarray:
-        """``L^T`` of a factor's noise, contiguous (cached per noise matrix)."""
-        L = f.noise.sqrt_info
-        hit = self._lt_cache.get(id(f))
-        if hit is None or hit[0] is not L:
-            hit = (L, np.ascontiguousarray(np.swapaxes(L, -1, -2)))
-            self._lt_cache[id(f)] = hit
-        return hit[1]
+                             {"linearize": t_lin, "products": t_prod, "compiled": t_fused,
+                              "assemble": t_end - tc, "total": t_end - t0})
 
     def retract(self, states: list[np.ndarray], dx: np.ndarray) -> list[np.ndarray]:
         """The states after a step ``dx`` on the free variables (``X Exp(dx_block)``; fixed
@@ -566,16 +680,16 @@ class Problem:
         True
         """
         out = []
-        for v, nodes, p in zip(self.variables, self.node_of, states, strict=False):
-            free = np.flatnonzero(nodes >= 0)
-            if free.size == 0:
+        for v, p, (free, idx) in zip(self.variables, states, self._steps, strict=False):
+            if free is None:  # every variable free: no gather or scatter
+                q = v.retract(p, dx[idx])
+                out.append(q if q.flags.writeable else q.copy())
+            elif free.size == 0:
                 out.append(p)
-                continue
-            off = self.node_off[nodes[free]]
-            d = dx[off[:, None] + np.arange(v.dof)]
-            q = p.copy()
-            q[free] = v.retract(p[free], d)
-            out.append(q)
+            else:
+                q = p.copy()
+                q[free] = v.retract(p[free], dx[idx])
+                out.append(q)
         return out
 
 

@@ -13,6 +13,10 @@ observation: ``W_a V^-1 W_b^T = J_ca^T q_ab J_cb`` with the 2x2 ``q_ab = G_a G_b
 share a point are sorted by camera pair once (:class:`SchurStructure`), so each camera-pair block
 is one matrix product over contiguous memory instead of a scatter (``np.add.at``).
 
+With the compiled extra (``microlie_fast._schur``, unless ``MICROLIE_FAST=0``) the dense reduced
+system is formed in one compiled pass over the points (the same products, summed per point); the
+NumPy formation below stays the reference, the fallback and the sparse path.
+
 ``S`` is factorised densely (LAPACK Cholesky) or, for many cameras, sparsely; ``"full"`` solves
 the whole damped system with a sparse factorisation instead (the points then are eliminated by the
 backend's ordering), which exists to compare against and to test the elimination with.
@@ -20,6 +24,8 @@ backend's ordering), which exists to compare against and to test the elimination
 
 from __future__ import annotations
 
+import importlib
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -36,6 +42,23 @@ DENSE_LIMIT = 3000  # camera unknowns up to which the reduced system is factoris
 SPARSE_DENSITY = 0.05  # above it (fraction of nonzero camera blocks) dense up to DENSE_MAX
 DENSE_MAX = 12000
 _PAIR_CHUNK = 1 << 17  # observation pairs gathered at once when forming the reduced system
+
+
+_fast_module: Any = None
+
+
+def _fast() -> Any:
+    """``microlie_fast._schur``, or ``None`` (not installed, an older build, or
+    ``MICROLIE_FAST=0``)."""
+    global _fast_module
+    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
+        return None
+    if _fast_module is None:
+        try:
+            _fast_module = importlib.import_module("microlie_fast._schur")
+        except ImportError:
+            _fast_module = False
+    return _fast_module or None
 
 
 class SchurStructure:
@@ -80,6 +103,9 @@ class SchurStructure:
         # in point order (a stable sort keeps the camera order within each point)
         by_pt = np.argsort(pt, kind="stable")
         point_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)
+        # the observations of each point, in camera order (CSR), for the compiled formation
+        self.point_obs = by_pt.astype(np.intp)
+        self.point_ptr = np.concatenate([point_start, [self.n_obs]]).astype(np.intp)
         a_list, b_list = [], []
         for m in np.unique(counts):
             if m < 2:
@@ -502,6 +528,23 @@ class NormalEquations:
             V[fp] = (1.0, 0.0, 0.0, 1.0, 0.0, 1.0)
             gp = gp.copy()
             gp[fp] = 0.0
+        fc = self.fixed_cameras
+        held = np.nonzero(fc.reshape(-1))[0] if fc is not None and fc.any() else None
+        fast = None if sparse else _fast()
+        if fast is not None:
+            out = fast.reduce(np.ascontiguousarray(self.Jc), np.ascontiguousarray(self.Jp),
+                              np.ascontiguousarray(V), np.ascontiguousarray(gp), self.U,
+                              self.gc, st.cam, st.point_ptr, st.point_obs)
+            if out is None:
+                return None
+            S, rhs_v, ci = out
+            S[np.diag_indices_from(S)] += Dc2.reshape(-1)
+            if held is not None:
+                rhs_v[held] = 0.0
+                S[held, :] = 0.0
+                S[:, held] = 0.0
+                S[held, held] = 1.0
+            return S, rhs_v, tuple(ci), gp
         i00, i10, i11, i20, i21, i22 = _chol3_inv(V.T)
         if not np.all(np.isfinite(i22)):
             return None
@@ -546,8 +589,6 @@ class NormalEquations:
                 s, e = 3 * (pb[i] - p0), 3 * (pb[i + 1] - p0)
                 np.matmul(Za[s:e].T, Zb[s:e], out=blocks[i])
         rhs_v = rhs.reshape(-1)
-        fc = self.fixed_cameras
-        held = np.nonzero(fc.reshape(-1))[0] if fc is not None and fc.any() else None
         if held is not None:
             rhs_v[held] = 0.0
         n = nc * d

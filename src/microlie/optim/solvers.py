@@ -90,7 +90,8 @@ class Result:
     history : list of IterationRecord
         One record per iteration.
     time_s : float
-        Solve time, seconds (analysis included, graph construction excluded).
+        Solve time, seconds (graph construction excluded; the linear solver's symbolic analysis
+        included on the first solve of a problem only: it is kept with the problem).
     solver, linear_solver : str
         What ran.
     timings : dict
@@ -247,16 +248,19 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         accepted = False
         stop = None
         if o.solver == "lm":
+            dg = lin.data[problem.diag_pos]  # the undamped diagonal (a copy)
             while True:
-                damped = lin.data.copy()
-                dg = lin.data[problem.diag_pos]
-                damped[problem.diag_pos] += lam * (np.maximum(dg, 1e-12)
-                                                   if o.diagonal_damping else 1.0)
+                # damp in place and restore the diagonal exactly after the solve (no copy of
+                # the whole matrix per trial)
+                lin.data[problem.diag_pos] = dg + lam * (np.maximum(dg, 1e-12)
+                                                         if o.diagonal_damping else 1.0)
                 solves += 1
                 try:
-                    dx = _factor_solve(ls, damped, -lin.grad, tm)
+                    dx = _factor_solve(ls, lin.data, -lin.grad, tm)
                 except SingularSystemError:
                     dx = None
+                finally:
+                    lin.data[problem.diag_pos] = dg
                 if dx is not None:
                     new, new_c, new_rc = _try(problem, cur, dx, tm)
                     if new_rc < cur_rc:
@@ -327,7 +331,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         if why is not None:
             message, converged = why, True
             break
-        lin = _linearize(problem, cur, tm)
+        lin = _linearize(problem, cur, tm, old=lin)
     final_c, final_rc = cur_c, cur_rc  # evaluated at the last accepted point already
     total = time.perf_counter() - t_start
     timings = dict(tm.t)
@@ -341,9 +345,10 @@ def _vec(states: list[np.ndarray]) -> np.ndarray:
     return np.concatenate([s.ravel() for s in states]) if states else np.zeros(0)
 
 
-def _linearize(problem: Problem, states: list[np.ndarray], tm: _Timer) -> Any:
-    lin = problem.linearize(states)
-    tm.t["linearize"] += lin.times["linearize"] + lin.times["products"]
+def _linearize(problem: Problem, states: list[np.ndarray], tm: _Timer, old: Any = None
+               ) -> Any:
+    lin = problem.linearize(states, out=old)
+    tm.t["linearize"] += lin.times["linearize"] + lin.times["products"] + lin.times["compiled"]
     tm.t["assemble"] += lin.times["assemble"]
     return lin
 

@@ -19,13 +19,17 @@ are projected onto SO(3) (nearest rotation in the Frobenius norm, via SVD) befor
 
 from __future__ import annotations
 
+import codecs
+import mmap
 import os
 import warnings
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from microlie import SE3
+from microlie import SE3, _fast
 
 from .trajectory import Trajectory
 
@@ -226,10 +230,43 @@ class _LineNumbers:
         return self._known[i]
 
 
+def _compiled_matrix(
+    parse: Callable[..., np.ndarray | None], path: PathLike, ncols: int, comma: bool,
+    at_least: bool
+) -> np.ndarray | None:
+    """``parse`` (the compiled reader) on the bytes of ``path``, memory-mapped when possible
+    (no copy of the file), without a UTF-8 byte order mark."""
+    with open(path, "rb") as f:
+        try:
+            data: Any = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        except (OSError, ValueError):  # empty file, pipe, ...
+            data = f.read()
+        try:
+            view = memoryview(data)
+            try:
+                return parse(view[3:] if view[:3] == codecs.BOM_UTF8 else view, ncols, comma,
+                             at_least)
+            finally:
+                view.release()
+        finally:
+            if isinstance(data, mmap.mmap):
+                data.close()
+
+
 def _read_matrix(
     path: PathLike, ncols: int, *, comma: bool = False, at_least: bool = False, what: str = ""
 ) -> tuple[_LineNumbers, np.ndarray]:
-    """(line numbers of the data rows, float matrix) of a numeric text file."""
+    """(line numbers of the data rows, float matrix) of a numeric text file.
+
+    With ``microlie[fast]`` the bytes are parsed by the compiled reader (same values as
+    ``float``); a file it does not take (anything but plain ASCII numbers, see
+    ``microlie_fast._text``) goes through the NumPy and line-by-line paths below.
+    """
+    parse = _fast.text_parser()
+    if parse is not None:
+        mat = _compiled_matrix(parse, path, ncols, comma, at_least)
+        if mat is not None:
+            return _LineNumbers(path, comma), mat
     text = Path(path).read_text(encoding="utf-8-sig")
     mat = _fast_matrix(path, text, ncols, comma, at_least)
     if mat is not None:
@@ -243,29 +280,33 @@ def _quat_trajectory(
     path: PathLike,
     numbers: _LineNumbers,
     stamps: np.ndarray,
-    positions: np.ndarray,
-    q_xyzw: np.ndarray,
+    params: np.ndarray,
     tol: float,
     name: str | None,
 ) -> Trajectory:
-    """Check ``|q| = 1`` within ``tol`` (naming the line) and build the normalised poses.
+    """Check ``|q| = 1`` within ``tol`` (naming the line) and build the normalised poses from
+    ``params``, an ``(N, 7)`` array ``[t, q_xyzw]`` (a view of the reader's matrix: the
+    quaternions are normalised in place).
 
-    The rows are already known to be finite (the readers check every field), so the SE(3)
-    parameters ``[t, q / |q|]`` are assembled here in one pass and wrapped without the
-    group constructors' checks; the values are bit-identical to
+    The rows are already known to be finite (the readers check every field), so the poses are
+    wrapped without the group constructors' checks; the values are bit-identical to
     ``Trajectory.from_arrays(positions, q_xyzw)`` (same ``q / sqrt(sum(q * q))``).
     """
-    norms = np.sqrt(np.sum(q_xyzw * q_xyzw, axis=-1, keepdims=True))
-    bad = np.flatnonzero(~(np.abs(norms[:, 0] - 1.0) <= tol) | (norms[:, 0] == 0.0))
-    if bad.size:
-        i = bad[0]
+    q_xyzw = params[:, 3:]
+    # |q|^2 = ((x^2 + y^2) + z^2) + w^2, the order of np.sum over the last axis, one column at
+    # a time (a reduction over an axis of 4 is slow)
+    sq = q_xyzw[:, 0] * q_xyzw[:, 0]
+    tmp = np.empty_like(sq)
+    for k in (1, 2, 3):
+        sq += np.multiply(q_xyzw[:, k], q_xyzw[:, k], out=tmp)
+    norms = np.sqrt(sq, out=sq)
+    if not (np.abs(norms - 1.0, out=tmp) <= tol).all() or not norms.all():
+        i = int(np.flatnonzero(~(np.abs(norms - 1.0) <= tol) | (norms == 0.0))[0])
         raise ValueError(
-            f"{path}:{numbers[i]}: quaternion is not unit norm (|q| = {norms[i, 0]:.6g}, "
+            f"{path}:{numbers[i]}: quaternion is not unit norm (|q| = {norms[i]:.6g}, "
             f"tolerance {tol:g})"
         )
-    params = np.empty((q_xyzw.shape[0], 7))
-    params[:, :3] = positions
-    np.divide(q_xyzw, norms, out=params[:, 3:])
+    q_xyzw /= norms[:, None]
     return Trajectory(SE3.from_params(params, check=False), np.ascontiguousarray(stamps), name)
 
 
@@ -299,9 +340,7 @@ def read_tum(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = None)
     (150, (150, 7))
     """
     numbers, mat = _read_matrix(path, 8, what="timestamp tx ty tz qx qy qz qw")
-    return _quat_trajectory(
-        path, numbers, mat[:, 0], mat[:, 1:4], mat[:, 4:8], quat_tol, name or str(path)
-    )
+    return _quat_trajectory(path, numbers, mat[:, 0], mat[:, 1:], quat_tol, name or str(path))
 
 
 def read_timestamps(path: PathLike) -> np.ndarray:
@@ -443,10 +482,8 @@ def read_euroc(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = Non
     numbers, mat = _read_matrix(
         path, 8, comma=True, at_least=True, what="timestamp[ns], px, py, pz, qw, qx, qy, qz"
     )
-    q_xyzw = np.roll(mat[:, 4:8], -1, axis=1)
-    return _quat_trajectory(
-        path, numbers, mat[:, 0] / 1e9, mat[:, 1:4], q_xyzw, quat_tol, name or str(path)
-    )
+    params = mat[:, [1, 2, 3, 5, 6, 7, 4]]  # [p, q_xyzw]: the file's quaternion is w first
+    return _quat_trajectory(path, numbers, mat[:, 0] / 1e9, params, quat_tol, name or str(path))
 
 
 def read_trajectory(

@@ -249,7 +249,7 @@ def associate(
         )
     for t in (first, second):
         t.warn_timestamps()
-    a, b = first[i1], second[i2]
+    a, b = _select(first, i1), _select(second, i2)
     if interpolate is not None:
         if second_longer:
             b = _interpolate(second, a.timestamps + offset, interpolate)
@@ -265,6 +265,15 @@ def associate(
         int(second.duplicate_timestamps().size),
     )
     return a, b, info
+
+
+def _select(traj: Trajectory, index: np.ndarray) -> Trajectory:
+    """``traj[index]``; without copying the poses when ``index`` is every pose in order (the
+    usual association of two trajectories sampled at the same stamps)."""
+    n = len(traj)
+    if index.size == n and bool((index == np.arange(n)).all()):
+        return Trajectory(traj.poses, traj.timestamps, traj.name)
+    return traj[index]
 
 
 _interpolate = interpolate  # ``associate`` has an argument of that name

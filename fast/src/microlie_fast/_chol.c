@@ -1,0 +1,229 @@
+/* microlie_fast._chol: the numeric supernodal Cholesky of microlie.optim.cholesky in one C call.
+ *
+ * The symbolic analysis (supernodes, panels, row structures, the assembly map and the update
+ * pairs) is microlie's (NumPy); this file runs the loops over it. BLAS and LAPACK are SciPy's
+ * own, taken at import from the function-pointer capsules of scipy.linalg.cython_blas and
+ * cython_lapack (Fortran calling convention, 32-bit integers), so there is no link-time BLAS.
+ *
+ * Storage: supernode s owns the m_s x k_s column-major panel at Lx + px[s] (rows rows[rptr[s] ..
+ * rptr[s] + m_s), the first k_s of them its own columns c0[s] .. c0[s] + k_s).
+ *
+ * factor: Lx[amap[e]] = data[e] for every pattern entry e, then for each supernode in order:
+ * potrf on the diagonal block, trsm for the rows below (L21 = A21 L11^-T), W = L21 L21^T (syrk,
+ * lower), and for each update pair p of s (ancestor t, W columns pa[p] .. pb[p] owned by t) the
+ * subtraction of W[i, j] (i >= j) from t's panel at column rows(s, k + j) - c0[t] and local row
+ * rel[relptr[p] + i - pa[p]]. Returns 0, or 1 + s for a pivot of supernode s that is not positive.
+ *
+ * solve: y (n x nrhs, column-major, permuted) <- L^-T L^-1 y. */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
+#include <numpy/arrayobject.h>
+#include <string.h>
+
+typedef npy_int64 i64;
+typedef void (*potrf_t)(char *, int *, double *, int *, int *);
+typedef void (*trsm_t)(char *, char *, char *, char *, int *, int *, double *, double *, int *,
+                       double *, int *);
+typedef void (*syrk_t)(char *, char *, int *, int *, double *, double *, int *, double *,
+                       double *, int *);
+typedef void (*gemm_t)(char *, char *, int *, int *, int *, double *, double *, int *, double *,
+                       int *, double *, double *, int *);
+
+static potrf_t f_potrf;
+static trsm_t f_trsm;
+static syrk_t f_syrk;
+static gemm_t f_gemm;
+
+static void *capsule_fn(PyObject *mod, const char *name) {
+    PyObject *capi = PyObject_GetAttrString(mod, "__pyx_capi__");
+    if (!capi) return NULL;
+    PyObject *cap = PyDict_GetItemString(capi, name); /* borrowed */
+    void *p = NULL;
+    if (!cap)
+        PyErr_Format(PyExc_ImportError, "scipy's __pyx_capi__ has no %s", name);
+    else
+        p = PyCapsule_GetPointer(cap, PyCapsule_GetName(cap));
+    Py_DECREF(capi);
+    return p;
+}
+
+static int load_blas(void) {
+    PyObject *lapack = PyImport_ImportModule("scipy.linalg.cython_lapack");
+    if (!lapack) return -1;
+    PyObject *blas = PyImport_ImportModule("scipy.linalg.cython_blas");
+    if (!blas) {
+        Py_DECREF(lapack);
+        return -1;
+    }
+    f_potrf = (potrf_t)capsule_fn(lapack, "dpotrf");
+    f_trsm = f_potrf ? (trsm_t)capsule_fn(blas, "dtrsm") : NULL;
+    f_syrk = f_trsm ? (syrk_t)capsule_fn(blas, "dsyrk") : NULL;
+    f_gemm = f_syrk ? (gemm_t)capsule_fn(blas, "dgemm") : NULL;
+    Py_DECREF(lapack);
+    Py_DECREF(blas);
+    return f_gemm ? 0 : -1;
+}
+
+/* a C-contiguous array of the given type with at least `len` entries (len < 0: any) */
+static void *arr(PyObject *o, int type, i64 len, const char *what, i64 *size) {
+    if (!PyArray_Check(o) || PyArray_TYPE((PyArrayObject *)o) != type ||
+        !PyArray_IS_C_CONTIGUOUS((PyArrayObject *)o)) {
+        PyErr_Format(PyExc_TypeError, "%s must be a C-contiguous %s array", what,
+                     type == NPY_FLOAT64 ? "float64" : "int64");
+        return NULL;
+    }
+    i64 n = (i64)PyArray_SIZE((PyArrayObject *)o);
+    if (len >= 0 && n < len) {
+        PyErr_Format(PyExc_ValueError, "%s has %lld entries, expected at least %lld", what,
+                     (long long)n, (long long)len);
+        return NULL;
+    }
+    if (size) *size = n;
+    return PyArray_DATA((PyArrayObject *)o);
+}
+
+static PyObject *factor(PyObject *self, PyObject *args) {
+    PyObject *oLx, *odata, *oamap, *oc0, *ok, *om, *opx, *orows, *orptr, *opptr, *opt, *opa,
+        *opb, *orelptr, *orel;
+    Py_ssize_t wsize;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOn", &oLx, &odata, &oamap, &oc0, &ok, &om, &opx,
+                          &orows, &orptr, &opptr, &opt, &opa, &opb, &orelptr, &orel, &wsize))
+        return NULL;
+    i64 nx, ne, ns, np_;
+    double *Lx = arr(oLx, NPY_FLOAT64, -1, "Lx", &nx);
+    double *data = Lx ? arr(odata, NPY_FLOAT64, -1, "data", &ne) : NULL;
+    i64 *amap = data ? arr(oamap, NPY_INT64, ne, "amap", NULL) : NULL;
+    i64 *c0 = amap ? arr(oc0, NPY_INT64, -1, "c0", &ns) : NULL;
+    i64 *kk = c0 ? arr(ok, NPY_INT64, ns, "k", NULL) : NULL;
+    i64 *mm = kk ? arr(om, NPY_INT64, ns, "m", NULL) : NULL;
+    i64 *px = mm ? arr(opx, NPY_INT64, ns, "px", NULL) : NULL;
+    i64 *rows = px ? arr(orows, NPY_INT64, -1, "rows", NULL) : NULL;
+    i64 *rptr = rows ? arr(orptr, NPY_INT64, ns + 1, "rptr", NULL) : NULL;
+    i64 *pptr = rptr ? arr(opptr, NPY_INT64, ns + 1, "pptr", NULL) : NULL;
+    i64 *pt = pptr ? arr(opt, NPY_INT64, -1, "pt", &np_) : NULL;
+    i64 *pa = pt ? arr(opa, NPY_INT64, np_, "pa", NULL) : NULL;
+    i64 *pb = pa ? arr(opb, NPY_INT64, np_, "pb", NULL) : NULL;
+    i64 *relptr = pb ? arr(orelptr, NPY_INT64, np_ + 1, "relptr", NULL) : NULL;
+    i64 *rel = relptr ? arr(orel, NPY_INT64, -1, "rel", NULL) : NULL;
+    if (!rel) return NULL;
+    for (i64 e = 0; e < ne; e++)
+        if (amap[e] < 0 || amap[e] >= nx) {
+            PyErr_SetString(PyExc_ValueError, "amap out of range");
+            return NULL;
+        }
+    double *W = PyMem_Malloc((size_t)(wsize > 0 ? wsize : 1) * sizeof(double));
+    if (!W) return PyErr_NoMemory();
+    i64 bad = 0;
+    Py_BEGIN_ALLOW_THREADS
+    memset(Lx, 0, (size_t)nx * sizeof(double));
+    for (i64 e = 0; e < ne; e++) Lx[amap[e]] = data[e];
+    /* the entries of the strict upper triangle went to the dump block after the panels */
+    char cL = 'L', cR = 'R', cT = 'T', cN = 'N';
+    double one = 1.0, zero = 0.0;
+    for (i64 s = 0; s < ns; s++) {
+        int k = (int)kk[s], m = (int)mm[s], u = m - k, info = 0;
+        double *P = Lx + px[s];
+        f_potrf(&cL, &k, P, &m, &info);
+        if (info != 0) {
+            bad = s + 1;
+            break;
+        }
+        if (u == 0) continue;
+        f_trsm(&cR, &cL, &cT, &cN, &u, &k, &one, P, &m, P + k, &m);
+        f_syrk(&cL, &cN, &u, &k, &one, P + k, &m, &zero, W, &u);
+        const i64 *below = rows + rptr[s] + k;
+        for (i64 p = pptr[s]; p < pptr[s + 1]; p++) {
+            i64 t = pt[p], a = pa[p], b = pb[p], mt = mm[t];
+            const i64 *r = rel + relptr[p] - a; /* r[i] for i in a .. u-1 */
+            double *Pt = Lx + px[t];
+            for (i64 j = a; j < b; j++) {
+                double *dst = Pt + (below[j] - c0[t]) * mt;
+                const double *w = W + j * (i64)u;
+                for (i64 i = j; i < u; i++) dst[r[i]] -= w[i];
+            }
+        }
+    }
+    Py_END_ALLOW_THREADS
+    PyMem_Free(W);
+    return PyLong_FromLongLong((long long)bad);
+}
+
+static PyObject *solve(PyObject *self, PyObject *args) {
+    PyObject *oLx, *oy, *oc0, *ok, *om, *opx, *orows, *orptr;
+    Py_ssize_t usize;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOn", &oLx, &oy, &oc0, &ok, &om, &opx, &orows, &orptr,
+                          &usize))
+        return NULL;
+    if (!PyArray_Check(oy) || PyArray_TYPE((PyArrayObject *)oy) != NPY_FLOAT64 ||
+        PyArray_NDIM((PyArrayObject *)oy) != 2 ||
+        !PyArray_IS_F_CONTIGUOUS((PyArrayObject *)oy)) {
+        PyErr_SetString(PyExc_TypeError, "y must be a 2-D Fortran-ordered float64 array");
+        return NULL;
+    }
+    i64 ns;
+    double *Lx = arr(oLx, NPY_FLOAT64, -1, "Lx", NULL);
+    i64 *c0 = Lx ? arr(oc0, NPY_INT64, -1, "c0", &ns) : NULL;
+    i64 *kk = c0 ? arr(ok, NPY_INT64, ns, "k", NULL) : NULL;
+    i64 *mm = kk ? arr(om, NPY_INT64, ns, "m", NULL) : NULL;
+    i64 *px = mm ? arr(opx, NPY_INT64, ns, "px", NULL) : NULL;
+    i64 *rows = px ? arr(orows, NPY_INT64, -1, "rows", NULL) : NULL;
+    i64 *rptr = rows ? arr(orptr, NPY_INT64, ns + 1, "rptr", NULL) : NULL;
+    if (!rptr) return NULL;
+    double *y = PyArray_DATA((PyArrayObject *)oy);
+    int n = (int)PyArray_DIM((PyArrayObject *)oy, 0), nr = (int)PyArray_DIM((PyArrayObject *)oy, 1);
+    double *T = PyMem_Malloc((size_t)(usize > 0 ? usize : 1) * (size_t)(nr > 0 ? nr : 1) *
+                             sizeof(double));
+    if (!T) return PyErr_NoMemory();
+    Py_BEGIN_ALLOW_THREADS
+    char cL = 'L', cT = 'T', cN = 'N';
+    double one = 1.0, zero = 0.0, mone = -1.0;
+    for (i64 s = 0; s < ns; s++) { /* forward: L y = b */
+        int k = (int)kk[s], m = (int)mm[s], u = m - k;
+        double *P = Lx + px[s], *ys = y + c0[s];
+        f_trsm(&cL, &cL, &cN, &cN, &k, &nr, &one, P, &m, ys, &n);
+        if (u == 0) continue;
+        f_gemm(&cN, &cN, &u, &nr, &k, &one, P + k, &m, ys, &n, &zero, T, &u);
+        const i64 *below = rows + rptr[s] + k;
+        for (int c = 0; c < nr; c++) {
+            double *yc = y + (i64)c * n;
+            const double *tc = T + (i64)c * u;
+            for (int i = 0; i < u; i++) yc[below[i]] -= tc[i];
+        }
+    }
+    for (i64 s = ns - 1; s >= 0; s--) { /* backward: L^T x = y */
+        int k = (int)kk[s], m = (int)mm[s], u = m - k;
+        double *P = Lx + px[s], *ys = y + c0[s];
+        if (u > 0) {
+            const i64 *below = rows + rptr[s] + k;
+            for (int c = 0; c < nr; c++) {
+                const double *yc = y + (i64)c * n;
+                double *tc = T + (i64)c * u;
+                for (int i = 0; i < u; i++) tc[i] = yc[below[i]];
+            }
+            f_gemm(&cT, &cN, &k, &nr, &u, &mone, P + k, &m, T, &u, &one, ys, &n);
+        }
+        f_trsm(&cL, &cL, &cT, &cN, &k, &nr, &one, P, &m, ys, &n);
+    }
+    Py_END_ALLOW_THREADS
+    PyMem_Free(T);
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef methods[] = {
+    {"factor", factor, METH_VARARGS,
+     "factor(Lx, data, amap, c0, k, m, px, rows, rptr, pptr, pt, pa, pb, relptr, rel, wsize)"
+     " -> 0, or 1 + the supernode whose pivot is not positive"},
+    {"solve", solve, METH_VARARGS,
+     "solve(Lx, y, c0, k, m, px, rows, rptr, usize): y <- L^-T L^-1 y in place"},
+    {NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_chol",
+                                    "The numeric supernodal Cholesky loop of microlie.optim.",
+                                    -1, methods};
+
+PyMODINIT_FUNC PyInit__chol(void) {
+    import_array();
+    if (load_blas() < 0) return NULL;
+    return PyModule_Create(&moddef);
+}

@@ -1,0 +1,180 @@
+"""The supernodal Cholesky (microlie.optim.cholesky): its factor against LAPACK's dense Cholesky
+of the same permuted matrix, its solves against dense solves and SuperLU, with the compiled
+loop (microlie-fast) and with the NumPy loop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from microlie.optim.cholesky import SupernodalSolver
+from microlie.optim.linear import SingularSystemError, make_solver
+
+try:
+    import microlie_fast._chol  # noqa: F401
+
+    HAVE_C = True
+except ImportError:
+    HAVE_C = False
+
+
+def _paths():
+    """The NumPy loop always; the compiled loop where installed (required in CI)."""
+    from conftest import IN_CI
+
+    if IN_CI and not HAVE_C:
+        pytest.fail("microlie_fast._chol is required in CI but is not installed")
+    return [False, True] if HAVE_C else [False]
+
+
+PATHS = _paths()
+
+
+def _random_spd(bs: int, nb: int, seed: int, extra: int = 2, corner: int = 4):
+    """A block-sparse SPD matrix: a chain, random long edges, a dense corner."""
+    rng = np.random.default_rng(seed)
+    pairs = {(k, k + 1) for k in range(nb - 1)}
+    pairs |= {tuple(sorted(rng.choice(nb, 2, replace=False))) for _ in range(nb // extra)}
+    pairs |= {(a, b) for a in range(max(nb - corner, 0), nb) for b in range(a + 1, nb)}
+    n = nb * bs
+    M = np.zeros((n, n))
+    for a, b in pairs:
+        J = rng.standard_normal((bs + 1, 2 * bs))
+        idx = np.r_[a * bs:(a + 1) * bs, b * bs:(b + 1) * bs]
+        M[np.ix_(idx, idx)] += J.T @ J
+    M += 1e-3 * np.eye(n)
+    H = sp.csc_matrix(M)
+    H.sort_indices()
+    return M, H
+
+
+def _dense_factor(s: SupernodalSolver) -> np.ndarray:
+    """The factor L assembled from the solver's panels (its own numbering)."""
+    L = np.zeros((s.n, s.n))
+    for c0, k, m, p0, r0 in zip(s.c0, s.k, s.m, s.px, s.rptr[:-1], strict=True):
+        P = s.Lx[p0:p0 + m * k].reshape(k, m).T
+        L[np.ix_(s.rows[r0:r0 + m], np.arange(c0, c0 + k))] = P
+    return np.tril(L)
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+@pytest.mark.parametrize("bs, nb, seed", [(6, 40, 1), (3, 120, 2), (2, 7, 3), (1, 50, 4),
+                                          (6, 1, 5), (3, 300, 6), (1, 1, 7)])
+def test_factor_equals_dense_cholesky_and_solves(compiled, bs, nb, seed):
+    M, H = _random_spd(bs, nb, seed)
+    s = SupernodalSolver(compiled=compiled)
+    s.analyse(H.indptr, H.indices, H.shape[0], bs)
+    s.factorize(H.data)
+    p = s.sperm
+    Ld = np.linalg.cholesky(M[np.ix_(p, p)])
+    np.testing.assert_allclose(_dense_factor(s), Ld, rtol=0, atol=1e-10 * np.abs(Ld).max())
+    rng = np.random.default_rng(seed)
+    b = rng.standard_normal(H.shape[0])
+    np.testing.assert_allclose(s.solve(b), np.linalg.solve(M, b), rtol=1e-8, atol=1e-10)
+    B = rng.standard_normal((H.shape[0], 5))
+    np.testing.assert_allclose(s.solve(B), np.linalg.solve(M, B), rtol=1e-8, atol=1e-10)
+    # refactorised with new numbers in the same pattern
+    H2 = H.copy()
+    H2.data = H.data * 2.0
+    s.factorize(H2.data)
+    np.testing.assert_allclose(s.solve(b), np.linalg.solve(2.0 * M, b), rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+def test_symbolic_structure_is_the_exact_fill(compiled):
+    """The panels hold every nonzero of the exact factor and no row that is structurally zero
+    beyond the relaxed amalgamation's explicit zeros: with amalgamation off the stored
+    structure equals the nonzero structure of the dense factor."""
+    import microlie.optim.cholesky as ch
+
+    M, H = _random_spd(1, 200, 11, extra=3, corner=0)
+    relax = ch._RELAX
+    try:
+        ch._RELAX = ((0, 0.0),) * 3
+        s = SupernodalSolver(compiled=compiled)
+        s.analyse(H.indptr, H.indices, H.shape[0], 1)
+    finally:
+        ch._RELAX = relax
+    s.factorize(H.data)
+    p = s.sperm
+    Ld = np.linalg.cholesky(M[np.ix_(p, p)])
+    stored = np.zeros(Ld.shape, bool)
+    for c0, k, m, r0 in zip(s.c0, s.k, s.m, s.rptr[:-1], strict=True):
+        stored[np.ix_(s.rows[r0:r0 + m], np.arange(c0, c0 + k))] = True
+    stored = np.tril(stored)
+    assert not (np.abs(Ld) > 1e-14)[~stored].any()
+    # no stored entry is structurally zero (generic random values do not cancel)
+    assert (np.abs(Ld[stored]) > 0).all()
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+def test_not_positive_definite_is_an_error(compiled):
+    M, H = _random_spd(3, 30, 5)
+    s = SupernodalSolver(compiled=compiled)
+    s.analyse(H.indptr, H.indices, H.shape[0], 3)
+    bad = H.copy()
+    bad.data[bad.indices == np.repeat(np.arange(H.shape[0]), np.diff(bad.indptr))] *= -1.0
+    with pytest.raises(SingularSystemError, match="not positive definite"):
+        s.factorize(bad.data)
+    nan = H.copy()
+    nan.data[0] = np.nan
+    with pytest.raises(SingularSystemError):
+        s.factorize(nan.data)
+        s.solve(np.ones(H.shape[0]))
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+@pytest.mark.parametrize("name", ["sphere2500", "parking-garage", "input_M3500_g2o"])
+def test_real_graph_systems_match_superlu(compiled, name):
+    """The Gauss-Newton matrices of shared pose graphs at their initial poses."""
+    from conftest import data_file
+
+    from microlie.optim import from_pose_graph
+    from microlie.optim.g2o import read_g2o
+
+    pg = read_g2o(data_file(f"pose_graph/{name}.g2o"))
+    g, _ = from_pose_graph(pg)
+    prob = g.problem()
+    H = prob.matrix(prob.linearize([v.initial for v in prob.variables]).data)
+    b = np.random.default_rng(0).standard_normal(H.shape[0])
+    s = SupernodalSolver(compiled=compiled)
+    s.analyse(prob.indptr, prob.indices, prob.size, prob.block_size)
+    s.factorize(H.data)
+    x = s.solve(b)
+    ref = spla.splu(H, permc_spec="MMD_AT_PLUS_A").solve(b)
+    np.testing.assert_allclose(x, ref, rtol=1e-6, atol=1e-9 * np.abs(ref).max())
+    assert np.abs(H @ x - b).max() < 1e-8 * np.abs(b).max() * max(1.0, np.abs(H.data).max())
+
+
+@pytest.mark.skipif(not HAVE_C, reason="the compiled loop is not installed")
+def test_compiled_and_numpy_loops_agree():
+    M, H = _random_spd(6, 60, 9)
+    a, c = SupernodalSolver(compiled=False), SupernodalSolver(compiled=True)
+    for s in (a, c):
+        s.analyse(H.indptr, H.indices, H.shape[0], 6)
+        s.factorize(H.data)
+    np.testing.assert_allclose(a.Lx, c.Lx, rtol=0, atol=1e-12 * np.abs(a.Lx).max())
+
+
+def test_compiled_switch(monkeypatch):
+    monkeypatch.setenv("MICROLIE_FAST", "0")
+    assert SupernodalSolver()._c is None
+    with pytest.raises(ImportError, match="microlie-fast"):
+        SupernodalSolver(compiled=True)
+    assert make_solver("supernodal").name == "supernodal"
+
+
+def test_auto_picks_by_installation(monkeypatch):
+    """2-D default install: SuperLU without the compiled loop, the supernodal Cholesky with
+    it; 3-D default install: the supernodal Cholesky; small problems: dense."""
+    default = ["scipy", "supernodal", "dense"]
+    assert make_solver("auto", 100, 3, default).name == "dense"
+    assert make_solver("auto", 5000, 6, default).name == "supernodal"
+    monkeypatch.setenv("MICROLIE_FAST", "0")
+    assert make_solver("auto", 5000, 3, default).name == "scipy"
+    if HAVE_C:
+        monkeypatch.setenv("MICROLIE_FAST", "1")
+        assert make_solver("auto", 5000, 3, default).name == "supernodal"
+        assert make_solver("auto", 5000, 3, default).__dict__["_c"] is not None

@@ -1,0 +1,49 @@
+"""microlie._startup: the trajectory commands start NumPy with one BLAS thread (unless the user
+set a thread count) and without the cyclic garbage collector; importing microlie in a program
+changes neither the environment nor the collector."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SRC = str(Path(__file__).resolve().parents[1] / "src")
+PROBE = ("import gc, os, sys, microlie, microlie.traj; "
+         "print(os.environ.get('OPENBLAS_NUM_THREADS'), gc.isenabled(), "
+         "len(os.listdir('/proc/self/task')) if os.path.isdir('/proc/self/task') else -1)")
+
+
+def _run(args: list[str], **env: str) -> list[str]:
+    base = {k: v for k, v in os.environ.items()
+            if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+    r = subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=120,
+                       env={**base, "PYTHONPATH": SRC, **env})
+    assert r.returncode == 0, r.stderr
+    return r.stdout.split()
+
+
+def test_a_program_importing_microlie_is_not_affected():
+    assert _run(["-c", PROBE])[:2] == ["None", "True"]
+
+
+@pytest.mark.parametrize("command, expected", [("ape", "1"), ("rpe", "1"), ("plot", "1"),
+                                               ("optimize", "None"), ("help", "None")])
+def test_console_script_of_a_trajectory_command(tmp_path, command, expected):
+    script = tmp_path / "microlie"  # what the console script's argv[0] looks like
+    script.write_text(PROBE + "\n")
+    out = _run([str(script), command])
+    assert out[:2] == [expected, str(expected == "None")]  # the collector is off in commands
+    if expected == "1" and out[2] != "-1":
+        assert out[2] == "1"  # no OpenBLAS worker threads were started
+
+
+def test_the_users_thread_count_wins(tmp_path):
+    script = tmp_path / "microlie"
+    script.write_text(PROBE + "\n")
+    assert _run([str(script), "ape"], OPENBLAS_NUM_THREADS="2")[:2] == ["2", "False"]
+    assert _run([str(script), "ape"], OMP_NUM_THREADS="3")[:2] == ["None", "False"]
+
