@@ -176,3 +176,34 @@ def test_jax_pytrees_round_trip():
         Z = jax.tree_util.tree_map(lambda p: 2.0 * p, Xj)
         assert type(Z) is G
         np.testing.assert_allclose(np.asarray(Z.params), 2.0 * X.params)
+
+
+def test_torch_large_batches_with_and_without_autograd():
+    """Above ``2 * TORCH_CHUNK`` elements CPU tensors are evaluated in chunks: stacked straight
+    into the output without autograd, joined with ``cat`` when a gradient is needed; both equal
+    NumPy, including an element broadcast against a batch of points."""
+    torch = require("torch")
+    from microlie import SE3
+
+    n = 2 * K.TORCH_CHUNK + 5
+    rng = np.random.default_rng(6)
+    tau = rng.standard_normal((n, 6))
+    pts = rng.standard_normal((n, 3))
+    want_X, want_J = SE3.exp(tau, jac=True)
+    one = SE3.exp(tau[7])
+    want_act = one.act(pts)
+    for grad in (False, True):
+        t = torch.tensor(tau, requires_grad=grad)
+        X, J = SE3.exp(t, jac=True)
+        assert X.params.requires_grad == grad and J.requires_grad == grad
+        assert_same((X.params.detach(), J.detach()), (want_X.params, want_J), 1e-12, "SE3.exp")
+        act = SE3(torch.tensor(one.params, requires_grad=grad)).act(torch.tensor(pts))
+        assert_same(act.detach(), want_act, 1e-12, "SE3.act, one element on a batch")
+        if grad:  # gradients through the chunks equal those of the elements taken alone
+            (X.params.sum() + J.sum()).backward()
+            for i in (0, K.TORCH_CHUNK, n - 1):
+                ti = torch.tensor(tau[i], requires_grad=True)
+                Xi, Ji = SE3.exp(ti, jac=True)
+                (Xi.params.sum() + Ji.sum()).backward()
+                np.testing.assert_allclose(t.grad[i].numpy(), ti.grad.numpy(), rtol=1e-12,
+                                           atol=1e-12)

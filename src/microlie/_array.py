@@ -298,23 +298,47 @@ def check_finite(x: Array, what: str) -> None:
         raise ValueError(f"{what} contains NaN or infinite values")
 
 
-def element_floats(arrays: Any) -> list[list[float]] | None:
-    """The values of single elements (1-D CPU torch tensors of one dtype) as lists of Python
-    floats, when nothing is lost by computing on floats: no autograd graph to record, no
-    ``torch.compile``/``torch.jit`` trace, no ``torch.func`` transform, no tensor subclass.
-    ``None`` otherwise (and for anything that is not torch)."""
+def plain_tensors(arrays: Any) -> bool:
+    """True if ``arrays`` are CPU torch tensors of one dtype whose results need no tensor
+    operations: no autograd graph to record, no ``torch.compile``/``torch.jit`` trace, no
+    ``torch.func`` transform, no tensor subclass (``False`` for anything that is not torch)."""
     torch = sys.modules.get("torch")
     if torch is None:
-        return None
+        return False
     grad = torch.is_grad_enabled()
     dt = arrays[0].dtype
     for a in arrays:
-        if type(a) is not torch.Tensor or a.ndim != 1 or a.dtype != dt or not a.is_cpu \
+        if type(a) is not torch.Tensor or a.dtype != dt or not a.is_cpu \
                 or (grad and a.requires_grad) or _functorch_wrapped(a):
-            return None
-    if torch.compiler.is_compiling() or torch.jit.is_tracing():
-        return None
-    return [a.tolist() for a in arrays]
+            return False
+    return not (torch.compiler.is_compiling() or torch.jit.is_tracing())
+
+
+def element_floats(arrays: Any) -> list[list[float]] | None:
+    """The values of single elements (1-D :func:`plain_tensors`) as lists of Python floats, or
+    ``None``."""
+    if all(a.ndim == 1 for a in arrays) and plain_tensors(arrays):
+        return [a.tolist() for a in arrays]
+    return None
+
+
+def empty_like_rows(like: Array, n: int, k: int) -> Array:
+    """An uninitialised ``(n, k)`` torch tensor of ``like``'s dtype and device."""
+    import torch
+
+    return torch.empty((n, k), dtype=like.dtype, device=like.device)
+
+
+def stack_into(columns: list, out: Array) -> None:
+    """Write the ``(m,)`` tensors (or Python floats) ``columns`` into the columns of the
+    ``(m, k)`` torch tensor ``out`` (one ``stack`` with ``out=``; no autograd)."""
+    import torch
+
+    if all(type(c) is torch.Tensor and c.shape == out.shape[:1] for c in columns):
+        torch.stack(columns, dim=1, out=out)
+        return
+    for j, c in enumerate(columns):
+        out[:, j] = c
 
 
 def _functorch_wrapped(x: Array) -> bool:

@@ -9,10 +9,16 @@ kernels under ``"<Group>.<op>"`` when its class is created, e.g. ``"SO3.exp"``, 
 
 :func:`run` evaluates a kernel on arrays of shape ``(*batch, k)`` (batch axes broadcast):
 
-* single NumPy elements run on Python floats (far faster than NumPy on length-1 arrays);
+* single NumPy elements run on Python floats (far faster than NumPy on length-1 arrays), and so
+  do single CPU torch elements when no autograd graph, ``torch.compile``/``torch.jit`` trace or
+  ``torch.func`` transform needs tensor operations (the outputs are tensors again);
 * large NumPy batches run in chunks of :data:`CHUNK` rows, so that the temporaries of a formula
   stay in the CPU cache; large CPU torch tensors likewise (joined with ``cat``, autograd intact);
-* everything else (JAX, torch, small NumPy batches) runs once on whole arrays.
+* everything else (JAX, torch, small NumPy batches) runs once on whole arrays. Under
+  ``jax.jit``, output components that a formula writes as a common factor times a vector
+  (``ops.times(k, v)``) are assembled as one broadcast product ``k[..., None] * v``: the same
+  multiplications, but XLA then computes ``k`` once instead of once per output column (a
+  stack of separately computed columns repeats every shared subexpression per column).
 
 The result dtype is the promotion of the input dtypes (NumPy's rules) on every path. Kernels
 flagged ``finite`` (those with tangent-vector inputs, where a huge angle or scale can overflow)
@@ -409,8 +415,9 @@ def _single_like(k: Kernel, lists: list, like: Array) -> Any:
 
 
 def _chunked_torch(o: Any, k: Kernel, arrays: Sequence[Array], batch: Shape, dt: Any) -> Any:
-    """Large CPU tensors in chunks (cache-resident temporaries), joined with ``cat`` so that
-    autograd sees ordinary operations."""
+    """Large CPU tensors in chunks (cache-resident temporaries), stacked straight into the
+    output (``out=``), or, when autograd (or a trace or transform) must see ordinary
+    operations, joined with ``cat``."""
     n = math.prod(batch)
     fn = k.fn
     if fn is None or n < 2 * TORCH_CHUNK or \
@@ -418,11 +425,18 @@ def _chunked_torch(o: Any, k: Kernel, arrays: Sequence[Array], batch: Shape, dt:
         return None
     xp = o.xp
     flats = [xp.reshape(a, (n, a.shape[-1])) if a.ndim > 1 else a for a in arrays]
+    into = A.plain_tensors(arrays)
+    outs = [A.empty_like_rows(arrays[0], n, math.prod(s)) for s in k.outs] if into else []
     parts: list[list[Array]] = [[] for _ in k.outs]
     for s in range(0, n, TORCH_CHUNK):
         m = min(s + TORCH_CHUNK, n) - s
         r = fn(o, *[A.components(f[s:s + m] if f.ndim > 1 else f) for f in flats])
-        for res, acc, shape in zip([r] if k._flat else r, parts, k.outs, strict=True):
-            acc.append(_pack(o, res, shape, dt, (m,)))
-    return [xp.reshape(xp.concat(p, axis=0), (*batch, *shape))
-            for p, shape in zip(parts, k.outs, strict=True)]
+        for j, (res, shape) in enumerate(zip([r] if k._flat else r, k.outs, strict=True)):
+            if into:
+                flat = res if len(shape) == 1 else [c for row in res for c in row]
+                A.stack_into(flat, outs[j][s:s + m])
+            else:
+                parts[j].append(_pack(o, res, shape, dt, (m,)))
+    if not into:
+        outs = [xp.concat(p, axis=0) for p in parts]
+    return [xp.reshape(x, (*batch, *shape)) for x, shape in zip(outs, k.outs, strict=True)]
