@@ -64,8 +64,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "jax (microlie-jax-jit), torch (microlie-torch); default: all that import",
     )
     p.add_argument("--peers-only", action="store_true", help="do not run microlie")
-    p.add_argument("--groups", nargs="+", default=None, help="subset of SO3 SE3")
-    p.add_argument("--ops", nargs="+", default=None, help="subset of exp log compose act exp_jac")
+    p.add_argument("--groups", nargs="+", default=None,
+                   help="subset of SO3 SE3 (with --before-after: of SO3 SE3 Sim3)")
+    p.add_argument("--ops", nargs="+", default=None,
+                   help="subset of exp log compose act exp_jac (with --before-after: of its "
+                   "value and Jacobian operations, e.g. minus minus_jac jr)")
     p.add_argument("--regimes", nargs="+", default=None, help="subset of single batch")
     p.add_argument(
         "--loop-n",

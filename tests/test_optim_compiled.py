@@ -172,6 +172,19 @@ def test_same_solution(graph_mod, monkeypatch, G):
     np.testing.assert_allclose(res.values.params(x), ref.values.params(x), atol=1e-9)
 
 
+def test_any_memory_layout(graph_mod):
+    """States that are not C-contiguous rows (a user's view, a Fortran-ordered array) give the
+    same numbers."""
+    fg = _hard_graph(np.random.default_rng(5))
+    p = Problem(fg.variables, fg.factors, "check")
+    states = [v.initial for v in p.variables]
+    odd = [np.asfortranarray(s) for s in states]
+    assert not odd[0].flags.c_contiguous
+    a, b = p.linearize(states), p.linearize(odd)
+    np.testing.assert_array_equal(a.data, b.data)
+    np.testing.assert_array_equal(p.plans[0].cost(states), p.plans[0].cost(odd))
+
+
 def test_switched_off(graph_mod, monkeypatch):
     from microlie.optim import compiled
 

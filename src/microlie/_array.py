@@ -53,6 +53,10 @@ class _ScalarOps:
     abs1 = staticmethod(abs)  # |x| (the derivative at 0 matters only to autodiff backends)
 
     @staticmethod
+    def select(cond: bool, f: Any, g: Any, *args: Any) -> Any:
+        return f(*args) if cond else g(*args)
+
+    @staticmethod
     def zeros_like(x: float) -> float:
         return 0.0
 
@@ -89,6 +93,17 @@ class ArrayOps:
         has 0 there, which loses the angle of a rotation by exactly pi in ``Log``)."""
         one = self.xp.ones_like(x)
         return x * self.xp.where(x >= 0, one, -one)
+
+    def select(self, cond: Array, f: Any, g: Any, *args: Any) -> Any:
+        """``f(*args)`` where ``cond``, ``g(*args)`` elsewhere (an array or a tuple of arrays).
+
+        Both branches are evaluated on every element and joined with ``where`` (jit- and
+        autodiff-friendly): each must stay finite, with finite derivatives, where it is not
+        selected (safe substitutes, see :mod:`microlie.groups._math`)."""
+        a, b = f(*args), g(*args)
+        if isinstance(a, tuple):
+            return tuple(self.where(cond, x, y) for x, y in zip(a, b, strict=True))
+        return self.where(cond, a, b)
 
     def zeros_like(self, x: Array) -> Array:
         return self.xp.zeros_like(x)
@@ -136,6 +151,35 @@ class _NumpyOps(ArrayOps):
         super().__init__(np)
         self.atan2 = np.arctan2
         self.where = np.where
+
+    def select(self, cond: Array, f: Any, g: Any, *args: Any) -> Any:
+        """As :meth:`ArrayOps.select`, but on a 1-D batch each branch is evaluated only where
+        it is needed: the branch of the majority on the whole batch, the other one on the
+        gathered elements of the minority, scattered into the result (the results are the
+        ones ``where`` would give, element by element)."""
+        if type(cond) is not np.ndarray or cond.ndim != 1:
+            return super().select(cond, f, g, *args)
+        n = cond.shape[0]
+        m = int(np.count_nonzero(cond))
+        if m == 0:
+            return g(*args)
+        if m == n:
+            return f(*args)
+        major, minor, idx = (g, f, np.flatnonzero(cond)) if 2 * m <= n else \
+            (f, g, np.flatnonzero(~cond))
+        out = major(*args)
+        sub = minor(*[a[idx] if type(a) is np.ndarray and a.shape == (n,) else a for a in args])
+        if not isinstance(out, tuple):
+            return _scatter(out, idx, sub, n, args)
+        return tuple(_scatter(o, idx, x, n, args) for o, x in zip(out, sub, strict=True))
+
+
+def _scatter(out: Any, idx: np.ndarray, sub: Any, n: int, args: tuple) -> np.ndarray:
+    """``out`` (a fresh array of ``n`` elements) with ``sub`` written at ``idx``."""
+    if type(out) is not np.ndarray or out.shape != (n,) or any(out is a for a in args):
+        out = np.array(np.broadcast_to(out, (n,)), dtype=np.result_type(out, sub))
+    out[idx] = sub
+    return out
 
 
 NUMPY = _NumpyOps()

@@ -20,6 +20,11 @@ kernels under ``"<Group>.<op>"`` when its class is created, e.g. ``"SO3.exp"``, 
   multiplications, but XLA then computes ``k`` once instead of once per output column (a
   stack of separately computed columns repeats every shared subexpression per column).
 
+Matrix outputs of more than 8 entries (Jacobians, adjoints) of NumPy batches are views of
+component-major arrays: shape ``(*batch, r, c)``, memory order ``(r, c, *batch)``. Each entry is
+then one contiguous write (a row-major result costs a transposition that takes as long as the
+formula); ``np.ascontiguousarray`` gives a row-major copy where one is needed.
+
 The result dtype is the promotion of the input dtypes (NumPy's rules) on every path. Kernels
 flagged ``finite`` (those with tangent-vector inputs, where a huge angle or scale can overflow)
 raise ``ValueError`` on a non-finite result, on every path (skipped for traced values).
@@ -46,7 +51,10 @@ without touching the group classes; ``register(name, None)`` restores the generi
 from __future__ import annotations
 
 import math
+import os
 import struct
+import sys
+import threading
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
@@ -64,7 +72,7 @@ __all__ = ["Kernel", "KERNELS", "run", "run_floats", "scalar_function", "registe
 # element-wise temporaries of one formula stay in the CPU cache (about twice as fast at 1e6).
 CHUNK = 8192
 TORCH_CHUNK = 16384  # torch's per-call overhead is higher than NumPy's: larger chunks
-_WIDE = 8  # outputs with more components than this are filled through a transposed buffer
+_WIDE = 8  # matrix outputs with more components than this are stored component-major
 
 Shape = tuple[int, ...]
 
@@ -274,7 +282,12 @@ def _pack(ops: Any, comps: Any, shape: Shape, dt: Any, batch: Shape) -> Array:
     """Stack output components (a vector, or rows of a matrix) into ``(*batch, *shape)``."""
     flat = comps if len(shape) == 1 else [c for row in comps for c in row]
     if ops is NUMPY:
-        out = np.empty((*batch, len(flat)), dtype=dt)
+        if len(shape) == 2 and len(flat) > _WIDE:  # component-major, as in _chunked
+            out = _empty((len(flat), *batch), dt)
+            for j, c in enumerate(flat):
+                out[j] = c
+            return np.moveaxis(out, 0, -1).reshape(*batch, *shape)
+        out = _empty((*batch, len(flat)), dt)
         for j, c in enumerate(flat):
             out[..., j] = c
         return out.reshape(*batch, *shape) if len(shape) > 1 else out
@@ -312,33 +325,110 @@ def _stack_blocks(xp: Any, arrays: list, blocks: dict) -> Array:
     return parts[0] if len(parts) == 1 else xp.concat(parts, axis=-1)
 
 
+# ---------------------------------------------------------------------------- output blocks
+#
+# A fresh output of many megabytes costs a page fault per page on its first write (the kernel
+# zeroes it), as much as computing it. Large outputs therefore come from a small pool of blocks
+# that stay mapped: a block is handed out again once no array refers to it any more (its
+# reference count is back to the pool's own), so a live result never shares memory with a new
+# one. Outputs below ``_POOL_MIN`` bytes use NumPy's allocator. The pool holds at most
+# MICROLIE_CACHE_MB megabytes (default 256; 0 disables it); the compiled kernels keep their own
+# (MICROLIE_FAST_CACHE_MB).
+
+_POOL_MIN = 1 << 20
+_POOL_SLOTS = 16
+
+
+def _pool_limit() -> int:
+    text = os.environ.get("MICROLIE_CACHE_MB", "256")
+    try:
+        mb = float(text)
+    except ValueError:
+        mb = -1.0
+    if not mb >= 0:
+        raise ValueError(f"MICROLIE_CACHE_MB must be a number of megabytes >= 0, got {text!r}")
+    return int(mb * (1 << 20))
+
+
+_POOL_LIMIT = _pool_limit()
+_pool: list[np.ndarray] = []  # owned byte blocks, oldest first
+_pool_lock = threading.Lock()
+
+
+def _refs(block: np.ndarray) -> int:
+    return sys.getrefcount(block)
+
+
+def _free_count() -> int:
+    """References to a block held by the pool only, seen from a loop over the pool."""
+    for block in [np.empty(0)]:
+        return _refs(block)
+    raise AssertionError
+
+
+_FREE = _free_count()
+
+
+def _empty(shape: Shape, dt: Any) -> np.ndarray:
+    """An uninitialised array, from the pool of warm blocks when it is large."""
+    dt = np.dtype(dt)
+    nbytes = math.prod(shape) * dt.itemsize
+    if nbytes < _POOL_MIN or nbytes > _POOL_LIMIT:
+        return np.empty(shape, dtype=dt)
+    with _pool_lock:
+        for block in _pool:
+            if block.nbytes == nbytes and _refs(block) <= _FREE:
+                break
+        else:
+            block = np.empty(nbytes, dtype=np.uint8)
+            free = [b for b in _pool if _refs(b) <= _FREE]
+            total = sum(b.nbytes for b in _pool) + nbytes
+            gone: set[int] = set()  # evict the oldest free blocks (by identity)
+            while free and (total > _POOL_LIMIT or len(_pool) - len(gone) >= _POOL_SLOTS):
+                old = free.pop(0)
+                total -= old.nbytes
+                gone.add(id(old))
+            _pool[:] = [b for b in _pool if id(b) not in gone]
+            del free
+            if total <= _POOL_LIMIT and len(_pool) < _POOL_SLOTS:
+                _pool.append(block)
+        return block.view(dt).reshape(shape)
+
+
 def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> Any:
     n = math.prod(batch)
     fn = k.fn
     if fn is None or n < 2 * CHUNK or any(a.ndim > 1 and a.shape[:-1] != batch for a in arrays):
         return None
     flats = [a.reshape(n, a.shape[-1]) if a.ndim > 1 else a.tolist() for a in arrays]
-    outs = [np.empty((n, math.prod(s)), dtype=dt) for s in k.outs]
-    # wide outputs (Jacobians) are filled component by component into a contiguous buffer and
-    # transposed into place once per chunk: column writes with a long row stride cost about
-    # twice as much (each cache line of the output is written in many pieces)
-    width = max(math.prod(s) for s in k.outs)
+    # matrix outputs (Jacobians) are stored component-major, ``(r * c, n)``, and returned as
+    # ``(*batch, r, c)`` views: each component is one contiguous write, where a row-major
+    # result costs a transposition (1-2 ns per value, as much as computing it). Wide vectors
+    # (parameters of product groups) stay row-major, filled through a transposed buffer.
+    soa = [len(s) == 2 and math.prod(s) > _WIDE for s in k.outs]
+    outs = [_empty((math.prod(s), n) if m else (n, math.prod(s)), dt)
+            for s, m in zip(k.outs, soa, strict=True)]
+    width = max((s[0] for s, m in zip(k.outs, soa, strict=True) if not m), default=0)
     buf = np.empty((width, CHUNK), dtype=dt) if width > _WIDE else None
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
         r = fn(NUMPY, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
                         for f in flats])
-        for res, out, shape in zip([r] if k._flat else r, outs, k.outs, strict=True):
-            flat = res if len(shape) == 1 else [c for row in res for c in row]
-            if buf is not None and len(flat) > _WIDE:
-                b = buf[:len(flat), :e - s]
-                for j, c in enumerate(flat):
+        for res, out, shape, m in zip([r] if k._flat else r, outs, k.outs, soa, strict=True):
+            if m:
+                for j, c in enumerate(c for row in res for c in row):
+                    out[j, s:e] = c
+            elif buf is not None and len(res) > _WIDE:
+                b = buf[:len(res), :e - s]
+                for j, c in enumerate(res):
                     b[j] = c
                 out[s:e] = b.T
             else:
-                for j, c in enumerate(flat):
+                for j, c in enumerate(res if len(shape) == 1 else
+                                      [c for row in res for c in row]):
                     out[s:e, j] = c
-    return [o.reshape(*batch, *shape) for o, shape in zip(outs, k.outs, strict=True)]
+    return [o.T.reshape(*batch, *shape) if m else o.reshape(*batch, *shape)
+            for o, shape, m in zip(outs, k.outs, soa, strict=True)]
 
 
 def _run_arrays(k: Kernel, arrays: Sequence[np.ndarray]) -> Any:

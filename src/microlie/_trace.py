@@ -136,6 +136,12 @@ class _Ops:
 
     times = staticmethod(times)
 
+    def select(self, cond: Any, f: Any, g: Any, *args: Any) -> Any:
+        a, b = f(*args), g(*args)  # both recorded; only the branch taken runs (see code())
+        if isinstance(a, tuple):
+            return tuple(self.where(cond, x, y) for x, y in zip(a, b, strict=True))
+        return self.where(cond, a, b)
+
     @staticmethod
     def zeros_like(x: Any) -> float:
         return 0.0
