@@ -15,11 +15,12 @@ block first). The numeric factorisation is right-looking: scatter the matrix int
 diagonal block, ``trsm`` for the rows below, ``syrk`` for the update ``W = L21 L21^T``, and
 subtract ``W`` from the panels of its ancestors through precomputed relative row indices.
 With ``microlie-fast`` installed (``pip install "microlie[fast]"``) the whole loop is one C call
-on SciPy's own BLAS/LAPACK (``microlie_fast._chol``); without it, independent supernodes of a
-level of the supernodal elimination tree with equal shapes are factorised as one batch of
-NumPy's stacked ``cholesky``/``matmul`` and large ones one by one with SciPy's LAPACK wrappers.
-``MICROLIE_FAST=0`` keeps the NumPy loop. Both compute the same factor.
-"""
+on SciPy's own BLAS/LAPACK (``microlie_fast._chol``); without it, the supernodes of one level
+of the supernodal elimination tree (independent of each other) with equal shapes are
+factorised as one batch of NumPy's stacked ``cholesky``/``inv``/``matmul`` (a supernode alone
+in its batch with SciPy's LAPACK wrappers), and their updates are summed into the panels by
+``ufunc.at`` through precomputed flat maps. ``MICROLIE_FAST=0`` keeps the NumPy loop. Both
+compute the same factor (to rounding)."""
 
 from __future__ import annotations
 
