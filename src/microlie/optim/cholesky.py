@@ -189,14 +189,15 @@ class SupernodalSolver(LinearSolver):
 
     def factorize(self, data: np.ndarray) -> None:
         data = np.ascontiguousarray(data, dtype=np.float64)
-        Lx = np.zeros(self.nx + self.bs)  # the panels, then a dump block
         if self._c is not None:
+            Lx = np.empty(self.nx + self.bs)  # the panels, then a dump block (zeroed in C)
             info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
                                   self.rows, self.rptr, self.pptr, self.pt, self.pa,
-                                  self.pb, self.relptr, self.rel, self.wsize)
+                                  self.pb, self.relptr, self.rel, self.wsize, self.bs)
             if info:
                 raise SingularSystemError(_NOT_PD)
         else:
+            Lx = np.zeros(self.nx + self.bs)
             Lx[self.amap] = data
             self._factor_numpy(Lx)
         self.Lx = Lx
