@@ -267,9 +267,9 @@ class Problem:
         indptr = np.empty(self.size + 1, np.int64)
         indptr[-1] = nnz
         for d in np.unique(self.node_dof):
-            nodes = np.flatnonzero(self.node_dof == d)
-            indptr[self.node_off[nodes][:, None] + np.arange(d)] = (
-                base[nodes][:, None] + np.arange(d) * collen[nodes][:, None])
+            of_d = np.flatnonzero(self.node_dof == d)
+            indptr[self.node_off[of_d][:, None] + np.arange(d)] = (
+                base[of_d][:, None] + np.arange(d) * collen[of_d][:, None])
         self.nnz = nnz
         self.indices = indices
         self.indptr = indptr.astype(np.int32)
