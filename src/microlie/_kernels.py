@@ -9,10 +9,16 @@ kernels under ``"<Group>.<op>"`` when its class is created, e.g. ``"SO3.exp"``, 
 
 :func:`run` evaluates a kernel on arrays of shape ``(*batch, k)`` (batch axes broadcast):
 
-* single NumPy elements run on Python floats (far faster than NumPy on length-1 arrays);
+* single NumPy elements run on Python floats (far faster than NumPy on length-1 arrays), and so
+  do single CPU torch elements when no autograd graph, ``torch.compile``/``torch.jit`` trace or
+  ``torch.func`` transform needs tensor operations (the outputs are tensors again);
 * large NumPy batches run in chunks of :data:`CHUNK` rows, so that the temporaries of a formula
   stay in the CPU cache; large CPU torch tensors likewise (joined with ``cat``, autograd intact);
-* everything else (JAX, torch, small NumPy batches) runs once on whole arrays.
+* everything else (JAX, torch, small NumPy batches) runs once on whole arrays. Under
+  ``jax.jit``, output components that a formula writes as a common factor times a vector
+  (``ops.times(k, v)``) are assembled as one broadcast product ``k[..., None] * v``: the same
+  multiplications, but XLA then computes ``k`` once instead of once per output column (a
+  stack of separately computed columns repeats every shared subexpression per column).
 
 Matrix outputs of more than 8 entries (Jacobians, adjoints) of NumPy batches are views of
 component-major arrays: shape ``(*batch, r, c)``, memory order ``(r, c, *batch)``. Each entry is
@@ -290,8 +296,33 @@ def _pack(ops: Any, comps: Any, shape: Shape, dt: Any, batch: Shape) -> Array:
     arrays = [c if hasattr(c, "shape") else xp.asarray(c, dtype=dt, device=A._device(like))
               for c in flat]
     arrays = [xp.broadcast_to(c, batch) if tuple(c.shape) != batch else c for c in arrays]
-    out = xp.stack(arrays, axis=-1)
+    out = _stack_blocks(xp, arrays, ops.blocks) if ops.blocks else xp.stack(arrays, axis=-1)
     return xp.reshape(out, (*batch, *shape)) if len(shape) > 1 else out
+
+
+def _stack_blocks(xp: Any, arrays: list, blocks: dict) -> Array:
+    """``stack(arrays, -1)`` where each run of consecutive ``k * v_i`` products of one factor
+    ``k`` (recorded by ``ops.times``) becomes one broadcast product ``k[..., None] * v``: the
+    same multiplications, but XLA then computes ``k`` once rather than once per column."""
+    parts, i = [], 0
+    while i < len(arrays):
+        b = blocks.get(id(arrays[i]))
+        if b is None or b[0] is not arrays[i] or not hasattr(b[1], "shape"):
+            parts.append(arrays[i][..., None])
+            i += 1
+            continue
+        k, vs = b[1], [b[2]]
+        i += 1
+        while i < len(arrays):
+            b = blocks.get(id(arrays[i]))
+            if b is None or b[0] is not arrays[i] or b[1] is not k:
+                break
+            vs.append(b[2])
+            i += 1
+        shape = tuple(arrays[i - 1].shape)  # the batch shape
+        v = xp.stack([xp.broadcast_to(c, shape) for c in vs], axis=-1)
+        parts.append(xp.broadcast_to(k, shape)[..., None] * v)
+    return parts[0] if len(parts) == 1 else xp.concat(parts, axis=-1)
 
 
 # ---------------------------------------------------------------------------- output blocks
@@ -435,8 +466,13 @@ def _run_foreign(k: Kernel, arrays: Sequence[Array]) -> Any:
     foreign = next(a for a in arrays if type(a) is not np.ndarray)
     arrays = [A.as_float_array(a, like=foreign) if type(a) is np.ndarray else a
               for a in arrays]
-    o = A.ops_for(*arrays)
-    batch = tuple(np.broadcast_shapes(*(tuple(a.shape[:-1]) for a in arrays)))
+    batch = () if all(a.ndim == 1 for a in arrays) else \
+        tuple(np.broadcast_shapes(*(tuple(a.shape[:-1]) for a in arrays)))
+    if not batch:  # one element: on Python floats when no autograd/trace needs tensor ops
+        lists = A.element_floats(arrays)
+        if lists is not None:
+            return _single_like(k, lists, foreign)
+    o = A.kernel_ops(arrays, math.prod(batch))
     dt = foreign.dtype
     for a in arrays:
         if a.dtype != dt:  # mixed dtypes: evaluate in the promoted one (0-d operands included)
@@ -454,9 +490,24 @@ def _run_foreign(k: Kernel, arrays: Sequence[Array]) -> Any:
     return out[0] if k._flat else tuple(out)
 
 
+def _single_like(k: Kernel, lists: list, like: Array) -> Any:
+    """:func:`_single` with outputs of the array library of ``like`` (a CPU torch tensor)."""
+    f = k._scalar or _scalar_function(k)
+    try:
+        r = f(*lists)
+    except (ValueError, OverflowError, ZeroDivisionError) as e:
+        raise ValueError(_not_finite(k)) from e
+    outs = [r] if k._flat else r
+    if k.finite and not math.isfinite(sum(_fsum(x) for x in outs)):
+        raise ValueError(_not_finite(k))
+    res = [A.floats_like(x, like) for x in outs]
+    return res[0] if k._flat else tuple(res)
+
+
 def _chunked_torch(o: Any, k: Kernel, arrays: Sequence[Array], batch: Shape, dt: Any) -> Any:
-    """Large CPU tensors in chunks (cache-resident temporaries), joined with ``cat`` so that
-    autograd sees ordinary operations."""
+    """Large CPU tensors in chunks (cache-resident temporaries), stacked straight into the
+    output (``out=``), or, when autograd (or a trace or transform) must see ordinary
+    operations, joined with ``cat``."""
     n = math.prod(batch)
     fn = k.fn
     if fn is None or n < 2 * TORCH_CHUNK or \
@@ -464,11 +515,18 @@ def _chunked_torch(o: Any, k: Kernel, arrays: Sequence[Array], batch: Shape, dt:
         return None
     xp = o.xp
     flats = [xp.reshape(a, (n, a.shape[-1])) if a.ndim > 1 else a for a in arrays]
+    into = A.plain_tensors(arrays)
+    outs = [A.empty_like_rows(arrays[0], n, math.prod(s)) for s in k.outs] if into else []
     parts: list[list[Array]] = [[] for _ in k.outs]
     for s in range(0, n, TORCH_CHUNK):
         m = min(s + TORCH_CHUNK, n) - s
         r = fn(o, *[A.components(f[s:s + m] if f.ndim > 1 else f) for f in flats])
-        for res, acc, shape in zip([r] if k._flat else r, parts, k.outs, strict=True):
-            acc.append(_pack(o, res, shape, dt, (m,)))
-    return [xp.reshape(xp.concat(p, axis=0), (*batch, *shape))
-            for p, shape in zip(parts, k.outs, strict=True)]
+        for j, (res, shape) in enumerate(zip([r] if k._flat else r, k.outs, strict=True)):
+            if into:
+                flat = res if len(shape) == 1 else [c for row in res for c in row]
+                A.stack_into(flat, outs[j][s:s + m])
+            else:
+                parts[j].append(_pack(o, res, shape, dt, (m,)))
+    if not into:
+        outs = [xp.concat(p, axis=0) for p in parts]
+    return [xp.reshape(x, (*batch, *shape)) for x, shape in zip(outs, k.outs, strict=True)]

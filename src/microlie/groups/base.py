@@ -317,7 +317,7 @@ class LieGroup:
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        A.register_pytree_class(cls)
+        A.register_pytree_class(cls, cls._adopt)
         if not hasattr(cls, "dof"):  # an abstract intermediate class (e.g. Pose)
             return
         needed = FACTS + PRIMITIVES + (CLOSED_JR if cls._has_closed_jr else ())

@@ -126,7 +126,7 @@ class SE3(Pose):
         t2 = M.norm2(*phi)
         k, ch = so3.half_angle(o, t2)
         t = v_times(o, phi, t2, k, ch, rho)
-        return (*t, k * phi[0], k * phi[1], k * phi[2], ch)
+        return (*t, *o.times(k, phi), ch)
 
     @staticmethod
     def _log(o, p):

@@ -95,7 +95,7 @@ def _c_closed(t2: Any, k: Any, ch: Any) -> Any:
 
 def quat_exp(o: Any, w: tuple) -> tuple:
     k, ch = half_angle(o, M.norm2(*w))
-    return (k * w[0], k * w[1], k * w[2], ch)
+    return (*o.times(k, w), ch)
 
 
 def quat_log(o: Any, q: tuple) -> tuple:
@@ -120,7 +120,7 @@ def quat_log_parts(o: Any, q: tuple) -> tuple:
     # 2 atan2(n, |w|) / n; for a unit quaternion and tiny n it is 2 asin(n) / n = 2 + n^2/3
     kl = o.where(small, 2.0 + n2 * (1.0 / 3.0), 2.0 * o.atan2(n, aw) / n)
     ks = kl - 2.0 * (kl * (w < 0))  # w < 0: use -q
-    return (ks * x, ks * y, ks * z), kl, aw
+    return o.times(ks, (x, y, z)), kl, aw
 
 
 def quat_mul(a: tuple, b: tuple) -> tuple:
