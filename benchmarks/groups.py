@@ -64,8 +64,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "jax (microlie-jax-jit), torch (microlie-torch); default: all that import",
     )
     p.add_argument("--peers-only", action="store_true", help="do not run microlie")
-    p.add_argument("--groups", nargs="+", default=None, help="subset of SO3 SE3")
-    p.add_argument("--ops", nargs="+", default=None, help="subset of exp log compose act exp_jac")
+    p.add_argument("--groups", nargs="+", default=None,
+                   help="subset of SO3 SE3 (with --before-after: of SO3 SE3 Sim3)")
+    p.add_argument("--ops", nargs="+", default=None,
+                   help="subset of exp log compose act exp_jac (with --before-after: of its "
+                   "value and Jacobian operations, e.g. minus minus_jac jr)")
     p.add_argument("--regimes", nargs="+", default=None, help="subset of single batch")
     p.add_argument(
         "--loop-n",
@@ -153,10 +156,12 @@ def _microlie_peer(peers_mod, backend: str):
 
     numpy: NumPy float64 arrays. torch: CPU float64 tensors, ``torch.set_num_threads(threads)``,
     autograd disabled (like PyPose). jax: float64 (``jax_enable_x64``) arrays, every op wrapped
-    in ``jax.jit`` (elements are pytrees: they go in and come out of the jitted function),
-    compiled and warmed up while the case is prepared, every call ends in
-    ``block_until_ready``. Elements are built from their parameters (``G(params)``) outside the
-    timed region.
+    in ``jax.jit``, compiled and warmed up while the case is prepared, every call ends in
+    ``block_until_ready``. The jitted function takes and returns raw arrays (parameters, tangents,
+    points) and builds the elements inside (``G.from_params(p, check=False)``), exactly like the
+    jaxlie-jit case (``G(p)`` inside, ``.parameters()`` out): neither side pays for its element
+    objects as pytree arguments. numpy/torch elements are built from their parameters
+    (``G(params)``) outside the timed region.
     """
     import operator
     from functools import partial
@@ -219,48 +224,60 @@ def _microlie_peer(peers_mod, backend: str):
             group = inp.group
             G = getattr(self.mod, group)
             to_m = lambda X: params_to_matrix(group, np.asarray(X.params))
-            jit = backend == "jax"
+            if backend == "jax":
+                return self._jax_case(G, op, inp)
             if op == "exp":
-                f = _exp(G) if jit else G.exp
-                return self._make(f, (self._arr(inp.tau),), inp.n, to_m)
+                return self._make(G.exp, (self._arr(inp.tau),), inp.n, to_m)
             if op == "log":
-                X = self._elem(inp, "x")
-                f = _log if jit else X.log
-                return self._make(f, (X,) if jit else (), inp.n, np.asarray)
+                return self._make(self._elem(inp, "x").log, (), inp.n, np.asarray)
             if op == "compose":
                 a, b = self._elem(inp, "x"), self._elem(inp, "y")
                 return self._make(operator.matmul, (a, b), inp.n, to_m)
             if op == "act":
                 X, pts = self._elem(inp, "x"), self._arr(inp.points)
-                f = _act if jit else X.act
-                return self._make(f, (X, pts) if jit else (pts,), inp.n, np.asarray)
+                return self._make(X.act, (pts,), inp.n, np.asarray)
             if op == "exp_jac":
                 conv = lambda out: (to_m(out[0]), np.asarray(out[1]))
-                f = _exp_jac(G) if jit else partial(G.exp, jac=True)
-                return self._make(f, (self._arr(inp.tau),), inp.n, conv)
+                return self._make(partial(G.exp, jac=True), (self._arr(inp.tau),), inp.n, conv)
+            raise ValueError(op)
+
+        def _jax_case(self, G, op, inp):
+            """Raw arrays in, raw arrays out of the jitted function (see the class docstring)."""
+            to_m = lambda p: params_to_matrix(inp.group, np.asarray(p))
+            x, y = self._arr(inp.x), self._arr(inp.y)
+            if op == "exp":
+                return self._make(_JAX_OPS[G, op], (self._arr(inp.tau),), inp.n, to_m)
+            if op == "log":
+                return self._make(_JAX_OPS[G, op], (x,), inp.n, np.asarray)
+            if op == "compose":
+                return self._make(_JAX_OPS[G, op], (x, y), inp.n, to_m)
+            if op == "act":
+                return self._make(_JAX_OPS[G, op], (x, self._arr(inp.points)), inp.n, np.asarray)
+            if op == "exp_jac":
+                conv = lambda out: (to_m(out[0]), np.asarray(out[1]))
+                return self._make(_JAX_OPS[G, op], (self._arr(inp.tau),), inp.n, conv)
             raise ValueError(op)
 
     return MicroliePeer()
 
 
-# module-level functions for jax.jit (a stable identity per op; elements are pytree arguments)
-def _log(X):
-    return X.log()
+class _JaxOps(dict):
+    """``(G, op) -> function`` for ``jax.jit``: one stable function per group and op, raw arrays
+    in and out (the element is built inside, without checks, as jaxlie's ``G(p)``)."""
+
+    def __missing__(self, key):
+        G, op = key
+        el = lambda p: G.from_params(p, check=False)  # noqa: E731
+        f = {"exp": lambda tau: G.exp(tau).params,
+             "log": lambda p: el(p).log(),
+             "compose": lambda p, q: (el(p) @ el(q)).params,
+             "act": lambda p, v: el(p).act(v),
+             "exp_jac": lambda tau: (lambda X, J: (X.params, J))(*G.exp(tau, jac=True))}[op]
+        self[key] = f
+        return f
 
 
-def _act(X, points):
-    return X.act(points)
-
-
-def _exp(G):
-    return _JITTABLE.setdefault((G, "exp"), lambda tau: G.exp(tau))
-
-
-def _exp_jac(G):
-    return _JITTABLE.setdefault((G, "exp_jac"), lambda tau: G.exp(tau, jac=True))
-
-
-_JITTABLE: dict = {}
+_JAX_OPS = _JaxOps()
 
 
 def to_raw(out):

@@ -96,8 +96,10 @@ def _row_error(g, w, single: bool) -> float:
 
 def test_compiled_kernels_agree_with_the_generic_kernels():
     """float64 against the generic kernel; float32 (computed in float64, rounded once) against
-    the generic kernel in float64 on the same float32 inputs, so within a few float32 ulps,
-    and against the generic float32 kernel as loosely as that one's own rounding allows."""
+    the generic kernel in float64 on the same float32 inputs, so within a few float32 ulps (the
+    generic float32 kernel is no reference: its float32 intermediates cancel, e.g. Y X^-1 of two
+    equal Sim3 elements with translations of 3e7 and scale e^20 comes out 0.5 off, one float32
+    ulp of the translation)."""
     K, names = _compiled()
     rng = np.random.default_rng(11)
     for name in names:
@@ -126,7 +128,6 @@ def test_compiled_kernels_agree_with_the_generic_kernels():
                     else:
                         e = _row_error(g, r, single)
                         assert e <= 3e-7, f"{what} vs float64: {e:.2e}"
-                        assert (e := _row_error(g, w, single)) <= 3e-5, f"{what}: {e:.2e}"
 
 
 def test_compiled_kernels_are_used_by_the_classes():

@@ -47,3 +47,13 @@ def test_the_users_thread_count_wins(tmp_path):
     assert _run([str(script), "ape"], OPENBLAS_NUM_THREADS="2")[:2] == ["2", "False"]
     assert _run([str(script), "ape"], OMP_NUM_THREADS="3")[:2] == ["None", "False"]
 
+
+
+@pytest.mark.parametrize("command", ["ape", "rpe"])
+def test_commands_import_only_what_they_use(command):
+    argv = [command, "--example"] + (["-a"] if command == "ape" else [])
+    code = ("import io, sys; from microlie.cli import main; "
+            f"code = main({argv!r}, out=io.StringIO(), err=io.StringIO()); print(code, "
+            "sorted(m for m in ('scipy', 'matplotlib', 'microlie.uncertainty', "
+            "'microlie.optim.command', 'microlie.traj.plot', 'rosbags') if m in sys.modules))")
+    assert _run(["-c", code]) == ["0", "[]"]

@@ -228,6 +228,9 @@ def test_quaternion_tolerance_is_configurable(tmp_path):
         ("# h\n1 2 3\n4 5 6\n", False),  # direct from the file
         ("\ufeff# h\n1 2 3\n", False),  # BOM: line list
         ("1 2 3\r\n4 5 6\r\n", False),  # CRLF
+        ("# h\r\n1 2 3\r\n4 5 6\r\n", False),  # CRLF after a header
+        ("# h\r1 2 3\r4 5 6\r", False),  # old Mac line ends
+        ("1 2 3\r\n4 5 6\r7 8 9\n", False),  # mixed
         ("1 2 3\n# middle\n\n4 5 6\n", False),  # comment below the header
         ("1,2,3\n4 , 5,6\n", False),  # commas as separators
         ("1 2 3\n,\n4 5 6\n", False),  # a line of commas has no fields: error on line 2
@@ -248,8 +251,11 @@ def test_quaternion_tolerance_is_configurable(tmp_path):
         ("1,,3\n", True),
     ],
 )
-def test_fast_path_agrees_with_careful_parser(tmp_path, text, comma):
+@pytest.mark.parametrize("compiled", ["1", "0"])  # the compiled reader (if installed), NumPy's
+def test_fast_path_agrees_with_careful_parser(tmp_path, monkeypatch, text, comma, compiled):
     from microlie.traj import io
+
+    monkeypatch.setenv("MICROLIE_FAST", compiled)
 
     f = tmp_path / "m.txt"
     f.write_bytes(text.encode("utf-8"))

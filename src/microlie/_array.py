@@ -27,6 +27,11 @@ import numpy as np
 Array = Any  # a NumPy, PyTorch or JAX array
 
 
+def times(k: Any, v: Any) -> tuple:
+    """``(k * v[0], k * v[1], ...)``."""
+    return tuple(k * c for c in v)
+
+
 class _ScalarOps:
     """Elementary functions on Python floats (the single-element NumPy path)."""
 
@@ -48,12 +53,18 @@ class _ScalarOps:
     abs1 = staticmethod(abs)  # |x| (the derivative at 0 matters only to autodiff backends)
 
     @staticmethod
+    def select(cond: bool, f: Any, g: Any, *args: Any) -> Any:
+        return f(*args) if cond else g(*args)
+
+    @staticmethod
     def zeros_like(x: float) -> float:
         return 0.0
 
     @staticmethod
     def ones_like(x: float) -> float:
         return 1.0
+
+    times = staticmethod(times)
 
 
 SCALAR = _ScalarOps()
@@ -83,11 +94,50 @@ class ArrayOps:
         one = self.xp.ones_like(x)
         return x * self.xp.where(x >= 0, one, -one)
 
+    def select(self, cond: Array, f: Any, g: Any, *args: Any) -> Any:
+        """``f(*args)`` where ``cond``, ``g(*args)`` elsewhere (an array or a tuple of arrays).
+
+        Both branches are evaluated on every element and joined with ``where`` (jit- and
+        autodiff-friendly): each must stay finite, with finite derivatives, where it is not
+        selected (safe substitutes, see :mod:`microlie.groups._math`)."""
+        a, b = f(*args), g(*args)
+        if isinstance(a, tuple):
+            return tuple(self.where(cond, x, y) for x, y in zip(a, b, strict=True))
+        return self.where(cond, a, b)
+
     def zeros_like(self, x: Array) -> Array:
         return self.xp.zeros_like(x)
 
     def ones_like(self, x: Array) -> Array:
         return self.xp.ones_like(x)
+
+    #: ``times(k, v)``: the components of a common factor ``k`` times a vector ``v``
+    times = staticmethod(times)
+    #: ``id(product) -> (product, k, v_i)`` for the products made by ``times`` (set on a
+    #: per-evaluation copy, see :func:`kernel_ops`), or ``None``
+    blocks: dict[int, tuple] | None = None
+
+
+class _BlockOps(ArrayOps):
+    """The ops of one traced JAX evaluation: remembers the products made by ``times``, so that
+    the evaluator can assemble them as one broadcast product ``k[..., None] * v`` (XLA then
+    computes the common factor once instead of once per output column)."""
+
+    def __init__(self, base: ArrayOps) -> None:
+        self.__dict__.update(base.__dict__)
+        self.blocks = {}
+
+    def times(self, k: Any, v: Any) -> tuple:  # type: ignore[override]
+        out = tuple(k * c for c in v)
+        blocks = self.blocks
+        assert blocks is not None
+        for p, c in zip(out, v, strict=True):
+            blocks[id(p)] = (p, k, c)
+        return out
+
+
+#: a traced JAX evaluation with at least this many elements assembles ``times`` blocks
+BLOCK_MIN = 64
 
 
 class _NumpyOps(ArrayOps):
@@ -101,6 +151,35 @@ class _NumpyOps(ArrayOps):
         super().__init__(np)
         self.atan2 = np.arctan2
         self.where = np.where
+
+    def select(self, cond: Array, f: Any, g: Any, *args: Any) -> Any:
+        """As :meth:`ArrayOps.select`, but on a 1-D batch each branch is evaluated only where
+        it is needed: the branch of the majority on the whole batch, the other one on the
+        gathered elements of the minority, scattered into the result (the results are the
+        ones ``where`` would give, element by element)."""
+        if type(cond) is not np.ndarray or cond.ndim != 1:
+            return super().select(cond, f, g, *args)
+        n = cond.shape[0]
+        m = int(np.count_nonzero(cond))
+        if m == 0:
+            return g(*args)
+        if m == n:
+            return f(*args)
+        major, minor, idx = (g, f, np.flatnonzero(cond)) if 2 * m <= n else \
+            (f, g, np.flatnonzero(~cond))
+        out = major(*args)
+        sub = minor(*[a[idx] if type(a) is np.ndarray and a.shape == (n,) else a for a in args])
+        if not isinstance(out, tuple):
+            return _scatter(out, idx, sub, n, args)
+        return tuple(_scatter(o, idx, x, n, args) for o, x in zip(out, sub, strict=True))
+
+
+def _scatter(out: Any, idx: np.ndarray, sub: Any, n: int, args: tuple) -> np.ndarray:
+    """``out`` (a fresh array of ``n`` elements) with ``sub`` written at ``idx``."""
+    if type(out) is not np.ndarray or out.shape != (n,) or any(out is a for a in args):
+        out = np.array(np.broadcast_to(out, (n,)), dtype=np.result_type(out, sub))
+    out[idx] = sub
+    return out
 
 
 NUMPY = _NumpyOps()
@@ -131,6 +210,14 @@ def ops_for(*arrays: Array) -> ArrayOps:
     return ops
 
 
+def kernel_ops(arrays: Any, n: int) -> ArrayOps:
+    """The :class:`ArrayOps` for evaluating one kernel on ``arrays`` (``n`` elements each)."""
+    o = ops_for(*arrays)
+    if n >= BLOCK_MIN and is_jax(arrays[0]) and is_traced(arrays[0]):
+        return _BlockOps(o)
+    return o
+
+
 def is_numpy(x: Array) -> bool:
     return isinstance(x, np.ndarray)
 
@@ -145,10 +232,10 @@ def is_torch(x: Array) -> bool:
 
 
 def is_traced(x: Array) -> bool:
-    """True for a JAX tracer or a torch tensor under ``torch.compile`` (values unknown: no
-    value checks possible)."""
+    """True for a JAX tracer or a torch tensor under ``torch.compile`` or inside a
+    ``torch.func`` transform (values unknown: no value checks possible)."""
     if is_torch(x):
-        return _torch_compiling(x)
+        return _torch_compiling(x) or _functorch_wrapped(x)
     if not is_jax(x):
         return False
     import jax
@@ -165,6 +252,8 @@ def as_float_array(x: Any, like: Array | None = None, dtype: Any = None) -> Arra
     if type(x) is np.ndarray and (like is None or type(like) is np.ndarray) and dtype is None \
             and x.dtype in _NP_FLOATS:
         return x
+    if dtype is None and is_torch(x) and x.dtype.is_floating_point:
+        return x  # a real floating tensor (complex ones are not floating point)
     if like is not None and not is_numpy(like) and is_numpy_like(x):
         xp = namespace(like)
         return xp.asarray(np.asarray(x, dtype=np.float64), dtype=like.dtype, device=_device(like))
@@ -223,13 +312,15 @@ def components(x: Array) -> list[Array]:
 
 def host_values(x: Array) -> np.ndarray | None:
     """The values of ``x`` as a NumPy array, or ``None`` when they are unknown (a JAX tracer, a
-    tensor under ``torch.compile``). Never forces a traced value: a concrete JAX array closed
-    over by a jitted function is read on the host, not through a (traced) JAX operation. Torch
-    tensors are detached first. For value checks only."""
+    tensor under ``torch.compile`` or inside a ``torch.func`` transform). Never forces a traced
+    value: a concrete JAX array closed over by a jitted function is read on the host, not
+    through a (traced) JAX operation. Torch tensors are detached first. For value checks only."""
     if type(x) is np.ndarray:
         return x
     if is_torch(x):
-        return None if _torch_compiling(x) else x.detach().cpu().numpy()
+        if _torch_compiling(x) or _functorch_wrapped(x):  # compile, torch.func transforms
+            return None
+        return x.detach().cpu().numpy()
     if is_jax(x):
         return None if is_traced(x) else np.asarray(x)
     return np.asarray(x)
@@ -251,6 +342,68 @@ def check_finite(x: Array, what: str) -> None:
         raise ValueError(f"{what} contains NaN or infinite values")
 
 
+def plain_tensors(arrays: Any) -> bool:
+    """True if ``arrays`` are CPU torch tensors of one dtype whose results need no tensor
+    operations: no autograd graph to record, no ``torch.compile``/``torch.jit`` trace, no
+    ``torch.func`` transform, no tensor subclass (``False`` for anything that is not torch)."""
+    torch = sys.modules.get("torch")
+    if torch is None:
+        return False
+    grad = torch.is_grad_enabled()
+    dt = arrays[0].dtype
+    for a in arrays:
+        if type(a) is not torch.Tensor or a.dtype != dt or not a.is_cpu \
+                or (grad and a.requires_grad) or _functorch_wrapped(a):
+            return False
+    return not (torch.compiler.is_compiling() or torch.jit.is_tracing())
+
+
+def element_floats(arrays: Any) -> list[list[float]] | None:
+    """The values of single elements (1-D :func:`plain_tensors`) as lists of Python floats, or
+    ``None``."""
+    if all(a.ndim == 1 for a in arrays) and plain_tensors(arrays):
+        return [a.tolist() for a in arrays]
+    return None
+
+
+def empty_like_rows(like: Array, n: int, k: int) -> Array:
+    """An uninitialised ``(n, k)`` torch tensor of ``like``'s dtype and device."""
+    import torch
+
+    return torch.empty((n, k), dtype=like.dtype, device=like.device)
+
+
+def stack_into(columns: list, out: Array) -> None:
+    """Write the ``(m,)`` tensors (or Python floats) ``columns`` into the columns of the
+    ``(m, k)`` torch tensor ``out`` (one ``stack`` with ``out=``; no autograd)."""
+    import torch
+
+    if all(type(c) is torch.Tensor and c.shape == out.shape[:1] for c in columns):
+        torch.stack(columns, dim=1, out=out)
+        return
+    for j, c in enumerate(columns):
+        out[:, j] = c
+
+
+def _functorch_wrapped(x: Array) -> bool:
+    import torch
+
+    return bool(torch._C._functorch.is_functorch_wrapped_tensor(x))
+
+
+_TORCH_TO_NUMPY: dict[Any, Any] = {}
+
+
+def floats_like(values: Any, like: Array) -> Array:
+    """Python floats (a tuple, or a tuple of rows) as a fresh CPU tensor of ``like``'s dtype."""
+    import torch
+
+    dt = _TORCH_TO_NUMPY.get(like.dtype)
+    if dt is None:
+        dt = _TORCH_TO_NUMPY[like.dtype] = torch.empty(0, dtype=like.dtype).numpy().dtype
+    return torch.from_numpy(np.array(values, dtype=dt))
+
+
 def _torch_compiling(x: Array) -> bool:
     """True while ``torch.compile`` traces (values unknown, and a check would break the graph)."""
     if not is_torch(x):
@@ -270,15 +423,18 @@ def check_last_dim(x: Array, n: int | tuple[int, ...], what: str) -> None:
         raise ValueError(f"{what} must have shape (..., {dims.replace('x', ', ')}), got {shape}")
 
 
-_PYTREE_CLASSES: list[type] = []
+_PYTREE_CLASSES: list[tuple[type, Any]] = []
 _PYTREES_DONE = False
 
 
-def register_pytree_class(cls: type) -> None:
-    """Remember ``cls`` so that it becomes a JAX pytree once JAX is in use."""
-    _PYTREE_CLASSES.append(cls)
+def register_pytree_class(cls: type, adopt: Any) -> None:
+    """Remember ``cls`` so that it becomes a JAX pytree once JAX is in use. Its one leaf is
+    ``params``; ``adopt(params)`` rebuilds an element without checks (NumPy leaves, e.g. from
+    ``jax.device_get``, go through ``cls.from_params(p, check=False)``, which makes them
+    read-only)."""
+    _PYTREE_CLASSES.append((cls, adopt))
     if "jax" in sys.modules:
-        _register_one(cls)
+        _register_one(cls, adopt)
 
 
 def _register_pytrees(xp: Any) -> None:
@@ -286,21 +442,24 @@ def _register_pytrees(xp: Any) -> None:
     if _PYTREES_DONE or "jax" not in getattr(xp, "__name__", ""):
         return
     _PYTREES_DONE = True
-    for cls in _PYTREE_CLASSES:
-        _register_one(cls)
+    for cls, adopt in _PYTREE_CLASSES:
+        _register_one(cls, adopt)
 
 
 _REGISTERED: set[type] = set()
 
 
-def _register_one(cls: type) -> None:
+def _register_one(cls: type, adopt: Any) -> None:
     if cls in _REGISTERED:
         return
     import jax
 
-    jax.tree_util.register_pytree_node(
-        cls,
-        lambda x: ((x.params,), None),
-        lambda _, children: cls.from_params(children[0], check=False),  # type: ignore[attr-defined]
-    )
+    from_params = cls.from_params  # type: ignore[attr-defined]
+
+    def unflatten(_: Any, children: Any) -> Any:
+        # called on every jitted call that returns elements: kept to one type test
+        p = children[0]
+        return from_params(p, check=False) if type(p) is np.ndarray else adopt(p)
+
+    jax.tree_util.register_pytree_node(cls, lambda x: ((x.params,), None), unflatten)
     _REGISTERED.add(cls)

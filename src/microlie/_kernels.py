@@ -9,10 +9,21 @@ kernels under ``"<Group>.<op>"`` when its class is created, e.g. ``"SO3.exp"``, 
 
 :func:`run` evaluates a kernel on arrays of shape ``(*batch, k)`` (batch axes broadcast):
 
-* single NumPy elements run on Python floats (far faster than NumPy on length-1 arrays);
+* single NumPy elements run on Python floats (far faster than NumPy on length-1 arrays), and so
+  do single CPU torch elements when no autograd graph, ``torch.compile``/``torch.jit`` trace or
+  ``torch.func`` transform needs tensor operations (the outputs are tensors again);
 * large NumPy batches run in chunks of :data:`CHUNK` rows, so that the temporaries of a formula
   stay in the CPU cache; large CPU torch tensors likewise (joined with ``cat``, autograd intact);
-* everything else (JAX, torch, small NumPy batches) runs once on whole arrays.
+* everything else (JAX, torch, small NumPy batches) runs once on whole arrays. Under
+  ``jax.jit``, output components that a formula writes as a common factor times a vector
+  (``ops.times(k, v)``) are assembled as one broadcast product ``k[..., None] * v``: the same
+  multiplications, but XLA then computes ``k`` once instead of once per output column (a
+  stack of separately computed columns repeats every shared subexpression per column).
+
+Matrix outputs of more than 8 entries (Jacobians, adjoints) of NumPy batches are views of
+component-major arrays: shape ``(*batch, r, c)``, memory order ``(r, c, *batch)``. Each entry is
+then one contiguous write (a row-major result costs a transposition that takes as long as the
+formula); ``np.ascontiguousarray`` gives a row-major copy where one is needed.
 
 The result dtype is the promotion of the input dtypes (NumPy's rules) on every path. Kernels
 flagged ``finite`` (those with tangent-vector inputs, where a huge angle or scale can overflow)
@@ -40,7 +51,10 @@ without touching the group classes; ``register(name, None)`` restores the generi
 from __future__ import annotations
 
 import math
+import os
 import struct
+import sys
+import threading
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
@@ -58,7 +72,7 @@ __all__ = ["Kernel", "KERNELS", "run", "run_floats", "scalar_function", "registe
 # element-wise temporaries of one formula stay in the CPU cache (about twice as fast at 1e6).
 CHUNK = 8192
 TORCH_CHUNK = 16384  # torch's per-call overhead is higher than NumPy's: larger chunks
-_WIDE = 8  # outputs with more components than this are filled through a transposed buffer
+_WIDE = 8  # matrix outputs with more components than this are stored component-major
 
 Shape = tuple[int, ...]
 
@@ -268,7 +282,12 @@ def _pack(ops: Any, comps: Any, shape: Shape, dt: Any, batch: Shape) -> Array:
     """Stack output components (a vector, or rows of a matrix) into ``(*batch, *shape)``."""
     flat = comps if len(shape) == 1 else [c for row in comps for c in row]
     if ops is NUMPY:
-        out = np.empty((*batch, len(flat)), dtype=dt)
+        if len(shape) == 2 and len(flat) > _WIDE:  # component-major, as in _chunked
+            out = _empty((len(flat), *batch), dt)
+            for j, c in enumerate(flat):
+                out[j] = c
+            return np.moveaxis(out, 0, -1).reshape(*batch, *shape)
+        out = _empty((*batch, len(flat)), dt)
         for j, c in enumerate(flat):
             out[..., j] = c
         return out.reshape(*batch, *shape) if len(shape) > 1 else out
@@ -277,8 +296,103 @@ def _pack(ops: Any, comps: Any, shape: Shape, dt: Any, batch: Shape) -> Array:
     arrays = [c if hasattr(c, "shape") else xp.asarray(c, dtype=dt, device=A._device(like))
               for c in flat]
     arrays = [xp.broadcast_to(c, batch) if tuple(c.shape) != batch else c for c in arrays]
-    out = xp.stack(arrays, axis=-1)
+    out = _stack_blocks(xp, arrays, ops.blocks) if ops.blocks else xp.stack(arrays, axis=-1)
     return xp.reshape(out, (*batch, *shape)) if len(shape) > 1 else out
+
+
+def _stack_blocks(xp: Any, arrays: list, blocks: dict) -> Array:
+    """``stack(arrays, -1)`` where each run of consecutive ``k * v_i`` products of one factor
+    ``k`` (recorded by ``ops.times``) becomes one broadcast product ``k[..., None] * v``: the
+    same multiplications, but XLA then computes ``k`` once rather than once per column."""
+    parts, i = [], 0
+    while i < len(arrays):
+        b = blocks.get(id(arrays[i]))
+        if b is None or b[0] is not arrays[i] or not hasattr(b[1], "shape"):
+            parts.append(arrays[i][..., None])
+            i += 1
+            continue
+        k, vs = b[1], [b[2]]
+        i += 1
+        while i < len(arrays):
+            b = blocks.get(id(arrays[i]))
+            if b is None or b[0] is not arrays[i] or b[1] is not k:
+                break
+            vs.append(b[2])
+            i += 1
+        shape = tuple(arrays[i - 1].shape)  # the batch shape
+        v = xp.stack([xp.broadcast_to(c, shape) for c in vs], axis=-1)
+        parts.append(xp.broadcast_to(k, shape)[..., None] * v)
+    return parts[0] if len(parts) == 1 else xp.concat(parts, axis=-1)
+
+
+# ---------------------------------------------------------------------------- output blocks
+#
+# A fresh output of many megabytes costs a page fault per page on its first write (the kernel
+# zeroes it), as much as computing it. Large outputs therefore come from a small pool of blocks
+# that stay mapped: a block is handed out again once no array refers to it any more (its
+# reference count is back to the pool's own), so a live result never shares memory with a new
+# one. Outputs below ``_POOL_MIN`` bytes use NumPy's allocator. The pool holds at most
+# MICROLIE_CACHE_MB megabytes (default 256; 0 disables it); the compiled kernels keep their own
+# (MICROLIE_FAST_CACHE_MB).
+
+_POOL_MIN = 1 << 20
+_POOL_SLOTS = 16
+
+
+def _pool_limit() -> int:
+    text = os.environ.get("MICROLIE_CACHE_MB", "256")
+    try:
+        mb = float(text)
+    except ValueError:
+        mb = -1.0
+    if not mb >= 0:
+        raise ValueError(f"MICROLIE_CACHE_MB must be a number of megabytes >= 0, got {text!r}")
+    return int(mb * (1 << 20))
+
+
+_POOL_LIMIT = _pool_limit()
+_pool: list[np.ndarray] = []  # owned byte blocks, oldest first
+_pool_lock = threading.Lock()
+
+
+def _refs(block: np.ndarray) -> int:
+    return sys.getrefcount(block)
+
+
+def _free_count() -> int:
+    """References to a block held by the pool only, seen from a loop over the pool."""
+    for block in [np.empty(0)]:
+        return _refs(block)
+    raise AssertionError
+
+
+_FREE = _free_count()
+
+
+def _empty(shape: Shape, dt: Any) -> np.ndarray:
+    """An uninitialised array, from the pool of warm blocks when it is large."""
+    dt = np.dtype(dt)
+    nbytes = math.prod(shape) * dt.itemsize
+    if nbytes < _POOL_MIN or nbytes > _POOL_LIMIT:
+        return np.empty(shape, dtype=dt)
+    with _pool_lock:
+        for block in _pool:
+            if block.nbytes == nbytes and _refs(block) <= _FREE:
+                break
+        else:
+            block = np.empty(nbytes, dtype=np.uint8)
+            free = [b for b in _pool if _refs(b) <= _FREE]
+            total = sum(b.nbytes for b in _pool) + nbytes
+            gone: set[int] = set()  # evict the oldest free blocks (by identity)
+            while free and (total > _POOL_LIMIT or len(_pool) - len(gone) >= _POOL_SLOTS):
+                old = free.pop(0)
+                total -= old.nbytes
+                gone.add(id(old))
+            _pool[:] = [b for b in _pool if id(b) not in gone]
+            del free
+            if total <= _POOL_LIMIT and len(_pool) < _POOL_SLOTS:
+                _pool.append(block)
+        return block.view(dt).reshape(shape)
 
 
 def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> Any:
@@ -287,27 +401,34 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
     if fn is None or n < 2 * CHUNK or any(a.ndim > 1 and a.shape[:-1] != batch for a in arrays):
         return None
     flats = [a.reshape(n, a.shape[-1]) if a.ndim > 1 else a.tolist() for a in arrays]
-    outs = [np.empty((n, math.prod(s)), dtype=dt) for s in k.outs]
-    # wide outputs (Jacobians) are filled component by component into a contiguous buffer and
-    # transposed into place once per chunk: column writes with a long row stride cost about
-    # twice as much (each cache line of the output is written in many pieces)
-    width = max(math.prod(s) for s in k.outs)
+    # matrix outputs (Jacobians) are stored component-major, ``(r * c, n)``, and returned as
+    # ``(*batch, r, c)`` views: each component is one contiguous write, where a row-major
+    # result costs a transposition (1-2 ns per value, as much as computing it). Wide vectors
+    # (parameters of product groups) stay row-major, filled through a transposed buffer.
+    soa = [len(s) == 2 and math.prod(s) > _WIDE for s in k.outs]
+    outs = [_empty((math.prod(s), n) if m else (n, math.prod(s)), dt)
+            for s, m in zip(k.outs, soa, strict=True)]
+    width = max((s[0] for s, m in zip(k.outs, soa, strict=True) if not m), default=0)
     buf = np.empty((width, CHUNK), dtype=dt) if width > _WIDE else None
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
         r = fn(NUMPY, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
                         for f in flats])
-        for res, out, shape in zip([r] if k._flat else r, outs, k.outs, strict=True):
-            flat = res if len(shape) == 1 else [c for row in res for c in row]
-            if buf is not None and len(flat) > _WIDE:
-                b = buf[:len(flat), :e - s]
-                for j, c in enumerate(flat):
+        for res, out, shape, m in zip([r] if k._flat else r, outs, k.outs, soa, strict=True):
+            if m:
+                for j, c in enumerate(c for row in res for c in row):
+                    out[j, s:e] = c
+            elif buf is not None and len(res) > _WIDE:
+                b = buf[:len(res), :e - s]
+                for j, c in enumerate(res):
                     b[j] = c
                 out[s:e] = b.T
             else:
-                for j, c in enumerate(flat):
+                for j, c in enumerate(res if len(shape) == 1 else
+                                      [c for row in res for c in row]):
                     out[s:e, j] = c
-    return [o.reshape(*batch, *shape) for o, shape in zip(outs, k.outs, strict=True)]
+    return [o.T.reshape(*batch, *shape) if m else o.reshape(*batch, *shape)
+            for o, shape, m in zip(outs, k.outs, soa, strict=True)]
 
 
 def _run_arrays(k: Kernel, arrays: Sequence[np.ndarray]) -> Any:
@@ -345,8 +466,13 @@ def _run_foreign(k: Kernel, arrays: Sequence[Array]) -> Any:
     foreign = next(a for a in arrays if type(a) is not np.ndarray)
     arrays = [A.as_float_array(a, like=foreign) if type(a) is np.ndarray else a
               for a in arrays]
-    o = A.ops_for(*arrays)
-    batch = tuple(np.broadcast_shapes(*(tuple(a.shape[:-1]) for a in arrays)))
+    batch = () if all(a.ndim == 1 for a in arrays) else \
+        tuple(np.broadcast_shapes(*(tuple(a.shape[:-1]) for a in arrays)))
+    if not batch:  # one element: on Python floats when no autograd/trace needs tensor ops
+        lists = A.element_floats(arrays)
+        if lists is not None:
+            return _single_like(k, lists, foreign)
+    o = A.kernel_ops(arrays, math.prod(batch))
     dt = foreign.dtype
     for a in arrays:
         if a.dtype != dt:  # mixed dtypes: evaluate in the promoted one (0-d operands included)
@@ -364,9 +490,24 @@ def _run_foreign(k: Kernel, arrays: Sequence[Array]) -> Any:
     return out[0] if k._flat else tuple(out)
 
 
+def _single_like(k: Kernel, lists: list, like: Array) -> Any:
+    """:func:`_single` with outputs of the array library of ``like`` (a CPU torch tensor)."""
+    f = k._scalar or _scalar_function(k)
+    try:
+        r = f(*lists)
+    except (ValueError, OverflowError, ZeroDivisionError) as e:
+        raise ValueError(_not_finite(k)) from e
+    outs = [r] if k._flat else r
+    if k.finite and not math.isfinite(sum(_fsum(x) for x in outs)):
+        raise ValueError(_not_finite(k))
+    res = [A.floats_like(x, like) for x in outs]
+    return res[0] if k._flat else tuple(res)
+
+
 def _chunked_torch(o: Any, k: Kernel, arrays: Sequence[Array], batch: Shape, dt: Any) -> Any:
-    """Large CPU tensors in chunks (cache-resident temporaries), joined with ``cat`` so that
-    autograd sees ordinary operations."""
+    """Large CPU tensors in chunks (cache-resident temporaries), stacked straight into the
+    output (``out=``), or, when autograd (or a trace or transform) must see ordinary
+    operations, joined with ``cat``."""
     n = math.prod(batch)
     fn = k.fn
     if fn is None or n < 2 * TORCH_CHUNK or \
@@ -374,11 +515,18 @@ def _chunked_torch(o: Any, k: Kernel, arrays: Sequence[Array], batch: Shape, dt:
         return None
     xp = o.xp
     flats = [xp.reshape(a, (n, a.shape[-1])) if a.ndim > 1 else a for a in arrays]
+    into = A.plain_tensors(arrays)
+    outs = [A.empty_like_rows(arrays[0], n, math.prod(s)) for s in k.outs] if into else []
     parts: list[list[Array]] = [[] for _ in k.outs]
     for s in range(0, n, TORCH_CHUNK):
         m = min(s + TORCH_CHUNK, n) - s
         r = fn(o, *[A.components(f[s:s + m] if f.ndim > 1 else f) for f in flats])
-        for res, acc, shape in zip([r] if k._flat else r, parts, k.outs, strict=True):
-            acc.append(_pack(o, res, shape, dt, (m,)))
-    return [xp.reshape(xp.concat(p, axis=0), (*batch, *shape))
-            for p, shape in zip(parts, k.outs, strict=True)]
+        for j, (res, shape) in enumerate(zip([r] if k._flat else r, k.outs, strict=True)):
+            if into:
+                flat = res if len(shape) == 1 else [c for row in res for c in row]
+                A.stack_into(flat, outs[j][s:s + m])
+            else:
+                parts[j].append(_pack(o, res, shape, dt, (m,)))
+    if not into:
+        outs = [xp.concat(p, axis=0) for p in parts]
+    return [xp.reshape(x, (*batch, *shape)) for x, shape in zip(outs, k.outs, strict=True)]

@@ -19,6 +19,8 @@ import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from ._array import times
+
 __all__ = ["compile_scalar"]
 
 
@@ -131,6 +133,14 @@ class _Ops:
 
     def abs1(self, x: Any) -> _Sym:
         return self._call("abs", x)
+
+    times = staticmethod(times)
+
+    def select(self, cond: Any, f: Any, g: Any, *args: Any) -> Any:
+        a, b = f(*args), g(*args)  # both recorded; only the branch taken runs (see code())
+        if isinstance(a, tuple):
+            return tuple(self.where(cond, x, y) for x, y in zip(a, b, strict=True))
+        return self.where(cond, a, b)
 
     @staticmethod
     def zeros_like(x: Any) -> float:

@@ -12,6 +12,9 @@ batches reuses memory whose pages are already mapped instead of paying a page fa
 on every call: ``_lie.set_cache_limit(mb)`` (returns the previous limit) and the environment
 variable ``MICROLIE_FAST_CACHE_MB`` bound the memory kept (default 256; 0 disables the cache);
 ``_lie.cache_info()`` reports it. A block is only reused after the array that owned it is freed.
+
+``_text.parse_table`` reads numeric text tables (TUM, KITTI, EuRoC trajectory files) for
+``microlie.traj.io``, with the values of Python's ``float`` (see ``_text.c``).
 """
 
 from . import _lie

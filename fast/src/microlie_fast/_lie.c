@@ -383,7 +383,14 @@ PLAIN(se3_act, 7, 3, 3, quat_rotate(x + 3, y, r); r[0] += x[0]; r[1] += x[1]; r[
     X(sim3_log_jac, "Sim3.log_jac", 1, 8, 0, 2, 7, 7, 0, 0, 7, 0, 0)                           \
     X(sim3_minus_jac, "Sim3.minus_jac", 2, 8, 8, 3, 7, 7, 7, 0, 7, 7, 0)                       \
     X(sim3_between_jac, "Sim3.between_jac", 2, 8, 8, 2, 8, 7, 0, 0, 7, 0, 0)                   \
-    X(sim3_compose_jac, "Sim3.compose_jac", 2, 8, 8, 2, 8, 7, 0, 0, 7, 0, 0)
+    X(sim3_compose_jac, "Sim3.compose_jac", 2, 8, 8, 2, 8, 7, 0, 0, 7, 0, 0)                   \
+    X(sim3_adjoint_inv, "Sim3.adjoint_inv", 1, 8, 0, 1, 7, 0, 0, 7, 0, 0, 0)                   \
+    X(sim3_inverse_jac, "Sim3.inverse_jac", 1, 8, 0, 2, 8, 7, 0, 0, 7, 0, 0)                   \
+    X(sim3_lplus, "Sim3.lplus", 2, 8, 7, 1, 8, 0, 0, 0, 0, 0, 0)                               \
+    X(sim3_lminus, "Sim3.lminus", 2, 8, 8, 1, 7, 0, 0, 0, 0, 0, 0)                             \
+    X(sim3_plus_jac, "Sim3.plus_jac", 2, 8, 7, 3, 8, 7, 7, 0, 7, 7, 0)                         \
+    X(sim3_lplus_jac, "Sim3.lplus_jac", 2, 8, 7, 2, 8, 7, 0, 0, 7, 0, 0)                       \
+    X(sim3_lminus_jac, "Sim3.lminus_jac", 2, 8, 8, 3, 7, 7, 7, 0, 7, 7, 0)
 
 #define DEFINE(FN, NAME, NIN, KA, KB, NOUT, R0, R1, R2, C0, C1, C2, PLAIN)                    \
     BLOCK(FN, KA)                                                                              \

@@ -383,3 +383,75 @@ EL(sim3_compose_jac) { /* (p q, Ad(q^-1)) */
     sim3_adjoint_l(qi, J);
     ST(o, r, 8); ST(o + 8 * S, J, 49);
 }
+
+/* ---------------------------------------- left operations and the Jacobians of plus/lminus */
+
+LM_INLINE void mm7(const double *a, const double *b, double *o) {
+#pragma GCC unroll 64
+    for (int i = 0; i < 7; i++)
+#pragma GCC unroll 64
+        for (int j = 0; j < 7; j++) {
+            double acc = 0.0;
+#pragma GCC unroll 64
+            for (int k = 0; k < 7; k++) acc += a[7 * i + k] * b[7 * k + j];
+            o[7 * i + j] = acc;
+        }
+}
+
+EL(sim3_adjoint_inv) {
+    (void)b; double p[8] = LD8(a), pi[8], J[49];
+    sim3_inverse_l(p, pi);
+    sim3_adjoint_l(pi, J);
+    ST(o, J, 49);
+}
+EL(sim3_inverse_jac) { /* (p^-1, -Ad(p)) */
+    (void)b; double p[8] = LD8(a), r[8], J[49];
+    sim3_inverse_l(p, r);
+    sim3_adjoint_l(p, J);
+    NEG(J, 49);
+    ST(o, r, 8); ST(o + 8 * S, J, 49);
+}
+EL(sim3_lplus) { /* Exp(t) p */
+    double p[8] = LD8(a), t[7] = LD7(b), e[8], r[8];
+    sim3_exp_l(t, e);
+    sim3_compose_l(e, p, r);
+    ST(o, r, 8);
+}
+EL(sim3_lminus) { /* Log(Y X^-1), inputs (Y, X) */
+    double y[8] = LD8(a), x[8] = LD8(b), xi[8], z[8], t[7];
+    sim3_inverse_l(x, xi);
+    sim3_compose_l(y, xi, z);
+    sim3_log_l(z, t);
+    ST(o, t, 7);
+}
+EL(sim3_plus_jac) { /* (p Exp(t), Ad(Exp(t)^-1), Jr(t)) */
+    double p[8] = LD8(a), t[7] = LD7(b), e[8], r[8], ei[8], A[49], J[49];
+    sim3_exp_l(t, e);
+    sim3_compose_l(p, e, r);
+    sim3_inverse_l(e, ei);
+    sim3_adjoint_l(ei, A);
+    sim3_jr_m(t, J);
+    ST(o, r, 8); ST(o + 8 * S, A, 49); ST(o + 57 * S, J, 49);
+}
+EL(sim3_lplus_jac) { /* (Exp(t) p, Ad(p^-1) Jr(t)) */
+    double p[8] = LD8(a), t[7] = LD7(b), e[8], r[8], pi[8], A[49], J[49], M[49];
+    sim3_exp_l(t, e);
+    sim3_compose_l(e, p, r);
+    sim3_inverse_l(p, pi);
+    sim3_adjoint_l(pi, A);
+    sim3_jr_m(t, J);
+    mm7(A, J, M);
+    ST(o, r, 8); ST(o + 8 * S, M, 49);
+}
+EL(sim3_lminus_jac) { /* (tau, Jr^-1(tau) Ad_X, -Jr^-1(tau) Ad_X) */
+    double y[8] = LD8(a), x[8] = LD8(b), xi[8], z[8], t[7], J[49], A[49], M[49];
+    sim3_inverse_l(x, xi);
+    sim3_compose_l(y, xi, z);
+    sim3_log_l(z, t);
+    sim3_jr_inv_m(t, J);
+    sim3_adjoint_l(x, A);
+    mm7(J, A, M);
+    ST(o, t, 7); ST(o + 7 * S, M, 49);
+    NEG(M, 49);
+    ST(o + 56 * S, M, 49);
+}

@@ -2,7 +2,8 @@
 
 A concrete group supplies a handful of primitives on components (see :mod:`microlie._array`):
 ``_exp``, ``_log``, ``_compose``, ``_inverse``, ``_act`` and ``_act_jac``, ``_adjoint``,
-``_matrix``, ``_jr`` and ``_jr_inv`` (unless ``_has_closed_jr = False``), ``_random_params``,
+``_matrix``, ``_jr`` and ``_jr_inv`` (unless ``_has_closed_jr = False``; optionally a hand-fused
+``_minus_jac(o, y, x) -> (tau, Jr^-1(tau), -Jl^-1(tau))``), ``_random_params``,
 and the class facts ``dof``, ``param_dim``, ``matrix_dim``, ``point_dim``, ``_identity_params``,
 ``_generators``. :meth:`LieGroup.__init_subclass__` checks that they are all there and builds the
 group's kernels (:mod:`microlie._kernels`) from them: the primitives, and the derived operations
@@ -141,7 +142,8 @@ def _jr_kernels(cls: Any) -> dict[str, Any]:
         return comp(o, exp(o, t), p), M.matmul(adj(o, inv(o, p)), jr(o, t))
 
     return {"exp_jac": lambda o, t: (exp(o, t), jr(o, t)), "log_jac": log_jac,
-            "minus_jac": minus_jac, "lminus_jac": lminus_jac, "plus_jac": plus_jac,
+            "minus_jac": getattr(cls, "_minus_jac", None) or minus_jac,
+            "lminus_jac": lminus_jac, "plus_jac": plus_jac,
             "lplus_jac": lplus_jac, "jr": jr, "jr_inv": jri}
 
 
@@ -327,7 +329,7 @@ class LieGroup:
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        A.register_pytree_class(cls)
+        A.register_pytree_class(cls, cls._adopt)
         if not hasattr(cls, "dof"):  # an abstract intermediate class (e.g. Pose)
             return
         needed = FACTS + PRIMITIVES + (CLOSED_JR if cls._has_closed_jr else ())

@@ -5,6 +5,7 @@ Tangent vectors are ``tau = (rho, phi)``: translation part first, then the rotat
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -29,13 +30,7 @@ def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
     t2 = M.norm2(*phi)
     k, ch = so3.half_angle(o, t2)
     c1 = so3.coef_b(o, t2, k, ch)
-    small = t2 < M.SMALL2
-    t2s = t2 + small
-    t = o.sqrt(t2s)
-    st, ct = o.sin(t), o.cos(t)
-    t4 = t2s * t2s
-    c2 = o.where(small, M.horner(t2, M.C_COS4), (t2s + 2.0 * ct - 2.0) / (2.0 * t4))
-    c3 = o.where(small, M.horner(t2, M.C_SIN5), (2.0 * t - 3.0 * st + t * ct) / (2.0 * t4 * t))
+    c2, c3 = o.select(t2 < M.SMALL2, _q_series, partial(_q_closed, o), t2)
     d = M.dot(rho, phi)
     a = M.cross(phi, M.cross(phi, rho))
     e = (c2 - c1) * d
@@ -48,6 +43,19 @@ def q_block(o: Any, rho: tuple, phi: tuple) -> tuple:
     return ((E[0][0] + diag, E[0][1] - w[2], E[0][2] + w[1]),
             (E[1][0] + w[2], E[1][1] + diag, E[1][2] - w[0]),
             (E[2][0] - w[1], E[2][1] + w[0], E[2][2] + diag))
+
+
+def _q_series(t2: Any) -> tuple:
+    return M.horner(t2, M.C_COS4), M.horner(t2, M.C_SIN5)
+
+
+def _q_closed(o: Any, t2: Any) -> tuple:
+    """``(t^2 + 2 cos t - 2) / (2 t^4)`` and ``(2 t - 3 sin t + t cos t) / (2 t^5)``."""
+    t2s = t2 + (t2 < M.SMALL2)  # safe substitute below SMALL2
+    t = o.sqrt(t2s)
+    st, ct = o.sin(t), o.cos(t)
+    t4 = t2s * t2s
+    return (t2s + 2.0 * ct - 2.0) / (2.0 * t4), (2.0 * t - 3.0 * st + t * ct) / (2.0 * t4 * t)
 
 
 def _jinv_block(Ji: tuple, Q: tuple) -> tuple:
@@ -66,10 +74,10 @@ def v_times(o: Any, phi: tuple, t2: Any, k: Any, ch: Any, v: tuple) -> tuple:
     return tuple(v[i] + a * c[i] + b * d[i] for i in range(3))
 
 
-def _block_transpose(m: tuple) -> tuple:
-    """Transpose each 3x3 block of a 6x6 component matrix (keeping the blocks in place)."""
-    return tuple(tuple(m[3 * (i // 3) + j % 3][3 * (j // 3) + i % 3] for j in range(6))
-                 for i in range(6))
+def _block2(J: tuple, B: tuple) -> tuple:
+    """``[[J, B], [0, J]]`` from 3x3 component matrices (constant zeros)."""
+    return tuple((*J[i], *B[i]) for i in range(3)) + tuple((0.0, 0.0, 0.0, *J[i])
+                                                          for i in range(3))
 
 
 class SE3(Pose):
@@ -118,7 +126,7 @@ class SE3(Pose):
         t2 = M.norm2(*phi)
         k, ch = so3.half_angle(o, t2)
         t = v_times(o, phi, t2, k, ch, rho)
-        return (*t, k * phi[0], k * phi[1], k * phi[2], ch)
+        return (*t, *o.times(k, phi), ch)
 
     @staticmethod
     def _log(o, p):
@@ -175,10 +183,35 @@ class SE3(Pose):
         rho, phi = tau[:3], tau[3:]
         return _jinv_block(so3.jr_inv(o, phi), M.transpose(q_block(o, rho, phi)))
 
-    @classmethod
-    def _jr_inv_pair(cls, o, tau):
-        """``Jr^-1(tau)`` and ``Jl^-1(tau) = Jr^-1(-tau)``: every 3x3 block of the second is
-        the transpose of the first's (``Jl^-1_SO3 = (Jr^-1_SO3)^T``, ``Q(-rho, -phi) =
-        Q(rho, phi)^T``)."""
-        right = cls._jr_inv(o, tau)
-        return right, _block_transpose(right)
+    @staticmethod
+    def _minus_jac(o, y, x):
+        """``tau = Log(x^-1 y)``, ``Jr^-1(tau)`` and ``-Jl^-1(tau)`` in one pass.
+
+        ``Jr^-1 = [[Ji, B], [0, Ji]]`` with ``Ji = Jr^-1_SO3(phi)`` and, written out,
+        ``B = hat(rho)/2 + c (rho phi^T + phi rho^T - 2 d I) + 2 d c' hat(phi)^2``
+        (``d = rho . phi``, ``c`` the ``hat(phi)^2`` coefficient of ``Ji`` and ``c' = dc/dt2``):
+        the upper block of a function of ``ad_tau`` is its derivative along ``hat(rho)``
+        (equal to ``-Ji Q^T Ji`` of Sola et al. eq. 180). Every block of ``Jl^-1(tau) =
+        Jr^-1(-tau)`` is the transpose of the right one's, so ``-Jl^-1`` is
+        ``[[hat(phi)/2 - S, hat(rho)/2 - E], [0, hat(phi)/2 - S]]`` with ``S``, ``E`` the
+        symmetric parts of ``Ji`` and ``B``.
+        """
+        z = SE3._compose(o, SE3._inverse(o, x), y)
+        t, q = z[:3], z[3:]
+        phi, kl, aw = so3.quat_log_parts(o, q)
+        t2 = M.norm2(*phi)
+        c, cp = so3.coef_c_slope(o, t2, 1.0 / kl, aw)
+        a = M.cross(phi, t)
+        b = M.cross(phi, a)
+        rho = tuple(t[i] - 0.5 * a[i] + c * b[i] for i in range(3))  # as SE3._log
+        Ji, mJi = so3.jr_inv_pair_c(c, phi, t2)
+        d = M.dot(rho, phi)
+        g = 2.0 * d * cp
+        u = tuple(c * r for r in rho)
+        w = tuple(u[i] + g * phi[i] for i in range(3))  # E_ij = u_i phi_j + phi_i w_j + e I
+        e = -2.0 * c * d - g * t2
+        px, py, pz = phi
+        E = (px * (u[0] + w[0]) + e, py * (u[1] + w[1]) + e, pz * (u[2] + w[2]) + e,
+             u[0] * py + px * w[1], u[0] * pz + px * w[2], u[1] * pz + py * w[2])
+        B, mB = so3.sym_pair(E, (0.5 * rho[0], 0.5 * rho[1], 0.5 * rho[2]))
+        return ((*rho, *phi), _block2(Ji, B), _block2(mJi, mB))

@@ -14,6 +14,7 @@ references only up to there.
 from __future__ import annotations
 
 from fractions import Fraction
+from functools import partial
 from math import factorial
 from typing import Any
 
@@ -54,19 +55,41 @@ def phi_functions(o: Any, sigma: Any) -> tuple[Any, Any, Any, Any, Any]:
     """``(e^x, phi_1, phi_2, phi_3, phi_4)`` at ``x = sigma``, with ``phi_0 = e^x`` and
     ``phi_(n+1) = (phi_n - 1/n!) / x``: ``phi_1 = (e^x - 1)/x``, ``phi_2 = (e^x - 1 - x)/x^2``,
     ... (``phi_n' = phi_n - n phi_(n+1)``). Taylor series below ``|x| = 2``, recurrence above."""
-    E = o.exp(sigma)
-    small = o.abs(sigma) < _PHI_SMALL
-    f_s = M.horner(sigma, _PHI4)
-    e_s = 1.0 / 6.0 + sigma * f_s
-    d_s = 0.5 + sigma * e_s
-    a_s = 1.0 + sigma * d_s
-    x = o.where(small, 3.0, sigma)  # safe substitute: never 0 on the branch that is kept
-    a_c = o.expm1(x) / x
-    d_c = (a_c - 1.0) / x
-    e_c = (d_c - 0.5) / x
-    f_c = (e_c - 1.0 / 6.0) / x
-    return (E, o.where(small, a_s, a_c), o.where(small, d_s, d_c), o.where(small, e_s, e_c),
-            o.where(small, f_s, f_c))
+    a, d, e, f = o.select(o.abs(sigma) < _PHI_SMALL, _phi_series, partial(_phi_closed, o),
+                          sigma)
+    return o.exp(sigma), a, d, e, f
+
+
+def _phi_series(sigma: Any) -> tuple:
+    f = M.horner(sigma, _PHI4)
+    e = 1.0 / 6.0 + sigma * f
+    d = 0.5 + sigma * e
+    return 1.0 + sigma * d, d, e, f
+
+
+def _phi_closed(o: Any, sigma: Any) -> tuple:
+    x = o.where(o.abs(sigma) < _PHI_SMALL, 3.0, sigma)  # safe substitute: never 0 where kept
+    a = o.expm1(x) / x
+    d = (a - 1.0) / x
+    e = (d - 0.5) / x
+    return a, d, e, (e - 1.0 / 6.0) / x
+
+
+def _c4(t2: Any, h: Any) -> Any:
+    return M.horner(t2, M.C_COS4)
+
+
+def _c4_closed(t2: Any, h: Any) -> Any:
+    return (0.5 - h) / (t2 + (t2 < M.SMALL2))  # (t^2 + 2 cos t - 2)/(2 t^4)
+
+
+def _c56(t2: Any, cb: Any, h: Any, c4: Any) -> tuple:
+    return M.horner(t2, M.C_SIN5), M.horner(t2, _C_COS6)
+
+
+def _c56_closed(t2: Any, cb: Any, h: Any, c4: Any) -> tuple:
+    ts = t2 + (t2 < M.SMALL2)
+    return (3.0 * cb - h) / (2.0 * ts), (2.0 * c4 - 0.5 * cb) / ts
 
 
 def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
@@ -89,8 +112,7 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     cos = 1.0 - t2 * h
     cb = so3.coef_b(o, t2, k, ch)  # (t - sin t)/t^3
     small = t2 < M.SMALL2
-    ts = t2 + small
-    c4 = o.where(small, M.horner(t2, M.C_COS4), (0.5 - h) / ts)  # (t^2 + 2 cos t - 2)/(2 t^4)
+    c4 = o.select(small, _c4, _c4_closed, t2, h)  # (t^2 + 2 cos t - 2)/(2 t^4)
     k3 = k * k - 0.5 * cb  # (sin t - t cos t)/(2 t^3)
     z2 = sigma * sigma + t2
     tiny = z2 < _TINY
@@ -105,8 +127,8 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     c = o.where(tiny, 1.0 / 6.0 + sigma / 8.0, ws * Pc + wt * Qc)
     if not derivatives:
         return (a, b, c), (E, sinc, h, k, ch)
-    c5 = o.where(small, M.horner(t2, M.C_SIN5), (3.0 * cb - h) / (2.0 * ts))  # -d cb / d t2
-    c6 = o.where(small, M.horner(t2, _C_COS6), (2.0 * c4 - 0.5 * cb) / ts)  # -d c4 / d t2
+    # c5 = -d cb / d t2, c6 = -d c4 / d t2
+    c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, h, c4)
     ht = c4 - 0.5 * cb  # d h / d t2 (and d sinc / d t2 = -k3, d cos / d t2 = -sinc / 2)
     k3t = 0.5 * (ht + c5)
     ad, de = a - d, d - 2.0 * e  # phi_1', phi_2'
@@ -171,8 +193,15 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
     """``W``, ``R^T``, ``d(W rho)/d phi``, ``d(W rho)/d sigma`` and the SO(3) pieces."""
     rho, phi, sigma = tau[:3], tau[3:6], tau[6]
     t2 = M.norm2(*phi)
-    (a, b, c), (E, sinc, h, k, ch), (a_s, b_s, c_s, b_t, c_t), cb = coefficients(
-        o, sigma, t2, derivatives=True)
+    co = coefficients(o, sigma, t2, derivatives=True)
+    return (phi, t2, co[0], co[1][0], (co[1][1], co[1][2], co[3], co[1][3], co[1][4]),
+            *_w_rho_slopes(rho, phi, co))
+
+
+def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
+    """``d(W rho)/d phi`` (3x3) and ``d(W rho)/d sigma`` (3) from :func:`coefficients`'s
+    output with ``derivatives=True``."""
+    (a, b, c), _, (a_s, b_s, c_s, b_t, c_t), _ = co
     u = M.cross(phi, rho)
     v = M.cross(phi, u)
     d = M.dot(phi, rho)
@@ -189,7 +218,7 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
             (g[1][0] - br2, g[1][1] + cd, g[1][2] + br0),
             (g[2][0] + br1, g[2][1] - br0, g[2][2] + cd))
     msig = tuple(a_s * rho[i] + b_s * u[i] + c_s * v[i] for i in range(3))
-    return phi, t2, (a, b, c), E, (sinc, h, cb, k, ch), Mphi, msig
+    return Mphi, msig
 
 
 class Sim3(Pose):
@@ -279,7 +308,7 @@ class Sim3(Pose):
         top = M.matmul(RtM, tuple((*Mphi[i], msig[i]) for i in range(3)))
         A = poly_matrix(poly_mul(Rt, W, t2), phi, t2)
         J = so3.i_hat_sq(-h, cb, phi, t2)
-        return _assemble(A, top, J, phi[0])
+        return _assemble(A, top, J, 1.0)
 
     @classmethod
     def _jr_inv(cls, o, tau):
@@ -290,7 +319,43 @@ class Sim3(Pose):
         WiM = M.matmul(poly_matrix(Wi, phi, t2), tuple((*Mphi[i], msig[i]) for i in range(3)))
         B = M.matmul(tuple(r[:3] for r in WiM), Ji)
         top = tuple((*(-x for x in B[i]), -WiM[i][3]) for i in range(3))
-        return _assemble(A, top, Ji, phi[0])
+        return _assemble(A, top, Ji, 1.0)
+
+    @staticmethod
+    def _minus_jac(o, y, x):
+        """``tau = Log(x^-1 y)``, ``Jr^-1(tau)`` and ``-Jl^-1(tau)`` in one pass.
+
+        ``Jr^-1`` as :meth:`_jr_inv` (``[[A, B, b], [0, Ji, 0], [0, 0, 1]]``, ``A = e^sigma
+        W^-1 R``, ``(B | b) = -W^-1 (d(W rho)/d phi Ji | d(W rho)/d sigma)``), with the
+        coefficients of ``Log`` (half-angle functions from the quaternion). ``Jl^-1(tau) =
+        Jr^-1(tau) Ad_Exp(-tau)``, and with ``t = W rho`` (the translation of ``Exp(tau)``) its
+        blocks reduce to ``[[W^-1, -W^-1 hat(t) + B R^T, rho + b], [0, Ji^T, 0], [0, 0, 1]]``,
+        where ``B R^T = -W^-1 d(W rho)/d phi Ji^T``.
+        """
+        z = Sim3._compose(o, Sim3._inverse(o, x), y)
+        t, q, s = z[:3], z[3:7], z[7]
+        phi, kl, aw = so3.quat_log_parts(o, q)
+        sigma = o.log(s)
+        t2 = M.norm2(*phi)
+        k, ch = 1.0 / kl, aw
+        co = coefficients(o, sigma, t2, k, ch, derivatives=True)
+        W, (E, sinc, h, _, _) = co[0], co[1]
+        Wi = poly_inv(W, t2)
+        rho = poly_apply(Wi, phi, t)  # as Sim3._log
+        Mphi, msig = _w_rho_slopes(rho, phi, co)
+        A = poly_matrix(poly_mul(Wi, (E, E * sinc, E * h), t2), phi, t2)  # e^sigma W^-1 R
+        Ji, mJit = so3.jr_inv_pair_c(so3.coef_c(o, t2, k, ch), phi, t2)
+        nWi = poly_matrix((-Wi[0], -Wi[1], -Wi[2]), phi, t2)  # -W^-1
+        nWiM = M.matmul(nWi, tuple((*Mphi[i], msig[i]) for i in range(3)))
+        X = tuple(r[:3] for r in nWiM)
+        # -(B R^T - W^-1 hat(t)) = W^-1 hat(t) - X Ji^T = X mJit - (-W^-1) hat(t)
+        nHt = tuple(M.cross(r, t) for r in nWi)  # row i of (-W^-1) hat(t): (row i) x t
+        B, Pn = M.matmul(X, Ji), M.matmul(X, mJit)
+        top_r = tuple((*B[i], nWiM[i][3]) for i in range(3))
+        top_l = tuple((*(Pn[i][j] - nHt[i][j] for j in range(3)), -rho[i] - nWiM[i][3])
+                      for i in range(3))
+        return ((*rho, *phi, sigma), _assemble(A, top_r, Ji, 1.0),
+                _assemble(nWi, top_l, mJit, -1.0))
 
     @staticmethod
     def _compose(o, p, q):
@@ -453,12 +518,11 @@ def check_positive_scale(s: Array) -> None:
         raise ValueError("Sim3: scale must be positive")
 
 
-def _assemble(A: tuple, top: tuple, J: tuple, like: Any) -> tuple:
-    """``[[A, top], [0, J, 0], [0, 0, 1]]`` with ``top`` the 3x4 block right of ``A``."""
-    z = 0.0 * like
+def _assemble(A: tuple, top: tuple, J: tuple, one: Any) -> tuple:
+    """``[[A, top], [0, J, 0], [0, 0, one]]`` with ``top`` the 3x4 block right of ``A``."""
     return (tuple((*A[i], *top[i]) for i in range(3))
-            + tuple((z, z, z, *J[i], z) for i in range(3))
-            + ((z, z, z, z, z, z, z + 1.0),))
+            + tuple((0.0, 0.0, 0.0, *J[i], 0.0) for i in range(3))
+            + ((0.0, 0.0, 0.0, 0.0, 0.0, 0.0, one),))
 
 
 def check_sigma(tau: Array, what: str) -> None:

@@ -39,17 +39,55 @@ def half_angle(o: Any, t2: Any) -> tuple[Any, Any]:
 
 
 def coef_b(o: Any, t2: Any, k: Any, ch: Any) -> Any:
-    """``(t - sin t) / t^3 = (1 - 2 k ch) / t^2`` given ``half_angle``'s ``k, ch``."""
-    small = t2 < M.SMALL2
-    return o.where(small, M.horner(t2, M.C_T_SIN), (1.0 - 2.0 * k * ch) / (t2 + small))
+    """``(t - sin t) / t^3 = (1 - 2 k ch) / t^2`` given ``half_angle``'s ``k, ch`` (the Taylor
+    series below ``SMALL2``, each branch evaluated only where it is used)."""
+    return o.select(t2 < M.SMALL2, _b_series, _b_closed, t2, k, ch)
+
+
+def _b_series(t2: Any, k: Any, ch: Any) -> Any:
+    return M.horner(t2, M.C_T_SIN)
+
+
+def _b_closed(t2: Any, k: Any, ch: Any) -> Any:
+    return (1.0 - 2.0 * k * ch) / (t2 + (t2 < M.SMALL2))  # safe substitute below SMALL2
 
 
 def coef_c(o: Any, t2: Any, k: Any, ch: Any) -> Any:
     """``(1 - (t/2) cot(t/2)) / t^2 = (1 - ch / (2 k)) / t^2``, the ``hat(phi)^2`` coefficient
     of ``Jr^-1``, given ``half_angle``'s ``k, ch``."""
+    return o.select(t2 < M.SMALL2, _c_series, _c_closed, t2, k, ch)
+
+
+def _c_series(t2: Any, k: Any, ch: Any) -> Any:
+    return M.horner(t2, M.C_COT)
+
+
+def coef_c_slope(o: Any, t2: Any, k: Any, ch: Any) -> tuple[Any, Any]:
+    """:func:`coef_c` and its derivative in ``t2``,
+    ``c' = (1 / (4 k^2) + ch / (2 k) - 2) / (2 t^4)`` (from ``c = (1 - h cot h) / (4 h^2)``,
+    ``h = t/2``); both from their Taylor series below ``SMALL2``."""
+    return o.select(t2 < M.SMALL2, _cs_series, _cs_closed, t2, k, ch)
+
+
+_C_COT_SLOPE = tuple((i + 1) * x for i, x in enumerate(M.C_COT[1:]))
+
+
+def _cs_series(t2: Any, k: Any, ch: Any) -> tuple:
+    return M.horner(t2, M.C_COT), M.horner(t2, _C_COT_SLOPE)
+
+
+def _cs_closed(t2: Any, k: Any, ch: Any) -> tuple:
     small = t2 < M.SMALL2
     ks = k + small  # k > 0 on the branch that is kept
-    return o.where(small, M.horner(t2, M.C_COT), (1.0 - ch / (2.0 * ks)) / (t2 + small))
+    ts = t2 + small
+    r = ch / (2.0 * ks)
+    return (1.0 - r) / ts, (0.25 / (ks * ks) + r - 2.0) / (2.0 * ts * ts)
+
+
+def _c_closed(t2: Any, k: Any, ch: Any) -> Any:
+    small = t2 < M.SMALL2
+    ks = k + small  # k > 0 on the branch that is kept
+    return (1.0 - ch / (2.0 * ks)) / (t2 + small)
 
 
 # ---------------------------------------------------------------------------- quaternions
@@ -57,7 +95,7 @@ def coef_c(o: Any, t2: Any, k: Any, ch: Any) -> Any:
 
 def quat_exp(o: Any, w: tuple) -> tuple:
     k, ch = half_angle(o, M.norm2(*w))
-    return (k * w[0], k * w[1], k * w[2], ch)
+    return (*o.times(k, w), ch)
 
 
 def quat_log(o: Any, q: tuple) -> tuple:
@@ -82,7 +120,7 @@ def quat_log_parts(o: Any, q: tuple) -> tuple:
     # 2 atan2(n, |w|) / n; for a unit quaternion and tiny n it is 2 asin(n) / n = 2 + n^2/3
     kl = o.where(small, 2.0 + n2 * (1.0 / 3.0), 2.0 * o.atan2(n, aw) / n)
     ks = kl - 2.0 * (kl * (w < 0))  # w < 0: use -q
-    return (ks * x, ks * y, ks * z), kl, aw
+    return o.times(ks, (x, y, z)), kl, aw
 
 
 def quat_mul(a: tuple, b: tuple) -> tuple:
@@ -184,6 +222,26 @@ def jr_inv(o: Any, w: tuple) -> tuple:
     t2 = M.norm2(*w)
     k, ch = half_angle(o, t2)
     return i_hat_sq(0.5, coef_c(o, t2, k, ch), w, t2)
+
+
+def sym_pair(s: tuple, h: tuple) -> tuple[tuple, tuple]:
+    """``S + hat(h)`` and ``hat(h) - S`` (the negated transpose of the first) for a symmetric
+    ``S`` given as ``(s00, s11, s22, s01, s02, s12)``."""
+    s00, s11, s22, s01, s02, s12 = s
+    h0, h1, h2 = h
+    n0, n1, n2 = -h0, -h1, -h2
+    return (((s00, s01 - h2, s02 + h1), (s01 + h2, s11, s12 - h0), (s02 - h1, s12 + h0, s22)),
+            ((-s00, n2 - s01, h1 - s02), (h2 - s01, -s11, n0 - s12), (n1 - s02, h0 - s12, -s22)))
+
+
+def jr_inv_pair_c(c: Any, w: tuple, t2: Any) -> tuple[tuple, tuple]:
+    """``Jr^-1(w)`` and ``-Jl^-1(w)`` given :func:`coef_c`'s ``c``: ``Jr^-1 = S + hat(w)/2``
+    and ``-Jl^-1 = -Jr^-1^T = hat(w)/2 - S``, ``S = I + c hat(w)^2 = (1 - c t2) I + c w w^T``."""
+    x, y, z = w
+    cx, cy, cz = c * x, c * y, c * z
+    d = 1.0 - c * t2
+    s = (d + cx * x, d + cy * y, d + cz * z, cx * y, cx * z, cy * z)
+    return sym_pair(s, (0.5 * x, 0.5 * y, 0.5 * z))
 
 
 def jl(o: Any, w: tuple) -> tuple:
@@ -346,10 +404,13 @@ class SO3(LieGroup):
     def _jr_inv(cls, o, tau):
         return jr_inv(o, tau)
 
-    @classmethod
-    def _jr_inv_pair(cls, o, tau):
-        J = jr_inv(o, tau)
-        return J, M.transpose(J)  # Jl^-1(phi) = Jr^-1(-phi) = Jr^-1(phi)^T
+    @staticmethod
+    def _minus_jac(o, y, x):
+        """``Log(x^-1 y)``, ``Jr^-1`` and ``-Jl^-1`` of it, sharing the half-angle functions of
+        the quaternion (``sin(t/2)/t = 1/kl``, ``cos(t/2) = |w|``)."""
+        phi, kl, aw = quat_log_parts(o, quat_mul(quat_conj(x), y))
+        t2 = M.norm2(*phi)
+        return (phi, *jr_inv_pair_c(coef_c(o, t2, 1.0 / kl, aw), phi, t2))
 
     # ------------------------------------------------------------------ constructors
     @classmethod

@@ -205,8 +205,7 @@ class SupernodalSolver(LinearSolver):
         first; supernodes of one level are independent), the supernodes of equal shape as one
         batch, with the flat update maps of each batch (vectorised over all update pairs):
         ``src`` indexes the batch's stacked updates ``W`` (``(G, u, u)``, C order) and ``dst``
-        the panels, sorted by destination; a batch of several supernodes sums its contributions
-        to one destination (``reduceat`` from ``starts``) first."""
+        the panels (flat, sorted by destination)."""
         ns = self.ns
         lev = np.zeros(ns, np.int64)
         for s, p in enumerate(self.sparent.tolist()):
@@ -220,8 +219,8 @@ class SupernodalSolver(LinearSolver):
         pos = np.empty(ns, np.int64)  # position in its batch
         gid[order] = np.repeat(np.arange(cut.size - 1), np.diff(cut))
         pos[order] = np.arange(ns) - np.repeat(cut[:-1], np.diff(cut))
-        # every update entry, in blocks of bs consecutive rows (all offsets are multiples of
-        # bs): pair p, W column j in [a, b), W rows a + bs * ii .. + bs (ii < (u - a) / bs)
+        # every update entry, generated in blocks of bs consecutive rows (all offsets are
+        # multiples of bs): pair p, W column j in [a, b), W rows from a in runs of bs
         bs = self.bs
         u = self.m - self.k
         ps = np.repeat(np.arange(ns), np.diff(self.pptr))
@@ -245,30 +244,21 @@ class SupernodalSolver(LinearSolver):
             grp = order[cut[g]:cut[g + 1]]
             k, m = int(self.k[grp[0]]), int(self.m[grp[0]])
             sel = so[bounds[g]:bounds[g + 1]]
-            # sorted by destination (sequential writes); a batch of several supernodes sums
-            # the contributions to one destination block (consecutive after the sort) first
+            # flat indices, sorted by destination (sequential writes)
             so2 = np.argsort(dst[sel], kind="stable")
-            gsrc, gdst = src[sel][so2], dst[sel][so2]
-            starts = None
-            if grp.size > 1 and gdst.size:
-                starts = np.flatnonzero(np.r_[True, gdst[1:] != gdst[:-1]])
-                gdst = gdst[starts]
+            gsrc = (src[sel][so2][:, None] * bs + np.arange(bs)).ravel()
+            gdst = (dst[sel][so2][:, None] * bs + np.arange(bs)).ravel()
             ridx = self.rows[self.rptr[grp][:, None] + k + np.arange(m - k)]
-            urow = rinv = None
-            if grp.size > 1 and ridx.size:
-                urow, rinv = np.unique(ridx, return_inverse=True)
-                rinv = rinv.ravel()
             cidx = self.c0[grp][:, None] + np.arange(k)
             gidx = self.px[grp][:, None] // bs + np.arange(m * k // bs)
-            steps.append({"grp": grp, "k": k, "m": m, "src": gsrc, "dst": gdst,
-                          "starts": starts, "gidx": gidx, "cidx": cidx, "ridx": ridx,
-                          "urow": urow, "rinv": rinv})
+            steps.append({"grp": grp, "k": k, "m": m, "src": gsrc, "dst": gdst, "gidx": gidx,
+                          "cidx": cidx, "ridx": ridx})
         return steps
 
     def _factor_numpy(self, Lx: np.ndarray) -> None:
         if self._numpy_plan is None:
             self._numpy_plan = self._plan()
-        potrf, trsm, syrk, trtri = lapack.dpotrf, blas.dtrsm, blas.dsyrk, lapack.dtrtri
+        potrf, trsm, syrk = lapack.dpotrf, blas.dtrsm, blas.dsyrk
         bs = self.bs
         Lb = Lx.reshape(-1, bs)  # Lx in blocks of bs consecutive entries (one row run)
         factors = []
@@ -282,18 +272,15 @@ class SupernodalSolver(LinearSolver):
                 if info != 0:
                     raise SingularSystemError(_NOT_PD)
                 P[:k] = L11
-                Linv = trtri(L11, lower=1)[0]
                 if u:
                     L21 = trsm(1.0, L11, P[k:], side=1, lower=1, trans_a=1)
                     P[k:] = L21
                     W = syrk(1.0, L21, lower=1)  # (u, u), lower triangle (F order)
                     # src indexes W in C order as j * u + i: that is W.T's lower triangle
-                    d = st["dst"]
-                    Lb[d] = np.take(Lb, d, axis=0) - np.take(W.T.reshape(-1, bs), st["src"],
-                                                             axis=0)
-                    factors.append((Linv[None], L21.T[None]))
+                    np.subtract.at(Lx, st["dst"], np.take(W.T.ravel(), st["src"]))
+                    factors.append((L11, L21.T[None]))
                 else:
-                    factors.append((Linv[None], np.zeros((1, k, 0))))
+                    factors.append((L11, np.zeros((1, k, 0))))
                 continue
             G = grp.size
             Q = np.take(Lb, st["gidx"], axis=0).reshape(G, k, m)  # Q[g, c, r] = panel[r, c]
@@ -308,9 +295,8 @@ class SupernodalSolver(LinearSolver):
             Lb[st["gidx"]] = Q.reshape(G, k * m // bs, bs)
             if u:
                 W = np.swapaxes(L21T, 1, 2) @ L21T  # (G, u, u), symmetric
-                d = st["dst"]
-                vals = np.take(W.reshape(-1, bs), st["src"], axis=0)
-                Lb[d] = np.take(Lb, d, axis=0) - np.add.reduceat(vals, st["starts"], axis=0)
+                # ufunc.at sums the contributions of several supernodes to one entry
+                np.subtract.at(Lx, st["dst"], np.take(W.ravel(), st["src"]))
             factors.append((Linv, L21T))
         self._factors = factors
 
@@ -334,28 +320,35 @@ class SupernodalSolver(LinearSolver):
         return x[:, 0] if vec else x
 
     def _solve_numpy(self, y: np.ndarray) -> None:
-        """Forward by levels (a batch's updates to shared rows summed by ``bincount``), then
-        backward in the reverse order; ``y`` is ``(n, nrhs)``, C order."""
+        """Forward by levels (a batch's updates to shared rows summed by ``ufunc.at``), then
+        backward in the reverse order; ``y`` is ``(n, nrhs)``, C order. A single supernode
+        keeps its ``L11`` (triangular solves), a batch ``L11^-1``."""
         nr = y.shape[1]
+        trsm = blas.dtrsm
         plan = list(zip(self._numpy_plan or [], self._factors, strict=True))
-        for st, (Linv, L21T) in plan:
+        for st, (Li, L21T) in plan:
             cidx, ridx = st["cidx"], st["ridx"]
-            yc = Linv @ y[cidx]  # (G, k, nr)
+            if Li.ndim == 2:  # one supernode: L11
+                c0 = int(cidx[0, 0])
+                yc = trsm(1.0, Li, y[c0:c0 + Li.shape[0]], lower=1)[None]
+            else:
+                yc = Li @ y[cidx]  # (G, k, nr)
             y[cidx] = yc
             if ridx.shape[1]:
                 upd = np.swapaxes(L21T, 1, 2) @ yc  # (G, u, nr)
-                if st["urow"] is None:
-                    y[ridx[0]] -= upd[0]
-                elif nr == 1:
-                    y[st["urow"], 0] -= np.bincount(st["rinv"], upd.ravel(), st["urow"].size)
+                if nr == 1:
+                    np.subtract.at(y.ravel(), ridx.ravel(), upd.ravel())
                 else:
                     np.subtract.at(y, ridx, upd)
-        for st, (Linv, L21T) in reversed(plan):
+        for st, (Li, L21T) in reversed(plan):
             cidx, ridx = st["cidx"], st["ridx"]
             rhs = y[cidx]
             if ridx.shape[1]:
                 rhs = rhs - L21T @ y[ridx]
-            y[cidx] = np.swapaxes(Linv, 1, 2) @ rhs
+            if Li.ndim == 2:
+                y[cidx] = trsm(1.0, Li, rhs[0], lower=1, trans_a=1)[None]
+            else:
+                y[cidx] = np.swapaxes(Li, 1, 2) @ rhs
 
 
 def _closed(L: Any, nb: int) -> Any:

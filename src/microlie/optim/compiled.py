@@ -131,7 +131,7 @@ class EdgePlan:
         1.0
         """
         s = np.empty(self.ii.size)
-        self._cost(states[self.key], self.ii, self.jj, self.Z, self.L, s)
+        self._cost(_rows(states[self.key]), self.ii, self.jj, self.Z, self.L, s)
         return s
 
     def normal(self, states: list[np.ndarray], data: np.ndarray, grad: np.ndarray,
@@ -170,9 +170,15 @@ class EdgePlan:
         (1.0, True)
         """
         s = np.empty(self.ii.size)
-        self._normal(states[self.key], self.ii, self.jj, self.Z, self.L, wts, self.starts,
-                     self.lens, self.goff, s, data, grad)
+        self._normal(_rows(states[self.key]), self.ii, self.jj, self.Z, self.L, wts,
+                     self.starts, self.lens, self.goff, s, data, grad)
         return s
+
+
+def _rows(p: np.ndarray) -> np.ndarray:
+    """Parameters as the C-contiguous float64 rows the compiled loop reads (no copy when they
+    are already)."""
+    return np.ascontiguousarray(p, dtype=np.float64)
 
 
 def plan(problem: Any, f: Factor) -> EdgePlan | None:

@@ -335,6 +335,13 @@ class NormalEquations:
         # point blocks V (6 components), gradients, diagonals
         JpT = np.ascontiguousarray(Jp.transpose(1, 2, 0))        # (2, 3, n)
         self._jp = JpT
+        fast = _fast()
+        if fast is not None:
+            self.V, self.gp, self.U, self.gc = fast.blocks(
+                np.ascontiguousarray(Jc), np.ascontiguousarray(Jp), np.ascontiguousarray(r),
+                st.cam, st.pt, st.n_cameras, st.n_points)
+            self._diagonals()
+            return
         prods = np.stack([(JpT[:, 0] * JpT[:, 0]).sum(0), (JpT[:, 0] * JpT[:, 1]).sum(0),
                           (JpT[:, 0] * JpT[:, 2]).sum(0), (JpT[:, 1] * JpT[:, 1]).sum(0),
                           (JpT[:, 1] * JpT[:, 2]).sum(0), (JpT[:, 2] * JpT[:, 2]).sum(0)], 1)
@@ -354,9 +361,12 @@ class NormalEquations:
             blk = Jcc[s:e]
             self.U[c] = blk.T @ blk
             self.gc[c] = blk.T @ rc[s:e]
+        self._diagonals()
+
+    def _diagonals(self) -> None:
         self.diag_c = np.diagonal(self.U, axis1=1, axis2=2).copy()
-        self.diag_p = V[:, [0, 3, 5]].copy()
-        self.gradient = np.concatenate([self.gc.ravel(), gp.ravel()])
+        self.diag_p = self.V[:, [0, 3, 5]].copy()
+        self.gradient = np.concatenate([self.gc.ravel(), self.gp.ravel()])
 
     # ------------------------------------------------------------------ products with J
     def jvp(self, dc: np.ndarray, dp: np.ndarray) -> np.ndarray:

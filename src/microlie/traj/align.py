@@ -60,13 +60,16 @@ def umeyama(
     >>> bool(np.allclose(R, R0)), bool(np.allclose(t, [1, 0, 0])), round(s, 9)
     (True, True, 2.0)
     """
-    x = np.asarray(source, dtype=np.float64)
-    y = np.asarray(target, dtype=np.float64)
+    # contiguous copies (trajectory positions are strided views of the poses: every pass below
+    # would be slower on them)
+    x = np.ascontiguousarray(source, dtype=np.float64)
+    y = np.ascontiguousarray(target, dtype=np.float64)
     if x.shape != y.shape or x.ndim != 2 or x.shape[1] != 3:
         raise ValueError(f"umeyama needs two (N, 3) arrays, got {x.shape} and {y.shape}")
     n = x.shape[0]
-    mx = x.mean(axis=0)
-    my = y.mean(axis=0)
+    # = x.mean(axis=0) (the same sequential sum), without NumPy's slow reduction over axis 0
+    mx = np.einsum("ij->j", x) / n
+    my = np.einsum("ij->j", y) / n
     xc = x - mx
     yc = y - my
     var_x = np.einsum("ij,ij->", xc, xc) / n

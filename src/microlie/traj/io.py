@@ -110,26 +110,28 @@ def _to_matrix(
     return mat
 
 
-def _header_lines(text: str) -> tuple[int, int]:
-    """(number of leading comment / blank lines, offset of the first data line) of ``text``.
+def _header_lines(data: bytes) -> tuple[int, int]:
+    """(number of leading comment / blank lines, offset of the first data line) of ``data``.
 
-    Lines end at ``\n`` here; only used when ``text`` has no other line break.
+    Lines end at ``\n`` here (a ``\r`` before it is stripped as whitespace); only used when
+    ``data`` has no other line break.
     """
     offset = count = 0
     while True:
-        nl = text.find("\n", offset)
-        s = text[offset : nl if nl >= 0 else len(text)].strip()
-        if s and not s.startswith(("#", "%")):
+        nl = data.find(b"\n", offset)
+        s = data[offset : nl if nl >= 0 else len(data)].strip()
+        if s and not s.startswith((b"#", b"%")):
             return count, offset
         if nl < 0:
-            return count + 1, len(text)
+            return count + 1, len(data)
         offset, count = nl + 1, count + 1
 
 
 # What sends a file from the direct path to the line-list path: line breaks of
-# ``str.splitlines`` other than ``\n`` anywhere (the careful path splits lines with it;
-# \x85, \u2028 and \u2029 are excluded by ``isascii``), and comments below the header.
-_BREAKS = ("\r", "\x0b", "\x0c", "\x1c", "\x1d", "\x1e")
+# ``str.splitlines`` other than ``\n`` and ``\r\n`` anywhere (the careful path splits lines
+# with it; \x85, \u2028 and \u2029 are excluded by ``isascii``), and comments below the
+# header.
+_BREAKS = (b"\x0b", b"\x0c", b"\x1c", b"\x1d", b"\x1e")
 
 
 def _data_block(text: str) -> list[str]:
@@ -189,25 +191,28 @@ def _loadtxt(
 
 
 def _fast_matrix(
-    path: PathLike, text: str, ncols: int, comma: bool, at_least: bool
+    path: PathLike, data: bytes, ncols: int, comma: bool, at_least: bool
 ) -> np.ndarray | None:
-    """The float matrix of the data lines of ``text`` (the contents of ``path``), or ``None``.
+    """The float matrix of the data lines of ``data`` (the bytes of ``path``), or ``None``.
 
-    1. The usual file (ASCII, comments only in the header, ``\n`` line ends and, unless
-       ``comma``, no commas) is parsed by ``loadtxt`` straight from the file.
-    2. Otherwise the lines, split as the careful path splits them and without comment lines,
-       are handed to ``loadtxt`` as a list.
+    1. The usual file (ASCII, comments only in the header, ``\n`` or ``\r\n`` line ends and,
+       unless ``comma``, no commas) is parsed by ``loadtxt`` straight from the file; the checks
+       run on the bytes (no decoding).
+    2. Otherwise the lines of the text, split as the careful path splits them and without
+       comment lines, are handed to ``loadtxt`` as a list.
     """
-    skip, offset = _header_lines(text)
-    if offset >= len(text):
+    skip, offset = _header_lines(data)
+    if offset >= len(data):
         return None
-    below_header = ("#", "%") if comma else ("#", "%", ",")
+    below_header = (b"#", b"%") if comma else (b"#", b"%", b",")
     if (
-        text.isascii()
-        and not any(c in text for c in _BREAKS)
-        and not any(text.find(c, offset) >= 0 for c in below_header)
+        data.isascii()
+        and not any(c in data for c in _BREAKS)
+        and (b"\r" not in data or data.count(b"\r") == data.count(b"\r\n"))
+        and not any(data.find(c, offset) >= 0 for c in below_header)
     ):
         return _loadtxt(path, ncols, comma, at_least, skip)
+    text = Path(path).read_text(encoding="utf-8-sig")  # as the careful path reads it
     lines = _data_block(text)
     if not comma and "," in text:
         # commas separate fields like spaces (see _data_lines); a line of commas only has
@@ -267,8 +272,7 @@ def _read_matrix(
         mat = _compiled_matrix(parse, path, ncols, comma, at_least)
         if mat is not None:
             return _LineNumbers(path, comma), mat
-    text = Path(path).read_text(encoding="utf-8-sig")
-    mat = _fast_matrix(path, text, ncols, comma, at_least)
+    mat = _fast_matrix(path, Path(path).read_bytes(), ncols, comma, at_least)
     if mat is not None:
         return _LineNumbers(path, comma), mat
     numbers, rows = _data_lines(path, comma)
