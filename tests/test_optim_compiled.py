@@ -62,8 +62,9 @@ def _tangent(G, rng, angle=None):
 
 
 def _hard_graph(rng, G=SE3, per_edge_noise=True, loss=None, exact_pi=True):
-    """Poses 0..n-1 (0 and 3 fixed); a chain, loop closures, a duplicate edge, and edges whose
-    residual at the start has rotation angle 0, 1e-12, pi - 1e-6 and exactly pi."""
+    """Poses 0..n-1 (0 and 3 fixed); a chain, loop closures, a duplicate and a reversed edge,
+    and edges whose residual at the start has rotation angle 0, 1e-12, pi - 1e-6 and exactly
+    pi."""
     n, d = 14, G.dof
     X = G.exp(np.stack([_tangent(G, rng) for _ in range(n)])).params.copy()
     # hard residuals: X_i = identity, Z = identity, X_j = Exp(angle about an axis)
@@ -72,8 +73,8 @@ def _hard_graph(rng, G=SE3, per_edge_noise=True, loss=None, exact_pi=True):
         X[j] = G.exp(_tangent(G, rng, th)).params
     # a rotation by exactly pi (w = 0; cos = -1, sin = 0)
     X[13] = [0.3, -0.2, 0.5, 0.0, 0.0, 1.0, 0.0] if G is SE3 else [0.3, -0.2, -1.0, 0.0]
-    ii = list(range(9)) + [0, 2, 5, 1, 1] + [9, 9, 9, 9]
-    jj = list(range(1, 10)) + [7, 8, 11, 6, 6] + [10, 11, 12, 13]
+    ii = list(range(9)) + [0, 2, 5, 1, 1, 6] + [9, 9, 9, 9]  # 1-6 twice and 6-1
+    jj = list(range(1, 10)) + [7, 8, 11, 6, 6, 1] + [10, 11, 12, 13]
     if not exact_pi:
         ii, jj = ii[:-1], jj[:-1]
     m = len(ii)

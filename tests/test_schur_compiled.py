@@ -79,12 +79,13 @@ def test_compiled_reduced_system_equals_the_dense_schur_complement(held, monkeyp
         fp[[2, 7]] = True
     st = SchurStructure(cam, pt, nc, npt, d)
     S_ref, rhs_ref, H, g = _dense_reference(cam, pt, r, Jc, Jp, nc, npt, Dc2, Dp2, fc, fp)
-    got = {}
+    got, blocks = {}, {}
     for name, module in (("compiled", schur._fast()), ("numpy", False)):
         monkeypatch.setattr(schur, "_fast_module", module)
         ne = NormalEquations(st, r, Jc.copy(), Jp.copy(), fc, fp)
         S, rhs, ci, _ = ne.reduced_system(Dc2, Dp2)
         got[name] = (S, rhs, ci, ne.solve(Dc2, Dp2))
+        blocks[name] = (ne.V, ne.gp, ne.U, ne.gc, ne.diag_c, ne.diag_p, ne.gradient)
     free = np.ones(nc * d, bool) if fc is None else ~fc.reshape(-1)
     for name, (S, rhs, _, (dc, dp)) in got.items():
         scale = np.abs(S_ref).max()
@@ -104,6 +105,12 @@ def test_compiled_reduced_system_equals_the_dense_schur_complement(held, monkeyp
         assert np.abs(x - want).max() <= 1e-9 * max(1.0, np.abs(want).max()), name
     for a, b in zip(got["compiled"][2], got["numpy"][2], strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-14, atol=0)
+    # the normal-equation blocks (V, gp, U, gc and what is derived from them): compiled sums
+    # against NumPy's, and the gradient against J^T r of the dense Jacobian
+    for a, b in zip(blocks["compiled"], blocks["numpy"], strict=True):
+        assert a.shape == b.shape
+        np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-13 * np.abs(b).max())
+    np.testing.assert_allclose(blocks["compiled"][-1], g, rtol=1e-13, atol=1e-13 * np.abs(g).max())
 
 
 def test_a_point_block_that_is_not_positive_definite_gives_no_step(monkeypatch):
@@ -140,6 +147,20 @@ def test_compiled_reduce_rejects_bad_arguments():
         m.reduce(*args[:8], bad)
     with pytest.raises(TypeError, match="expected 9 arguments"):
         m.reduce(*args[:8])
+    V, gp, U, gc = m.blocks(Jc, Jp, r, st.cam, st.pt, 3, 5)
+    assert V.shape == (5, 6) and gp.shape == (5, 3) and U.shape == (3, 9, 9) and gc.shape == (3, 9)
+    with pytest.raises(ValueError, match="out of range"):
+        m.blocks(Jc, Jp, r, st.cam, st.pt, 2, 5)
+    with pytest.raises(ValueError, match="r has length"):
+        m.blocks(Jc, Jp, r[:-1], st.cam, st.pt, 3, 5)
+    dc = np.zeros((3, 9))
+    ci = np.ones((6, 5))
+    dp, y = m.back(Jc, Jp, dc, st.cam, st.pt, ne.gp, ci, np.zeros(5, bool))
+    assert dp.shape == (5, 3) and y.shape == (len(cam), 2) and not y.any()
+    with pytest.raises(ValueError, match="Ci has length"):
+        m.back(Jc, Jp, dc, st.cam, st.pt, ne.gp, np.ones((6, 4)), np.zeros(5, bool))
+    with pytest.raises(ValueError, match="held must be a C-contiguous"):
+        m.back(Jc, Jp, dc, st.cam, st.pt, ne.gp, ci, np.zeros(5))
 
 
 def test_bundle_adjustment_ends_at_the_same_cost_with_and_without_it(monkeypatch):

@@ -243,21 +243,36 @@ class Problem:
         psize = du * dv
         pbase = np.concatenate([[0], np.cumsum(psize)]).astype(np.int64)
         nnz = int(pbase[-1])
-        rows = np.empty(nnz, np.int64)
-        cols = np.empty(nnz, np.int64)
+        # CSC positions without sorting the entries: every scalar column of block column v
+        # holds the same rows (the blocks (u, v) in order of u), so entry (a, b) of block
+        # (u, v) is at base_v + b * collen_v + rowoff_uv + a
+        nb = uniq.size
+        bord = np.lexsort((pu, pv))  # the blocks column by column
+        du_s, pv_s = du[bord], pv[bord]
+        cum = np.cumsum(du_s) - du_s
+        rowoff = np.empty(nb, np.int64)
+        rowoff[bord] = cum - cum[np.searchsorted(pv_s, pv_s)]
+        collen = np.bincount(pv, weights=du, minlength=nn).astype(np.int64)
+        base = np.concatenate([[0], np.cumsum(self.node_dof * collen)]).astype(np.int64)
+        pos = np.empty(nnz, np.int64)
+        indices = np.empty(nnz, np.int32)
         for a_dof, b_dof in set(zip(du.tolist(), dv.tolist(), strict=False)):
             sel = np.flatnonzero((du == a_dof) & (dv == b_dof))
             ra, cb = np.divmod(np.arange(a_dof * b_dof), b_dof)
             slots = pbase[sel][:, None] + np.arange(a_dof * b_dof)
-            rows[slots] = self.node_off[pu[sel]][:, None] + ra
-            cols[slots] = self.node_off[pv[sel]][:, None] + cb
-        order = np.lexsort((rows, cols))
-        pos = np.empty(nnz, np.int64)
-        pos[order] = np.arange(nnz)
+            v = pv[sel][:, None]
+            at = base[v] + cb * collen[v] + rowoff[sel][:, None] + ra
+            pos[slots] = at
+            indices[at] = self.node_off[pu[sel]][:, None] + ra
+        indptr = np.empty(self.size + 1, np.int64)
+        indptr[-1] = nnz
+        for d in np.unique(self.node_dof):
+            of_d = np.flatnonzero(self.node_dof == d)
+            indptr[self.node_off[of_d][:, None] + np.arange(d)] = (
+                base[of_d][:, None] + np.arange(d) * collen[of_d][:, None])
         self.nnz = nnz
-        self.indices = rows[order].astype(np.int32)
-        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=self.size))]
-                                     ).astype(np.int32)
+        self.indices = indices
+        self.indptr = indptr.astype(np.int32)
         # diagonal positions (for damping)
         pdiag = np.searchsorted(uniq, np.arange(nn, dtype=np.int64) * (nn + 1))
         dpos = [pos[pbase[pdiag][self.node_dof == d][:, None] + np.arange(d) * (d + 1)]

@@ -335,6 +335,13 @@ class NormalEquations:
         # point blocks V (6 components), gradients, diagonals
         JpT = np.ascontiguousarray(Jp.transpose(1, 2, 0))        # (2, 3, n)
         self._jp = JpT
+        fast = _fast()
+        if fast is not None:
+            self.V, self.gp, self.U, self.gc = fast.blocks(
+                np.ascontiguousarray(Jc), np.ascontiguousarray(Jp), np.ascontiguousarray(r),
+                st.cam, st.pt, st.n_cameras, st.n_points)
+            self._diagonals()
+            return
         prods = np.stack([(JpT[:, 0] * JpT[:, 0]).sum(0), (JpT[:, 0] * JpT[:, 1]).sum(0),
                           (JpT[:, 0] * JpT[:, 2]).sum(0), (JpT[:, 1] * JpT[:, 1]).sum(0),
                           (JpT[:, 1] * JpT[:, 2]).sum(0), (JpT[:, 2] * JpT[:, 2]).sum(0)], 1)
@@ -354,9 +361,12 @@ class NormalEquations:
             blk = Jcc[s:e]
             self.U[c] = blk.T @ blk
             self.gc[c] = blk.T @ rc[s:e]
+        self._diagonals()
+
+    def _diagonals(self) -> None:
         self.diag_c = np.diagonal(self.U, axis1=1, axis2=2).copy()
-        self.diag_p = V[:, [0, 3, 5]].copy()
-        self.gradient = np.concatenate([self.gc.ravel(), gp.ravel()])
+        self.diag_p = self.V[:, [0, 3, 5]].copy()
+        self.gradient = np.concatenate([self.gc.ravel(), self.gp.ravel()])
 
     # ------------------------------------------------------------------ products with J
     def jvp(self, dc: np.ndarray, dp: np.ndarray) -> np.ndarray:
@@ -460,6 +470,15 @@ class NormalEquations:
         t2 = time.perf_counter()
         # back substitution: dp = -V^-1 (gp + Jp^T Jc dc)
         dc = dc.reshape(nc, d)
+        fast = _fast()
+        if fast is not None:
+            held = np.zeros(st.n_points, bool) if fp is None else np.ascontiguousarray(fp, bool)
+            dp, y = fast.back(np.ascontiguousarray(self.Jc), np.ascontiguousarray(self.Jp),
+                              np.ascontiguousarray(dc), st.cam, st.pt, np.ascontiguousarray(gp),
+                              np.ascontiguousarray(np.stack([i00, i10, i11, i20, i21, i22])),
+                              held)
+            self._jc_dc = (dc, y)
+            return self._timed(t0, t1, t2, dc, dp)
         y = np.matmul(self.Jc, np.take(dc, st.cam, axis=0)[:, :, None])[:, :, 0]
         self._jc_dc = (dc, y)
         z = np.einsum("rin,nr->ni", jp, y)
@@ -471,6 +490,10 @@ class NormalEquations:
         u1 = i10 * w0 + i11 * w1
         u2 = i20 * w0 + i21 * w1 + i22 * w2
         dp = -np.stack([i00 * u0 + i10 * u1 + i20 * u2, i11 * u1 + i21 * u2, i22 * u2], 1)
+        return self._timed(t0, t1, t2, dc, dp)
+
+    def _timed(self, t0: float, t1: float, t2: float, dc: np.ndarray, dp: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
         t3 = time.perf_counter()
         tm = self.timings
         tm["schur_form"] = tm.get("schur_form", 0.0) + t1 - t0
