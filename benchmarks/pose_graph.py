@@ -250,7 +250,8 @@ def main(argv=None) -> int:
               "|---|---|---|---|"]
     for k, g in enumerate(res):
         best, dflt = g["picks"]
-        d = ratio(default_res[k], dflt) if default_res else (
+        # auto's default-install pick without the extra (MICROLIE_FAST=0) can differ
+        d = ratio(default_res[k], default_res[k]["picks"][1]) if default_res else (
             ratio(g, dflt) + (" (extra on)" if fast else ""))
         lines.append(f"| {g['name']} | {ratio(g, best)} | {d} | "
                      f"{ratio(g, dflt) if fast else '(extra not installed)'} |")

@@ -13,8 +13,8 @@
  * lower; plain loops instead of these three BLAS calls for supernodes of at most SMALL_K
  * columns), and for each update pair p of s (ancestor t, W columns pa[p] .. pb[p] owned by t)
  * the subtraction of W[i, j] (i >= j) from t's panel at column rows(s, k + j) - c0[t] and local
- * row rel[relptr[p] + i - pa[p]]. Returns 0, or 1 + s for a pivot of supernode s that is not
- * positive.
+ * row rel[relptr[p] + i - pa[p]] (runs of bs consecutive rows from pa[p]). Returns 0, or 1 + s
+ * for a pivot of supernode s that is not positive.
  *
  * solve: y (n x nrhs, column-major, permuted) <- L^-T L^-1 y. */
 #define PY_SSIZE_T_CLEAN
@@ -125,10 +125,15 @@ static void *arr(PyObject *o, int type, i64 len, const char *what, i64 *size) {
 static PyObject *factor(PyObject *self, PyObject *args) {
     PyObject *oLx, *odata, *oamap, *oc0, *ok, *om, *opx, *orows, *orptr, *opptr, *opt, *opa,
         *opb, *orelptr, *orel;
-    Py_ssize_t wsize;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOn", &oLx, &odata, &oamap, &oc0, &ok, &om, &opx,
-                          &orows, &orptr, &opptr, &opt, &opa, &opb, &orelptr, &orel, &wsize))
+    Py_ssize_t wsize, bs;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOnn", &oLx, &odata, &oamap, &oc0, &ok, &om,
+                          &opx, &orows, &orptr, &opptr, &opt, &opa, &opb, &orelptr, &orel,
+                          &wsize, &bs))
         return NULL;
+    if (bs < 1) {
+        PyErr_SetString(PyExc_ValueError, "bs must be positive");
+        return NULL;
+    }
     i64 nx, ne, ns, np_;
     double *Lx = arr(oLx, NPY_FLOAT64, -1, "Lx", &nx);
     double *data = Lx ? arr(odata, NPY_FLOAT64, -1, "data", &ne) : NULL;
@@ -188,7 +193,25 @@ static PyObject *factor(PyObject *self, PyObject *args) {
             for (i64 j = a; j < b; j++) {
                 double *dst = Pt + (below[j] - c0[t]) * mt;
                 const double *w = W + j * (i64)u;
-                for (i64 i = j; i < u; i++) dst[r[i]] -= w[i];
+                /* rows come in runs of bs consecutive local rows from a: the rest of j's run
+                 * one by one, then whole runs as contiguous vectors */
+                i64 i = j, end = j + (bs - (j - a) % bs);
+                for (; i < end; i++) dst[r[i]] -= w[i];
+                if (bs == 6)
+                    for (; i < u; i += 6) {
+                        double *d = dst + r[i];
+                        for (int q = 0; q < 6; q++) d[q] -= w[i + q];
+                    }
+                else if (bs == 3)
+                    for (; i < u; i += 3) {
+                        double *d = dst + r[i];
+                        for (int q = 0; q < 3; q++) d[q] -= w[i + q];
+                    }
+                else
+                    for (; i < u; i += bs) {
+                        double *d = dst + r[i];
+                        for (i64 q = 0; q < bs; q++) d[q] -= w[i + q];
+                    }
             }
         }
     }
@@ -260,8 +283,9 @@ static PyObject *solve(PyObject *self, PyObject *args) {
 
 static PyMethodDef methods[] = {
     {"factor", factor, METH_VARARGS,
-     "factor(Lx, data, amap, c0, k, m, px, rows, rptr, pptr, pt, pa, pb, relptr, rel, wsize)"
-     " -> 0, or 1 + the supernode whose pivot is not positive"},
+     "factor(Lx, data, amap, c0, k, m, px, rows, rptr, pptr, pt, pa, pb, relptr, rel, wsize, "
+     "bs) -> 0, or 1 + the supernode whose pivot is not positive"
+},
     {"solve", solve, METH_VARARGS,
      "solve(Lx, y, c0, k, m, px, rows, rptr, usize): y <- L^-T L^-1 y in place"},
     {NULL, NULL, 0, NULL}};

@@ -15,11 +15,12 @@ block first). The numeric factorisation is right-looking: scatter the matrix int
 diagonal block, ``trsm`` for the rows below, ``syrk`` for the update ``W = L21 L21^T``, and
 subtract ``W`` from the panels of its ancestors through precomputed relative row indices.
 With ``microlie-fast`` installed (``pip install "microlie[fast]"``) the whole loop is one C call
-on SciPy's own BLAS/LAPACK (``microlie_fast._chol``); without it, independent supernodes of a
-level of the supernodal elimination tree with equal shapes are factorised as one batch of
-NumPy's stacked ``cholesky``/``matmul`` and large ones one by one with SciPy's LAPACK wrappers.
-``MICROLIE_FAST=0`` keeps the NumPy loop. Both compute the same factor.
-"""
+on SciPy's own BLAS/LAPACK (``microlie_fast._chol``); without it, the supernodes of one level
+of the supernodal elimination tree (independent of each other) with equal shapes are
+factorised as one batch of NumPy's stacked ``cholesky``/``inv``/``matmul`` (a supernode alone
+in its batch with SciPy's LAPACK wrappers), and their updates are summed into the panels by
+``ufunc.at`` through precomputed flat maps. ``MICROLIE_FAST=0`` keeps the NumPy loop. Both
+compute the same factor (to rounding)."""
 
 from __future__ import annotations
 
@@ -188,14 +189,15 @@ class SupernodalSolver(LinearSolver):
 
     def factorize(self, data: np.ndarray) -> None:
         data = np.ascontiguousarray(data, dtype=np.float64)
-        Lx = np.zeros(self.nx + self.bs)  # the panels, then a dump block
         if self._c is not None:
+            Lx = np.empty(self.nx + self.bs)  # the panels, then a dump block (zeroed in C)
             info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
                                   self.rows, self.rptr, self.pptr, self.pt, self.pa,
-                                  self.pb, self.relptr, self.rel, self.wsize)
+                                  self.pb, self.relptr, self.rel, self.wsize, self.bs)
             if info:
                 raise SingularSystemError(_NOT_PD)
         else:
+            Lx = np.zeros(self.nx + self.bs)
             Lx[self.amap] = data
             self._factor_numpy(Lx)
         self.Lx = Lx
