@@ -367,7 +367,8 @@ def element_floats(arrays: Any) -> list[list[float]] | None:
     return None
 
 
-_TORCH_FLOATS = {"torch.float64": np.dtype(np.float64), "torch.float32": np.dtype(np.float32)}
+_TORCH_FLOATS: dict[str, Any] = {"torch.float64": np.dtype(np.float64),
+                                 "torch.float32": np.dtype(np.float32)}
 
 
 def empty_like_rows(like: Array, n: int, k: int) -> Array:
