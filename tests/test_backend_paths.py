@@ -130,6 +130,10 @@ def test_torch_single_elements_keep_autograd_and_transforms():
                                            torch.zeros(3, dtype=torch.float64))
     _, Jr = SO3.exp(tau[0], jac=True)
     np.testing.assert_allclose(J.numpy(), Jr, atol=1e-12)
+    # float16 (no float path): tensor operations, float16 out, within float16 rounding
+    h = SO3.exp(torch.tensor(tau[2], dtype=torch.float16)).params
+    assert h.dtype == torch.float16
+    np.testing.assert_allclose(h.double().numpy(), SO3.exp(tau[2]).params, atol=2e-3)
     # torch.func: vmap and jacrev over single-element code
     with torch.no_grad():
         batch = torch.func.vmap(lambda x: SO3.exp(x).params)(torch.tensor(tau))
