@@ -1136,11 +1136,11 @@ class LieGroup:
         >>> bool(np.allclose(Jp, X.rotation().matrix())), JX.shape
         (True, (3, 6))
         """
-        p = self.params
         if not jac:
             q = self._one_act(self, points)
             if q is not None:
                 return q
+        p = self.params
         v = A.as_float_array(points, like=p)
         A.check_last_dim(v, self.point_dim, "points")
         A.check_finite(v, "points")
