@@ -4,7 +4,8 @@
     python benchmarks/groups.py --quick              # smoke test (small N, few repeats)
     python benchmarks/groups.py --peers scipy gtsam  # a subset of peers
     python benchmarks/groups.py --peers-only         # peers without microlie
-    python benchmarks/groups.py --backends jax,torch --peers jaxlie-jit pypose
+    python benchmarks/groups.py --backends jax,torch --peers jaxlie-jit pypose \
+        --out benchmarks/results/groups-jax-torch-latest.md  # microlie on JAX / torch vs peers
     python benchmarks/groups.py --out results.md     # also write the markdown table
     python benchmarks/groups.py --before-after 93dbac9 --n 100000 \
         --out benchmarks/results/kernels-latest.md   # this checkout against an older commit
@@ -133,7 +134,8 @@ def log(msg: str) -> None:
 class Cell:
     """One library's result for one (group, op, regime)."""
 
-    value: float | None = None  # µs per call (single) or ns per element (batch)
+    value: float | None = None  # µs per call (single) or ns per element (batch): the median
+    spread: float = 0.0  # interquartile range of the rounds relative to the median
     n: int = 0
     note: str = ""  # footnote text for a timed value (e.g. Python loop)
     na: str = ""  # why there is no value (unsupported, failed check, error)
@@ -385,7 +387,8 @@ def compare_with_numpy(lib, ref_micro, op, inp, out) -> str:
 
 
 def time_cases(timing_mod, cases: dict, regime: str, args) -> dict:
-    """Time prepared cases of one (group, op, regime) round-robin; name -> value or Exception.
+    """Time prepared cases of one (group, op, regime) round-robin; name -> (median value,
+    relative interquartile range) or Exception.
 
     single: loop count calibrated per case to ~50 ms (5 ms with --quick), 7 rounds (3);
     batch: one call per round, 5 rounds, or 3 when the warm-up call took over a second (2).
@@ -411,9 +414,9 @@ def time_cases(timing_mod, cases: dict, regime: str, args) -> dict:
         if isinstance(st, Exception):
             out[name] = st
         elif regime == "single":
-            out[name] = st.median * 1e6
+            out[name] = (st.median * 1e6, st.spread())
         else:
-            out[name] = st.median / cases[name].n * 1e9
+            out[name] = (st.median / cases[name].n * 1e9, st.spread())
     return out
 
 
@@ -450,7 +453,7 @@ def render(results, libs, skipped, groups, ops, regimes, args, header_lines) -> 
         if c.value is None:
             short = "N/A" if c.na.startswith("N/A") else ("FAILED" if "FAIL" in c.na else "ERROR")
             return f"{short} {mark(c.na)}"
-        return fmt_num(c.value) + (f" {mark(c.note)}" if c.note else "")
+        return fmt_num(c.value) + f" ±{50 * c.spread:.0f}%" + (f" {mark(c.note)}" if c.note else "")
 
     regime_label = {
         "single": "single (µs/call)",
@@ -506,8 +509,9 @@ def render(results, libs, skipped, groups, ops, regimes, args, header_lines) -> 
         out.append("## microlie on JAX and PyTorch vs the peer on the same array library")
         out.append("")
         out.append(
-            "microlie-jax-jit: `jax.jit` of microlie's op on float64 JAX arrays (elements are "
-            "pytree arguments/results), compiled before timing, `block_until_ready`; "
+            "microlie-jax-jit: `jax.jit` of microlie's op on float64 JAX arrays, compiled before "
+            "timing, `block_until_ready`; raw arrays in and out of the jitted function on both "
+            "sides (elements built inside: `G.from_params(p, check=False)` as jaxlie's `G(p)`); "
             "microlie-torch: microlie's op on float64 CPU tensors, `torch.set_num_threads("
             f"{args.threads})`, autograd disabled (as for PyPose). "
             + ("The microlie column is the NumPy backend, for reference. " if have_micro else "")
@@ -600,7 +604,8 @@ def environment_lines(libs, args, loads: list[float]) -> list[str]:
         f"- single: µs per call, median of {args.repeat or (3 if args.quick else 7)} rounds of a "
         "calibrated loop; batch: ns per element for one call on N elements, median of "
         f"{args.repeat or ('2' if args.quick else '3-5')} rounds; libraries alternate "
-        "round-robin within each row",
+        "round-robin within each row; ±: half the interquartile range of the rounds, relative "
+        "to the median",
         f"- load average (1 min): {loads[0]:.2f} at start, {min(loads):.2f}-{max(loads):.2f} "
         f"while timing (sampled after each row), {_load():.2f} at end; {os.cpu_count()} cores "
         "shared with other processes: compare numbers within one run",
@@ -711,7 +716,28 @@ def before_after(args) -> int:
                 rows.append((group, op, regime, st["before"], st["after"], scale, unit))
                 log(f"  {group:5s} {op:12s} {regime:6s} before {st['before'].median * scale:9.3f}"
                     f"  after {st['after'].median * scale:9.3f} {unit}")
-    report = _ba_render(rows, bad, args, n, rounds, loads)
+    # the goal ratio measured directly: minus and minus(jac=True) of this checkout alternate in
+    # the same rounds (the table's rows are timed minutes apart on a loaded machine)
+    goal = {}
+    for group in args.groups or BA_GROUPS:
+        if args.ops and not {"minus", "minus_jac"} <= set(args.ops):
+            break
+        G = getattr(new, group)
+        X, Y = G(G.random((n,), rng=rng).params), G(G.random((n,), rng=rng).params)
+        wall: dict[str, list[float]] = {"minus": [], "jac": []}
+        cpu: dict[str, list[float]] = {"minus": [], "jac": []}
+        for _ in range(3 * rounds):  # wall and CPU (process) time of each call
+            for key, jac in (("minus", False), ("jac", True)):
+                w, c = time.perf_counter(), time.process_time()
+                X.minus(Y, jac=jac)
+                cpu[key].append(time.process_time() - c)
+                wall[key].append(time.perf_counter() - w)
+        goal[group] = tuple(float(np.median(t["jac"]) / np.median(t["minus"]))
+                            for t in (wall, cpu))
+        loads.append(_load())
+        log(f"  {group:5s} minus_jac / minus alternating: wall {goal[group][0]:.2f}, "
+            f"cpu {goal[group][1]:.2f}")
+    report = _ba_render(rows, bad, args, n, rounds, loads, goal)
     print(report)
     if args.out:
         with open(args.out, "w") as f:
@@ -720,13 +746,17 @@ def before_after(args) -> int:
     return 1 if bad else 0
 
 
-def _ba_render(rows, bad, args, n, rounds, loads) -> str:
+def _ba_render(rows, bad, args, n, rounds, loads, goal) -> str:
     med = {(g, op, r): (b.median * sc, a.median * sc) for g, op, r, b, a, sc, _ in rows}
     lines = [
         f"# microlie before/after: {args.before_after} vs this checkout "
         f"({microlie_source()})", "",
-        f"Command: `python benchmarks/groups.py --before-after {args.before_after} --n {n}`"
-        + (" --quick" if args.quick else ""), "",
+        "Command: `" + "".join(f"{k}={os.environ[k]} " for k in (
+            "MICROLIE_FAST", "MICROLIE_CACHE_MB", "OPENBLAS_NUM_THREADS") if k in os.environ)
+        + f"python benchmarks/groups.py --before-after {args.before_after} --n {n}"
+        + (" --quick" if args.quick else "")
+        + "".join(f" --{k} {' '.join(getattr(args, k))}" for k in ("groups", "ops", "regimes")
+                  if getattr(args, k)) + "`", "",
         f"- single: us per call (one element); batch: ns per element at N = {n:,}",
         f"- median of {rounds} interleaved rounds (before/after alternate in each round); "
         "spread = interquartile range / median",
@@ -743,7 +773,9 @@ def _ba_render(rows, bad, args, n, rounds, loads) -> str:
         if (g, "minus", "batch") in med and (g, "minus_jac", "batch") in med:
             ratio = med[(g, "minus_jac", "batch")][1] / med[(g, "minus", "batch")][1]
             lines.append(f"- {g}: minus(jac=True) / minus() at N = {n:,}: {ratio:.2f} "
-                         "(goal <= 2.5)")
+                         "(goal <= 2.5)" + (f"; the two alternating in {3 * rounds} rounds: "
+                                            f"{goal[g][0]:.2f} wall time, {goal[g][1]:.2f} CPU "
+                                            "time" if g in goal else ""))
     if ("Sim3", "jr", "batch") in med and ("SE3", "jr", "batch") in med:
         ratio = med[("Sim3", "jr", "batch")][1] / med[("SE3", "jr", "batch")][1]
         lines.append(f"- Sim3.jr / SE3.jr at N = {n:,}: {ratio:.2f} (goal <= 2)")
@@ -880,8 +912,10 @@ def main(argv: list[str] | None = None) -> int:
                         log(f"  {lib.name:12s} {group} {op:8s} {regime:6s} {msg}")
                         continue
                     case = cases[lib.name]
-                    results[key] = Cell(value=value, n=case.n, note=case.note)
-                    log(f"  {lib.name:12s} {group} {op:8s} {regime:6s} {fmt_num(value):>8s} {unit}")
+                    value, spread = value
+                    results[key] = Cell(value=value, spread=spread, n=case.n, note=case.note)
+                    log(f"  {lib.name:12s} {group} {op:8s} {regime:6s} {fmt_num(value):>8s} {unit}"
+                        f"  (IQR {100 * spread:.0f}%)")
                 del cases, timed
 
     report = render(
@@ -909,6 +943,7 @@ def main(argv: list[str] | None = None) -> int:
                 "op": k[2],
                 "regime": k[3],
                 "value": c.value,
+                "spread": c.spread,
                 "n": c.n,
                 "note": c.note,
                 "na": c.na,

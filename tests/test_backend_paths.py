@@ -1,7 +1,7 @@
 """The JAX and torch evaluation paths of the kernel layer give the NumPy numbers.
 
-Every kernel of every group is evaluated on hard inputs (angles 0, 1e-12, 1e-6, near and exactly
-pi; Sim3 scale exponent 0) on three paths that NumPy does not take:
+Kernels are evaluated on hard inputs (``test_kernels.hard_inputs``: angles 0, 1e-12, 1e-6, near
+and exactly pi; Sim3 scale exponent 0) on paths that NumPy does not take:
 
 * ``jax.jit`` on a batch large enough that a common factor times a vector (``ops.times``) is
   assembled as one broadcast product (``_kernels._stack_blocks``);
@@ -16,36 +16,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import GROUPS, require, tangent_with_angle
+from test_kernels import hard_inputs as kernel_hard_inputs
 
-from microlie import SO3, Sim3
+from microlie import SO3
 from microlie import _array as A
 from microlie import _kernels as K
 
-HARD = (0.0, 1e-12, 1e-6, 0.7, 2.0, np.pi - 1e-6, np.pi)
-PER_ANGLE = 12  # 7 x 12 = 84 elements: above _array.BLOCK_MIN
+TILE = 5  # 5 copies of test_kernels' 18 hard inputs: 90 elements, above _array.BLOCK_MIN
 
 
-def hard_inputs(k: K.Kernel, rng: np.random.Generator, per: int = PER_ANGLE) -> list:
+def hard_inputs(k: K.Kernel, rng: np.random.Generator, tile: int = TILE) -> list:
     """float64 inputs of kernel ``k`` at the hard angles (and scale exponent 0 for Sim3)."""
-    G = k.group
-    taus = np.concatenate([tangent_with_angle(G, rng, th, per) for th in HARD])
-    if G is Sim3:
-        taus[::2, 6] = 0.0
-    out = []
-    for kind in k.ins:
-        if kind == "t":
-            x = taus
-        elif kind == "p":
-            x = G.exp(taus).params
-        elif kind == "v":
-            x = rng.standard_normal((len(taus), G.point_dim)) * 10.0
-        elif kind == "m":
-            x = G.exp(taus).matrix().reshape(len(taus), -1)
-        else:
-            raise AssertionError(f"unknown input kind {kind!r} of {k.name}")
-        taus = rng.permutation(taus)  # pair different hard inputs in binary kernels
-        out.append(np.ascontiguousarray(x, dtype=np.float64))
-    return out
+    return [np.tile(x, (tile, 1)) for x in kernel_hard_inputs(k, np.float64, rng)]
 
 
 def kernels_of(G) -> list[K.Kernel]:
@@ -79,7 +61,7 @@ USES_BLOCKS = ("SO3.exp", "SO3.log", "SO3.plus", "SO3.minus", "SO3.exp_jac", "SE
 
 @pytest.mark.parametrize("name", JITTED)
 def test_jax_jit_batches_equal_numpy(name, monkeypatch):
-    """``jax.jit`` of a kernel on 84 hard inputs equals the NumPy kernel."""
+    """``jax.jit`` of a kernel on 90 hard inputs equals the NumPy kernel."""
     jax = require("jax")
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
@@ -106,7 +88,7 @@ def test_small_jitted_batches_and_single_elements_stack_columns(monkeypatch):
     stack_blocks = K._stack_blocks
     monkeypatch.setattr(K, "_stack_blocks", lambda *a: calls.append(1) or stack_blocks(*a))
     k = K.KERNELS["SO3.exp"]
-    x = hard_inputs(k, np.random.default_rng(2), per=1)[0]
+    x = hard_inputs(k, np.random.default_rng(2), tile=1)[0]
     assert len(x) < A.BLOCK_MIN
     f = jax.jit(lambda t: K.run(k, t))
     assert_same(f(jnp.asarray(x)), K.run(k, x), 1e-12, "SO3.exp small batch")
@@ -121,7 +103,7 @@ def test_torch_single_elements_equal_numpy(G):
     torch = require("torch")
     rng = np.random.default_rng(3)
     for k in kernels_of(G):
-        ins = hard_inputs(k, rng, per=1)
+        ins = hard_inputs(k, rng, tile=1)
         for i in range(len(ins[0])):
             one = [x[i] for x in ins]
             for dt, ndt in ((torch.float64, np.float64), (torch.float32, np.float32)):
@@ -148,6 +130,10 @@ def test_torch_single_elements_keep_autograd_and_transforms():
                                            torch.zeros(3, dtype=torch.float64))
     _, Jr = SO3.exp(tau[0], jac=True)
     np.testing.assert_allclose(J.numpy(), Jr, atol=1e-12)
+    # float16 (no float path): tensor operations, float16 out, within float16 rounding
+    h = SO3.exp(torch.tensor(tau[2], dtype=torch.float16)).params
+    assert h.dtype == torch.float16
+    np.testing.assert_allclose(h.double().numpy(), SO3.exp(tau[2]).params, atol=2e-3)
     # torch.func: vmap and jacrev over single-element code
     with torch.no_grad():
         batch = torch.func.vmap(lambda x: SO3.exp(x).params)(torch.tensor(tau))

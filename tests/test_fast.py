@@ -95,11 +95,13 @@ def _row_error(g, w, single: bool) -> float:
 
 
 def test_compiled_kernels_agree_with_the_generic_kernels():
-    """float64 against the generic kernel; float32 (computed in float64, rounded once) against
-    the generic kernel in float64 on the same float32 inputs, so within a few float32 ulps (the
-    generic float32 kernel is no reference: its float32 intermediates cancel, e.g. Y X^-1 of two
-    equal Sim3 elements with translations of 3e7 and scale e^20 comes out 0.5 off, one float32
-    ulp of the translation)."""
+    """float64 against the generic kernel (1e-13); float32 (computed in float64, rounded once)
+    against the compiled kernel's own float64 result on the same inputs (a few float32 ulps)
+    and against the generic float64 kernel on them (1e-5: float32 inputs are not exactly unit
+    quaternions, on which equivalent formulas differ, e.g. Sim3 minus_jac by 2.4e-6). The
+    generic float32 kernel is no reference: its float32 intermediates cancel (Y X^-1 of two equal
+    Sim3 elements with translations of 3e7 and scale e^20 comes out 0.5 off, one float32 ulp of
+    the translation)."""
     K, names = _compiled()
     rng = np.random.default_rng(11)
     for name in names:
@@ -117,17 +119,21 @@ def test_compiled_kernels_agree_with_the_generic_kernels():
                     ref = K.run(k, *[x.astype(np.float64) for x in case])
                 finally:
                     k.impl = impl
+                same = K.run(k, *[x.astype(np.float64) for x in case])  # compiled, float64
                 got = got if isinstance(got, tuple) else (got,)
                 want = want if isinstance(want, tuple) else (want,)
                 ref = ref if isinstance(ref, tuple) else (ref,)
-                for g, w, r in zip(got, want, ref, strict=True):
+                same = same if isinstance(same, tuple) else (same,)
+                for g, w, r, c in zip(got, want, ref, same, strict=True):
                     assert g.dtype == w.dtype == dtype and g.shape == w.shape, name
                     what = f"{name} {np.dtype(dtype).name} {g.shape}"
                     if dtype == np.float64:
                         assert (e := _row_error(g, w, single)) <= 1e-13, f"{what}: {e:.2e}"
                     else:
+                        e = _row_error(g, c, single)
+                        assert e <= 3e-7, f"{what} vs its float64 result: {e:.2e}"
                         e = _row_error(g, r, single)
-                        assert e <= 3e-7, f"{what} vs float64: {e:.2e}"
+                        assert e <= 1e-5, f"{what} vs the generic float64 one: {e:.2e}"
 
 
 def test_compiled_kernels_are_used_by_the_classes():

@@ -153,6 +153,14 @@ def test_compiled_reduce_rejects_bad_arguments():
         m.blocks(Jc, Jp, r, st.cam, st.pt, 2, 5)
     with pytest.raises(ValueError, match="r has length"):
         m.blocks(Jc, Jp, r[:-1], st.cam, st.pt, 3, 5)
+    dc = np.zeros((3, 9))
+    ci = np.ones((6, 5))
+    dp, y = m.back(Jc, Jp, dc, st.cam, st.pt, ne.gp, ci, np.zeros(5, bool))
+    assert dp.shape == (5, 3) and y.shape == (len(cam), 2) and not y.any()
+    with pytest.raises(ValueError, match="Ci has length"):
+        m.back(Jc, Jp, dc, st.cam, st.pt, ne.gp, np.ones((6, 4)), np.zeros(5, bool))
+    with pytest.raises(ValueError, match="held must be a C-contiguous"):
+        m.back(Jc, Jp, dc, st.cam, st.pt, ne.gp, ci, np.zeros(5))
 
 
 def test_bundle_adjustment_ends_at_the_same_cost_with_and_without_it(monkeypatch):

@@ -359,11 +359,16 @@ def plain_tensors(arrays: Any) -> bool:
 
 
 def element_floats(arrays: Any) -> list[list[float]] | None:
-    """The values of single elements (1-D :func:`plain_tensors`) as lists of Python floats, or
-    ``None``."""
-    if all(a.ndim == 1 for a in arrays) and plain_tensors(arrays):
+    """The values of single elements (1-D float32/float64 :func:`plain_tensors`) as lists of
+    Python floats, or ``None``."""
+    if all(a.ndim == 1 for a in arrays) and plain_tensors(arrays) \
+            and str(arrays[0].dtype) in _TORCH_FLOATS:
         return [a.tolist() for a in arrays]
     return None
+
+
+_TORCH_FLOATS: dict[str, Any] = {"torch.float64": np.dtype(np.float64),
+                                 "torch.float32": np.dtype(np.float32)}
 
 
 def empty_like_rows(like: Array, n: int, k: int) -> Array:
@@ -391,17 +396,12 @@ def _functorch_wrapped(x: Array) -> bool:
     return bool(torch._C._functorch.is_functorch_wrapped_tensor(x))
 
 
-_TORCH_TO_NUMPY: dict[Any, Any] = {}
-
-
 def floats_like(values: Any, like: Array) -> Array:
-    """Python floats (a tuple, or a tuple of rows) as a fresh CPU tensor of ``like``'s dtype."""
+    """Python floats (a tuple, or a tuple of rows) as a fresh CPU tensor of ``like``'s dtype
+    (float32 or float64)."""
     import torch
 
-    dt = _TORCH_TO_NUMPY.get(like.dtype)
-    if dt is None:
-        dt = _TORCH_TO_NUMPY[like.dtype] = torch.empty(0, dtype=like.dtype).numpy().dtype
-    return torch.from_numpy(np.array(values, dtype=dt))
+    return torch.from_numpy(np.array(values, dtype=_TORCH_FLOATS[str(like.dtype)]))
 
 
 def _torch_compiling(x: Array) -> bool:

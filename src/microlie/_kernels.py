@@ -331,11 +331,11 @@ def _stack_blocks(xp: Any, arrays: list, blocks: dict) -> Array:
 # zeroes it), as much as computing it. Large outputs therefore come from a small pool of blocks
 # that stay mapped: a block is handed out again once no array refers to it any more (its
 # reference count is back to the pool's own), so a live result never shares memory with a new
-# one. Outputs below ``_POOL_MIN`` bytes use NumPy's allocator. The pool holds at most
+# one. Outputs below ``_POOL_MIN`` bytes (4 MB) use NumPy's allocator. The pool holds at most
 # MICROLIE_CACHE_MB megabytes (default 256; 0 disables it); the compiled kernels keep their own
 # (MICROLIE_FAST_CACHE_MB).
 
-_POOL_MIN = 1 << 20
+_POOL_MIN = 1 << 22  # 4 MB: below, NumPy (glibc) reuses freed memory as well
 _POOL_SLOTS = 16
 
 

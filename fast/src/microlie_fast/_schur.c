@@ -29,7 +29,7 @@ static PyArrayObject *arg(PyObject *o, const char *name, int t, int nd, const ix
     if (!PyArray_Check(o) || PyArray_TYPE((PyArrayObject *)o) != t ||
         PyArray_NDIM((PyArrayObject *)o) != nd || !PyArray_IS_C_CONTIGUOUS((PyArrayObject *)o)) {
         PyErr_Format(PyExc_ValueError, "%s must be a C-contiguous %s array with %d axes",
-                     name, t == NPY_DOUBLE ? "float64" : "intp", nd);
+                     name, t == NPY_DOUBLE ? "float64" : t == NPY_BOOL ? "bool" : "intp", nd);
         return NULL;
     }
     PyArrayObject *a = (PyArrayObject *)o;
@@ -306,7 +306,85 @@ static PyObject *blocks_(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     return res;
 }
 
+/* back(Jc, Jp, dc, cam, pt, gp, Ci, held) -> (dp, y): the back substitution of the points,
+ * y (n, 2) = Jc_a dc_(cam a) per observation, w = gp + sum Jp^T y per point (0 where held),
+ * dp (np, 3) = -V^-1 w = -Ci^T Ci w */
+static PyObject *back_(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 8) {
+        PyErr_Format(PyExc_TypeError, "back: expected 8 arguments, got %zd", nargs);
+        return NULL;
+    }
+    ix any3[3] = {-1, 2, -1};
+    PyArrayObject *jc = arg(args[0], "Jc", NPY_DOUBLE, 3, any3);
+    if (!jc) return NULL;
+    ix n = PyArray_DIM(jc, 0), d = PyArray_DIM(jc, 2);
+    ix djp[3] = {n, 2, 3}, ddc[2] = {-1, d}, dn[1] = {n}, dgp[2] = {-1, 3};
+    PyArrayObject *jp = arg(args[1], "Jp", NPY_DOUBLE, 3, djp);
+    PyArrayObject *dco = jp ? arg(args[2], "dc", NPY_DOUBLE, 2, ddc) : NULL;
+    PyArrayObject *cam = dco ? arg(args[3], "cam", NPY_INTP, 1, dn) : NULL;
+    PyArrayObject *pt = cam ? arg(args[4], "pt", NPY_INTP, 1, dn) : NULL;
+    PyArrayObject *gpo = pt ? arg(args[5], "gp", NPY_DOUBLE, 2, dgp) : NULL;
+    if (!gpo) return NULL;
+    ix nc = PyArray_DIM(dco, 0), np_ = PyArray_DIM(gpo, 0);
+    ix dci[2] = {6, np_}, dh[1] = {np_};
+    PyArrayObject *cio = arg(args[6], "Ci", NPY_DOUBLE, 2, dci);
+    PyArrayObject *ho = cio ? arg(args[7], "held", NPY_BOOL, 1, dh) : NULL;
+    if (!ho) return NULL;
+    const double *Jc = PyArray_DATA(jc), *Jp = PyArray_DATA(jp), *dc = PyArray_DATA(dco);
+    const double *gp = PyArray_DATA(gpo), *Ci = PyArray_DATA(cio);
+    const ix *C = PyArray_DATA(cam), *P = PyArray_DATA(pt);
+    const npy_bool *held = PyArray_DATA(ho);
+    for (ix a = 0; a < n; a++)
+        if (C[a] < 0 || C[a] >= nc || P[a] < 0 || P[a] >= np_) {
+            PyErr_SetString(PyExc_ValueError, "back: a camera or point index is out of range");
+            return NULL;
+        }
+    npy_intp dp_dims[2] = {np_, 3}, dy[2] = {n, 2};
+    PyObject *dpo = PyArray_SimpleNew(2, dp_dims, NPY_DOUBLE), *yo = PyArray_SimpleNew(2, dy, NPY_DOUBLE);
+    if (!dpo || !yo) {
+        Py_XDECREF(dpo); Py_XDECREF(yo);
+        return PyErr_NoMemory();
+    }
+    double *dp = PyArray_DATA((PyArrayObject *)dpo), *y = PyArray_DATA((PyArrayObject *)yo);
+    Py_BEGIN_ALLOW_THREADS
+    memcpy(dp, gp, sizeof(double) * 3 * (size_t)np_); /* w, accumulated in dp */
+    for (ix a = 0; a < n; a++) {
+        const double *j0 = Jc + 2 * (size_t)d * a, *j1 = j0 + d, *x = dc + (size_t)d * C[a];
+        double y0 = 0.0, y1 = 0.0;
+        for (ix k = 0; k < d; k++) {
+            y0 += j0[k] * x[k];
+            y1 += j1[k] * x[k];
+        }
+        y[2 * a] = y0;
+        y[2 * a + 1] = y1;
+        const double *q = Jp + 6 * a;
+        double *w = dp + 3 * P[a];
+        for (int i = 0; i < 3; i++) w[i] += q[i] * y0 + q[3 + i] * y1;
+    }
+    for (ix j = 0; j < np_; j++) {
+        double *w = dp + 3 * j;
+        if (held[j]) {
+            w[0] = w[1] = w[2] = 0.0;
+            continue;
+        }
+        double i00 = Ci[j], i10 = Ci[np_ + j], i11 = Ci[2 * np_ + j];
+        double i20 = Ci[3 * np_ + j], i21 = Ci[4 * np_ + j], i22 = Ci[5 * np_ + j];
+        double u0 = i00 * w[0], u1 = i10 * w[0] + i11 * w[1];
+        double u2 = i20 * w[0] + i21 * w[1] + i22 * w[2];
+        w[0] = -(i00 * u0 + i10 * u1 + i20 * u2);
+        w[1] = -(i11 * u1 + i21 * u2);
+        w[2] = -(i22 * u2);
+    }
+    Py_END_ALLOW_THREADS
+    PyObject *res = PyTuple_Pack(2, dpo, yo);
+    Py_DECREF(dpo); Py_DECREF(yo);
+    return res;
+}
+
 static PyMethodDef methods[] = {
+    {"back", (PyCFunction)(void (*)(void))back_, METH_FASTCALL,
+     "back(Jc, Jp, dc, cam, pt, gp, Ci, held) -> (dp, y): the back substitution of the points"},
     {"blocks", (PyCFunction)(void (*)(void))blocks_, METH_FASTCALL,
      "blocks(Jc, Jp, r, cam, pt, n_cameras, n_points) -> (V, gp, U, gc): the point and camera "
      "blocks and gradients of the normal equations"},

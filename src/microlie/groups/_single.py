@@ -8,17 +8,18 @@ parameters are a one-dimensional float64 NumPy array, and returns ``None`` for e
 caller falls through to the generic path, which keeps every check and error message.
 
 Each function runs the kernel's traced straight-line float code (:mod:`microlie._trace`, the
-same floating-point operations as the generic path), reads its inputs from the tuple of Python
-floats that single elements keep beside their read-only ``params`` (``LieGroup._floats``), and
-builds the output with one array and one object. The methods of :class:`~microlie.groups.base.
-LieGroup` call them as ``cls._one_<op>``; the compiled extra replaces the SO(3)/SE(3) ones with
-C functions of the same contract (:mod:`microlie._fast`).
+same floating-point operations as the generic path) on the Python floats that single elements
+keep beside their read-only ``params`` (``LieGroup._floats``). An output element is one object
+holding the result's floats; its ``params`` array is made when first read (so a chain of
+compositions builds no arrays). A tangent or point output is one fresh writable array. The
+methods of :class:`~microlie.groups.base.LieGroup` call them as ``cls._one_<op>``; the compiled
+extra replaces the SO(3)/SE(3) ones with C functions of the same contract
+(:mod:`microlie._fast`).
 """
 
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Callable
 from typing import Any
 
@@ -37,7 +38,6 @@ OPS: dict[str, tuple[str, str]] = {
 
 _F64 = np.dtype(np.float64)
 _ndarray = np.ndarray
-_frombuffer = np.frombuffer
 _array = np.array
 _isfinite = math.isfinite
 _new = object.__new__
@@ -50,7 +50,7 @@ def build(cls: Any) -> dict[str, Callable[..., Any]]:
     from .base import LieGroup
 
     slots = LieGroup.__dict__
-    return {op: _make(cls, op, slots["params"].__set__, slots["_floats"].__set__) for op in OPS}
+    return {op: _make(cls, op, slots["_params"].__set__, slots["_floats"].__set__) for op in OPS}
 
 
 def _floats_of(x: Any) -> list[float] | tuple[float, ...] | None:
@@ -63,78 +63,54 @@ def _floats_of(x: Any) -> list[float] | tuple[float, ...] | None:
 
 def _make(cls: Any, op: str, set_params: Callable[..., Any], set_floats: Callable[..., Any]
           ) -> Callable[..., Any]:
+    """The function of ``cls.op``, written out as straight-line code (one Python frame around
+    the traced formula: these functions are all overhead but the formula)."""
     kernel = cls._K[op]
     ins, out = OPS[op]
-    fn: Callable[..., Any] | None = None  # the traced function, made on first use
-    pack = struct.Struct(f"{cls.param_dim}d").pack
-    shape = {"t": cls._tshape, "v": cls._vshape}.get(ins[-1])
-    check = cls._range_check  # on tangent inputs and outputs (None: no limit)
-    finite = kernel.finite
-    to_element = out == "e"
+    ns: dict[str, Any] = {
+        "cls": cls, "ndarray": _ndarray, "F64": _F64, "isfinite": _isfinite, "FAIL": _FAIL,
+        "floats_of": _floats_of, "new": _new, "set_params": set_params, "set_floats": set_floats,
+        "array": _array, "check": cls._range_check,
+        "shape": {"t": cls._tshape, "v": cls._vshape}.get(ins[-1]),
+    }
 
-    def result(*lists: Any) -> Any:
-        """The output of the formula (None: let the generic path report the failure)."""
-        nonlocal fn
-        if fn is None:
-            fn = K.scalar_function(kernel)
-        try:
-            r = fn(*lists)
-        except _FAIL:
-            return None
-        if finite and not _isfinite(sum(r)):
-            return None
-        if to_element:
-            obj = _new(cls)
-            set_params(obj, _frombuffer(pack(*r)))
-            set_floats(obj, r)
-            return obj
-        a = _array(r, _F64)
-        if check is not None and out == "t":
-            check(a)
-        return a
+    def first_call(*lists: Any) -> Any:  # trace the formula on first use (not at import)
+        ns["fn"] = K.scalar_function(kernel)
+        return ns["fn"](*lists)
 
-    def vector(v: Any) -> list[float] | None:
-        """A tangent vector or point as floats, if it is one finite float64 NumPy vector."""
-        if type(v) is not _ndarray or v.dtype is not _F64 or v.shape != shape:
-            return None
-        vals: list[float] = v.tolist()
-        if not _isfinite(sum(vals)):
-            return None
-        if check is not None and ins[-1] == "t":
-            check(v)
-        return vals
-
-    def one_t(tau: Any) -> Any:
-        t = vector(tau)
-        return None if t is None else result(t)
-
-    def one_e(x: Any) -> Any:
-        a = x._floats
-        if a is None and (a := _floats_of(x)) is None:
-            return None
-        return result(a)
-
-    def one_ee(x: Any, y: Any) -> Any:
-        if type(y) is not cls:
-            return None
-        a, b = x._floats, y._floats
-        if a is None and (a := _floats_of(x)) is None:
-            return None
-        if b is None and (b := _floats_of(y)) is None:
-            return None
-        return result(a, b)
-
-    def one_e_vector(x: Any, v: Any) -> Any:  # an element and a tangent vector or a point
-        a = x._floats
-        if a is None and (a := _floats_of(x)) is None:
-            return None
-        b = vector(v)
-        return None if b is None else result(a, b)
-
-    variants: dict[str, Callable[..., Any]] = {"t": one_t, "e": one_e, "ee": one_ee}
-    one = variants.get(ins, one_e_vector)
-    one.__name__ = one.__qualname__ = f"{cls.__name__}_one_{op}"
-    return one
+    ns["fn"] = first_call
+    names = {"t": ["v"], "e": ["x"], "ee": ["x", "y"]}.get(ins, ["x", "v"])
+    body = []
+    for i, (kind, name) in enumerate(zip(ins, names, strict=True)):
+        floats = "ab"[i]
+        if kind == "e":
+            if i:
+                body.append(f"if type({name}) is not cls: return None")
+            body += [f"{floats} = {name}._floats",
+                     f"if {floats} is None and ({floats} := floats_of({name})) is None: "
+                     "return None"]
+        else:
+            body += [f"if type({name}) is not ndarray or {name}.dtype is not F64 "
+                     f"or {name}.shape != shape: return None",
+                     f"{floats} = {name}.tolist()",
+                     f"if not isfinite(sum({floats})): return None"]
+            if kind == "t" and cls._range_check is not None:
+                body.append(f"check({name})")
+    body += ["try:", f"    r = fn({', '.join('ab'[:len(ins)])})", "except FAIL: return None"]
+    if kernel.finite:
+        body.append("if not isfinite(sum(r)): return None")
+    if out == "e":
+        body += ["obj = new(cls)", "set_params(obj, None)", "set_floats(obj, r)", "return obj"]
+    else:
+        body.append("out = array(r, F64)")
+        if out == "t" and cls._range_check is not None:
+            body.append("check(out)")
+        body.append("return out")
+    src = f"def one({', '.join(names)}):\n" + "".join(f"    {line}\n" for line in body)
+    exec(compile(src, f"<single-element {cls.__name__}.{op}>", "exec"), ns)
+    fn: Callable[..., Any] = ns["one"]
+    fn.__name__ = fn.__qualname__ = f"{cls.__name__}._one_{op}"
+    return fn
 
 
 def use_compiled(one: Any) -> list[str]:
@@ -144,7 +120,7 @@ def use_compiled(one: Any) -> list[str]:
     from .. import groups
     from .base import LieGroup
 
-    one.setup(LieGroup.__dict__["params"], LieGroup.__dict__["_floats"], groups.SO3, groups.SE3)
+    one.setup(LieGroup.__dict__["_params"], LieGroup.__dict__["_floats"], groups.SO3, groups.SE3)
     done = []
     for name, fns in one.OPS.items():
         cls = getattr(groups, name)

@@ -22,6 +22,7 @@ Exp/Log, plus/minus and the group action), as in manif.
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Iterator, Sequence
 from math import factorial
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, overload
@@ -240,9 +241,20 @@ class LieGroup:
     _one_plus: ClassVar[Callable[..., Any]]
     _one_minus: ClassVar[Callable[..., Any]]
 
-    __slots__ = ("params", "_floats")
-    params: Array
+    __slots__ = ("_params", "_floats")
+    _params: Array | None  # None: made from _floats on first use
     _floats: list[float] | tuple[float, ...] | None  # a single float64 element's params
+
+    @property
+    def params(self) -> Array:
+        """The parameters, ``(*batch, param_dim)`` (read-only for NumPy)."""
+        p = self._params
+        if p is None:  # a single element of the fast path: its array made on first use
+            f = self._floats
+            assert f is not None
+            p = _frombuffer(_PACK[len(f)](*f))
+            _set_params(self, p)
+        return p
 
     # ------------------------------------------------------------------ construction
     def __init__(self, params: Any, *, normalize: bool = False) -> None:
@@ -1124,11 +1136,11 @@ class LieGroup:
         >>> bool(np.allclose(Jp, X.rotation().matrix())), JX.shape
         (True, (3, 6))
         """
-        p = self.params
         if not jac:
             q = self._one_act(self, points)
             if q is not None:
                 return q
+        p = self.params
         v = A.as_float_array(points, like=p)
         A.check_last_dim(v, self.point_dim, "points")
         A.check_finite(v, "points")
@@ -1546,7 +1558,9 @@ def _unpickle(cls: type[LieGroup], params: Array) -> LieGroup:
     return cls.from_params(params, check=False)
 
 
-_set_params = LieGroup.__dict__["params"].__set__
+_set_params = LieGroup.__dict__["_params"].__set__
+_frombuffer = np.frombuffer
+_PACK = {n: struct.Struct(f"{n}d").pack for n in range(1, 33)}
 _set_floats = LieGroup.__dict__["_floats"].__set__
 _F64 = np.dtype(np.float64)
 _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))

@@ -337,11 +337,14 @@ class Sim3(Pose):
         phi, kl, aw = so3.quat_log_parts(o, q)
         sigma = o.log(s)
         t2 = M.norm2(*phi)
-        k, ch = 1.0 / kl, aw
+        # sin(t/2)/t and cos(t/2) of the normalised quaternion: consistent with each other when
+        # |q| is off 1 by rounding (float32 inputs), which the cancelling W coefficients need
+        m = o.sqrt(M.norm2(*q))
+        k, ch = 1.0 / (kl * m), aw / m
         co = coefficients(o, sigma, t2, k, ch, derivatives=True)
         W, (E, sinc, h, _, _) = co[0], co[1]
         Wi = poly_inv(W, t2)
-        rho = poly_apply(Wi, phi, t)  # as Sim3._log
+        rho = poly_apply(Wi, phi, t)  # as Sim3._log (which takes |q| = 1)
         Mphi, msig = _w_rho_slopes(rho, phi, co)
         A = poly_matrix(poly_mul(Wi, (E, E * sinc, E * h), t2), phi, t2)  # e^sigma W^-1 R
         Ji, mJit = so3.jr_inv_pair_c(so3.coef_c(o, t2, k, ch), phi, t2)

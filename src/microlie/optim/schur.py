@@ -470,6 +470,15 @@ class NormalEquations:
         t2 = time.perf_counter()
         # back substitution: dp = -V^-1 (gp + Jp^T Jc dc)
         dc = dc.reshape(nc, d)
+        fast = _fast()
+        if fast is not None:
+            held = np.zeros(st.n_points, bool) if fp is None else np.ascontiguousarray(fp, bool)
+            dp, y = fast.back(np.ascontiguousarray(self.Jc), np.ascontiguousarray(self.Jp),
+                              np.ascontiguousarray(dc), st.cam, st.pt, np.ascontiguousarray(gp),
+                              np.ascontiguousarray(np.stack([i00, i10, i11, i20, i21, i22])),
+                              held)
+            self._jc_dc = (dc, y)
+            return self._timed(t0, t1, t2, dc, dp)
         y = np.matmul(self.Jc, np.take(dc, st.cam, axis=0)[:, :, None])[:, :, 0]
         self._jc_dc = (dc, y)
         z = np.einsum("rin,nr->ni", jp, y)
@@ -481,6 +490,10 @@ class NormalEquations:
         u1 = i10 * w0 + i11 * w1
         u2 = i20 * w0 + i21 * w1 + i22 * w2
         dp = -np.stack([i00 * u0 + i10 * u1 + i20 * u2, i11 * u1 + i21 * u2, i22 * u2], 1)
+        return self._timed(t0, t1, t2, dc, dp)
+
+    def _timed(self, t0: float, t1: float, t2: float, dc: np.ndarray, dp: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
         t3 = time.perf_counter()
         tm = self.timings
         tm["schur_form"] = tm.get("schur_form", 0.0) + t1 - t0
