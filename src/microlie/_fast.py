@@ -19,10 +19,25 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["install", "installed", "installed_single", "text_parser"]
+__all__ = ["compiled", "install", "installed", "installed_single", "text_parser"]
 
 _installed: list[str] = []
 _single: list[str] = []
+_modules: dict[str, Any] = {}
+
+
+def compiled(name: str) -> Any:
+    """The compiled module ``microlie_fast.<name>`` (``"_graph"``, ``"_chol"``, ``"_schur"``,
+    ``"_text"``), or ``None``: ``MICROLIE_FAST=0`` (read on every call), microlie-fast not
+    installed, or a build older than that module."""
+    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
+        return None
+    if name not in _modules:
+        try:
+            _modules[name] = importlib.import_module(f"microlie_fast.{name}")
+        except ImportError:
+            _modules[name] = None
+    return _modules[name]
 
 
 def install() -> list[str]:
@@ -63,8 +78,7 @@ def installed_single() -> list[str]:
 def text_parser() -> Callable[..., Any] | None:
     """The compiled reader of numeric text tables, ``microlie_fast._text.parse_table``
     (used by :mod:`microlie.traj.io`), or ``None`` (not installed, or ``MICROLIE_FAST=0``)."""
-    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
-        return None
+    return getattr(compiled("_text"), "parse_table", None)
     try:
         return importlib.import_module("microlie_fast._text").parse_table
     except (ImportError, AttributeError):  # not installed, or an older build without it

@@ -24,8 +24,6 @@ compute the same factor (to rounding)."""
 
 from __future__ import annotations
 
-import importlib
-import os
 from typing import Any
 
 import numpy as np
@@ -33,6 +31,7 @@ import scipy.sparse as sp  # type: ignore[import-untyped]
 from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
 from scipy.sparse.csgraph import depth_first_order  # type: ignore[import-untyped]
 
+from .._fast import compiled as compiled_module
 from .linear import LinearSolver, SingularSystemError, block_graph, splu_symmetric
 
 __all__ = ["SupernodalSolver"]
@@ -46,12 +45,7 @@ _NOT_PD = ("the linear system is not positive definite (a pivot of the Cholesky 
 
 def _compiled() -> Any:
     """The compiled supernode loop (``microlie_fast._chol``) or ``None``."""
-    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
-        return None
-    try:
-        return importlib.import_module("microlie_fast._chol")
-    except ImportError:
-        return None
+    return compiled_module("_chol")
 
 
 class SupernodalSolver(LinearSolver):

@@ -15,17 +15,15 @@ True
 
 from __future__ import annotations
 
-import importlib
-import os
 from typing import Any
 
 import numpy as np
 
+from .._fast import compiled as compiled_module
 from .factors import BetweenFactor, Factor
 
 __all__ = ["available", "EdgePlan", "plan"]
 
-_module: Any = None
 # the groups with a compiled BetweenFactor loop: class name -> kernel prefix
 _KERNELS = {"SE3": "se3", "SE2": "se2"}
 
@@ -33,15 +31,7 @@ _KERNELS = {"SE3": "se3", "SE2": "se2"}
 def _graph() -> Any:
     """``microlie_fast._graph``, or ``None`` (not installed, an older build, or
     ``MICROLIE_FAST=0``)."""
-    global _module
-    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
-        return None
-    if _module is None:
-        try:
-            _module = importlib.import_module("microlie_fast._graph")
-        except ImportError:
-            _module = False
-    return _module or None
+    return compiled_module("_graph")
 
 
 def available() -> bool:

@@ -24,8 +24,6 @@ backend's ordering), which exists to compare against and to test the elimination
 
 from __future__ import annotations
 
-import importlib
-import os
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -33,6 +31,8 @@ from typing import Any, Literal
 import numpy as np
 import scipy.linalg as sla  # type: ignore[import-untyped]
 import scipy.sparse as sp  # type: ignore[import-untyped]
+
+from .._fast import compiled as compiled_module
 
 __all__ = ["SchurStructure", "NormalEquations", "LinearSolverKind", "LINEAR_SOLVERS"]
 
@@ -49,16 +49,10 @@ _fast_module: Any = None
 
 def _fast() -> Any:
     """``microlie_fast._schur``, or ``None`` (not installed, an older build, or
-    ``MICROLIE_FAST=0``)."""
-    global _fast_module
-    if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
-        return None
-    if _fast_module is None:
-        try:
-            _fast_module = importlib.import_module("microlie_fast._schur")
-        except ImportError:
-            _fast_module = False
-    return _fast_module or None
+    ``MICROLIE_FAST=0``); ``_fast_module`` set to a module or ``False`` forces a path."""
+    if _fast_module is not None:
+        return _fast_module or None
+    return compiled_module("_schur")
 
 
 class SchurStructure:
