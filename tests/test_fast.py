@@ -16,6 +16,9 @@ import numpy as np
 import pytest
 from conftest import require, tangent_with_angle
 
+import microlie as ml
+from microlie.groups import _single
+
 ROOT = Path(__file__).resolve().parents[1]
 HARD = (0.0, 1e-12, 1e-7, 1e-4, 0.7, 3.0, np.pi - 1e-6, np.pi)
 
@@ -243,3 +246,23 @@ def test_output_cache_limit_from_the_environment_is_validated():
     env["MICROLIE_FAST_CACHE_MB"] = "lots"
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert r.returncode != 0 and "MICROLIE_FAST_CACHE_MB must be a whole number" in r.stderr
+
+
+def test_compiled_one_element_functions_are_in_use():
+    """With the extra, SO3/SE3 single elements run the C functions of ``microlie_fast._one``
+    (moved here from test_single.py, whose every test runs on two implementations)."""
+    if os.environ.get("MICROLIE_FAST") == "0":
+        pytest.skip("MICROLIE_FAST=0: the Python functions only")
+    one = require("microlie_fast._one")
+    from microlie import _fast
+
+    names = {f"{g}.{op}" for g in ("SO3", "SE3") for op in _single.OPS}
+    assert set(_fast.installed_single()) == names
+    for name in names:
+        g, op = name.split(".")
+        assert getattr(getattr(ml, g), f"_one_{op}") is getattr(one, f"{g.lower()}_{op}")
+    X = ml.SE3.random(rng=0)
+    with pytest.raises(TypeError, match="expected 2 arguments"):
+        one.se3_compose(X)
+    assert type(X @ X) is ml.SE3 and (X @ X)._floats is None  # built in C
+    assert sorted(one.OPS) == ["SE3", "SO3"] and sorted(one.OPS["SE3"]) == sorted(_single.OPS)

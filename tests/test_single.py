@@ -4,11 +4,9 @@ everything else, and indistinguishable from the generic path in values and in er
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
-from conftest import GROUPS, hard_elements, require
+from conftest import GROUPS, hard_elements
 from scipy.linalg import expm
 
 import microlie as ml
@@ -223,26 +221,6 @@ def test_a_long_chain_matches_the_generic_path(monkeypatch):
     for s in step_list:
         Y = Y @ s
     np.testing.assert_allclose(X.params, Y.params, rtol=0, atol=1e-13)
-
-
-def test_compiled_one_element_functions_are_in_use(implementation):
-    if implementation != "installed":
-        pytest.skip("the compiled functions are the installed ones")
-    if os.environ.get("MICROLIE_FAST") == "0":
-        pytest.skip("MICROLIE_FAST=0: the Python functions only")
-    one = require("microlie_fast._one")
-    from microlie import _fast
-
-    names = {f"{g}.{op}" for g in ("SO3", "SE3") for op in OPS}
-    assert set(_fast.installed_single()) == names
-    for name in names:
-        g, op = name.split(".")
-        assert getattr(getattr(ml, g), f"_one_{op}") is getattr(one, f"{g.lower()}_{op}")
-    X = ml.SE3.random(rng=0)
-    with pytest.raises(TypeError, match="expected 2 arguments"):
-        one.se3_compose(X)
-    assert type(X @ X) is ml.SE3 and (X @ X)._floats is None  # built in C
-    assert sorted(one.OPS) == ["SE3", "SO3"] and sorted(one.OPS["SE3"]) == sorted(OPS)
 
 
 def test_unusual_layouts_fall_back_or_are_read_correctly():
