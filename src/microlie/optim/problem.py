@@ -321,7 +321,7 @@ class Problem:
         keep = dest >= 0
         self._sum = sp.csr_matrix((np.ones(int(keep.sum())), (dest[keep], np.flatnonzero(keep))),
                                   shape=(self.nnz + self.size, dest.size))
-        self._work: dict[int, tuple[np.ndarray, ...]] = {}
+        self._work: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def _dest(self, a, b, da, db, uniq, pbase, pos, nn):
         """Positions in the CSC data of block ``(a, b)`` (``da x db``, row-major) per factor;
