@@ -128,3 +128,26 @@ def test_linearisations_do_not_share_memory(numpy_path):
     again = p.linearize(s0, out=b)
     np.testing.assert_array_equal(again.data, a_data)
     np.testing.assert_array_equal(again.grad, a_grad)
+
+
+@pytest.mark.parametrize("loss", [None, "huber:0.5"])
+def test_jacobians_kept_by_a_trial_cost(numpy_path, loss):
+    """``costs(states, keep=True)`` keeps the whitened Jacobians for ``linearize`` of the same
+    list: the same numbers as a fresh linearisation, and never stale ones for another list."""
+    fg = _graph(np.random.default_rng(9), loss=loss)
+    p = Problem(fg.variables, fg.factors, "check")
+    fresh = Problem(fg.variables, fg.factors, "check")
+    s0 = [v.initial for v in p.variables]
+    s1 = p.retract(s0, 0.1 * np.random.default_rng(2).standard_normal(p.size))
+    for st in (s0, s1):
+        ref = fresh.linearize(st)
+        assert p.costs(st, keep=True) == fresh.costs(st)
+        p.costs(s1 if st is s0 else s0)  # a plain cost elsewhere leaves the kept arrays alone
+        got = p.linearize(st)
+        np.testing.assert_array_equal(got.data, ref.data)
+        np.testing.assert_array_equal(got.grad, ref.grad)
+        assert (got.cost, got.robust_cost) == (ref.cost, ref.robust_cost)
+    p.costs(s0, keep=True)
+    other = [s.copy() for s in s1]  # another list: evaluated afresh
+    np.testing.assert_array_equal(p.linearize(other).data, fresh.linearize(s1).data)
+    np.testing.assert_array_equal(p.linearize(s0).data, fresh.linearize(s0).data)

@@ -39,6 +39,9 @@ class Factor:
     """
 
     args: list[tuple[Variables, np.ndarray]]
+    #: whether :meth:`evaluate` with Jacobians costs little more than without (a solver then
+    #: evaluates them at a trial point already, for the linearisation that follows)
+    jacobians_with_residuals: bool = False
     dim: int
     noise: NoiseModel
     loss: RobustLoss | None
@@ -202,6 +205,8 @@ class PriorFactor(Factor):
     125.0
     """
 
+    jacobians_with_residuals = True
+
     def __init__(self, variables: Variables, idx: Any, Z: Any, noise: NoiseModel | None = None,
                  loss: RobustLoss | str | None = None) -> None:
         self._setup([(variables, idx)], variables.dof, noise, loss, "PriorFactor")
@@ -256,6 +261,8 @@ class BetweenFactor(Factor):
     >>> bool(np.allclose(res.values[x][1].matrix(), Z.matrix()))
     True
     """
+
+    jacobians_with_residuals = True
 
     def __init__(self, variables: Variables, i: Any, j: Any, Z: Any,
                  noise: NoiseModel | None = None, loss: RobustLoss | str | None = None) -> None:

@@ -322,6 +322,7 @@ class Problem:
         self._sum = sp.csr_matrix((np.ones(int(keep.sum())), (dest[keep], np.flatnonzero(keep))),
                                   shape=(self.nnz + self.size, dest.size))
         self._work: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._held: list[np.ndarray] | None = None  # the states whose [A e] the work arrays hold
 
     def _dest(self, a, b, da, db, uniq, pbase, pos, nn):
         """Positions in the CSC data of block ``(a, b)`` (``da x db``, row-major) per factor;
@@ -538,13 +539,18 @@ class Problem:
             return r @ L.T
         return np.einsum("mij,mj->mi", L, r)
 
-    def costs(self, states: list[np.ndarray]) -> tuple[float, float]:
+    def costs(self, states: list[np.ndarray], keep: bool = False) -> tuple[float, float]:
         """The plain cost ``0.5 sum |e|^2`` and the robust cost ``0.5 sum rho(|e|^2)``.
 
         Parameters
         ----------
         states : list of numpy.ndarray
             The parameters of each variable batch, in graph order.
+        keep : bool
+            Also evaluate the whitened Jacobians of the factors whose Jacobians come with
+            their residuals (:attr:`Factor.jacobians_with_residuals`) and keep them for the
+            next :meth:`linearize` of this same list (which must not be changed in between):
+            what a solver does at a trial point it expects to accept.
 
         Returns
         -------
@@ -561,19 +567,36 @@ class Problem:
         >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
         >>> p = g.problem()
         >>> states = [v.initial for v in p.variables]
-        >>> p.costs(states)
-        (1.0, 1.0)
+        >>> p.costs(states), p.costs(states, keep=True)
+        ((1.0, 1.0), (1.0, 1.0))
         """
         c = rc = 0.0
-        for f, pl in zip(self.factors, self.plans, strict=True):
+        if keep:
+            self._held = None
+        for fi, (f, pl) in enumerate(zip(self.factors, self.plans, strict=True)):
             if pl is not None:
                 s = pl.cost(states)
+            elif keep and f.jacobians_with_residuals:
+                e = self._whitened_system(fi, states)
+                s = np.einsum("mi,mi->m", e, e)
             else:
                 e = self.whiten(f, np.asarray(f.evaluate(self.gather(f, states), False)))
                 s = np.einsum("mi,mi->m", e, e)
             c += 0.5 * float(s.sum())
             rc += 0.5 * float((f.loss.rho(s) if f.loss is not None else s).sum())
+        if keep:
+            self._held = states
         return c, rc
+
+    def _whitened_system(self, fi: int, states: list[np.ndarray]) -> np.ndarray:
+        """Fill factor ``fi``'s work arrays at ``states``: ``K = [J_1 ... J_K r]``
+        ``(m, dim, D + 1)`` and, in one product, ``A = L K = [A e]``; returns the view ``e``."""
+        f = self.factors[fi]
+        K, A, _ = self._buffers(fi)
+        D = K.shape[2] - 1
+        K[:, :, D] = f.evaluate_into(self.gather(f, states), K[:, :, :D])
+        np.matmul(f.noise.sqrt_info, K, out=A)
+        return A[:, :, D]
 
     def linearize(self, states: list[np.ndarray], out: Linearization | None = None
                   ) -> Linearization:
@@ -612,6 +635,7 @@ class Problem:
         cost = rcost = 0.0
         t_lin = t_prod = t_fused = 0.0
         numpy_any = False
+        held, self._held = self._held is states, None
         for fi, (f, pl) in enumerate(zip(self.factors, self.plans, strict=True)):
             if pl is not None:
                 continue
@@ -619,10 +643,10 @@ class Problem:
             ta = time.perf_counter()
             K, A, M = self._buffers(fi)
             D = K.shape[2] - 1
-            # K = [J_1 ... J_K r] (m, d, D + 1); whitened in one product: A = L K = [A e]
-            K[:, :, D] = f.evaluate_into(self.gather(f, states), K[:, :, :D])
-            np.matmul(f.noise.sqrt_info, K, out=A)
-            e = A[:, :, D]
+            if held and f.jacobians_with_residuals:  # kept by costs(states, keep=True)
+                e = A[:, :, D]
+            else:
+                e = self._whitened_system(fi, states)
             s = np.einsum("mi,mi->m", e, e)
             cost += 0.5 * float(s.sum())
             if f.loss is not None:
