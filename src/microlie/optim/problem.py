@@ -537,6 +537,9 @@ class Problem:
         >>> p.whiten(p.factors[0], np.ones((1, 3))).tolist()  # unit noise
         [[1.0, 1.0, 1.0]]
         """
+        sc = f.noise.scales
+        if sc is not None:  # diagonal noise: a scale
+            return r * sc
         L = f.noise.sqrt_info
         if L.ndim == 2:
             return r @ L.T
@@ -598,7 +601,11 @@ class Problem:
         K, A, _ = self._buffers(fi)
         D = K.shape[2] - 1
         K[:, :, D] = f.evaluate_into(self.gather(f, states), K[:, :, :D])
-        np.matmul(f.noise.sqrt_info, K, out=A)
+        sc = f.noise.scales
+        if sc is None:
+            np.matmul(f.noise.sqrt_info, K, out=A)
+        else:  # diagonal noise: a scale of the rows
+            np.multiply(K, sc[..., :, None], out=A)
         return A[:, :, D]
 
     def linearize(self, states: list[np.ndarray], out: Linearization | None = None
