@@ -129,22 +129,32 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
         return (a, b, c), (E, sinc, h, k, ch)
     # c5 = -d cb / d t2, c6 = -d c4 / d t2
     c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, h, c4)
+    ad = a - d  # phi_1'
+    slopes = o.select(tiny, _slopes_at_zero, _slopes, sigma, z2, ws, wt, a, d, e, f, sinc, cos,
+                      h, k3, cb, c4, c5, c6, Pb, Qb, Pc, Qc)
+    return (a, b, c), (E, sinc, h, k, ch), (ad, *slopes), cb
+
+
+def _slopes(sigma: Any, z2: Any, ws: Any, wt: Any, a: Any, d: Any, e: Any, f: Any, sinc: Any,
+            cos: Any, h: Any, k3: Any, cb: Any, c4: Any, c5: Any, c6: Any, Pb: Any, Qb: Any,
+            Pc: Any, Qc: Any) -> tuple:
+    """``(b_s, c_s, b_t, c_t)`` of :func:`coefficients` away from ``sigma = theta = 0``: the
+    quotient rule on ``f = (sigma^2 P + t2 Q) / (sigma^2 + t2)``."""
     ht = c4 - 0.5 * cb  # d h / d t2 (and d sinc / d t2 = -k3, d cos / d t2 = -sinc / 2)
     k3t = 0.5 * (ht + c5)
     ad, de = a - d, d - 2.0 * e  # phi_1', phi_2'
-    zero = 0.0 * sigma
+    s2 = 2.0 * sigma
+    Db, Dc = (Pb - Qb) / z2, (Pc - Qc) / z2
+    bs = ws * (ad * sinc - de * cos) + wt * (2.0 * k3) + s2 * wt * Db
+    bt = ws * (d * (0.5 * sinc) - a * k3) + wt * (ht + s2 * k3t) - ws * Db
+    cs = ws * ((e - 3.0 * f) + ad * h - de * sinc) + wt * (cb - c4) + s2 * wt * Dc
+    ct = ws * (a * ht + d * k3) + wt * (sigma * (c6 - c5) - c5) - ws * Dc
+    return bs, cs, bt, ct
 
-    def slopes(P, Q, Ps, Qs, Pt, Qt, s0, t0):
-        D = (P - Q) / z2
-        fs = ws * Ps + wt * Qs + (2.0 * sigma) * wt * D
-        ft = ws * Pt + wt * Qt - ws * D
-        return o.where(tiny, s0 + zero, fs), o.where(tiny, t0 + zero, ft)
 
-    bs, bt = slopes(Pb, Qb, ad * sinc - de * cos, 2.0 * k3,
-                    d * (0.5 * sinc) - a * k3, ht + 2.0 * sigma * k3t, 1.0 / 3.0, -1.0 / 24.0)
-    cs, ct = slopes(Pc, Qc, (e - 3.0 * f) + ad * h - de * sinc, cb - c4,
-                    a * ht + d * k3, sigma * (c6 - c5) - c5, 1.0 / 8.0, -1.0 / 120.0)
-    return (a, b, c), (E, sinc, h, k, ch), (ad, bs, cs, bt, ct), cb
+def _slopes_at_zero(sigma: Any, *_: Any) -> tuple:
+    z = 0.0 * sigma
+    return z + 1.0 / 3.0, z + 1.0 / 8.0, z - 1.0 / 24.0, z - 1.0 / 120.0
 
 
 def w_coefficients(o: Any, sigma: Any, t2: Any) -> tuple[Any, Any, Any]:
@@ -225,21 +235,22 @@ def b_block(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple, u: t
             d: Any) -> tuple:
     """The block ``B = -W^-1 d(W rho)/d phi Jr^-1_SO3(phi)`` of Sim(3)'s ``Jr^-1``, written out.
 
-    ``wi`` are the coefficients of ``W^-1``, ``co = (b, c, b_t, c_t, b_s)`` those of ``W`` with
+    ``wi = (p0, p1, p2, p0 - t2 p2)`` are the coefficients of ``W^-1``, ``co = (b, c, b_t,
+    c_t, b_s)`` those of ``W`` with
     their derivatives (:func:`coefficients`), ``cj`` the ``hat(phi)^2`` coefficient of
     ``Jr^-1_SO3``, ``u = phi x rho``, ``d = phi . rho``. With ``hat(a) hat(b) = b a^T - (a.b) I``
     and ``F hat(rho) F = -d F`` (``F = hat(phi)``) every product reduces to
     ``B = U phi^T + beta_Pr phi rho^T + e I + hat(m)``, ``U = beta_rP rho + beta_uP u +
     beta_F2 d phi``, ``m = beta_H rho + beta_F d phi``, ``e = (beta_I - t2 beta_F2) d``.
     """
-    p0, p1, p2 = wi
+    p0, p1, p2, q0 = wi
     b, c, b_t, c_t, b_s = co
     ccj, bcj = c * cj, b * cj
     x1 = t2 * ccj + 0.5 * b - c
     x2 = 0.5 * c - bcj
     k2 = b + 2.0 * t2 * b_t  # = a_s - t2 c_s
     bH = p0 * (b + t2 * x2)
-    brP = b_s * (p0 - t2 * p2) + p1 * k2
+    brP = b_s * q0 + p1 * k2
     bPr = p0 * x1
     buP = p0 * (x2 - 2.0 * b_t) + b_s * p1 + p2 * k2
     bF = p1 * (x1 - b) + p2 * (t2 * (c - x2) - b) - p0 * c
@@ -385,15 +396,18 @@ class Sim3(Pose):
         (_, b, c), (a_s, b_s, c_s, b_t, c_t) = co[0], co[2]
         p0, p1, p2 = poly_inv(co[0], t2)  # W^-1
         rho = poly_apply((p0, p1, p2), phi, t)  # as Sim3._log (which takes |q| = 1)
-        cj = so3.coef_c(o, t2, k, ch)
+        cj = so3.coef_c_quat(o, t2, kl, aw)
         Ji, mJl = so3.jr_inv_pair_c(cj, phi, t2)  # Jr^-1_SO3 and F - Jr^-1_SO3 = -Jl^-1_SO3
         E, sinc, h = co[1][:3]
-        # A = f(P) = e^P W^-1 (W^-1 + P cancels for sigma << 0, and P - A for sigma >> 0)
-        A = poly_matrix(poly_mul((p0, p1, p2), (E, E * sinc, E * h), t2), phi, t2)
+        # A = f(P) = e^P W^-1 (= W^-1 + P, which cancels for sigma << 0, as P - A = -W^-1
+        # does for sigma >> 0), with e^P = E (I + sinc F + h F^2)
+        q0, cos = p0 - t2 * p2, 1.0 - t2 * h
+        A = poly_matrix((E * p0, E * (sinc * q0 + p1 * cos), E * (p0 * h + p1 * sinc + p2 * cos)),
+                        phi, t2)
         nWi = poly_matrix((-p0, -p1, -p2), phi, t2)
         d = M.dot(phi, rho)
         u = M.cross(phi, rho)
-        B = b_block((p0, p1, p2), (b, c, b_t, c_t, b_s), cj, t2, phi, rho, u, d)
+        B = b_block((p0, p1, p2, q0), (b, c, b_t, c_t, b_s), cj, t2, phi, rho, u, d)
         r0, r1, r2 = rho
         nB = ((-B[0][0], -r2 - B[0][1], r1 - B[0][2]),  # hat(rho) - B
               (r2 - B[1][0], -B[1][1], -r0 - B[1][2]),
