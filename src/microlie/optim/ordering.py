@@ -63,8 +63,32 @@ _CANDIDATES = 3
 
 
 def graph(indptr: np.ndarray, indices: np.ndarray, n: int, block_size: int = 1) -> Any:
-    """The symmetric adjacency of the block pattern (CSR, unit weights, no diagonal) of the
-    CSC pattern ``indptr, indices`` of an ``n x n`` matrix in blocks of ``block_size``."""
+    """The graph of a block pattern: the symmetric adjacency of its blocks.
+
+    Parameters
+    ----------
+    indptr, indices : numpy.ndarray
+        The CSC pattern of an ``n x n`` matrix.
+    n : int
+        The matrix size.
+    block_size : int
+        The unknowns come in dense blocks of that size (1 when it does not divide ``n``).
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix
+        ``(n // block_size, n // block_size)``, unit entries where two blocks meet, no
+        diagonal.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.ordering import graph
+    >>> H = sp.csc_matrix(np.kron(np.array([[1, 1, 0], [1, 1, 1], [0, 1, 1]]), np.ones((2, 2))))
+    >>> graph(H.indptr, H.indices, 6, 2).toarray().astype(int).tolist()
+    [[0, 1, 0], [1, 0, 1], [0, 1, 0]]
+    """
     bs = block_size if block_size > 0 and n % block_size == 0 else 1
     nb = n // bs
     cols = np.repeat(np.arange(n), np.diff(indptr)) // bs
@@ -100,8 +124,28 @@ def _splu(B: Any, spec: str) -> Any:
 
 
 def minimum_degree(A: Any) -> np.ndarray:
-    """Multiple minimum degree order (new -> old) of the graph ``A`` (SuperLU's
-    ``MMD_AT_PLUS_A`` on a Laplacian of it)."""
+    """Multiple minimum degree order of a graph (SuperLU's ``MMD_AT_PLUS_A`` on a Laplacian of
+    it).
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix
+        The symmetric adjacency (the diagonal and the values are ignored).
+
+    Returns
+    -------
+    numpy.ndarray
+        The order, new -> old (int64).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.ordering import minimum_degree
+    >>> star = sp.csr_matrix((np.ones(8), ([0, 0, 0, 0, 1, 2, 3, 4], [1, 2, 3, 4, 0, 0, 0, 0])))
+    >>> int(minimum_degree(star)[-1])  # the hub last: no fill
+    0
+    """
     n = A.shape[0]
     if n <= 2:
         return np.arange(n, dtype=np.int64)
@@ -155,10 +199,39 @@ def _cover(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def separator(A: Any) -> tuple[np.ndarray, np.ndarray] | None:
-    """A vertex separator of the connected graph ``A``: ``(sep, side)``, boolean masks, with
-    no edge between ``~sep & side`` and ``~sep & ~side``; ``None`` when the level structure
-    has no balanced cut (for example a clique)."""
+    """A vertex separator of a connected graph, from a level structure (see the module).
+
+    Parameters
+    ----------
+    A : scipy.sparse.csr_matrix
+        The symmetric adjacency, no diagonal, sorted indices (as :func:`graph` returns).
+
+    Returns
+    -------
+    tuple of numpy.ndarray or None
+        ``(sep, side)``, boolean masks: no edge joins ``~sep & side`` and ``~sep & ~side``,
+        and each holds at least a quarter of the vertices minus the separator when the level
+        structure allows; ``None`` when it has no cut leaving both sides non-empty (for
+        example a clique).
+
+    Raises
+    ------
+    ValueError
+        ``A`` is not connected.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.ordering import separator
+    >>> path = sp.diags([np.ones(8), np.ones(8)], [-1, 1], shape=(9, 9)).tocsr()
+    >>> sep, side = separator(path)
+    >>> np.flatnonzero(sep).tolist()  # one vertex near the middle cuts a path
+    [4]
+    """
     n = A.shape[0]
+    if connected_components(A, directed=False)[0] > 1:
+        raise ValueError("separator needs a connected graph (order the components apart)")
     deg = np.diff(A.indptr)
     d = _peripheral(A, deg)
     nlev = int(d.max()) + 1
@@ -199,11 +272,40 @@ def separator(A: Any) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def nested_dissection(A: Any, leaf_size: int = LEAF_SIZE) -> np.ndarray:
-    """Nested-dissection order (new -> old) of the graph ``A`` (symmetric adjacency): both
-    sides of a vertex separator (:func:`separator`) first, recursively, the separator last;
-    pieces of at most ``leaf_size`` vertices by minimum degree, with the piece's neighbours
-    outside it (ordered later) joined into one clique and then dropped, which keeps the
-    piece's boundary late, as a constrained minimum degree would."""
+    """Nested-dissection order of a graph: each connected component apart; in a piece larger
+    than ``leaf_size``, both sides of a vertex separator (:func:`separator`) first,
+    recursively, the separator last; a piece of at most ``leaf_size`` vertices by minimum
+    degree, with its neighbours outside it (all ordered later) joined into a clique and then
+    dropped, which keeps the piece's boundary late, as a constrained minimum degree would.
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix
+        The symmetric adjacency (the diagonal and the values are ignored).
+    leaf_size : int
+        Pieces of at most this many vertices are not split (``leaf_size >= n``: minimum
+        degree).
+
+    Returns
+    -------
+    numpy.ndarray
+        The order, new -> old (int64).
+
+    Raises
+    ------
+    ValueError
+        ``leaf_size`` is not positive.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.ordering import nested_dissection
+    >>> path = sp.diags([np.ones(8), np.ones(8)], [-1, 1], shape=(9, 9))
+    >>> p = nested_dissection(path, leaf_size=3)
+    >>> int(p[-1]), sorted(p[:4].tolist())  # the middle vertex last, after a half
+    (4, [0, 1, 2, 3])
+    """
     if leaf_size < 1:
         raise ValueError(f"leaf_size must be positive, got {leaf_size}")
     A = _clean(A)
@@ -258,14 +360,37 @@ def _leaf(A: Any, ids: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Symbolic:
-    """The symbolic Cholesky factor of a graph under an ordering.
+    """The symbolic Cholesky factor of a graph under an order (returned by :func:`symbolic`
+    and :func:`fill_order`).
 
-    ``perm`` is the order (new -> old) in which ``L`` is stored: the requested one, or an
-    equivalent postorder of it (same fill); ``L`` the lower-triangular pattern with the
-    diagonal (CSC, may miss entries that cancelled exactly: see
-    :func:`microlie.optim.cholesky`); ``counts`` the column counts with the diagonal;
-    ``nnz`` their sum; ``flops`` ``sum(counts**2)``, the multiply-adds of the factorisation
-    up to lower-order terms; ``height`` the height of the elimination tree."""
+    Attributes
+    ----------
+    perm : numpy.ndarray
+        The order (new -> old) in which ``L`` is stored: the requested one, or an equivalent
+        postorder of it (the same fill).
+    L : scipy.sparse.csc_matrix
+        The lower-triangular pattern with the diagonal, sorted (SuperLU's numeric factor of
+        a Laplacian: an entry that cancelled exactly may be missing; the supernodal solver
+        closes the pattern).
+    counts : numpy.ndarray
+        The column counts of ``L``, diagonal included.
+    nnz : int
+        Their sum.
+    flops : float
+        ``sum(counts**2)``: the multiply-adds of the factorisation up to lower-order terms.
+    height : int
+        The height of the elimination tree (the longest chain of dependent columns).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.ordering import symbolic
+    >>> path = sp.diags([np.ones(3), np.ones(3)], [-1, 1], shape=(4, 4))
+    >>> s = symbolic(path, np.arange(4))
+    >>> s.counts.tolist(), s.nnz, s.flops, s.height
+    ([2, 2, 2, 1], 7, 13.0, 4)
+    """
 
     perm: np.ndarray
     L: Any
@@ -276,8 +401,34 @@ class Symbolic:
 
 
 def symbolic(A: Any, perm: np.ndarray) -> Symbolic:
-    """The factor of the graph ``A`` under the order ``perm`` (new -> old), from SuperLU's
-    factorisation of a Laplacian of ``A[perm][:, perm]`` in its natural order."""
+    """The symbolic Cholesky factor of a graph under an order, from SuperLU's factorisation
+    of a Laplacian of ``A[perm][:, perm]`` in its natural order.
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix
+        The symmetric adjacency (the diagonal and the values are ignored).
+    perm : array_like of int
+        The order, new -> old.
+
+    Returns
+    -------
+    Symbolic
+
+    Raises
+    ------
+    ValueError
+        ``perm`` is not a permutation of the vertices.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.ordering import symbolic
+    >>> star = sp.csr_matrix((np.ones(6), ([0, 0, 0, 1, 2, 3], [1, 2, 3, 0, 0, 0])))
+    >>> symbolic(star, [0, 1, 2, 3]).nnz, symbolic(star, [1, 2, 3, 0]).nnz  # hub first fills
+    (10, 7)
+    """
     perm = np.asarray(perm, dtype=np.int64)
     n = A.shape[0]
     if perm.shape != (n,) or not np.array_equal(np.sort(perm), np.arange(n)):
@@ -301,14 +452,43 @@ def symbolic(A: Any, perm: np.ndarray) -> Symbolic:
 
 
 def fill_order(A: Any, method: str = "auto") -> Symbolic:
-    """The symbolic factor of the graph ``A`` under the ordering ``method``: ``"mmd"``
-    (:func:`minimum_degree`), ``"nd"`` (:func:`nested_dissection`), or ``"auto"``: of the
-    minimum-degree order and the nested dissections with leaves of ``LEAF_SIZE`` and of
-    60% of the vertices (one or two levels of separators), the one with the fewest
-    factorisation flops (:attr:`Symbolic.flops`; minimum degree on ties).
+    """The fill-reducing order of the supernodal Cholesky, with its symbolic factor.
 
-    On the pose graphs of ``benchmarks/orderings.py`` minimum degree has the fewest flops
-    or is within 3% of them; on 3-D meshes nested dissection halves them."""
+    ``"mmd"``: :func:`minimum_degree`; ``"nd"``: :func:`nested_dissection`; ``"auto"``: of
+    the minimum-degree order and the nested dissections with leaves of ``LEAF_SIZE`` (256)
+    and of 60% of the vertices (one or two levels of separators), the one with the fewest
+    factorisation flops (:attr:`Symbolic.flops`; minimum degree on ties). On the pose graphs
+    of ``benchmarks/orderings.py`` minimum degree has the fewest flops or is within 3% of
+    the best; on 3-D meshes nested dissection has half as many.
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix
+        The symmetric adjacency (the diagonal and the values are ignored).
+    method : str
+        ``"auto"``, ``"mmd"`` or ``"nd"``.
+
+    Returns
+    -------
+    Symbolic
+
+    Raises
+    ------
+    ValueError
+        Unknown ``method``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.ordering import fill_order
+    >>> P = sp.diags([np.ones(11), np.ones(11)], [-1, 1], shape=(12, 12))
+    >>> I = sp.eye(12)
+    >>> cube = sp.kron(sp.kron(P, I), I) + sp.kron(sp.kron(I, P), I) + sp.kron(sp.kron(I, I), P)
+    >>> nd, mmd = fill_order(cube, "nd"), fill_order(cube, "mmd")
+    >>> bool(nd.flops < 0.8 * mmd.flops), fill_order(cube).flops == nd.flops
+    (True, True)
+    """
     if method not in ORDERINGS:
         raise ValueError(f"unknown ordering {method!r}: expected one of {ORDERINGS}")
     A = _clean(A)
