@@ -262,7 +262,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                 finally:
                     lin.data[problem.diag_pos] = dg
                 if dx is not None:
-                    new, new_c, new_rc = _try(problem, cur, dx, tm)
+                    new, new_c, new_rc = _try(problem, cur, dx, tm, keep=solves == 1)
                     if new_rc < cur_rc:
                         accepted = True
                         lam = max(lam / o.lambda_factor, o.lambda_min)
@@ -274,7 +274,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         elif o.solver == "gn":
             solves += 1
             dx = _factor_solve(ls, lin.data, -lin.grad, tm, gn=True)
-            new, new_c, new_rc = _try(problem, cur, dx, tm)
+            new, new_c, new_rc = _try(problem, cur, dx, tm, keep=True)
             if new_rc < cur_rc:
                 accepted = True
             elif new_rc - cur_rc <= max(o.abs_tol, o.rel_tol * cur_rc):
@@ -283,6 +283,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                 stop = "the Gauss-Newton step did not decrease the cost"
         else:  # dogleg
             gn_dx = None
+            first = True
             g = lin.grad
             H = problem.matrix(lin.data)
             Hg = H @ g
@@ -294,7 +295,8 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                     gn_dx = _factor_solve(ls, lin.data, -g, tm, gn=True)
                 dx = _dogleg_step(gn_dx, sd, radius)
                 pred = -(float(g @ dx) + 0.5 * float(dx @ (H @ dx)))
-                new, new_c, new_rc = _try(problem, cur, dx, tm)
+                new, new_c, new_rc = _try(problem, cur, dx, tm, keep=first)
+                first = False
                 actual = cur_rc - new_rc
                 rho = actual / pred if pred > 0 else -1.0
                 step = float(np.linalg.norm(dx))
@@ -373,11 +375,15 @@ def _factor_solve(ls: LinearSolver, data: np.ndarray, b: np.ndarray, tm: _Timer,
         tm.t["solve"] += time.perf_counter() - t1
 
 
-def _try(problem: Problem, cur: list[np.ndarray], dx: np.ndarray, tm: _Timer) -> tuple:
+def _try(problem: Problem, cur: list[np.ndarray], dx: np.ndarray, tm: _Timer,
+         keep: bool) -> tuple:
+    """The trial point ``cur + dx`` and its costs; with ``keep`` (the first trial of an
+    iteration, usually accepted) the factors whose Jacobians come with their residuals keep
+    them for the linearisation at that point."""
     t0 = time.perf_counter()
     new = problem.retract(cur, dx)
     t1 = time.perf_counter()
-    c, rc = problem.costs(new)
+    c, rc = problem.costs(new, keep=keep)
     t2 = time.perf_counter()
     tm.t["retract"] += t1 - t0
     tm.t["cost"] += t2 - t1
