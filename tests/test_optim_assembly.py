@@ -151,3 +151,22 @@ def test_jacobians_kept_by_a_trial_cost(numpy_path, loss):
     other = [s.copy() for s in s1]  # another list: evaluated afresh
     np.testing.assert_array_equal(p.linearize(other).data, fresh.linearize(s1).data)
     np.testing.assert_array_equal(p.linearize(s0).data, fresh.linearize(s0).data)
+
+
+@pytest.mark.parametrize("solver", ["lm", "gn", "dogleg"])
+def test_solvers_give_the_same_run_with_and_without_kept_jacobians(numpy_path, monkeypatch,
+                                                                   solver):
+    from microlie.optim import factors
+
+    runs = []
+    for flag in (True, False):
+        monkeypatch.setattr(factors.BetweenFactor, "jacobians_with_residuals", flag)
+        monkeypatch.setattr(factors.PriorFactor, "jacobians_with_residuals", flag)
+        fg = _graph(np.random.default_rng(4), loss="huber:1.0")
+        res = fg.optimize(solver=solver, max_iter=20)
+        runs.append((res, [res.values.params(v) for v in fg.variables]))
+    (a, pa), (b, pb) = runs
+    assert a.iterations == b.iterations > 2
+    assert [h.cost for h in a.history] == [h.cost for h in b.history]
+    for u, v in zip(pa, pb, strict=True):
+        np.testing.assert_array_equal(u, v)
