@@ -17,7 +17,8 @@ Plan (made once per pattern by :class:`NumpyLoop`):
 - the update ``W = L21 L21^T`` of every member of a level is written into one buffer, and
   its lower block triangle subtracted from the ancestors' blocks by one ``ufunc.at`` per level
   through precomputed flat maps (``ufunc.at`` sums the contributions of several members to one
-  entry; in NumPy 2 it is also faster than a plain indexed subtraction).
+  entry; in NumPy 2 it is also faster than a plain indexed subtraction). With even ``bs`` the
+  maps move complex128 words (two entries each): the scatters are bound by memory traffic.
 
 Numeric factorisation (:meth:`NumpyLoop.factor`): per bucket either one batch of NumPy's
 stacked ``cholesky``/``inv`` (small ``K``, many members) or LAPACK's ``potrf``/``trtri`` per
@@ -102,6 +103,7 @@ class _Bucket:
         self.B: Any = None  # (G, K, U)
         self.Linv: Any = None  # (G, K, K), C order, L11^-1 (buckets of more than one)
         self.W: Any = None  # (G, U, U)
+        self.each: list[tuple[Any, Any, Any]] = []  # per member: L11 (F), its C view, Linv^T
         self.c: tuple[int, int] = (0, 0)  # its columns in the level's gathered columns
         self.r: tuple[int, int] = (0, 0)  # its rows in the level's gathered rows
 
@@ -165,6 +167,9 @@ class NumpyLoop:
         sid = np.repeat(np.flatnonzero(pad), cnt)
         c = np.arange(int(cnt.sum())) - np.repeat(np.r_[0, np.cumsum(cnt)][:-1], cnt) + k[sid]
         self._ones = dpos[sid] + c * K[sid] + c
+        # runs of bs entries move as complex128 words of two entries when bs is even (half
+        # the indices: the scatters are bound by memory traffic)
+        self.word = 2 if bs % 2 == 0 else 1
         self._assembly(s)
         self._updates(s, lev, wpos, nlev)
         self._solve_maps(s)
@@ -185,13 +190,28 @@ class NumpyLoop:
         return self._at(sid, rem // s.m[sid], rem % s.m[sid])
 
     def _assembly(self, s: Any) -> None:
-        """The map of the pattern's entries into :attr:`L` (the strict upper triangle to the
-        dump run)."""
+        """The map of the pattern's entries into :attr:`L`, the strict upper triangle to the
+        dump run: by runs of ``bs`` rows when the pattern is made of dense ``bs x bs`` blocks
+        (a run of the diagonal block also writes the unused upper part of ``L11``), in words
+        of :attr:`word` entries; else entry by entry."""
+        bs, nx, w = self.bs, s.nx, self.word
+        ip, ix = np.asarray(s.indptr), np.asarray(s.indices)
+        runs = ix.size % bs == 0 and bool(np.all(ip % bs == 0))
+        if runs and ix.size:
+            r = ix.reshape(-1, bs)
+            runs = bool(np.all(r[:, 0] % bs == 0) and np.all(r - r[:, :1] == np.arange(bs)))
         amap = s.amap
-        low = amap < s.nx
-        pos = np.full(amap.size, self.size, np.int64)
-        pos[low] = self._from_panel(s, amap[low])
-        self._amap = pos
+        if runs:
+            last = amap[bs - 1::bs]  # the run's last row is in the lower triangle if any is
+            low = last < nx
+            start = np.full(last.size, self.size, np.int64)
+            start[low] = self._from_panel(s, last[low]) - (bs - 1)
+            self._amap, self._aword = (start[:, None] // w + np.arange(bs // w)).ravel(), w
+        else:
+            low = amap < nx
+            pos = np.full(amap.size, self.size, np.int64)
+            pos[low] = self._from_panel(s, amap[low])
+            self._amap, self._aword = pos, 1
 
     def _updates(self, s: Any, lev: np.ndarray, wpos: np.ndarray, nlev: int) -> None:
         """Per level: the runs of ``bs`` entries of the members' ``W`` (lower block triangle)
@@ -218,12 +238,13 @@ class NumpyLoop:
         so = np.lexsort((dst, el))
         el, src, dst = el[so], src[so], dst[so]
         bounds = np.searchsorted(el, np.arange(nlev + 1))
-        run = np.arange(bs)
+        w = self.word
+        run = np.arange(bs // w)
         self._scatter: list[tuple[np.ndarray, np.ndarray]] = []
-        for level in range(nlev):
+        for level in range(nlev):  # in words
             sl = slice(bounds[level], bounds[level + 1])
-            self._scatter.append(((dst[sl, None] * bs + run).ravel(),
-                                  (src[sl, None] * bs + run).ravel()))
+            self._scatter.append(((dst[sl, None] * (bs // w) + run).ravel(),
+                                  (src[sl, None] * (bs // w) + run).ravel()))
 
     def _solve_maps(self, s: Any) -> None:
         """Per level, the gathered columns and rows of its buckets (padded ones: the zero row
@@ -261,6 +282,8 @@ class NumpyLoop:
                 b.B = L[d0 + G * Kb * Kb:d0 + G * Kb * (Kb + Ub)].reshape(G, Kb, Ub)
         for b, lo in self._lofs:
             b.Linv = self._Linv[lo:lo + b.G * b.K * b.K].reshape(b.G, b.K, b.K)
+            if not b.batched:
+                b.each = [(D.T, D, Li.T) for D, Li in zip(b.D, b.Linv, strict=True)]
         for bl in self.levels:
             w = 0
             for b in bl:
@@ -274,8 +297,12 @@ class NumpyLoop:
         L = self.L
         L.fill(0.0)
         L[self._ones] = 1.0
-        L[self._amap] = data
-        Wf = self._Wbuf
+        if self._aword == 2:
+            L.view(np.complex128)[self._amap] = data.view(np.complex128)
+        else:
+            L[self._amap] = data
+        Lw, Wf = (L.view(np.complex128), self._Wbuf.view(np.complex128)) if self.word == 2 \
+            else (L, self._Wbuf)
         potrf, trtri, trsm, syrk = lapack.dpotrf, lapack.dtrtri, blas.dtrsm, blas.dsyrk
         for bl, (dst, src) in zip(self.levels, self._scatter, strict=True):
             for b in bl:
@@ -296,14 +323,12 @@ class NumpyLoop:
                         trsm(1.0, DF, BF, side=1, lower=1, trans_a=1, overwrite_b=1)
                         syrk(1.0, BF, beta=0.0, c=b.W[0].T, lower=1, overwrite_c=1)
                     continue
-                else:
-                    Li = b.Linv
-                    for g in range(b.G):
-                        DF = D[g].T
+                else:  # L11 in place, then L11^T inverted in place in Linv's F view
+                    for DF, DT, LF in b.each:
                         if potrf(DF, lower=1, clean=1, overwrite_a=1)[1]:
                             raise SingularSystemError(NOT_PD)
-                        Li[g] = DF
-                        trtri(Li[g].T, lower=0, overwrite_c=1)
+                        LF[...] = DT
+                        trtri(LF, lower=0, overwrite_c=1)
                 if b.U:
                     B[...] = b.Linv @ B
                     if b.U >= _SYRK_U:  # half the flops of the batched product
@@ -312,7 +337,7 @@ class NumpyLoop:
                     else:
                         np.matmul(np.swapaxes(B, 1, 2), B, out=b.W)
             if dst.size:  # ufunc.at sums the contributions of several members to one entry
-                np.subtract.at(L, dst, Wf.take(src))
+                np.subtract.at(Lw, dst, Wf.take(src))
 
     def solve(self, y: np.ndarray) -> None:
         """Solve in place: ``y`` is ``(n + 2, nrhs)`` (the right-hand side in the factor's
