@@ -257,11 +257,11 @@ def main(argv=None) -> int:
                      f"{ratio(g, dflt) if fast else '(extra not installed)'} |")
     note = ("Breakdown of microlie's last run (ms): linearise (residuals, Jacobians and block "
             "products; with the compiled extra the SE(3) edges' scatter into the pattern is "
-            "inside it) / assemble (bincount scatter of the NumPy-path factors) / factorise "
-            "/ solve / cost (trial points) / other (damping, bookkeeping); 'setup' is the "
-            "graph's pattern and scatter plan, built once per graph, and 'analysis' the linear "
-            "solver's symbolic analysis, once per problem and backend, both before the timed "
-            "solve (like GTSAM's optimizer constructor, which is not timed either)")
+            "inside it) / assemble (the sum of the NumPy-path factors into the pattern) / "
+            "factorise / solve / cost (trial points) / other (damping, bookkeeping); 'setup' "
+            "is the graph's pattern and scatter plan, built once per graph, and 'analysis' the "
+            "linear solver's symbolic analysis, once per problem and backend, both before the "
+            "timed solve (like GTSAM's optimizer constructor, which is not timed either)")
     lines += [""] + breakdown(res, f"{note}; pass 1")
     if default_res:
         lines += [""] + breakdown(default_res, "Pass 2 (MICROLIE_FAST=0)")

@@ -93,6 +93,12 @@ def test_coef_c_slope_against_mpmath():
         got_c, got_s = so3.coef_c_slope(NUMPY, np.array([t2]), np.array([k]), np.array([ch]))
         want_s = float(mp.diff(c, mp.mpf(t2)))
         assert abs(float(got_c[0]) - float(c(mp.mpf(t2)))) <= 1e-15
+        # the same coefficient from a quaternion's kl = theta / |v| and |w| (not unit: the
+        # norm cancels)
+        th = mp.sqrt(mp.mpf(t2))
+        kl, aw = float(th / mp.sin(th / 2)), 1.0001 * float(mp.cos(th / 2))
+        got_q = so3.coef_c_quat(NUMPY, np.array([t2]), np.array([kl / 1.0001]), np.array([aw]))
+        assert abs(float(got_q[0]) - float(c(mp.mpf(t2)))) <= 1e-15
         # c' ~ 1/720 multiplies terms of order theta^2 |rho| theta: 5e-16 absolute is below
         # their rounding (the closed form just above SMALL2 = 1 keeps 2e-13 relative)
         assert abs(float(got_s[0]) - want_s) <= 5e-16

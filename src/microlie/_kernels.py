@@ -410,13 +410,24 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
             for s, m in zip(k.outs, soa, strict=True)]
     width = max((s[0] for s, m in zip(k.outs, soa, strict=True) if not m), default=0)
     buf = np.empty((width, CHUNK), dtype=dt) if width > _WIDE else None
+    # a constant component (a Python float: the structural zeros and ones of a Jacobian) of a
+    # component-major output is written once, for all rows; a later chunk rewrites its part
+    # only if it has anything else there
+    consts: list[dict[int, float]] = [{} for _ in k.outs]
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
         r = fn(NUMPY, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
                         for f in flats])
-        for res, out, shape, m in zip([r] if k._flat else r, outs, k.outs, soa, strict=True):
+        for res, out, shape, m, cst in zip([r] if k._flat else r, outs, k.outs, soa, consts,
+                                           strict=True):
             if m:
                 for j, c in enumerate(c for row in res for c in row):
+                    if type(c) is float:
+                        if cst.get(j) == c:
+                            continue
+                        if s == 0:
+                            out[j] = cst[j] = c
+                            continue
                     out[j, s:e] = c
             elif buf is not None and len(res) > _WIDE:
                 b = buf[:len(res), :e - s]

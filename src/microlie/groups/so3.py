@@ -62,6 +62,16 @@ def _c_series(t2: Any, k: Any, ch: Any) -> Any:
     return M.horner(t2, M.C_COT)
 
 
+def coef_c_quat(o: Any, t2: Any, kl: Any, aw: Any) -> Any:
+    """:func:`coef_c` from :func:`quat_log_parts`'s ``kl = theta / |v|`` and ``aw = |w|``:
+    ``ch / (2 k) = aw kl / 2`` (the norm of the quaternion cancels: no division by ``kl``)."""
+    return o.select(t2 < M.SMALL2, _c_series, _c_closed_quat, t2, kl, aw)
+
+
+def _c_closed_quat(t2: Any, kl: Any, aw: Any) -> Any:
+    return (1.0 - 0.5 * aw * kl) / (t2 + (t2 < M.SMALL2))  # safe substitute below SMALL2
+
+
 def coef_c_slope(o: Any, t2: Any, k: Any, ch: Any) -> tuple[Any, Any]:
     """:func:`coef_c` and its derivative in ``t2``,
     ``c' = (1 / (4 k^2) + ch / (2 k) - 2) / (2 t^4)`` (from ``c = (1 - h cot h) / (4 h^2)``,
@@ -229,9 +239,9 @@ def sym_pair(s: tuple, h: tuple) -> tuple[tuple, tuple]:
     ``S`` given as ``(s00, s11, s22, s01, s02, s12)``."""
     s00, s11, s22, s01, s02, s12 = s
     h0, h1, h2 = h
-    n0, n1, n2 = -h0, -h1, -h2
-    return (((s00, s01 - h2, s02 + h1), (s01 + h2, s11, s12 - h0), (s02 - h1, s12 + h0, s22)),
-            ((-s00, n2 - s01, h1 - s02), (h2 - s01, -s11, n0 - s12), (n1 - s02, h0 - s12, -s22)))
+    a01, a02, a12, a10, a20, a21 = s01 - h2, s02 + h1, s12 - h0, s01 + h2, s02 - h1, s12 + h0
+    return (((s00, a01, a02), (a10, s11, a12), (a20, a21, s22)),
+            ((-s00, -a10, -a20), (-a01, -s11, -a21), (-a02, -a12, -s22)))
 
 
 def jr_inv_pair_c(c: Any, w: tuple, t2: Any) -> tuple[tuple, tuple]:
@@ -410,7 +420,7 @@ class SO3(LieGroup):
         the quaternion (``sin(t/2)/t = 1/kl``, ``cos(t/2) = |w|``)."""
         phi, kl, aw = quat_log_parts(o, quat_mul(quat_conj(x), y))
         t2 = M.norm2(*phi)
-        return (phi, *jr_inv_pair_c(coef_c(o, t2, 1.0 / kl, aw), phi, t2))
+        return (phi, *jr_inv_pair_c(coef_c_quat(o, t2, kl, aw), phi, t2))
 
     # ------------------------------------------------------------------ constructors
     @classmethod

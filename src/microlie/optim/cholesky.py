@@ -31,7 +31,8 @@ from scipy.sparse.csgraph import depth_first_order  # type: ignore[import-untype
 from .._fast import compiled as compiled_module
 from .cholesky_numpy import NOT_PD as _NOT_PD
 from .cholesky_numpy import NumpyLoop
-from .linear import LinearSolver, SingularSystemError, block_graph, splu_symmetric
+from .linear import LinearSolver, SingularSystemError
+from .ordering import ORDERINGS, fill_order, graph
 
 __all__ = ["SupernodalSolver"]
 
@@ -64,9 +65,14 @@ class SupernodalSolver(LinearSolver):
 
     name = "supernodal"
 
-    def __init__(self, compiled: bool | None = None) -> None:
+    def __init__(self, compiled: bool | None = None, ordering: str = "auto") -> None:
         """``compiled``: use the C loop (``True``: it must be installed), the NumPy loop
-        (``False``), or the C loop when installed (``None``, the default)."""
+        (``False``), or the C loop when installed (``None``, the default). ``ordering``: the
+        fill-reducing order of the block graph, ``"mmd"`` (minimum degree), ``"nd"`` (nested
+        dissection) or ``"auto"`` (see :func:`microlie.optim.ordering.fill_order`)."""
+        if ordering not in ORDERINGS:
+            raise ValueError(f"unknown ordering {ordering!r}: expected one of {ORDERINGS}")
+        self.ordering = ordering
         mod = _compiled() if compiled is not False else None
         if compiled and mod is None:
             raise ImportError("the compiled supernode loop needs microlie-fast "
@@ -77,12 +83,8 @@ class SupernodalSolver(LinearSolver):
         super().analyse(indptr, indices, n)
         bs = block_size if block_size > 0 and n % block_size == 0 else 1
         nb = n // bs
-        B = block_graph(indptr, indices, n, bs)
-        # SuperLU's L is the factor of B[q][:, q] with q = argsort(perm_c), whatever the
-        # requested order (it postorders the elimination tree itself)
-        lu = splu_symmetric(B, "MMD_AT_PLUS_A")
-        perm = np.argsort(lu.perm_c)
-        L = _closed(lu.L.tocsc(), nb)
+        sym = fill_order(graph(indptr, indices, n, bs), self.ordering)
+        perm, L = sym.perm, _closed(sym.L, nb)
         # a postorder of the elimination tree is an equivalent order (same fill) in which
         # subtrees, hence supernodes, are contiguous: relabel L's pattern
         po = _postorder(_etree(L, nb), nb)

@@ -39,6 +39,9 @@ class Factor:
     """
 
     args: list[tuple[Variables, np.ndarray]]
+    #: whether :meth:`evaluate` with Jacobians costs little more than without (a solver then
+    #: evaluates them at a trial point already, for the linearisation that follows)
+    jacobians_with_residuals: bool = False
     dim: int
     noise: NoiseModel
     loss: RobustLoss | None
@@ -109,6 +112,46 @@ class Factor:
         """
         raise NotImplementedError
 
+    def evaluate_into(self, values: list[Any], out: np.ndarray) -> np.ndarray:
+        """The residuals of the batch, with its Jacobians written side by side into ``out``
+        (what the solver calls; a subclass may write them there without temporaries).
+
+        Parameters
+        ----------
+        values : list
+            One batch of ``m`` elements (or ``(m, d)`` array for vectors) per argument.
+        out : numpy.ndarray
+            ``(m, dim, D)`` with ``D`` the sum of the arguments' dofs: receives
+            ``[J_1 ... J_K]`` (right Jacobians, as :meth:`evaluate` returns them).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``r`` of shape ``(m, dim)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(2))
+        >>> f = BetweenFactor(x, 0, 1, SE2.exp([1.0, 0.0, 0.0]))
+        >>> X = [SE2.identity(1), SE2.exp([[0.5, 0.0, 0.3]])]
+        >>> J = np.empty((1, 3, 6))
+        >>> r = f.evaluate_into(X, J)
+        >>> r2, (Ji, Jj) = f.evaluate(X, True)
+        >>> bool(np.allclose(r, r2) and np.allclose(J, np.concatenate([Ji, Jj], axis=2)))
+        True
+        """
+        r, Js = self.evaluate(values, True)
+        o = 0
+        for J in Js:
+            k = J.shape[-1]
+            out[:, :, o:o + k] = J
+            o += k
+        return np.asarray(r, dtype=np.float64)
+
     def __len__(self) -> int:
         return self.count
 
@@ -161,6 +204,8 @@ class PriorFactor(Factor):
     >>> round(g.cost(), 6)  # 0.5 * (1 + 0.25) / 0.01 per factor
     125.0
     """
+
+    jacobians_with_residuals = True
 
     def __init__(self, variables: Variables, idx: Any, Z: Any, noise: NoiseModel | None = None,
                  loss: RobustLoss | str | None = None) -> None:
@@ -217,6 +262,8 @@ class BetweenFactor(Factor):
     True
     """
 
+    jacobians_with_residuals = True
+
     def __init__(self, variables: Variables, i: Any, j: Any, Z: Any,
                  noise: NoiseModel | None = None, loss: RobustLoss | str | None = None) -> None:
         self._setup([(variables, i), (variables, j)], variables.dof, noise, loss,
@@ -244,6 +291,19 @@ class BetweenFactor(Factor):
             return np.asarray(Xj.minus(XiZ))
         r, Jj, Jc = Xj.minus(XiZ, jac=True)
         return r, [Jc @ self._Ad_Zinv, Jj]
+
+    def evaluate_into(self, values: list[Any], out: np.ndarray) -> np.ndarray:
+        if self.args[0][0].group is None:
+            return super().evaluate_into(values, out)
+        Xi, Xj = values
+        r, Jj, Jc = Xj.minus(Xi.compose(self.Z), jac=True)
+        d = self.dim
+        # Jc (component-major from the kernel) copied row-major into the second half first:
+        # the product then runs on contiguous rows (measured 2-3x faster than on Jc itself)
+        np.copyto(out[:, :, d:], Jc)
+        np.matmul(out[:, :, d:], self._Ad_Zinv, out=out[:, :, :d])
+        out[:, :, d:] = Jj
+        return np.asarray(r, dtype=np.float64)
 
 
 class CustomFactor(Factor):

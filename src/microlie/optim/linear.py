@@ -23,6 +23,8 @@ import scipy.linalg as sla  # type: ignore[import-untyped]
 import scipy.sparse as sp  # type: ignore[import-untyped]
 import scipy.sparse.linalg as spla  # type: ignore[import-untyped]
 
+from .ordering import graph, minimum_degree
+
 __all__ = ["LinearSolver", "SingularSystemError", "make_solver", "available_solvers",
            "SOLVERS"]
 
@@ -187,29 +189,12 @@ def splu_symmetric(A: Any, order: str) -> Any:
                      options={"SymmetricMode": True})
 
 
-def block_graph(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> Any:
-    """The block graph of a pattern as a weighted graph Laplacian plus ``0.1 I`` (random
-    positive weights). Its numeric factorisation shows the symbolic fill: the Schur
-    complements of an M-matrix keep non-positive off-diagonals, so fill entries are sums of
-    terms of one sign (no cancellation) and decay slowly (a strongly diagonally dominant matrix
-    lets deep fill underflow to exact zeros, which SuperLU's ``L`` then omits)."""
-    nb = n // bs
-    cols = np.repeat(np.arange(n), np.diff(indptr))
-    B = sp.csc_matrix((np.ones(indices.size), (indices // bs, cols // bs)), shape=(nb, nb))
-    B = sp.triu(B, 1).tocoo()
-    w = np.random.default_rng(0).uniform(0.5, 1.0, B.nnz)
-    B = sp.coo_matrix((-w, (B.row, B.col)), shape=(nb, nb))
-    B = B + B.T
-    deg = -np.asarray(B.sum(axis=1)).ravel()
-    return (B + sp.diags(deg + 0.1)).tocsc()
-
-
 def block_order(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> np.ndarray:
     """A fill-reducing order of the unknowns (new -> old) from the minimum-degree order of the
     block graph (``bs`` times smaller than the scalar one)."""
     if bs <= 0 or n % bs:
         bs = 1
-    q = np.argsort(splu_symmetric(block_graph(indptr, indices, n, bs), "MMD_AT_PLUS_A").perm_c)
+    q = minimum_degree(graph(indptr, indices, n, bs))
     return (q[:, None] * bs + np.arange(bs)).ravel()
 
 

@@ -194,6 +194,12 @@ def _converged(o: SolverOptions, old: float, new: float) -> str | None:
     return None
 
 
+def _final(o: SolverOptions, cost: float, predicted: float) -> bool:
+    """Whether a step whose model decrease is ``predicted`` would likely end the run (then its
+    trial point is not worth linearising in advance)."""
+    return _converged(o, cost, cost - predicted) is not None
+
+
 def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Result:
     """Run the chosen solver on a problem from ``states`` (what :meth:`FactorGraph.optimize`
     calls).
@@ -262,7 +268,12 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                 finally:
                     lin.data[problem.diag_pos] = dg
                 if dx is not None:
-                    new, new_c, new_rc = _try(problem, cur, dx, tm)
+                    # the model's decrease: (H + lam D) dx = -g gives
+                    # -(g.dx + dx.H dx / 2) = (lam dx.D dx - g.dx) / 2
+                    damp = np.maximum(dg, 1e-12) if o.diagonal_damping else 1.0
+                    pred = 0.5 * (lam * float(dx @ (damp * dx)) - float(lin.grad @ dx))
+                    keep = solves == 1 and not _final(o, cur_rc, pred)
+                    new, new_c, new_rc = _try(problem, cur, dx, tm, keep=keep)
                     if new_rc < cur_rc:
                         accepted = True
                         lam = max(lam / o.lambda_factor, o.lambda_min)
@@ -274,7 +285,8 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         elif o.solver == "gn":
             solves += 1
             dx = _factor_solve(ls, lin.data, -lin.grad, tm, gn=True)
-            new, new_c, new_rc = _try(problem, cur, dx, tm)
+            keep = not _final(o, cur_rc, -0.5 * float(lin.grad @ dx))  # H dx = -g
+            new, new_c, new_rc = _try(problem, cur, dx, tm, keep=keep)
             if new_rc < cur_rc:
                 accepted = True
             elif new_rc - cur_rc <= max(o.abs_tol, o.rel_tol * cur_rc):
@@ -283,6 +295,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                 stop = "the Gauss-Newton step did not decrease the cost"
         else:  # dogleg
             gn_dx = None
+            first = True
             g = lin.grad
             H = problem.matrix(lin.data)
             Hg = H @ g
@@ -294,7 +307,9 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                     gn_dx = _factor_solve(ls, lin.data, -g, tm, gn=True)
                 dx = _dogleg_step(gn_dx, sd, radius)
                 pred = -(float(g @ dx) + 0.5 * float(dx @ (H @ dx)))
-                new, new_c, new_rc = _try(problem, cur, dx, tm)
+                new, new_c, new_rc = _try(problem, cur, dx, tm,
+                                          keep=first and not _final(o, cur_rc, pred))
+                first = False
                 actual = cur_rc - new_rc
                 rho = actual / pred if pred > 0 else -1.0
                 step = float(np.linalg.norm(dx))
@@ -373,11 +388,15 @@ def _factor_solve(ls: LinearSolver, data: np.ndarray, b: np.ndarray, tm: _Timer,
         tm.t["solve"] += time.perf_counter() - t1
 
 
-def _try(problem: Problem, cur: list[np.ndarray], dx: np.ndarray, tm: _Timer) -> tuple:
+def _try(problem: Problem, cur: list[np.ndarray], dx: np.ndarray, tm: _Timer,
+         keep: bool) -> tuple:
+    """The trial point ``cur + dx`` and its costs; with ``keep`` (the first trial of an
+    iteration, usually accepted, unless the model predicts convergence) the factors whose
+    Jacobians come with their residuals keep them for the linearisation at that point."""
     t0 = time.perf_counter()
     new = problem.retract(cur, dx)
     t1 = time.perf_counter()
-    c, rc = problem.costs(new)
+    c, rc = problem.costs(new, keep=keep)
     t2 = time.perf_counter()
     tm.t["retract"] += t1 - t0
     tm.t["cost"] += t2 - t1
