@@ -175,6 +175,10 @@ class NumpyLoop:
         self._solve_maps(s)
         self._views()
 
+    def __len__(self) -> int:
+        """The number of buckets (steps of the loop)."""
+        return sum(len(level) for level in self.levels)
+
     # ---- plan ------------------------------------------------------------------------------
 
     def _at(self, sid: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
