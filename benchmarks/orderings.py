@@ -1,7 +1,7 @@
-"""Fill-reducing orderings of the supernodal Cholesky on the shared pose graphs (and a synthetic
-3-D lattice of poses, ``lattice12``): minimum degree
-(``"mmd"``), nested dissection (``"nd"``) and ``"auto"`` (the one with the fewest flops, see
-``microlie.optim.ordering.fill_order``), with their structure and measured factorisation times.
+"""Fill-reducing orderings of the supernodal Cholesky on the shared pose graphs and a synthetic
+3-D lattice of poses (``lattice12``): minimum degree (``"mmd"``), nested dissection (``"nd"``)
+and ``"auto"`` (the one with the fewest flops, see ``microlie.optim.ordering.fill_order``),
+with their structure and measured factorisation times.
 
 Run (one command, the dev or the benchmark environment)::
 
