@@ -93,7 +93,7 @@ def _c56_closed(t2: Any, cb: Any, h: Any, c4: Any) -> tuple:
 
 
 def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
-                 derivatives: bool = False) -> tuple:
+                 derivatives: bool = False, cauchy_riemann: bool = False) -> tuple:
     """The coefficients of ``W = a I + b hat(phi) + c hat(phi)^2``, ``t2 = |phi|^2``.
 
     ``a = (e^sigma - 1)/sigma``, ``b = int_0^1 e^(s sigma) sin(s theta)/theta ds``,
@@ -103,6 +103,10 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     Returns ``((a, b, c), (E, sinc, h, k, ch))`` with ``E = e^sigma``, ``sinc = sin t / t``,
     ``h = (1 - cos t)/t^2``; with ``derivatives=True`` also the partial derivatives
     ``(a_s, b_s, c_s, b_t, c_t)`` in ``sigma`` (``_s``) and ``t2`` (``_t``) and ``cb``.
+    ``phi_1(sigma + i theta) = (a - c t2) + i theta b`` is analytic, and by Cauchy-Riemann
+    ``b_s = 2 (c + t2 c_t)`` and ``a_s - t2 c_s = b + 2 t2 b_t``; ``cauchy_riemann=True``
+    takes ``b_s`` from the first (one quotient-rule slope fewer; equal to the default to
+    ~1e-13 relative), the default keeps the quotient rule that the compiled ``jr`` shares.
     """
     E, a, d, e, f = phi_functions(o, sigma)
     if k is None:
@@ -130,11 +134,12 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     # c5 = -d cb / d t2, c6 = -d c4 / d t2
     c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, h, c4)
     ad = a - d  # phi_1'
-    cs, bt, ct = o.select(tiny, _slopes_at_zero, _slopes, sigma, z2, ws, wt, a, d, e, f, sinc,
-                          cos, h, k3, cb, c4, c5, c6, Pb, Qb, Pc, Qc)
-    # phi_1(sigma + i theta) = (a - c t2) + i theta b is analytic: by Cauchy-Riemann
-    # b_s = 2 (c + t2 c_t) (and a_s - t2 c_s = b + 2 t2 b_t)
-    bs = 2.0 * (c + t2 * ct)
+    args = (sigma, z2, ws, wt, a, d, e, f, sinc, cos, h, k3, cb, c4, c5, c6, Pb, Qb, Pc, Qc)
+    if cauchy_riemann:
+        cs, bt, ct = o.select(tiny, _slopes_at_zero, _slopes, *args)
+        bs = 2.0 * (c + t2 * ct)
+    else:
+        bs, cs, bt, ct = o.select(tiny, _slopes_at_zero_b, _slopes_b, *args)
     return (a, b, c), (E, sinc, h, k, ch), (ad, bs, cs, bt, ct), cb
 
 
@@ -156,6 +161,20 @@ def _slopes(sigma: Any, z2: Any, ws: Any, wt: Any, a: Any, d: Any, e: Any, f: An
 def _slopes_at_zero(sigma: Any, *_: Any) -> tuple:
     z = 0.0 * sigma
     return z + 1.0 / 8.0, z - 1.0 / 24.0, z - 1.0 / 120.0
+
+
+def _slopes_b(sigma: Any, z2: Any, ws: Any, wt: Any, a: Any, d: Any, e: Any, f: Any,
+              sinc: Any, cos: Any, h: Any, k3: Any, cb: Any, c4: Any, c5: Any, c6: Any, Pb: Any,
+              Qb: Any, Pc: Any, Qc: Any) -> tuple:
+    """``(b_s, c_s, b_t, c_t)``: :func:`_slopes` and ``b_s`` by the quotient rule too."""
+    ad, de = a - d, d - 2.0 * e
+    bs = ws * (ad * sinc - de * cos) + wt * (2.0 * k3) + 2.0 * sigma * wt * ((Pb - Qb) / z2)
+    return (bs, *_slopes(sigma, z2, ws, wt, a, d, e, f, sinc, cos, h, k3, cb, c4, c5, c6, Pb,
+                         Qb, Pc, Qc))
+
+
+def _slopes_at_zero_b(sigma: Any, *_: Any) -> tuple:
+    return (0.0 * sigma + 1.0 / 3.0, *_slopes_at_zero(sigma))
 
 
 def w_coefficients(o: Any, sigma: Any, t2: Any) -> tuple[Any, Any, Any]:
@@ -399,7 +418,7 @@ class Sim3(Pose):
         # |q| is off 1 by rounding (float32 inputs), which the cancelling W coefficients need
         m = o.sqrt(M.norm2(*q))
         k, ch = 1.0 / (kl * m), aw / m
-        co = coefficients(o, sigma, t2, k, ch, derivatives=True)
+        co = coefficients(o, sigma, t2, k, ch, derivatives=True, cauchy_riemann=True)
         (_, b, c), (E, sinc, h, _, _), (a_s, b_s, c_s, b_t, c_t) = co[:3]
         wi = p0, p1, p2 = poly_inv(co[0], t2)  # W^-1
         rho = poly_apply(wi, phi, t)  # as Sim3._log (which takes |q| = 1)
