@@ -1,10 +1,10 @@
 """The NumPy path of ``Problem.linearize`` (``MICROLIE_FAST=0``): work arrays, the whitening
 product and the sparse sum into the pattern, against ``H = J^T J`` and ``g = J^T e`` of a dense
 central-difference Jacobian of the whitened residuals of the whole problem (every factor
-batch: SE(3) edges with fixed ends, a duplicate and a reversed edge, per-edge and shared noise,
-an SE(3) prior batch, a vector between batch and a custom factor over a pose and a vector), with
-and without robust losses (the Triggs-corrected rows written out here from the loss's
-derivatives)."""
+batch: SE(3) edges with fixed ends, a duplicate and a reversed edge, per-edge, shared and
+diagonal noise, an SE(3) prior batch, a vector between batch and a custom factor over a pose and
+a vector), with and without robust losses (the Triggs-corrected rows written out here from the
+loss's derivatives)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from microlie import SE3
 from microlie.optim import (
     BetweenFactor,
     CustomFactor,
+    Diagonal,
     FactorGraph,
     Information,
     Isotropic,
@@ -31,8 +32,11 @@ def _graph(rng, per_edge=True, loss=None):
     m = len(ii)
     Z = X[np.array(ii)].inverse().compose(X[np.array(jj)]).compose(
         SE3.exp(0.2 * rng.standard_normal((m, 6))))
-    B = rng.standard_normal((m, 6, 6) if per_edge else (6, 6))
-    noise = Information(B @ np.swapaxes(B, -1, -2) + 0.5 * np.eye(6))
+    if per_edge == "diagonal":  # one Diagonal model per edge: whitening is a scale
+        noise = Diagonal(rng.uniform(0.2, 2.0, (m, 6)))
+    else:
+        B = rng.standard_normal((m, 6, 6) if per_edge else (6, 6))
+        noise = Information(B @ np.swapaxes(B, -1, -2) + 0.5 * np.eye(6))
     fg = FactorGraph()
     x = fg.add_variables(X, fixed=[0, 6])
     v = fg.add_variables(rng.standard_normal((3, 2)))
@@ -54,7 +58,8 @@ def _whitened(p, states):
     out = []
     for f in p.factors:
         r = np.asarray(f.evaluate(p.gather(f, states), False))
-        out.append(p.whiten(f, r))
+        L = np.broadcast_to(f.noise.sqrt_info, (f.count, f.dim, f.dim))
+        out.append(np.einsum("mij,mj->mi", L, r))
     return out
 
 
@@ -91,7 +96,7 @@ def numpy_path(monkeypatch):
     monkeypatch.setenv("MICROLIE_FAST", "0")
 
 
-@pytest.mark.parametrize("per_edge", [True, False])
+@pytest.mark.parametrize("per_edge", [True, False, "diagonal"])
 @pytest.mark.parametrize("loss", [None, "huber:0.5", "cauchy:1.0"])
 def test_linear_system_matches_dense_jacobian(numpy_path, per_edge, loss):
     fg = _graph(np.random.default_rng(3), per_edge, loss)
@@ -141,7 +146,7 @@ def test_jacobians_kept_by_a_trial_cost(numpy_path, loss):
     s1 = p.retract(s0, 0.1 * np.random.default_rng(2).standard_normal(p.size))
     for st in (s0, s1):
         ref = fresh.linearize(st)
-        assert p.costs(st, keep=True) == fresh.costs(st)
+        assert p.costs(st, keep=True) == pytest.approx(fresh.costs(st), rel=1e-14)
         p.costs(s1 if st is s0 else s0)  # a plain cost elsewhere leaves the kept arrays alone
         got = p.linearize(st)
         np.testing.assert_array_equal(got.data, ref.data)
@@ -154,7 +159,7 @@ def test_jacobians_kept_by_a_trial_cost(numpy_path, loss):
 
 
 @pytest.mark.parametrize("solver", ["lm", "gn", "dogleg"])
-def test_solvers_give_the_same_run_with_and_without_kept_jacobians(numpy_path, monkeypatch,
+def test_solvers_take_the_same_run_with_and_without_kept_jacobians(numpy_path, monkeypatch,
                                                                    solver):
     from microlie.optim import factors
 
@@ -165,8 +170,11 @@ def test_solvers_give_the_same_run_with_and_without_kept_jacobians(numpy_path, m
         fg = _graph(np.random.default_rng(4), loss="huber:1.0")
         res = fg.optimize(solver=solver, max_iter=20)
         runs.append((res, [res.values.params(v) for v in fg.variables]))
+    # the same run to rounding (a kept trial's residual comes from minus(jac=True) and one
+    # product, a plain one from minus() and another: equal up to the last bits)
     (a, pa), (b, pb) = runs
     assert a.iterations == b.iterations > 2
-    assert [h.cost for h in a.history] == [h.cost for h in b.history]
+    np.testing.assert_allclose([h.cost for h in a.history], [h.cost for h in b.history],
+                               rtol=1e-13)
     for u, v in zip(pa, pb, strict=True):
-        np.testing.assert_array_equal(u, v)
+        np.testing.assert_allclose(u, v, rtol=0, atol=1e-12)

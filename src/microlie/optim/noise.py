@@ -87,6 +87,24 @@ class NoiseModel:
         return int(self.sqrt_info.shape[-1])
 
     @property
+    def scales(self) -> np.ndarray | None:
+        """The diagonal of ``sqrt_info``, ``(d,)`` or ``(m, d)``, when it is diagonal
+        (isotropic or diagonal noise: whitening is then a scale), else ``None``.
+
+        Examples
+        --------
+        >>> from microlie.optim import Diagonal, Information
+        >>> Diagonal([0.5, 0.25]).scales.tolist(), Information([[2.0, 1.0], [1.0, 2.0]]).scales
+        ([2.0, 4.0], None)
+        """
+        L = self.sqrt_info
+        if "_scales" not in self.__dict__ or self.__dict__["_scales"][0] is not L:
+            d = np.diagonal(L, axis1=-2, axis2=-1)
+            diagonal = np.count_nonzero(L) == np.count_nonzero(d)
+            self.__dict__["_scales"] = (L, d.copy() if diagonal else None)
+        return self.__dict__["_scales"][1]
+
+    @property
     def information(self) -> np.ndarray:
         L = self.sqrt_info
         return np.swapaxes(L, -1, -2) @ L

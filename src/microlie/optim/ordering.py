@@ -60,6 +60,8 @@ LEAF_SIZE = 256
 _BALANCE = 0.25
 # the number of balanced cuts whose exact (matching) separator is computed
 _CANDIDATES = 3
+# "auto" tries the deep nested dissection when the coarse one saves this fraction of flops
+_DEEPER = 0.9
 
 
 def graph(indptr: np.ndarray, indices: np.ndarray, n: int, block_size: int = 1) -> Any:
@@ -146,10 +148,7 @@ def minimum_degree(A: Any) -> np.ndarray:
     >>> int(minimum_degree(star)[-1])  # the hub last: no fill
     0
     """
-    n = A.shape[0]
-    if n <= 2:
-        return np.arange(n, dtype=np.int64)
-    return np.argsort(_splu(_laplacian(A), "MMD_AT_PLUS_A").perm_c).astype(np.int64)
+    return _factor(_clean(A), np.arange(A.shape[0]), "MMD_AT_PLUS_A").perm
 
 
 def _distances(A: Any, v: int) -> np.ndarray:
@@ -433,9 +432,16 @@ def symbolic(A: Any, perm: np.ndarray) -> Symbolic:
     n = A.shape[0]
     if perm.shape != (n,) or not np.array_equal(np.sort(perm), np.arange(n)):
         raise ValueError(f"perm must be a permutation of 0..{n - 1}")
-    Ap = _clean(A)[perm][:, perm]
-    lu = _splu(_laplacian(Ap), "NATURAL")
-    p = perm[np.argsort(lu.perm_c)]
+    return _factor(_clean(A)[perm][:, perm], perm, "NATURAL")
+
+
+def _factor(Ap: Any, base: np.ndarray, spec: str) -> Symbolic:
+    """The symbolic factor of ``Ap`` (the graph ``A[base][:, base]``) with SuperLU ordering
+    it by ``spec``: its ``L`` is the factor of ``Ap[q][:, q]``, ``q = argsort(perm_c)``
+    (SuperLU postorders the elimination tree whatever ``spec`` asks)."""
+    n = Ap.shape[0]
+    lu = _splu(_laplacian(Ap), spec)
+    p = base[np.argsort(lu.perm_c)]
     L = lu.L.tocsc()
     L.sort_indices()
     counts = np.diff(L.indptr).astype(np.int64)
@@ -454,12 +460,13 @@ def symbolic(A: Any, perm: np.ndarray) -> Symbolic:
 def fill_order(A: Any, method: str = "auto") -> Symbolic:
     """The fill-reducing order of the supernodal Cholesky, with its symbolic factor.
 
-    ``"mmd"``: :func:`minimum_degree`; ``"nd"``: :func:`nested_dissection`; ``"auto"``: of
-    the minimum-degree order and the nested dissections with leaves of ``LEAF_SIZE`` (256)
-    and of 60% of the vertices (one or two levels of separators), the one with the fewest
-    factorisation flops (:attr:`Symbolic.flops`; minimum degree on ties). On the pose graphs
-    of ``benchmarks/orderings.py`` minimum degree has the fewest flops or is within 3% of
-    the best; on 3-D meshes nested dissection has half as many.
+    ``"mmd"``: :func:`minimum_degree`; ``"nd"``: :func:`nested_dissection`; ``"auto"``: the
+    order with the fewest factorisation flops (:attr:`Symbolic.flops`; minimum degree on
+    ties) of minimum degree, a coarse nested dissection (leaves of 60% of the vertices: one
+    or two levels of separators) and, only when the coarse one has at least 10% fewer flops
+    than minimum degree, the full one (leaves of ``LEAF_SIZE``, 256). On the pose graphs of
+    ``benchmarks/orderings.py`` minimum degree has the fewest flops or is within 3% of the
+    best; on 3-D meshes nested dissection has half as many.
 
     Parameters
     ----------
@@ -492,14 +499,19 @@ def fill_order(A: Any, method: str = "auto") -> Symbolic:
     if method not in ORDERINGS:
         raise ValueError(f"unknown ordering {method!r}: expected one of {ORDERINGS}")
     A = _clean(A)
-    if method == "mmd":
-        return symbolic(A, minimum_degree(A))
     if method == "nd":
         return symbolic(A, nested_dissection(A))
-    best = symbolic(A, minimum_degree(A))
-    for leaf in dict.fromkeys((LEAF_SIZE, max(LEAF_SIZE, -(-3 * A.shape[0] // 5)))):
-        if A.shape[0] > leaf:
-            cand = symbolic(A, nested_dissection(A, leaf))
-            if cand.flops < best.flops:
-                best = cand
+    n = A.shape[0]
+    # minimum degree's factor from the same SuperLU call that orders
+    mmd = _factor(A, np.arange(n), "MMD_AT_PLUS_A")
+    if method == "mmd":
+        return mmd
+    coarse = max(LEAF_SIZE, -(-3 * n // 5))
+    if n <= coarse:
+        return mmd
+    one = symbolic(A, nested_dissection(A, coarse))
+    best = one if one.flops < mmd.flops else mmd
+    if one.flops < _DEEPER * mmd.flops:  # separators pay: see whether more levels pay more
+        deep = symbolic(A, nested_dissection(A, LEAF_SIZE))
+        best = deep if deep.flops < best.flops else best
     return best
