@@ -146,7 +146,7 @@ def test_jacobians_kept_by_a_trial_cost(numpy_path, loss):
     s1 = p.retract(s0, 0.1 * np.random.default_rng(2).standard_normal(p.size))
     for st in (s0, s1):
         ref = fresh.linearize(st)
-        assert p.costs(st, keep=True) == fresh.costs(st)
+        assert p.costs(st, keep=True) == pytest.approx(fresh.costs(st), rel=1e-14)
         p.costs(s1 if st is s0 else s0)  # a plain cost elsewhere leaves the kept arrays alone
         got = p.linearize(st)
         np.testing.assert_array_equal(got.data, ref.data)
@@ -159,7 +159,7 @@ def test_jacobians_kept_by_a_trial_cost(numpy_path, loss):
 
 
 @pytest.mark.parametrize("solver", ["lm", "gn", "dogleg"])
-def test_solvers_give_the_same_run_with_and_without_kept_jacobians(numpy_path, monkeypatch,
+def test_solvers_take_the_same_run_with_and_without_kept_jacobians(numpy_path, monkeypatch,
                                                                    solver):
     from microlie.optim import factors
 
@@ -170,8 +170,11 @@ def test_solvers_give_the_same_run_with_and_without_kept_jacobians(numpy_path, m
         fg = _graph(np.random.default_rng(4), loss="huber:1.0")
         res = fg.optimize(solver=solver, max_iter=20)
         runs.append((res, [res.values.params(v) for v in fg.variables]))
+    # the same run to rounding (a kept trial's residual comes from minus(jac=True) and one
+    # product, a plain one from minus() and another: equal up to the last bits)
     (a, pa), (b, pb) = runs
     assert a.iterations == b.iterations > 2
-    assert [h.cost for h in a.history] == [h.cost for h in b.history]
+    np.testing.assert_allclose([h.cost for h in a.history], [h.cost for h in b.history],
+                               rtol=1e-13)
     for u, v in zip(pa, pb, strict=True):
-        np.testing.assert_array_equal(u, v)
+        np.testing.assert_allclose(u, v, rtol=0, atol=1e-12)
