@@ -382,23 +382,25 @@ def test_chunked_jacobian_kernels_agree_with_single_elements(G):
                 np.testing.assert_allclose(b[i], s, rtol=1e-12, atol=1e-12, err_msg=op)
 
 
-def test_constant_components_of_chunked_outputs_are_written_once_and_stay_right():
+@pytest.mark.parametrize("n", [3 * K.CHUNK + 5, 7])  # chunked, and one evaluation
+def test_constant_and_negated_output_components(n):
     """A Python-float component of a component-major output is written for all rows in the
     first chunk; a later chunk where the same component is another constant or an array
-    still writes its own rows."""
-    n = 3 * K.CHUNK + 5
+    still writes its own rows. ``ops.negated(x)`` components come out as ``-x`` in matrix and
+    vector outputs alike."""
 
     def fn(o, x):
         start = float(x[0][0])  # the first row of this chunk
         a = x[0] * 1.0
         c = 2.0 if start == 0 else a if start == K.CHUNK else 3.0
-        return ((1.0, c, a), (a, 0.0, 1.0), (c, a, -1.0))
+        return ((1.0, c, a), (a, 0.0, o.negated(a)), (c, a, -1.0)), (o.negated(a), a + 1.0)
 
-    k = K.Kernel("test.constants", None, fn, ["v"], [(3, 3)])
+    k = K.Kernel("test.constants", None, fn, ["v"], [(3, 3), (2,)])
     x = np.arange(n, dtype=np.float64)[:, None]
-    out = K._run(k, (x,))
-    want_c = np.where(x[:, 0] < K.CHUNK, 2.0, np.where(x[:, 0] < 2 * K.CHUNK, x[:, 0], 3.0))
+    out, vec = K._run(k, (x,))
     a = x[:, 0]
-    want = np.stack([np.ones(n), want_c, a, a, np.zeros(n), np.ones(n), want_c, a,
+    want_c = np.where(a < K.CHUNK, 2.0, np.where(a < 2 * K.CHUNK, a, 3.0))
+    want = np.stack([np.ones(n), want_c, a, a, np.zeros(n), -a, want_c, a,
                      -np.ones(n)], -1).reshape(n, 3, 3)
     np.testing.assert_array_equal(out, want)
+    np.testing.assert_array_equal(vec, np.stack([-a, a + 1.0], -1))

@@ -19,6 +19,7 @@ is one of theirs.
 from __future__ import annotations
 
 import math
+import operator
 import sys
 from typing import Any
 
@@ -51,6 +52,7 @@ class _ScalarOps:
         return a if cond else b
 
     abs1 = staticmethod(abs)  # |x| (the derivative at 0 matters only to autodiff backends)
+    negated = staticmethod(operator.neg)  # an output component -x (see ArrayOps.negated)
 
     @staticmethod
     def select(cond: bool, f: Any, g: Any, *args: Any) -> Any:
@@ -113,6 +115,10 @@ class ArrayOps:
 
     #: ``times(k, v)``: the components of a common factor ``k`` times a vector ``v``
     times = staticmethod(times)
+    #: ``negated(x)``: ``-x``, for an *output* component only (never used in further
+    #: arithmetic): a chunked NumPy evaluation writes it as ``np.negative(x, out=...)``, one
+    #: pass instead of computing ``-x`` and copying it
+    negated = staticmethod(operator.neg)
     #: ``id(product) -> (product, k, v_i)`` for the products made by ``times`` (set on a
     #: per-evaluation copy, see :func:`kernel_ops`), or ``None``
     blocks: dict[int, tuple] | None = None
@@ -183,6 +189,27 @@ def _scatter(out: Any, idx: np.ndarray, sub: Any, n: int, args: tuple) -> np.nda
 
 
 NUMPY = _NumpyOps()
+
+
+class Negated:
+    """An output component ``-x`` that the chunked NumPy evaluator writes negated in place."""
+
+    __slots__ = ("x",)
+
+    def __init__(self, x: np.ndarray) -> None:
+        self.x = x
+
+
+class _NumpyChunkOps(_NumpyOps):
+    """The ops of a chunked NumPy evaluation (see :func:`microlie._kernels.run`): output
+    components ``negated(x)`` are :class:`Negated` markers."""
+
+    @staticmethod
+    def negated(x: Any) -> Any:
+        return Negated(x) if type(x) is np.ndarray else -x
+
+
+NUMPY_CHUNKS = _NumpyChunkOps()
 _OPS_CACHE: dict[int, ArrayOps] = {}
 
 

@@ -20,6 +20,12 @@ kernels under ``"<Group>.<op>"`` when its class is created, e.g. ``"SO3.exp"``, 
   multiplications, but XLA then computes ``k`` once instead of once per output column (a
   stack of separately computed columns repeats every shared subexpression per column).
 
+An output component written ``ops.negated(x)`` (``-x``; only as an output, never in further
+arithmetic) is written by the chunked NumPy evaluation as ``np.negative(x, out=...)``: one pass
+instead of computing ``-x`` and copying it (left Jacobians are often negated right ones).
+A constant component (a Python float, such as a structural zero of a Jacobian) of such an
+output is written once for all rows.
+
 Matrix outputs of more than 8 entries (Jacobians, adjoints) of NumPy batches are views of
 component-major arrays: shape ``(*batch, r, c)``, memory order ``(r, c, *batch)``. Each entry is
 then one contiguous write (a row-major result costs a transposition that takes as long as the
@@ -62,7 +68,7 @@ from typing import Any
 import numpy as np
 
 from . import _array as A
-from ._array import NUMPY, SCALAR, Array
+from ._array import NUMPY, NUMPY_CHUNKS, SCALAR, Array, Negated
 from ._trace import compile_scalar
 
 __all__ = ["Kernel", "KERNELS", "run", "run_floats", "scalar_function", "register",
@@ -196,6 +202,7 @@ def _single(k: Kernel, lists: tuple, dt: Any) -> Any:
 
 
 _F64 = np.dtype(np.float64)
+_negative = np.negative
 _frombuffer = np.frombuffer
 _setflags = np.ndarray.setflags
 _PACK = {n: struct.Struct(f"{n}d").pack for n in range(1, 33)}
@@ -416,13 +423,17 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
     consts: list[dict[int, float]] = [{} for _ in k.outs]
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
-        r = fn(NUMPY, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
-                        for f in flats])
+        r = fn(NUMPY_CHUNKS, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
+                               for f in flats])
         for res, out, shape, m, cst in zip([r] if k._flat else r, outs, k.outs, soa, consts,
                                            strict=True):
             if m:
                 for j, c in enumerate(c for row in res for c in row):
-                    if type(c) is float:
+                    t = type(c)
+                    if t is Negated:
+                        _negative(c.x, out=out[j, s:e])
+                        continue
+                    if t is float:
                         if cst.get(j) == c:
                             continue
                         if s == 0:
@@ -432,12 +443,12 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
             elif buf is not None and len(res) > _WIDE:
                 b = buf[:len(res), :e - s]
                 for j, c in enumerate(res):
-                    b[j] = c
+                    b[j] = -c.x if type(c) is Negated else c
                 out[s:e] = b.T
             else:
                 for j, c in enumerate(res if len(shape) == 1 else
                                       [c for row in res for c in row]):
-                    out[s:e, j] = c
+                    out[s:e, j] = -c.x if type(c) is Negated else c
     return [o.T.reshape(*batch, *shape) if m else o.reshape(*batch, *shape)
             for o, shape, m in zip(outs, k.outs, soa, strict=True)]
 

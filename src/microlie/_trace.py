@@ -136,6 +136,10 @@ class _Ops:
 
     times = staticmethod(times)
 
+    @staticmethod
+    def negated(x: Any) -> Any:
+        return -x
+
     def select(self, cond: Any, f: Any, g: Any, *args: Any) -> Any:
         a, b = f(*args), g(*args)  # both recorded; only the branch taken runs (see code())
         if isinstance(a, tuple):

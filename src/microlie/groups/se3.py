@@ -204,7 +204,7 @@ class SE3(Pose):
         a = M.cross(phi, t)
         b = M.cross(phi, a)
         rho = tuple(t[i] - 0.5 * a[i] + c * b[i] for i in range(3))  # as SE3._log
-        Ji, mJi = so3.jr_inv_pair_c(c, phi, t2)
+        Ji, mJi = so3.jr_inv_pair_c(o, c, phi, t2)
         d = M.dot(rho, phi)
         g = 2.0 * d * cp
         u = tuple(c * r for r in rho)
@@ -213,5 +213,5 @@ class SE3(Pose):
         px, py, pz = phi
         E = (px * (u[0] + w[0]) + e, py * (u[1] + w[1]) + e, pz * (u[2] + w[2]) + e,
              u[0] * py + px * w[1], u[0] * pz + px * w[2], u[1] * pz + py * w[2])
-        B, mB = so3.sym_pair(E, (0.5 * rho[0], 0.5 * rho[1], 0.5 * rho[2]))
+        B, mB = so3.sym_pair(o, E, (0.5 * rho[0], 0.5 * rho[1], 0.5 * rho[2]))
         return ((*rho, *phi), _block2(Ji, B), _block2(mJi, mB))

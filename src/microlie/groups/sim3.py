@@ -93,7 +93,7 @@ def _c56_closed(t2: Any, cb: Any, h: Any, c4: Any) -> tuple:
 
 
 def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
-                 derivatives: bool = False) -> tuple:
+                 derivatives: bool = False, cauchy_riemann: bool = False) -> tuple:
     """The coefficients of ``W = a I + b hat(phi) + c hat(phi)^2``, ``t2 = |phi|^2``.
 
     ``a = (e^sigma - 1)/sigma``, ``b = int_0^1 e^(s sigma) sin(s theta)/theta ds``,
@@ -103,6 +103,10 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     Returns ``((a, b, c), (E, sinc, h, k, ch))`` with ``E = e^sigma``, ``sinc = sin t / t``,
     ``h = (1 - cos t)/t^2``; with ``derivatives=True`` also the partial derivatives
     ``(a_s, b_s, c_s, b_t, c_t)`` in ``sigma`` (``_s``) and ``t2`` (``_t``) and ``cb``.
+    ``phi_1(sigma + i theta) = (a - c t2) + i theta b`` is analytic, and by Cauchy-Riemann
+    ``b_s = 2 (c + t2 c_t)`` and ``a_s - t2 c_s = b + 2 t2 b_t``; ``cauchy_riemann=True``
+    takes ``b_s`` from the first (one quotient-rule slope fewer; equal to the default to
+    ~1e-13 relative), the default keeps the quotient rule that the compiled ``jr`` shares.
     """
     E, a, d, e, f = phi_functions(o, sigma)
     if k is None:
@@ -130,31 +134,47 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     # c5 = -d cb / d t2, c6 = -d c4 / d t2
     c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, h, c4)
     ad = a - d  # phi_1'
-    slopes = o.select(tiny, _slopes_at_zero, _slopes, sigma, z2, ws, wt, a, d, e, f, sinc, cos,
-                      h, k3, cb, c4, c5, c6, Pb, Qb, Pc, Qc)
-    return (a, b, c), (E, sinc, h, k, ch), (ad, *slopes), cb
+    args = (sigma, z2, ws, wt, a, d, e, f, sinc, cos, h, k3, cb, c4, c5, c6, Pb, Qb, Pc, Qc)
+    if cauchy_riemann:
+        cs, bt, ct = o.select(tiny, _slopes_at_zero, _slopes, *args)
+        bs = 2.0 * (c + t2 * ct)
+    else:
+        bs, cs, bt, ct = o.select(tiny, _slopes_at_zero_b, _slopes_b, *args)
+    return (a, b, c), (E, sinc, h, k, ch), (ad, bs, cs, bt, ct), cb
 
 
 def _slopes(sigma: Any, z2: Any, ws: Any, wt: Any, a: Any, d: Any, e: Any, f: Any, sinc: Any,
             cos: Any, h: Any, k3: Any, cb: Any, c4: Any, c5: Any, c6: Any, Pb: Any, Qb: Any,
             Pc: Any, Qc: Any) -> tuple:
-    """``(b_s, c_s, b_t, c_t)`` of :func:`coefficients` away from ``sigma = theta = 0``: the
+    """``(c_s, b_t, c_t)`` of :func:`coefficients` away from ``sigma = theta = 0``: the
     quotient rule on ``f = (sigma^2 P + t2 Q) / (sigma^2 + t2)``."""
     ht = c4 - 0.5 * cb  # d h / d t2 (and d sinc / d t2 = -k3, d cos / d t2 = -sinc / 2)
     k3t = 0.5 * (ht + c5)
     ad, de = a - d, d - 2.0 * e  # phi_1', phi_2'
-    s2 = 2.0 * sigma
     Db, Dc = (Pb - Qb) / z2, (Pc - Qc) / z2
-    bs = ws * (ad * sinc - de * cos) + wt * (2.0 * k3) + s2 * wt * Db
-    bt = ws * (d * (0.5 * sinc) - a * k3) + wt * (ht + s2 * k3t) - ws * Db
-    cs = ws * ((e - 3.0 * f) + ad * h - de * sinc) + wt * (cb - c4) + s2 * wt * Dc
+    bt = ws * (d * (0.5 * sinc) - a * k3) + wt * (ht + 2.0 * sigma * k3t) - ws * Db
+    cs = ws * ((e - 3.0 * f) + ad * h - de * sinc) + wt * (cb - c4) + 2.0 * sigma * wt * Dc
     ct = ws * (a * ht + d * k3) + wt * (sigma * (c6 - c5) - c5) - ws * Dc
-    return bs, cs, bt, ct
+    return cs, bt, ct
 
 
 def _slopes_at_zero(sigma: Any, *_: Any) -> tuple:
     z = 0.0 * sigma
-    return z + 1.0 / 3.0, z + 1.0 / 8.0, z - 1.0 / 24.0, z - 1.0 / 120.0
+    return z + 1.0 / 8.0, z - 1.0 / 24.0, z - 1.0 / 120.0
+
+
+def _slopes_b(sigma: Any, z2: Any, ws: Any, wt: Any, a: Any, d: Any, e: Any, f: Any,
+              sinc: Any, cos: Any, h: Any, k3: Any, cb: Any, c4: Any, c5: Any, c6: Any, Pb: Any,
+              Qb: Any, Pc: Any, Qc: Any) -> tuple:
+    """``(b_s, c_s, b_t, c_t)``: :func:`_slopes` and ``b_s`` by the quotient rule too."""
+    ad, de = a - d, d - 2.0 * e
+    bs = ws * (ad * sinc - de * cos) + wt * (2.0 * k3) + 2.0 * sigma * wt * ((Pb - Qb) / z2)
+    return (bs, *_slopes(sigma, z2, ws, wt, a, d, e, f, sinc, cos, h, k3, cb, c4, c5, c6, Pb,
+                         Qb, Pc, Qc))
+
+
+def _slopes_at_zero_b(sigma: Any, *_: Any) -> tuple:
+    return (0.0 * sigma + 1.0 / 3.0, *_slopes_at_zero(sigma))
 
 
 def w_coefficients(o: Any, sigma: Any, t2: Any) -> tuple[Any, Any, Any]:
@@ -231,42 +251,49 @@ def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
     return Mphi, msig
 
 
-def b_block(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple, u: tuple,
-            d: Any) -> tuple:
-    """The block ``B = -W^-1 d(W rho)/d phi Jr^-1_SO3(phi)`` of Sim(3)'s ``Jr^-1``, written out.
+def upper_blocks(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple) -> tuple:
+    """``B = -W^-1 d(W rho)/d phi Jr^-1_SO3(phi)`` and ``w = W^-1 d(W rho)/d sigma``: the upper
+    blocks ``(B | -w)`` of Sim(3)'s ``Jr^-1`` right of ``A`` (its block inverse of ``Jr``),
+    written out.
 
-    ``wi = (p0, p1, p2, p0 - t2 p2)`` are the coefficients of ``W^-1``, ``co = (b, c, b_t,
-    c_t, b_s)`` those of ``W`` with
-    their derivatives (:func:`coefficients`), ``cj`` the ``hat(phi)^2`` coefficient of
-    ``Jr^-1_SO3``, ``u = phi x rho``, ``d = phi . rho``. With ``hat(a) hat(b) = b a^T - (a.b) I``
-    and ``F hat(rho) F = -d F`` (``F = hat(phi)``) every product reduces to
-    ``B = U phi^T + beta_Pr phi rho^T + e I + hat(m)``, ``U = beta_rP rho + beta_uP u +
-    beta_F2 d phi``, ``m = beta_H rho + beta_F d phi``, ``e = (beta_I - t2 beta_F2) d``.
+    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1``, ``co = (b, c, a_s, b_s, c_s, b_t,
+    c_t)`` those of ``W`` with their derivatives (:func:`coefficients`), ``cj`` the
+    ``hat(phi)^2`` coefficient of ``Jr^-1_SO3``. With ``u = phi x rho``, ``d = phi . rho``,
+    ``F = hat(phi)``, ``hat(a) hat(b) = b a^T - (a.b) I`` and ``F hat(rho) F = -d F`` every
+    product of polynomials in ``F`` with ``hat(rho)`` reduces to the basis ``hat(rho)``,
+    ``rho phi^T``, ``phi rho^T``, ``u phi^T``, ``d I``, ``d F``, ``d F^2`` (``phi u^T`` is
+    ``u phi^T - d F + t2 hat(rho)``): ``B = U phi^T + beta_Pr phi rho^T + e I + hat(m)``,
+    ``U = beta_rP rho + beta_uP u + beta_F2 d phi``, ``m = beta_H rho + beta_F d phi``,
+    ``e = (beta_I - t2 beta_F2) d``; ``w = g(F) rho`` with ``g = W^-1 (a_s + b_s F + c_s F^2)``
+    (``F^2 rho = d phi - t2 rho``). The identities ``b_s = 2 (c + t2 c_t)`` and ``a_s - t2 c_s
+    = b + 2 t2 b_t`` (Cauchy-Riemann, see :func:`coefficients`) share terms between the two.
     """
-    p0, p1, p2, q0 = wi
-    b, c, b_t, c_t, b_s = co
-    ccj, bcj = c * cj, b * cj
+    p0, p1, p2 = wi
+    b, c, a_s, b_s, c_s, b_t, c_t = co
+    u = M.cross(phi, rho)
+    d = M.dot(phi, rho)
+    g0, g1, g2 = poly_mul(wi, (a_s, b_s, c_s), t2)
+    e0, e2 = g0 - t2 * g2, g2 * d
+    w = tuple(e0 * rho[i] + g1 * u[i] + e2 * phi[i] for i in range(3))
+    ccj, bcj, c2 = c * cj, b * cj, 0.5 * c
     x1 = t2 * ccj + 0.5 * b - c
-    x2 = 0.5 * c - bcj
-    k2 = b + 2.0 * t2 * b_t  # = a_s - t2 c_s
+    x2 = c2 - bcj
+    xb = x1 - b
     bH = p0 * (b + t2 * x2)
-    brP = b_s * q0 + p1 * k2
     bPr = p0 * x1
-    buP = p0 * (x2 - 2.0 * b_t) + b_s * p1 + p2 * k2
-    bF = p1 * (x1 - b) + p2 * (t2 * (c - x2) - b) - p0 * c
-    bI = -brP - bPr
-    ct2 = 2.0 * c_t
-    bF2 = p2 * (t2 * (ccj + ct2) + c - 0.5 * b) - p0 * (2.0 * ccj + ct2) \
-        - p1 * (bcj + 2.0 * b_t + 0.5 * c)
+    buP = g2 + p0 * (x2 - 2.0 * b_t - c_s)
+    bF = p1 * xb + p2 * (t2 * (c - x2) - b) - p0 * c
+    bF2 = p2 * (xb + b_s) - p0 * (2.0 * (ccj + c_t)) - p1 * (bcj + 2.0 * b_t + c2)
     f2d, fd = bF2 * d, bF * d
-    e = (bI - t2 * bF2) * d
-    U = tuple(brP * rho[i] + buP * u[i] + f2d * phi[i] for i in range(3))
+    e = (-(g1 + bPr) - t2 * bF2) * d
+    U = tuple(g1 * rho[i] + buP * u[i] + f2d * phi[i] for i in range(3))
     V = tuple(bPr * r for r in rho)
     m0, m1, m2 = (bH * rho[i] + fd * phi[i] for i in range(3))
-    g = [[U[i] * phi[j] + phi[i] * V[j] for j in range(3)] for i in range(3)]
-    return ((g[0][0] + e, g[0][1] - m2, g[0][2] + m1),
-            (g[1][0] + m2, g[1][1] + e, g[1][2] - m0),
-            (g[2][0] - m1, g[2][1] + m0, g[2][2] + e))
+    G = [[U[i] * phi[j] + phi[i] * V[j] for j in range(3)] for i in range(3)]
+    B = ((G[0][0] + e, G[0][1] - m2, G[0][2] + m1),
+         (G[1][0] + m2, G[1][1] + e, G[1][2] - m0),
+         (G[2][0] - m1, G[2][1] + m0, G[2][2] + e))
+    return B, w
 
 
 class Sim3(Pose):
@@ -379,9 +406,8 @@ class Sim3(Pose):
         The blocks of ``Jr^-1 = [[A, B, b], [0, Ji, 0], [0, 0, 1]]`` are ``A = f(P) = e^P W^-1``
         (``W^-1 = f(-P)``; ``W^-1 + P`` would cancel for ``sigma << 0``), ``Ji = Jr^-1_SO3(phi)``,
         ``b = -W^-1 d(W rho)/d sigma`` and
-        ``B = -W^-1 d(W rho)/d phi Ji`` (the block inverse of ``Jr``), the last written out in
-        the basis ``hat(rho)``, ``rho phi^T``, ``phi rho^T``, ``u phi^T``, ``d I``, ``d F``,
-        ``d F^2`` (``u = phi x rho``, ``d = phi . rho``) by :func:`b_block`.
+        ``B = -W^-1 d(W rho)/d phi Ji`` (the block inverse of ``Jr``), the last two written out
+        by :func:`upper_blocks`.
         """
         z = Sim3._compose(o, Sim3._inverse(o, x), y)
         t, q, s = z[:3], z[3:7], z[7]
@@ -392,32 +418,25 @@ class Sim3(Pose):
         # |q| is off 1 by rounding (float32 inputs), which the cancelling W coefficients need
         m = o.sqrt(M.norm2(*q))
         k, ch = 1.0 / (kl * m), aw / m
-        co = coefficients(o, sigma, t2, k, ch, derivatives=True)
-        (_, b, c), (a_s, b_s, c_s, b_t, c_t) = co[0], co[2]
-        p0, p1, p2 = poly_inv(co[0], t2)  # W^-1
-        rho = poly_apply((p0, p1, p2), phi, t)  # as Sim3._log (which takes |q| = 1)
+        co = coefficients(o, sigma, t2, k, ch, derivatives=True, cauchy_riemann=True)
+        (_, b, c), (E, sinc, h, _, _), (a_s, b_s, c_s, b_t, c_t) = co[:3]
+        wi = p0, p1, p2 = poly_inv(co[0], t2)  # W^-1
+        rho = poly_apply(wi, phi, t)  # as Sim3._log (which takes |q| = 1)
         cj = so3.coef_c_quat(o, t2, kl, aw)
-        Ji, mJl = so3.jr_inv_pair_c(cj, phi, t2)  # Jr^-1_SO3 and F - Jr^-1_SO3 = -Jl^-1_SO3
-        E, sinc, h = co[1][:3]
+        Ji, mJl = so3.jr_inv_pair_c(o, cj, phi, t2)  # Jr^-1_SO3, F - Jr^-1_SO3 = -Jl^-1_SO3
         # A = f(P) = e^P W^-1 (= W^-1 + P, which cancels for sigma << 0, as P - A = -W^-1
         # does for sigma >> 0), with e^P = E (I + sinc F + h F^2)
         q0, cos = p0 - t2 * p2, 1.0 - t2 * h
         A = poly_matrix((E * p0, E * (sinc * q0 + p1 * cos), E * (p0 * h + p1 * sinc + p2 * cos)),
                         phi, t2)
-        nWi = poly_matrix((-p0, -p1, -p2), phi, t2)
-        d = M.dot(phi, rho)
-        u = M.cross(phi, rho)
-        B = b_block((p0, p1, p2, q0), (b, c, b_t, c_t, b_s), cj, t2, phi, rho, u, d)
+        n = o.negated
+        nWi = tuple(tuple(n(x) for x in row) for row in poly_matrix(wi, phi, t2))
+        B, w = upper_blocks(wi, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho)
         r0, r1, r2 = rho
-        nB = ((-B[0][0], -r2 - B[0][1], r1 - B[0][2]),  # hat(rho) - B
-              (r2 - B[1][0], -B[1][1], -r0 - B[1][2]),
-              (-r1 - B[2][0], r0 - B[2][1], -B[2][2]))
-        # W^-1 d(W rho)/d sigma = g(F) rho with g = W^-1 (a_s + b_s F + c_s F^2);
-        # F^2 rho = d phi - t2 rho
-        g0, g1, g2 = poly_mul((p0, p1, p2), (a_s, b_s, c_s), t2)
-        e0, e2 = g0 - t2 * g2, g2 * d
-        w = tuple(e0 * rho[i] + g1 * u[i] + e2 * phi[i] for i in range(3))
-        top_r = tuple((*B[i], -w[i]) for i in range(3))
+        nB = ((n(B[0][0]), -r2 - B[0][1], r1 - B[0][2]),  # hat(rho) - B
+              (r2 - B[1][0], n(B[1][1]), -r0 - B[1][2]),
+              (-r1 - B[2][0], r0 - B[2][1], n(B[2][2])))
+        top_r = tuple((*B[i], n(w[i])) for i in range(3))
         top_l = tuple((*nB[i], w[i] - rho[i]) for i in range(3))
         return ((*rho, *phi, sigma), _assemble(A, top_r, Ji, 1.0),
                 _assemble(nWi, top_l, mJl, -1.0))

@@ -234,24 +234,26 @@ def jr_inv(o: Any, w: tuple) -> tuple:
     return i_hat_sq(0.5, coef_c(o, t2, k, ch), w, t2)
 
 
-def sym_pair(s: tuple, h: tuple) -> tuple[tuple, tuple]:
-    """``S + hat(h)`` and ``hat(h) - S`` (the negated transpose of the first) for a symmetric
-    ``S`` given as ``(s00, s11, s22, s01, s02, s12)``."""
+def sym_pair(o: Any, s: tuple, h: tuple) -> tuple[tuple, tuple]:
+    """``S + hat(h)`` and ``hat(h) - S`` (the negated transpose of the first, as
+    ``o.negated`` output components) for a symmetric ``S`` given as
+    ``(s00, s11, s22, s01, s02, s12)``."""
     s00, s11, s22, s01, s02, s12 = s
     h0, h1, h2 = h
     a01, a02, a12, a10, a20, a21 = s01 - h2, s02 + h1, s12 - h0, s01 + h2, s02 - h1, s12 + h0
+    n = o.negated
     return (((s00, a01, a02), (a10, s11, a12), (a20, a21, s22)),
-            ((-s00, -a10, -a20), (-a01, -s11, -a21), (-a02, -a12, -s22)))
+            ((n(s00), n(a10), n(a20)), (n(a01), n(s11), n(a21)), (n(a02), n(a12), n(s22))))
 
 
-def jr_inv_pair_c(c: Any, w: tuple, t2: Any) -> tuple[tuple, tuple]:
+def jr_inv_pair_c(o: Any, c: Any, w: tuple, t2: Any) -> tuple[tuple, tuple]:
     """``Jr^-1(w)`` and ``-Jl^-1(w)`` given :func:`coef_c`'s ``c``: ``Jr^-1 = S + hat(w)/2``
     and ``-Jl^-1 = -Jr^-1^T = hat(w)/2 - S``, ``S = I + c hat(w)^2 = (1 - c t2) I + c w w^T``."""
     x, y, z = w
     cx, cy, cz = c * x, c * y, c * z
     d = 1.0 - c * t2
     s = (d + cx * x, d + cy * y, d + cz * z, cx * y, cx * z, cy * z)
-    return sym_pair(s, (0.5 * x, 0.5 * y, 0.5 * z))
+    return sym_pair(o, s, (0.5 * x, 0.5 * y, 0.5 * z))
 
 
 def jl(o: Any, w: tuple) -> tuple:
@@ -420,7 +422,7 @@ class SO3(LieGroup):
         the quaternion (``sin(t/2)/t = 1/kl``, ``cos(t/2) = |w|``)."""
         phi, kl, aw = quat_log_parts(o, quat_mul(quat_conj(x), y))
         t2 = M.norm2(*phi)
-        return (phi, *jr_inv_pair_c(coef_c_quat(o, t2, kl, aw), phi, t2))
+        return (phi, *jr_inv_pair_c(o, coef_c_quat(o, t2, kl, aw), phi, t2))
 
     # ------------------------------------------------------------------ constructors
     @classmethod
