@@ -1,11 +1,12 @@
-"""Fill-reducing orderings of the supernodal Cholesky on the shared pose graphs: minimum degree
-(``"mmd"``), nested dissection (``"nd"``) and ``"auto"`` (the one with the fewest flops, see
-``microlie.optim.ordering.fill_order``), with their structure and measured factorisation times.
+"""Fill-reducing orderings of the supernodal Cholesky on the shared pose graphs and a synthetic
+3-D lattice of poses (``lattice12``): minimum degree (``"mmd"``), nested dissection (``"nd"``)
+and ``"auto"`` (the one with the fewest flops, see ``microlie.optim.ordering.fill_order``),
+with their structure and measured factorisation times.
 
 Run (one command, the dev or the benchmark environment)::
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python benchmarks/orderings.py --repeat 7 \\
-        [--graphs sphere2500 ...] [--out benchmarks/results/orderings-latest.md]
+        [--clock cpu] [--graphs sphere2500 ...] [--out benchmarks/results/orderings-latest.md]
 
 For each graph it builds the Gauss-Newton matrix at the start poses (the file's vertices, else
 the odometry chain; the pattern is what matters), analyses it once per ordering and loop, then
@@ -33,6 +34,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+import scipy.sparse as sp  # noqa: E402
 
 from microlie.optim import from_pose_graph  # noqa: E402
 from microlie.optim.cholesky import SupernodalSolver  # noqa: E402
@@ -45,6 +47,7 @@ GRAPHS = {
     "M3500": "input_M3500_g2o.g2o", "ais2klinik": "ais2klinik.g2o", "kitti_00": "kitti_00.g2o",
     "sphere-a": "sphere_bignoise_vertex3.g2o", "smallGrid3D": "smallGrid3D.g2o",
     "CSAIL": "CSAIL.g2o", "MIT": "MIT.g2o",
+    "lattice12": None,  # synthetic: a 12 x 12 x 12 lattice of SE(3) poses (see lattice())
 }
 ORDERINGS = ("mmd", "nd", "auto")
 
@@ -73,36 +76,53 @@ def has_compiled() -> bool:
     return True
 
 
-def run(name: str, repeat: int) -> list[dict]:
-    pg = read_g2o(DATA / GRAPHS[name])
-    try:
-        X0 = initialize(pg, "file")
-    except ValueError:
-        X0 = initialize(pg, "odometry")
-    fg, _ = from_pose_graph(pg, X0)
-    prob = fg.problem()
-    lin = prob.linearize([v.initial for v in prob.variables])
-    H = prob.matrix(lin.data)
+def lattice(k: int) -> tuple:
+    """A synthetic 3-D lattice of 6-dof poses (each joined to its 6 neighbours): the
+    Gauss-Newton matrix's CSC pattern, data, a right-hand side and the matrix."""
+    P = sp.diags([np.ones(k - 1), np.ones(k - 1)], [-1, 1], shape=(k, k))
+    I = sp.eye(k)
+    A = sp.kron(sp.kron(P, I), I) + sp.kron(sp.kron(I, P), I) + sp.kron(sp.kron(I, I), P)
+    L = sp.diags(np.asarray(A.sum(axis=1)).ravel() + 0.1) - A
+    W = np.random.default_rng(0).standard_normal((6, 6))
+    H = sp.kron(L, W @ W.T + 6 * np.eye(6)).tocsc()
+    H.sort_indices()
+    return H.indptr, H.indices, H.shape[0], 6, H.data, np.ones(H.shape[0]), H
+
+
+def run(name: str, repeat: int, clock=time.perf_counter) -> list[dict]:
+    if name == "lattice12":
+        indptr, indices, n, bs, data, grad, H = lattice(12)
+    else:
+        pg = read_g2o(DATA / GRAPHS[name])
+        try:
+            X0 = initialize(pg, "file")
+        except ValueError:
+            X0 = initialize(pg, "odometry")
+        fg, _ = from_pose_graph(pg, X0)
+        prob = fg.problem()
+        lin = prob.linearize([v.initial for v in prob.variables])
+        indptr, indices, n, bs = prob.indptr, prob.indices, prob.size, prob.block_size
+        data, grad, H = lin.data, lin.grad, prob.matrix(lin.data)
     loops = [False] + ([True] if has_compiled() else [])
     solvers, rows = {}, []
     for o in ORDERINGS:
         for c in loops:
             s = SupernodalSolver(compiled=c, ordering=o)
             t0 = time.perf_counter()
-            s.analyse(prob.indptr, prob.indices, prob.size, prob.block_size)
+            s.analyse(indptr, indices, n, bs)
             solvers[o, c] = (s, time.perf_counter() - t0)
     times: dict = {k: [] for k in solvers}
     for r in range(repeat + 1):
         for k, (s, _) in solvers.items():
-            t0 = time.perf_counter()
-            s.factorize(lin.data)
+            t0 = clock()
+            s.factorize(data)
             if r:
-                times[k].append(time.perf_counter() - t0)
+                times[k].append(clock() - t0)
     for o in ORDERINGS:
         s, ta = solvers[o, False]
-        x = s.solve(lin.grad)
+        x = s.solve(grad)
         row = {"graph": name, "ordering": o, "analysis": ta, **structure(s),
-               "residual": float(np.linalg.norm(H @ x - lin.grad) / np.linalg.norm(lin.grad))}
+               "residual": float(np.linalg.norm(H @ x - grad) / np.linalg.norm(grad))}
         for c in loops:
             t, t_mmd = times[o, c], times["mmd", c]
             ratios = [a / b for a, b in zip(t, t_mmd, strict=True)]
@@ -136,14 +156,20 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--graphs", nargs="*", default=list(GRAPHS), choices=list(GRAPHS))
+    ap.add_argument("--clock", choices=["wall", "cpu"], default="wall",
+                    help="time factorisations by the wall clock or by this process's CPU time "
+                         "(steadier on a shared machine; one BLAS thread)")
     ap.add_argument("--out", default=None, help="also write the markdown table to this file")
     args = ap.parse_args()
+    clock = time.perf_counter if args.clock == "wall" else time.process_time
+    load0 = os.getloadavg()[0]
     rows = []
     for g in args.graphs:
-        rows += run(g, args.repeat)
+        rows += run(g, args.repeat, clock)
         print(table(rows[-len(ORDERINGS):]).split("\n", 2)[2], flush=True)
-    text = (f"load average before/after: {os.getloadavg()[0]:.2f}; factorisation times: "
-            "median ms (ratio of medians to mmd, min-max of the per-round ratios)\n\n"
+    text = (f"load average before/after: {load0:.2f}/{os.getloadavg()[0]:.2f}; "
+            f"factorisation times ({args.clock} clock): median ms (ratio of medians to mmd, "
+            "min-max of the per-round ratios)\n\n"
             + table(rows))
     print("\n" + text)
     if args.out:

@@ -57,9 +57,8 @@ def _random_spd(bs: int, nb: int, seed: int, extra: int = 2, corner: int = 4):
 def _dense_factor(s: SupernodalSolver) -> np.ndarray:
     """The factor L assembled from the solver's panels (its own numbering)."""
     L = np.zeros((s.n, s.n))
-    for c0, k, m, p0, r0 in zip(s.c0, s.k, s.m, s.px, s.rptr[:-1], strict=True):
-        P = s.Lx[p0:p0 + m * k].reshape(k, m).T
-        L[np.ix_(s.rows[r0:r0 + m], np.arange(c0, c0 + k))] = P
+    for j, (c0, k, m, r0) in enumerate(zip(s.c0, s.k, s.m, s.rptr[:-1], strict=True)):
+        L[np.ix_(s.rows[r0:r0 + m], np.arange(c0, c0 + k))] = s._panel(j)
     return np.tril(L)
 
 
@@ -159,7 +158,9 @@ def test_compiled_and_numpy_loops_agree():
     for s in (a, c):
         s.analyse(H.indptr, H.indices, H.shape[0], 6)
         s.factorize(H.data)
-    np.testing.assert_allclose(a.Lx, c.Lx, rtol=0, atol=1e-12 * np.abs(a.Lx).max())
+    for j in range(a.ns):
+        np.testing.assert_allclose(a._panel(j), c._panel(j), rtol=0,
+                                   atol=1e-12 * np.abs(c.Lx).max())
 
 
 def test_compiled_switch(monkeypatch):
@@ -182,3 +183,63 @@ def test_auto_picks_by_installation(monkeypatch):
         monkeypatch.setenv("MICROLIE_FAST", "1")
         assert make_solver("auto", 5000, 3, default).name == "supernodal"
         assert make_solver("auto", 5000, 3, default).__dict__["_c"] is not None
+
+
+@pytest.mark.parametrize("bs, nb, seed, extra", [(6, 200, 4, 3), (3, 400, 5, 3)])
+def test_numpy_plan_paths_match_dense_cholesky(bs, nb, seed, extra):
+    """The NumPy loop's kinds of buckets all occur and give LAPACK's dense factor: members
+    padded to a common shape, batched NumPy cholesky/inv, LAPACK per member, buckets of one,
+    syrk per member, and the scatters in complex words (even ``bs``) or entries (odd)."""
+    M, H = _random_spd(bs, nb, seed, extra=extra)
+    s = SupernodalSolver(compiled=False)
+    s.analyse(H.indptr, H.indices, H.shape[0], bs)
+    p = s._numpy_plan
+    buckets = [b for level in p.levels for b in level]
+    assert p.size > int((s.k * s.m).sum())  # padding
+    assert any(b.batched for b in buckets)
+    assert any(not b.batched and b.G > 1 for b in buckets)
+    assert any(b.G == 1 for b in buckets)
+    assert any(b.G > 1 and b.U >= 48 for b in buckets)
+    assert p.word == (2 if bs % 2 == 0 else 1)
+    for scale in (1.0, 3.0):  # twice in the same buffers
+        s.factorize(H.data * scale)
+        Ld = np.linalg.cholesky(scale * M[np.ix_(s.sperm, s.sperm)])
+        np.testing.assert_allclose(_dense_factor(s), Ld, rtol=0,
+                                   atol=1e-10 * np.abs(Ld).max())
+    b = np.random.default_rng(seed).standard_normal((H.shape[0], 3))
+    np.testing.assert_allclose(s.solve(b), np.linalg.solve(3.0 * M, b), rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+def test_pattern_with_partial_blocks(compiled):
+    """Blocks of the pattern that are not dense (entries that cancelled) are assembled entry by
+    entry; the factor is still LAPACK's."""
+    M, _ = _random_spd(2, 60, 12)
+    rng = np.random.default_rng(12)
+    i, j = np.nonzero(np.triu(M, 2))
+    pick = rng.choice(i.size, i.size // 4, replace=False)
+    M[i[pick], j[pick]] = M[j[pick], i[pick]] = 0.0
+    M += 50.0 * np.eye(M.shape[0])
+    H = sp.csc_matrix(M)
+    H.sort_indices()
+    s = SupernodalSolver(compiled=compiled)
+    s.analyse(H.indptr, H.indices, H.shape[0], 2)
+    if not compiled:
+        assert s._numpy_plan._aword == 1
+    s.factorize(H.data)
+    Ld = np.linalg.cholesky(M[np.ix_(s.sperm, s.sperm)])
+    np.testing.assert_allclose(_dense_factor(s), Ld, rtol=0, atol=1e-10 * np.abs(Ld).max())
+
+
+def test_solve_after_a_failed_factorisation_is_an_error():
+    M, H = _random_spd(3, 30, 5)
+    s = SupernodalSolver(compiled=False)
+    s.analyse(H.indptr, H.indices, H.shape[0], 3)
+    s.factorize(H.data)
+    with pytest.raises(SingularSystemError, match="not positive definite"):
+        s.factorize(-H.data)
+    with pytest.raises(SingularSystemError, match="failed"):
+        s.solve(np.ones(H.shape[0]))
+    s.factorize(H.data)
+    np.testing.assert_allclose(s.solve(np.ones(H.shape[0])),
+                               np.linalg.solve(M, np.ones(H.shape[0])), rtol=1e-8)

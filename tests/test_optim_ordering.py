@@ -202,3 +202,17 @@ def test_tiny_graphs(n, method):
     A = sp.csr_matrix(np.ones((n, n)))
     s = O.fill_order(A, method)
     assert _is_perm(s.perm, n) and s.nnz == n * (n + 1) // 2 and s.height == n
+
+
+def test_unbalanced_graphs_fall_back_to_minimum_degree():
+    # a star has no balanced cut: no separator, and its order has no fill (the hub last)
+    n = 2000
+    star = O._clean(sp.csr_matrix((np.ones(n - 1), (np.zeros(n - 1, int), np.arange(1, n))),
+                                  shape=(n, n)))
+    assert O.separator(star) is None
+    assert O.symbolic(star, O.nested_dissection(star, 8)).nnz == 2 * n - 1
+    # a broom (a long path ending in a star) and a long path: permutations, no deep recursion
+    broom = sp.block_diag([_path(3000), sp.csr_matrix((n, n))]).tolil()
+    broom[2999, 3000:] = 1
+    for A in (broom, _path(5000)):
+        assert _is_perm(O.nested_dissection(A, 64), A.shape[0])

@@ -15,11 +15,9 @@ block first). The numeric factorisation is right-looking: scatter the matrix int
 diagonal block, ``trsm`` for the rows below, ``syrk`` for the update ``W = L21 L21^T``, and
 subtract ``W`` from the panels of its ancestors through precomputed relative row indices.
 With ``microlie-fast`` installed (``pip install "microlie[fast]"``) the whole loop is one C call
-on SciPy's own BLAS/LAPACK (``microlie_fast._chol``); without it, the supernodes of one level
-of the supernodal elimination tree (independent of each other) with equal shapes are
-factorised as one batch of NumPy's stacked ``cholesky``/``inv``/``matmul`` (a supernode alone
-in its batch with SciPy's LAPACK wrappers), and their updates are summed into the panels by
-``ufunc.at`` through precomputed flat maps. ``MICROLIE_FAST=0`` keeps the NumPy loop. Both
+on SciPy's own BLAS/LAPACK (``microlie_fast._chol``); without it (or with ``MICROLIE_FAST=0``)
+the NumPy loop of :mod:`microlie.optim.cholesky_numpy` runs a few batched steps per level of the
+supernodal elimination tree (its own layout of the same factor). Both
 compute the same factor (to rounding)."""
 
 from __future__ import annotations
@@ -28,10 +26,11 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp  # type: ignore[import-untyped]
-from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
 from scipy.sparse.csgraph import depth_first_order  # type: ignore[import-untyped]
 
 from .._fast import compiled as compiled_module
+from .cholesky_numpy import NOT_PD as _NOT_PD
+from .cholesky_numpy import NumpyLoop
 from .linear import LinearSolver, SingularSystemError
 from .ordering import ORDERINGS, fill_order, graph
 
@@ -40,8 +39,6 @@ __all__ = ["SupernodalSolver"]
 # relaxed amalgamation: (max merged columns, max fraction of explicit zeros)
 _RELAX = ((4, 0.8), (16, 0.1), (48, 0.05))
 
-_NOT_PD = ("the linear system is not positive definite (a pivot of the Cholesky "
-           "factorisation is not positive)")
 
 
 def _compiled() -> Any:
@@ -80,7 +77,7 @@ class SupernodalSolver(LinearSolver):
         if compiled and mod is None:
             raise ImportError("the compiled supernode loop needs microlie-fast "
                               "(pip install 'microlie[fast]') and MICROLIE_FAST != 0")
-        self._c = mod
+        self._c: Any = mod
 
     def analyse(self, indptr, indices, n, block_size=1):
         super().analyse(indptr, indices, n)
@@ -103,7 +100,7 @@ class SupernodalSolver(LinearSolver):
         bstart = _amalgamate(sn_start, L, nb)
         self.sperm = (perm[:, None] * bs + np.arange(bs)).ravel()  # scalar: new -> old
         self._symbolic(bstart, L, n, nb, bs)
-        self._numpy_plan: list[Any] | None = None if self._c is not None else self._plan()
+        self._numpy_plan = None if self._c is not None else NumpyLoop(self)
 
     def _symbolic(self, bstart: np.ndarray, L: Any, n: int, nb: int, bs: int) -> None:
         """Panels, row structures, the assembly map and the update pairs (vectorised)."""
@@ -185,168 +182,51 @@ class SupernodalSolver(LinearSolver):
 
     def factorize(self, data: np.ndarray) -> None:
         data = np.ascontiguousarray(data, dtype=np.float64)
-        if self._c is not None:
-            Lx = np.empty(self.nx + self.bs)  # the panels, then a dump block (zeroed in C)
-            info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
-                                  self.rows, self.rptr, self.pptr, self.pt, self.pa,
-                                  self.pb, self.relptr, self.rel, self.wsize, self.bs)
-            if info:
-                raise SingularSystemError(_NOT_PD)
-        else:
-            Lx = np.zeros(self.nx + self.bs)
-            Lx[self.amap] = data
-            self._factor_numpy(Lx)
+        if self._numpy_plan is not None:
+            self._factored = False  # the NumPy loop overwrites the last factor in place
+            self._numpy_plan.factor(data)
+            self._factored = True
+            return
+        Lx = np.empty(self.nx + self.bs)  # the panels, then a dump block (zeroed in C)
+        info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
+                              self.rows, self.rptr, self.pptr, self.pt, self.pa, self.pb,
+                              self.relptr, self.rel, self.wsize, self.bs)
+        if info:
+            raise SingularSystemError(_NOT_PD)
         self.Lx = Lx
 
-    def _plan(self) -> list[Any]:
-        """Steps of the NumPy loop: per level of the supernodal elimination tree (leaves
-        first; supernodes of one level are independent), the supernodes of equal shape as one
-        batch, with the flat update maps of each batch (vectorised over all update pairs):
-        ``src`` indexes the batch's stacked updates ``W`` (``(G, u, u)``, C order) and ``dst``
-        the panels (flat, sorted by destination)."""
-        ns = self.ns
-        lev = np.zeros(ns, np.int64)
-        for s, p in enumerate(self.sparent.tolist()):
-            if p >= 0 and lev[p] <= lev[s]:
-                lev[p] = lev[s] + 1
-        order = np.lexsort((self.m, self.k, lev))
-        keys = np.stack([lev[order], self.k[order], self.m[order]])
-        cut = np.r_[0, np.flatnonzero(np.any(keys[:, 1:] != keys[:, :-1], axis=0)) + 1,
-                    ns]
-        gid = np.empty(ns, np.int64)
-        pos = np.empty(ns, np.int64)  # position in its batch
-        gid[order] = np.repeat(np.arange(cut.size - 1), np.diff(cut))
-        pos[order] = np.arange(ns) - np.repeat(cut[:-1], np.diff(cut))
-        # every update entry, generated in blocks of bs consecutive rows (all offsets are
-        # multiples of bs): pair p, W column j in [a, b), W rows from a in runs of bs
-        bs = self.bs
-        u = self.m - self.k
-        ps = np.repeat(np.arange(ns), np.diff(self.pptr))
-        a, b = self.pa, self.pb
-        wa = (u[ps] - a) // bs
-        cnt = (b - a) * wa
-        pid = np.repeat(np.arange(ps.size), cnt)
-        e = np.arange(int(cnt.sum())) - np.repeat(np.r_[0, np.cumsum(cnt)][:-1], cnt)
-        wap = wa[pid]
-        jj, ii = a[pid] + e // wap, (e % wap) * bs  # ii counts from a
-        sp_, t = ps[pid], self.pt[pid]
-        us = u[sp_]
-        src = (pos[sp_] * us * us + jj * us + a[pid] + ii) // bs
-        col = self.rows[self.rptr[sp_] + self.k[sp_] + jj] - self.c0[t]
-        dst = (self.px[t] + col * self.m[t] + self.rel[self.relptr[pid] + ii]) // bs
-        eg = gid[sp_]
-        so = np.argsort(eg, kind="stable")
-        bounds = np.searchsorted(eg[so], np.arange(cut.size))
-        steps: list[Any] = []
-        for g in range(cut.size - 1):
-            grp = order[cut[g]:cut[g + 1]]
-            k, m = int(self.k[grp[0]]), int(self.m[grp[0]])
-            sel = so[bounds[g]:bounds[g + 1]]
-            # flat indices, sorted by destination (sequential writes)
-            so2 = np.argsort(dst[sel], kind="stable")
-            gsrc = (src[sel][so2][:, None] * bs + np.arange(bs)).ravel()
-            gdst = (dst[sel][so2][:, None] * bs + np.arange(bs)).ravel()
-            ridx = self.rows[self.rptr[grp][:, None] + k + np.arange(m - k)]
-            cidx = self.c0[grp][:, None] + np.arange(k)
-            gidx = self.px[grp][:, None] // bs + np.arange(m * k // bs)
-            steps.append({"grp": grp, "k": k, "m": m, "src": gsrc, "dst": gdst, "gidx": gidx,
-                          "cidx": cidx, "ridx": ridx})
-        return steps
-
-    def _factor_numpy(self, Lx: np.ndarray) -> None:
-        if self._numpy_plan is None:
-            self._numpy_plan = self._plan()
-        potrf, trsm, syrk = lapack.dpotrf, blas.dtrsm, blas.dsyrk
-        bs = self.bs
-        Lb = Lx.reshape(-1, bs)  # Lx in blocks of bs consecutive entries (one row run)
-        factors = []
-        for st in self._numpy_plan:
-            grp, k, m = st["grp"], st["k"], st["m"]
-            u = m - k
-            if grp.size == 1:
-                p0 = int(self.px[grp[0]])
-                P = Lx[p0:p0 + m * k].reshape(k, m).T  # the F-order (m, k) panel
-                L11, info = potrf(P[:k], lower=1, clean=1)
-                if info != 0:
-                    raise SingularSystemError(_NOT_PD)
-                P[:k] = L11
-                if u:
-                    L21 = trsm(1.0, L11, P[k:], side=1, lower=1, trans_a=1)
-                    P[k:] = L21
-                    W = syrk(1.0, L21, lower=1)  # (u, u), lower triangle (F order)
-                    # src indexes W in C order as j * u + i: that is W.T's lower triangle
-                    np.subtract.at(Lx, st["dst"], np.take(W.T.ravel(), st["src"]))
-                    factors.append((L11, L21.T[None]))
-                else:
-                    factors.append((L11, np.zeros((1, k, 0))))
-                continue
-            G = grp.size
-            Q = np.take(Lb, st["gidx"], axis=0).reshape(G, k, m)  # Q[g, c, r] = panel[r, c]
-            try:
-                L11 = np.linalg.cholesky(np.swapaxes(Q[:, :, :k], 1, 2))
-            except np.linalg.LinAlgError:
-                raise SingularSystemError(_NOT_PD) from None
-            Linv = np.linalg.inv(L11)
-            Q[:, :, :k] = np.swapaxes(L11, 1, 2)
-            L21T = Linv @ Q[:, :, k:]  # (G, k, u) = L21^T
-            Q[:, :, k:] = L21T
-            Lb[st["gidx"]] = Q.reshape(G, k * m // bs, bs)
-            if u:
-                W = np.swapaxes(L21T, 1, 2) @ L21T  # (G, u, u), symmetric
-                # ufunc.at sums the contributions of several supernodes to one entry
-                np.subtract.at(Lx, st["dst"], np.take(W.ravel(), st["src"]))
-            factors.append((Linv, L21T))
-        self._factors = factors
+    def _panel(self, j: int) -> np.ndarray:
+        """The dense ``m_j x k_j`` panel of supernode ``j`` of the last factorisation (its
+        diagonal block, then the rows below; for tests)."""
+        if self._numpy_plan is not None:
+            return self._numpy_plan.panel(j)
+        p0, k, m = int(self.px[j]), int(self.k[j]), int(self.m[j])
+        return self.Lx[p0:p0 + m * k].reshape(k, m).T
 
     # ---- solve -----------------------------------------------------------------------------
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         b = np.asarray(b, dtype=np.float64)
         vec = b.ndim == 1
-        y = np.asfortranarray((b[:, None] if vec else b)[self.sperm])
-        if self._c is not None:
+        rhs = (b[:, None] if vec else b)[self.sperm]
+        if self._numpy_plan is not None:
+            if not getattr(self, "_factored", False):
+                raise SingularSystemError("no factorisation to solve with (the last one "
+                                          "failed)")
+            y = np.zeros((self.n + 2, rhs.shape[1]))  # then a zero row and a dump row
+            y[:self.n] = rhs
+            self._numpy_plan.solve(y)
+            y = y[:self.n]
+        else:
+            y = np.asfortranarray(rhs)
             self._c.solve(self.Lx, y, self.c0, self.k, self.m, self.px, self.rows,
                           self.rptr, self.usize)
-        else:
-            y = np.ascontiguousarray(y)
-            self._solve_numpy(y)
         x = np.empty_like(y)
         x[self.sperm] = y
         if not np.all(np.isfinite(x)):
             raise SingularSystemError("the linear system is singular (the solution is not "
                                       "finite)")
         return x[:, 0] if vec else x
-
-    def _solve_numpy(self, y: np.ndarray) -> None:
-        """Forward by levels (a batch's updates to shared rows summed by ``ufunc.at``), then
-        backward in the reverse order; ``y`` is ``(n, nrhs)``, C order. A single supernode
-        keeps its ``L11`` (triangular solves), a batch ``L11^-1``."""
-        nr = y.shape[1]
-        trsm = blas.dtrsm
-        plan = list(zip(self._numpy_plan or [], self._factors, strict=True))
-        for st, (Li, L21T) in plan:
-            cidx, ridx = st["cidx"], st["ridx"]
-            if Li.ndim == 2:  # one supernode: L11
-                c0 = int(cidx[0, 0])
-                yc = trsm(1.0, Li, y[c0:c0 + Li.shape[0]], lower=1)[None]
-            else:
-                yc = Li @ y[cidx]  # (G, k, nr)
-            y[cidx] = yc
-            if ridx.shape[1]:
-                upd = np.swapaxes(L21T, 1, 2) @ yc  # (G, u, nr)
-                if nr == 1:
-                    np.subtract.at(y.ravel(), ridx.ravel(), upd.ravel())
-                else:
-                    np.subtract.at(y, ridx, upd)
-        for st, (Li, L21T) in reversed(plan):
-            cidx, ridx = st["cidx"], st["ridx"]
-            rhs = y[cidx]
-            if ridx.shape[1]:
-                rhs = rhs - L21T @ y[ridx]
-            if Li.ndim == 2:
-                y[cidx] = trsm(1.0, Li, rhs[0], lower=1, trans_a=1)[None]
-            else:
-                y[cidx] = np.swapaxes(Li, 1, 2) @ rhs
 
 
 def _closed(L: Any, nb: int) -> Any:

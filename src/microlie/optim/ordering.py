@@ -96,12 +96,13 @@ def graph(indptr: np.ndarray, indices: np.ndarray, n: int, block_size: int = 1) 
     cols = np.repeat(np.arange(n), np.diff(indptr)) // bs
     rows = np.asarray(indices) // bs
     A = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(nb, nb))
-    return _clean(A + A.T)
+    return _clean(A)
 
 
 def _clean(A: Any) -> Any:
-    """``A``'s pattern, symmetric, without diagonal, unit data, sorted CSR."""
+    """The pattern of ``A + A^T`` without diagonal, unit data, sorted CSR."""
     A = sp.csr_matrix(A)
+    A = abs(A) + abs(A.T)
     A.setdiag(0)
     A.eliminate_zeros()
     A.data[:] = 1.0
@@ -132,7 +133,7 @@ def minimum_degree(A: Any) -> np.ndarray:
     Parameters
     ----------
     A : scipy.sparse matrix
-        The symmetric adjacency (the diagonal and the values are ignored).
+        The adjacency (of the pattern of ``A + A^T``; the diagonal and values are ignored).
 
     Returns
     -------
@@ -209,9 +210,8 @@ def separator(A: Any) -> tuple[np.ndarray, np.ndarray] | None:
     -------
     tuple of numpy.ndarray or None
         ``(sep, side)``, boolean masks: no edge joins ``~sep & side`` and ``~sep & ~side``,
-        and each holds at least a quarter of the vertices minus the separator when the level
-        structure allows; ``None`` when it has no cut leaving both sides non-empty (for
-        example a clique).
+        and each side holds at least a quarter of the vertices less the separator; ``None``
+        when the level structure has no such cut (for example a star or a clique).
 
     Raises
     ------
@@ -247,8 +247,8 @@ def separator(A: Any) -> tuple[np.ndarray, np.ndarray] | None:
     bound = np.minimum(nr, nc)[: nlev - 1]
     cut = np.arange(nlev - 1)
     ok = (below[cut] >= _BALANCE * n) & (n - below[cut] >= _BALANCE * n)
-    if not ok.any():
-        ok = (below[cut] > 0) & (below[cut] < n)
+    if not ok.any():  # no balanced cut (a star, a clique): minimum degree does better
+        return None
     est = bound / np.maximum(np.minimum(below[cut], n - below[cut]), 1)
     cand = cut[ok][np.argsort(est[ok], kind="stable")[:_CANDIDATES]]
     best: tuple[float, int, np.ndarray] | None = None
@@ -280,7 +280,7 @@ def nested_dissection(A: Any, leaf_size: int = LEAF_SIZE) -> np.ndarray:
     Parameters
     ----------
     A : scipy.sparse matrix
-        The symmetric adjacency (the diagonal and the values are ignored).
+        The adjacency (of the pattern of ``A + A^T``; the diagonal and values are ignored).
     leaf_size : int
         Pieces of at most this many vertices are not split (``leaf_size >= n``: minimum
         degree).
@@ -406,7 +406,7 @@ def symbolic(A: Any, perm: np.ndarray) -> Symbolic:
     Parameters
     ----------
     A : scipy.sparse matrix
-        The symmetric adjacency (the diagonal and the values are ignored).
+        The adjacency (of the pattern of ``A + A^T``; the diagonal and values are ignored).
     perm : array_like of int
         The order, new -> old.
 
@@ -471,7 +471,7 @@ def fill_order(A: Any, method: str = "auto") -> Symbolic:
     Parameters
     ----------
     A : scipy.sparse matrix
-        The symmetric adjacency (the diagonal and the values are ignored).
+        The adjacency (of the pattern of ``A + A^T``; the diagonal and values are ignored).
     method : str
         ``"auto"``, ``"mmd"`` or ``"nd"``.
 

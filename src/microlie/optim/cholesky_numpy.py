@@ -1,0 +1,401 @@
+"""The NumPy loop of the supernodal Cholesky (:class:`~microlie.optim.cholesky.SupernodalSolver`
+without ``microlie-fast``): the same factor as the compiled loop, organised so that the
+Python loop runs a few times per level of the supernodal elimination tree, not once per
+supernode.
+
+Plan (made once per pattern by :class:`NumpyLoop`):
+
+- the supernodes of one level (independent of each other) are put in *buckets*; a bucket's
+  members are padded to its common ``(K, U)`` (``K`` columns, ``U`` rows below the diagonal
+  block): the padded diagonal block is ``blockdiag(A11, I)`` and the padded rows and columns
+  are zero, so the padded factor is ``blockdiag(L11, I)`` and ``[L21, 0; 0, 0]``. Which shapes
+  share a bucket is chosen by a cost model (a bucket's fixed cost against its padded work);
+- the factor lives in one array, bucket after bucket: the ``(G, K, K)`` diagonal blocks
+  (``D[g, c, r] = L11[r, c]``) and the ``(G, K, U)`` blocks below (``B[g, c, r] = L21[r, c]``),
+  so every member is an F-ordered matrix that LAPACK overwrites in place, and every bucket a
+  stack that NumPy's batched ``matmul`` reads directly;
+- the update ``W = L21 L21^T`` of every member of a level is written into one buffer, and
+  its lower block triangle subtracted from the ancestors' blocks by one ``ufunc.at`` per level
+  through precomputed flat maps (``ufunc.at`` sums the contributions of several members to one
+  entry; in NumPy 2 it is also faster than a plain indexed subtraction). With even ``bs`` the
+  maps move complex128 words (two entries each): the scatters are bound by memory traffic.
+
+Numeric factorisation (:meth:`NumpyLoop.factor`): per bucket either one batch of NumPy's
+stacked ``cholesky``/``inv`` (small ``K``, many members) or LAPACK's ``potrf``/``trtri`` per
+member in place; then ``L21^T = L11^-1 B^T`` and ``W`` as batched products (``trsm`` and
+``syrk`` for a bucket of one). Solve (:meth:`NumpyLoop.solve`): per level one gather, a batched
+product per bucket and one scatter, forward then backward."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
+
+from .linear import SingularSystemError
+
+__all__ = ["NumpyLoop"]
+
+NOT_PD = ("the linear system is not positive definite (a pivot of the Cholesky "
+          "factorisation is not positive)")
+
+# batched NumPy cholesky/inv for buckets of at least _BATCH_G members with K <= _BATCH_K
+# (NumPy's stacked inv costs about 0.7 us for 6x6 but 10 us for 24x24, LAPACK per member 2 us)
+_BATCH_K, _BATCH_G = 12, 8
+# cost model of a bucket (seconds): fixed cost per bucket and per member, per padded flop and
+# per padded entry moved (measured on the shared pose graphs, one BLAS thread)
+# W = L21 L21^T by syrk per member (the lower triangle) from this many rows below
+_SYRK_U = 48
+_COST_BUCKET, _COST_MEMBER, _COST_FLOP, _COST_ENTRY = 40e-6, 3e-6, 1.0 / 8e9, 1.5e-9
+
+
+def _levels(sparent: np.ndarray) -> np.ndarray:
+    """Level of each supernode in the supernodal elimination tree (leaves 0; children have
+    smaller indices than their parents)."""
+    lev = np.zeros(sparent.size, np.int64)
+    for s, p in enumerate(sparent.tolist()):
+        if p >= 0 and lev[p] <= lev[s]:
+            lev[p] = lev[s] + 1
+    return lev
+
+
+def _bucket_cost(G: int, K: int, U: int) -> float:
+    flops = G * (K ** 3 / 3.0 + K * K * U + K * U * U)
+    return (_COST_BUCKET + G * _COST_MEMBER + flops * _COST_FLOP
+            + G * (K * K + K * U + U * U) * _COST_ENTRY)
+
+
+def _buckets(k: np.ndarray, u: np.ndarray) -> list[np.ndarray]:
+    """Partition the supernodes of one level (shapes ``k``, ``u``) into buckets: distinct
+    shapes sorted by ``(k, u)``, cut into contiguous runs by dynamic programming on
+    :func:`_bucket_cost` (a run is padded to its largest ``k`` and ``u``)."""
+    shapes, inv = np.unique(np.stack([k, u], 1), axis=0, return_inverse=True)
+    inv = inv.ravel()
+    cnt = np.bincount(inv, minlength=len(shapes)).tolist()
+    ks, us = shapes[:, 0].tolist(), shapes[:, 1].tolist()
+    S = len(ks)
+    best = [0.0] + [np.inf] * S
+    cut = [0] * (S + 1)
+    for j in range(1, S + 1):  # runs i..j-1
+        G, U = 0, 0
+        for i in range(j - 1, -1, -1):
+            G += cnt[i]
+            U = max(U, us[i])
+            c = best[i] + _bucket_cost(G, ks[j - 1], U)
+            if c < best[j]:
+                best[j], cut[j] = c, i
+    runs = []
+    j = S
+    while j > 0:
+        runs.append((cut[j], j))
+        j = cut[j]
+    return [np.flatnonzero((inv >= i) & (inv < j)) for i, j in reversed(runs)]
+
+
+class _Bucket:
+    """Members of one level padded to ``(K, U)``, with views into the factor buffers."""
+
+    def __init__(self, members: np.ndarray, K: int, U: int, batched: bool) -> None:
+        self.members, self.G, self.K, self.U, self.batched = members, members.size, K, U, \
+            batched
+        self.D: Any = None  # (G, K, K) views, set by NumpyLoop._views
+        self.B: Any = None  # (G, K, U)
+        self.Linv: Any = None  # (G, K, K), C order, L11^-1 (buckets of more than one)
+        self.W: Any = None  # (G, U, U)
+        self.each: list[tuple[Any, Any, Any]] = []  # per member: L11 (F), its C view, Linv^T
+        self.c: tuple[int, int] = (0, 0)  # its columns in the level's gathered columns
+        self.r: tuple[int, int] = (0, 0)  # its rows in the level's gathered rows
+
+
+class NumpyLoop:
+    """The NumPy plan of a :class:`~microlie.optim.cholesky.SupernodalSolver` whose symbolic
+    analysis is done (its panels, row structures, assembly map and update pairs)."""
+
+    def __init__(self, s: Any) -> None:
+        bs, ns = s.bs, s.ns
+        k, m = s.k, s.m
+        u = m - k
+        self.n, self.bs, self.ns = s.n, bs, ns
+        self.k, self.u = k, u
+        lev = _levels(s.sparent)
+        nlev = int(lev.max()) + 1 if ns else 0
+        # buckets, level by level; the padded shape of every supernode
+        K = k.copy()
+        U = u.copy()
+        self.levels: list[list[_Bucket]] = []
+        for level in range(nlev):
+            sel = np.flatnonzero(lev == level)
+            bl = []
+            for idx in _buckets(k[sel], u[sel]):
+                mem = sel[idx]
+                Kb, Ub = int(k[mem].max()), int(u[mem].max())
+                K[mem], U[mem] = Kb, Ub
+                bl.append(_Bucket(mem, Kb, Ub, bool(Kb <= _BATCH_K and mem.size >= _BATCH_G)))
+            self.levels.append(bl)
+        # layout: bucket after bucket, D then B; Linv and W in their own buffers
+        dpos = np.zeros(ns, np.int64)
+        bpos = np.zeros(ns, np.int64)
+        wpos = np.zeros(ns, np.int64)
+        off = loff = wmax = 0
+        self._lofs: list[tuple[_Bucket, int]] = []
+        self._wlen: list[int] = []
+        for bl in self.levels:
+            woff = 0
+            for b in bl:
+                G, Kb, Ub = b.G, b.K, b.U
+                g = np.arange(G)
+                dpos[b.members] = off + g * Kb * Kb
+                off += G * Kb * Kb
+                bpos[b.members] = off + g * Kb * Ub
+                off += G * Kb * Ub
+                wpos[b.members] = woff + g * Ub * Ub
+                woff += G * Ub * Ub
+                if G > 1:
+                    self._lofs.append((b, loff))
+                    loff += G * Kb * Kb
+            self._wlen.append(woff)
+            wmax = max(wmax, woff)
+        self.size = off
+        self.L = np.zeros(off + bs)  # the factor, then one dump run of bs entries
+        self._Linv = np.zeros(loff)
+        self._Wbuf = np.zeros(wmax)
+        self.K, self.U, self.dpos, self.bpos = K, U, dpos, bpos
+        # padded diagonal: ones
+        pad = k < K
+        cnt = (K - k)[pad]
+        sid = np.repeat(np.flatnonzero(pad), cnt)
+        c = np.arange(int(cnt.sum())) - np.repeat(np.r_[0, np.cumsum(cnt)][:-1], cnt) + k[sid]
+        self._ones = dpos[sid] + c * K[sid] + c
+        # runs of bs entries move as complex128 words of two entries when bs is even (half
+        # the indices: the scatters are bound by memory traffic)
+        self.word = 2 if bs % 2 == 0 else 1
+        self._assembly(s)
+        self._updates(s, lev, wpos, nlev)
+        self._solve_maps(s)
+        self._views()
+
+    def __len__(self) -> int:
+        """The number of buckets (steps of the loop)."""
+        return sum(len(level) for level in self.levels)
+
+    # ---- plan ------------------------------------------------------------------------------
+
+    def _at(self, sid: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
+        """Position in :attr:`L` of entry ``(row, col)`` (local) of supernode ``sid``."""
+        k = self.k[sid]
+        return np.where(row < k, self.dpos[sid] + col * self.K[sid] + row,
+                        self.bpos[sid] + col * self.U[sid] + row - k)
+
+    def _from_panel(self, s: Any, p: np.ndarray) -> np.ndarray:
+        """Positions in :attr:`L` of the panel offsets ``p`` (the compiled loop's layout)."""
+        sid = np.searchsorted(s.px, p, side="right") - 1
+        rem = p - s.px[sid]
+        return self._at(sid, rem // s.m[sid], rem % s.m[sid])
+
+    def _assembly(self, s: Any) -> None:
+        """The map of the pattern's entries into :attr:`L`, the strict upper triangle to the
+        dump run: by runs of ``bs`` rows when the pattern is made of dense ``bs x bs`` blocks
+        (a run of the diagonal block also writes the unused upper part of ``L11``), in words
+        of :attr:`word` entries; else entry by entry."""
+        bs, nx, w = self.bs, s.nx, self.word
+        ip, ix = np.asarray(s.indptr), np.asarray(s.indices)
+        runs = ix.size % bs == 0 and bool(np.all(ip % bs == 0))
+        if runs and ix.size:
+            r = ix.reshape(-1, bs)
+            runs = bool(np.all(r[:, 0] % bs == 0) and np.all(r - r[:, :1] == np.arange(bs)))
+        amap = s.amap
+        if runs:
+            last = amap[bs - 1::bs]  # the run's last row is in the lower triangle if any is
+            low = last < nx
+            start = np.full(last.size, self.size, np.int64)
+            start[low] = self._from_panel(s, last[low]) - (bs - 1)
+            self._amap, self._aword = (start[:, None] // w + np.arange(bs // w)).ravel(), w
+        else:
+            low = amap < nx
+            pos = np.full(amap.size, self.size, np.int64)
+            pos[low] = self._from_panel(s, amap[low])
+            self._amap, self._aword = pos, 1
+
+    def _updates(self, s: Any, lev: np.ndarray, wpos: np.ndarray, nlev: int) -> None:
+        """Per level: the runs of ``bs`` entries of the members' ``W`` (lower block triangle)
+        and their destinations in the ancestors, as one 0/1 sparse matrix (rows: distinct
+        destination runs) or, without collisions, two index arrays."""
+        bs, ns = self.bs, self.ns
+        u = self.u
+        ps = np.repeat(np.arange(ns), np.diff(s.pptr))
+        a, b = s.pa, s.pb
+        wa = (u[ps] - a) // bs
+        cnt = (b - a) * wa
+        pid = np.repeat(np.arange(ps.size), cnt)
+        e = np.arange(int(cnt.sum())) - np.repeat(np.r_[0, np.cumsum(cnt)][:-1], cnt)
+        wap = wa[pid]
+        jj, ii = a[pid] + e // wap, (e % wap) * bs
+        row = a[pid] + ii
+        keep = row // bs >= jj // bs
+        pid, jj, ii, row = pid[keep], jj[keep], ii[keep], row[keep]
+        sp_, t = ps[pid], s.pt[pid]
+        src = (wpos[sp_] + jj * self.U[sp_] + row) // bs
+        col = s.rows[s.rptr[sp_] + s.k[sp_] + jj] - s.c0[t]
+        dst = self._at(t, col, s.rel[s.relptr[pid] + ii]) // bs
+        el = lev[sp_]
+        so = np.lexsort((dst, el))
+        el, src, dst = el[so], src[so], dst[so]
+        bounds = np.searchsorted(el, np.arange(nlev + 1))
+        w = self.word
+        run = np.arange(bs // w)
+        self._scatter: list[tuple[np.ndarray, np.ndarray]] = []
+        for level in range(nlev):  # in words
+            sl = slice(bounds[level], bounds[level + 1])
+            self._scatter.append(((dst[sl, None] * (bs // w) + run).ravel(),
+                                  (src[sl, None] * (bs // w) + run).ravel()))
+
+    def _solve_maps(self, s: Any) -> None:
+        """Per level, the gathered columns and rows of its buckets (padded ones: the zero row
+        ``n`` to read, the dump row ``n + 1`` to write)."""
+        n = self.n
+        self._cols: list[tuple[np.ndarray, np.ndarray]] = []
+        self._rows: list[tuple[np.ndarray, np.ndarray]] = []
+        for bl in self.levels:
+            cr, cw, rr, rw = [], [], [], []
+            nc = nr = 0
+            for b in bl:
+                G, Kb, Ub = b.G, b.K, b.U
+                kk, uu = self.k[b.members][:, None], self.u[b.members][:, None]
+                c = s.c0[b.members][:, None] + np.arange(Kb)
+                real = np.arange(Kb) < kk
+                cr.append(np.where(real, c, n).ravel())
+                cw.append(np.where(real, c, n + 1).ravel())
+                ri = np.minimum(np.arange(Ub), np.maximum(uu - 1, 0))
+                rr_ = s.rows[s.rptr[b.members][:, None] + s.k[b.members][:, None] + ri]
+                real = np.arange(Ub) < uu
+                rr.append(np.where(real, rr_, n).ravel())
+                rw.append(np.where(real, rr_, n + 1).ravel())
+                b.c, b.r = (nc, nc + G * Kb), (nr, nr + G * Ub)
+                nc, nr = nc + G * Kb, nr + G * Ub
+            self._cols.append((np.concatenate(cr), np.concatenate(cw)))
+            self._rows.append((np.concatenate(rr), np.concatenate(rw)))
+
+    def _views(self) -> None:
+        L = self.L
+        for bl in self.levels:
+            for b in bl:
+                G, Kb, Ub = b.G, b.K, b.U
+                d0 = int(self.dpos[b.members[0]])
+                b.D = L[d0:d0 + G * Kb * Kb].reshape(G, Kb, Kb)
+                b.B = L[d0 + G * Kb * Kb:d0 + G * Kb * (Kb + Ub)].reshape(G, Kb, Ub)
+        for b, lo in self._lofs:
+            b.Linv = self._Linv[lo:lo + b.G * b.K * b.K].reshape(b.G, b.K, b.K)
+            if not b.batched:
+                b.each = [(D.T, D, Li.T) for D, Li in zip(b.D, b.Linv, strict=True)]
+        for bl in self.levels:
+            w = 0
+            for b in bl:
+                b.W = self._Wbuf[w:w + b.G * b.U * b.U].reshape(b.G, b.U, b.U)
+                w += b.G * b.U * b.U
+
+    # ---- numeric ---------------------------------------------------------------------------
+
+    def factor(self, data: np.ndarray) -> None:
+        """Factorise the matrix with CSC values ``data`` (in the analysed pattern)."""
+        L = self.L
+        L.fill(0.0)
+        L[self._ones] = 1.0
+        if self._aword == 2:
+            L.view(np.complex128)[self._amap] = data.view(np.complex128)
+        else:
+            L[self._amap] = data
+        Lw, Wf = (L.view(np.complex128), self._Wbuf.view(np.complex128)) if self.word == 2 \
+            else (L, self._Wbuf)
+        potrf, trtri, trsm, syrk = lapack.dpotrf, lapack.dtrtri, blas.dtrsm, blas.dsyrk
+        for bl, (dst, src) in zip(self.levels, self._scatter, strict=True):
+            for b in bl:
+                D, B = b.D, b.B
+                if b.batched:
+                    try:
+                        L11 = np.linalg.cholesky(np.swapaxes(D, 1, 2))
+                    except np.linalg.LinAlgError:
+                        raise SingularSystemError(NOT_PD) from None
+                    D[...] = np.swapaxes(L11, 1, 2)
+                    b.Linv[...] = np.linalg.inv(L11)
+                elif b.G == 1:
+                    DF = D[0].T
+                    if potrf(DF, lower=1, clean=1, overwrite_a=1)[1]:
+                        raise SingularSystemError(NOT_PD)
+                    if b.U:
+                        BF = B[0].T
+                        trsm(1.0, DF, BF, side=1, lower=1, trans_a=1, overwrite_b=1)
+                        syrk(1.0, BF, beta=0.0, c=b.W[0].T, lower=1, overwrite_c=1)
+                    continue
+                else:  # L11 in place, then L11^T inverted in place in Linv's F view
+                    for DF, DT, LF in b.each:
+                        if potrf(DF, lower=1, clean=1, overwrite_a=1)[1]:
+                            raise SingularSystemError(NOT_PD)
+                        LF[...] = DT
+                        trtri(LF, lower=0, overwrite_c=1)
+                if b.U:
+                    B[...] = b.Linv @ B
+                    if b.U >= _SYRK_U:  # half the flops of the batched product
+                        for g in range(b.G):
+                            syrk(1.0, B[g].T, beta=0.0, c=b.W[g].T, lower=1, overwrite_c=1)
+                    else:
+                        np.matmul(np.swapaxes(B, 1, 2), B, out=b.W)
+            if dst.size:  # ufunc.at sums the contributions of several members to one entry
+                np.subtract.at(Lw, dst, Wf.take(src))
+
+    def solve(self, y: np.ndarray) -> None:
+        """Solve in place: ``y`` is ``(n + 2, nrhs)`` (the right-hand side in the factor's
+        order, then the zero row and the dump row)."""
+        trsm = blas.dtrsm
+        nr = y.shape[1]
+        plan = list(zip(self.levels, self._cols, self._rows, strict=True))
+        for bl, (cr, cw), (_, rw) in plan:
+            Yc = y[cr]
+            Ur = np.empty((rw.size, nr))
+            for b in bl:
+                c0, c1 = b.c
+                r0, r1 = b.r
+                G, Kb, Ub = b.G, b.K, b.U
+                if b.Linv is None:
+                    X = trsm(1.0, b.D[0].T, Yc[c0:c1], lower=1)
+                    Yc[c0:c1] = X
+                    if Ub:
+                        Ur[r0:r1] = b.B[0].T @ X
+                else:
+                    X = b.Linv @ Yc[c0:c1].reshape(G, Kb, nr)
+                    Yc[c0:c1] = X.reshape(-1, nr)
+                    if Ub:
+                        Ur[r0:r1] = (np.swapaxes(b.B, 1, 2) @ X).reshape(-1, nr)
+            y[cw] = Yc
+            if rw.size:
+                if nr == 1:
+                    np.subtract.at(y.ravel(), rw, Ur.ravel())
+                else:
+                    np.subtract.at(y, rw, Ur)
+        for bl, (cr, cw), (rr, _) in reversed(plan):
+            Yc = y[cr]
+            Yr = y[rr]
+            for b in bl:
+                c0, c1 = b.c
+                r0, r1 = b.r
+                G, Kb, Ub = b.G, b.K, b.U
+                if b.Linv is None:
+                    T = Yc[c0:c1]
+                    if Ub:
+                        T = T - b.B[0] @ Yr[r0:r1]
+                    Yc[c0:c1] = trsm(1.0, b.D[0].T, T, lower=1, trans_a=1)
+                else:
+                    T = Yc[c0:c1].reshape(G, Kb, nr)
+                    if Ub:
+                        T = T - b.B @ Yr[r0:r1].reshape(G, Ub, nr)
+                    Yc[c0:c1] = (np.swapaxes(b.Linv, 1, 2) @ T).reshape(-1, nr)
+            y[cw] = Yc
+
+    def panel(self, j: int) -> np.ndarray:
+        """The dense ``(k + u) x k`` panel of supernode ``j`` (diagonal block, then the rows
+        below), as the compiled loop stores it."""
+        k, u, K, U = int(self.k[j]), int(self.u[j]), int(self.K[j]), int(self.U[j])
+        d0, b0 = int(self.dpos[j]), int(self.bpos[j])
+        D = self.L[d0:d0 + K * K].reshape(K, K).T[:k, :k]
+        B = self.L[b0:b0 + K * U].reshape(K, U).T[:u, :k]
+        return np.vstack([D, B])
