@@ -93,7 +93,12 @@ def _dense_system(p, states, h=1e-6):
 
 @pytest.fixture
 def numpy_path(monkeypatch):
+    """The NumPy path, with chunks of 3 factors (the batches here have 2 to 11: several
+    chunks and a partial last one)."""
+    from microlie.optim import problem
+
     monkeypatch.setenv("MICROLIE_FAST", "0")
+    monkeypatch.setattr(problem, "_CHUNK", 3)
 
 
 @pytest.mark.parametrize("per_edge", [True, False, "diagonal"])
