@@ -718,26 +718,29 @@ def before_after(args) -> int:
                     f"  after {st['after'].median * scale:9.3f} {unit}")
     # the goal ratio measured directly: minus and minus(jac=True) of this checkout alternate in
     # the same rounds (the table's rows are timed minutes apart on a loaded machine)
-    goal = {}
+    # (the same for the older commit, in its own rounds: a third as many, it may be slow)
+    goal, goal_before = {}, {}
     for group in args.groups or BA_GROUPS:
         if args.ops and not {"minus", "minus_jac"} <= set(args.ops):
             break
-        G = getattr(new, group)
-        X, Y = G(G.random((n,), rng=rng).params), G(G.random((n,), rng=rng).params)
-        wall: dict[str, list[float]] = {"minus": [], "jac": []}
-        cpu: dict[str, list[float]] = {"minus": [], "jac": []}
-        for _ in range(3 * rounds):  # wall and CPU (process) time of each call
-            for key, jac in (("minus", False), ("jac", True)):
-                w, c = time.perf_counter(), time.process_time()
-                X.minus(Y, jac=jac)
-                cpu[key].append(time.process_time() - c)
-                wall[key].append(time.perf_counter() - w)
-        goal[group] = tuple(float(np.median(t["jac"]) / np.median(t["minus"]))
-                            for t in (wall, cpu))
-        loads.append(_load())
-        log(f"  {group:5s} minus_jac / minus alternating: wall {goal[group][0]:.2f}, "
-            f"cpu {goal[group][1]:.2f}")
-    report = _ba_render(rows, bad, args, n, rounds, loads, goal)
+        p, q = (new.__dict__[group].random((n,), rng=rng).params for _ in range(2))
+        for lib, m, into, k in (("after", new, goal, 3), ("before", old, goal_before, 1)):
+            G = getattr(m, group)
+            X, Y = G(p), G(q)
+            wall: dict[str, list[float]] = {"minus": [], "jac": []}
+            cpu: dict[str, list[float]] = {"minus": [], "jac": []}
+            for _ in range(k * rounds):  # wall and CPU (process) time of each call
+                for key, jac in (("minus", False), ("jac", True)):
+                    w, c = time.perf_counter(), time.process_time()
+                    X.minus(Y, jac=jac)
+                    cpu[key].append(time.process_time() - c)
+                    wall[key].append(time.perf_counter() - w)
+            into[group] = tuple(float(np.median(t["jac"]) / np.median(t["minus"]))
+                                for t in (wall, cpu))
+            loads.append(_load())
+            log(f"  {group:5s} {lib:6s} minus_jac / minus alternating: wall "
+                f"{into[group][0]:.2f}, cpu {into[group][1]:.2f}")
+    report = _ba_render(rows, bad, args, n, rounds, loads, goal, goal_before)
     print(report)
     if args.out:
         with open(args.out, "w") as f:
@@ -746,7 +749,7 @@ def before_after(args) -> int:
     return 1 if bad else 0
 
 
-def _ba_render(rows, bad, args, n, rounds, loads, goal) -> str:
+def _ba_render(rows, bad, args, n, rounds, loads, goal, goal_before) -> str:
     med = {(g, op, r): (b.median * sc, a.median * sc) for g, op, r, b, a, sc, _ in rows}
     lines = [
         f"# microlie before/after: {args.before_after} vs this checkout "
@@ -754,7 +757,7 @@ def _ba_render(rows, bad, args, n, rounds, loads, goal) -> str:
         "Command: `" + "".join(f"{k}={os.environ[k]} " for k in (
             "MICROLIE_FAST", "MICROLIE_CACHE_MB", "OPENBLAS_NUM_THREADS") if k in os.environ)
         + f"python benchmarks/groups.py --before-after {args.before_after} --n {n}"
-        + (" --quick" if args.quick else "")
+        + (" --quick" if args.quick else "") + (f" --repeat {args.repeat}" if args.repeat else "")
         + "".join(f" --{k} {' '.join(getattr(args, k))}" for k in ("groups", "ops", "regimes")
                   if getattr(args, k)) + "`", "",
         f"- single: us per call (one element); batch: ns per element at N = {n:,}",
@@ -775,7 +778,9 @@ def _ba_render(rows, bad, args, n, rounds, loads, goal) -> str:
             lines.append(f"- {g}: minus(jac=True) / minus() at N = {n:,}: {ratio:.2f} "
                          "(goal <= 2.5)" + (f"; the two alternating in {3 * rounds} rounds: "
                                             f"{goal[g][0]:.2f} wall time, {goal[g][1]:.2f} CPU "
-                                            "time" if g in goal else ""))
+                                            f"time (before, {rounds} rounds: "
+                                            f"{goal_before[g][0]:.2f} wall, "
+                                            f"{goal_before[g][1]:.2f} CPU)" if g in goal else ""))
     if ("Sim3", "jr", "batch") in med and ("SE3", "jr", "batch") in med:
         ratio = med[("Sim3", "jr", "batch")][1] / med[("SE3", "jr", "batch")][1]
         lines.append(f"- Sim3.jr / SE3.jr at N = {n:,}: {ratio:.2f} (goal <= 2)")

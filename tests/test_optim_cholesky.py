@@ -172,13 +172,16 @@ def test_compiled_switch(monkeypatch):
 
 
 def test_auto_picks_by_installation(monkeypatch):
-    """2-D default install: SuperLU without the compiled loop, the supernodal Cholesky with
-    it; 3-D default install: the supernodal Cholesky; small problems: dense."""
+    """Default install, 2-D and 3-D: the supernodal Cholesky with or without its compiled loop
+    (benchmarks/pose_graph.py: the NumPy loop beat SuperLU on all five graphs); SuperLU where
+    the supernodal Cholesky is not offered; small problems: dense."""
     default = ["scipy", "supernodal", "dense"]
     assert make_solver("auto", 100, 3, default).name == "dense"
     assert make_solver("auto", 5000, 6, default).name == "supernodal"
+    assert make_solver("auto", 5000, 6, ["scipy"]).name == "scipy"
     monkeypatch.setenv("MICROLIE_FAST", "0")
-    assert make_solver("auto", 5000, 3, default).name == "scipy"
+    s = make_solver("auto", 5000, 3, default)
+    assert s.name == "supernodal" and s.__dict__["_c"] is None
     if INSTALLED:
         monkeypatch.setenv("MICROLIE_FAST", "1")
         assert make_solver("auto", 5000, 3, default).name == "supernodal"

@@ -340,13 +340,6 @@ class DenseSolver(LinearSolver):
         return _checked(sla.cho_solve(self._c, b, check_finite=False))
 
 
-def _compiled_cholesky() -> bool:
-    """Whether the supernodal Cholesky runs its compiled loop here."""
-    from .cholesky import _compiled
-
-    return _compiled() is not None
-
-
 def _supernodal() -> type[LinearSolver]:
     from .cholesky import SupernodalSolver
 
@@ -384,10 +377,9 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
     ``"auto"`` chooses by what is installed and by the measurements of
     ``benchmarks/pose_graph.py`` and ``benchmarks/cholesky.py``: below 300 unknowns the dense
     Cholesky; for 3-D problems (blocks of 6 or more) PARDISO, else the supernodal Cholesky; for
-    2-D problems qdldl, else PARDISO, else the supernodal Cholesky when its compiled loop is
-    installed (``microlie[fast]``), else SuperLU (on 2-D pose graphs SuperLU beat the NumPy
-    loop of the supernodal Cholesky, whose per-batch overhead dominates with 3x3 blocks; the
-    compiled loop beat SuperLU 2-5x).
+    2-D problems qdldl, else PARDISO, else the supernodal Cholesky, else SuperLU (on the five
+    pose graphs of the benchmark the supernodal Cholesky beat SuperLU in the default install,
+    NumPy loop and all: its factorisations took 0.4-0.5x SuperLU's).
 
     Parameters
     ----------
@@ -426,11 +418,9 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
             return DenseSolver()
         avail = available_solvers() if available is None else available
         if block_size >= 6:
-            prefs: tuple[str, ...] = ("pardiso", "supernodal")
-        elif _compiled_cholesky():
-            prefs = ("qdldl", "pardiso", "supernodal", "scipy")
+            prefs: tuple[str, ...] = ("pardiso", "supernodal", "scipy")
         else:
-            prefs = ("qdldl", "pardiso", "scipy")
+            prefs = ("qdldl", "pardiso", "supernodal", "scipy")
         return SOLVERS[next(k for k in prefs if k in avail)]()()
     make = SOLVERS.get(name)
     if make is None:
