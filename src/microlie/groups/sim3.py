@@ -83,12 +83,12 @@ def _c4_closed(t2: Any, h: Any, ts: Any) -> Any:
     return (0.5 - h) / ts  # (t^2 + 2 cos t - 2)/(2 t^4); ts = t2, or 1 below SMALL2
 
 
-def _c56(t2: Any, cb: Any, h: Any, c4: Any, ts: Any) -> tuple:
+def _c56(t2: Any, cb: Any, hb: Any, h: Any, c4: Any, ts: Any) -> tuple:
     return M.horner(t2, M.C_SIN5), M.horner(t2, _C_COS6)
 
 
-def _c56_closed(t2: Any, cb: Any, h: Any, c4: Any, ts: Any) -> tuple:
-    return (3.0 * cb - h) / (2.0 * ts), (2.0 * c4 - 0.5 * cb) / ts
+def _c56_closed(t2: Any, cb: Any, hb: Any, h: Any, c4: Any, ts: Any) -> tuple:
+    return (3.0 * cb - h) / (2.0 * ts), (2.0 * c4 - hb) / ts  # hb = cb / 2
 
 
 def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
@@ -117,7 +117,8 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     small = t2 < M.SMALL2
     ts = t2 + small  # a safe divisor for the closed forms (kept at t2 >= SMALL2 only)
     c4 = o.select(small, _c4, _c4_closed, t2, h, ts)  # (t^2 + 2 cos t - 2)/(2 t^4)
-    k3 = k * k - 0.5 * cb  # (sin t - t cos t)/(2 t^3)
+    hb = 0.5 * cb
+    k3 = k * k - hb  # (sin t - t cos t)/(2 t^3)
     z2 = sigma * sigma + t2
     tiny = z2 < _TINY
     z2 = z2 + tiny
@@ -133,10 +134,10 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     if not derivatives:
         return (a, b, c), (E, sinc, h, k, ch)
     # c5 = -d cb / d t2, c6 = -d c4 / d t2
-    c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, h, c4, ts)
+    c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, hb, h, c4, ts)
     ad = a - d  # phi_1'
-    args = (sigma, s2, z2, ws, wt, a, ad, d, e, f, sinc, cos, h, k3, cb, cc, c4, c5, c6, Pb, Qb,
-            Pc, Qc)
+    args = (sigma, s2, z2, ws, wt, a, ad, d, e, f, sinc, cos, h, k3, cb, hb, cc, c4, c5, c6, Pb,
+            Qb, Pc, Qc)
     if cauchy_riemann:
         cs, bt, ct = o.select(tiny, _slopes_at_zero, _slopes, *args)
         bs = 2.0 * (c + t2 * ct)
@@ -146,11 +147,11 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
 
 
 def _slopes(sigma: Any, s2: Any, z2: Any, ws: Any, wt: Any, a: Any, ad: Any, d: Any, e: Any,
-            f: Any, sinc: Any, cos: Any, h: Any, k3: Any, cb: Any, cc: Any, c4: Any, c5: Any,
-            c6: Any, Pb: Any, Qb: Any, Pc: Any, Qc: Any) -> tuple:
+            f: Any, sinc: Any, cos: Any, h: Any, k3: Any, cb: Any, hb: Any, cc: Any, c4: Any,
+            c5: Any, c6: Any, Pb: Any, Qb: Any, Pc: Any, Qc: Any) -> tuple:
     """``(c_s, b_t, c_t)`` of :func:`coefficients` away from ``sigma = theta = 0``: the
     quotient rule on ``f = (sigma^2 P + t2 Q) / (sigma^2 + t2)``."""
-    ht = c4 - 0.5 * cb  # d h / d t2 (and d sinc / d t2 = -k3, d cos / d t2 = -sinc / 2)
+    ht = c4 - hb  # d h / d t2 (and d sinc / d t2 = -k3, d cos / d t2 = -sinc / 2)
     k3t = 0.5 * (ht + c5)
     de = d - 2.0 * e  # phi_2' (ad = phi_1')
     Db, Dc = (Pb - Qb) / z2, (Pc - Qc) / z2
@@ -183,12 +184,14 @@ def w_coefficients(o: Any, sigma: Any, t2: Any) -> tuple[Any, Any, Any]:
     return coefficients(o, sigma, t2)[0]
 
 
-def poly_matrix(p: tuple, w: tuple, t2: Any) -> tuple:
-    """``p0 I + p1 hat(w) + p2 hat(w)^2`` written out (``t2 = |w|^2``)."""
+def poly_matrix(p: tuple, w: tuple, t2: Any, d: Any = None) -> tuple:
+    """``p0 I + p1 hat(w) + p2 hat(w)^2`` written out (``t2 = |w|^2``; ``d = p0 - p2 t2`` if
+    the caller has it)."""
     p0, p1, p2 = p
     x, y, z = w
     bx, by, bz = p2 * x, p2 * y, p2 * z
-    d = p0 - p2 * t2
+    if d is None:
+        d = p0 - p2 * t2
     ax, ay, az = p1 * x, p1 * y, p1 * z
     xy, xz, yz = bx * y, bx * z, by * z
     return ((d + bx * x, xy - az, xz + ay),
@@ -252,12 +255,13 @@ def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
     return Mphi, msig
 
 
-def upper_blocks(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple) -> tuple:
+def upper_blocks(wi: tuple, q0: Any, co: tuple, cj: Any, t2: Any, phi: tuple,
+                 rho: tuple) -> tuple:
     """``B = -W^-1 d(W rho)/d phi Jr^-1_SO3(phi)`` and ``w = W^-1 d(W rho)/d sigma``: the upper
     blocks ``(B | -w)`` of Sim(3)'s ``Jr^-1`` right of ``A`` (its block inverse of ``Jr``),
     written out.
 
-    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1``, ``co = (b, c, a_s, b_s, c_s, b_t,
+    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1`` (``q0 = p0 - t2 p2``), ``co = (b, c, a_s, b_s, c_s, b_t,
     c_t)`` those of ``W`` with their derivatives (:func:`coefficients`), ``cj`` the
     ``hat(phi)^2`` coefficient of ``Jr^-1_SO3``. With ``u = phi x rho``, ``d = phi . rho``,
     ``F = hat(phi)``, ``hat(a) hat(b) = b a^T - (a.b) I`` and ``F hat(rho) F = -d F`` every
@@ -274,10 +278,11 @@ def upper_blocks(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple)
     u = M.cross(phi, rho)
     d = M.dot(phi, rho)
     # g = W^-1 (a_s + b_s F + c_s F^2); on the plane of phi its value is that of
-    # (p0 - t2 p2 + i t p1)(a_s - t2 c_s + i t b_s)
+    # (q0 + i t p1)(a_s - t2 c_s + i t b_s)
     ws = a_s - t2 * c_s
-    g2 = p0 * c_s + p1 * b_s + p2 * ws
-    g1 = (p0 - t2 * p2) * b_s + p1 * ws
+    r = p1 * b_s + p2 * ws
+    g2 = p0 * c_s + r
+    g1 = q0 * b_s + p1 * ws
     e0, e2 = p0 * a_s - t2 * g2, g2 * d
     w = tuple(e0 * rho[i] + g1 * u[i] + e2 * phi[i] for i in range(3))
     ccj, bcj, c2, bt2 = c * cj, b * cj, 0.5 * c, 2.0 * b_t
@@ -286,7 +291,7 @@ def upper_blocks(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple)
     xb = x1 - b
     bH = p0 * (b + t2 * x2)
     bPr = p0 * x1
-    buP = g2 + p0 * (x2 - bt2 - c_s)
+    buP = r + p0 * (x2 - bt2)  # g2 + p0 (x2 - 2 b_t - c_s)
     bF = p1 * xb + p2 * (t2 * (c - x2) - b) - p0 * c
     bF2 = p2 * (xb + b_s) - p0 * (2.0 * (ccj + c_t)) - p1 * (bcj + bt2 + c2)
     f2d, fd = bF2 * d, bF * d
@@ -431,13 +436,14 @@ class Sim3(Pose):
         Ji, mJl = so3.jr_inv_pair_c(o, cj, phi, t2)  # Jr^-1_SO3, F - Jr^-1_SO3 = -Jl^-1_SO3
         # A = f(P) = W^-1 + P (f(x) - f(-x) = x): the sum loses at most a factor
         # 1 + e^-sigma <= 1 + e^2 to cancellation for sigma >= -2; below, e^P W^-1
-        Wi = poly_matrix(wi, phi, t2)
+        q0 = p0 - p2 * t2  # the value of W^-1 on the plane of phi is q0 + i theta p1
+        Wi = poly_matrix(wi, phi, t2, q0)
         A = o.select(sigma >= _A_SUM, _a_sum, _a_product, sigma, *phi, t2, E, sinc, h, p0, p1,
                      p2, *Wi[0], *Wi[1], *Wi[2])
         A = (A[0:3], A[3:6], A[6:9])
         n = o.negated
         nWi = tuple(tuple(n(x) for x in row) for row in Wi)
-        B, w = upper_blocks(wi, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho)
+        B, w = upper_blocks(wi, q0, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho)
         r0, r1, r2 = rho
         nB = ((n(B[0][0]), -r2 - B[0][1], r1 - B[0][2]),  # hat(rho) - B
               (r2 - B[1][0], n(B[1][1]), -r0 - B[1][2]),
