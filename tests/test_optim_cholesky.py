@@ -245,3 +245,17 @@ def test_solve_after_a_failed_factorisation_is_an_error():
     s.factorize(H.data)
     np.testing.assert_allclose(s.solve(np.ones(H.shape[0])),
                                np.linalg.solve(M, np.ones(H.shape[0])), rtol=1e-8)
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+def test_wrong_sizes_are_errors(compiled):
+    M, H = _random_spd(3, 20, 8)
+    s = SupernodalSolver(compiled=compiled)
+    s.analyse(H.indptr, H.indices, H.shape[0], 3)
+    with pytest.raises(ValueError, match="pattern has"):
+        s.factorize(H.data[:-1])
+    s.factorize(H.data)
+    with pytest.raises(ValueError, match="right-hand side"):
+        s.solve(np.ones(H.shape[0] + 1))
+    with pytest.raises(ValueError, match="right-hand side"):
+        s.solve(np.ones((2, H.shape[0])))
