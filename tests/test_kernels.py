@@ -384,10 +384,9 @@ def test_chunked_jacobian_kernels_agree_with_single_elements(G):
 
 @pytest.mark.parametrize("n", [3 * K.CHUNK + 5, 7])  # chunked, and one evaluation
 def test_constant_and_negated_output_components(n):
-    """A Python-float component of a component-major output is written for all rows in the
-    first chunk; a later chunk where the same component is another constant or an array
-    still writes its own rows. ``ops.negated(x)`` components come out as ``-x`` in matrix and
-    vector outputs alike."""
+    """Constant (Python-float) components of a chunked component-major output, also ones
+    that change from chunk to chunk or become arrays; ``ops.negated(x)`` components come out
+    as ``-x`` in matrix and vector outputs alike."""
 
     def fn(o, x):
         start = float(x[0][0])  # the first row of this chunk

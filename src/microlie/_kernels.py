@@ -23,8 +23,6 @@ kernels under ``"<Group>.<op>"`` when its class is created, e.g. ``"SO3.exp"``, 
 An output component written ``ops.negated(x)`` (``-x``; only as an output, never in further
 arithmetic) is written by the chunked NumPy evaluation as ``np.negative(x, out=...)``: one pass
 instead of computing ``-x`` and copying it (left Jacobians are often negated right ones).
-A constant component (a Python float, such as a structural zero of a Jacobian) of such an
-output is written once for all rows.
 
 Matrix outputs of more than 8 entries (Jacobians, adjoints) of NumPy batches are views of
 component-major arrays: shape ``(*batch, r, c)``, memory order ``(r, c, *batch)``. Each entry is
@@ -417,29 +415,17 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
             for s, m in zip(k.outs, soa, strict=True)]
     width = max((s[0] for s, m in zip(k.outs, soa, strict=True) if not m), default=0)
     buf = np.empty((width, CHUNK), dtype=dt) if width > _WIDE else None
-    # a constant component (a Python float: the structural zeros and ones of a Jacobian) of a
-    # component-major output is written once, for all rows; a later chunk rewrites its part
-    # only if it has anything else there
-    consts: list[dict[int, float]] = [{} for _ in k.outs]
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
         r = fn(NUMPY_CHUNKS, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
                                for f in flats])
-        for res, out, shape, m, cst in zip([r] if k._flat else r, outs, k.outs, soa, consts,
-                                           strict=True):
+        for res, out, shape, m in zip([r] if k._flat else r, outs, k.outs, soa, strict=True):
             if m:
                 for j, c in enumerate(c for row in res for c in row):
-                    t = type(c)
-                    if t is Negated:
+                    if type(c) is Negated:
                         _negative(c.x, out=out[j, s:e])
-                        continue
-                    if t is float:
-                        if cst.get(j) == c:
-                            continue
-                        if s == 0:
-                            out[j] = cst[j] = c
-                            continue
-                    out[j, s:e] = c
+                    else:
+                        out[j, s:e] = c
             elif buf is not None and len(res) > _WIDE:
                 b = buf[:len(res), :e - s]
                 for j, c in enumerate(res):

@@ -115,11 +115,14 @@ def _laplacian(A: Any) -> Any:
     numeric factor of it has the symbolic pattern (an M-matrix's Schur complements keep
     non-positive off-diagonals, so no entry cancels, and fill decays slowly enough not to
     underflow)."""
-    U = sp.triu(A, 1).tocoo()
-    w = np.random.default_rng(0).uniform(0.5, 1.0, U.nnz)
-    W = sp.coo_matrix((-w, (U.row, U.col)), shape=A.shape)
-    W = (W + W.T).tocsc()
-    return (W + sp.diags(0.1 - np.asarray(W.sum(axis=1)).ravel())).tocsc()
+    n = A.shape[0]
+    rows = np.repeat(np.arange(n), np.diff(A.indptr))
+    lo, hi = np.minimum(rows, A.indices), np.maximum(rows, A.indices)
+    # symmetric pseudo-random weights in [0.5, 1): a hash of the edge (golden-ratio steps)
+    w = 0.5 + 0.5 * np.modf((lo * 0.7548776662 + hi * 0.5698402910) % 1.0 + 0.1)[0]
+    off = sp.csr_matrix((-w, A.indices, A.indptr), shape=A.shape)
+    deg = np.bincount(rows, weights=w, minlength=n)
+    return (off + sp.diags(deg + 0.1, format="csr")).tocsc()
 
 
 def _splu(B: Any, spec: str) -> Any:
@@ -149,7 +152,7 @@ def minimum_degree(A: Any) -> np.ndarray:
     >>> int(minimum_degree(star)[-1])  # the hub last: no fill
     0
     """
-    return _factor(_clean(A), np.arange(A.shape[0]), "MMD_AT_PLUS_A").perm
+    return np.argsort(_splu(_laplacian(_clean(A)), "MMD_AT_PLUS_A").perm_c).astype(np.int64)
 
 
 def _distances(A: Any, v: int) -> np.ndarray:
@@ -465,8 +468,8 @@ def fill_order(A: Any, method: str = "auto") -> Symbolic:
     ties) of minimum degree, a coarse nested dissection (leaves of 60% of the vertices: one
     or two levels of separators) and, only when the coarse one has at least 10% fewer flops
     than minimum degree, the full one (leaves of ``LEAF_SIZE``, 256). On the pose graphs of
-    ``benchmarks/orderings.py`` minimum degree has the fewest flops or is within 3% of the
-    best; on 3-D meshes nested dissection has half as many.
+    ``benchmarks/orderings.py`` minimum degree has the fewest flops but on sphere2500 (3%
+    more than the coarse dissection); on 3-D meshes nested dissection has half as many.
 
     Parameters
     ----------

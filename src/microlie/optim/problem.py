@@ -672,10 +672,10 @@ class Problem:
                 rho, scale, aos = corrected_weights(f.loss, s)
                 rcost += 0.5 * float(rho.sum())
                 sq = np.sqrt(np.maximum(f.loss.evaluate(s)[1], 0.0))
-                Aj = A[:, :, :D]
-                eA = np.einsum("mi,mij->mj", e, Aj)
-                Aj -= (aos[:, None] * e)[:, :, None] * eA[:, None, :]
-                Aj *= sq[:, None, None]
+                Aw = A[:, :, :D]  # Triggs' correction in place: sqrt(rho') (I - a e e^T) A
+                eA = np.einsum("mi,mij->mj", e, Aw)
+                Aw -= (aos[:, None] * e)[:, :, None] * eA[:, None, :]
+                Aw *= sq[:, None, None]
                 e *= scale[:, None]
             else:
                 rcost += 0.5 * float(s.sum())
