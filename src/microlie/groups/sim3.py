@@ -235,7 +235,7 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
 def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
     """``d(W rho)/d phi`` (3x3) and ``d(W rho)/d sigma`` (3) from :func:`coefficients`'s
     output with ``derivatives=True``."""
-    (a, b, c), (a_s, b_s, c_s, b_t, c_t) = co[0], co[2]
+    (_, b, c), (a_s, b_s, c_s, b_t, c_t) = co[0], co[2]
     u = M.cross(phi, rho)
     v = M.cross(phi, u)
     d = M.dot(phi, rho)
@@ -261,8 +261,9 @@ def upper_blocks(wi: tuple, q0: Any, co: tuple, cj: Any, t2: Any, phi: tuple,
     blocks ``(B | -w)`` of Sim(3)'s ``Jr^-1`` right of ``A`` (its block inverse of ``Jr``),
     written out.
 
-    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1`` (``q0 = p0 - t2 p2``), ``co = (b, c, a_s, b_s, c_s, b_t,
-    c_t)`` those of ``W`` with their derivatives (:func:`coefficients`), ``cj`` the
+    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1`` (``q0 = p0 - t2 p2``), ``co = (b,
+    c, a_s, b_s, c_s, b_t, c_t)`` those of ``W`` with their derivatives (:func:`coefficients`),
+    ``cj`` the
     ``hat(phi)^2`` coefficient of ``Jr^-1_SO3``. With ``u = phi x rho``, ``d = phi . rho``,
     ``F = hat(phi)``, ``hat(a) hat(b) = b a^T - (a.b) I`` and ``F hat(rho) F = -d F`` every
     product of polynomials in ``F`` with ``hat(rho)`` reduces to the basis ``hat(rho)``,
