@@ -182,6 +182,9 @@ class SupernodalSolver(LinearSolver):
 
     def factorize(self, data: np.ndarray) -> None:
         data = np.ascontiguousarray(data, dtype=np.float64)
+        if data.shape != (self.indices.size,):
+            raise ValueError(f"data has shape {data.shape}; the analysed pattern has "
+                             f"{self.indices.size} entries")
         if self._numpy_plan is not None:
             self._factored = False  # the NumPy loop overwrites the last factor in place
             self._numpy_plan.factor(data)
@@ -207,6 +210,9 @@ class SupernodalSolver(LinearSolver):
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         b = np.asarray(b, dtype=np.float64)
+        if b.ndim not in (1, 2) or b.shape[0] != self.n:
+            raise ValueError(f"the right-hand side has shape {b.shape}; expected ({self.n},) "
+                             f"or ({self.n}, k)")
         vec = b.ndim == 1
         rhs = (b[:, None] if vec else b)[self.sperm]
         if self._numpy_plan is not None:

@@ -45,9 +45,7 @@ NOT_PD = ("the linear system is not positive definite (a pivot of the Cholesky "
 _BATCH_K, _BATCH_G = 12, 8
 # cost model of a bucket (seconds): fixed cost per bucket and per member, per padded flop and
 # per padded entry moved (measured on the shared pose graphs, one BLAS thread)
-# W = L21 L21^T by syrk per member (the lower triangle) from this many rows below
-_SYRK_U = 48
-_COST_BUCKET, _COST_MEMBER, _COST_FLOP, _COST_ENTRY = 40e-6, 3e-6, 1.0 / 8e9, 1.5e-9
+_COST_BUCKET, _COST_MEMBER, _COST_FLOP, _COST_ENTRY = 20e-6, 3e-6, 1.0 / 8e9, 1.5e-9
 
 
 def _levels(sparent: np.ndarray) -> np.ndarray:
@@ -335,11 +333,7 @@ class NumpyLoop:
                         trtri(LF, lower=0, overwrite_c=1)
                 if b.U:
                     B[...] = b.Linv @ B
-                    if b.U >= _SYRK_U:  # half the flops of the batched product
-                        for g in range(b.G):
-                            syrk(1.0, B[g].T, beta=0.0, c=b.W[g].T, lower=1, overwrite_c=1)
-                    else:
-                        np.matmul(np.swapaxes(B, 1, 2), B, out=b.W)
+                    np.matmul(np.swapaxes(B, 1, 2), B, out=b.W)
             if dst.size:  # ufunc.at sums the contributions of several members to one entry
                 np.subtract.at(Lw, dst, Wf.take(src))
 

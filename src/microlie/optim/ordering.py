@@ -468,8 +468,8 @@ def fill_order(A: Any, method: str = "auto") -> Symbolic:
     ties) of minimum degree, a coarse nested dissection (leaves of 60% of the vertices: one
     or two levels of separators) and, only when the coarse one has at least 10% fewer flops
     than minimum degree, the full one (leaves of ``LEAF_SIZE``, 256). On the pose graphs of
-    ``benchmarks/orderings.py`` minimum degree has the fewest flops or is within 3% of the
-    best; on 3-D meshes nested dissection has half as many.
+    ``benchmarks/orderings.py`` minimum degree has the fewest flops but on sphere2500 (3%
+    more than the coarse dissection); on 3-D meshes nested dissection has half as many.
 
     Parameters
     ----------
