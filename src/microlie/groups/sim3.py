@@ -75,20 +75,21 @@ def _phi_closed(o: Any, sigma: Any) -> tuple:
     return a, d, e, (e - 1.0 / 6.0) / x
 
 
-def _c4(t2: Any, h: Any, ts: Any) -> Any:
+def _c4(t2: Any, h: Any) -> Any:
     return M.horner(t2, M.C_COS4)
 
 
-def _c4_closed(t2: Any, h: Any, ts: Any) -> Any:
-    return (0.5 - h) / ts  # (t^2 + 2 cos t - 2)/(2 t^4); ts = t2, or 1 below SMALL2
+def _c4_closed(t2: Any, h: Any) -> Any:
+    return (0.5 - h) / (t2 + (t2 < M.SMALL2))  # (t^2 + 2 cos t - 2)/(2 t^4)
 
 
-def _c56(t2: Any, cb: Any, hb: Any, h: Any, c4: Any, ts: Any) -> tuple:
+def _c56(t2: Any, cb: Any, h: Any, c4: Any) -> tuple:
     return M.horner(t2, M.C_SIN5), M.horner(t2, _C_COS6)
 
 
-def _c56_closed(t2: Any, cb: Any, hb: Any, h: Any, c4: Any, ts: Any) -> tuple:
-    return (3.0 * cb - h) / (2.0 * ts), (2.0 * c4 - hb) / ts  # hb = cb / 2
+def _c56_closed(t2: Any, cb: Any, h: Any, c4: Any) -> tuple:
+    ts = t2 + (t2 < M.SMALL2)
+    return (3.0 * cb - h) / (2.0 * ts), (2.0 * c4 - 0.5 * cb) / ts
 
 
 def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
@@ -115,48 +116,44 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     cos = 1.0 - t2 * h
     cb = so3.coef_b(o, t2, k, ch)  # (t - sin t)/t^3
     small = t2 < M.SMALL2
-    ts = t2 + small  # a safe divisor for the closed forms (kept at t2 >= SMALL2 only)
-    c4 = o.select(small, _c4, _c4_closed, t2, h, ts)  # (t^2 + 2 cos t - 2)/(2 t^4)
-    hb = 0.5 * cb
-    k3 = k * k - hb  # (sin t - t cos t)/(2 t^3)
+    c4 = o.select(small, _c4, _c4_closed, t2, h)  # (t^2 + 2 cos t - 2)/(2 t^4)
+    k3 = k * k - 0.5 * cb  # (sin t - t cos t)/(2 t^3)
     z2 = sigma * sigma + t2
     tiny = z2 < _TINY
     z2 = z2 + tiny
     ws = sigma * sigma / z2
     wt = t2 / z2
     Pb = a * sinc - d * cos
-    s2, cc = 2.0 * sigma, cb - c4
-    Qb = h + s2 * k3
+    Qb = h + 2.0 * sigma * k3
     Pc = e + a * h - d * sinc
-    Qc = cb + sigma * cc
+    Qc = cb + sigma * (cb - c4)
     b = o.where(tiny, 0.5 + sigma / 3.0, ws * Pb + wt * Qb)
     c = o.where(tiny, 1.0 / 6.0 + sigma / 8.0, ws * Pc + wt * Qc)
     if not derivatives:
         return (a, b, c), (E, sinc, h, k, ch)
     # c5 = -d cb / d t2, c6 = -d c4 / d t2
-    c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, hb, h, c4, ts)
+    c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, h, c4)
     ad = a - d  # phi_1'
-    args = (sigma, s2, z2, ws, wt, a, ad, d, e, f, sinc, cos, h, k3, cb, hb, cc, c4, c5, c6, Pb,
-            Qb, Pc, Qc)
+    args = (sigma, z2, ws, wt, a, d, e, f, sinc, cos, h, k3, cb, c4, c5, c6, Pb, Qb, Pc, Qc)
     if cauchy_riemann:
         cs, bt, ct = o.select(tiny, _slopes_at_zero, _slopes, *args)
         bs = 2.0 * (c + t2 * ct)
     else:
         bs, cs, bt, ct = o.select(tiny, _slopes_at_zero_b, _slopes_b, *args)
-    return (a, b, c), (E, sinc, h, k, ch), (ad, bs, cs, bt, ct), cb, (small, ts)
+    return (a, b, c), (E, sinc, h, k, ch), (ad, bs, cs, bt, ct), cb
 
 
-def _slopes(sigma: Any, s2: Any, z2: Any, ws: Any, wt: Any, a: Any, ad: Any, d: Any, e: Any,
-            f: Any, sinc: Any, cos: Any, h: Any, k3: Any, cb: Any, hb: Any, cc: Any, c4: Any,
-            c5: Any, c6: Any, Pb: Any, Qb: Any, Pc: Any, Qc: Any) -> tuple:
+def _slopes(sigma: Any, z2: Any, ws: Any, wt: Any, a: Any, d: Any, e: Any, f: Any, sinc: Any,
+            cos: Any, h: Any, k3: Any, cb: Any, c4: Any, c5: Any, c6: Any, Pb: Any, Qb: Any,
+            Pc: Any, Qc: Any) -> tuple:
     """``(c_s, b_t, c_t)`` of :func:`coefficients` away from ``sigma = theta = 0``: the
     quotient rule on ``f = (sigma^2 P + t2 Q) / (sigma^2 + t2)``."""
-    ht = c4 - hb  # d h / d t2 (and d sinc / d t2 = -k3, d cos / d t2 = -sinc / 2)
+    ht = c4 - 0.5 * cb  # d h / d t2 (and d sinc / d t2 = -k3, d cos / d t2 = -sinc / 2)
     k3t = 0.5 * (ht + c5)
-    de = d - 2.0 * e  # phi_2' (ad = phi_1')
+    ad, de = a - d, d - 2.0 * e  # phi_1', phi_2'
     Db, Dc = (Pb - Qb) / z2, (Pc - Qc) / z2
-    bt = ws * (d * (0.5 * sinc) - a * k3) + wt * (ht + s2 * k3t) - ws * Db
-    cs = ws * ((e - 3.0 * f) + ad * h - de * sinc) + wt * cc + s2 * wt * Dc
+    bt = ws * (d * (0.5 * sinc) - a * k3) + wt * (ht + 2.0 * sigma * k3t) - ws * Db
+    cs = ws * ((e - 3.0 * f) + ad * h - de * sinc) + wt * (cb - c4) + 2.0 * sigma * wt * Dc
     ct = ws * (a * ht + d * k3) + wt * (sigma * (c6 - c5) - c5) - ws * Dc
     return cs, bt, ct
 
@@ -166,13 +163,14 @@ def _slopes_at_zero(sigma: Any, *_: Any) -> tuple:
     return z + 1.0 / 8.0, z - 1.0 / 24.0, z - 1.0 / 120.0
 
 
-def _slopes_b(*args: Any) -> tuple:
-    """``(b_s, c_s, b_t, c_t)``: :func:`_slopes` (same arguments) and ``b_s`` by the quotient
-    rule too."""
-    sigma, s2, z2, ws, wt, a, ad, d, e, _, sinc, cos, _, k3, *_, Pb, Qb, _, _ = args
-    de = d - 2.0 * e
-    bs = ws * (ad * sinc - de * cos) + wt * (2.0 * k3) + s2 * wt * ((Pb - Qb) / z2)
-    return (bs, *_slopes(*args))
+def _slopes_b(sigma: Any, z2: Any, ws: Any, wt: Any, a: Any, d: Any, e: Any, f: Any,
+              sinc: Any, cos: Any, h: Any, k3: Any, cb: Any, c4: Any, c5: Any, c6: Any, Pb: Any,
+              Qb: Any, Pc: Any, Qc: Any) -> tuple:
+    """``(b_s, c_s, b_t, c_t)``: :func:`_slopes` and ``b_s`` by the quotient rule too."""
+    ad, de = a - d, d - 2.0 * e
+    bs = ws * (ad * sinc - de * cos) + wt * (2.0 * k3) + 2.0 * sigma * wt * ((Pb - Qb) / z2)
+    return (bs, *_slopes(sigma, z2, ws, wt, a, d, e, f, sinc, cos, h, k3, cb, c4, c5, c6, Pb,
+                         Qb, Pc, Qc))
 
 
 def _slopes_at_zero_b(sigma: Any, *_: Any) -> tuple:
@@ -235,7 +233,7 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
 def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
     """``d(W rho)/d phi`` (3x3) and ``d(W rho)/d sigma`` (3) from :func:`coefficients`'s
     output with ``derivatives=True``."""
-    (_, b, c), (a_s, b_s, c_s, b_t, c_t) = co[0], co[2]
+    (_, b, c), _, (a_s, b_s, c_s, b_t, c_t), _ = co
     u = M.cross(phi, rho)
     v = M.cross(phi, u)
     d = M.dot(phi, rho)
@@ -279,8 +277,8 @@ def upper_blocks(wi: tuple, q0: Any, co: tuple, cj: Any, t2: Any, phi: tuple, rh
     # g = W^-1 (a_s + b_s F + c_s F^2); on the plane of phi its value is that of
     # (q0 + i t p1)(a_s - t2 c_s + i t b_s)
     ws = a_s - t2 * c_s
-    r = p1 * b_s + p2 * ws
-    g2 = p0 * c_s + r
+    gr = p1 * b_s + p2 * ws
+    g2 = p0 * c_s + gr
     g1 = q0 * b_s + p1 * ws
     e0, e2 = p0 * a_s - t2 * g2, g2 * d
     w = tuple(e0 * rho[i] + g1 * u[i] + e2 * phi[i] for i in range(3))
@@ -290,7 +288,7 @@ def upper_blocks(wi: tuple, q0: Any, co: tuple, cj: Any, t2: Any, phi: tuple, rh
     xb = x1 - b
     bH = p0 * (b + t2 * x2)
     bPr = p0 * x1
-    buP = r + p0 * (x2 - bt2)  # g2 + p0 (x2 - 2 b_t - c_s)
+    buP = gr + p0 * (x2 - bt2)  # g2 + p0 (x2 - 2 b_t - c_s)
     bF = p1 * xb + p2 * (t2 * (c - x2) - b) - p0 * c
     bF2 = p2 * (xb + b_s) - p0 * (2.0 * (ccj + c_t)) - p1 * (bcj + bt2 + c2)
     f2d, fd = bF2 * d, bF * d
@@ -428,13 +426,13 @@ class Sim3(Pose):
         m = o.sqrt(n2 + q[3] * q[3])
         k, ch = 1.0 / (kl * m), aw / m
         co = coefficients(o, sigma, t2, k, ch, derivatives=True, cauchy_riemann=True)
-        (_, b, c), (E, sinc, h, _, _), (a_s, b_s, c_s, b_t, c_t), _, (small, ts) = co
+        (_, b, c), (E, sinc, h, _, _), (a_s, b_s, c_s, b_t, c_t) = co[:3]
         wi = p0, p1, p2 = poly_inv(co[0], t2)  # W^-1
         # rho = W^-1 t as Sim3._log (which takes |q| = 1), with F^2 t = (phi.t) phi - t2 t
         q0, dt = p0 - p2 * t2, M.dot(phi, t)  # W^-1 on the plane of phi: q0 + i theta p1
         ft, pd = M.cross(phi, t), p2 * dt
         rho = tuple(q0 * t[i] + p1 * ft[i] + pd * phi[i] for i in range(3))
-        cj = o.select(small, _cj_series, _cj_closed, t2, kl, aw, ts)  # so3.coef_c_quat
+        cj = so3.coef_c_quat(o, t2, kl, aw)
         Ji, mJl = so3.jr_inv_pair_c(o, cj, phi, t2)  # Jr^-1_SO3, F - Jr^-1_SO3 = -Jl^-1_SO3
         # A = f(P) = W^-1 + P (f(x) - f(-x) = x): the sum loses at most a factor
         # 1 + e^-sigma <= 1 + e^2 to cancellation for sigma >= -2; below, e^P W^-1
@@ -613,14 +611,6 @@ def check_positive_scale(s: Array) -> None:
     v = A.host_values(s)
     if v is not None and bool(np.any(v <= 0)):
         raise ValueError("Sim3: scale must be positive")
-
-
-def _cj_series(t2: Any, kl: Any, aw: Any, ts: Any) -> Any:
-    return M.horner(t2, M.C_COT)
-
-
-def _cj_closed(t2: Any, kl: Any, aw: Any, ts: Any) -> Any:
-    return (1.0 - 0.5 * aw * kl) / ts
 
 
 _A_SUM = -2.0  # from this sigma up, Sim3 minus_jac takes A = f(P) as W^-1 + P
