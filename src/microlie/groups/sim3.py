@@ -182,14 +182,12 @@ def w_coefficients(o: Any, sigma: Any, t2: Any) -> tuple[Any, Any, Any]:
     return coefficients(o, sigma, t2)[0]
 
 
-def poly_matrix(p: tuple, w: tuple, t2: Any, d: Any = None) -> tuple:
-    """``p0 I + p1 hat(w) + p2 hat(w)^2`` written out (``t2 = |w|^2``; ``d = p0 - p2 t2`` if
-    the caller has it)."""
+def poly_matrix(p: tuple, w: tuple, t2: Any) -> tuple:
+    """``p0 I + p1 hat(w) + p2 hat(w)^2`` written out (``t2 = |w|^2``)."""
     p0, p1, p2 = p
     x, y, z = w
     bx, by, bz = p2 * x, p2 * y, p2 * z
-    if d is None:
-        d = p0 - p2 * t2
+    d = p0 - p2 * t2
     ax, ay, az = p1 * x, p1 * y, p1 * z
     xy, xz, yz = bx * y, bx * z, by * z
     return ((d + bx * x, xy - az, xz + ay),
@@ -233,7 +231,7 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
 def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
     """``d(W rho)/d phi`` (3x3) and ``d(W rho)/d sigma`` (3) from :func:`coefficients`'s
     output with ``derivatives=True``."""
-    (_, b, c), _, (a_s, b_s, c_s, b_t, c_t), _ = co
+    (a, b, c), _, (a_s, b_s, c_s, b_t, c_t), _ = co
     u = M.cross(phi, rho)
     v = M.cross(phi, u)
     d = M.dot(phi, rho)
@@ -253,53 +251,48 @@ def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
     return Mphi, msig
 
 
-def upper_blocks(wi: tuple, q0: Any, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple,
-                 d: Any) -> tuple:
+def upper_blocks(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple) -> tuple:
     """``B = -W^-1 d(W rho)/d phi Jr^-1_SO3(phi)`` and ``w = W^-1 d(W rho)/d sigma``: the upper
     blocks ``(B | -w)`` of Sim(3)'s ``Jr^-1`` right of ``A`` (its block inverse of ``Jr``),
     written out.
 
-    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1`` (``q0 = p0 - t2 p2``), ``co = (b, c, a_s,
-    b_s, c_s, b_t, c_t)`` those of ``W`` with their derivatives (:func:`coefficients`), ``cj`` the
-    ``hat(phi)^2`` coefficient of ``Jr^-1_SO3``, ``d = phi . rho``. With ``u = phi x rho``, ``F =
-    hat(phi)``, ``hat(a) hat(b) = b a^T - (a.b) I`` and ``F hat(rho) F = -d F`` every product of
-    polynomials in ``F`` with ``hat(rho)`` reduces to the basis ``hat(rho)``, ``rho phi^T``, ``phi
-    rho^T``, ``u phi^T``, ``d I``, ``d F``, ``d F^2`` (``phi u^T`` is ``u phi^T - d F + t2
-    hat(rho)``): ``B = U phi^T + beta_Pr phi rho^T + e I + hat(m)``, ``U = beta_rP rho + beta_uP u +
-    beta_F2 d phi``, ``m = beta_H rho + beta_F d phi``, ``e = (beta_I - t2 beta_F2) d``; ``w = g(F)
-    rho`` with ``g = W^-1 (a_s + b_s F + c_s F^2)`` (``F^2 rho = d phi - t2 rho``). The identities
-    ``b_s = 2 (c + t2 c_t)`` and ``a_s - t2 c_s = b + 2 t2 b_t`` (Cauchy-Riemann, see
-    :func:`coefficients`) share terms between the two.
+    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1``, ``co = (b, c, a_s, b_s, c_s, b_t,
+    c_t)`` those of ``W`` with their derivatives (:func:`coefficients`), ``cj`` the
+    ``hat(phi)^2`` coefficient of ``Jr^-1_SO3``. With ``u = phi x rho``, ``d = phi . rho``,
+    ``F = hat(phi)``, ``hat(a) hat(b) = b a^T - (a.b) I`` and ``F hat(rho) F = -d F`` every
+    product of polynomials in ``F`` with ``hat(rho)`` reduces to the basis ``hat(rho)``,
+    ``rho phi^T``, ``phi rho^T``, ``u phi^T``, ``d I``, ``d F``, ``d F^2`` (``phi u^T`` is
+    ``u phi^T - d F + t2 hat(rho)``): ``B = U phi^T + beta_Pr phi rho^T + e I + hat(m)``,
+    ``U = beta_rP rho + beta_uP u + beta_F2 d phi``, ``m = beta_H rho + beta_F d phi``,
+    ``e = (beta_I - t2 beta_F2) d``; ``w = g(F) rho`` with ``g = W^-1 (a_s + b_s F + c_s F^2)``
+    (``F^2 rho = d phi - t2 rho``). The identities ``b_s = 2 (c + t2 c_t)`` and ``a_s - t2 c_s
+    = b + 2 t2 b_t`` (Cauchy-Riemann, see :func:`coefficients`) share terms between the two.
     """
     p0, p1, p2 = wi
     b, c, a_s, b_s, c_s, b_t, c_t = co
     u = M.cross(phi, rho)
-    # g = W^-1 (a_s + b_s F + c_s F^2); on the plane of phi its value is that of
-    # (q0 + i t p1)(a_s - t2 c_s + i t b_s)
-    ws = a_s - t2 * c_s
-    gr = p1 * b_s + p2 * ws
-    g2 = p0 * c_s + gr
-    g1 = q0 * b_s + p1 * ws
-    e0, e2 = p0 * a_s - t2 * g2, g2 * d
+    d = M.dot(phi, rho)
+    g0, g1, g2 = poly_mul(wi, (a_s, b_s, c_s), t2)
+    e0, e2 = g0 - t2 * g2, g2 * d
     w = tuple(e0 * rho[i] + g1 * u[i] + e2 * phi[i] for i in range(3))
-    ccj, bcj, c2, bt2 = c * cj, b * cj, 0.5 * c, 2.0 * b_t
+    ccj, bcj, c2 = c * cj, b * cj, 0.5 * c
     x1 = t2 * ccj + 0.5 * b - c
     x2 = c2 - bcj
     xb = x1 - b
     bH = p0 * (b + t2 * x2)
     bPr = p0 * x1
-    buP = gr + p0 * (x2 - bt2)  # g2 + p0 (x2 - 2 b_t - c_s)
+    buP = g2 + p0 * (x2 - 2.0 * b_t - c_s)
     bF = p1 * xb + p2 * (t2 * (c - x2) - b) - p0 * c
-    bF2 = p2 * (xb + b_s) - p0 * (2.0 * (ccj + c_t)) - p1 * (bcj + bt2 + c2)
+    bF2 = p2 * (xb + b_s) - p0 * (2.0 * (ccj + c_t)) - p1 * (bcj + 2.0 * b_t + c2)
     f2d, fd = bF2 * d, bF * d
-    ne = (g1 + bPr) * d + t2 * f2d  # -e
+    e = (-(g1 + bPr) - t2 * bF2) * d
     U = tuple(g1 * rho[i] + buP * u[i] + f2d * phi[i] for i in range(3))
     V = tuple(bPr * r for r in rho)
     m0, m1, m2 = (bH * rho[i] + fd * phi[i] for i in range(3))
     G = [[U[i] * phi[j] + phi[i] * V[j] for j in range(3)] for i in range(3)]
-    B = ((G[0][0] - ne, G[0][1] - m2, G[0][2] + m1),
-         (G[1][0] + m2, G[1][1] - ne, G[1][2] - m0),
-         (G[2][0] - m1, G[2][1] + m0, G[2][2] - ne))
+    B = ((G[0][0] + e, G[0][1] - m2, G[0][2] + m1),
+         (G[1][0] + m2, G[1][1] + e, G[1][2] - m0),
+         (G[2][0] - m1, G[2][1] + m0, G[2][2] + e))
     return B, w
 
 
@@ -410,39 +403,35 @@ class Sim3(Pose):
         ``Jr^-1 = f(ad_tau)`` with ``f(x) = x / (1 - e^-x)`` and ``ad_tau = [[P, hat(rho), -rho],
         [0, F, 0], [0, 0, 0]]`` (``F = hat(phi)``, ``P = sigma I + F``). As ``f(x) - f(-x) = x``,
         ``-Jl^-1 = -f(-ad) = ad - Jr^-1``: the left Jacobian costs one subtraction per entry.
-        The blocks of ``Jr^-1 = [[A, B, b], [0, Ji, 0], [0, 0, 1]]`` are ``A = f(P) = e^P W^-1``
-        (``W^-1 = f(-P)``; ``W^-1 + P`` would cancel for ``sigma << 0``), ``Ji = Jr^-1_SO3(phi)``,
-        ``b = -W^-1 d(W rho)/d sigma`` and
-        ``B = -W^-1 d(W rho)/d phi Ji`` (the block inverse of ``Jr``), the last two written out
-        by :func:`upper_blocks`.
+        The blocks of ``Jr^-1 = [[A, B, b], [0, Ji, 0], [0, 0, 1]]`` are ``A = f(P) = W^-1 + P``
+        for ``sigma >= -2`` (``W^-1 = f(-P)``; ``e^P W^-1`` below, where the sum cancels),
+        ``Ji = Jr^-1_SO3(phi)``, ``b = -W^-1 d(W rho)/d sigma`` and ``B = -W^-1 d(W rho)/d phi Ji``
+        (the block inverse of ``Jr``), the last two written out by :func:`upper_blocks`.
         """
         z = Sim3._compose(o, Sim3._inverse(o, x), y)
         t, q, s = z[:3], z[3:7], z[7]
-        phi, kl, aw, n2 = so3.quat_log_parts(o, q, norm2=True)
+        phi, kl, aw = so3.quat_log_parts(o, q)
         sigma = o.log(s)
         t2 = M.norm2(*phi)
         # sin(t/2)/t and cos(t/2) of the normalised quaternion: consistent with each other when
         # |q| is off 1 by rounding (float32 inputs), which the cancelling W coefficients need
-        m = o.sqrt(n2 + q[3] * q[3])
+        m = o.sqrt(M.norm2(*q))
         k, ch = 1.0 / (kl * m), aw / m
         co = coefficients(o, sigma, t2, k, ch, derivatives=True, cauchy_riemann=True)
         (_, b, c), (E, sinc, h, _, _), (a_s, b_s, c_s, b_t, c_t) = co[:3]
         wi = p0, p1, p2 = poly_inv(co[0], t2)  # W^-1
-        # rho = W^-1 t as Sim3._log (which takes |q| = 1), with F^2 t = (phi.t) phi - t2 t
-        q0, dt = p0 - p2 * t2, M.dot(phi, t)  # W^-1 on the plane of phi: q0 + i theta p1
-        ft, pd = M.cross(phi, t), p2 * dt
-        rho = tuple(q0 * t[i] + p1 * ft[i] + pd * phi[i] for i in range(3))
+        rho = poly_apply(wi, phi, t)  # as Sim3._log (which takes |q| = 1)
         cj = so3.coef_c_quat(o, t2, kl, aw)
         Ji, mJl = so3.jr_inv_pair_c(o, cj, phi, t2)  # Jr^-1_SO3, F - Jr^-1_SO3 = -Jl^-1_SO3
         # A = f(P) = W^-1 + P (f(x) - f(-x) = x): the sum loses at most a factor
         # 1 + e^-sigma <= 1 + e^2 to cancellation for sigma >= -2; below, e^P W^-1
-        Wi = poly_matrix(wi, phi, t2, q0)
+        Wi = poly_matrix(wi, phi, t2)
         A = o.select(sigma >= _A_SUM, _a_sum, _a_product, sigma, *phi, t2, E, sinc, h, p0, p1,
                      p2, *Wi[0], *Wi[1], *Wi[2])
         A = (A[0:3], A[3:6], A[6:9])
         n = o.negated
         nWi = tuple(tuple(n(x) for x in row) for row in Wi)
-        B, w = upper_blocks(wi, q0, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho, p0 * dt)
+        B, w = upper_blocks(wi, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho)
         r0, r1, r2 = rho
         nB = ((n(B[0][0]), -r2 - B[0][1], r1 - B[0][2]),  # hat(rho) - B
               (r2 - B[1][0], n(B[1][1]), -r0 - B[1][2]),
