@@ -75,21 +75,20 @@ def _phi_closed(o: Any, sigma: Any) -> tuple:
     return a, d, e, (e - 1.0 / 6.0) / x
 
 
-def _c4(t2: Any, h: Any) -> Any:
+def _c4(t2: Any, h: Any, ts: Any) -> Any:
     return M.horner(t2, M.C_COS4)
 
 
-def _c4_closed(t2: Any, h: Any) -> Any:
-    return (0.5 - h) / (t2 + (t2 < M.SMALL2))  # (t^2 + 2 cos t - 2)/(2 t^4)
+def _c4_closed(t2: Any, h: Any, ts: Any) -> Any:
+    return (0.5 - h) / ts  # (t^2 + 2 cos t - 2)/(2 t^4); ts = t2, or 1 below SMALL2
 
 
-def _c56(t2: Any, cb: Any, h: Any, c4: Any) -> tuple:
+def _c56(t2: Any, cb: Any, hb: Any, h: Any, c4: Any, ts: Any) -> tuple:
     return M.horner(t2, M.C_SIN5), M.horner(t2, _C_COS6)
 
 
-def _c56_closed(t2: Any, cb: Any, h: Any, c4: Any) -> tuple:
-    ts = t2 + (t2 < M.SMALL2)
-    return (3.0 * cb - h) / (2.0 * ts), (2.0 * c4 - 0.5 * cb) / ts
+def _c56_closed(t2: Any, cb: Any, hb: Any, h: Any, c4: Any, ts: Any) -> tuple:
+    return (3.0 * cb - h) / (2.0 * ts), (2.0 * c4 - hb) / ts  # hb = cb / 2
 
 
 def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
@@ -116,44 +115,48 @@ def coefficients(o: Any, sigma: Any, t2: Any, k: Any = None, ch: Any = None,
     cos = 1.0 - t2 * h
     cb = so3.coef_b(o, t2, k, ch)  # (t - sin t)/t^3
     small = t2 < M.SMALL2
-    c4 = o.select(small, _c4, _c4_closed, t2, h)  # (t^2 + 2 cos t - 2)/(2 t^4)
-    k3 = k * k - 0.5 * cb  # (sin t - t cos t)/(2 t^3)
+    ts = t2 + small  # a safe divisor for the closed forms (kept at t2 >= SMALL2 only)
+    c4 = o.select(small, _c4, _c4_closed, t2, h, ts)  # (t^2 + 2 cos t - 2)/(2 t^4)
+    hb = 0.5 * cb
+    k3 = k * k - hb  # (sin t - t cos t)/(2 t^3)
     z2 = sigma * sigma + t2
     tiny = z2 < _TINY
     z2 = z2 + tiny
     ws = sigma * sigma / z2
     wt = t2 / z2
     Pb = a * sinc - d * cos
-    Qb = h + 2.0 * sigma * k3
+    s2, cc = 2.0 * sigma, cb - c4
+    Qb = h + s2 * k3
     Pc = e + a * h - d * sinc
-    Qc = cb + sigma * (cb - c4)
+    Qc = cb + sigma * cc
     b = o.where(tiny, 0.5 + sigma / 3.0, ws * Pb + wt * Qb)
     c = o.where(tiny, 1.0 / 6.0 + sigma / 8.0, ws * Pc + wt * Qc)
     if not derivatives:
         return (a, b, c), (E, sinc, h, k, ch)
     # c5 = -d cb / d t2, c6 = -d c4 / d t2
-    c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, h, c4)
+    c5, c6 = o.select(small, _c56, _c56_closed, t2, cb, hb, h, c4, ts)
     ad = a - d  # phi_1'
-    args = (sigma, z2, ws, wt, a, d, e, f, sinc, cos, h, k3, cb, c4, c5, c6, Pb, Qb, Pc, Qc)
+    args = (sigma, s2, z2, ws, wt, a, ad, d, e, f, sinc, cos, h, k3, cb, hb, cc, c4, c5, c6, Pb,
+            Qb, Pc, Qc)
     if cauchy_riemann:
         cs, bt, ct = o.select(tiny, _slopes_at_zero, _slopes, *args)
         bs = 2.0 * (c + t2 * ct)
     else:
         bs, cs, bt, ct = o.select(tiny, _slopes_at_zero_b, _slopes_b, *args)
-    return (a, b, c), (E, sinc, h, k, ch), (ad, bs, cs, bt, ct), cb
+    return (a, b, c), (E, sinc, h, k, ch), (ad, bs, cs, bt, ct), cb, (small, ts)
 
 
-def _slopes(sigma: Any, z2: Any, ws: Any, wt: Any, a: Any, d: Any, e: Any, f: Any, sinc: Any,
-            cos: Any, h: Any, k3: Any, cb: Any, c4: Any, c5: Any, c6: Any, Pb: Any, Qb: Any,
-            Pc: Any, Qc: Any) -> tuple:
+def _slopes(sigma: Any, s2: Any, z2: Any, ws: Any, wt: Any, a: Any, ad: Any, d: Any, e: Any,
+            f: Any, sinc: Any, cos: Any, h: Any, k3: Any, cb: Any, hb: Any, cc: Any, c4: Any,
+            c5: Any, c6: Any, Pb: Any, Qb: Any, Pc: Any, Qc: Any) -> tuple:
     """``(c_s, b_t, c_t)`` of :func:`coefficients` away from ``sigma = theta = 0``: the
     quotient rule on ``f = (sigma^2 P + t2 Q) / (sigma^2 + t2)``."""
-    ht = c4 - 0.5 * cb  # d h / d t2 (and d sinc / d t2 = -k3, d cos / d t2 = -sinc / 2)
+    ht = c4 - hb  # d h / d t2 (and d sinc / d t2 = -k3, d cos / d t2 = -sinc / 2)
     k3t = 0.5 * (ht + c5)
-    ad, de = a - d, d - 2.0 * e  # phi_1', phi_2'
+    de = d - 2.0 * e  # phi_2' (ad = phi_1')
     Db, Dc = (Pb - Qb) / z2, (Pc - Qc) / z2
-    bt = ws * (d * (0.5 * sinc) - a * k3) + wt * (ht + 2.0 * sigma * k3t) - ws * Db
-    cs = ws * ((e - 3.0 * f) + ad * h - de * sinc) + wt * (cb - c4) + 2.0 * sigma * wt * Dc
+    bt = ws * (d * (0.5 * sinc) - a * k3) + wt * (ht + s2 * k3t) - ws * Db
+    cs = ws * ((e - 3.0 * f) + ad * h - de * sinc) + wt * cc + s2 * wt * Dc
     ct = ws * (a * ht + d * k3) + wt * (sigma * (c6 - c5) - c5) - ws * Dc
     return cs, bt, ct
 
@@ -163,14 +166,13 @@ def _slopes_at_zero(sigma: Any, *_: Any) -> tuple:
     return z + 1.0 / 8.0, z - 1.0 / 24.0, z - 1.0 / 120.0
 
 
-def _slopes_b(sigma: Any, z2: Any, ws: Any, wt: Any, a: Any, d: Any, e: Any, f: Any,
-              sinc: Any, cos: Any, h: Any, k3: Any, cb: Any, c4: Any, c5: Any, c6: Any, Pb: Any,
-              Qb: Any, Pc: Any, Qc: Any) -> tuple:
-    """``(b_s, c_s, b_t, c_t)``: :func:`_slopes` and ``b_s`` by the quotient rule too."""
-    ad, de = a - d, d - 2.0 * e
-    bs = ws * (ad * sinc - de * cos) + wt * (2.0 * k3) + 2.0 * sigma * wt * ((Pb - Qb) / z2)
-    return (bs, *_slopes(sigma, z2, ws, wt, a, d, e, f, sinc, cos, h, k3, cb, c4, c5, c6, Pb,
-                         Qb, Pc, Qc))
+def _slopes_b(*args: Any) -> tuple:
+    """``(b_s, c_s, b_t, c_t)``: :func:`_slopes` (same arguments) and ``b_s`` by the quotient
+    rule too."""
+    sigma, s2, z2, ws, wt, a, ad, d, e, _, sinc, cos, _, k3, *_, Pb, Qb, _, _ = args
+    de = d - 2.0 * e
+    bs = ws * (ad * sinc - de * cos) + wt * (2.0 * k3) + s2 * wt * ((Pb - Qb) / z2)
+    return (bs, *_slopes(*args))
 
 
 def _slopes_at_zero_b(sigma: Any, *_: Any) -> tuple:
@@ -182,12 +184,14 @@ def w_coefficients(o: Any, sigma: Any, t2: Any) -> tuple[Any, Any, Any]:
     return coefficients(o, sigma, t2)[0]
 
 
-def poly_matrix(p: tuple, w: tuple, t2: Any) -> tuple:
-    """``p0 I + p1 hat(w) + p2 hat(w)^2`` written out (``t2 = |w|^2``)."""
+def poly_matrix(p: tuple, w: tuple, t2: Any, d: Any = None) -> tuple:
+    """``p0 I + p1 hat(w) + p2 hat(w)^2`` written out (``t2 = |w|^2``; ``d = p0 - p2 t2`` if
+    the caller has it)."""
     p0, p1, p2 = p
     x, y, z = w
     bx, by, bz = p2 * x, p2 * y, p2 * z
-    d = p0 - p2 * t2
+    if d is None:
+        d = p0 - p2 * t2
     ax, ay, az = p1 * x, p1 * y, p1 * z
     xy, xz, yz = bx * y, bx * z, by * z
     return ((d + bx * x, xy - az, xz + ay),
@@ -231,7 +235,7 @@ def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
 def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
     """``d(W rho)/d phi`` (3x3) and ``d(W rho)/d sigma`` (3) from :func:`coefficients`'s
     output with ``derivatives=True``."""
-    (a, b, c), _, (a_s, b_s, c_s, b_t, c_t), _ = co
+    (_, b, c), (a_s, b_s, c_s, b_t, c_t) = co[0], co[2]
     u = M.cross(phi, rho)
     v = M.cross(phi, u)
     d = M.dot(phi, rho)
@@ -251,13 +255,15 @@ def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
     return Mphi, msig
 
 
-def upper_blocks(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple) -> tuple:
+def upper_blocks(wi: tuple, q0: Any, co: tuple, cj: Any, t2: Any, phi: tuple,
+                 rho: tuple) -> tuple:
     """``B = -W^-1 d(W rho)/d phi Jr^-1_SO3(phi)`` and ``w = W^-1 d(W rho)/d sigma``: the upper
     blocks ``(B | -w)`` of Sim(3)'s ``Jr^-1`` right of ``A`` (its block inverse of ``Jr``),
     written out.
 
-    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1``, ``co = (b, c, a_s, b_s, c_s, b_t,
-    c_t)`` those of ``W`` with their derivatives (:func:`coefficients`), ``cj`` the
+    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1`` (``q0 = p0 - t2 p2``), ``co = (b,
+    c, a_s, b_s, c_s, b_t, c_t)`` those of ``W`` with their derivatives (:func:`coefficients`),
+    ``cj`` the
     ``hat(phi)^2`` coefficient of ``Jr^-1_SO3``. With ``u = phi x rho``, ``d = phi . rho``,
     ``F = hat(phi)``, ``hat(a) hat(b) = b a^T - (a.b) I`` and ``F hat(rho) F = -d F`` every
     product of polynomials in ``F`` with ``hat(rho)`` reduces to the basis ``hat(rho)``,
@@ -272,27 +278,32 @@ def upper_blocks(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple)
     b, c, a_s, b_s, c_s, b_t, c_t = co
     u = M.cross(phi, rho)
     d = M.dot(phi, rho)
-    g0, g1, g2 = poly_mul(wi, (a_s, b_s, c_s), t2)
-    e0, e2 = g0 - t2 * g2, g2 * d
+    # g = W^-1 (a_s + b_s F + c_s F^2); on the plane of phi its value is that of
+    # (q0 + i t p1)(a_s - t2 c_s + i t b_s)
+    ws = a_s - t2 * c_s
+    r = p1 * b_s + p2 * ws
+    g2 = p0 * c_s + r
+    g1 = q0 * b_s + p1 * ws
+    e0, e2 = p0 * a_s - t2 * g2, g2 * d
     w = tuple(e0 * rho[i] + g1 * u[i] + e2 * phi[i] for i in range(3))
-    ccj, bcj, c2 = c * cj, b * cj, 0.5 * c
+    ccj, bcj, c2, bt2 = c * cj, b * cj, 0.5 * c, 2.0 * b_t
     x1 = t2 * ccj + 0.5 * b - c
     x2 = c2 - bcj
     xb = x1 - b
     bH = p0 * (b + t2 * x2)
     bPr = p0 * x1
-    buP = g2 + p0 * (x2 - 2.0 * b_t - c_s)
+    buP = r + p0 * (x2 - bt2)  # g2 + p0 (x2 - 2 b_t - c_s)
     bF = p1 * xb + p2 * (t2 * (c - x2) - b) - p0 * c
-    bF2 = p2 * (xb + b_s) - p0 * (2.0 * (ccj + c_t)) - p1 * (bcj + 2.0 * b_t + c2)
+    bF2 = p2 * (xb + b_s) - p0 * (2.0 * (ccj + c_t)) - p1 * (bcj + bt2 + c2)
     f2d, fd = bF2 * d, bF * d
-    e = (-(g1 + bPr) - t2 * bF2) * d
+    ne = (g1 + bPr) * d + t2 * f2d  # -e
     U = tuple(g1 * rho[i] + buP * u[i] + f2d * phi[i] for i in range(3))
     V = tuple(bPr * r for r in rho)
     m0, m1, m2 = (bH * rho[i] + fd * phi[i] for i in range(3))
     G = [[U[i] * phi[j] + phi[i] * V[j] for j in range(3)] for i in range(3)]
-    B = ((G[0][0] + e, G[0][1] - m2, G[0][2] + m1),
-         (G[1][0] + m2, G[1][1] + e, G[1][2] - m0),
-         (G[2][0] - m1, G[2][1] + m0, G[2][2] + e))
+    B = ((G[0][0] - ne, G[0][1] - m2, G[0][2] + m1),
+         (G[1][0] + m2, G[1][1] - ne, G[1][2] - m0),
+         (G[2][0] - m1, G[2][1] + m0, G[2][2] - ne))
     return B, w
 
 
@@ -411,27 +422,29 @@ class Sim3(Pose):
         """
         z = Sim3._compose(o, Sim3._inverse(o, x), y)
         t, q, s = z[:3], z[3:7], z[7]
-        phi, kl, aw = so3.quat_log_parts(o, q)
+        phi, kl, aw, n2 = so3.quat_log_parts(o, q, norm2=True)
         sigma = o.log(s)
         t2 = M.norm2(*phi)
         # sin(t/2)/t and cos(t/2) of the normalised quaternion: consistent with each other when
         # |q| is off 1 by rounding (float32 inputs), which the cancelling W coefficients need
-        m = o.sqrt(M.norm2(*q))
+        m = o.sqrt(n2 + q[3] * q[3])
         k, ch = 1.0 / (kl * m), aw / m
         co = coefficients(o, sigma, t2, k, ch, derivatives=True, cauchy_riemann=True)
-        (_, b, c), (E, sinc, h, _, _), (a_s, b_s, c_s, b_t, c_t) = co[:3]
+        (_, b, c), (E, sinc, h, _, _), (a_s, b_s, c_s, b_t, c_t), _, (small, ts) = co
         wi = p0, p1, p2 = poly_inv(co[0], t2)  # W^-1
         rho = poly_apply(wi, phi, t)  # as Sim3._log (which takes |q| = 1)
-        cj = so3.coef_c_quat(o, t2, kl, aw)
+        cj = o.select(small, _cj_series, _cj_closed, t2, kl, aw, ts)  # so3.coef_c_quat
         Ji, mJl = so3.jr_inv_pair_c(o, cj, phi, t2)  # Jr^-1_SO3, F - Jr^-1_SO3 = -Jl^-1_SO3
-        # A = f(P) = e^P W^-1 (= W^-1 + P, which cancels for sigma << 0, as P - A = -W^-1
-        # does for sigma >> 0), with e^P = E (I + sinc F + h F^2)
-        q0, cos = p0 - t2 * p2, 1.0 - t2 * h
-        A = poly_matrix((E * p0, E * (sinc * q0 + p1 * cos), E * (p0 * h + p1 * sinc + p2 * cos)),
-                        phi, t2)
+        # A = f(P) = W^-1 + P (f(x) - f(-x) = x): the sum loses at most a factor
+        # 1 + e^-sigma <= 1 + e^2 to cancellation for sigma >= -2; below, e^P W^-1
+        q0 = p0 - p2 * t2  # the value of W^-1 on the plane of phi is q0 + i theta p1
+        Wi = poly_matrix(wi, phi, t2, q0)
+        A = o.select(sigma >= _A_SUM, _a_sum, _a_product, sigma, *phi, t2, E, sinc, h, p0, p1,
+                     p2, *Wi[0], *Wi[1], *Wi[2])
+        A = (A[0:3], A[3:6], A[6:9])
         n = o.negated
-        nWi = tuple(tuple(n(x) for x in row) for row in poly_matrix(wi, phi, t2))
-        B, w = upper_blocks(wi, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho)
+        nWi = tuple(tuple(n(x) for x in row) for row in Wi)
+        B, w = upper_blocks(wi, q0, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho)
         r0, r1, r2 = rho
         nB = ((n(B[0][0]), -r2 - B[0][1], r1 - B[0][2]),  # hat(rho) - B
               (r2 - B[1][0], n(B[1][1]), -r0 - B[1][2]),
@@ -600,6 +613,34 @@ def check_positive_scale(s: Array) -> None:
     v = A.host_values(s)
     if v is not None and bool(np.any(v <= 0)):
         raise ValueError("Sim3: scale must be positive")
+
+
+def _cj_series(t2: Any, kl: Any, aw: Any, ts: Any) -> Any:
+    return M.horner(t2, M.C_COT)
+
+
+def _cj_closed(t2: Any, kl: Any, aw: Any, ts: Any) -> Any:
+    return (1.0 - 0.5 * aw * kl) / ts
+
+
+_A_SUM = -2.0  # from this sigma up, Sim3 minus_jac takes A = f(P) as W^-1 + P
+
+
+def _a_sum(sigma: Any, x: Any, y: Any, z: Any, t2: Any, E: Any, sinc: Any, h: Any, p0: Any,
+           p1: Any, p2: Any, *wi: Any) -> tuple:
+    """``A = W^-1 + P`` (``P = sigma I + hat(phi)``; ``wi`` the 9 entries of ``W^-1``)."""
+    return (wi[0] + sigma, wi[1] - z, wi[2] + y,
+            wi[3] + z, wi[4] + sigma, wi[5] - x,
+            wi[6] - y, wi[7] + x, wi[8] + sigma)
+
+
+def _a_product(sigma: Any, x: Any, y: Any, z: Any, t2: Any, E: Any, sinc: Any, h: Any, p0: Any,
+               p1: Any, p2: Any, *wi: Any) -> tuple:
+    """``A = e^P W^-1`` with ``e^P = E (I + sinc F + h F^2)`` (``W^-1 = p0 + p1 F + p2 F^2``)."""
+    q0, cos = p0 - t2 * p2, 1.0 - t2 * h
+    m = poly_matrix((E * p0, E * (sinc * q0 + p1 * cos), E * (p0 * h + p1 * sinc + p2 * cos)),
+                    (x, y, z), t2)
+    return (*m[0], *m[1], *m[2])
 
 
 def _assemble(A: tuple, top: tuple, J: tuple, one: Any) -> tuple:

@@ -117,9 +117,10 @@ def quat_log(o: Any, q: tuple) -> tuple:
     return phi
 
 
-def quat_log_parts(o: Any, q: tuple) -> tuple:
+def quat_log_parts(o: Any, q: tuple, norm2: bool = False) -> tuple:
     """``(phi, kl, aw)``: the rotation vector, ``kl = theta / |v|`` and ``aw = |w|``
-    (``cos(theta/2)``), for callers that need the half-angle functions too."""
+    (``cos(theta/2)``), for callers that need the half-angle functions too; with
+    ``norm2=True`` also ``|v|^2``."""
     x, y, z, w = q
     # |w| whose derivative at w = 0 is 1 (abs's is 0 in torch): at a rotation by exactly pi
     # that derivative carries the change of the angle
@@ -130,6 +131,8 @@ def quat_log_parts(o: Any, q: tuple) -> tuple:
     # 2 atan2(n, |w|) / n; for a unit quaternion and tiny n it is 2 asin(n) / n = 2 + n^2/3
     kl = o.where(small, 2.0 + n2 * (1.0 / 3.0), 2.0 * o.atan2(n, aw) / n)
     ks = kl - 2.0 * (kl * (w < 0))  # w < 0: use -q
+    if norm2:
+        return o.times(ks, (x, y, z)), kl, aw, n2
     return o.times(ks, (x, y, z)), kl, aw
 
 
