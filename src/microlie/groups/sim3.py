@@ -255,29 +255,27 @@ def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
     return Mphi, msig
 
 
-def upper_blocks(wi: tuple, q0: Any, co: tuple, cj: Any, t2: Any, phi: tuple,
-                 rho: tuple) -> tuple:
+def upper_blocks(wi: tuple, q0: Any, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple,
+                 d: Any) -> tuple:
     """``B = -W^-1 d(W rho)/d phi Jr^-1_SO3(phi)`` and ``w = W^-1 d(W rho)/d sigma``: the upper
     blocks ``(B | -w)`` of Sim(3)'s ``Jr^-1`` right of ``A`` (its block inverse of ``Jr``),
     written out.
 
-    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1`` (``q0 = p0 - t2 p2``), ``co = (b,
-    c, a_s, b_s, c_s, b_t, c_t)`` those of ``W`` with their derivatives (:func:`coefficients`),
-    ``cj`` the
-    ``hat(phi)^2`` coefficient of ``Jr^-1_SO3``. With ``u = phi x rho``, ``d = phi . rho``,
-    ``F = hat(phi)``, ``hat(a) hat(b) = b a^T - (a.b) I`` and ``F hat(rho) F = -d F`` every
-    product of polynomials in ``F`` with ``hat(rho)`` reduces to the basis ``hat(rho)``,
-    ``rho phi^T``, ``phi rho^T``, ``u phi^T``, ``d I``, ``d F``, ``d F^2`` (``phi u^T`` is
-    ``u phi^T - d F + t2 hat(rho)``): ``B = U phi^T + beta_Pr phi rho^T + e I + hat(m)``,
-    ``U = beta_rP rho + beta_uP u + beta_F2 d phi``, ``m = beta_H rho + beta_F d phi``,
-    ``e = (beta_I - t2 beta_F2) d``; ``w = g(F) rho`` with ``g = W^-1 (a_s + b_s F + c_s F^2)``
-    (``F^2 rho = d phi - t2 rho``). The identities ``b_s = 2 (c + t2 c_t)`` and ``a_s - t2 c_s
-    = b + 2 t2 b_t`` (Cauchy-Riemann, see :func:`coefficients`) share terms between the two.
+    ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1`` (``q0 = p0 - t2 p2``), ``co = (b, c, a_s,
+    b_s, c_s, b_t, c_t)`` those of ``W`` with their derivatives (:func:`coefficients`), ``cj`` the
+    ``hat(phi)^2`` coefficient of ``Jr^-1_SO3``, ``d = phi . rho``. With ``u = phi x rho``, ``F =
+    hat(phi)``, ``hat(a) hat(b) = b a^T - (a.b) I`` and ``F hat(rho) F = -d F`` every product of
+    polynomials in ``F`` with ``hat(rho)`` reduces to the basis ``hat(rho)``, ``rho phi^T``, ``phi
+    rho^T``, ``u phi^T``, ``d I``, ``d F``, ``d F^2`` (``phi u^T`` is ``u phi^T - d F + t2
+    hat(rho)``): ``B = U phi^T + beta_Pr phi rho^T + e I + hat(m)``, ``U = beta_rP rho + beta_uP u +
+    beta_F2 d phi``, ``m = beta_H rho + beta_F d phi``, ``e = (beta_I - t2 beta_F2) d``; ``w = g(F)
+    rho`` with ``g = W^-1 (a_s + b_s F + c_s F^2)`` (``F^2 rho = d phi - t2 rho``). The identities
+    ``b_s = 2 (c + t2 c_t)`` and ``a_s - t2 c_s = b + 2 t2 b_t`` (Cauchy-Riemann, see
+    :func:`coefficients`) share terms between the two.
     """
     p0, p1, p2 = wi
     b, c, a_s, b_s, c_s, b_t, c_t = co
     u = M.cross(phi, rho)
-    d = M.dot(phi, rho)
     # g = W^-1 (a_s + b_s F + c_s F^2); on the plane of phi its value is that of
     # (q0 + i t p1)(a_s - t2 c_s + i t b_s)
     ws = a_s - t2 * c_s
@@ -432,19 +430,21 @@ class Sim3(Pose):
         co = coefficients(o, sigma, t2, k, ch, derivatives=True, cauchy_riemann=True)
         (_, b, c), (E, sinc, h, _, _), (a_s, b_s, c_s, b_t, c_t), _, (small, ts) = co
         wi = p0, p1, p2 = poly_inv(co[0], t2)  # W^-1
-        rho = poly_apply(wi, phi, t)  # as Sim3._log (which takes |q| = 1)
+        # rho = W^-1 t as Sim3._log (which takes |q| = 1), with F^2 t = (phi.t) phi - t2 t
+        q0, dt = p0 - p2 * t2, M.dot(phi, t)  # W^-1 on the plane of phi: q0 + i theta p1
+        ft, pd = M.cross(phi, t), p2 * dt
+        rho = tuple(q0 * t[i] + p1 * ft[i] + pd * phi[i] for i in range(3))
         cj = o.select(small, _cj_series, _cj_closed, t2, kl, aw, ts)  # so3.coef_c_quat
         Ji, mJl = so3.jr_inv_pair_c(o, cj, phi, t2)  # Jr^-1_SO3, F - Jr^-1_SO3 = -Jl^-1_SO3
         # A = f(P) = W^-1 + P (f(x) - f(-x) = x): the sum loses at most a factor
         # 1 + e^-sigma <= 1 + e^2 to cancellation for sigma >= -2; below, e^P W^-1
-        q0 = p0 - p2 * t2  # the value of W^-1 on the plane of phi is q0 + i theta p1
         Wi = poly_matrix(wi, phi, t2, q0)
         A = o.select(sigma >= _A_SUM, _a_sum, _a_product, sigma, *phi, t2, E, sinc, h, p0, p1,
                      p2, *Wi[0], *Wi[1], *Wi[2])
         A = (A[0:3], A[3:6], A[6:9])
         n = o.negated
         nWi = tuple(tuple(n(x) for x in row) for row in Wi)
-        B, w = upper_blocks(wi, q0, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho)
+        B, w = upper_blocks(wi, q0, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho, p0 * dt)
         r0, r1, r2 = rho
         nB = ((n(B[0][0]), -r2 - B[0][1], r1 - B[0][2]),  # hat(rho) - B
               (r2 - B[1][0], n(B[1][1]), -r0 - B[1][2]),
