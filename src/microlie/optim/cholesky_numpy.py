@@ -110,7 +110,28 @@ class _Bucket:
 
 class NumpyLoop:
     """The NumPy plan of a :class:`~microlie.optim.cholesky.SupernodalSolver` whose symbolic
-    analysis is done (its panels, row structures, assembly map and update pairs)."""
+    analysis is done (its panels, row structures, assembly map and update pairs); the solver
+    makes and uses it itself when the compiled loop is off.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.cholesky import SupernodalSolver
+    >>> from microlie.optim.cholesky_numpy import NumpyLoop
+    >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
+    >>> s = SupernodalSolver(compiled=False)
+    >>> s.analyse(A.indptr, A.indices, 3)
+    >>> plan = NumpyLoop(s)
+    >>> plan.factor(A.data)
+    >>> y = np.zeros((3 + 2, 1))  # the right-hand side permuted, a zero row, a dump row
+    >>> y[:3, 0] = np.array([5.0, 4.0, 2.0])[s.sperm]
+    >>> plan.solve(y)
+    >>> x = np.empty(3)
+    >>> x[s.sperm] = y[:3, 0]
+    >>> np.round(x, 12).tolist()
+    [1.0, 1.0, 1.0]
+    """
 
     def __init__(self, s: Any) -> None:
         bs, ns = s.bs, s.ns
