@@ -100,6 +100,8 @@ class _Bucket:
         self.D: Any = None  # (G, K, K) views, set by NumpyLoop._views
         self.B: Any = None  # (G, K, U)
         self.Linv: Any = None  # (G, K, K), C order, L11^-1 (buckets of more than one)
+        self.LinvT: Any = None  # its transposes, L11^-T
+        self.BT: Any = None  # (G, U, K), L21
         self.W: Any = None  # (G, U, U)
         self.each: list[tuple[Any, Any, Any]] = []  # per member: L11 (F), its C view, Linv^T
         self.c: tuple[int, int] = (0, 0)  # its columns in the level's gathered columns
@@ -108,7 +110,28 @@ class _Bucket:
 
 class NumpyLoop:
     """The NumPy plan of a :class:`~microlie.optim.cholesky.SupernodalSolver` whose symbolic
-    analysis is done (its panels, row structures, assembly map and update pairs)."""
+    analysis is done (its panels, row structures, assembly map and update pairs); the solver
+    makes and uses it itself when the compiled loop is off.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.cholesky import SupernodalSolver
+    >>> from microlie.optim.cholesky_numpy import NumpyLoop
+    >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
+    >>> s = SupernodalSolver(compiled=False)
+    >>> s.analyse(A.indptr, A.indices, 3)
+    >>> plan = NumpyLoop(s)
+    >>> plan.factor(A.data)
+    >>> y = np.zeros((3 + 2, 1))  # the right-hand side permuted, a zero row, a dump row
+    >>> y[:3, 0] = np.array([5.0, 4.0, 2.0])[s.sperm]
+    >>> plan.solve(y)
+    >>> x = np.empty(3)
+    >>> x[s.sperm] = y[:3, 0]
+    >>> np.round(x, 12).tolist()
+    [1.0, 1.0, 1.0]
+    """
 
     def __init__(self, s: Any) -> None:
         bs, ns = s.bs, s.ns
@@ -282,8 +305,10 @@ class NumpyLoop:
                 d0 = int(self.dpos[b.members[0]])
                 b.D = L[d0:d0 + G * Kb * Kb].reshape(G, Kb, Kb)
                 b.B = L[d0 + G * Kb * Kb:d0 + G * Kb * (Kb + Ub)].reshape(G, Kb, Ub)
+                b.BT = np.swapaxes(b.B, 1, 2)
         for b, lo in self._lofs:
             b.Linv = self._Linv[lo:lo + b.G * b.K * b.K].reshape(b.G, b.K, b.K)
+            b.LinvT = np.swapaxes(b.Linv, 1, 2)
             if not b.batched:
                 b.each = [(D.T, D, Li.T) for D, Li in zip(b.D, b.Linv, strict=True)]
         for bl in self.levels:
@@ -340,27 +365,24 @@ class NumpyLoop:
     def solve(self, y: np.ndarray) -> None:
         """Solve in place: ``y`` is ``(n + 2, nrhs)`` (the right-hand side in the factor's
         order, then the zero row and the dump row)."""
-        trsm = blas.dtrsm
+        trsm, mm = blas.dtrsm, np.matmul
         nr = y.shape[1]
         plan = list(zip(self.levels, self._cols, self._rows, strict=True))
         for bl, (cr, cw), (_, rw) in plan:
             Yc = y[cr]
+            X = np.empty_like(Yc)
             Ur = np.empty((rw.size, nr))
             for b in bl:
-                c0, c1 = b.c
-                r0, r1 = b.r
-                G, Kb, Ub = b.G, b.K, b.U
+                (c0, c1), (r0, r1), sh = b.c, b.r, (b.G, -1, nr)
                 if b.Linv is None:
-                    X = trsm(1.0, b.D[0].T, Yc[c0:c1], lower=1)
-                    Yc[c0:c1] = X
-                    if Ub:
-                        Ur[r0:r1] = b.B[0].T @ X
+                    X[c0:c1] = trsm(1.0, b.D[0].T, Yc[c0:c1], lower=1)
+                    if b.U:
+                        mm(b.B[0].T, X[c0:c1], out=Ur[r0:r1])
                 else:
-                    X = b.Linv @ Yc[c0:c1].reshape(G, Kb, nr)
-                    Yc[c0:c1] = X.reshape(-1, nr)
-                    if Ub:
-                        Ur[r0:r1] = (np.swapaxes(b.B, 1, 2) @ X).reshape(-1, nr)
-            y[cw] = Yc
+                    mm(b.Linv, Yc[c0:c1].reshape(sh), out=X[c0:c1].reshape(sh))
+                    if b.U:
+                        mm(b.BT, X[c0:c1].reshape(sh), out=Ur[r0:r1].reshape(sh))
+            y[cw] = X
             if rw.size:
                 if nr == 1:
                     np.subtract.at(y.ravel(), rw, Ur.ravel())
@@ -369,21 +391,17 @@ class NumpyLoop:
         for bl, (cr, cw), (rr, _) in reversed(plan):
             Yc = y[cr]
             Yr = y[rr]
+            X = np.empty_like(Yc)
             for b in bl:
-                c0, c1 = b.c
-                r0, r1 = b.r
-                G, Kb, Ub = b.G, b.K, b.U
+                (c0, c1), (r0, r1), sh = b.c, b.r, (b.G, -1, nr)
+                T = Yc[c0:c1]
+                if b.U:  # Yc - L21^T Yr, in place in Yc
+                    T -= mm(b.B, Yr[r0:r1].reshape(sh)).reshape(T.shape)
                 if b.Linv is None:
-                    T = Yc[c0:c1]
-                    if Ub:
-                        T = T - b.B[0] @ Yr[r0:r1]
-                    Yc[c0:c1] = trsm(1.0, b.D[0].T, T, lower=1, trans_a=1)
+                    X[c0:c1] = trsm(1.0, b.D[0].T, T, lower=1, trans_a=1)
                 else:
-                    T = Yc[c0:c1].reshape(G, Kb, nr)
-                    if Ub:
-                        T = T - b.B @ Yr[r0:r1].reshape(G, Ub, nr)
-                    Yc[c0:c1] = (np.swapaxes(b.Linv, 1, 2) @ T).reshape(-1, nr)
-            y[cw] = Yc
+                    mm(b.LinvT, T.reshape(sh), out=X[c0:c1].reshape(sh))
+            y[cw] = X
 
     def panel(self, j: int) -> np.ndarray:
         """The dense ``(k + u) x k`` panel of supernode ``j`` (diagonal block, then the rows
