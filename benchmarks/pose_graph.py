@@ -121,7 +121,7 @@ def measure(args, backends, lines_out: list) -> list[dict]:
         X0 = initialize(pg, start)
         fg, handle = from_pose_graph(pg, X0)
         t0 = time.perf_counter()
-        prob = fg.problem()  # the fixed pattern and scatter plan, built once per graph (not timed)
+        prob = fg.problem()  # pattern and summing matrix, once per graph (not timed)
         setup = time.perf_counter() - t0
         analysis = {}
         for b in backends:  # the symbolic analysis, once per problem and backend (not timed)
@@ -258,10 +258,12 @@ def main(argv=None) -> int:
     note = ("Breakdown of microlie's last run (ms): linearise (residuals, Jacobians and block "
             "products; with the compiled extra the SE(3) edges' scatter into the pattern is "
             "inside it) / assemble (the sum of the NumPy-path factors into the pattern) / "
-            "factorise / solve / cost (trial points) / other (damping, bookkeeping); 'setup' "
-            "is the graph's pattern and scatter plan, built once per graph, and 'analysis' the "
-            "linear solver's symbolic analysis, once per problem and backend, both before the "
-            "timed solve (like GTSAM's optimizer constructor, which is not timed either)")
+            "factorise / solve / cost (trial points; on the NumPy path also the whitened "
+            "Jacobians kept at the first trial of each iteration for the next linearisation) / "
+            "other (damping, bookkeeping); 'setup' is the graph's pattern and summing matrix, "
+            "built once per graph, and 'analysis' the linear solver's symbolic analysis, once "
+            "per problem and backend, both before the timed solve (like GTSAM's optimizer "
+            "constructor, which is not timed either)")
     lines += [""] + breakdown(res, f"{note}; pass 1")
     if default_res:
         lines += [""] + breakdown(default_res, "Pass 2 (MICROLIE_FAST=0)")

@@ -163,6 +163,31 @@ def test_jacobians_kept_by_a_trial_cost(numpy_path, loss):
     np.testing.assert_array_equal(p.linearize(s0).data, fresh.linearize(s0).data)
 
 
+def test_a_kept_linearisation_does_not_evaluate_again(numpy_path, monkeypatch):
+    """After ``costs(states, keep=True)``, ``linearize(states)`` evaluates no between factor
+    again (the kept Jacobians are what it uses); another list is evaluated."""
+    from microlie.optim import factors
+
+    calls = []
+    original = factors.BetweenFactor.evaluate_into
+
+    def counted(self, values, out):
+        calls.append(1)
+        return original(self, values, out)
+
+    monkeypatch.setattr(factors.BetweenFactor, "evaluate_into", counted)
+    fg = _graph(np.random.default_rng(5))
+    p = Problem(fg.variables, fg.factors, "check")
+    s0 = [v.initial for v in p.variables]
+    p.costs(s0, keep=True)
+    kept = len(calls)
+    assert kept > 0
+    p.linearize(s0)
+    assert len(calls) == kept
+    p.linearize([s.copy() for s in s0])
+    assert len(calls) > kept
+
+
 @pytest.mark.parametrize("solver", ["lm", "gn", "dogleg"])
 def test_solvers_take_the_same_run_with_and_without_kept_jacobians(numpy_path, monkeypatch,
                                                                    solver):

@@ -233,10 +233,13 @@ def test_pattern_with_partial_blocks(compiled):
     np.testing.assert_allclose(_dense_factor(s), Ld, rtol=0, atol=1e-10 * np.abs(Ld).max())
 
 
-def test_solve_after_a_failed_factorisation_is_an_error():
+@pytest.mark.parametrize("compiled", PATHS)
+def test_solve_after_a_failed_factorisation_is_an_error(compiled):
     M, H = _random_spd(3, 30, 5)
-    s = SupernodalSolver(compiled=False)
+    s = SupernodalSolver(compiled=compiled)
     s.analyse(H.indptr, H.indices, H.shape[0], 3)
+    with pytest.raises(SingularSystemError, match="none yet"):
+        s.solve(np.ones(H.shape[0]))
     s.factorize(H.data)
     with pytest.raises(SingularSystemError, match="not positive definite"):
         s.factorize(-H.data)

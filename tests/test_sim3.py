@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import require, to_backend, to_numpy
+from test_fused_minus import generic
 
 from microlie import SE3, Sim3
 from microlie.groups import sim3
@@ -139,29 +140,40 @@ def test_minus_jacobians_against_50_digit_reference(sigma):
     """``Y.minus(X, jac=True)`` (the fused kernel: ``Jr^-1`` in closed form, ``-Jl^-1`` as
     ``ad - Jr^-1``) against ``Jr^-1(tau)`` and ``-Jr^-1(-tau)`` at 50 digits, at the tau it
     returns, on the generic NumPy path (single elements and a batch)."""
-    from microlie import _kernels as K
-
     rng = np.random.default_rng(abs(hash(sigma)) % 2**32 + 1)
     zs = np.array([_tangent(rng, sigma, theta) for theta in THETAS])
     X = Sim3.random(len(zs), rng=rng)
     Y = X @ Sim3.exp(zs)
-    saved = K.KERNELS["Sim3.minus_jac"].impl
-    K.register("Sim3.minus_jac", None)  # the generic kernel (a compiled one is tested apart)
-    try:
+    with generic("Sim3.minus_jac"):  # the generic kernel (a compiled one is tested apart)
         batch = Y.minus(X, jac=True)
         singles = [Y[i].minus(X[i], jac=True) for i in range(len(zs))]
-    finally:
-        K.register("Sim3.minus_jac", saved)
     for i, theta in enumerate(THETAS):
-        tau = batch[0][i]
-        _, Jri, _ = reference(tau)
-        _, Jli, _ = reference(-tau)
-        for got in ((batch[1][i], batch[2][i]), singles[i][1:]):
-            where = f"sigma={sigma}, theta={theta}"
-            assert max(_block_errors(got[0], Jri)) <= 1e-12, (where, _block_errors(got[0], Jri))
-            assert max(_block_errors(-got[1], Jli)) <= 1e-12, (where, _block_errors(-got[1], Jli))
-            assert np.all(got[0][3:6, :3] == 0) and np.all(got[1][6, :6] == 0)
-            assert got[0][6, 6] == 1.0 and got[1][6, 6] == -1.0
+        for got in ((batch[0][i], batch[1][i], batch[2][i]), singles[i]):
+            _check_minus_jacobians(*got, f"sigma={sigma}, theta={theta}")
+
+
+def test_minus_jacobians_of_a_batch_mixing_scales():
+    """One batch over every scale and angle of the grid (the kernel picks its formula for A
+    element by element, on both sides of sigma = -2) against the 50-digit reference."""
+    rng = np.random.default_rng(11)
+    cases = [(sg, th) for sg in SIGMAS for th in THETAS]
+    zs = np.array([_tangent(rng, sg, th) for sg, th in cases])
+    X = Sim3.random(len(zs), rng=rng)
+    Y = X @ Sim3.exp(zs)
+    with generic("Sim3.minus_jac"):
+        tau, Jr_inv, Jl_inv_neg = Y.minus(X, jac=True)
+    for i, (sg, th) in enumerate(cases):
+        _check_minus_jacobians(tau[i], Jr_inv[i], Jl_inv_neg[i], f"sigma={sg}, theta={th}")
+
+
+def _check_minus_jacobians(tau, Jr_inv, Jl_inv_neg, where):
+    """``Jr^-1(tau)`` and ``-Jr^-1(-tau)`` against 50 digits, and the structural entries."""
+    _, Jri, _ = reference(tau)
+    _, Jli, _ = reference(-tau)
+    assert max(_block_errors(Jr_inv, Jri)) <= 1e-12, (where, _block_errors(Jr_inv, Jri))
+    assert max(_block_errors(-Jl_inv_neg, Jli)) <= 1e-12, (where, _block_errors(-Jl_inv_neg, Jli))
+    assert np.all(Jr_inv[3:6, :3] == 0) and np.all(Jl_inv_neg[6, :6] == 0)
+    assert Jr_inv[6, 6] == 1.0 and Jl_inv_neg[6, 6] == -1.0
 
 
 def test_the_old_generic_series_was_wrong_at_large_sigma():

@@ -81,6 +81,7 @@ class SupernodalSolver(LinearSolver):
 
     def analyse(self, indptr, indices, n, block_size=1):
         super().analyse(indptr, indices, n)
+        self._factored = False
         bs = block_size if block_size > 0 and n % block_size == 0 else 1
         nb = n // bs
         sym = fill_order(graph(indptr, indices, n, bs), self.ordering)
@@ -185,18 +186,20 @@ class SupernodalSolver(LinearSolver):
         if data.shape != (self.indices.size,):
             raise ValueError(f"data has shape {data.shape}; the analysed pattern has "
                              f"{self.indices.size} entries")
+        # a failed factorisation leaves no factor to solve with (the NumPy loop overwrites
+        # the last one in place; the C loop's would be stale)
+        self._factored = False
         if self._numpy_plan is not None:
-            self._factored = False  # the NumPy loop overwrites the last factor in place
             self._numpy_plan.factor(data)
-            self._factored = True
-            return
-        Lx = np.empty(self.nx + self.bs)  # the panels, then a dump block (zeroed in C)
-        info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
-                              self.rows, self.rptr, self.pptr, self.pt, self.pa, self.pb,
-                              self.relptr, self.rel, self.wsize, self.bs)
-        if info:
-            raise SingularSystemError(_NOT_PD)
-        self.Lx = Lx
+        else:
+            Lx = np.empty(self.nx + self.bs)  # the panels, then a dump block (zeroed in C)
+            info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
+                                  self.rows, self.rptr, self.pptr, self.pt, self.pa, self.pb,
+                                  self.relptr, self.rel, self.wsize, self.bs)
+            if info:
+                raise SingularSystemError(_NOT_PD)
+            self.Lx = Lx
+        self._factored = True
 
     def _panel(self, j: int) -> np.ndarray:
         """The dense ``m_j x k_j`` panel of supernode ``j`` of the last factorisation (its
@@ -214,11 +217,11 @@ class SupernodalSolver(LinearSolver):
             raise ValueError(f"the right-hand side has shape {b.shape}; expected ({self.n},) "
                              f"or ({self.n}, k)")
         vec = b.ndim == 1
+        if not self._factored:
+            raise SingularSystemError("no factorisation to solve with (none yet, or the last "
+                                      "one failed)")
         rhs = (b[:, None] if vec else b)[self.sperm]
         if self._numpy_plan is not None:
-            if not getattr(self, "_factored", False):
-                raise SingularSystemError("no factorisation to solve with (the last one "
-                                          "failed)")
             y = np.zeros((self.n + 2, rhs.shape[1]))  # then a zero row and a dump row
             y[:self.n] = rhs
             self._numpy_plan.solve(y)

@@ -240,8 +240,8 @@ class NumpyLoop:
 
     def _updates(self, s: Any, lev: np.ndarray, wpos: np.ndarray, nlev: int) -> None:
         """Per level: the runs of ``bs`` entries of the members' ``W`` (lower block triangle)
-        and their destinations in the ancestors, as one 0/1 sparse matrix (rows: distinct
-        destination runs) or, without collisions, two index arrays."""
+        and their destinations in the ancestors, as two index arrays (destinations and
+        sources, for one ``ufunc.at`` per level)."""
         bs, ns = self.bs, self.ns
         u = self.u
         ps = np.repeat(np.arange(ns), np.diff(s.pptr))

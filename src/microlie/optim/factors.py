@@ -286,11 +286,12 @@ class BetweenFactor(Factor):
                 return r
             eye = np.broadcast_to(np.eye(self.dim), (self.count, self.dim, self.dim))
             return r, [-eye, eye]
-        XiZ = Xi.compose(self.Z)
         if not jac:
-            return np.asarray(Xj.minus(XiZ))
-        r, Jj, Jc = Xj.minus(XiZ, jac=True)
-        return r, [Jc @ self._Ad_Zinv, Jj]
+            return np.asarray(Xj.minus(Xi.compose(self.Z)))
+        d = self.dim
+        out = np.empty((self.count, d, 2 * d))
+        r = self.evaluate_into(values, out)
+        return r, [out[:, :, :d], out[:, :, d:]]
 
     def evaluate_into(self, values: list[Any], out: np.ndarray) -> np.ndarray:
         if self.args[0][0].group is None:

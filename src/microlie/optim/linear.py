@@ -21,9 +21,8 @@ from typing import Any
 import numpy as np
 import scipy.linalg as sla  # type: ignore[import-untyped]
 import scipy.sparse as sp  # type: ignore[import-untyped]
-import scipy.sparse.linalg as spla  # type: ignore[import-untyped]
 
-from .ordering import graph, minimum_degree
+from .ordering import graph, minimum_degree, splu_symmetric
 
 __all__ = ["LinearSolver", "SingularSystemError", "make_solver", "available_solvers",
            "SOLVERS"]
@@ -181,12 +180,6 @@ def _checked(x: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(x)):
         raise SingularSystemError("the linear system is singular (the solution is not finite)")
     return x
-
-
-def splu_symmetric(A: Any, order: str) -> Any:
-    """SuperLU in symmetric mode (diagonal pivots only)."""
-    return spla.splu(A, permc_spec=order, diag_pivot_thresh=0.0,
-                     options={"SymmetricMode": True})
 
 
 def block_order(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> np.ndarray:
@@ -379,7 +372,7 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
     Cholesky; for 3-D problems (blocks of 6 or more) PARDISO, else the supernodal Cholesky; for
     2-D problems qdldl, else PARDISO, else the supernodal Cholesky, else SuperLU (on the five
     pose graphs of the benchmark the supernodal Cholesky beat SuperLU in the default install,
-    NumPy loop and all: its factorisations took 0.4-0.5x SuperLU's).
+    NumPy loop and all: its factorisations took 0.28-0.56x SuperLU's).
 
     Parameters
     ----------

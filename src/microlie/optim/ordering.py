@@ -125,7 +125,8 @@ def _laplacian(A: Any) -> Any:
     return (off + sp.diags(deg + 0.1, format="csr")).tocsc()
 
 
-def _splu(B: Any, spec: str) -> Any:
+def splu_symmetric(B: Any, spec: str) -> Any:
+    """SuperLU in symmetric mode (diagonal pivots only) with the column order ``spec``."""
     return splu(B, permc_spec=spec, diag_pivot_thresh=0.0, options={"SymmetricMode": True})
 
 
@@ -152,7 +153,8 @@ def minimum_degree(A: Any) -> np.ndarray:
     >>> int(minimum_degree(star)[-1])  # the hub last: no fill
     0
     """
-    return np.argsort(_splu(_laplacian(_clean(A)), "MMD_AT_PLUS_A").perm_c).astype(np.int64)
+    lu = splu_symmetric(_laplacian(_clean(A)), "MMD_AT_PLUS_A")
+    return np.argsort(lu.perm_c).astype(np.int64)
 
 
 def _distances(A: Any, v: int) -> np.ndarray:
@@ -443,7 +445,7 @@ def _factor(Ap: Any, base: np.ndarray, spec: str) -> Symbolic:
     it by ``spec``: its ``L`` is the factor of ``Ap[q][:, q]``, ``q = argsort(perm_c)``
     (SuperLU postorders the elimination tree whatever ``spec`` asks)."""
     n = Ap.shape[0]
-    lu = _splu(_laplacian(Ap), spec)
+    lu = splu_symmetric(_laplacian(Ap), spec)
     p = base[np.argsort(lu.perm_c)]
     L = lu.L.tocsc()
     L.sort_indices()

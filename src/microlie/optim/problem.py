@@ -629,8 +629,10 @@ class Problem:
         states : list of numpy.ndarray
             The parameters of each variable batch, in graph order.
         out : Linearization, optional
-            A linearisation of this problem that is no longer needed: its arrays may be
-            overwritten and reused (saves allocating and faulting in fresh memory).
+            A linearisation of this problem that is no longer needed: when every factor
+            runs in the compiled edge loop its arrays are overwritten and reused (saves
+            allocating and faulting in fresh memory); otherwise it is not used (the NumPy
+            path's sum is a fresh array, its work arrays are the problem's own).
 
         Returns
         -------
