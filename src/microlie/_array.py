@@ -52,7 +52,11 @@ class _ScalarOps:
         return a if cond else b
 
     abs1 = staticmethod(abs)  # |x| (the derivative at 0 matters only to autodiff backends)
-    negated = staticmethod(operator.neg)  # an output component -x (see ArrayOps.negated)
+    # output components (see ArrayOps.negated): plain arithmetic here
+    negated = staticmethod(operator.neg)
+    add_out = staticmethod(operator.add)
+    sub_out = staticmethod(operator.sub)
+    mul_out = staticmethod(operator.mul)
 
     @staticmethod
     def select(cond: bool, f: Any, g: Any, *args: Any) -> Any:
@@ -115,10 +119,15 @@ class ArrayOps:
 
     #: ``times(k, v)``: the components of a common factor ``k`` times a vector ``v``
     times = staticmethod(times)
-    #: ``negated(x)``: ``-x``, for an *output* component only (never used in further
-    #: arithmetic): a chunked NumPy evaluation writes it as ``np.negative(x, out=...)``, one
-    #: pass instead of computing ``-x`` and copying it
+    #: ``negated(x)``, ``add_out(a, b)``, ``sub_out(a, b)``, ``mul_out(a, b)``: ``-x``,
+    #: ``a + b``, ``a - b``, ``a * b`` as an *output* component only (never used in further
+    #: arithmetic): a chunked NumPy evaluation computes it straight into the output
+    #: (``np.add(a, b, out=...)``, see :class:`Deferred`), one pass instead of a temporary and
+    #: a copy
     negated = staticmethod(operator.neg)
+    add_out = staticmethod(operator.add)
+    sub_out = staticmethod(operator.sub)
+    mul_out = staticmethod(operator.mul)
     #: ``id(product) -> (product, k, v_i)`` for the products made by ``times`` (set on a
     #: per-evaluation copy, see :func:`kernel_ops`), or ``None``
     blocks: dict[int, tuple] | None = None
@@ -164,7 +173,8 @@ class _NumpyOps(ArrayOps):
         gathered elements of the minority, scattered into the result (the results are the
         ones ``where`` would give, element by element)."""
         if type(cond) is not np.ndarray or cond.ndim != 1:
-            return super().select(cond, f, g, *args)
+            return super().select(cond, lambda *a: concrete(f(*a)),
+                                  lambda *a: concrete(g(*a)), *args)
         n = cond.shape[0]
         m = int(np.count_nonzero(cond))
         if m == 0:
@@ -180,8 +190,14 @@ class _NumpyOps(ArrayOps):
         return tuple(_scatter(o, idx, x, n, args) for o, x in zip(out, sub, strict=True))
 
 
-def _scatter(out: Any, idx: np.ndarray, sub: Any, n: int, args: tuple) -> np.ndarray:
-    """``out`` (a fresh array of ``n`` elements) with ``sub`` written at ``idx``."""
+def _scatter(out: Any, idx: np.ndarray, sub: Any, n: int, args: tuple) -> Any:
+    """``out`` (a fresh array of ``n`` elements) with ``sub`` written at ``idx``; a
+    :class:`Deferred` ``out`` takes ``sub`` as a patch applied after it is written."""
+    if type(sub) is Deferred:
+        sub = sub.value()
+    if type(out) is Deferred:
+        out.patches = (*out.patches, (idx, sub))
+        return out
     if type(out) is not np.ndarray or out.shape != (n,) or any(out is a for a in args):
         out = np.array(np.broadcast_to(out, (n,)), dtype=np.result_type(out, sub))
     out[idx] = sub
@@ -191,22 +207,58 @@ def _scatter(out: Any, idx: np.ndarray, sub: Any, n: int, args: tuple) -> np.nda
 NUMPY = _NumpyOps()
 
 
-class Negated:
-    """An output component ``-x`` that the chunked NumPy evaluator writes negated in place."""
+class Deferred:
+    """An output component ``f(*args)`` (``f`` a NumPy ufunc: ``negative``, ``add``,
+    ``subtract``, ``multiply``) that the chunked NumPy evaluator computes straight into its
+    output row (``f(*args, out=row)``) instead of into a temporary that it then copies; then
+    ``patches`` (``(index, values)`` pairs from :meth:`_NumpyOps.select`) are written over it."""
 
-    __slots__ = ("x",)
+    __slots__ = ("f", "args", "patches")
 
-    def __init__(self, x: np.ndarray) -> None:
-        self.x = x
+    def __init__(self, f: Any, *args: Any) -> None:
+        self.f = f
+        self.args = args
+        self.patches: tuple = ()
+
+    def write(self, out: np.ndarray) -> None:
+        """Compute into ``out`` (an array of the batch shape)."""
+        self.f(*self.args, out=out)
+        for idx, sub in self.patches:
+            out[idx] = sub
+
+    def value(self) -> np.ndarray:
+        """The component as a fresh array."""
+        out = self.f(*self.args)
+        for idx, sub in self.patches:
+            out[idx] = sub
+        return out
+
+
+def concrete(x: Any) -> Any:
+    """``x`` (a component or a tuple of them) with :class:`Deferred` components evaluated."""
+    if type(x) is tuple:
+        return tuple(concrete(c) for c in x)
+    return x.value() if type(x) is Deferred else x
+
+
+def _deferred(f: Any, op: Any) -> Any:
+    def make(a: Any, b: Any) -> Any:
+        return Deferred(f, a, b) if type(a) is np.ndarray or type(b) is np.ndarray else op(a, b)
+    return staticmethod(make)
 
 
 class _NumpyChunkOps(_NumpyOps):
     """The ops of a chunked NumPy evaluation (see :func:`microlie._kernels.run`): output
-    components ``negated(x)`` are :class:`Negated` markers."""
+    components ``negated(x)``, ``add_out(a, b)``, ``sub_out(a, b)`` and ``mul_out(a, b)`` are
+    :class:`Deferred`."""
 
     @staticmethod
     def negated(x: Any) -> Any:
-        return Negated(x) if type(x) is np.ndarray else -x
+        return Deferred(np.negative, x) if type(x) is np.ndarray else -x
+
+    add_out = _deferred(np.add, operator.add)
+    sub_out = _deferred(np.subtract, operator.sub)
+    mul_out = _deferred(np.multiply, operator.mul)
 
 
 NUMPY_CHUNKS = _NumpyChunkOps()

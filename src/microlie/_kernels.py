@@ -20,9 +20,11 @@ kernels under ``"<Group>.<op>"`` when its class is created, e.g. ``"SO3.exp"``, 
   multiplications, but XLA then computes ``k`` once instead of once per output column (a
   stack of separately computed columns repeats every shared subexpression per column).
 
-An output component written ``ops.negated(x)`` (``-x``; only as an output, never in further
-arithmetic) is written by the chunked NumPy evaluation as ``np.negative(x, out=...)``: one pass
-instead of computing ``-x`` and copying it (left Jacobians are often negated right ones).
+An output component written ``ops.negated(x)``, ``ops.add_out(a, b)``, ``ops.sub_out(a, b)`` or
+``ops.mul_out(a, b)`` (``-x``, ``a + b``, ``a - b``, ``a * b``; only as an output, never in
+further arithmetic) is computed by the chunked NumPy evaluation straight into its output row
+(``np.add(a, b, out=...)``): one pass instead of a temporary and a copy. Every other path
+computes it as plain arithmetic, with the same result.
 
 Matrix outputs of more than 8 entries (Jacobians, adjoints) of NumPy batches are views of
 component-major arrays: shape ``(*batch, r, c)``, memory order ``(r, c, *batch)``. Each entry is
@@ -66,7 +68,7 @@ from typing import Any
 import numpy as np
 
 from . import _array as A
-from ._array import NUMPY, NUMPY_CHUNKS, SCALAR, Array, Negated
+from ._array import NUMPY, NUMPY_CHUNKS, SCALAR, Array, Deferred
 from ._trace import compile_scalar
 
 __all__ = ["Kernel", "KERNELS", "run", "run_floats", "scalar_function", "register",
@@ -200,7 +202,6 @@ def _single(k: Kernel, lists: tuple, dt: Any) -> Any:
 
 
 _F64 = np.dtype(np.float64)
-_negative = np.negative
 _frombuffer = np.frombuffer
 _setflags = np.ndarray.setflags
 _PACK = {n: struct.Struct(f"{n}d").pack for n in range(1, 33)}
@@ -422,19 +423,25 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
         for res, out, shape, m in zip([r] if k._flat else r, outs, k.outs, soa, strict=True):
             if m:
                 for j, c in enumerate(c for row in res for c in row):
-                    if type(c) is Negated:
-                        _negative(c.x, out=out[j, s:e])
+                    if type(c) is Deferred:
+                        c.write(out[j, s:e])
                     else:
                         out[j, s:e] = c
             elif buf is not None and len(res) > _WIDE:
                 b = buf[:len(res), :e - s]
                 for j, c in enumerate(res):
-                    b[j] = -c.x if type(c) is Negated else c
+                    if type(c) is Deferred:
+                        c.write(b[j])
+                    else:
+                        b[j] = c
                 out[s:e] = b.T
             else:
                 for j, c in enumerate(res if len(shape) == 1 else
                                       [c for row in res for c in row]):
-                    out[s:e, j] = -c.x if type(c) is Negated else c
+                    if type(c) is Deferred:
+                        c.write(out[s:e, j])
+                    else:
+                        out[s:e, j] = c
     return [o.T.reshape(*batch, *shape) if m else o.reshape(*batch, *shape)
             for o, shape, m in zip(outs, k.outs, soa, strict=True)]
 

@@ -15,6 +15,7 @@ A kernel whose code takes a Python branch on a value (``if x > 0``, ``and``) can
 from __future__ import annotations
 
 import math
+import operator
 import re
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -136,9 +137,11 @@ class _Ops:
 
     times = staticmethod(times)
 
-    @staticmethod
-    def negated(x: Any) -> Any:
-        return -x
+    # output components (see microlie._array.ArrayOps.negated): plain arithmetic here
+    negated = staticmethod(operator.neg)
+    add_out = staticmethod(operator.add)
+    sub_out = staticmethod(operator.sub)
+    mul_out = staticmethod(operator.mul)
 
     def select(self, cond: Any, f: Any, g: Any, *args: Any) -> Any:
         a, b = f(*args), g(*args)  # both recorded; only the branch taken runs (see code())

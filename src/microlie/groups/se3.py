@@ -211,7 +211,8 @@ class SE3(Pose):
         w = tuple(u[i] + g * phi[i] for i in range(3))  # E_ij = u_i phi_j + phi_i w_j + e I
         e = -2.0 * c * d - g * t2
         px, py, pz = phi
-        E = (px * (u[0] + w[0]) + e, py * (u[1] + w[1]) + e, pz * (u[2] + w[2]) + e,
-             u[0] * py + px * w[1], u[0] * pz + px * w[2], u[1] * pz + py * w[2])
-        B, mB = so3.sym_pair(o, E, (0.5 * rho[0], 0.5 * rho[1], 0.5 * rho[2]))
+        B, mB = so3.sym_pair(o, (px * (u[0] + w[0]), py * (u[1] + w[1]), pz * (u[2] + w[2])), e,
+                             (u[0] * py + px * w[1], u[0] * pz + px * w[2],
+                              u[1] * pz + py * w[2]),
+                             (0.5 * rho[0], 0.5 * rho[1], 0.5 * rho[2]))
         return ((*rho, *phi), _block2(Ji, B), _block2(mJi, mB))

@@ -251,10 +251,13 @@ def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
     return Mphi, msig
 
 
-def upper_blocks(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple) -> tuple:
+def upper_blocks(o: Any, wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple,
+                 rho: tuple) -> tuple:
     """``B = -W^-1 d(W rho)/d phi Jr^-1_SO3(phi)`` and ``w = W^-1 d(W rho)/d sigma``: the upper
     blocks ``(B | -w)`` of Sim(3)'s ``Jr^-1`` right of ``A`` (its block inverse of ``Jr``),
-    written out.
+    written out; also ``hat(rho) - B``, the same block of ``-Jl^-1 = ad - Jr^-1``. Returns
+    ``(B, hat(rho) - B, w)``, the entries of both blocks output components (``o.add_out`` and
+    ``o.sub_out``: computed straight into the output).
 
     ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1``, ``co = (b, c, a_s, b_s, c_s, b_t,
     c_t)`` those of ``W`` with their derivatives (:func:`coefficients`), ``cj`` the
@@ -285,15 +288,21 @@ def upper_blocks(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple)
     bF = p1 * xb + p2 * (t2 * (c - x2) - b) - p0 * c
     bF2 = p2 * (xb + b_s) - p0 * (2.0 * (ccj + c_t)) - p1 * (bcj + 2.0 * b_t + c2)
     f2d, fd = bF2 * d, bF * d
-    e = (-(g1 + bPr) - t2 * bF2) * d
+    ne = ((g1 + bPr) + t2 * bF2) * d  # -e
     U = tuple(g1 * rho[i] + buP * u[i] + f2d * phi[i] for i in range(3))
     V = tuple(bPr * r for r in rho)
-    m0, m1, m2 = (bH * rho[i] + fd * phi[i] for i in range(3))
+    m = tuple(bH * rho[i] + fd * phi[i] for i in range(3))
+    dm = tuple(m[i] - rho[i] for i in range(3))
+    rm = tuple(rho[i] - m[i] for i in range(3))
     G = [[U[i] * phi[j] + phi[i] * V[j] for j in range(3)] for i in range(3)]
-    B = ((G[0][0] + e, G[0][1] - m2, G[0][2] + m1),
-         (G[1][0] + m2, G[1][1] + e, G[1][2] - m0),
-         (G[2][0] - m1, G[2][1] + m0, G[2][2] + e))
-    return B, w
+    add, sub = o.add_out, o.sub_out
+    B = ((sub(G[0][0], ne), sub(G[0][1], m[2]), add(G[0][2], m[1])),
+         (add(G[1][0], m[2]), sub(G[1][1], ne), sub(G[1][2], m[0])),
+         (sub(G[2][0], m[1]), add(G[2][1], m[0]), sub(G[2][2], ne)))
+    nB = ((sub(ne, G[0][0]), sub(dm[2], G[0][1]), sub(rm[1], G[0][2])),
+          (sub(rm[2], G[1][0]), sub(ne, G[1][1]), sub(dm[0], G[1][2])),
+          (sub(dm[1], G[2][0]), sub(rm[0], G[2][1]), sub(ne, G[2][2])))
+    return B, nB, w
 
 
 class Sim3(Pose):
@@ -426,18 +435,14 @@ class Sim3(Pose):
         # A = f(P) = W^-1 + P (f(x) - f(-x) = x): the sum loses at most a factor
         # 1 + e^-sigma <= 1 + e^2 to cancellation for sigma >= -2; below, e^P W^-1
         Wi = poly_matrix(wi, phi, t2)
-        A = o.select(sigma >= _A_SUM, _a_sum, _a_product, sigma, *phi, t2, E, sinc, h, p0, p1,
-                     p2, *Wi[0], *Wi[1], *Wi[2])
+        A = o.select(sigma >= _A_SUM, partial(_a_sum, o), _a_product, sigma, *phi, t2, E, sinc,
+                     h, p0, p1, p2, *Wi[0], *Wi[1], *Wi[2])
         A = (A[0:3], A[3:6], A[6:9])
         n = o.negated
         nWi = tuple(tuple(n(x) for x in row) for row in Wi)
-        B, w = upper_blocks(wi, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho)
-        r0, r1, r2 = rho
-        nB = ((n(B[0][0]), -r2 - B[0][1], r1 - B[0][2]),  # hat(rho) - B
-              (r2 - B[1][0], n(B[1][1]), -r0 - B[1][2]),
-              (-r1 - B[2][0], r0 - B[2][1], n(B[2][2])))
+        B, nB, w = upper_blocks(o, wi, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho)
         top_r = tuple((*B[i], n(w[i])) for i in range(3))
-        top_l = tuple((*nB[i], w[i] - rho[i]) for i in range(3))
+        top_l = tuple((*nB[i], o.sub_out(w[i], rho[i])) for i in range(3))
         return ((*rho, *phi, sigma), _assemble(A, top_r, Ji, 1.0),
                 _assemble(nWi, top_l, mJl, -1.0))
 
@@ -605,12 +610,14 @@ def check_positive_scale(s: Array) -> None:
 _A_SUM = -2.0  # from this sigma up, Sim3 minus_jac takes A = f(P) as W^-1 + P
 
 
-def _a_sum(sigma: Any, x: Any, y: Any, z: Any, t2: Any, E: Any, sinc: Any, h: Any, p0: Any,
-           p1: Any, p2: Any, *wi: Any) -> tuple:
-    """``A = W^-1 + P`` (``P = sigma I + hat(phi)``; ``wi`` the 9 entries of ``W^-1``)."""
-    return (wi[0] + sigma, wi[1] - z, wi[2] + y,
-            wi[3] + z, wi[4] + sigma, wi[5] - x,
-            wi[6] - y, wi[7] + x, wi[8] + sigma)
+def _a_sum(o: Any, sigma: Any, x: Any, y: Any, z: Any, t2: Any, E: Any, sinc: Any, h: Any,
+           p0: Any, p1: Any, p2: Any, *wi: Any) -> tuple:
+    """``A = W^-1 + P`` (``P = sigma I + hat(phi)``; ``wi`` the 9 entries of ``W^-1``), as
+    output components."""
+    add, sub = o.add_out, o.sub_out
+    return (add(wi[0], sigma), sub(wi[1], z), add(wi[2], y),
+            add(wi[3], z), add(wi[4], sigma), sub(wi[5], x),
+            sub(wi[6], y), add(wi[7], x), add(wi[8], sigma))
 
 
 def _a_product(sigma: Any, x: Any, y: Any, z: Any, t2: Any, E: Any, sinc: Any, h: Any, p0: Any,

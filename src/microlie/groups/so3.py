@@ -234,26 +234,31 @@ def jr_inv(o: Any, w: tuple) -> tuple:
     return i_hat_sq(0.5, coef_c(o, t2, k, ch), w, t2)
 
 
-def sym_pair(o: Any, s: tuple, h: tuple) -> tuple[tuple, tuple]:
-    """``S + hat(h)`` and ``hat(h) - S`` (the negated transpose of the first, as
-    ``o.negated`` output components) for a symmetric ``S`` given as
-    ``(s00, s11, s22, s01, s02, s12)``."""
-    s00, s11, s22, s01, s02, s12 = s
+def sym_pair(o: Any, dg: tuple, c: Any, off: tuple, h: tuple) -> tuple[tuple, tuple]:
+    """``S + hat(h)`` and ``hat(h) - S`` (the negated transpose of the first) for the symmetric
+    ``S`` with diagonal ``dg_i + c`` and off-diagonal ``off = (s01, s02, s12)``, every entry an
+    output component (``o.add_out``/``o.sub_out``: computed straight into the output)."""
+    add, sub = o.add_out, o.sub_out
+    s01, s02, s12 = off
     h0, h1, h2 = h
-    a01, a02, a12, a10, a20, a21 = s01 - h2, s02 + h1, s12 - h0, s01 + h2, s02 - h1, s12 + h0
-    n = o.negated
-    return (((s00, a01, a02), (a10, s11, a12), (a20, a21, s22)),
-            ((n(s00), n(a10), n(a20)), (n(a01), n(s11), n(a21)), (n(a02), n(a12), n(s22))))
+    d0, d1, d2 = dg
+    nc, n0, n1, n2 = -c, -h0, -h1, -h2
+    return (((add(d0, c), sub(s01, h2), add(s02, h1)),
+             (add(s01, h2), add(d1, c), sub(s12, h0)),
+             (sub(s02, h1), add(s12, h0), add(d2, c))),
+            ((sub(nc, d0), sub(n2, s01), sub(h1, s02)),
+             (sub(h2, s01), sub(nc, d1), sub(n0, s12)),
+             (sub(n1, s02), sub(h0, s12), sub(nc, d2))))
 
 
 def jr_inv_pair_c(o: Any, c: Any, w: tuple, t2: Any) -> tuple[tuple, tuple]:
     """``Jr^-1(w)`` and ``-Jl^-1(w)`` given :func:`coef_c`'s ``c``: ``Jr^-1 = S + hat(w)/2``
-    and ``-Jl^-1 = -Jr^-1^T = hat(w)/2 - S``, ``S = I + c hat(w)^2 = (1 - c t2) I + c w w^T``."""
+    and ``-Jl^-1 = -Jr^-1^T = hat(w)/2 - S``, ``S = I + c hat(w)^2 = (1 - c t2) I + c w w^T``
+    (output components, see :func:`sym_pair`)."""
     x, y, z = w
     cx, cy, cz = c * x, c * y, c * z
-    d = 1.0 - c * t2
-    s = (d + cx * x, d + cy * y, d + cz * z, cx * y, cx * z, cy * z)
-    return sym_pair(o, s, (0.5 * x, 0.5 * y, 0.5 * z))
+    return sym_pair(o, (cx * x, cy * y, cz * z), 1.0 - c * t2, (cx * y, cx * z, cy * z),
+                    (0.5 * x, 0.5 * y, 0.5 * z))
 
 
 def jl(o: Any, w: tuple) -> tuple:
