@@ -416,14 +416,29 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
             for s, m in zip(k.outs, soa, strict=True)]
     width = max((s[0] for s, m in zip(k.outs, soa, strict=True) if not m), default=0)
     buf = np.empty((width, CHUNK), dtype=dt) if width > _WIDE else None
+    # constant (Python number) components of component-major outputs are written once, after
+    # the last chunk, as whole rows (runs of rows: one contiguous fill): ``j -> (value, from)``
+    consts: list[dict[int, tuple[float, int]]] = [{} for _ in outs]
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
         r = fn(NUMPY_CHUNKS, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
                                for f in flats])
-        for res, out, shape, m in zip([r] if k._flat else r, outs, k.outs, soa, strict=True):
+        for res, out, shape, m, pend in zip([r] if k._flat else r, outs, k.outs, soa, consts,
+                                            strict=True):
             if m:
                 for j, c in enumerate(c for row in res for c in row):
-                    if type(c) is Deferred:
+                    tc = type(c)
+                    if tc is float or tc is int:
+                        p = pend.get(j)
+                        if p is None or not _same(p[0], c):
+                            if p is not None:
+                                out[j, p[1]:s] = p[0]
+                            pend[j] = (c, s)
+                        continue
+                    if pend and j in pend:
+                        c0, s0 = pend.pop(j)
+                        out[j, s0:s] = c0
+                    if tc is Deferred:
                         c.write(out[j, s:e])
                     else:
                         out[j, s:e] = c
@@ -442,8 +457,34 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
                         c.write(out[s:e, j])
                     else:
                         out[s:e, j] = c
+    for out, pend in zip(outs, consts, strict=True):
+        _fill_constants(out, pend)
     return [o.T.reshape(*batch, *shape) if m else o.reshape(*batch, *shape)
             for o, shape, m in zip(outs, k.outs, soa, strict=True)]
+
+
+def _same(a: float, b: float) -> bool:
+    """``a`` and ``b`` are the same constant (``0.0`` and ``-0.0`` are not)."""
+    return a == b and (a != 0 or math.copysign(1.0, a) == math.copysign(1.0, b))
+
+
+def _fill_constants(out: np.ndarray, pend: dict[int, tuple[float, int]]) -> None:
+    """Write the pending constant rows ``j -> (value, from)`` of a component-major ``out``;
+    consecutive rows of one value that span the whole batch are one contiguous fill."""
+    js = sorted(pend)
+    i = 0
+    while i < len(js):
+        j0 = js[i]
+        c, s0 = pend[j0]
+        i += 1
+        if s0:
+            out[j0, s0:] = c
+            continue
+        j1 = j0 + 1
+        while i < len(js) and js[i] == j1 and pend[j1][1] == 0 and _same(pend[j1][0], c):
+            i += 1
+            j1 += 1
+        out[j0:j1] = c
 
 
 def _run_arrays(k: Kernel, arrays: Sequence[np.ndarray]) -> Any:
