@@ -383,23 +383,48 @@ def test_chunked_jacobian_kernels_agree_with_single_elements(G):
 
 
 @pytest.mark.parametrize("n", [3 * K.CHUNK + 5, 7])  # chunked, and one evaluation
-def test_constant_and_negated_output_components(n):
+def test_constant_and_deferred_output_components(n):
     """Constant (Python-float) components of a chunked component-major output, also ones
-    that change from chunk to chunk or become arrays; ``ops.negated(x)`` components come out
-    as ``-x`` in matrix and vector outputs alike."""
+    that change from chunk to chunk, become arrays or flip the sign of zero (each is written
+    once after the last chunk where it stays constant); ``ops.negated(x)``,
+    ``ops.add_out(a, b)``, ``ops.sub_out(a, b)``, ``ops.mul_out(a, b)`` components come out as
+    ``-x``, ``a + b``, ``a - b``, ``a * b`` in matrix and vector outputs alike, also with a
+    Python-float operand."""
 
     def fn(o, x):
         start = float(x[0][0])  # the first row of this chunk
         a = x[0] * 1.0
         c = 2.0 if start == 0 else a if start == K.CHUNK else 3.0
-        return ((1.0, c, a), (a, 0.0, o.negated(a)), (c, a, -1.0)), (o.negated(a), a + 1.0)
+        z = 0.0 if start < 2 * K.CHUNK else -0.0
+        return (((1.0, c, a), (a, z, o.negated(a)), (c, o.add_out(a, 0.5), -1.0)),
+                (o.negated(a), o.sub_out(2.0, a), o.mul_out(a, a), o.sub_out(a, a)))
 
-    k = K.Kernel("test.constants", None, fn, ["v"], [(3, 3), (2,)])
+    k = K.Kernel("test.constants", None, fn, ["v"], [(3, 3), (4,)])
     x = np.arange(n, dtype=np.float64)[:, None]
     out, vec = K._run(k, (x,))
     a = x[:, 0]
     want_c = np.where(a < K.CHUNK, 2.0, np.where(a < 2 * K.CHUNK, a, 3.0))
-    want = np.stack([np.ones(n), want_c, a, a, np.zeros(n), -a, want_c, a,
+    want_z = np.where(a < 2 * K.CHUNK, 0.0, -0.0) if n > 2 * K.CHUNK else np.zeros(n)
+    want = np.stack([np.ones(n), want_c, a, a, want_z, -a, want_c, a + 0.5,
                      -np.ones(n)], -1).reshape(n, 3, 3)
     np.testing.assert_array_equal(out, want)
-    np.testing.assert_array_equal(vec, np.stack([-a, a + 1.0], -1))
+    assert np.array_equal(np.signbit(out[:, 1, 1]), np.signbit(want_z))
+    np.testing.assert_array_equal(vec, np.stack([-a, 2.0 - a, a * a, 0 * a], -1))
+
+
+def test_select_patches_a_deferred_majority():
+    """A chunked evaluation whose ``select`` returns output components of the majority branch
+    (``add_out``: computed into the output) with the minority's values patched in."""
+
+    def fn(o, x):
+        a = x[0]
+        r = o.select(a < 10.0, lambda v: (v * 3.0,), lambda v: (o.add_out(v, 1.0),), a)
+        return (r[0], o.negated(a), a, a, a, a, a, a, a),
+
+    k = K.Kernel("test.patch", None, fn, ["v"], [(3, 3)])
+    n = 2 * K.CHUNK + 11
+    x = np.arange(n, dtype=np.float64)[:, None]
+    out = K._run(k, (x,))
+    a = x[:, 0]
+    np.testing.assert_array_equal(out[:, 0, 0], np.where(a < 10.0, 3.0 * a, a + 1.0))
+    np.testing.assert_array_equal(out[:, 0, 1], -a)
