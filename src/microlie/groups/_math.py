@@ -13,6 +13,7 @@ from functools import reduce as _reduce
 from math import comb, factorial
 from operator import add as _add
 from operator import mul as _mul
+from operator import sub as _sub
 from typing import Any
 
 # Below this squared angle the closed forms that do not cancel (sin t / t, cos t) switch to a
@@ -85,6 +86,22 @@ def dot(a: tuple, b: tuple) -> Any:
 def hat3(v: tuple) -> tuple:
     z = 0.0 * v[0]
     return ((z, -v[2], v[1]), (v[2], z, -v[0]), (-v[1], v[0], z))
+
+
+def poly_matrix(p: tuple, w: tuple, t2: Any, o: Any = None) -> tuple:
+    """``p0 I + p1 hat(w) + p2 hat(w)^2`` written out (``t2 = |w|^2``); with ``ops`` ``o``
+    its entries are output components (``o.add_out``/``o.sub_out``, see
+    :mod:`microlie._array`), never to be used in further arithmetic."""
+    p0, p1, p2 = p
+    x, y, z = w
+    bx, by, bz = p2 * x, p2 * y, p2 * z
+    d = p0 - p2 * t2
+    ax, ay, az = p1 * x, p1 * y, p1 * z
+    xy, xz, yz = bx * y, bx * z, by * z
+    add, sub = (_add, _sub) if o is None else (o.add_out, o.sub_out)
+    return ((add(d, bx * x), sub(xy, az), add(xz, ay)),
+            (add(xy, az), add(d, by * y), sub(yz, ax)),
+            (sub(xz, ay), add(yz, ax), add(d, bz * z)))
 
 
 def matmul(a: tuple, b: tuple) -> tuple:

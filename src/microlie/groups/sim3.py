@@ -182,19 +182,6 @@ def w_coefficients(o: Any, sigma: Any, t2: Any) -> tuple[Any, Any, Any]:
     return coefficients(o, sigma, t2)[0]
 
 
-def poly_matrix(p: tuple, w: tuple, t2: Any) -> tuple:
-    """``p0 I + p1 hat(w) + p2 hat(w)^2`` written out (``t2 = |w|^2``)."""
-    p0, p1, p2 = p
-    x, y, z = w
-    bx, by, bz = p2 * x, p2 * y, p2 * z
-    d = p0 - p2 * t2
-    ax, ay, az = p1 * x, p1 * y, p1 * z
-    xy, xz, yz = bx * y, bx * z, by * z
-    return ((d + bx * x, xy - az, xz + ay),
-            (xy + az, d + by * y, yz - ax),
-            (xz - ay, yz + ax, d + bz * z))
-
-
 def poly_mul(p: tuple, q: tuple, t2: Any) -> tuple:
     """Product of two polynomials in ``hat(w)`` (``hat(w)^3 = -t2 hat(w)``)."""
     return (p[0] * q[0],
@@ -249,6 +236,45 @@ def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
             (g[2][0] + br1, g[2][1] - br0, g[2][2] + cd))
     msig = tuple(a_s * rho[i] + b_s * u[i] + c_s * v[i] for i in range(3))
     return Mphi, msig
+
+
+def jr_upper(o: Any, r: tuple, co: tuple, t2: Any, phi: tuple, rho: tuple) -> tuple:
+    """The 3x4 block ``e^-sigma R^T [d(W rho)/d phi | d(W rho)/d sigma]`` of Sim(3)'s ``Jr``
+    right of its top-left block, written out, as output components.
+
+    ``r = (r0, r1, r2)`` are the coefficients of ``e^-sigma R^T = r0 I + r1 F + r2 F^2``
+    (``F = hat(phi)``), ``co`` :func:`coefficients`'s output with ``derivatives=True``. With
+    ``u = phi x rho``, ``d = phi . rho``, ``F^2 rho = d phi - t2 rho`` and ``q0 = r0 - t2 r2``,
+    ``R^T`` maps ``rho -> q0 rho + r1 u + r2 d phi``, ``u -> q0 u - t2 r1 rho + r1 d phi`` and
+    ``phi -> r0 phi``, and ``R^T hat(rho) = r0 hat(rho) + r1 (rho phi^T - d I) + r2 (u phi^T -
+    d F)``. So ``d(W rho)/d phi = c phi rho^T + w phi^T - b hat(rho) + c d I`` with ``w = 2
+    (b_t u + c_t F^2 rho - c rho)`` (:func:`_w_rho_slopes`) becomes ``alpha phi rho^T + z
+    phi^T + hat(m) + e I``, and ``d(W rho)/d sigma = (a_s - t2 c_s) rho + b_s u + c_s d phi`` a
+    combination of ``rho``, ``u`` and ``phi`` again.
+    """
+    r0, r1, r2 = r
+    (_, b, c), _, (a_s, b_s, c_s, b_t, c_t), _ = co
+    u = M.cross(phi, rho)
+    d = M.dot(phi, rho)
+    q0 = r0 - t2 * r2
+    wr, wu = -2.0 * (c + t2 * c_t), 2.0 * b_t  # w = wr rho + wu u + 2 c_t d phi
+    zr = wr * q0 - (wu * t2 + b) * r1
+    zu = wr * r1 + wu * q0 - b * r2
+    zp = ((wr + c) * r2 + wu * r1 + 2.0 * c_t * r0) * d
+    mr, mp = -b * r0, (b * r2 + c * r1) * d
+    e = (b * r1 + c * q0) * d
+    sr = a_s - t2 * c_s
+    sr, su, sp = sr * q0 - b_s * t2 * r1, sr * r1 + b_s * q0, (sr * r2 + b_s * r1 + c_s * r0) * d
+    z = tuple(zr * rho[i] + zu * u[i] + zp * phi[i] for i in range(3))
+    m0, m1, m2 = (mr * rho[i] + mp * phi[i] for i in range(3))
+    al = c * r0
+    ap = tuple(al * x for x in phi)
+    G = [[ap[i] * rho[j] + z[i] * phi[j] for j in range(3)] for i in range(3)]
+    add, sub = o.add_out, o.sub_out
+    col = tuple(add(sr * rho[i] + su * u[i], sp * phi[i]) for i in range(3))
+    return ((add(G[0][0], e), sub(G[0][1], m2), add(G[0][2], m1), col[0]),
+            (add(G[1][0], m2), add(G[1][1], e), sub(G[1][2], m0), col[1]),
+            (sub(G[2][0], m1), add(G[2][1], m0), add(G[2][2], e), col[2]))
 
 
 def upper_blocks(o: Any, wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple,
@@ -385,24 +411,26 @@ class Sim3(Pose):
 
     @classmethod
     def _jr(cls, o, tau):
-        phi, t2, W, E, (sinc, h, cb, _, _), Mphi, msig = _jacobian_pieces(o, tau)
+        rho, phi, sigma = tau[:3], tau[3:6], tau[6]
+        t2 = M.norm2(*phi)
+        co = coefficients(o, sigma, t2, derivatives=True)
+        (_, (E, sinc, h, _, _), _, cb) = co
         ei = 1.0 / E
         Rt = (ei, -ei * sinc, ei * h)  # e^-sigma R^T = e^-sigma Exp(-phi)
-        RtM = poly_matrix(Rt, phi, t2)
-        top = M.matmul(RtM, tuple((*Mphi[i], msig[i]) for i in range(3)))
-        A = poly_matrix(poly_mul(Rt, W, t2), phi, t2)
-        J = so3.i_hat_sq(-h, cb, phi, t2)
-        return _assemble(A, top, J, 1.0)
+        A = M.poly_matrix(poly_mul(Rt, co[0], t2), phi, t2, o)
+        J = so3.i_hat_sq(-h, cb, phi, t2, o)
+        return _assemble(A, jr_upper(o, Rt, co, t2, phi, rho), J, 1.0)
 
     @classmethod
     def _jr_inv(cls, o, tau):
         phi, t2, W, E, (sinc, h, cb, k, ch), Mphi, msig = _jacobian_pieces(o, tau)
         Wi = poly_inv(W, t2)
-        A = poly_matrix(poly_mul(Wi, (E, E * sinc, E * h), t2), phi, t2)  # e^sigma W^-1 R
+        A = M.poly_matrix(poly_mul(Wi, (E, E * sinc, E * h), t2), phi, t2, o)  # e^sigma W^-1 R
         Ji = so3.i_hat_sq(0.5, so3.coef_c(o, t2, k, ch), phi, t2)
-        WiM = M.matmul(poly_matrix(Wi, phi, t2), tuple((*Mphi[i], msig[i]) for i in range(3)))
+        WiM = M.matmul(M.poly_matrix(Wi, phi, t2), tuple((*Mphi[i], msig[i]) for i in range(3)))
         B = M.matmul(tuple(r[:3] for r in WiM), Ji)
-        top = tuple((*(-x for x in B[i]), -WiM[i][3]) for i in range(3))
+        n = o.negated
+        top = tuple((*(n(x) for x in B[i]), n(WiM[i][3])) for i in range(3))
         return _assemble(A, top, Ji, 1.0)
 
     @staticmethod
@@ -434,7 +462,7 @@ class Sim3(Pose):
         Ji, mJl = so3.jr_inv_pair_c(o, cj, phi, t2)  # Jr^-1_SO3, F - Jr^-1_SO3 = -Jl^-1_SO3
         # A = f(P) = W^-1 + P (f(x) - f(-x) = x): the sum loses at most a factor
         # 1 + e^-sigma <= 1 + e^2 to cancellation for sigma >= -2; below, e^P W^-1
-        Wi = poly_matrix(wi, phi, t2)
+        Wi = M.poly_matrix(wi, phi, t2)
         A = o.select(sigma >= _A_SUM, partial(_a_sum, o), _a_product, sigma, *phi, t2, E, sinc,
                      h, p0, p1, p2, *Wi[0], *Wi[1], *Wi[2])
         A = (A[0:3], A[3:6], A[6:9])
@@ -624,7 +652,7 @@ def _a_product(sigma: Any, x: Any, y: Any, z: Any, t2: Any, E: Any, sinc: Any, h
                p1: Any, p2: Any, *wi: Any) -> tuple:
     """``A = e^P W^-1`` with ``e^P = E (I + sinc F + h F^2)`` (``W^-1 = p0 + p1 F + p2 F^2``)."""
     q0, cos = p0 - t2 * p2, 1.0 - t2 * h
-    m = poly_matrix((E * p0, E * (sinc * q0 + p1 * cos), E * (p0 * h + p1 * sinc + p2 * cos)),
+    m = M.poly_matrix((E * p0, E * (sinc * q0 + p1 * cos), E * (p0 * h + p1 * sinc + p2 * cos)),
                     (x, y, z), t2)
     return (*m[0], *m[1], *m[2])
 

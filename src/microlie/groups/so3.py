@@ -208,16 +208,10 @@ def hat_sq(w: tuple, t2: Any) -> tuple:
     )
 
 
-def i_hat_sq(a: Any, b: Any, w: tuple, t2: Any) -> tuple:
-    """``I + a hat(w) + b hat(w)^2``, written out."""
-    x, y, z = w
-    bx, by, bz = b * x, b * y, b * z
-    d = 1.0 - b * t2
-    ax, ay, az = a * x, a * y, a * z
-    xy, xz, yz = bx * y, bx * z, by * z
-    return ((d + bx * x, xy - az, xz + ay),
-            (xy + az, d + by * y, yz - ax),
-            (xz - ay, yz + ax, d + bz * z))
+def i_hat_sq(a: Any, b: Any, w: tuple, t2: Any, o: Any = None) -> tuple:
+    """``I + a hat(w) + b hat(w)^2``, written out (output components with ``o``, see
+    :func:`microlie.groups._math.poly_matrix`)."""
+    return M.poly_matrix((1.0, a, b), w, t2, o)
 
 
 def jr(o: Any, w: tuple) -> tuple:
