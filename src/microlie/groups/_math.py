@@ -135,6 +135,11 @@ def neg(a: tuple) -> tuple:
     return tuple(tuple(-x for x in row) for row in a)
 
 
+def neg_out(o: Any, a: tuple) -> tuple:
+    """``-a`` as output components (``o.negated``, see :mod:`microlie._array`)."""
+    return tuple(tuple(o.negated(x) for x in row) for row in a)
+
+
 def blocks(rows: list[list[tuple]]) -> tuple:
     """Assemble a block matrix from a grid of component matrices."""
     out = []

@@ -82,7 +82,7 @@ def _build_kernels(cls: Any) -> dict[str, Kernel]:
         # fused value + right Jacobians
         "act_jac": (lambda o, p, v: (act(o, p, v), *act_jac(o, p, v)), "pv",
                     [(vd,), (vd, d), (vd, vd)]),
-        "inverse_jac": (lambda o, p: (inv(o, p), M.neg(adj(o, p))), "p", [(pd,), sq]),
+        "inverse_jac": (lambda o, p: (inv(o, p), M.neg_out(o, adj(o, p))), "p", [(pd,), sq]),
         "compose_jac": (lambda o, p, q: (comp(o, p, q), adj(o, inv(o, q))), "pp", [(pd,), sq]),
         "between_jac": (_between_jac(comp, inv, adj), "pp", [(pd,), sq]),
     }
@@ -111,7 +111,7 @@ _ELEMENT_OUT = {"exp", "compose", "inverse", "between", "plus", "lplus", "exp_ja
 def _between_jac(comp: Any, inv: Any, adj: Any) -> Any:
     def between_jac(o: Any, p: Any, q: Any) -> tuple:
         z = comp(o, inv(o, p), q)
-        return z, M.neg(adj(o, inv(o, z)))  # d(X^-1 Y)/dX = -Ad_(Y^-1 X)
+        return z, M.neg_out(o, adj(o, inv(o, z)))  # d(X^-1 Y)/dX = -Ad_(Y^-1 X)
     return between_jac
 
 
@@ -127,12 +127,12 @@ def _jr_kernels(cls: Any) -> dict[str, Any]:
     def minus_jac(o: Any, y: Any, x: Any) -> tuple:
         tau = log(o, comp(o, inv(o, x), y))
         a, b = pair(o, tau)  # Jr^-1(tau), Jl^-1(tau)
-        return tau, a, M.neg(b)
+        return tau, a, M.neg_out(o, b)
 
     def lminus_jac(o: Any, y: Any, x: Any) -> tuple:
         tau = log(o, comp(o, y, inv(o, x)))
         j = M.matmul(jri(o, tau), adj(o, x))  # Jr^-1(tau) Ad_X
-        return tau, j, M.neg(j)
+        return tau, j, M.neg_out(o, j)
 
     def plus_jac(o: Any, p: Any, t: Any) -> tuple:
         e = exp(o, t)
