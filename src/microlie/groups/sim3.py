@@ -152,9 +152,10 @@ def _slopes(sigma: Any, z2: Any, ws: Any, wt: Any, a: Any, d: Any, e: Any, f: An
     k3t = 0.5 * (ht + c5)
     ad, de = a - d, d - 2.0 * e  # phi_1', phi_2'
     Db, Dc = (Pb - Qb) / z2, (Pc - Qc) / z2
-    bt = ws * (d * (0.5 * sinc) - a * k3) + wt * (ht + 2.0 * sigma * k3t) - ws * Db
-    cs = ws * ((e - 3.0 * f) + ad * h - de * sinc) + wt * (cb - c4) + 2.0 * sigma * wt * Dc
-    ct = ws * (a * ht + d * k3) + wt * (sigma * (c6 - c5) - c5) - ws * Dc
+    s2 = 2.0 * sigma
+    bt = ws * (d * (0.5 * sinc) - a * k3 - Db) + wt * (ht + s2 * k3t)
+    cs = ws * ((e - 3.0 * f) + ad * h - de * sinc) + wt * ((cb - c4) + s2 * Dc)
+    ct = ws * (a * ht + d * k3 - Dc) + wt * (sigma * (c6 - c5) - c5)
     return cs, bt, ct
 
 
