@@ -298,6 +298,24 @@ def upper_blocks(o: Any, wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple,
     (``F^2 rho = d phi - t2 rho``). The identities ``b_s = 2 (c + t2 c_t)`` and ``a_s - t2 c_s
     = b + 2 t2 b_t`` (Cauchy-Riemann, see :func:`coefficients`) share terms between the two.
     """
+    U, V, m, ne, w = _upper_vectors(wi, co, cj, t2, phi, rho)
+    dm = tuple(m[i] - rho[i] for i in range(3))
+    rm = tuple(rho[i] - m[i] for i in range(3))
+    G = [[U[i] * phi[j] + phi[i] * V[j] for j in range(3)] for i in range(3)]
+    del U, V
+    add, sub = o.add_out, o.sub_out
+    B = ((sub(G[0][0], ne), sub(G[0][1], m[2]), add(G[0][2], m[1])),
+         (add(G[1][0], m[2]), sub(G[1][1], ne), sub(G[1][2], m[0])),
+         (sub(G[2][0], m[1]), add(G[2][1], m[0]), sub(G[2][2], ne)))
+    nB = ((sub(ne, G[0][0]), sub(dm[2], G[0][1]), sub(rm[1], G[0][2])),
+          (sub(rm[2], G[1][0]), sub(ne, G[1][1]), sub(dm[0], G[1][2])),
+          (sub(dm[1], G[2][0]), sub(rm[0], G[2][1]), sub(ne, G[2][2])))
+    return B, nB, w
+
+
+def _upper_vectors(wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple, rho: tuple) -> tuple:
+    """``(U, V, m, -e, w)`` of :func:`upper_blocks` (``V = beta_Pr rho``); a function of its
+    own, so that its temporaries are freed before the blocks are formed."""
     p0, p1, p2 = wi
     b, c, a_s, b_s, c_s, b_t, c_t = co
     u = M.cross(phi, rho)
@@ -305,6 +323,7 @@ def upper_blocks(o: Any, wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple,
     g0, g1, g2 = poly_mul(wi, (a_s, b_s, c_s), t2)
     e0, e2 = g0 - t2 * g2, g2 * d
     w = tuple(e0 * rho[i] + g1 * u[i] + e2 * phi[i] for i in range(3))
+    del g0, e0, e2
     ccj, bcj, c2 = c * cj, b * cj, 0.5 * c
     x1 = t2 * ccj + 0.5 * b - c
     x2 = c2 - bcj
@@ -319,17 +338,7 @@ def upper_blocks(o: Any, wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple,
     U = tuple(g1 * rho[i] + buP * u[i] + f2d * phi[i] for i in range(3))
     V = tuple(bPr * r for r in rho)
     m = tuple(bH * rho[i] + fd * phi[i] for i in range(3))
-    dm = tuple(m[i] - rho[i] for i in range(3))
-    rm = tuple(rho[i] - m[i] for i in range(3))
-    G = [[U[i] * phi[j] + phi[i] * V[j] for j in range(3)] for i in range(3)]
-    add, sub = o.add_out, o.sub_out
-    B = ((sub(G[0][0], ne), sub(G[0][1], m[2]), add(G[0][2], m[1])),
-         (add(G[1][0], m[2]), sub(G[1][1], ne), sub(G[1][2], m[0])),
-         (sub(G[2][0], m[1]), add(G[2][1], m[0]), sub(G[2][2], ne)))
-    nB = ((sub(ne, G[0][0]), sub(dm[2], G[0][1]), sub(rm[1], G[0][2])),
-          (sub(rm[2], G[1][0]), sub(ne, G[1][1]), sub(dm[0], G[1][2])),
-          (sub(dm[1], G[2][0]), sub(rm[0], G[2][1]), sub(ne, G[2][2])))
-    return B, nB, w
+    return U, V, m, ne, w
 
 
 class Sim3(Pose):
@@ -446,20 +455,26 @@ class Sim3(Pose):
         ``Ji = Jr^-1_SO3(phi)``, ``b = -W^-1 d(W rho)/d sigma`` and ``B = -W^-1 d(W rho)/d phi Ji``
         (the block inverse of ``Jr``), the last two written out by :func:`upper_blocks`.
         """
-        z = Sim3._compose(o, Sim3._inverse(o, x), y)
-        t, q, s = z[:3], z[3:7], z[7]
+        t, q, s = _between_parts(o, y, x)
         phi, kl, aw = so3.quat_log_parts(o, q)
         sigma = o.log(s)
         t2 = M.norm2(*phi)
         # sin(t/2)/t and cos(t/2) of the normalised quaternion: consistent with each other when
         # |q| is off 1 by rounding (float32 inputs), which the cancelling W coefficients need
         m = o.sqrt(M.norm2(*q))
-        k, ch = 1.0 / (kl * m), aw / m
-        co = coefficients(o, sigma, t2, k, ch, derivatives=True, cauchy_riemann=True)
-        (_, b, c), (E, sinc, h, _, _), (a_s, b_s, c_s, b_t, c_t) = co[:3]
+        del q, s  # (dead arrays go back to the allocator while still in the cache)
+        co = coefficients(o, sigma, t2, 1.0 / (kl * m), aw / m, derivatives=True,
+                          cauchy_riemann=True)
+        del m
+        E, sinc, h = co[1][:3]
         wi = p0, p1, p2 = poly_inv(co[0], t2)  # W^-1
         rho = poly_apply(wi, phi, t)  # as Sim3._log (which takes |q| = 1)
+        del t
         cj = so3.coef_c_quat(o, t2, kl, aw)
+        del kl, aw
+        co = (*co[0][1:], *co[2])  # (b, c, a_s, b_s, c_s, b_t, c_t)
+        B, nB, w = upper_blocks(o, wi, co, cj, t2, phi, rho)
+        del co
         Ji, mJl = so3.jr_inv_pair_c(o, cj, phi, t2)  # Jr^-1_SO3, F - Jr^-1_SO3 = -Jl^-1_SO3
         # A = f(P) = W^-1 + P (f(x) - f(-x) = x): the sum loses at most a factor
         # 1 + e^-sigma <= 1 + e^2 to cancellation for sigma >= -2; below, e^P W^-1
@@ -469,7 +484,6 @@ class Sim3(Pose):
         A = (A[0:3], A[3:6], A[6:9])
         n = o.negated
         nWi = tuple(tuple(n(x) for x in row) for row in Wi)
-        B, nB, w = upper_blocks(o, wi, (b, c, a_s, b_s, c_s, b_t, c_t), cj, t2, phi, rho)
         top_r = tuple((*B[i], n(w[i])) for i in range(3))
         top_l = tuple((*nB[i], o.sub_out(w[i], rho[i])) for i in range(3))
         return ((*rho, *phi, sigma), _assemble(A, top_r, Ji, 1.0),
@@ -656,6 +670,12 @@ def _a_product(sigma: Any, x: Any, y: Any, z: Any, t2: Any, E: Any, sinc: Any, h
     m = M.poly_matrix((E * p0, E * (sinc * q0 + p1 * cos), E * (p0 * h + p1 * sinc + p2 * cos)),
                     (x, y, z), t2)
     return (*m[0], *m[1], *m[2])
+
+
+def _between_parts(o: Any, y: tuple, x: tuple) -> tuple:
+    """The translation, quaternion and scale of ``x^-1 y``."""
+    z = Sim3._compose(o, Sim3._inverse(o, x), y)
+    return z[:3], z[3:7], z[7]
 
 
 def _assemble(A: tuple, top: tuple, J: tuple, one: Any) -> tuple:
