@@ -207,38 +207,6 @@ def poly_apply(p: tuple, w: tuple, v: tuple) -> tuple:
     return tuple(p[0] * v[i] + p[1] * u[i] + p[2] * x[i] for i in range(3))
 
 
-def _jacobian_pieces(o: Any, tau: tuple) -> tuple:
-    """``W``, ``R^T``, ``d(W rho)/d phi``, ``d(W rho)/d sigma`` and the SO(3) pieces."""
-    rho, phi, sigma = tau[:3], tau[3:6], tau[6]
-    t2 = M.norm2(*phi)
-    co = coefficients(o, sigma, t2, derivatives=True)
-    return (phi, t2, co[0], co[1][0], (co[1][1], co[1][2], co[3], co[1][3], co[1][4]),
-            *_w_rho_slopes(rho, phi, co))
-
-
-def _w_rho_slopes(rho: tuple, phi: tuple, co: tuple) -> tuple[tuple, tuple]:
-    """``d(W rho)/d phi`` (3x3) and ``d(W rho)/d sigma`` (3) from :func:`coefficients`'s
-    output with ``derivatives=True``."""
-    (a, b, c), _, (a_s, b_s, c_s, b_t, c_t), _ = co
-    u = M.cross(phi, rho)
-    v = M.cross(phi, u)
-    d = M.dot(phi, rho)
-    # d(W rho)/d phi = -b hat(rho) + c (phi rho^T + (phi.rho) I - 2 rho phi^T)
-    #                  + 2 b_t (phi x rho) phi^T + 2 c_t (phi x (phi x rho)) phi^T
-    #                = (c phi) rho^T + w phi^T - b hat(rho) + c (phi.rho) I,
-    # with w = 2 (b_t u + c_t v - c rho)
-    cp = tuple(c * x for x in phi)
-    w = tuple(2.0 * (b_t * u[i] + c_t * v[i] - c * rho[i]) for i in range(3))
-    br0, br1, br2 = (b * x for x in rho)
-    cd = c * d
-    g = tuple(tuple(cp[i] * rho[j] + w[i] * phi[j] for j in range(3)) for i in range(3))
-    Mphi = ((g[0][0] + cd, g[0][1] + br2, g[0][2] - br1),
-            (g[1][0] - br2, g[1][1] + cd, g[1][2] + br0),
-            (g[2][0] + br1, g[2][1] - br0, g[2][2] + cd))
-    msig = tuple(a_s * rho[i] + b_s * u[i] + c_s * v[i] for i in range(3))
-    return Mphi, msig
-
-
 def jr_upper(o: Any, r: tuple, co: tuple, t2: Any, phi: tuple, rho: tuple) -> tuple:
     """The 3x4 block ``e^-sigma R^T [d(W rho)/d phi | d(W rho)/d sigma]`` of Sim(3)'s ``Jr``
     right of its top-left block, written out, as output components.
@@ -248,8 +216,9 @@ def jr_upper(o: Any, r: tuple, co: tuple, t2: Any, phi: tuple, rho: tuple) -> tu
     ``u = phi x rho``, ``d = phi . rho``, ``F^2 rho = d phi - t2 rho`` and ``q0 = r0 - t2 r2``,
     ``R^T`` maps ``rho -> q0 rho + r1 u + r2 d phi``, ``u -> q0 u - t2 r1 rho + r1 d phi`` and
     ``phi -> r0 phi``, and ``R^T hat(rho) = r0 hat(rho) + r1 (rho phi^T - d I) + r2 (u phi^T -
-    d F)``. So ``d(W rho)/d phi = c phi rho^T + w phi^T - b hat(rho) + c d I`` with ``w = 2
-    (b_t u + c_t F^2 rho - c rho)`` (:func:`_w_rho_slopes`) becomes ``alpha phi rho^T + z
+    d F)``. So ``d(W rho)/d phi = -b hat(rho) + c (phi rho^T + d I - 2 rho phi^T) + 2 (b_t u
+    + c_t F^2 rho) phi^T = c phi rho^T + w phi^T - b hat(rho) + c d I`` with ``w = 2
+    (b_t u + c_t F^2 rho - c rho)`` becomes ``alpha phi rho^T + z
     phi^T + hat(m) + e I``, and ``d(W rho)/d sigma = (a_s - t2 c_s) rho + b_s u + c_s d phi`` a
     combination of ``rho``, ``u`` and ``phi`` again.
     """
@@ -279,12 +248,13 @@ def jr_upper(o: Any, r: tuple, co: tuple, t2: Any, phi: tuple, rho: tuple) -> tu
 
 
 def upper_blocks(o: Any, wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple,
-                 rho: tuple) -> tuple:
+                 rho: tuple, left: bool = True) -> tuple:
     """``B = -W^-1 d(W rho)/d phi Jr^-1_SO3(phi)`` and ``w = W^-1 d(W rho)/d sigma``: the upper
     blocks ``(B | -w)`` of Sim(3)'s ``Jr^-1`` right of ``A`` (its block inverse of ``Jr``),
     written out; also ``hat(rho) - B``, the same block of ``-Jl^-1 = ad - Jr^-1``. Returns
-    ``(B, hat(rho) - B, w)``, the entries of both blocks output components (``o.add_out`` and
-    ``o.sub_out``: computed straight into the output).
+    ``(B, hat(rho) - B, w)`` (``(B, None, w)`` with ``left=False``), the entries of both blocks
+    output components (``o.add_out`` and ``o.sub_out``: computed straight into the output).
+    ``co`` must satisfy the Cauchy-Riemann identities below (``cauchy_riemann=True``).
 
     ``wi = (p0, p1, p2)`` are the coefficients of ``W^-1``, ``co = (b, c, a_s, b_s, c_s, b_t,
     c_t)`` those of ``W`` with their derivatives (:func:`coefficients`), ``cj`` the
@@ -299,14 +269,16 @@ def upper_blocks(o: Any, wi: tuple, co: tuple, cj: Any, t2: Any, phi: tuple,
     = b + 2 t2 b_t`` (Cauchy-Riemann, see :func:`coefficients`) share terms between the two.
     """
     U, V, m, ne, w = _upper_vectors(wi, co, cj, t2, phi, rho)
-    dm = tuple(m[i] - rho[i] for i in range(3))
-    rm = tuple(rho[i] - m[i] for i in range(3))
     G = [[U[i] * phi[j] + phi[i] * V[j] for j in range(3)] for i in range(3)]
     del U, V
     add, sub = o.add_out, o.sub_out
     B = ((sub(G[0][0], ne), sub(G[0][1], m[2]), add(G[0][2], m[1])),
          (add(G[1][0], m[2]), sub(G[1][1], ne), sub(G[1][2], m[0])),
          (sub(G[2][0], m[1]), add(G[2][1], m[0]), sub(G[2][2], ne)))
+    if not left:
+        return B, None, w
+    dm = tuple(m[i] - rho[i] for i in range(3))
+    rm = tuple(rho[i] - m[i] for i in range(3))
     nB = ((sub(ne, G[0][0]), sub(dm[2], G[0][1]), sub(rm[1], G[0][2])),
           (sub(rm[2], G[1][0]), sub(ne, G[1][1]), sub(dm[0], G[1][2])),
           (sub(dm[1], G[2][0]), sub(rm[0], G[2][1]), sub(ne, G[2][2])))
@@ -433,15 +405,16 @@ class Sim3(Pose):
 
     @classmethod
     def _jr_inv(cls, o, tau):
-        phi, t2, W, E, (sinc, h, cb, k, ch), Mphi, msig = _jacobian_pieces(o, tau)
-        Wi = poly_inv(W, t2)
-        A = M.poly_matrix(poly_mul(Wi, (E, E * sinc, E * h), t2), phi, t2, o)  # e^sigma W^-1 R
-        Ji = so3.i_hat_sq(0.5, so3.coef_c(o, t2, k, ch), phi, t2)
-        WiM = M.matmul(M.poly_matrix(Wi, phi, t2), tuple((*Mphi[i], msig[i]) for i in range(3)))
-        B = M.matmul(tuple(r[:3] for r in WiM), Ji)
-        n = o.negated
-        top = tuple((*(n(x) for x in B[i]), n(WiM[i][3])) for i in range(3))
-        return _assemble(A, top, Ji, 1.0)
+        rho, phi, sigma = tau[:3], tau[3:6], tau[6]
+        t2 = M.norm2(*phi)
+        co = coefficients(o, sigma, t2, derivatives=True, cauchy_riemann=True)
+        (_, b, c), (E, sinc, h, k, ch), slopes, _ = co
+        wi = poly_inv(co[0], t2)
+        A = M.poly_matrix(poly_mul(wi, (E, E * sinc, E * h), t2), phi, t2, o)  # e^sigma W^-1 R
+        cj = so3.coef_c(o, t2, k, ch)
+        B, _, w = upper_blocks(o, wi, (b, c, *slopes), cj, t2, phi, rho, left=False)
+        top = tuple((*B[i], o.negated(w[i])) for i in range(3))
+        return _assemble(A, top, so3.i_hat_sq(0.5, cj, phi, t2, o), 1.0)
 
     @staticmethod
     def _minus_jac(o, y, x):
