@@ -622,8 +622,8 @@ def environment_lines(libs, args, loads: list[float]) -> list[str]:
 
 BA_GROUPS = ("SO3", "SE3", "Sim3")
 BA_VALUE_OPS = ("exp", "log", "compose", "inverse", "act", "between", "minus", "plus")
-BA_JAC_OPS = ("exp_jac", "log_jac", "act_jac", "compose_jac", "between_jac", "minus_jac",
-              "plus_jac", "jr", "jr_inv")
+BA_JAC_OPS = ("exp_jac", "log_jac", "act_jac", "inverse_jac", "compose_jac", "between_jac",
+              "minus_jac", "plus_jac", "jr", "jr_inv")
 
 
 def _ba_cases(m, group: str, tau, p, q, v) -> dict:
@@ -638,6 +638,7 @@ def _ba_cases(m, group: str, tau, p, q, v) -> dict:
         "exp_jac": lambda: G.exp(tau, jac=True), "log_jac": lambda: X.log(jac=True),
         "act_jac": lambda: X.act(v, jac=True), "compose_jac": lambda: X.compose(Y, jac=True),
         "between_jac": lambda: X.between(Y, jac=True),
+        "inverse_jac": lambda: X.inverse(jac=True),
         "minus_jac": lambda: X.minus(Y, jac=True), "plus_jac": lambda: X.plus(tau, jac=True),
         "jr": lambda: G.jr(tau), "jr_inv": lambda: G.jr_inv(tau),
     }
