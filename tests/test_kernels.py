@@ -418,8 +418,13 @@ def test_select_patches_a_deferred_majority():
 
     def fn(o, x):
         a = x[0]
-        r = o.select(a < 10.0, lambda v: (v * 3.0,), lambda v: (o.add_out(v, 1.0),), a)
-        return (r[0], o.negated(a), a, a, a, a, a, a, a),
+
+        def major(v):  # one output component in two places
+            s = o.add_out(v, 1.0)
+            return s, s
+
+        r = o.select(a < 10.0, lambda v: (v * 3.0, v * 4.0), major, a)
+        return (r[0], o.negated(a), r[1], a, a, a, a, a, a),
 
     k = K.Kernel("test.patch", None, fn, ["v"], [(3, 3)])
     n = 2 * K.CHUNK + 11
@@ -428,3 +433,4 @@ def test_select_patches_a_deferred_majority():
     a = x[:, 0]
     np.testing.assert_array_equal(out[:, 0, 0], np.where(a < 10.0, 3.0 * a, a + 1.0))
     np.testing.assert_array_equal(out[:, 0, 1], -a)
+    np.testing.assert_array_equal(out[:, 0, 2], np.where(a < 10.0, 4.0 * a, a + 1.0))

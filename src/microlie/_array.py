@@ -195,9 +195,10 @@ def _scatter(out: Any, idx: np.ndarray, sub: Any, n: int, args: tuple) -> Any:
     :class:`Deferred` ``out`` takes ``sub`` as a patch applied after it is written."""
     if type(sub) is Deferred:
         sub = sub.value()
-    if type(out) is Deferred:
-        out.patches = (*out.patches, (idx, sub))
-        return out
+    if type(out) is Deferred:  # a new one: the branch may return one Deferred twice
+        d = Deferred(out.f, *out.args)
+        d.patches = (*out.patches, (idx, sub))
+        return d
     if type(out) is not np.ndarray or out.shape != (n,) or any(out is a for a in args):
         out = np.array(np.broadcast_to(out, (n,)), dtype=np.result_type(out, sub))
     out[idx] = sub
