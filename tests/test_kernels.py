@@ -397,11 +397,13 @@ def test_constant_and_deferred_output_components(n):
         c = 2.0 if start == 0 else a if start == K.CHUNK else 3.0
         z = 0.0 if start < 2 * K.CHUNK else -0.0
         return (((1.0, c, a), (a, z, o.negated(a)), (c, o.add_out(a, 0.5), -1.0)),
-                (o.negated(a), o.sub_out(2.0, a), o.mul_out(a, a), o.sub_out(a, a)))
+                (o.negated(a), o.sub_out(2.0, a), o.mul_out(a, a), o.sub_out(a, a)),
+                # runs of equal constant rows (one fill each), ended by -0.0, 1.0 and an array
+                ((0.0, 0.0, 0.0), (-0.0, 0.0, 1.0), (1.0, a, 1.0)))
 
-    k = K.Kernel("test.constants", None, fn, ["v"], [(3, 3), (4,)])
+    k = K.Kernel("test.constants", None, fn, ["v"], [(3, 3), (4,), (3, 3)])
     x = np.arange(n, dtype=np.float64)[:, None]
-    out, vec = K._run(k, (x,))
+    out, vec, runs = K._run(k, (x,))
     a = x[:, 0]
     want_c = np.where(a < K.CHUNK, 2.0, np.where(a < 2 * K.CHUNK, a, 3.0))
     want_z = np.where(a < 2 * K.CHUNK, 0.0, -0.0) if n > 2 * K.CHUNK else np.zeros(n)
@@ -410,11 +412,16 @@ def test_constant_and_deferred_output_components(n):
     np.testing.assert_array_equal(out, want)
     assert np.array_equal(np.signbit(out[:, 1, 1]), np.signbit(want_z))
     np.testing.assert_array_equal(vec, np.stack([-a, 2.0 - a, a * a, 0 * a], -1))
+    zero, one = np.zeros(n), np.ones(n)
+    want = np.stack([zero, zero, zero, -zero, zero, one, one, a, one], -1).reshape(n, 3, 3)
+    np.testing.assert_array_equal(runs, want)
+    assert np.array_equal(np.signbit(runs).reshape(n, 9)[0], [0, 0, 0, 1, 0, 0, 0, 0, 0])
 
 
 def test_select_patches_a_deferred_majority():
     """A chunked evaluation whose ``select`` returns output components of the majority branch
-    (``add_out``: computed into the output) with the minority's values patched in."""
+    (``add_out``: computed into the output) with the minority's values patched in, and a
+    deferred minority evaluated into the majority's array."""
 
     def fn(o, x):
         a = x[0]
@@ -424,7 +431,8 @@ def test_select_patches_a_deferred_majority():
             return s, s
 
         r = o.select(a < 10.0, lambda v: (v * 3.0, v * 4.0), major, a)
-        return (r[0], o.negated(a), r[1], a, a, a, a, a, a),
+        m = o.select(a < 10.0, major, lambda v: (v * 3.0, v * 4.0), a)  # deferred minority
+        return (r[0], o.negated(a), r[1], m[0], m[1], a, a, a, a),
 
     k = K.Kernel("test.patch", None, fn, ["v"], [(3, 3)])
     n = 2 * K.CHUNK + 11
@@ -434,3 +442,5 @@ def test_select_patches_a_deferred_majority():
     np.testing.assert_array_equal(out[:, 0, 0], np.where(a < 10.0, 3.0 * a, a + 1.0))
     np.testing.assert_array_equal(out[:, 0, 1], -a)
     np.testing.assert_array_equal(out[:, 0, 2], np.where(a < 10.0, 4.0 * a, a + 1.0))
+    np.testing.assert_array_equal(out[:, 1, 0], np.where(a < 10.0, a + 1.0, 3.0 * a))
+    np.testing.assert_array_equal(out[:, 1, 1], np.where(a < 10.0, a + 1.0, 4.0 * a))

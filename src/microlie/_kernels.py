@@ -29,7 +29,8 @@ computes it as plain arithmetic, with the same result.
 Matrix outputs of more than 8 entries (Jacobians, adjoints) of NumPy batches are views of
 component-major arrays: shape ``(*batch, r, c)``, memory order ``(r, c, *batch)``. Each entry is
 then one contiguous write (a row-major result costs a transposition that takes as long as the
-formula); ``np.ascontiguousarray`` gives a row-major copy where one is needed.
+formula); ``np.ascontiguousarray`` gives a row-major copy where one is needed. Their constant
+(Python-number) entries are written once per call, after the last chunk, not in every chunk.
 
 The result dtype is the promotion of the input dtypes (NumPy's rules) on every path. Kernels
 flagged ``finite`` (those with tangent-vector inputs, where a huge angle or scale can overflow)
