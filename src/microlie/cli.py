@@ -268,10 +268,24 @@ def _add_output(p: argparse.ArgumentParser, plot: bool = True) -> None:
     if plot:
         g.add_argument("--plot", "--save_plot", dest="plot", default=None, metavar="FILE",
                        help="write a plot (PNG, 1200x800 px) to FILE")
+        g.add_argument("--force", action="store_true", help=_FORCE_HELP)
         g.add_argument("--plot-mode", "--plot_mode", dest="plot_mode", choices=PLOT_MODES,
                        default=None,
                        help="plane of the path plot (horizontal, vertical axis) or xyz for "
                             "3-D; default xz for KITTI, xy otherwise")
+
+
+_FORCE_HELP = "allow the files written (plots, results, --save-as) to overwrite an input file"
+
+
+def _check_outputs(args: argparse.Namespace, inputs: Sequence[Any],
+                   outputs: dict[str, Any]) -> None:
+    """Refuse, before anything is written, an output (option -> path) that is an input file
+    (unless ``--force``)."""
+    from ._files import check_not_input
+
+    for option, path in outputs.items():
+        check_not_input(path, inputs, option=option, force=getattr(args, "force", False))
 
 
 def _add_metric(p: argparse.ArgumentParser) -> None:
@@ -388,6 +402,7 @@ def _register_res(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print the table as JSON")
     p.add_argument("--plot", "--save_plot", dest="plot", default=None, metavar="FILE",
                    help="plot the errors and statistics side by side (PNG)")
+    p.add_argument("--force", action="store_true", help=_FORCE_HELP)
     p.set_defaults(func=_run_res)
 
 
@@ -396,6 +411,7 @@ def _register_plot(sub: Any) -> None:
     p.add_argument("files", nargs="*", help="trajectory files; the first is the reference")
     p.add_argument("--example", action="store_true", help="plot the bundled example pair")
     p.add_argument("-o", "--output", required=True, help="output image file (PNG)")
+    p.add_argument("--force", action="store_true", help=_FORCE_HELP)
     _add_formats(p)
     _add_align(p)
     p.add_argument("--max-diff", "--t_max_diff", dest="max_diff", type=float, default=0.01,
@@ -517,6 +533,8 @@ def _run_metric(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     from .traj import evaluate_ape, evaluate_rpe
 
     ref_src, est_src = _two_sources(args)
+    _check_outputs(args, [ref_src.path, est_src.path, ref_src.times, est_src.times],
+                   {"--save-results": args.save_results, "--plot": args.plot})
     common = dict(relation=_relation(args), align=_resolve_align(args), n_align=args.n_align,
                   max_diff=args.max_diff, offset=args.offset, angle_unit=args.angle_unit,
                   t_start=args.t_start, t_end=args.t_end, downsample=args.downsample,
@@ -626,6 +644,7 @@ def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         raise UsageError("--align needs --ref")
     if args.save_as and args.save_as[0] not in FORMATS:
         raise UsageError(f"--save-as format must be one of {FORMATS}, got {args.save_as[0]!r}")
+    _check_outputs(args, [s.path for s in sources] + [args.ref], {"--plot": args.plot})
     trajs = [s.read() for s in _progress(sources, "reading")]
     ref = None
     if args.ref:
@@ -685,9 +704,10 @@ def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         fmt, folder = args.save_as
         Path(folder).mkdir(parents=True, exist_ok=True)
         ext = {"tum": ".tum", "kitti": ".kitti", "euroc": ".csv"}[fmt]
-        for t in trajs:
-            stem = _file_stem(t.name)
-            target = Path(folder) / (stem + ext)
+        targets = [Path(folder) / (_file_stem(t.name) + ext) for t in trajs]
+        for target in targets:
+            _check_outputs(args, [s.path for s in sources] + [args.ref], {"--save-as": target})
+        for t, target in zip(trajs, targets, strict=True):
             write_trajectory(target, t, fmt)
             err.write(f"wrote {target}\n")
     if args.plot:
@@ -704,6 +724,7 @@ def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
 def _run_res(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     from .traj import load_result
 
+    _check_outputs(args, args.files, {"--plot": args.plot})
     results = [load_result(f) for f in args.files]
     names = [Path(f).name for f in args.files]
     labels = {r.label for r in results}
@@ -750,6 +771,7 @@ def _run_plot(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         sources = [_Source(f, ref_fmt if i == 0 else est_fmt,
                            topic=(args.ref_topic or args.topic) if i == 0 else args.topic)
                    for i, f in enumerate(args.files)]
+    _check_outputs(args, [s.path for s in sources], {"-o": args.output})
     trajs = [s.read() for s in _progress(sources, "reading")]
     method = _resolve_align(args)
     if method != "none" and len(trajs) > 1:

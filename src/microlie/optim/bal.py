@@ -29,6 +29,8 @@ from typing import IO
 
 import numpy as np
 
+from .._files import atomic_write
+
 __all__ = ["BALProblem", "read_bal", "write_bal"]
 
 
@@ -328,7 +330,7 @@ def write_bal(dst: str | os.PathLike | IO[str], problem: BALProblem) -> None:
     buf.write("\n".join(repr(v) for v in vals))
     buf.write("\n")
     if isinstance(dst, (str, os.PathLike)):
-        with open(dst, "w", encoding="utf-8") as fh:
+        with atomic_write(dst) as fh:  # a temporary file renamed over ``dst``
             fh.write(buf.getvalue())
     else:
         dst.write(buf.getvalue())

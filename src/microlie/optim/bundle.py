@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from .._files import save_figure
 from .bal import BALProblem
 from .camera import BALCamera, CameraModel, PinholeCamera, reproject
 from .schur import LinearSolverKind, NormalEquations, SchurStructure
@@ -883,9 +884,9 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
     t_it = time.perf_counter()
     if verbose:   # Ceres' progress columns
         print("iter      cost      cost_change  |gradient|   |step|    tr_ratio  tr_radius  "
-              "iter_time", file=sys.stderr)
+              "iter_time", file=sys.stderr, flush=True)
         print(f"{0:4d} {cost:13.6e} {0.0:12.2e} {gmax:10.2e} {0.0:9.2e} {0.0:10.2e} "
-              f"{radius:10.2e} {t_it - t_start:9.2e}", file=sys.stderr)
+              f"{radius:10.2e} {t_it - t_start:9.2e}", file=sys.stderr, flush=True)
     while True:
         if gmax <= gradient_tolerance:
             converged, message = True, f"gradient tolerance reached ({gmax:.3e})"
@@ -957,7 +958,7 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
             now = time.perf_counter()
             print(f"{it:4d} {cost:13.6e} {cost_change:12.2e} {gmax:10.2e} {step_norm:9.2e} "
                   f"{rho:10.2e} {radius:10.2e} {now - t_it:9.2e}"
-                  f"{'' if rho > 1e-3 else '  (rejected)'}", file=sys.stderr)
+                  f"{'' if rho > 1e-3 else '  (rejected)'}", file=sys.stderr, flush=True)
             t_it = now
     time_s = time.perf_counter() - t_start
     tm["total"] = time_s
@@ -1117,5 +1118,5 @@ def plot_bundle(initial: BundleProblem, optimised: BundleProblem, path: Any = No
     if title:
         fig.suptitle(title)
     if path is not None:
-        fig.savefig(path)
+        save_figure(fig, path)
     return fig

@@ -5,13 +5,18 @@
     microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] [--robust huber:1.0]
                      [--init auto|file|odometry|chordal] [--linear-solver auto|supernodal|...]
                      [--max-iter N] [--plot FILE] [--json] [--format auto|g2o|toro|bal]
+                     [--force] [-v | -q]
 
 The reported costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges (plain, even with
 ``--robust``, and without the gauge prior); ``time_s`` is the solve alone (reading, initial
 guess and graph construction are reported apart). The gauge is the file's ``FIX`` vertices,
 or else a prior on the first pose at its start value. ``--init auto`` takes the file's vertices,
 or the odometry chain when the file has none, or chordal when that chain is incomplete (said on
-stderr). A progress line per iteration goes to stderr on a terminal.
+stderr). Before the solve a header line (file, problem size, solver, start) goes to stderr,
+flushed, unless ``--quiet``; then Ceres' iteration table, one flushed line per iteration, with
+``--verbose`` or on a terminal (stdout, with ``--json`` too, carries the report only). ``-o``
+or ``--plot`` onto the input file is refused without ``--force``; every file is written to a
+temporary file renamed into place, so a failed write leaves the old file as it was.
 
 Formats are handled by the functions in :data:`FORMATS` (format name -> ``"module:function"``,
 imported on use), each called as ``run(args, err) -> dict`` and returning the JSON report: a
@@ -21,6 +26,7 @@ new format is one entry there.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import sys
@@ -88,13 +94,31 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--linear-solver", default="auto", metavar="NAME",
                    help="linear solver, auto (default) or forced: for pose graphs supernodal, "
                         "scipy, qdldl, pardiso, dense; for BAL dense, sparse, full")
-    p.add_argument("--max-iter", type=int, default=100, metavar="N",
-                   help="maximum number of iterations (default 100)")
+    p.add_argument("--max-iter", type=_positive_int, default=100, metavar="N",
+                   help="maximum number of iterations, at least 1 (default 100)")
     p.add_argument("--plot", metavar="FILE", default=None,
                    help="draw the initial and optimised graph to FILE (PNG)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--force", action="store_true",
+                   help="allow -o or --plot to overwrite the input file")
+    talk = p.add_mutually_exclusive_group()
+    talk.add_argument("-v", "--verbose", action="store_true",
+                      help="print the iteration table on stderr even when it is not a terminal")
+    talk.add_argument("-q", "--quiet", action="store_true",
+                      help="print neither the header nor the iterations on stderr")
     p.set_defaults(func=run)
     return p
+
+
+def _positive_int(text: str) -> int:
+    """argparse type of an iteration count: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive number of iterations, got {value}")
+    return value
 
 
 def detect_format(path: str | Path) -> str:
@@ -186,6 +210,11 @@ def run(args: argparse.Namespace, out: TextIO | None = None, err: TextIO | None 
     """
     out = out or sys.stdout
     err = err or sys.stderr
+    from .._files import check_not_input
+
+    force = getattr(args, "force", False)
+    check_not_input(args.output, [args.input], option="-o", force=force)
+    check_not_input(args.plot, [args.input], option="--plot", force=force)
     fmt = detect_format(args.input) if args.format == "auto" else args.format
     args.format = fmt
     report = _handler(fmt)(args, err)
@@ -276,14 +305,19 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     t2 = time.perf_counter()
     fg, poses = graph.to_factor_graph(X0, loss=args.robust)
     t3 = time.perf_counter()
-    res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
-                      max_iter=args.max_iter, verbose=_progress(err))
+    problem = (f"{graph.group.__name__} pose graph, {graph.num_vertices} poses, "
+               f"{graph.num_edges} edges")
+    _header(args, err, f"{problem}; {args.solver} (linear solver {args.linear_solver}), start "
+                       f"{init}, at most {args.max_iter} iterations; read {t1 - t0:.3f} s, "
+                       f"init {t2 - t1:.3f} s, build {t3 - t2:.3f} s")
+    with _to(err):
+        res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
+                          max_iter=args.max_iter, verbose=_progress(err, args))
     X = res.values[poses]
     report = {
         "file": str(args.input),
         "format": args.format,
-        "problem": f"{graph.group.__name__} pose graph, {graph.num_vertices} poses, "
-                   f"{graph.num_edges} edges",
+        "problem": problem,
         "group": graph.group.__name__,
         "num_vertices": graph.num_vertices,
         "num_edges": graph.num_edges,
@@ -314,5 +348,23 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     return report
 
 
-def _progress(err: TextIO) -> bool:
+def _progress(err: TextIO, args: argparse.Namespace | None = None) -> bool:
+    """Whether to print the iteration table: ``--verbose``, or a terminal without
+    ``--quiet``."""
+    if getattr(args, "verbose", False):
+        return True
+    if getattr(args, "quiet", False):
+        return False
     return bool(getattr(err, "isatty", None) and err.isatty())
+
+
+def _header(args: argparse.Namespace, err: TextIO, text: str) -> None:
+    """The line printed before the iterations (not with ``--quiet``), flushed."""
+    if not getattr(args, "quiet", False):
+        err.write(f"microlie optimize: {args.input}: {text}\n")
+        err.flush()
+
+
+def _to(err: TextIO) -> contextlib.AbstractContextManager:
+    """The solvers print on ``sys.stderr``: send that to ``err``."""
+    return contextlib.nullcontext() if err is sys.stderr else contextlib.redirect_stderr(err)

@@ -58,6 +58,7 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     """
     from .bal import read_bal, write_bal
     from .bundle import BundleProblem, bundle_adjust, plot_bundle
+    from .command import _header, _progress, _to
 
     solver = getattr(args, "solver", "lm")
     if solver != "lm":
@@ -70,14 +71,19 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     bal = read_bal(args.input)
     start = BundleProblem.from_bal(bal)
     t1 = time.perf_counter()
-    verbose = bool(getattr(err, "isatty", None) and err.isatty())
-    res = bundle_adjust(start, robust=getattr(args, "robust", None), linear_solver=_LINEAR[linear],
-                max_iter=getattr(args, "max_iter", 100), verbose=verbose)
+    max_iter = getattr(args, "max_iter", 100)
+    problem = (f"bundle adjustment, {bal.n_cameras} cameras, {bal.n_points} points, "
+               f"{bal.n_observations} observations")
+    _header(args, err, f"{problem}; lm (linear solver {linear}), at most {max_iter} "
+                       f"iterations; read {t1 - t0:.3f} s")
+    with _to(err):
+        res = bundle_adjust(start, robust=getattr(args, "robust", None),
+                            linear_solver=_LINEAR[linear], max_iter=max_iter,
+                            verbose=_progress(err, args))
     report: dict[str, Any] = {
         "file": str(args.input),
         "format": "bal",
-        "problem": f"bundle adjustment, {bal.n_cameras} cameras, {bal.n_points} points, "
-                   f"{bal.n_observations} observations",
+        "problem": problem,
         "num_cameras": bal.n_cameras,
         "num_points": bal.n_points,
         "num_observations": bal.n_observations,

@@ -45,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import atomic_write
 from ..groups import SE2, SE3, LieGroup
 from .pose_graph import (
     EdgeTag,
@@ -171,4 +172,5 @@ def write_g2o(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None)
                                    graph.information[:, r, c]], axis=1))
     if graph.fixed.size:
         lines.append("FIX " + " ".join(str(int(k)) for k in graph.fixed))
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with atomic_write(path) as f:  # a temporary file renamed over ``path``
+        f.write("\n".join(lines) + "\n")

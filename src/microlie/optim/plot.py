@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from .._files import save_figure
 from ..groups import LieGroup
 from .pose_graph import PoseGraph
 
@@ -107,5 +108,5 @@ def plot_pose_graph(graph: PoseGraph, initial: LieGroup, optimised: LieGroup,
     if title:
         fig.suptitle(title)
     if path is not None:
-        fig.savefig(str(path))
+        save_figure(fig, path)
     return fig

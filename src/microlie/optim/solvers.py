@@ -154,7 +154,8 @@ class SolverOptions:
     radius_initial : float
         The dogleg trust radius at the start.
     verbose : bool, optional
-        One line per iteration on stderr (default: when stderr is a terminal).
+        Ceres' iteration table on stderr, one flushed line per iteration (default: when stderr
+        is a terminal); see :func:`solve`.
 
     Examples
     --------
@@ -218,6 +219,15 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
     -------
     Result
 
+    Notes
+    -----
+    With ``o.verbose`` each iteration prints one line of Ceres' table to ``sys.stderr``,
+    flushed: ``iter``, ``cost`` (the minimised robust cost after it), ``cost_change``,
+    ``|gradient|`` (max-norm at the new point; ``-`` after the last step, which is not
+    linearised again), ``|step|``, ``tr_ratio`` (actual over predicted decrease),
+    ``tr_radius`` (the dogleg radius; ``1 / lambda`` for LM, Ceres' meaning; ``-`` for GN),
+    ``ls_iter`` (linear solves, one per damping trial), ``iter_time`` and ``total_time`` (s).
+
     Examples
     --------
     >>> import numpy as np
@@ -248,6 +258,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         message, converged = "no free variables", True
     lam = o.lambda_initial
     radius = o.radius_initial
+    log = _IterationLog(problem, o, t_start, rc0, lin.grad) if show and problem.size else None
     it = 0
     while problem.size and it < o.max_iter:
         it += 1
@@ -338,9 +349,8 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         cur, cur_c, cur_rc = new, new_c, new_rc
         history.append(IterationRecord(it, new_rc, step_norm, lam if o.solver != "gn" else 0.0,
                                        time.perf_counter() - t_start, solves))
-        if show:
-            print(f"{o.solver} iter {it:3d}  cost {new_rc:.10g}  step {step_norm:.3e}  "
-                  f"{'lambda' if o.solver == 'lm' else 'radius'} {lam:.1e}", file=sys.stderr)
+        if log is not None:
+            log.step(it, old_rc, new_rc, lin, dx, lam, solves)
         why = _converged(o, old_rc, new_rc)
         if why is None and step_norm <= o.step_tol:
             why = f"step norm {step_norm:.3g} below step_tol"
@@ -348,6 +358,10 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
             message, converged = why, True
             break
         lin = _linearize(problem, cur, tm, old=lin)
+        if log is not None:
+            log.emit(lin.grad)
+    if log is not None:
+        log.emit(None)
     final_c, final_rc = cur_c, cur_rc  # evaluated at the last accepted point already
     total = time.perf_counter() - t_start
     timings = dict(tm.t)
@@ -355,6 +369,56 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
     vals = Values(problem.variables, cur)
     return Result(vals, c0, final_c, rc0, final_rc, it, converged, message, history, total,
                   o.solver, ls.name, timings, list(problem.gauge_fixed))
+
+
+class _IterationLog:
+    """Ceres' iteration table on ``sys.stderr``, one flushed line per iteration (see
+    :func:`solve`); a row waits for the gradient at its point (:meth:`emit`)."""
+
+    HEADER = (f"{'iter':>4s} {'cost':>13s} {'cost_change':>12s} {'|gradient|':>10s} "
+              f"{'|step|':>9s} {'tr_ratio':>10s} {'tr_radius':>10s} {'ls_iter':>8s} "
+              f"{'iter_time':>10s} {'total_time':>11s}")
+
+    def __init__(self, problem: Problem, o: SolverOptions, t_start: float, cost: float,
+                 grad: np.ndarray) -> None:
+        self.problem, self.solver, self.t_start = problem, o.solver, t_start
+        self.t_last = t_start
+        self.pending: tuple | None = None
+        radius = {"lm": 1.0 / o.lambda_initial if o.lambda_initial > 0 else math.inf,
+                  "dogleg": o.radius_initial}.get(o.solver)
+        self._print(self.HEADER)
+        self.pending = (0, cost, 0.0, 0.0, math.nan, radius, 0)
+        self.emit(grad)
+
+    @staticmethod
+    def _print(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    def step(self, it: int, old: float, new: float, lin: Any, dx: np.ndarray, lam: float,
+             solves: int) -> None:
+        """Record an accepted step ``dx`` of the linearisation ``lin`` (its ``H`` undamped)."""
+        g = lin.grad
+        pred = -(_dot(g, dx) + 0.5 * _dot(dx, self.problem.matrix(lin.data) @ dx))
+        radius = {"lm": 1.0 / lam if lam > 0 else math.inf, "dogleg": lam}.get(self.solver)
+        self.pending = (it, new, old - new, _norm(dx), (old - new) / pred if pred > 0
+                        else math.nan, radius, solves)
+
+    def emit(self, grad: np.ndarray | None) -> None:
+        """Print the pending row with the max-norm of ``grad`` (``None``: not evaluated)."""
+        if self.pending is None:
+            return
+        it, cost, change, step, ratio, radius, solves = self.pending
+        self.pending = None
+        now = time.perf_counter()
+        gmax = "-" if grad is None or grad.size == 0 else f"{float(np.abs(grad).max()):.2e}"
+        self._print(f"{it:4d} {cost:13.6e} {change:12.2e} {gmax:>10s} {step:9.2e} "
+                    f"{_e(ratio, 10)} {_e(radius, 10)} {solves:8d} {now - self.t_last:10.2e} "
+                    f"{now - self.t_start:11.2e}")
+        self.t_last = now
+
+
+def _e(v: float | None, w: int) -> str:
+    return f"{'-':>{w}s}" if v is None or math.isnan(v) else f"{v:{w}.2e}"
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> float:

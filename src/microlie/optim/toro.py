@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import atomic_write
 from ..groups import SE2, SE3, SO3, LieGroup
 from .g2o import _pose_values, _rows, _se2_params
 from .pose_graph import EdgeTag, PoseGraph, VertexTag, parse_pose_graph, symmetric_from_upper
@@ -156,4 +157,5 @@ def write_toro(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None
         lines += _rows(vtag, [graph.ids], _toro_values(X))
     lines += _rows(etag, [graph.i, graph.j],
                    np.concatenate([_toro_values(graph.measurements), w], axis=1))
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with atomic_write(path) as f:  # a temporary file renamed over ``path``
+        f.write("\n".join(lines) + "\n")

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from microlie import SE3, _fast
+from microlie._files import atomic_write
 
 from .trajectory import Trajectory
 
@@ -564,7 +565,8 @@ def write_tum(path: PathLike, traj: Trajectory, *, header: str | None = None) ->
     stamps = traj.timestamps if traj.timestamps is not None else np.arange(len(traj), dtype=float)
     data = np.column_stack([stamps, traj.positions, traj.quat_xyzw])
     hdr = "timestamp tx ty tz qx qy qz qw" if header is None else header
-    np.savetxt(path, data, fmt="%.17g", header=hdr)
+    with atomic_write(path) as f:  # a temporary file renamed over ``path``
+        np.savetxt(f, data, fmt="%.17g", header=hdr)
 
 
 def write_kitti(path: PathLike, traj: Trajectory) -> None:
@@ -589,7 +591,8 @@ def write_kitti(path: PathLike, traj: Trajectory) -> None:
     12
     """
     m = traj.matrices()[:, :3, :].reshape(-1, 12)
-    np.savetxt(path, m, fmt="%.17g")
+    with atomic_write(path) as f:
+        np.savetxt(f, m, fmt="%.17g")
 
 
 def write_euroc(path: PathLike, traj: Trajectory) -> None:
@@ -618,7 +621,7 @@ def write_euroc(path: PathLike, traj: Trajectory) -> None:
     """
     stamps = traj.timestamps if traj.timestamps is not None else np.arange(len(traj), dtype=float)
     q = traj.quat_xyzw
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_write(path) as f:
         f.write("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],"
                 "q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []\n")
         for t, p, qq in zip(np.rint(stamps * 1e9).astype(np.int64).tolist(),

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from .._files import save_figure
 from .metrics import PoseError, relation_label
 from .trajectory import Trajectory
 
@@ -381,5 +382,5 @@ def save(fig: Any, path: str | Path) -> Path:
     """
     path = Path(path)
     fig.set_size_inches(*FIGSIZE)
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path, dpi=DPI)
     return path

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from .._files import atomic_write
 from .metrics import PoseError, statistics
 
 __all__ = ["Result", "save_result", "load_result", "result_from_error"]
@@ -178,7 +179,8 @@ def save_result(
     if options is not None and isinstance(res, Result):
         r.options = dict(options)
     path = Path(path)
-    path.write_text(json.dumps(r.to_json(), indent=1) + "\n", encoding="utf-8")
+    with atomic_write(path) as f:
+        f.write(json.dumps(r.to_json(), indent=1) + "\n")
     return path
 
 
