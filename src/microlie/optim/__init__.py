@@ -18,8 +18,10 @@ idx)`` gives :class:`~microlie.Gaussian` marginals in the right-perturbation fra
 Conventions: every variable is perturbed on the right (``X Exp(delta)``), every Jacobian is a
 right Jacobian, tangents are translation first.
 
-Pose-graph files: :mod:`microlie.optim.g2o`, :mod:`microlie.optim.toro` (both return a
-:class:`microlie.optim.pose_graph.PoseGraph`); initialisation: :mod:`microlie.optim.init`.
+Files: ``read_g2o``/``write_g2o`` (:mod:`microlie.optim.g2o`), ``read_toro``/``write_toro``
+(:mod:`microlie.optim.toro`), both with a :class:`microlie.optim.pose_graph.PoseGraph`, and
+``read_bal``/``write_bal`` (:mod:`microlie.optim.bal`), all importable from here; every writer
+replaces its file only once the new one is complete. Initialisation: :mod:`microlie.optim.init`.
 """
 
 # Submodules load on first use (PEP 562), so that ``microlie optimize``'s argument parser and the
@@ -32,14 +34,17 @@ _LAZY = {
     "bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
     "camera": ("BALCamera", "PinholeCamera"),
     "factors": ("BetweenFactor", "CustomFactor", "Factor", "PriorFactor"),
+    "g2o": ("read_g2o", "write_g2o"),
     "graph": ("FactorGraph", "from_pose_graph"),
     "linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
     "noise": ("Covariance", "Diagonal", "Information", "Isotropic", "NoiseModel",
               "SqrtInformation", "Unit"),
+    "pose_graph": ("PoseGraph",),
     "problem": ("GaugeError", "Problem"),
     "robust": ("DCS", "Barron", "Cauchy", "GemanMcClure", "Huber", "RobustLoss", "Tukey",
                "make_loss"),
     "solvers": ("IterationRecord", "Result"),
+    "toro": ("read_toro", "write_toro"),
     "variables": ("Values", "Variables"),
 }
 _WHERE = {name: module for module, names in _LAZY.items() for name in names}
@@ -63,6 +68,7 @@ if TYPE_CHECKING:
     from .bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
     from .camera import BALCamera, PinholeCamera
     from .factors import BetweenFactor, CustomFactor, Factor, PriorFactor
+    from .g2o import read_g2o, write_g2o
     from .graph import FactorGraph, from_pose_graph
     from .linear import LinearSolver, SingularSystemError, available_solvers, make_solver
     from .noise import (
@@ -74,9 +80,11 @@ if TYPE_CHECKING:
         SqrtInformation,
         Unit,
     )
+    from .pose_graph import PoseGraph
     from .problem import GaugeError, Problem
     from .robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
     from .solvers import IterationRecord, Result
+    from .toro import read_toro, write_toro
     from .variables import Values, Variables
 
 __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "PriorFactor",
@@ -85,4 +93,5 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
            "LinearSolver", "SingularSystemError", "GaugeError", "Problem", "available_solvers",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
-           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera"]
+           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera", "PoseGraph", "read_g2o",
+           "write_g2o", "read_toro", "write_toro"]

@@ -81,6 +81,10 @@ class BALProblem:
     def n_observations(self) -> int:
         return int(self.observations.shape[0])
 
+    def __repr__(self) -> str:
+        return (f"BALProblem({self.n_cameras} cameras, {self.n_points} points, "
+                f"{self.n_observations} observations)")
+
     def residuals(self, behind: str = "evaluate") -> np.ndarray:
         """Reprojection residuals (predicted minus observed) of the BAL model at these values.
 

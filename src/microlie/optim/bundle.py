@@ -172,6 +172,10 @@ class BundleProblem:
     observations: np.ndarray
     model: CameraModel = field(default_factory=BALCamera)
 
+    def __repr__(self) -> str:
+        return (f"BundleProblem({self.n_cameras} cameras, {self.n_points} points, "
+                f"{len(self.observations)} observations, {type(self.model).__name__})")
+
     def __post_init__(self) -> None:
         # the solver works in float64 (costs of 1e6 px^2 and 1e-9 steps do not fit float32)
         for name in ("rotations", "translations", "intrinsics", "points", "observations"):
@@ -503,6 +507,14 @@ class BundleResult:
     solver: str = "lm"
     linear_solver: str = "auto"
     _normal: Any = field(default=None, repr=False)
+
+    def __repr__(self) -> str:
+        p = self.problem
+        return (f"BundleResult({self.solver}, {self.linear_solver}: cost {self.initial_cost:.10g}"
+                f" -> {self.final_cost:.10g} in {self.iterations} iterations "
+                f"({self.successful_steps} successful), {p.n_cameras} cameras, {p.n_points} "
+                f"points, {len(p.observations)} observations, {self.time_s * 1e3:.1f} ms, "
+                f"converged={self.converged}: {self.message})")
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready summary (costs, iterations, time, convergence).

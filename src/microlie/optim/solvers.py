@@ -128,9 +128,10 @@ class Result:
     gauge_fixed: list = field(default_factory=list)
 
     def __repr__(self) -> str:
-        return (f"Result({self.solver}: cost {self.initial_cost:.10g} -> {self.final_cost:.10g}"
-                f" in {self.iterations} iterations, {self.time_s * 1e3:.1f} ms, "
-                f"converged={self.converged}: {self.message})")
+        n = sum(len(h) for h in self.values)
+        return (f"Result({self.solver}, {self.linear_solver}: cost {self.initial_cost:.10g} -> "
+                f"{self.final_cost:.10g} in {self.iterations} iterations, {n} variables, "
+                f"{self.time_s * 1e3:.1f} ms, converged={self.converged}: {self.message})")
 
 
 @dataclass

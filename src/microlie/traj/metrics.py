@@ -216,6 +216,10 @@ class PoseError:
     est: Trajectory | None = None
     info: dict = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        return (f"PoseError({self.label}: {self.errors.size} errors, rmse "
+                f"{self.stats.get('rmse', float('nan')):.6g} {self.unit})".replace(" )", ")"))
+
     @property
     def label(self) -> str:
         """``"APE w.r.t. translation part (m)"`` and the like."""
@@ -570,6 +574,10 @@ class KittiResult:
     r_err: float
     per_length: dict[float, tuple[float, float, int]]
     segments: np.ndarray
+
+    def __repr__(self) -> str:
+        return (f"KittiResult(t_err {self.t_err:.6g} %, r_err {self.r_err:.6g} deg/m, "
+                f"{self.segments.shape[0]} segments)")
 
     def to_dict(self) -> dict:
         """A JSON-ready summary (no arrays).

@@ -90,6 +90,11 @@ class Result:
     options: dict[str, Any] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        return (f"Result({self.label}: {self.errors.size} errors, rmse "
+                f"{self.stats.get('rmse', float('nan')):.6g} {self.unit}, est "
+                f"{self.est_name})".replace(" ,", ","))
+
     def to_json(self) -> dict[str, Any]:
         """The JSON document written by :func:`save_result`.
 
