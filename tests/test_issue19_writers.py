@@ -379,3 +379,29 @@ def test_issue19_item19_max_iter_must_be_positive(tmp_path, kind, value):
     code, out, err = _cli("optimize", str(path), "--max-iter", value)
     assert code == 2 and "--max-iter" in err and out == ""
     assert _cli("optimize", str(path), "--max-iter", "1", "--json")[0] == 0
+
+
+def test_issue19_item14_header_is_flushed_before_the_solve(tmp_path, monkeypatch):
+    """The header is on the error stream, flushed, when the solver starts (a log file shows it
+    while a long solve runs)."""
+    from microlie.optim import FactorGraph
+
+    class Stream(io.StringIO):
+        flushed = ""
+
+        def flush(self) -> None:
+            self.flushed = self.getvalue()
+
+    err = Stream()
+    seen: list[str] = []
+    solve = FactorGraph.optimize
+
+    def spy(self, *args, **kwargs):
+        seen.append(err.flushed)
+        return solve(self, *args, **kwargs)
+
+    monkeypatch.setattr(FactorGraph, "optimize", spy)
+    path = tmp_path / "c.g2o"
+    path.write_text(TINY)
+    assert main(["optimize", str(path)], out=io.StringIO(), err=err) == 0
+    assert len(seen) == 1 and seen[0].startswith(f"microlie optimize: {path}: SE2 pose graph")
