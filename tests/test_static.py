@@ -1,5 +1,5 @@
-"""Static checks that are part of the suite: ruff on the code and the strict documentation build
-(a broken API reference or a dead link in docs/ fails here)."""
+"""Static checks that are part of the suite: ruff on the code and the documentation's nav (the
+strict documentation build and its pages: tests/test_docs_site.py)."""
 
 from __future__ import annotations
 
@@ -22,18 +22,8 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 def test_ruff_clean():
     require("ruff")
-    r = _run("ruff", "check", "src", "tests", "benchmarks", "examples")
+    r = _run("ruff", "check", "src", "tests", "benchmarks", "examples", "tools")
     assert r.returncode == 0, r.stdout + r.stderr
-
-
-def test_docs_build_strict(tmp_path):
-    require("mkdocs")
-    require("mkdocstrings")
-    r = _run("mkdocs", "build", "--strict", "-q", "-d", str(tmp_path / "site"))
-    assert r.returncode == 0, r.stdout + r.stderr
-    page = (tmp_path / "site" / "api" / "groups" / "index.html").read_text()
-    for name in ("SO3", "SE3", "Sim3", "jr_inv", "minus"):  # the reference was generated
-        assert name in page
 
 
 @pytest.mark.parametrize("page", sorted(p.name for p in (ROOT / "docs").glob("*.md")))

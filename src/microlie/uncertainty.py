@@ -2,7 +2,7 @@
 
 A :class:`Gaussian` on a group is a mean element ``Xbar``, a tangent covariance ``P`` of shape
 ``(*batch, dof, dof)`` and an explicit **frame** that says on which side the error multiplies
-(``../shared/MATH.md`` section 7):
+(the documentation's "Uncertainty" page):
 
 * ``frame="right"`` (local, body): ``X = Xbar (+) eps = Xbar Exp(eps)``,  ``eps ~ N(0, P)``;
 * ``frame="left"`` (global, world): ``X = eps (+) Xbar = Exp(eps) Xbar``, ``eps ~ N(0, P)``.

@@ -1,7 +1,7 @@
 """Synthetic IMU data from a real trajectory.
 
-There is no IMU log in the shared data, so samples are synthesised from a ground-truth
-trajectory (for example EuRoC V1_02, ``../shared/data/trajectory/evo/V102_groundtruth.csv``):
+Samples are synthesised from a ground-truth trajectory (for example EuRoC V1_02's,
+``V102_groundtruth.csv`` in the test data of evo):
 
 1. a smooth fit: a cubic spline through the positions and SciPy's ``RotationSpline`` (cubic
    in the rotation increments, continuous angular rate) through the attitudes, both on knots
