@@ -44,6 +44,10 @@ __all__ = ["Preintegration"]
 # any read of a result) is integrated at once, below SMALL samples one at a time.
 SMALL = 24
 BUFFER = 4096
+# integrate() processes at most CHUNK samples at once (about 1 KB of temporaries per sample):
+# its memory does not grow with the number of samples of a call, and the temporaries stay small
+# enough for the CPU caches (benchmarks/preintegration_memory.py)
+CHUNK = 16384
 
 
 def _vec3(x: Any, what: str) -> np.ndarray:
@@ -312,7 +316,9 @@ class Preintegration:
                 self._flush()
             return self
         self._flush()
-        self._run(a - self.bias_accel, w - self.bias_gyro, d)
+        for s in range(0, n, CHUNK):
+            e = s + CHUNK
+            self._run(a[s:e] - self.bias_accel, w[s:e] - self.bias_gyro, d[s:e])
         return self
 
     def _run(self, a: np.ndarray, w: np.ndarray, d: np.ndarray) -> None:
