@@ -228,3 +228,34 @@ def test_issue19_item7_innovation_gate_against_the_chi_square_quantile(kind):
     r3 = _filter(kind).update_position(z, 0.05, gate=0.997)
     assert r3.threshold == pytest.approx(chi2.ppf(0.997, 3), rel=1e-12)
     assert not r3.applied and r3.nis > r3.threshold
+
+
+def test_issue19_item19_each_class_states_its_tangent_order_in_repr_and_docstring():
+    """The three orders differ (kept, see the filters' module docstring); each class names its
+    own in its docstring, ``tangent_order`` and ``repr``, and the names match the numbers."""
+    from microlie.imu import Preintegration
+
+    eskf, iekf = _filter("eskf-right", batch=(2,)), _filter("iekf")
+    pim = Preintegration(gyro_noise=1e-3, accel_noise=2e-2)
+    n, dt = 200, 0.01
+    pim.integrate(np.tile([0.0, 0.0, 9.81], (n, 1)), np.zeros((n, 3)), dt)
+    cases = [(eskf, "(dtheta, dp, dv, db_g, db_a)", "dp"),
+             (iekf, "(rho, phi, nu, db_g, db_a)", "rho"),
+             (pim, "(dphi, dv, dp)", None)]
+    for obj, order, _ in cases:
+        assert f"tangent_order={order}" in repr(obj), repr(obj)
+        assert f"``{order}``" in " ".join(type(obj).__doc__.split())
+        assert "(" + ", ".join(obj.tangent_order) + ")" == order
+    assert "side='right'" in repr(eskf) and "batch_shape=(2,)" in repr(eskf)
+    # the named position block is where a position fix's Jacobian has the identity
+    for f, _, pos in cases[:2]:
+        k = 3 * f.tangent_order.index(pos)
+        np.testing.assert_array_equal(f._position_jacobian()[..., :, k:k + 3],
+                                      np.broadcast_to(np.eye(3), (*f.batch_shape, 3, 3)))
+    # preintegration at rest: d(dv)/d(b_a) = -T I, d(dp)/d(b_a) = -T^2/2 I, d(dphi)/d(b_a) = 0
+    T = n * dt
+    J = pim.bias_jacobian
+    rows = {name: slice(3 * i, 3 * i + 3) for i, name in enumerate(pim.tangent_order)}
+    np.testing.assert_allclose(J[rows["dphi"], 3:6], 0.0, atol=1e-15)
+    np.testing.assert_allclose(J[rows["dv"], 3:6], -T * np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(J[rows["dp"], 3:6], -0.5 * T * T * np.eye(3), atol=1e-12)

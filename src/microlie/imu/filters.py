@@ -12,6 +12,12 @@
   ``(position, rotation, velocity)``). Without biases its error dynamics do not depend on the
   estimate.
 
+**The three orders differ** (each follows its reference, and code indexing ``cov`` relies on
+it, so none is changed): ``ErrorStateEKF`` ``(dtheta, dp, dv, db_g, db_a)`` (attitude first),
+``InvariantEKF`` ``(rho, phi, nu, db_g, db_a)`` (position first), ``Preintegration``
+``(dphi, dv, dp)`` (velocity before position). Each class states its order in its
+``tangent_order`` attribute and its ``repr``.
+
 Both propagate with the first-order scheme of :class:`~microlie.imu.Preintegration` on each IMU
 sample (``R' = R Exp((w - b_g) dt)``, ``v' = v + (R (a - b_a) + g) dt``,
 ``p' = p + v dt + (R (a - b_a) + g) dt^2 / 2``), white noise of densities ``gyro_noise`` /
@@ -54,6 +60,16 @@ class UpdateResult(NamedTuple):
     threshold : float
         The gate on ``nis`` (the chi-square quantile of ``gate`` with ``m`` degrees of
         freedom), ``inf`` without a gate.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
+    >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
+    ...                   accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
+    >>> nis, applied, threshold = f.update_position([0.1, 0.0, 0.0], 0.01, gate=0.99)
+    >>> round(float(nis), 6), bool(applied), round(threshold, 4)  # 10 cm against 1.4 cm
+    (50.0, False, 11.3449)
     """
 
     nis: np.ndarray
@@ -71,6 +87,8 @@ class _ImuFilter:
 
     dof = 15
     side: Literal["right", "left"]
+    #: the names of the 15 error coordinates, in order (``cov``, ``update``'s ``H``, ``error``)
+    tangent_order: tuple[str, ...]
 
     def __init__(self, Rm: np.ndarray, p: np.ndarray, v: np.ndarray, bg: np.ndarray,
                  ba: np.ndarray, cov: Any, gyro_noise: float, accel_noise: float,
@@ -89,6 +107,11 @@ class _ImuFilter:
     @property
     def batch_shape(self) -> tuple[int, ...]:
         return tuple(self.p.shape[:-1])
+
+    def __repr__(self) -> str:
+        side = f"side={self.side!r}, " if type(self) is ErrorStateEKF else ""
+        return (f"{type(self).__name__}({side}batch_shape={self.batch_shape}, "
+                f"tangent_order=({', '.join(self.tangent_order)}))")
 
     # ------------------------------------------------------------------ prediction
     def predict(self, accel: Any, gyro: Any, dt: Any) -> None:
@@ -200,8 +223,8 @@ class _ImuFilter:
         h : array_like or callable
             The predicted measurement ``(*batch, m)``, or a callable of the filter returning it.
         H : array_like or callable
-            Its Jacobian ``(*batch, m, 15)`` with respect to the filter's error (in the
-            filter's tangent order, see the class), or a callable.
+            Its Jacobian ``(*batch, m, 15)`` with respect to the filter's error, in the
+            filter's ``tangent_order`` (they differ by class), or a callable.
         noise : array_like
             ``(m, m)`` or ``(*batch, m, m)`` measurement covariance.
         gate : float, optional
@@ -341,7 +364,7 @@ class _ImuFilter:
 
     def error(self, truth: Any) -> np.ndarray:
         """The filter's error of a true state: the tangent ``e`` with ``truth = estimate (+) e`` on
-        the filter's side.
+        the filter's side, in its ``tangent_order``.
 
         Parameters
         ----------
@@ -394,6 +417,11 @@ class _ImuFilter:
 class ErrorStateEKF(_ImuFilter):
     """Error-state EKF on ``Product(SO3, R(3), R(3), R(3), R(3))`` (see the module docstring).
 
+    Error (tangent) order ``(dtheta, dp, dv, db_g, db_a)``: attitude, position, velocity, gyro
+    bias, accel bias (``InvariantEKF`` puts position first, ``Preintegration`` velocity before
+    position; see the module docstring). ``cov``, the ``H`` of :meth:`update`, :meth:`error`
+    and ``repr`` use it.
+
     Parameters
     ----------
     state : Product
@@ -419,7 +447,11 @@ class ErrorStateEKF(_ImuFilter):
     >>> f.predict(np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.005)  # at rest
     >>> float(np.abs(f.p).max()) < 1e-12
     True
+    >>> f
+    ErrorStateEKF(side='right', batch_shape=(), tangent_order=(dtheta, dp, dv, db_g, db_a))
     """
+
+    tangent_order = ("dtheta", "dp", "dv", "db_g", "db_a")
 
     def __init__(self, state: Any, cov: Any, *, gyro_noise: float, accel_noise: float,
                  gyro_walk: float, accel_walk: float, gravity: Any = (0.0, 0.0, -9.81),
@@ -478,8 +510,11 @@ class ErrorStateEKF(_ImuFilter):
 
 class InvariantEKF(_ImuFilter):
     """Invariant EKF on ``Product(SE23, R(3), R(3))`` (see the module docstring): error
-    ``X = Exp(xi) X_hat`` on SE_2(3) (``side="left"``), tangent order
-    ``(rho, phi, nu, db_g, db_a)``.
+    ``X = Exp(xi) X_hat`` on SE_2(3) (``side="left"``).
+
+    Error (tangent) order ``(rho, phi, nu, db_g, db_a)``: position, attitude, velocity (SE23's
+    order), gyro bias, accel bias (``ErrorStateEKF`` puts attitude first; see the module
+    docstring). ``cov``, the ``H`` of :meth:`update`, :meth:`error` and ``repr`` use it.
 
     Parameters
     ----------
@@ -503,7 +538,11 @@ class InvariantEKF(_ImuFilter):
     >>> res = f.update_position(np.array([0.01, 0.0, 0.0]), 0.01)
     >>> f.gaussian.frame
     'left'
+    >>> f
+    InvariantEKF(batch_shape=(), tangent_order=(rho, phi, nu, db_g, db_a))
     """
+
+    tangent_order = ("rho", "phi", "nu", "db_g", "db_a")
 
     def __init__(self, state: Any, cov: Any, *, gyro_noise: float, accel_noise: float,
                  gyro_walk: float, accel_walk: float,
