@@ -140,6 +140,7 @@ def test_issue19_item7_update_refuses_bad_noise_and_measurements_and_changes_not
         (dict(noise=[[1e-4, 5e-5], [0.0, 1e-4]]), "noise is not symmetric"),
         (dict(noise=np.full((2, 2), np.nan)), "noise contains NaN"),
         (dict(noise=np.eye(3)), "noise"),
+        (dict(noise=np.broadcast_to(np.eye(2), (4, 2, 2))), r"noise must be \(2, 2\)"),
         (dict(z=[np.nan, 0.0]), "z contains NaN"),
         (dict(z=[0.0, 0.0, 0.0]), "z must be"),
         (dict(h=np.array([np.inf, 0.0])), "h contains NaN"),

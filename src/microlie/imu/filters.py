@@ -274,6 +274,9 @@ class _ImuFilter:
             _check_finite(x, f"update: {name}")
         Rn = np.asarray(noise, dtype=np.float64)
         check_covariance(Rn, m, "update: noise")
+        if np.broadcast_shapes(Rn.shape[:-2], batch) != batch:
+            raise ValueError(f"noise must be ({m}, {m}) or (*batch, {m}, {m}) with batch "
+                             f"{batch}, got shape {Rn.shape}")
         threshold = np.inf
         if gate is not None:
             if not 0.0 < gate < 1.0:
