@@ -355,3 +355,60 @@ def test_tangent_scheme_jacobian_of_jr_times_x(angle):
     fd = np.stack([(SO3.jr(th + h * e) @ x - SO3.jr(th - h * e) @ x) / (2 * h)
                    for e in np.eye(3)], -1)
     np.testing.assert_allclose(_djr_times(th, x), fd, atol=2e-9)
+
+
+def _traced_peak(n):
+    import tracemalloc
+
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((n, 3)) + [0, 0, 9.81]
+    w = 0.5 * rng.standard_normal((n, 3))
+    pim = Preintegration(gyro_noise=1e-3, accel_noise=2e-2, bias_gyro=[0.01, 0, 0])
+    tracemalloc.start()
+    try:
+        pim.integrate(a, w, 0.005)
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_issue19_item15_integrate_memory_does_not_grow_with_the_number_of_samples():
+    """One call on 2e5 samples needs no more memory than on 5e4 (it held ~1 KB per sample:
+    ratio ~4); benchmarks/preintegration_memory.py gives the 1e6 figures."""
+    small, large = _traced_peak(50_000), _traced_peak(200_000)
+    assert large < 1.5 * small, (small, large)
+    assert large < 60e6, large
+
+
+@pytest.mark.parametrize("dt", ["constant", "jittered"])
+def test_issue19_item15_chunked_integration_equals_one_pass_and_the_recursions(monkeypatch, dt):
+    """Chunks of 109 samples (9 chunks and a last one of 19, under SMALL) against one pass
+    (CHUNK larger than the call) and Forster's per-sample recursions (independent)."""
+    import microlie.imu.preintegration as pre
+
+    rng = np.random.default_rng(12)
+    n = 1000
+    a = rng.standard_normal((n, 3)) + [0, 0, 9.81]
+    w = 0.8 * rng.standard_normal((n, 3))
+    d = np.full(n, 0.005) if dt == "constant" else 0.005 * (1 + 0.2 * rng.uniform(-1, 1, n))
+    bg, ba = np.array([0.01, -0.02, 0.015]), np.array([0.1, -0.05, 0.2])
+    kw = dict(gyro_noise=1e-3, accel_noise=2e-2, bias_gyro=bg, bias_accel=ba)
+    monkeypatch.setattr(pre, "CHUNK", 10**9)
+    one = Preintegration(**kw).integrate(a, w, d)
+    monkeypatch.setattr(pre, "CHUNK", 109)
+    chunked = Preintegration(**kw).integrate(a, w, d)
+    assert chunked.count == n and abs(chunked.dt - d.sum()) < 1e-13
+    R, v, p, P, J = _forster_sequential(a - ba, w - bg, d, 1e-3, 2e-2)
+    for pim, tol in ((one, 1e-12), (chunked, 1e-12)):
+        np.testing.assert_allclose(pim.delta_rotation.matrix(), R, atol=tol)
+        np.testing.assert_allclose(pim.delta_velocity, v, atol=tol * 10)
+        np.testing.assert_allclose(pim.delta_position, p, atol=tol * 10)
+        np.testing.assert_allclose(pim.covariance, P, rtol=1e-9, atol=1e-12 * np.abs(P).max())
+        np.testing.assert_allclose(pim.bias_jacobian, J, rtol=1e-9, atol=1e-10)
+    np.testing.assert_allclose(chunked.delta_rotation.matrix(), one.delta_rotation.matrix(),
+                               atol=1e-14)
+    np.testing.assert_allclose(chunked.delta_position, one.delta_position, rtol=1e-13)
+    np.testing.assert_allclose(chunked.covariance, one.covariance, rtol=1e-11,
+                               atol=1e-14 * np.abs(P).max())
+    np.testing.assert_allclose(chunked.bias_jacobian, one.bias_jacobian, rtol=1e-11,
+                               atol=1e-12)

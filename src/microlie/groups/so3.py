@@ -5,6 +5,7 @@ Tangent vectors are rotation vectors ``phi`` (axis times angle, radians).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -682,7 +683,12 @@ class SO3(LieGroup):
 
     def as_rpy(self) -> Array:
         """``(roll, pitch, yaw)`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``, pitch in
-        ``[-pi/2, pi/2]``; every backend.
+        ``[-pi/2, pi/2]``, roll and yaw in ``(-pi, pi]``; every backend.
+
+        ``from_rpy(*R.as_rpy())`` reproduces ``R`` to rounding at every pitch (computed from
+        the quaternion's half-angle sums, not from matrix entries). At the gimbal lock
+        (pitch exactly ``+-pi/2``, where only ``yaw - roll`` or ``yaw + roll`` is defined)
+        roll is 0 and yaw carries the rest.
 
         Returns
         -------
@@ -695,6 +701,8 @@ class SO3(LieGroup):
         >>> from microlie import SO3
         >>> np.round(SO3.from_rpy(0.1, 0.2, 0.3).as_rpy(), 12).tolist()
         [0.1, 0.2, 0.3]
+        >>> np.round(SO3.from_rpy(0.3, np.pi / 2, 0.2).as_rpy(), 12).tolist()  # the lock
+        [0.0, 1.570796326795, -0.1]
         """
         return run(_K_RPY, self.params)
 
@@ -718,11 +726,30 @@ def _roll_quat(q: Array, to_scalar_last: bool) -> Array:
 
 
 def _rpy(o: Any, p: tuple) -> tuple:
-    R = quat_to_matrix(p)
-    roll = o.atan2(R[2][1], R[2][2])
-    pitch = o.atan2(-R[2][0], o.sqrt(R[0][0] * R[0][0] + R[1][0] * R[1][0]))
-    yaw = o.atan2(R[1][0], R[0][0])
-    return (roll, pitch, yaw)
+    """``(roll, pitch, yaw)`` from the quaternion's half-angle sums, not from the matrix.
+
+    With ``q = qz(yaw) qy(pitch) qx(roll)``, ``(w + y, z - x)`` has angle ``(yaw - roll)/2``
+    and length ``na = sqrt(2) sin(pitch/2 + pi/4)``, ``(w - y, z + x)`` angle
+    ``(yaw + roll)/2`` and length ``nb = sqrt(2) cos(pitch/2 + pi/4)``. Every output is then
+    an ``atan2`` of well-scaled arguments: the round trip through :meth:`SO3.from_rpy` is
+    exact to rounding at every pitch, including the gimbal lock, where one of the two
+    half-angles is undefined (``nb = 0`` at ``+pi/2``, ``na = 0`` at ``-pi/2``) and is taken
+    equal to the other: roll = 0 there.
+    """
+    x, y, z, w = p
+    na = o.sqrt((w + y) * (w + y) + (z - x) * (z - x))
+    nb = o.sqrt((w - y) * (w - y) + (z + x) * (z + x))
+    a = o.atan2(z - x, w + y)
+    b = o.atan2(z + x, w - y)
+    a, b = o.where(na <= 0.0, b, a), o.where(nb <= 0.0, a, b)
+    pitch = 2.0 * o.atan2(na, nb) - 0.5 * math.pi
+    yaw, roll = a + b, b - a  # in (-2 pi, 2 pi]: wrapped to (-pi, pi]
+    return (_wrap_pi(o, roll), pitch, _wrap_pi(o, yaw))
+
+
+def _wrap_pi(o: Any, t: Any) -> Any:
+    """An angle in ``(-2 pi, 2 pi]`` wrapped to ``(-pi, pi]``."""
+    return o.where(t > math.pi, t - 2.0 * math.pi, o.where(t <= -math.pi, t + 2.0 * math.pi, t))
 
 
 def _quat_from_matrix_array(R: Array) -> Array:

@@ -12,6 +12,12 @@
   ``(position, rotation, velocity)``). Without biases its error dynamics do not depend on the
   estimate.
 
+**The three orders differ** (each follows its reference, and code indexing ``cov`` relies on
+it, so none is changed): ``ErrorStateEKF`` ``(dtheta, dp, dv, db_g, db_a)`` (attitude first),
+``InvariantEKF`` ``(rho, phi, nu, db_g, db_a)`` (position first), ``Preintegration``
+``(dphi, dv, dp)`` (velocity before position). Each class states its order in its
+``tangent_order`` attribute and its ``repr``.
+
 Both propagate with the first-order scheme of :class:`~microlie.imu.Preintegration` on each IMU
 sample (``R' = R Exp((w - b_g) dt)``, ``v' = v + (R (a - b_a) + g) dt``,
 ``p' = p + v dt + (R (a - b_a) + g) dt^2 / 2``), white noise of densities ``gyro_noise`` /
@@ -22,15 +28,15 @@ filter's error; :meth:`update_position` is the position fix.
 
 from __future__ import annotations
 
-from typing import Any, Literal, cast
+from typing import Any, Literal, NamedTuple, cast
 
 import numpy as np
 
 from ..groups import SE23, SO3, Product, R
-from ..uncertainty import Gaussian
+from ..uncertainty import Gaussian, _check_finite, check_covariance
 from .preintegration import _hat
 
-__all__ = ["ErrorStateEKF", "InvariantEKF"]
+__all__ = ["ErrorStateEKF", "InvariantEKF", "UpdateResult"]
 
 ESKF_STATE = Product(SO3, R(3), R(3), R(3), R(3))
 IEKF_STATE = Product(SE23, R(3), R(3))
@@ -38,6 +44,37 @@ IEKF_STATE = Product(SE23, R(3), R(3))
 
 def _mv(M: np.ndarray, x: np.ndarray) -> np.ndarray:
     return (M @ x[..., :, None])[..., 0]
+
+
+class UpdateResult(NamedTuple):
+    """What :meth:`ErrorStateEKF.update` (and :meth:`InvariantEKF.update`) did.
+
+    Attributes
+    ----------
+    nis : numpy.ndarray
+        Shape ``batch``: the innovation's squared Mahalanobis norm ``y^T S^-1 y`` (``y = z - h``,
+        ``S = H P H^T + noise``), computed before the update.
+    applied : numpy.ndarray
+        Boolean, shape ``batch``: where the measurement was fused (all True without a gate;
+        elsewhere the filter is unchanged).
+    threshold : float
+        The gate on ``nis`` (the chi-square quantile of ``gate`` with ``m`` degrees of
+        freedom), ``inf`` without a gate.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
+    >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
+    ...                   accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
+    >>> nis, applied, threshold = f.update_position([0.1, 0.0, 0.0], 0.01, gate=0.99)
+    >>> round(float(nis), 6), bool(applied), round(threshold, 4)  # 10 cm against 1.4 cm
+    (50.0, False, 11.3449)
+    """
+
+    nis: np.ndarray
+    applied: np.ndarray
+    threshold: float
 
 
 def _so3_exp(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -50,6 +87,8 @@ class _ImuFilter:
 
     dof = 15
     side: Literal["right", "left"]
+    #: the names of the 15 error coordinates, in order (``cov``, ``update``'s ``H``, ``error``)
+    tangent_order: tuple[str, ...]
 
     def __init__(self, Rm: np.ndarray, p: np.ndarray, v: np.ndarray, bg: np.ndarray,
                  ba: np.ndarray, cov: Any, gyro_noise: float, accel_noise: float,
@@ -68,6 +107,11 @@ class _ImuFilter:
     @property
     def batch_shape(self) -> tuple[int, ...]:
         return tuple(self.p.shape[:-1])
+
+    def __repr__(self) -> str:
+        side = f"side={self.side!r}, " if type(self) is ErrorStateEKF else ""
+        return (f"{type(self).__name__}({side}batch_shape={self.batch_shape}, "
+                f"tangent_order=({', '.join(self.tangent_order)}))")
 
     # ------------------------------------------------------------------ prediction
     def predict(self, accel: Any, gyro: Any, dt: Any) -> None:
@@ -93,17 +137,51 @@ class _ImuFilter:
         """
         a = np.asarray(accel, dtype=np.float64)
         w = np.asarray(gyro, dtype=np.float64)
-        if a.shape != w.shape or a.shape[-1] != 3:
+        if a.shape != w.shape or a.shape[-1:] != (3,):
             raise ValueError(f"accel and gyro must have the same shape (..., 3), got {a.shape} "
                              f"and {w.shape}")
         one = a.shape[:-1] == self.batch_shape
         if one:
             a, w = a[None], w[None]
-        d = np.broadcast_to(np.asarray(dt, dtype=np.float64), (len(a),))
-        if np.any(d <= 0):
-            raise ValueError("dt must be > 0")
-        for k in range(len(a)):
-            self._step(a[k], w[k], float(d[k]))
+        elif a.shape[1:-1] != self.batch_shape:
+            raise ValueError(f"accel and gyro must be (*batch, 3) or (N, *batch, 3) with batch "
+                             f"{self.batch_shape}, got {a.shape}")
+        for x, name in ((a, "accel"), (w, "gyro")):
+            bad = ~np.isfinite(x).reshape(len(x), -1).all(axis=1)
+            if bad.any():
+                raise ValueError(f"{name} sample {int(np.argmax(bad))} contains NaN or infinite "
+                                 "values; drop or repair it (the filter is unchanged)")
+        try:
+            d = np.broadcast_to(np.asarray(dt, dtype=np.float64), (len(a),))
+        except ValueError:
+            raise ValueError(f"dt must be a scalar or ({len(a)},), got shape "
+                             f"{np.shape(dt)}") from None
+        good = np.isfinite(d) & (d > 0)
+        if not good.all():
+            raise ValueError(f"dt must be finite and > 0 (sample {int(np.argmin(good))}); "
+                             "the filter is unchanged")
+        saved = self._save()
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):  # found by _check_state
+                for k in range(len(a)):
+                    self._step(a[k], w[k], float(d[k]))
+            self._check_state("predict")
+        except BaseException:
+            self._restore(saved)
+            raise
+
+    def _save(self) -> tuple:
+        # every step and update replaces these arrays (none is written in place)
+        return self.Rm, self.p, self.v, self.bg, self.ba, self.cov
+
+    def _restore(self, saved: tuple) -> None:
+        self.Rm, self.p, self.v, self.bg, self.ba, self.cov = saved
+
+    def _check_state(self, what: str) -> None:
+        for x in self._save():
+            if not np.all(np.isfinite(x)):
+                raise ValueError(f"{what}: the state or covariance would become NaN or "
+                                 "infinite (an overflow); the filter is unchanged")
 
     def _step(self, a: np.ndarray, w: np.ndarray, dt: float) -> None:
         ah = a - self.ba
@@ -128,8 +206,15 @@ class _ImuFilter:
         raise NotImplementedError
 
     # ------------------------------------------------------------------ update
-    def update(self, z: Any, h: Any, H: Any, noise: Any) -> np.ndarray:
+    def update(self, z: Any, h: Any, H: Any, noise: Any, *,
+               gate: float | None = None) -> UpdateResult:
         """Fuse a measurement ``z ~ h + N(0, noise)`` (Joseph-form covariance update).
+
+        All or nothing: the inputs are checked first (``z``, ``h``, ``H`` finite, ``noise``
+        symmetric positive semi-definite, ``S = H P H^T + noise`` positive definite), and when
+        anything raises the filter is unchanged. With ``gate``, the measurement is fused only
+        where its NIS is at most the ``gate`` quantile of the chi-square distribution with
+        ``m`` degrees of freedom (an outlier test); elsewhere the filter is unchanged.
 
         Parameters
         ----------
@@ -138,14 +223,24 @@ class _ImuFilter:
         h : array_like or callable
             The predicted measurement ``(*batch, m)``, or a callable of the filter returning it.
         H : array_like or callable
-            Its Jacobian ``(*batch, m, 15)`` with respect to the filter's error, or a callable.
+            Its Jacobian ``(*batch, m, 15)`` with respect to the filter's error, in the
+            filter's ``tangent_order`` (they differ by class), or a callable.
         noise : array_like
-            ``(m, m)`` measurement covariance.
+            ``(m, m)`` or ``(*batch, m, m)`` measurement covariance.
+        gate : float, optional
+            Probability in ``(0, 1)``, e.g. ``0.997``; ``None`` (default) fuses every
+            measurement.
 
         Returns
         -------
-        numpy.ndarray
-            The squared Mahalanobis norm of the innovation (NIS), shape ``batch``.
+        UpdateResult
+            ``(nis, applied, threshold)``.
+
+        Raises
+        ------
+        ValueError
+            A non-finite ``z``, ``h`` or ``H``, an invalid ``noise`` or ``gate``, shapes that
+            do not match, or a singular ``S``.
 
         Examples
         --------
@@ -154,26 +249,78 @@ class _ImuFilter:
         >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
         ...                   accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
         >>> H = np.zeros((1, 15)); H[0, 3] = 1.0  # measure p_x
-        >>> nis = f.update([0.01], f.p[:1], H, [[1e-4]])
-        >>> round(float(nis), 6), round(float(f.p[0]), 6)  # the fix is halfway trusted
+        >>> res = f.update([0.01], f.p[:1], H, [[1e-4]])
+        >>> round(float(res.nis), 6), round(float(f.p[0]), 6)  # the fix is halfway trusted
         (0.5, 0.005)
+        >>> res = f.update([1.0], f.p[:1], H, [[1e-4]], gate=0.997)  # a 1 m outlier
+        >>> bool(res.applied), round(float(f.p[0]), 6)
+        (False, 0.005)
         """
+        batch = self.batch_shape
         hv = np.asarray(h(self) if callable(h) else h, dtype=np.float64)
         Hm = np.asarray(H(self) if callable(H) else H, dtype=np.float64)
+        zv = np.asarray(z, dtype=np.float64)
+        if Hm.ndim < 2 or Hm.shape[-1] != self.dof:
+            raise ValueError(f"H must be (*batch, m, {self.dof}), got shape {Hm.shape}")
+        m = Hm.shape[-2]
+        for x, name in ((zv, "z"), (hv, "h")):
+            if x.shape[-1:] != (m,) or np.broadcast_shapes(x.shape[:-1], batch) != batch:
+                raise ValueError(f"{name} must be (*batch, {m}) with batch {batch} (m from H), "
+                                 f"got shape {x.shape}")
+        if np.broadcast_shapes(Hm.shape[:-2], batch) != batch:
+            raise ValueError(f"H must be (*batch, m, {self.dof}) with batch {batch}, got "
+                             f"shape {Hm.shape}")
+        for x, name in ((zv, "z"), (hv, "h"), (Hm, "H")):
+            _check_finite(x, f"update: {name}")
         Rn = np.asarray(noise, dtype=np.float64)
-        y = np.asarray(z, dtype=np.float64) - hv
+        check_covariance(Rn, m, "update: noise")
+        if np.broadcast_shapes(Rn.shape[:-2], batch) != batch:
+            raise ValueError(f"noise must be ({m}, {m}) or (*batch, {m}, {m}) with batch "
+                             f"{batch}, got shape {Rn.shape}")
+        threshold = np.inf
+        if gate is not None:
+            if not 0.0 < gate < 1.0:
+                raise ValueError(f"gate must be a probability in (0, 1), e.g. 0.997, got {gate!r}")
+            from scipy.stats import chi2
+
+            threshold = float(chi2.ppf(gate, m))
+        with np.errstate(over="ignore"):
+            y = zv - hv
         P = self.cov
         Ht = np.swapaxes(Hm, -1, -2)
         S = Hm @ P @ Ht + Rn
-        K = np.swapaxes(np.linalg.solve(S, Hm @ P), -1, -2)  # P H^T S^-1 (S, P symmetric)
-        dx = _mv(K, y)
+        S = 0.5 * (S + np.swapaxes(S, -1, -2))
+        try:
+            np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            raise ValueError("update: S = H P H^T + noise is singular (a measured direction "
+                             "with zero variance in both the filter and noise): give noise "
+                             "positive variances; the filter is unchanged") from None
+        PHt = np.broadcast_to(P @ Ht, (*batch, 15, m))
+        K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)  # P H^T S^-1
+        y = np.broadcast_to(y, (*batch, m))
+        with np.errstate(over="ignore", invalid="ignore"):
+            nis = np.sum(y * np.linalg.solve(S, y[..., None])[..., 0], -1)
+        if not np.all(np.isfinite(nis)):
+            raise ValueError("update: the innovation z - h or its NIS is NaN or infinite (an "
+                             "overflow); the filter is unchanged")
+        applied = np.asarray(nis <= threshold)
+        dx = np.where(applied[..., None], _mv(K, y), 0.0)
         IKH = np.eye(15) - K @ Hm
-        self.cov = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ Rn @ np.swapaxes(K, -1, -2)
-        self._inject(dx)
-        return np.sum(y * np.linalg.solve(S, y[..., None])[..., 0], -1)
+        Pn = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ Rn @ np.swapaxes(K, -1, -2)
+        saved = self._save()
+        try:
+            self.cov = np.where(applied[..., None, None], Pn, P)
+            self._inject(dx)
+            self._check_state("update")
+        except BaseException:
+            self._restore(saved)
+            raise
+        return UpdateResult(nis, applied, threshold)
 
-    def update_position(self, z: Any, sigma: float) -> np.ndarray:
-        """Fuse a position fix ``z = p + N(0, sigma^2 I)``.
+    def update_position(self, z: Any, sigma: float, *,
+                        gate: float | None = None) -> UpdateResult:
+        """Fuse a position fix ``z = p + N(0, sigma^2 I)`` (:meth:`update`).
 
         Parameters
         ----------
@@ -181,11 +328,12 @@ class _ImuFilter:
             ``(*batch, 3)`` measured position.
         sigma : float
             Its standard deviation, metres.
+        gate : float, optional
+            As in :meth:`update`.
 
         Returns
         -------
-        numpy.ndarray
-            The NIS of the fix.
+        UpdateResult
 
         Examples
         --------
@@ -193,11 +341,12 @@ class _ImuFilter:
         >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
         >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
         ...                   accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
-        >>> nis = f.update_position(np.array([0.01, 0.0, 0.0]), 0.01)
+        >>> res = f.update_position(np.array([0.01, 0.0, 0.0]), 0.01)
         >>> round(float(f.p[0]), 6)
         0.005
         """
-        return self.update(z, self.p, self._position_jacobian(), sigma**2 * np.eye(3))
+        return self.update(z, self.p, self._position_jacobian(), sigma**2 * np.eye(3),
+                           gate=gate)
 
     def _position_jacobian(self) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -218,7 +367,7 @@ class _ImuFilter:
 
     def error(self, truth: Any) -> np.ndarray:
         """The filter's error of a true state: the tangent ``e`` with ``truth = estimate (+) e`` on
-        the filter's side.
+        the filter's side, in its ``tangent_order``.
 
         Parameters
         ----------
@@ -271,6 +420,11 @@ class _ImuFilter:
 class ErrorStateEKF(_ImuFilter):
     """Error-state EKF on ``Product(SO3, R(3), R(3), R(3), R(3))`` (see the module docstring).
 
+    Error (tangent) order ``(dtheta, dp, dv, db_g, db_a)``: attitude, position, velocity, gyro
+    bias, accel bias (``InvariantEKF`` puts position first, ``Preintegration`` velocity before
+    position; see the module docstring). ``cov``, the ``H`` of :meth:`update`, :meth:`error`
+    and ``repr`` use it.
+
     Parameters
     ----------
     state : Product
@@ -296,7 +450,11 @@ class ErrorStateEKF(_ImuFilter):
     >>> f.predict(np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.005)  # at rest
     >>> float(np.abs(f.p).max()) < 1e-12
     True
+    >>> f
+    ErrorStateEKF(side='right', batch_shape=(), tangent_order=(dtheta, dp, dv, db_g, db_a))
     """
+
+    tangent_order = ("dtheta", "dp", "dv", "db_g", "db_a")
 
     def __init__(self, state: Any, cov: Any, *, gyro_noise: float, accel_noise: float,
                  gyro_walk: float, accel_walk: float, gravity: Any = (0.0, 0.0, -9.81),
@@ -355,8 +513,11 @@ class ErrorStateEKF(_ImuFilter):
 
 class InvariantEKF(_ImuFilter):
     """Invariant EKF on ``Product(SE23, R(3), R(3))`` (see the module docstring): error
-    ``X = Exp(xi) X_hat`` on SE_2(3) (``side="left"``), tangent order
-    ``(rho, phi, nu, db_g, db_a)``.
+    ``X = Exp(xi) X_hat`` on SE_2(3) (``side="left"``).
+
+    Error (tangent) order ``(rho, phi, nu, db_g, db_a)``: position, attitude, velocity (SE23's
+    order), gyro bias, accel bias (``ErrorStateEKF`` puts attitude first; see the module
+    docstring). ``cov``, the ``H`` of :meth:`update`, :meth:`error` and ``repr`` use it.
 
     Parameters
     ----------
@@ -377,10 +538,14 @@ class InvariantEKF(_ImuFilter):
     >>> from microlie.imu.filters import InvariantEKF, IEKF_STATE
     >>> f = InvariantEKF(IEKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
     ...                  accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
-    >>> nis = f.update_position(np.array([0.01, 0.0, 0.0]), 0.01)
+    >>> res = f.update_position(np.array([0.01, 0.0, 0.0]), 0.01)
     >>> f.gaussian.frame
     'left'
+    >>> f
+    InvariantEKF(batch_shape=(), tangent_order=(rho, phi, nu, db_g, db_a))
     """
+
+    tangent_order = ("rho", "phi", "nu", "db_g", "db_a")
 
     def __init__(self, state: Any, cov: Any, *, gyro_noise: float, accel_noise: float,
                  gyro_walk: float, accel_walk: float,

@@ -44,6 +44,10 @@ __all__ = ["Preintegration"]
 # any read of a result) is integrated at once, below SMALL samples one at a time.
 SMALL = 24
 BUFFER = 4096
+# integrate() processes at most CHUNK samples at once (about 1 KB of temporaries per sample):
+# its memory does not grow with the number of samples of a call, and the temporaries stay small
+# enough for the CPU caches (benchmarks/preintegration_memory.py)
+CHUNK = 16384
 
 
 def _vec3(x: Any, what: str) -> np.ndarray:
@@ -124,6 +128,10 @@ def _cumsum0(x: np.ndarray) -> np.ndarray:
 class Preintegration:
     """Preintegrated IMU measurements between two keyframes.
 
+    Error (tangent) order ``(dphi, dv, dp)``: rotation, velocity, position (Forster et al.;
+    the filters order theirs differently, see :mod:`microlie.imu.filters`), in ``covariance``,
+    the rows of ``bias_jacobian``, ``tangent_order`` and ``repr``.
+
     Attributes after :meth:`integrate`: ``delta_rotation`` (an ``SO3``), ``delta_velocity``,
     ``delta_position`` (3,), ``dt`` (total time), ``covariance`` (9x9, tangent order
     ``(dphi, dv, dp)``, see the module docstring), ``bias_jacobian`` (9x6: rows
@@ -154,7 +162,12 @@ class Preintegration:
     >>> _ = pim.integrate(np.tile([1.0, 0, 0], (n, 1)), np.tile([0, 0, 0.5], (n, 1)), 0.005)
     >>> round(float(pim.delta_rotation.log()[2]), 12), round(pim.dt, 12)
     (0.5, 1.0)
+    >>> pim
+    Preintegration(scheme='manifold', samples=200, dt=1, tangent_order=(dphi, dv, dp))
     """
+
+    #: the names of the 9 error coordinates, in order (``covariance``, ``bias_jacobian`` rows)
+    tangent_order = ("dphi", "dv", "dp")
 
     def __init__(self, gyro_noise: Any, accel_noise: Any, bias_gyro: Any = (0.0, 0.0, 0.0),
                  bias_accel: Any = (0.0, 0.0, 0.0), *, gravity: Any = (0.0, 0.0, -9.81),
@@ -312,7 +325,9 @@ class Preintegration:
                 self._flush()
             return self
         self._flush()
-        self._run(a - self.bias_accel, w - self.bias_gyro, d)
+        for s in range(0, n, CHUNK):
+            e = s + CHUNK
+            self._run(a[s:e] - self.bias_accel, w[s:e] - self.bias_gyro, d[s:e])
         return self
 
     def _run(self, a: np.ndarray, w: np.ndarray, d: np.ndarray) -> None:
@@ -550,7 +565,7 @@ class Preintegration:
 
     def __repr__(self) -> str:
         return (f"Preintegration(scheme={self.scheme!r}, samples={self.count}, "
-                f"dt={self.dt:.6g})")
+                f"dt={self.dt:.6g}, tangent_order=({', '.join(self.tangent_order)}))")
 
 
 def _predict(SE23: Any, X: Any, dR: SO3, dv: np.ndarray, dp: np.ndarray, T: Any,
