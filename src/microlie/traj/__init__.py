@@ -40,6 +40,7 @@ from .metrics import (
     rpe,
     statistics,
 )
+from .evo_results import load_evo_result
 from .results import Result, load_result, save_result
 from .sync import INTERPOLATIONS, Association, associate, interpolate, match_timestamps
 from .trajectory import PLANES, TimestampWarning, Trajectory, merge
@@ -61,6 +62,7 @@ __all__ = [
     "write_trajectory",
     "save_result",
     "load_result",
+    "load_evo_result",
     "Result",
     "read_euroc",
     "read_timestamps",
