@@ -16,6 +16,7 @@ Example:
 
 from .align import ALIGNMENTS, align, umeyama
 from .evaluate import describe_alignment, evaluate_ape, evaluate_kitti, evaluate_rpe, prepare
+from .evo_results import load_evo_result
 from .io import (
     FORMATS,
     read_euroc,
@@ -40,7 +41,6 @@ from .metrics import (
     rpe,
     statistics,
 )
-from .evo_results import load_evo_result
 from .results import Result, load_result, save_result
 from .sync import INTERPOLATIONS, Association, associate, interpolate, match_timestamps
 from .trajectory import PLANES, TimestampWarning, Trajectory, merge
