@@ -184,6 +184,8 @@ def test_issue19_item18_plot_x_dimension(tmp_path):
     assert ax.get_xlabel() == "distance along the reference (m)"
     with pytest.raises(ValueError, match="x_dimension"):
         P.plot_error(res, x_dimension="metres")
+    code, _, err = run("ape", gt, est, "--plot_x_dimension", "index")  # no plot asked for
+    assert code == 2 and "--plot_x_dimension" in err
 
 
 def test_issue19_item18_silent_and_logfile(tmp_path):
@@ -366,3 +368,5 @@ def test_issue19_item18_res_plot_files(tmp_path):
                                   matplotlib.image.imread(tmp_path / "lib.png"))
     code, _, err = run("res", *files, "--plot-kind", "pie", "--plot", tmp_path / "x.png")
     assert code == 2 and "--plot-kind" in err
+    code, _, err = run("res", *files, "--plot-kind", "box")  # nothing would be plotted
+    assert code == 2 and "--plot-kind chooses figures" in err

@@ -172,7 +172,7 @@ def _show(args: argparse.Namespace, figs: Sequence[Any]) -> None:
             f"warning: -p/--plot: no window can be shown (matplotlib backend {backend!r} is "
             "not interactive, e.g. no display); write the plot with --save_plot FILE\n")
         return
-    canvas = plt._get_backend_mod().FigureCanvas  # type: ignore[attr-defined]
+    canvas: Any = plt._get_backend_mod().FigureCanvas
     for k, fig in enumerate(figs, start=1):
         manager = canvas.new_manager(fig, k)
         _pylab_helpers.Gcf._set_new_active_manager(manager)  # type: ignore[no-untyped-call]
@@ -418,7 +418,7 @@ def _add_metric(p: argparse.ArgumentParser) -> None:
                    "(lengths) or deg, rad (angles)")
     _add_output(p)
     p.add_argument("--plot-x-dimension", "--plot_x_dimension", dest="plot_x_dimension",
-                   choices=X_DIMENSIONS, default="seconds",
+                   choices=X_DIMENSIONS, default=None,
                    help="abscissa of the error plot: seconds (default; the index without "
                         "timestamps), index, or distances (m travelled along the reference)")
     p.add_argument("--save-results", "--save_results", dest="save_results", default=None,
@@ -529,7 +529,7 @@ def _register_res(sub: Any) -> None:
     g.add_argument("-v", "--verbose", action="store_true", help="accepted (evo)")
     _add_console(g)
     _add_plot_files(g)
-    g.add_argument("--plot-kind", "--plot_kind", dest="plot_kind", default="summary",
+    g.add_argument("--plot-kind", "--plot_kind", dest="plot_kind", default=None,
                    metavar="KIND[,KIND...]",
                    help="figure(s) to plot: summary (default: errors and statistics side by "
                         "side), raw, stats, histogram, box, violin, or all (evo_res's five: "
@@ -678,6 +678,9 @@ def _run_metric(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         raise UsageError("-r point_distance_error_ratio is an RPE relation (evo_rpe's): use "
                          "microlie rpe ... -r point_distance_error_ratio")
     _check_outputs(args, [ref_src.path, est_src.path], [args.plot, args.save_results])
+    if args.plot_x_dimension is not None and not (args.plot or args.show_plot):
+        raise UsageError("--plot_x_dimension sets the error plot's abscissa: give --plot FILE "
+                         "/ --save_plot FILE or -p as well")
     common = dict(relation=_relation(args), align=_resolve_align(args), n_align=args.n_align,
                   max_diff=args.max_diff, offset=args.offset, angle_unit=args.angle_unit,
                   t_start=args.t_start, t_end=args.t_end, downsample=args.downsample,
@@ -717,7 +720,8 @@ def _run_metric(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
 
         mode = _plot_mode(args, ref_src.fmt)
         _emit_plots(args, [("error", tplot.plot_error(res, plot_mode=mode,
-                                                      x_dimension=args.plot_x_dimension))])
+                                                      x_dimension=args.plot_x_dimension
+                                                      or "seconds"))])
     return EXIT_OK
 
 
@@ -891,7 +895,10 @@ def _load_any_result(path: str) -> Any:
 
 
 def _run_res(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
-    kinds = _res_kinds(args.plot_kind)
+    if args.plot_kind is not None and not (args.plot or args.show_plot):
+        raise UsageError("--plot-kind chooses figures of --plot FILE / --save_plot FILE / -p: "
+                         "give one of them")
+    kinds = _res_kinds(args.plot_kind or "summary")
     outputs = [args.save_table] + (_plot_files(args.plot, [RES_PLOT_NAMES[k] for k in kinds])
                                    if args.plot else [])
     _check_outputs(args, args.files, outputs)
@@ -988,11 +995,10 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None,
                 err.write(f"microlie {args.command}: error: --logfile: {exc}\n")
                 return EXIT_ERROR
         silent = getattr(args, "silent", False)
-        out = _Tee(None if silent else out, log)
-        err = _Tee(err, log)
-        args.note_stream = _Tee(None if silent else err.streams[0], log)
-        args.warn_stream = err
-        return _run(args, out, err)
+        all_err = _Tee(err, log)
+        args.note_stream = _Tee(None if silent else err, log)
+        args.warn_stream = all_err
+        return _run(args, _Tee(None if silent else out, log), all_err)  # type: ignore[arg-type]
 
 
 def _run(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
