@@ -422,6 +422,9 @@ EVO_ROWS = [
     ["ape", TUM_GT, TUM_EST, "--save-results", "a.json"],
     ["ape", TUM_GT, TUM_EST, "-a", "--save-results", "b.json"],
     ["res", "a.json", "b.json"],
+    ["rpe", "tum", TUM_GT, TUM_EST, "-d", "1", "-u", "m", "-r", "point_distance_error_ratio"],
+    ["res", str(DATA / "res_files" / "orb_ape.zip"), str(DATA / "res_files" / "sptam_ape.zip"),
+     "--save_plot", "res.png", "--plot-kind", "all"],
     ["traj", TUM_EST, "--ref", TUM_GT, "--plot", "traj.png"],
     ["kitti", KITTI_GT, KITTI_EST],
 ]

@@ -28,6 +28,7 @@ NATIVE = {
     "max_diff": "--max-diff", "delta": "--delta", "unit": "--unit", "pairs_from": "--pairs-from",
     "t_start": "--t-start", "t_end": "--t-end", "downsample": "--downsample",
     "project": "--project-to-plane", "interpolate": "--interpolate",
+    "change_unit": "--change-unit",
 }
 
 
@@ -76,8 +77,10 @@ def test_every_required_spelling_is_covered():
                  "--n_to_align", "--all_pairs", "--t_start", "--t_end", "--downsample",
                  "--project_to_plane", "--sync_method", "--pairs_from_reference"):
         assert flag in words, flag
-    for rel in ("trans_part", "rot_part", "full", "angle_deg", "angle_rad", "point_distance"):
+    for rel in ("trans_part", "rot_part", "full", "angle_deg", "angle_rad", "point_distance",
+                "point_distance_error_ratio"):  # issue 19 item 18: the ratio
         assert rel in words, rel
+    assert "--change_unit" in words  # issue 19 item 18
     for unit in ("f", "m", "d", "r"):
         assert unit in words, unit
     commands = {c["command"].split()[0] + " " + c["command"].split()[1] for c in CASES.values()}

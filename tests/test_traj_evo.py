@@ -54,9 +54,12 @@ def _run_case(case: dict) -> T.PoseError:
     ref = _read(case["format"], case["ref"], True)
     est = _read(case["format"], case["est"], False)
     opts = dict(case["microlie"])
+    unit = opts.pop("change_unit", None)  # evo's --change_unit (issue 19 item 18)
     if case["tool"] == "ape":
-        return T.evaluate_ape(ref, est, **opts)
-    return T.evaluate_rpe(ref, est, **opts)
+        res = T.evaluate_ape(ref, est, **opts)
+    else:
+        res = T.evaluate_rpe(ref, est, **opts)
+    return res if unit is None else res.change_unit(unit)
 
 
 def _tolerance(name: str, case: dict) -> float:

@@ -11,9 +11,13 @@ Subcommands (``microlie COMMAND -h`` shows every option with an example)::
     microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] ...  # microlie.optim.command
 
 evo's spellings are accepted as aliases (``-a``, ``-s``, ``-as``, ``--align_origin``,
-``-r trans_part``, ``-u f``, ``--t_max_diff``, ``--t_offset``, ``--n_to_align``,
-``--all_pairs``, ``--save_results``, ``--plot_mode``, and the leading format word
-``microlie ape tum GT EST``; ``bag BAGFILE REF_TOPIC EST_TOPIC`` for a ROS bag).
+``-r trans_part``, ``-r point_distance_error_ratio``, ``-u f``, ``--t_max_diff``,
+``--t_offset``, ``--n_to_align``, ``--all_pairs``, ``--save_results``, ``--change_unit``,
+``-p`` / a bare ``--plot`` (show a window), ``--save_plot FILE``, ``--plot_mode``,
+``--plot_x_dimension``, ``--silent``, ``--logfile``, evo_res's ``--use_rel_time``,
+``--save_table``, and the leading format word ``microlie ape tum GT EST``; ``bag BAGFILE
+REF_TOPIC EST_TOPIC`` for a ROS bag). ``microlie res`` reads our JSON results and evo's result
+archives (``.zip``).
 
 Exit status: 0 success; 1 a data or runtime error (unreadable or malformed file, no matching
 timestamps, degenerate alignment); 2 a usage error (unknown option, missing or conflicting
@@ -24,10 +28,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import json
 import os
 import sys
 import warnings
+import zipfile
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TextIO, TypeVar
@@ -43,7 +49,13 @@ BAG_WORDS = ("bag", "bag2")
 ALIGNMENTS = ("none", "se3", "sim3", "scale", "origin")
 # native names and evo's; -r rot is the rotation angle in --angle-unit
 RELATIONS = ("trans", "rot", "full", "se3", "angle_deg", "angle_rad", "rot_part",
-             "point_distance", "trans_part")
+             "point_distance", "trans_part", "point_distance_error_ratio")
+UNITS = ("mm", "cm", "m", "km", "deg", "rad")  # --change_unit (evo's)
+X_DIMENSIONS = ("seconds", "index", "distances")  # --plot_x_dimension (evo's)
+RES_PLOTS = ("summary", "raw", "stats", "histogram", "box", "violin", "all")
+# evo_res's names of its figures (FILE_NAME.png when several are written)
+RES_PLOT_NAMES = {"summary": "summary", "raw": "raw", "stats": "stats",
+                  "histogram": "histogram", "box": "box_plot", "violin": "violin_histogram"}
 DELTA_UNITS = ("frames", "m", "deg", "rad", "f", "d", "r")
 PLOT_MODES = ("xy", "xz", "yx", "yz", "zx", "zy", "xyz")
 PLANES = ("xy", "xz", "yz")
@@ -68,6 +80,94 @@ def _progress(items: Sequence[T], label: str, stream: TextIO | None = None) -> I
     if show:
         stream.write(f"\r{label} [{'#' * 30}] {n}/{n}\n")
         stream.flush()
+
+
+class _PlotAction(argparse.Action):
+    """``--plot FILE`` writes the plot to FILE; a bare ``--plot`` (evo's flag) shows it."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        if values is None:
+            namespace.show_plot = True
+        else:
+            namespace.plot = values
+
+
+class _Tee(io.TextIOBase):
+    """Writes to every stream given (``None`` entries are skipped)."""
+
+    def __init__(self, *streams: TextIO | None) -> None:
+        self.streams = [s for s in streams if s is not None]
+
+    def write(self, text: str) -> int:  # type: ignore[override]
+        for s in self.streams:
+            s.write(text)
+        return len(text)
+
+    def flush(self) -> None:
+        for s in self.streams:
+            s.flush()
+
+    def isatty(self) -> bool:
+        return bool(self.streams) and all(getattr(s, "isatty", lambda: False)()
+                                           for s in self.streams)
+
+
+def _note(args: argparse.Namespace, text: str) -> None:
+    """An informational line (``plot written to ...``): on stderr unless ``--silent``, and in
+    the ``--logfile``."""
+    args.note_stream.write(text + "\n")
+
+
+def _plot_files(path: str, names: Sequence[str]) -> list[str]:
+    """Files of several figures for ``--save_plot FILE`` (evo's naming): ``FILE`` itself for
+    one figure or a PDF (one page per figure), else ``STEM_NAME.SUFFIX`` per figure."""
+    if len(names) == 1 or path.lower().endswith(".pdf"):
+        return [path]
+    base, ext = os.path.splitext(path)
+    return [f"{base}_{n}{ext}" for n in names]
+
+
+def _emit_plots(args: argparse.Namespace, figs: Sequence[tuple[str, Any]]) -> None:
+    """Write the figures to ``--plot/--save_plot FILE`` and/or show them (``-p``)."""
+    from .traj import plot as tplot
+
+    if args.plot:
+        targets = _plot_files(args.plot, [n for n, _ in figs])
+        if len(targets) == 1 and len(figs) > 1:  # several figures: pages of one PDF
+            from matplotlib.backends.backend_pdf import PdfPages
+
+            with PdfPages(args.plot) as pdf:
+                for _, fig in figs:
+                    fig.set_size_inches(*tplot.FIGSIZE)
+                    pdf.savefig(fig)
+        else:
+            for target, (_, fig) in zip(targets, figs, strict=True):
+                tplot.save(fig, target)
+        for target in targets:
+            _note(args, f"plot written to {target}")
+    if getattr(args, "show_plot", False):
+        _show(args, [f for _, f in figs])
+
+
+def _show(args: argparse.Namespace, figs: Sequence[Any]) -> None:
+    """Show the figures in windows (``-p``), or say on stderr that there is no display."""
+    import matplotlib
+    import matplotlib.pyplot as plt
+    from matplotlib import _pylab_helpers
+    from matplotlib.backends import BackendFilter, backend_registry
+
+    backend = matplotlib.get_backend().lower()
+    if backend not in backend_registry.list_builtin(BackendFilter.INTERACTIVE):
+        args.warn_stream.write(
+            f"warning: -p/--plot: no window can be shown (matplotlib backend {backend!r} is "
+            "not interactive, e.g. no display); write the plot with --save_plot FILE\n")
+        return
+    canvas: Any = plt._get_backend_mod().FigureCanvas
+    for k, fig in enumerate(figs, start=1):
+        manager = canvas.new_manager(fig, k)
+        _pylab_helpers.Gcf._set_new_active_manager(manager)  # type: ignore[no-untyped-call]
+    plt.show()
 
 
 def _normalize_argv(argv: list[str]) -> list[str]:
@@ -258,16 +358,32 @@ def _add_align(p: argparse.ArgumentParser) -> None:
                    metavar="N", help="align on the first N pose pairs only")
 
 
+def _add_console(g: Any) -> None:
+    g.add_argument("--no_warnings", action="store_true",
+                   help="accepted for evo compatibility (microlie never asks to confirm)")
+    g.add_argument("--silent", action="store_true",
+                   help="print nothing but warnings and errors (evo's --silent)")
+    g.add_argument("--logfile", default=None, metavar="FILE",
+                   help="also append everything printed (even with --silent) to FILE")
+
+
+def _add_plot_files(g: Any) -> None:
+    g.add_argument("--plot", nargs="?", action=_PlotAction, default=None, metavar="FILE",
+                   help="write the plot to FILE (PNG, 1200x800 px; the format from the "
+                        "suffix); without FILE (evo's flag) show it in a window")
+    g.add_argument("--save_plot", dest="plot", metavar="FILE", help="evo: --plot FILE")
+    g.add_argument("-p", dest="show_plot", action="store_true",
+                   help="evo: show the plot in a window (needs a display)")
+
+
 def _add_output(p: argparse.ArgumentParser, plot: bool = True) -> None:
     g = p.add_argument_group("output")
     g.add_argument("--json", action="store_true", help="print the result as JSON")
     g.add_argument("-v", "--verbose", action="store_true",
                    help="also print the alignment transform and scale, and file details")
-    g.add_argument("--no_warnings", action="store_true",
-                   help="accepted for evo compatibility (microlie never asks to confirm)")
+    _add_console(g)
     if plot:
-        g.add_argument("--plot", "--save_plot", dest="plot", default=None, metavar="FILE",
-                       help="write a plot (PNG, 1200x800 px) to FILE")
+        _add_plot_files(g)
         g.add_argument("--force", action="store_true", help=_FORCE_HELP)
         g.add_argument("--plot-mode", "--plot_mode", dest="plot_mode", choices=PLOT_MODES,
                        default=None,
@@ -285,7 +401,10 @@ def _check_outputs(args: argparse.Namespace, inputs: Sequence[Any],
     from ._files import check_not_input
 
     for option, path in outputs.items():
-        check_not_input(path, inputs, option=option, force=getattr(args, "force", False))
+        try:
+            check_not_input(path, inputs, option=option, force=getattr(args, "force", False))
+        except ValueError as e:
+            raise UsageError(str(e)) from None
 
 
 def _add_metric(p: argparse.ArgumentParser) -> None:
@@ -295,13 +414,21 @@ def _add_metric(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("metric")
     g.add_argument("--relation", "-r", "--pose_relation", dest="relation", choices=RELATIONS,
                    default="trans", help="pose relation (default trans = evo's trans_part); "
-                   "rot = rotation angle in --angle-unit")
+                   "rot = rotation angle in --angle-unit; point_distance_error_ratio (RPE "
+                   "only): length error of each displacement in %% of the reference's")
     g.add_argument("--angle-unit", choices=("deg", "rad"), default="deg",
                    help="unit of --relation rot (default deg)")
     g.add_argument("--project-to-plane", "--project_to_plane", dest="project", choices=PLANES,
                    default=None, help="project both trajectories onto a plane after the "
                    "alignment (2-D evaluation)")
+    g.add_argument("--change-unit", "--change_unit", dest="change_unit", choices=UNITS,
+                   default=None, help="express the errors in another unit: mm, cm, m, km "
+                   "(lengths) or deg, rad (angles)")
     _add_output(p)
+    p.add_argument("--plot-x-dimension", "--plot_x_dimension", dest="plot_x_dimension",
+                   choices=X_DIMENSIONS, default=None,
+                   help="abscissa of the error plot: seconds (default; the index without "
+                        "timestamps), index, or distances (m travelled along the reference)")
     p.add_argument("--save-results", "--save_results", dest="save_results", default=None,
                    metavar="FILE", help="save options, statistics, timestamps and per-pose "
                    "errors as JSON (read by microlie res)")
@@ -325,10 +452,14 @@ EXAMPLES = {
   microlie traj est.txt --ref gt.txt -a se3 --plot traj.png
   microlie traj kitti 00.txt --save-as tum out/      (convert)
   microlie traj part1.txt part2.txt --merge --save-as tum out/""",
-    "res": """example:
+    "res": """examples:
   microlie ape gt.txt a.txt -a --save-results a.json
   microlie ape gt.txt b.txt -a --save-results b.json
-  microlie res a.json b.json --plot res.png""",
+  microlie res a.json b.json --plot res.png
+  microlie res a.zip b.zip --save_plot res.png --plot-kind all   (evo archives; evo_res's
+      five figures: res_raw.png res_stats.png res_histogram.png res_box_plot.png
+      res_violin_histogram.png)
+  microlie res a.json b.zip --plot-kind box,violin --save_plot res.pdf --save_table res.csv""",
     "plot": """example:
   microlie plot gt.txt est.txt -o traj.png -a se3 --plot-mode xz""",
 }
@@ -397,13 +528,33 @@ def _register_traj(sub: Any) -> None:
 
 
 def _register_res(sub: Any) -> None:
-    p = _sub(sub, "res", "tabulate and plot results saved with --save-results")
-    p.add_argument("files", nargs="+", help="result files (JSON) written by ape/rpe")
-    p.add_argument("--json", action="store_true", help="print the table as JSON")
-    p.add_argument("--plot", "--save_plot", dest="plot", default=None, metavar="FILE",
-                   help="plot the errors and statistics side by side (PNG)")
-    p.add_argument("--force", action="store_true", help=_FORCE_HELP)
-    p.set_defaults(func=_run_res)
+    p = _sub(sub, "res", "tabulate and plot results saved with --save-results (or evo's "
+             "--save_results archives)")
+    p.add_argument("files", nargs="+", help="result files: JSON written by microlie ape/rpe, "
+                   "or evo result archives (.zip)")
+    g = p.add_argument_group("output")
+    g.add_argument("--json", action="store_true", help="print the table as JSON")
+    g.add_argument("-v", "--verbose", action="store_true", help="accepted (evo)")
+    _add_console(g)
+    _add_plot_files(g)
+    g.add_argument("--plot-kind", "--plot_kind", dest="plot_kind", default=None,
+                   metavar="KIND[,KIND...]",
+                   help="figure(s) to plot: summary (default: errors and statistics side by "
+                        "side), raw, stats, histogram, box, violin, or all (evo_res's five: "
+                        "raw, stats, histogram, box, violin); several figures go to "
+                        "FILE_raw.png, FILE_box_plot.png, ... (evo's names) or to the pages "
+                        "of one PDF")
+    g.add_argument("--use-rel-time", "--use_rel_time", dest="rel_time", action="store_true",
+                   help="time axis of each result from its own first error (evo_res)")
+    g.add_argument("--save-table", "--save_table", dest="save_table", default=None,
+                   metavar="FILE", help="write the statistics table as CSV (evo_res's format: "
+                   "one row per result file)")
+    g.add_argument("--use_filenames", action="store_true",
+                   help="accepted (evo_res): microlie always labels results by file name")
+    g.add_argument("--ignore_title", action="store_true",
+                   help="do not warn when the results measure different things")
+    g.add_argument("--force", action="store_true", help=_FORCE_HELP)
+    p.set_defaults(func=_run_res, show_plot=False)
 
 
 def _register_plot(sub: Any) -> None:
@@ -533,8 +684,14 @@ def _run_metric(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     from .traj import evaluate_ape, evaluate_rpe
 
     ref_src, est_src = _two_sources(args)
+    if args.command == "ape" and args.relation == "point_distance_error_ratio":
+        raise UsageError("-r point_distance_error_ratio is an RPE relation (evo_rpe's): use "
+                         "microlie rpe ... -r point_distance_error_ratio")
     _check_outputs(args, [ref_src.path, est_src.path, ref_src.times, est_src.times],
                    {"--save-results": args.save_results, "--plot": args.plot})
+    if args.plot_x_dimension is not None and not (args.plot or args.show_plot):
+        raise UsageError("--plot_x_dimension sets the error plot's abscissa: give --plot FILE "
+                         "/ --save_plot FILE or -p as well")
     common = dict(relation=_relation(args), align=_resolve_align(args), n_align=args.n_align,
                   max_diff=args.max_diff, offset=args.offset, angle_unit=args.angle_unit,
                   t_start=args.t_start, t_end=args.t_end, downsample=args.downsample,
@@ -546,6 +703,13 @@ def _run_metric(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         common.update(delta=args.delta, unit=args.unit, all_pairs=args.all_pairs,
                       rel_tol=args.delta_tol, pairs_from=args.pairs_from)
         res = evaluate_rpe(ref, est, **common)
+    if args.change_unit:
+        try:
+            res = res.change_unit(args.change_unit)
+        except ValueError as exc:
+            raise UsageError(f"--change_unit {args.change_unit}: "
+                             f"{str(exc).split(': ', 1)[-1]}") from None
+        common["change_unit"] = args.change_unit
     _warn_duplicates(res, err)
     if args.json:
         d = res.to_dict()
@@ -561,13 +725,14 @@ def _run_metric(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         from .traj import save_result
 
         save_result(res, args.save_results, {"command": args.command, **common})
-        err.write(f"results written to {args.save_results}\n")
-    if args.plot:
+        _note(args, f"results written to {args.save_results}")
+    if args.plot or args.show_plot:
         from .traj import plot as tplot
 
         mode = _plot_mode(args, ref_src.fmt)
-        tplot.save(tplot.plot_error(res, plot_mode=mode), args.plot)
-        err.write(f"plot written to {args.plot}\n")
+        _emit_plots(args, [("error", tplot.plot_error(res, plot_mode=mode,
+                                                      x_dimension=args.plot_x_dimension
+                                                      or "seconds"))])
     return EXIT_OK
 
 
@@ -709,26 +874,52 @@ def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
             _check_outputs(args, [s.path for s in sources] + [args.ref], {"--save-as": target})
         for t, target in zip(trajs, targets, strict=True):
             write_trajectory(target, t, fmt)
-            err.write(f"wrote {target}\n")
-    if args.plot:
+            _note(args, f"wrote {target}")
+    if args.plot or args.show_plot:
         from .traj import plot as tplot
 
         shown = ([ref] if ref is not None else []) + trajs
         fmt0 = args.ref_format if ref is not None and args.ref_format else sources[0].fmt
-        tplot.save(tplot.plot_trajectories(shown, plot_mode=_plot_mode(args, fmt0)), args.plot)
-        err.write(f"plot written to {args.plot}\n")
+        _emit_plots(args, [("trajectories", tplot.plot_trajectories(
+            shown, plot_mode=_plot_mode(args, fmt0)))])
     return EXIT_OK
 
 
 # ----------------------------------------------------------------------------- res
-def _run_res(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
-    from .traj import load_result
+def _res_kinds(text: str) -> list[str]:
+    kinds: list[str] = []
+    for k in text.split(","):
+        k = k.strip()
+        if k not in RES_PLOTS:
+            raise UsageError(f"--plot-kind: unknown kind {k!r}; expected a comma-separated list "
+                             f"of {', '.join(RES_PLOTS)}")
+        kinds += ["raw", "stats", "histogram", "box", "violin"] if k == "all" else [k]
+    return list(dict.fromkeys(kinds))
 
-    _check_outputs(args, args.files, {"--plot": args.plot})
-    results = [load_result(f) for f in args.files]
+
+def _load_any_result(path: str) -> Any:
+    """Our JSON result, or an evo result archive (a zip)."""
+    from .traj import load_evo_result, load_result
+
+    if os.path.isfile(path) and zipfile.is_zipfile(path):
+        return load_evo_result(path)
+    return load_result(path)
+
+
+def _run_res(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    if args.plot_kind is not None and not (args.plot or args.show_plot):
+        raise UsageError("--plot-kind chooses figures of --plot FILE / --save_plot FILE / -p: "
+                         "give one of them")
+    kinds = _res_kinds(args.plot_kind or "summary")
+    outputs = [args.save_table] + (_plot_files(args.plot, [RES_PLOT_NAMES[k] for k in kinds])
+                                   if args.plot else [])
+    _check_outputs(args, args.files, {"--save_table": args.save_table})
+    for f in outputs[1:]:
+        _check_outputs(args, args.files, {"--plot": f})
+    results = [_load_any_result(f) for f in args.files]
     names = [Path(f).name for f in args.files]
     labels = {r.label for r in results}
-    if len(labels) > 1:
+    if len(labels) > 1 and not args.ignore_title:
         err.write("warning: the results measure different things: " + "; ".join(sorted(labels))
                   + "\n")
     if args.json:
@@ -744,11 +935,17 @@ def _run_res(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         for n, r in zip(names, results, strict=True):
             out.write(f"{n:<{width}s} {r.errors.size:7d} "
                       + " ".join(f"{r.stats[k]:12.6f}" for k in STAT_KEYS) + "\n")
-    if args.plot:
+    if args.save_table:
+        lines = ["," + ",".join(STAT_KEYS)] + [
+            n + "," + ",".join(repr(float(r.stats[k])) for k in STAT_KEYS)
+            for n, r in zip(names, results, strict=True)]
+        Path(args.save_table).write_text("\n".join(lines) + "\n", encoding="utf-8")
+        _note(args, f"table written to {args.save_table}")
+    if args.plot or args.show_plot:
         from .traj import plot as tplot
 
-        tplot.save(tplot.plot_results(results, names), args.plot)
-        err.write(f"plot written to {args.plot}\n")
+        _emit_plots(args, [(RES_PLOT_NAMES[k], tplot.plot_results(
+            results, names, kind=k, rel_time=args.rel_time)) for k in kinds])
     return EXIT_OK
 
 
@@ -780,7 +977,7 @@ def _run_plot(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     fig = tplot.plot_trajectories(trajs, labels=[s.path for s in sources],
                                   plot_mode=_plot_mode(args, sources[0].fmt))
     tplot.save(fig, args.output)
-    err.write(f"plot written to {args.output}\n")
+    _note(args, f"plot written to {args.output}")
     return EXIT_OK
 
 
@@ -800,6 +997,27 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None,
             args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse: 0 for --help / --version, 2 for usage errors
         return int(exc.code or 0)
+    if getattr(args, "silent", False) and getattr(args, "json", False):
+        err.write(f"microlie {args.command}: error: --silent and --json contradict each other "
+                  "(--silent prints nothing): drop one\n")
+        return EXIT_USAGE
+    with contextlib.ExitStack() as stack:
+        log = None
+        if getattr(args, "logfile", None):
+            try:
+                log = stack.enter_context(open(args.logfile, "a", encoding="utf-8"))
+            except OSError as exc:
+                err.write(f"microlie {args.command}: error: --logfile: {exc}\n")
+                return EXIT_ERROR
+        silent = getattr(args, "silent", False)
+        all_err = _Tee(err, log)
+        args.note_stream = _Tee(None if silent else err, log)
+        args.warn_stream = all_err
+        return _run(args, _Tee(None if silent else out, log), all_err)  # type: ignore[arg-type]
+
+
+def _run(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    """Run the parsed command; exceptions become messages and exit statuses."""
     from .traj import TimestampWarning
 
     try:

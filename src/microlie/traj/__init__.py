@@ -16,6 +16,7 @@ Example:
 
 from .align import ALIGNMENTS, align, umeyama
 from .evaluate import describe_alignment, evaluate_ape, evaluate_kitti, evaluate_rpe, prepare
+from .evo_results import load_evo_result
 from .io import (
     FORMATS,
     read_euroc,
@@ -61,6 +62,7 @@ __all__ = [
     "write_trajectory",
     "save_result",
     "load_result",
+    "load_evo_result",
     "Result",
     "read_euroc",
     "read_timestamps",

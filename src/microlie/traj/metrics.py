@@ -19,6 +19,9 @@ Conventions (``../shared/MATH.md`` section 9). For paired poses ``Q_i`` (referen
   ``point_distance``      APE: as ``trans``; RPE: ``| |dp_ref| - |dp_est| |``   m
   ======================  ====================================================  ======
 
+  ``point_distance_error_ratio`` (RPE only, evo's, in %): ``100 | |dp_ref| - |dp_est| | /
+  |dp_ref|``; pairs whose reference displacement has length 0 are left out.
+
   For every relation except ``se3`` the value is the same whether ``E`` is ``Q^-1 P`` or
   ``P^-1 Q``, so these agree with evo's numbers.
 * Statistics: rmse, mean, median, std (population, ``ddof=0``), min, max, sse (sum of squares).
@@ -27,7 +30,7 @@ Conventions (``../shared/MATH.md`` section 9). For paired poses ``Q_i`` (referen
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -48,7 +51,8 @@ __all__ = [
     "KITTI_LENGTHS",
 ]
 
-RELATIONS = ("trans", "rot", "angle_deg", "angle_rad", "rot_part", "full", "se3", "point_distance")
+RELATIONS = ("trans", "rot", "angle_deg", "angle_rad", "rot_part", "full", "se3", "point_distance",
+             "point_distance_error_ratio")
 _ALIASES = {"trans_part": "trans", "translation": "trans", "rotation": "rot"}
 KITTI_LENGTHS = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 
@@ -111,6 +115,7 @@ def _relation(relation: str, angle_unit: str) -> str:
 _UNITS = {
     "trans": "m",
     "point_distance": "m",
+    "point_distance_error_ratio": "%",
     "angle_deg": "deg",
     "angle_rad": "rad",
     "rot_part": "",
@@ -119,9 +124,14 @@ _UNITS = {
 }
 
 
+# metres per unit (evo's length units) and the angle relation of each angle unit
+_METRES = {"mm": 1e-3, "cm": 1e-2, "m": 1.0, "km": 1e3}
+_ANGLE_RELATIONS = {"deg": "angle_deg", "rad": "angle_rad"}
+
 _NAMES = {
     "trans": "translation part",
     "point_distance": "point distance",
+    "point_distance_error_ratio": "point distance error ratio",
     "angle_deg": "rotation angle",
     "angle_rad": "rotation angle",
     "rot_part": "rotation part",
@@ -222,8 +232,61 @@ class PoseError:
 
     @property
     def label(self) -> str:
-        """``"APE w.r.t. translation part (m)"`` and the like."""
-        return f"{self.metric.upper()} w.r.t. {relation_label(self.relation)}"
+        """``"APE w.r.t. translation part (m)"`` and the like (in :attr:`unit`)."""
+        name = _NAMES.get(self.relation)
+        if name is None:
+            return f"{self.metric.upper()} w.r.t. {relation_label(self.relation)}"
+        return f"{self.metric.upper()} w.r.t. {name} ({self.unit or 'unit-less'})"
+
+    def change_unit(self, unit: str) -> PoseError:
+        """The same errors in another unit (evo's ``--change_unit``).
+
+        Lengths convert among ``"mm"``, ``"cm"``, ``"m"`` and ``"km"``, angles between
+        ``"deg"`` and ``"rad"`` (the relation becomes ``angle_deg`` / ``angle_rad``); the
+        statistics are recomputed. Unit-less relations and percentages have no other unit.
+
+        Parameters
+        ----------
+        unit : {"mm", "cm", "m", "km", "deg", "rad"}
+            The new unit.
+
+        Returns
+        -------
+        PoseError
+            A new result; ``self`` is unchanged.
+
+        Raises
+        ------
+        ValueError
+            ``unit`` is unknown, or the errors cannot be expressed in it.
+
+        Examples
+        --------
+        >>> from microlie.data import example_paths
+        >>> from microlie.traj import associate, ape, read_tum
+        >>> res = ape(*associate(*(read_tum(p) for p in example_paths())))
+        >>> mm = res.change_unit("mm")
+        >>> mm.label, bool(abs(mm.stats["rmse"] - 1000 * res.stats["rmse"]) < 1e-9)
+        ('APE w.r.t. translation part (mm)', True)
+        """
+        if unit not in (*_METRES, *_ANGLE_RELATIONS):
+            raise ValueError(f"change_unit: unknown unit {unit!r}; expected one of "
+                             f"{(*_METRES, *_ANGLE_RELATIONS)}")
+        if unit == self.unit:
+            return replace(self)
+        relation = self.relation
+        if self.unit in _METRES and unit in _METRES:
+            errors = self.errors * (_METRES[self.unit] / _METRES[unit])
+        elif self.unit in _ANGLE_RELATIONS and unit in _ANGLE_RELATIONS:
+            errors = np.deg2rad(self.errors) if unit == "rad" else np.rad2deg(self.errors)
+            relation = _ANGLE_RELATIONS[unit]
+        else:
+            raise ValueError(f"change_unit: errors in {self.unit or 'no unit'!r} "
+                             f"({relation_label(self.relation)}) cannot be converted to "
+                             f"{unit!r}")
+        return replace(self, relation=relation, unit=unit, errors=errors,
+                       stats=statistics(errors), info={**self.info, "unit_changed_from":
+                                                       self.unit})
 
     def to_dict(self) -> dict:
         """A JSON-ready summary (no arrays).
@@ -292,6 +355,10 @@ def ape(
     """
     _check_paired(ref, est)
     rel = _relation(relation, angle_unit)
+    if rel == "point_distance_error_ratio":
+        raise ValueError("relation 'point_distance_error_ratio' is defined for the RPE only "
+                         "(a displacement's length error in percent of its length): use rpe "
+                         "(microlie rpe -r point_distance_error_ratio)")
     if rel in ("trans", "point_distance"):
         d = est.positions - ref.positions
         err = np.sqrt(np.einsum("ij,ij->i", d, d))
@@ -528,17 +595,27 @@ def rpe(
         if pairs.size == 0 or pairs.min() < 0 or pairs.max() >= len(ref):
             raise ValueError("explicit pairs must be non-empty indices into the trajectories")
     i, j = pairs[:, 0], pairs[:, 1]
-    if rel == "point_distance":
+    info: dict = {}
+    if rel in ("point_distance", "point_distance_error_ratio"):
         dr = ref.positions[j] - ref.positions[i]
         de = est.positions[j] - est.positions[i]
         len_r = np.sqrt(np.einsum("ij,ij->i", dr, dr))
         err = np.abs(len_r - np.sqrt(np.einsum("ij,ij->i", de, de)))
+        if rel == "point_distance_error_ratio":
+            keep = len_r != 0
+            if not keep.any():
+                raise ValueError("point_distance_error_ratio: every reference displacement "
+                                 "has length 0 (no ratio): use another delta or relation")
+            if not keep.all():
+                info["zero_distance_pairs_dropped"] = int(np.count_nonzero(~keep))
+            pairs = pairs[keep]
+            err = 100.0 * err[keep] / len_r[keep]
     else:
         q_rel = ref.poses[i].between(ref.poses[j])
         p_rel = est.poses[i].between(est.poses[j])
         err = _pose_error_values(q_rel.between(p_rel), rel)
     info = {"delta": delta, "delta_unit": _delta_unit(unit),
-            "all_pairs": all_pairs, "pairs_from": pairs_from}
+            "all_pairs": all_pairs, "pairs_from": pairs_from, **info}
     return PoseError("rpe", rel, _UNITS[rel], err, statistics(err), pairs, ref, est, info)
 
 

@@ -4,7 +4,9 @@
   roll/pitch/yaw over time;
 * :func:`plot_error`: the estimate's path on the plane, coloured by a per-pose error, next to
   the error over time (or index) with its rmse / mean / median lines;
-* :func:`plot_results`: several saved results side by side (``microlie res``).
+* :func:`plot_results`: several saved results side by side (``microlie res``): a summary
+  (errors over time and statistics bars), or one of evo_res's figures (``kind``: the raw
+  errors, the statistics, a histogram per result, box plots, violin plots).
 
 Conventions: ``plot_mode`` names the horizontal then the vertical axis (``"xz"``: x to the
 right, z up; KITTI's ground plane), ``"xyz"`` draws a 3-D view. All trajectories of one figure
@@ -27,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from .._files import save_figure
-from .metrics import PoseError, relation_label
+from .metrics import PoseError
 from .trajectory import Trajectory
 
 __all__ = [
@@ -38,6 +40,8 @@ __all__ = [
     "require_matplotlib",
     "default_plot_mode",
     "PLOT_MODES",
+    "RESULT_PLOTS",
+    "X_DIMENSIONS",
     "FIGSIZE",
     "DPI",
 ]
@@ -46,6 +50,12 @@ FIGSIZE = (12.0, 8.0)  # inches
 DPI = 100  # -> 1200 x 800 pixels
 PLOT_MODES = ("xy", "xz", "yx", "yz", "zx", "zy", "xyz")
 REF_STYLE = {"ls": "--", "color": "0.35"}
+# kinds of plot_results: ours, then evo_res's figures
+RESULT_PLOTS = ("summary", "raw", "stats", "histogram", "box", "violin")
+# abscissa of the error sequence in plot_error (evo's --plot_x_dimension)
+X_DIMENSIONS = ("seconds", "index", "distances")
+# statistics drawn as bars by plot_results(kind="stats"), in evo's order
+RESULT_STATS = ("rmse", "median", "mean", "std", "min", "max")
 
 
 def require_matplotlib() -> Any:
@@ -242,7 +252,23 @@ def plot_trajectories(
     return fig
 
 
-def plot_error(res: PoseError, title: str | None = None, plot_mode: str = "xy") -> Any:
+def _error_abscissa(res: PoseError, idx: np.ndarray, x_dimension: str) -> tuple[np.ndarray, str]:
+    """Abscissa of the errors: seconds from the common time origin (index without
+    timestamps), the pose index, or the distance travelled along the reference."""
+    if x_dimension not in X_DIMENSIONS:
+        raise ValueError(f"unknown x_dimension {x_dimension!r}; expected one of {X_DIMENSIONS}")
+    assert res.ref is not None and res.est is not None
+    if x_dimension == "index":
+        return idx.astype(float), "index"
+    if x_dimension == "distances":
+        dist = np.concatenate([[0.0], np.cumsum(res.ref.step_lengths())])
+        return dist[idx], "distance along the reference (m)"
+    x, xl = _time_axis(res.est, _time_origin([res.ref, res.est]))
+    return x[idx], xl
+
+
+def plot_error(res: PoseError, title: str | None = None, plot_mode: str = "xy",
+               x_dimension: str = "seconds") -> Any:
     """The (aligned) estimate's path on ``plot_mode`` coloured by error (gid ``"path"``; the
     reference dashed), and the error sequence with rmse / mean / median (gid ``"error"``).
     The error of an RPE pair is drawn at the pair's first pose.
@@ -255,6 +281,10 @@ def plot_error(res: PoseError, title: str | None = None, plot_mode: str = "xy") 
         The plane of the path (``"xyz"``: a 3-D view).
     title : str, optional
         The figure title.
+    x_dimension : {"seconds", "index", "distances"}
+        Abscissa of the error sequence (evo's ``--plot_x_dimension``): seconds from the
+        common time origin (the index when there are no timestamps), the pose index, or the
+        distance travelled along the (paired) reference up to the pose, in metres.
 
     Returns
     -------
@@ -265,7 +295,7 @@ def plot_error(res: PoseError, title: str | None = None, plot_mode: str = "xy") 
     >>> from microlie.data import example_paths
     >>> from microlie.traj import plot, read_tum, evaluate_ape
     >>> ref, est = (read_tum(p) for p in example_paths())
-    >>> fig = plot.plot_error(evaluate_ape(ref, est, align="se3"))
+    >>> fig = plot.plot_error(evaluate_ape(ref, est, align="se3"), x_dimension="distances")
     >>> sorted(a.get_gid() for a in fig.axes if a.get_gid())
     ['error', 'path']
     """
@@ -273,6 +303,8 @@ def plot_error(res: PoseError, title: str | None = None, plot_mode: str = "xy") 
     if res.ref is None or res.est is None:
         raise ValueError("the result carries no trajectories to plot")
     dims = _check_mode(plot_mode)
+    if x_dimension not in X_DIMENSIONS:
+        raise ValueError(f"unknown x_dimension {x_dimension!r}; expected one of {X_DIMENSIONS}")
     fig = new_figure()
     gs = fig.add_gridspec(1, 2)
     ax_path = _plane_axes(fig, gs[0, 0], plot_mode)
@@ -286,29 +318,61 @@ def plot_error(res: PoseError, title: str | None = None, plot_mode: str = "xy") 
                          zorder=2)
     fig.colorbar(sc, ax=ax_path, label=res.label)
     ax_path.legend(fontsize="small")
-    x, xl = _time_axis(res.est, _time_origin([res.ref, res.est]))
-    ax_err.plot(x[idx], res.errors, lw=1, color="tab:gray", label="error")
+    x, xl = _error_abscissa(res, idx, x_dimension)
+    ax_err.plot(x, res.errors, lw=1, color="tab:gray", label="error")
     for key, c in (("rmse", "tab:blue"), ("mean", "tab:green"), ("median", "tab:red")):
         ax_err.axhline(res.stats[key], color=c, lw=1, label=f"{key} {res.stats[key]:.4g}")
     ax_err.set_xlabel(xl)
-    ax_err.set_ylabel(relation_label(res.relation))
+    ax_err.set_ylabel(res.label.split(" w.r.t. ", 1)[-1])
     ax_err.legend(fontsize="small")
     fig.suptitle(title or res.label)
     return fig
 
 
-def plot_results(results: Sequence[Any], labels: Sequence[str], title: str | None = None) -> Any:
-    """Saved results side by side: the errors over time from one common origin (gid
-    ``"errors"``) and rmse / mean / median / std as grouped bars (gid ``"stats"``).
+def _result_x(results: Sequence[Any], rel_time: bool) -> tuple[list[np.ndarray], str]:
+    """Abscissae of the results' errors: seconds from one common origin (each result's own
+    first stamp with ``rel_time``), the index when a result has no timestamps."""
+    if any(r.timestamps is None for r in results):
+        return [np.arange(r.errors.size, dtype=float) for r in results], "index"
+    t0 = min(float(np.min(r.timestamps)) for r in results)
+    return [r.timestamps - (float(r.timestamps[0]) if rel_time else t0) for r in results], \
+        "t (s)"
+
+
+def plot_results(results: Sequence[Any], labels: Sequence[str], title: str | None = None,
+                 kind: str = "summary", rel_time: bool = False) -> Any:
+    """Saved results side by side, as one figure of ``kind``:
+
+    * ``"summary"``: the errors over time (gid ``"errors"``) next to rmse / mean / median / std
+      as grouped bars (gid ``"stats"``);
+    * evo_res's figures: ``"raw"`` the errors over time (gid ``"errors"``, one line per
+      result); ``"stats"`` rmse, median, mean, std, min, max as grouped bars (gid ``"stats"``);
+      ``"histogram"`` one axes per result (gid ``"histogram"``, titled with its label) with
+      the density histogram of its errors (NumPy's ``"auto"`` bins); ``"box"`` one box per
+      result (gid ``"box"``; median line, quartile box, whiskers at the furthest error within
+      1.5 IQR of the box, the rest drawn as outliers; artists with gids ``"boxes"``,
+      ``"medians"``, ``"whiskers"``, ``"caps"``, ``"fliers"``); ``"violin"`` one violin per
+      result (gid ``"violin"``; Gaussian kernel density with Scott's bandwidth over the
+      errors' range, scaled to a half width of 0.25; gids ``"bodies"``, ``"cmedians"``,
+      ``"cmins"``, ``"cmaxes"``, ``"cbars"``).
+
+    The time axis is seconds from the earliest first timestamp of all results, or from each
+    result's own first timestamp with ``rel_time`` (evo_res ``--use_rel_time``); the index
+    when a result has no timestamps.
 
     Parameters
     ----------
     results : sequence of Result
-        :class:`~microlie.traj.results.Result` objects (from :func:`~microlie.traj.load_result`).
+        :class:`~microlie.traj.results.Result` objects (from :func:`~microlie.traj.load_result`
+        or :func:`~microlie.traj.load_evo_result`).
     labels : sequence of str
         One label per result.
     title : str, optional
-        The figure title.
+        The figure title (default: the first result's label).
+    kind : {"summary", "raw", "stats", "histogram", "box", "violin"}
+        The figure (see above).
+    rel_time : bool
+        Each result's time axis starts at its own first error.
 
     Returns
     -------
@@ -324,34 +388,62 @@ def plot_results(results: Sequence[Any], labels: Sequence[str], title: str | Non
     >>> fig = plot.plot_results(runs, ["raw", "aligned"])
     >>> sorted(a.get_gid() for a in fig.axes if a.get_gid())
     ['errors', 'stats']
+    >>> [a.get_gid() for a in plot.plot_results(runs, ["raw", "aligned"], kind="box").axes]
+    ['box']
     """
+    if kind not in RESULT_PLOTS:
+        raise ValueError(f"unknown plot kind {kind!r}; expected one of {RESULT_PLOTS}")
+    if len(labels) != len(results) or not results:
+        raise ValueError(f"plot_results needs one label per result (got {len(labels)} labels "
+                         f"for {len(results)} results)")
     new_figure = require_matplotlib()
     fig = new_figure()
-    gs = fig.add_gridspec(1, 2)
-    ax_e = fig.add_subplot(gs[0, 0])
-    ax_s = fig.add_subplot(gs[0, 1])
-    ax_e.set_gid("errors")
-    ax_s.set_gid("stats")
-    firsts = [float(r.timestamps[0]) for r in results if r.timestamps is not None]
-    t0 = min(firsts) if firsts else None
-    xl = "index"
-    for r, lab in zip(results, labels, strict=True):
-        if r.timestamps is not None and t0 is not None:
-            x, xl = r.timestamps - t0, "t (s)"
+    ylabel = results[0].label.split(" w.r.t. ", 1)[-1]
+    data = [np.asarray(r.errors, dtype=float) for r in results]
+    if kind in ("summary", "raw", "stats"):
+        axes = fig.subplots(1, 2) if kind == "summary" else [fig.add_subplot()]
+        if kind in ("summary", "raw"):
+            ax_e = axes[0]
+            ax_e.set_gid("errors")
+            xs, xl = _result_x(results, rel_time)
+            for x, e, lab in zip(xs, data, labels, strict=True):
+                ax_e.plot(x, e, lw=1, label=lab)
+            ax_e.set_xlabel(xl)
+            ax_e.set_ylabel(ylabel)
+            ax_e.legend(fontsize="small")
+        if kind in ("summary", "stats"):
+            ax_s = axes[-1]
+            ax_s.set_gid("stats")
+            keys = ("rmse", "mean", "median", "std") if kind == "summary" else RESULT_STATS
+            width = 0.8 / len(results)
+            for i, (r, lab) in enumerate(zip(results, labels, strict=True)):
+                ax_s.bar(np.arange(len(keys)) + (i - (len(results) - 1) / 2) * width,
+                         [r.stats[k] for k in keys], width, label=lab)
+            ax_s.set_xticks(np.arange(len(keys)), keys)
+            ax_s.set_ylabel(ylabel)
+            ax_s.legend(fontsize="small")
+    elif kind == "histogram":
+        axes = fig.subplots(1, len(results), sharex=True, sharey=True, squeeze=False)[0]
+        for ax, e, lab in zip(axes, data, labels, strict=True):
+            ax.hist(e, bins="auto", density=True, alpha=0.7)
+            ax.set_gid("histogram")
+            ax.set_title(lab, fontsize="small")
+            ax.set_xlabel(ylabel)
+        axes[0].set_ylabel("density")
+    else:
+        ax = fig.add_subplot()
+        ax.set_gid(kind)
+        pos = np.arange(1, len(results) + 1)
+        if kind == "box":
+            parts = ax.boxplot(data, positions=pos, whis=1.5)
         else:
-            x = np.arange(r.errors.size, dtype=float)
-        ax_e.plot(x, r.errors, lw=1, label=lab)
-    ax_e.set_xlabel(xl)
-    ax_e.set_ylabel(results[0].label if results else "error")
-    ax_e.legend(fontsize="small")
-    keys = ("rmse", "mean", "median", "std")
-    width = 0.8 / max(len(results), 1)
-    for i, (r, lab) in enumerate(zip(results, labels, strict=True)):
-        ax_s.bar(np.arange(len(keys)) + (i - (len(results) - 1) / 2) * width,
-                 [r.stats[k] for k in keys], width, label=lab)
-    ax_s.set_xticks(np.arange(len(keys)), keys)
-    ax_s.legend(fontsize="small")
-    fig.suptitle(title or "results")
+            parts = ax.violinplot(data, positions=pos, showmedians=True, showextrema=True)
+        for name, artists in parts.items():  # gids: boxes, medians, whiskers, bodies, ...
+            for a in artists if isinstance(artists, list) else [artists]:
+                a.set_gid(name)
+        ax.set_xticks(pos, labels)
+        ax.set_ylabel(ylabel)
+    fig.suptitle(title or (results[0].label if kind != "summary" else "results"))
     return fig
 
 
