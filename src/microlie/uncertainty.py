@@ -78,7 +78,7 @@ def _check_finite(x: Array, what: str) -> np.ndarray | None:
 
 
 def check_covariance(P: Array, n: int, what: str = "covariance",
-                     blocks: tuple[np.ndarray, ...] | None = None) -> bool:
+                     blocks: _Blocks | None = None) -> bool:
     """Raise ``ValueError`` unless ``P`` is ``(..., n, n)``, finite, symmetric and PSD.
 
     Symmetry and positive semi-definiteness are checked to ``sqrt(eps)`` of the dtype relative to
@@ -99,7 +99,7 @@ def check_covariance(P: Array, n: int, what: str = "covariance",
         raise ValueError(f"{what} is not symmetric (max |P - P^T| = {asym.max():.3g})")
     M = 0.5 * (M + np.swapaxes(M, -1, -2))
     blocks = _singletons(n) if blocks is None else blocks
-    if _full_rank(M, blocks, _threshold(M, blocks, None, P)):
+    if _full_rank(M, _threshold(M, blocks, None, P)):
         return True
     w = np.linalg.eigvalsh(M)
     if np.any(w[..., 0] < -tol * np.maximum(np.abs(w).max(axis=-1), 1e-300)):
@@ -111,7 +111,7 @@ def check_covariance(P: Array, n: int, what: str = "covariance",
 # ---------------------------------------------------------------------------- rank rule
 
 #: Tolerance of the rank rule, by dtype: a coordinate is degenerate when the part of its
-#: variance not explained by the preceding coordinates is at most this fraction of the largest
+#: variance not explained by the preceding coordinates is at most this fraction of the total
 #: variance of its unit block (SciPy's rank tolerances, ``1e6 eps`` in float64 = 2.2e-10 and
 #: ``1e3 eps`` in float32 = 1.2e-4; blocks of different units never compare, so the rule does
 #: not depend on units).
@@ -127,11 +127,26 @@ def _eps(P: Array) -> float:
     return float(np.finfo(np.float32 if "float32" in str(P.dtype) else np.float64).eps)
 
 
-_BLOCKS: dict[type, tuple[np.ndarray, ...]] = {}
+class _Blocks:
+    """Unit blocks of a tangent space: ``idx``, index arrays (upstream blocks first), and
+    ``member``, the ``(n, n)`` 0/1 matrix of "same block"."""
+
+    __slots__ = ("idx", "member", "rotated")
+
+    def __init__(self, idx: Sequence[np.ndarray]) -> None:
+        self.idx = tuple(idx)
+        n = sum(len(b) for b in self.idx)
+        self.member = np.zeros((n, n))
+        for b in self.idx:
+            self.member[np.ix_(b, b)] = 1.0
+        self.rotated = any(len(b) > 1 for b in self.idx)
 
 
-def _unit_blocks(group: type[LieGroup]) -> tuple[np.ndarray, ...]:
-    """The unit blocks of ``group``'s tangent: index arrays, upstream blocks first.
+_BLOCKS: dict[Any, _Blocks] = {}
+
+
+def _unit_blocks(group: type[LieGroup]) -> _Blocks:
+    """The unit blocks of ``group``'s tangent.
 
     The blocks are the strongly connected components of the sparsity pattern of ``Ad_X`` at a
     generic ``X``: coordinates that a change of frame mixes into each other must share a unit
@@ -150,47 +165,38 @@ def _unit_blocks(group: type[LieGroup]) -> tuple[np.ndarray, ...]:
         same = reach & reach.T
         firsts = sorted({int(np.argmax(row)) for row in same})
         groups = [np.flatnonzero(same[i]) for i in firsts]
-        blocks = tuple(sorted(groups, key=lambda b: (int(reach[b[0]].sum()), int(b[0]))))
+        blocks = _Blocks(sorted(groups, key=lambda b: (int(reach[b[0]].sum()), int(b[0]))))
         _BLOCKS[group] = blocks
     return blocks
 
 
-def _singletons(n: int) -> tuple[np.ndarray, ...]:
-    return tuple(np.array([k]) for k in range(n))
+def _singletons(n: int) -> _Blocks:
+    blocks = _BLOCKS.get(n)
+    if blocks is None:
+        blocks = _BLOCKS[n] = _Blocks([np.array([k]) for k in range(n)])
+    return blocks
 
 
-def _threshold(M: np.ndarray, blocks: tuple[np.ndarray, ...], mag: np.ndarray | None,
-               P: Array) -> np.ndarray:
+def _threshold(M: np.ndarray, blocks: _Blocks, mag: np.ndarray | None, P: Array) -> np.ndarray:
     """The variance ``(..., n)`` at or below which a direction of each coordinate's unit block
-    counts as zero: ``rtol`` times the block's largest eigenvalue, and at least the rounding
-    floor ``4 n eps`` times the block's largest diagonal entry of ``mag`` (``|T| |P0| |T|^T``
-    when ``M`` was computed as ``T P0 T^T``; default ``|M|``)."""
+    counts as zero: ``rtol`` times the block's total variance (its trace: invariant to the
+    orientation of its axes), and at least the rounding floor ``4 n eps`` times the block's
+    trace of ``mag`` (``|T| |P0| |T|^T`` when ``M`` was computed as ``T P0 T^T``; default
+    ``|M|``)."""
     n = M.shape[-1]
+    d0 = np.diagonal(M, axis1=-2, axis2=-1)
     dm = np.abs(np.diagonal(M if mag is None else mag, axis1=-2, axis2=-1))
-    thr = np.empty(M.shape[:-1])
-    for b in blocks:
-        top = np.linalg.eigvalsh(M[..., b[:, None], b[None, :]])[..., -1]
-        floor = 4 * n * _eps(P) * dm[..., b].max(axis=-1)
-        thr[..., b] = np.maximum(_rtol(P) * top, floor)[..., None]
-    return thr
+    return np.maximum(_rtol(P) * (d0 @ blocks.member), 4 * n * _eps(P) * (dm @ blocks.member))
 
 
-def _full_rank(M: np.ndarray, blocks: tuple[np.ndarray, ...], thr: np.ndarray) -> bool:
-    """Every conditional block covariance (each block given the blocks before it) has all its
-    eigenvalues above ``thr``: one Cholesky factorisation in block order."""
-    perm = np.concatenate(blocks)
+def _full_rank(M: np.ndarray, thr: np.ndarray) -> bool:
+    """``M - diag(thr)`` is positive definite (one Cholesky factorisation). Sufficient for the
+    rank rule: then every Schur complement of a block exceeds ``thr`` (Schur complements are
+    monotone); the elimination of :meth:`_Null.of` decides the other cases exactly."""
     try:
-        Lc = np.linalg.cholesky(M[..., perm[:, None], perm[None, :]])
+        np.linalg.cholesky(M - thr[..., :, None] * np.eye(M.shape[-1]))
     except np.linalg.LinAlgError:
         return False
-    i = 0
-    for b in blocks:
-        k = len(b)
-        Lb = Lc[..., i:i + k, i:i + k]
-        w = np.linalg.eigvalsh(Lb @ np.swapaxes(Lb, -1, -2))[..., 0]
-        if not np.all(w > thr[..., b[0]]):
-            return False
-        i += k
     return True
 
 
@@ -201,7 +207,7 @@ class _Null:
     alone). Block by block, upstream first, the conditional covariance of the block given the
     directions kept so far (its Schur complement) is diagonalised, ``V^T C V = diag(w)``; a
     direction is **degenerate** when ``w <= thr`` (:func:`_threshold`: :data:`RANK_RTOL`
-    times the block's largest eigenvalue, so the rule depends neither on units nor on the
+    times the block's total variance, so the rule depends neither on units nor on the
     orientation of the axes; a variance that is 0 or negative is always degenerate). In the
     rotated coordinates ``P' = Q^T P Q`` (``Q`` block-diagonal, the ``V``; identity for
     single coordinates) the kept ones, ``m``, index a principal block ``P'_mm`` of full rank,
@@ -221,7 +227,7 @@ class _Null:
         self.var, self.eps, self.Q = var, eps, Q  # var: the variances counted as zero
 
     @staticmethod
-    def of(P: Array, blocks: tuple[np.ndarray, ...] | None = None,
+    def of(P: Array, blocks: _Blocks | None = None,
            mag: np.ndarray | None = None) -> _Null | None:
         """``None`` when every matrix has full rank, or when the values are unknown (traced).
         ``blocks``: the unit blocks (default: every coordinate alone); ``mag``: the magnitudes
@@ -234,12 +240,12 @@ class _Null:
         blocks = _singletons(n) if blocks is None else blocks
         A_ = 0.5 * (M + np.swapaxes(M, -1, -2))
         thr = np.broadcast_to(_threshold(A_, blocks, mag, P), A_.shape[:-1])
-        if _full_rank(A_, blocks, thr):  # the common case
+        if _full_rank(A_, thr):  # the common case
             return None
         bad = np.zeros(M.shape[:-1], dtype=bool)
         var = np.zeros(M.shape[:-1])
         Q = np.broadcast_to(np.eye(n), A_.shape).copy()
-        for b in blocks:
+        for b in blocks.idx:
             if len(b) > 1:  # rotate the block to the eigenvectors of its Schur complement
                 _, V = np.linalg.eigh(A_[..., b[:, None], b[None, :]])
                 A_[..., b, :] = np.swapaxes(V, -1, -2) @ A_[..., b, :]
@@ -257,8 +263,7 @@ class _Null:
                 A_[..., :, k] = np.where(z[..., None], 0.0, A_[..., :, k])
         if not bad.any():
             return None
-        rotated = any(len(b) > 1 for b in blocks)
-        return _Null((~bad).astype(np.float64), var, _eps(P), Q if rotated else None)
+        return _Null((~bad).astype(np.float64), var, _eps(P), Q if blocks.rotated else None)
 
     def _rot(self, P: Array) -> tuple[Array | None, Array]:
         """``(Q, Q^T P Q)`` in the backend of ``P`` (``Q`` is ``None`` for the identity)."""
@@ -808,7 +813,8 @@ class Gaussian:
     def mahalanobis(self, X: LieGroup, squared: bool = False) -> Array:
         """Mahalanobis distance of ``X`` from the mean, ``sqrt(e^T P^-1 e)`` with ``e =``
         :meth:`error` ``(X)`` in this frame (frame-independent, since the frames differ by the
-        exact linear map ``Ad``).
+        exact linear map ``Ad``: computed in the right frame, where the rank of a singular
+        ``P`` is decided, so both frames give the same value).
 
         Parameters
         ----------
@@ -832,7 +838,7 @@ class Gaussian:
         1.0
         """
         P, T = _canonical(self)
-        return _mahalanobis(_apply(T, self.error(X)), P, squared, _rank(self))
+        return _mahalanobis(_apply(T, self.error(X)), P, squared, _rank(self, (P, T)))
 
     def log_density(self, X: LieGroup, haar: bool = False) -> Array:
         """Log-density of ``X``: ``log N(e; 0, P)`` with ``e =`` :meth:`error` ``(X)``.
@@ -868,8 +874,8 @@ class Gaussian:
         """
         e = self.error(X)
         P, T = _canonical(self)
-        out = _log_normal(_apply(T, e), P, _rank(self), self.cov,
-                          None if T is None else self.mean.adjoint())
+        out = _log_normal(_apply(T, e), P, _rank(self, (P, T)), self.cov,
+                          None if T is None else self.mean.adjoint())  # T^-1
         if haar:
             J = self.group.jr(e) if self.frame == "right" else self.group.jl(e)
             out = out - L.slogdet(J)[1]
@@ -944,7 +950,8 @@ class Gaussian:
             (zero covariance).
         cross_cov : array_like, optional
             ``E[eps_X eps_Y^T]`` with each error in its own Gaussian's frame; adds
-            ``J_X C J_Y^T + J_Y C^T J_X^T``.
+            ``J_X C J_Y^T + J_Y C^T J_X^T``. ``ValueError`` unless
+            ``[[P_X, C], [C^T, P_Y]]`` is positive semi-definite (see :func:`propagate`).
 
         Returns
         -------
@@ -975,7 +982,7 @@ class Gaussian:
             ``Y``.
         cross_cov : array_like, optional
             As in :meth:`compose` (for two poses with a joint covariance, this is their
-            relative-pose uncertainty).
+            relative-pose uncertainty); validated the same way.
 
         Returns
         -------
@@ -1214,17 +1221,22 @@ class Gaussian:
         """Fuse two independent Gaussians on the same element (the update of an error-state
         filter with ``H = I``), in this Gaussian's frame.
 
-        ``other`` is converted to this frame and relinearised onto this mean: with
-        ``d = other.mean (-) mean`` (right minus, or left minus for a left frame),
-        ``X = other.mean Exp(e2)`` gives ``e ~= d + Jr^-1(d) e2`` (left: ``Jl^-1``), i.e. a
-        measurement ``d`` of ``e`` with covariance ``Jr^-1(d) P2 Jr^-T(d)``; then
-        :meth:`update` with ``H = I``. First order in ``e2`` and ``d``: accurate when the two
-        means agree to within a few standard deviations and the covariances are small.
+        ``other`` is relinearised onto this mean in the right (body) frame, whatever the
+        frames: with ``d = other.mean (-) mean`` (right minus), ``X = other.mean Exp(e2)``
+        gives ``e_r ~= d + Jr^-1(d) e2``, a measurement ``d`` of this Gaussian's right error
+        ``e_r = T e`` (``T`` = :meth:`frame_map` ``("right")``) with covariance
+        ``Jr^-1(d) P2 Jr^-T(d)``; then :meth:`update` with ``H = T``. The same linear model
+        written in the left frame (``Ad`` maps one onto the other exactly), so the result
+        does not depend on the frames; the rank decision is made in the right frame (see
+        :class:`_Null`). First order in ``e2`` and ``d``: accurate when the two means agree to
+        within a few standard deviations and the covariances are small.
 
         Rank-deficient covariances follow the rule of :meth:`update`: a Gaussian with
-        zero-variance directions fused with itself returns its mean (and half its covariance);
-        two estimates that differ along a direction in which both have zero variance raise
-        ``ValueError``.
+        zero-variance directions fused with itself returns its mean and half its covariance.
+        Two estimates that differ along a direction in which both have zero variance (beyond
+        rounding) have no common support: ``ValueError``, never a projection that would
+        silently keep one side's value. The other's support, relinearised onto this mean, is
+        tilted by ``O(|d|)``; the tiny variance this gives ``S`` counts as zero.
 
         Parameters
         ----------
@@ -1256,7 +1268,7 @@ class Gaussian:
         Ji = self.group.jr_inv(d)
         R = L.symmetrize(Ji @ o.cov @ L.mT(Ji))
         mag = None
-        M1, M2, Jn = _magnitude(self), _magnitude(other), L.concrete(Ji)
+        M1, M2, Jn = _magnitude(self, T), _magnitude(other), L.concrete(Ji)
         if M1 is not None and M2 is not None and Jn is not None:
             Jn = np.abs(Jn)
             mag = M1 + Jn @ M2 @ np.swapaxes(Jn, -1, -2)
@@ -1264,7 +1276,7 @@ class Gaussian:
                             "fuse: `other` and this Gaussian")
 
     def _kalman(self, r: Array, H: Array, R: Array, reset: bool,
-                blocks: tuple[np.ndarray, ...] | None, mag: np.ndarray | None,
+                blocks: _Blocks | None, mag: np.ndarray | None,
                 who: str) -> Gaussian:
         P = self.cov
         PHt = P @ L.mT(H)
@@ -1355,6 +1367,9 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
         The perturbation side.
     cross_cov : mapping, optional
         ``cross_cov[(i, j)] = E[e_i e_j^T]`` (``i != j``), each error in its own input's frame.
+        The joint covariance of the inputs they make must be positive semi-definite (smallest
+        eigenvalue of its correlation matrix ``>= -sqrt(eps)``), else ``ValueError`` naming
+        ``cross_cov``: an indefinite joint gives negative variances.
 
     Returns
     -------
@@ -1526,7 +1541,7 @@ def _apply(T: Array | None, e: Array) -> Array:
     return e if T is None else (T @ e[..., None])[..., 0]
 
 
-def _magnitude(g: Gaussian) -> np.ndarray | None:
+def _magnitude(g: Gaussian, T: Array | None = None) -> np.ndarray | None:
     """``|T| |P| |T|^T`` (NumPy) for :func:`_canonical`'s ``T P T^T``: the scale of what rounded
     into each entry (``|P|`` for a right frame); ``None`` under a trace."""
     M = L.concrete(g.cov)
@@ -1535,20 +1550,23 @@ def _magnitude(g: Gaussian) -> np.ndarray | None:
     M = np.abs(M.astype(np.float64, copy=False))
     if g.frame == "right":
         return M
-    T = L.concrete(g.frame_map("right"))
-    if T is None:
+    Tn = L.concrete(g.frame_map("right") if T is None else T)
+    if Tn is None:
         return None
-    T = np.abs(T.astype(np.float64, copy=False))
-    return T @ M @ np.swapaxes(T, -1, -2)
+    Tn = np.abs(Tn.astype(np.float64, copy=False))
+    return Tn @ M @ np.swapaxes(Tn, -1, -2)
 
 
-def _rank(g: Gaussian | VectorGaussian) -> _Null | None:
+def _rank(g: Gaussian | VectorGaussian,
+          canon: tuple[Array, Array | None] | None = None) -> _Null | None:
     """The zero-variance directions of ``g.cov`` (of a Gaussian: of its right-frame covariance,
-    in unit blocks), computed once per object."""
+    in unit blocks; ``canon``: :func:`_canonical` ``(g)`` if known), computed once per
+    object."""
     null = g._null
     if null is _UNSET:
         if isinstance(g, Gaussian):
-            null = _Null.of(_canonical(g)[0], _unit_blocks(g.group), _magnitude(g))
+            P, T = _canonical(g) if canon is None else canon
+            null = _Null.of(P, _unit_blocks(g.group), _magnitude(g, T))
         else:
             null = _Null.of(g.cov)
         object.__setattr__(g, "_null", null)
