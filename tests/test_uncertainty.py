@@ -1182,7 +1182,7 @@ def _issue19_cases():
     return out
 
 
-@pytest.mark.parametrize("case", range(6))
+@pytest.mark.parametrize("case", range(7))
 def test_issue19_item1_fusion_does_not_depend_on_the_frames(case):
     """Item 1: the same two Gaussians fused in the right frame, in the left frame and in mixed
     frames give one result (compared after ``to_frame``), equal to the fusion written out on
@@ -1190,9 +1190,19 @@ def test_issue19_item1_fusion_does_not_depend_on_the_frames(case):
     Gaussian and a copy moved 2e-5 rad orthogonally to its exact axis (the other's support
     is tilted by the relinearisation): the midpoint and ``P/2`` to first order in the step
     (6e-8 for the covariance); main returned a covariance 1.3e-3 from ``P/2`` (where the
-    tilted planes cross) and the two frames differed by 2e-9."""
+    tilted planes cross) and the two frames differed by 2e-9. Case 6: a full-rank pose 37 m
+    from the world origin with z variance 1e-9 m^2 (1e-7 of its block in the body frame,
+    below the rank tolerance of the left frame's lever-arm-inflated block)."""
     if case < 5:
         G, X, P1, d, Pp = _issue19_cases()[case]
+        J = G.jr(d)
+        gR, hR = Gaussian(X, P1, frame="right"), Gaussian(X.plus(d), J @ Pp @ J.T, frame="right")
+        want_mean, want_cov = _support_fusion(G, X, P1, d, Pp)
+        tol, ctol = 1e-9, 1e-9 * np.abs(want_cov).max()
+    elif case == 6:  # full rank: z variance 1e-9 m^2, far from the world origin (37 m)
+        G, X = SE3, SE3.exp([10.0, 20.0, 30.0, 0.4, 0.5, 0.6])
+        P1 = np.diag([1e-2, 1e-2, 1e-9, 1e-2, 1e-2, 1e-2])
+        d, Pp = np.array([0.01, -0.02, 3e-4, 0.01, 0.0, -0.01]), P1
         J = G.jr(d)
         gR, hR = Gaussian(X, P1, frame="right"), Gaussian(X.plus(d), J @ Pp @ J.T, frame="right")
         want_mean, want_cov = _support_fusion(G, X, P1, d, Pp)
@@ -1252,6 +1262,17 @@ def test_issue19_item1_mahalanobis_and_density_do_not_depend_on_the_frame():
         np.testing.assert_allclose(gL.log_density(Z), refL.logpdf(eL), rtol=1e-8)
     assert not np.isfinite(multivariate_normal(np.zeros(6), covs[0], allow_singular=True)
                            .logpdf(steps[1]))  # SciPy too: 1e-12 counts as 0
+    # z variance 1e-9 m^2 is 1e-7 of its block (translation), not degenerate, but below rtol
+    # times the left frame's translation block (28 m^2 of lever-arm terms): decided in the
+    # right frame, finite in both frames (to 1e-6: the left covariance's rounding, eps * 28,
+    # is 1e-5 of 1e-9; measured 5e-8). Written out: e^T P^-1 e.
+    P = np.diag([1e-2, 1e-2, 1e-9, 1.0, 1.0, 1.0])
+    Zu = Y.plus([0.0, 0.0, 1e-4, 0.1, 0.0, 0.0])
+    e = Zu.minus(Y)
+    want = e @ np.linalg.solve(P, e)  # 10.01
+    gR = Gaussian(Y, P, frame="right")
+    np.testing.assert_allclose(gR.mahalanobis(Zu, squared=True), want, rtol=1e-9)
+    np.testing.assert_allclose(gR.to_frame("left").mahalanobis(Zu, squared=True), want, rtol=1e-6)
     # batched: the three covariances at once, both frames
     gb = Gaussian(SE3(np.stack([Y.params] * 3)), np.stack(covs), frame="right")
     Zb = SE3(np.stack([Y.plus(steps[1]).params] * 3))
