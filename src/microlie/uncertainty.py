@@ -1225,11 +1225,11 @@ class Gaussian:
         frames: with ``d = other.mean (-) mean`` (right minus), ``X = other.mean Exp(e2)``
         gives ``e_r ~= d + Jr^-1(d) e2``, a measurement ``d`` of this Gaussian's right error
         ``e_r = T e`` (``T`` = :meth:`frame_map` ``("right")``) with covariance
-        ``Jr^-1(d) P2 Jr^-T(d)``; then :meth:`update` with ``H = T``. The same linear model
-        written in the left frame (``Ad`` maps one onto the other exactly), so the result
-        does not depend on the frames; the rank decision is made in the right frame (see
-        :class:`_Null`). First order in ``e2`` and ``d``: accurate when the two means agree to
-        within a few standard deviations and the covariances are small.
+        ``Jr^-1(d) P2 Jr^-T(d)``; then :meth:`update` with ``H = T``. The left-frame model
+        is this one mapped exactly by ``Ad``, so the result does not depend on the frames, and
+        the rank of ``S`` is decided in the right frame (see :class:`_Null`). First order in
+        ``e2`` and ``d``: accurate when the two means agree to within a few standard
+        deviations and the covariances are small.
 
         Rank-deficient covariances follow the rule of :meth:`update`: a Gaussian with
         zero-variance directions fused with itself returns its mean and half its covariance.
