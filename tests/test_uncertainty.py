@@ -66,6 +66,14 @@ def random_cov(rng: np.random.Generator, n: int, s: float) -> np.ndarray:
     return s**2 * (B @ B.T / n + 0.2 * np.eye(n))
 
 
+def valid_cross_cov(rng: np.random.Generator, P: np.ndarray, Q: np.ndarray,
+                    rho: float = 0.5) -> np.ndarray:
+    """A cross-covariance ``C = L_P K L_Q^T`` with ``K = rho`` times a random orthogonal matrix:
+    ``[[P, C], [C^T, Q]]`` is positive definite for ``rho < 1`` (``[[I, K], [K^T, I]]`` is)."""
+    K, _ = np.linalg.qr(rng.standard_normal((P.shape[-1], Q.shape[-1])))
+    return np.linalg.cholesky(P) @ (rho * K) @ np.linalg.cholesky(Q).T
+
+
 def draw(rng: np.random.Generator, P: np.ndarray, n: int = N) -> np.ndarray:
     return rng.standard_normal((n, P.shape[-1])) @ np.linalg.cholesky(P).T
 
@@ -290,7 +298,7 @@ def test_right_formulas_written_out(G):
     rng = np.random.default_rng(19)
     X, Y = G.random(rng=rng), G.random(rng=rng)
     P, Q = random_cov(rng, G.dof, 1.0), random_cov(rng, G.dof, 1.0)
-    C = 0.1 * rng.standard_normal((G.dof, G.dof))
+    C = valid_cross_cov(rng, P, Q)  # an arbitrary C can make the joint indefinite (issue 19)
     gx, gy = Gaussian(X, P, frame="right"), Gaussian(Y, Q, frame="right")
     AdX, AdY = ad_from_matrix(X), ad_from_matrix(Y)
     close = lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12 * abs(b).max())
@@ -371,7 +379,7 @@ def test_left_computation_converted_equals_right(G):
     rng = np.random.default_rng(23)
     X, Y = G.random(rng=rng), G.random(rng=rng)
     P, R = random_cov(rng, G.dof, 0.3), random_cov(rng, G.dof, 0.3)
-    C = 0.2 * (random_cov(rng, G.dof, 0.3))
+    C = valid_cross_cov(rng, P, R)  # a valid joint covariance (issue 19 item 8)
     p, tau, Q = rng.standard_normal(G.point_dim), rng.standard_normal(G.dof), np.eye(G.dof)
     gr, hr = Gaussian(X, P, frame="right"), Gaussian(Y, R, frame="right")
     nr = Gaussian(X.plus(0.2 * tau), R, frame="right")
@@ -1087,6 +1095,261 @@ def test_rank_deficient_torch_autograd_and_jax_jit():
     f = jax.jit(lambda x: VectorGaussian(jnp.zeros(3), Pj).log_density(x))
     ref = multivariate_normal(np.zeros(3), P, allow_singular=True).logpdf(e)
     np.testing.assert_allclose(float(f(jnp.asarray(e))), ref, rtol=1e-12)
+
+
+# ------------------------------------------------------------------------ issue 19, items 1 and 8
+
+X19 = SE2.from_xy_theta(-3.0, 1.5, 2.2)  # the issue's element (2.2 rad)
+P19 = np.diag([1e-2, 0.0, 2e-3])  # zero variance along the second coordinate
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("frame", FRAMES)
+def test_issue19_item1_fuse_with_itself_in_either_frame(frame, dtype):
+    """Item 1: a rank-deficient Gaussian fused with itself keeps its mean and halves its
+    covariance in both frames (N(0, P) N(0, P) ~ N(0, P/2) exactly, and the difference of
+    the means is 0). Main moved the mean by 2.64 in the left frame. Batched with a full-rank
+    element, float64 and float32."""
+    F = np.diag([1e-2, 3e-3, 2e-3])
+    Xb = SE2(np.stack([X19.params] * 2).astype(dtype))
+    covs = np.stack([P19, F])
+    g = Gaussian(Xb, covs.astype(dtype), frame=frame)
+    out = g.fuse(g)
+    tol = 1e-12 if dtype == np.float64 else 1e-6
+    assert out.cov.dtype == dtype and out.mean.params.dtype == dtype
+    np.testing.assert_allclose(out.mean.params, Xb.params, atol=tol)
+    np.testing.assert_allclose(out.cov, covs / 2, atol=tol * 1e-2)
+    one = Gaussian(SE2(X19.params.astype(dtype)), P19.astype(dtype), frame=frame)
+    np.testing.assert_allclose(one.fuse(one).mean.params, X19.params, atol=tol)
+
+
+@pytest.mark.parametrize("frame", FRAMES)
+def test_issue19_item1_so3_disagreement_on_an_exact_axis_is_refused(frame):
+    """Item 1: SO(3), ``P = diag(3e-3, 0, 8e-4)``, fused with a copy moved by a 2e-5 rad step.
+
+    With a component along the zero-variance axis the two disagree where both are exact:
+    ValueError naming ``other`` (main jumped 1.08 rad: the relinearisation tilts the other's
+    support by ~1e-5 rad, so ``S`` had an eigenvalue 1e-11 of its largest, and inverting it
+    put the mean where the two tilted planes cross). A step orthogonal to that axis fuses to
+    the midpoint (the product of two equal Gaussians is centred halfway) with covariance
+    ``P/2`` to first order in the step (``|step| |P| = 6e-8``)."""
+    R0 = SO3.exp([0.3, -0.2, 0.5])
+    P = np.diag([3e-3, 0.0, 8e-4])
+    g = Gaussian(R0, P, frame=frame)
+    bad = Gaussian(g.retract(2e-5 * np.array([0.6, 0.8, 0.0])), P, frame=frame)
+    with pytest.raises(ValueError, match="`other` and this Gaussian are incompatible"):
+        g.fuse(bad)
+    step = 2e-5 * np.array([0.6, 0.0, 0.8])
+    out = g.fuse(Gaussian(g.retract(step), P, frame=frame))
+    np.testing.assert_allclose(out.error(g.retract(step / 2)), 0.0, atol=1e-12)
+    np.testing.assert_allclose(out.cov, P / 2, atol=6e-8)
+    # rounding-level disagreement along the exact axis is not an incompatibility
+    g.fuse(Gaussian(g.retract([0.0, 1e-13, 0.0]), P, frame=frame))
+
+
+def _support_fusion(G, X, P1, d, Pp):
+    """The fusion written out on the common support (right frame): ``U`` an orthonormal basis
+    of the range of ``P1``, information form there, ``delta = U Pu Ru^-1 U^T d``, reset by
+    ``Jr(delta)``."""
+    w, V = np.linalg.eigh(P1)
+    U = V[:, w > 1e-9 * w.max()]
+    A1, A2 = U.T @ P1 @ U, U.T @ Pp @ U
+    Pu = np.linalg.inv(np.linalg.inv(A1) + np.linalg.inv(A2))
+    delta = U @ Pu @ np.linalg.solve(A2, U.T @ d)
+    J = G.jr(delta)
+    return X.plus(delta), J @ U @ Pu @ U.T @ J.T
+
+
+def _issue19_cases():
+    """``(G, X, P1, d, Pp)``: a right-frame Gaussian ``(X, P1)`` and a compatible step ``d``
+    in its support; the other Gaussian is ``(X Exp(d), Jr(d) Pp Jr(d)^T)``, whose
+    relinearised covariance is ``Pp``, singular along the same directions as ``P1``."""
+    out = []
+    # the issue's SE(2) Gaussian, exact (axis-aligned) zero in the LEFT frame
+    P1 = Gaussian(X19, P19, frame="left").to_frame("right").cov
+    w, V = np.linalg.eigh(P1)
+    U = V[:, 1:]  # the support
+    out.append((SE2, X19, P1, U @ np.array([0.03, -0.02]), U @ np.diag([4e-3, 1e-3]) @ U.T))
+    rng = np.random.default_rng(1901)
+    for G, k in ((SO3, 1), (SE3, 1), (SE3, 2), (Sim3, 2)):  # generic null directions
+        n = G.dof
+        Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+        U = Q[:, k:]
+        B1, B2 = rng.standard_normal((2, n - k, n - k)) / np.sqrt(n - k)
+        P1 = 0.01 * U @ (B1 @ B1.T + 0.3 * np.eye(n - k)) @ U.T
+        Pp = 0.01 * U @ (B2 @ B2.T + 0.3 * np.eye(n - k)) @ U.T
+        out.append((G, G.random(rng=rng), P1, U @ (0.05 * rng.standard_normal(n - k)), Pp))
+    return out
+
+
+@pytest.mark.parametrize("case", range(7))
+def test_issue19_item1_fusion_does_not_depend_on_the_frames(case):
+    """Item 1: the same two Gaussians fused in the right frame, in the left frame and in mixed
+    frames give one result (compared after ``to_frame``), equal to the fusion written out on
+    the common support (:func:`_support_fusion`, to 1e-9). Case 5: the issue's SO(3)
+    Gaussian and a copy moved 2e-5 rad orthogonally to its exact axis (the other's support
+    is tilted by the relinearisation): the midpoint and ``P/2`` to first order in the step
+    (6e-8 for the covariance); main returned a covariance 1.3e-3 from ``P/2`` (where the
+    tilted planes cross) and the two frames differed by 2e-9. Case 6: a full-rank pose 37 m
+    from the world origin with z variance 1e-9 m^2 (1e-7 of its block in the body frame,
+    below the rank tolerance of the left frame's lever-arm-inflated block)."""
+    if case < 5:
+        G, X, P1, d, Pp = _issue19_cases()[case]
+        J = G.jr(d)
+        gR, hR = Gaussian(X, P1, frame="right"), Gaussian(X.plus(d), J @ Pp @ J.T, frame="right")
+        want_mean, want_cov = _support_fusion(G, X, P1, d, Pp)
+        tol, ctol = 1e-9, 1e-9 * np.abs(want_cov).max()
+    elif case == 6:  # full rank: z variance 1e-9 m^2, far from the world origin (37 m)
+        G, X = SE3, SE3.exp([10.0, 20.0, 30.0, 0.4, 0.5, 0.6])
+        P1 = np.diag([1e-2, 1e-2, 1e-9, 1e-2, 1e-2, 1e-2])
+        d, Pp = np.array([0.01, -0.02, 3e-4, 0.01, 0.0, -0.01]), P1
+        J = G.jr(d)
+        gR, hR = Gaussian(X, P1, frame="right"), Gaussian(X.plus(d), J @ Pp @ J.T, frame="right")
+        want_mean, want_cov = _support_fusion(G, X, P1, d, Pp)
+        tol, ctol = 1e-9, 1e-9 * np.abs(want_cov).max()
+    else:
+        X, P1 = SO3.exp([0.3, -0.2, 0.5]), np.diag([3e-3, 0.0, 8e-4])
+        d = 2e-5 * np.array([0.6, 0.0, 0.8])
+        gR, hR = Gaussian(X, P1, frame="right"), Gaussian(X.plus(d), P1, frame="right")
+        want_mean, want_cov = X.plus(d / 2), P1 / 2
+        tol, ctol = 1e-12, 6e-8  # |d| |P| = 2e-5 * 3e-3
+    gL, hL = gR.to_frame("left"), hR.to_frame("left")
+    if case == 0:  # the issue's exact zeros, as given in the left frame
+        gL = Gaussian(X, P19, frame="left")
+        assert gL.cov[1, 1] == 0.0
+    for a, b in ((gR, hR), (gL, hL), (gL, hR), (gR, hL)):
+        out = a.fuse(b).to_frame("right")
+        np.testing.assert_allclose(out.mean.params, want_mean.params, atol=tol)
+        np.testing.assert_allclose(out.cov, want_cov, atol=ctol)
+    # and the left result equals the right one converted, to rounding
+    right, left = gR.fuse(hR), gL.fuse(hL)
+    np.testing.assert_allclose(left.mean.params, right.mean.params, atol=1e-12)
+    np.testing.assert_allclose(left.cov, right.to_frame("left").cov,
+                               atol=1e-11 * np.abs(left.cov).max())
+
+
+def _se3_cases() -> list[np.ndarray]:
+    return [np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 1e-12]),  # 1e-12 of its block: zero (as SciPy)
+            np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 1e-6]),  # small but not zero
+            np.diag([0.0, 0.0, 0.0, 0.01, 0.02, 0.03])]  # exact translation in the body frame
+
+
+def test_issue19_item1_mahalanobis_and_density_do_not_depend_on_the_frame():
+    """Item 1: squared distances equal in both frames (main: 1e6 in the right frame and inf
+    after ``to_frame("left")`` for ``diag(1, 1, 1, 1, 1, 1e-12)``), against SciPy's
+    ``multivariate_normal(allow_singular=True)`` (rank tolerance 1e6 eps of the largest
+    eigenvalue, the same rule within a unit block) and ``np.linalg.pinv``: on the support the
+    pseudo-inverse distance, off it inf. ``log_density`` in each frame against SciPy on that
+    frame's error and covariance. Batched equals one by one."""
+    Y = SE3.exp([1.0, 2.0, 3.0, 0.4, 0.5, 0.6])  # lever arm 3.7 in the left frame
+    steps = np.array([[0.1, -0.2, 0.3, 0.2, -0.1, 0.0],  # in every support
+                      [0.0, 0.0, 0.0, 0.2, -0.1, 1e-3],  # off the support of 0 and 1e-12
+                      [0.1, 0.0, 0.0, 0.2, -0.1, 0.0]])  # off the exact translation
+    Z = SE3(np.stack([Y.plus(t).params for t in steps]))
+    covs = _se3_cases()
+    for P in covs:
+        gR = Gaussian(Y, P, frame="right")
+        gL = gR.to_frame("left")
+        ref = multivariate_normal(np.zeros(6), P, allow_singular=True)
+        eR, eL = gR.error(Z), gL.error(Z)
+        inside = np.isfinite(ref.logpdf(eR))
+        want = np.where(inside, np.einsum("ni,ij,nj->n", eR, np.linalg.pinv(P, rcond=1e-9), eR),
+                        np.inf)
+        for g in (gR, gL):
+            np.testing.assert_allclose(g.mahalanobis(Z, squared=True), want, rtol=1e-8)
+        np.testing.assert_allclose(gR.log_density(Z), ref.logpdf(eR), rtol=1e-9)
+        refL = multivariate_normal(np.zeros(6), gL.cov, allow_singular=True)
+        np.testing.assert_allclose(gL.log_density(Z), refL.logpdf(eL), rtol=1e-8)
+    assert not np.isfinite(multivariate_normal(np.zeros(6), covs[0], allow_singular=True)
+                           .logpdf(steps[1]))  # SciPy too: 1e-12 counts as 0
+    # z variance 1e-9 m^2 is 1e-7 of its block (translation), not degenerate, but below rtol
+    # times the left frame's translation block (28 m^2 of lever-arm terms): decided in the
+    # right frame, finite in both frames (to 1e-6: the left covariance's rounding, eps * 28,
+    # is 1e-5 of 1e-9; measured 5e-8). Written out: e^T P^-1 e.
+    P = np.diag([1e-2, 1e-2, 1e-9, 1.0, 1.0, 1.0])
+    Zu = Y.plus([0.0, 0.0, 1e-4, 0.1, 0.0, 0.0])
+    e = Zu.minus(Y)
+    want = e @ np.linalg.solve(P, e)  # 10.01
+    gR = Gaussian(Y, P, frame="right")
+    np.testing.assert_allclose(gR.mahalanobis(Zu, squared=True), want, rtol=1e-9)
+    np.testing.assert_allclose(gR.to_frame("left").mahalanobis(Zu, squared=True), want, rtol=1e-6)
+    # batched: the three covariances at once, both frames
+    gb = Gaussian(SE3(np.stack([Y.params] * 3)), np.stack(covs), frame="right")
+    Zb = SE3(np.stack([Y.plus(steps[1]).params] * 3))
+    one = [Gaussian(Y, P, frame="right").mahalanobis(Zb[i], squared=True)
+           for i, P in enumerate(covs)]
+    for g in (gb, gb.to_frame("left")):
+        np.testing.assert_allclose(g.mahalanobis(Zb, squared=True), one, rtol=1e-8)
+
+
+def test_issue19_item1_float32_frame_invariance():
+    """Item 1, float32 (rank tolerance 1e3 eps = 1.2e-4): distances equal in both frames and
+    to float64 where the rank is the same in both precisions."""
+    Y = SE3.exp([1.0, 2.0, 3.0, 0.4, 0.5, 0.6])
+    steps = np.array([[0.1, -0.2, 0.3, 0.2, -0.1, 0.0], [0.0, 0.0, 0.0, 0.2, -0.1, 1e-2]])
+    for P in (np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 0.0]), np.diag([0.0, 0.0, 0.0, 0.01, 0.02, 0.03]),
+              np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 1e-2])):
+        g64 = Gaussian(Y, P, frame="right")
+        g32 = Gaussian(SE3(Y.params.astype(np.float32)), P.astype(np.float32), frame="right")
+        Z64 = SE3(np.stack([Y.plus(t).params for t in steps]))
+        Z = SE3(Z64.params.astype(np.float32))
+        want = g64.mahalanobis(Z64, squared=True)
+        for g in (g32, g32.to_frame("left")):
+            got = g.mahalanobis(Z, squared=True)
+            assert got.dtype == np.float32
+            np.testing.assert_allclose(got, want, rtol=2e-3)
+
+
+@pytest.mark.parametrize("frame", FRAMES)
+def test_issue19_item8_cross_cov_must_give_a_psd_joint_covariance(frame):
+    """Item 8: ``compose``/``between`` refuse a ``cross_cov`` for which ``[[P1, C], [C^T, P2]]``
+    is indefinite (main returned covariances with negative eigenvalues), naming it; a valid
+    one gives the linearised formula written out here (Monte Carlo: the correlated cases of
+    :func:`test_monte_carlo_propagation`); a perfectly correlated copy (joint PSD, singular)
+    is accepted and ``X^-1 X`` has covariance 0. Batched (all or nothing) and float32."""
+    rng = np.random.default_rng(1908)
+    X, Y = SE3.random(rng=rng), SE3.random(rng=rng)
+    P, Q = random_cov(rng, 6, 0.1), random_cov(rng, 6, 0.2)
+    gx, gy = Gaussian(X, P, frame=frame), Gaussian(Y, Q, frame=frame)
+    bad = np.zeros((6, 6))
+    bad[0, 0] = 1.5 * np.sqrt(P[0, 0] * Q[0, 0])  # breaks |C_00| <= sqrt(P_00 Q_00)
+    assert np.linalg.eigvalsh(np.block([[P, bad], [bad.T, Q]]))[0] < 0
+    for op in (gx.compose, gx.between):
+        with pytest.raises(ValueError, match=r"cross_cov.*indefinite"):
+            op(gy, cross_cov=bad)
+    # valid: written out (right: J_X = Ad_Y^-1, J_Y = I; left: J_X = I, J_Y = Ad_X;
+    # between right: J_X = -Ad_(Y^-1 X), J_Y = I; left: J_X = -Ad_X^-1, J_Y = Ad_X^-1)
+    C = valid_cross_cov(rng, P, Q, rho=0.9)
+    AdX, AdY = ad_from_matrix(X), ad_from_matrix(Y)
+    if frame == "right":
+        JXc, JYc = np.linalg.inv(AdY), np.eye(6)
+        JXb, JYb = -np.linalg.inv(AdY) @ AdX, np.eye(6)
+    else:
+        JXc, JYc = np.eye(6), AdX
+        JXb, JYb = -np.linalg.inv(AdX), np.linalg.inv(AdX)
+    for op, JX, JY in ((gx.compose, JXc, JYc), (gx.between, JXb, JYb)):
+        T = JX @ C @ JY.T
+        want = JX @ P @ JX.T + JY @ Q @ JY.T + T + T.T
+        got = op(gy, cross_cov=C).cov
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+        assert np.linalg.eigvalsh(got)[0] > 0
+    # perfect correlation: the joint [[P, P], [P, P]] is PSD; X^-1 X is exact
+    assert np.abs(gx.between(gx, cross_cov=P).cov).max() < 1e-15
+    # batched: one bad element refuses the whole call; float32
+    gxb = Gaussian(SE3(np.stack([X.params] * 2)), np.stack([P, P]), frame=frame)
+    with pytest.raises(ValueError, match="cross_cov"):
+        gxb.compose(gy, cross_cov=np.stack([C, bad]))
+    np.testing.assert_allclose(gxb.compose(gy, cross_cov=np.stack([C, C])).cov[1],
+                               gx.compose(gy, cross_cov=C).cov, rtol=1e-12)
+    f32 = lambda g: Gaussian(SE3(g.mean.params.astype(np.float32)),  # noqa: E731
+                             g.cov.astype(np.float32), frame=frame)
+    with pytest.raises(ValueError, match="cross_cov"):
+        f32(gx).compose(f32(gy), cross_cov=bad.astype(np.float32))
+    np.testing.assert_allclose(f32(gx).compose(f32(gy), cross_cov=C.astype(np.float32)).cov,
+                               gx.compose(gy, cross_cov=C).cov, rtol=1e-3, atol=1e-6)
+    with pytest.raises(ValueError, match=r"cross_cov\[\(0, 1\)\]"):
+        Z, J1, J2 = X.compose(Y, jac=True, side=frame)
+        propagate(Z, [gx, gy], [J1, J2], side=frame, cross_cov={(0, 1): bad})
 
 
 # ------------------------------------------------------------------------ composite states

@@ -77,13 +77,15 @@ def _check_finite(x: Array, what: str) -> np.ndarray | None:
     return M
 
 
-def check_covariance(P: Array, n: int, what: str = "covariance") -> bool:
+def check_covariance(P: Array, n: int, what: str = "covariance",
+                     blocks: _Blocks | None = None) -> bool:
     """Raise ``ValueError`` unless ``P`` is ``(..., n, n)``, finite, symmetric and PSD.
 
     Symmetry and positive semi-definiteness are checked to ``sqrt(eps)`` of the dtype relative to
     the largest entry or eigenvalue of each matrix. The values are read without forcing a
     traced one: under ``jax.jit`` a concrete (closed-over) covariance is checked, a traced one
-    is not. Returns True when every matrix is also known to have full rank by the rank rule.
+    is not. Returns True when every matrix is also known to have full rank by the rank rule
+    (unit ``blocks``, see :class:`_Null`; default: every coordinate its own unit).
     """
     A.check_last_dim(P, (n, n), what)
     M = _check_finite(P, what)
@@ -96,9 +98,9 @@ def check_covariance(P: Array, n: int, what: str = "covariance") -> bool:
     if np.any(asym > tol * scale):
         raise ValueError(f"{what} is not symmetric (max |P - P^T| = {asym.max():.3g})")
     M = 0.5 * (M + np.swapaxes(M, -1, -2))
-    piv = _pivots(M)
-    if piv is not None:  # positive definite: no eigenvalues needed
-        return _full_rank(M, piv, _rtol(P))
+    blocks = _singletons(n) if blocks is None else blocks
+    if _full_rank(M, _threshold(M, blocks, None, P)):
+        return True
     w = np.linalg.eigvalsh(M)
     if np.any(w[..., 0] < -tol * np.maximum(np.abs(w).max(axis=-1), 1e-300)):
         raise ValueError(f"{what} is not positive semi-definite (smallest eigenvalue "
@@ -109,9 +111,10 @@ def check_covariance(P: Array, n: int, what: str = "covariance") -> bool:
 # ---------------------------------------------------------------------------- rank rule
 
 #: Tolerance of the rank rule, by dtype: a coordinate is degenerate when the part of its
-#: variance not explained by the preceding coordinates is at most this fraction of it (SciPy's
-#: rank tolerances, ``1e6 eps`` in float64 = 2.2e-10 and ``1e3 eps`` in float32 = 1.2e-4, here
-#: relative to each coordinate's own variance, so the rule does not depend on units).
+#: variance not explained by the preceding coordinates is at most this fraction of the total
+#: variance of its unit block (SciPy's rank tolerances, ``1e6 eps`` in float64 = 2.2e-10 and
+#: ``1e3 eps`` in float32 = 1.2e-4; blocks of different units never compare, so the rule does
+#: not depend on units).
 RANK_RTOL: dict[str, float] = {"float64": 1e6 * float(np.finfo(np.float64).eps),
                                "float32": 1e3 * float(np.finfo(np.float32).eps)}
 
@@ -120,96 +123,193 @@ def _rtol(P: Array) -> float:
     return RANK_RTOL["float32" if "float32" in str(P.dtype) else "float64"]
 
 
-def _pivots(M: np.ndarray) -> np.ndarray | None:
-    """The Cholesky pivots (squared diagonal of the factor) of symmetric float64 matrices, or
-    ``None`` when one of them is not positive definite."""
+def _eps(P: Array) -> float:
+    return float(np.finfo(np.float32 if "float32" in str(P.dtype) else np.float64).eps)
+
+
+class _Blocks:
+    """Unit blocks of a tangent space: ``idx``, index arrays (upstream blocks first), and
+    ``member``, the ``(n, n)`` 0/1 matrix of "same block"."""
+
+    __slots__ = ("idx", "member", "rotated")
+
+    def __init__(self, idx: Sequence[np.ndarray]) -> None:
+        self.idx = tuple(idx)
+        n = sum(len(b) for b in self.idx)
+        self.member = np.zeros((n, n))
+        for b in self.idx:
+            self.member[np.ix_(b, b)] = 1.0
+        self.rotated = any(len(b) > 1 for b in self.idx)
+
+
+_BLOCKS: dict[Any, _Blocks] = {}
+
+
+def _unit_blocks(group: type[LieGroup]) -> _Blocks:
+    """The unit blocks of ``group``'s tangent.
+
+    The blocks are the strongly connected components of the sparsity pattern of ``Ad_X`` at a
+    generic ``X``: coordinates that a change of frame mixes into each other must share a unit
+    (SE(3): translation, rotation; Sim(3): translation, rotation, log-scale; ``R(n)``: every
+    coordinate alone, since its adjoint is the identity; products: the blocks of the factors).
+    A block is upstream of those whose rows of ``Ad`` read it (rotation before translation).
+    """
+    blocks = _BLOCKS.get(group)
+    if blocks is None:
+        n = group.dof
+        tau = np.linspace(0.3, 1.1, n) * (-1.0) ** np.arange(n)
+        Ad = np.asarray(group.exp(tau).adjoint(), dtype=np.float64)
+        reach = (np.abs(Ad) > 1e-9 * np.abs(Ad).max()) | np.eye(n, dtype=bool)
+        for _ in range(n.bit_length() + 1):  # transitive closure by squaring
+            reach = (reach.astype(np.int64) @ reach.astype(np.int64)) > 0
+        same = reach & reach.T
+        firsts = sorted({int(np.argmax(row)) for row in same})
+        groups = [np.flatnonzero(same[i]) for i in firsts]
+        blocks = _Blocks(sorted(groups, key=lambda b: (int(reach[b[0]].sum()), int(b[0]))))
+        _BLOCKS[group] = blocks
+    return blocks
+
+
+def _singletons(n: int) -> _Blocks:
+    blocks = _BLOCKS.get(n)
+    if blocks is None:
+        blocks = _BLOCKS[n] = _Blocks([np.array([k]) for k in range(n)])
+    return blocks
+
+
+def _threshold(M: np.ndarray, blocks: _Blocks, mag: np.ndarray | None, P: Array) -> np.ndarray:
+    """The variance ``(..., n)`` at or below which a direction of each coordinate's unit block
+    counts as zero: ``rtol`` times the block's total variance (its trace: invariant to the
+    orientation of its axes), and at least the rounding floor ``4 n eps`` times the block's
+    trace of ``mag`` (``|T| |P0| |T|^T`` when ``M`` was computed as ``T P0 T^T``; default
+    ``|M|``)."""
+    n = M.shape[-1]
+    d0 = np.diagonal(M, axis1=-2, axis2=-1)
+    dm = np.abs(np.diagonal(M if mag is None else mag, axis1=-2, axis2=-1))
+    return np.maximum(_rtol(P) * (d0 @ blocks.member), 4 * n * _eps(P) * (dm @ blocks.member))
+
+
+def _full_rank(M: np.ndarray, thr: np.ndarray) -> bool:
+    """``M - diag(thr)`` is positive definite (one Cholesky factorisation). Sufficient for the
+    rank rule: then every Schur complement of a block exceeds ``thr`` (Schur complements are
+    monotone); the elimination of :meth:`_Null.of` decides the other cases exactly."""
     try:
-        return np.diagonal(np.linalg.cholesky(M), axis1=-2, axis2=-1) ** 2
+        np.linalg.cholesky(M - thr[..., :, None] * np.eye(M.shape[-1]))
     except np.linalg.LinAlgError:
-        return None
-
-
-def _full_rank(M: np.ndarray, piv: np.ndarray, rtol: float) -> bool:
-    return bool(np.all(piv > rtol * np.diagonal(M, axis1=-2, axis2=-1)))
+        return False
+    return True
 
 
 class _Null:
-    """The degenerate coordinates of a batch of covariances (NumPy masks: constants for
-    autograd), found by a Cholesky elimination without pivoting.
+    """The degenerate directions of a batch of covariances (NumPy constants for autograd).
 
-    Coordinate ``k`` is degenerate when its Schur complement (its variance left unexplained by
-    the coordinates before it) is ``<= rtol P_kk`` (:data:`RANK_RTOL`; a variance that is 0 or
-    negative is always degenerate). The rule is invariant to the units of each coordinate. The
-    others, ``m``, index a principal block ``P_mm`` of full rank, so
-    ``G = pad(P_mm^-1)`` (zero elsewhere) is a symmetric generalised inverse of ``P``:
-    ``e^T G e`` and ``P H^T G r`` are the same as with the pseudo-inverse for every ``e`` and
-    ``r`` in the range. A deviation ``e`` lies in that range (the support) when at every
-    degenerate coordinate ``|e - P G e|_k <= sqrt(rtol P_kk) + sqrt(eps) max(|e|, 1)`` (its
-    unexplained standard deviation counted as zero, plus rounding).
+    The tangent splits into unit blocks (:func:`_unit_blocks`; a vector: every coordinate
+    alone). Block by block, upstream first, the conditional covariance of the block given the
+    directions kept so far (its Schur complement) is diagonalised, ``V^T C V = diag(w)``; a
+    direction is **degenerate** when ``w <= thr`` (:func:`_threshold`: :data:`RANK_RTOL`
+    times the block's total variance, so the rule depends neither on units nor on the
+    orientation of the axes; a variance that is 0 or negative is always degenerate). In the
+    rotated coordinates ``P' = Q^T P Q`` (``Q`` block-diagonal, the ``V``; identity for
+    single coordinates) the kept ones, ``m``, index a principal block ``P'_mm`` of full rank,
+    so ``G = Q pad(P'_mm^-1) Q^T`` is a symmetric generalised inverse of ``P``: ``e^T G e`` and
+    ``P H^T G r`` are those of the pseudo-inverse for every ``e`` and ``r`` in the range. A
+    deviation ``e`` lies in that range (the support) when at every degenerate direction
+    ``|e' - P' G' e'|_k <= 3 sqrt(w_k) + sqrt(eps) max(|e|, 1)`` (within three of the
+    standard deviations counted as zero, plus rounding).
     """
 
-    __slots__ = ("keep", "rank_loss", "rtol", "eps")
+    __slots__ = ("keep", "rank_loss", "var", "eps", "Q")
 
-    def __init__(self, keep: np.ndarray, rtol: float, eps: float) -> None:
-        self.keep = keep  # (*batch, n) float: 1 for the coordinates of the full-rank block
+    def __init__(self, keep: np.ndarray, var: np.ndarray, eps: float,
+                 Q: np.ndarray | None) -> None:
+        self.keep = keep  # (*batch, n) float: 1 for the kept directions (columns of Q)
         self.rank_loss = (keep == 0).sum(axis=-1)
-        self.rtol, self.eps = rtol, eps
+        self.var, self.eps, self.Q = var, eps, Q  # var: the variances counted as zero
 
     @staticmethod
-    def of(P: Array) -> _Null | None:
-        """``None`` when every matrix has full rank, or when the values are unknown (traced)."""
+    def of(P: Array, blocks: _Blocks | None = None,
+           mag: np.ndarray | None = None) -> _Null | None:
+        """``None`` when every matrix has full rank, or when the values are unknown (traced).
+        ``blocks``: the unit blocks (default: every coordinate alone); ``mag``: the magnitudes
+        that rounded into ``P`` (see :func:`_threshold`)."""
         M = L.concrete(P)
         if M is None or M.size == 0:
             return None
-        rtol = _rtol(P)
         M = M.astype(np.float64, copy=False)
         n = M.shape[-1]
+        blocks = _singletons(n) if blocks is None else blocks
         A_ = 0.5 * (M + np.swapaxes(M, -1, -2))
-        piv = _pivots(A_)  # the common case in one LAPACK call
-        if piv is not None and _full_rank(A_, piv, rtol):
+        thr = np.broadcast_to(_threshold(A_, blocks, mag, P), A_.shape[:-1])
+        if _full_rank(A_, thr):  # the common case
             return None
-        diag0 = np.diagonal(A_, axis1=-2, axis2=-1).copy()
         bad = np.zeros(M.shape[:-1], dtype=bool)
-        for k in range(n):
-            d = A_[..., k, k]
-            z = d <= rtol * diag0[..., k]
-            bad[..., k] = z
-            col = np.where(z[..., None], 0.0, A_[..., :, k] / np.where(z, 1.0, d)[..., None])
-            A_ = A_ - col[..., :, None] * A_[..., k, None, :]
-            A_[..., k, :] = np.where(z[..., None], 0.0, A_[..., k, :])
-            A_[..., :, k] = np.where(z[..., None], 0.0, A_[..., :, k])
+        var = np.zeros(M.shape[:-1])
+        Q = np.broadcast_to(np.eye(n), A_.shape).copy()
+        for b in blocks.idx:
+            if len(b) > 1:  # rotate the block to the eigenvectors of its Schur complement
+                _, V = np.linalg.eigh(A_[..., b[:, None], b[None, :]])
+                A_[..., b, :] = np.swapaxes(V, -1, -2) @ A_[..., b, :]
+                A_[..., :, b] = A_[..., :, b] @ V
+                Q[..., b[:, None], b[None, :]] = V
+            for k in b:  # eliminate each direction (the block's are now uncorrelated)
+                d = A_[..., k, k]
+                z = d <= thr[..., k]
+                bad[..., k] = z
+                var[..., k] = np.where(z, np.maximum(d, 0.0), 0.0)
+                col = np.where(z[..., None], 0.0,
+                               A_[..., :, k] / np.where(z, 1.0, d)[..., None])
+                A_ = A_ - col[..., :, None] * A_[..., k, None, :]
+                A_[..., k, :] = np.where(z[..., None], 0.0, A_[..., k, :])
+                A_[..., :, k] = np.where(z[..., None], 0.0, A_[..., :, k])
         if not bad.any():
             return None
-        eps = float(np.finfo(np.float32 if "float32" in str(P.dtype) else np.float64).eps)
-        return _Null((~bad).astype(np.float64), rtol, eps)
+        return _Null((~bad).astype(np.float64), var, _eps(P), Q if blocks.rotated else None)
+
+    def _rot(self, P: Array) -> tuple[Array | None, Array]:
+        """``(Q, Q^T P Q)`` in the backend of ``P`` (``Q`` is ``None`` for the identity)."""
+        if self.Q is None:
+            return None, P
+        q = L.asarray(self.Q, P)
+        return q, L.mT(q) @ P @ q
 
     def pinv_solve(self, P: Array, b: Array) -> Array:
         """``G b`` for matrices ``b`` ``(..., n, k)`` (differentiable in ``P`` and ``b``)."""
-        m, Pm = self._block(P)
+        q, Pr = self._rot(P)
+        if q is None:
+            return self._solve(Pr, b)
+        return q @ self._solve(Pr, L.mT(q) @ b)
+
+    def _solve(self, Pr: Array, b: Array) -> Array:
+        m, Pm = self._block(Pr)
         return L.solve(Pm, m[..., :, None] * b) * m[..., :, None]
 
-    def _block(self, P: Array) -> tuple[Array, Array]:
-        """The mask ``m`` in the backend of ``P`` and ``P_mm`` padded with the identity."""
-        m = L.asarray(self.keep, P)
-        return m, P * (m[..., :, None] * m[..., None, :]) + L.diag_embed(1.0 - m)
+    def _block(self, Pr: Array) -> tuple[Array, Array]:
+        """The mask ``m`` in the backend of ``Pr`` and ``Pr_mm`` padded with the identity."""
+        m = L.asarray(self.keep, Pr)
+        return m, Pr * (m[..., :, None] * m[..., None, :]) + L.diag_embed(1.0 - m)
 
     def off_support(self, P: Array, e: Array) -> Array:
         """Boolean ``(...)``: the deviation ``e`` ``(..., n)`` leaves the support of ``P``."""
-        r = e - (P @ self.pinv_solve(P, e[..., None]))[..., 0]
-        d = L.diag(P)
+        q, Pr = self._rot(P)
+        er = e if q is None else (L.mT(q) @ e[..., None])[..., 0]
+        r = er - (Pr @ self._solve(Pr, er[..., None]))[..., 0]
         bad = L.asarray(1.0 - self.keep, e)
         size = L.where((e * e).sum(-1) > 1.0, (e * e).sum(-1), 1.0) ** 0.5
-        tol = (self.rtol * d * (d > 0)) ** 0.5 + self.eps**0.5 * size[..., None]
+        tol = L.asarray(3.0 * self.var**0.5, e) + self.eps**0.5 * size[..., None]
         return (bad * (r * r - tol * tol) > 0).any(-1)
 
-    def log_pdet(self, P: Array) -> Array:
-        """Log of the pseudo-determinant of ``P`` (the product of its nonzero eigenvalues):
-        ``det P_mm det(I + W^T W)``, ``W = P G`` on the degenerate rows (``P = T P_mm T^T`` with
-        ``T = [I; W]``)."""
+    def log_pdet(self, P: Array, A: Array | None = None) -> Array:
+        """Log of the pseudo-determinant of ``P`` (the product of its nonzero eigenvalues), or
+        of ``A P A^T`` for an invertible ``A``. With ``P' = B P'_mm B^T``, ``B = P' G'``
+        (identity on the kept rows): ``pdet(A Q P' Q^T A^T) = det P'_mm det(C^T C)``,
+        ``C = A Q B`` (without ``A``: ``C^T C = I + W^T W``, ``W`` the degenerate rows of
+        ``B``)."""
         n = int(P.shape[-1])
-        m, Pm = self._block(P)
-        W = (1.0 - m)[..., :, None] * (P @ self.pinv_solve(P, L.eye(n, P)))
-        return L.slogdet(Pm)[1] + L.slogdet(L.eye(n, P) + L.mT(W) @ W)[1]
+        q, Pr = self._rot(P)
+        m, Pm = self._block(Pr)
+        B = (Pr @ self._solve(Pr, L.eye(n, Pr))) * m[..., None, :]
+        C = B if A is None else (A if q is None else A @ q) @ B
+        return L.slogdet(Pm)[1] + L.slogdet(L.mT(C) @ C + L.diag_embed(1.0 - m))[1]
 
 
 # ---------------------------------------------------------------------------- vector Gaussian
@@ -493,7 +593,8 @@ class Gaussian:
         what = f"{type(mean).__name__} Gaussian covariance"
         full = False
         if validate:
-            full = check_covariance(P, mean.dof, what)
+            full = check_covariance(P, mean.dof, what, _unit_blocks(type(mean)))
+            full = full and frame == "right"  # the rank is decided in the right frame
         else:
             A.check_last_dim(P, (mean.dof, mean.dof), what)
         params, P = _broadcast_pair(mean.params, L.copy(P))
@@ -712,7 +813,8 @@ class Gaussian:
     def mahalanobis(self, X: LieGroup, squared: bool = False) -> Array:
         """Mahalanobis distance of ``X`` from the mean, ``sqrt(e^T P^-1 e)`` with ``e =``
         :meth:`error` ``(X)`` in this frame (frame-independent, since the frames differ by the
-        exact linear map ``Ad``).
+        exact linear map ``Ad``: computed in the right frame, where the rank of a singular
+        ``P`` is decided, so both frames give the same value).
 
         Parameters
         ----------
@@ -735,7 +837,8 @@ class Gaussian:
         >>> round(float(g.mahalanobis(g.retract([0.2, 0.0, 0.0]))), 12)  # 0.2 / 0.2
         1.0
         """
-        return _mahalanobis(self.error(X), self.cov, squared, _rank(self))
+        P, T = _canonical(self)
+        return _mahalanobis(_apply(T, self.error(X)), P, squared, _rank(self, (P, T)))
 
     def log_density(self, X: LieGroup, haar: bool = False) -> Array:
         """Log-density of ``X``: ``log N(e; 0, P)`` with ``e =`` :meth:`error` ``(X)``.
@@ -770,7 +873,9 @@ class Gaussian:
         True
         """
         e = self.error(X)
-        out = _log_normal(e, self.cov, _rank(self))
+        P, T = _canonical(self)
+        out = _log_normal(_apply(T, e), P, _rank(self, (P, T)), self.cov,
+                          None if T is None else self.mean.adjoint())  # T^-1
         if haar:
             J = self.group.jr(e) if self.frame == "right" else self.group.jl(e)
             out = out - L.slogdet(J)[1]
@@ -845,7 +950,8 @@ class Gaussian:
             (zero covariance).
         cross_cov : array_like, optional
             ``E[eps_X eps_Y^T]`` with each error in its own Gaussian's frame; adds
-            ``J_X C J_Y^T + J_Y C^T J_X^T``.
+            ``J_X C J_Y^T + J_Y C^T J_X^T``. ``ValueError`` unless
+            ``[[P_X, C], [C^T, P_Y]]`` is positive semi-definite (see :func:`propagate`).
 
         Returns
         -------
@@ -876,7 +982,7 @@ class Gaussian:
             ``Y``.
         cross_cov : array_like, optional
             As in :meth:`compose` (for two poses with a joint covariance, this is their
-            relative-pose uncertainty).
+            relative-pose uncertainty); validated the same way.
 
         Returns
         -------
@@ -1109,23 +1215,28 @@ class Gaussian:
         _check_finite(Hm, "H")
         Rm = _as_array(R, P, "R")
         check_covariance(Rm, m, "R")
-        return self._kalman(r, Hm, Rm, reset, "the residual")
+        return self._kalman(r, Hm, Rm, reset, None, None, "update: the residual and the model")
 
     def fuse(self, other: Gaussian, *, reset: bool = True) -> Gaussian:
         """Fuse two independent Gaussians on the same element (the update of an error-state
         filter with ``H = I``), in this Gaussian's frame.
 
-        ``other`` is converted to this frame and relinearised onto this mean: with
-        ``d = other.mean (-) mean`` (right minus, or left minus for a left frame),
-        ``X = other.mean Exp(e2)`` gives ``e ~= d + Jr^-1(d) e2`` (left: ``Jl^-1``), i.e. a
-        measurement ``d`` of ``e`` with covariance ``Jr^-1(d) P2 Jr^-T(d)``; then
-        :meth:`update` with ``H = I``. First order in ``e2`` and ``d``: accurate when the two
-        means agree to within a few standard deviations and the covariances are small.
+        ``other`` is relinearised onto this mean in the right (body) frame, whatever the
+        frames: with ``d = other.mean (-) mean`` (right minus), ``X = other.mean Exp(e2)``
+        gives ``e_r ~= d + Jr^-1(d) e2``, a measurement ``d`` of this Gaussian's right error
+        ``e_r = T e`` (``T`` = :meth:`frame_map` ``("right")``) with covariance
+        ``Jr^-1(d) P2 Jr^-T(d)``; then :meth:`update` with ``H = T``. The left-frame model
+        is this one mapped exactly by ``Ad``, so the result does not depend on the frames, and
+        the rank of ``S`` is decided in the right frame (see :class:`_Null`). First order in
+        ``e2`` and ``d``: accurate when the two means agree to within a few standard
+        deviations and the covariances are small.
 
         Rank-deficient covariances follow the rule of :meth:`update`: a Gaussian with
-        zero-variance directions fused with itself returns its mean (and half its covariance);
-        two estimates that differ along a direction in which both have zero variance raise
-        ``ValueError``.
+        zero-variance directions fused with itself returns its mean and half its covariance.
+        Two estimates that differ along a direction in which both have zero variance (beyond
+        rounding) have no common support: ``ValueError``, never a projection that would
+        silently keep one side's value. The other's support, relinearised onto this mean, is
+        tilted by ``O(|d|)``; the tiny variance this gives ``S`` counts as zero.
 
         Parameters
         ----------
@@ -1149,26 +1260,38 @@ class Gaussian:
         if not isinstance(other, Gaussian):
             raise TypeError(f"fuse needs a Gaussian, got {type(other).__name__}")
         self._same_group(other.mean)
-        o = other.to_frame(self.frame)
-        d = o.mean.minus(self.mean) if self.frame == "right" else o.mean.lminus(self.mean)
-        Ji = self.group.jr_inv(d) if self.frame == "right" else self.group.jl_inv(d)
+        _same_backend(self.cov, other.cov)
+        # the measurement is written in the right frame of this mean whatever the frames, so
+        # the rank decision on S (and the result) does not depend on the frames
+        o, T = other.to_frame("right"), self.frame_map("right")
+        d = o.mean.minus(self.mean)
+        Ji = self.group.jr_inv(d)
         R = L.symmetrize(Ji @ o.cov @ L.mT(Ji))
-        return self._kalman(d, L.eye(self.dof, self.cov), R, reset,
-                            "the difference of the two means")
+        mag = None
+        M1, M2, Jn = _magnitude(self, T), _magnitude(other), L.concrete(Ji)
+        if M1 is not None and M2 is not None and Jn is not None:
+            Jn = np.abs(Jn)
+            mag = M1 + Jn @ M2 @ np.swapaxes(Jn, -1, -2)
+        return self._kalman(d, T, R, reset, _unit_blocks(self.group), mag,
+                            "fuse: `other` and this Gaussian")
 
-    def _kalman(self, r: Array, H: Array, R: Array, reset: bool, what: str) -> Gaussian:
+    def _kalman(self, r: Array, H: Array, R: Array, reset: bool,
+                blocks: _Blocks | None, mag: np.ndarray | None,
+                who: str) -> Gaussian:
         P = self.cov
         PHt = P @ L.mT(H)
         S = L.symmetrize(H @ PHt + R)
-        null = _Null.of(S)
+        null = _Null.of(S, blocks, mag)
         if null is None:
             K = L.mT(L.solve(S, L.mT(PHt)))
         else:
             off = L.concrete(null.off_support(S, r))
             if off is not None and off.any():
                 raise ValueError(
-                    f"{what} is not in the range of H P H^T + R: it has a component along a "
-                    f"direction in which both covariances are zero (the two are incompatible)")
+                    f"{who} are incompatible: they differ along a direction in which both "
+                    f"have zero variance (the residual is not in the range of "
+                    f"S = H P H^T + R, so the product of the densities is empty). If the "
+                    f"difference is noise, give that direction a variance in one of them")
             K = L.mT(null.pinv_solve(S, L.mT(PHt)))
         d = (K @ r[..., None])[..., 0]
         IKH = L.eye(self.dof, P) - K @ H
@@ -1244,6 +1367,9 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
         The perturbation side.
     cross_cov : mapping, optional
         ``cross_cov[(i, j)] = E[e_i e_j^T]`` (``i != j``), each error in its own input's frame.
+        The joint covariance of the inputs they make must be positive semi-definite (smallest
+        eigenvalue of its correlation matrix ``>= -sqrt(eps)``), else ``ValueError`` naming
+        ``cross_cov``: an indefinite joint gives negative variances.
 
     Returns
     -------
@@ -1292,13 +1418,17 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
             continue
         term = J @ g.cov @ L.mT(J)
         P = term if P is None else P + term
+    cross = {}
     for (i, j), C in (cross_cov or {}).items():
         if i == j or not (0 <= i < len(inputs) and 0 <= j < len(inputs)):
             raise ValueError(f"cross_cov key {(i, j)} must name two different inputs")
         ni, nj = eff[i].shape[-1], eff[j].shape[-1]
         Cm = _as_array(C, ref, f"cross_cov[{(i, j)}]")
         A.check_last_dim(Cm, (ni, nj), f"cross_cov[{(i, j)}]")
-        _check_finite(Cm, f"cross_cov[{(i, j)}]")
+        cross[(i, j)] = (Cm, _check_finite(Cm, f"cross_cov[{(i, j)}]"))
+    if cross:
+        _check_joint([g.cov for g in inputs], {k: c[1] for k, c in cross.items()})
+    for (i, j), (Cm, _) in cross.items():
         term = eff[i] @ Cm @ L.mT(eff[j])
         P = P + term + L.mT(term)
     if P is None:
@@ -1312,6 +1442,44 @@ def propagate(value: LieGroup | Any, inputs: Sequence[Gaussian | VectorGaussian]
 
 
 # ---------------------------------------------------------------------------- internals
+
+
+def _check_joint(covs: Sequence[Array | None], cross: Mapping[tuple[int, int], Any]) -> None:
+    """Raise ``ValueError`` unless the joint covariance of the inputs (``covs[i]`` on the
+    diagonal, ``None`` = exact, ``cross[(i, j)]`` off it) is positive semi-definite: smallest
+    eigenvalue of its correlation matrix (``D^-1 P D^-1``, ``D = sqrt(diag P)``; 1 where 0, so
+    units do not matter) ``>= -sqrt(eps)``, as :func:`check_covariance`. Skipped under a
+    trace (values unknown)."""
+    vals = [None if c is None else L.concrete(c) for c in covs]
+    if any(c is not None and v is None for c, v in zip(covs, vals, strict=True)) or \
+            any(v is None for v in cross.values()):
+        return
+    ref = next(c for c in covs if c is not None)
+    dims = [int(c.shape[-1]) if c is not None else 0 for c in covs]
+    for (i, j), C in cross.items():  # exact inputs: their size from the cross-covariance
+        dims[i], dims[j] = C.shape[-2], C.shape[-1]
+    off = np.concatenate([[0], np.cumsum(dims)])
+    mats = [v for v in vals if v is not None] + list(cross.values())
+    batch = np.broadcast_shapes(*(m.shape[:-2] for m in mats))
+    Jt = np.zeros((*batch, off[-1], off[-1]))
+    for i, v in enumerate(vals):
+        if v is not None:
+            Jt[..., off[i]:off[i + 1], off[i]:off[i + 1]] = v
+    for (i, j), C in cross.items():
+        Jt[..., off[i]:off[i + 1], off[j]:off[j + 1]] += C
+        Jt[..., off[j]:off[j + 1], off[i]:off[i + 1]] += np.swapaxes(C, -1, -2)
+    d = np.diagonal(Jt, axis1=-2, axis2=-1)
+    s = np.where(d > 0, np.sqrt(np.where(d > 0, d, 1.0)), 1.0)
+    w = np.linalg.eigvalsh(Jt / (s[..., :, None] * s[..., None, :]))[..., 0]
+    tol = math.sqrt(_eps(ref))
+    if np.any(w < -tol):
+        keys = ", ".join(f"cross_cov[{k}]" for k in cross)
+        raise ValueError(
+            f"{keys} makes the joint covariance [[P1, C], [C^T, P2]] of the inputs "
+            f"indefinite (smallest eigenvalue of its correlation matrix {w.min():.3g} < "
+            f"-{tol:.2g}): C = E[e1 e2^T] must come from a valid joint covariance (at least "
+            f"|C_ij| <= sqrt(P1_ii P2_jj)); take it from the joint covariance of the inputs, "
+            f"each error in its own Gaussian's frame")
 
 
 def _broadcast_pair(v: Array, P: Array) -> tuple[Array, Array]:
@@ -1359,11 +1527,48 @@ def _standard_normal(n: int | tuple[int, ...], shape: tuple, rng: Any, like: Arr
 _UNSET: Any = object()  # "rank not computed yet" (distinct from None: "full rank or unknown")
 
 
-def _rank(g: Gaussian | VectorGaussian) -> _Null | None:
-    """The zero-variance directions of ``g.cov``, computed once per object."""
+def _canonical(g: Gaussian) -> tuple[Array, Array | None]:
+    """``(P_right, T)``: the covariance in the right (body) frame and the map ``T`` from this
+    frame's error to it (``None`` for a right frame). Ranks and distances are decided there:
+    the right error does not depend on where the world frame is, the left one does."""
+    if g.frame == "right":
+        return g.cov, None
+    T = g.frame_map("right")
+    return L.symmetrize(T @ g.cov @ L.mT(T)), T
+
+
+def _apply(T: Array | None, e: Array) -> Array:
+    return e if T is None else (T @ e[..., None])[..., 0]
+
+
+def _magnitude(g: Gaussian, T: Array | None = None) -> np.ndarray | None:
+    """``|T| |P| |T|^T`` (NumPy) for :func:`_canonical`'s ``T P T^T``: the scale of what rounded
+    into each entry (``|P|`` for a right frame); ``None`` under a trace."""
+    M = L.concrete(g.cov)
+    if M is None:
+        return None
+    M = np.abs(M.astype(np.float64, copy=False))
+    if g.frame == "right":
+        return M
+    Tn = L.concrete(g.frame_map("right") if T is None else T)
+    if Tn is None:
+        return None
+    Tn = np.abs(Tn.astype(np.float64, copy=False))
+    return Tn @ M @ np.swapaxes(Tn, -1, -2)
+
+
+def _rank(g: Gaussian | VectorGaussian,
+          canon: tuple[Array, Array | None] | None = None) -> _Null | None:
+    """The zero-variance directions of ``g.cov`` (of a Gaussian: of its right-frame covariance,
+    in unit blocks; ``canon``: :func:`_canonical` ``(g)`` if known), computed once per
+    object."""
     null = g._null
     if null is _UNSET:
-        null = _Null.of(g.cov)
+        if isinstance(g, Gaussian):
+            P, T = _canonical(g) if canon is None else canon
+            null = _Null.of(P, _unit_blocks(g.group), _magnitude(g, T))
+        else:
+            null = _Null.of(g.cov)
         object.__setattr__(g, "_null", null)
     return null
 
@@ -1372,9 +1577,13 @@ def _cov_factor(g: Gaussian | VectorGaussian) -> Array:
     """``S`` with ``S S^T = g.cov`` for sampling: the Cholesky factor when the covariance is
     known to have full rank (its gradient is finite where ``eigh``'s is not: repeated
     eigenvalues), else the symmetric square root from ``eigh`` (rank-deficient or traced)."""
-    if L.concrete(g.cov) is not None and _rank(g) is None:
-        return L.cholesky(g.cov)
-    return L.sqrt_psd(g.cov)
+    if L.concrete(g.cov) is None:
+        return L.sqrt_psd(g.cov)
+    if isinstance(g, Gaussian) and g.frame == "left":  # its own matrix, not the canonical one
+        full = _Null.of(g.cov, _unit_blocks(g.group)) is None
+    else:
+        full = _rank(g) is None
+    return L.cholesky(g.cov) if full else L.sqrt_psd(g.cov)
 
 
 def _mahalanobis(e: Array, P: Array, squared: bool, null: _Null | None) -> Array:
@@ -1388,15 +1597,18 @@ def _mahalanobis(e: Array, P: Array, squared: bool, null: _Null | None) -> Array
     return d2 if squared else d2**0.5
 
 
-def _log_normal(e: Array, P: Array, null: _Null | None) -> Array:
+def _log_normal(e: Array, P: Array, null: _Null | None, P0: Array | None = None,
+                A: Array | None = None) -> Array:
     """``log N(e; 0, P)``; on a rank-deficient ``P`` the density on its support (w.r.t. the
-    Lebesgue measure of the support, as SciPy's ``allow_singular=True``), ``-inf`` off it."""
+    Lebesgue measure of the support, as SciPy's ``allow_singular=True``), ``-inf`` off it.
+    With ``P = T P0 T^T`` and ``A = T^-1``: the density of ``A e`` under ``P0`` instead (the
+    distance and the rank are read from ``P``, the volume from ``P0``)."""
     n = e.shape[-1]
     d2 = _mahalanobis(e, P, True, null)
     if null is None:
-        return -0.5 * (d2 + n * _LOG_2PI + L.slogdet(P)[1])
+        return -0.5 * (d2 + n * _LOG_2PI + L.slogdet(P if P0 is None else P0)[1])
     rank = L.asarray(n - null.rank_loss, d2)
-    return -0.5 * (d2 + rank * _LOG_2PI + null.log_pdet(P))
+    return -0.5 * (d2 + rank * _LOG_2PI + null.log_pdet(P, A))
 
 
 L.register_pytree(Gaussian, lambda g: ((g.mean, g.cov), g.frame),
