@@ -92,7 +92,8 @@ def _seed_bal() -> str:
     obs = [(0, 0), (1, 0), (0, 1), (1, 2), (0, 2)]
     uv = _rng_rows(7, len(obs), 2)
     params = [*_rng_rows(8, 2, 9), *_rng_rows(9, 3, 3)]
-    lines = ["2 3 5"] + [f"{c} {p}     {u!r} {v!r}" for (c, p), (u, v) in zip(obs, uv)]
+    lines = ["2 3 5"] + [f"{c} {p}     {u!r} {v!r}" for (c, p), (u, v)
+                         in zip(obs, uv, strict=True)]
     lines += [repr(x) for row in params for x in row]
     return "\n".join(lines) + "\n"
 

@@ -25,14 +25,13 @@ from __future__ import annotations
 import codecs
 import io
 import os
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
 import numpy as np
 
-from .._textfile import decode
+from .._textfile import decode, digits_only, numbers_by_line
 
 __all__ = ["BALProblem", "read_bal", "write_bal"]
 
@@ -215,53 +214,19 @@ def read_bal(src: str | os.PathLike | IO[str]) -> BALProblem:
     return _read_lines(text, name)
 
 
-# bytes of the bulk path: ASCII whitespace it splits on, and what numbers are made of
-_WS = np.zeros(256, dtype=bool)
-_WS[[9, 10, 13, 32]] = True
-_NUMERIC = _WS.copy()
-_NUMERIC[np.frombuffer(b"0123456789+-.eE", dtype=np.uint8)] = True
-_CHUNK = 1 << 22
-_POW10 = 10 ** np.arange(1, 19, dtype=np.int64)
-
-
 def _read_bulk(data: bytes) -> BALProblem | None:
     """The problem of a well-formed plain file, converted in bulk; ``None`` for anything
-    else (the line-by-line reader then reads it, or names the bad line).
-
-    Only digits, ``+-.eE``, spaces, tabs and line ends (``\\n``, ``\\r\\n``) are taken.
-    The token starts are found chunk by chunk (little memory beyond the numbers), the counts
-    per line from them, and the numbers by :func:`numpy.fromstring`, which rounds as
-    ``float`` does.
-    """
-    n = len(data)
-    if n == 0 or data.count(b"\r") != data.count(b"\r\n"):
+    else (the line-by-line reader then reads it, or names the bad line). See
+    :func:`microlie._textfile.numbers_by_line`."""
+    bulk = numbers_by_line(data)
+    if bulk is None:
         return None
-    arr = np.frombuffer(data, dtype=np.uint8)
-    idx = np.int32 if n < 2**31 - 1 else np.int64
-    starts: list[np.ndarray] = []
-    ends: list[np.ndarray] = []
-    prev_ws = True
-    for a in range(0, n, _CHUNK):
-        chunk = arr[a:a + _CHUNK]
-        if not _NUMERIC[chunk].all():
-            return None
-        ws = _WS[chunk]
-        st = ~ws
-        st[1:] &= ws[:-1]
-        st[0] &= prev_ws
-        prev_ws = bool(ws[-1])
-        starts.append(np.flatnonzero(st).astype(idx) + a)
-        ends.append(np.flatnonzero(chunk == 10).astype(idx) + a)
-    tok = np.concatenate(starts)
-    line_end = np.concatenate(ends + ([np.array([n], dtype=idx)] if data[-1:] != b"\n"
-                                      else []))
-    del starts, ends
-    per_line = np.diff(np.searchsorted(tok, line_end), prepend=0)
+    vals, tok, per_line = bulk
     counts = per_line[per_line > 0]  # blank lines are skipped
-    head = data[:int(line_end[np.flatnonzero(per_line)[0]])].split() if counts.size else []
-    if len(head) != 3 or not all(h.isdigit() for h in head):
+    del per_line
+    if not counts.size or counts[0] != 3 or not digits_only(data, tok[:3], vals[:3]):
         return None
-    nc, npt, no = (int(h) for h in head)
+    nc, npt, no = (int(h) for h in vals[:3])
     need = 9 * nc + 3 * npt
     if (min(nc, npt, no) <= 0 or counts.size < 1 + no or tok.size != 3 + 4 * no + need
             or not (counts[1:1 + no] == 4).all()):
@@ -270,35 +235,20 @@ def _read_bulk(data: bytes) -> BALProblem | None:
     if not ((par == 1).all() or (par.size == nc + npt and (par[:nc] == 9).all()
                                  and (par[nc:] == 3).all())):
         return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # NumPy warns when a token is not a number
-        try:
-            vals = np.fromstring(data, sep=" ")  # type: ignore[call-overload]
-        except (DeprecationWarning, ValueError):
-            return None
-    if vals.size != tok.size or not np.isfinite(vals).all():
+    del counts, par
+    if not np.isfinite(vals).all():
         return None
     obs = vals[3:3 + 4 * no].reshape(no, 4)
-    index = np.empty((no, 2), dtype=np.int64)
+    index = np.empty((2, no), dtype=np.intp)
     for col, limit in ((0, nc), (1, npt)):
         v = obs[:, col]
-        if not ((v >= 0) & (v < limit) & (v == np.floor(v))).all():
+        if not ((v < limit).all() and digits_only(data, tok[3 + col:3 + 4 * no:4], v)):
             return None
-        index[:, col] = v
-        # the token is the integer's digits only (as ``int`` reads them: no "1.0", "1e0")
-        at = tok[3 + col:3 + 4 * no:4].astype(np.int64)
-        nd = 1 + np.searchsorted(_POW10, index[:, col], side="right")
-        after = at + nd
-        if not ((after == n) | _WS[arr[np.minimum(after, n - 1)]]).all():
-            return None
-        for d in range(int(nd.max())):
-            m = nd > d
-            if not (arr[at[m] + d] - 48 < 10).all():
-                return None
+        index[col] = v
+    del tok
     return BALProblem(vals[3 + 4 * no:3 + 4 * no + 9 * nc].reshape(nc, 9).copy(),
                       vals[3 + 4 * no + 9 * nc:].reshape(npt, 3).copy(),
-                      index[:, 0].astype(np.intp), index[:, 1].astype(np.intp),
-                      obs[:, 2:].copy())
+                      index[0], index[1], obs[:, 2:].copy())
 
 
 def _read_lines(text: str, name: str) -> BALProblem:

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .._textfile import read_text
+from .._textfile import digits_only, numbers_by_line, read_text
 from ..groups import SE2, SE3, LieGroup
 
 __all__ = ["PoseGraph", "VertexTag", "EdgeTag", "parse_pose_graph", "symmetric_from_upper"]
@@ -547,11 +547,21 @@ def _block(name: str, tag: str, rests: list[str], lines: list[int], n_ids: int,
     """Ids ``(n, n_ids)`` (int64, exact) and numbers ``(n, n_num)`` of the lines of one tag.
 
     Every line's field count is checked (a line with a field too many next to one with a
-    field too few must not shift numbers from one to the other). Ids and numbers are
-    converted in bulk with Python's ``int`` and ``float`` rules; a block that fails is
-    checked line by line, which names the first bad line.
+    field too few must not shift numbers from one to the other). Plain ASCII lines with ids
+    below ``2**53`` are converted in bulk (:func:`~microlie._textfile.numbers_by_line`); the
+    others with Python's ``int`` and ``float`` rules, line by line where a line fails, which
+    names the first bad line.
     """
     k = n_ids + n_num
+    joined = "\n".join(rests)
+    if joined.isascii():  # plain numbers, ids below 2**53: converted in bulk
+        data = joined.encode("ascii")
+        bulk = numbers_by_line(data)
+        if bulk is not None and bulk[2].size == len(rests) and (bulk[2] == k).all():
+            a, starts = bulk[0].reshape(-1, k), bulk[1].reshape(-1, k)
+            if np.isfinite(a).all() and digits_only(data, starts[:, :n_ids].reshape(-1),
+                                                    a[:, :n_ids].reshape(-1)):
+                return a[:, :n_ids].astype(np.int64), a[:, n_ids:]
     fields = [r.split() for r in rests]
     counts = np.fromiter(map(len, fields), dtype=np.intp, count=len(fields))
     bad = np.flatnonzero(counts != k)

@@ -212,8 +212,9 @@ def load_result(path: str | os.PathLike) -> Result:
     >>> traj.load_result(traj.save_result(res, path)).options
     {}
     """
+    text = read_text(path)
     try:
-        d = json.loads(read_text(path))
+        d = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}:{exc.lineno}: not a JSON file ({exc.msg}, column "
                          f"{exc.colno})") from None
@@ -243,8 +244,9 @@ def load_result(path: str | os.PathLike) -> Result:
                              "that is not finite")
         return a
 
-    text_keys = [get(k, str, "a string") for k in ("metric", "relation", "label", "unit")]
-    names = [get(k, str, "a string or null", True) for k in ("ref_name", "est_name")]
+    metric, relation, label, unit = (get(k, str, "a string")
+                                     for k in ("metric", "relation", "label", "unit"))
+    ref_name, est_name = (get(k, str, "a string or null", True) for k in ("ref_name", "est_name"))
     options, info = (get(k, dict, "an object or null", True) or {} for k in ("options", "info"))
     errors = numbers("'errors'", d.get("errors"))
     stamps = None if d.get("timestamps") is None else numbers("'timestamps'", d["timestamps"])
@@ -265,4 +267,5 @@ def load_result(path: str | os.PathLike) -> Result:
     if any(k not in stats or abs(again[k] - stats[k]) > 1e-12 * max(1.0, abs(again[k]))
            for k in again):
         raise ValueError(f"{path}: the stored statistics do not match the stored errors")
-    return Result(*text_keys, stats, errors, stamps, pairs, *names, options, info)
+    return Result(metric, relation, label, unit, stats, errors, stamps, pairs, ref_name,
+                  est_name, options, info)
