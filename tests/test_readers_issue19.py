@@ -250,3 +250,22 @@ def test_issue19_item16_bal_reader_memory_is_a_few_file_sizes():
         tracemalloc.stop()
     assert problem.n_observations == 31843
     assert peak < 5 * size, f"peak {peak / size:.1f} file sizes"
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda b: b.replace(b" 1 0 0 1", b" 1_0 0 0 1", 1), None),  # today: AssertionError
+    (lambda b: b.replace(b"\n", b"\n# caf\xe9\n", 1), ":2: byte 0xe9 (column 6) is not UTF-8"),
+    (lambda b: b"\xef\xbb\xbf" + b, None),  # today: "cannot tell the file format"
+])
+def test_issue19_item10_optimize_command_reports_file_and_line(tmp_path, edit, message):
+    from microlie.cli import main
+
+    p = tmp_path / "g.g2o"
+    p.write_bytes(edit((V2 + f"EDGE_SE2 0 1 1 0 0 {INFO}\nEDGE_SE2 1 2 1 0 0 {INFO}\n")
+                       .encode()))
+    out, err = io.StringIO(), io.StringIO()
+    code = main(["optimize", str(p)], out=out, err=err)
+    if message is None:
+        assert code == 0 and "3 poses, 2 edges" in out.getvalue(), err.getvalue()
+    else:
+        assert code == 1 and f"{p}{message}" in err.getvalue()
