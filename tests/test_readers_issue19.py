@@ -269,3 +269,15 @@ def test_issue19_item10_optimize_command_reports_file_and_line(tmp_path, edit, m
         assert code == 0 and "3 poses, 2 edges" in out.getvalue(), err.getvalue()
     else:
         assert code == 1 and f"{p}{message}" in err.getvalue()
+
+
+@pytest.mark.parametrize("comment", ["", "# a comment below the header\n"])
+def test_issue19_fuzz_euroc_field_inserted_in_one_line_is_refused(tmp_path, comment):
+    # extra columns are allowed, but all lines have the same: a field inserted in line 3
+    # would shift px, py, ... of that line by one column
+    text = "#t,x,y,z,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n" + comment + "1,9,1,0,0,1,0,0,0\n"
+    p = tmp_path / "gt.csv"
+    p.write_text(text)
+    line = 3 + bool(comment)
+    with pytest.raises(ValueError, match=rf"^{p}:{line}: 9 fields, but line 2 has 8"):
+        read_euroc(p)

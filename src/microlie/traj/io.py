@@ -496,9 +496,23 @@ def read_euroc(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = Non
 def _same_columns(path: PathLike) -> None:
     """Every data line of a CSV file has the fields of the first one (a field inserted in or
     dropped from one line would shift the columns read from it)."""
+    data = Path(path).read_bytes()
+    skip, offset = _header_lines(data)
+    if (data.isascii() and not any(c in data for c in _BREAKS)
+            and data.count(b"\r") == data.count(b"\r\n")
+            and not any(data.find(c, offset) >= 0 for c in (b"#", b"%"))):
+        # the usual file: commas per line in bulk (a line without commas is blank, or has
+        # one field and was refused by the reader already)
+        arr = np.frombuffer(data, dtype=np.uint8)[offset:]
+        starts = np.flatnonzero(arr[:-1] == 10) + 1
+        per_line = np.add.reduceat((arr == 44).view(np.uint8), np.append(0, starts),
+                                   dtype=np.int64) if arr.size else np.zeros(0, np.int64)
+        counts = per_line[per_line > 0]
+        if not counts.size or (counts == counts[0]).all():
+            return
     lines = [ln for ln in _data_block(read_text(path)) if ln.strip()]
     counts = np.fromiter((ln.count(",") for ln in lines), dtype=np.intp, count=len(lines))
-    bad = np.flatnonzero(counts != counts[0])
+    bad = np.flatnonzero(counts != counts[:1])
     if bad.size:
         numbers = _data_lines(path, True)[0]
         k = int(bad[0])
