@@ -3,12 +3,13 @@
 Format (Agarwal et al., ECCV 2010): a header ``n_cameras n_points n_observations``; one line
 ``camera_index point_index x y`` per observation; then ``9 n_cameras`` camera numbers
 (angle-axis rotation (3), translation (3), focal length, k1, k2) and ``3 n_points`` point
-coordinates, whitespace separated (usually one per line). The camera maps a world point to its
+coordinates, one per line (as BAL's files and :func:`write_bal` have them) or one camera (9)
+and one point (3) per line. The file is UTF-8 (a byte order mark is dropped). The camera maps a world point to its
 frame with ``P = R X + t`` and looks down ``-z`` (see :mod:`microlie.optim.camera`).
 
-Malformed files raise ``ValueError`` naming ``file:line``: truncated files, counts that do not
-match, wrong field counts, non-numeric or non-finite values, observations of missing cameras
-or points.
+Malformed files raise ``ValueError`` naming ``file:line``: a byte that is not UTF-8, truncated
+files, counts that do not match, wrong field counts on any line, non-numeric or non-finite
+values, observations of missing cameras or points.
 
 >>> import numpy as np, io
 >>> text = "1 1 1\\n0 0 10.0 -20.0\\n" + "\\n".join(["0"] * 5 + ["-5", "500", "0", "0"]
