@@ -3,7 +3,8 @@ every reader on seeded mutations of a valid file.
 
 One harness for every format. A case takes a valid seed file, applies one or two seeded
 mutations (tokens deleted, duplicated, inserted, replaced or moved to the next line, lines
-swapped, duplicated or deleted, a byte that is not UTF-8, a byte order mark, no-break spaces,
+swapped, duplicated or deleted, an integer renamed throughout (vertex ids up to 2**63), a
+byte that is not UTF-8, a byte order mark, no-break spaces,
 Arabic-Indic digits, ``1_0``, nan / inf, huge integers, truncation, CRLF, blank lines, comment
 lines, other line breaks) and reads the result. The outcome must be one of:
 
@@ -184,7 +185,7 @@ def _pose_graph_reference(vtag: str, etag: str, dim3: bool, toro: bool):
 
     def reference(text: str) -> dict[str, np.ndarray] | None:
         verts: dict[int, list[float]] = {}
-        edges, fixed = [], []
+        ij, edges, fixed = [], [], []
         for f in _rows(text, ("#",), str.split):
             if f[0] == vtag and len(f) == 2 + nv:
                 if _id(f[1]) in verts:
@@ -195,14 +196,16 @@ def _pose_graph_reference(vtag: str, etag: str, dim3: bool, toro: bool):
                 z, w = v[:ne - (21 if dim3 else 6)], v[ne - (21 if dim3 else 6):]
                 if toro and not dim3:
                     w = [w[k] for k in (0, 1, 4, 2, 5, 3)]  # TORO's 2-D order
-                edges.append([_id(f[1]), _id(f[2]), *pose(z), *w])
+                ij.append([_id(f[1]), _id(f[2])])
+                edges.append([*pose(z), *w])
             elif f[0] == "FIX" and not toro and len(f) > 1:
                 fixed += [_id(x) for x in f[1:]]
             else:
                 return REJECT  # an unknown tag or a wrong number of fields
         ids = sorted(verts)
         return {"ids": np.array(ids, dtype=np.int64), "poses": np.array([verts[i] for i in ids]),
-                "edges": np.array(edges), "fixed": np.unique(np.array(fixed, dtype=np.int64))}
+                "ij": np.array(ij, dtype=np.int64).reshape(-1, 2), "edges": np.array(edges),
+                "fixed": np.unique(np.array(fixed, dtype=np.int64))}
 
     def parsed(g: Any) -> dict[str, np.ndarray]:
         d = 3 if dim3 else 2
@@ -216,8 +219,8 @@ def _pose_graph_reference(vtag: str, etag: str, dim3: bool, toro: bool):
 
         assert g.dim == d
         return {"ids": g.ids, "poses": poses(g.poses),
-                "edges": np.hstack([g.i[:, None], g.j[:, None], poses(g.measurements),
-                                    g.information[:, r, c]]),
+                "ij": np.stack([g.i, g.j], axis=1),
+                "edges": np.hstack([poses(g.measurements), g.information[:, r, c]]),
                 "fixed": g.fixed}
 
     return reference, parsed
@@ -240,13 +243,14 @@ def _bal_reference(text: str) -> dict[str, np.ndarray] | None:
     vals = [_num(x) for f in par for x in f]
     return {"cameras": np.array(vals[:9 * nc]).reshape(nc, 9),
             "points": np.array(vals[9 * nc:]).reshape(npt, 3),
-            "obs": np.array([[int(f[0]), int(f[1]), _num(f[2]), _num(f[3])] for f in obs])}
+            "index": np.array([[int(f[0]), int(f[1])] for f in obs], dtype=np.int64),
+            "uv": np.array([[_num(f[2]), _num(f[3])] for f in obs])}
 
 
 def _bal_parsed(p: Any) -> dict[str, np.ndarray]:
     return {"cameras": p.cameras, "points": p.points,
-            "obs": np.hstack([p.camera_index[:, None], p.point_index[:, None],
-                              p.observations])}
+            "index": np.stack([p.camera_index, p.point_index], axis=1),
+            "uv": p.observations}
 
 
 def _traj_reference(kind: str):
@@ -421,7 +425,7 @@ def _lines_op(rng: random.Random, text: str, how: str, comment: str | None) -> s
 BENIGN = {"bom", "crlf", "blank", "comment"}
 MUTATIONS = ["delete", "duplicate", "insert", "replace", "underscore", "arabic", "move",
              "swap", "dup", "del", "blank", "comment", "non-utf8", "bom", "nbsp", "tab",
-             "truncate", "crlf", "break", "nonfinite", "huge"]
+             "truncate", "crlf", "break", "nonfinite", "huge", "rename"]
 
 
 def mutate(fmt: Format, seed: int) -> tuple[bytes, list[str]]:
@@ -439,9 +443,17 @@ def mutate(fmt: Format, seed: int) -> tuple[bytes, list[str]]:
             k = _pick_line(rng, lines)
             if k is not None:
                 a, b = _tokens(lines[k])[rng.randrange(min(3, len(_tokens(lines[k]))))]
-                lines[k] = lines[k][:a] + rng.choice(["9" * 25, "9223372036854775808",
-                                                      "18446744073709551616"]) + lines[k][b:]
+                lines[k] = lines[k][:a] + rng.choice(
+                    ["9" * 25, "9223372036854775808", "18446744073709551616",
+                     "9007199254740993", "8646911284551352321"]) + lines[k][b:]
             text = "\n".join(lines)
+        elif name == "rename":  # every standalone integer n becomes another (a vertex id)
+            ints = sorted(set(re.findall(r"(?<![^\s,])\d+(?![^\s,])", text)))
+            if ints:
+                old = re.escape(rng.choice(ints))
+                new = rng.choice(["9007199254740993", "8646911284551352321", str(2**63),
+                                  "1_0", "\u0661", "17"])
+                text = re.sub(rf"(?<![^\s,]){old}(?![^\s,])", new, text)
         elif name == "move":
             text = _move_token(rng, text)
         elif name in ("swap", "dup", "del", "blank", "comment"):
@@ -474,6 +486,8 @@ def _same(got: Any, want: Any, atol: float) -> bool:
                 and all(_same(got[k], want[k], atol) for k in want))
     if isinstance(want, list) and want and all(type(x) is float for x in want):
         want = np.asarray(want)
+    if isinstance(want, np.ndarray) and want.dtype.kind in "iu":  # ids: exact
+        return bool(np.array_equal(np.asarray(got), want))
     if isinstance(want, np.ndarray):
         got = np.asarray(got)
         return (got.shape == want.shape and got.dtype.kind in "fiu"

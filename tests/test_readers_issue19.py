@@ -65,6 +65,15 @@ def test_issue19_item4_ids_beyond_2_53_and_gtsam_symbols_are_exact(tmp_path):
     assert read_g2o(out).ids.tolist() == [big, x1, x2]
 
 
+def test_issue19_item4_id_2_53_plus_1_alone_is_exact(tmp_path):
+    # no other large id in the file: the bulk parser must not round it through float64
+    big = 2**53 + 1
+    p = tmp_path / "big.g2o"
+    p.write_text(f"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 {big} 1 0 0\nEDGE_SE2 0 {big} 1 0 0 {INFO}\n")
+    g = read_g2o(p)
+    assert g.ids.tolist() == [0, big] and g.j.tolist() == [big]
+
+
 def test_issue19_item4_id_beyond_int64_is_refused(tmp_path):
     p = tmp_path / "huge.g2o"
     p.write_text(V2 + f"EDGE_SE2 0 {2**63} 1 0 0 {INFO}\n")

@@ -149,8 +149,8 @@ def numbers_by_line(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray] | 
 
 def digits_only(data: bytes, starts: np.ndarray, values: np.ndarray) -> bool:
     """Whether the numbers at byte offsets ``starts`` of ``data`` are written as the plain
-    digits of ``values`` (integers in ``0 .. 2**53``), as ``int`` reads them: not ``1.0``,
-    ``1e0``, ``+1`` or ``01``.
+    digits of ``values``, integers below ``2**53`` (so that the float64 ``values`` are exact),
+    as ``int`` reads them: not ``1.0``, ``1e0``, ``+1`` or ``01``.
 
     Examples
     --------
@@ -160,10 +160,12 @@ def digits_only(data: bytes, starts: np.ndarray, values: np.ndarray) -> bool:
     True
     >>> digits_only(b"10 7.0", np.array([0, 3]), np.array([10.0, 7.0]))
     False
+    >>> digits_only(b"9007199254740993", np.array([0]), np.array([9007199254740993.0]))
+    False
     """
     if not starts.size:
         return True
-    if not ((values >= 0) & (values <= 2**53) & (values == np.floor(values))).all():
+    if not ((values >= 0) & (values < 2**53) & (values == np.floor(values))).all():
         return False
     arr = np.frombuffer(data, dtype=np.uint8)
     n = arr.size
