@@ -4,8 +4,9 @@ Format (Agarwal et al., ECCV 2010): a header ``n_cameras n_points n_observations
 ``camera_index point_index x y`` per observation; then ``9 n_cameras`` camera numbers
 (angle-axis rotation (3), translation (3), focal length, k1, k2) and ``3 n_points`` point
 coordinates, one per line (as BAL's files and :func:`write_bal` have them) or one camera (9)
-and one point (3) per line. The file is UTF-8 (a byte order mark is dropped). The camera maps a world point to its
-frame with ``P = R X + t`` and looks down ``-z`` (see :mod:`microlie.optim.camera`).
+and one point (3) per line. The file is UTF-8 (a byte order mark is dropped). The camera maps
+a world point to its frame with ``P = R X + t`` and looks down ``-z`` (see
+:mod:`microlie.optim.camera`).
 
 Malformed files raise ``ValueError`` naming ``file:line``: a byte that is not UTF-8, truncated
 files, counts that do not match, wrong field counts on any line, non-numeric or non-finite
