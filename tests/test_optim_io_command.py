@@ -129,12 +129,11 @@ def test_bad_input_is_an_error_message_with_file_and_line(tmp_path):
 
 
 def test_docs_optim_examples_print_what_the_page_shows(tmp_path, monkeypatch, capsys):
-    """Every ```python block of docs/optim.md runs (in one namespace, from the project root
-    so that ../shared/data resolves) and prints exactly the ```text block that follows it."""
-    data_file(POSE2)
+    """Every ```python block of docs/optim.md runs (in one namespace, from the folder of the
+    pose graphs it names) and prints exactly the ```text block that follows it."""
     page = (ROOT / "docs" / "optim.md").read_text()
     blocks = re.findall(r"```(python|text)\n(.*?)```", page, flags=re.S)
-    monkeypatch.chdir(ROOT)
+    monkeypatch.chdir(data_file("pose_graph/MIT.g2o").parent)  # the page names the file bare
     ns: dict = {}
     checked = 0
     for k, (kind, code) in enumerate(blocks):

@@ -3,12 +3,14 @@
 Format (Agarwal et al., ECCV 2010): a header ``n_cameras n_points n_observations``; one line
 ``camera_index point_index x y`` per observation; then ``9 n_cameras`` camera numbers
 (angle-axis rotation (3), translation (3), focal length, k1, k2) and ``3 n_points`` point
-coordinates, whitespace separated (usually one per line). The camera maps a world point to its
-frame with ``P = R X + t`` and looks down ``-z`` (see :mod:`microlie.optim.camera`).
+coordinates, one per line (as BAL's files and :func:`write_bal` have them) or one camera (9)
+and one point (3) per line. The file is UTF-8 (a byte order mark is dropped). The camera maps
+a world point to its frame with ``P = R X + t`` and looks down ``-z`` (see
+:mod:`microlie.optim.camera`).
 
-Malformed files raise ``ValueError`` naming ``file:line``: truncated files, counts that do not
-match, wrong field counts, non-numeric or non-finite values, observations of missing cameras
-or points.
+Malformed files raise ``ValueError`` naming ``file:line``: a byte that is not UTF-8, truncated
+files, counts that do not match, wrong field counts on any line, non-numeric or non-finite
+values, observations of missing cameras or points.
 
 >>> import numpy as np, io
 >>> text = "1 1 1\\n0 0 10.0 -20.0\\n" + "\\n".join(["0"] * 5 + ["-5", "500", "0", "0"]
@@ -22,14 +24,17 @@ or points.
 
 from __future__ import annotations
 
+import codecs
 import io
 import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import IO
 
 import numpy as np
 
 from .._files import atomic_write
+from .._textfile import decode, digits_only, numbers_by_line
 
 __all__ = ["BALProblem", "read_bal", "write_bal"]
 
@@ -151,15 +156,23 @@ class BALProblem:
         return 0.5 * float(np.sum(r * r))
 
 
-def _open(src: str | os.PathLike | IO[str]) -> tuple[str, str]:
+def _source(src: str | os.PathLike | IO[str]) -> tuple[bytes | None, str, str]:
+    """(the file's bytes, or ``None`` for a stream; the stream's text, or ``""``; a name)."""
     if isinstance(src, (str, os.PathLike)):
-        with open(src, encoding="utf-8") as fh:
-            return fh.read(), os.fspath(src)
-    return src.read(), getattr(src, "name", "<stream>")
+        return Path(src).read_bytes(), "", os.fspath(src)
+    text = src.read()
+    return None, text[1:] if text.startswith("\ufeff") else text, getattr(src, "name",
+                                                                              "<stream>")
 
 
 def read_bal(src: str | os.PathLike | IO[str]) -> BALProblem:
     """Read a BAL file.
+
+    The file is UTF-8 text (a byte order mark is dropped). The parameters come one per line
+    (BAL's layout) or one camera (9 numbers) and one point (3) per line; every line's count is
+    checked, so a number moved from one line to another is an error, not a shifted value.
+    Numbers follow Python's ``int`` and ``float`` rules; plain ASCII files are parsed in bulk
+    (bit-identical values).
 
     Parameters
     ----------
@@ -193,7 +206,60 @@ def read_bal(src: str | os.PathLike | IO[str]) -> BALProblem:
     >>> bool((back.points == bal.points).all())
     True
     """
-    text, name = _open(src)
+    data, text, name = _source(src)
+    if data is None and text.isascii():
+        data = text.encode("ascii")
+    if data is not None:
+        if data.startswith(codecs.BOM_UTF8):
+            data = data[len(codecs.BOM_UTF8):]
+        if data.isascii():
+            problem = _read_bulk(data)
+            if problem is not None:
+                return problem
+        text = decode(data, name)
+        del data
+    return _read_lines(text, name)
+
+
+def _read_bulk(data: bytes) -> BALProblem | None:
+    """The problem of a well-formed plain file, converted in bulk; ``None`` for anything
+    else (the line-by-line reader then reads it, or names the bad line). See
+    :func:`microlie._textfile.numbers_by_line`."""
+    bulk = numbers_by_line(data)
+    if bulk is None:
+        return None
+    vals, tok, per_line = bulk
+    counts = per_line[per_line > 0]  # blank lines are skipped
+    del per_line
+    if not counts.size or counts[0] != 3 or not digits_only(data, tok[:3], vals[:3]):
+        return None
+    nc, npt, no = (int(h) for h in vals[:3])
+    need = 9 * nc + 3 * npt
+    if (min(nc, npt, no) <= 0 or counts.size < 1 + no or tok.size != 3 + 4 * no + need
+            or not (counts[1:1 + no] == 4).all()):
+        return None
+    par = counts[1 + no:]
+    if not ((par == 1).all() or (par.size == nc + npt and (par[:nc] == 9).all()
+                                 and (par[nc:] == 3).all())):
+        return None
+    del counts, par
+    if not np.isfinite(vals).all():
+        return None
+    obs = vals[3:3 + 4 * no].reshape(no, 4)
+    index = np.empty((2, no), dtype=np.intp)
+    for col, limit in ((0, nc), (1, npt)):
+        v = obs[:, col]
+        if not ((v < limit).all() and digits_only(data, tok[3 + col:3 + 4 * no:4], v)):
+            return None
+        index[col] = v
+    del tok
+    return BALProblem(vals[3 + 4 * no:3 + 4 * no + 9 * nc].reshape(nc, 9).copy(),
+                      vals[3 + 4 * no + 9 * nc:].reshape(npt, 3).copy(),
+                      index[0], index[1], obs[:, 2:].copy())
+
+
+def _read_lines(text: str, name: str) -> BALProblem:
+    """Read line by line with Python's ``int`` and ``float``, naming the first bad line."""
     raw = text.splitlines()
     numbers = [k + 1 for k, ln in enumerate(raw) if ln.strip()]   # blank lines are skipped
     lines = [raw[k - 1] for k in numbers]
@@ -223,29 +289,25 @@ def read_bal(src: str | os.PathLike | IO[str]) -> BALProblem:
         if len(f) != 4:
             raise fail(2 + k, f"an observation line has 4 fields 'camera point x y', got "
                        f"{len(f)}: {obs_lines[k]!r}")
+    index = np.zeros((no, 2), dtype=np.int64)
+    for k, f in enumerate(fields):
+        if not (_is_int(f[0]) and _is_int(f[1])):
+            raise fail(2 + k, f"camera and point indices must be integers: {obs_lines[k]!r}")
+        for col, what, limit, kind in ((0, "camera", nc, "cameras"),
+                                       (1, "point", npt, "points")):
+            v = int(f[col])
+            if not 0 <= v < limit:
+                raise fail(2 + k, f"observation of missing {what} {v} (the header declares "
+                           f"{limit} {kind})")
+            index[k, col] = v
     try:
-        ci = np.array([f[0] for f in fields], dtype=np.int64)
-        pi = np.array([f[1] for f in fields], dtype=np.int64)
-    except ValueError:
-        for k, f in enumerate(fields):
-            if not (_is_int(f[0]) and _is_int(f[1])):
-                raise fail(2 + k, f"camera and point indices must be integers: "
-                           f"{obs_lines[k]!r}") from None
-        raise
-    try:
-        uv = np.array([(f[2], f[3]) for f in fields], dtype=float)
-    except ValueError:
+        uv = np.array([(f[2], f[3]) for f in fields], dtype=float).reshape(no, 2)
+    except (ValueError, OverflowError):
         for k, f in enumerate(fields):
             if not (_is_float(f[2]) and _is_float(f[3])):
                 raise fail(2 + k, f"observation coordinates must be numbers: "
                            f"{obs_lines[k]!r}") from None
         raise
-    for arr, what, limit, kind in ((ci, "camera", nc, "cameras"), (pi, "point", npt, "points")):
-        bad = np.nonzero((arr < 0) | (arr >= limit))[0]
-        if len(bad):
-            k = int(bad[0])
-            raise fail(2 + k, f"observation of missing {what} {arr[k]} (the header declares "
-                       f"{limit} {kind})")
     bad = np.nonzero(~np.isfinite(uv).all(axis=1))[0]
     if len(bad):
         k = int(bad[0])
@@ -254,19 +316,27 @@ def read_bal(src: str | os.PathLike | IO[str]) -> BALProblem:
     need = 9 * nc + 3 * npt
     tokens: list[str] = []
     token_line: list[int] = []
+    per_line: list[int] = []
     for k in range(1 + no, len(lines)):
         toks = lines[k].split()
         tokens.extend(toks)
         token_line.extend([k + 1] * len(toks))
+        per_line.append(len(toks))
     if len(tokens) < need:
         raise fail(len(lines) + 1, f"unexpected end of file: expected {need} parameters "
                    f"(9 x {nc} cameras + 3 x {npt} points), found {len(tokens)}")
     if len(tokens) > need:
         raise fail(token_line[need], f"unexpected data after the {need} parameters: the "
                    f"counts in the header do not match the file ({len(tokens)} values)")
+    layout = [9] * nc + [3] * npt if per_line[0] == 9 else [1] * need
+    for k, (got, want) in enumerate(zip(per_line, layout, strict=False)):
+        if got != want:
+            raise fail(2 + no + k, f"{got} numbers on a parameter line where {want} "
+                       "belong: BAL parameters come one per line (or 9 per camera line and "
+                       "3 per point line)")
     try:
         vals = np.array(tokens, dtype=float)
-    except ValueError:
+    except (ValueError, OverflowError):
         for k, t in enumerate(tokens):
             if not _is_float(t):
                 raise fail(token_line[k], f"parameter is not a number: {t!r}") from None
@@ -278,7 +348,7 @@ def read_bal(src: str | os.PathLike | IO[str]) -> BALProblem:
                 else f"point {(k - 9 * nc) // 3} coordinate {(k - 9 * nc) % 3}")
         raise fail(token_line[k], f"non-finite value {tokens[k]!r} ({what})")
     return BALProblem(vals[:9 * nc].reshape(nc, 9), vals[9 * nc:].reshape(npt, 3),
-                      ci.astype(np.intp), pi.astype(np.intp), uv)
+                      index[:, 0].astype(np.intp), index[:, 1].astype(np.intp), uv)
 
 
 def _is_int(s: str) -> bool:

@@ -152,8 +152,9 @@ def detect_format(path: str | Path) -> str:
     >>> detect_format(path)
     'g2o'
     """
-    with open(path, encoding="utf-8") as f:
-        for line in f:
+    # only the tag is needed here: a byte that is not UTF-8 is left to the reader to report
+    with open(path, encoding="utf-8-sig", errors="replace") as f:
+        for lineno, line in enumerate(f, start=1):
             toks = line.split()
             if not toks or toks[0].startswith("#"):
                 continue
@@ -164,7 +165,7 @@ def detect_format(path: str | Path) -> str:
                 return "g2o"
             if len(toks) == 3 and all(t.isdigit() for t in toks):
                 return "bal"
-            raise ValueError(f"{path}:1: cannot tell the file format from {tag!r}; "
+            raise ValueError(f"{path}:{lineno}: cannot tell the file format from {tag!r}; "
                              "give --format")
     raise ValueError(f"{path}: the file has no data lines")
 

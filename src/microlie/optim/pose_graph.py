@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from .._textfile import digits_only, numbers_by_line, read_text
 from ..groups import SE2, SE3, LieGroup
 
 __all__ = ["PoseGraph", "VertexTag", "EdgeTag", "parse_pose_graph", "symmetric_from_upper"]
@@ -443,10 +443,13 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
                      kind: str = "pose-graph") -> PoseGraph:
     r"""Parse a line-based pose-graph file with the given tags (see :mod:`.g2o`, :mod:`.toro`).
 
-    Blank lines and lines starting with ``#`` are skipped. Every other line must start with a
-    known tag and have exactly its number of fields; anything else is a ``ValueError`` naming
-    ``FILE:LINE``. Lines are grouped by tag and each group's numbers are converted in one
-    call; a group that fails is re-read line by line to name the first bad line.
+    The file is UTF-8 (a byte order mark is dropped). Blank lines and lines starting with
+    ``#`` are skipped. Every other line must start with a known tag and have exactly its
+    number of fields (each line is checked); ids are integers in ``0 .. 2**63 - 1``, read
+    exactly, and the numbers finite (Python's ``int`` and ``float`` rules). Anything else is
+    a ``ValueError`` naming ``FILE:LINE``. Lines are grouped by tag and each group is
+    converted in one call; a group that fails is re-read line by line to name the first bad
+    line.
 
     Parameters
     ----------
@@ -481,8 +484,7 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
     path = Path(path)
     name = str(path)
     known = sorted([*vertex_tags, *edge_tags, *([fix_tag] if fix_tag else [])])
-    with open(path, encoding="utf-8") as f:
-        text = f.read()
+    text = read_text(path)
     buckets: dict[str, tuple[list[str], list[int]]] = {}
     for lineno, line in enumerate(text.splitlines(), start=1):
         parts = line.split(None, 1)
@@ -542,52 +544,78 @@ class _LineError(ValueError):
 
 def _block(name: str, tag: str, rests: list[str], lines: list[int], n_ids: int,
            n_num: int) -> tuple[np.ndarray, np.ndarray]:
-    """Ids ``(n, n_ids)`` and numbers ``(n, n_num)`` of the lines of one tag."""
-    n, k = len(rests), n_ids + n_num
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # NumPy warns when a token is not a number
-        try:
-            a = np.fromstring(" ".join(rests), sep=" ")
-        except (DeprecationWarning, ValueError):
-            a = None
-    if a is None or a.size != n * k:
-        for rest, ln in zip(rests, lines, strict=True):
-            _check_line(name, tag, rest.split(), ln, n_ids, n_num)  # raises at the first
-        raise AssertionError(f"{name}: {tag} lines failed to parse")  # pragma: no cover
-    a = a.reshape(n, k)
-    ids, vals = a[:, :n_ids], a[:, n_ids:]
-    bad = ~np.all(np.isfinite(vals) & (np.isfinite(ids) & (ids == np.round(ids)) & (ids >= 0))
-                  .all(1, keepdims=True), axis=1)
-    if np.any(bad):
-        r = int(np.flatnonzero(bad)[0])
-        _check_line(name, tag, rests[r].split(), lines[r], n_ids, n_num)
-        raise _LineError(lines[r], f"{name}:{lines[r]}: {tag}: vertex id is not an integer")
-    return ids.astype(np.int64), vals
+    """Ids ``(n, n_ids)`` (int64, exact) and numbers ``(n, n_num)`` of the lines of one tag.
+
+    Every line's field count is checked (a line with a field too many next to one with a
+    field too few must not shift numbers from one to the other). Plain ASCII lines with ids
+    below ``2**53`` are converted in bulk (:func:`~microlie._textfile.numbers_by_line`); the
+    others with Python's ``int`` and ``float`` rules, line by line where a line fails, which
+    names the first bad line.
+    """
+    k = n_ids + n_num
+    joined = "\n".join(rests)
+    if joined.isascii():  # plain numbers, ids below 2**53: converted in bulk
+        data = joined.encode("ascii")
+        bulk = numbers_by_line(data)
+        if bulk is not None and bulk[2].size == len(rests) and (bulk[2] == k).all():
+            a, starts = bulk[0].reshape(-1, k), bulk[1].reshape(-1, k)
+            if np.isfinite(a).all() and digits_only(data, starts[:, :n_ids].reshape(-1),
+                                                    a[:, :n_ids].reshape(-1)):
+                return a[:, :n_ids].astype(np.int64), a[:, n_ids:]
+    fields = [r.split() for r in rests]
+    counts = np.fromiter(map(len, fields), dtype=np.intp, count=len(fields))
+    bad = np.flatnonzero(counts != k)
+    if bad.size:
+        r = int(bad[0])
+        _check_line(name, tag, fields[r], lines[r], n_ids, n_num)  # raises
+    try:
+        ids = np.array([f[:n_ids] for f in fields], dtype=np.int64).reshape(-1, n_ids)
+        vals = np.array([f[n_ids:] for f in fields], dtype=np.float64).reshape(-1, n_num)
+    except (ValueError, OverflowError):
+        rows = [_check_line(name, tag, f, ln, n_ids, n_num)
+                for f, ln in zip(fields, lines, strict=True)]
+        ids = np.array([r[0] for r in rows], dtype=np.int64).reshape(-1, n_ids)
+        vals = np.array([r[1] for r in rows], dtype=np.float64).reshape(-1, n_num)
+    bad = np.flatnonzero(~np.isfinite(vals).all(axis=1) | (ids < 0).any(axis=1))
+    if bad.size:
+        r = int(bad[0])
+        _check_line(name, tag, fields[r], lines[r], n_ids, n_num)  # raises
+    return ids, vals
+
+
+_ID_MAX = 2**63 - 1
 
 
 def _check_line(name: str, tag: str, fields: list[str], lineno: int, n_ids: int,
-                n_num: int) -> None:
-    """Raise the error that names what is wrong with one line (if anything)."""
+                n_num: int) -> tuple[list[int], list[float]]:
+    """The ids and numbers of one line, or the error that names what is wrong with it."""
     where = f"{name}:{lineno}"
     if len(fields) != n_ids + n_num:
         raise _LineError(lineno, f"{where}: {tag} needs {n_ids + n_num} fields "
                          f"({n_ids} id{'s' * (n_ids > 1)} and {n_num} numbers), "
                          f"got {len(fields)}")
-    _ints(fields[:n_ids], where, tag, line=lineno)
-    _floats(fields[n_ids:], where, tag, line=lineno)
+    return (_ints(fields[:n_ids], where, tag, line=lineno),
+            _floats(fields[n_ids:], where, tag, line=lineno))
 
 
 def _ints(fields: Sequence[str], where: str, tag: str, at_least_one: bool = False,
           line: int = 0) -> list[int]:
+    """Vertex ids: integers in ``0 .. 2**63 - 1`` (GTSAM ``Symbol`` keys fit), exact."""
     if at_least_one and not fields:
         raise _LineError(line, f"{where}: {tag} needs at least one vertex id")
-    try:
-        out = [int(f) for f in fields]
-    except ValueError:
-        bad = next(f for f in fields if not f.lstrip("+-").isdigit())
-        raise _LineError(line, f"{where}: {tag}: vertex id {bad!r} is not an integer") from None
-    if any(v < 0 for v in out):
-        raise _LineError(line, f"{where}: {tag}: negative vertex id {min(out)}")
+    out = []
+    for f in fields:
+        try:
+            v = int(f)
+        except ValueError:
+            raise _LineError(line, f"{where}: {tag}: vertex id {f!r} is not an "
+                             "integer") from None
+        if v < 0:
+            raise _LineError(line, f"{where}: {tag}: negative vertex id {v}")
+        if v > _ID_MAX:
+            raise _LineError(line, f"{where}: {tag}: vertex id {v} is larger than "
+                             f"2**63 - 1 = {_ID_MAX}")
+        out.append(v)
     return out
 
 

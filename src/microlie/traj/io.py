@@ -9,12 +9,13 @@ Formats (one pose per line; ``#`` starts a comment line, blank lines are ignored
 * **EuRoC**: CSV ``timestamp[ns], px, py, pz, qw, qx, qy, qz, ...`` (quaternion scalar *first*,
   more columns allowed and ignored).
 
-Every reader validates each line and raises :class:`ValueError` naming the file and the
-1-based line number for: a wrong number of fields, a non-numeric field, NaN or infinity, a
-quaternion whose norm is off 1 by more than ``quat_tol`` and (KITTI) a matrix that is not a
-rotation within ``rot_tol``. Accepted quaternions are normalised and accepted KITTI rotations
-are projected onto SO(3) (nearest rotation in the Frobenius norm, via SVD) before they become
-:class:`~microlie.SE3` poses.
+Files are UTF-8 (a byte order mark is dropped). Every reader validates each line and raises
+:class:`ValueError` naming the file and the 1-based line number for: a byte that is not UTF-8,
+a wrong number of fields (EuRoC: a line whose number of fields differs from the first line's),
+a non-numeric field, NaN or infinity, a quaternion whose norm is off 1 by more than
+``quat_tol`` and (KITTI) a matrix that is not a rotation within ``rot_tol``. Accepted
+quaternions are normalised and accepted KITTI rotations are projected onto SO(3) (nearest
+rotation in the Frobenius norm, via SVD) before they become :class:`~microlie.SE3` poses.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import numpy as np
 
 from microlie import SE3, _fast
 from microlie._files import atomic_write
+from microlie._textfile import read_text
 
 from .trajectory import Trajectory
 
@@ -54,7 +56,7 @@ PathLike = str | os.PathLike
 
 def _data_lines(path: PathLike, comma: bool) -> tuple[list[int], list[list[str]]]:
     """Return (1-based line numbers, split fields) of the non-comment, non-blank lines."""
-    text = Path(path).read_text(encoding="utf-8-sig")
+    text = read_text(path)
     numbers: list[int] = []
     rows: list[list[str]] = []
     for k, line in enumerate(text.splitlines(), start=1):
@@ -213,7 +215,7 @@ def _fast_matrix(
         and not any(data.find(c, offset) >= 0 for c in below_header)
     ):
         return _loadtxt(path, ncols, comma, at_least, skip)
-    text = Path(path).read_text(encoding="utf-8-sig")  # as the careful path reads it
+    text = read_text(path)  # as the careful path reads it
     lines = _data_block(text)
     if not comma and "," in text:
         # commas separate fields like spaces (see _data_lines); a line of commas only has
@@ -487,8 +489,38 @@ def read_euroc(path: PathLike, *, quat_tol: float = 1e-3, name: str | None = Non
     numbers, mat = _read_matrix(
         path, 8, comma=True, at_least=True, what="timestamp[ns], px, py, pz, qw, qx, qy, qz"
     )
+    _same_columns(path)
     params = mat[:, [1, 2, 3, 5, 6, 7, 4]]  # [p, q_xyzw]: the file's quaternion is w first
     return _quat_trajectory(path, numbers, mat[:, 0] / 1e9, params, quat_tol, name or str(path))
+
+
+def _same_columns(path: PathLike) -> None:
+    """Every data line of a CSV file has the fields of the first one (a field inserted in or
+    dropped from one line would shift the columns read from it)."""
+    data = Path(path).read_bytes()
+    skip, offset = _header_lines(data)
+    if (data.isascii() and not any(c in data for c in _BREAKS)
+            and data.count(b"\r") == data.count(b"\r\n")
+            and not any(data.find(c, offset) >= 0 for c in (b"#", b"%"))):
+        # the usual file: commas per line in bulk (a line without commas is blank, or has
+        # one field and was refused by the reader already)
+        arr = np.frombuffer(data, dtype=np.uint8)[offset:]
+        starts = np.flatnonzero(arr[:-1] == 10) + 1
+        per_line = np.add.reduceat((arr == 44).view(np.uint8), np.append(0, starts),
+                                   dtype=np.int64) if arr.size else np.zeros(0, np.int64)
+        counts = per_line[per_line > 0]
+        if not counts.size or (counts == counts[0]).all():
+            return
+    lines = [ln for ln in _data_block(read_text(path)) if ln.strip()]
+    counts = np.fromiter((ln.count(",") for ln in lines), dtype=np.intp, count=len(lines))
+    bad = np.flatnonzero(counts != counts[:1])
+    if bad.size:
+        numbers = _data_lines(path, True)[0]
+        k = int(bad[0])
+        raise ValueError(
+            f"{path}:{numbers[k]}: {counts[k] + 1} fields, but line {numbers[0]} has "
+            f"{counts[0] + 1}: every line of the file must have the same columns"
+        )
 
 
 def read_trajectory(

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from .._files import atomic_write
+from .._textfile import read_text
 from .metrics import PoseError, statistics
 
 __all__ = ["Result", "save_result", "load_result", "result_from_error"]
@@ -204,7 +205,9 @@ def load_result(path: str | os.PathLike) -> Result:
     Raises
     ------
     ValueError
-        The file is not a microlie result, or its errors and statistics disagree.
+        The file is not UTF-8 JSON (naming ``FILE:LINE``), not a microlie result, has a
+        field of the wrong type or a number that is not finite, or its errors and
+        statistics disagree (naming ``FILE``).
 
     Examples
     --------
@@ -216,27 +219,60 @@ def load_result(path: str | os.PathLike) -> Result:
     >>> traj.load_result(traj.save_result(res, path)).options
     {}
     """
+    text = read_text(path)
     try:
-        d = json.loads(Path(path).read_text(encoding="utf-8"))
+        d = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not a JSON file ({exc})") from None
+        raise ValueError(f"{path}:{exc.lineno}: not a JSON file ({exc.msg}, column "
+                         f"{exc.colno})") from None
+    except (ValueError, RecursionError) as exc:  # an integer of > 4300 digits, deep nesting
+        raise ValueError(f"{path}: not a readable JSON file ({exc})") from None
     if not isinstance(d, dict) or d.get("microlie_result") != FORMAT_VERSION:
         raise ValueError(f"{path}: not a microlie result file (no 'microlie_result': 1)")
-    try:
-        errors = np.asarray(d["errors"], dtype=np.float64)
-        stamps = None if d.get("timestamps") is None else np.asarray(d["timestamps"], float)
-        pairs = None if d.get("pairs") is None else np.asarray(d["pairs"], dtype=np.intp)
-        res = Result(d["metric"], d["relation"], d["label"], d["unit"],
-                     {k: float(v) for k, v in d["stats"].items()}, errors, stamps, pairs,
-                     d.get("ref_name"), d.get("est_name"), d.get("options") or {},
-                     d.get("info") or {})
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: malformed microlie result ({exc!r})") from None
-    if errors.ndim != 1 or errors.size == 0:
-        raise ValueError(f"{path}: 'errors' must be a non-empty list of numbers")
+
+    def get(key: str, kind: type | tuple[type, ...], what: str, optional: bool = False) -> Any:
+        v = d.get(key)
+        if not (isinstance(v, kind) or (optional and v is None)):
+            raise ValueError(f"{path}: malformed microlie result: {key!r} must be {what}, "
+                             f"got {str(v)[:40]!r}")
+        return v
+
+    def numbers(key: str, v: Any) -> np.ndarray:
+        if not isinstance(v, list) or not v or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+            raise ValueError(f"{path}: malformed microlie result: {key} must be a non-empty "
+                             "list of numbers")
+        try:
+            a = np.array(v, dtype=np.float64)
+        except OverflowError:
+            a = np.array([np.inf])
+        if not np.isfinite(a).all():
+            raise ValueError(f"{path}: malformed microlie result: {key} holds a number "
+                             "that is not finite")
+        return a
+
+    metric, relation, label, unit = (get(k, str, "a string")
+                                     for k in ("metric", "relation", "label", "unit"))
+    ref_name, est_name = (get(k, str, "a string or null", True) for k in ("ref_name", "est_name"))
+    options, info = (get(k, dict, "an object or null", True) or {} for k in ("options", "info"))
+    errors = numbers("'errors'", d.get("errors"))
+    stamps = None if d.get("timestamps") is None else numbers("'timestamps'", d["timestamps"])
     if stamps is not None and stamps.shape != errors.shape:
         raise ValueError(f"{path}: {stamps.size} timestamps for {errors.size} errors")
+    pairs = None
+    if d.get("pairs") is not None:
+        rows = d["pairs"]
+        if not (isinstance(rows, list) and len(rows) == errors.size and all(
+                isinstance(r, list) and len(r) == 2 and all(
+                    type(x) is int and 0 <= x < 2**62 for x in r) for r in rows)):
+            raise ValueError(f"{path}: malformed microlie result: 'pairs' must be "
+                             f"{errors.size} pairs [i, j] of indices")
+        pairs = np.array(rows, dtype=np.intp).reshape(-1, 2)
     again = statistics(errors)
-    if any(abs(again[k] - res.stats[k]) > 1e-12 * max(1.0, abs(again[k])) for k in again):
+    stats_in = get("stats", dict, "an object")
+    stats = {k: float(numbers(f"stats[{k!r}]", [v])[0]) for k, v in stats_in.items()}
+    if any(k not in stats or abs(again[k] - stats[k]) > 1e-12 * max(1.0, abs(again[k]))
+           for k in again):
         raise ValueError(f"{path}: the stored statistics do not match the stored errors")
-    return res
+    return Result(metric, relation, label, unit, stats, errors, stamps, pairs, ref_name,
+                  est_name, options, info)
