@@ -149,12 +149,12 @@ class LinearSolver:
         Parameters
         ----------
         b : numpy.ndarray
-            ``(n,)`` right-hand side.
+            ``(n,)`` right-hand side, or ``(n, k)`` for ``k`` of them (every backend).
 
         Returns
         -------
         numpy.ndarray
-            ``(n,)`` solution.
+            The solution, shaped as ``b``.
 
         Raises
         ------
@@ -253,7 +253,14 @@ class QdldlSolver(LinearSolver):
             raise SingularSystemError(f"the linear system is singular ({e})") from None
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        return _checked(self._solver.solve(b))
+        # qdldl solves one vector at a time: a matrix right-hand side column by column
+        b = np.asarray(b, dtype=np.float64)
+        if b.ndim == 1:
+            return _checked(self._solver.solve(b))
+        x = np.empty_like(b)
+        for k in range(b.shape[1]):
+            x[:, k] = self._solver.solve(np.ascontiguousarray(b[:, k]))
+        return _checked(x)
 
 
 class PardisoSolver(LinearSolver):
