@@ -3,17 +3,25 @@ covariances, marginals with every linear backend, rank-deficient systems and the
 
 from __future__ import annotations
 
+import io
+import json
+
 import numpy as np
 import pytest
+from conftest import data_file
 
 from microlie import SE2
+from microlie.cli import main
 from microlie.optim import (
     BetweenFactor,
     FactorGraph,
     Isotropic,
     PriorFactor,
+    SingularSystemError,
     available_solvers,
 )
+from microlie.optim.g2o import read_g2o
+from microlie.optim.init import chordal
 
 BACKENDS = ["auto", *available_solvers()]
 
@@ -75,3 +83,64 @@ def test_issue19_item11_marginals_match_the_dense_inverse(backend):
     sel = np.r_[15:18, 231:234]
     np.testing.assert_allclose(J, cov[np.ix_(sel, sel)], rtol=1e-6,
                                atol=1e-9 * np.abs(cov).max())
+
+
+# ----------------------------------------------------------------------------- item 12
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_issue19_item12_rank_deficient_gauss_newton_raises_on_every_backend(backend):
+    # no prior, no gauge check: H is singular (3 zero eigenvalues) whatever the backend; qdldl
+    # took its rounding-noise pivots (-2e-15 of their diagonal) and returned a step
+    g, x, _ = _se2_loop_graph()
+    g.factors.pop(0)
+    g._changed()
+    H = g.problem("none").matrix(g.problem("none").linearize(
+        [v.initial for v in g.variables]).data).toarray()
+    w = np.linalg.eigvalsh(H)
+    assert np.sum(w < 1e-10 * w[-1]) == 3  # the gauge, independently of every backend
+    with pytest.raises(SingularSystemError, match=r"rank deficient .*first at x\[\d+\]"):
+        g.optimize(solver="gn", gauge="none", linear_solver=backend)
+
+
+@pytest.mark.parametrize("backend", [b for b in available_solvers() if b != "dense"])
+def test_issue19_item12_gauge_free_m3500_is_singular_on_every_backend(backend):
+    # M3500 without its gauge: every backend factorised it (pivots 4e-14 .. 1e-11 of their
+    # diagonal, positive), so GN took a step along the gauge
+    pg = read_g2o(data_file("pose_graph/input_M3500_g2o.g2o"))
+    fg, _ = pg.to_factor_graph(gauge="none")
+    with pytest.raises(SingularSystemError, match="rank deficient"):
+        fg.optimize(solver="gn", gauge="none", linear_solver=backend, max_iter=1)
+
+
+DISCONNECTED = ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1.1 0 0\nVERTEX_SE2 7 5 0 0\n"
+                "VERTEX_SE2 9 6.2 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n"
+                "EDGE_SE2 7 9 1 0 0 1 0 0 1 0 1\n")
+
+
+def test_issue19_item12_chordal_names_the_vertices_not_connected_to_the_anchor(tmp_path):
+    path = tmp_path / "two_parts.g2o"
+    path.write_text(DISCONNECTED)
+    with pytest.raises(ValueError, match=r"2 vertices are not connected .* vertex 0: 7, 9;"):
+        chordal(read_g2o(path))
+
+
+def _optimize(*argv: str) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    code = main(["optimize", *argv], out=out, err=err)
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_issue19_item12_optimize_takes_the_gauge_its_error_suggests(tmp_path):
+    path = tmp_path / "two_parts.g2o"
+    path.write_text(DISCONNECTED)
+    code, _, err = _optimize(str(path))
+    assert code == 1
+    assert "vertex 7" in err and "--gauge fix_first" in err and "gauge='fix_first'" not in err
+    code, out, err = _optimize(str(path), "--gauge", "fix_first", "--json",
+                               "-o", str(tmp_path / "out.g2o"))
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["converged"] is True and r["gauge"] == "fix_first" and r["gauge_fixed"] == [7]
+    X = read_g2o(tmp_path / "out.g2o").poses
+    # vertex 7 held at its start (5, 0, 0); vertex 9 one unit edge ahead of it, vertex 1 of 0
+    np.testing.assert_allclose(np.asarray(X.translation()), [[0, 0], [1, 0], [5, 0], [6, 0]],
+                               atol=1e-9)

@@ -4,14 +4,17 @@
 
     microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] [--robust huber:1.0]
                      [--init auto|file|odometry|chordal] [--linear-solver auto|supernodal|...]
-                     [--max-iter N] [--plot FILE] [--json] [--format auto|g2o|toro|bal]
+                     [--max-iter N] [--gauge check|fix_first|none] [--plot FILE] [--json]
+                     [--format auto|g2o|toro|bal]
 
 The reported costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges (plain, even with
 ``--robust``, and without the gauge prior); ``time_s`` is the solve alone (reading, initial
 guess and graph construction are reported apart). The gauge is the file's ``FIX`` vertices,
-or else a prior on the first pose at its start value. ``--init auto`` takes the file's vertices,
-or the odometry chain when the file has none, or chordal when that chain is incomplete (said on
-stderr). A progress line per iteration goes to stderr on a terminal.
+or else a prior on the first pose at its start value; a part of the graph that no edge joins
+to it is an error unless ``--gauge fix_first`` (hold its first vertex) or ``--gauge none``
+(:meth:`~microlie.optim.FactorGraph.optimize`'s ``gauge``). ``--init auto`` takes the file's
+vertices, or the odometry chain when the file has none, or chordal when that chain is
+incomplete (said on stderr). A progress line per iteration goes to stderr on a terminal.
 
 Formats are handled by the functions in :data:`FORMATS` (format name -> ``"module:function"``,
 imported on use), each called as ``run(args, err) -> dict`` and returning the JSON report: a
@@ -37,6 +40,7 @@ FORMATS: dict[str, str] = {
 }
 SOLVERS = ("lm", "gn", "dogleg")
 INITS = ("auto", "file", "odometry", "chordal")
+GAUGES = ("check", "fix_first", "none")
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
@@ -90,6 +94,12 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         "scipy, qdldl, pardiso, dense; for BAL dense, sparse, full")
     p.add_argument("--max-iter", type=int, default=100, metavar="N",
                    help="maximum number of iterations (default 100)")
+    p.add_argument("--gauge", choices=GAUGES, default=None,
+                   help="pose graphs: parts of the graph not connected to the first vertex or a "
+                        "FIX vertex are an error (check, default), or have their first vertex "
+                        "held at its start value (fix_first), or are left free (none: LM's "
+                        "damping keeps the system solvable, GN fails); FactorGraph.optimize's "
+                        "gauge")
     p.add_argument("--plot", metavar="FILE", default=None,
                    help="draw the initial and optimised graph to FILE (PNG)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -276,8 +286,21 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     t2 = time.perf_counter()
     fg, poses = graph.to_factor_graph(X0, loss=args.robust)
     t3 = time.perf_counter()
-    res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
-                      max_iter=args.max_iter, verbose=_progress(err))
+    from .problem import GaugeError
+
+    gauge = args.gauge or "check"
+    try:
+        res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
+                          max_iter=args.max_iter, gauge=gauge, verbose=_progress(err))
+    except GaugeError as e:  # in the command's terms: vertex ids and --gauge
+        ids = [str(graph.ids[i]) for _, i in e.unanchored]
+        anchor = "a FIX vertex" if graph.fixed.size else \
+            f"vertex {graph.ids[0]} (held by the gauge prior)"
+        raise GaugeError(
+            f"the graph has a gauge freedom: {e.count} vertices in {len(ids)} part(s) that no "
+            f"edge joins to {anchor}, the parts starting at vertex {', '.join(ids)}; add "
+            f"edges, or pass --gauge fix_first to hold the first vertex of each such part at "
+            f"its start value", e.unanchored, e.count) from None
     X = res.values[poses]
     report = {
         "file": str(args.input),
@@ -302,6 +325,8 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         "init_s": t2 - t1,
         "build_s": t3 - t2,
         "timings": {k: float(v) for k, v in res.timings.items()},
+        "gauge": gauge,
+        "gauge_fixed": [int(graph.ids[i]) for _, i in res.gauge_fixed],
     }
     if args.output:
         _write(args.output, graph, X, args.format)

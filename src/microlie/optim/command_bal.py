@@ -62,6 +62,9 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     solver = getattr(args, "solver", "lm")
     if solver != "lm":
         raise ValueError(f"BAL problems are solved with lm only, not {solver!r}")
+    if getattr(args, "gauge", None) is not None:
+        raise ValueError("--gauge applies to pose graphs: bundle adjustment leaves its gauge "
+                         "free (the damping keeps the system solvable, as in Ceres)")
     linear = getattr(args, "linear_solver", "auto")
     if linear not in _LINEAR:
         raise ValueError(f"BAL problems take --linear-solver {', '.join(_LINEAR)} (Schur "

@@ -31,7 +31,34 @@ _CHUNK = 512
 
 
 class GaugeError(ValueError):
-    """The graph leaves some variables unconstrained up to a common transformation."""
+    """The graph leaves some variables unconstrained up to a common transformation.
+
+    Attributes
+    ----------
+    unanchored : list of (Variables, int)
+        The first variable of each connected component that no prior or fixed variable
+        anchors.
+    count : int
+        The number of variables in those components.
+
+    Examples
+    --------
+    >>> from microlie import SE2
+    >>> from microlie.optim import BetweenFactor, FactorGraph, GaugeError
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(2), name="x")
+    >>> _ = g.add(BetweenFactor(x, 0, 1, SE2.identity()))
+    >>> try:
+    ...     g.optimize()
+    ... except GaugeError as e:
+    ...     print(e.count, [f"{v.name}[{i}]" for v, i in e.unanchored])
+    2 ['x[0]']
+    """
+
+    def __init__(self, message: str, unanchored: list | None = None, count: int = 0) -> None:
+        super().__init__(message)
+        self.unanchored: list[tuple[Variables, int]] = list(unanchored or [])
+        self.count = count
 
 
 @dataclass
@@ -207,6 +234,8 @@ class Problem:
         if ok.all():
             return
         bad = ~ok[label]
+        firsts = [self._node_var(int(np.flatnonzero(label == comp)[0]))
+                  for comp in np.flatnonzero(~ok)]
         if gauge == "check":
             first = int(np.flatnonzero(bad)[0])
             name = self._node_name(first)
@@ -215,10 +244,8 @@ class Problem:
                 f"{int((~ok).sum())} connected component(s), the first containing {name}) are "
                 f"not connected to a prior or a fixed variable; add a PriorFactor, fix a "
                 f"variable, or pass gauge='fix_first' to hold the first variable of each such "
-                f"component constant")
-        for comp in np.flatnonzero(~ok):
-            node = int(np.flatnonzero(label == comp)[0])
-            self.gauge_fixed.append(self._node_var(node))
+                f"component constant", firsts, int(bad.sum()))
+        self.gauge_fixed.extend(firsts)
 
     def _node_var(self, node: int) -> tuple[Variables, int]:
         for v, nodes in zip(self.variables, self.node_of, strict=False):
@@ -230,6 +257,34 @@ class Problem:
     def _node_name(self, node: int) -> str:
         v, i = self._node_var(node)
         return f"{v.name}[{i}]"
+
+    def unknown_name(self, unknown: int) -> str:
+        """The variable that unknown (row of ``H``) ``unknown`` belongs to, as ``name[index]``.
+
+        Parameters
+        ----------
+        unknown : int
+            A row of ``H``, ``0 <= unknown < size``.
+
+        Returns
+        -------
+        str
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3), name="x")
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> g.problem().unknown_name(4)  # unknowns 3..5 are x[1]
+        'x[1]'
+        """
+        if not 0 <= unknown < self.size:
+            raise ValueError(f"unknown must be in [0, {self.size}), got {unknown}")
+        return self._node_name(int(np.searchsorted(self.node_off, unknown, side="right")) - 1)
 
     # ------------------------------------------------------------------ pattern
     def _build_pattern(self) -> None:

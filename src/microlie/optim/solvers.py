@@ -285,7 +285,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                     break
         elif o.solver == "gn":
             solves += 1
-            dx = _factor_solve(ls, lin.data, -lin.grad, tm, gn=True)
+            dx = _factor_solve(ls, lin.data, -lin.grad, tm, gn=problem)
             keep = not _final(o, cur_rc, -0.5 * _dot(lin.grad, dx))  # H dx = -g
             new, new_c, new_rc = _try(problem, cur, dx, tm, keep=keep)
             if new_rc < cur_rc:
@@ -305,7 +305,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
             while True:
                 if gn_dx is None:
                     solves += 1
-                    gn_dx = _factor_solve(ls, lin.data, -g, tm, gn=True)
+                    gn_dx = _factor_solve(ls, lin.data, -g, tm, gn=problem)
                 dx = _dogleg_step(gn_dx, sd, radius)
                 pred = -(_dot(g, dx) + 0.5 * _dot(dx, H @ dx))
                 new, new_c, new_rc = _try(problem, cur, dx, tm,
@@ -381,15 +381,19 @@ def _linearize(problem: Problem, states: list[np.ndarray], tm: _Timer, old: Any 
 
 
 def _factor_solve(ls: LinearSolver, data: np.ndarray, b: np.ndarray, tm: _Timer,
-                  gn: bool = False) -> np.ndarray:
+                  gn: Problem | None = None) -> np.ndarray:
+    """Factorise and solve; with ``gn`` (the problem of an undamped system) a singular
+    system is an error naming the first variable it involves."""
     t0 = time.perf_counter()
     try:
         ls.factorize(data)
     except SingularSystemError as e:
-        if gn:
+        if gn is not None:
+            at = f", first at {gn.unknown_name(e.unknown)}" if e.unknown is not None else ""
             raise SingularSystemError(
                 f"{e}: the Gauss-Newton system is rank deficient (a gauge freedom or an "
-                f"unobservable variable); add priors or use solver='lm'") from None
+                f"unobservable variable{at}); add priors or use solver='lm'",
+                unknown=e.unknown) from None
         raise
     finally:
         tm.t["factorize"] += time.perf_counter() - t0
