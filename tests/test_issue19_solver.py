@@ -14,10 +14,12 @@ from microlie import SE2
 from microlie.cli import main
 from microlie.optim import (
     BetweenFactor,
+    CustomFactor,
     FactorGraph,
     Isotropic,
     PriorFactor,
     SingularSystemError,
+    Values,
     available_solvers,
 )
 from microlie.optim.g2o import read_g2o
@@ -144,3 +146,117 @@ def test_issue19_item12_optimize_takes_the_gauge_its_error_suggests(tmp_path):
     # vertex 7 held at its start (5, 0, 0); vertex 9 one unit edge ahead of it, vertex 1 of 0
     np.testing.assert_allclose(np.asarray(X.translation()), [[0, 0], [1, 0], [5, 0], [6, 0]],
                                atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- item 5
+def _wrong_sign_graph() -> tuple[FactorGraph, object]:
+    """``r = x - 1`` from ``x = 3`` with the Jacobian's sign wrong: every step raises the
+    cost ``0.5 (x - 1)^2 = 2``."""
+    g = FactorGraph()
+    x = g.add_variables(np.array([[3.0]]), name="x")
+    g.add(CustomFactor(lambda v: (v - 1.0, [-np.ones((len(v), 1, 1))]), [(x, 0)], 1,
+                       jac="analytic"))
+    return g, x
+
+
+@pytest.mark.parametrize("solver, reason", [("lm", "lambda exceeded"),
+                                            ("dogleg", "trust region collapsed"),
+                                            ("gn", "did not decrease")])
+def test_issue19_item5_a_solver_that_cannot_decrease_the_cost_failed(solver, reason):
+    g, x = _wrong_sign_graph()
+    r = g.optimize(solver=solver)
+    assert not r.converged and r.termination == "failure"
+    assert reason in r.message
+    assert r.final_cost == r.initial_cost == 0.5 * (3.0 - 1.0) ** 2
+    assert r.values[x].tolist() == [[3.0]]
+
+
+@pytest.mark.parametrize("solver", ["lm", "dogleg", "gn"])
+def test_issue19_item5_a_start_at_the_minimum_still_converges(solver):
+    # no step decreases the cost there either, but the first one changes it by rounding only
+    g = FactorGraph()
+    x = g.add_variables(np.array([[1.0]]), name="x")
+    g.add(PriorFactor(x, 0, np.array([[0.0]])))
+    g.add(PriorFactor(x, 0, np.array([[2.0]])))  # minimum at x = 1, cost 1
+    r = g.optimize(solver=solver)
+    assert r.converged and r.termination == "convergence", r.message
+    assert r.final_cost == 1.0
+    r = g.optimize(solver=solver, max_iter=0)
+    assert not r.converged and r.termination == "no_convergence"
+
+
+def test_issue19_item5_a_non_finite_start_names_the_factor():
+    g, x, _ = _se2_loop_graph(20)
+    P = np.array(g.initial_values()[x].params)
+    P[7, 0] = np.nan
+    with pytest.raises(ValueError, match=r"not finite at the start: factor batch 1 "
+                                         r"\(BetweenFactor\) row 6 on x\[6\], x\[7\].*"
+                                         r"the value of x\[7\] is not finite"):
+        g.optimize(Values([x], [P]))
+
+
+def test_issue19_item5_a_non_finite_linearisation_during_the_run_names_the_factor():
+    # r = x - 5 (finite everywhere) whose Jacobian is NaN beyond x = 1, and r = x - 6: the first
+    # step lands near 5.5, where the linearisation is not finite (was: every damped system
+    # singular, "lambda exceeded", converged)
+    g = FactorGraph()
+    x = g.add_variables(np.array([[0.0]]), name="x")
+    g.add(PriorFactor(x, 0, np.array([[6.0]])))
+    g.add(CustomFactor(lambda v: (v - 5.0, [np.where(v > 1.0, np.nan, 1.0)[:, :, None]]),
+                       [(x, 0)], 1, jac="analytic"))
+    with pytest.raises(ValueError, match=r"not finite after iteration 1: factor batch 1 "
+                                         r"\(CustomFactor\) row 0 on x\[0\]: Jacobian"):
+        g.optimize()
+
+
+def test_issue19_item5_bundle_adjustment_that_cannot_decrease_the_cost_failed():
+    from microlie.optim.bundle import bundle_adjust, synthetic_scene
+    from microlie.optim.camera import PinholeCamera
+
+    class WrongSign(PinholeCamera):
+        def project(self, P, K, jac=True, out=None):
+            uv, JP, JK = super().project(P, K, jac, out)
+            if out is not None:
+                out *= -1.0
+            return uv, (None if JP is None else -JP), (None if JK is None else -JK)
+
+    _, start = synthetic_scene(3, 20, seed=1, model="pinhole")
+    good = bundle_adjust(start, fix_cameras=[0])  # the true Jacobians: about 4 px^2
+    assert good.converged and good.termination == "convergence"
+    lying = type(start)(**{**start.__dict__, "model": WrongSign()})
+    r = bundle_adjust(lying, fix_cameras=[0])
+    # was: converged (Ceres' parameter tolerance, reached by steps short only because the
+    # radius had shrunk after the model's predicted decreases failed)
+    assert not r.converged and r.termination == "failure", r.message
+    assert "without decreasing the cost" in r.message
+    assert r.initial_cost == pytest.approx(start.cost(), rel=1e-12)
+    assert r.final_cost <= r.initial_cost
+    assert r.final_cost == pytest.approx(r.problem.cost(), rel=1e-12)
+    assert r.final_cost > 100 * good.final_cost
+
+
+def test_issue19_item5_optimize_reports_a_failed_solve_and_exits_1(tmp_path, monkeypatch):
+    # a pose graph plus one factor whose Jacobian lies: LM cannot decrease the cost
+    from microlie.optim.pose_graph import PoseGraph
+
+    real = PoseGraph.to_factor_graph
+
+    def with_a_lying_factor(self, *a, **k):
+        fg, poses = real(self, *a, **k)
+        fg.add(CustomFactor(lambda X: (X.params[:, :1] - 10.0,
+                                       [-1e3 * np.eye(1, 3)[None].repeat(len(X), 0)]),
+                            [(poses, 1)], 1, Isotropic(1, 1e-3), jac="analytic"))
+        return fg, poses
+
+    monkeypatch.setattr(PoseGraph, "to_factor_graph", with_a_lying_factor)
+    path = tmp_path / "in.g2o"
+    path.write_text(DISCONNECTED.replace("EDGE_SE2 7 9", "EDGE_SE2 1 7").replace(
+        "VERTEX_SE2 9 6.2 0 0\n", "").replace("EDGE_SE2 1 7 1 0 0", "EDGE_SE2 1 7 4 0 0"))
+    code, out, err = _optimize(str(path), "-o", str(tmp_path / "out.g2o"))
+    assert code == 1
+    assert "not converged (lambda exceeded" in out
+    assert "solver failed" in err and "no output written" in err
+    assert not (tmp_path / "out.g2o").exists()
+    code, out, _ = _optimize(str(path), "--json")
+    r = json.loads(out)
+    assert code == 1 and r["converged"] is False and r["termination"] == "failure"

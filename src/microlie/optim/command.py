@@ -16,6 +16,11 @@ to it is an error unless ``--gauge fix_first`` (hold its first vertex) or ``--ga
 vertices, or the odometry chain when the file has none, or chordal when that chain is
 incomplete (said on stderr). A progress line per iteration goes to stderr on a terminal.
 
+The report's ``termination`` is the solver's (:class:`~microlie.optim.solvers.Result`):
+``convergence`` and ``no_convergence`` (``--max-iter`` reached; printed "not converged")
+exit with status 0, as Ceres calls both usable; ``failure`` (the cost could not be decreased)
+prints the reason on stderr, writes no ``-o`` file and exits with status 1.
+
 Formats are handled by the functions in :data:`FORMATS` (format name -> ``"module:function"``,
 imported on use), each called as ``run(args, err) -> dict`` and returning the JSON report: a
 new format is one entry there.
@@ -203,6 +208,10 @@ def run(args: argparse.Namespace, out: TextIO | None = None, err: TextIO | None 
         out.write(json.dumps(report) + "\n")
     else:
         out.write(_summary(report) + "\n")
+    if report.get("termination") == "failure":
+        err.write(f"microlie optimize: error: the solver failed ({report['message']}); "
+                  f"{'no output written' if args.output else 'the result is not a solution'}\n")
+        return 1
     return 0
 
 
@@ -320,6 +329,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         "iterations": res.iterations,
         "time_s": res.time_s,
         "converged": bool(res.converged),
+        "termination": res.termination,
         "message": res.message,
         "read_s": t1 - t0,
         "init_s": t2 - t1,
@@ -328,7 +338,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         "gauge": gauge,
         "gauge_fixed": [int(graph.ids[i]) for _, i in res.gauge_fixed],
     }
-    if args.output:
+    if args.output and res.termination != "failure":
         _write(args.output, graph, X, args.format)
         report["output"] = str(args.output)
     if args.plot:

@@ -94,11 +94,12 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
         "iterations": res.iterations,
         "time_s": res.time_s,
         "converged": bool(res.converged),
+        "termination": res.termination,
         "message": res.message,
         "read_s": t1 - t0,
         "timings": {k: float(v) for k, v in res.timings.items() if isinstance(v, float)},
     }
-    if getattr(args, "output", None):
+    if getattr(args, "output", None) and res.termination != "failure":
         write_bal(args.output, res.problem.to_bal())
         report["output"] = str(args.output)
     if getattr(args, "plot", None):

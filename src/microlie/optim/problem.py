@@ -652,6 +652,56 @@ class Problem:
             self._held = states
         return c, rc
 
+    def nonfinite(self, states: list[np.ndarray], jacobians: bool = False) -> str | None:
+        """The first factor whose whitened residual (or, with ``jacobians``, Jacobian) is not
+        finite at ``states``, described by its batch, type, row and arguments; ``None`` when
+        every one is finite.
+
+        Parameters
+        ----------
+        states : list of numpy.ndarray
+            The parameters of each variable batch, in graph order.
+        jacobians : bool
+            Also check the Jacobians.
+
+        Returns
+        -------
+        str or None
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import CustomFactor, FactorGraph
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(np.array([[4.0], [1.0]]), name="x")
+        >>> _ = g.add(CustomFactor(lambda v: np.log(v - 2.0), [(x, [0, 1])], 1))
+        >>> p = g.problem()
+        >>> with np.errstate(invalid="ignore"):
+        ...     p.nonfinite([v.initial for v in p.variables])
+        'factor batch 0 (CustomFactor) row 1 on x[1]: whitened residual [nan]'
+        """
+        for fi, f in enumerate(self.factors):
+            vals = self.gather(f, states)
+            out = f.evaluate(vals, jacobians)
+            r, Js = (out[0], out[1]) if jacobians else (out, [])
+            e = self.whiten(f, np.asarray(r, dtype=np.float64))
+            bad = ~np.isfinite(e).all(axis=1) | ~np.isfinite(np.einsum("mi,mi->m", e, e))
+            what = "whitened residual"
+            if not bad.any():
+                for J in Js:
+                    bad |= ~np.isfinite(np.asarray(J)).reshape(f.count, -1).all(axis=1)
+                what = "Jacobian"
+            if not bad.any():
+                continue
+            k = int(np.flatnonzero(bad)[0])
+            names = ", ".join(f"{var.name}[{int(idx[k])}]" for var, idx in f.args)
+            unset = [f"{var.name}[{int(idx[k])}]" for var, idx in f.args
+                     if not np.isfinite(states[self.key(var)][idx[k]]).all()]
+            note = f" (the value of {', '.join(unset)} is not finite)" if unset else ""
+            shown = e[k].tolist() if what != "Jacobian" else "not finite"
+            return f"factor batch {fi} ({f.name}) row {k} on {names}: {what} {shown}{note}"
+        return None
+
     def _whitened_system(self, fi: int, states: list[np.ndarray]) -> np.ndarray:
         """Fill factor ``fi``'s work arrays at ``states``: ``K = [J_1 ... J_K r]``
         ``(m, dim, D + 1)``, in one product ``A = L K = [A e]``, and ``s = |e|^2`` (returned),
