@@ -260,3 +260,50 @@ def test_issue19_item5_optimize_reports_a_failed_solve_and_exits_1(tmp_path, mon
     code, out, _ = _optimize(str(path), "--json")
     r = json.loads(out)
     assert code == 1 and r["converged"] is False and r["termination"] == "failure"
+
+
+# ----------------------------------------------------------------------------- item 6
+@pytest.mark.parametrize("sparse", [False, True])
+def test_issue19_item6_a_camera_without_observations_has_no_finite_covariance(sparse,
+                                                                             monkeypatch):
+    from dataclasses import replace
+
+    import microlie.optim.schur as schur
+    from microlie.optim.bundle import bundle_adjust, synthetic_scene
+    from microlie.optim.camera import reproject
+
+    _, start = synthetic_scene(4, 40, noise=0.5, seed=8)
+    # camera 4: a copy of camera 1 that sees nothing
+    extra = replace(start, **{k: np.concatenate([getattr(start, k), getattr(start, k)[1:2]])
+                              for k in ("rotations", "translations", "intrinsics")})
+    r = bundle_adjust(extra, fix_cameras=[0], fix_points=[0], function_tolerance=1e-12,
+                      parameter_tolerance=1e-14)
+    if sparse:
+        monkeypatch.setattr(schur, "DENSE_LIMIT", 10)
+        monkeypatch.setattr(schur, "SPARSE_DENSITY", 2.0)
+    # was: an exactly zero 9 x 9 covariance (the pseudo-inverse of its zero block)
+    with pytest.raises(np.linalg.LinAlgError, match=r"camera\(s\) \[4\] are not observable "
+                                                    r"\(0 observations"):
+        r.camera_covariance([2, 4])
+    with pytest.raises(ValueError, match="not observable"):
+        r.marginals([4])
+    # the observed cameras: the inverse of the full information J^T J of the four observed
+    # cameras and the points (camera 0's pose and point 0 held), written out densely
+    p = r.problem
+    d = p.cam_dim
+    rp = reproject(p.model, p.rotations, p.translations, p.intrinsics, p.points,
+                   p.camera_index, p.point_index, p.observations)
+    ncol = 4 * d + 3 * p.n_points
+    J = np.zeros((2 * len(p.camera_index), ncol))
+    for a, (c, j) in enumerate(zip(p.camera_index, p.point_index, strict=True)):
+        J[2 * a:2 * a + 2, c * d:(c + 1) * d] = rp.J_cam[a]
+        J[2 * a:2 * a + 2, 4 * d + 3 * j:4 * d + 3 * j + 3] = rp.J_point[a]
+    free = np.ones(ncol, bool)
+    free[:6] = False
+    free[4 * d:4 * d + 3] = False
+    cov = np.zeros((ncol, ncol))
+    cov[np.ix_(free, free)] = np.linalg.inv(J[:, free].T @ J[:, free])
+    got = r.camera_covariance([1, 3])
+    for k, c in enumerate([1, 3]):
+        ref = cov[c * d:(c + 1) * d, c * d:(c + 1) * d]
+        np.testing.assert_allclose(got[k], ref, rtol=1e-6, atol=1e-12 * np.abs(ref).max())

@@ -550,7 +550,10 @@ class BundleResult:
         reduced camera system: the camera block of ``(J^T J)^-1`` is ``S^-1`` (``S`` the Schur
         complement of the points). With a free gauge ``S`` is singular: the pseudo-inverse
         (minimum-norm gauge) is returned for a dense ``S``; a sparse one (many cameras) needs the
-        gauge held (``fix_cameras`` and a point). Held unknowns have zero covariance.
+        gauge held (``fix_cameras`` and a point). Held unknowns have zero covariance. A free
+        unknown without any information (a camera with no observations) is unobservable, its
+        variance infinite: asking for its camera raises ``LinAlgError``; other cameras are
+        independent of it.
 
         Parameters
         ----------
@@ -561,6 +564,11 @@ class BundleResult:
         -------
         numpy.ndarray
             ``(len(cameras), d, d)``.
+
+        Raises
+        ------
+        numpy.linalg.LinAlgError
+            A requested camera has free unknowns without information (a ``ValueError``).
 
         Examples
         --------
@@ -587,6 +595,22 @@ class BundleResult:
         keep = np.ones(n, bool)
         if self._normal is not None and self._normal.fixed_cameras is not None:
             keep = ~self._normal.fixed_cameras.reshape(-1)
+        # free unknowns without information: their rows of S are zero (no observation reaches
+        # them), their variance is infinite, never the pseudo-inverse's zero
+        empty = keep & ~(np.asarray(S.diagonal()).ravel() > 0)
+        asked = idx[empty[idx]]
+        if asked.size:
+            bad = sorted({int(i) // d for i in asked})
+            nobs = np.bincount(self.problem.camera_index, minlength=self.problem.n_cameras)
+            raise np.linalg.LinAlgError(
+                f"camera(s) {bad} are not observable ({', '.join(str(int(nobs[c])) for c in bad)}"
+                f" observations; unknowns {sorted(int(i) % d for i in asked)} of {d} without "
+                f"information): their covariance is infinite; hold them (fix_cameras, "
+                f"fix_intrinsics) or remove them")
+        if empty.any():  # decoupled from the rest: held like fixed unknowns (unit rows)
+            keep = keep & ~empty
+            unit = empty.astype(float)
+            S = S + (_sp_diags(unit) if _issparse(S) else np.diag(unit))
         cov = np.zeros((len(idx), len(idx)))
         sel = keep[idx]
         if _issparse(S):
@@ -667,6 +691,13 @@ class BundleResult:
             Pse3 = T @ P[:6, :6] @ T.T
             out.append(Gaussian(poses[c], 0.5 * (Pse3 + Pse3.T), frame="right"))
         return out
+
+
+def _sp_diags(v: np.ndarray) -> Any:
+    """A sparse CSC diagonal matrix."""
+    import scipy.sparse
+
+    return scipy.sparse.diags(v, format="csc")
 
 
 def _issparse(S: Any) -> bool:
