@@ -307,3 +307,14 @@ def test_issue19_item6_a_camera_without_observations_has_no_finite_covariance(sp
     for k, c in enumerate([1, 3]):
         ref = cov[c * d:(c + 1) * d, c * d:(c + 1) * d]
         np.testing.assert_allclose(got[k], ref, rtol=1e-6, atol=1e-12 * np.abs(ref).max())
+
+
+def test_issue19_item5_optimize_names_the_edge_of_an_infinite_cost(tmp_path):
+    # information 1e308 on an edge 10 m off: the cost overflows to inf (was: "cost inf -> inf
+    # ... converged (lambda exceeded 100000 without decreasing the cost)", exit status 0)
+    path = tmp_path / "overflow.g2o"
+    path.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 3 11 0 0\nVERTEX_SE2 5 12 0 0\n"
+                    "EDGE_SE2 3 5 1 0 0 1 0 0 1 0 1\nEDGE_SE2 0 3 1 0 0 1e308 0 0 1e308 0 1\n")
+    code, out, err = _optimize(str(path))
+    assert code == 1 and out == ""
+    assert "not finite at the start" in err and "(edge 1 of the file, vertices 0 -> 3)" in err

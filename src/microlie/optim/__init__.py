@@ -36,7 +36,7 @@ _LAZY = {
     "linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
     "noise": ("Covariance", "Diagonal", "Information", "Isotropic", "NoiseModel",
               "SqrtInformation", "Unit"),
-    "problem": ("GaugeError", "Problem"),
+    "problem": ("GaugeError", "NonFiniteError", "Problem"),
     "robust": ("DCS", "Barron", "Cauchy", "GemanMcClure", "Huber", "RobustLoss", "Tukey",
                "make_loss"),
     "solvers": ("IterationRecord", "Result"),
@@ -74,7 +74,7 @@ if TYPE_CHECKING:
         SqrtInformation,
         Unit,
     )
-    from .problem import GaugeError, Problem
+    from .problem import GaugeError, NonFiniteError, Problem
     from .robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
     from .solvers import IterationRecord, Result
     from .variables import Values, Variables
@@ -83,6 +83,7 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "BetweenFactor", "CustomFactor", "NoiseModel", "Information", "SqrtInformation",
            "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
-           "LinearSolver", "SingularSystemError", "GaugeError", "Problem", "available_solvers",
+           "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
+           "available_solvers",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
            "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera"]

@@ -295,12 +295,17 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     t2 = time.perf_counter()
     fg, poses = graph.to_factor_graph(X0, loss=args.robust)
     t3 = time.perf_counter()
-    from .problem import GaugeError
+    from .problem import GaugeError, NonFiniteError
 
     gauge = args.gauge or "check"
     try:
         res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
                           max_iter=args.max_iter, gauge=gauge, verbose=_progress(err))
+    except NonFiniteError as e:  # batch 0 is the file's edges, in order
+        what = f"edge {e.row} of the file" if e.factor == 0 else "the gauge prior"
+        on = " -> ".join(str(graph.ids[i]) for _, i in e.variables)
+        raise NonFiniteError(f"{e} ({what}, vertices {on})", e.factor, e.row,
+                             e.variables) from None
     except GaugeError as e:  # in the command's terms: vertex ids and --gauge
         ids = [str(graph.ids[i]) for _, i in e.unanchored]
         anchor = "a FIX vertex" if graph.fixed.size else \

@@ -24,7 +24,7 @@ from .factors import Factor
 from .robust import corrected_weights
 from .variables import Variables
 
-__all__ = ["Problem", "Linearization", "GaugeError"]
+__all__ = ["Problem", "Linearization", "GaugeError", "NonFiniteError"]
 
 # factors per chunk of the NumPy path's products (their operands stay in the 4 MB L2 cache)
 _CHUNK = 512
@@ -59,6 +59,39 @@ class GaugeError(ValueError):
         super().__init__(message)
         self.unanchored: list[tuple[Variables, int]] = list(unanchored or [])
         self.count = count
+
+
+class NonFiniteError(ValueError):
+    """The cost or the linearisation of a factor is not finite.
+
+    Attributes
+    ----------
+    factor : int
+        The factor batch (its position in the graph's factors).
+    row : int
+        The factor within the batch.
+    variables : list of (Variables, int)
+        Its arguments.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import CustomFactor, FactorGraph
+    >>> from microlie.optim import NonFiniteError
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(np.array([[1.0]]), name="x")
+    >>> _ = g.add(CustomFactor(lambda v: np.full_like(v, np.nan), [(x, 0)], 1))
+    >>> try:
+    ...     g.optimize()
+    ... except NonFiniteError as e:
+    ...     print(e.factor, e.row, [f"{v.name}[{i}]" for v, i in e.variables])
+    0 0 ['x[0]']
+    """
+
+    def __init__(self, message: str, factor: int, row: int,
+                 variables: list[tuple[Variables, int]]) -> None:
+        super().__init__(message)
+        self.factor, self.row, self.variables = factor, row, variables
 
 
 @dataclass
@@ -680,12 +713,20 @@ class Problem:
         ...     p.nonfinite([v.initial for v in p.variables])
         'factor batch 0 (CustomFactor) row 1 on x[1]: whitened residual [nan]'
         """
+        found = self._nonfinite(states, jacobians)
+        return None if found is None else found[0]
+
+    def _nonfinite(self, states: list[np.ndarray], jacobians: bool
+                   ) -> tuple[str, int, int, list[tuple[Variables, int]]] | None:
+        """:meth:`nonfinite` with the factor batch, row and arguments."""
         for fi, f in enumerate(self.factors):
             vals = self.gather(f, states)
             out = f.evaluate(vals, jacobians)
             r, Js = (out[0], out[1]) if jacobians else (out, [])
             e = self.whiten(f, np.asarray(r, dtype=np.float64))
-            bad = ~np.isfinite(e).all(axis=1) | ~np.isfinite(np.einsum("mi,mi->m", e, e))
+            with np.errstate(over="ignore", invalid="ignore"):
+                big = ~np.isfinite(np.einsum("mi,mi->m", e, e))
+            bad = ~np.isfinite(e).all(axis=1) | big
             what = "whitened residual"
             if not bad.any():
                 for J in Js:
@@ -698,8 +739,11 @@ class Problem:
             unset = [f"{var.name}[{int(idx[k])}]" for var, idx in f.args
                      if not np.isfinite(states[self.key(var)][idx[k]]).all()]
             note = f" (the value of {', '.join(unset)} is not finite)" if unset else ""
-            shown = e[k].tolist() if what != "Jacobian" else "not finite"
-            return f"factor batch {fi} ({f.name}) row {k} on {names}: {what} {shown}{note}"
+            shown = "not finite" if what == "Jacobian" else (
+                f"{e[k].tolist()}" + (" (its squared norm overflows)"
+                                      if np.isfinite(e[k]).all() else ""))
+            return (f"factor batch {fi} ({f.name}) row {k} on {names}: {what} {shown}{note}",
+                    fi, k, [(var, int(idx[k])) for var, idx in f.args])
         return None
 
     def _whitened_system(self, fi: int, states: list[np.ndarray]) -> np.ndarray:

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from .linear import LinearSolver, SingularSystemError
-from .problem import Problem
+from .problem import NonFiniteError, Problem
 from .variables import Values
 
 __all__ = ["Result", "IterationRecord", "SolverOptions", "solve"]
@@ -417,15 +417,20 @@ def _at_minimum(o: SolverOptions, cost: float, first_cost: float, first_pred: fl
 def _require_finite(problem: Problem, states: list[np.ndarray], lin: Any, when: str) -> None:
     """Raise ``ValueError`` naming the factor when the cost or the normal equations are not
     finite (sums first: a cheap test that every entry is finite)."""
-    if math.isfinite(lin.robust_cost + lin.cost + float(lin.data.sum()) + float(lin.grad.sum())):
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = lin.robust_cost + lin.cost + float(lin.data.sum()) + float(lin.grad.sum())
+    if math.isfinite(total):
         return
-    where = problem.nonfinite(states, jacobians=True)
-    if where is None and np.isfinite(lin.data).all() and np.isfinite(lin.grad).all() and \
-            math.isfinite(lin.cost) and math.isfinite(lin.robust_cost):
-        return  # large finite sums only
-    raise ValueError(f"the cost or its linearisation is not finite {when}: "
-                     f"{where or 'the normal equations overflow'}; check that factor's "
-                     f"measurement, noise model and variable values")
+    found = problem._nonfinite(states, jacobians=True)
+    if found is None:
+        if np.isfinite(lin.data).all() and np.isfinite(lin.grad).all() and \
+                math.isfinite(lin.cost) and math.isfinite(lin.robust_cost):
+            return  # large finite sums only
+        raise ValueError(f"the normal equations overflow {when}: scale the noise models down")
+    where, fi, row, args = found
+    raise NonFiniteError(f"the cost or its linearisation is not finite {when}: {where}; check "
+                         f"that factor's measurement, noise model and variable values",
+                         fi, row, args)
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> float:
