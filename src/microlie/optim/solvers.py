@@ -307,6 +307,8 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                     stop = f"lambda exceeded {o.lambda_max:g} without decreasing the cost"
                     if first_lm is not None:
                         at_minimum, stop = _at_minimum(o, cur_rc, *first_lm, stop)
+                    else:
+                        stop += " (the damped system was singular at every lambda)"
                     break
         elif o.solver == "gn":
             solves += 1
