@@ -40,7 +40,7 @@ _LAZY = {
     "noise": ("Covariance", "Diagonal", "Information", "Isotropic", "NoiseModel",
               "SqrtInformation", "Unit"),
     "pose_graph": ("PoseGraph",),
-    "problem": ("GaugeError", "Problem"),
+    "problem": ("GaugeError", "NonFiniteError", "Problem"),
     "robust": ("DCS", "Barron", "Cauchy", "GemanMcClure", "Huber", "RobustLoss", "Tukey",
                "make_loss"),
     "solvers": ("IterationRecord", "Result"),
@@ -81,7 +81,7 @@ if TYPE_CHECKING:
         Unit,
     )
     from .pose_graph import PoseGraph
-    from .problem import GaugeError, Problem
+    from .problem import GaugeError, NonFiniteError, Problem
     from .robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
     from .solvers import IterationRecord, Result
     from .toro import read_toro, write_toro
@@ -91,7 +91,8 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "BetweenFactor", "CustomFactor", "NoiseModel", "Information", "SqrtInformation",
            "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
-           "LinearSolver", "SingularSystemError", "GaugeError", "Problem", "available_solvers",
+           "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
+           "available_solvers",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
            "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera", "PoseGraph", "read_g2o",
            "write_g2o", "read_toro", "write_toro"]

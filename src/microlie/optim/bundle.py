@@ -16,6 +16,14 @@ that iteration counts compare with Ceres': Jacobi scaling of the columns by
 ``1e-8 (|x| + 1e-8)``, a gradient max-norm below ``1e-10``, ``radius < 1e-32``, or
 ``max_iter`` tries (accepted plus rejected, Ceres' ``iterations``).
 
+The stops are Ceres', their meaning stricter (``BundleResult.termination``, as
+:class:`~microlie.optim.solvers.Result`'s): ``"convergence"`` for the gradient test, and for
+the function and parameter tests and the radius floor when the candidate decreased the cost,
+was the first try from the current point, or the first try's model predicted a decrease
+within ``function_tolerance``; otherwise ``"failure"`` (the steps of a shrinking radius change
+the cost little only because they are short: Ceres reports CONVERGENCE there). ``max_iter``
+is ``"no_convergence"``.
+
 The gauge (7 degrees of freedom for BAL: rotation, translation, scale) is left free by default
 (the damping keeps the system definite, as in Ceres); ``fix_cameras=[0]`` holds camera 0 (and
 with it 6 of the 7), ``fix_points`` holds points.
@@ -462,8 +470,10 @@ class BundleResult:
     successful_steps : int
         Ceres' count: accepted steps plus iteration 0.
     converged : bool
-        With the reason in ``message``.
+        ``termination == "convergence"``, with the reason in ``message``.
     message : str
+    termination : {"convergence", "no_convergence", "failure"}
+        See :class:`microlie.optim.solvers.Result` and the module docstring.
     time_s : float
         Wall time, seconds; ``timings`` its breakdown.
     history : list of BundleIteration
@@ -500,6 +510,7 @@ class BundleResult:
     successful_steps: int
     converged: bool
     message: str
+    termination: str
     time_s: float
     history: list[BundleIteration]
     timings: dict[str, float]
@@ -545,14 +556,17 @@ class BundleResult:
                 "initial_robust_cost": self.initial_robust_cost,
                 "final_robust_cost": self.final_robust_cost, "iterations": self.iterations,
                 "time_s": self.time_s, "converged": self.converged, "message": self.message,
-                "successful_steps": self.successful_steps}
+                "termination": self.termination, "successful_steps": self.successful_steps}
 
     def camera_covariance(self, cameras: Sequence[int]) -> np.ndarray:
         """Marginal covariances of the camera tangents ``(dt, dphi, dK)`` at the solution, from the
         reduced camera system: the camera block of ``(J^T J)^-1`` is ``S^-1`` (``S`` the Schur
         complement of the points). With a free gauge ``S`` is singular: the pseudo-inverse
         (minimum-norm gauge) is returned for a dense ``S``; a sparse one (many cameras) needs the
-        gauge held (``fix_cameras`` and a point). Held unknowns have zero covariance.
+        gauge held (``fix_cameras`` and a point). Held unknowns have zero covariance. A free
+        unknown without any information (a camera with no observations) is unobservable, its
+        variance infinite: asking for its camera raises ``LinAlgError``; other cameras are
+        independent of it.
 
         Parameters
         ----------
@@ -563,6 +577,11 @@ class BundleResult:
         -------
         numpy.ndarray
             ``(len(cameras), d, d)``.
+
+        Raises
+        ------
+        numpy.linalg.LinAlgError
+            A requested camera has free unknowns without information (a ``ValueError``).
 
         Examples
         --------
@@ -589,6 +608,22 @@ class BundleResult:
         keep = np.ones(n, bool)
         if self._normal is not None and self._normal.fixed_cameras is not None:
             keep = ~self._normal.fixed_cameras.reshape(-1)
+        # free unknowns without information: their rows of S are zero (no observation reaches
+        # them), their variance is infinite, never the pseudo-inverse's zero
+        empty = keep & ~(np.asarray(S.diagonal()).ravel() > 0)
+        asked = idx[empty[idx]]
+        if asked.size:
+            bad = sorted({int(i) // d for i in asked})
+            nobs = np.bincount(self.problem.camera_index, minlength=self.problem.n_cameras)
+            raise np.linalg.LinAlgError(
+                f"camera(s) {bad} are not observable ({', '.join(str(int(nobs[c])) for c in bad)}"
+                f" observations; unknowns {sorted(int(i) % d for i in asked)} of {d} without "
+                f"information): their covariance is infinite; hold them (fix_cameras, "
+                f"fix_intrinsics) or remove them")
+        if empty.any():  # decoupled from the rest: held like fixed unknowns (unit rows)
+            keep = keep & ~empty
+            unit = empty.astype(float)
+            S = S + (_sp_diags(unit) if _issparse(S) else np.diag(unit))
         cov = np.zeros((len(idx), len(idx)))
         sel = keep[idx]
         if _issparse(S):
@@ -669,6 +704,13 @@ class BundleResult:
             Pse3 = T @ P[:6, :6] @ T.T
             out.append(Gaussian(poses[c], 0.5 * (Pse3 + Pse3.T), frame="right"))
         return out
+
+
+def _sp_diags(v: np.ndarray) -> Any:
+    """A sparse CSC diagonal matrix."""
+    import scipy.sparse
+
+    return scipy.sparse.diags(v, format="csc")
 
 
 def _issparse(S: Any) -> bool:
@@ -883,15 +925,24 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
     if not np.isfinite(cost):
         bad = np.nonzero(~np.isfinite(r).all(axis=1))[0]
         k = int(order[bad[0]]) if len(bad) else -1
-        raise ValueError(f"the initial residual of observation {k} is not finite (a point on "
-                         f"the plane of its camera, P_z = 0); use behind='drop' or move it")
+        raise ValueError(f"the initial residual of observation {k} is not finite (camera "
+                         f"{cam[bad[0]]}, point {pt[bad[0]]}: a point on the plane of its "
+                         f"camera, P_z = 0, or non-finite intrinsics); use behind='drop' or "
+                         f"move it")
     initial_cost = cost
     radius, decrease = float(initial_radius), 2.0
     diag_c = diag_p = None
     reuse = False
     history: list[BundleIteration] = []
     it, successful = 0, 1                      # Ceres counts iteration 0 as successful
-    converged, message = False, "maximum number of iterations reached"
+    termination, message = "no_convergence", "maximum number of iterations reached"
+    first_pred: float | None = None            # the model decrease of the first try from x
+    tries = 0                                  # tries from x
+
+    def settled(cand_cost: float) -> bool:
+        """Whether a stop at a candidate that changes the cost little is a convergence."""
+        return (cand_cost < cost or tries <= 1
+                or (first_pred is not None and first_pred <= function_tolerance * cost))
     x_norm = -1.0                              # as Ceres: no parameter test before a step
     t_it = time.perf_counter()
     if verbose:   # Ceres' progress columns
@@ -901,14 +952,19 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
               f"{radius:10.2e} {t_it - t_start:9.2e}", file=sys.stderr, flush=True)
     while True:
         if gmax <= gradient_tolerance:
-            converged, message = True, f"gradient tolerance reached ({gmax:.3e})"
+            termination, message = "convergence", f"gradient tolerance reached ({gmax:.3e})"
             break
         if radius <= 1e-32:
-            converged, message = True, "minimum trust region radius reached"
+            termination = "convergence" if settled(np.inf) else "failure"
+            message = "minimum trust region radius reached" + (
+                "" if termination == "convergence" else
+                f" without decreasing the cost (the first step's model predicted a decrease "
+                f"of {first_pred:.3g})")
             break
         if it >= max_iter:
             break
         it += 1
+        tries += 1
         ts = time.perf_counter()
         if not reuse or diag_c is None:
             # LM diagonal of the scaled Jacobian, clamped as Ceres does, in unscaled units
@@ -937,18 +993,24 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
             reuse = True
             history.append(BundleIteration(it, cost, False, 0.0, radius, 0.0))
             continue
+        if first_pred is None:
+            first_pred = model_change
         cand = x.retract(dc, dp)
         cand_cost = evaluate(cand)
         if not np.isfinite(cand_cost):
             cand_cost = float(np.finfo(float).max)
         step_norm = float(np.sqrt(np.sum(dc * dc) + np.sum(dp * dp)))
+        stop = None
         if step_norm <= parameter_tolerance * (x_norm + parameter_tolerance):
-            converged, message = True, "parameter tolerance reached"
-            history.append(BundleIteration(it, cand_cost, False, 0.0, radius, step_norm))
-            break
-        if abs(cost - cand_cost) <= function_tolerance * cost:
-            converged, message = True, (f"function tolerance reached (|cost change|/cost = "
-                                        f"{abs(cost - cand_cost) / cost:.3e})")
+            stop = "parameter tolerance reached"
+        elif abs(cost - cand_cost) <= function_tolerance * cost:
+            stop = (f"function tolerance reached (|cost change|/cost = "
+                    f"{abs(cost - cand_cost) / cost:.3e})")
+        if stop is not None:
+            termination = "convergence" if settled(cand_cost) else "failure"
+            message = stop if termination == "convergence" else (
+                f"{stop} after {tries - 1} rejected steps, without decreasing the cost (the "
+                f"first step's model predicted a decrease of {first_pred:.3g})")
             history.append(BundleIteration(it, cand_cost, False, 0.0, radius, step_norm))
             break
         rho = (cost - cand_cost) / model_change
@@ -961,6 +1023,7 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
             radius = min(1e16, radius / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
             decrease, reuse = 2.0, False
             successful += 1
+            first_pred, tries = None, 0
         else:
             radius /= decrease
             decrease *= 2.0
@@ -978,8 +1041,9 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
         plain0, plain1 = initial_cost, cost
     else:
         plain0, plain1 = problem.cost(behind), x.cost(behind)
-    return BundleResult(x, plain0, plain1, initial_cost, cost, it, successful, converged,
-                        message, time_s, history, tm, behind, "lm", linear_solver, ne)
+    return BundleResult(x, plain0, plain1, initial_cost, cost, it, successful,
+                        termination == "convergence", message, termination, time_s, history, tm,
+                        behind, "lm", linear_solver, ne)
 
 
 # ---------------------------------------------------------------------------- synthetic scenes

@@ -178,6 +178,10 @@ class SupernodalSolver(LinearSolver):
         u = (m - k)
         self.wsize = int((u * u).max()) if ns else 0
         self.usize = int(u.max()) if ns else 0
+        # the diagonal of L in the compiled layout (column c of supernode s at px + c m + c)
+        sid = np.repeat(np.arange(ns), k)
+        col = np.arange(n) - np.repeat(c0, k)
+        self._ldiag = px[:-1][sid] + col * (m[sid] + 1)
 
     # ---- numeric factorisation -------------------------------------------------------------
 
@@ -196,9 +200,14 @@ class SupernodalSolver(LinearSolver):
             info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
                                   self.rows, self.rptr, self.pptr, self.pt, self.pa, self.pb,
                                   self.relptr, self.rel, self.wsize, self.bs)
-            if info:
-                raise SingularSystemError(_NOT_PD)
+            if info:  # the failing supernode + 1: name its first unknown
+                i = int(self.sperm[self.c0[info - 1]]) if 0 < info <= self.ns else None
+                raise SingularSystemError(_NOT_PD, unknown=i)
             self.Lx = Lx
+        # every backend's pivot test (L_kk^2 against the diagonal entry; linear.PIVOT_TOL)
+        ld = self._numpy_plan.diagonal() if self._numpy_plan is not None else \
+            self.Lx[self._ldiag]
+        self._check_pivots(data, ld * ld, self.sperm)
         self._factored = True
 
     def _panel(self, j: int) -> np.ndarray:

@@ -403,6 +403,14 @@ class NumpyLoop:
                     mm(b.LinvT, T.reshape(sh), out=X[c0:c1].reshape(sh))
             y[cw] = X
 
+    def diagonal(self) -> np.ndarray:
+        """The diagonal of the last factor, in the factor's column order."""
+        if not hasattr(self, "_ldiag"):
+            sid = np.repeat(np.arange(self.ns), self.k)
+            col = np.arange(self.n) - np.repeat(np.r_[0, np.cumsum(self.k)][:-1], self.k)
+            self._ldiag = self.dpos[sid] + col * (self.K[sid] + 1)
+        return self.L[self._ldiag]
+
     def panel(self, j: int) -> np.ndarray:
         """The dense ``(k + u) x k`` panel of supernode ``j`` (diagonal block, then the rows
         below), as the compiled loop stores it."""

@@ -4,19 +4,27 @@
 
     microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] [--robust huber:1.0]
                      [--init auto|file|odometry|chordal] [--linear-solver auto|supernodal|...]
-                     [--max-iter N] [--plot FILE] [--json] [--format auto|g2o|toro|bal]
-                     [--force] [-v | -q]
+                     [--max-iter N] [--gauge check|fix_first|none] [--plot FILE] [--json]
+                     [--format auto|g2o|toro|bal] [--force] [-v | -q]
 
 The reported costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges (plain, even with
 ``--robust``, and without the gauge prior); ``time_s`` is the solve alone (reading, initial
 guess and graph construction are reported apart). The gauge is the file's ``FIX`` vertices,
-or else a prior on the first pose at its start value. ``--init auto`` takes the file's vertices,
-or the odometry chain when the file has none, or chordal when that chain is incomplete (said on
-stderr). Before the solve a header line (file, problem size, solver, start) goes to stderr,
-flushed, unless ``--quiet``; then Ceres' iteration table, one flushed line per iteration, with
-``--verbose`` or on a terminal (stdout, with ``--json`` too, carries the report only). ``-o``
-or ``--plot`` onto the input file is refused without ``--force``; every file is written to a
-temporary file renamed into place, so a failed write leaves the old file as it was.
+or else a prior on the first pose at its start value; a part of the graph that no edge joins
+to it is an error unless ``--gauge fix_first`` (hold its first vertex) or ``--gauge none``
+(:meth:`~microlie.optim.FactorGraph.optimize`'s ``gauge``). ``--init auto`` takes the file's
+vertices, or the odometry chain when the file has none, or chordal when that chain is
+incomplete (said on stderr). Before the solve a header line (file, problem size, solver,
+start) goes to stderr, flushed, unless ``--quiet``; then Ceres' iteration table, one flushed
+line per iteration, with ``--verbose`` or on a terminal (stdout, with ``--json`` too, carries
+the report only). ``-o`` or ``--plot`` onto the input file is refused without ``--force``;
+every file is written to a temporary file renamed into place, so a failed write leaves the
+old file as it was.
+
+The report's ``termination`` is the solver's (:class:`~microlie.optim.solvers.Result`):
+``convergence`` and ``no_convergence`` (``--max-iter`` reached; printed "not converged")
+exit with status 0, as Ceres calls both usable; ``failure`` (the cost could not be decreased)
+prints the reason on stderr, writes no ``-o`` file and exits with status 1.
 
 Formats are handled by the functions in :data:`FORMATS` (format name -> ``"module:function"``,
 imported on use), each called as ``run(args, err) -> dict`` and returning the JSON report: a
@@ -43,6 +51,7 @@ FORMATS: dict[str, str] = {
 }
 SOLVERS = ("lm", "gn", "dogleg")
 INITS = ("auto", "file", "odometry", "chordal")
+GAUGES = ("check", "fix_first", "none")
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
@@ -96,6 +105,12 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         "scipy, qdldl, pardiso, dense; for BAL dense, sparse, full")
     p.add_argument("--max-iter", type=_positive_int, default=100, metavar="N",
                    help="maximum number of iterations, at least 1 (default 100)")
+    p.add_argument("--gauge", choices=GAUGES, default=None,
+                   help="pose graphs: parts of the graph not connected to the first vertex or a "
+                        "FIX vertex are an error (check, default), or have their first vertex "
+                        "held at its start value (fix_first), or are left free (none: LM's "
+                        "damping keeps the system solvable, GN fails); FactorGraph.optimize's "
+                        "gauge")
     p.add_argument("--plot", metavar="FILE", default=None,
                    help="draw the initial and optimised graph to FILE (PNG)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -223,6 +238,10 @@ def run(args: argparse.Namespace, out: TextIO | None = None, err: TextIO | None 
         out.write(json.dumps(report) + "\n")
     else:
         out.write(_summary(report) + "\n")
+    if report.get("termination") == "failure":
+        err.write(f"microlie optimize: error: the solver failed ({report['message']}); "
+                  f"{'no output written' if args.output else 'the result is not a solution'}\n")
+        return 1
     return 0
 
 
@@ -311,9 +330,27 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     _header(args, err, f"{problem}; {args.solver} (linear solver {args.linear_solver}), start "
                        f"{init}, at most {args.max_iter} iterations; read {t1 - t0:.3f} s, "
                        f"init {t2 - t1:.3f} s, build {t3 - t2:.3f} s")
-    with _to(err):
-        res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
-                          max_iter=args.max_iter, verbose=_progress(err, args))
+    from .problem import GaugeError, NonFiniteError
+
+    gauge = args.gauge or "check"
+    try:
+        with _to(err):
+            res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
+                              max_iter=args.max_iter, gauge=gauge, verbose=_progress(err, args))
+    except NonFiniteError as e:  # batch 0 is the file's edges, in order
+        what = f"edge {e.row} of the file" if e.factor == 0 else "the gauge prior"
+        on = " -> ".join(str(graph.ids[i]) for _, i in e.variables)
+        raise NonFiniteError(f"{e} ({what}, vertices {on})", e.factor, e.row,
+                             e.variables) from None
+    except GaugeError as e:  # in the command's terms: vertex ids and --gauge
+        ids = [str(graph.ids[i]) for _, i in e.unanchored]
+        anchor = "a FIX vertex" if graph.fixed.size else \
+            f"vertex {graph.ids[0]} (held by the gauge prior)"
+        raise GaugeError(
+            f"the graph has a gauge freedom: {e.count} vertices in {len(ids)} part(s) that no "
+            f"edge joins to {anchor}, the parts starting at vertex {', '.join(ids)}; add "
+            f"edges, or pass --gauge fix_first to hold the first vertex of each such part at "
+            f"its start value", e.unanchored, e.count) from None
     X = res.values[poses]
     report = {
         "file": str(args.input),
@@ -332,13 +369,16 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         "iterations": res.iterations,
         "time_s": res.time_s,
         "converged": bool(res.converged),
+        "termination": res.termination,
         "message": res.message,
         "read_s": t1 - t0,
         "init_s": t2 - t1,
         "build_s": t3 - t2,
         "timings": {k: float(v) for k, v in res.timings.items()},
+        "gauge": gauge,
+        "gauge_fixed": [int(graph.ids[i]) for _, i in res.gauge_fixed],
     }
-    if args.output:
+    if args.output and res.termination != "failure":
         _write(args.output, graph, X, args.format)
         report["output"] = str(args.output)
     if args.plot:

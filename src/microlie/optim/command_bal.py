@@ -63,6 +63,9 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     solver = getattr(args, "solver", "lm")
     if solver != "lm":
         raise ValueError(f"BAL problems are solved with lm only, not {solver!r}")
+    if getattr(args, "gauge", None) is not None:
+        raise ValueError("--gauge applies to pose graphs: bundle adjustment leaves its gauge "
+                         "free (the damping keeps the system solvable, as in Ceres)")
     linear = getattr(args, "linear_solver", "auto")
     if linear not in _LINEAR:
         raise ValueError(f"BAL problems take --linear-solver {', '.join(_LINEAR)} (Schur "
@@ -97,11 +100,12 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
         "iterations": res.iterations,
         "time_s": res.time_s,
         "converged": bool(res.converged),
+        "termination": res.termination,
         "message": res.message,
         "read_s": t1 - t0,
         "timings": {k: float(v) for k, v in res.timings.items() if isinstance(v, float)},
     }
-    if getattr(args, "output", None):
+    if getattr(args, "output", None) and res.termination != "failure":
         write_bal(args.output, res.problem.to_bal())
         report["output"] = str(args.output)
     if getattr(args, "plot", None):

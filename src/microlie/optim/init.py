@@ -243,6 +243,11 @@ def chordal(graph: PoseGraph) -> LieGroup:
     -------
     LieGroup
 
+    Raises
+    ------
+    ValueError
+        Naming the vertices not connected to the anchor by edges.
+
     Examples
     --------
     >>> import os, tempfile
@@ -261,6 +266,7 @@ def chordal(graph: PoseGraph) -> LieGroup:
     n = graph.num_vertices
     ii, jj = graph.edge_index()
     k0 = _anchor(graph)
+    _require_connected(graph, ii, jj, k0)
     keep = np.delete(np.arange(n), k0)
     Z = graph.measurements
     assert isinstance(Z, (SE2, SE3))
@@ -307,6 +313,24 @@ def chordal(graph: PoseGraph) -> LieGroup:
     T[:, d, d] = 1.0
     X = (SE2 if d == 2 else SE3).from_matrix(T)  # R is a rotation to rounding
     return _anchored(graph, X, k0)
+
+
+def _require_connected(graph: PoseGraph, ii: np.ndarray, jj: np.ndarray, k0: int) -> None:
+    """Raise naming the vertices that no chain of edges joins to the anchor ``k0`` (their
+    poses relative to it are undetermined; the normal equations would be singular)."""
+    from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
+
+    n = graph.num_vertices
+    adj = sp.coo_matrix((np.ones(ii.size), (ii, jj)), shape=(n, n))
+    _, label = connected_components(adj, directed=False)
+    away = np.flatnonzero(label != label[k0])
+    if away.size:
+        ids = [str(v) for v in np.asarray(graph.ids)[away[:20]]]
+        more = f" and {away.size - 20} more" if away.size > 20 else ""
+        raise ValueError(
+            f"chordal initialisation: {away.size} vertices are not connected by edges to the "
+            f"anchor vertex {graph.ids[k0]}: {', '.join(ids)}{more}; add edges joining them to "
+            f"the rest of the graph, or remove them")
 
 
 def _project_so(M: np.ndarray) -> np.ndarray:

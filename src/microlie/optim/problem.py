@@ -24,14 +24,74 @@ from .factors import Factor
 from .robust import corrected_weights
 from .variables import Variables
 
-__all__ = ["Problem", "Linearization", "GaugeError"]
+__all__ = ["Problem", "Linearization", "GaugeError", "NonFiniteError"]
 
 # factors per chunk of the NumPy path's products (their operands stay in the 4 MB L2 cache)
 _CHUNK = 512
 
 
 class GaugeError(ValueError):
-    """The graph leaves some variables unconstrained up to a common transformation."""
+    """The graph leaves some variables unconstrained up to a common transformation.
+
+    Attributes
+    ----------
+    unanchored : list of (Variables, int)
+        The first variable of each connected component that no prior or fixed variable
+        anchors.
+    count : int
+        The number of variables in those components.
+
+    Examples
+    --------
+    >>> from microlie import SE2
+    >>> from microlie.optim import BetweenFactor, FactorGraph, GaugeError
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(2), name="x")
+    >>> _ = g.add(BetweenFactor(x, 0, 1, SE2.identity()))
+    >>> try:
+    ...     g.optimize()
+    ... except GaugeError as e:
+    ...     print(e.count, [f"{v.name}[{i}]" for v, i in e.unanchored])
+    2 ['x[0]']
+    """
+
+    def __init__(self, message: str, unanchored: list | None = None, count: int = 0) -> None:
+        super().__init__(message)
+        self.unanchored: list[tuple[Variables, int]] = list(unanchored or [])
+        self.count = count
+
+
+class NonFiniteError(ValueError):
+    """The cost or the linearisation of a factor is not finite.
+
+    Attributes
+    ----------
+    factor : int
+        The factor batch (its position in the graph's factors).
+    row : int
+        The factor within the batch.
+    variables : list of (Variables, int)
+        Its arguments.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import CustomFactor, FactorGraph
+    >>> from microlie.optim import NonFiniteError
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(np.array([[1.0]]), name="x")
+    >>> _ = g.add(CustomFactor(lambda v: np.full_like(v, np.nan), [(x, 0)], 1))
+    >>> try:
+    ...     g.optimize()
+    ... except NonFiniteError as e:
+    ...     print(e.factor, e.row, [f"{v.name}[{i}]" for v, i in e.variables])
+    0 0 ['x[0]']
+    """
+
+    def __init__(self, message: str, factor: int, row: int,
+                 variables: list[tuple[Variables, int]]) -> None:
+        super().__init__(message)
+        self.factor, self.row, self.variables = factor, row, variables
 
 
 @dataclass
@@ -207,6 +267,8 @@ class Problem:
         if ok.all():
             return
         bad = ~ok[label]
+        firsts = [self._node_var(int(np.flatnonzero(label == comp)[0]))
+                  for comp in np.flatnonzero(~ok)]
         if gauge == "check":
             first = int(np.flatnonzero(bad)[0])
             name = self._node_name(first)
@@ -215,10 +277,8 @@ class Problem:
                 f"{int((~ok).sum())} connected component(s), the first containing {name}) are "
                 f"not connected to a prior or a fixed variable; add a PriorFactor, fix a "
                 f"variable, or pass gauge='fix_first' to hold the first variable of each such "
-                f"component constant")
-        for comp in np.flatnonzero(~ok):
-            node = int(np.flatnonzero(label == comp)[0])
-            self.gauge_fixed.append(self._node_var(node))
+                f"component constant", firsts, int(bad.sum()))
+        self.gauge_fixed.extend(firsts)
 
     def _node_var(self, node: int) -> tuple[Variables, int]:
         for v, nodes in zip(self.variables, self.node_of, strict=False):
@@ -230,6 +290,34 @@ class Problem:
     def _node_name(self, node: int) -> str:
         v, i = self._node_var(node)
         return f"{v.name}[{i}]"
+
+    def unknown_name(self, unknown: int) -> str:
+        """The variable that unknown (row of ``H``) ``unknown`` belongs to, as ``name[index]``.
+
+        Parameters
+        ----------
+        unknown : int
+            A row of ``H``, ``0 <= unknown < size``.
+
+        Returns
+        -------
+        str
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3), name="x")
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> g.problem().unknown_name(4)  # unknowns 3..5 are x[1]
+        'x[1]'
+        """
+        if not 0 <= unknown < self.size:
+            raise ValueError(f"unknown must be in [0, {self.size}), got {unknown}")
+        return self._node_name(int(np.searchsorted(self.node_off, unknown, side="right")) - 1)
 
     # ------------------------------------------------------------------ pattern
     def _build_pattern(self) -> None:
@@ -596,6 +684,67 @@ class Problem:
         if keep:
             self._held = states
         return c, rc
+
+    def nonfinite(self, states: list[np.ndarray], jacobians: bool = False) -> str | None:
+        """The first factor whose whitened residual (or, with ``jacobians``, Jacobian) is not
+        finite at ``states``, described by its batch, type, row and arguments; ``None`` when
+        every one is finite.
+
+        Parameters
+        ----------
+        states : list of numpy.ndarray
+            The parameters of each variable batch, in graph order.
+        jacobians : bool
+            Also check the Jacobians.
+
+        Returns
+        -------
+        str or None
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import CustomFactor, FactorGraph
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(np.array([[4.0], [1.0]]), name="x")
+        >>> _ = g.add(CustomFactor(lambda v: np.log(v - 2.0), [(x, [0, 1])], 1))
+        >>> p = g.problem()
+        >>> with np.errstate(invalid="ignore"):
+        ...     p.nonfinite([v.initial for v in p.variables])
+        'factor batch 0 (CustomFactor) row 1 on x[1]: whitened residual [nan]'
+        """
+        found = self._nonfinite(states, jacobians)
+        return None if found is None else found[0]
+
+    def _nonfinite(self, states: list[np.ndarray], jacobians: bool
+                   ) -> tuple[str, int, int, list[tuple[Variables, int]]] | None:
+        """:meth:`nonfinite` with the factor batch, row and arguments."""
+        for fi, f in enumerate(self.factors):
+            vals = self.gather(f, states)
+            out = f.evaluate(vals, jacobians)
+            r, Js = (out[0], out[1]) if jacobians else (out, [])
+            e = self.whiten(f, np.asarray(r, dtype=np.float64))
+            with np.errstate(over="ignore", invalid="ignore"):
+                big = ~np.isfinite(np.einsum("mi,mi->m", e, e))
+            bad = ~np.isfinite(e).all(axis=1) | big
+            what = "whitened residual"
+            if not bad.any():
+                for J in Js:
+                    bad |= ~np.isfinite(np.asarray(J)).reshape(f.count, -1).all(axis=1)
+                what = "Jacobian"
+            if not bad.any():
+                continue
+            k = int(np.flatnonzero(bad)[0])
+            names = ", ".join(f"{var.name}[{int(idx[k])}]" for var, idx in f.args)
+            unset = [f"{var.name}[{int(idx[k])}]" for var, idx in f.args
+                     if not np.isfinite(states[self.key(var)][idx[k]]).all()]
+            note = f" (the value of {', '.join(unset)} is not finite)" if unset else ""
+            shown = "not finite" if what == "Jacobian" else (
+                f"{e[k].tolist()}" + (" (its squared norm overflows)"
+                                      if np.isfinite(e[k]).all() else ""))
+            return (f"factor batch {fi} ({f.name}) row {k} on {names}: {what} {shown}{note}",
+                    fi, k, [(var, int(idx[k])) for var, idx in f.args])
+        return None
 
     def _whitened_system(self, fi: int, states: list[np.ndarray]) -> np.ndarray:
         """Fill factor ``fi``'s work arrays at ``states``: ``K = [J_1 ... J_K r]``

@@ -11,6 +11,16 @@ Levenberg-Marquardt follows GTSAM's ``LevenbergMarquardtParams()`` defaults: dam
 and the run stops when ``lambda`` exceeds ``1e5``. Stopping rules (all solvers): relative cost
 decrease below ``rel_tol``, absolute decrease below ``abs_tol``, cost below ``cost_tol``, step
 norm below ``step_tol``, or ``max_iter`` iterations.
+
+``Result.converged`` means that one of those tests passed (``termination="convergence"``);
+``max_iter`` is ``"no_convergence"`` (usable, as Ceres' NO_CONVERGENCE). A run that cannot
+decrease the cost (LM's ``lambda`` above ``lambda_max``, the dogleg radius collapsing, a
+Gauss-Newton step that increases it) is ``"failure"`` with the reason in ``message``, unless
+the first step tried from that point changed the cost by no more than the tolerances or its
+model predicted no larger decrease (a minimum to rounding: ``"convergence"``). A non-finite
+cost or linearisation at the start or at an accepted point raises ``ValueError`` naming the
+factor; a non-finite cost at a trial point rejects that step (as Ceres does), and is named in
+the message if the run then fails.
 """
 
 from __future__ import annotations
@@ -24,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from .linear import LinearSolver, SingularSystemError
-from .problem import Problem
+from .problem import NonFiniteError, Problem
 from .variables import Values
 
 __all__ = ["Result", "IterationRecord", "SolverOptions", "solve"]
@@ -85,9 +95,13 @@ class Result:
     iterations : int
         Accepted iterations.
     converged : bool
-        Whether a convergence test was met (not the iteration limit).
+        Whether a convergence test was met: ``termination == "convergence"``.
     message : str
         Why the solver stopped.
+    termination : {"convergence", "no_convergence", "failure"}
+        As Ceres' termination types: a convergence test met; ``max_iter`` reached (the values
+        are usable); the cost could not be decreased (the values are the best point found,
+        not a solution).
     history : list of IterationRecord
         One record per iteration.
     time_s : float
@@ -108,8 +122,8 @@ class Result:
     >>> x = g.add_variables(SE2.identity(1))
     >>> _ = g.add(PriorFactor(x, 0, SE2.exp([1.0, 2.0, 0.5])))
     >>> res = g.optimize()
-    >>> res.converged, res.initial_cost > res.final_cost, round(res.final_cost, 12)
-    (True, True, 0.0)
+    >>> res.converged, res.termination, round(res.final_cost, 12)
+    (True, 'convergence', 0.0)
     """
 
     values: Values
@@ -120,6 +134,7 @@ class Result:
     iterations: int
     converged: bool
     message: str
+    termination: str
     history: list[IterationRecord]
     time_s: float
     solver: str
@@ -131,7 +146,7 @@ class Result:
         n = sum(len(h) for h in self.values)
         return (f"Result({self.solver}, {self.linear_solver}: cost {self.initial_cost:.10g} -> "
                 f"{self.final_cost:.10g} in {self.iterations} iterations, {n} variables, "
-                f"{self.time_s * 1e3:.1f} ms, converged={self.converged}: {self.message})")
+                f"{self.time_s * 1e3:.1f} ms, {self.termination}: {self.message})")
 
 
 @dataclass
@@ -251,23 +266,27 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
     show = bool(o.verbose) if o.verbose is not None else sys.stderr.isatty()
     ls = problem.analysed(o.linear_solver)
     lin = _linearize(problem, states, tm)
+    _require_finite(problem, states, lin, "at the start")
     c0, rc0 = lin.cost, lin.robust_cost
     cur, cur_c, cur_rc = states, c0, rc0
     history: list[IterationRecord] = []
-    message, converged = f"reached max_iter={o.max_iter}", False
+    message, termination = f"reached max_iter={o.max_iter}", "no_convergence"
     if problem.size == 0:
-        message, converged = "no free variables", True
+        message, termination = "no free variables", "convergence"
     lam = o.lambda_initial
     radius = o.radius_initial
     log = _IterationLog(problem, o, t_start, rc0, lin.grad) if show and problem.size else None
     it = 0
+    bad_trial: list[np.ndarray] | None = None  # the last trial point with a non-finite cost
     while problem.size and it < o.max_iter:
         it += 1
         solves = 0
         accepted = False
         stop = None
+        at_minimum = False  # the first trial's change (or its model's) is within tolerance
         if o.solver == "lm":
             dg = lin.data[problem.diag_pos]  # the undamped diagonal (a copy)
+            first_lm: tuple[float, float] | None = None  # the first trial: cost, prediction
             while True:
                 # damp in place and restore the diagonal exactly after the solve (no copy of
                 # the whole matrix per trial)
@@ -291,20 +310,31 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                         accepted = True
                         lam = max(lam / o.lambda_factor, o.lambda_min)
                         break
+                    if new_rc == np.inf:
+                        bad_trial = new
+                    if first_lm is None:
+                        first_lm = (new_rc, pred)
                 lam *= o.lambda_factor
                 if lam > o.lambda_max:
                     stop = f"lambda exceeded {o.lambda_max:g} without decreasing the cost"
+                    if first_lm is not None:
+                        at_minimum, stop = _at_minimum(o, cur_rc, *first_lm, stop)
+                    else:
+                        stop += " (the damped system was singular at every lambda)"
                     break
         elif o.solver == "gn":
             solves += 1
-            dx = _factor_solve(ls, lin.data, -lin.grad, tm, gn=True)
+            dx = _factor_solve(ls, lin.data, -lin.grad, tm, gn=problem)
             keep = not _final(o, cur_rc, -0.5 * _dot(lin.grad, dx))  # H dx = -g
             new, new_c, new_rc = _try(problem, cur, dx, tm, keep=keep)
             if new_rc < cur_rc:
                 accepted = True
-            elif new_rc - cur_rc <= max(o.abs_tol, o.rel_tol * cur_rc):
+            elif _within(o, cur_rc, new_rc):
+                at_minimum = True
                 stop = "converged: the Gauss-Newton step no longer decreases the cost"
             else:
+                if new_rc == np.inf:
+                    bad_trial = new
                 stop = "the Gauss-Newton step did not decrease the cost"
         else:  # dogleg
             gn_dx = None
@@ -317,12 +347,11 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
             while True:
                 if gn_dx is None:
                     solves += 1
-                    gn_dx = _factor_solve(ls, lin.data, -g, tm, gn=True)
+                    gn_dx = _factor_solve(ls, lin.data, -g, tm, gn=problem)
                 dx = _dogleg_step(gn_dx, sd, radius)
                 pred = -(_dot(g, dx) + 0.5 * _dot(dx, H @ dx))
                 new, new_c, new_rc = _try(problem, cur, dx, tm,
                                           keep=first and not _final(o, cur_rc, pred))
-                first = False
                 actual = cur_rc - new_rc
                 rho = actual / pred if pred > 0 else -1.0
                 step = _norm(dx)
@@ -333,13 +362,23 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                 if actual > 0:
                     accepted = True
                     break
+                if new_rc == np.inf:
+                    bad_trial = new
+                if first:
+                    first_trial = (new_rc, pred)
+                first = False
                 if radius < 1e-12 * (1.0 + _norm(_vec(cur))):
                     stop = "trust region collapsed without decreasing the cost"
+                    at_minimum, stop = _at_minimum(o, cur_rc, *first_trial, stop)
                     break
             lam = radius
         if not accepted:
             message = stop or "no decrease"
-            converged = o.solver != "gn" or message.startswith("converged")
+            termination = "convergence" if at_minimum else "failure"
+            if termination == "failure" and bad_trial is not None:
+                where = problem.nonfinite(bad_trial)
+                if where:
+                    message += f"; trial points had a non-finite cost ({where})"
             history.append(IterationRecord(it, cur_rc, 0.0, lam, time.perf_counter() - t_start,
                                            solves))
             it -= 1
@@ -356,9 +395,10 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         if why is None and step_norm <= o.step_tol:
             why = f"step norm {step_norm:.3g} below step_tol"
         if why is not None:
-            message, converged = why, True
+            message, termination = why, "convergence"
             break
         lin = _linearize(problem, cur, tm, old=lin)
+        _require_finite(problem, cur, lin, f"after iteration {it}")
         if log is not None:
             log.emit(lin.grad)
     if log is not None:
@@ -368,8 +408,46 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
     timings = dict(tm.t)
     timings["other"] = total - sum(timings.values())
     vals = Values(problem.variables, cur)
-    return Result(vals, c0, final_c, rc0, final_rc, it, converged, message, history, total,
-                  o.solver, ls.name, timings, list(problem.gauge_fixed))
+    return Result(vals, c0, final_c, rc0, final_rc, it, termination == "convergence", message,
+                  termination, history, total, o.solver, ls.name, timings,
+                  list(problem.gauge_fixed))
+
+
+def _within(o: SolverOptions, old: float, new: float) -> bool:
+    """A cost change (either sign) no larger than the tolerances: a minimum to rounding."""
+    return abs(new - old) <= max(o.abs_tol, o.rel_tol * old)
+
+
+def _at_minimum(o: SolverOptions, cost: float, first_cost: float, first_pred: float,
+                stop: str) -> tuple[bool, str]:
+    """Whether a run that found no decrease from ``cost`` stopped at a minimum (to rounding):
+    the first (least damped) trial changed the cost, or its model predicted a decrease, by no
+    more than the tolerances. Else it failed: the linearisation does not describe the cost."""
+    if _within(o, cost, first_cost) or _final(o, cost, first_pred):
+        return True, (f"converged: no step decreases the cost; the first changed it by "
+                      f"{first_cost - cost:.3g} with a predicted decrease of {first_pred:.3g}, "
+                      f"within abs_tol/rel_tol ({stop})")
+    return False, (f"{stop}: the first step changed it by {first_cost - cost:.3g} where its "
+                   f"model predicted a decrease of {first_pred:.3g}")
+
+
+def _require_finite(problem: Problem, states: list[np.ndarray], lin: Any, when: str) -> None:
+    """Raise ``ValueError`` naming the factor when the cost or the normal equations are not
+    finite (sums first: a cheap test that every entry is finite)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = lin.robust_cost + lin.cost + float(lin.data.sum()) + float(lin.grad.sum())
+    if math.isfinite(total):
+        return
+    found = problem._nonfinite(states, jacobians=True)
+    if found is None:
+        if np.isfinite(lin.data).all() and np.isfinite(lin.grad).all() and \
+                math.isfinite(lin.cost) and math.isfinite(lin.robust_cost):
+            return  # large finite sums only
+        raise ValueError(f"the normal equations overflow {when}: scale the noise models down")
+    where, fi, row, args = found
+    raise NonFiniteError(f"the cost or its linearisation is not finite {when}: {where}; check "
+                         f"that factor's measurement, noise model and variable values",
+                         fi, row, args)
 
 
 class _IterationLog:
@@ -446,15 +524,19 @@ def _linearize(problem: Problem, states: list[np.ndarray], tm: _Timer, old: Any 
 
 
 def _factor_solve(ls: LinearSolver, data: np.ndarray, b: np.ndarray, tm: _Timer,
-                  gn: bool = False) -> np.ndarray:
+                  gn: Problem | None = None) -> np.ndarray:
+    """Factorise and solve; with ``gn`` (the problem of an undamped system) a singular
+    system is an error naming the first variable it involves."""
     t0 = time.perf_counter()
     try:
         ls.factorize(data)
     except SingularSystemError as e:
-        if gn:
+        if gn is not None:
+            at = f", first at {gn.unknown_name(e.unknown)}" if e.unknown is not None else ""
             raise SingularSystemError(
                 f"{e}: the Gauss-Newton system is rank deficient (a gauge freedom or an "
-                f"unobservable variable); add priors or use solver='lm'") from None
+                f"unobservable variable{at}); add priors or use solver='lm'",
+                unknown=e.unknown) from None
         raise
     finally:
         tm.t["factorize"] += time.perf_counter() - t0
