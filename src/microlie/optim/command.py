@@ -5,13 +5,15 @@
     microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] [--robust huber:1.0]
                      [--init auto|file|odometry|chordal] [--linear-solver auto|supernodal|...]
                      [--max-iter N] [--plot FILE] [--json] [--format auto|g2o|toro|bal]
+                     [--blas-threads N]
 
 The reported costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges (plain, even with
 ``--robust``, and without the gauge prior); ``time_s`` is the solve alone (reading, initial
 guess and graph construction are reported apart). The gauge is the file's ``FIX`` vertices,
 or else a prior on the first pose at its start value. ``--init auto`` takes the file's vertices,
 or the odometry chain when the file has none, or chordal when that chain is incomplete (said on
-stderr). A progress line per iteration goes to stderr on a terminal.
+stderr). A progress line per iteration goes to stderr on a terminal. The whole command runs
+with one BLAS thread unless ``--blas-threads`` says otherwise (:mod:`microlie.optim.threads`).
 
 Formats are handled by the functions in :data:`FORMATS` (format name -> ``"module:function"``,
 imported on use), each called as ``run(args, err) -> dict`` and returning the JSON report: a
@@ -27,6 +29,8 @@ import sys
 import time
 from pathlib import Path
 from typing import Any, TextIO
+
+from .threads import blas_threads_limit
 
 __all__ = ["register", "run", "run_pose_graph", "FORMATS", "detect_format"]
 
@@ -92,6 +96,10 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="maximum number of iterations (default 100)")
     p.add_argument("--plot", metavar="FILE", default=None,
                    help="draw the initial and optimised graph to FILE (PNG)")
+    p.add_argument("--blas-threads", type=int, default=1, metavar="N",
+                   help="BLAS threads for the whole command (default 1: a multithreaded BLAS "
+                        "is several times slower on a busy machine); 0 keeps the BLAS "
+                        "library's setting (OPENBLAS_NUM_THREADS or one thread per core)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
     return p
@@ -188,7 +196,12 @@ def run(args: argparse.Namespace, out: TextIO | None = None, err: TextIO | None 
     err = err or sys.stderr
     fmt = detect_format(args.input) if args.format == "auto" else args.format
     args.format = fmt
-    report = _handler(fmt)(args, err)
+    threads = getattr(args, "blas_threads", 1)
+    if threads < 0:
+        raise ValueError(f"--blas-threads must be >= 0 (0: the BLAS library's setting), "
+                         f"not {threads}")
+    with blas_threads_limit(threads or None):  # the solvers below keep it (blas_threads=None)
+        report = _handler(fmt)(args, err)
     if args.json:
         out.write(json.dumps(report) + "\n")
     else:
@@ -277,7 +290,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     fg, poses = graph.to_factor_graph(X0, loss=args.robust)
     t3 = time.perf_counter()
     res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
-                      max_iter=args.max_iter, verbose=_progress(err))
+                      max_iter=args.max_iter, verbose=_progress(err), blas_threads=None)
     X = res.values[poses]
     report = {
         "file": str(args.input),

@@ -72,7 +72,8 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     t1 = time.perf_counter()
     verbose = bool(getattr(err, "isatty", None) and err.isatty())
     res = bundle_adjust(start, robust=getattr(args, "robust", None), linear_solver=_LINEAR[linear],
-                max_iter=getattr(args, "max_iter", 100), verbose=verbose)
+                max_iter=getattr(args, "max_iter", 100), verbose=verbose,
+                blas_threads=None)  # run() holds the command's --blas-threads
     report: dict[str, Any] = {
         "file": str(args.input),
         "format": "bal",

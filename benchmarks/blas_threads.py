@@ -1,0 +1,133 @@
+"""BLAS threads in the solver on a busy machine (issue 19, item 13).
+
+Run from the repository root (any Python with microlie's dependencies)::
+
+    PYTHONPATH=src python benchmarks/blas_threads.py [--rounds 7] [--graph sphere2500.g2o]
+
+A busy-loop process (``while True: pass``) keeps one core busy for the whole run; then each
+round runs, in one subprocess each and in turn (interleaved, so that a burst of other load hits
+every condition alike), ``python -m microlie.cli optimize GRAPH --json`` as:
+
+* ``new default``: this checkout, no thread setting anywhere (one BLAS thread in the solver);
+* ``one thread (env)``: this checkout with ``OPENBLAS_NUM_THREADS=1`` etc. (the one-thread time);
+* ``opt-out``: this checkout with ``--blas-threads 0``, no thread variable (the BLAS library's
+  default threads: the old behaviour);
+* ``old main``: ``--base`` (default ``/work/base/src``) on ``PYTHONPATH``, no thread variable.
+
+The thread variables (``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``, ``MKL_NUM_THREADS``) are
+removed from the children's environment except in ``one thread (env)``; anything else
+(``OPENBLAS_CORETYPE``, ``OPENBLAS_L2_SIZE``, ``MICROLIE_FAST``) is passed on and printed. Two
+times are reported, labelled: ``process`` (wall clock from the start of the subprocess to its
+exit: imports, reading, initialisation, solve) and ``solve`` (the report's ``time_s``, the
+solve alone, measured inside the process). Medians with the interquartile range and min-max,
+and the ratios of medians to ``new default``. The load average is printed before and after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / ".." / "shared" / "data" / "pose_graph"
+THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+SHOWN_VARS = ("OPENBLAS_CORETYPE", "OPENBLAS_L2_SIZE", "MICROLIE_FAST", "GOTO_NUM_THREADS")
+
+
+def _conditions(base: str) -> dict[str, tuple[str, dict[str, str], list[str]]]:
+    """label -> (PYTHONPATH, extra environment, extra command-line arguments)."""
+    src = str(ROOT / "src")
+    one = {v: "1" for v in THREAD_VARS}
+    return {"new default": (src, {}, []),
+            "one thread (env)": (src, one, []),
+            "opt-out (--blas-threads 0)": (src, {}, ["--blas-threads", "0"]),
+            "old main": (base, {}, [])}
+
+
+def _run(graph: Path, pythonpath: str, extra_env: dict[str, str], args: list[str]
+         ) -> tuple[float, float, float]:
+    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARS}
+    env.update(extra_env)
+    # the caller's PYTHONPATH (e.g. where threadpoolctl lives) after ours, without this src
+    rest = [q for q in os.environ.get("PYTHONPATH", "").split(os.pathsep)
+            if q and Path(q).resolve() != ROOT / "src"]
+    env["PYTHONPATH"] = os.pathsep.join([pythonpath, *rest])
+    cmd = [sys.executable, "-m", "microlie.cli", "optimize", str(graph), "--json", *args]
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{p.stderr}")
+    report = json.loads(p.stdout)
+    return wall, float(report["time_s"]), float(report["final_cost"])
+
+
+def _stats(xs: list[float]) -> str:
+    q = statistics.quantiles(xs, n=4) if len(xs) > 1 else [xs[0]] * 3
+    return (f"{statistics.median(xs):7.3f} (IQR {q[0]:.3f}-{q[2]:.3f}, "
+            f"{min(xs):.3f}-{max(xs):.3f})")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--graph", default="sphere2500.g2o", help="a file of ../shared/data/pose_graph")
+    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--base", default="/work/base/src",
+                    help="PYTHONPATH of the old main (before the change)")
+    ap.add_argument("--no-busy", action="store_true", help="do not start the busy-loop process")
+    a = ap.parse_args()
+    graph = (DATA / a.graph).resolve()
+    if not graph.exists():
+        sys.exit(f"{graph}: missing (the shared data sets)")
+    conds = _conditions(a.base)
+    if not Path(a.base).is_dir():
+        del conds["old main"]
+        print(f"{a.base}: missing, old main skipped", file=sys.stderr)
+    env_shown = ", ".join(f"{k}={os.environ[k]}" for k in SHOWN_VARS if k in os.environ)
+    print(f"# BLAS threads: `microlie optimize {a.graph} --json`, {a.rounds} interleaved rounds")
+    print(f"\nload average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; "
+          f"cores: {os.cpu_count()}; busy loop: {'no' if a.no_busy else 'one process'}; "
+          f"environment: {env_shown or 'no BLAS variables'}; python {sys.version.split()[0]}; "
+          f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+    busy = None if a.no_busy else subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    walls: dict[str, list[float]] = {k: [] for k in conds}
+    solves: dict[str, list[float]] = {k: [] for k in conds}
+    costs: dict[str, float] = {}
+    try:
+        for k in conds:  # warm-up round: file cache, .pyc
+            _run(graph, *conds[k])
+        for r in range(a.rounds):
+            for k, (pp, env, args) in conds.items():
+                w, s, c = _run(graph, pp, env, args)
+                walls[k].append(w)
+                solves[k].append(s)
+                costs[k] = c
+            print(f"round {r + 1}/{a.rounds}: " + ", ".join(
+                f"{k} {walls[k][-1]:.2f}/{solves[k][-1]:.2f} s" for k in conds), file=sys.stderr)
+    finally:
+        if busy is not None:
+            busy.kill()
+            busy.wait()
+    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
+    ref_w = statistics.median(walls["new default"])
+    ref_s = statistics.median(solves["new default"])
+    print("| condition | process s, median (IQR, min-max) | ratio | solve s, median (IQR, "
+          "min-max) | ratio | final cost |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for k in conds:
+        print(f"| {k} | {_stats(walls[k])} | {statistics.median(walls[k]) / ref_w:.2f} | "
+              f"{_stats(solves[k])} | {statistics.median(solves[k]) / ref_s:.2f} | "
+              f"{costs[k]:.10g} |")
+    one = statistics.median(solves["one thread (env)"])
+    print(f"\nacceptance (solve, new default / one thread): {ref_s / one:.2f} (goal <= 1.2); "
+          f"process: {ref_w / statistics.median(walls['one thread (env)']):.2f}")
+
+
+if __name__ == "__main__":
+    main()
