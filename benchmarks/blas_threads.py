@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import statistics
 import subprocess
 import sys
@@ -95,6 +96,7 @@ def main() -> None:
           f"cores: {os.cpu_count()}; busy loop: {'no' if a.no_busy else 'one process'}; "
           f"environment: {env_shown or 'no BLAS variables'}; python {sys.version.split()[0]}; "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))  # the busy loop ends with us
     busy = None if a.no_busy else subprocess.Popen([sys.executable, "-c", "while True: pass"])
     walls: dict[str, list[float]] = {k: [] for k in conds}
     solves: dict[str, list[float]] = {k: [] for k in conds}

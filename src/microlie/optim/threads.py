@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import inspect
+import sys
 from collections.abc import Callable
 from typing import Any, ParamSpec, TypeVar
 
@@ -39,9 +40,8 @@ class _Limit:
 
     def __enter__(self) -> _Limit:
         import scipy.linalg  # noqa: F401  # SciPy's own BLAS (the factorisations) is loaded
-        from threadpoolctl import threadpool_limits
 
-        self._stack.enter_context(threadpool_limits(limits=self.n, user_api="blas"))
+        self._stack.enter_context(_controller().limit(limits=self.n, user_api="blas"))
         _ACTIVE.append(self)
         return self
 
@@ -51,6 +51,18 @@ class _Limit:
 
 
 _ACTIVE: list[_Limit] = []
+_CONTROLLER: list[Any] = []  # [threadpoolctl.ThreadpoolController, len(sys.modules) at its scan]
+
+
+def _controller(rescan: bool = False) -> Any:
+    """threadpoolctl's view of the loaded libraries, scanned again only when modules were
+    imported since (or ``rescan``): a scan reads ``/proc/self/maps``, 1-10 ms, more than a
+    small solve."""
+    if rescan or not _CONTROLLER or _CONTROLLER[1] != len(sys.modules):
+        from threadpoolctl import ThreadpoolController
+
+        _CONTROLLER[:] = [ThreadpoolController(), len(sys.modules)]
+    return _CONTROLLER[0]
 
 
 def blas_threads_limit(blas_threads: int | None) -> contextlib.AbstractContextManager[Any]:
@@ -100,16 +112,14 @@ def limit_new_libraries() -> None:
     >>> limit_new_libraries()  # outside a limit: nothing
     """
     if _ACTIVE:
-        from threadpoolctl import threadpool_limits
-
         top = _ACTIVE[-1]
-        top._stack.enter_context(threadpool_limits(limits=top.n, user_api="blas"))
+        top._stack.enter_context(_controller(rescan=True).limit(limits=top.n, user_api="blas"))
 
 
 def with_blas_threads(fn: Callable[P, R]) -> Callable[P, R]:
     """Run ``fn`` under :func:`blas_threads_limit` of its keyword-only ``blas_threads``
     argument (its default when not given): one limit around the whole call, not per BLAS call
-    (setting the limit costs about a millisecond).
+    (a scan of the loaded libraries costs milliseconds: see :func:`_controller`).
 
     Parameters
     ----------
