@@ -75,6 +75,11 @@ def _stats(xs: list[float]) -> str:
             f"{min(xs):.3f}-{max(xs):.3f})")
 
 
+def _per_round(xs: list[float], refs: list[float]) -> str:
+    r = [x / y for x, y in zip(xs, refs, strict=True)]
+    return f"{statistics.median(r):.2f} ({min(r):.2f}-{max(r):.2f})"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--graph", default="sphere2500.g2o", help="a file of ../shared/data/pose_graph")
@@ -119,16 +124,22 @@ def main() -> None:
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
     ref_w = statistics.median(walls["new default"])
     ref_s = statistics.median(solves["new default"])
-    print("| condition | process s, median (IQR, min-max) | ratio | solve s, median (IQR, "
-          "min-max) | ratio | final cost |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print("| condition | process s, median (IQR, min-max) | ratio | per-round ratio | solve s, "
+          "median (IQR, min-max) | ratio | per-round ratio | final cost |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for k in conds:
         print(f"| {k} | {_stats(walls[k])} | {statistics.median(walls[k]) / ref_w:.2f} | "
-              f"{_stats(solves[k])} | {statistics.median(solves[k]) / ref_s:.2f} | "
-              f"{costs[k]:.10g} |")
-    one = statistics.median(solves["one thread (env)"])
-    print(f"\nacceptance (solve, new default / one thread): {ref_s / one:.2f} (goal <= 1.2); "
-          f"process: {ref_w / statistics.median(walls['one thread (env)']):.2f}")
+              f"{_per_round(walls[k], walls['new default'])} | {_stats(solves[k])} | "
+              f"{statistics.median(solves[k]) / ref_s:.2f} | "
+              f"{_per_round(solves[k], solves['new default'])} | {costs[k]:.10g} |")
+    one = "one thread (env)"
+    print("\nratios: median of the conditions' medians over `new default`'s, and the median "
+          "(min-max) of the ratios within each round")
+    print(f"\nacceptance, new default / one thread: solve "
+          f"{ref_s / statistics.median(solves[one]):.2f} (per round "
+          f"{_per_round(solves['new default'], solves[one])}), process "
+          f"{ref_w / statistics.median(walls[one]):.2f} (per round "
+          f"{_per_round(walls['new default'], walls[one])}); goal <= 1.2")
 
 
 if __name__ == "__main__":
