@@ -116,8 +116,8 @@ static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *cons
  * block to the cache. Outputs below CACHE_MIN bytes use NumPy's own allocator. The limit is
  * MICROLIE_FAST_CACHE_MB (default 256; 0 disables the cache) or set_cache_limit(). A freed block
  * larger than the limit is kept too, alone, as the large block (`big`: the latest one, replacing
- * the previous; an SE3 log Jacobian of 1e6 elements is 288 MB and its fresh pages made the call
- * 1.5x slower, 2-3x under load: issue 19, item 17), so the cache never holds more than the limit
+ * the previous; an SE3 log Jacobian of 1e6 elements is 288 MB and its fresh pages cost 1.3x the
+ * call's CPU time, 1.4-2.8x its wall time under load: issue 19, item 17), so the cache never holds more than the limit
  * plus one block as large as the largest output the program held; set_cache_limit() releases
  * it. The cache is only touched with the GIL held (allocation here, release in the capsule
  * destructor). */

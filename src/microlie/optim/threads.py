@@ -3,8 +3,9 @@
 The dense work of a solve (the supernodal factorisation's ``potrf``/``trsm``/``syrk``, the
 Schur complement's products) is many small BLAS calls. A multithreaded BLAS wakes its pool
 for each of them, and on a machine whose cores are busy the threads wait for each other:
-sphere2500 took 7.5 s with OpenBLAS's default threads against 0.82 s with one thread
-(``BENCHMARKS.md``, "BLAS threads"). :func:`FactorGraph.optimize
+on two cores, one kept busy by another process, sphere2500's solve took 2.4 s with OpenBLAS's
+default threads against 0.29 s with one (medians; 2.9-21x within a round; ``BENCHMARKS.md``,
+"BLAS threads"). :func:`FactorGraph.optimize
 <microlie.optim.FactorGraph.optimize>`, :func:`~microlie.optim.bundle_adjust` and
 ``microlie optimize`` therefore run with ``blas_threads=1``: every BLAS library loaded in the
 process (OpenBLAS, MKL, BLIS, ... : NumPy and SciPy may each carry their own) is limited to one
