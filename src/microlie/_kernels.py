@@ -342,7 +342,7 @@ def _stack_blocks(xp: Any, arrays: list, blocks: dict) -> Array:
 # MICROLIE_CACHE_MB megabytes (default 256; 0 disables it) in up to ``_POOL_SLOTS`` blocks, plus
 # one block larger than that limit: the latest output above it (``_big``; an SE3 ``log``
 # Jacobian of 1e6 elements is 288 MB, and allocating it afresh on every call cost 1.3x the
-# compiled call's CPU time and 1.4-2.8x its wall time under load: issue 19, item 17). A new
+# compiled call's CPU time and 1.4x its wall time at load 3: issue 19, item 17). A new
 # output above the limit that does not fit it replaces it, so the pool never holds more than
 # the limit plus one output as large as the largest one the program held. The compiled kernels
 # keep their own (MICROLIE_FAST_CACHE_MB).

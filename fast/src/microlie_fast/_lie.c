@@ -117,10 +117,10 @@ static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *cons
  * MICROLIE_FAST_CACHE_MB (default 256; 0 disables the cache) or set_cache_limit(). A freed block
  * larger than the limit is kept too, alone, as the large block (`big`: the latest one, replacing
  * the previous; an SE3 log Jacobian of 1e6 elements is 288 MB and its fresh pages cost 1.3x the
- * call's CPU time, 1.4-2.8x its wall time under load: issue 19, item 17), so the cache never holds more than the limit
- * plus one block as large as the largest output the program held; set_cache_limit() releases
- * it. The cache is only touched with the GIL held (allocation here, release in the capsule
- * destructor). */
+ * call's CPU time, 1.4x its wall time at load 3: issue 19, item 17), so the cache never holds
+ * more than the limit plus one block as large as the largest output the program held;
+ * set_cache_limit() releases it. The cache is only touched with the GIL held (allocation here,
+ * release in the capsule destructor). */
 #define CACHE_MIN ((size_t)1 << 20)
 #define CACHE_SLOTS 8
 #define HUGE ((size_t)2 << 20) /* blocks are rounded up to whole 2 MiB (transparent huge) pages */
