@@ -21,6 +21,9 @@ times are reported, labelled: ``process`` (wall clock from the start of the subp
 exit: imports, reading, initialisation, solve) and ``solve`` (the report's ``time_s``, the
 solve alone, measured inside the process). Medians with the interquartile range and min-max,
 and the ratios of medians to ``new default``. The load average is printed before and after.
+
+``--overhead`` instead times, in this process, the limit's own cost: ``optimize()`` against
+``optimize(blas_threads=None)`` on a 4-pose SE(2) chain (about a millisecond), alternating.
 """
 
 from __future__ import annotations
@@ -80,6 +83,31 @@ def _per_round(xs: list[float], refs: list[float]) -> str:
     return f"{statistics.median(r):.2f} ({min(r):.2f}-{max(r):.2f})"
 
 
+def overhead(rounds: int) -> None:
+    """Per-call cost of the limit on a tiny graph (in process, alternating)."""
+    import numpy as np
+
+    from microlie import SE2
+    from microlie.optim import BetweenFactor, Diagonal, FactorGraph, PriorFactor
+
+    g = FactorGraph()
+    x = g.add_variables(SE2.identity(4))
+    g.add(PriorFactor(x, 0, SE2.identity(), Diagonal([0.1] * 3)))
+    g.add(BetweenFactor(x, [0, 1, 2], [1, 2, 3], SE2.exp(np.tile([1.0, 0, 0.1], (3, 1))),
+                        Diagonal([0.1] * 3)))
+    times: dict[str | None, list[float]] = {"1": [], None: []}
+    for r in range(rounds + 1):
+        for k in times:
+            t = time.perf_counter()
+            g.optimize(blas_threads=None if k is None else int(k))
+            if r:  # the first round warms up
+                times[k].append(time.perf_counter() - t)
+    one, none = (statistics.median(times[k]) * 1e3 for k in ("1", None))
+    print(f"4-pose SE(2) chain, {rounds} alternating rounds, load "
+          f"{os.getloadavg()[0]:.2f}: optimize() {one:.3f} ms, optimize(blas_threads=None) "
+          f"{none:.3f} ms, ratio {one / none:.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--graph", default="sphere2500.g2o", help="a file of ../shared/data/pose_graph")
@@ -87,7 +115,12 @@ def main() -> None:
     ap.add_argument("--base", default="/work/base/src",
                     help="PYTHONPATH of the old main (before the change)")
     ap.add_argument("--no-busy", action="store_true", help="do not start the busy-loop process")
+    ap.add_argument("--overhead", action="store_true",
+                    help="only the limit's own cost on a tiny graph (in process)")
     a = ap.parse_args()
+    if a.overhead:
+        overhead(max(a.rounds, 50))
+        return
     graph = (DATA / a.graph).resolve()
     if not graph.exists():
         sys.exit(f"{graph}: missing (the shared data sets)")
