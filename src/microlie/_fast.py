@@ -9,7 +9,8 @@ Jacobians, float64 and float32 (computed in float64, rounded once). Set the envi
 change: each compiled kernel agrees with the generic one to rounding (``tests/test_kernels.py``).
 Single float64 SO(3)/SE(3) elements go through the one-element C functions of
 ``microlie_fast._one`` (:func:`installed_single`). Large outputs reuse freed blocks (bounded by
-``MICROLIE_FAST_CACHE_MB``, default 256; see ``microlie_fast``).
+``MICROLIE_FAST_CACHE_MB``, default 256, plus the latest freed block above it; see
+``microlie_fast``).
 """
 
 from __future__ import annotations

@@ -339,8 +339,13 @@ def _stack_blocks(xp: Any, arrays: list, blocks: dict) -> Array:
 # that stay mapped: a block is handed out again once no array refers to it any more (its
 # reference count is back to the pool's own), so a live result never shares memory with a new
 # one. Outputs below ``_POOL_MIN`` bytes (4 MB) use NumPy's allocator. The pool holds at most
-# MICROLIE_CACHE_MB megabytes (default 256; 0 disables it); the compiled kernels keep their own
-# (MICROLIE_FAST_CACHE_MB).
+# MICROLIE_CACHE_MB megabytes (default 256; 0 disables it) in up to ``_POOL_SLOTS`` blocks, plus
+# one block larger than that limit: the latest output above it (``_big``; an SE3 ``log``
+# Jacobian of 1e6 elements is 288 MB, and allocating it afresh on every call cost 1.3x the
+# compiled call's CPU time and 1.4x its wall time at load 3: issue 19, item 17). A new
+# output above the limit that does not fit it replaces it, so the pool never holds more than
+# the limit plus one output as large as the largest one the program held. The compiled kernels
+# keep their own (MICROLIE_FAST_CACHE_MB).
 
 _POOL_MIN = 1 << 22  # 4 MB: below, NumPy (glibc) reuses freed memory as well
 _POOL_SLOTS = 16
@@ -359,6 +364,7 @@ def _pool_limit() -> int:
 
 _POOL_LIMIT = _pool_limit()
 _pool: list[np.ndarray] = []  # owned byte blocks, oldest first
+_big: list[np.ndarray] = []  # at most one block above the limit: the latest such output
 _pool_lock = threading.Lock()
 
 
@@ -380,8 +386,17 @@ def _empty(shape: Shape, dt: Any) -> np.ndarray:
     """An uninitialised array, from the pool of warm blocks when it is large."""
     dt = np.dtype(dt)
     nbytes = math.prod(shape) * dt.itemsize
-    if nbytes < _POOL_MIN or nbytes > _POOL_LIMIT:
+    if nbytes < _POOL_MIN or _POOL_LIMIT == 0:
         return np.empty(shape, dtype=dt)
+    if nbytes > _POOL_LIMIT:
+        with _pool_lock:
+            for block in _big:
+                if block.nbytes == nbytes and _refs(block) <= _FREE:
+                    break
+            else:
+                block = np.empty(nbytes, dtype=np.uint8)
+                _big[:] = [block]  # the previous one is freed with its last array
+            return block.view(dt).reshape(shape)
     with _pool_lock:
         for block in _pool:
             if block.nbytes == nbytes and _refs(block) <= _FREE:

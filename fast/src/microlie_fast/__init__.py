@@ -10,8 +10,10 @@ arrays of that dtype, one per output.
 Outputs of 1 MB or more come from a small cache of freed blocks, so that a loop over large
 batches reuses memory whose pages are already mapped instead of paying a page fault per 4 KB page
 on every call: ``_lie.set_cache_limit(mb)`` (returns the previous limit) and the environment
-variable ``MICROLIE_FAST_CACHE_MB`` bound the memory kept (default 256; 0 disables the cache);
-``_lie.cache_info()`` reports it. A block is only reused after the array that owned it is freed.
+variable ``MICROLIE_FAST_CACHE_MB`` bound the memory kept (default 256; 0 disables the cache),
+plus one freed block above that limit (the latest; so a 288 MB Jacobian of 1e6 SE3 elements is
+reused too; ``set_cache_limit`` releases it); ``_lie.cache_info()`` reports it (``"large"``).
+A block is only reused after the array that owned it is freed.
 
 ``_text.parse_table`` reads numeric text tables (TUM, KITTI, EuRoC trajectory files) for
 ``microlie.traj.io``, with the values of Python's ``float`` (see ``_text.c``).

@@ -50,6 +50,7 @@ from .._files import save_figure
 from .bal import BALProblem
 from .camera import BALCamera, CameraModel, PinholeCamera, reproject
 from .schur import LinearSolverKind, NormalEquations, SchurStructure
+from .threads import with_blas_threads
 
 __all__ = ["BundleProblem", "BundleResult", "BundleIteration", "bundle_adjust", "synthetic_scene",
            "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec", "camera_model"]
@@ -761,6 +762,7 @@ def _camera_mask(pose: np.ndarray | None, intr: np.ndarray | None, n: int, d: in
     return m
 
 
+@with_blas_threads
 def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
                   behind: str = "evaluate", fix_cameras: Sequence[int] | None = None,
                   fix_points: Sequence[int] | None = None,
@@ -768,7 +770,8 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
                   linear_solver: LinearSolverKind = "auto", max_iter: int = 100,
                   function_tolerance: float = 1e-6, gradient_tolerance: float = 1e-10,
                   parameter_tolerance: float = 1e-8, initial_radius: float = 1e4,
-                  jacobi_scaling: bool = True, verbose: bool = False) -> BundleResult:
+                  jacobi_scaling: bool = True, verbose: bool = False,
+                  blas_threads: int | None = 1) -> BundleResult:
     """Levenberg-Marquardt bundle adjustment (Ceres' rules, module docstring).
 
     Parameters
@@ -800,6 +803,9 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
         Scale the columns as Ceres does.
     verbose : bool
         One line per iteration on stderr.
+    blas_threads : int or None
+        BLAS threads during the call (default 1, as Ceres' default; :mod:`microlie.optim.threads`);
+        ``None`` keeps the user's setting or the library's default. Restored on return.
 
     Returns
     -------

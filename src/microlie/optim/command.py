@@ -5,7 +5,7 @@
     microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] [--robust huber:1.0]
                      [--init auto|file|odometry|chordal] [--linear-solver auto|supernodal|...]
                      [--max-iter N] [--gauge check|fix_first|none] [--plot FILE] [--json]
-                     [--format auto|g2o|toro|bal] [--force] [-v | -q]
+                     [--format auto|g2o|toro|bal] [--force] [-v | -q] [--blas-threads N]
 
 The reported costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges (plain, even with
 ``--robust``, and without the gauge prior); ``time_s`` is the solve alone (reading, initial
@@ -19,7 +19,8 @@ start) goes to stderr, flushed, unless ``--quiet``; then Ceres' iteration table,
 line per iteration, with ``--verbose`` or on a terminal (stdout, with ``--json`` too, carries
 the report only). ``-o`` or ``--plot`` onto the input file is refused without ``--force``;
 every file is written to a temporary file renamed into place, so a failed write leaves the
-old file as it was.
+old file as it was. The whole command runs with one BLAS thread unless ``--blas-threads``
+says otherwise (:mod:`microlie.optim.threads`).
 
 The report's ``termination`` is the solver's (:class:`~microlie.optim.solvers.Result`):
 ``convergence`` and ``no_convergence`` (``--max-iter`` reached; printed "not converged")
@@ -41,6 +42,8 @@ import sys
 import time
 from pathlib import Path
 from typing import Any, TextIO
+
+from .threads import blas_threads_limit
 
 __all__ = ["register", "run", "run_pose_graph", "FORMATS", "detect_format"]
 
@@ -113,6 +116,10 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         "gauge")
     p.add_argument("--plot", metavar="FILE", default=None,
                    help="draw the initial and optimised graph to FILE (PNG)")
+    p.add_argument("--blas-threads", type=int, default=1, metavar="N",
+                   help="BLAS threads for the whole command (default 1: a multithreaded BLAS "
+                        "is several times slower on a busy machine); 0 keeps the BLAS "
+                        "library's setting (OPENBLAS_NUM_THREADS or one thread per core)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--force", action="store_true",
                    help="allow -o or --plot to overwrite the input file")
@@ -233,7 +240,12 @@ def run(args: argparse.Namespace, out: TextIO | None = None, err: TextIO | None 
     check_not_input(args.plot, [args.input], option="--plot", force=force)
     fmt = detect_format(args.input) if args.format == "auto" else args.format
     args.format = fmt
-    report = _handler(fmt)(args, err)
+    threads = getattr(args, "blas_threads", 1)
+    if threads < 0:
+        raise ValueError(f"--blas-threads must be >= 0 (0: the BLAS library's setting), "
+                         f"not {threads}")
+    with blas_threads_limit(threads or None):  # the solvers below keep it (blas_threads=None)
+        report = _handler(fmt)(args, err)
     if args.json:
         out.write(json.dumps(report) + "\n")
     else:
@@ -336,7 +348,8 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     try:
         with _to(err):
             res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
-                              max_iter=args.max_iter, gauge=gauge, verbose=_progress(err, args))
+                              max_iter=args.max_iter, gauge=gauge, verbose=_progress(err, args),
+                              blas_threads=None)  # run() holds --blas-threads
     except NonFiniteError as e:  # batch 0 is the file's edges, in order
         what = f"edge {e.row} of the file" if e.factor == 0 else "the gauge prior"
         on = " -> ".join(str(graph.ids[i]) for _, i in e.variables)

@@ -82,7 +82,8 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     with _to(err):
         res = bundle_adjust(start, robust=getattr(args, "robust", None),
                             linear_solver=_LINEAR[linear], max_iter=max_iter,
-                            verbose=_progress(err, args))
+                            verbose=_progress(err, args),
+                            blas_threads=None)  # run() holds the command's --blas-threads
     report: dict[str, Any] = {
         "file": str(args.input),
         "format": "bal",

@@ -11,6 +11,7 @@ from .factors import Factor
 from .linear import LinearSolver
 from .problem import Problem
 from .solvers import Result, SolverOptions, solve
+from .threads import with_blas_threads
 from .variables import Values, Variables
 
 __all__ = ["FactorGraph", "from_pose_graph"]
@@ -292,11 +293,12 @@ class FactorGraph:
         return self.problem("none").costs(self._states(values))[1]
 
     # ------------------------------------------------------------------ solving
+    @with_blas_threads
     def optimize(self, values: Values | None = None, *, solver: str = "lm",
                  linear_solver: str | LinearSolver = "auto", max_iter: int = 100,
                  rel_tol: float = 1e-5, abs_tol: float = 1e-5, cost_tol: float = 0.0,
                  step_tol: float = 0.0, gauge: str = "check", verbose: bool | None = None,
-                 **options: Any) -> Result:
+                 blas_threads: int | None = 1, **options: Any) -> Result:
         """Minimise the robust cost from ``values``.
 
         Parameters
@@ -319,6 +321,11 @@ class FactorGraph:
             the check.
         verbose : bool, optional
             Print one line per iteration on stderr (default: when stderr is a terminal).
+        blas_threads : int or None
+            BLAS threads during the call (default 1: a multithreaded BLAS makes the solve
+            several times slower on a busy machine; :mod:`microlie.optim.threads`); ``None``
+            keeps the user's setting (``OPENBLAS_NUM_THREADS``, threadpoolctl) or the library's
+            default. The previous setting is restored on return.
         **options
             ``lambda_initial``, ``lambda_factor``, ``lambda_max``, ``diagonal_damping``,
             ``radius_initial``.

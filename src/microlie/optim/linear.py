@@ -29,6 +29,7 @@ import scipy.linalg as sla  # type: ignore[import-untyped]
 import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from .ordering import graph, minimum_degree, splu_symmetric
+from .threads import limit_new_libraries
 
 __all__ = ["LinearSolver", "SingularSystemError", "make_solver", "available_solvers",
            "SOLVERS", "PIVOT_TOL"]
@@ -362,6 +363,7 @@ def _pardiso_instance() -> Any:
 
     if _PARDISO_TEMPLATE is None:
         _PARDISO_TEMPLATE = pypardiso.PyPardisoSolver(mtype=2)
+        limit_new_libraries()  # MKL was loaded just now: hold it to the solve's BLAS threads
     ps = copy.copy(_PARDISO_TEMPLATE)
     ps.pt = np.zeros_like(_PARDISO_TEMPLATE.pt)
     # our own parameters instead of MKL's defaults (iparm[0] = 1): the minimum-degree order
