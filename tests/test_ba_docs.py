@@ -24,9 +24,8 @@ def _run(code: str) -> str:
 
 
 def test_bal_example(monkeypatch, tmp_path):
-    data_file("bal/problem-49-7776-pre.txt")
-    monkeypatch.chdir(ROOT)
-    out = _run(BLOCKS[0].replace("/tmp/problem-49-solved.txt", str(tmp_path / "s.txt")))
+    monkeypatch.chdir(data_file("bal/problem-49-7776-pre.txt").parent)  # the page names it bare
+    out = _run(BLOCKS[0].replace('"problem-49-solved.txt"', repr(str(tmp_path / "s.txt"))))
     lines = out.split("\n")
     assert lines[0] == "49 7776 31843"
     a, b = map(float, lines[1].split())
