@@ -28,7 +28,8 @@ filter's error; :meth:`update_position` is the position fix.
 
 from __future__ import annotations
 
-from typing import Any, Literal, NamedTuple, cast
+from dataclasses import dataclass
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -46,7 +47,8 @@ def _mv(M: np.ndarray, x: np.ndarray) -> np.ndarray:
     return (M @ x[..., :, None])[..., 0]
 
 
-class UpdateResult(NamedTuple):
+@dataclass(frozen=True)
+class UpdateResult:
     """What :meth:`ErrorStateEKF.update` (and :meth:`InvariantEKF.update`) did.
 
     Attributes
@@ -67,8 +69,8 @@ class UpdateResult(NamedTuple):
     >>> from microlie.imu.filters import ErrorStateEKF, ESKF_STATE
     >>> f = ErrorStateEKF(ESKF_STATE.identity(), np.eye(15) * 1e-4, gyro_noise=1.7e-4,
     ...                   accel_noise=2e-3, gyro_walk=2e-5, accel_walk=3e-3)
-    >>> nis, applied, threshold = f.update_position([0.1, 0.0, 0.0], 0.01, gate=0.99)
-    >>> round(float(nis), 6), bool(applied), round(threshold, 4)  # 10 cm against 1.4 cm
+    >>> r = f.update_position([0.1, 0.0, 0.0], 0.01, gate=0.99)
+    >>> round(float(r.nis), 6), bool(r.applied), round(r.threshold, 4)  # 10 cm against 1.4 cm
     (50.0, False, 11.3449)
     """
 
@@ -234,7 +236,7 @@ class _ImuFilter:
         Returns
         -------
         UpdateResult
-            ``(nis, applied, threshold)``.
+            Its ``nis``, ``applied`` and ``threshold``.
 
         Raises
         ------

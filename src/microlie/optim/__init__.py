@@ -1,4 +1,4 @@
-"""Factor graphs on Lie groups: sparse non-linear least squares (``../shared/MATH.md`` sec. 8).
+"""Factor graphs on Lie groups: sparse non-linear least squares (specification: MATH.md section 8).
 
 API in one paragraph: ``g = FactorGraph()``; ``poses = g.add_variables(SE3_batch, fixed=...)``
 adds one batch of variables of one type (any :class:`~microlie.LieGroup`, or an ``(n, d)``

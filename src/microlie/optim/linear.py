@@ -8,7 +8,7 @@ PARDISO: a pivot of the factorisation (``d_k`` of ``LDL^T``, ``L_kk^2`` of Chole
 :data:`PIVOT_TOL` times its column's diagonal entry counts as zero. A rank-deficient system
 (a gauge freedom, an unobservable variable) then raises whatever the backend and its order
 (its computed pivots are rounding noise of either sign, 1e-16 to 1e-9 of their diagonal on
-the pose graphs of ``../shared/data`` without a gauge; the smallest genuine one there is
+the shared benchmark pose graphs without a gauge; the smallest genuine one there is
 2.8e-8, ais2klinik).
 
 Backends (``make_solver(name)``): ``"supernodal"`` (our supernodal multifrontal Cholesky on the
@@ -44,6 +44,8 @@ class SingularSystemError(ValueError):
 
     Attributes
     ----------
+    message : str
+        The error text (``str(error)``).
     unknown : int or None
         The unknown (row of the matrix) whose pivot failed, when known.
 

@@ -35,6 +35,8 @@ class GaugeError(ValueError):
 
     Attributes
     ----------
+    message : str
+        The error text (``str(error)``).
     unanchored : list of (Variables, int)
         The first variable of each connected component that no prior or fixed variable
         anchors.
@@ -66,6 +68,8 @@ class NonFiniteError(ValueError):
 
     Attributes
     ----------
+    message : str
+        The error text (``str(error)``).
     factor : int
         The factor batch (its position in the graph's factors).
     row : int

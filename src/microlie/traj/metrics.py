@@ -1,6 +1,6 @@
 """Absolute and relative pose errors, the KITTI odometry metric, and error statistics.
 
-Conventions (``../shared/MATH.md`` section 9). For paired poses ``Q_i`` (reference) and
+Conventions (specification: MATH.md section 9). For paired poses ``Q_i`` (reference) and
 ``P_i`` (estimate):
 
 * APE error pose ``E_i = Q_i^-1 P_i``; RPE error pose for a pair ``(i, j)``
