@@ -109,6 +109,46 @@ def test_issue19_item13_bundle_adjust_runs_with_one_blas_thread(monkeypatch):
     assert set(after.values()) == {2}
 
 
+def test_issue19_item13_marginals_run_with_one_blas_thread(monkeypatch):
+    """Marginals factorise and solve the whole system too: the same limit as the solve."""
+    seen: list[dict[str, int]] = []
+    inner = graph_module.FactorGraph._factorized
+
+    def factorized(self, *args, **kwargs):
+        seen.append(_blas_threads())
+        return inner(self, *args, **kwargs)
+
+    monkeypatch.setattr(graph_module.FactorGraph, "_factorized", factorized)
+    g, x = _chain()
+    with threadpool_limits(limits=2, user_api="blas"):
+        res = g.optimize()
+        g.marginals(res.values, x)
+        g.marginal_covariance(res.values, [(x, 1)])
+        g.marginals(res.values, x, blas_threads=None)
+        after = _blas_threads()
+    assert [set(s.values()) for s in seen] == [{1}, {1}, {2}]
+    assert set(after.values()) == {2}
+
+
+def test_issue19_item13_camera_covariance_runs_with_one_blas_thread(monkeypatch):
+    seen: list[dict[str, int]] = []
+    real = np.linalg.pinv
+
+    def pinv(*args, **kwargs):
+        seen.append(_blas_threads())
+        return real(*args, **kwargs)
+
+    _, start = synthetic_scene(n_cameras=3, n_points=30, seed=4)
+    res = bundle_adjust(start, max_iter=3)
+    import microlie.optim.bundle as bundle_module
+
+    monkeypatch.setattr(bundle_module.np.linalg, "pinv", pinv)
+    with threadpool_limits(limits=2, user_api="blas"):
+        res.camera_covariance([1])
+        res.camera_covariance([1], blas_threads=None)
+    assert [set(s.values()) for s in seen] == [{1}, {2}]
+
+
 def _command_args(path: Path, *extra: str) -> argparse.Namespace:
     from microlie.optim.command import register
 

@@ -559,7 +559,9 @@ class BundleResult:
                 "time_s": self.time_s, "converged": self.converged, "message": self.message,
                 "termination": self.termination, "successful_steps": self.successful_steps}
 
-    def camera_covariance(self, cameras: Sequence[int]) -> np.ndarray:
+    @with_blas_threads
+    def camera_covariance(self, cameras: Sequence[int], *,
+                          blas_threads: int | None = 1) -> np.ndarray:
         """Marginal covariances of the camera tangents ``(dt, dphi, dK)`` at the solution, from the
         reduced camera system: the camera block of ``(J^T J)^-1`` is ``S^-1`` (``S`` the Schur
         complement of the points). With a free gauge ``S`` is singular: the pseudo-inverse
@@ -573,6 +575,9 @@ class BundleResult:
         ----------
         cameras : sequence of int
             The cameras.
+        blas_threads : int or None
+            BLAS threads while factorising and solving (default 1, as :func:`bundle_adjust`;
+            ``None`` keeps the process's setting).
 
         Returns
         -------

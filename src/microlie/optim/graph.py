@@ -365,8 +365,10 @@ class FactorGraph:
         ls.factorize(prob.linearize(states).data)
         return prob, states, ls
 
+    @with_blas_threads
     def marginal_covariance(self, values: Values | None, items: Sequence[tuple[Variables, int]],
-                            linear_solver: str | LinearSolver = "auto") -> np.ndarray:
+                            linear_solver: str | LinearSolver = "auto", *,
+                            blas_threads: int | None = 1) -> np.ndarray:
         """Joint covariance ``H^-1`` of the listed free variables (Gauss-Newton matrix at
         ``values``, robust weights included, no damping), in their order and in the
         right-perturbation frame.
@@ -380,6 +382,9 @@ class FactorGraph:
         linear_solver : str or LinearSolver
             ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
             an instance (see :func:`make_solver`).
+        blas_threads : int or None
+            BLAS threads while factorising and solving (default 1, as :meth:`optimize`;
+            ``None`` keeps the process's setting).
 
         Returns
         -------
@@ -416,8 +421,10 @@ class FactorGraph:
         C = X[idx]
         return 0.5 * (C + C.T)
 
+    @with_blas_threads
     def marginals(self, values: Values | None, variables: Variables, idx: Any = None,
-                  linear_solver: str | LinearSolver = "auto") -> Any:
+                  linear_solver: str | LinearSolver = "auto", *,
+                  blas_threads: int | None = 1) -> Any:
         """Marginal Gaussians of ``variables[idx]`` at ``values``.
 
         Parameters
@@ -431,6 +438,9 @@ class FactorGraph:
         linear_solver : str or LinearSolver
             ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
             an instance (see :func:`make_solver`).
+        blas_threads : int or None
+            BLAS threads while factorising and solving (default 1, as :meth:`optimize`;
+            ``None`` keeps the process's setting).
 
         Returns
         -------
