@@ -331,7 +331,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
                 accepted = True
             elif _within(o, cur_rc, new_rc):
                 at_minimum = True
-                stop = "converged: the Gauss-Newton step no longer decreases the cost"
+                stop = "the Gauss-Newton step no longer decreases the cost"
             else:
                 if new_rc == np.inf:
                     bad_trial = new
@@ -424,7 +424,7 @@ def _at_minimum(o: SolverOptions, cost: float, first_cost: float, first_pred: fl
     the first (least damped) trial changed the cost, or its model predicted a decrease, by no
     more than the tolerances. Else it failed: the linearisation does not describe the cost."""
     if _within(o, cost, first_cost) or _final(o, cost, first_pred):
-        return True, (f"converged: no step decreases the cost; the first changed it by "
+        return True, (f"no step decreases the cost; the first changed it by "
                       f"{first_cost - cost:.3g} with a predicted decrease of {first_pred:.3g}, "
                       f"within abs_tol/rel_tol ({stop})")
     return False, (f"{stop}: the first step changed it by {first_cost - cost:.3g} where its "
