@@ -184,3 +184,26 @@ def test_example_refuses_a_bal_format(tmp_path):
     code, out, err = _run("--example", "--format", "bal")
     assert code == 1 and out == ""
     assert "--example is a pose graph: --format bal does not apply" in err
+
+
+def test_readme_first_command_is_the_example_and_the_second_is_ci(tmp_path, monkeypatch):
+    """README: the first command runs ``microlie optimize --example --plot``, its printed
+    output and GTSAM's cost match a run; the second command is ``.ci/run``'s."""
+    require("matplotlib")
+    readme = (ROOT / "README.md").read_text()
+    commands = re.findall(r"```bash\n(.*?)\n```", readme, flags=re.S)
+    first = commands[0].split(" && ")
+    assert first[:2] == ['python3 -m venv .venv', '.venv/bin/pip install -q -e ".[plot]"']
+    argv = first[2].split()
+    assert argv[:3] == [".venv/bin/microlie", "optimize", "--example"] and "--plot" in argv
+    ci = [ln for ln in (ROOT / ".ci" / "run").read_text().splitlines() if ln.startswith("python3")]
+    assert commands[1] == ci[0]
+    monkeypatch.chdir(tmp_path)
+    out, err = io.StringIO(), io.StringIO()
+    assert main(argv[1:], out=out, err=err) == 0, err.getvalue()
+    assert (tmp_path / argv[argv.index("--plot") + 1]).is_file()
+    shown = re.search(r"```text\n(.*?)\n```", readme, flags=re.S)
+    assert shown is not None
+    strip = re.compile(r"\((?:qdldl|supernodal|scipy)\)|[\d.]+ s,")  # install- and time-bound
+    assert strip.sub("", shown[1]) == strip.sub("", out.getvalue().rstrip("\n"))
+    assert f"reaches the same cost, {GTSAM['error_at_lm_optimum']:.12g}," in readme
