@@ -91,8 +91,10 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     """
     p = subparsers.add_parser(
         "optimize", help="optimise a pose graph (g2o, TORO) or a bundle adjustment (BAL)",
-        description="Optimise a pose graph read from IN; report costs (GTSAM's "
-                    "0.5 sum r^T Omega r over the file's edges), iterations and solve time.")
+        description="Optimise a pose graph read from IN (or, with --example, the synthetic one "
+                    "bundled with microlie); report costs (GTSAM's 0.5 sum r^T Omega r over "
+                    "the graph's edges), iterations and solve time.",
+        epilog="example: microlie optimize --example --plot example.png")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("input", metavar="IN", nargs="?", default=None,
                         help="input file: a g2o or TORO pose graph, or a BAL bundle-adjustment "
