@@ -8,7 +8,7 @@ Subcommands (``microlie COMMAND -h`` shows every option with an example)::
     microlie traj FILES... [--ref FILE] [-a ...] [--merge] [--plot FILE] [--save-as FMT DIR]
     microlie res RESULTS.json... [--plot FILE] [--json]
     microlie plot FILES... -o FILE [--plot-mode xy|xz|yz|zy|xyz]
-    microlie optimize IN.g2o [-o OUT.g2o] [--solver lm|gn|dogleg] ...  # microlie.optim.command
+    microlie optimize (IN.g2o | --example) [-o OUT.g2o] [--plot FILE] ...  # microlie.optim.command
 
 evo's spellings are accepted as aliases (``-a``, ``-s``, ``-as``, ``--align_origin``,
 ``-r trans_part``, ``-r point_distance_error_ratio``, ``-u f``, ``--t_max_diff``,
