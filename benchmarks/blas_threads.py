@@ -115,6 +115,10 @@ def main() -> None:
     ap.add_argument("--base", default="/work/base/src",
                     help="PYTHONPATH of the old main (before the change)")
     ap.add_argument("--no-busy", action="store_true", help="do not start the busy-loop process")
+    ap.add_argument("--only", nargs="+", default=None, metavar="LABEL",
+                    choices=("new", "env", "opt-out", "old"),
+                    help="run only these conditions (new default and one thread (env) are "
+                         "always kept: the acceptance ratio needs both)")
     ap.add_argument("--overhead", action="store_true",
                     help="only the limit's own cost on a tiny graph (in process)")
     a = ap.parse_args()
@@ -125,7 +129,11 @@ def main() -> None:
     if not graph.exists():
         sys.exit(f"{graph}: missing (the shared data sets)")
     conds = _conditions(a.base)
-    if not Path(a.base).is_dir():
+    if a.only:
+        keep = {"new", "env", *a.only}
+        short = dict(zip(conds, ("new", "env", "opt-out", "old"), strict=True))
+        conds = {k: v for k, v in conds.items() if short[k] in keep}
+    if "old main" in conds and not Path(a.base).is_dir():
         del conds["old main"]
         print(f"{a.base}: missing, old main skipped", file=sys.stderr)
     env_shown = ", ".join(f"{k}={os.environ[k]}" for k in SHOWN_VARS if k in os.environ)
