@@ -1,6 +1,7 @@
 """microlie._startup: the trajectory commands start NumPy with one BLAS thread (unless the user
-set a thread count) and without the cyclic garbage collector; importing microlie in a program
-changes neither the environment nor the collector."""
+set a thread count) and without the cyclic garbage collector, ``microlie optimize`` with one
+BLAS thread unless ``--blas-threads`` asks for more; importing microlie in a program changes
+neither the environment nor the collector."""
 
 from __future__ import annotations
 
@@ -30,14 +31,19 @@ def test_a_program_importing_microlie_is_not_affected():
     assert _run(["-c", PROBE])[:2] == ["None", "True"]
 
 
-@pytest.mark.parametrize("command, expected", [("ape", "1"), ("rpe", "1"), ("plot", "1"),
-                                               ("optimize", "None"), ("help", "None")])
-def test_console_script_of_a_trajectory_command(tmp_path, command, expected):
+@pytest.mark.parametrize("args, blas, collector", [
+    (["ape"], "1", False), (["rpe"], "1", False), (["plot"], "1", False),
+    # optimize solves with one BLAS thread (issue 19, item 13): no pool to start, GC kept
+    (["optimize", "g.g2o"], "1", True), (["optimize", "g.g2o", "--blas-threads", "1"], "1", True),
+    (["optimize", "g.g2o", "--blas-threads", "0"], "None", True),
+    (["optimize", "g.g2o", "--blas-threads=2"], "None", True),
+    (["help"], "None", True)])
+def test_console_script_of_a_command(tmp_path, args, blas, collector):
     script = tmp_path / "microlie"  # what the console script's argv[0] looks like
     script.write_text(PROBE + "\n")
-    out = _run([str(script), command])
-    assert out[:2] == [expected, str(expected == "None")]  # the collector is off in commands
-    if expected == "1" and out[2] != "-1":
+    out = _run([str(script), *args])
+    assert out[:2] == [blas, str(collector)]
+    if blas == "1" and out[2] != "-1":
         assert out[2] == "1"  # no OpenBLAS worker threads were started
 
 
