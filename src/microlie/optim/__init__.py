@@ -98,7 +98,8 @@ if TYPE_CHECKING:
     from .variables import Values, Variables
 
 __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "PriorFactor",
-           "BetweenFactor", "CustomFactor", "check_jacobians", "JacobianCheck", "NoiseModel", "Information", "SqrtInformation",
+           "BetweenFactor", "CustomFactor", "check_jacobians", "JacobianCheck", "NoiseModel",
+           "Information", "SqrtInformation",
            "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",

@@ -542,7 +542,8 @@ class BetweenFactor(Factor):
     def evaluate_into(self, values: Sequence[Any], out: np.ndarray) -> np.ndarray:
         if self.args[0][0].group is None:
             return super().evaluate_into(values, out)
-        return self._fill(*values, out)
+        Xi, Xj = values
+        return self._fill(Xi, Xj, out)
 
     def _fill(self, Xi: Any, Xj: Any, out: np.ndarray) -> np.ndarray:
         """The residuals, with ``[J_i J_j]`` written into ``out`` ``(m, d, 2 d)``."""
@@ -566,19 +567,16 @@ def _numerical_jacobians(fn: Callable[[list[Any]], np.ndarray],
     for k, (var, _) in enumerate(args):
         p = values[k] if var.group is None else values[k].params
         p = np.asarray(p)
-        J = None
+        cols = []
         for a in range(var.dof):
             d = np.zeros((p.shape[0], var.dof), dtype=p.dtype)
             d[:, a] = step
             vp, vm = list(values), list(values)
             vp[k] = var.wrap(var.retract(p, d))
             vm[k] = var.wrap(var.retract(p, -d))
-            col = (np.asarray(fn(vp), dtype=np.float64)
-                   - np.asarray(fn(vm), dtype=np.float64)) / (2 * step)
-            if J is None:
-                J = np.empty((*col.shape, var.dof))
-            J[..., a] = col
-        Js.append(J)
+            cols.append((np.asarray(fn(vp), dtype=np.float64)
+                         - np.asarray(fn(vm), dtype=np.float64)) / (2 * step))
+        Js.append(np.stack(cols, axis=-1))
     return Js
 
 
