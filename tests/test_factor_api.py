@@ -375,3 +375,30 @@ def test_docs_example_prints_what_the_page_shows(capsys):
     assert len([ln for ln in body if ln.strip()]) <= 20  # the factor itself: 20 lines at most
     exec(compile(code, "docs/optim.md", "exec"), {})
     assert capsys.readouterr().out == text
+
+
+def test_the_built_in_factors_pass_check_jacobians():
+    """Every factor of the package is written on the same API: ``check_jacobians`` accepts
+    each at a random point, batched (SE(3) between factors with a relative rotation near pi,
+    IMU factors with biases)."""
+    from microlie import SE23
+    from microlie.imu import BiasRandomWalkFactor, ImuFactor, Preintegration
+
+    rng = np.random.default_rng(9)
+    g = FactorGraph()
+    X = SE3.random(4, rng=1)
+    near_pi = (X[0] @ SE3.exp([0, 0, 0, 0, 0, np.pi - 1e-3])).params[None]
+    X = SE3(np.concatenate([X.params[:1], near_pi, X.params[2:]]))
+    x = g.add_variables(X)
+    s = g.add_variables(SE23.random(3, rng=2))
+    b = g.add_variables(0.01 * rng.standard_normal((3, 6)))
+    pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
+        rng.normal([0, 0, 9.81], 0.5, (50, 3)), rng.normal(0, 0.3, (50, 3)), 0.01)
+    factors = [PriorFactor(x, [0, 3], SE3.random(2, rng=3), Isotropic(6, 0.5)),
+               BetweenFactor(x, [0, 1, 2], [1, 2, 3], SE3.random(3, rng=4)),
+               ImuFactor(s, b, [0, 1], [1, 2], [pim, pim]),
+               BiasRandomWalkFactor(b, [0, 1], [1, 2], 1e-3, 1e-2, 0.5),
+               PositionFactor(x, [0, 1, 2], rng.standard_normal((3, 3)))]
+    for f in factors:
+        c = check_jacobians(f)
+        assert c.ok, (f.name, c)
