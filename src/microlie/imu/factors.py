@@ -77,9 +77,9 @@ class ImuFactor(Factor):
         if len(pims) != m:
             raise ValueError(f"ImuFactor: {len(pims)} preintegrations for {m} pairs")
         self.deltas = Deltas(pims)
-        self._setup([(states, i), (states, j), (biases, i)], 9,
-                    Covariance(self.deltas.cov if error == "forster" else
-                               self._logmap_cov(self.deltas)), loss, "ImuFactor")
+        super().__init__([(states, i), (states, j), (biases, i)], 9,
+                         Covariance(self.deltas.cov if error == "forster" else
+                                    self._logmap_cov(self.deltas)), loss)
         self.error = error
 
     @staticmethod
@@ -95,8 +95,39 @@ class ImuFactor(Factor):
         T[:, 6:9, 6:9] = Rt
         return T @ d.cov @ np.swapaxes(T, -1, -2)
 
-    def evaluate(self, values: list[Any], jac: bool) -> Any:
-        Xi, Xj, b = values
+    def residual(self, Xi: Any, Xj: Any, b: Any, jac: bool = False) -> Any:
+        """The residual of :func:`~microlie.imu.imu_residual` and, with ``jac``, its right
+        Jacobians ``[d r / d X_i, d r / d X_j, d r / d b_i]`` (:meth:`Factor.residual`).
+
+        Parameters
+        ----------
+        Xi, Xj : SE23
+            The batches of states ``i`` and ``j``.
+        b : numpy.ndarray
+            ``(m, 6)`` biases of the states ``i``.
+        jac : bool
+            Also return the Jacobians.
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``r`` ``(m, 9)``, or ``(r, [J_i, J_j, J_b])``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> from microlie.imu import ImuFactor, Preintegration
+        >>> from microlie.optim import FactorGraph
+        >>> pim = Preintegration(gyro_noise=1e-3, accel_noise=1e-2).integrate(
+        ...     np.tile([0.0, 0.0, 9.81], (10, 1)), np.zeros((10, 3)), 0.01)
+        >>> g = FactorGraph()
+        >>> f = ImuFactor(g.add_variables(SE23.identity(2)), g.add_variables(np.zeros((2, 6))),
+        ...               [0], [1], [pim])
+        >>> r, Js = f.residual(SE23.identity(1), SE23.identity(1), np.zeros((1, 6)), jac=True)
+        >>> r.shape, [J.shape for J in Js]
+        ((1, 9), [(1, 9, 9), (1, 9, 9), (1, 9, 6)])
+        """
         out = imu_residual(self.deltas, Xi, Xj, b, jac=jac, error=self.error)
         return (out[0], list(out[1:])) if jac else out
 
@@ -139,11 +170,34 @@ class BiasRandomWalkFactor(Factor):
         if not (gyro_walk > 0 and accel_walk > 0):
             raise ValueError("BiasRandomWalkFactor: random-walk densities must be positive")
         sig = np.concatenate([np.full(3, gyro_walk), np.full(3, accel_walk)])
-        self._setup([(biases, i), (biases, j)], 6, Diagonal(sig * np.sqrt(t)[:, None]), loss,
-                    "BiasRandomWalkFactor")
+        super().__init__([(biases, i), (biases, j)], 6, Diagonal(sig * np.sqrt(t)[:, None]),
+                         loss)
 
-    def evaluate(self, values: list[Any], jac: bool) -> Any:
-        bi, bj = values
+    def residual(self, bi: Any, bj: Any, jac: bool = False) -> Any:
+        """``r = b_j - b_i`` and, with ``jac``, ``[-I, I]`` (:meth:`Factor.residual`).
+
+        Parameters
+        ----------
+        bi, bj : numpy.ndarray
+            ``(m, 6)`` biases at both ends.
+        jac : bool
+            Also return the Jacobians.
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``r`` ``(m, 6)``, or ``(r, [-I, I])``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu import BiasRandomWalkFactor
+        >>> from microlie.optim import FactorGraph
+        >>> f = BiasRandomWalkFactor(FactorGraph().add_variables(np.zeros((2, 6))), [0], [1],
+        ...                          gyro_walk=0.01, accel_walk=0.1, dt=1.0)
+        >>> f.residual(np.zeros((1, 6)), np.ones((1, 6))).tolist()
+        [[1.0, 1.0, 1.0, 1.0, 1.0, 1.0]]
+        """
         r = np.asarray(bj) - np.asarray(bi)
         if not jac:
             return r

@@ -5,7 +5,9 @@ adds one batch of variables of one type (any :class:`~microlie.LieGroup`, or an 
 array of vectors) and returns a handle; factors are batches too:
 ``PriorFactor(poses, idx, Z, noise)`` (``r = X (-) Z``), ``BetweenFactor(poses, i, j, Z, noise)``
 (``r = (X_i^-1 X_j) (-) Z_ij``) and ``CustomFactor(fn, [(var, idx), ...], dim, noise,
-jac="numerical"|"analytic"|"jax"|"torch")``, each added with ``g.add(...)``; noise models are
+jac="numerical"|"analytic"|"jax"|"torch")``, each added with ``g.add(...)``; a factor type of
+your own with analytic Jacobians is a :class:`Factor` subclass implementing
+``residual(*values, jac=False)``, checked with ``check_jacobians(factor)``; noise models are
 ``Information``, ``SqrtInformation``, ``Covariance``, ``Diagonal``, ``Isotropic``; robust losses
 (``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
 ``DCS``, ``Barron``, applied as in Ceres. ``result = g.optimize(solver="lm"|"gn"|"dogleg",
@@ -33,7 +35,8 @@ _LAZY = {
     "bal": ("BALProblem", "read_bal", "write_bal"),
     "bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
     "camera": ("BALCamera", "PinholeCamera"),
-    "factors": ("BetweenFactor", "CustomFactor", "Factor", "PriorFactor"),
+    "factors": ("BetweenFactor", "CustomFactor", "Factor", "JacobianCheck", "PriorFactor",
+                "check_jacobians"),
     "g2o": ("read_g2o", "write_g2o"),
     "graph": ("FactorGraph", "from_pose_graph"),
     "linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
@@ -67,7 +70,14 @@ if TYPE_CHECKING:
     from .bal import BALProblem, read_bal, write_bal
     from .bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
     from .camera import BALCamera, PinholeCamera
-    from .factors import BetweenFactor, CustomFactor, Factor, PriorFactor
+    from .factors import (
+        BetweenFactor,
+        CustomFactor,
+        Factor,
+        JacobianCheck,
+        PriorFactor,
+        check_jacobians,
+    )
     from .g2o import read_g2o, write_g2o
     from .graph import FactorGraph, from_pose_graph
     from .linear import LinearSolver, SingularSystemError, available_solvers, make_solver
@@ -88,7 +98,8 @@ if TYPE_CHECKING:
     from .variables import Values, Variables
 
 __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "PriorFactor",
-           "BetweenFactor", "CustomFactor", "NoiseModel", "Information", "SqrtInformation",
+           "BetweenFactor", "CustomFactor", "check_jacobians", "JacobianCheck", "NoiseModel",
+           "Information", "SqrtInformation",
            "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",

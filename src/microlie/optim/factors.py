@@ -1,58 +1,131 @@
 """Factors: batches of residuals of the same form, evaluated in one call per batch.
 
 Every factor batch holds ``m`` residuals of dimension ``dim`` over ``K`` arguments; argument
-``k`` is a :class:`Variables` handle and ``m`` indices into it. ``evaluate`` returns the
-residuals ``(m, dim)`` and, when asked, one Jacobian ``(m, dim, dof_k)`` per argument with
-respect to the right perturbation of that argument (``X_k Exp(delta_k)``; ``x + delta`` for
-vectors).
+``k`` is a :class:`Variables` handle and ``m`` indices into it. A factor type is a subclass of
+:class:`Factor` that implements one method, :meth:`Factor.residual`: it receives one batch of
+``m`` values per argument and returns the residuals ``(m, dim)`` and, when asked, one Jacobian
+``(m, dim, dof_k)`` per argument with respect to the right perturbation of that argument
+(``X_k Exp(delta_k)``, tangents translation first; ``x + delta`` for vectors). The graph does
+the rest: shape checks (:meth:`Factor.evaluate`), whitening by the noise model, the robust
+loss, assembly. :func:`check_jacobians` compares a factor's Jacobians with central
+differences on the group.
 """
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, final
 
 import numpy as np
 
 from .. import _autodiff
 from .noise import NoiseModel, as_noise
 from .robust import RobustLoss, make_loss
-from .variables import Variables, element
+from .variables import Values, Variables, element
 
-__all__ = ["Factor", "PriorFactor", "BetweenFactor", "CustomFactor"]
+__all__ = ["Factor", "PriorFactor", "BetweenFactor", "CustomFactor", "check_jacobians",
+           "JacobianCheck"]
 
 
 class Factor:
-    """Base class of factor batches (see the module docstring).
+    """Base class of factor batches: subclass it to write a factor with analytic Jacobians.
 
-    A subclass sets up its arguments and implements :meth:`evaluate`; the solver whitens the
-    residuals with ``noise`` and applies ``loss``.
+    A subclass calls ``super().__init__(args, dim, noise, loss)`` and implements
+    :meth:`residual`; the graph checks the shapes it returns (:meth:`evaluate`, errors name the
+    class), whitens the residuals and Jacobians with ``noise``, applies ``loss`` (Ceres' rules)
+    and assembles every batch into the normal equations. ``check_jacobians(factor)`` compares
+    the Jacobians with finite differences on the group.
+
+    Parameters
+    ----------
+    args : sequence of (Variables, indices)
+        One pair per argument: a handle from :meth:`FactorGraph.add_variables` and the indices
+        of the ``m`` variables it takes (an int, an array of ``m`` or a boolean mask). A single
+        index is repeated to the length of the others.
+    dim : int
+        The residual dimension.
+    noise : NoiseModel, optional
+        The residual's noise (default :class:`Unit`); one model or one per factor.
+    loss : str or RobustLoss, optional
+        A robust loss (``"huber:1.0"``, ... see :func:`make_loss`).
+
+    Attributes
+    ----------
+    args : list of (Variables, numpy.ndarray)
+        The arguments, with ``m`` int64 indices each.
+    count : int
+        ``m``, the number of factors in the batch (also ``len(factor)``).
+    dim : int
+        The residual dimension.
+    noise : NoiseModel
+        The noise model.
+    loss : RobustLoss or None
+        The robust loss.
+    name : str
+        The class name, used in messages.
+    jacobians_with_residuals : bool
+        Class attribute: ``True`` when :meth:`residual` with Jacobians costs little more than
+        without (a solver then evaluates them at a trial point already, for the linearisation
+        that follows). Default ``False``.
 
     Examples
     --------
-    >>> from microlie import SO3
-    >>> from microlie.optim import Factor, FactorGraph, PriorFactor
+    A range measurement ``r = |l_j - t_i| - z`` between SE(2) poses and 2-D landmarks:
+
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import Factor, FactorGraph, check_jacobians
+    >>> class Range(Factor):
+    ...     def __init__(self, poses, i, points, j, z, noise=None):
+    ...         super().__init__([(poses, i), (points, j)], 1, noise)
+    ...         self.z = self.per_factor(z, "z").reshape(-1, 1)
+    ...     def residual(self, X, p, jac=False):
+    ...         d = p - X.translation()
+    ...         n = np.linalg.norm(d, axis=1, keepdims=True)
+    ...         if not jac:
+    ...             return n - self.z
+    ...         u = (d / n)[:, None, :]  # d r / d p
+    ...         dt = np.concatenate([X.rotation().matrix(), np.zeros((len(n), 2, 1))], 2)
+    ...         return n - self.z, [-u @ dt, u]  # d t / d delta = [R 0] (right, t first)
     >>> g = FactorGraph()
-    >>> f = PriorFactor(g.add_variables(SO3.identity(2)), [0, 1], SO3.identity())
-    >>> isinstance(f, Factor), len(f), f.dim
-    (True, 2, 3)
+    >>> x = g.add_variables(SE2.from_xy_theta([0.0, 1.0], [0.0, 0.0], [0.3, -0.2]))
+    >>> p = g.add_variables(np.array([[3.0, 4.0]]))
+    >>> f = g.add(Range(x, [0, 1], p, 0, [5.0, 4.5]))
+    >>> np.round(f.evaluate([x.wrap(x.initial), p.initial[[0, 0]]], False), 6).tolist()
+    [[0.0], [-0.027864]]
+    >>> check_jacobians(f).ok
+    True
     """
 
     args: list[tuple[Variables, np.ndarray]]
-    #: whether :meth:`evaluate` with Jacobians costs little more than without (a solver then
-    #: evaluates them at a trial point already, for the linearisation that follows)
     jacobians_with_residuals: bool = False
+    count: int
     dim: int
     noise: NoiseModel
     loss: RobustLoss | None
     name: str
 
-    def _setup(self, args: list[tuple[Variables, Any]], dim: int, noise: Any, loss: Any,
-               what: str) -> None:
-        self.name = what
-        checked = []
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "evaluate" in vars(cls):
+            raise TypeError(f"{cls.__name__}: a Factor subclass implements residual(*values, "
+                            f"jac=False), not evaluate (the graph's checked call of residual)")
+
+    def __init__(self, args: Sequence[tuple[Variables, Any]], dim: int,
+                 noise: NoiseModel | None = None, loss: RobustLoss | str | None = None) -> None:
+        what = self.name = type(self).__name__
+        if type(self).residual is Factor.residual:
+            raise TypeError(f"{what}: a Factor subclass must implement residual(*values, "
+                            f"jac=False)")
+        checked: list[tuple[Variables, np.ndarray]] = []
         m = None
-        for var, idx in args:
+        for k, pair in enumerate(args):
+            if not (isinstance(pair, tuple | list) and len(pair) == 2):
+                raise ValueError(f"{what}: argument {k} must be a pair (Variables, indices), "
+                                 f"got {type(pair).__name__}")
+            var, idx = pair
             if not isinstance(var, Variables):
                 raise TypeError(f"{what}: expected a Variables handle from "
                                 f"FactorGraph.add_variables, got {type(var).__name__}")
@@ -70,10 +143,17 @@ class Factor:
                                      f"{ix.size}")
             checked.append((var, ix))
         if not m:
-            raise ValueError(f"{what}: no factors (empty index array)")
+            raise ValueError(f"{what}: no factors (no arguments or an empty index array)")
         graphs = {id(v.graph) for v, _ in checked}
         if len(graphs) != 1:
             raise ValueError(f"{what}: arguments belong to different graphs")
+        try:
+            inspect.signature(self.residual).bind(*checked, jac=False)
+        except TypeError as e:
+            raise TypeError(f"{what}: residual must take one value per argument ({len(checked)})"
+                            f" and the keyword jac: {e}") from None
+        if int(dim) != dim or dim < 1:
+            raise ValueError(f"{what}: dim must be a positive integer, got {dim!r}")
         self.args = checked
         self.count = int(m)
         self.dim = int(dim)
@@ -83,12 +163,49 @@ class Factor:
             raise ValueError(f"{what}: {L.shape[0]} noise matrices for {self.count} factors")
         self.loss = make_loss(loss)
 
-    def evaluate(self, values: list[Any], jac: bool) -> Any:
-        """The residuals of the batch and, with ``jac``, their Jacobians.
+    def residual(self, *values: Any, **kwargs: Any) -> Any:
+        """The residuals of the batch and, with ``jac=True``, their Jacobians: the one method
+        a subclass implements (the graph calls it through :meth:`evaluate`).
 
         Parameters
         ----------
-        values : list
+        *values : LieGroup or numpy.ndarray
+            One value per argument, in the order of ``args``: a batch of ``m`` elements of the
+            argument's group, or an ``(m, d)`` array for vector variables.
+        jac : bool, keyword
+            Also return the Jacobians (default ``False``).
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``r`` of shape ``(m, dim)``; with ``jac``, ``(r, [J_1, ..., J_K])`` with ``J_k`` of
+            shape ``(m, dim, dof_k)``: ``d r / d delta_k`` for the right perturbation
+            ``X_k Exp(delta_k)`` (tangent translation first, as the groups' ``exp``; ``x +
+            delta`` for vectors). A constant Jacobian may be a read-only
+            ``numpy.broadcast_to`` view.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> g = FactorGraph()
+        >>> f = PriorFactor(g.add_variables(SE2.identity(1)), 0, SE2.exp([0.5, 0.0, 0.2]))
+        >>> r, (J,) = f.residual(SE2.identity(1), jac=True)
+        >>> np.round(r, 6).tolist(), J.shape
+        ([[-0.5, 0.0, -0.2]], (1, 3, 3))
+        """
+        raise NotImplementedError(f"{self.name}: a Factor subclass must implement "
+                                  f"residual(*values, jac=False)")
+
+    @final
+    def evaluate(self, values: Sequence[Any], jac: bool) -> Any:
+        """:meth:`residual` with its output checked: what the graph, the solver and
+        :func:`check_jacobians` call (a subclass implements :meth:`residual`, not this).
+
+        Parameters
+        ----------
+        values : sequence
             One batch of ``m`` elements (or ``(m, d)`` array for vectors) per argument.
         jac : bool
             Also return the Jacobians.
@@ -96,8 +213,14 @@ class Factor:
         Returns
         -------
         numpy.ndarray or tuple
-            ``r`` of shape ``(m, dim)``; with ``jac``, ``(r, [J_1, ..., J_K])`` with ``J_k`` of
-            shape ``(m, dim, dof_k)``, right Jacobians (``d r / d delta`` for ``X_k Exp(delta)``).
+            ``r``, float64 ``(m, dim)``; with ``jac``, ``(r, [J_1, ..., J_K])``, float64
+            ``J_k`` of shape ``(m, dim, dof_k)`` (see :meth:`residual`).
+
+        Raises
+        ------
+        ValueError
+            The residual or a Jacobian has the wrong shape or form (the message names the
+            class and the argument).
 
         Examples
         --------
@@ -110,15 +233,46 @@ class Factor:
         >>> np.round(r, 6).tolist(), J.shape
         ([[-0.5, 0.0, -0.2]], (1, 3, 3))
         """
-        raise NotImplementedError
+        what, m, K = self.name, self.count, len(self.args)
+        if len(values) != K:
+            raise ValueError(f"{what}: {len(values)} values for {K} arguments")
+        out = self.residual(*values, jac=jac)
+        if not jac:
+            if isinstance(out, tuple):
+                raise ValueError(f"{what}.residual(..., jac=False) must return the residuals "
+                                 f"alone, got a tuple")
+            return self._checked_residuals(out)
+        if not (isinstance(out, tuple) and len(out) == 2 and isinstance(out[1], list | tuple)):
+            raise ValueError(f"{what}.residual(..., jac=True) must return (r, [J_1, ..., J_{K}])"
+                             f", got {type(out).__name__}")
+        r, Js = out
+        if len(Js) != K:
+            raise ValueError(f"{what}.residual returned {len(Js)} Jacobians for {K} arguments")
+        checked = []
+        for k, ((var, _), J) in enumerate(zip(self.args, Js, strict=True)):
+            J = np.asarray(J, dtype=np.float64)
+            if J.shape != (m, self.dim, var.dof):
+                raise ValueError(f"{what}.residual: Jacobian {k} (argument {var.name}) has shape "
+                                 f"{J.shape}, expected ({m}, {self.dim}, {var.dof}) = (factors, "
+                                 f"residual dim, the argument's dof)")
+            checked.append(J)
+        return self._checked_residuals(r), checked
 
-    def evaluate_into(self, values: list[Any], out: np.ndarray) -> np.ndarray:
+    def _checked_residuals(self, r: Any) -> np.ndarray:
+        r = np.asarray(r, dtype=np.float64)
+        if r.shape != (self.count, self.dim):
+            raise ValueError(f"{self.name}.residual returned residuals of shape {r.shape}, "
+                             f"expected ({self.count}, {self.dim}) = (factors, residual dim)")
+        return r
+
+    def evaluate_into(self, values: Sequence[Any], out: np.ndarray) -> np.ndarray:
         """The residuals of the batch, with its Jacobians written side by side into ``out``
-        (what the solver calls; a subclass may write them there without temporaries).
+        (what the solver's linearisation calls; a subclass may override it to write them
+        there without temporaries).
 
         Parameters
         ----------
-        values : list
+        values : sequence
             One batch of ``m`` elements (or ``(m, d)`` array for vectors) per argument.
         out : numpy.ndarray
             ``(m, dim, D)`` with ``D`` the sum of the arguments' dofs: receives
@@ -150,7 +304,49 @@ class Factor:
             k = J.shape[-1]
             out[:, :, o:o + k] = J
             o += k
-        return np.asarray(r, dtype=np.float64)
+        return r
+
+    def per_factor(self, data: Any, name: str) -> np.ndarray:
+        """``data`` as one row per factor of the batch (a measurement, a constant): an array
+        of ``m`` rows is kept, a scalar or a single row is repeated.
+
+        Parameters
+        ----------
+        data : array_like
+            A scalar, ``(m, ...)`` or ``(1, ...)``.
+        name : str
+            Its name, for the error message.
+
+        Returns
+        -------
+        numpy.ndarray
+            An ``(m, ...)`` copy.
+
+        Raises
+        ------
+        ValueError
+            Another number of rows, or non-finite floats (the message names the class and
+            ``name``).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> g = FactorGraph()
+        >>> f = PriorFactor(g.add_variables(SE2.identity(3)), [0, 1, 2], SE2.identity())
+        >>> f.per_factor(2.0, "z").tolist(), f.per_factor([[1.0, 2.0]], "z").shape
+        ([2.0, 2.0, 2.0], (3, 2))
+        """
+        a = np.array(data)
+        if a.ndim == 0 or (a.shape[0] == 1 and self.count != 1):
+            a = np.broadcast_to(a, (self.count, *a.shape[1:]))
+        if a.shape[0] != self.count:
+            raise ValueError(f"{self.name}: {name} must have {self.count} rows (one per factor) "
+                             f"or 1, got shape {a.shape}")
+        if np.issubdtype(a.dtype, np.inexact) and not np.all(np.isfinite(a)):
+            raise ValueError(f"{self.name}: {name} has non-finite entries")
+        return np.array(a, order="C")  # the factor's own copy
 
     def __len__(self) -> int:
         return self.count
@@ -179,6 +375,8 @@ def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
 
 class PriorFactor(Factor):
     """``r = X_idx (-) Z = Log(Z^-1 X_idx)`` (right minus; ``x - z`` for vectors).
+
+    Jacobian (right): ``d r / d X = Jr^-1(r)`` (the identity for vectors).
 
     Parameters
     ----------
@@ -209,13 +407,37 @@ class PriorFactor(Factor):
 
     def __init__(self, variables: Variables, idx: Any, Z: Any, noise: NoiseModel | None = None,
                  loss: RobustLoss | str | None = None) -> None:
-        self._setup([(variables, idx)], variables.dof, noise, loss, "PriorFactor")
-        self.Z = _measurement(variables, Z, self.count, "PriorFactor")
+        super().__init__([(variables, idx)], variables.dof, noise, loss)
+        self.Z = _measurement(variables, Z, self.count, self.name)
         if variables.group is not None:
             self._Zinv = self.Z.inverse()
 
-    def evaluate(self, values: list[Any], jac: bool) -> Any:
-        (X,) = values
+    def residual(self, X: Any, jac: bool = False) -> Any:
+        """``r = Log(Z^-1 X)`` and, with ``jac``, ``[Jr^-1(r)]`` (:meth:`Factor.residual`).
+
+        Parameters
+        ----------
+        X : LieGroup or numpy.ndarray
+            The batch of ``m`` constrained values.
+        jac : bool
+            Also return the Jacobian.
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``r`` ``(m, dof)``, or ``(r, [J])``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO2
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> g = FactorGraph()
+        >>> f = PriorFactor(g.add_variables(SO2.identity(1)), 0, SO2.exp([0.25]))
+        >>> r, (J,) = f.residual(SO2.exp([[1.0]]), jac=True)
+        >>> np.round(r, 12).tolist(), J.tolist()
+        ([[0.75]], [[[1.0]]])
+        """
         if self.args[0][0].group is None:
             r = X - self.Z
             if not jac:
@@ -223,7 +445,7 @@ class PriorFactor(Factor):
             return r, [np.broadcast_to(np.eye(self.dim), (self.count, self.dim, self.dim))]
         E = self._Zinv.compose(X)
         if not jac:
-            return np.asarray(E.log())
+            return E.log()
         r, J = E.log(jac=True)
         return r, [J]
 
@@ -266,20 +488,44 @@ class BetweenFactor(Factor):
 
     def __init__(self, variables: Variables, i: Any, j: Any, Z: Any,
                  noise: NoiseModel | None = None, loss: RobustLoss | str | None = None) -> None:
-        self._setup([(variables, i), (variables, j)], variables.dof, noise, loss,
-                    "BetweenFactor")
+        super().__init__([(variables, i), (variables, j)], variables.dof, noise, loss)
         same = self.args[0][1] == self.args[1][1]
         if np.any(same):
             k = int(np.flatnonzero(same)[0])
             raise ValueError(f"BetweenFactor {k}: i == j == {int(self.args[0][1][k])}")
-        self.Z = _measurement(variables, Z, self.count, "BetweenFactor")
+        self.Z = _measurement(variables, Z, self.count, self.name)
         if variables.group is not None:
             # r = Log((X_i Z)^-1 X_j) = X_j (-) (X_i Z): one fused minus with its Jacobians;
             # d r / d X_i = d r / d (X_i Z) . Ad_(Z^-1), a constant of the factor
             self._Ad_Zinv = np.ascontiguousarray(self.Z.inverse().adjoint())
 
-    def evaluate(self, values: list[Any], jac: bool) -> Any:
-        Xi, Xj = values
+    def residual(self, Xi: Any, Xj: Any, jac: bool = False) -> Any:
+        """``r = Log((X_i Z)^-1 X_j)`` and, with ``jac``, ``[d r / d X_i, d r / d X_j]``
+        (:meth:`Factor.residual`).
+
+        Parameters
+        ----------
+        Xi, Xj : LieGroup or numpy.ndarray
+            The batches of first and second ends.
+        jac : bool
+            Also return the Jacobians.
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``r`` ``(m, dof)``, or ``(r, [J_i, J_j])``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO2
+        >>> from microlie.optim import FactorGraph, BetweenFactor
+        >>> g = FactorGraph()
+        >>> f = BetweenFactor(g.add_variables(SO2.identity(2)), 0, 1, SO2.exp([0.25]))
+        >>> r, (Ji, Jj) = f.residual(SO2.exp([[0.5]]), SO2.exp([[1.0]]), jac=True)
+        >>> np.round(r, 12).tolist(), Ji.tolist(), Jj.tolist()
+        ([[0.25]], [[[-1.0]]], [[[1.0]]])
+        """
         if self.args[0][0].group is None:
             r = Xj - Xi - self.Z
             if not jac:
@@ -287,16 +533,20 @@ class BetweenFactor(Factor):
             eye = np.broadcast_to(np.eye(self.dim), (self.count, self.dim, self.dim))
             return r, [-eye, eye]
         if not jac:
-            return np.asarray(Xj.minus(Xi.compose(self.Z)))
+            return Xj.minus(Xi.compose(self.Z))
         d = self.dim
         out = np.empty((self.count, d, 2 * d))
-        r = self.evaluate_into(values, out)
+        r = self._fill(Xi, Xj, out)
         return r, [out[:, :, :d], out[:, :, d:]]
 
-    def evaluate_into(self, values: list[Any], out: np.ndarray) -> np.ndarray:
+    def evaluate_into(self, values: Sequence[Any], out: np.ndarray) -> np.ndarray:
         if self.args[0][0].group is None:
             return super().evaluate_into(values, out)
         Xi, Xj = values
+        return self._fill(Xi, Xj, out)
+
+    def _fill(self, Xi: Any, Xj: Any, out: np.ndarray) -> np.ndarray:
+        """The residuals, with ``[J_i J_j]`` written into ``out`` ``(m, d, 2 d)``."""
         r, Jj, Jc = Xj.minus(Xi.compose(self.Z), jac=True)
         d = self.dim
         # Jc (component-major from the kernel) copied row-major into the second half first:
@@ -307,11 +557,35 @@ class BetweenFactor(Factor):
         return np.asarray(r, dtype=np.float64)
 
 
+def _numerical_jacobians(fn: Callable[[list[Any]], np.ndarray],
+                         args: Sequence[tuple[Variables, Any]], values: Sequence[Any],
+                         step: float) -> list[np.ndarray]:
+    """Central differences of ``fn(values) -> (m, dim)`` in the tangent of each argument:
+    column ``a`` of ``J_k`` is ``(fn(.. X_k Exp(h e_a) ..) - fn(.. X_k Exp(-h e_a) ..)) / 2h``
+    (``x +- h e_a`` for vectors), every row of the batch at once."""
+    Js = []
+    for k, (var, _) in enumerate(args):
+        p = values[k] if var.group is None else values[k].params
+        p = np.asarray(p)
+        cols = []
+        for a in range(var.dof):
+            d = np.zeros((p.shape[0], var.dof), dtype=p.dtype)
+            d[:, a] = step
+            vp, vm = list(values), list(values)
+            vp[k] = var.wrap(var.retract(p, d))
+            vm[k] = var.wrap(var.retract(p, -d))
+            cols.append((np.asarray(fn(vp), dtype=np.float64)
+                         - np.asarray(fn(vm), dtype=np.float64)) / (2 * step))
+        Js.append(np.stack(cols, axis=-1))
+    return Js
+
+
 class CustomFactor(Factor):
     """A factor from a user function ``fn(*elements, *data) -> residuals (m, dim)``.
 
     ``fn`` receives one batch of ``m`` elements (or ``(m, d)`` arrays for vectors) per
-    argument, then the arrays in ``data`` (each with ``m`` rows).
+    argument, then the arrays in ``data`` (each with ``m`` rows). For a factor type of your
+    own with analytic Jacobians, subclass :class:`Factor` instead.
 
     Parameters
     ----------
@@ -324,7 +598,7 @@ class CustomFactor(Factor):
     noise : NoiseModel, optional
         The residual's noise (default :class:`Unit`).
     data : sequence of array_like
-        Extra per-factor arrays passed after the elements.
+        Extra per-factor arrays passed after the elements (``m`` rows, or one row repeated).
     jac : {"numerical", "analytic", "jax", "torch"}
         * ``"numerical"`` (default): central differences in the tangent space of each argument
           (``X Exp(+-h e_a)``), step ``h = step``;
@@ -357,67 +631,65 @@ class CustomFactor(Factor):
                  noise: NoiseModel | None = None, *, data: Sequence[Any] = (),
                  jac: str = "numerical", step: float = 1e-6,
                  loss: RobustLoss | str | None = None) -> None:
-        self._setup(list(args), dim, noise, loss, "CustomFactor")
+        super().__init__(args, dim, noise, loss)
         if jac not in ("numerical", "analytic", "jax", "torch"):
             raise ValueError(f"CustomFactor: jac must be 'numerical', 'analytic', 'jax' or "
                              f"'torch', got {jac!r}")
+        if not step > 0:
+            raise ValueError(f"CustomFactor: step must be positive, got {step!r}")
         self.fn = fn
         self.mode = jac
         self.step = float(step)
-        self.data = []
-        for k, d in enumerate(data):
-            a = np.asarray(d)
-            if a.shape[:1] == (1,) and self.count != 1:
-                a = np.broadcast_to(a, (self.count, *a.shape[1:]))
-            if a.ndim == 0 or a.shape[0] != self.count:
-                raise ValueError(f"CustomFactor: data[{k}] must have {self.count} rows, got "
-                                 f"shape {a.shape}")
-            self.data.append(a)
+        self.data = [self.per_factor(d, f"data[{k}]") for k, d in enumerate(data)]
         self._ad: Callable[[list[Any], bool], Any] | None = None
 
-    def _residual(self, values: list[Any]) -> np.ndarray:
+    def _residual(self, values: Sequence[Any]) -> np.ndarray:
         r = np.asarray(self.fn(*values, *self.data), dtype=np.float64)
         if r.shape != (self.count, self.dim):
             raise ValueError(f"CustomFactor: fn returned shape {r.shape}, expected "
                              f"({self.count}, {self.dim})")
         return r
 
-    def evaluate(self, values: list[Any], jac: bool) -> Any:
+    def residual(self, *values: Any, jac: bool = False) -> Any:
+        """``fn``'s residuals and, with ``jac``, their Jacobians by the factor's ``jac`` mode
+        (:meth:`Factor.residual`).
+
+        Parameters
+        ----------
+        *values : LieGroup or numpy.ndarray
+            One batch per argument.
+        jac : bool
+            Also return the Jacobians.
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``r`` ``(m, dim)``, or ``(r, [J_1, ..., J_K])``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import CustomFactor, FactorGraph
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(np.zeros((1, 2)))
+        >>> f = CustomFactor(lambda v: v ** 2, [(x, 0)], 2)
+        >>> r, (J,) = f.residual(np.array([[1.0, 2.0]]), jac=True)
+        >>> r.tolist(), np.round(J, 6).tolist()
+        ([[1.0, 4.0]], [[[2.0, 0.0], [0.0, 4.0]]])
+        """
         if self.mode == "analytic":
             out = self.fn(*values, *self.data)
             if not (isinstance(out, tuple) and len(out) == 2):
                 raise ValueError("CustomFactor(jac='analytic'): fn must return (r, [J_1, ...])")
-            r = np.asarray(out[0], dtype=np.float64)
-            if not jac:
-                return r
-            Js = [np.asarray(J, dtype=np.float64) for J in out[1]]
-            for (var, _), J in zip(self.args, Js, strict=False):
-                if J.shape != (self.count, self.dim, var.dof):
-                    raise ValueError(f"CustomFactor: Jacobian of shape {J.shape}, expected "
-                                     f"({self.count}, {self.dim}, {var.dof})")
-            return r, Js
+            return out if jac else out[0]
         if self.mode == "numerical":
             r = self._residual(values)
-            return (r, self._numerical(values)) if jac else r
+            if not jac:
+                return r
+            return r, _numerical_jacobians(self._residual, self.args, values, self.step)
         if self._ad is None:
             self._ad = _make_autodiff(self)
-        return self._ad(values, jac)
-
-    def _numerical(self, values: list[Any]) -> list[np.ndarray]:
-        h = self.step
-        Js = []
-        for k, (var, _) in enumerate(self.args):
-            J = np.empty((self.count, self.dim, var.dof))
-            p = values[k] if var.group is None else np.asarray(values[k].params)
-            for a in range(var.dof):
-                d = np.zeros((self.count, var.dof))
-                d[:, a] = h
-                vp, vm = list(values), list(values)
-                vp[k] = var.wrap(var.retract(p, d))
-                vm[k] = var.wrap(var.retract(p, -d))
-                J[:, :, a] = (self._residual(vp) - self._residual(vm)) / (2 * h)
-            Js.append(J)
-        return Js
+        return self._ad(list(values), jac)
 
 
 def _parts(factor: CustomFactor, values: list[Any]) -> list[np.ndarray]:
@@ -438,3 +710,143 @@ def _make_autodiff(factor: CustomFactor) -> Callable[[list[Any], bool], Any]:
     run = _autodiff.residual_jacobians(factor.mode, f, [var.dof for var, _ in factor.args],
                                        factor.count, factor.dim)
     return lambda values, jac: run(_parts(factor, values), factor.data, jac)
+
+
+@dataclass(frozen=True)
+class JacobianCheck:
+    """The result of :func:`check_jacobians`.
+
+    Attributes
+    ----------
+    ok : bool
+        Every argument's ``error`` is at most ``tol``.
+    errors : list of float
+        Per argument, ``max |J - J_num| / max(1, max |J_num|)`` over the batch.
+    worst : str
+        Where the largest error is: argument, factor row, residual row and tangent column,
+        with both values.
+    analytic, numerical : list of numpy.ndarray
+        The Jacobians ``(m, dim, dof_k)`` of :meth:`Factor.evaluate` and of the central
+        differences.
+    tol : float
+        The tolerance used.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SO3
+    >>> from microlie.optim import FactorGraph, PriorFactor, check_jacobians
+    >>> g = FactorGraph()
+    >>> f = PriorFactor(g.add_variables(SO3.exp([[0.1, 0.2, 0.3]])), 0, SO3.identity())
+    >>> c = check_jacobians(f)
+    >>> c.ok, len(c.errors), c.analytic[0].shape
+    (True, 1, (1, 3, 3))
+    """
+
+    ok: bool
+    errors: list[float]
+    worst: str
+    analytic: list[np.ndarray]
+    numerical: list[np.ndarray]
+    tol: float
+
+    def __repr__(self) -> str:
+        errs = ", ".join(f"{e:.1e}" for e in self.errors)
+        return f"JacobianCheck(ok={self.ok}, errors=[{errs}], tol={self.tol:.0e}; {self.worst})"
+
+
+def check_jacobians(factor: Factor, values: Any = None, *, step: float | None = None,
+                    tol: float | None = None) -> JacobianCheck:
+    """Compare a factor's Jacobians (:meth:`Factor.evaluate`) with central differences on
+    the manifold: column ``a`` of argument ``k`` is ``(r(X_k Exp(h e_a)) - r(X_k Exp(-h
+    e_a))) / 2h`` (the group's right ``plus``; ``x +- h e_a`` for vectors), every factor of
+    the batch at once. What Ceres' ``GradientChecker`` and GTSAM's
+    ``EXPECT_CORRECT_FACTOR_JACOBIANS`` do.
+
+    Parameters
+    ----------
+    factor : Factor
+        The factor batch to check.
+    values : Values or sequence, optional
+        Where: the graph's :class:`Values` (``result.values``, ``graph.initial_values()``),
+        or one batch of ``m`` values per argument (as :meth:`Factor.residual` receives them:
+        group elements, or ``(m, d)`` arrays; float32 is checked in float32). Default: the
+        graph's initial values.
+    step : float, optional
+        The difference step ``h``; default ``eps ** (1/3)`` of the values' dtype (6e-6 for
+        float64, 5e-3 for float32).
+    tol : float, optional
+        The largest accepted error (see :attr:`JacobianCheck.errors`); default ``1e-6`` for
+        float64, ``1e-2`` for float32.
+
+    Returns
+    -------
+    JacobianCheck
+        ``ok``, the error per argument, where the worst one is, and both Jacobians.
+
+    Raises
+    ------
+    ValueError
+        ``values`` does not match the factor's arguments, or the factor returns wrong shapes.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE3
+    >>> from microlie.optim import BetweenFactor, FactorGraph, check_jacobians
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE3.random(3, rng=0))
+    >>> f = BetweenFactor(x, [0, 1], [1, 2], SE3.random(2, rng=1))
+    >>> check_jacobians(f).ok
+    True
+    >>> bad = [SE3.random(2, rng=2), SE3.random(2, rng=3)]
+    >>> check_jacobians(f, bad).errors[0] < 1e-6
+    True
+    """
+    if not isinstance(factor, Factor):
+        raise TypeError(f"check_jacobians: expected a Factor, got {type(factor).__name__}")
+    what = factor.name
+    if values is None:
+        values = factor.args[0][0].graph.initial_values()
+    if isinstance(values, Values):
+        vals: list[Any] = [var.wrap(np.asarray(values.params(var))[idx])
+                           for var, idx in factor.args]
+    elif isinstance(values, Sequence) and not isinstance(values, str | bytes):
+        vals = list(values)
+    else:
+        raise TypeError(f"check_jacobians({what}): values must be Values or one batch per "
+                        f"argument, got {type(values).__name__}")
+    if len(vals) != len(factor.args):
+        raise ValueError(f"check_jacobians({what}): {len(vals)} values for "
+                         f"{len(factor.args)} arguments")
+    dtypes = []
+    for k, ((var, _), v) in enumerate(zip(factor.args, vals, strict=True)):
+        p = np.asarray(v if var.group is None else getattr(v, "params", None))
+        want = (factor.count, var.group.param_dim if var.group is not None else var.dof)
+        if var.group is not None and not isinstance(v, var.group) or p.shape != want:
+            kind = var.group.__name__ if var.group is not None else "array"
+            raise ValueError(f"check_jacobians({what}): value {k} (argument {var.name}) must be "
+                             f"a {kind} batch of {factor.count} (params {want}), got "
+                             f"{type(v).__name__} of shape {p.shape}")
+        dtypes.append(p.dtype)
+    single = all(d == np.float32 for d in dtypes)
+    eps = float(np.finfo(np.float32 if single else np.float64).eps)
+    h = float(step) if step is not None else eps ** (1 / 3)
+    tol = float(tol) if tol is not None else (1e-2 if single else 1e-6)
+    if not h > 0:
+        raise ValueError(f"check_jacobians({what}): step must be positive, got {step!r}")
+    _, Ja = factor.evaluate(vals, True)
+    Jn = _numerical_jacobians(lambda vs: factor.evaluate(vs, False), factor.args, vals, h)
+    errors, worst, at = [], -1.0, ""
+    for k, ((var, _), A, N) in enumerate(zip(factor.args, Ja, Jn, strict=True)):
+        diff = np.abs(A - N)
+        scale = max(1.0, float(np.abs(N).max(initial=0.0)))
+        e = float(diff.max(initial=0.0)) / scale if np.all(np.isfinite(diff)) else np.inf
+        errors.append(e)
+        if e > worst:
+            worst = e
+            i, r, c = np.unravel_index(int(np.argmax(np.where(np.isnan(diff), np.inf, diff))),
+                                       diff.shape)
+            at = (f"worst: argument {k} ({var.name}), factor {i}, residual {r}, tangent {c}: "
+                  f"{A[i, r, c]:.6g} against {N[i, r, c]:.6g} numerically")
+    return JacobianCheck(all(e <= tol for e in errors), errors, at, list(Ja), Jn, tol)
