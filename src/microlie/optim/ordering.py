@@ -120,7 +120,11 @@ def minimum_degree(A: Any) -> np.ndarray:
     >>> int(minimum_degree(star)[-1])  # the hub last: no fill
     0
     """
-    A = _clean(A)
+    return _mmd(_clean(A))
+
+
+def _mmd(A: Any) -> np.ndarray:
+    """:func:`minimum_degree` of a clean graph (:func:`_clean`)."""
     n = A.shape[0]
     if n == 0:
         return np.zeros(0, np.int64)
@@ -208,6 +212,12 @@ def symbolic(A: Any, perm: np.ndarray) -> Symbolic:
     n = A.shape[0]
     if perm.shape != (n,) or not np.array_equal(np.sort(perm), np.arange(n)):
         raise ValueError(f"perm must be a permutation of 0..{n - 1}")
+    return _symbolic(A, perm)
+
+
+def _symbolic(A: Any, perm: np.ndarray) -> Symbolic:
+    """:func:`symbolic` of a clean graph and a valid order."""
+    n = A.shape[0]
     parent = _etree(_lower(A, perm))
     po = _postorder(parent)
     perm = perm[po]
@@ -355,4 +365,4 @@ def fill_order(A: Any, method: str = "auto") -> Symbolic:
     if method not in ORDERINGS:
         raise ValueError(f"unknown ordering {method!r}: expected one of {ORDERINGS}")
     A = _clean(A)
-    return symbolic(A, minimum_degree(A))
+    return _symbolic(A, _mmd(A))
