@@ -210,3 +210,32 @@ def test_a_cancelling_factor_keeps_its_symbolic_entries(compiled):
         np.testing.assert_allclose(s2.solve(b), np.linalg.solve(H2.toarray(), b), rtol=1e-9)
         cancelled += 1
     assert cancelled >= 20
+
+
+@pytest.mark.parametrize("bs", [1, 2, 3, 6])
+def test_block_assembly_map_is_the_entrywise_one(bs, monkeypatch):
+    """The assembly map of a pattern of dense blocks, found once per block, equals the one
+    looked up entry by entry (the path of patterns whose blocks are not dense)."""
+    real, taken = ch._dense_amap, []
+
+    def spy(*a):
+        taken.append(real(*a))
+        return taken[-1]
+
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        nb = int(rng.integers(1, 40))
+        adj = _pattern(["random", "pose", "arrow"][seed % 3], nb, rng)
+        # dense diagonal blocks (a positive semi-definite addition), as in J^T J
+        H = sp.csc_matrix(_matrix(adj, bs, rng) + np.kron(np.eye(nb), np.full((bs, bs), 0.05)))
+        H.sort_indices()
+        with monkeypatch.context() as mp:
+            mp.setattr(ch, "_dense_amap", spy)
+            fast = ch.SupernodalSolver(compiled=False)
+            fast.analyse(H.indptr, H.indices, H.shape[0], bs)
+        assert taken[-1] is not None  # the pattern is block-dense: the block path ran
+        with monkeypatch.context() as mp:
+            mp.setattr(ch, "_dense_amap", lambda *a: None)
+            slow = ch.SupernodalSolver(compiled=False)
+            slow.analyse(H.indptr, H.indices, H.shape[0], bs)
+        np.testing.assert_array_equal(fast.amap, slow.amap)

@@ -121,19 +121,24 @@ class SupernodalSolver(LinearSolver):
         self.rows, self.rptr, self.sparent = rows, rptr, sparent
         # assembly: pattern entry e (old numbering) -> its place in the panels, or the dump
         # slot nx for the strict upper triangle
-        inv_s = np.empty(n, np.int64)
-        inv_s[self.sperm] = np.arange(n)
-        cols_old = np.repeat(np.arange(n), np.diff(self.indptr))
-        rn, cn = inv_s[self.indices], inv_s[cols_old]
-        low = rn >= cn
-        s = sn_of_b[cn[low] // bs]
-        gkey = np.repeat(np.arange(ns), m) * n + rows
-        pos = np.searchsorted(gkey, s * n + rn[low])
-        if pos.size and not np.array_equal(gkey[np.minimum(pos, gkey.size - 1)],
-                                           s * n + rn[low]):
-            raise AssertionError("supernodal analysis: an entry outside its supernode")
-        amap = np.full(self.indices.size, self.nx, np.int64)
-        amap[low] = px[s] + (cn[low] - c0[s]) * m[s] + pos - rptr[s]
+        inv_b = np.empty(nb, np.int64)
+        inv_b[self.sperm[::bs] // bs] = np.arange(nb)
+        amap = _dense_amap(self.indptr, self.indices, bs, inv_b, sn_of_b, key, brptr, px, c0,
+                           m, self.nx)
+        if amap is None:  # blocks that are not dense: entry by entry
+            inv_s = np.empty(n, np.int64)
+            inv_s[self.sperm] = np.arange(n)
+            cols_old = np.repeat(np.arange(n), np.diff(self.indptr))
+            rn, cn = inv_s[self.indices], inv_s[cols_old]
+            low = rn >= cn
+            s = sn_of_b[cn[low] // bs]
+            gkey = np.repeat(np.arange(ns), m) * n + rows
+            pos = np.searchsorted(gkey, s * n + rn[low])
+            if pos.size and not np.array_equal(gkey[np.minimum(pos, gkey.size - 1)],
+                                               s * n + rn[low]):
+                raise AssertionError("supernodal analysis: an entry outside its supernode")
+            amap = np.full(self.indices.size, self.nx, np.int64)
+            amap[low] = px[s] + (cn[low] - c0[s]) * m[s] + pos - rptr[s]
         self.amap = amap
         # update pairs (s, t): the rows below s's diagonal block owned by ancestor t form the
         # run [a, b) of s's below rows; rel are the local rows in t of s's below rows a..u-1
@@ -237,6 +242,58 @@ class SupernodalSolver(LinearSolver):
             raise SingularSystemError("the linear system is singular (the solution is not "
                                       "finite)")
         return x[:, 0] if vec else x
+
+
+def _dense_amap(indptr: np.ndarray, indices: np.ndarray, bs: int, inv_b: np.ndarray,
+                sn_of_b: np.ndarray, key: np.ndarray, brptr: np.ndarray, px: np.ndarray,
+                c0: np.ndarray, m: np.ndarray, nx: int) -> np.ndarray | None:
+    """The assembly map of a pattern made of dense ``bs x bs`` blocks (``None`` otherwise),
+    from one lookup per block: each scalar column of a block column holds the rows of its
+    first column, and an entry's place is its first-column twin's plus ``cc * m`` (``cc`` its
+    column in the block)."""
+    n = indptr.size - 1
+    nb = n // bs
+    lens = np.diff(indptr).reshape(nb, bs)
+    l0 = lens[:, 0]
+    if not (lens == l0[:, None]).all() or (l0 % bs).any():
+        return None
+    cum0 = np.r_[0, np.cumsum(l0)]
+    first = indptr[:-1:bs]
+    # the first columns' entries (compact numbering f) and their rows
+    f_abs = np.repeat(first - cum0[:-1], l0) + np.arange(cum0[-1])
+    rf = indices[f_abs].astype(np.int64)
+    rr = rf % bs
+    if not np.array_equal(rr, np.arange(rf.size) % bs):  # l0 % bs == 0: groups align
+        return None
+    rb = rf // bs
+    if rb.size and not (rb.reshape(-1, bs) == rb[::bs, None]).all():
+        return None
+    # every entry's first-column twin
+    tc = np.arange(indices.size) - np.repeat(indptr[:-1] - np.repeat(cum0[:-1], bs),
+                                              lens.ravel())
+    if not np.array_equal(rf[tc], indices):
+        return None
+    cold = np.repeat(np.arange(nb), l0)  # block column (old numbering)
+    Cb, Rb = inv_b[cold], inv_b[rb]
+    low = Rb >= Cb
+    s = sn_of_b[Cb[low]]
+    q = s * nb + Rb[low]
+    bpos = np.searchsorted(key, q)
+    if bpos.size and not np.array_equal(key[np.minimum(bpos, key.size - 1)], q):
+        raise AssertionError("supernodal analysis: an entry outside its supernode")
+    base = np.full(rf.size, -(1 << 62), np.int64)  # upper blocks: negative, then the dump
+    base[low] = px[s] + (Cb[low] * bs - c0[s]) * m[s] + (bpos - brptr[s]) * bs + rr[low]
+    cc = np.tile(np.arange(bs), nb)
+    amap = base[tc] + np.repeat(cc * np.repeat(m[sn_of_b[inv_b]], bs), lens.ravel())
+    amap[amap < 0] = nx
+    # in the diagonal blocks, row rr < column cc is the strict upper triangle
+    d = np.flatnonzero(Rb == Cb)[::bs]  # first-column entry of each diagonal block's row 0
+    if d.size and bs > 1:
+        C = cold[d]
+        r_, c_ = np.triu_indices(bs, 1)
+        e = (indptr[C[:, None] * bs + c_] + (d - cum0[C])[:, None] + r_).ravel()
+        amap[e] = nx
+    return amap
 
 
 def _structure(bstart: np.ndarray, parent: np.ndarray, count: np.ndarray,
