@@ -1,7 +1,7 @@
-"""Fill-reducing orderings of the supernodal Cholesky on the shared pose graphs and a synthetic
-3-D lattice of poses (``lattice12``): minimum degree (``"mmd"``), nested dissection (``"nd"``)
-and ``"auto"`` (the one with the fewest flops, see ``microlie.optim.ordering.fill_order``),
-with their structure and measured factorisation times.
+"""The fill-reducing ordering of the supernodal Cholesky on the shared pose graphs and a
+synthetic 3-D lattice of poses (``lattice12``): minimum degree (``"mmd"``; nested dissection
+was removed in issue 20, see ``benchmarks/symbolic.py flops``), with its structure and
+measured factorisation times.
 
 Run (one command, the dev or the benchmark environment)::
 
@@ -49,7 +49,7 @@ GRAPHS = {
     "CSAIL": "CSAIL.g2o", "MIT": "MIT.g2o",
     "lattice12": None,  # synthetic: a 12 x 12 x 12 lattice of SE(3) poses (see lattice())
 }
-ORDERINGS = ("mmd", "nd", "auto")
+ORDERINGS = ("mmd",)  # nested dissection was removed in issue 20 (benchmarks/symbolic.py)
 
 
 def structure(s: SupernodalSolver) -> dict:

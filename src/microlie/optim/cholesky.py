@@ -3,9 +3,11 @@ optional compiled extension).
 
 Our normal equations have dense ``d x d`` blocks (3 for SE2, 6 for SE3), so the symbolic
 analysis works on the block graph (36 times smaller than the scalar one): a minimum-degree
-order of the block graph (SuperLU's ``MMD_AT_PLUS_A`` on a tiny block matrix), the block
-elimination tree and column structures, fundamental supernodes merged by relaxed amalgamation
-(as CHOLMOD does), and, vectorised over all supernodes, the scatter maps of the numeric phase.
+order of the block graph, its elimination tree and column counts computed from the pattern
+(:func:`microlie.optim.ordering.symbolic`), fundamental supernodes merged by relaxed
+amalgamation (as CHOLMOD does), the supernodes' row structures (each the union of its columns'
+rows and its children's), and, vectorised over all supernodes, the scatter maps of the numeric
+phase.
 It runs once per pattern (:meth:`SupernodalSolver.analyse`).
 
 The factor is stored as one array of dense panels: supernode ``s`` owns the ``m_s x k_s``
@@ -25,8 +27,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp  # type: ignore[import-untyped]
-from scipy.sparse.csgraph import depth_first_order  # type: ignore[import-untyped]
 
 from .._fast import compiled as compiled_module
 from .cholesky_numpy import NOT_PD as _NOT_PD
@@ -68,8 +68,8 @@ class SupernodalSolver(LinearSolver):
     def __init__(self, compiled: bool | None = None, ordering: str = "auto") -> None:
         """``compiled``: use the C loop (``True``: it must be installed), the NumPy loop
         (``False``), or the C loop when installed (``None``, the default). ``ordering``: the
-        fill-reducing order of the block graph, ``"mmd"`` (minimum degree), ``"nd"`` (nested
-        dissection) or ``"auto"`` (see :func:`microlie.optim.ordering.fill_order`)."""
+        fill-reducing order of the block graph, ``"mmd"`` (minimum degree) or ``"auto"`` (the
+        same; see :func:`microlie.optim.ordering.fill_order`)."""
         if ordering not in ORDERINGS:
             raise ValueError(f"unknown ordering {ordering!r}: expected one of {ORDERINGS}")
         self.ordering = ordering
@@ -84,33 +84,25 @@ class SupernodalSolver(LinearSolver):
         self._factored = False
         bs = block_size if block_size > 0 and n % block_size == 0 else 1
         nb = n // bs
+        # elimination tree, postorder (supernodes contiguous) and column counts of the block
+        # graph: from the pattern alone (ordering.symbolic)
         sym = fill_order(graph(indptr, indices, n, bs), self.ordering)
-        perm, L = sym.perm, _closed(sym.L, nb)
-        # a postorder of the elimination tree is an equivalent order (same fill) in which
-        # subtrees, hence supernodes, are contiguous: relabel L's pattern
-        po = _postorder(_etree(L, nb), nb)
-        perm = perm[po]
-        L = L[po][:, po].tocsc()
-        L.sort_indices()
-        parent = _etree(L, nb)
-        count = np.diff(L.indptr)  # column counts incl. the diagonal
+        parent, count = sym.parent, sym.counts
         nchild = np.bincount(parent[parent >= 0], minlength=nb)
         j = np.arange(1, nb)
         cont = (parent[j - 1] == j) & (nchild[j] == 1) & (count[j - 1] == count[j] + 1)
         sn_start = np.r_[0, j[~cont]].astype(np.int64)
-        bstart = _amalgamate(sn_start, L, nb)
-        self.sperm = (perm[:, None] * bs + np.arange(bs)).ravel()  # scalar: new -> old
-        self._symbolic(bstart, L, n, nb, bs)
+        bstart = _amalgamate(sn_start, count, parent, nb)
+        self.sperm = (sym.perm[:, None] * bs + np.arange(bs)).ravel()  # scalar: new -> old
+        self._symbolic(bstart, _structure(bstart, parent, count, sym.lower), n, nb, bs)
         self._numpy_plan = None if self._c is not None else NumpyLoop(self)
 
-    def _symbolic(self, bstart: np.ndarray, L: Any, n: int, nb: int, bs: int) -> None:
-        """Panels, row structures, the assembly map and the update pairs (vectorised)."""
+    def _symbolic(self, bstart: np.ndarray, key: np.ndarray, n: int, nb: int, bs: int) -> None:
+        """Panels, row structures, the assembly map and the update pairs (vectorised) from the
+        block row structures ``key = s * nb + row`` (sorted) of the supernodes."""
         ns = bstart.size
         bend = np.r_[bstart[1:], nb]
         sn_of_b = np.repeat(np.arange(ns), bend - bstart)
-        # block row structure of each supernode: the union of its columns' structures
-        bcol = np.repeat(np.arange(nb), np.diff(L.indptr))
-        key = np.unique(sn_of_b[bcol] * nb + L.indices.astype(np.int64))
         bsid, brow = key // nb, key % nb
         bm = np.bincount(bsid, minlength=ns)
         bk = bend - bstart
@@ -129,19 +121,24 @@ class SupernodalSolver(LinearSolver):
         self.rows, self.rptr, self.sparent = rows, rptr, sparent
         # assembly: pattern entry e (old numbering) -> its place in the panels, or the dump
         # slot nx for the strict upper triangle
-        inv_s = np.empty(n, np.int64)
-        inv_s[self.sperm] = np.arange(n)
-        cols_old = np.repeat(np.arange(n), np.diff(self.indptr))
-        rn, cn = inv_s[self.indices], inv_s[cols_old]
-        low = rn >= cn
-        s = sn_of_b[cn[low] // bs]
-        gkey = np.repeat(np.arange(ns), m) * n + rows
-        pos = np.searchsorted(gkey, s * n + rn[low])
-        if pos.size and not np.array_equal(gkey[np.minimum(pos, gkey.size - 1)],
-                                           s * n + rn[low]):
-            raise AssertionError("supernodal analysis: an entry outside its supernode")
-        amap = np.full(self.indices.size, self.nx, np.int64)
-        amap[low] = px[s] + (cn[low] - c0[s]) * m[s] + pos - rptr[s]
+        inv_b = np.empty(nb, np.int64)
+        inv_b[self.sperm[::bs] // bs] = np.arange(nb)
+        amap = _dense_amap(self.indptr, self.indices, bs, inv_b, sn_of_b, key, brptr, px, c0,
+                           m, self.nx)
+        if amap is None:  # blocks that are not dense: entry by entry
+            inv_s = np.empty(n, np.int64)
+            inv_s[self.sperm] = np.arange(n)
+            cols_old = np.repeat(np.arange(n), np.diff(self.indptr))
+            rn, cn = inv_s[self.indices], inv_s[cols_old]
+            low = rn >= cn
+            s = sn_of_b[cn[low] // bs]
+            gkey = np.repeat(np.arange(ns), m) * n + rows
+            pos = np.searchsorted(gkey, s * n + rn[low])
+            if pos.size and not np.array_equal(gkey[np.minimum(pos, gkey.size - 1)],
+                                               s * n + rn[low]):
+                raise AssertionError("supernodal analysis: an entry outside its supernode")
+            amap = np.full(self.indices.size, self.nx, np.int64)
+            amap[low] = px[s] + (cn[low] - c0[s]) * m[s] + pos - rptr[s]
         self.amap = amap
         # update pairs (s, t): the rows below s's diagonal block owned by ancestor t form the
         # run [a, b) of s's below rows; rel are the local rows in t of s's below rows a..u-1
@@ -247,68 +244,122 @@ class SupernodalSolver(LinearSolver):
         return x[:, 0] if vec else x
 
 
-def _closed(L: Any, nb: int) -> Any:
-    """The symbolic Cholesky pattern containing SuperLU's numeric ``L`` (with the diagonal,
-    sorted): SuperLU can drop an entry that cancelled exactly, so close the pattern under
-    ``struct(j) - {p} <= struct(p)`` (``p`` the parent of ``j``), one vectorised pass over all
-    entries at a time until nothing is missing (a few passes: only dropped entries propagate)."""
-    L = sp.tril(L, -1).tocoo()
-    keys = np.unique(L.col.astype(np.int64) * nb + L.row)  # by column, then row
-    while True:
-        cols, rows = keys // nb, keys % nb
-        start = np.searchsorted(cols, np.arange(nb))
-        has = np.zeros(nb, bool)
-        has[cols] = True
-        parent = np.full(nb, -1, np.int64)
-        parent[has] = rows[start[has]]
-        p = parent[cols]
-        need = rows != p
-        want = p[need] * nb + rows[need]
-        k = np.searchsorted(keys, want)
-        miss = (k >= keys.size) | (keys[np.minimum(k, keys.size - 1)] != want)
-        if not miss.any():
-            break
-        keys = np.union1d(keys, want[miss])
-    cols, rows = keys // nb, keys % nb
-    d = np.arange(nb, dtype=np.int64)
-    out = sp.csc_matrix((np.ones(keys.size + nb), (np.r_[rows, d], np.r_[cols, d])),
-                        shape=(nb, nb))
-    out.sort_indices()
-    return out
+def _dense_amap(indptr: np.ndarray, indices: np.ndarray, bs: int, inv_b: np.ndarray,
+                sn_of_b: np.ndarray, key: np.ndarray, brptr: np.ndarray, px: np.ndarray,
+                c0: np.ndarray, m: np.ndarray, nx: int) -> np.ndarray | None:
+    """The assembly map of a pattern made of dense ``bs x bs`` blocks (``None`` otherwise),
+    from one lookup per block: each scalar column of a block column holds the rows of its
+    first column, and an entry's place is its first-column twin's plus ``cc * m`` (``cc`` its
+    column in the block)."""
+    n = indptr.size - 1
+    nb = n // bs
+    lens = np.diff(indptr).reshape(nb, bs)
+    l0 = lens[:, 0]
+    if not (lens == l0[:, None]).all() or (l0 % bs).any():
+        return None
+    cum0 = np.r_[0, np.cumsum(l0)]
+    first = indptr[:-1:bs]
+    # the first columns' entries (compact numbering f) and their rows
+    f_abs = np.repeat(first - cum0[:-1], l0) + np.arange(cum0[-1])
+    rf = indices[f_abs].astype(np.int64)
+    rr = rf % bs
+    if not np.array_equal(rr, np.arange(rf.size) % bs):  # l0 % bs == 0: groups align
+        return None
+    rb = rf // bs
+    if rb.size and not (rb.reshape(-1, bs) == rb[::bs, None]).all():
+        return None
+    # every entry's first-column twin
+    tc = np.arange(indices.size) - np.repeat(indptr[:-1] - np.repeat(cum0[:-1], bs),
+                                              lens.ravel())
+    if not np.array_equal(rf[tc], indices):
+        return None
+    cold = np.repeat(np.arange(nb), l0)  # block column (old numbering)
+    Cb, Rb = inv_b[cold], inv_b[rb]
+    low = Rb >= Cb
+    s = sn_of_b[Cb[low]]
+    q = s * nb + Rb[low]
+    bpos = np.searchsorted(key, q)
+    if bpos.size and not np.array_equal(key[np.minimum(bpos, key.size - 1)], q):
+        raise AssertionError("supernodal analysis: an entry outside its supernode")
+    base = np.full(rf.size, -(1 << 62), np.int64)  # upper blocks: negative, then the dump
+    base[low] = px[s] + (Cb[low] * bs - c0[s]) * m[s] + (bpos - brptr[s]) * bs + rr[low]
+    cc = np.tile(np.arange(bs), nb)
+    amap = base[tc] + np.repeat(cc * np.repeat(m[sn_of_b[inv_b]], bs), lens.ravel())
+    amap[amap < 0] = nx
+    # in the diagonal blocks, row rr < column cc is the strict upper triangle
+    d = np.flatnonzero(Rb == Cb)[::bs]  # first-column entry of each diagonal block's row 0
+    if d.size and bs > 1:
+        C = cold[d]
+        r_, c_ = np.triu_indices(bs, 1)
+        e = (indptr[C[:, None] * bs + c_] + (d - cum0[C])[:, None] + r_).ravel()
+        amap[e] = nx
+    return amap
 
 
-def _etree(L: Any, nb: int) -> np.ndarray:
-    """Parent of each column: the first row below the diagonal in its column of ``L``."""
-    parent = np.full(nb, -1, np.int64)
-    Lc = sp.tril(L, -1).tocsc()
-    Lc.sort_indices()
-    has = np.diff(Lc.indptr) > 0
-    parent[has] = Lc.indices[Lc.indptr[:-1][has]]
-    return parent
+def _structure(bstart: np.ndarray, parent: np.ndarray, count: np.ndarray,
+               lower: Any) -> np.ndarray:
+    """The block row structure of each supernode, ``s * nb + row`` sorted: its columns, then
+    the rows below, ``struct(s) = (its columns' rows of A) | (its children's rows below)``
+    beyond its last column, computed one level of the supernodal tree at a time (leaves
+    first), vectorised within a level. The rows below must number ``count[last] - 1``."""
+    nb, ns = parent.size, bstart.size
+    if ns == 0:
+        return np.zeros(0, np.int64)
+    bend = np.r_[bstart[1:], nb]
+    last = bend - 1
+    sn_of = np.repeat(np.arange(ns), bend - bstart)
+    sparent = np.where(parent[last] < 0, -1, sn_of[np.maximum(parent[last], 0)])
+    level = np.zeros(ns, np.int64)  # height above the leaves (children precede parents)
+    lv = level.tolist()
+    for c, t in enumerate(sparent.tolist()):
+        if t >= 0 and lv[t] <= lv[c]:
+            lv[t] = lv[c] + 1
+    level = np.array(lv, np.int64)
+    nlev = int(level.max()) + 1
+    # the entries of A below each supernode's last column, bucketed by the supernode's level
+    rows = np.repeat(np.arange(nb), np.diff(lower.indptr))
+    s_e = sn_of[lower.indices]
+    keep = rows > last[s_e]
+    own = s_e[keep] * nb + rows[keep]
+    pending: list[list[np.ndarray]] = [[] for _ in range(nlev)]
+    _bucket(own, level[own // nb], pending)
+    out = []
+    for h in range(nlev):
+        if not pending[h]:
+            continue
+        key = np.unique(np.concatenate(pending[h]))
+        pending[h] = []
+        out.append(key)
+        t, r = sparent[key // nb], key % nb
+        up = (t >= 0) & (r > last[np.maximum(t, 0)])
+        _bucket(t[up] * nb + r[up], level[t[up]], pending)
+    below = np.concatenate(out) if out else np.zeros(0, np.int64)
+    if not np.array_equal(np.bincount(below // nb, minlength=ns), count[last] - 1):
+        raise AssertionError("supernodal analysis: structures disagree with the column counts")
+    diag = np.repeat(np.arange(ns), bend - bstart) * nb + np.arange(nb)
+    return np.sort(np.r_[below, diag])
 
 
-def _postorder(parent: np.ndarray, nb: int) -> np.ndarray:
-    """A postorder of the forest ``parent`` (children before parents, subtrees contiguous):
-    the reversed preorder of SciPy's compiled depth-first search from a virtual root, with the
-    nodes relabelled ``nb - 1 - j`` so that children are visited in descending order."""
-    p = np.where(parent < 0, nb, nb - 1 - parent)
-    tree = sp.csr_matrix((np.ones(nb), (p, nb - 1 - np.arange(nb))), shape=(nb + 1, nb + 1))
-    pre = depth_first_order(tree, nb, directed=True, return_predecessors=False)
-    return (nb - 1 - pre[1:])[::-1].astype(np.int64)
+def _bucket(keys: np.ndarray, level: np.ndarray, pending: list[list[np.ndarray]]) -> None:
+    """Append ``keys`` to ``pending[level]``, grouped by level."""
+    if not keys.size:
+        return
+    o = np.argsort(level, kind="stable")
+    lv = level[o]
+    cut = np.flatnonzero(np.r_[True, lv[1:] != lv[:-1]])
+    for a, b in zip(cut.tolist(), np.r_[cut[1:], lv.size].tolist(), strict=True):
+        pending[int(lv[a])].append(keys[o[a:b]])
 
 
-def _amalgamate(sn_start: np.ndarray, L: Any, nb: int) -> np.ndarray:
+def _amalgamate(sn_start: np.ndarray, count: np.ndarray, parent: np.ndarray,
+                nb: int) -> np.ndarray:
     """Relaxed amalgamation: merge a supernode into the next one (its parent, contiguous)
     when the merged one stays small or adds few explicit zeros (CHOLMOD's rule with its
     default limits). Returns the first block column of each merged supernode."""
     ends = np.r_[sn_start[1:], nb]
     # the rows below a fundamental supernode are those of its last column
-    cnt = np.diff(L.indptr)
-    below = (cnt[ends - 1] - 1).tolist()  # rows strictly below the supernode's last column
-    parent_row = np.full(nb, -1, np.int64)
-    has = cnt > 1
-    parent_row[has] = L.indices[L.indptr[1:][has] - cnt[has] + 1]
-    first_below = parent_row[ends - 1].tolist()
+    below = (count[ends - 1] - 1).tolist()  # rows strictly below the supernode's last column
+    first_below = parent[ends - 1].tolist()
     (r0, z0), (r1, z1), (r2, z2) = _RELAX
     out: list[list[int]] = []  # [start, end, rows below (count), true nonzeros]
     for a, b, nbel, fb in zip(sn_start.tolist(), ends.tolist(), below, first_below,

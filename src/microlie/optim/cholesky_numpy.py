@@ -288,7 +288,10 @@ class NumpyLoop:
                 cr.append(np.where(real, c, n).ravel())
                 cw.append(np.where(real, c, n + 1).ravel())
                 ri = np.minimum(np.arange(Ub), np.maximum(uu - 1, 0))
-                rr_ = s.rows[s.rptr[b.members][:, None] + s.k[b.members][:, None] + ri]
+                # a member without rows below (a root) reads a real row, masked below; the
+                # last supernode's would be past the end
+                rr_ = s.rows[np.minimum(s.rptr[b.members][:, None] + s.k[b.members][:, None]
+                                        + ri, s.rows.size - 1)]
                 real = np.arange(Ub) < uu
                 rr.append(np.where(real, rr_, n).ravel())
                 rw.append(np.where(real, rr_, n + 1).ravel())

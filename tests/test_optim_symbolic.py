@@ -1,0 +1,241 @@
+"""The symbolic Cholesky analysis (microlie.optim.ordering.symbolic and SupernodalSolver's
+supernodes) against two oracles on 240 random block patterns: the elimination game played on
+Python sets, and the union of the nonzeros of dense Cholesky factors of the pattern with random
+positive weights. Some patterns are built so that a numeric factorisation cancels an entry:
+the analysis, which factorises nothing, keeps it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from test_optim_cholesky import PATHS
+
+import microlie.optim.cholesky as ch
+from microlie.optim import ordering as O
+
+
+def _game(adj: list[set[int]], order: np.ndarray) -> list[set[int]]:
+    """The elimination game: the rows below the diagonal of each column of L, in the new
+    numbering, eliminating the vertices in ``order`` (new -> old)."""
+    n = len(adj)
+    pos = np.empty(n, np.int64)
+    pos[order] = np.arange(n)
+    g = [{int(pos[w]) for w in adj[v]} for v in order.tolist()]
+    below = []
+    for j in range(n):
+        later = {i for i in g[j] if i > j}
+        below.append(later)
+        for i in later:
+            g[i] |= later - {i}
+    return below
+
+
+def _pattern(kind: str, nb: int, rng: np.random.Generator) -> list[set[int]]:
+    """A random block graph (adjacency sets) of one of several shapes."""
+    edges: set[tuple[int, int]] = set()
+    if kind == "random":
+        p = rng.uniform(0.05, 0.4)
+        edges = {(a, b) for a in range(nb) for b in range(a + 1, nb) if rng.random() < p}
+    elif kind == "pose":  # a chain and a few loop closures
+        edges = {(a, a + 1) for a in range(nb - 1)}
+        edges |= {tuple(sorted(rng.choice(nb, 2, replace=False))) for _ in range(nb // 5)}
+    elif kind == "grid":
+        w = max(int(np.sqrt(nb)), 1)
+        for v in range(nb):
+            if v % w + 1 < w and v + 1 < nb:
+                edges.add((v, v + 1))
+            if v + w < nb:
+                edges.add((v, v + w))
+    elif kind == "arrow":  # hubs joined to everything, a sparse rest
+        hubs = rng.choice(nb, min(nb, int(rng.integers(1, 3))), replace=False)
+        edges = {(min(h, v), max(h, v)) for h in hubs.tolist() for v in range(nb) if v != h}
+        edges |= {(a, a + 1) for a in range(0, nb - 1, 3)}
+    elif kind == "forest":  # disconnected pieces and isolated vertices
+        for a in range(1, nb):
+            if rng.random() < 0.7:
+                edges.add((int(rng.integers(0, a)), a))
+    adj: list[set[int]] = [set() for _ in range(nb)]
+    for a, b in edges:
+        if a != b:
+            adj[a].add(b)
+            adj[b].add(a)
+    return adj
+
+
+def _matrix(adj: list[set[int]], bs: int, rng: np.random.Generator) -> np.ndarray:
+    """An SPD matrix on the pattern: random positive weights on every entry of each edge's
+    block, the diagonal dominant."""
+    nb = len(adj)
+    M = np.zeros((nb * bs, nb * bs))
+    for a in range(nb):
+        for b in adj[a]:
+            if a < b:
+                W = rng.uniform(0.1, 1.0, (bs, bs))
+                M[a * bs:(a + 1) * bs, b * bs:(b + 1) * bs] = W
+                M[b * bs:(b + 1) * bs, a * bs:(a + 1) * bs] = W.T
+    M += np.diag(np.abs(M).sum(axis=1) + 1.0)
+    return M
+
+
+def _blocks(L: np.ndarray, bs: int) -> np.ndarray:
+    nb = L.shape[0] // bs
+    return (np.abs(L) > 1e-13).reshape(nb, bs, nb, bs).any(axis=(1, 3))
+
+
+def _supernodes(s) -> list[tuple[int, int, set[int]]]:
+    """The solver's supernodes: (first block column, block columns, block rows below)."""
+    bs, out = s.bs, []
+    for c0, k, m, r0 in zip(s.c0, s.k, s.m, s.rptr[:-1], strict=True):
+        rows = {int(r) // bs for r in s.rows[r0 + k:r0 + m]}
+        out.append((int(c0) // bs, int(k) // bs, rows))
+    return out
+
+
+CASES = [(kind, seed) for kind in ("random", "pose", "grid", "arrow", "forest")
+         for seed in range(48)]
+
+
+def _check(kind: str, seed: int, compiled: bool) -> None:
+    rng = np.random.default_rng(seed)
+    nb = int(rng.integers(1, 36))
+    bs = int(rng.choice([1, 2, 3]))
+    adj = _pattern(kind, nb, rng)
+    H = sp.csc_matrix(_matrix(adj, bs, rng))
+    H.sort_indices()
+    relax = ch._RELAX
+    try:
+        ch._RELAX = ((0, 0.0),) * 3  # fundamental supernodes: the exact pattern
+        exact = ch.SupernodalSolver(compiled=compiled)
+        exact.analyse(H.indptr, H.indices, H.shape[0], bs)
+    finally:
+        ch._RELAX = relax
+    relaxed = ch.SupernodalSolver(compiled=compiled)
+    relaxed.analyse(H.indptr, H.indices, H.shape[0], bs)
+    for s in (exact, relaxed):
+        order = s.sperm[::bs] // bs
+        below = _game(adj, order)
+        # oracle 2: dense Cholesky with random positive weights, three draws, the union
+        union = np.zeros((nb, nb), bool)
+        for _ in range(3):
+            M = _matrix(adj, bs, rng)
+            union |= _blocks(np.linalg.cholesky(M[np.ix_(s.sperm, s.sperm)]), bs)
+        game = np.zeros((nb, nb), bool)
+        for j, rows in enumerate(below):
+            game[list(rows), j] = True
+        np.fill_diagonal(game, True)
+        np.testing.assert_array_equal(union, game)  # the two oracles agree
+        # each supernode: consecutive columns, rows below = the union of its columns' rows
+        # below its last column (fundamental: the columns' own structures nest exactly)
+        sn = _supernodes(s)
+        assert sum(k for _, k, _ in sn) == nb
+        for f, k, rows in sn:
+            last = f + k - 1
+            want = set().union(*(below[c] for c in range(f, f + k))) - set(range(f, f + k))
+            assert rows == want == below[last] - set(range(f, f + k))
+        if s is exact:  # no explicit zero: the supernodes are the fundamental ones
+            starts = [f for f, _, _ in sn]
+            nchild = np.bincount([min(b) for b in below if b], minlength=nb)
+            fund = [j for j in range(nb) if j == 0 or not (
+                min(below[j - 1], default=-1) == j and nchild[j] == 1
+                and below[j - 1] == below[j] | {j})]
+            assert starts == fund
+    # ordering.symbolic on the block graph and the solver's order: tree and counts
+    G = sp.csr_matrix((np.ones(sum(map(len, adj))),
+                       ([a for a in range(nb) for _ in adj[a]],
+                        [b for a in range(nb) for b in sorted(adj[a])])), shape=(nb, nb))
+    order = relaxed.sperm[::bs] // bs
+    sym = O.symbolic(G, order)
+    below = _game(adj, sym.perm)
+    np.testing.assert_array_equal(sym.counts, [1 + len(b) for b in below])
+    np.testing.assert_array_equal(sym.parent, [min(b) if b else -1 for b in below])
+    assert sum(1 + len(b) for b in _game(adj, order)) == sym.nnz  # a postorder: same fill
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+def test_symbolic_factor_equals_the_elimination_game_and_dense_cholesky(compiled):
+    for kind, seed in CASES:
+        _check(kind, seed, compiled)
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+def test_a_cancelling_factor_keeps_its_symbolic_entries(compiled):
+    """Weights chosen so that entry (q, p) of L is exactly zero: a leaf column j of the
+    elimination tree with rows p < q below it, (p, q) an entry of the matrix that no other
+    column before p updates, and a_qp = a_qj a_pj / a_jj. LAPACK's factor has the zero; the
+    analysis (of the pattern alone) keeps the entry, and the solver's factor is LAPACK's."""
+    cancelled = 0
+    for seed in range(80):
+        rng = np.random.default_rng(1000 + seed)
+        nb = int(rng.integers(4, 30))
+        adj = _pattern(["random", "pose", "grid", "arrow"][seed % 4], nb, rng)
+        M0 = _matrix(adj, 1, rng)
+        H = sp.csc_matrix(M0)
+        H.sort_indices()
+        s = ch.SupernodalSolver(compiled=compiled)
+        s.analyse(H.indptr, H.indices, nb, 1)
+        order = s.sperm
+        below = _game(adj, order)
+        found = None
+        for j in range(nb):
+            if any(j in below[c] for c in range(j)) or len(below[j]) < 2:
+                continue  # not a leaf, or no pair below
+            p, q = sorted(below[j])[:2]
+            others = any(p in below[c] and q in below[c] for c in range(p) if c != j)
+            if int(order[q]) in adj[int(order[p])] and not others:
+                found = (j, p, q)
+                break
+        if found is None:
+            continue
+        j, p, q = found
+        M = M0[np.ix_(order, order)]
+        M[q, p] = M[p, q] = M[q, j] * M[p, j] / M[j, j]
+        L = np.linalg.cholesky(M)
+        assert abs(L[q, p]) < 1e-14 * np.abs(L).max()  # the numeric factor cancelled
+        old = np.empty(nb, np.int64)
+        old[order] = np.arange(nb)
+        H2 = sp.csc_matrix(M[np.ix_(old, old)])
+        H2.sort_indices()
+        s2 = ch.SupernodalSolver(compiled=compiled)
+        s2.analyse(H2.indptr, H2.indices, nb, 1)
+        np.testing.assert_array_equal(s2.sperm, order)
+        stored = np.zeros((nb, nb), bool)
+        for c0, k, m, r0 in zip(s2.c0, s2.k, s2.m, s2.rptr[:-1], strict=True):
+            stored[np.ix_(s2.rows[r0:r0 + m], np.arange(c0, c0 + k))] = True
+        assert stored[q, p]  # the symbolic factor keeps it
+        for c, rows in enumerate(below):
+            assert stored[list(rows), c].all()
+        s2.factorize(H2.data)
+        b = rng.standard_normal(nb)
+        np.testing.assert_allclose(s2.solve(b), np.linalg.solve(H2.toarray(), b), rtol=1e-9)
+        cancelled += 1
+    assert cancelled >= 20
+
+
+@pytest.mark.parametrize("bs", [1, 2, 3, 6])
+def test_block_assembly_map_is_the_entrywise_one(bs, monkeypatch):
+    """The assembly map of a pattern of dense blocks, found once per block, equals the one
+    looked up entry by entry (the path of patterns whose blocks are not dense)."""
+    real, taken = ch._dense_amap, []
+
+    def spy(*a):
+        taken.append(real(*a))
+        return taken[-1]
+
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        nb = int(rng.integers(1, 40))
+        adj = _pattern(["random", "pose", "arrow"][seed % 3], nb, rng)
+        # dense diagonal blocks (a positive semi-definite addition), as in J^T J
+        H = sp.csc_matrix(_matrix(adj, bs, rng) + np.kron(np.eye(nb), np.full((bs, bs), 0.05)))
+        H.sort_indices()
+        with monkeypatch.context() as mp:
+            mp.setattr(ch, "_dense_amap", spy)
+            fast = ch.SupernodalSolver(compiled=False)
+            fast.analyse(H.indptr, H.indices, H.shape[0], bs)
+        assert taken[-1] is not None  # the pattern is block-dense: the block path ran
+        with monkeypatch.context() as mp:
+            mp.setattr(ch, "_dense_amap", lambda *a: None)
+            slow = ch.SupernodalSolver(compiled=False)
+            slow.analyse(H.indptr, H.indices, H.shape[0], bs)
+        np.testing.assert_array_equal(fast.amap, slow.amap)
