@@ -191,7 +191,12 @@ class SupernodalSolver(LinearSolver):
         # the last one in place; the C loop's would be stale)
         self._factored = False
         if self._numpy_plan is not None:
-            self._numpy_plan.factor(data)
+            try:
+                self._numpy_plan.factor(data)
+            except SingularSystemError as e:  # name the failing supernode's first unknown
+                j = getattr(e, "supernode", None)
+                raise SingularSystemError(
+                    _NOT_PD, unknown=None if j is None else int(self.sperm[self.c0[j]])) from None
         else:
             Lx = np.empty(self.nx + self.bs)  # the panels, then a dump block (zeroed in C)
             info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,

@@ -40,6 +40,14 @@ __all__ = ["NumpyLoop"]
 NOT_PD = ("the linear system is not positive definite (a pivot of the Cholesky "
           "factorisation is not positive)")
 
+
+def _not_pd(supernode: int) -> SingularSystemError:
+    """The error of a failed pivot in ``supernode`` (its attribute ``supernode``; the solver
+    names the unknown from it, as the C loop's failing supernode)."""
+    e = SingularSystemError(NOT_PD)
+    e.supernode = supernode  # type: ignore[attr-defined]
+    return e
+
 # batched NumPy cholesky/inv for buckets of at least _BATCH_G members with K <= _BATCH_K
 # (NumPy's stacked inv costs about 0.7 us for 6x6 but 10 us for 24x24, LAPACK per member 2 us)
 _BATCH_K, _BATCH_G = 12, 8
@@ -341,22 +349,23 @@ class NumpyLoop:
                     try:
                         L11 = np.linalg.cholesky(np.swapaxes(D, 1, 2))
                     except np.linalg.LinAlgError:
-                        raise SingularSystemError(NOT_PD) from None
+                        bad = next(g for g in range(b.G) if potrf(D[g].T.copy(), lower=1)[1])
+                        raise _not_pd(int(b.members[bad])) from None
                     D[...] = np.swapaxes(L11, 1, 2)
                     b.Linv[...] = np.linalg.inv(L11)
                 elif b.G == 1:
                     DF = D[0].T
                     if potrf(DF, lower=1, clean=1, overwrite_a=1)[1]:
-                        raise SingularSystemError(NOT_PD)
+                        raise _not_pd(int(b.members[0]))
                     if b.U:
                         BF = B[0].T
                         trsm(1.0, DF, BF, side=1, lower=1, trans_a=1, overwrite_b=1)
                         syrk(1.0, BF, beta=0.0, c=b.W[0].T, lower=1, overwrite_c=1)
                     continue
                 else:  # L11 in place, then L11^T inverted in place in Linv's F view
-                    for DF, DT, LF in b.each:
+                    for g, (DF, DT, LF) in enumerate(b.each):
                         if potrf(DF, lower=1, clean=1, overwrite_a=1)[1]:
-                            raise SingularSystemError(NOT_PD)
+                            raise _not_pd(int(b.members[g]))
                         LF[...] = DT
                         trtri(LF, lower=0, overwrite_c=1)
                 if b.U:
