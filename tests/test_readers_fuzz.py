@@ -137,16 +137,22 @@ def _seed_result() -> str:
 # ---------------------------------------------------------------------- the reference readings
 def _rows(text: str, comments: tuple[str, ...], split: Callable[[str], list[str]]
           ) -> list[list[str]]:
-    """The fields of the data lines, as the formats define them (a leading BOM dropped)."""
+    """The fields of the data lines, as the formats define them (a leading BOM dropped); a
+    data line with a character outside ASCII (a no-break space, another script's digit) is
+    refused."""
     out = []
     for line in text.removeprefix("\ufeff").splitlines():
         s = line.strip()
         if s and not (comments and s.startswith(comments)):
+            if not s.isascii():
+                raise ValueError(s)
             out.append(split(s))
     return out
 
 
 def _num(s: str) -> float:
+    if "_" in s:  # Python's float reads 1_0 as 10: damage in a data file, refused
+        raise ValueError(s)
     v = float(s)  # raises ValueError: the reader must refuse
     if not math.isfinite(v):
         raise ValueError(s)
@@ -154,6 +160,8 @@ def _num(s: str) -> float:
 
 
 def _id(s: str) -> int:
+    if "_" in s:
+        raise ValueError(s)
     v = int(s)
     if not 0 <= v < 2**63:
         raise ValueError(s)

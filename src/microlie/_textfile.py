@@ -70,6 +70,37 @@ def read_text(path: str | os.PathLike[str]) -> str:
     return decode(Path(path).read_bytes(), str(path))
 
 
+def plain_error(line: str) -> str | None:
+    """Why a data line of numbers is not plain ASCII, or ``None`` when it is.
+
+    Python's ``int``/``float`` would read ``1_0`` as 10 and Arabic-Indic digits as digits, and
+    ``str.split`` splits at a no-break space: in a data file these are damage, not numbers, so
+    every reader refuses them (naming ``FILE:LINE``) rather than repairing them silently.
+
+    Parameters
+    ----------
+    line : str
+        The numbers of one line (a tag before them excluded).
+
+    Returns
+    -------
+    str or None
+
+    Examples
+    --------
+    >>> from microlie._textfile import plain_error
+    >>> plain_error("1 2.5e-3 -4") is None
+    True
+    >>> plain_error("1_0 2").split(":")[0]
+    "character '_' (U+005F) in '1_0 2'"
+    """
+    if line.isascii() and "_" not in line:
+        return None
+    ch = next(c for c in line if c == "_" or not c.isascii())
+    return (f"character {ch!r} (U+{ord(ch):04X}) in {line.strip()!r}: write numbers with ASCII "
+            "digits, no digit separators, fields separated by spaces or tabs")
+
+
 # bytes of the bulk parsers: the ASCII whitespace they split at, and what numbers are made of
 _WS = np.zeros(256, dtype=bool)
 _WS[[9, 10, 13, 32]] = True

@@ -34,7 +34,7 @@ from typing import IO
 import numpy as np
 
 from .._files import atomic_write
-from .._textfile import decode, digits_only, numbers_by_line
+from .._textfile import decode, digits_only, numbers_by_line, plain_error
 
 __all__ = ["BALProblem", "read_bal", "write_bal"]
 
@@ -171,7 +171,8 @@ def read_bal(src: str | os.PathLike | IO[str]) -> BALProblem:
     The file is UTF-8 text (a byte order mark is dropped). The parameters come one per line
     (BAL's layout) or one camera (9 numbers) and one point (3) per line; every line's count is
     checked, so a number moved from one line to another is an error, not a shifted value.
-    Numbers follow Python's ``int`` and ``float`` rules; plain ASCII files are parsed in bulk
+    Numbers follow Python's ``int`` and ``float`` rules in plain ASCII (no ``_`` separators,
+    no other scripts' digits, no non-ASCII spaces); plain files are parsed in bulk
     (bit-identical values).
 
     Parameters
@@ -259,7 +260,8 @@ def _read_bulk(data: bytes) -> BALProblem | None:
 
 
 def _read_lines(text: str, name: str) -> BALProblem:
-    """Read line by line with Python's ``int`` and ``float``, naming the first bad line."""
+    """Read line by line with Python's ``int`` and ``float`` on plain ASCII lines, naming the
+    first bad line."""
     raw = text.splitlines()
     numbers = [k + 1 for k, ln in enumerate(raw) if ln.strip()]   # blank lines are skipped
     lines = [raw[k - 1] for k in numbers]
@@ -269,6 +271,10 @@ def _read_lines(text: str, name: str) -> BALProblem:
         lineno = numbers[k - 1] if k <= len(numbers) else len(raw) + 1
         return ValueError(f"{name}:{lineno}: {msg}")
 
+    for k, ln in enumerate(lines, start=1):
+        why = plain_error(ln)
+        if why is not None:
+            raise fail(k, why)
     if not lines or not lines[0].split():
         raise fail(1, "empty file: expected the header 'n_cameras n_points n_observations'")
     head = lines[0].split()

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .._textfile import digits_only, numbers_by_line, read_text
+from .._textfile import digits_only, numbers_by_line, plain_error, read_text
 from ..groups import SE2, SE3, LieGroup
 
 __all__ = ["PoseGraph", "VertexTag", "EdgeTag", "parse_pose_graph", "symmetric_from_upper"]
@@ -446,7 +446,8 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
     The file is UTF-8 (a byte order mark is dropped). Blank lines and lines starting with
     ``#`` are skipped. Every other line must start with a known tag and have exactly its
     number of fields (each line is checked); ids are integers in ``0 .. 2**63 - 1``, read
-    exactly, and the numbers finite (Python's ``int`` and ``float`` rules). Anything else is
+    exactly, and the numbers finite, in plain ASCII (Python's ``int`` and ``float`` rules
+    without ``_`` separators or other scripts' digits). Anything else is
     a ``ValueError`` naming ``FILE:LINE``. Lines are grouped by tag and each group is
     converted in one call; a group that fails is re-read line by line to name the first bad
     line.
@@ -493,7 +494,10 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
         b = buckets.get(parts[0])
         if b is None:
             b = buckets[parts[0]] = ([], [])
-        b[0].append(parts[1] if len(parts) > 1 else "")
+        if line.isascii():
+            b[0].append(parts[1] if len(parts) > 1 else "")
+        else:  # with the separator: a no-break space after the tag is refused too
+            b[0].append(line.lstrip()[len(parts[0]):])
         b[1].append(lineno)
     group: type[LieGroup] | None = None
     group_tag, group_line = "", 0
@@ -502,6 +506,10 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
     for tag, (rests, lines) in sorted(buckets.items(), key=lambda kv: kv[1][1][0]):
         try:
             if tag == fix_tag:
+                for r, ln in zip(rests, lines, strict=True):
+                    why = plain_error(r)
+                    if why is not None:
+                        raise _LineError(ln, f"{name}:{ln}: {tag}: {why}")
                 ids = [_ints(r.split(), f"{name}:{ln}", tag, at_least_one=True, line=ln)
                        for r, ln in zip(rests, lines, strict=True)]
                 fixed.ids = [i for row in ids for i in row]
@@ -549,8 +557,8 @@ def _block(name: str, tag: str, rests: list[str], lines: list[int], n_ids: int,
     Every line's field count is checked (a line with a field too many next to one with a
     field too few must not shift numbers from one to the other). Plain ASCII lines with ids
     below ``2**53`` are converted in bulk (:func:`~microlie._textfile.numbers_by_line`); the
-    others with Python's ``int`` and ``float`` rules, line by line where a line fails, which
-    names the first bad line.
+    others with Python's ``int`` and ``float`` rules on plain ASCII lines, line by line where a
+    line fails, which names the first bad line.
     """
     k = n_ids + n_num
     joined = "\n".join(rests)
@@ -562,6 +570,10 @@ def _block(name: str, tag: str, rests: list[str], lines: list[int], n_ids: int,
             if np.isfinite(a).all() and digits_only(data, starts[:, :n_ids].reshape(-1),
                                                     a[:, :n_ids].reshape(-1)):
                 return a[:, :n_ids].astype(np.int64), a[:, n_ids:]
+    for rest, ln in zip(rests, lines, strict=True):
+        why = plain_error(rest)
+        if why is not None:
+            raise _LineError(ln, f"{name}:{ln}: {tag}: {why}")
     fields = [r.split() for r in rests]
     counts = np.fromiter(map(len, fields), dtype=np.intp, count=len(fields))
     bad = np.flatnonzero(counts != k)

@@ -32,7 +32,7 @@ import numpy as np
 
 from microlie import SE3, _fast
 from microlie._files import atomic_write
-from microlie._textfile import read_text
+from microlie._textfile import plain_error, read_text
 
 from .trajectory import Trajectory
 
@@ -63,6 +63,9 @@ def _data_lines(path: PathLike, comma: bool) -> tuple[list[int], list[list[str]]
         s = line.strip()
         if not s or s.startswith("#") or s.startswith("%"):
             continue
+        why = plain_error(s)
+        if why is not None:
+            raise ValueError(f"{path}:{k}: {why}")
         if comma:
             fields = [f.strip() for f in s.split(",")]
         else:
@@ -167,9 +170,9 @@ def _loadtxt(
 
     Returns ``None`` if anything is off; only a fast path: the caller then re-parses line by
     line to name the bad line. :func:`numpy.loadtxt` converts numbers with Python's own
-    ``float`` parser (so values are bit-identical to the careful path) and accepts a subset
-    of what the careful path accepts (no ``1_000``, no non-ASCII digits; blank lines are
-    skipped by both), so anything it rejects is re-read and reported line by line.
+    ``float`` parser (so values are bit-identical to the careful path); anything it rejects
+    is re-read and reported line by line (the careful path refuses ``1_000`` and non-ASCII
+    characters, :func:`~microlie._textfile.plain_error`; blank lines are skipped by both).
     """
     try:
         with warnings.catch_warnings():
@@ -217,6 +220,8 @@ def _fast_matrix(
         return _loadtxt(path, ncols, comma, at_least, skip)
     text = read_text(path)  # as the careful path reads it
     lines = _data_block(text)
+    if not all(ln.isascii() for ln in lines):
+        return None  # refused by the careful path, naming the line (plain_error)
     if not comma and "," in text:
         # commas separate fields like spaces (see _data_lines); a line of commas only has
         # no fields (an error the careful path reports), it must not become a blank line
