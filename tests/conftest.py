@@ -5,6 +5,7 @@ In CI (``CI=true``) a missing optional dependency or data file is an error, neve
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
 from pathlib import Path
@@ -14,6 +15,7 @@ import pytest
 
 import microlie as ml
 from microlie import LieGroup
+from microlie import _kernels as _K
 
 IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
 # The generic suite (test_groups, test_autodiff, ...) runs on every group of this list: adding a
@@ -171,6 +173,17 @@ def fd_jacobian(f, args: list, i: int, side: str = "right", h: float = 1e-6) -> 
 
 
 # Hypothesis: CI replays a fixed set of examples (reproducible); local runs explore.
+@contextlib.contextmanager
+def generic(name: str):
+    """The generic kernel ``name`` (a compiled replacement, if any, set aside meanwhile)."""
+    saved = _K.KERNELS[name].impl
+    _K.register(name, None)
+    try:
+        yield
+    finally:
+        _K.register(name, saved)
+
+
 from hypothesis import settings as _hsettings  # noqa: E402
 
 _hsettings.register_profile("ci", derandomize=True, deadline=None, print_blob=True)

@@ -11,14 +11,13 @@ against a 50-digit reference.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-from conftest import require, tangent_with_angle
+from conftest import generic, require, tangent_with_angle
 
 import microlie as ml
 from microlie import _kernels as K
@@ -28,15 +27,6 @@ from microlie.groups import so3
 GROUPS = [ml.SO3, ml.SE3, ml.Sim3]
 
 
-@contextlib.contextmanager
-def generic(name):
-    """The generic kernel ``name`` (a compiled replacement, if any, set aside meanwhile)."""
-    saved = K.KERNELS[name].impl
-    K.register(name, None)
-    try:
-        yield
-    finally:
-        K.register(name, saved)
 ANGLES = [0.0, 1e-12, 1e-6, 0.3, 0.999999, 1.0, 1.000001, 2.0, np.pi - 1e-6, np.pi]
 
 

@@ -11,28 +11,16 @@ and the cache holds at most one block above its limit. Timings: ``benchmarks/out
 
 from __future__ import annotations
 
-import contextlib
 import os
 
 import numpy as np
 import pytest
-from conftest import require
+from conftest import generic, require
 
 from microlie import SE3
 from microlie import _kernels as K
 
 N = 60_000  # Jacobians of 17.3 MB (float64) and 8.6 MB (float32): above the limits below
-
-
-@contextlib.contextmanager
-def generic(name):
-    """The generic kernel ``name`` (a compiled replacement, if any, set aside meanwhile)."""
-    saved = K.KERNELS[name].impl
-    K.register(name, None)
-    try:
-        yield
-    finally:
-        K.register(name, saved)
 
 
 def _elements(seed: int, n: int, dtype) -> SE3:
