@@ -38,7 +38,7 @@ if which == "numpy":
     def run():
         return np.fromstring(Path(path).read_bytes(), sep=" ")
 else:
-    from microlie.optim.bal import read_bal
+    from microlie.optim.io.bal import read_bal
     def run():
         return read_bal(path)
 tracemalloc.start()

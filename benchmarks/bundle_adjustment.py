@@ -9,7 +9,8 @@ Every contender starts from the file's values and runs single-threaded; the runs
 interleaved (one of each per round) and the table shows medians (min-max) and the ratio to
 microlie. Contenders:
 
-* microlie: ``microlie.optim.bundle.bundle_adjust`` (BAL model, Ceres' LM rules, dense Schur), time
+* microlie: ``microlie.optim.sfm.bundle.bundle_adjust`` (BAL model, Ceres' LM rules, dense Schur),
+time
   of ``bundle_adjust`` (includes the sparsity analysis, excludes reading the file);
 * Ceres 2.1 C++ (``benchmarks/ceres_bal/ceres_bal.cc``, built here with cmake against
   ``libceres-dev``): autodiff BAL cost, LM, SPARSE_SCHUR and DENSE_SCHUR, one thread; time
@@ -52,8 +53,8 @@ DEFAULT_FILE = ROOT / ".." / "shared" / "data" / "bal" / "problem-49-7776-pre.tx
 # ---------------------------------------------------------------------------- contenders
 
 def run_microlie(path: Path, behind: str = "evaluate") -> dict:
-    from microlie.optim.bal import read_bal
-    from microlie.optim.bundle import bundle_adjust
+    from microlie.optim.io.bal import read_bal
+    from microlie.optim.sfm.bundle import bundle_adjust
 
     p = read_bal(path)
     r = bundle_adjust(p, behind=behind)
@@ -125,7 +126,7 @@ def run_scipy(path: Path) -> dict:
     from scipy.optimize import least_squares
     from scipy.sparse import lil_matrix
 
-    from microlie.optim.bal import read_bal
+    from microlie.optim.io.bal import read_bal
 
     p = read_bal(path)
     nc, npt = p.n_cameras, p.n_points

@@ -34,9 +34,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from microlie.optim import available_solvers, from_pose_graph, make_solver  # noqa: E402
-from microlie.optim.cholesky import SupernodalSolver  # noqa: E402
-from microlie.optim.g2o import read_g2o  # noqa: E402
 from microlie.optim.init import initialize  # noqa: E402
+from microlie.optim.io.g2o import read_g2o  # noqa: E402
+from microlie.optim.linalg.cholesky import SupernodalSolver  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "pose_graph"
 GRAPHS = {  # name: (file, start), as in benchmarks/pose_graph.py

@@ -35,9 +35,9 @@ GRAPHS = {"sphere2500": ("sphere2500.g2o", "file"), "M3500": ("input_M3500_g2o.g
 def worker(calls: int) -> dict:
     """Median seconds per call of each measurement, per graph (run inside one checkout)."""
     from microlie.optim import compiled, from_pose_graph
-    from microlie.optim.g2o import read_g2o
+    from microlie.optim.core.problem import Problem
     from microlie.optim.init import initialize
-    from microlie.optim.problem import Problem
+    from microlie.optim.io.g2o import read_g2o
 
     out: dict = {}
     for name, (fname, start) in GRAPHS.items():

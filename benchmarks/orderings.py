@@ -37,9 +37,9 @@ import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 
 from microlie.optim import from_pose_graph  # noqa: E402
-from microlie.optim.cholesky import SupernodalSolver  # noqa: E402
-from microlie.optim.g2o import read_g2o  # noqa: E402
 from microlie.optim.init import initialize  # noqa: E402
+from microlie.optim.io.g2o import read_g2o  # noqa: E402
+from microlie.optim.linalg.cholesky import SupernodalSolver  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "pose_graph"
 GRAPHS = {

@@ -7,7 +7,7 @@ Run (benchmark environment, one command)::
 
 Two passes, each interleaved with GTSAM: pass 1 in this process (with the compiled extra
 ``microlie-fast`` when it is installed: its group kernels and the SE(3) edge loop of
-``microlie.optim.compiled``), every backend; pass 2 in a fresh process with ``MICROLIE_FAST=0``
+``microlie.optim.core.compiled``), every backend; pass 2 in a fresh process with ``MICROLIE_FAST=0``
 (the default install: NumPy and SciPy only) on the default-install backends (skip it with
 ``--no-default-pass``).
 
@@ -52,8 +52,8 @@ import numpy as np  # noqa: E402
 
 from microlie import SE2  # noqa: E402
 from microlie.optim import available_solvers, compiled, from_pose_graph, make_solver  # noqa: E402
-from microlie.optim.g2o import read_g2o  # noqa: E402
 from microlie.optim.init import initialize  # noqa: E402
+from microlie.optim.io.g2o import read_g2o  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "pose_graph"
 GRAPHS = {  # name: (file, start)

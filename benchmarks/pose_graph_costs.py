@@ -5,7 +5,7 @@ Run from the repository root (any environment with microlie's dependencies)::
     PYTHONPATH=src python benchmarks/pose_graph_costs.py \
         > benchmarks/results/pose_graph_costs-latest.md
 
-Each graph is read with ``microlie.optim.g2o.read_g2o``, started as ``../shared/data/README.md``
+Each graph is read with ``microlie.optim.io.g2o.read_g2o``, started as ``../shared/data/README.md``
 states (the file's vertices; the odometry chain for files without vertices; chordal for MIT and
 ais2klinik), solved by ``PoseGraph.to_factor_graph(X0)`` (prior on pose 0, left out of the
 cost) and ``FactorGraph.optimize`` (LM, relative tolerance 1e-10, at most 200 iterations), and
@@ -25,8 +25,8 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from microlie.optim.g2o import read_g2o  # noqa: E402
 from microlie.optim.init import initialize  # noqa: E402
+from microlie.optim.io.g2o import read_g2o  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "pose_graph"
 # (file, start, GTSAM 4.3 LM error from ../shared/data/README.md)

@@ -4,7 +4,7 @@ Run (benchmark environment, one command, from the repository root)::
 
     PYTHONPATH=src /work/bench-venv/bin/python benchmarks/pose_graph_io.py [--repeat 5]
 
-Reading: ``gtsam.readG2o(file, is3D)`` against ``microlie.optim.g2o.read_g2o(file)`` (which
+Reading: ``gtsam.readG2o(file, is3D)`` against ``microlie.optim.io.g2o.read_g2o(file)`` (which
 also checks every line and every information matrix), alternating, medians and the spread of
 per-round ratios.
 
@@ -32,8 +32,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from microlie import SE3  # noqa: E402
-from microlie.optim.g2o import read_g2o  # noqa: E402
 from microlie.optim.init import chordal  # noqa: E402
+from microlie.optim.io.g2o import read_g2o  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "pose_graph"
 GRAPHS = ["sphere2500.g2o", "parking-garage.g2o", "smallGrid3D.g2o", "tinyGrid3D.g2o"]

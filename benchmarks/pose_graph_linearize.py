@@ -1,6 +1,7 @@
 """One linearisation (residuals, Jacobians, whitening, block products and the scatter into the
 fixed pattern) and one trial cost of the shared pose graphs: the compiled edge loop of
-``microlie-fast`` (``microlie.optim.compiled``) against the NumPy path, interleaved in one process.
+``microlie-fast`` (``microlie.optim.core.compiled``) against the NumPy path, interleaved in one
+process.
 
 Run (one command; needs the compiled extra, ``pip install ./fast``)::
 
@@ -23,9 +24,9 @@ import time
 from pathlib import Path
 
 from microlie.optim import compiled, from_pose_graph
-from microlie.optim.g2o import read_g2o
+from microlie.optim.core.problem import Problem
 from microlie.optim.init import initialize
-from microlie.optim.problem import Problem
+from microlie.optim.io.g2o import read_g2o
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "pose_graph"
 GRAPHS = {"sphere2500": ("sphere2500.g2o", "file"),

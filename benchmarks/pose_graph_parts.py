@@ -39,8 +39,8 @@ def child(src: str, graphs: list[str], solves: int) -> None:
     """Solve each graph ``solves`` times with the microlie found in ``src``; print JSON."""
     sys.path.insert(0, src)
     from microlie.optim import from_pose_graph
-    from microlie.optim.g2o import read_g2o
     from microlie.optim.init import initialize
+    from microlie.optim.io.g2o import read_g2o
 
     out = {}
     for name in graphs:

@@ -77,7 +77,7 @@ def _problem(n: int):
     """The problem of the synthetic graph: SE(2) poses on the walk (heading along the step),
     measurements from the truth with noise, the start the truth with noise."""
     from microlie import SE2
-    from microlie.optim.pose_graph import PoseGraph
+    from microlie.optim.io.pose_graph import PoseGraph
 
     A = sp.triu(pose_graph_2d(n), 1).tocoo()
     rng = np.random.default_rng(1)
@@ -99,7 +99,7 @@ def _problem(n: int):
 
 def _child(n: int, numeric: bool) -> None:
     """Run in the subprocess: print one JSON line."""
-    from microlie.optim.linear import make_solver
+    from microlie.optim.linalg.linear import make_solver
 
     p = _problem(n)
     before = _rss_mb()
@@ -110,7 +110,7 @@ def _child(n: int, numeric: bool) -> None:
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     out = {"n": n, "analyse": ana, "rss_before": before, "peak": peak, "ns": int(s.ns)}
     if numeric:  # LM iterations with the analysis done (kept with the problem)
-        from microlie.optim.solvers import SolverOptions, solve
+        from microlie.optim.core.solvers import SolverOptions, solve
 
         p.__dict__.setdefault("_analysed", {})["supernodal"] = s
         res = solve(p, [v.initial for v in p.variables],
@@ -149,8 +149,8 @@ def scale(sizes: list[int], old: str | None, old_max: int) -> None:
 
 def flops(nd_src: str | None) -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-    from microlie.optim.g2o import read_g2o
-    from microlie.optim.ordering import minimum_degree, symbolic
+    from microlie.optim.io.g2o import read_g2o
+    from microlie.optim.linalg.ordering import minimum_degree, symbolic
 
     nd = None
     if nd_src:  # the old module, loaded under another name

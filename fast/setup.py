@@ -44,7 +44,7 @@ setup(
             extra_compile_args=flags,
             libraries=libs,
         ),
-        Extension(  # the Schur complement of bundle adjustment (microlie.optim.schur)
+        Extension(  # the Schur complement of bundle adjustment (microlie.optim.linalg.schur)
             "microlie_fast._schur",
             sources=["src/microlie_fast/_schur.c"],
             include_dirs=[np.get_include()],

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import data_file
 
-from microlie.optim.bal import BALProblem, read_bal, write_bal
+from microlie.optim.io.bal import BALProblem, read_bal, write_bal
 
 TINY = """2 2 3
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from microlie.optim.camera import BALCamera, PinholeCamera, reproject
+from microlie.optim.sfm.camera import BALCamera, PinholeCamera, reproject
 
 MODELS = {
     "bal": (BALCamera(), np.array([480.0, -0.05, 0.02])),

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from conftest import data_file, require
 
-from microlie.optim.bal import read_bal
 from microlie.optim.command_bal import run_bal
+from microlie.optim.io.bal import read_bal
 
 
 def _args(path, **kw):

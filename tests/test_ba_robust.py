@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from microlie.optim.bundle import BundleProblem, bundle_adjust, synthetic_scene
+from microlie.optim.sfm.bundle import BundleProblem, bundle_adjust, synthetic_scene
 
 
 def _relative_rotation_errors_deg(p: BundleProblem, truth: BundleProblem) -> np.ndarray:

@@ -8,10 +8,10 @@ import pytest
 from conftest import data_file
 from scipy.spatial.transform import Rotation
 
-from microlie.optim.bal import read_bal
-from microlie.optim.bundle import BundleProblem, bundle_adjust, synthetic_scene
-from microlie.optim.camera import reproject
-from microlie.optim.schur import NormalEquations, SchurStructure
+from microlie.optim.io.bal import read_bal
+from microlie.optim.linalg.schur import NormalEquations, SchurStructure
+from microlie.optim.sfm.bundle import BundleProblem, bundle_adjust, synthetic_scene
+from microlie.optim.sfm.camera import reproject
 
 
 def _dense_jacobian(p: BundleProblem):
@@ -169,7 +169,7 @@ def test_camera_marginals_equal_inverse_of_full_information():
 
 
 def test_sparse_reduced_system_gives_the_same_marginals(monkeypatch):
-    import microlie.optim.schur as schur
+    import microlie.optim.linalg.schur as schur
 
     truth, start = synthetic_scene(4, 40, noise=0.5, seed=8)
     r = bundle_adjust(start, fix_cameras=[0], fix_points=[0], function_tolerance=1e-12)

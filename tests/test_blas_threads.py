@@ -22,9 +22,9 @@ from threadpoolctl import threadpool_info, threadpool_limits
 import microlie
 from microlie import SE2
 from microlie.optim import BetweenFactor, Diagonal, FactorGraph, PriorFactor, bundle_adjust
-from microlie.optim import graph as graph_module
-from microlie.optim import schur as schur_module
-from microlie.optim.bundle import synthetic_scene
+from microlie.optim.core import graph as graph_module
+from microlie.optim.linalg import schur as schur_module
+from microlie.optim.sfm.bundle import synthetic_scene
 
 
 def _blas_threads() -> dict[str, int]:
@@ -140,7 +140,7 @@ def test_issue19_item13_camera_covariance_runs_with_one_blas_thread(monkeypatch)
 
     _, start = synthetic_scene(n_cameras=3, n_points=30, seed=4)
     res = bundle_adjust(start, max_iter=3)
-    import microlie.optim.bundle as bundle_module
+    import microlie.optim.sfm.bundle as bundle_module
 
     monkeypatch.setattr(bundle_module.np.linalg, "pinv", pinv)
     with threadpool_limits(limits=2, user_api="blas"):
@@ -186,7 +186,7 @@ def test_issue19_item13_limit_covers_libraries_loaded_inside():
     code = (
         "import sys\n"
         "from threadpoolctl import threadpool_info\n"
-        "from microlie.optim.threads import blas_threads_limit, limit_new_libraries\n"
+        "from microlie.optim.core.threads import blas_threads_limit, limit_new_libraries\n"
         "assert 'scipy.linalg' not in sys.modules\n"
         "def blas(): return sorted({d['num_threads'] for d in threadpool_info()"
         " if d['user_api'] == 'blas'})\n"
@@ -206,7 +206,7 @@ def test_issue19_item13_limit_covers_libraries_loaded_inside():
 def test_issue19_item13_limit_new_libraries_restores_their_count():
     """A library that appears inside a limit with its own count (here: simulated by setting
     it) is held by limit_new_libraries and everything is restored at the end."""
-    from microlie.optim.threads import blas_threads_limit, limit_new_libraries
+    from microlie.optim.core.threads import blas_threads_limit, limit_new_libraries
 
     with threadpool_limits(limits=2, user_api="blas"):
         with blas_threads_limit(1):

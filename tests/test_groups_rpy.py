@@ -10,8 +10,8 @@ from conftest import BACKENDS, to_backend, to_numpy
 from scipy.spatial.transform import Rotation
 
 from microlie import SE3, SO3
-from microlie.optim.pose_graph import PoseGraph
-from microlie.optim.toro import read_toro, write_toro
+from microlie.optim.io.pose_graph import PoseGraph
+from microlie.optim.io.toro import read_toro, write_toro
 
 
 def _rzyx(rpy: np.ndarray) -> np.ndarray:
@@ -95,7 +95,7 @@ def test_issue19_item2_optimize_command_writes_toro_poses_at_gimbal_lock(tmp_pat
     import io
 
     from microlie.cli import main
-    from microlie.optim.g2o import write_g2o
+    from microlie.optim.io.g2o import write_g2o
 
     q = _hard_quaternions(np.random.default_rng(22))[60:140:4]
     n = len(q)

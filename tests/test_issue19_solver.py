@@ -22,8 +22,8 @@ from microlie.optim import (
     Values,
     available_solvers,
 )
-from microlie.optim.g2o import read_g2o
 from microlie.optim.init import chordal
+from microlie.optim.io.g2o import read_g2o
 
 BACKENDS = ["auto", *available_solvers()]
 
@@ -209,8 +209,8 @@ def test_issue19_item5_a_non_finite_linearisation_during_the_run_names_the_facto
 
 
 def test_issue19_item5_bundle_adjustment_that_cannot_decrease_the_cost_failed():
-    from microlie.optim.bundle import bundle_adjust, synthetic_scene
-    from microlie.optim.camera import PinholeCamera
+    from microlie.optim.sfm.bundle import bundle_adjust, synthetic_scene
+    from microlie.optim.sfm.camera import PinholeCamera
 
     class WrongSign(PinholeCamera):
         def project(self, P, K, jac=True, out=None):
@@ -236,7 +236,7 @@ def test_issue19_item5_bundle_adjustment_that_cannot_decrease_the_cost_failed():
 
 def test_issue19_item5_optimize_reports_a_failed_solve_and_exits_1(tmp_path, monkeypatch):
     # a pose graph plus one factor whose Jacobian lies: LM cannot decrease the cost
-    from microlie.optim.pose_graph import PoseGraph
+    from microlie.optim.io.pose_graph import PoseGraph
 
     real = PoseGraph.to_factor_graph
 
@@ -267,9 +267,9 @@ def test_issue19_item6_a_camera_without_observations_has_no_finite_covariance(sp
                                                                              monkeypatch):
     from dataclasses import replace
 
-    import microlie.optim.schur as schur
-    from microlie.optim.bundle import bundle_adjust, synthetic_scene
-    from microlie.optim.camera import reproject
+    import microlie.optim.linalg.schur as schur
+    from microlie.optim.sfm.bundle import bundle_adjust, synthetic_scene
+    from microlie.optim.sfm.camera import reproject
 
     _, start = synthetic_scene(4, 40, noise=0.5, seed=8)
     # camera 4: a copy of camera 1 that sees nothing

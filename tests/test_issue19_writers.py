@@ -39,8 +39,8 @@ TINY = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0.1 0.05\nEDGE_SE2 0 1 1 0 0 1 0 0 
 def _writers(tmp: Path) -> dict:
     """name -> (target file name, callable(path) writing more than LIMIT bytes there)."""
     from microlie import traj
-    from microlie.optim import bal, g2o, toro
-    from microlie.optim.bundle import synthetic_scene
+    from microlie.optim.io import bal, g2o, toro
+    from microlie.optim.sfm.bundle import synthetic_scene
 
     src = tmp / "src.g2o"
     src.write_text(CHAIN)
@@ -155,7 +155,7 @@ def test_issue19_item9_optimize_refuses_to_overwrite_its_input(tmp_path):
 
 def test_issue19_item9_bundle_adjustment_refuses_to_overwrite_its_input(tmp_path):
     from microlie.optim import read_bal, write_bal
-    from microlie.optim.bundle import synthetic_scene
+    from microlie.optim.sfm.bundle import synthetic_scene
 
     path = tmp_path / "scene.txt"
     write_bal(path, synthetic_scene(3, 20, seed=2)[1].to_bal())
@@ -232,7 +232,7 @@ def test_issue19_item14_progress_on_stderr_when_not_a_terminal(tmp_path, kind):
         path.write_text(text)
     else:
         from microlie.optim import write_bal
-        from microlie.optim.bundle import synthetic_scene
+        from microlie.optim.sfm.bundle import synthetic_scene
 
         path = tmp_path / "scene.txt"
         write_bal(path, synthetic_scene(3, 20, seed=2)[1].to_bal())
@@ -320,7 +320,7 @@ def test_issue19_item19_readers_and_writers_exported_from_optim(tmp_path):
 
 def test_issue19_item19_result_reprs_are_short_summaries():
     from microlie.optim import bundle_adjust
-    from microlie.optim.bundle import synthetic_scene
+    from microlie.optim.sfm.bundle import synthetic_scene
 
     _, start = synthetic_scene(3, 40, seed=1)
     res = bundle_adjust(start, fix_cameras=[0])
@@ -372,7 +372,7 @@ def test_issue19_item19_max_iter_must_be_positive(tmp_path, kind, value):
         path.write_text(TINY)
     else:
         from microlie.optim import write_bal
-        from microlie.optim.bundle import synthetic_scene
+        from microlie.optim.sfm.bundle import synthetic_scene
 
         path = tmp_path / "scene.txt"
         write_bal(path, synthetic_scene(3, 20, seed=2)[1].to_bal())

@@ -21,7 +21,7 @@ from microlie.optim import (
     Isotropic,
     PriorFactor,
 )
-from microlie.optim.problem import Problem
+from microlie.optim.core.problem import Problem
 
 
 def _graph(rng, per_edge=True, loss=None):
@@ -95,7 +95,7 @@ def _dense_system(p, states, h=1e-6):
 def numpy_path(monkeypatch):
     """The NumPy path, with chunks of 3 factors (the batches here have 2 to 11: several
     chunks and a partial last one)."""
-    from microlie.optim import problem
+    from microlie.optim.core import problem
 
     monkeypatch.setenv("MICROLIE_FAST", "0")
     monkeypatch.setattr(problem, "_CHUNK", 3)
@@ -166,7 +166,7 @@ def test_jacobians_kept_by_a_trial_cost(numpy_path, loss):
 def test_a_kept_linearisation_does_not_evaluate_again(numpy_path, monkeypatch):
     """After ``costs(states, keep=True)``, ``linearize(states)`` evaluates no between factor
     again (the kept Jacobians are what it uses); another list is evaluated."""
-    from microlie.optim import factors
+    from microlie.optim.core import factors
 
     calls = []
     original = factors.BetweenFactor.evaluate_into
@@ -191,7 +191,7 @@ def test_a_kept_linearisation_does_not_evaluate_again(numpy_path, monkeypatch):
 @pytest.mark.parametrize("solver", ["lm", "gn", "dogleg"])
 def test_solvers_take_the_same_run_with_and_without_kept_jacobians(numpy_path, monkeypatch,
                                                                    solver):
-    from microlie.optim import factors
+    from microlie.optim.core import factors
 
     runs = []
     for flag in (True, False):

@@ -1,4 +1,5 @@
-"""The supernodal Cholesky (microlie.optim.cholesky): its factor against LAPACK's dense Cholesky
+"""The supernodal Cholesky (microlie.optim.linalg.cholesky): its factor against LAPACK's dense
+Cholesky
 of the same permuted matrix, its solves against dense solves and SuperLU, with the compiled
 loop (microlie-fast) and with the NumPy loop."""
 
@@ -11,8 +12,8 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from microlie.optim.cholesky import SupernodalSolver
-from microlie.optim.linear import SingularSystemError, make_solver
+from microlie.optim.linalg.cholesky import SupernodalSolver
+from microlie.optim.linalg.linear import SingularSystemError, make_solver
 
 try:
     import microlie_fast._chol  # noqa: F401
@@ -90,7 +91,7 @@ def test_symbolic_structure_is_the_exact_fill(compiled):
     """The panels hold every nonzero of the exact factor and no row that is structurally zero
     beyond the relaxed amalgamation's explicit zeros: with amalgamation off the stored
     structure equals the nonzero structure of the dense factor."""
-    import microlie.optim.cholesky as ch
+    import microlie.optim.linalg.cholesky as ch
 
     M, H = _random_spd(1, 200, 11, extra=3, corner=0)
     relax = ch._RELAX
@@ -135,7 +136,7 @@ def test_real_graph_systems_match_superlu(compiled, name):
     from conftest import data_file
 
     from microlie.optim import from_pose_graph
-    from microlie.optim.g2o import read_g2o
+    from microlie.optim.io.g2o import read_g2o
 
     pg = read_g2o(data_file(f"pose_graph/{name}.g2o"))
     g, _ = from_pose_graph(pg)

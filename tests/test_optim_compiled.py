@@ -1,4 +1,5 @@
-"""The compiled edge loop of microlie-fast (``microlie_fast._graph``, ``microlie.optim.compiled``)
+"""The compiled edge loop of microlie-fast (``microlie_fast._graph``,
+``microlie.optim.core.compiled``)
 against the NumPy path of ``Problem``: the same linear system (CSC values of H and the gradient),
 costs and solutions to rounding, on SE(3) graphs with the hard residuals (rotation angle 0,
 1e-12, near pi, exactly pi), fixed ends, duplicate edges, per-edge and shared noise, robust
@@ -14,7 +15,7 @@ from conftest import require
 
 from microlie import SE2, SE3
 from microlie.optim import BetweenFactor, FactorGraph, Information, Isotropic, PriorFactor
-from microlie.optim.problem import Problem
+from microlie.optim.core.problem import Problem
 
 
 @pytest.fixture
@@ -187,7 +188,7 @@ def test_any_memory_layout(graph_mod):
 
 
 def test_switched_off(graph_mod, monkeypatch):
-    from microlie.optim import compiled
+    from microlie.optim.core import compiled
 
     monkeypatch.setenv("MICROLIE_FAST", "0")
     assert not compiled.available()

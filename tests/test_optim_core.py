@@ -21,7 +21,7 @@ from microlie.optim import (
     available_solvers,
     from_pose_graph,
 )
-from microlie.optim.problem import Problem
+from microlie.optim.core.problem import Problem
 
 GROUPS = [SO2, SE2, SO3, SE3, Sim3]
 RNG = np.random.default_rng(7)
@@ -384,8 +384,8 @@ def test_marginals_match_the_dense_inverse():
 def test_shared_graphs_reach_gtsam_cost(name, init, expected):
     from conftest import data_file
 
-    from microlie.optim.g2o import read_g2o
     from microlie.optim.init import initialize
+    from microlie.optim.io.g2o import read_g2o
 
     pg = read_g2o(data_file("pose_graph/" + name))
     g, poses = from_pose_graph(pg, initialize(pg, init))
@@ -401,8 +401,8 @@ def test_supernodal_cholesky_matches_dense(bs, nb):
     NumPy's dense solve; a matrix made indefinite is a SingularSystemError."""
     import scipy.sparse as sp
 
-    from microlie.optim.cholesky import SupernodalSolver
-    from microlie.optim.linear import SingularSystemError
+    from microlie.optim.linalg.cholesky import SupernodalSolver
+    from microlie.optim.linalg.linear import SingularSystemError
 
     rng = np.random.default_rng(bs * 100 + nb)
     pairs = {(k, k + 1) for k in range(nb - 1)}

@@ -22,7 +22,7 @@ from conftest import require
 
 from microlie.cli import main
 from microlie.data import EXAMPLE_SIGMAS, example_pose_graph
-from microlie.optim.g2o import read_g2o
+from microlie.optim.io.g2o import read_g2o
 
 ROOT = Path(__file__).resolve().parents[1]
 GTSAM = json.loads((ROOT / "tests" / "fixtures" / "optim" / "gtsam_example.json").read_text())

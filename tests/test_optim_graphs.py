@@ -15,8 +15,8 @@ import pytest
 from conftest import data_file
 
 from microlie.optim import GaugeError
-from microlie.optim.g2o import read_g2o
 from microlie.optim.init import initialize
+from microlie.optim.io.g2o import read_g2o
 
 # (file, start, GTSAM 4.3 LM error at its optimum)
 GRAPHS = [

@@ -13,9 +13,9 @@ from scipy.linalg import logm
 from scipy.spatial.transform import Rotation
 
 from microlie import SE2, SE3
-from microlie.optim.g2o import read_g2o, write_g2o
-from microlie.optim.pose_graph import PoseGraph
-from microlie.optim.toro import read_toro, write_toro
+from microlie.optim.io.g2o import read_g2o, write_g2o
+from microlie.optim.io.pose_graph import PoseGraph
+from microlie.optim.io.toro import read_toro, write_toro
 
 FIX = Path(__file__).resolve().parent / "fixtures" / "g2o"
 GTSAM = json.loads((FIX / "gtsam_reference.json").read_text())

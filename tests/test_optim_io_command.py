@@ -13,8 +13,8 @@ from conftest import data_file, require
 
 from microlie.cli import main
 from microlie.optim.command import detect_format
-from microlie.optim.g2o import read_g2o, write_g2o
-from microlie.optim.toro import read_toro, write_toro
+from microlie.optim.io.g2o import read_g2o, write_g2o
+from microlie.optim.io.toro import read_toro, write_toro
 
 ROOT = Path(__file__).resolve().parents[1]
 POSE2 = "pose_graph/gtsam/pose2example.txt"  # README: GTSAM 4.3 LM error 0.5494864475

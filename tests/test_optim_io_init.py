@@ -9,9 +9,9 @@ from conftest import data_file
 from scipy.spatial.transform import Rotation
 
 from microlie import SE2, SE3
-from microlie.optim.g2o import read_g2o
 from microlie.optim.init import chordal, from_file, initialize, odometry
-from microlie.optim.pose_graph import PoseGraph
+from microlie.optim.io.g2o import read_g2o
+from microlie.optim.io.pose_graph import PoseGraph
 
 
 def _matrices_from_g2o(path) -> tuple[dict, list]:

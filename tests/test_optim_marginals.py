@@ -12,7 +12,7 @@ from conftest import data_file
 
 from microlie import SE2, SE3
 from microlie.optim import Diagonal, PriorFactor, Values, from_pose_graph
-from microlie.optim.g2o import read_g2o
+from microlie.optim.io.g2o import read_g2o
 
 FIX = json.loads((Path(__file__).parent / "fixtures" / "optim" / "gtsam_marginals.json")
                  .read_text())

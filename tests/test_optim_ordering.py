@@ -1,4 +1,5 @@
-"""Fill-reducing orderings (microlie.optim.ordering): permutations, minimum degree as SuperLU's
+"""Fill-reducing orderings (microlie.optim.linalg.ordering): permutations, minimum degree as
+SuperLU's
 full factorisation orders, the symbolic factor against an elimination done by hand, and
 SupernodalSolver's ``ordering`` option (more symbolic checks: test_optim_symbolic.py)."""
 
@@ -9,8 +10,8 @@ import pytest
 import scipy.sparse as sp
 from test_optim_cholesky import PATHS, _random_spd
 
-from microlie.optim import ordering as O
-from microlie.optim.cholesky import SupernodalSolver
+from microlie.optim.linalg import ordering as O
+from microlie.optim.linalg.cholesky import SupernodalSolver
 
 
 def _path(k: int):

@@ -13,7 +13,7 @@ import pytest
 from conftest import data_file
 
 from microlie.optim import from_pose_graph
-from microlie.optim.g2o import read_g2o
+from microlie.optim.io.g2o import read_g2o
 
 
 def _with_outliers(pg, clean, rng):

@@ -1,4 +1,4 @@
-"""The symbolic Cholesky analysis (microlie.optim.ordering.symbolic and SupernodalSolver's
+"""The symbolic Cholesky analysis (microlie.optim.linalg.ordering.symbolic and SupernodalSolver's
 supernodes) against two oracles on 240 random block patterns: the elimination game played on
 Python sets, and the union of the nonzeros of dense Cholesky factors of the pattern with random
 positive weights. Some patterns are built so that a numeric factorisation cancels an entry:
@@ -11,8 +11,8 @@ import pytest
 import scipy.sparse as sp
 from test_optim_cholesky import PATHS
 
-import microlie.optim.cholesky as ch
-from microlie.optim import ordering as O
+import microlie.optim.linalg.cholesky as ch
+from microlie.optim.linalg import ordering as O
 
 
 def _game(adj: list[set[int]], order: np.ndarray) -> list[set[int]]:

@@ -35,9 +35,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from microlie.optim.bal import read_bal
-from microlie.optim.g2o import read_g2o
-from microlie.optim.toro import read_toro
+from microlie.optim.io.bal import read_bal
+from microlie.optim.io.g2o import read_g2o
+from microlie.optim.io.toro import read_toro
 from microlie.traj import load_result, read_euroc, read_kitti, read_tum
 
 CASES = 300

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from conftest import data_file
 
-from microlie.optim.bal import read_bal, write_bal
-from microlie.optim.g2o import read_g2o, write_g2o
-from microlie.optim.toro import read_toro
+from microlie.optim.io.bal import read_bal, write_bal
+from microlie.optim.io.g2o import read_g2o, write_g2o
+from microlie.optim.io.toro import read_toro
 from microlie.traj import load_result, read_euroc, read_kitti, read_tum
 
 V2 = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\n"
@@ -113,7 +113,7 @@ def test_issue19_item10_damaged_numbers_are_refused_by_every_reader(tmp_path, to
 
 
 def _bal_text() -> str:
-    from microlie.optim.bal import BALProblem
+    from microlie.optim.io.bal import BALProblem
 
     rng = np.random.default_rng(0)
     cams, pts = rng.normal(size=(2, 9)), rng.normal(size=(3, 3))
@@ -201,7 +201,7 @@ def test_issue19_item10_result_json_missing_statistic_is_a_value_error(tmp_path)
 
 # ---------------------------------------------------------------------- item 16
 def test_issue19_item16_bulk_bal_reader_equals_python_float_per_token():
-    from microlie.optim.bal import _read_bulk, _read_lines
+    from microlie.optim.io.bal import _read_bulk, _read_lines
 
     path = data_file("bal/problem-49-7776-pre.txt")
     data = path.read_bytes()
@@ -241,7 +241,7 @@ def _camera_per_line(text: str) -> str:
     lambda t: _camera_per_line(t).replace("\n", " 0\n", 1),  # a header of 4 fields
 ])
 def test_issue19_item16_bulk_and_line_readers_agree(edit):
-    from microlie.optim.bal import _read_bulk, _read_lines
+    from microlie.optim.io.bal import _read_bulk, _read_lines
 
     text = edit(_bal_text())
     data = text.encode()

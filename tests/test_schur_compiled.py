@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from conftest import require
 
-from microlie.optim import schur
-from microlie.optim.schur import NormalEquations, SchurStructure
+from microlie.optim.linalg import schur
+from microlie.optim.linalg.schur import NormalEquations, SchurStructure
 
 
 def _compiled():
@@ -165,7 +165,7 @@ def test_compiled_reduce_rejects_bad_arguments():
 
 def test_bundle_adjustment_ends_at_the_same_cost_with_and_without_it(monkeypatch):
     _compiled()
-    from microlie.optim.bundle import bundle_adjust, synthetic_scene
+    from microlie.optim.sfm.bundle import bundle_adjust, synthetic_scene
 
     _, start = synthetic_scene(n_cameras=6, n_points=60, seed=2)
     costs = []

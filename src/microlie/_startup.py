@@ -11,7 +11,7 @@ of the loaded modules again and again (some 4% of a run). :func:`command_setup`,
 program that imports microlie is never affected.
 
 ``microlie optimize`` runs its solve with one BLAS thread anyway (``--blas-threads``, default
-1, :mod:`microlie.optim.threads`); starting the thread pools that it then idles costs some
+1, :mod:`microlie.optim.core.threads`); starting the thread pools that it then idles costs some
 0.1 s of CPU per run (NumPy's and SciPy's OpenBLAS). So it also starts with
 ``OPENBLAS_NUM_THREADS=1``, unless the user set a thread count or asked for other than one
 thread (``--blas-threads N``); its collector stays on (a solve makes large temporaries).

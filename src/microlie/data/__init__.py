@@ -18,7 +18,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from ..groups import SE2
-    from ..optim.pose_graph import PoseGraph
+    from ..optim.io.pose_graph import PoseGraph
 
 __all__ = ["example_paths", "example_pose_graph", "EXAMPLE_SIGMAS"]
 
@@ -101,7 +101,7 @@ def example_pose_graph(n_poses: int = 500, *, seed: int = 20, side: int = 10,
     """
     from ..groups import SE2
     from ..optim.init import odometry
-    from ..optim.pose_graph import PoseGraph
+    from ..optim.io.pose_graph import PoseGraph
 
     if int(n_poses) != n_poses or n_poses < 2:
         raise ValueError(f"n_poses must be an integer >= 2, got {n_poses!r}")

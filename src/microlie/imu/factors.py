@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 
 from ..groups import SE23
-from ..optim.factors import Factor
-from ..optim.noise import Covariance, Diagonal
-from ..optim.variables import Variables
+from ..optim.core.factors import Factor
+from ..optim.core.noise import Covariance, Diagonal
+from ..optim.core.variables import Variables
 from .preintegration import Preintegration
 from .residual import ERRORS, Deltas, imu_residual
 

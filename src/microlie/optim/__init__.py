@@ -20,35 +20,35 @@ idx)`` gives :class:`~microlie.Gaussian` marginals in the right-perturbation fra
 Conventions: every variable is perturbed on the right (``X Exp(delta)``), every Jacobian is a
 right Jacobian, tangents are translation first.
 
-Files: ``read_g2o``/``write_g2o`` (:mod:`microlie.optim.g2o`), ``read_toro``/``write_toro``
-(:mod:`microlie.optim.toro`), both with a :class:`microlie.optim.pose_graph.PoseGraph`, and
-``read_bal``/``write_bal`` (:mod:`microlie.optim.bal`), all importable from here; every writer
+Files: ``read_g2o``/``write_g2o`` (:mod:`microlie.optim.io.g2o`), ``read_toro``/``write_toro``
+(:mod:`microlie.optim.io.toro`), both with a :class:`microlie.optim.io.pose_graph.PoseGraph`, and
+``read_bal``/``write_bal`` (:mod:`microlie.optim.io.bal`), all importable from here; every writer
 replaces its file only once the new one is complete. Initialisation: :mod:`microlie.optim.init`.
 """
 
 # Submodules load on first use (PEP 562), so that ``microlie optimize``'s argument parser and the
-# file readers (``microlie.optim.g2o``) do not pay for the solver's SciPy imports.
+# file readers (``microlie.optim.io.g2o``) do not pay for the solver's SciPy imports.
 import importlib
 from typing import TYPE_CHECKING, Any
 
 _LAZY = {
-    "bal": ("BALProblem", "read_bal", "write_bal"),
-    "bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
-    "camera": ("BALCamera", "PinholeCamera"),
-    "factors": ("BetweenFactor", "CustomFactor", "Factor", "JacobianCheck", "PriorFactor",
+    "io.bal": ("BALProblem", "read_bal", "write_bal"),
+    "sfm.bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
+    "sfm.camera": ("BALCamera", "PinholeCamera"),
+    "core.factors": ("BetweenFactor", "CustomFactor", "Factor", "JacobianCheck", "PriorFactor",
                 "check_jacobians"),
-    "g2o": ("read_g2o", "write_g2o"),
-    "graph": ("FactorGraph", "from_pose_graph"),
-    "linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
-    "noise": ("Covariance", "Diagonal", "Information", "Isotropic", "NoiseModel",
+    "io.g2o": ("read_g2o", "write_g2o"),
+    "core.graph": ("FactorGraph", "from_pose_graph"),
+    "linalg.linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
+    "core.noise": ("Covariance", "Diagonal", "Information", "Isotropic", "NoiseModel",
               "SqrtInformation", "Unit"),
-    "pose_graph": ("PoseGraph",),
-    "problem": ("GaugeError", "NonFiniteError", "Problem"),
-    "robust": ("DCS", "Barron", "Cauchy", "GemanMcClure", "Huber", "RobustLoss", "Tukey",
+    "io.pose_graph": ("PoseGraph",),
+    "core.problem": ("GaugeError", "NonFiniteError", "Problem"),
+    "core.robust": ("DCS", "Barron", "Cauchy", "GemanMcClure", "Huber", "RobustLoss", "Tukey",
                "make_loss"),
-    "solvers": ("IterationRecord", "Result"),
-    "toro": ("read_toro", "write_toro"),
-    "variables": ("Values", "Variables"),
+    "core.solvers": ("IterationRecord", "Result"),
+    "io.toro": ("read_toro", "write_toro"),
+    "core.variables": ("Values", "Variables"),
 }
 _WHERE = {name: module for module, names in _LAZY.items() for name in names}
 
@@ -67,10 +67,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:
-    from .bal import BALProblem, read_bal, write_bal
-    from .bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
-    from .camera import BALCamera, PinholeCamera
-    from .factors import (
+    from .core.factors import (
         BetweenFactor,
         CustomFactor,
         Factor,
@@ -78,10 +75,8 @@ if TYPE_CHECKING:
         PriorFactor,
         check_jacobians,
     )
-    from .g2o import read_g2o, write_g2o
-    from .graph import FactorGraph, from_pose_graph
-    from .linear import LinearSolver, SingularSystemError, available_solvers, make_solver
-    from .noise import (
+    from .core.graph import FactorGraph, from_pose_graph
+    from .core.noise import (
         Covariance,
         Diagonal,
         Information,
@@ -90,12 +85,17 @@ if TYPE_CHECKING:
         SqrtInformation,
         Unit,
     )
-    from .pose_graph import PoseGraph
-    from .problem import GaugeError, NonFiniteError, Problem
-    from .robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
-    from .solvers import IterationRecord, Result
-    from .toro import read_toro, write_toro
-    from .variables import Values, Variables
+    from .core.problem import GaugeError, NonFiniteError, Problem
+    from .core.robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
+    from .core.solvers import IterationRecord, Result
+    from .core.variables import Values, Variables
+    from .io.bal import BALProblem, read_bal, write_bal
+    from .io.g2o import read_g2o, write_g2o
+    from .io.pose_graph import PoseGraph
+    from .io.toro import read_toro, write_toro
+    from .linalg.linear import LinearSolver, SingularSystemError, available_solvers, make_solver
+    from .sfm.bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
+    from .sfm.camera import BALCamera, PinholeCamera
 
 __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "PriorFactor",
            "BetweenFactor", "CustomFactor", "check_jacobians", "JacobianCheck", "NoiseModel",

@@ -20,14 +20,14 @@ line per iteration, with ``--verbose`` or on a terminal (stdout, with ``--json``
 the report only). ``-o`` or ``--plot`` onto the input file is refused without ``--force``;
 every file is written to a temporary file renamed into place, so a failed write leaves the
 old file as it was. The whole command runs with one BLAS thread unless ``--blas-threads``
-says otherwise (:mod:`microlie.optim.threads`).
+says otherwise (:mod:`microlie.optim.core.threads`).
 
 ``--example`` replaces IN (giving both, or neither, is a usage error): it solves the synthetic
 2-D pose graph of :func:`microlie.data.example_pose_graph` (500 poses, 693 edges, made from a
 seed, nothing read from disk) from its drifting odometry start, and reports beside the costs
 the RMS position error against the ground truth before and after.
 
-The report's ``termination`` is the solver's (:class:`~microlie.optim.solvers.Result`):
+The report's ``termination`` is the solver's (:class:`~microlie.optim.core.solvers.Result`):
 ``convergence`` and ``no_convergence`` (``--max-iter`` reached; printed "not converged")
 exit with status 0, as Ceres calls both usable; ``failure`` (the cost could not be decreased)
 prints the reason on stderr, writes no ``-o`` file and exits with status 1.
@@ -48,7 +48,7 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
-from .threads import blas_threads_limit
+from .core.threads import blas_threads_limit
 
 __all__ = ["register", "run", "run_pose_graph", "FORMATS", "detect_format"]
 
@@ -300,10 +300,10 @@ def _label(path: str | None) -> str:
 
 def _read(path: str, fmt: str) -> Any:
     if fmt == "toro":
-        from .toro import read_toro
+        from .io.toro import read_toro
 
         return read_toro(path)
-    from .g2o import read_g2o
+    from .io.g2o import read_g2o
 
     return read_g2o(path)
 
@@ -311,11 +311,11 @@ def _read(path: str, fmt: str) -> Any:
 def _write(path: str, graph: Any, poses: Any, fmt: str) -> None:
     suffix = Path(path).suffix.lower()
     if suffix in (".graph", ".toro") or (fmt == "toro" and suffix != ".g2o"):
-        from .toro import write_toro
+        from .io.toro import write_toro
 
         write_toro(path, graph, poses)
     else:
-        from .g2o import write_g2o
+        from .io.g2o import write_g2o
 
         write_g2o(path, graph, poses)
 
@@ -382,7 +382,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     _header(args, err, f"{problem}; {args.solver} (linear solver {args.linear_solver}), start "
                        f"{init}, at most {args.max_iter} iterations; read {t1 - t0:.3f} s, "
                        f"init {t2 - t1:.3f} s, build {t3 - t2:.3f} s")
-    from .problem import GaugeError, NonFiniteError
+    from .core.problem import GaugeError, NonFiniteError
 
     gauge = args.gauge or "check"
     try:

@@ -1,7 +1,8 @@
 """``microlie optimize problem.txt --format bal``: bundle adjustment of a BAL file.
 
 :func:`run_bal` is the BAL entry of :data:`microlie.optim.command.FORMATS`: it reads the file,
-runs :func:`microlie.optim.bundle.bundle_adjust` (Levenberg-Marquardt with Ceres' rules on the Schur
+runs :func:`microlie.optim.sfm.bundle.bundle_adjust` (Levenberg-Marquardt with Ceres' rules on the
+Schur
 system, BAL camera model, points behind a camera evaluated as in the standard BAL model) and
 returns the JSON report with the pose-graph keys (``initial_cost``, ``final_cost``,
 ``iterations``, ``time_s``, ``converged``, ...). Costs are ``0.5 * sum |r|^2`` in pixels
@@ -18,7 +19,7 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
-from .schur import LinearSolverKind
+from .linalg.schur import LinearSolverKind
 
 __all__ = ["run_bal"]
 
@@ -44,8 +45,8 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     Examples
     --------
     >>> import argparse, io, os, tempfile
-    >>> from microlie.optim.bal import write_bal
-    >>> from microlie.optim.bundle import synthetic_scene
+    >>> from microlie.optim.io.bal import write_bal
+    >>> from microlie.optim.sfm.bundle import synthetic_scene
     >>> from microlie.optim.command import register
     >>> path = os.path.join(tempfile.mkdtemp(), "scene.txt")
     >>> write_bal(path, synthetic_scene(3, 20, seed=2)[1].to_bal())
@@ -56,9 +57,9 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     >>> report["final_cost"] < report["initial_cost"]
     True
     """
-    from .bal import read_bal, write_bal
-    from .bundle import BundleProblem, bundle_adjust, plot_bundle
     from .command import _header, _progress, _to
+    from .io.bal import read_bal, write_bal
+    from .sfm.bundle import BundleProblem, bundle_adjust, plot_bundle
 
     solver = getattr(args, "solver", "lm")
     if solver != "lm":

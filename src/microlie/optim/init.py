@@ -17,7 +17,7 @@ the identity otherwise.
 
 >>> import numpy as np
 >>> from microlie import SE2
->>> from microlie.optim.pose_graph import PoseGraph
+>>> from microlie.optim.io.pose_graph import PoseGraph
 >>> Z = SE2.from_xy_theta([1.0, 1.0, 1.0], [0.0, 0.0, 1.0], [np.pi / 2, np.pi / 2, np.pi])
 >>> g = PoseGraph(SE2, ids=np.arange(3), poses=None, i=np.array([0, 1, 0]),
 ...               j=np.array([1, 2, 2]), measurements=Z, information=np.tile(np.eye(3), (3, 1, 1)))
@@ -35,7 +35,7 @@ import numpy as np
 import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from ..groups import SE2, SE3, LieGroup
-from .pose_graph import PoseGraph
+from .io.pose_graph import PoseGraph
 
 __all__ = ["initialize", "from_file", "odometry", "chordal", "INIT_METHODS", "InitMethod"]
 
@@ -62,7 +62,7 @@ def initialize(graph: PoseGraph, method: InitMethod = "file") -> LieGroup:
     --------
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
@@ -97,7 +97,7 @@ def from_file(graph: PoseGraph) -> LieGroup:
     --------
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
@@ -146,7 +146,7 @@ def odometry(graph: PoseGraph) -> LieGroup:
     --------
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
@@ -196,8 +196,8 @@ def _prefix_compose(steps: LieGroup) -> LieGroup:
 
 def _solve_spd(H: Any, b: np.ndarray, block: int) -> np.ndarray:
     """Solve ``H x = b`` (symmetric positive definite, unknowns in blocks of ``block``) with the
-    solver's own sparse Cholesky interface (:func:`microlie.optim.linear.make_solver`)."""
-    from .linear import make_solver
+    solver's own sparse Cholesky interface (:func:`microlie.optim.linalg.linear.make_solver`)."""
+    from .linalg.linear import make_solver
 
     H = sp.csc_matrix(H)
     H.sort_indices()
@@ -252,7 +252,7 @@ def chordal(graph: PoseGraph) -> LieGroup:
     --------
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._files import save_figure
 from ..groups import LieGroup
-from .pose_graph import PoseGraph
+from .io.pose_graph import PoseGraph
 
 __all__ = ["plot_pose_graph"]
 
@@ -52,7 +52,7 @@ def plot_pose_graph(graph: PoseGraph, initial: LieGroup, optimised: LieGroup,
     --------
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"

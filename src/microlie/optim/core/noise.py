@@ -310,7 +310,7 @@ def as_noise(noise: Any, dim: int, what: str) -> NoiseModel:
     Examples
     --------
     >>> from microlie.optim import Diagonal
-    >>> from microlie.optim.noise import as_noise
+    >>> from microlie.optim.core.noise import as_noise
     >>> as_noise(None, 3, "prior").sqrt_info.tolist() == [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
     True
     >>> as_noise(Diagonal([1.0, 2.0]), 2, "prior").dim

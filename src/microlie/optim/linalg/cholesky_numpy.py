@@ -1,4 +1,5 @@
-"""The NumPy loop of the supernodal Cholesky (:class:`~microlie.optim.cholesky.SupernodalSolver`
+"""The NumPy loop of the supernodal Cholesky
+(:class:`~microlie.optim.linalg.cholesky.SupernodalSolver`
 without ``microlie-fast``): the same factor as the compiled loop, organised so that the
 Python loop runs a few times per level of the supernodal elimination tree, not once per
 supernode.
@@ -117,7 +118,7 @@ class _Bucket:
 
 
 class NumpyLoop:
-    """The NumPy plan of a :class:`~microlie.optim.cholesky.SupernodalSolver` whose symbolic
+    """The NumPy plan of a :class:`~microlie.optim.linalg.cholesky.SupernodalSolver` whose symbolic
     analysis is done (its panels, row structures, assembly map and update pairs); the solver
     makes and uses it itself when the compiled loop is off.
 
@@ -125,8 +126,8 @@ class NumpyLoop:
     --------
     >>> import numpy as np
     >>> import scipy.sparse as sp
-    >>> from microlie.optim.cholesky import SupernodalSolver
-    >>> from microlie.optim.cholesky_numpy import NumpyLoop
+    >>> from microlie.optim.linalg.cholesky import SupernodalSolver
+    >>> from microlie.optim.linalg.cholesky_numpy import NumpyLoop
     >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
     >>> s = SupernodalSolver(compiled=False)
     >>> s.analyse(A.indptr, A.indices, 3)

@@ -90,7 +90,7 @@ def blas_threads_limit(blas_threads: int | None) -> contextlib.AbstractContextMa
     Examples
     --------
     >>> from threadpoolctl import threadpool_info
-    >>> from microlie.optim.threads import blas_threads_limit
+    >>> from microlie.optim.core.threads import blas_threads_limit
     >>> with blas_threads_limit(1):
     ...     {d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"}
     {1}
@@ -109,7 +109,7 @@ def limit_new_libraries() -> None:
 
     Examples
     --------
-    >>> from microlie.optim.threads import limit_new_libraries
+    >>> from microlie.optim.core.threads import limit_new_libraries
     >>> limit_new_libraries()  # outside a limit: nothing
     """
     if _ACTIVE:
@@ -135,7 +135,7 @@ def with_blas_threads(fn: Callable[P, R]) -> Callable[P, R]:
     Examples
     --------
     >>> from threadpoolctl import threadpool_info
-    >>> from microlie.optim.threads import with_blas_threads
+    >>> from microlie.optim.core.threads import with_blas_threads
     >>> @with_blas_threads
     ... def work(*, blas_threads=1):
     ...     return {d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"}

@@ -7,7 +7,7 @@ ids, the initial poses as one batch (``None`` when the file has no vertices), th
 fixed ids. Its :meth:`~PoseGraph.cost` is GTSAM's ``0.5 sum r^T Omega r`` with the edge
 residual ``r = (X_i^-1 X_j) (-) Z = Log(Z^-1 X_i^-1 X_j)``, over the file's edges only.
 
-The readers live in :mod:`microlie.optim.g2o` and :mod:`microlie.optim.toro`; both use the
+The readers live in :mod:`microlie.optim.io.g2o` and :mod:`microlie.optim.io.toro`; both use the
 parser here, which reports a malformed line as ``ValueError("FILE:LINE: ...")``.
 """
 
@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from .._textfile import digits_only, numbers_by_line, plain_error, read_text
-from ..groups import SE2, SE3, LieGroup
+from ..._textfile import digits_only, numbers_by_line, plain_error, read_text
+from ...groups import SE2, SE3, LieGroup
 
 __all__ = ["PoseGraph", "VertexTag", "EdgeTag", "parse_pose_graph", "symmetric_from_upper"]
 
@@ -57,7 +57,7 @@ class PoseGraph:
     --------
     >>> import numpy as np
     >>> from microlie import SE2
-    >>> from microlie.optim.pose_graph import PoseGraph
+    >>> from microlie.optim.io.pose_graph import PoseGraph
     >>> g = PoseGraph(SE2, ids=np.array([0, 1]), poses=SE2.from_xy_theta([0., 1.], [0., 0.], 0.),
     ...               i=np.array([0]), j=np.array([1]),
     ...               measurements=SE2.from_xy_theta([1.1], [0.], [0.]),
@@ -138,7 +138,7 @@ class PoseGraph:
         --------
         >>> import os, tempfile
         >>> import numpy as np
-        >>> from microlie.optim.g2o import read_g2o
+        >>> from microlie.optim.io.g2o import read_g2o
         >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
         >>> _ = open(path, "w").write(
         ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
@@ -165,7 +165,7 @@ class PoseGraph:
         --------
         >>> import os, tempfile
         >>> import numpy as np
-        >>> from microlie.optim.g2o import read_g2o
+        >>> from microlie.optim.io.g2o import read_g2o
         >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
         >>> _ = open(path, "w").write(
         ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
@@ -192,7 +192,7 @@ class PoseGraph:
         --------
         >>> import os, tempfile
         >>> import numpy as np
-        >>> from microlie.optim.g2o import read_g2o
+        >>> from microlie.optim.io.g2o import read_g2o
         >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
         >>> _ = open(path, "w").write(
         ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
@@ -222,7 +222,7 @@ class PoseGraph:
         --------
         >>> import os, tempfile
         >>> import numpy as np
-        >>> from microlie.optim.g2o import read_g2o
+        >>> from microlie.optim.io.g2o import read_g2o
         >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
         >>> _ = open(path, "w").write(
         ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
@@ -251,7 +251,7 @@ class PoseGraph:
         --------
         >>> import os, tempfile
         >>> import numpy as np
-        >>> from microlie.optim.g2o import read_g2o
+        >>> from microlie.optim.io.g2o import read_g2o
         >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
         >>> _ = open(path, "w").write(
         ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
@@ -296,7 +296,7 @@ class PoseGraph:
         --------
         >>> import os, tempfile
         >>> import numpy as np
-        >>> from microlie.optim.g2o import read_g2o
+        >>> from microlie.optim.io.g2o import read_g2o
         >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
         >>> _ = open(path, "w").write(
         ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
@@ -307,9 +307,9 @@ class PoseGraph:
         >>> np.round(res.values[x].translation()[:, 0], 9).tolist()
         [0.0, 1.0, 2.0]
         """
-        from .factors import BetweenFactor, PriorFactor
-        from .graph import FactorGraph
-        from .noise import Information, Isotropic
+        from ..core.factors import BetweenFactor, PriorFactor
+        from ..core.graph import FactorGraph
+        from ..core.noise import Information, Isotropic
 
         X = self._poses(poses)
         fg = FactorGraph()
@@ -354,7 +354,7 @@ def symmetric_from_upper(values: np.ndarray, d: int) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from microlie.optim.pose_graph import symmetric_from_upper
+    >>> from microlie.optim.io.pose_graph import symmetric_from_upper
     >>> symmetric_from_upper(np.array([[1.0, 2.0, 3.0]]), 2)[0].tolist()
     [[1.0, 2.0], [2.0, 3.0]]
     """
@@ -383,7 +383,7 @@ class VertexTag:
     --------
     >>> import numpy as np
     >>> from microlie import SE2
-    >>> from microlie.optim.pose_graph import VertexTag
+    >>> from microlie.optim.io.pose_graph import VertexTag
     >>> tag = VertexTag(SE2, 3, lambda v: SE2.from_xy_theta(v[:, 0], v[:, 1], v[:, 2]).params)
     >>> tag.to_params(np.array([[1.0, 2.0, 0.0]])).tolist()
     [[1.0, 2.0, 1.0, 0.0]]
@@ -415,7 +415,7 @@ class EdgeTag:
     --------
     >>> import numpy as np
     >>> from microlie import SE2
-    >>> from microlie.optim.pose_graph import EdgeTag, symmetric_from_upper
+    >>> from microlie.optim.io.pose_graph import EdgeTag, symmetric_from_upper
     >>> tag = EdgeTag(SE2, 3, 6, lambda z: SE2.from_xy_theta(z[:, 0], z[:, 1], z[:, 2]).params,
     ...               lambda w: symmetric_from_upper(w, 3))
     >>> tag.to_information(np.array([[1.0, 0, 0, 2.0, 0, 3.0]]))[0].diagonal().tolist()
@@ -471,14 +471,14 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
     --------
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
     ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
     >>> graph = read_g2o(path)
-    >>> from microlie.optim.g2o import EDGE_TAGS, VERTEX_TAGS
-    >>> from microlie.optim.pose_graph import parse_pose_graph
+    >>> from microlie.optim.io.g2o import EDGE_TAGS, VERTEX_TAGS
+    >>> from microlie.optim.io.pose_graph import parse_pose_graph
     >>> len(parse_pose_graph(path, VERTEX_TAGS, EDGE_TAGS, "FIX").ids)
     3
     """

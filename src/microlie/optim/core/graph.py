@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from ..linalg.linear import LinearSolver
 from .factors import Factor
-from .linear import LinearSolver
 from .problem import Problem
 from .solvers import Result, SolverOptions, solve
 from .threads import with_blas_threads
@@ -205,7 +205,8 @@ class FactorGraph:
             v.initial = np.asarray(values.params(v), dtype=np.float64).copy()
 
     def problem(self, gauge: str = "check") -> Problem:
-        """The least-squares :class:`~microlie.optim.problem.Problem` of the graph (built once and
+        """The least-squares :class:`~microlie.optim.core.problem.Problem` of the graph (built once
+        and
         cached until variables, factors or fixed flags change).
 
         Parameters
@@ -323,7 +324,7 @@ class FactorGraph:
             Print one line per iteration on stderr (default: when stderr is a terminal).
         blas_threads : int or None
             BLAS threads during the call (default 1: a multithreaded BLAS makes the solve
-            several times slower on a busy machine; :mod:`microlie.optim.threads`); ``None``
+            several times slower on a busy machine; :mod:`microlie.optim.core.threads`); ``None``
             keeps the user's setting (``OPENBLAS_NUM_THREADS``, threadpoolctl) or the library's
             default. The previous setting is restored on return.
         **options
@@ -463,7 +464,7 @@ class FactorGraph:
         >>> m.frame, m.cov.shape, round(float(m.cov[1, 0, 0]), 9)  # prior + one edge
         ('right', (3, 3, 3), 0.02)
         """
-        from ..uncertainty import Gaussian, VectorGaussian
+        from ...uncertainty import Gaussian, VectorGaussian
 
         ix = np.arange(variables.n) if idx is None else variables.indices(idx)
         prob, states, ls = self._factorized(values, linear_solver)
@@ -491,14 +492,14 @@ class FactorGraph:
 
 def from_pose_graph(pose_graph: Any, poses: Any = None, loss: Any = None
                     ) -> tuple[FactorGraph, Variables]:
-    r"""A :class:`FactorGraph` of a :class:`~microlie.optim.pose_graph.PoseGraph` with the first
+    r"""A :class:`FactorGraph` of a :class:`~microlie.optim.io.pose_graph.PoseGraph` with the first
     vertex held fixed (or the file's ``FIX`` vertices): ``pose_graph.to_factor_graph(poses,
     loss=loss, gauge="fix")``, so the cost is the file's edges only.
 
     Parameters
     ----------
     pose_graph : PoseGraph
-        From :func:`~microlie.optim.g2o.read_g2o` or :func:`~microlie.optim.toro.read_toro`.
+        From :func:`~microlie.optim.io.g2o.read_g2o` or :func:`~microlie.optim.io.toro.read_toro`.
     poses : LieGroup, optional
         Initial poses in ``pose_graph.ids`` order (default: the file's).
     loss : str or RobustLoss, optional
@@ -514,7 +515,7 @@ def from_pose_graph(pose_graph: Any, poses: Any = None, loss: Any = None
     --------
     >>> import os, tempfile
     >>> from microlie.optim import from_pose_graph
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\n"

@@ -527,7 +527,7 @@ class Problem:
         >>> p.analysed("scipy").n
         9
         """
-        from .linear import make_solver
+        from ..linalg.linear import make_solver
 
         ls = make_solver(linear_solver, self.size, self.block_size)
         if isinstance(linear_solver, str):

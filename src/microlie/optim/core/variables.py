@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..groups import LieGroup
+from ...groups import LieGroup
 
 __all__ = ["Variables", "Values", "element"]
 
@@ -30,7 +30,7 @@ def element(group: type[LieGroup], params: Any) -> LieGroup:
     Examples
     --------
     >>> from microlie import SO2
-    >>> from microlie.optim.variables import element
+    >>> from microlie.optim.core.variables import element
     >>> element(SO2, [[1.0, 0.0]]).batch_shape
     (1,)
     """

@@ -28,7 +28,7 @@ a norm off by more than 1 % is an error, as is every malformed line, reported as
 ``ValueError("FILE:LINE: ...")``).
 
 >>> import numpy as np, tempfile, os
->>> from microlie.optim.g2o import read_g2o, write_g2o
+>>> from microlie.optim.io.g2o import read_g2o, write_g2o
 >>> text = "VERTEX_SE2 0 0 0 0\\nVERTEX_SE2 1 1 0 0\\nEDGE_SE2 0 1 1.1 0 0 100 0 0 100 0 100\\n"
 >>> path = os.path.join(tempfile.mkdtemp(), "g.g2o")
 >>> _ = open(path, "w").write(text)
@@ -45,8 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._files import atomic_write
-from ..groups import SE2, SE3, LieGroup
+from ..._files import atomic_write
+from ...groups import SE2, SE3, LieGroup
 from .pose_graph import (
     EdgeTag,
     PoseGraph,
@@ -101,7 +101,7 @@ def read_g2o(path: str | Path) -> PoseGraph:
     --------
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
@@ -147,13 +147,13 @@ def write_g2o(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None)
     --------
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
     ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
     >>> graph = read_g2o(path)
-    >>> from microlie.optim.g2o import write_g2o
+    >>> from microlie.optim.io.g2o import write_g2o
     >>> out = os.path.join(os.path.dirname(path), "out.g2o")
     >>> write_g2o(out, graph)
     >>> bool(np.allclose(read_g2o(out).information, graph.information))

@@ -23,7 +23,7 @@ takes the matrix in its own rotation-first order instead, so on a TORO 3-D file 
 different translation and rotation weights its cost differs from ours.
 
 >>> import tempfile, os
->>> from microlie.optim.toro import read_toro
+>>> from microlie.optim.io.toro import read_toro
 >>> path = os.path.join(tempfile.mkdtemp(), "g.graph")
 >>> _ = open(path, "w").write("VERTEX2 0 0 0 0\\nVERTEX2 1 1 0 0\\n"
 ...                            "EDGE2 0 1 1 0 0 10 1 20 30 2 3\\n")
@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._files import atomic_write
-from ..groups import SE2, SE3, SO3, LieGroup
+from ..._files import atomic_write
+from ...groups import SE2, SE3, SO3, LieGroup
 from .g2o import _pose_values, _rows, _se2_params
 from .pose_graph import EdgeTag, PoseGraph, VertexTag, parse_pose_graph, symmetric_from_upper
 
@@ -87,13 +87,13 @@ def read_toro(path: str | Path) -> PoseGraph:
     --------
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
     ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
     >>> graph = read_g2o(path)
-    >>> from microlie.optim.toro import read_toro, write_toro
+    >>> from microlie.optim.io.toro import read_toro, write_toro
     >>> out = os.path.join(os.path.dirname(path), "out.graph")
     >>> write_toro(out, graph)
     >>> back = read_toro(out)
@@ -130,13 +130,13 @@ def write_toro(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None
     --------
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from microlie.optim.g2o import read_g2o
+    >>> from microlie.optim.io.g2o import read_g2o
     >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
     >>> _ = open(path, "w").write(
     ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
     ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
     >>> graph = read_g2o(path)
-    >>> from microlie.optim.toro import write_toro
+    >>> from microlie.optim.io.toro import write_toro
     >>> out = os.path.join(os.path.dirname(path), "out.graph")
     >>> write_toro(out, graph)
     >>> open(out).readline().split()[0]

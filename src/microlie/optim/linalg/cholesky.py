@@ -4,7 +4,7 @@ optional compiled extension).
 Our normal equations have dense ``d x d`` blocks (3 for SE2, 6 for SE3), so the symbolic
 analysis works on the block graph (36 times smaller than the scalar one): a minimum-degree
 order of the block graph, its elimination tree and column counts computed from the pattern
-(:func:`microlie.optim.ordering.symbolic`), fundamental supernodes merged by relaxed
+(:func:`microlie.optim.linalg.ordering.symbolic`), fundamental supernodes merged by relaxed
 amalgamation (as CHOLMOD does), the supernodes' row structures (each the union of its columns'
 rows and its children's), and, vectorised over all supernodes, the scatter maps of the numeric
 phase.
@@ -18,7 +18,8 @@ diagonal block, ``trsm`` for the rows below, ``syrk`` for the update ``W = L21 L
 subtract ``W`` from the panels of its ancestors through precomputed relative row indices.
 With ``microlie-fast`` installed (``pip install "microlie[fast]"``) the whole loop is one C call
 on SciPy's own BLAS/LAPACK (``microlie_fast._chol``); without it (or with ``MICROLIE_FAST=0``)
-the NumPy loop of :mod:`microlie.optim.cholesky_numpy` runs a few batched steps per level of the
+the NumPy loop of :mod:`microlie.optim.linalg.cholesky_numpy` runs a few batched steps per level of
+the
 supernodal elimination tree (its own layout of the same factor). Both
 compute the same factor (to rounding)."""
 
@@ -28,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from .._fast import compiled as compiled_module
+from ..._fast import compiled as compiled_module
 from .cholesky_numpy import NOT_PD as _NOT_PD
 from .cholesky_numpy import NumpyLoop
 from .linear import LinearSolver, SingularSystemError
@@ -54,7 +55,7 @@ class SupernodalSolver(LinearSolver):
     --------
     >>> import numpy as np
     >>> import scipy.sparse as sp
-    >>> from microlie.optim.cholesky import SupernodalSolver
+    >>> from microlie.optim.linalg.cholesky import SupernodalSolver
     >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
     >>> s = SupernodalSolver()
     >>> s.analyse(A.indptr, A.indices, 3)
@@ -69,7 +70,7 @@ class SupernodalSolver(LinearSolver):
         """``compiled``: use the C loop (``True``: it must be installed), the NumPy loop
         (``False``), or the C loop when installed (``None``, the default). ``ordering``: the
         fill-reducing order of the block graph, ``"mmd"`` (minimum degree) or ``"auto"`` (the
-        same; see :func:`microlie.optim.ordering.fill_order`)."""
+        same; see :func:`microlie.optim.linalg.ordering.fill_order`)."""
         if ordering not in ORDERINGS:
             raise ValueError(f"unknown ordering {ordering!r}: expected one of {ORDERINGS}")
         self.ordering = ordering

@@ -19,7 +19,7 @@ A star: its hub last gives no fill.
 
 >>> import numpy as np
 >>> import scipy.sparse as sp
->>> from microlie.optim.ordering import fill_order
+>>> from microlie.optim.linalg.ordering import fill_order
 >>> star = sp.csr_matrix((np.ones(8), ([0, 0, 0, 0, 1, 2, 3, 4], [1, 2, 3, 4, 0, 0, 0, 0])))
 >>> s = fill_order(star)
 >>> int(s.perm[-1]), s.counts.tolist()
@@ -64,7 +64,7 @@ def graph(indptr: np.ndarray, indices: np.ndarray, n: int, block_size: int = 1) 
     --------
     >>> import numpy as np
     >>> import scipy.sparse as sp
-    >>> from microlie.optim.ordering import graph
+    >>> from microlie.optim.linalg.ordering import graph
     >>> H = sp.csc_matrix(np.kron(np.array([[1, 1, 0], [1, 1, 1], [0, 1, 1]]), np.ones((2, 2))))
     >>> graph(H.indptr, H.indices, 6, 2).toarray().astype(int).tolist()
     [[0, 1, 0], [1, 0, 1], [0, 1, 0]]
@@ -115,7 +115,7 @@ def minimum_degree(A: Any) -> np.ndarray:
     --------
     >>> import numpy as np
     >>> import scipy.sparse as sp
-    >>> from microlie.optim.ordering import minimum_degree
+    >>> from microlie.optim.linalg.ordering import minimum_degree
     >>> star = sp.csr_matrix((np.ones(8), ([0, 0, 0, 0, 1, 2, 3, 4], [1, 2, 3, 4, 0, 0, 0, 0])))
     >>> int(minimum_degree(star)[-1])  # the hub last: no fill
     0
@@ -162,7 +162,7 @@ class Symbolic:
     --------
     >>> import numpy as np
     >>> import scipy.sparse as sp
-    >>> from microlie.optim.ordering import symbolic
+    >>> from microlie.optim.linalg.ordering import symbolic
     >>> path = sp.diags([np.ones(3), np.ones(3)], [-1, 1], shape=(4, 4))
     >>> s = symbolic(path, np.arange(4))
     >>> s.counts.tolist(), s.nnz, s.flops, s.height, s.parent.tolist()
@@ -202,7 +202,7 @@ def symbolic(A: Any, perm: np.ndarray) -> Symbolic:
     --------
     >>> import numpy as np
     >>> import scipy.sparse as sp
-    >>> from microlie.optim.ordering import symbolic
+    >>> from microlie.optim.linalg.ordering import symbolic
     >>> star = sp.csr_matrix((np.ones(6), ([0, 0, 0, 1, 2, 3], [1, 2, 3, 0, 0, 0])))
     >>> symbolic(star, [0, 1, 2, 3]).nnz, symbolic(star, [1, 2, 3, 0]).nnz  # hub first fills
     (10, 7)
@@ -356,7 +356,7 @@ def fill_order(A: Any, method: str = "auto") -> Symbolic:
     --------
     >>> import numpy as np
     >>> import scipy.sparse as sp
-    >>> from microlie.optim.ordering import fill_order
+    >>> from microlie.optim.linalg.ordering import fill_order
     >>> P = sp.diags([np.ones(5), np.ones(5)], [-1, 1], shape=(6, 6))
     >>> s = fill_order(P)
     >>> s.nnz, s.height <= 6

@@ -4,11 +4,11 @@
 A batch of SE(3) or SE(2) :class:`~microlie.optim.BetweenFactor` edges is linearised in one pass of
 ``microlie_fast._graph``: residuals, right Jacobians, whitening, the robust correction, the block
 products ``A^T A`` and ``A^T e``, added straight into the CSC values of the problem's fixed
-pattern. The NumPy path of :class:`~microlie.optim.problem.Problem` stays the reference and the
+pattern. The NumPy path of :class:`~microlie.optim.core.problem.Problem` stays the reference and the
 fallback; both give the same linear system to rounding (``tests/test_optim_compiled.py``).
 ``MICROLIE_FAST=0`` (read when a problem is built) keeps the NumPy path.
 
->>> from microlie.optim.compiled import available
+>>> from microlie.optim.core.compiled import available
 >>> isinstance(available(), bool)
 True
 """
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from .._fast import compiled as compiled_module
+from ..._fast import compiled as compiled_module
 from .factors import BetweenFactor, Factor
 
 __all__ = ["available", "EdgePlan", "plan"]
@@ -43,7 +43,7 @@ def available() -> bool:
 
     Examples
     --------
-    >>> from microlie.optim.compiled import available
+    >>> from microlie.optim.core.compiled import available
     >>> available() in (True, False)
     True
     """
@@ -75,7 +75,7 @@ class EdgePlan:
     --------
     >>> from microlie import SE3
     >>> from microlie.optim import FactorGraph, BetweenFactor
-    >>> from microlie.optim.compiled import plan
+    >>> from microlie.optim.core.compiled import plan
     >>> g = FactorGraph()
     >>> x = g.add_variables(SE3.identity(2), fixed=[0])
     >>> _ = g.add(BetweenFactor(x, 0, 1, SE3.exp([1.0, 0, 0, 0, 0, 0.3])))
@@ -110,7 +110,7 @@ class EdgePlan:
         --------
         >>> from microlie import SE3
         >>> from microlie.optim import FactorGraph, BetweenFactor
-        >>> from microlie.optim.compiled import plan
+        >>> from microlie.optim.core.compiled import plan
         >>> g = FactorGraph()
         >>> x = g.add_variables(SE3.identity(2), fixed=[0])
         >>> _ = g.add(BetweenFactor(x, 0, 1, SE3.exp([1.0, 0, 0, 0, 0, 0.0])))
@@ -148,7 +148,7 @@ class EdgePlan:
         >>> import numpy as np
         >>> from microlie import SE3
         >>> from microlie.optim import FactorGraph, BetweenFactor
-        >>> from microlie.optim.compiled import plan
+        >>> from microlie.optim.core.compiled import plan
         >>> g = FactorGraph()
         >>> x = g.add_variables(SE3.identity(2), fixed=[0])
         >>> _ = g.add(BetweenFactor(x, 0, 1, SE3.exp([1.0, 0, 0, 0, 0, 0.0])))
@@ -190,7 +190,7 @@ def plan(problem: Any, f: Factor) -> EdgePlan | None:
     --------
     >>> from microlie import SE2
     >>> from microlie.optim import FactorGraph, PriorFactor
-    >>> from microlie.optim.compiled import plan
+    >>> from microlie.optim.core.compiled import plan
     >>> g = FactorGraph()
     >>> x = g.add_variables(SE2.identity(1))
     >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))

@@ -17,7 +17,7 @@ that iteration counts compare with Ceres': Jacobi scaling of the columns by
 ``max_iter`` tries (accepted plus rejected, Ceres' ``iterations``).
 
 The stops are Ceres', their meaning stricter (``BundleResult.termination``, as
-:class:`~microlie.optim.solvers.Result`'s): ``"convergence"`` for the gradient test, and for
+:class:`~microlie.optim.core.solvers.Result`'s): ``"convergence"`` for the gradient test, and for
 the function and parameter tests and the radius floor when the candidate decreased the cost,
 was the first try from the current point, or the first try's model predicted a decrease
 within ``function_tolerance``; otherwise ``"failure"`` (the steps of a shrinking radius change
@@ -29,7 +29,7 @@ The gauge (7 degrees of freedom for BAL: rotation, translation, scale) is left f
 with it 6 of the 7), ``fix_points`` holds points.
 
 >>> import numpy as np
->>> from microlie.optim.bundle import bundle_adjust, synthetic_scene
+>>> from microlie.optim.sfm.bundle import bundle_adjust, synthetic_scene
 >>> truth, start = synthetic_scene(n_cameras=3, n_points=40, noise=0.0, seed=1)
 >>> result = bundle_adjust(start, fix_cameras=[0])
 >>> result.converged, result.final_cost < 1e-12
@@ -46,11 +46,11 @@ from typing import Any
 
 import numpy as np
 
-from .._files import save_figure
-from .bal import BALProblem
+from ..._files import save_figure
+from ..core.threads import with_blas_threads
+from ..io.bal import BALProblem
+from ..linalg.schur import LinearSolverKind, NormalEquations, SchurStructure
 from .camera import BALCamera, CameraModel, PinholeCamera, reproject
-from .schur import LinearSolverKind, NormalEquations, SchurStructure
-from .threads import with_blas_threads
 
 __all__ = ["BundleProblem", "BundleResult", "BundleIteration", "bundle_adjust", "synthetic_scene",
            "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec", "camera_model"]
@@ -72,12 +72,12 @@ def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from microlie.optim.bundle import matrix_to_rotvec, rotvec_to_matrix
+    >>> from microlie.optim.sfm.bundle import matrix_to_rotvec, rotvec_to_matrix
     >>> w = np.array([[0.1, 0.2, 0.3]])
     >>> bool(np.allclose(matrix_to_rotvec(rotvec_to_matrix(w)), w))
     True
     """
-    from ..groups import SO3
+    from ...groups import SO3
 
     return np.asarray(SO3.exp(np.asarray(w, dtype=float)).matrix())
 
@@ -98,12 +98,12 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from microlie.optim.bundle import matrix_to_rotvec
+    >>> from microlie.optim.sfm.bundle import matrix_to_rotvec
     >>> Rz = np.array([[[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]])
     >>> bool(np.allclose(matrix_to_rotvec(Rz), [[0, 0, np.pi / 2]]))
     True
     """
-    from ..groups import SO3
+    from ...groups import SO3
 
     return np.asarray(SO3.from_matrix(np.asarray(R), normalize=True).log())
 
@@ -122,7 +122,7 @@ def camera_model(spec: str | CameraModel) -> CameraModel:
 
     Examples
     --------
-    >>> from microlie.optim.bundle import camera_model
+    >>> from microlie.optim.sfm.bundle import camera_model
     >>> type(camera_model("pinhole-radtan")).__name__, camera_model("pinhole-radtan").n_intrinsics
     ('PinholeCamera', 8)
     """
@@ -314,7 +314,7 @@ class BundleProblem:
         >>> problem.poses().batch_shape
         (2,)
         """
-        from ..groups import SE3, SO3
+        from ...groups import SE3, SO3
 
         q = np.asarray(SO3.from_matrix(self.rotations, normalize=True).params)
         return SE3(np.concatenate([self.translations, q], axis=1))
@@ -326,7 +326,7 @@ class BundleProblem:
         ----------
         behind : {"evaluate", "drop"}
             Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
-            :mod:`microlie.optim.camera`.
+            :mod:`microlie.optim.sfm.camera`.
 
         Returns
         -------
@@ -358,7 +358,7 @@ class BundleProblem:
         ----------
         behind : {"evaluate", "drop"}
             Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
-            :mod:`microlie.optim.camera`.
+            :mod:`microlie.optim.sfm.camera`.
 
         Returns
         -------
@@ -410,7 +410,7 @@ class BundleProblem:
         >>> np.round(moved.points - problem.points, 12)[0].tolist()
         [1.0, 1.0, 1.0]
         """
-        from ..groups import SO3
+        from ...groups import SO3
 
         dR = np.asarray(SO3.exp(dc[:, 3:6]).matrix())
         return replace(self, rotations=self.rotations @ dR,
@@ -439,7 +439,7 @@ class BundleIteration:
 
     Examples
     --------
-    >>> from microlie.optim.bundle import bundle_adjust, synthetic_scene
+    >>> from microlie.optim.sfm.bundle import bundle_adjust, synthetic_scene
     >>> truth, start = synthetic_scene(3, 20, seed=1)
     >>> rec = bundle_adjust(start, fix_cameras=[0]).history[0]
     >>> rec.iteration, isinstance(rec.accepted, bool)
@@ -456,7 +456,8 @@ class BundleIteration:
 
 @dataclass
 class BundleResult:
-    """Outcome of :func:`bundle_adjust`, with the fields of :class:`microlie.optim.solvers.Result`.
+    """Outcome of :func:`bundle_adjust`, with the fields of
+    :class:`microlie.optim.core.solvers.Result`.
 
     Attributes
     ----------
@@ -474,7 +475,7 @@ class BundleResult:
         ``termination == "convergence"``, with the reason in ``message``.
     message : str
     termination : {"convergence", "no_convergence", "failure"}
-        See :class:`microlie.optim.solvers.Result` and the module docstring.
+        See :class:`microlie.optim.core.solvers.Result` and the module docstring.
     time_s : float
         Wall time, seconds; ``timings`` its breakdown.
     history : list of BundleIteration
@@ -633,7 +634,7 @@ class BundleResult:
         cov = np.zeros((len(idx), len(idx)))
         sel = keep[idx]
         if _issparse(S):
-            from .linear import SingularSystemError, make_solver
+            from ..linalg.linear import SingularSystemError, make_solver
 
             solver = make_solver("auto", n)
             E = np.zeros((n, int(sel.sum())))
@@ -697,7 +698,7 @@ class BundleResult:
         >>> g.frame, g.cov.shape
         ('right', (6, 6))
         """
-        from ..uncertainty import Gaussian
+        from ...uncertainty import Gaussian
 
         covs = self.camera_covariance(cameras)
         poses = self.problem.poses()
@@ -784,11 +785,11 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
     problem : BundleProblem or BALProblem
         The starting point.
     robust : str or RobustLoss, optional
-        A loss of :mod:`microlie.optim.robust` or a spec such as ``"huber:1.0"`` (scale in
+        A loss of :mod:`microlie.optim.core.robust` or a spec such as ``"huber:1.0"`` (scale in
         pixels) applied to each observation's squared residual norm.
     behind : {"evaluate", "drop"}
         Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
-        :mod:`microlie.optim.camera`.
+        :mod:`microlie.optim.sfm.camera`.
     fix_cameras : sequence of int, optional
         Cameras whose *pose* is held (the gauge: one camera holds 6 of BAL's 7 degrees of
         freedom; the scale stays free and the damping handles it).
@@ -809,7 +810,8 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
     verbose : bool
         One line per iteration on stderr.
     blas_threads : int or None
-        BLAS threads during the call (default 1, as Ceres' default; :mod:`microlie.optim.threads`);
+        BLAS threads during the call (default 1, as Ceres' default;
+        :mod:`microlie.optim.core.threads`);
         ``None`` keeps the user's setting or the library's default. Restored on return.
 
     Returns
@@ -839,7 +841,7 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
         problem = BundleProblem.from_bal(problem)
     loss = None
     if robust is not None:
-        from .robust import make_loss
+        from ..core.robust import make_loss
 
         loss = make_loss(robust)
     if max_iter < 0:
@@ -891,7 +893,7 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
         assert Jc is not None and Jp is not None
         s = (r * r).sum(1)
         if loss is not None:
-            from .robust import corrected_weights
+            from ..core.robust import corrected_weights
 
             rho, rscale, aos = corrected_weights(loss, s)
             cost = 0.5 * float(rho.sum())
@@ -1087,7 +1089,7 @@ def synthetic_scene(n_cameras: int = 5, n_points: int = 100, *, noise: float = 0
 
     Examples
     --------
-    >>> from microlie.optim.bundle import synthetic_scene
+    >>> from microlie.optim.sfm.bundle import synthetic_scene
     >>> truth, start = synthetic_scene(4, 30, noise=0.0)
     >>> truth.observations.shape, round(truth.cost(), 9), start.cost() > 0
     ((120, 2), 0.0, True)
@@ -1122,7 +1124,7 @@ def synthetic_scene(n_cameras: int = 5, n_points: int = 100, *, noise: float = 0
     clean = reproject(mdl, R, t, K, X, cam, pt, np.zeros((len(cam), 2)), jac=False).residuals
     obs = clean + noise * rng.standard_normal(clean.shape)
     truth = BundleProblem(R, t, K, X, cam, pt, obs, mdl)
-    from ..groups import SO3
+    from ...groups import SO3
 
     dR = np.asarray(SO3.exp(perturb * rng.standard_normal((n_cameras, 3))).matrix())
     start = replace(truth, rotations=R @ dR,

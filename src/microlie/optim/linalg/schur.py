@@ -32,7 +32,7 @@ import numpy as np
 import scipy.linalg as sla  # type: ignore[import-untyped]
 import scipy.sparse as sp  # type: ignore[import-untyped]
 
-from .._fast import compiled as compiled_module
+from ..._fast import compiled as compiled_module
 
 __all__ = ["SchurStructure", "NormalEquations", "LinearSolverKind", "LINEAR_SOLVERS"]
 
@@ -73,7 +73,7 @@ class SchurStructure:
     Examples
     --------
     >>> import numpy as np
-    >>> from microlie.optim.schur import NormalEquations, SchurStructure
+    >>> from microlie.optim.linalg.schur import NormalEquations, SchurStructure
     >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
     >>> s = SchurStructure(cam, pt, 2, 3, 9)
     >>> s.sparse_reduced()  # 18 camera unknowns: dense
@@ -147,7 +147,7 @@ class SchurStructure:
         Examples
         --------
         >>> import numpy as np
-        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> from microlie.optim.linalg.schur import NormalEquations, SchurStructure
         >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
         >>> s = SchurStructure(cam, pt, 2, 3, 9)
         >>> s.sparse_reduced("auto"), s.sparse_reduced("sparse")
@@ -177,7 +177,7 @@ class SchurStructure:
         Examples
         --------
         >>> import numpy as np
-        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> from microlie.optim.linalg.schur import NormalEquations, SchurStructure
         >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
         >>> s = SchurStructure(cam, pt, 2, 3, 9)
         >>> b = s.buffer("tmp", (2, 3))
@@ -206,7 +206,7 @@ class SchurStructure:
         Examples
         --------
         >>> import numpy as np
-        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> from microlie.optim.linalg.schur import NormalEquations, SchurStructure
         >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
         >>> s = SchurStructure(cam, pt, 2, 3, 9)
         >>> s.point_sum(np.ones((6, 2))).tolist()  # every point is seen twice
@@ -233,7 +233,7 @@ class SchurStructure:
         Examples
         --------
         >>> import numpy as np
-        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> from microlie.optim.linalg.schur import NormalEquations, SchurStructure
         >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
         >>> s = SchurStructure(cam, pt, 2, 3, 9)
         >>> s.camera_jacobian_csr(np.ones((6, 2, 9))).shape
@@ -292,7 +292,7 @@ class NormalEquations:
     Examples
     --------
     >>> import numpy as np
-    >>> from microlie.optim.schur import NormalEquations, SchurStructure
+    >>> from microlie.optim.linalg.schur import NormalEquations, SchurStructure
     >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
     >>> s = SchurStructure(cam, pt, 2, 3, 9)
     >>> rng = np.random.default_rng(0)
@@ -381,7 +381,7 @@ class NormalEquations:
         Examples
         --------
         >>> import numpy as np
-        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> from microlie.optim.linalg.schur import NormalEquations, SchurStructure
         >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
         >>> s = SchurStructure(cam, pt, 2, 3, 9)
         >>> rng = np.random.default_rng(0)
@@ -428,7 +428,7 @@ class NormalEquations:
         Examples
         --------
         >>> import numpy as np
-        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> from microlie.optim.linalg.schur import NormalEquations, SchurStructure
         >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
         >>> s = SchurStructure(cam, pt, 2, 3, 9)
         >>> rng = np.random.default_rng(0)
@@ -517,7 +517,7 @@ class NormalEquations:
         Examples
         --------
         >>> import numpy as np
-        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> from microlie.optim.linalg.schur import NormalEquations, SchurStructure
         >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
         >>> s = SchurStructure(cam, pt, 2, 3, 9)
         >>> rng = np.random.default_rng(0)
@@ -688,7 +688,7 @@ class NormalEquations:
         Examples
         --------
         >>> import numpy as np
-        >>> from microlie.optim.schur import NormalEquations, SchurStructure
+        >>> from microlie.optim.linalg.schur import NormalEquations, SchurStructure
         >>> cam, pt = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)  # 2 cameras see 3 points
         >>> s = SchurStructure(cam, pt, 2, 3, 9)
         >>> rng = np.random.default_rng(0)

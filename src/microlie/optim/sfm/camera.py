@@ -27,7 +27,7 @@ infinite residual under ``"evaluate"`` (a solver rejects such a step). The two o
 have different optima (13344.3184 and 13308.4836): compare solvers within one convention only.
 
 >>> import numpy as np
->>> from microlie.optim.camera import BALCamera, reproject
+>>> from microlie.optim.sfm.camera import BALCamera, reproject
 >>> R = np.eye(3)[None]; t = np.array([[0.0, 0.0, -5.0]]); K = np.array([[500.0, 0.0, 0.0]])
 >>> X = np.array([[0.1, -0.2, 0.0]])
 >>> r = reproject(BALCamera(), R, t, K, X, np.array([0]), np.array([0]), np.zeros((1, 2)))
@@ -57,7 +57,7 @@ class CameraModel:
 
     Examples
     --------
-    >>> from microlie.optim.camera import BALCamera, CameraModel, PinholeCamera
+    >>> from microlie.optim.sfm.camera import BALCamera, CameraModel, PinholeCamera
     >>> [isinstance(m, CameraModel) for m in (BALCamera(), PinholeCamera())]
     [True, True]
     """
@@ -422,7 +422,7 @@ class Reprojection:
     Examples
     --------
     >>> import numpy as np
-    >>> from microlie.optim.camera import BALCamera, reproject, transform_points
+    >>> from microlie.optim.sfm.camera import BALCamera, reproject, transform_points
     >>> R, t = np.eye(3)[None], np.array([[0.0, 0.0, -5.0]])
     >>> K, X = np.array([[500.0, 0.0, 0.0]]), np.array([[0.1, 0.2, 0.0], [0.0, 0.0, 1.0]])
     >>> cam, pt = np.array([0, 0]), np.array([0, 1])
@@ -460,7 +460,7 @@ def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray, cam: np.ndarra
     Examples
     --------
     >>> import numpy as np
-    >>> from microlie.optim.camera import BALCamera, reproject, transform_points
+    >>> from microlie.optim.sfm.camera import BALCamera, reproject, transform_points
     >>> R, t = np.eye(3)[None], np.array([[0.0, 0.0, -5.0]])
     >>> K, X = np.array([[500.0, 0.0, 0.0]]), np.array([[0.1, 0.2, 0.0], [0.0, 0.0, 1.0]])
     >>> cam, pt = np.array([0, 0]), np.array([0, 1])
@@ -510,7 +510,7 @@ def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X
     Examples
     --------
     >>> import numpy as np
-    >>> from microlie.optim.camera import BALCamera, reproject, transform_points
+    >>> from microlie.optim.sfm.camera import BALCamera, reproject, transform_points
     >>> R, t = np.eye(3)[None], np.array([[0.0, 0.0, -5.0]])
     >>> K, X = np.array([[500.0, 0.0, 0.0]]), np.array([[0.1, 0.2, 0.0], [0.0, 0.0, 1.0]])
     >>> cam, pt = np.array([0, 0]), np.array([0, 1])

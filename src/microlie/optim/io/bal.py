@@ -6,7 +6,7 @@ Format (Agarwal et al., ECCV 2010): a header ``n_cameras n_points n_observations
 coordinates, one per line (as BAL's files and :func:`write_bal` have them) or one camera (9)
 and one point (3) per line. The file is UTF-8 (a byte order mark is dropped). The camera maps
 a world point to its frame with ``P = R X + t`` and looks down ``-z`` (see
-:mod:`microlie.optim.camera`).
+:mod:`microlie.optim.sfm.camera`).
 
 Malformed files raise ``ValueError`` naming ``file:line``: a byte that is not UTF-8, truncated
 files, counts that do not match, wrong field counts on any line, non-numeric or non-finite
@@ -33,8 +33,8 @@ from typing import IO
 
 import numpy as np
 
-from .._files import atomic_write
-from .._textfile import decode, digits_only, numbers_by_line, plain_error
+from ..._files import atomic_write
+from ..._textfile import decode, digits_only, numbers_by_line, plain_error
 
 __all__ = ["BALProblem", "read_bal", "write_bal"]
 
@@ -97,7 +97,7 @@ class BALProblem:
         ----------
         behind : {"evaluate", "drop"}
             Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
-            :mod:`microlie.optim.camera`.
+            :mod:`microlie.optim.sfm.camera`.
 
         Returns
         -------
@@ -117,8 +117,8 @@ class BALProblem:
         >>> float(np.abs(bal.residuals()).max())
         0.0
         """
-        from .bundle import rotvec_to_matrix
-        from .camera import BALCamera, reproject
+        from ..sfm.bundle import rotvec_to_matrix
+        from ..sfm.camera import BALCamera, reproject
 
         R = rotvec_to_matrix(self.cameras[:, :3])
         return reproject(BALCamera(), R, self.cameras[:, 3:6], self.cameras[:, 6:9],
@@ -132,7 +132,7 @@ class BALProblem:
         ----------
         behind : {"evaluate", "drop"}
             Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
-            :mod:`microlie.optim.camera`.
+            :mod:`microlie.optim.sfm.camera`.
 
         Returns
         -------

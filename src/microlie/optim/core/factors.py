@@ -20,7 +20,7 @@ from typing import Any, final
 
 import numpy as np
 
-from .. import _autodiff
+from ... import _autodiff
 from .noise import NoiseModel, as_noise
 from .robust import RobustLoss, make_loss
 from .variables import Values, Variables, element

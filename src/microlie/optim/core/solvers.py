@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from .linear import LinearSolver, SingularSystemError
+from ..linalg.linear import LinearSolver, SingularSystemError
 from .problem import NonFiniteError, Problem
 from .variables import Values
 
@@ -175,7 +175,7 @@ class SolverOptions:
 
     Examples
     --------
-    >>> from microlie.optim.solvers import SolverOptions
+    >>> from microlie.optim.core.solvers import SolverOptions
     >>> SolverOptions(solver="gn").lambda_initial
     1e-05
     """
@@ -253,7 +253,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
     >>> x = g.add_variables(SE2.identity(3))
     >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
     >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
-    >>> from microlie.optim.solvers import SolverOptions, solve
+    >>> from microlie.optim.core.solvers import SolverOptions, solve
     >>> p = g.problem()
     >>> res = solve(p, [v.initial for v in p.variables], SolverOptions(solver="gn"))
     >>> res.converged, round(res.final_cost, 12)

@@ -12,7 +12,8 @@ the shared benchmark pose graphs without a gauge; the smallest genuine one there
 2.8e-8, ais2klinik).
 
 Backends (``make_solver(name)``): ``"supernodal"`` (our supernodal multifrontal Cholesky on the
-block pattern, NumPy and LAPACK only, :mod:`microlie.optim.cholesky`), ``"scipy"`` (SuperLU with
+block pattern, NumPy and LAPACK only, :mod:`microlie.optim.linalg.cholesky`), ``"scipy"`` (SuperLU
+with
 a symmetric minimum-degree order), ``"qdldl"`` (``pip install microlie[sparse]``, Apache-2.0),
 ``"pardiso"`` (Intel MKL PARDISO through pypardiso, ``pip install microlie[mkl]``), ``"dense"``
 (LAPACK Cholesky of the dense matrix, for small problems). ``"auto"`` chooses by problem
@@ -28,8 +29,8 @@ import numpy as np
 import scipy.linalg as sla  # type: ignore[import-untyped]
 import scipy.sparse as sp  # type: ignore[import-untyped]
 
+from ..core.threads import limit_new_libraries
 from .ordering import graph, minimum_degree, splu_symmetric
-from .threads import limit_new_libraries
 
 __all__ = ["LinearSolver", "SingularSystemError", "make_solver", "available_solvers",
            "SOLVERS", "PIVOT_TOL"]
@@ -51,7 +52,7 @@ class SingularSystemError(ValueError):
 
     Examples
     --------
-    >>> from microlie.optim.linear import SingularSystemError
+    >>> from microlie.optim.linalg.linear import SingularSystemError
     >>> SingularSystemError("singular", unknown=4).unknown
     4
     """

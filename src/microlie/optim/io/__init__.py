@@ -1,0 +1,1 @@
+"""Pose-graph and bundle-adjustment files: g2o, TORO and BAL."""

@@ -1,0 +1,1 @@
+"""Structure from motion: camera models, reprojection and bundle adjustment."""
