@@ -10,13 +10,16 @@ your own with analytic Jacobians is a :class:`Factor` subclass implementing
 ``residual(*values, jac=False)``, checked with ``check_jacobians(factor)``; noise models are
 ``Information``, ``SqrtInformation``, ``Covariance``, ``Diagonal``, ``Isotropic``; robust losses
 (``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
-``DCS``, ``Barron``, applied as in Ceres. ``result = g.optimize(solver="lm"|"gn"|"dogleg",
-linear_solver="auto"|"supernodal"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
-:class:`Result` with ``values`` (``result.values[poses]`` is the optimised batch),
-``initial_cost``, ``final_cost`` (``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``,
-``converged``, ``message``, ``history`` and ``time_s``; a graph without a prior or a fixed
-variable is a ``GaugeError`` unless ``gauge="fix_first"``. ``g.marginals(result.values, poses,
-idx)`` gives :class:`~microlie.Gaussian` marginals in the right-perturbation frame.
+``DCS``, ``Barron``, applied as in Ceres.
+``result = g.optimize(solver="lm"|"gn"|"dogleg"|"trust-region", linear_solver="auto"|
+"supernodal"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a :class:`Result` with ``values``
+(``result.values[poses]`` is the optimised batch), ``initial_cost``, ``final_cost``
+(``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``, ``converged``, ``message``,
+``history`` and ``time_s``; ``solver`` also takes a strategy object with its options
+(``LevenbergMarquardt(...)``, GTSAM's rules; ``GaussNewton()``; ``Dogleg(...)``;
+``TrustRegion(...)``, Levenberg-Marquardt with Ceres' rules); a graph without a prior or a
+fixed variable is a ``GaugeError`` unless ``gauge="fix_first"``. ``g.marginals(result.values,
+poses, idx)`` gives :class:`~microlie.Gaussian` marginals in the right-perturbation frame.
 Conventions: every variable is perturbed on the right (``X Exp(delta)``), every Jacobian is a
 right Jacobian, tangents are translation first.
 
@@ -47,6 +50,8 @@ _LAZY = {
     "core.robust": ("DCS", "Barron", "Cauchy", "GemanMcClure", "Huber", "RobustLoss", "Tukey",
                "make_loss"),
     "core.solvers": ("IterationRecord", "Result"),
+    "core.strategies": ("Dogleg", "GaussNewton", "LevenbergMarquardt", "Strategy",
+                        "TrustRegion"),
     "io.toro": ("read_toro", "write_toro"),
     "core.variables": ("Values", "Variables"),
 }
@@ -88,6 +93,7 @@ if TYPE_CHECKING:
     from .core.problem import GaugeError, NonFiniteError, Problem
     from .core.robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
     from .core.solvers import IterationRecord, Result
+    from .core.strategies import Dogleg, GaussNewton, LevenbergMarquardt, Strategy, TrustRegion
     from .core.variables import Values, Variables
     from .io.bal import BALProblem, read_bal, write_bal
     from .io.g2o import read_g2o, write_g2o
@@ -102,6 +108,7 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "Information", "SqrtInformation",
            "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
+           "Strategy", "LevenbergMarquardt", "GaussNewton", "Dogleg", "TrustRegion",
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
            "available_solvers",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",

@@ -10,7 +10,8 @@ import numpy as np
 from ..linalg.linear import LinearSolver
 from .factors import Factor
 from .problem import Problem
-from .solvers import Result, SolverOptions, solve
+from .solvers import Result, solve
+from .strategies import Strategy, make_strategy
 from .threads import with_blas_threads
 from .variables import Values, Variables
 
@@ -295,10 +296,11 @@ class FactorGraph:
 
     # ------------------------------------------------------------------ solving
     @with_blas_threads
-    def optimize(self, values: Values | None = None, *, solver: str = "lm",
+    def optimize(self, values: Values | None = None, *, solver: str | Strategy = "lm",
                  linear_solver: str | LinearSolver = "auto", max_iter: int = 100,
-                 rel_tol: float = 1e-5, abs_tol: float = 1e-5, cost_tol: float = 0.0,
-                 step_tol: float = 0.0, gauge: str = "check", verbose: bool | None = None,
+                 rel_tol: float | None = None, abs_tol: float | None = None,
+                 cost_tol: float | None = None, step_tol: float | None = None,
+                 gauge: str = "check", verbose: bool | None = None,
                  blas_threads: int | None = 1, **options: Any) -> Result:
         """Minimise the robust cost from ``values``.
 
@@ -306,30 +308,39 @@ class FactorGraph:
         ----------
         values : Values, optional
             The starting point (the initial values if ``None``).
-        solver : {"lm", "gn", "dogleg"}
-            Levenberg-Marquardt (default), Gauss-Newton or Powell's dogleg.
+        solver : str or Strategy
+            The strategy (:mod:`microlie.optim.core.strategies`): ``"lm"`` (default,
+            :class:`LevenbergMarquardt`, GTSAM's rules), ``"gn"`` (:class:`GaussNewton`),
+            ``"dogleg"`` (:class:`Dogleg`), ``"trust-region"`` (:class:`TrustRegion`,
+            Levenberg-Marquardt with Ceres' rules), or an instance with its options.
         linear_solver : str or LinearSolver
             ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
             an instance (see :func:`make_solver`).
         max_iter : int
-            Iteration limit.
-        rel_tol, abs_tol, cost_tol, step_tol : float
-            Convergence: relative and absolute cost decrease, cost threshold, step norm.
+            Iteration limit (as the strategy counts them, :attr:`Result.iterations`).
+        rel_tol, abs_tol, cost_tol, step_tol : float, optional
+            GTSAM's convergence tests of ``"lm"``, ``"gn"`` and ``"dogleg"`` (relative and
+            absolute cost decrease, cost threshold, step norm; defaults ``1e-5``, ``1e-5``,
+            ``0``, ``0``). With a named strategy only.
         gauge : {"check", "fix_first", "none"}
             ``"check"`` raises a :class:`GaugeError` (a ValueError) when variables are not
             anchored by a prior or a fixed variable, ``"fix_first"`` holds the first variable of
             each such component constant (reported in ``result.gauge_fixed``), ``"none"`` skips
             the check.
         verbose : bool, optional
-            Print one line per iteration on stderr (default: when stderr is a terminal).
+            Print Ceres' iteration table on stderr, one line per iteration (default: when
+            stderr is a terminal).
         blas_threads : int or None
             BLAS threads during the call (default 1: a multithreaded BLAS makes the solve
             several times slower on a busy machine; :mod:`microlie.optim.core.threads`); ``None``
             keeps the user's setting (``OPENBLAS_NUM_THREADS``, threadpoolctl) or the library's
             default. The previous setting is restored on return.
         **options
-            ``lambda_initial``, ``lambda_factor``, ``lambda_max``, ``diagonal_damping``,
-            ``radius_initial``.
+            Other constructor parameters of the named strategy: ``lambda_initial``,
+            ``lambda_factor``, ``lambda_max``, ``lambda_min``, ``diagonal_damping`` (``"lm"``),
+            ``radius_initial`` (``"dogleg"``, ``"trust-region"``), ``function_tolerance``,
+            ``gradient_tolerance``, ``parameter_tolerance``, ... (``"trust-region"``). An
+            option the strategy does not take is a ``TypeError``.
 
         Returns
         -------
@@ -349,14 +360,12 @@ class FactorGraph:
         >>> res.converged, np.round(res.values[x].params[2], 9).tolist()
         (True, [2.0, 0.0, 1.0, 0.0])
         """
-        o = SolverOptions(solver=solver, linear_solver=linear_solver, max_iter=max_iter,
-                          rel_tol=rel_tol, abs_tol=abs_tol, cost_tol=cost_tol,
-                          step_tol=step_tol, verbose=verbose)
-        for k, val in options.items():
-            if not hasattr(o, k):
-                raise TypeError(f"optimize() got an unknown option {k!r}")
-            setattr(o, k, val)
-        return solve(self.problem(gauge), self._states(values), o)
+        tols = {"rel_tol": rel_tol, "abs_tol": abs_tol, "cost_tol": cost_tol,
+                "step_tol": step_tol}
+        given = {k: v for k, v in tols.items() if v is not None}
+        strategy = make_strategy(solver, **given, **options)
+        return solve(self.problem(gauge), self._states(values), strategy,
+                     linear_solver=linear_solver, max_iter=max_iter, verbose=verbose)
 
     # ------------------------------------------------------------------ marginals
     def _factorized(self, values: Values | None, linear_solver: Any) -> tuple:
