@@ -19,6 +19,7 @@ import pytest
 from conftest import data_file
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
+from threadpoolctl import threadpool_limits
 
 from microlie import SO3
 from microlie.optim import (
@@ -195,7 +196,8 @@ def _tries(res):
 ])
 def test_trust_region_follows_a_dense_ceres_oracle(model, huber, perturb, seed):
     _, start = synthetic_scene(4, 25, noise=1.0, perturb=perturb, seed=seed, model=model)
-    tries, final, why = _ceres_lm(start, 0, huber)
+    with threadpool_limits(1):  # a multithreaded BLAS on a busy machine: 100x slower
+        tries, final, why = _ceres_lm(start, 0, huber)
     g, _ = bundle_graph(start, [0], loss=None if huber is None else f"huber:{huber}")
     r = g.optimize(solver=TrustRegion(), gauge="none", linear_solver="dense")
     got = _tries(r)
