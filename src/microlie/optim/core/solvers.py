@@ -118,8 +118,10 @@ class Result:
     iterations : int
         Iterations as the strategy counts them (what ``max_iter`` limits): accepted ones for
         the GTSAM-rule strategies (``"lm"``, ``"gn"``, ``"dogleg"``: an iteration that takes
-        no step ends the run and is not counted), every try, accepted or not, for
-        ``"trust-region"`` (Ceres' count).
+        no step ends the run); for ``"trust-region"`` every try, accepted or rejected, as
+        Ceres counts. The try that ends a run without a step (a failed LM iteration, Ceres'
+        function or parameter tolerance met at a candidate) is recorded in ``history`` but not
+        counted (Ceres does not list it either).
     converged : bool
         Whether a convergence test was met: ``termination == "convergence"``.
     message : str
@@ -129,8 +131,8 @@ class Result:
         are usable); the cost could not be decreased (the values are the best point found,
         not a solution).
     history : list of IterationRecord
-        One record per iteration (for the GTSAM-rule strategies also the uncounted last one
-        of a run that stopped without a step).
+        One record per iteration, and last the uncounted one of a run that stopped without a
+        step.
     time_s : float
         Solve time, seconds (graph construction excluded; the linear solver's symbolic analysis
         included on the first solve of a problem only: it is kept with the problem).
@@ -279,7 +281,7 @@ def solve(problem: Problem, states: list[np.ndarray], strategy: str | Strategy =
             run.accepted(s)
             if new_lin is not None:
                 gmax = s.gradient_max()
-        else:  # a rejected try has a row in Ceres' table (GTSAM rules: no step, no row)
+        else:  # a rejected try of trust-region: its step, in its record and Ceres' row
             step_norm = norm(out.dx) if out.dx is not None and run.counts_rejected and \
                 out.trial is not None else 0.0
             gmax = s.gradient_max()
@@ -287,7 +289,7 @@ def solve(problem: Problem, states: list[np.ndarray], strategy: str | Strategy =
         rec = _record(it, s, old_rc, out, step_norm, gmax, now - t_start, now - t_last)
         t_last = now
         history.append(rec)
-        counted = out.accepted or run.counts_rejected
+        counted = out.accepted or (run.counts_rejected and out.stop is None)
         if log is not None and counted:
             log.row(rec)
         if out.stop is not None and not out.accepted:

@@ -486,8 +486,9 @@ class Strategy:
     name : str
         The registry name (``Result.solver``).
     counts_rejected : bool
-        Whether an iteration that takes no step counts (Ceres: every try is an iteration) or
-        ends the run uncounted (GTSAM).
+        Whether a rejected try that does not end the run is an iteration (Ceres: every try
+        is); without it an iteration ends with a step or ends the run (GTSAM). A try that ends
+        the run without a step is never counted.
 
     Examples
     --------
@@ -683,6 +684,30 @@ class _GTSAMRules(Strategy):
         return None
 
     def converged(self, old: float, new: float, step_norm: float) -> str | None:
+        """GTSAM's tests after an accepted step from cost ``old`` to ``new``: cost below
+        ``cost_tol``, absolute decrease below ``abs_tol``, relative decrease below
+        ``rel_tol``, step norm below ``step_tol``.
+
+        Parameters
+        ----------
+        old, new : float
+            The robust costs before and after.
+        step_norm : float
+            The step's norm.
+
+        Returns
+        -------
+        str or None
+            Why the run has converged, or ``None``.
+
+        Examples
+        --------
+        >>> from microlie.optim.core.strategies import LevenbergMarquardt
+        >>> LevenbergMarquardt().converged(1.0, 0.999999, 0.1)
+        'absolute cost decrease 1e-06 below abs_tol'
+        >>> LevenbergMarquardt(abs_tol=0.0).converged(1.0, 0.5, 0.1) is None
+        True
+        """
         why = self._decrease_test(old, new)
         if why is None and step_norm <= self.step_tol:
             why = f"step norm {step_norm:.3g} below step_tol"
@@ -994,8 +1019,9 @@ class TrustRegion(Strategy):
       or ``radius <= min_radius``; at a candidate (the step is then not taken),
       ``|dx| <= parameter_tolerance (|x| + parameter_tolerance)`` (from the first accepted
       step on; ``|x|`` from :meth:`SolveState.state_norm`) or ``|cost change| <=
-      function_tolerance cost``; ``max_iter`` tries. Every try, accepted or not, is an
-      iteration (Ceres' count; ``Result.accepted_steps`` counts the accepted ones).
+      function_tolerance cost``; ``max_iter`` tries. Every try, accepted or rejected, is an
+      iteration, except one that ends the run at a candidate (Ceres' count: it does not list
+      that one; ``Result.accepted_steps`` counts the accepted tries).
 
     Termination is stricter than Ceres': "convergence" for the gradient test, and for the
     parameter and function tests and the radius floor when the candidate decreased the cost,
