@@ -405,7 +405,8 @@ class FactorGraph:
         Returns
         -------
         numpy.ndarray
-            ``(sum dof, sum dof)``.
+            ``(sum dof, sum dof)``; zero in the rows and columns of held components
+            (:meth:`fix` with ``components``).
 
         Examples
         --------
@@ -463,7 +464,9 @@ class FactorGraph:
         -------
         Gaussian or VectorGaussian
             One batched :class:`microlie.Gaussian` with ``frame="right"`` (``X = mean Exp(eps)``)
-            for group variables, or a :class:`microlie.VectorGaussian` for vectors.
+            for group variables, or a :class:`microlie.VectorGaussian` for vectors
+            (``Variables.gaussian``). Held components (:meth:`fix` with ``components``) have
+            zero variance and covariance.
 
         Examples
         --------
