@@ -314,6 +314,27 @@ def test_held_components_never_move(solver, linear_solver):
     assert abs(res.final_cost - ref.final_cost) <= 1e-6 * ref.final_cost
 
 
+@pytest.mark.parametrize("solver, linear_solver", [("trust-region", "auto"), ("lm", "schur")])
+def test_held_components_never_move_in_the_engine_s_other_options(solver, linear_solver):
+    """The same under the Ceres-rules strategy and the Schur linear solver (the landmarks
+    eliminated), when the engine has them (issue 20 adds both beside this change)."""
+    g, T, L = _build_pose_graph()
+    P0 = np.asarray(T.initial).copy()
+    try:
+        res = g.optimize(solver=solver, linear_solver=linear_solver, max_iter=100)
+    except ValueError as e:
+        if f"{solver!r}" in str(e) or f"{linear_solver!r}" in str(e):
+            pytest.skip(f"this engine has no solver={solver!r} / linear_solver="
+                        f"{linear_solver!r}: {e}")
+        raise
+    P = np.asarray(res.values[T].params)
+    np.testing.assert_array_equal(P[1, 3:], P0[1, 3:])
+    np.testing.assert_array_equal(P[2, :3], P0[2, :3])
+    assert res.values[L][1, 2] == L.initial[1, 2]
+    ref = g.optimize(linear_solver="dense", rel_tol=1e-14, abs_tol=1e-16)
+    assert abs(res.final_cost - ref.final_cost) <= 1e-6 * ref.final_cost
+
+
 def test_gauge_partial_hold_is_not_an_anchor():
     """A pose with some components held does not anchor the gauge; all of them held is a
     fixed pose (no unknowns)."""
