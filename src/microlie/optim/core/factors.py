@@ -494,7 +494,9 @@ class BetweenFactor(Factor):
         # then d r / d X_i = d r / d (X_i Z), no product)
         Zinv = element(variables.group, variables.params_of(self.Z)).inverse()
         Ad = np.ascontiguousarray(Zinv.adjoint())
-        self._Ad_Zinv: np.ndarray | None = None if (Ad == np.eye(self.dim)).all() else Ad
+        eye = np.eye(self.dim)
+        ident = (Ad.reshape(-1, self.dim, self.dim)[0] == eye).all() and (Ad == eye).all()
+        self._Ad_Zinv: np.ndarray | None = None if ident else Ad
 
     def residual(self, Xi: Any, Xj: Any, jac: bool = False) -> Any:
         """``r = Log((X_i Z)^-1 X_j)`` and, with ``jac``, ``[d r / d X_i, d r / d X_j]``
