@@ -1,8 +1,10 @@
 """Factor graphs on Lie groups: sparse non-linear least squares (specification: MATH.md section 8).
 
 API in one paragraph: ``g = FactorGraph()``; ``poses = g.add_variables(SE3_batch, fixed=...)``
-adds one batch of variables of one type (any :class:`~microlie.LieGroup`, or an ``(n, d)``
-array of vectors) and returns a handle; factors are batches too:
+adds one batch of variables of one type (any :class:`~microlie.LieGroup`; an ``(n, d)``
+array of vectors is a batch of ``R(d)``, whose values stay plain arrays) and returns a handle;
+``g.fix(handle, idx, components=[...])`` holds whole variables or some of their tangent
+coordinates; factors are batches too:
 ``PriorFactor(poses, idx, Z, noise)`` (``r = X (-) Z``), ``BetweenFactor(poses, i, j, Z, noise)``
 (``r = (X_i^-1 X_j) (-) Z_ij``) and ``CustomFactor(fn, [(var, idx), ...], dim, noise,
 jac="numerical"|"analytic"|"jax"|"torch")``, each added with ``g.add(...)``; a factor type of
