@@ -468,7 +468,7 @@ class SolveState:
             if not free.any():
                 continue
             q = p if free.all() else p[free]
-            c = np.asarray(q if v.group is None else v.wrap(q).log(), dtype=np.float64)
+            c = np.asarray(v.log(v.wrap(q)), dtype=np.float64)
             total += float(np.sum(c * c))
         return math.sqrt(total)
 
