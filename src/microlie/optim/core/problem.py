@@ -452,6 +452,10 @@ class Problem:
         nn = self.num_nodes
         ok = (a >= 0) & (b >= 0)
         q = b * nn + a  # the block key: column-major
+        if not self._bkey.size:  # no free variable
+            if ok.any():
+                raise KeyError("block not in the pattern")
+            return np.full(a.shape, -1, np.int64)
         k = np.searchsorted(self._bkey, np.where(ok, q, 0))
         k = np.minimum(k, self._bkey.size - 1)
         found = ok & (self._bkey[k] == q)
@@ -485,7 +489,8 @@ class Problem:
         [6, 9, 0]
         """
         nodes = np.asarray(nodes, np.int64)
-        return np.where(nodes >= 0, self._collen[np.maximum(nodes, 0)], 0)
+        collen = np.r_[self._collen, 0]  # then the length of a fixed one
+        return collen[np.where(nodes >= 0, nodes, -1)]
 
     def analysed(self, linear_solver: Any) -> Any:
         """A linear solver that has analysed this problem's pattern (for a backend given by
