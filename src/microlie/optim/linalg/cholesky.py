@@ -164,7 +164,10 @@ class SupernodalSolver(LinearSolver):
         sbelow0 = np.r_[0, np.cumsum(bu)]  # offsets of each s's below rows in b_row
         idx = np.repeat(sbelow0[ps] + pa - start[:-1], lens) + np.arange(tot)
         t_rep = np.repeat(pt, lens)
-        bpos = _lookup(key, b_row[idx] + t_rep * nb, "an update outside its target")
+        q = b_row[idx] + t_rep * nb
+        bpos = np.searchsorted(key, q)
+        if bpos.size and not np.array_equal(key[np.minimum(bpos, key.size - 1)], q):
+            raise AssertionError("supernodal analysis: an update outside its target")
         relb = bpos - brptr[t_rep]
         self.rel = (relb[:, None] * bs + np.arange(bs)).ravel()
         self.relptr = start * bs
@@ -251,79 +254,52 @@ def _dense_amap(indptr: np.ndarray, indices: np.ndarray, bs: int, inv_b: np.ndar
                 sn_of_b: np.ndarray, key: np.ndarray, brptr: np.ndarray, px: np.ndarray,
                 c0: np.ndarray, m: np.ndarray, nx: int) -> np.ndarray | None:
     """The assembly map of a pattern made of dense ``bs x bs`` blocks (``None`` otherwise),
-    from one lookup per block. The ``bs`` scalar columns of block column ``v`` are
-    consecutive in the CSC arrays; when they are equally long (``l_v``) and hold the same
-    rows, in runs of ``bs`` (whole blocks), its entries form a ``(bs, l_v)`` array and an
-    entry's place is that of its twin in the first column plus ``cc * m`` (``cc`` its column
-    in the block). Block columns are handled in groups of equal ``l_v``."""
+    from one lookup per block: each scalar column of a block column holds the rows of its
+    first column, and an entry's place is its first-column twin's plus ``cc * m`` (``cc`` its
+    column in the block)."""
     n = indptr.size - 1
     nb = n // bs
     lens = np.diff(indptr).reshape(nb, bs)
     l0 = lens[:, 0]
-    if not (lens == l0[:, None]).all() or (l0 % bs).any() or (nb and indptr[0] != 0):
+    if not (lens == l0[:, None]).all() or (l0 % bs).any():
         return None
-    first = indptr[:-1:bs].astype(np.int64)
-    m_of = m[sn_of_b[inv_b]]  # the panel height of each block column's supernode (old numbering)
-    amap = np.empty(indices.size, np.int64)
-    groups = np.unique(l0)
-    parts = []
-    for L in groups.tolist():
-        if L == 0:
-            continue
-        V = np.flatnonzero(l0 == L)
-        E = first[V][:, None] + np.arange(bs * L)  # (|V|, bs * L) entries, column after column
-        X = indices[E].reshape(V.size, bs, L)
-        rf = X[:, 0, :].astype(np.int64)  # the rows of the first column
-        if not (X == X[:, :1, :]).all() or not (rf % bs == np.arange(L) % bs).all():
-            return None
-        rb = rf[:, ::bs] // bs  # (|V|, L / bs) block rows
-        if not (rf.reshape(V.size, L // bs, bs) // bs == rb[:, :, None]).all():
-            return None
-        parts.append((V, rb))
-    # one lookup per block below the diagonal, all groups together (sorted: see _lookup)
-    qs, lows = [], []
-    for V, rb in parts:
-        Cb, Rb = inv_b[V][:, None], inv_b[rb]
-        low = Rb >= Cb
-        lows.append(low)
-        qs.append(sn_of_b[np.broadcast_to(Cb, Rb.shape)[low]] * nb + Rb[low])
-    bpos_all = _lookup(key, np.concatenate(qs) if qs else np.zeros(0, np.int64),
-                       "an entry outside its supernode")
-    at = 0
-    for (V, rb), low in zip(parts, lows, strict=True):
-        Cb, Rb = inv_b[V][:, None], inv_b[rb]
-        s = sn_of_b[np.broadcast_to(Cb, Rb.shape)]
-        bp = np.full(rb.shape, -1, np.int64)
-        cnt = int(low.sum())
-        bp[low] = bpos_all[at:at + cnt]
-        at += cnt
-        # entry (rr, cc) of the block: px + (col - c0) m + (block position) bs + rr; first
-        # per row of the first column (|V|, L), then per column (inner axes kept long)
-        base = px[s] + (Cb * bs - c0[s]) * m[s] + (bp - brptr[s]) * bs  # (|V|, L / bs)
-        L = rb.shape[1] * bs
-        rr = np.arange(L) % bs
-        row = np.repeat(base, bs, axis=1) + rr
-        val = row[:, None, :] + (np.arange(bs) * m_of[V][:, None])[:, :, None]
-        # the upper blocks and the diagonal blocks' strict upper triangle (rr < cc) dump
-        up = np.repeat(~low, bs, axis=1)[:, None, :] | (
-            np.repeat(Rb == Cb, bs, axis=1)[:, None, :] & (rr < np.arange(bs)[:, None]))
-        np.copyto(val, nx, where=up)
-        amap[first[V][:, None] + np.arange(bs * L)] = val.reshape(V.size, bs * L)
+    cum0 = np.r_[0, np.cumsum(l0)]
+    first = indptr[:-1:bs]
+    # the first columns' entries (compact numbering f) and their rows
+    f_abs = np.repeat(first - cum0[:-1], l0) + np.arange(cum0[-1])
+    rf = indices[f_abs].astype(np.int64)
+    rr = rf % bs
+    if not np.array_equal(rr, np.arange(rf.size) % bs):  # l0 % bs == 0: groups align
+        return None
+    rb = rf // bs
+    if rb.size and not (rb.reshape(-1, bs) == rb[::bs, None]).all():
+        return None
+    # every entry's first-column twin
+    tc = np.arange(indices.size) - np.repeat(indptr[:-1] - np.repeat(cum0[:-1], bs),
+                                              lens.ravel())
+    if not np.array_equal(rf[tc], indices):
+        return None
+    cold = np.repeat(np.arange(nb), l0)  # block column (old numbering)
+    Cb, Rb = inv_b[cold], inv_b[rb]
+    low = Rb >= Cb
+    s = sn_of_b[Cb[low]]
+    q = s * nb + Rb[low]
+    bpos = np.searchsorted(key, q)
+    if bpos.size and not np.array_equal(key[np.minimum(bpos, key.size - 1)], q):
+        raise AssertionError("supernodal analysis: an entry outside its supernode")
+    base = np.full(rf.size, -(1 << 62), np.int64)  # upper blocks: negative, then the dump
+    base[low] = px[s] + (Cb[low] * bs - c0[s]) * m[s] + (bpos - brptr[s]) * bs + rr[low]
+    cc = np.tile(np.arange(bs), nb)
+    amap = base[tc] + np.repeat(cc * np.repeat(m[sn_of_b[inv_b]], bs), lens.ravel())
+    amap[amap < 0] = nx
+    # in the diagonal blocks, row rr < column cc is the strict upper triangle
+    d = np.flatnonzero(Rb == Cb)[::bs]  # first-column entry of each diagonal block's row 0
+    if d.size and bs > 1:
+        C = cold[d]
+        r_, c_ = np.triu_indices(bs, 1)
+        e = (indptr[C[:, None] * bs + c_] + (d - cum0[C])[:, None] + r_).ravel()
+        amap[e] = nx
     return amap
-
-
-def _lookup(key: np.ndarray, q: np.ndarray, what: str) -> np.ndarray:
-    """The positions of ``q`` in the sorted ``key`` (every one must be there). The queries
-    are sorted first: binary searches in scattered order miss the cache at every step (at 1e6
-    poses a random-order search of the structures took 10x the sort and the ordered search)."""
-    o = np.argsort(q)
-    qs = q[o]
-    pos = np.searchsorted(key, qs)
-    if pos.size and not np.array_equal(key[np.minimum(pos, key.size - 1)], qs):
-        raise AssertionError(f"supernodal analysis: {what}")
-    out = np.empty_like(pos)
-    out[o] = pos
-    return out
 
 
 def _structure(bstart: np.ndarray, parent: np.ndarray, count: np.ndarray,
