@@ -2,14 +2,15 @@
 
 Two parts (one command each):
 
-``scale``: synthetic 2-D pose graphs (a random walk on the integer grid, one SE(2) pose per
-step; odometry between consecutive poses and a loop closure to the previous visit of the same
-cell) of 1e3, 1e4, 1e5 (1e6) poses. For each size, in a fresh subprocess per code base, the
-problem is built (``FactorGraph``, 3x3 blocks), then ``SupernodalSolver.analyse`` is
-timed and the process's peak resident memory read before and after it; the new code also
-runs three Levenberg-Marquardt iterations (supernodal solver, the analysis kept) and prints
-the time of one. ``--old SRC`` runs the same with ``PYTHONPATH=SRC`` (the code before issue
-20, e.g. ``/work/base/src``), interleaved with the new one::
+``scale``: synthetic 2-D pose graphs (:func:`synthetic_pose_graph`: a random walk on the
+integer grid, one SE(2) pose per step; odometry between consecutive poses and a loop closure to
+the previous visit of the same cell) of 1e3, 1e4, 1e5 (1e6) poses. For each size, in a fresh
+subprocess per code base, the problem is built (``FactorGraph``, 3x3 blocks), then
+``SupernodalSolver.analyse`` is timed and the process's peak resident memory read before and
+after it; the new code also runs three Levenberg-Marquardt iterations (supernodal solver, the
+analysis kept) and prints the time of one. ``--old SRC`` runs the same with
+``PYTHONPATH=SRC`` (the code before issue 20, e.g. ``/work/base/src``), interleaved with the
+new one::
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python benchmarks/symbolic.py scale \\
         --sizes 1000 10000 100000 1000000 [--old /work/base/src --old-max 100000]
@@ -50,22 +51,54 @@ GRAPHS = {
 }
 
 
-def pose_graph_2d(n: int, seed: int = 0) -> sp.csr_matrix:
-    """The block adjacency of a synthetic 2-D pose graph of ``n`` poses (see the module)."""
-    rng = np.random.default_rng(seed)
-    steps = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])[rng.integers(0, 4, n)]
+def synthetic_pose_graph(n: int, dim: int = 2, seed: int = 0):
+    """A synthetic pose graph of ``n`` poses in ``dim`` = 2 (SE(2)) or 3 (SE(3)) dimensions.
+
+    A random walk on the integer grid (unit steps along +-x, +-y(, +-z), drawn from
+    ``default_rng(seed)``), one pose per step heading along its step; odometry edges between
+    consecutive poses and a loop closure from each visit of a cell to the previous visit of
+    the same cell; edges sorted by ``(i, j)``. Measurements are the true relative poses with
+    noise on the right (``Exp(0.01 n)``), information ``1e4 I``; the graph's poses (the start)
+    are the truth with noise ``Exp(0.05 n)`` (``default_rng(seed + 1)``).
+    ``benchmarks/scaling.py`` reuses it.
+    """
+    from microlie import SE2, SE3
+    from microlie.optim.io.pose_graph import PoseGraph
+
+    if dim not in (2, 3):
+        raise ValueError(f"dim must be 2 or 3, got {dim!r}")
+    eye = np.eye(dim, dtype=np.int64)
+    moves = np.stack([eye, -eye], axis=1).reshape(2 * dim, dim)  # +e0, -e0, +e1, -e1, ...
+    walk = np.random.default_rng(seed).integers(0, 2 * dim, n)
+    steps = moves[walk]
     steps[0] = 0
-    xy = np.cumsum(steps, axis=0)
-    cell = xy[:, 0] * 4_000_037 + xy[:, 1]
-    o = np.argsort(cell, kind="stable")
-    same = cell[o][1:] == cell[o][:-1]
+    pos = np.cumsum(steps, axis=0)
+    o = np.lexsort(pos.T[::-1])  # by x, then y (then z), stable: visits in time order
+    same = np.all(pos[o][1:] == pos[o][:-1], axis=1)
     a = np.r_[np.arange(n - 1), o[:-1][same]]
     b = np.r_[np.arange(1, n), o[1:][same]]
-    keep = a != b
-    A = sp.csr_matrix((np.ones(keep.sum()), (a[keep], b[keep])), shape=(n, n))
-    A = A + A.T
-    A.data[:] = 1.0
-    return A
+    e = np.lexsort((b, a))
+    i, j = a[e].astype(np.int64), b[e].astype(np.int64)
+    rng = np.random.default_rng(seed + 1)
+    xyz = pos.astype(np.float64)
+    if dim == 2:
+        G = SE2
+        truth = SE2.from_xy_theta(xyz[:, 0], xyz[:, 1],
+                                  np.arctan2(steps[:, 1], steps[:, 0]).astype(np.float64))
+    else:  # the rotation taking +x to the step's direction (the first pose: the identity)
+        G = SE3
+        half = np.array([[0, 0, 0], [0, 0, np.pi], [0, 0, np.pi / 2], [0, 0, -np.pi / 2],
+                         [0, -np.pi / 2, 0], [0, np.pi / 2, 0]])[walk] / 2
+        half[0] = 0
+        ang = np.linalg.norm(half, axis=1, keepdims=True)
+        axis = np.divide(half, ang, out=np.zeros_like(half), where=ang > 0)
+        truth = SE3(np.concatenate([xyz, axis * np.sin(ang), np.cos(ang)], axis=1))
+    d = G.dof
+    z = truth[i].inverse() @ truth[j]
+    z = z @ G.exp(0.01 * rng.standard_normal((i.size, d)))
+    start = truth @ G.exp(0.05 * rng.standard_normal((n, d)))
+    return PoseGraph(G, ids=np.arange(n), poses=start, i=i, j=j, measurements=z,
+                     information=np.broadcast_to(np.eye(d) * 1e4, (i.size, d, d)).copy())
 
 
 def _rss_mb() -> float:
@@ -74,26 +107,8 @@ def _rss_mb() -> float:
 
 
 def _problem(n: int):
-    """The problem of the synthetic graph: SE(2) poses on the walk (heading along the step),
-    measurements from the truth with noise, the start the truth with noise."""
-    from microlie import SE2
-    from microlie.optim.io.pose_graph import PoseGraph
-
-    A = sp.triu(pose_graph_2d(n), 1).tocoo()
-    rng = np.random.default_rng(1)
-    walk = np.random.default_rng(0).integers(0, 4, n)  # the walk of pose_graph_2d
-    steps = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])[walk]
-    steps[0] = 0
-    xy = np.cumsum(steps, axis=0).astype(float)
-    th = np.arctan2(steps[:, 1], steps[:, 0])
-    truth = SE2.from_xy_theta(xy[:, 0], xy[:, 1], th)
-    i, j = A.row.astype(np.int64), A.col.astype(np.int64)
-    z = truth[i].inverse() @ truth[j]
-    z = z @ SE2.exp(0.01 * rng.standard_normal((i.size, 3)))
-    start = truth @ SE2.exp(0.05 * rng.standard_normal((n, 3)))
-    pg = PoseGraph(SE2, ids=np.arange(n), poses=start, i=i, j=j, measurements=z,
-                   information=np.broadcast_to(np.eye(3) * 1e4, (i.size, 3, 3)).copy())
-    g, _ = pg.to_factor_graph(gauge="fix")
+    """The problem of the synthetic 2-D graph, pose 0 fixed."""
+    g, _ = synthetic_pose_graph(n).to_factor_graph(gauge="fix")
     return g.problem()
 
 
