@@ -342,7 +342,7 @@ def user_pays(args) -> list[str]:
              "of the per-round ratios (range). 'build' (microlie: `from_pose_graph`; GTSAM: its "
              "Python loop building the graph, not counted) / 'setup' (`FactorGraph.problem()`) "
              "/ 'analysis' (`Problem.analysed`: ordering + symbolic; GTSAM: the optimizer "
-             "constructor) / 'solve'. Peak = the process's ru_maxrss.", ""]
+             "constructor) / 'solve'. Peak = the process's own peak RSS (VmHWM).", ""]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.graphs:
@@ -369,18 +369,28 @@ def user_pays(args) -> list[str]:
     return lines
 
 
+#: Started by _timed_process: spawns the command, waits for it, writes [wall s, peak RSS MB,
+#: exit code] to argv[1]. A small process in between because Linux's ru_maxrss of a child is at
+#: least its parent's peak RSS (kept over fork and exec): this one's is a few MB.
+_SPAWN = ("import json, os, sys, time\n"
+          "t = time.perf_counter()\n"
+          "pid = os.posix_spawn(sys.argv[2], sys.argv[2:], os.environ)\n"
+          "_, st, ru = os.wait4(pid, 0)\n"
+          "w = time.perf_counter() - t\n"
+          "open(sys.argv[1], 'w').write(json.dumps([w, ru.ru_maxrss / 1024, "
+          "os.waitstatus_to_exitcode(st)]))\n")
+
+
 def _timed_process(cmd: list[str], env: dict) -> tuple[float, float, str]:
     """Wall time from start to exit, the process's peak RSS (MB), its stdout."""
-    with tempfile.TemporaryFile("w+") as out:
-        t0 = time.perf_counter()
-        p = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.DEVNULL)
-        _, status, ru = os.wait4(p.pid, 0)
-        wall = time.perf_counter() - t0
-        p.returncode = os.waitstatus_to_exitcode(status)
-        if p.returncode:
-            raise RuntimeError(f"{cmd} exited with {p.returncode}")
-        out.seek(0)
-        return wall, ru.ru_maxrss / 1024, out.read()
+    with tempfile.TemporaryDirectory() as tmp:
+        rep = Path(tmp) / "rusage.json"
+        r = subprocess.run([sys.executable, "-S", "-c", _SPAWN, str(rep), *cmd], env=env,
+                           capture_output=True, text=True)
+        wall, peak, code = json.loads(rep.read_text())
+        if code or r.returncode:
+            raise RuntimeError(f"{cmd} exited with {code}: {r.stderr[-500:]}")
+        return wall, peak, r.stdout
 
 
 def end_to_end(args) -> list[str]:
@@ -399,7 +409,8 @@ def end_to_end(args) -> list[str]:
              f"Process start to exit (import, read, solve, write), {args.repeat} interleaved "
              "rounds after one warm-up round (file cache), medians; ratio: median of the "
              "per-round ratios to the GTSAM script (range); peak = the process's ru_maxrss "
-             "(wait4). 'all installed': --python's environment (compiled extra, qdldl); "
+             "(wait4 in a small launcher process, so no parent's peak is inherited). 'all "
+             "installed': --python's environment (compiled extra, qdldl); "
              "'default install': numpy + scipy only, MICROLIE_FAST=0. Both start from the "
              "file's vertices.", "",
              "| graph | contender | wall s | vs GTSAM | peak MB | vs GTSAM | final cost (it) |",

@@ -18,8 +18,9 @@ subprocess, one at a time, interleaved round by round, one BLAS thread:
 "User pays" = microlie construction + setup + analysis + solve; GTSAM constructor +
 ``optimize()`` (GTSAM's Python graph building is printed apart). Per-iteration time = solve
 time / iterations (GTSAM: ``optimize()`` / ``optimizer.iterations()``). Peak memory = the
-subprocess's ``ru_maxrss`` (interpreter, imports and the loaded graph included), also read
-after each phase. Final costs (GTSAM's ``0.5 sum r^T Omega r`` over the edges) are evaluated
+subprocess's own peak RSS (``VmHWM``: interpreter, imports and the loaded graph included; not
+``ru_maxrss``, which on Linux carries the parent's peak into a child), also read after each
+phase. Final costs (GTSAM's ``0.5 sum r^T Omega r`` over the edges) are evaluated
 by ``PoseGraph.cost`` in the parent on the poses each child returns. One command::
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=src /work/main/.venv/bin/python benchmarks/scaling.py \\
@@ -54,6 +55,12 @@ GTSAM_PYTHON = "/work/bench-venv/bin/python"
 
 
 def _peak_mb() -> float:
+    """This process's peak resident memory, MB: ``VmHWM`` (reset by ``exec``; ``ru_maxrss``
+    is not on Linux: a child started by a large parent inherits the parent's peak)."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
