@@ -447,14 +447,15 @@ def auto_order(n: int, block_size: int = 1, compiled: bool | None = None) -> tup
 
     The fastest measured per problem kind and size, as a user pays it (analysis included), with
     and without the compiled supernodal loop (``microlie-fast``): below :data:`AUTO_DENSE`
-    unknowns the dense Cholesky; 2-D problems (blocks under 6) qdldl below
-    :data:`AUTO_QDLDL_2D` unknowns (its scalar LDL^T has almost no analysis to pay, and these
-    graphs fill little), the supernodal Cholesky above; 3-D problems (blocks of 6) the
-    supernodal Cholesky, or qdldl below :data:`AUTO_QDLDL_3D_COMPILED` unknowns
-    (:data:`AUTO_QDLDL_3D` without the compiled loop); without qdldl, SuperLU before the NumPy
-    supernodal loop below :data:`AUTO_SCIPY` unknowns. PARDISO, not installed where the tables
-    were measured, keeps the place its solve-only measurements gave it: first in 3-D, after the
-    compiled supernodal loop and before the NumPy one in 2-D.
+    unknowns the dense Cholesky; 2-D problems (blocks under 6) qdldl (its scalar LDL^T has
+    almost no analysis to pay, and these graphs fill little), except from
+    :data:`AUTO_QDLDL_2D` unknowns with the compiled loop: the supernodal Cholesky; 3-D
+    problems (blocks of 6) the supernodal Cholesky, or qdldl below
+    :data:`AUTO_QDLDL_3D_COMPILED` unknowns (:data:`AUTO_QDLDL_3D` without the compiled loop);
+    without qdldl, SuperLU before the NumPy supernodal loop below :data:`AUTO_SCIPY` unknowns.
+    PARDISO, not installed where the tables were measured, keeps the place its solve-only
+    measurements gave it: first in 3-D, after the compiled supernodal loop and before the NumPy
+    one in 2-D.
 
     Parameters
     ----------
@@ -477,6 +478,8 @@ def auto_order(n: int, block_size: int = 1, compiled: bool | None = None) -> tup
     >>> from microlie.optim.linalg.linear import auto_order
     >>> auto_order(30_000, 3)[0], auto_order(300_000, 3, compiled=True)[0]
     ('qdldl', 'supernodal')
+    >>> auto_order(300_000, 3, compiled=False)[0]
+    'qdldl'
     >>> auto_order(15_000, 6, compiled=False)[:2]
     ('pardiso', 'supernodal')
     """
@@ -489,7 +492,7 @@ def auto_order(n: int, block_size: int = 1, compiled: bool | None = None) -> tup
         small = n < (AUTO_QDLDL_3D_COMPILED if compiled else AUTO_QDLDL_3D)
         return ("pardiso", "qdldl", *sup) if small else ("pardiso", *sup, "qdldl")
     mid = (sup[0], "pardiso", sup[1]) if compiled else ("pardiso", *sup)
-    return ("qdldl", *mid) if n < AUTO_QDLDL_2D else (*mid, "qdldl")
+    return ("qdldl", *mid) if n < AUTO_QDLDL_2D or not compiled else (*mid, "qdldl")
 
 
 def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
