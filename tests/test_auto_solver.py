@@ -53,6 +53,9 @@ CASES: dict[str, tuple[int, int, dict[str, dict[str, float]]]] = {
     "ais2klinik": (45342, 3, {
         "fast": {"supernodal": 6.175, "qdldl": 4.645, "scipy": 14.669},
         "numpy": {"supernodal": 11.616, "qdldl": 6.430, "scipy": 16.203}}),
+    "kitti_00": (13620, 3, {
+        "fast": {"supernodal": 1.098, "qdldl": 0.750, "scipy": 1.746},
+        "numpy": {"supernodal": 1.811, "qdldl": 0.969, "scipy": 1.582}}),
 }
 DEFAULT = ("supernodal", "scipy")
 
