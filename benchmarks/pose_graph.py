@@ -30,6 +30,24 @@ Backends: ``supernodal`` (our NumPy/LAPACK Cholesky) and ``scipy`` (SuperLU) are
 ``pip install microlie`` has; ``pardiso`` needs ``microlie[mkl]``, ``qdldl`` ``microlie[sparse]``.
 The summary table gives the ratio of ``linear_solver="auto"``'s pick, once with everything of this
 environment installed and once restricted to the default install.
+
+Timed as a user pays it (issue 20), two more sections, each run in fresh subprocesses::
+
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=src /work/bench-venv/bin/python benchmarks/pose_graph.py \
+        --user-pays --e2e --no-solve-pass --repeat 3 --python /work/main/.venv/bin/python \
+        --out benchmarks/results/pose_graph-latest.md
+
+``--user-pays``: the children of ``scaling.py`` on each graph (same start as above, saved as
+arrays): GTSAM's optimizer constructor + ``optimize()`` against microlie's graph construction +
+pattern + ordering and symbolic analysis + solve, each contender in its own process, with
+(``fast:``) and without (``numpy:``, ``MICROLIE_FAST=0``) the compiled extra, every backend
+installed in ``--python``'s environment; time per iteration and peak RSS too.
+``--e2e``: ``microlie optimize FILE --json -o OUT --init file`` against ``gtsam_optimize.py
+FILE OUT`` (the GTSAM script doing the same: read, prior on the first pose, LM from the file's
+vertices, write), process start to exit, wall time and the process's peak RSS (``wait4``);
+microlie twice: everything of ``--python``'s environment installed (the compiled extra,
+qdldl), and the default install (``--gtsam-python``'s environment, which has no optional
+backend, with ``MICROLIE_FAST=0``). Rounds interleave the contenders.
 """
 
 from __future__ import annotations
@@ -51,7 +69,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from microlie import SE2  # noqa: E402
-from microlie.optim import available_solvers, compiled, from_pose_graph, make_solver  # noqa: E402
+from microlie.optim import available_solvers, from_pose_graph, make_solver  # noqa: E402
+from microlie.optim.core import compiled  # noqa: E402
 from microlie.optim.init import initialize  # noqa: E402
 from microlie.optim.io.g2o import read_g2o  # noqa: E402
 
@@ -207,6 +226,16 @@ def main(argv=None) -> int:
     ap.add_argument("--no-default-pass", action="store_true",
                     help="skip the second pass without the compiled extra (MICROLIE_FAST=0)")
     ap.add_argument("--child-json", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--user-pays", action="store_true",
+                    help="also time construction + analysis + solve, one process per run")
+    ap.add_argument("--e2e", action="store_true",
+                    help="also time `microlie optimize FILE --json` against a GTSAM script")
+    ap.add_argument("--no-solve-pass", action="store_true",
+                    help="skip the in-process solve-only passes")
+    ap.add_argument("--python", default=sys.executable,
+                    help="interpreter for microlie's subprocesses (--user-pays, --e2e)")
+    ap.add_argument("--gtsam-python", default=sys.executable,
+                    help="interpreter with gtsam and no optional microlie backend")
     ap.add_argument("--out", default=None, help="also write the markdown table to this file")
     args = ap.parse_args(argv)
 
@@ -217,6 +246,29 @@ def main(argv=None) -> int:
         res = measure(args, backends, [])
         Path(args.child_json).write_text(json.dumps(res))
         return 0
+    if args.no_solve_pass:
+        load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+        lines = [f"pose_graph.py, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+                 f"repeat {args.repeat}, one BLAS thread; `uptime` at the start: {load}", "",
+                 "Command: `OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python benchmarks/"
+                 "pose_graph.py " + " ".join(sys.argv[1:]) + "`"]
+        print("\n".join(lines), flush=True)
+    else:
+        lines = solve_passes(args, backends)
+    if args.user_pays:
+        lines += [""] + user_pays(args)
+    if args.e2e:
+        lines += [""] + end_to_end(args)
+    if args.user_pays or args.e2e:
+        load_end = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+        lines += ["", f"`uptime` at the end: {load_end}"]
+    if args.out:
+        Path(args.out).write_text("\n".join(lines) + "\n")
+    return 0
+
+
+def solve_passes(args, backends: list[str]) -> list[str]:
+    """The in-process passes (solve timed alone)."""
     fast = compiled.available()
     load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     head = (f"pose_graph.py, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
@@ -268,9 +320,135 @@ def main(argv=None) -> int:
     if default_res:
         lines += [""] + breakdown(default_res, "Pass 2 (MICROLIE_FAST=0)")
     print("\n".join(lines[2:]))
-    if args.out:
-        Path(args.out).write_text("\n".join(lines) + "\n")
-    return 0
+    return lines
+
+
+def user_pays(args) -> list[str]:
+    """Construction + analysis + solve against GTSAM's constructor + optimize(), one fresh
+    process per run (``scaling.py``'s children)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import scaling
+
+    probe = subprocess.run([args.python, "-c", "from microlie.optim import available_solvers;"
+                            "print(' '.join(available_solvers()))"], capture_output=True,
+                           text=True, check=True, env=dict(os.environ, PYTHONPATH=str(
+                               Path(__file__).resolve().parents[1] / "src")))
+    avail = probe.stdout.split()
+    back = [b for b in ("supernodal", "qdldl", "scipy", "pardiso") if b in avail]
+    contenders = (["gtsam"] + [f"fast:{b}" for b in back] + [f"numpy:{b}" for b in back])
+    lines = ["## Timed as a user pays it (graph construction, pattern, ordering, symbolic "
+             "analysis, solve; GTSAM: optimizer constructor + optimize())", "",
+             f"Fresh process per run, {args.repeat} interleaved rounds, medians; ratios: median "
+             "of the per-round ratios (range). 'build' (microlie: `from_pose_graph`; GTSAM: its "
+             "Python loop building the graph, not counted) / 'setup' (`FactorGraph.problem()`) "
+             "/ 'analysis' (`Problem.analysed`: ordering + symbolic; GTSAM: the optimizer "
+             "constructor) / 'solve'. Peak = the process's own peak RSS (VmHWM).", ""]
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.graphs:
+            fname, start = GRAPHS[name]
+            pg = read_g2o(DATA / fname)
+            pg0 = pg.replace(poses=initialize(pg, start))
+            npz = Path(tmp) / f"{name}.npz"
+            scaling.save_graph(pg0, npz)
+            print(f"{name}: user pays", file=sys.stderr, flush=True)
+            runs = scaling.measure(pg, npz, contenders, args.repeat, args.python,
+                                   args.gtsam_python,
+                                   log=lambda s: print(s, file=sys.stderr, flush=True))
+            summ = scaling.summary(runs)
+            label = f"{name} ({start} start, {pg.num_vertices} poses, {pg.num_edges} edges)"
+            block = (scaling.table(label, summ, summ.get("gtsam", {}).get("cost")) + [""]
+                     + scaling.breakdown(label, summ) + [""])
+            print("\n".join(block), flush=True)
+            lines += block
+            bs = pg.group.dof
+            rows.append((name, (pg.num_vertices - 1) * bs, bs, summ))
+    lines += ["`auto` against the fastest backend (user-pays medians; the picks are this "
+              "checkout's rule with everything of --python's environment, and restricted to the "
+              "default install):", ""] + scaling.auto_table(rows, avail)
+    return lines
+
+
+#: Started by _timed_process: spawns the command, waits for it, writes [wall s, peak RSS MB,
+#: exit code] to argv[1]. A small process in between because Linux's ru_maxrss of a child is at
+#: least its parent's peak RSS (kept over fork and exec): this one's is a few MB.
+_SPAWN = ("import json, os, sys, time\n"
+          "t = time.perf_counter()\n"
+          "pid = os.posix_spawn(sys.argv[2], sys.argv[2:], os.environ)\n"
+          "_, st, ru = os.wait4(pid, 0)\n"
+          "w = time.perf_counter() - t\n"
+          "open(sys.argv[1], 'w').write(json.dumps([w, ru.ru_maxrss / 1024, "
+          "os.waitstatus_to_exitcode(st)]))\n")
+
+
+def _timed_process(cmd: list[str], env: dict) -> tuple[float, float, str]:
+    """Wall time from start to exit, the process's peak RSS (MB), its stdout."""
+    with tempfile.TemporaryDirectory() as tmp:
+        rep = Path(tmp) / "rusage.json"
+        r = subprocess.run([sys.executable, "-S", "-c", _SPAWN, str(rep), *cmd], env=env,
+                           capture_output=True, text=True)
+        wall, peak, code = json.loads(rep.read_text())
+        if code or r.returncode:
+            raise RuntimeError(f"{cmd} exited with {code}: {r.stderr[-500:]}")
+        return wall, peak, r.stdout
+
+
+def end_to_end(args) -> list[str]:
+    """``microlie optimize FILE --json`` against the GTSAM script, process start to exit."""
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    script = str(Path(__file__).resolve().parent / "gtsam_optimize.py")
+    env = dict(os.environ, PYTHONPATH=src)
+    env.pop("MICROLIE_FAST", None)
+    contenders = {
+        "GTSAM script": (args.gtsam_python, env, "gtsam"),
+        "microlie, all installed": (args.python, env, "cli"),
+        "microlie, default install": (args.gtsam_python, dict(env, MICROLIE_FAST="0"), "cli"),
+    }
+    lines = ["## End to end: `microlie optimize FILE --json -o OUT --init file` against "
+             "`gtsam_optimize.py FILE OUT`", "",
+             f"Process start to exit (import, read, solve, write), {args.repeat} interleaved "
+             "rounds after one warm-up round (file cache), medians; ratio: median of the "
+             "per-round ratios to the GTSAM script (range); peak = the process's ru_maxrss "
+             "(wait4 in a small launcher process, so no parent's peak is inherited). 'all "
+             "installed': --python's environment (compiled extra, qdldl); "
+             "'default install': numpy + scipy only, MICROLIE_FAST=0. Both start from the "
+             "file's vertices.", "",
+             "| graph | contender | wall s | vs GTSAM | peak MB | vs GTSAM | final cost (it) |",
+             "|---|---|---|---|---|---|---|"]
+    with tempfile.TemporaryDirectory() as tmp:
+        out = str(Path(tmp) / "out.g2o")
+        for name in args.graphs:
+            if GRAPHS[name][1] == "odometry":  # no vertices in the file: no common start
+                lines.append(f"| {name} | (no vertices in the file: not run) | | | | | |")
+                continue
+            path = str(DATA / GRAPHS[name][0])
+            res: dict[str, list] = {c: [] for c in contenders}
+            for rnd in range(args.repeat + 1):
+                for c, (exe, e, kind) in contenders.items():
+                    cmd = ([exe, script, path, out] if kind == "gtsam" else
+                           [exe, "-m", "microlie.cli", "optimize", path, "--json", "-o", out,
+                            "--init", "file", "-q"])
+                    wall, peak, text = _timed_process(cmd, e)
+                    rep = json.loads(text.strip().splitlines()[-1])
+                    if rnd:
+                        res[c].append((wall, peak, rep["final_cost"], rep["iterations"]))
+                    print(f"  {name} e2e round {rnd} {c}: {wall:.3f} s {peak:.0f} MB",
+                          file=sys.stderr, flush=True)
+            g = res["GTSAM script"]
+            for c, rs in res.items():
+                w = statistics.median(r[0] for r in rs)
+                pk = statistics.median(r[1] for r in rs)
+                if c == "GTSAM script":
+                    rw = rp = "-"
+                else:
+                    qw = [a[0] / b[0] for a, b in zip(rs, g, strict=True)]
+                    qp = [a[1] / b[1] for a, b in zip(rs, g, strict=True)]
+                    rw = f"{statistics.median(qw):.2f}x ({min(qw):.2f}-{max(qw):.2f})"
+                    rp = f"{statistics.median(qp):.2f}x ({min(qp):.2f}-{max(qp):.2f})"
+                lines.append(f"| {name} | {c} | {w:.3f} | {rw} | {pk:.0f} | {rp} | "
+                             f"{rs[-1][2]:.10g} ({rs[-1][3]}) |")
+            print("\n".join(lines[-3:]), flush=True)
+    return lines
 
 
 if __name__ == "__main__":

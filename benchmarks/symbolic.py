@@ -2,10 +2,10 @@
 
 Two parts (one command each):
 
-``scale``: synthetic pose graphs (a random walk on the integer grid, 2-D with SE(2) poses or
-3-D with SE(3) poses (``--dim 3``); odometry between consecutive poses and a loop closure to
-the previous visit of the same cell) of 1e3 to 1e6 poses. For each size, in a fresh
-subprocess per code base, the setup a user pays once is timed: ``g.problem()`` (block
+``scale``: synthetic pose graphs (:func:`synthetic_pose_graph`: a random walk on the integer
+grid, 2-D with SE(2) poses or 3-D with SE(3) poses (``--dim 3``); odometry between consecutive
+poses and a loop closure to the previous visit of the same cell) of 1e3 to 1e6 poses. For
+each size, in a fresh subprocess per code base, the setup a user pays once is timed: ``g.problem()`` (block
 pattern, compiled edge plans or the NumPy path's scatter map) and the supernodal solver's
 analysis (minimum-degree order, elimination tree, column counts, supernodes, structures,
 assembly and update maps, and without the compiled extra the NumPy loop's plan), then three
@@ -54,33 +54,54 @@ GRAPHS = {
 }
 
 
-def _walk(n: int, dim: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A random walk of ``n`` steps on the integer grid of dimension ``dim`` (the first step
-    0): its unit steps, positions, and the edges (odometry, then a closure from each revisit
-    of a cell to the previous visit)."""
-    rng = np.random.default_rng(seed)
-    unit = np.vstack([np.eye(dim, dtype=np.int64), -np.eye(dim, dtype=np.int64)])
-    steps = unit[rng.integers(0, 2 * dim, n)]
+def synthetic_pose_graph(n: int, dim: int = 2, seed: int = 0):
+    """A synthetic pose graph of ``n`` poses in ``dim`` = 2 (SE(2)) or 3 (SE(3)) dimensions.
+
+    A random walk on the integer grid (unit steps along +-x, +-y(, +-z), drawn from
+    ``default_rng(seed)``), one pose per step heading along its step; odometry edges between
+    consecutive poses and a loop closure from each visit of a cell to the previous visit of
+    the same cell; edges sorted by ``(i, j)``. Measurements are the true relative poses with
+    noise on the right (``Exp(0.01 n)``), information ``1e4 I``; the graph's poses (the start)
+    are the truth with noise ``Exp(0.05 n)`` (``default_rng(seed + 1)``).
+    ``benchmarks/scaling.py`` reuses it.
+    """
+    from microlie import SE2, SE3
+    from microlie.optim.io.pose_graph import PoseGraph
+
+    if dim not in (2, 3):
+        raise ValueError(f"dim must be 2 or 3, got {dim!r}")
+    eye = np.eye(dim, dtype=np.int64)
+    moves = np.stack([eye, -eye], axis=1).reshape(2 * dim, dim)  # +e0, -e0, +e1, -e1, ...
+    walk = np.random.default_rng(seed).integers(0, 2 * dim, n)
+    steps = moves[walk]
     steps[0] = 0
-    xyz = np.cumsum(steps, axis=0)
-    cell = xyz[:, 0].copy()
-    for k in range(1, dim):
-        cell = cell * 4_000_037 + xyz[:, k]
-    o = np.argsort(cell, kind="stable")
-    same = cell[o][1:] == cell[o][:-1]
+    pos = np.cumsum(steps, axis=0)
+    o = np.lexsort(pos.T[::-1])  # by x, then y (then z), stable: visits in time order
+    same = np.all(pos[o][1:] == pos[o][:-1], axis=1)
     a = np.r_[np.arange(n - 1), o[:-1][same]]
     b = np.r_[np.arange(1, n), o[1:][same]]
-    keep = a != b
-    return steps, xyz, np.stack([a[keep], b[keep]])
-
-
-def pose_graph_2d(n: int, seed: int = 0) -> sp.csr_matrix:
-    """The block adjacency of a synthetic 2-D pose graph of ``n`` poses (see the module)."""
-    _, _, (a, b) = _walk(n, 2, seed)
-    A = sp.csr_matrix((np.ones(a.size), (a, b)), shape=(n, n))
-    A = A + A.T
-    A.data[:] = 1.0
-    return A
+    e = np.lexsort((b, a))
+    i, j = a[e].astype(np.int64), b[e].astype(np.int64)
+    rng = np.random.default_rng(seed + 1)
+    xyz = pos.astype(np.float64)
+    if dim == 2:
+        G = SE2
+        truth = SE2.from_xy_theta(xyz[:, 0], xyz[:, 1],
+                                  np.arctan2(steps[:, 1], steps[:, 0]).astype(np.float64))
+    else:  # the rotation taking +x to the step's direction (the first pose: the identity)
+        G = SE3
+        half = np.array([[0, 0, 0], [0, 0, np.pi], [0, 0, np.pi / 2], [0, 0, -np.pi / 2],
+                         [0, -np.pi / 2, 0], [0, np.pi / 2, 0]])[walk] / 2
+        half[0] = 0
+        ang = np.linalg.norm(half, axis=1, keepdims=True)
+        axis = np.divide(half, ang, out=np.zeros_like(half), where=ang > 0)
+        truth = SE3(np.concatenate([xyz, axis * np.sin(ang), np.cos(ang)], axis=1))
+    d = G.dof
+    z = truth[i].inverse() @ truth[j]
+    z = z @ G.exp(0.01 * rng.standard_normal((i.size, d)))
+    start = truth @ G.exp(0.05 * rng.standard_normal((n, d)))
+    return PoseGraph(G, ids=np.arange(n), poses=start, i=i, j=j, measurements=z,
+                     information=np.broadcast_to(np.eye(d) * 1e4, (i.size, d, d)).copy())
 
 
 def _rss_mb() -> float:
@@ -89,33 +110,8 @@ def _rss_mb() -> float:
 
 
 def _graph(n: int, dim: int):
-    """The factor graph of the synthetic walk: SE(2) (``dim`` 2) or SE(3) poses on it
-    (heading along the step), measurements from the truth with noise, the start the truth
-    with noise, the first pose fixed."""
-    from microlie import SE2, SE3
-    from microlie.optim.io.pose_graph import PoseGraph
-
-    steps, xyz, (a, b) = _walk(n, dim)
-    A = sp.triu(sp.csr_matrix((np.ones(a.size), (a, b)), shape=(n, n))
-                + sp.csr_matrix((np.ones(a.size), (b, a)), shape=(n, n)), 1).tocoo()
-    rng = np.random.default_rng(1)
-    i, j = A.row.astype(np.int64), A.col.astype(np.int64)
-    if dim == 2:
-        G, d = SE2, 3
-        th = np.arctan2(steps[:, 1], steps[:, 0])
-        truth = SE2.from_xy_theta(xyz[:, 0].astype(float), xyz[:, 1].astype(float), th)
-    else:
-        G, d = SE3, 6
-        tau = np.zeros((n, 6))
-        tau[:, 3:] = 0.3 * steps  # a rotation along the step
-        truth = SE3.exp(tau)
-        truth = SE3.from_rotation_translation(truth.rotation(), xyz.astype(float))
-    z = truth[i].inverse() @ truth[j]
-    z = z @ G.exp(0.01 * rng.standard_normal((i.size, d)))
-    start = truth @ G.exp(0.05 * rng.standard_normal((n, d)))
-    pg = PoseGraph(G, ids=np.arange(n), poses=start, i=i, j=j, measurements=z,
-                   information=np.broadcast_to(np.eye(d) * 1e4, (i.size, d, d)).copy())
-    g, _ = pg.to_factor_graph(gauge="fix")
+    """The factor graph of :func:`synthetic_pose_graph` with the first pose fixed."""
+    g, _ = synthetic_pose_graph(n, dim).to_factor_graph(gauge="fix")
     return g
 
 

@@ -29,11 +29,12 @@ import numpy as np
 import scipy.linalg as sla  # type: ignore[import-untyped]
 import scipy.sparse as sp  # type: ignore[import-untyped]
 
+from ..._fast import compiled as compiled_module
 from ..core.threads import limit_new_libraries
 from .ordering import graph, minimum_degree, splu_symmetric
 
 __all__ = ["LinearSolver", "SingularSystemError", "make_solver", "available_solvers",
-           "SOLVERS", "PIVOT_TOL"]
+           "auto_order", "SOLVERS", "PIVOT_TOL"]
 
 #: A pivot at most this fraction of its column's diagonal entry counts as zero (the column
 #: is, to rounding, a combination of the columns eliminated before it).
@@ -430,16 +431,76 @@ def available_solvers() -> list[str]:
             if k not in _MODULES or importlib.util.find_spec(_MODULES[k]) is not None]
 
 
+#: ``"auto"``'s size limits (unknowns), measured as a user pays (graph construction, pattern,
+#: ordering and symbolic analysis, solve) by ``benchmarks/scaling.py`` and
+#: ``benchmarks/pose_graph.py --user-pays`` (``benchmarks/results/scaling-latest.md``,
+#: ``pose_graph-latest.md``; see :func:`auto_order`).
+AUTO_DENSE = 300
+AUTO_QDLDL_2D = 100_000
+AUTO_QDLDL_3D = 12_000
+AUTO_QDLDL_3D_COMPILED = 8_000
+AUTO_SCIPY = 5_000
+
+
+def auto_order(n: int, block_size: int = 1, compiled: bool | None = None) -> tuple[str, ...]:
+    """The backends ``"auto"`` tries, best first, for ``n`` unknowns in blocks of ``block_size``.
+
+    The fastest measured per problem kind and size, as a user pays it (analysis included), with
+    and without the compiled supernodal loop (``microlie-fast``): below :data:`AUTO_DENSE`
+    unknowns the dense Cholesky; 2-D problems (blocks under 6) qdldl (its scalar LDL^T has
+    almost no analysis to pay, and these graphs fill little), except from
+    :data:`AUTO_QDLDL_2D` unknowns with the compiled loop: the supernodal Cholesky; 3-D
+    problems (blocks of 6) the supernodal Cholesky, or qdldl below
+    :data:`AUTO_QDLDL_3D_COMPILED` unknowns (:data:`AUTO_QDLDL_3D` without the compiled loop);
+    without qdldl, SuperLU before the NumPy supernodal loop below :data:`AUTO_SCIPY` unknowns.
+    PARDISO, not installed where the tables were measured, keeps the place its solve-only
+    measurements gave it: first in 3-D, after the compiled supernodal loop and before the NumPy
+    one in 2-D.
+
+    Parameters
+    ----------
+    n : int
+        Number of unknowns.
+    block_size : int
+        Unknowns per block (the variables' common dimension).
+    compiled : bool, optional
+        Whether the supernodal Cholesky runs its compiled loop (default: whether
+        ``microlie_fast`` is importable and ``MICROLIE_FAST`` is not ``0``).
+
+    Returns
+    -------
+    tuple of str
+        Backend names, best first, installed or not (``make_solver("auto", ...)`` takes the
+        first installed one).
+
+    Examples
+    --------
+    >>> from microlie.optim.linalg.linear import auto_order
+    >>> auto_order(30_000, 3)[0], auto_order(300_000, 3, compiled=True)[0]
+    ('qdldl', 'supernodal')
+    >>> auto_order(300_000, 3, compiled=False)[0]
+    'qdldl'
+    >>> auto_order(15_000, 6, compiled=False)[:2]
+    ('pardiso', 'supernodal')
+    """
+    if compiled is None:
+        compiled = compiled_module("_chol") is not None
+    if n < AUTO_DENSE:
+        return ("dense", "supernodal", "scipy")
+    sup = ("supernodal", "scipy") if compiled or n >= AUTO_SCIPY else ("scipy", "supernodal")
+    if block_size >= 6:
+        small = n < (AUTO_QDLDL_3D_COMPILED if compiled else AUTO_QDLDL_3D)
+        return ("pardiso", "qdldl", *sup) if small else ("pardiso", *sup, "qdldl")
+    mid = (sup[0], "pardiso", sup[1]) if compiled else ("pardiso", *sup)
+    return ("qdldl", *mid) if n < AUTO_QDLDL_2D or not compiled else (*mid, "qdldl")
+
+
 def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
                 available: list[str] | None = None) -> LinearSolver:
     """A linear solver by name.
 
-    ``"auto"`` chooses by what is installed and by the measurements of
-    ``benchmarks/pose_graph.py`` and ``benchmarks/cholesky.py``: below 300 unknowns the dense
-    Cholesky; for 3-D problems (blocks of 6 or more) PARDISO, else the supernodal Cholesky; for
-    2-D problems qdldl, else PARDISO, else the supernodal Cholesky, else SuperLU (on the five
-    pose graphs of the benchmark the supernodal Cholesky beat SuperLU in the default install,
-    NumPy loop and all: its factorisations took 0.28-0.56x SuperLU's).
+    ``"auto"`` takes the first installed backend of :func:`auto_order` (the fastest measured
+    for the problem's kind and size, with or without the compiled loop).
 
     Parameters
     ----------
@@ -474,14 +535,10 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
     if isinstance(name, LinearSolver):
         return name
     if name == "auto":
-        if n < 300:
+        if n < AUTO_DENSE:
             return DenseSolver()
         avail = available_solvers() if available is None else available
-        if block_size >= 6:
-            prefs: tuple[str, ...] = ("pardiso", "supernodal", "scipy")
-        else:
-            prefs = ("qdldl", "pardiso", "supernodal", "scipy")
-        return SOLVERS[next(k for k in prefs if k in avail)]()()
+        return SOLVERS[next(k for k in auto_order(n, block_size) if k in avail)]()()
     make = SOLVERS.get(name)
     if make is None:
         raise ValueError(f"unknown linear solver {name!r}; known: auto, "
