@@ -4,16 +4,15 @@ Two parts (one command each):
 
 ``scale``: synthetic pose graphs (:func:`synthetic_pose_graph`: a random walk on the integer
 grid, 2-D with SE(2) poses or 3-D with SE(3) poses (``--dim 3``); odometry between consecutive
-poses and a loop closure to the previous visit of the same cell) of 1e3 to 1e6 poses. For
-each size, in a fresh subprocess per code base, the setup a user pays once is timed:
-``g.problem()`` (block pattern, compiled edge plans or the NumPy path's scatter map) and the supernodal solver's
+poses and a loop closure to the previous visit of the same cell) of 1e3 to 1e6 poses. For each
+size, in a fresh subprocess per code base, the setup a user pays once is timed: ``g.problem()``
+(block pattern, compiled edge plans or the NumPy path's scatter map) and the supernodal solver's
 analysis (minimum-degree order, elimination tree, column counts, supernodes, structures,
 assembly and update maps, and without the compiled extra the NumPy loop's plan), then three
 Levenberg-Marquardt iterations (the analysis kept) time one iteration; peak resident memory
-after the setup and after the solve. ``--old SRC`` runs the same with ``PYTHONPATH=SRC``
-(e.g. the code at 1bd9510 unpacked with ``git archive``), interleaved with this one,
-``--repeat R`` times below 1e6 poses, each figure the smallest; ``--fast 0`` runs
-without the compiled extra::
+after the setup and after the solve. ``--old SRC`` runs the same with ``PYTHONPATH=SRC`` (e.g.
+the code at 1bd9510 unpacked with ``git archive``), interleaved with this one, ``--repeat R``
+times below 1e6 poses, each figure the smallest; ``--fast 0`` runs without the compiled extra::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/symbolic.py scale \\
         --sizes 1000 10000 100000 1000000 [--dim 3] [--fast 0] [--old SRC --old-max N]
