@@ -12,8 +12,8 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from microlie.optim import SingularSystemError, make_solver
 from microlie.optim.linalg.cholesky import SupernodalSolver
-from microlie.optim.linalg.linear import SingularSystemError, make_solver
 
 try:
     import microlie_fast._chol  # noqa: F401

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
 
-from .linear import SingularSystemError
+from .base import SingularSystemError
 
 __all__ = ["NumpyLoop"]
 
