@@ -23,9 +23,6 @@ KNOWN_PRIVATE = {
     ("microlie.optim.command_bal", "microlie.optim.command", "_header"),
     ("microlie.optim.command_bal", "microlie.optim.command", "_progress"),
     ("microlie.optim.command_bal", "microlie.optim.command", "_to"),
-    ("microlie.optim.io.toro", "microlie.optim.io.g2o", "_pose_values"),
-    ("microlie.optim.io.toro", "microlie.optim.io.g2o", "_rows"),
-    ("microlie.optim.io.toro", "microlie.optim.io.g2o", "_se2_params"),
     ("microlie.traj.evo_results", "microlie.traj.metrics", "_NAMES"),
 }
 
