@@ -23,7 +23,6 @@ KNOWN_PRIVATE = {
     ("microlie.optim.command_bal", "microlie.optim.command", "_header"),
     ("microlie.optim.command_bal", "microlie.optim.command", "_progress"),
     ("microlie.optim.command_bal", "microlie.optim.command", "_to"),
-    ("microlie.traj.evo_results", "microlie.traj.metrics", "_NAMES"),
 }
 
 
