@@ -12,8 +12,8 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from microlie.optim import SingularSystemError, make_solver
 from microlie.optim.linalg.cholesky import SupernodalSolver
-from microlie.optim.linalg.linear import SingularSystemError, make_solver
 
 try:
     import microlie_fast._chol  # noqa: F401
@@ -263,3 +263,45 @@ def test_wrong_sizes_are_errors(compiled):
         s.solve(np.ones(H.shape[0] + 1))
     with pytest.raises(ValueError, match="right-hand side"):
         s.solve(np.ones((2, H.shape[0])))
+
+
+# the twelve shared pose graphs and their starts (those of tests/test_optim_graphs.py)
+POSE_GRAPHS = [("gtsam/pose2example.txt", "file"), ("gtsam/pose3example.txt", "file"),
+               ("tinyGrid3D.g2o", "file"), ("smallGrid3D.g2o", "file"), ("MIT.g2o", "chordal"),
+               ("CSAIL.g2o", "odometry"), ("manhattan.g2o", "odometry"),
+               ("kitti_00.g2o", "odometry"), ("input_M3500_g2o.g2o", "file"),
+               ("parking-garage.g2o", "file"), ("sphere2500.g2o", "file"),
+               ("ais2klinik.g2o", "chordal")]
+
+
+@pytest.mark.skipif(not HAVE_C, reason="the compiled loop is not installed (or MICROLIE_FAST=0)")
+@pytest.mark.parametrize("name, start", POSE_GRAPHS, ids=[g[0] for g in POSE_GRAPHS])
+def test_numpy_loop_residual_within_2x_of_the_compiled_loop(name, start):
+    """The NumPy loop (the default install's) is as accurate as the compiled one: on the first
+    LM system of every shared pose graph (Gauss-Newton matrix at the start plus LM's initial
+    damping ``1e-5 I``, right-hand side minus the gradient), its relative residual
+    ``|H x - b| / |b|`` (a sparse product) is at most twice the compiled loop's (floored at
+    one rounding unit)."""
+    from conftest import data_file
+
+    from microlie.optim.init import initialize
+    from microlie.optim.io.g2o import read_g2o
+
+    g = read_g2o(data_file(f"pose_graph/{name}"))
+    fg, _ = g.to_factor_graph(initialize(g, start))  # type: ignore[arg-type]
+    prob = fg.problem()
+    lin = prob.linearize([v.initial for v in prob.variables])
+    data = lin.data.copy()
+    data[prob.diag_pos] += 1e-5  # SolverOptions().lambda_initial, H + lambda I
+    H = prob.matrix(data)
+    b = -lin.grad
+    res = {}
+    for compiled in (False, True):
+        s = SupernodalSolver(compiled=compiled)
+        s.analyse(prob.indptr, prob.indices, prob.size, prob.block_size)
+        s.factorize(data)
+        x = s.solve(b)
+        res[compiled] = float(np.linalg.norm(H @ x - b) / np.linalg.norm(b))
+    print(f"{name}: relative residual NumPy loop {res[False]:.2e}, compiled loop "
+          f"{res[True]:.2e} ({res[False] / res[True]:.2f}x)")
+    assert res[False] <= 2.0 * max(res[True], np.finfo(float).eps)

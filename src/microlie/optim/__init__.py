@@ -44,7 +44,8 @@ _LAZY = {
                 "check_jacobians"),
     "io.g2o": ("read_g2o", "write_g2o"),
     "core.graph": ("FactorGraph", "from_pose_graph"),
-    "linalg.linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
+    "linalg.base": ("LinearSolver", "SingularSystemError"),
+    "linalg.linear": ("available_solvers", "make_solver"),
     "core.noise": ("Covariance", "Diagonal", "Information", "Isotropic", "NoiseModel",
               "SqrtInformation", "Unit"),
     "io.pose_graph": ("PoseGraph",),
@@ -101,7 +102,8 @@ if TYPE_CHECKING:
     from .io.g2o import read_g2o, write_g2o
     from .io.pose_graph import PoseGraph
     from .io.toro import read_toro, write_toro
-    from .linalg.linear import LinearSolver, SingularSystemError, available_solvers, make_solver
+    from .linalg.base import LinearSolver, SingularSystemError
+    from .linalg.linear import available_solvers, make_solver
     from .sfm.bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
     from .sfm.camera import BALCamera, PinholeCamera
 

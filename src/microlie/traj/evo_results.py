@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from .metrics import _NAMES, statistics
+from .metrics import RELATION_NAMES, statistics
 from .results import Result
 
 __all__ = ["load_evo_result", "is_evo_result"]
@@ -178,8 +178,8 @@ def load_evo_result(path: str | os.PathLike) -> Result:
         label = str(info.get("label", "")) or title.split("\n", 1)[0] or "evo result"
         metric = label.split(" ", 1)[0].lower() if label.split(" ", 1)[0] in ("APE", "RPE") \
             else "unknown"
-    elif relation in _NAMES:
-        label = f"{metric.upper()} w.r.t. {_NAMES[relation]} ({unit or 'unit-less'})"
+    elif relation in RELATION_NAMES:
+        label = f"{metric.upper()} w.r.t. {RELATION_NAMES[relation]} ({unit or 'unit-less'})"
     else:
         label = title.split("\n", 1)[0]
     return Result(

@@ -128,7 +128,8 @@ _UNITS = {
 _METRES = {"mm": 1e-3, "cm": 1e-2, "m": 1.0, "km": 1e3}
 _ANGLE_RELATIONS = {"deg": "angle_deg", "rad": "angle_rad"}
 
-_NAMES = {
+#: evo's name of each pose relation (in its plot and table labels)
+RELATION_NAMES = {
     "trans": "translation part",
     "point_distance": "point distance",
     "point_distance_error_ratio": "point distance error ratio",
@@ -160,7 +161,7 @@ def relation_label(relation: str) -> str:
     """
     rel = _relation(relation, "deg") if relation != "rot" else "angle_deg"
     unit = _UNITS[rel] or "unit-less"
-    return f"{_NAMES[rel]} ({unit})"
+    return f"{RELATION_NAMES[rel]} ({unit})"
 
 
 def _pose_error_values(e: SE3, rel: str) -> np.ndarray:
@@ -233,7 +234,7 @@ class PoseError:
     @property
     def label(self) -> str:
         """``"APE w.r.t. translation part (m)"`` and the like (in :attr:`unit`)."""
-        name = _NAMES.get(self.relation)
+        name = RELATION_NAMES.get(self.relation)
         if name is None:
             return f"{self.metric.upper()} w.r.t. {relation_label(self.relation)}"
         return f"{self.metric.upper()} w.r.t. {name} ({self.unit or 'unit-less'})"

@@ -117,10 +117,10 @@ class BALProblem:
         >>> float(np.abs(bal.residuals()).max())
         0.0
         """
-        from ..sfm.bundle import rotvec_to_matrix
+        from ...groups import SO3
         from ..sfm.camera import BALCamera, reproject
 
-        R = rotvec_to_matrix(self.cameras[:, :3])
+        R = np.asarray(SO3.exp(np.asarray(self.cameras[:, :3], dtype=float)).matrix())
         return reproject(BALCamera(), R, self.cameras[:, 3:6], self.cameras[:, 6:9],
                          self.points, self.camera_index, self.point_index, self.observations,
                          jac=False, behind=behind).residuals  # type: ignore[arg-type]

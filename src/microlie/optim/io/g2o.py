@@ -51,7 +51,10 @@ from .pose_graph import (
     EdgeTag,
     PoseGraph,
     VertexTag,
+    format_rows,
     parse_pose_graph,
+    pose_values,
+    se2_params,
     symmetric_from_upper,
     unit_quaternions,
 )
@@ -59,20 +62,16 @@ from .pose_graph import (
 __all__ = ["read_g2o", "write_g2o"]
 
 
-def _se2_params(v: np.ndarray) -> np.ndarray:
-    return np.stack([v[:, 0], v[:, 1], np.cos(v[:, 2]), np.sin(v[:, 2])], axis=-1)
-
-
 def _se3_params(v: np.ndarray) -> np.ndarray:
     return np.concatenate([v[:, :3], unit_quaternions(v[:, 3:7])], axis=-1)
 
 
 VERTEX_TAGS = {
-    "VERTEX_SE2": VertexTag(SE2, 3, _se2_params),
+    "VERTEX_SE2": VertexTag(SE2, 3, se2_params),
     "VERTEX_SE3:QUAT": VertexTag(SE3, 7, _se3_params),
 }
 EDGE_TAGS = {
-    "EDGE_SE2": EdgeTag(SE2, 3, 6, _se2_params, lambda w: symmetric_from_upper(w, 3)),
+    "EDGE_SE2": EdgeTag(SE2, 3, 6, se2_params, lambda w: symmetric_from_upper(w, 3)),
     "EDGE_SE3:QUAT": EdgeTag(SE3, 7, 21, _se3_params, lambda w: symmetric_from_upper(w, 6)),
 }
 
@@ -113,21 +112,6 @@ def read_g2o(path: str | Path) -> PoseGraph:
     return parse_pose_graph(path, VERTEX_TAGS, EDGE_TAGS, fix_tag="FIX", kind="g2o")
 
 
-def _pose_values(X: LieGroup) -> np.ndarray:
-    p = np.asarray(X.params, dtype=np.float64)
-    if isinstance(X, SE2):
-        return np.stack([p[:, 0], p[:, 1], np.arctan2(p[:, 3], p[:, 2])], axis=-1)
-    return p
-
-
-def _rows(tag: str, ids: list[np.ndarray], values: np.ndarray) -> list[str]:
-    """One line per row: the tag, the integer ids, then the numbers in Python's shortest
-    repr that reads back to the same double."""
-    fmt = f"{tag} " + " ".join(["%d"] * len(ids) + ["%r"] * values.shape[1])
-    id_rows = np.stack(ids, axis=1).tolist()
-    return [fmt % (*i, *v) for i, v in zip(id_rows, values.tolist(), strict=True)]
-
-
 def write_g2o(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None) -> None:
     r"""Write ``graph`` as g2o, with ``poses`` as vertex lines.
 
@@ -166,10 +150,10 @@ def write_g2o(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None)
     r, c = np.triu_indices(d)
     lines: list[str] = []
     if X is not None:
-        lines += _rows(vtag, [graph.ids], _pose_values(X))
-    lines += _rows(etag, [graph.i, graph.j],
-                   np.concatenate([_pose_values(graph.measurements),
-                                   graph.information[:, r, c]], axis=1))
+        lines += format_rows(vtag, [graph.ids], pose_values(X))
+    lines += format_rows(etag, [graph.i, graph.j],
+                         np.concatenate([pose_values(graph.measurements),
+                                         graph.information[:, r, c]], axis=1))
     if graph.fixed.size:
         lines.append("FIX " + " ".join(str(int(k)) for k in graph.fixed))
     with atomic_write(path) as f:  # a temporary file renamed over ``path``

@@ -25,7 +25,8 @@ import numpy as np
 from ..._textfile import digits_only, numbers_by_line, plain_error, read_text
 from ...groups import SE2, SE3, LieGroup
 
-__all__ = ["PoseGraph", "VertexTag", "EdgeTag", "parse_pose_graph", "symmetric_from_upper"]
+__all__ = ["PoseGraph", "VertexTag", "EdgeTag", "parse_pose_graph", "symmetric_from_upper",
+           "se2_params", "pose_values", "format_rows"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -363,6 +364,88 @@ def symmetric_from_upper(values: np.ndarray, d: int) -> np.ndarray:
     M[:, r, c] = values
     M[:, c, r] = values
     return M
+
+
+def se2_params(values: np.ndarray) -> np.ndarray:
+    """SE(2) parameters ``(x, y, cos theta, sin theta)`` of the ``(x, y, theta)`` columns of
+    a file's rows (g2o's and TORO's 2-D vertices and edges).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(N, 3)``: ``x, y, theta`` (radians).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N, 4)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.io.pose_graph import se2_params
+    >>> np.round(se2_params(np.array([[1.0, 2.0, np.pi / 2]])), 12).tolist()
+    [[1.0, 2.0, 0.0, 1.0]]
+    """
+    v = values
+    return np.stack([v[:, 0], v[:, 1], np.cos(v[:, 2]), np.sin(v[:, 2])], axis=-1)
+
+
+def pose_values(X: LieGroup) -> np.ndarray:
+    """The numbers a g2o or TORO line prints for a batch of poses: ``(x, y, theta)`` for SE(2)
+    (``theta = atan2(sin, cos)``), the parameters ``(t, q_xyzw)`` for SE(3).
+
+    Parameters
+    ----------
+    X : LieGroup
+        A batch of SE(2) or SE(3) poses.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N, 3)`` or ``(N, 7)``, float64.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim.io.pose_graph import pose_values
+    >>> np.round(pose_values(SE2.exp(np.array([[0.0, 0.0, 0.5]]))), 12).tolist()
+    [[0.0, 0.0, 0.5]]
+    """
+    p = np.asarray(X.params, dtype=np.float64)
+    if isinstance(X, SE2):
+        return np.stack([p[:, 0], p[:, 1], np.arctan2(p[:, 3], p[:, 2])], axis=-1)
+    return p
+
+
+def format_rows(tag: str, ids: list[np.ndarray], values: np.ndarray) -> list[str]:
+    """One text line per row: the tag, the integer ids, then the numbers in Python's shortest
+    ``repr`` that reads back to the same double.
+
+    Parameters
+    ----------
+    tag : str
+        The line's first word (``"VERTEX_SE2"``, ``"EDGE2"``, ...).
+    ids : list of numpy.ndarray
+        One ``(N,)`` integer array per id column.
+    values : numpy.ndarray
+        ``(N, k)``: the numbers of each line.
+
+    Returns
+    -------
+    list of str
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.io.pose_graph import format_rows
+    >>> format_rows("VERTEX_SE2", [np.array([7])], np.array([[0.1, 2.0, -3.0]]))
+    ['VERTEX_SE2 7 0.1 2.0 -3.0']
+    """
+    fmt = f"{tag} " + " ".join(["%d"] * len(ids) + ["%r"] * values.shape[1])
+    id_rows = np.stack(ids, axis=1).tolist()
+    return [fmt % (*i, *v) for i, v in zip(id_rows, values.tolist(), strict=True)]
 
 
 # ---------------------------------------------------------------------- the line parser

@@ -39,8 +39,16 @@ import numpy as np
 
 from ..._files import atomic_write
 from ...groups import SE2, SE3, SO3, LieGroup
-from .g2o import _pose_values, _rows, _se2_params
-from .pose_graph import EdgeTag, PoseGraph, VertexTag, parse_pose_graph, symmetric_from_upper
+from .pose_graph import (
+    EdgeTag,
+    PoseGraph,
+    VertexTag,
+    format_rows,
+    parse_pose_graph,
+    pose_values,
+    se2_params,
+    symmetric_from_upper,
+)
 
 __all__ = ["read_toro", "write_toro"]
 
@@ -55,11 +63,11 @@ def _se3_rpy_params(v: np.ndarray) -> np.ndarray:
 
 
 VERTEX_TAGS = {
-    "VERTEX2": VertexTag(SE2, 3, _se2_params),
+    "VERTEX2": VertexTag(SE2, 3, se2_params),
     "VERTEX3": VertexTag(SE3, 6, _se3_rpy_params),
 }
 EDGE_TAGS = {
-    "EDGE2": EdgeTag(SE2, 3, 6, _se2_params,
+    "EDGE2": EdgeTag(SE2, 3, 6, se2_params,
                      lambda w: symmetric_from_upper(w[:, _TORO_TO_UPPER], 3)),
     "EDGE3": EdgeTag(SE3, 6, 21, _se3_rpy_params, lambda w: symmetric_from_upper(w, 6)),
 }
@@ -105,7 +113,7 @@ def read_toro(path: str | Path) -> PoseGraph:
 
 def _toro_values(X: LieGroup) -> np.ndarray:
     if isinstance(X, SE2):
-        return _pose_values(X)
+        return pose_values(X)
     assert isinstance(X, SE3)
     p = np.asarray(X.params, dtype=np.float64)
     R = X.rotation()
@@ -154,8 +162,8 @@ def write_toro(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None
         w = w[:, _UPPER_TO_TORO]
     lines: list[str] = []
     if X is not None:
-        lines += _rows(vtag, [graph.ids], _toro_values(X))
-    lines += _rows(etag, [graph.i, graph.j],
-                   np.concatenate([_toro_values(graph.measurements), w], axis=1))
+        lines += format_rows(vtag, [graph.ids], _toro_values(X))
+    lines += format_rows(etag, [graph.i, graph.j],
+                         np.concatenate([_toro_values(graph.measurements), w], axis=1))
     with atomic_write(path) as f:  # a temporary file renamed over ``path``
         f.write("\n".join(lines) + "\n")

@@ -30,9 +30,8 @@ from typing import Any
 import numpy as np
 
 from ..._fast import compiled as compiled_module
-from .cholesky_numpy import NOT_PD as _NOT_PD
-from .cholesky_numpy import NumpyLoop
-from .linear import LinearSolver, SingularSystemError
+from .base import LinearSolver, SingularSystemError
+from .cholesky_numpy import NOT_PD, NumpyLoop
 from .ordering import ORDERINGS, fill_order, graph
 
 __all__ = ["SupernodalSolver"]
@@ -197,7 +196,7 @@ class SupernodalSolver(LinearSolver):
             except SingularSystemError as e:  # name the failing supernode's first unknown
                 j = getattr(e, "supernode", None)
                 raise SingularSystemError(
-                    _NOT_PD, unknown=None if j is None else int(self.sperm[self.c0[j]])) from None
+                    NOT_PD, unknown=None if j is None else int(self.sperm[self.c0[j]])) from None
         else:
             Lx = np.empty(self.nx + self.bs)  # the panels, then a dump block (zeroed in C)
             info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
@@ -205,9 +204,9 @@ class SupernodalSolver(LinearSolver):
                                   self.relptr, self.rel, self.wsize, self.bs)
             if info:  # the failing supernode + 1: name its first unknown
                 i = int(self.sperm[self.c0[info - 1]]) if 0 < info <= self.ns else None
-                raise SingularSystemError(_NOT_PD, unknown=i)
+                raise SingularSystemError(NOT_PD, unknown=i)
             self.Lx = Lx
-        # every backend's pivot test (L_kk^2 against the diagonal entry; linear.PIVOT_TOL)
+        # every backend's pivot test (L_kk^2 against the diagonal entry; base.PIVOT_TOL)
         ld = self._numpy_plan.diagonal() if self._numpy_plan is not None else \
             self.Lx[self._ldiag]
         self._check_pivots(data, ld * ld, self.sperm)

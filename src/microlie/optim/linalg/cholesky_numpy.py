@@ -21,11 +21,18 @@ Plan (made once per pattern by :class:`NumpyLoop`):
   entry; in NumPy 2 it is also faster than a plain indexed subtraction). With even ``bs`` the
   maps move complex128 words (two entries each): the scatters are bound by memory traffic.
 
-Numeric factorisation (:meth:`NumpyLoop.factor`): per bucket either one batch of NumPy's
-stacked ``cholesky``/``inv`` (small ``K``, many members) or LAPACK's ``potrf``/``trtri`` per
-member in place; then ``L21^T = L11^-1 B^T`` and ``W`` as batched products (``trsm`` and
-``syrk`` for a bucket of one). Solve (:meth:`NumpyLoop.solve`): per level one gather, a batched
-product per bucket and one scatter, forward then backward."""
+Numeric factorisation (:meth:`NumpyLoop.factor`): per bucket either NumPy's stacked
+``cholesky`` (small ``K``, many members) or LAPACK's ``potrf`` per member in place; the
+diagonal blocks of a bucket of several members are then copied (one gather) into the lower
+band of their block-diagonal matrix (bandwidth ``K - 1``), so that one LAPACK band solve
+(``tbtrs``) gives ``L21^T = L11^-1 B^T`` for every member at once (``trsm`` per member where
+the stacked ``cholesky`` was not used); then ``W`` as a batched product (``syrk`` for a
+bucket of one). Solve (:meth:`NumpyLoop.solve`): per level one gather, per bucket one band
+solve (``tbsv``/``tbtrs``; ``trsm`` for a bucket of one) and a batched product, and one
+scatter, forward then backward. No inverse of a diagonal block is formed: every step is a
+triangular solve, backward stable like the compiled loop's (the residual of a solve is the
+compiled loop's to a small factor: ``tests/test_optim_cholesky.py`` checks it on the shared
+pose graphs)."""
 
 from __future__ import annotations
 
@@ -34,7 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
 
-from .linear import SingularSystemError
+from .base import SingularSystemError
 
 __all__ = ["NumpyLoop"]
 
@@ -49,8 +56,8 @@ def _not_pd(supernode: int) -> SingularSystemError:
     e.supernode = supernode  # type: ignore[attr-defined]
     return e
 
-# batched NumPy cholesky/inv for buckets of at least _BATCH_G members with K <= _BATCH_K
-# (NumPy's stacked inv costs about 0.7 us for 6x6 but 10 us for 24x24, LAPACK per member 2 us)
+# batched NumPy cholesky and row-by-row substitution for buckets of at least _BATCH_G members
+# with K <= _BATCH_K (a substitution step costs a few us whatever G; LAPACK per member 2-3 us)
 _BATCH_K, _BATCH_G = 12, 8
 # cost model of a bucket (seconds): fixed cost per bucket and per member, per padded flop and
 # per padded entry moved (measured on the shared pose graphs, one BLAS thread)
@@ -108,11 +115,15 @@ class _Bucket:
             batched
         self.D: Any = None  # (G, K, K) views, set by NumpyLoop._views
         self.B: Any = None  # (G, K, U)
-        self.Linv: Any = None  # (G, K, K), C order, L11^-1 (buckets of more than one)
-        self.LinvT: Any = None  # its transposes, L11^-T
         self.BT: Any = None  # (G, U, K), L21
         self.W: Any = None  # (G, U, U)
-        self.each: list[tuple[Any, Any, Any]] = []  # per member: L11 (F), its C view, Linv^T
+        # buckets of more than one member: the diagonal blocks again, as the lower band
+        # (bandwidth K - 1) of their block-diagonal matrix, for one LAPACK band solve
+        # (``tbtrs``) per bucket in :meth:`NumpyLoop.solve`; row ``g K + c`` of ``band`` is
+        # column ``c`` of member ``g`` from its diagonal down, zero-padded
+        self.band: Any = None  # (G K, K)
+        self.bsrc: Any = None  # positions in D of the band's entries ...
+        self.bdst: Any = None  # ... and in band
         self.c: tuple[int, int] = (0, 0)  # its columns in the level's gathered columns
         self.r: tuple[int, int] = (0, 0)  # its rows in the level's gathered rows
 
@@ -163,12 +174,11 @@ class NumpyLoop:
                 K[mem], U[mem] = Kb, Ub
                 bl.append(_Bucket(mem, Kb, Ub, bool(Kb <= _BATCH_K and mem.size >= _BATCH_G)))
             self.levels.append(bl)
-        # layout: bucket after bucket, D then B; Linv and W in their own buffers
+        # layout: bucket after bucket, D then B; W in its own buffer
         dpos = np.zeros(ns, np.int64)
         bpos = np.zeros(ns, np.int64)
         wpos = np.zeros(ns, np.int64)
-        off = loff = wmax = 0
-        self._lofs: list[tuple[_Bucket, int]] = []
+        off = wmax = 0
         self._wlen: list[int] = []
         for bl in self.levels:
             woff = 0
@@ -181,14 +191,10 @@ class NumpyLoop:
                 off += G * Kb * Ub
                 wpos[b.members] = woff + g * Ub * Ub
                 woff += G * Ub * Ub
-                if G > 1:
-                    self._lofs.append((b, loff))
-                    loff += G * Kb * Kb
             self._wlen.append(woff)
             wmax = max(wmax, woff)
         self.size = off
         self.L = np.zeros(off + bs)  # the factor, then one dump run of bs entries
-        self._Linv = np.zeros(loff)
         self._Wbuf = np.zeros(wmax)
         self.K, self.U, self.dpos, self.bpos = K, U, dpos, bpos
         # padded diagonal: ones
@@ -319,11 +325,13 @@ class NumpyLoop:
                 b.D = L[d0:d0 + G * Kb * Kb].reshape(G, Kb, Kb)
                 b.B = L[d0 + G * Kb * Kb:d0 + G * Kb * (Kb + Ub)].reshape(G, Kb, Ub)
                 b.BT = np.swapaxes(b.B, 1, 2)
-        for b, lo in self._lofs:
-            b.Linv = self._Linv[lo:lo + b.G * b.K * b.K].reshape(b.G, b.K, b.K)
-            b.LinvT = np.swapaxes(b.Linv, 1, 2)
-            if not b.batched:
-                b.each = [(D.T, D, Li.T) for D, Li in zip(b.D, b.Linv, strict=True)]
+                if G > 1:
+                    g, c, t = np.meshgrid(np.arange(G), np.arange(Kb), np.arange(Kb),
+                                          indexing="ij")
+                    low = c + t < Kb  # D[g, c, c + t] = L11[c + t, c]
+                    b.bsrc, b.bdst = (g * Kb * Kb + c * Kb + c + t)[low], ((g * Kb + c) * Kb
+                                                                           + t)[low]
+                    b.band = np.zeros((G * Kb, Kb))
         for bl in self.levels:
             w = 0
             for b in bl:
@@ -343,7 +351,7 @@ class NumpyLoop:
             L[self._amap] = data
         Lw, Wf = (L.view(np.complex128), self._Wbuf.view(np.complex128)) if self.word == 2 \
             else (L, self._Wbuf)
-        potrf, trtri, trsm, syrk = lapack.dpotrf, lapack.dtrtri, blas.dtrsm, blas.dsyrk
+        potrf, trsm, syrk, tbtrs = lapack.dpotrf, blas.dtrsm, blas.dsyrk, lapack.dtbtrs
         for bl, (dst, src) in zip(self.levels, self._scatter, strict=True):
             for b in bl:
                 D, B = b.D, b.B
@@ -354,48 +362,47 @@ class NumpyLoop:
                         bad = next(g for g in range(b.G) if potrf(D[g].T.copy(), lower=1)[1])
                         raise _not_pd(int(b.members[bad])) from None
                     D[...] = np.swapaxes(L11, 1, 2)
-                    b.Linv[...] = np.linalg.inv(L11)
-                elif b.G == 1:
-                    DF = D[0].T
-                    if potrf(DF, lower=1, clean=1, overwrite_a=1)[1]:
-                        raise _not_pd(int(b.members[0]))
-                    if b.U:
-                        BF = B[0].T
-                        trsm(1.0, DF, BF, side=1, lower=1, trans_a=1, overwrite_b=1)
-                        syrk(1.0, BF, beta=0.0, c=b.W[0].T, lower=1, overwrite_c=1)
-                    continue
-                else:  # L11 in place, then L11^T inverted in place in Linv's F view
-                    for g, (DF, DT, LF) in enumerate(b.each):
+                    b.band.ravel()[b.bdst] = D.ravel()[b.bsrc]
+                    if b.U:  # B = L21^T = L11^-1 B: one band solve for the bucket
+                        BU = B.reshape(-1, b.U)
+                        BU[...] = tbtrs(b.band.T, BU, uplo="L")[0]
+                else:  # per member in place: L11 = potrf, L21 = L21 L11^-T (F views)
+                    for g in range(b.G):
+                        DF = D[g].T
                         if potrf(DF, lower=1, clean=1, overwrite_a=1)[1]:
                             raise _not_pd(int(b.members[g]))
-                        LF[...] = DT
-                        trtri(LF, lower=0, overwrite_c=1)
+                        if b.U:
+                            trsm(1.0, DF, B[g].T, side=1, lower=1, trans_a=1, overwrite_b=1)
+                    if b.G > 1:
+                        b.band.ravel()[b.bdst] = D.ravel()[b.bsrc]
                 if b.U:
-                    B[...] = b.Linv @ B
-                    np.matmul(np.swapaxes(B, 1, 2), B, out=b.W)
+                    if b.G == 1:
+                        syrk(1.0, B[0].T, beta=0.0, c=b.W[0].T, lower=1, overwrite_c=1)
+                    else:
+                        np.matmul(b.BT, B, out=b.W)
             if dst.size:  # ufunc.at sums the contributions of several members to one entry
                 np.subtract.at(Lw, dst, Wf.take(src))
 
     def solve(self, y: np.ndarray) -> None:
         """Solve in place: ``y`` is ``(n + 2, nrhs)`` (the right-hand side in the factor's
         order, then the zero row and the dump row)."""
-        trsm, mm = blas.dtrsm, np.matmul
+        trsm, tbsv, tbtrs, mm = blas.dtrsm, blas.dtbsv, lapack.dtbtrs, np.matmul
         nr = y.shape[1]
         plan = list(zip(self.levels, self._cols, self._rows, strict=True))
         for bl, (cr, cw), (_, rw) in plan:
-            Yc = y[cr]
-            X = np.empty_like(Yc)
+            X = y[cr]  # a copy, solved in place
             Ur = np.empty((rw.size, nr))
             for b in bl:
                 (c0, c1), (r0, r1), sh = b.c, b.r, (b.G, -1, nr)
-                if b.Linv is None:
-                    X[c0:c1] = trsm(1.0, b.D[0].T, Yc[c0:c1], lower=1)
-                    if b.U:
-                        mm(b.B[0].T, X[c0:c1], out=Ur[r0:r1])
+                Xb = X[c0:c1].reshape(sh)
+                if b.G == 1:  # L11 X = Y
+                    Xb[0] = trsm(1.0, b.D[0].T, Xb[0], lower=1)
+                elif nr == 1:  # one band solve for the bucket, in place
+                    tbsv(b.K - 1, b.band.T, X[c0:c1, 0], lower=1, overwrite_x=1)
                 else:
-                    mm(b.Linv, Yc[c0:c1].reshape(sh), out=X[c0:c1].reshape(sh))
-                    if b.U:
-                        mm(b.BT, X[c0:c1].reshape(sh), out=Ur[r0:r1].reshape(sh))
+                    X[c0:c1] = tbtrs(b.band.T, X[c0:c1], uplo="L")[0]
+                if b.U:  # L21 X, to subtract from the rows below
+                    mm(b.BT, Xb, out=Ur[r0:r1].reshape(sh))
             y[cw] = X
             if rw.size:
                 if nr == 1:
@@ -403,18 +410,19 @@ class NumpyLoop:
                 else:
                     np.subtract.at(y, rw, Ur)
         for bl, (cr, cw), (rr, _) in reversed(plan):
-            Yc = y[cr]
+            X = y[cr]
             Yr = y[rr]
-            X = np.empty_like(Yc)
             for b in bl:
                 (c0, c1), (r0, r1), sh = b.c, b.r, (b.G, -1, nr)
-                T = Yc[c0:c1]
-                if b.U:  # Yc - L21^T Yr, in place in Yc
-                    T -= mm(b.B, Yr[r0:r1].reshape(sh)).reshape(T.shape)
-                if b.Linv is None:
-                    X[c0:c1] = trsm(1.0, b.D[0].T, T, lower=1, trans_a=1)
+                Xb = X[c0:c1].reshape(sh)
+                if b.U:  # Y - L21^T Yr
+                    Xb -= mm(b.B, Yr[r0:r1].reshape(sh))
+                if b.G == 1:  # L11^T X = Y
+                    Xb[0] = trsm(1.0, b.D[0].T, Xb[0], lower=1, trans_a=1)
+                elif nr == 1:
+                    tbsv(b.K - 1, b.band.T, X[c0:c1, 0], lower=1, trans=1, overwrite_x=1)
                 else:
-                    mm(b.LinvT, T.reshape(sh), out=X[c0:c1].reshape(sh))
+                    X[c0:c1] = tbtrs(b.band.T, X[c0:c1], uplo="L", trans="T")[0]
             y[cw] = X
 
     def diagonal(self) -> np.ndarray:

@@ -1,11 +1,13 @@
-"""Sparse symmetric positive definite solvers behind one small interface.
+"""Sparse symmetric positive definite solvers behind one small interface
+(:class:`~microlie.optim.linalg.base.LinearSolver`).
 
 ``solver.analyse(indptr, indices, n)`` sees the fixed sparsity pattern once (full symmetric
 storage, compressed sparse columns, sorted rows); ``solver.factorize(data)`` refactorises with
 new numbers in that pattern; ``solver.solve(b)`` solves ``H x = b``. A matrix that is not
-positive definite raises :class:`SingularSystemError`, with one test for every backend but
-PARDISO: a pivot of the factorisation (``d_k`` of ``LDL^T``, ``L_kk^2`` of Cholesky) at most
-:data:`PIVOT_TOL` times its column's diagonal entry counts as zero. A rank-deficient system
+positive definite raises :class:`~microlie.optim.linalg.base.SingularSystemError`, with one
+test for every backend but PARDISO: a pivot of the factorisation (``d_k`` of ``LDL^T``,
+``L_kk^2`` of Cholesky) at most :data:`~microlie.optim.linalg.base.PIVOT_TOL` times its
+column's diagonal entry counts as zero. A rank-deficient system
 (a gauge freedom, an unobservable variable) then raises whatever the backend and its order
 (its computed pivots are rounding noise of either sign, 1e-16 to 1e-9 of their diagonal on
 the shared benchmark pose graphs without a gauge; the smallest genuine one there is
@@ -31,202 +33,10 @@ import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from ..._fast import compiled as compiled_module
 from ..core.threads import limit_new_libraries
+from .base import LinearSolver, SingularSystemError
 from .ordering import graph, minimum_degree, splu_symmetric
 
-__all__ = ["LinearSolver", "SingularSystemError", "make_solver", "available_solvers",
-           "auto_order", "SOLVERS", "PIVOT_TOL"]
-
-#: A pivot at most this fraction of its column's diagonal entry counts as zero (the column
-#: is, to rounding, a combination of the columns eliminated before it).
-PIVOT_TOL = 1e-10
-
-
-class SingularSystemError(ValueError):
-    """The linear system is singular or not positive definite.
-
-    Attributes
-    ----------
-    message : str
-        The error text (``str(error)``).
-    unknown : int or None
-        The unknown (row of the matrix) whose pivot failed, when known.
-
-    Examples
-    --------
-    >>> from microlie.optim.linalg.linear import SingularSystemError
-    >>> SingularSystemError("singular", unknown=4).unknown
-    4
-    """
-
-    def __init__(self, message: str, unknown: int | None = None) -> None:
-        super().__init__(message)
-        self.unknown = unknown
-
-
-class LinearSolver:
-    """A sparse symmetric positive definite solver: analyse the pattern once, refactorise many
-    times, solve. The matrix is given as the CSC data of the full symmetric pattern passed
-    to :meth:`analyse`. Backends: ``make_solver(name)`` (see :func:`available_solvers`).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> import scipy.sparse as sp
-    >>> from microlie.optim import make_solver
-    >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
-    >>> ls = make_solver("scipy")
-    >>> ls.analyse(A.indptr, A.indices, 3)
-    >>> ls.factorize(A.data)
-    >>> np.round(ls.solve(np.array([5.0, 4.0, 2.0])), 12).tolist()
-    [1.0, 1.0, 1.0]
-    """
-
-    name = "base"
-
-    def analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int,
-                block_size: int = 1) -> None:
-        """See the pattern (symbolic analysis, ordering).
-
-        Parameters
-        ----------
-        indptr, indices : numpy.ndarray
-            The CSC pattern of the full symmetric matrix.
-        n : int
-            The matrix size.
-        block_size : int
-            The unknowns come in dense blocks of that size.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> import scipy.sparse as sp
-        >>> from microlie.optim import make_solver
-        >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
-        >>> ls = make_solver("scipy")
-        >>> ls.analyse(A.indptr, A.indices, 3)
-        >>> ls.n
-        3
-        """
-        self.indptr, self.indices, self.n = indptr, indices, n
-        # the position of each diagonal entry in the CSC data (-1: not in the pattern)
-        cols = np.repeat(np.arange(n), np.diff(indptr))
-        hit = np.flatnonzero(np.asarray(indices) == cols)
-        self._diag_at = np.full(n, -1, dtype=np.int64)
-        self._diag_at[cols[hit]] = hit
-
-    def _check_pivots(self, data: np.ndarray, pivots: np.ndarray, order: np.ndarray) -> None:
-        """Raise :class:`SingularSystemError` unless every pivot exceeds :data:`PIVOT_TOL`
-        times its diagonal entry (``pivots[k]`` is that of unknown ``order[k]``, in elimination
-        order); the message names the first failing unknown."""
-        at = self._diag_at[order]
-        diag = np.where(at >= 0, data[np.maximum(at, 0)], 0.0)
-        bad = np.flatnonzero(~(pivots > PIVOT_TOL * diag))  # NaN fails too
-        if bad.size:
-            k = int(bad[0])
-            i = int(order[k])
-            ratio = pivots[k] / diag[k] if diag[k] > 0 else float("nan")
-            raise SingularSystemError(
-                f"the linear system is singular or not positive definite: the pivot of "
-                f"unknown {i} is {ratio:.2g} times its diagonal entry {diag[k]:.3g} "
-                f"({bad.size} of {self.n} pivots at most {PIVOT_TOL:g} times theirs)",
-                unknown=i)
-
-    def _triangles(self) -> None:
-        """CSC upper and lower triangles of the pattern (for the triangular-input backends)."""
-        indptr, indices, n = self.indptr, self.indices, self.n
-        cols = np.repeat(np.arange(n), np.diff(indptr))
-        self._upper = np.flatnonzero(indices <= cols)  # CSC upper triangle (= CSR lower)
-        self._lower = np.flatnonzero(indices >= cols)  # CSC lower triangle (= CSR upper)
-        up_cols = cols[self._upper]
-        self.upper_indptr = np.concatenate([[0], np.cumsum(np.bincount(up_cols, minlength=n))]
-                                           ).astype(np.int32)
-        self.upper_indices = indices[self._upper].astype(np.int32)
-        lo_cols = cols[self._lower]
-        self.lower_indptr = np.concatenate([[0], np.cumsum(np.bincount(lo_cols, minlength=n))]
-                                           ).astype(np.int32)
-        self.lower_indices = indices[self._lower].astype(np.int32)
-
-    def full(self, data: np.ndarray) -> sp.csc_matrix:
-        """The matrix of CSC ``data`` in the analysed pattern.
-
-        Parameters
-        ----------
-        data : numpy.ndarray
-            Values in the pattern's order.
-
-        Returns
-        -------
-        scipy.sparse.csc_matrix
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> import scipy.sparse as sp
-        >>> from microlie.optim import make_solver
-        >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
-        >>> ls = make_solver("scipy")
-        >>> ls.analyse(A.indptr, A.indices, 3)
-        >>> ls.full(A.data).toarray()[0].tolist()
-        [4.0, 1.0, 0.0]
-        """
-        return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
-
-    def factorize(self, data: np.ndarray) -> None:
-        """Factorise the matrix with values ``data`` in the analysed pattern.
-
-        Parameters
-        ----------
-        data : numpy.ndarray
-            Values in the pattern's order.
-
-        Raises
-        ------
-        SingularSystemError
-            The matrix is singular or not positive definite.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> import scipy.sparse as sp
-        >>> from microlie.optim import make_solver
-        >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
-        >>> ls = make_solver("scipy")
-        >>> ls.analyse(A.indptr, A.indices, 3)
-        >>> ls.factorize(A.data)
-        """
-        raise NotImplementedError
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        """Solve with the last factorisation.
-
-        Parameters
-        ----------
-        b : numpy.ndarray
-            ``(n,)`` right-hand side, or ``(n, k)`` for ``k`` of them (every backend).
-
-        Returns
-        -------
-        numpy.ndarray
-            The solution, shaped as ``b``.
-
-        Raises
-        ------
-        SingularSystemError
-            The solution is not finite.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> import scipy.sparse as sp
-        >>> from microlie.optim import make_solver
-        >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]]))
-        >>> ls = make_solver("scipy")
-        >>> ls.analyse(A.indptr, A.indices, 3)
-        >>> ls.factorize(A.data)
-        >>> np.round(ls.solve(np.array([4.0, 1.0, 0.0])), 12).tolist()
-        [1.0, 0.0, 0.0]
-        """
-        raise NotImplementedError
+__all__ = ["make_solver", "available_solvers", "auto_order", "SOLVERS"]
 
 
 def _checked(x: np.ndarray) -> np.ndarray:
