@@ -11,7 +11,7 @@ your own with analytic Jacobians is a :class:`Factor` subclass implementing
 ``Information``, ``SqrtInformation``, ``Covariance``, ``Diagonal``, ``Isotropic``; robust losses
 (``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
 ``DCS``, ``Barron``, applied as in Ceres. ``result = g.optimize(solver="lm"|"gn"|"dogleg",
-linear_solver="auto"|"supernodal"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
+linear_solver="auto"|"cholesky"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
 :class:`Result` with ``values`` (``result.values[poses]`` is the optimised batch),
 ``initial_cost``, ``final_cost`` (``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``,
 ``converged``, ``message``, ``history`` and ``time_s``; a graph without a prior or a fixed

@@ -309,7 +309,7 @@ class FactorGraph:
         solver : {"lm", "gn", "dogleg"}
             Levenberg-Marquardt (default), Gauss-Newton or Powell's dogleg.
         linear_solver : str or LinearSolver
-            ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
+            ``"auto"``, ``"scipy"``, ``"cholesky"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
             an instance (see :func:`make_solver`).
         max_iter : int
             Iteration limit.
@@ -381,7 +381,7 @@ class FactorGraph:
         items : sequence of (Variables, int)
             The variables, one ``(handle, index)`` each.
         linear_solver : str or LinearSolver
-            ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
+            ``"auto"``, ``"scipy"``, ``"cholesky"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
             an instance (see :func:`make_solver`).
         blas_threads : int or None
             BLAS threads while factorising and solving (default 1, as :meth:`optimize`;
@@ -437,7 +437,7 @@ class FactorGraph:
         idx : optional
             Indices or a mask; all if ``None``.
         linear_solver : str or LinearSolver
-            ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
+            ``"auto"``, ``"scipy"``, ``"cholesky"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
             an instance (see :func:`make_solver`).
         blas_threads : int or None
             BLAS threads while factorising and solving (default 1, as :meth:`optimize`;
