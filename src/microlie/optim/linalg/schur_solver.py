@@ -82,7 +82,7 @@ class _Group:
 
     cols: np.ndarray  # (m, d) their unknowns
     cidx: np.ndarray  # (m, d, d) positions of C_e in the extended data
-    bidx: np.ndarray  # (m, d, k) positions of B_e^T
+    bidx: np.ndarray  # (m, k, d) positions of B_e
     rows: np.ndarray  # (m, k) neighbouring unknowns, reduced numbering
     span: tuple[int, int]  # their products' slice of the contribution buffer
 
@@ -300,7 +300,7 @@ class SchurSolver(LinearSolver):
                 loc = np.arange(k) - np.take_along_axis(first, jt, axis=1)
                 un = np.take_along_axis(nb, jt, axis=1)  # node of each row
                 rows = off[un] + loc  # (m, k) unknowns
-                bidx = at(rows[:, None, :], ecols[:, :, None])  # B^T[a, t] = H[row_t, col_a]
+                bidx = at(rows[:, :, None], ecols[:, None, :])  # B[t, a] = H[row_t, col_a]
                 rb = rnode[nb]
                 P0 = s_at(rb[:, :, None], rb[:, None, :])  # (m, dg, dg): block (row j1, col j2)
                 ii = np.arange(m)[:, None, None]
@@ -311,12 +311,13 @@ class SchurSolver(LinearSolver):
                 rr = r_of[rows]
                 rowsall.append(rr.ravel())
             else:
-                bidx = np.zeros((m, d, 0), np.int64)
+                bidx = np.zeros((m, 0, d), np.int64)
                 rr = np.zeros((m, 0), np.int64)
             at_rows.append(total)
             groups.append(_Group(ecols, cidx, bidx, rr, (total, total + m * k * k)))
             total += m * k * k
         self._groups = groups
+        # int64: bincount converts anything else to it, a copy per factorisation
         self._dest = np.concatenate(dests) if dests else np.zeros(0, np.int64)
         self._w = np.empty(total)  # the products V_e^T V_e of every group
         # the rhs scatter: t (sum m k) -> reduced rows, as one sparse 0/1 product
@@ -344,7 +345,8 @@ class SchurSolver(LinearSolver):
         dz[:-1] = data
         S = np.zeros(self._s_nnz)
         S[self._a_dst] = dz[self._a_src]
-        self._li, self._vt = [], []
+        self._li: list[np.ndarray] = []
+        self._vt: list[tuple[np.ndarray, np.ndarray] | None] = []
         w = self._w
         for g in self._groups:
             C = dz[g.cidx]
@@ -363,11 +365,15 @@ class SchurSolver(LinearSolver):
             Li = np.linalg.inv(L)  # lower triangular, d x d
             self._li.append(Li)
             if g.rows.shape[1]:
-                VT = Li @ dz[g.bidx]  # (m, d, k) = L^-1 B^T
+                # V = B L^-T (m, k, d) and its transpose, both contiguous: a batched matmul
+                # with a transposed (strided) operand leaves BLAS and is 10-30x slower
+                # (measured, NumPy 2.4)
+                V = dz[g.bidx] @ np.ascontiguousarray(np.swapaxes(Li, 1, 2))
+                VT = np.ascontiguousarray(np.swapaxes(V, 1, 2))
                 a, b = g.span
                 m, k = g.rows.shape
-                np.matmul(np.swapaxes(VT, 1, 2), VT, out=w[a:b].reshape(m, k, k))
-                self._vt.append(VT)
+                np.matmul(V, VT, out=w[a:b].reshape(m, k, k))  # B C^-1 B^T per node
+                self._vt.append((V, VT))
             else:
                 self._vt.append(None)
         if self._dest.size:
@@ -397,7 +403,7 @@ class SchurSolver(LinearSolver):
             y = Li @ B[g.cols]  # (m, d, j) = L^-1 b_e
             ys.append(y)
             if VT is not None:
-                ts.append((np.swapaxes(VT, 1, 2) @ y).reshape(-1, j))  # (m k, j) B C^-1 b_e
+                ts.append((VT[0] @ y).reshape(-1, j))  # (m k, j) B C^-1 b_e
         rhs = B[self._r_unk]
         if ts:
             rhs = rhs - self._rhs_sum @ np.concatenate(ts)
@@ -407,7 +413,7 @@ class SchurSolver(LinearSolver):
         x = np.empty((self.n, j))
         x[self._r_unk] = xr
         for g, Li, VT, y in zip(self._groups, self._li, self._vt, ys, strict=True):
-            z = y if VT is None else y - VT @ xr[g.rows]  # L^-1 (b_e - B^T x_r)
+            z = y if VT is None else y - VT[1] @ xr[g.rows]  # L^-1 (b_e - B^T x_r)
             x[g.cols] = np.swapaxes(Li, 1, 2) @ z
         if not np.all(np.isfinite(x)):
             raise SingularSystemError("the linear system is singular (the solution is not "
