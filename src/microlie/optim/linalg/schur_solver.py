@@ -216,7 +216,38 @@ class SchurSolver(LinearSolver):
         return cls(problem.node_off, nodes[nodes >= 0], reduced)
 
     # ---------------------------------------------------------------- analysis
-    def analyse(self, indptr, indices, n, block_size=1):
+    def analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int,
+                block_size: int = 1) -> None:
+        """The symbolic work, once per pattern: the eliminated blocks' positions, the pattern
+        of the reduced system (its blocks: ``A``'s and every pair of neighbours of an
+        eliminated node), the scatter of every product into it, and the reduced system's own
+        analysis by its backend.
+
+        Parameters
+        ----------
+        indptr, indices : numpy.ndarray
+            The CSC pattern of the full symmetric matrix (rows sorted in each column).
+        n : int
+            The matrix size (``node_off[-1]``).
+        block_size : int
+            Unused (the nodes give the blocks); for the common interface.
+
+        Raises
+        ------
+        ValueError
+            Two eliminated nodes share a block, or the pattern does not fit ``node_off``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> import scipy.sparse as sp
+        >>> from microlie.optim.linalg.schur_solver import SchurSolver
+        >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 1.0], [1.0, 3.0, 0.0], [1.0, 0.0, 2.0]]))
+        >>> s = SchurSolver([0, 1, 2, 3], eliminate=[1, 2])
+        >>> s.analyse(A.indptr, A.indices, 3)
+        >>> s.n_reduced, s.reduced_solver.name
+        (1, 'dense')
+        """
         super().analyse(indptr, indices, n)
         off = self.node_off
         if off[-1] != n:
@@ -352,6 +383,30 @@ class SchurSolver(LinearSolver):
 
     # ---------------------------------------------------------------- numeric
     def factorize(self, data: np.ndarray) -> None:
+        """Factorise: the eliminated blocks ``C_e = L_e L_e^T``, the reduced system
+        ``S = A - B C^-1 B^T`` and its factorisation (numeric work only).
+
+        Parameters
+        ----------
+        data : numpy.ndarray
+            Values of ``H`` in the analysed pattern's order.
+
+        Raises
+        ------
+        SingularSystemError
+            A block ``C_e`` or the reduced system is not positive definite (``unknown``:
+            the failing unknown of ``H``).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> import scipy.sparse as sp
+        >>> from microlie.optim.linalg.schur_solver import SchurSolver
+        >>> A = sp.csc_matrix(np.array([[4.0, 1.0, 1.0], [1.0, 3.0, 0.0], [1.0, 0.0, 2.0]]))
+        >>> s = SchurSolver([0, 1, 2, 3], eliminate=[1, 2])
+        >>> s.analyse(A.indptr, A.indices, 3)
+        >>> s.factorize(A.data)
+        """
         data = np.asarray(data, dtype=np.float64)
         if data.shape != (self.indices.size,):
             raise ValueError(f"data has shape {data.shape}; the analysed pattern has "
@@ -405,6 +460,37 @@ class SchurSolver(LinearSolver):
         self._factored = True
 
     def solve(self, b: np.ndarray) -> np.ndarray:
+        """Solve ``H x = b`` with the last factorisation: the reduced right-hand side
+        ``b_r - B C^-1 b_e``, the reduced solve, then ``x_e = C^-1 (b_e - B^T x_r)``.
+
+        Parameters
+        ----------
+        b : numpy.ndarray
+            ``(n,)``, or ``(n, k)`` for ``k`` right-hand sides.
+
+        Returns
+        -------
+        numpy.ndarray
+            The solution, shaped as ``b``.
+
+        Raises
+        ------
+        SingularSystemError
+            No factorisation, or the solution is not finite.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> import scipy.sparse as sp
+        >>> from microlie.optim.linalg.schur_solver import SchurSolver
+        >>> H = np.array([[4.0, 1.0, 1.0], [1.0, 3.0, 0.0], [1.0, 0.0, 2.0]])
+        >>> A = sp.csc_matrix(H)
+        >>> s = SchurSolver([0, 1, 2, 3], eliminate=[1, 2])
+        >>> s.analyse(A.indptr, A.indices, 3)
+        >>> s.factorize(A.data)
+        >>> np.round(s.solve(H @ [1.0, 2.0, 3.0]), 12).tolist()
+        [1.0, 2.0, 3.0]
+        """
         b = np.asarray(b, dtype=np.float64)
         if b.ndim not in (1, 2) or b.shape[0] != self.n:
             raise ValueError(f"the right-hand side has shape {b.shape}; expected ({self.n},) "
