@@ -9,7 +9,8 @@ come from :func:`microlie.optim.sfm.camera.reproject` (the bundle adjuster's own
 Printed, per repetition (each round runs every contender once, in turn):
 
 - ``linear``: one damped factorisation and solve of the same ``H`` (the linearisation at the
-  start, ``lambda = 1e-4`` on the diagonal): median of ``--inner`` calls, ms. Schur includes
+  start, ``lambda = 1e-4`` on the diagonal; one BLAS thread, as ``optimize`` runs): median of
+  ``--inner`` calls, ms. Schur includes
   forming and factorising the reduced system and the back-substitution.
 - ``iteration``: a Levenberg-Marquardt run of ``--iters`` iterations on the graph, time per
   iteration (linearisation, solve, trial cost); and ``bundle_adjust`` (Ceres' rules, its own
@@ -35,6 +36,7 @@ import numpy as np
 
 from microlie import SO3
 from microlie.optim import CustomFactor, FactorGraph, read_bal
+from microlie.optim.core.threads import blas_threads_limit
 from microlie.optim.sfm.bundle import bundle_adjust
 from microlie.optim.sfm.camera import BALCamera, reproject
 
@@ -67,11 +69,12 @@ def linear_time(ls, data, diag, grad, inner):
     d = data.copy()
     d[diag] += 1e-4
     times = []
-    for _ in range(inner):
-        t0 = time.perf_counter()
-        ls.factorize(d)
-        x = ls.solve(-grad)
-        times.append(time.perf_counter() - t0)
+    with blas_threads_limit(1):  # as optimize runs
+        for _ in range(inner):
+            t0 = time.perf_counter()
+            ls.factorize(d)
+            x = ls.solve(-grad)
+            times.append(time.perf_counter() - t0)
     return statistics.median(times), x
 
 
