@@ -146,15 +146,15 @@ def _scene(seed=0, n_poses=6, n_points=40):
     cam, pt = np.array(cam), np.array(pt)
     zt = np.einsum("mji,mj->mi", truth_T[cam].rotation().matrix(),
                    truth_p[pt] - truth_T[cam].translation())
-    z = zt + 0.01 * rng.standard_normal(zt.shape)
+    z = zt + 0.002 * rng.standard_normal(zt.shape)
     obs = CustomFactor(_observe, [(T, cam), (P, pt)], 3, Isotropic(3, 0.01), data=[z],
                        jac="analytic")
     g.add(obs)
     i = np.arange(n_poses - 1)
-    rel = (truth_T[i].inverse() @ truth_T[i + 1]) @ SE3.exp(0.01 * rng.standard_normal(
+    rel = (truth_T[i].inverse() @ truth_T[i + 1]) @ SE3.exp(0.002 * rng.standard_normal(
         (n_poses - 1, 6)))
     g.add(BetweenFactor(T, i, i + 1, rel, Diagonal([0.02] * 3 + [0.01] * 3)))
-    gps = truth_T.translation() + 0.05 * rng.standard_normal((n_poses, 3))
+    gps = truth_T.translation() + 0.01 * rng.standard_normal((n_poses, 3))
     g.add(CustomFactor(lambda X, zz: X.translation() - zz, [(T, np.arange(n_poses))], 3,
                        Isotropic(3, 0.05), data=[gps]))
     g.add(PriorFactor(T, 0, truth_T[0], Isotropic(6, 0.01)))
