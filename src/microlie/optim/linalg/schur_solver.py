@@ -352,9 +352,9 @@ class SchurSolver(LinearSolver):
                 P0 = s_at(rb[:, :, None], rb[:, None, :])  # (m, dg, dg): block (row j1, col j2)
                 if np.all(nd == nd[0, 0]):  # neighbours of one size: by broadcasting
                     dl = int(nd[0, 0])
-                    a = np.arange(dl)
-                    acl = collen[rb][:, :, None] * a  # (m, dg, dl): a2 * collen
-                    dest = (P0[:, :, None, :, None] + a[:, None, None]
+                    la = np.arange(dl)
+                    acl = collen[rb][:, :, None] * la  # (m, dg, dl): a2 * collen
+                    dest = (P0[:, :, None, :, None] + la[:, None, None]
                             + acl[:, None, None, :, :]).reshape(m, k, k)
                 else:
                     ii = np.arange(m)[:, None, None]
