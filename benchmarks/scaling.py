@@ -315,7 +315,7 @@ def auto_table(rows: list[tuple[str, int, int, dict]], avail: list[str] | None =
                                                                      key=lambda x: x[1]))
                          or "-")
         picks = [make_solver("auto", n, bs, avail).name,
-                 make_solver("auto", n, bs, ["scipy", "supernodal", "dense"]).name]
+                 make_solver("auto", n, bs, ["scipy", "cholesky", "dense"]).name]
         lines.append(f"| {case} | {n} ({bs}) | {cells[0]} | {cells[1]} | {picks[0]} | "
                      f"{picks[1]} |")
     return lines
@@ -348,7 +348,7 @@ def main(argv=None) -> int:
     from microlie.optim import available_solvers
 
     avail = available_solvers()
-    back = [b for b in ("supernodal", "qdldl", "scipy", "pardiso") if b in avail]
+    back = [b for b in ("cholesky", "qdldl", "scipy", "pardiso") if b in avail]
     contenders = args.contenders or (["gtsam"] + [f"fast:{b}" for b in back]
                                      + [f"numpy:{b}" for b in back])
     load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()

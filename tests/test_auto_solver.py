@@ -25,40 +25,40 @@ from microlie.optim.linalg.linear import auto_order
 # case: (unknowns, block size, {mode: {backend: user-pays median s}})
 CASES: dict[str, tuple[int, int, dict[str, dict[str, float]]]] = {
     "2-D 1e3": (2997, 3, {
-        "fast": {"supernodal": 0.602, "qdldl": 0.480, "scipy": 0.803},
-        "numpy": {"supernodal": 1.261, "qdldl": 0.546, "scipy": 0.847}}),
+        "fast": {"cholesky": 0.602, "qdldl": 0.480, "scipy": 0.803},
+        "numpy": {"cholesky": 1.261, "qdldl": 0.546, "scipy": 0.847}}),
     "2-D 1e4": (29997, 3, {
-        "fast": {"supernodal": 5.045, "qdldl": 5.771, "scipy": 13.296},
-        "numpy": {"supernodal": 7.823, "qdldl": 6.711, "scipy": 14.504}}),
+        "fast": {"cholesky": 5.045, "qdldl": 5.771, "scipy": 13.296},
+        "numpy": {"cholesky": 7.823, "qdldl": 6.711, "scipy": 14.504}}),
     "2-D 1e5": (299997, 3, {
-        "fast": {"supernodal": 53.957, "qdldl": 77.718},
-        "numpy": {"supernodal": 132.261, "qdldl": 102.296}}),
+        "fast": {"cholesky": 53.957, "qdldl": 77.718},
+        "numpy": {"cholesky": 132.261, "qdldl": 102.296}}),
     "3-D 1e3": (5994, 6, {
-        "fast": {"supernodal": 0.888, "qdldl": 0.738, "scipy": 1.361},
-        "numpy": {"supernodal": 1.619, "qdldl": 1.123, "scipy": 1.983}}),
+        "fast": {"cholesky": 0.888, "qdldl": 0.738, "scipy": 1.361},
+        "numpy": {"cholesky": 1.619, "qdldl": 1.123, "scipy": 1.983}}),
     "3-D 1e4": (59994, 6, {
-        "fast": {"supernodal": 7.631, "qdldl": 10.035, "scipy": 30.573},
-        "numpy": {"supernodal": 15.035, "qdldl": 15.094, "scipy": 31.552}}),
+        "fast": {"cholesky": 7.631, "qdldl": 10.035, "scipy": 30.573},
+        "numpy": {"cholesky": 15.035, "qdldl": 15.094, "scipy": 31.552}}),
     "3-D 1e5": (599994, 6, {  # one round
-        "fast": {"supernodal": 104.257, "qdldl": 96.332},
-        "numpy": {"supernodal": 130.195, "qdldl": 155.392}}),
+        "fast": {"cholesky": 104.257, "qdldl": 96.332},
+        "numpy": {"cholesky": 130.195, "qdldl": 155.392}}),
     "sphere2500": (14994, 6, {
-        "fast": {"supernodal": 5.260, "qdldl": 20.289, "scipy": 13.123},
-        "numpy": {"supernodal": 8.121, "qdldl": 19.706, "scipy": 15.572}}),
+        "fast": {"cholesky": 5.260, "qdldl": 20.289, "scipy": 13.123},
+        "numpy": {"cholesky": 8.121, "qdldl": 19.706, "scipy": 15.572}}),
     "parking-garage": (9960, 6, {
-        "fast": {"supernodal": 2.625, "qdldl": 2.921, "scipy": 5.872},
-        "numpy": {"supernodal": 5.333, "qdldl": 4.937, "scipy": 5.522}}),
+        "fast": {"cholesky": 2.625, "qdldl": 2.921, "scipy": 5.872},
+        "numpy": {"cholesky": 5.333, "qdldl": 4.937, "scipy": 5.522}}),
     "M3500": (10497, 3, {
-        "fast": {"supernodal": 2.175, "qdldl": 2.160, "scipy": 3.346},
-        "numpy": {"supernodal": 3.397, "qdldl": 2.118, "scipy": 3.785}}),
+        "fast": {"cholesky": 2.175, "qdldl": 2.160, "scipy": 3.346},
+        "numpy": {"cholesky": 3.397, "qdldl": 2.118, "scipy": 3.785}}),
     "ais2klinik": (45342, 3, {
-        "fast": {"supernodal": 6.175, "qdldl": 4.645, "scipy": 14.669},
-        "numpy": {"supernodal": 11.616, "qdldl": 6.430, "scipy": 16.203}}),
+        "fast": {"cholesky": 6.175, "qdldl": 4.645, "scipy": 14.669},
+        "numpy": {"cholesky": 11.616, "qdldl": 6.430, "scipy": 16.203}}),
     "kitti_00": (13620, 3, {
-        "fast": {"supernodal": 1.098, "qdldl": 0.750, "scipy": 1.746},
-        "numpy": {"supernodal": 1.811, "qdldl": 0.969, "scipy": 1.582}}),
+        "fast": {"cholesky": 1.098, "qdldl": 0.750, "scipy": 1.746},
+        "numpy": {"cholesky": 1.811, "qdldl": 0.969, "scipy": 1.582}}),
 }
-DEFAULT = ("supernodal", "scipy")
+DEFAULT = ("cholesky", "scipy")
 
 
 def _cases():
@@ -80,4 +80,4 @@ def test_auto_order_follows_the_compiled_switch(monkeypatch):
     monkeypatch.setenv("MICROLIE_FAST", "0")
     assert auto_order(10_000, 6) == auto_order(10_000, 6, compiled=False)
     assert auto_order(10_000, 6)[1] == "qdldl"
-    assert auto_order(10_000, 6, compiled=True)[1] == "supernodal"
+    assert auto_order(10_000, 6, compiled=True)[1] == "cholesky"

@@ -14,7 +14,7 @@ your own with analytic Jacobians is a :class:`Factor` subclass implementing
 (``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
 ``DCS``, ``Barron``, applied as in Ceres.
 ``result = g.optimize(solver="lm"|"gn"|"dogleg"|"trust-region", linear_solver="auto"|
-"supernodal"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a :class:`Result` with ``values``
+"cholesky"|"schur"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a :class:`Result` with ``values``
 (``result.values[poses]`` is the optimised batch), ``initial_cost``, ``final_cost``
 (``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``, ``converged``, ``message``,
 ``history`` and ``time_s``; ``solver`` also takes a strategy object with its options
@@ -46,6 +46,7 @@ _LAZY = {
     "core.graph": ("FactorGraph", "from_pose_graph"),
     "linalg.base": ("LinearSolver", "SingularSystemError"),
     "linalg.linear": ("available_solvers", "make_solver"),
+    "linalg.schur_solver": ("SchurSolver",),
     "core.noise": ("Covariance", "Diagonal", "Information", "Isotropic", "NoiseModel",
               "SqrtInformation", "Unit"),
     "io.pose_graph": ("PoseGraph",),
@@ -104,6 +105,7 @@ if TYPE_CHECKING:
     from .io.toro import read_toro, write_toro
     from .linalg.base import LinearSolver, SingularSystemError
     from .linalg.linear import available_solvers, make_solver
+    from .linalg.schur_solver import SchurSolver
     from .sfm.bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
     from .sfm.camera import BALCamera, PinholeCamera
 
@@ -114,7 +116,7 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
            "Strategy", "LevenbergMarquardt", "GaussNewton", "Dogleg", "TrustRegion",
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
-           "available_solvers",
+           "available_solvers", "SchurSolver",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
            "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera", "PoseGraph", "read_g2o",
            "write_g2o", "read_toro", "write_toro"]

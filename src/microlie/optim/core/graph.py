@@ -312,8 +312,8 @@ class FactorGraph:
     # ------------------------------------------------------------------ solving
     @with_blas_threads
     def optimize(self, values: Values | None = None, *, solver: str | Strategy = "lm",
-                 linear_solver: str | LinearSolver = "auto", max_iter: int = 100,
-                 rel_tol: float | None = None, abs_tol: float | None = None,
+                 linear_solver: str | LinearSolver = "auto", eliminate: Any = None,
+                 max_iter: int = 100, rel_tol: float | None = None, abs_tol: float | None = None,
                  cost_tol: float | None = None, step_tol: float | None = None,
                  gauge: str = "check", verbose: bool | None = None,
                  blas_threads: int | None = 1, **options: Any) -> Result:
@@ -329,8 +329,15 @@ class FactorGraph:
             ``"dogleg"`` (:class:`Dogleg`), ``"trust-region"`` (:class:`TrustRegion`,
             Levenberg-Marquardt with Ceres' rules), or an instance with its options.
         linear_solver : str or LinearSolver
-            ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
-            an instance (see :func:`make_solver`).
+            ``"auto"``, ``"cholesky"``, ``"schur"``, ``"scipy"``, ``"qdldl"``, ``"pardiso"``,
+            ``"dense"`` or an instance (see :func:`make_solver`). ``"schur"`` eliminates
+            variables that share no factor with each other (landmarks) and factorises the
+            reduced system (:class:`~microlie.optim.linalg.schur_solver.SchurSolver`).
+        eliminate : Variables or sequence of Variables, optional
+            With ``linear_solver="schur"``: the batches to eliminate (their free variables may
+            share no factor with each other nor with the other named batches); default: the
+            landmark-like batches with the most unknowns
+            (:func:`~microlie.optim.linalg.schur_solver.landmark_batches`).
         max_iter : int
             Iteration limit (as the strategy counts them, :attr:`Result.iterations`).
         rel_tol, abs_tol, cost_tol, step_tol : float, optional
@@ -380,7 +387,8 @@ class FactorGraph:
         given = {k: v for k, v in tols.items() if v is not None}
         strategy = make_strategy(solver, **given, **options)
         return solve(self.problem(gauge), self._states(values), strategy,
-                     linear_solver=linear_solver, max_iter=max_iter, verbose=verbose)
+                     linear_solver=linear_solver, eliminate=eliminate, max_iter=max_iter,
+                     verbose=verbose)
 
     # ------------------------------------------------------------------ marginals
     def _factorized(self, values: Values | None, linear_solver: Any) -> tuple:
@@ -405,7 +413,7 @@ class FactorGraph:
         items : sequence of (Variables, int)
             The variables, one ``(handle, index)`` each.
         linear_solver : str or LinearSolver
-            ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
+            ``"auto"``, ``"scipy"``, ``"cholesky"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
             an instance (see :func:`make_solver`).
         blas_threads : int or None
             BLAS threads while factorising and solving (default 1, as :meth:`optimize`;
@@ -463,7 +471,7 @@ class FactorGraph:
         idx : optional
             Indices or a mask; all if ``None``.
         linear_solver : str or LinearSolver
-            ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
+            ``"auto"``, ``"scipy"``, ``"cholesky"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
             an instance (see :func:`make_solver`).
         blas_threads : int or None
             BLAS threads while factorising and solving (default 1, as :meth:`optimize`;

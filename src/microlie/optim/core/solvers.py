@@ -186,8 +186,8 @@ class Result:
 
 
 def solve(problem: Problem, states: list[np.ndarray], strategy: str | Strategy = "lm", *,
-          linear_solver: str | LinearSolver = "auto", max_iter: int = 100,
-          verbose: bool | None = None) -> Result:
+          linear_solver: str | LinearSolver = "auto", eliminate: Any = None,
+          max_iter: int = 100, verbose: bool | None = None) -> Result:
     """Run a strategy on a problem from ``states`` (what :meth:`FactorGraph.optimize` calls).
 
     Parameters
@@ -200,7 +200,10 @@ def solve(problem: Problem, states: list[np.ndarray], strategy: str | Strategy =
         A name of :data:`~microlie.optim.core.strategies.STRATEGIES` (default options) or an
         instance.
     linear_solver : str or LinearSolver
-        See :func:`~microlie.optim.make_solver`.
+        See :func:`~microlie.optim.make_solver`; ``"schur"``: Schur elimination
+        (:class:`~microlie.optim.linalg.schur_solver.SchurSolver`).
+    eliminate : Variables or sequence of Variables, optional
+        The batches ``"schur"`` eliminates (default: the landmark-like ones).
     max_iter : int
         Iteration limit (as the strategy counts iterations, :attr:`Result.iterations`).
     verbose : bool, optional
@@ -242,7 +245,7 @@ def solve(problem: Problem, states: list[np.ndarray], strategy: str | Strategy =
     tm = {"linearize": 0.0, "assemble": 0.0, "factorize": 0.0, "solve": 0.0, "cost": 0.0,
           "retract": 0.0}
     show = bool(verbose) if verbose is not None else sys.stderr.isatty()
-    ls = problem.analysed(linear_solver)
+    ls = problem.analysed(linear_solver, eliminate)
     lin = _linearize(problem, states, tm)
     _require_finite(problem, states, lin, "at the start")
     c0, rc0 = lin.cost, lin.robust_cost

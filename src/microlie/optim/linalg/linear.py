@@ -13,7 +13,7 @@ column's diagonal entry counts as zero. A rank-deficient system
 the shared benchmark pose graphs without a gauge; the smallest genuine one there is
 2.8e-8, ais2klinik).
 
-Backends (``make_solver(name)``): ``"supernodal"`` (our supernodal multifrontal Cholesky on the
+Backends (``make_solver(name)``): ``"cholesky"`` (our supernodal multifrontal Cholesky on the
 block pattern, NumPy and LAPACK only, :mod:`microlie.optim.linalg.cholesky`), ``"scipy"`` (SuperLU
 with
 a symmetric minimum-degree order), ``"qdldl"`` (``pip install microlie[sparse]``, Apache-2.0),
@@ -217,7 +217,7 @@ def _supernodal() -> type[LinearSolver]:
     return SupernodalSolver
 
 
-SOLVERS: dict[str, Any] = {"supernodal": _supernodal, "scipy": lambda: ScipySolver,
+SOLVERS: dict[str, Any] = {"cholesky": _supernodal, "scipy": lambda: ScipySolver,
                            "qdldl": lambda: QdldlSolver, "pardiso": lambda: PardisoSolver,
                            "dense": lambda: DenseSolver}
 _MODULES = {"qdldl": "qdldl", "pardiso": "pypardiso"}
@@ -287,17 +287,17 @@ def auto_order(n: int, block_size: int = 1, compiled: bool | None = None) -> tup
     --------
     >>> from microlie.optim.linalg.linear import auto_order
     >>> auto_order(30_000, 3)[0], auto_order(300_000, 3, compiled=True)[0]
-    ('qdldl', 'supernodal')
+    ('qdldl', 'cholesky')
     >>> auto_order(300_000, 3, compiled=False)[0]
     'qdldl'
     >>> auto_order(15_000, 6, compiled=False)[:2]
-    ('pardiso', 'supernodal')
+    ('pardiso', 'cholesky')
     """
     if compiled is None:
         compiled = compiled_module("_chol") is not None
     if n < AUTO_DENSE:
-        return ("dense", "supernodal", "scipy")
-    sup = ("supernodal", "scipy") if compiled or n >= AUTO_SCIPY else ("scipy", "supernodal")
+        return ("dense", "cholesky", "scipy")
+    sup = ("cholesky", "scipy") if compiled or n >= AUTO_SCIPY else ("scipy", "cholesky")
     if block_size >= 6:
         small = n < (AUTO_QDLDL_3D_COMPILED if compiled else AUTO_QDLDL_3D)
         return ("pardiso", "qdldl", *sup) if small else ("pardiso", *sup, "qdldl")
@@ -322,7 +322,7 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
     block_size : int
         The block size of the unknowns (for ``"auto"``).
     available : list of str, optional
-        Restrict ``"auto"``'s choice (for example to ``["scipy", "supernodal", "dense"]``,
+        Restrict ``"auto"``'s choice (for example to ``["scipy", "cholesky", "dense"]``,
         what ``pip install microlie`` has).
 
     Returns
@@ -350,9 +350,13 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
         avail = available_solvers() if available is None else available
         return SOLVERS[next(k for k in auto_order(n, block_size) if k in avail)]()()
     make = SOLVERS.get(name)
+    if name == "schur":
+        raise ValueError("linear_solver='schur' needs the problem's variables: pass it to "
+                         "FactorGraph.optimize or Problem.analysed, or build a "
+                         "microlie.optim.linalg.schur_solver.SchurSolver(node_off, eliminate)")
     if make is None:
         raise ValueError(f"unknown linear solver {name!r}; known: auto, "
-                         f"{', '.join(SOLVERS)}")
+                         f"{', '.join(SOLVERS)}, schur")
     if name in _MODULES and importlib.util.find_spec(_MODULES[name]) is None:
         raise ImportError(f"linear_solver={name!r} needs the package {_MODULES[name]!r} "
                           f"(pip install {_EXTRAS[name]!r})")
