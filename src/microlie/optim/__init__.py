@@ -35,6 +35,7 @@ _LAZY = {
     "io.bal": ("BALProblem", "read_bal", "write_bal"),
     "sfm.bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
     "sfm.camera": ("BALCamera", "PinholeCamera"),
+    "sfm.reprojection": ("ReprojectionFactor",),
     "core.factors": ("BetweenFactor", "CustomFactor", "Factor", "JacobianCheck", "PriorFactor",
                 "check_jacobians"),
     "io.g2o": ("read_g2o", "write_g2o"),
@@ -96,6 +97,7 @@ if TYPE_CHECKING:
     from .linalg.linear import LinearSolver, SingularSystemError, available_solvers, make_solver
     from .sfm.bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
     from .sfm.camera import BALCamera, PinholeCamera
+    from .sfm.reprojection import ReprojectionFactor
 
 __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "PriorFactor",
            "BetweenFactor", "CustomFactor", "check_jacobians", "JacobianCheck", "NoiseModel",
@@ -105,5 +107,6 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
            "available_solvers",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
-           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera", "PoseGraph", "read_g2o",
+           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera", "ReprojectionFactor",
+           "PoseGraph", "read_g2o",
            "write_g2o", "read_toro", "write_toro"]
