@@ -74,9 +74,13 @@ def scene(model: str, depths: np.ndarray, xy: np.ndarray, seed: int = 0):
     return R, t, X
 
 
-def make_factor(model: str, form: str, R, t, X, K, obs, *, variable_K=True, behind="evaluate"):
-    """A graph of one camera per observation and the factor; returns (factor, values)."""
+def make_factor(model: str, form: str, R, t, X, K, obs, *, variable_K=True, behind="evaluate",
+                c2w=False):
+    """A graph of one camera per observation and the factor; returns (factor, values). ``R, t``
+    are the world-to-camera transforms; with ``c2w`` the variables hold their inverses."""
     n = len(X)
+    if c2w:
+        R, t = np.swapaxes(R, 1, 2), -np.einsum("nji,nj->ni", R, t)
     g = FactorGraph()
     idx = np.arange(n)
     if form == "SE3":
@@ -98,20 +102,24 @@ def make_factor(model: str, form: str, R, t, X, K, obs, *, variable_K=True, behi
     else:
         intr = K
     f = ReprojectionFactor(pose_arg, (pts, idx), obs, model=model, intrinsics=intr,
-                           behind=behind)
+                           behind=behind, camera_to_world=c2w)
     g.add(f)
     return f, vals
 
 
-def hand_jacobians(model, form, R, t, X, K, h=1e-6):
+def hand_jacobians(model, form, R, t, X, K, h=1e-6, c2w=False):
     """Central differences of the oracle residual on the matrix exponential: right
-    perturbation T expm(hat(xi)) for SE3, R expm(hat(phi)) for SO3, + h for vectors."""
+    perturbation T expm(hat(xi)) for SE3, R expm(hat(phi)) for SO3, + h for vectors, of the
+    pose variable T (T_cw = (R, t), or its inverse T_wc with ``c2w``)."""
     n = len(X)
     T = np.tile(np.eye(4), (n, 1, 1))
     T[:, :3, :3], T[:, :3, 3] = R, t
+    if c2w:
+        T = np.linalg.inv(T)
 
     def res(T_, X_, K_):
-        P = np.einsum("nij,nj->ni", T_[:, :3, :3], X_) + T_[:, :3, 3]
+        Tcw = np.linalg.inv(T_) if c2w else T_
+        P = np.einsum("nij,nj->ni", Tcw[:, :3, :3], X_) + Tcw[:, :3, 3]
         return project(model, P, K_)
 
     def dT(xi_cols):   # one perturbation matrix per observation
@@ -131,7 +139,7 @@ def hand_jacobians(model, form, R, t, X, K, h=1e-6):
                 elif part == 0:                    # rotation: R expm(hat(phi))
                     xi[:, 3 + a] = s * h
                     Tp = T.copy()
-                    Tp[:, :3, :3] = R @ dT(xi)[:, :3, :3]
+                    Tp[:, :3, :3] = T[:, :3, :3] @ dT(xi)[:, :3, :3]
                 else:                              # translation: t + h e_a
                     Tp = T.copy()
                     Tp[:, a, 3] += s * h
@@ -165,19 +173,21 @@ def hard_points(model: str):
 
 # ------------------------------------------------------------------ Jacobians
 
+@pytest.mark.parametrize("c2w", [False, True], ids=["T_cw", "T_wc"])
 @pytest.mark.parametrize("form", FORMS)
 @pytest.mark.parametrize("model", list(INTRINSICS))
-def test_jacobians_match_matrix_exponential_differences(model, form):
+def test_jacobians_match_matrix_exponential_differences(model, form, c2w):
     xy, depth = hard_points(model)
     R, t, X = scene(model, depth, xy, seed=1)
     K = np.tile(INTRINSICS[model], (len(X), 1))
     obs = np.random.default_rng(2).normal(size=(len(X), 2))
-    f, vals = make_factor(model, form, R, t, X, K, obs)
+    f, vals = make_factor(model, form, R, t, X, K, obs, c2w=c2w)
     r, Js = f.evaluate(vals, True)
     P = np.einsum("nij,nj->ni", R, X) + t
-    np.testing.assert_allclose(r, project(model, P, K) - obs, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(r, project(model, P, K) - obs, rtol=1e-9, atol=1e-7)
     # near the plane the Jacobians reach 1e5 px per unit: compare relative to each row
-    for k, (Ja, Jn) in enumerate(zip(Js, hand_jacobians(model, form, R, t, X, K), strict=True)):
+    ref = hand_jacobians(model, form, R, t, X, K, c2w=c2w)
+    for k, (Ja, Jn) in enumerate(zip(Js, ref, strict=True)):
         scale = np.maximum(1.0, np.abs(Jn).max(axis=2, keepdims=True))
         err = np.abs(Ja - Jn) / scale
         assert err.max() < 1e-6, (k, err.max())
@@ -185,9 +195,10 @@ def test_jacobians_match_matrix_exponential_differences(model, form):
     assert check_jacobians(f, vals).ok
 
 
+@pytest.mark.parametrize("c2w", [False, True], ids=["T_cw", "T_wc"])
 @pytest.mark.parametrize("form", FORMS)
 @pytest.mark.parametrize("model", list(INTRINSICS))
-def test_behind_drop_zero_rows_and_exact_jacobians(model, form):
+def test_behind_drop_zero_rows_and_exact_jacobians(model, form, c2w):
     xy, depth = hard_points(model)
     depth = np.append(depth, 0.0)                   # one point exactly on the camera plane
     xy = np.vstack([xy, [0.1, 0.1]])
@@ -195,7 +206,7 @@ def test_behind_drop_zero_rows_and_exact_jacobians(model, form):
     R[-1], t[-1], X[-1] = np.eye(3), 0.0, [0.1, 0.1, 0.0]    # P_z = 0 exactly
     K = np.tile(INTRINSICS[model], (len(X), 1))
     obs = np.random.default_rng(5).normal(size=(len(X), 2))
-    f, vals = make_factor(model, form, R, t, X, K, obs, behind="drop")
+    f, vals = make_factor(model, form, R, t, X, K, obs, behind="drop", c2w=c2w)
     with np.errstate(all="raise"):                  # no warning from the dropped rows
         r, Js = f.evaluate(vals, True)
     P = np.einsum("nij,nj->ni", R, X) + t
@@ -209,9 +220,9 @@ def test_behind_drop_zero_rows_and_exact_jacobians(model, form):
     # the dropped rows stay dropped under a small perturbation: finite differences agree
     keep = np.arange(7)                              # not the point exactly on the plane
     f2, vals2 = make_factor(model, form, R[keep], t[keep], X[keep], K[keep], obs[keep],
-                            behind="drop")
+                            behind="drop", c2w=c2w)
     assert check_jacobians(f2, vals2).ok
-    ref = hand_jacobians(model, form, R[keep], t[keep], X[keep], K[keep])
+    ref = hand_jacobians(model, form, R[keep], t[keep], X[keep], K[keep], c2w=c2w)
     for Ja, Jn in zip(f2.evaluate(vals2, True)[1], ref, strict=True):
         Jn = np.where(front[keep][:, None, None], Jn, 0.0)
         scale = np.maximum(1.0, np.abs(Jn).max(axis=2, keepdims=True))
@@ -240,12 +251,13 @@ def test_constant_intrinsics(model):
     assert check_jacobians(f).ok
 
 
+@pytest.mark.parametrize("c2w", [False, True], ids=["T_cw", "T_wc"])
 @pytest.mark.parametrize("form", FORMS)
-def test_evaluate_into_matches_evaluate(form):
+def test_evaluate_into_matches_evaluate(form, c2w):
     xy, depth = hard_points("pinhole-radtan")
     R, t, X = scene("pinhole-radtan", depth, xy, seed=8)
     K = np.tile(INTRINSICS["pinhole-radtan"], (len(X), 1))
-    f, vals = make_factor("pinhole-radtan", form, R, t, X, K, np.ones((len(X), 2)))
+    f, vals = make_factor("pinhole-radtan", form, R, t, X, K, np.ones((len(X), 2)), c2w=c2w)
     r, Js = f.evaluate(vals, True)
     out = np.full((len(X), 2, 6 + 3 + 8), np.nan)
     r2 = f.evaluate_into(vals, out)
@@ -292,6 +304,7 @@ def test_bad_input_names_the_argument():
         (dict(pose=(T, [0, 1]), observations=np.array([[0.0, np.nan], [0, 0]])), "observations"),
         (dict(pose=(T, [0, 1]), behind="skip"), "behind"),
         (dict(pose=(T, [0, 1]), model="fisheye"), "model"),
+        (dict(pose=(T, [0, 1]), camera_to_world="yes"), "camera_to_world"),
     ]
     for kw, word in cases:
         args = {"point": (X, [0, 1]), "observations": obs, **ok, **kw}

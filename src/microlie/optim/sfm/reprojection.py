@@ -9,8 +9,12 @@
 * an ``SO3`` variable ``R`` and an ``R(3)`` variable ``t`` (``R Exp(dphi)``, ``t + dt``; the
   parametrisation of BAL and Ceres): ``d r / d dphi = -A R [X]_x``, ``d r / d dt = A``;
 
-with ``A = d uv / d P`` and ``d r / d X = A R``. Intrinsics are an ``R(k)`` variable (held per
-camera with ``fix``) or constants. Residuals and Jacobians come from
+with ``A = d uv / d P`` and ``d r / d X = A R``. With ``camera_to_world=True`` the pose variables
+are the camera-to-world ``T_wc = (R_wc, c)`` instead (GTSAM's ``PinholeCamera`` pose, the
+frame of pose graphs and odometry): ``P = R_wc^T (X - c)``, ``d P / d (rho, phi) = [-I,
+[P]_x]`` for ``T_wc Exp(rho, phi)``, ``d P / d dphi = [P]_x`` and ``d P / d dc = -R_wc^T`` for
+``R_wc Exp(dphi)``, ``c + dc``. Intrinsics are an ``R(k)`` variable (held per camera with
+``fix``) or constants. Residuals and Jacobians come from
 :func:`~microlie.optim.sfm.camera.reproject`, the same code as :class:`BALProblem`'s residuals.
 """
 
@@ -74,6 +78,10 @@ class ReprojectionFactor(Factor):
         Points behind the camera (see :mod:`microlie.optim.sfm.camera`): projected like any
         other (``"evaluate"``, the BAL convention) or given a zero residual and zero
         Jacobians (``"drop"``, as GTSAM's ``GeneralSFMFactor`` and COLMAP).
+    camera_to_world : bool
+        The pose variables are camera-to-world ``T_wc`` (``R_wc``, camera centre ``c``)
+        instead of world-to-camera ``T_cw`` (module docstring): the pose a
+        :class:`~microlie.optim.BetweenFactor` of odometry or a position prior refers to.
 
     Attributes
     ----------
@@ -87,6 +95,8 @@ class ReprojectionFactor(Factor):
         The option used.
     pose_form : {"SE3", "SO3xR3"}
         How the pose is parametrised.
+    camera_to_world : bool
+        The option used.
 
     Raises
     ------
@@ -121,8 +131,11 @@ class ReprojectionFactor(Factor):
     def __init__(self, pose: Any, point: tuple[Variables, Any], observations: Any, *,
                  model: str | CameraModel = "bal", intrinsics: Any = None,
                  noise: NoiseModel | None = None, loss: RobustLoss | str | None = None,
-                 behind: str = "evaluate") -> None:
+                 behind: str = "evaluate", camera_to_world: bool = False) -> None:
         what = type(self).__name__
+        if not isinstance(camera_to_world, bool | np.bool_):
+            raise ValueError(f"{what}: camera_to_world must be a bool, got {camera_to_world!r}")
+        self.camera_to_world = bool(camera_to_world)
         self.model = camera_model(model)
         if behind not in BEHIND:
             raise ValueError(f"{what}: behind must be one of {BEHIND}, got {behind!r}")
@@ -183,7 +196,10 @@ class ReprojectionFactor(Factor):
                            self.per_factor(np.atleast_2d(const).astype(np.float64),
                                            "intrinsics"))
 
-    def _reproject(self, values: Sequence[Any], jac: bool) -> Reprojection:
+    def _reproject(self, values: Sequence[Any], jac: bool
+                   ) -> tuple[Reprojection, np.ndarray | None]:
+        """The reprojection (camera Jacobian in ``T_cw``'s SO3 x R3 tangent) and, for
+        ``camera_to_world``, the camera-frame points ``P``."""
         if self.pose_form == "SE3":
             p = np.asarray(values[0].params, dtype=np.float64)
             R = np.asarray(SO3.from_params(p[:, 3:], check=False).matrix())
@@ -194,8 +210,27 @@ class ReprojectionFactor(Factor):
         n = 1 if self.pose_form == "SE3" else 2
         X = _array(values[n])
         K = self.intrinsics if self.intrinsics is not None else _array(values[n + 1])
-        return reproject(self.model, R, t, K, X, None, None, self.observations, jac=jac,
-                         behind=self.behind)  # type: ignore[arg-type]
+        P = None
+        if self.camera_to_world:   # T_cw = (R^T, -R^T c); P = R^T (X - c)
+            R = np.swapaxes(R, 1, 2)
+            P = np.matmul(R, (X - t)[:, :, None])[:, :, 0]
+            t = -np.matmul(R, t[:, :, None])[:, :, 0]
+        rep = reproject(self.model, R, t, K, X, None, None, self.observations, jac=jac,
+                        behind=self.behind)  # type: ignore[arg-type]
+        return rep, P
+
+    def _pose_jacobians(self, rep: Reprojection, P: np.ndarray | None
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """The two 3-column blocks of the pose tangent, in argument order: SE3 ``(rho, phi)``,
+        SO3 x R3 ``(dphi, dt)`` (``dc`` for ``camera_to_world``)."""
+        Jc, Jp = rep.J_cam, rep.J_point
+        assert Jc is not None and Jp is not None
+        A = Jc[:, :, 0:3]                      # d uv / d P (zero rows where dropped)
+        if not self.camera_to_world:
+            return (Jp, Jc[:, :, 3:6]) if self.pose_form == "SE3" else (Jc[:, :, 3:6], A)
+        assert P is not None
+        AP = np.cross(A, P[:, None, :])        # row i: A_i [P]_x = A_i x P
+        return (-A, AP) if self.pose_form == "SE3" else (AP, -Jp)
 
     def residual(self, *values: Any, jac: bool = False) -> Any:
         """The residuals ``(m, 2)`` and, with ``jac``, the right Jacobians per argument
@@ -229,13 +264,13 @@ class ReprojectionFactor(Factor):
         >>> r.tolist(), JT.shape, JX.shape
         ([[50.0, 25.0]], (1, 2, 6), (1, 2, 3))
         """
-        rep = self._reproject(values, jac)
+        rep, P = self._reproject(values, jac)
         if not jac:
             return rep.residuals
         Jc, Jp = rep.J_cam, rep.J_point
         assert Jc is not None and Jp is not None
-        Js = ([np.concatenate([Jp, Jc[:, :, 3:6]], axis=2)] if self.pose_form == "SE3"
-              else [Jc[:, :, 3:6], Jc[:, :, 0:3]])
+        a, b = self._pose_jacobians(rep, P)
+        Js = [np.concatenate([a, b], axis=2)] if self.pose_form == "SE3" else [a, b]
         Js.append(Jp)
         if self.intrinsics is None:
             Js.append(Jc[:, :, 6:])
@@ -272,12 +307,10 @@ class ReprojectionFactor(Factor):
         >>> r.tolist(), J[0, :, 6:].tolist()  # d r / d X = A R = A
         ([[50.0, 25.0]], [[250.0, 0.0, -25.0], [0.0, 250.0, -12.5]])
         """
-        rep = self._reproject(values, True)
+        rep, P = self._reproject(values, True)
         Jc, Jp = rep.J_cam, rep.J_point
         assert Jc is not None and Jp is not None
-        # pose columns: SE3 (rho, phi) = (A R, dphi); SO3 x R3: dphi, then dt = A
-        out[:, :, 0:3] = Jp if self.pose_form == "SE3" else Jc[:, :, 3:6]
-        out[:, :, 3:6] = Jc[:, :, 3:6] if self.pose_form == "SE3" else Jc[:, :, 0:3]
+        out[:, :, 0:3], out[:, :, 3:6] = self._pose_jacobians(rep, P)
         out[:, :, 6:9] = Jp
         if self.intrinsics is None:
             out[:, :, 9:] = Jc[:, :, 6:]
