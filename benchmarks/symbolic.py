@@ -110,11 +110,11 @@ def _child(n: int, numeric: bool) -> None:
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     out = {"n": n, "analyse": ana, "rss_before": before, "peak": peak, "ns": int(s.ns)}
     if numeric:  # LM iterations with the analysis done (kept with the problem)
-        from microlie.optim.core.solvers import SolverOptions, solve
+        from microlie.optim.core.solvers import solve
 
         p.__dict__.setdefault("_analysed", {})["cholesky"] = s
-        res = solve(p, [v.initial for v in p.variables],
-                    SolverOptions(solver="lm", linear_solver="cholesky", max_iter=3))
+        res = solve(p, [v.initial for v in p.variables], "lm", linear_solver="cholesky",
+                    max_iter=3)
         assert p.analysed("cholesky") is s
         out["iteration"] = res.time_s / max(len(res.history), 1)
     print(json.dumps(out))

@@ -105,7 +105,8 @@ class Linearization:
     Attributes
     ----------
     data : numpy.ndarray
-        ``H = J^T J`` (whitened, robust weights applied) as CSC data in the problem's pattern.
+        ``H = J^T J`` (whitened, robust weights applied) as CSC data in the problem's pattern
+        (the rows and columns of held components replaced, see :meth:`Problem.hold`).
     grad : numpy.ndarray
         ``g = J^T e``.
     cost, robust_cost : float
@@ -180,6 +181,7 @@ class Problem:
             if self.gauge_fixed:
                 self._number()
         self._build_pattern()
+        self._held_pos = self._held_positions()
         # the compiled edge loop of each factor batch (None: the NumPy path)
         self.plans = [compiled.plan(self, f) for f in factors]
         self._build_scatter()
@@ -192,7 +194,7 @@ class Problem:
         node_of, dofs, nn = [], [], 0
         for v in self.variables:
             nodes = np.full(v.n, -1, dtype=np.int64)
-            fixed = v.fixed.copy()
+            fixed = v.fixed | v.held.all(axis=1)  # every component held: fixed
             fixed[extra.get(id(v), [])] = True
             free = np.flatnonzero(~fixed)
             nodes[free] = nn + np.arange(free.size)
@@ -207,12 +209,16 @@ class Problem:
         self.block_size = int(np.gcd.reduce(self.node_dof)) if nn else 1
         self.fargs = [[node_of[self._key[id(var)]][idx] for var, idx in f.args]
                       for f in self.factors]
-        # per variable batch: its free rows (None: all) and their entries of a step dx
+        # per variable batch: its free rows (None: all) and their entries of a step dx; the
+        # unknowns of held components (Variables.fix(..., components))
         self._steps = []
+        held = [np.zeros(0, np.int64)]
         for v, nodes in zip(self.variables, node_of, strict=True):
             free = np.flatnonzero(nodes >= 0)
             idx = self.node_off[nodes[free]][:, None] + np.arange(v.dof)
             self._steps.append((None if free.size == v.n else free, idx))
+            held.append(idx[v.held[free]])
+        self.held = np.concatenate(held)
 
     def key(self, var: Variables) -> int:
         """The position of a variable batch in the problem.
@@ -380,6 +386,47 @@ class Problem:
             diag[offs.ravel()] = dp.ravel()
         self.diag_pos = diag
         self._uniq, self._pbase, self._pos = uniq, pbase, pos
+
+    def _held_positions(self) -> np.ndarray:
+        """CSC positions of the rows and columns of the held unknowns (``self.held``)."""
+        if not self.held.size:
+            return self.held
+        mask = np.zeros(self.size, bool)
+        mask[self.held] = True
+        col = np.repeat(mask, np.diff(self.indptr))
+        return np.flatnonzero(mask[self.indices] | col)
+
+    def hold(self, data: np.ndarray, grad: np.ndarray) -> None:
+        """Hold the unknowns ``self.held`` (tangent components fixed with
+        ``Variables.fix(..., components)``) at a zero step, in place: their rows and columns
+        of ``H`` zero, unit diagonal, zero gradient. Every solve of ``H dx = -g`` (damped or
+        not, any backend, Schur or not) then gives exactly ``dx = 0`` there, and the inverse
+        has zero off-diagonal entries in those rows (a marginal zeroes its unit diagonal).
+        Done by :meth:`linearize`; the block pattern and the numbering stay those of the whole
+        variables.
+
+        Parameters
+        ----------
+        data, grad : numpy.ndarray
+            ``Linearization.data`` and ``grad``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(np.zeros((1, 2)))
+        >>> _ = g.add(PriorFactor(x, 0, [1.0, 2.0]))
+        >>> g.fix(x, components=[1])
+        >>> p = g.problem()
+        >>> lin = p.linearize([x.initial])
+        >>> p.matrix(lin.data).toarray().tolist(), lin.grad.tolist()
+        ([[1.0, 0.0], [0.0, 1.0]], [-1.0, 0.0])
+        """
+        if self.held.size:
+            data[self._held_pos] = 0.0
+            data[self.diag_pos[self.held]] = 1.0
+            grad[self.held] = 0.0
 
     def _build_scatter(self) -> None:
         """The sum of the NumPy-path factors' contributions into the pattern, as one sparse 0/1
@@ -883,6 +930,7 @@ class Problem:
             cost += 0.5 * float(s.sum())
             rcost += 0.5 * float((rho if f.loss is not None else s).sum())
             t_fused += time.perf_counter() - ta
+        self.hold(data, grad)
         t_end = time.perf_counter()
         return Linearization(data, grad, cost, rcost,
                              {"linearize": t_lin, "products": t_prod, "compiled": t_fused,
