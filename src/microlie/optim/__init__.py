@@ -38,8 +38,10 @@ from typing import TYPE_CHECKING, Any
 
 _LAZY = {
     "io.bal": ("BALProblem", "read_bal", "write_bal"),
-    "sfm.bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
+    "sfm.bundle": ("BundleGraph", "BundleProblem", "BundleResult", "bundle_adjust", "bundle_graph",
+                   "plot_bundle"),
     "sfm.camera": ("BALCamera", "PinholeCamera"),
+    "sfm.reprojection": ("ReprojectionFactor",),
     "core.factors": ("BetweenFactor", "CustomFactor", "Factor", "JacobianCheck", "PriorFactor",
                 "check_jacobians"),
     "io.g2o": ("read_g2o", "write_g2o"),
@@ -106,8 +108,16 @@ if TYPE_CHECKING:
     from .linalg.base import LinearSolver, SingularSystemError
     from .linalg.linear import available_solvers, make_solver
     from .linalg.schur_solver import SchurSolver
-    from .sfm.bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
+    from .sfm.bundle import (
+        BundleGraph,
+        BundleProblem,
+        BundleResult,
+        bundle_adjust,
+        bundle_graph,
+        plot_bundle,
+    )
     from .sfm.camera import BALCamera, PinholeCamera
+    from .sfm.reprojection import ReprojectionFactor
 
 __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "PriorFactor",
            "BetweenFactor", "CustomFactor", "check_jacobians", "JacobianCheck", "NoiseModel",
@@ -118,5 +128,7 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
            "available_solvers", "SchurSolver",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
-           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera", "PoseGraph", "read_g2o",
+           "BundleGraph", "bundle_graph", "bundle_adjust", "plot_bundle", "BALCamera",
+           "PinholeCamera", "ReprojectionFactor",
+           "PoseGraph", "read_g2o",
            "write_g2o", "read_toro", "write_toro"]
