@@ -26,7 +26,7 @@ Every BLAS/LAPACK library is held to one thread (GTSAM's wheel is single-threade
 Costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges, both evaluated by microlie's
 ``PoseGraph.cost`` on the returned poses.
 
-Backends: ``supernodal`` (our NumPy/LAPACK Cholesky) and ``scipy`` (SuperLU) are what
+Backends: ``cholesky`` (our NumPy/LAPACK Cholesky) and ``scipy`` (SuperLU) are what
 ``pip install microlie`` has; ``pardiso`` needs ``microlie[mkl]``, ``qdldl`` ``microlie[sparse]``.
 The summary table gives the ratio of ``linear_solver="auto"``'s pick, once with everything of this
 environment installed and once restricted to the default install.
@@ -144,7 +144,7 @@ def measure(args, backends, lines_out: list) -> list[dict]:
         gcost = pg.cost(gtsam_poses(gtsam, pg, res_g[0]))
         picks = [make_solver("auto", prob.size, prob.block_size).name,
                  make_solver("auto", prob.size, prob.block_size,
-                             available=["scipy", "supernodal", "dense"]).name]
+                             available=["scipy", "cholesky", "dense"]).name]
         out.append({
             "name": name, "start": start, "setup": setup, "analysis": analysis, "t_g": t_g,
             "git": res_g[1], "gcost": gcost, "t_us": t_us, "picks": picks,
@@ -202,7 +202,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--graphs", nargs="*", default=list(GRAPHS), choices=list(GRAPHS))
     ap.add_argument("--backends", nargs="*", default=None,
-                    help="microlie linear solvers (default: supernodal, pardiso, qdldl, scipy "
+                    help="microlie linear solvers (default: cholesky, pardiso, qdldl, scipy "
                          "where installed)")
     ap.add_argument("--no-default-pass", action="store_true",
                     help="skip the second pass without the compiled extra (MICROLIE_FAST=0)")
@@ -211,7 +211,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     avail = available_solvers()
-    backends = args.backends or [b for b in ("supernodal", "pardiso", "qdldl", "scipy")
+    backends = args.backends or [b for b in ("cholesky", "pardiso", "qdldl", "scipy")
                                  if b in avail]
     if args.child_json:  # the MICROLIE_FAST=0 pass, run by the parent in a fresh process
         res = measure(args, backends, [])
@@ -228,7 +228,7 @@ def main(argv=None) -> int:
     lines += table(res, backends, f"Pass 1, {'with' if fast else 'without'} the compiled "
                                   "extra, every backend of this environment")
     default_res = None
-    default_backends = [b for b in ("supernodal", "scipy") if b in backends]
+    default_backends = [b for b in ("cholesky", "scipy") if b in backends]
     if not args.no_default_pass and fast and default_backends:
         with tempfile.TemporaryDirectory() as tmp:
             js = Path(tmp) / "default.json"

@@ -5,7 +5,7 @@ Run (one command, from the project root)::
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python benchmarks/pose_graph_parts.py \
         --before-after d1eded8 [--rounds 4] [--graphs sphere2500 parking-garage]
 
-Both versions run ``FactorGraph.optimize(linear_solver="supernodal")`` with
+Both versions run ``FactorGraph.optimize(linear_solver="cholesky")`` with
 ``MICROLIE_FAST=0`` (NumPy and SciPy only) on the same graphs from the file's vertices (pose 0
 held fixed, as ``benchmarks/pose_graph.py`` does), each in fresh processes that alternate
 before, after, before, ... for ``--rounds`` rounds of three solves each after one warm-up solve
@@ -46,12 +46,12 @@ def child(src: str, graphs: list[str], solves: int) -> None:
     for name in graphs:
         pg = read_g2o(DATA / GRAPHS[name])
         fg, poses = from_pose_graph(pg, initialize(pg, "file"))
-        fg.problem().analysed("supernodal")
-        fg.optimize(linear_solver="supernodal", verbose=False)  # warm-up
+        fg.problem().analysed("cholesky")
+        fg.optimize(linear_solver="cholesky", verbose=False)  # warm-up
         rows = []
         for _ in range(solves):
             c = time.process_time()
-            r = fg.optimize(linear_solver="supernodal", verbose=False)
+            r = fg.optimize(linear_solver="cholesky", verbose=False)
             rows.append(dict(r.timings, total=r.time_s, cpu=time.process_time() - c,
                              cost_final=r.final_cost, iterations=r.iterations))
         out[name] = rows

@@ -103,7 +103,7 @@ def _child(n: int, numeric: bool) -> None:
 
     p = _problem(n)
     before = _rss_mb()
-    s = make_solver("supernodal")
+    s = make_solver("cholesky")
     t = time.perf_counter()
     s.analyse(p.indptr, p.indices, p.size, p.block_size)
     ana = time.perf_counter() - t
@@ -112,10 +112,10 @@ def _child(n: int, numeric: bool) -> None:
     if numeric:  # LM iterations with the analysis done (kept with the problem)
         from microlie.optim.core.solvers import SolverOptions, solve
 
-        p.__dict__.setdefault("_analysed", {})["supernodal"] = s
+        p.__dict__.setdefault("_analysed", {})["cholesky"] = s
         res = solve(p, [v.initial for v in p.variables],
-                    SolverOptions(solver="lm", linear_solver="supernodal", max_iter=3))
-        assert p.analysed("supernodal") is s
+                    SolverOptions(solver="lm", linear_solver="cholesky", max_iter=3))
+        assert p.analysed("cholesky") is s
         out["iteration"] = res.time_s / max(len(res.history), 1)
     print(json.dumps(out))
 

@@ -169,23 +169,23 @@ def test_compiled_switch(monkeypatch):
     assert SupernodalSolver()._c is None
     with pytest.raises(ImportError, match="microlie-fast"):
         SupernodalSolver(compiled=True)
-    assert make_solver("supernodal").name == "supernodal"
+    assert make_solver("cholesky").name == "cholesky"
 
 
 def test_auto_picks_by_installation(monkeypatch):
     """Default install, 2-D and 3-D: the supernodal Cholesky with or without its compiled loop
     (benchmarks/pose_graph.py: the NumPy loop beat SuperLU on all five graphs); SuperLU where
     the supernodal Cholesky is not offered; small problems: dense."""
-    default = ["scipy", "supernodal", "dense"]
+    default = ["scipy", "cholesky", "dense"]
     assert make_solver("auto", 100, 3, default).name == "dense"
-    assert make_solver("auto", 5000, 6, default).name == "supernodal"
+    assert make_solver("auto", 5000, 6, default).name == "cholesky"
     assert make_solver("auto", 5000, 6, ["scipy"]).name == "scipy"
     monkeypatch.setenv("MICROLIE_FAST", "0")
     s = make_solver("auto", 5000, 3, default)
-    assert s.name == "supernodal" and s.__dict__["_c"] is None
+    assert s.name == "cholesky" and s.__dict__["_c"] is None
     if INSTALLED:
         monkeypatch.setenv("MICROLIE_FAST", "1")
-        assert make_solver("auto", 5000, 3, default).name == "supernodal"
+        assert make_solver("auto", 5000, 3, default).name == "cholesky"
         assert make_solver("auto", 5000, 3, default).__dict__["_c"] is not None
 
 

@@ -11,7 +11,7 @@ your own with analytic Jacobians is a :class:`Factor` subclass implementing
 ``Information``, ``SqrtInformation``, ``Covariance``, ``Diagonal``, ``Isotropic``; robust losses
 (``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
 ``DCS``, ``Barron``, applied as in Ceres. ``result = g.optimize(solver="lm"|"gn"|"dogleg",
-linear_solver="auto"|"supernodal"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
+linear_solver="auto"|"cholesky"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
 :class:`Result` with ``values`` (``result.values[poses]`` is the optimised batch),
 ``initial_cost``, ``final_cost`` (``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``,
 ``converged``, ``message``, ``history`` and ``time_s``; a graph without a prior or a fixed
@@ -35,6 +35,7 @@ _LAZY = {
     "io.bal": ("BALProblem", "read_bal", "write_bal"),
     "sfm.bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
     "sfm.camera": ("BALCamera", "PinholeCamera"),
+    "sfm.reprojection": ("ReprojectionFactor",),
     "core.factors": ("BetweenFactor", "CustomFactor", "Factor", "JacobianCheck", "PriorFactor",
                 "check_jacobians"),
     "io.g2o": ("read_g2o", "write_g2o"),
@@ -96,6 +97,7 @@ if TYPE_CHECKING:
     from .linalg.linear import LinearSolver, SingularSystemError, available_solvers, make_solver
     from .sfm.bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
     from .sfm.camera import BALCamera, PinholeCamera
+    from .sfm.reprojection import ReprojectionFactor
 
 __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "PriorFactor",
            "BetweenFactor", "CustomFactor", "check_jacobians", "JacobianCheck", "NoiseModel",
@@ -105,5 +107,6 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
            "available_solvers",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
-           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera", "PoseGraph", "read_g2o",
+           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera", "ReprojectionFactor",
+           "PoseGraph", "read_g2o",
            "write_g2o", "read_toro", "write_toro"]

@@ -3,7 +3,7 @@
 ::
 
     microlie optimize (IN.g2o | --example) [-o OUT.g2o] [--solver lm|gn|dogleg] [--robust huber:1.0]
-                     [--init auto|file|odometry|chordal] [--linear-solver auto|supernodal|...]
+                     [--init auto|file|odometry|chordal] [--linear-solver auto|cholesky|...]
                      [--max-iter N] [--gauge check|fix_first|none] [--plot FILE] [--json]
                      [--format auto|g2o|toro|bal] [--force] [-v | -q] [--blas-threads N]
 
@@ -117,7 +117,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="initial guess: the file's vertices, the odometry chain, or chordal "
                         "(default auto: the file's vertices, else odometry, else chordal)")
     p.add_argument("--linear-solver", default="auto", metavar="NAME",
-                   help="linear solver, auto (default) or forced: for pose graphs supernodal, "
+                   help="linear solver, auto (default) or forced: for pose graphs cholesky, "
                         "scipy, qdldl, pardiso, dense; for BAL dense, sparse, full")
     p.add_argument("--max-iter", type=_positive_int, default=100, metavar="N",
                    help="maximum number of iterations, at least 1 (default 100)")

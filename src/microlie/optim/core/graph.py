@@ -296,10 +296,11 @@ class FactorGraph:
     # ------------------------------------------------------------------ solving
     @with_blas_threads
     def optimize(self, values: Values | None = None, *, solver: str = "lm",
-                 linear_solver: str | LinearSolver = "auto", max_iter: int = 100,
-                 rel_tol: float = 1e-5, abs_tol: float = 1e-5, cost_tol: float = 0.0,
-                 step_tol: float = 0.0, gauge: str = "check", verbose: bool | None = None,
-                 blas_threads: int | None = 1, **options: Any) -> Result:
+                 linear_solver: str | LinearSolver = "auto", eliminate: Any = None,
+                 max_iter: int = 100, rel_tol: float = 1e-5, abs_tol: float = 1e-5,
+                 cost_tol: float = 0.0, step_tol: float = 0.0, gauge: str = "check",
+                 verbose: bool | None = None, blas_threads: int | None = 1,
+                 **options: Any) -> Result:
         """Minimise the robust cost from ``values``.
 
         Parameters
@@ -309,8 +310,15 @@ class FactorGraph:
         solver : {"lm", "gn", "dogleg"}
             Levenberg-Marquardt (default), Gauss-Newton or Powell's dogleg.
         linear_solver : str or LinearSolver
-            ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
-            an instance (see :func:`make_solver`).
+            ``"auto"``, ``"cholesky"``, ``"schur"``, ``"scipy"``, ``"qdldl"``, ``"pardiso"``,
+            ``"dense"`` or an instance (see :func:`make_solver`). ``"schur"`` eliminates
+            variables that share no factor with each other (landmarks) and factorises the
+            reduced system (:class:`~microlie.optim.linalg.schur_solver.SchurSolver`).
+        eliminate : Variables or sequence of Variables, optional
+            With ``linear_solver="schur"``: the batches to eliminate (their free variables may
+            share no factor with each other nor with the other named batches); default: the
+            landmark-like batches with the most unknowns
+            (:func:`~microlie.optim.linalg.schur_solver.landmark_batches`).
         max_iter : int
             Iteration limit.
         rel_tol, abs_tol, cost_tol, step_tol : float
@@ -349,7 +357,8 @@ class FactorGraph:
         >>> res.converged, np.round(res.values[x].params[2], 9).tolist()
         (True, [2.0, 0.0, 1.0, 0.0])
         """
-        o = SolverOptions(solver=solver, linear_solver=linear_solver, max_iter=max_iter,
+        o = SolverOptions(solver=solver, linear_solver=linear_solver, eliminate=eliminate,
+                          max_iter=max_iter,
                           rel_tol=rel_tol, abs_tol=abs_tol, cost_tol=cost_tol,
                           step_tol=step_tol, verbose=verbose)
         for k, val in options.items():
@@ -381,7 +390,7 @@ class FactorGraph:
         items : sequence of (Variables, int)
             The variables, one ``(handle, index)`` each.
         linear_solver : str or LinearSolver
-            ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
+            ``"auto"``, ``"scipy"``, ``"cholesky"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
             an instance (see :func:`make_solver`).
         blas_threads : int or None
             BLAS threads while factorising and solving (default 1, as :meth:`optimize`;
@@ -437,7 +446,7 @@ class FactorGraph:
         idx : optional
             Indices or a mask; all if ``None``.
         linear_solver : str or LinearSolver
-            ``"auto"``, ``"scipy"``, ``"supernodal"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
+            ``"auto"``, ``"scipy"``, ``"cholesky"``, ``"qdldl"``, ``"pardiso"``, ``"dense"`` or
             an instance (see :func:`make_solver`).
         blas_threads : int or None
             BLAS threads while factorising and solving (default 1, as :meth:`optimize`;

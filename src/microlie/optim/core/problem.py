@@ -500,14 +500,17 @@ class Problem:
         ip = self.indptr.astype(np.int64)
         return np.where(nodes >= 0, ip[c + 1] - ip[c], 0)
 
-    def analysed(self, linear_solver: Any) -> Any:
+    def analysed(self, linear_solver: Any, eliminate: Any = None) -> Any:
         """A linear solver that has analysed this problem's pattern (for a backend given by
         name, analysed once per problem and reused).
 
         Parameters
         ----------
         linear_solver : str or LinearSolver
-            A name (see :func:`~microlie.optim.make_solver`) or an instance.
+            A name (see :func:`~microlie.optim.make_solver`; ``"schur"``: a
+            :class:`~microlie.optim.linalg.schur_solver.SchurSolver`) or an instance.
+        eliminate : Variables or sequence of Variables, optional
+            With ``"schur"``: the batches to eliminate (default: the landmark-like ones).
 
         Returns
         -------
@@ -529,16 +532,25 @@ class Problem:
         """
         from ..linalg.linear import make_solver
 
-        ls = make_solver(linear_solver, self.size, self.block_size)
+        if linear_solver == "schur":
+            from ..linalg.schur_solver import SchurSolver
+
+            ls: Any = SchurSolver.for_problem(self, eliminate)
+        elif eliminate is not None:
+            raise ValueError(f"eliminate applies to linear_solver='schur' only, got "
+                             f"linear_solver={linear_solver!r}")
+        else:
+            ls = make_solver(linear_solver, self.size, self.block_size)
+        key = getattr(ls, "key", ls.name)
         if isinstance(linear_solver, str):
             # the symbolic analysis runs once per problem and backend (as GTSAM orders once,
             # in its optimizer's constructor); later solves refactorise the cached solver
             cache = self.__dict__.setdefault("_analysed", {})
-            if ls.name in cache:
-                return cache[ls.name]
+            if key in cache:
+                return cache[key]
         ls.analyse(self.indptr, self.indices, self.size, self.block_size)
         if isinstance(linear_solver, str):
-            cache[ls.name] = ls
+            cache[key] = ls
         return ls
 
     def matrix(self, data: np.ndarray) -> sp.csc_matrix:

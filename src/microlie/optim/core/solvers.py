@@ -158,7 +158,10 @@ class SolverOptions:
     solver : {"lm", "gn", "dogleg"}
         Levenberg-Marquardt, Gauss-Newton or Powell's dogleg.
     linear_solver : str or LinearSolver
-        See :func:`~microlie.optim.make_solver`.
+        See :func:`~microlie.optim.make_solver`; ``"schur"``: Schur elimination
+        (:class:`~microlie.optim.linalg.schur_solver.SchurSolver`).
+    eliminate : Variables or sequence of Variables, optional
+        The batches ``"schur"`` eliminates (default: the landmark-like ones).
     max_iter : int
         Iteration limit.
     rel_tol, abs_tol, cost_tol, step_tol : float
@@ -181,6 +184,7 @@ class SolverOptions:
     """
     solver: str = "lm"
     linear_solver: str | LinearSolver = "auto"
+    eliminate: Any = None
     max_iter: int = 100
     rel_tol: float = 1e-5
     abs_tol: float = 1e-5
@@ -264,7 +268,7 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
     t_start = time.perf_counter()
     tm = _Timer()
     show = bool(o.verbose) if o.verbose is not None else sys.stderr.isatty()
-    ls = problem.analysed(o.linear_solver)
+    ls = problem.analysed(o.linear_solver, o.eliminate)
     lin = _linearize(problem, states, tm)
     _require_finite(problem, states, lin, "at the start")
     c0, rc0 = lin.cost, lin.robust_cost

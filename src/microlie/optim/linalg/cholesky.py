@@ -64,7 +64,7 @@ class SupernodalSolver(LinearSolver):
     [1.0, 1.0, 1.0]
     """
 
-    name = "supernodal"
+    name = "cholesky"
 
     def __init__(self, compiled: bool | None = None, ordering: str = "auto") -> None:
         """``compiled``: use the C loop (``True``: it must be installed), the NumPy loop

@@ -11,7 +11,7 @@ PARDISO: a pivot of the factorisation (``d_k`` of ``LDL^T``, ``L_kk^2`` of Chole
 the shared benchmark pose graphs without a gauge; the smallest genuine one there is
 2.8e-8, ais2klinik).
 
-Backends (``make_solver(name)``): ``"supernodal"`` (our supernodal multifrontal Cholesky on the
+Backends (``make_solver(name)``): ``"cholesky"`` (our supernodal multifrontal Cholesky on the
 block pattern, NumPy and LAPACK only, :mod:`microlie.optim.linalg.cholesky`), ``"scipy"`` (SuperLU
 with
 a symmetric minimum-degree order), ``"qdldl"`` (``pip install microlie[sparse]``, Apache-2.0),
@@ -406,7 +406,7 @@ def _supernodal() -> type[LinearSolver]:
     return SupernodalSolver
 
 
-SOLVERS: dict[str, Any] = {"supernodal": _supernodal, "scipy": lambda: ScipySolver,
+SOLVERS: dict[str, Any] = {"cholesky": _supernodal, "scipy": lambda: ScipySolver,
                            "qdldl": lambda: QdldlSolver, "pardiso": lambda: PardisoSolver,
                            "dense": lambda: DenseSolver}
 _MODULES = {"qdldl": "qdldl", "pardiso": "pypardiso"}
@@ -451,7 +451,7 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
     block_size : int
         The block size of the unknowns (for ``"auto"``).
     available : list of str, optional
-        Restrict ``"auto"``'s choice (for example to ``["scipy", "supernodal", "dense"]``,
+        Restrict ``"auto"``'s choice (for example to ``["scipy", "cholesky", "dense"]``,
         what ``pip install microlie`` has).
 
     Returns
@@ -478,9 +478,9 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
             return DenseSolver()
         avail = available_solvers() if available is None else available
         if block_size >= 6:
-            prefs: tuple[str, ...] = ("pardiso", "supernodal", "scipy")
+            prefs: tuple[str, ...] = ("pardiso", "cholesky", "scipy")
         else:
-            prefs = ("qdldl", "pardiso", "supernodal", "scipy")
+            prefs = ("qdldl", "pardiso", "cholesky", "scipy")
         return SOLVERS[next(k for k in prefs if k in avail)]()()
     make = SOLVERS.get(name)
     if make is None:

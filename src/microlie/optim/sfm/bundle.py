@@ -50,10 +50,10 @@ from ..._files import save_figure
 from ..core.threads import with_blas_threads
 from ..io.bal import BALProblem
 from ..linalg.schur import LinearSolverKind, NormalEquations, SchurStructure
-from .camera import BALCamera, CameraModel, PinholeCamera, reproject
+from .camera import BALCamera, CameraModel, camera_model, reproject
 
 __all__ = ["BundleProblem", "BundleResult", "BundleIteration", "bundle_adjust", "synthetic_scene",
-           "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec", "camera_model"]
+           "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec"]
 
 
 def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
@@ -106,33 +106,6 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     from ...groups import SO3
 
     return np.asarray(SO3.from_matrix(np.asarray(R), normalize=True).log())
-
-
-def camera_model(spec: str | CameraModel) -> CameraModel:
-    """A camera model by name.
-
-    Parameters
-    ----------
-    spec : str or CameraModel
-        ``"bal"``, ``"pinhole"``, ``"pinhole-radtan"`` or a model (returned as is).
-
-    Returns
-    -------
-    CameraModel
-
-    Examples
-    --------
-    >>> from microlie.optim.sfm.bundle import camera_model
-    >>> type(camera_model("pinhole-radtan")).__name__, camera_model("pinhole-radtan").n_intrinsics
-    ('PinholeCamera', 8)
-    """
-    if isinstance(spec, CameraModel):
-        return spec
-    models = {"bal": BALCamera, "pinhole": PinholeCamera,
-              "pinhole-radtan": lambda: PinholeCamera(distortion=True)}
-    if spec not in models:
-        raise ValueError(f"unknown camera model {spec!r}; known: {', '.join(models)}")
-    return models[spec]()  # type: ignore[operator]
 
 
 @dataclass(frozen=True)
@@ -1079,7 +1052,7 @@ def synthetic_scene(n_cameras: int = 5, n_points: int = 100, *, noise: float = 0
     seed : int
         The random seed.
     model : str or CameraModel
-        See :func:`camera_model`.
+        See :func:`~microlie.optim.sfm.camera.camera_model`.
     distance : float
         The cameras' distance to the cloud.
 

@@ -45,7 +45,7 @@ from typing import Any, Literal
 import numpy as np
 
 __all__ = ["BALCamera", "PinholeCamera", "CameraModel", "Reprojection", "reproject",
-           "transform_points", "BEHIND"]
+           "transform_points", "camera_model", "BEHIND"]
 
 Behind = Literal["evaluate", "drop"]
 BEHIND: tuple[str, str] = ("evaluate", "drop")
@@ -404,6 +404,40 @@ class PinholeCamera(CameraModel):
         return uv, JP, JK
 
 
+def camera_model(spec: str | CameraModel) -> CameraModel:
+    """A camera model by name.
+
+    Parameters
+    ----------
+    spec : str or CameraModel
+        ``"bal"`` (:class:`BALCamera`), ``"pinhole"`` (:class:`PinholeCamera`),
+        ``"pinhole-radtan"`` (``PinholeCamera(distortion=True)``) or a model (returned as is).
+
+    Returns
+    -------
+    CameraModel
+
+    Raises
+    ------
+    ValueError
+        An unknown name (the message lists the known ones).
+
+    Examples
+    --------
+    >>> from microlie.optim.sfm.camera import camera_model
+    >>> type(camera_model("pinhole-radtan")).__name__, camera_model("pinhole-radtan").n_intrinsics
+    ('PinholeCamera', 8)
+    """
+    if isinstance(spec, CameraModel):
+        return spec
+    models = {"bal": BALCamera, "pinhole": PinholeCamera,
+              "pinhole-radtan": lambda: PinholeCamera(distortion=True)}
+    if not isinstance(spec, str) or spec not in models:
+        raise ValueError(f"model must be a CameraModel or one of {', '.join(models)}; got "
+                         f"{spec!r}")
+    return models[spec]()  # type: ignore[operator]
+
+
 @dataclass(frozen=True)
 class Reprojection:
     """Reprojection residuals ``uv - observed`` with Jacobians (returned by :func:`reproject`).
@@ -437,8 +471,8 @@ class Reprojection:
     valid: np.ndarray
 
 
-def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray, cam: np.ndarray,
-                     pt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray, cam: np.ndarray | None,
+                     pt: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``P = R[cam] X[pt] + t[cam]`` for every observation.
 
     Parameters
@@ -447,8 +481,9 @@ def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray, cam: np.ndarra
         ``(n_cameras, 3, 3)`` and ``(n_cameras, 3)`` world-to-camera transforms.
     X : numpy.ndarray
         ``(n_points, 3)``.
-    cam, pt : numpy.ndarray
-        ``(n,)`` indices.
+    cam, pt : numpy.ndarray or None
+        ``(n,)`` indices; ``None``: ``R, t`` (``cam``) or ``X`` (``pt``) already hold one row
+        per observation.
 
     Returns
     -------
@@ -467,15 +502,16 @@ def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray, cam: np.ndarra
     >>> transform_points(R, t, X, cam, pt)[0].tolist()
     [[0.1, 0.2, -5.0], [0.0, 0.0, -4.0]]
     """
-    Rc = np.take(R, cam, axis=0)
-    Xo = np.take(X, pt, axis=0)
+    Rc = R if cam is None else np.take(R, cam, axis=0)
+    Xo = X if pt is None else np.take(X, pt, axis=0)
     P = np.matmul(Rc, Xo[:, :, None])[:, :, 0]
-    P += np.take(t, cam, axis=0)
+    P += t if cam is None else np.take(t, cam, axis=0)
     return P, Rc, Xo
 
 
 def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X: np.ndarray,
-              cam: np.ndarray, pt: np.ndarray, observed: np.ndarray, *, jac: bool = True,
+              cam: np.ndarray | None, pt: np.ndarray | None, observed: np.ndarray, *,
+              jac: bool = True,
               behind: Behind = "evaluate") -> Reprojection:
     """Reprojection residuals of all observations ``(cam[i], pt[i], observed[i])`` at once.
 
@@ -494,8 +530,10 @@ def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X
         ``(n_cameras, k)`` intrinsics.
     X : numpy.ndarray
         ``(n_points, 3)`` world points.
-    cam, pt : numpy.ndarray
-        ``(n,)`` camera and point of each observation.
+    cam, pt : numpy.ndarray or None
+        ``(n,)`` camera and point of each observation; ``None``: ``R, t, K`` (``cam``) or
+        ``X`` (``pt``) already hold one row per observation (what
+        :class:`~microlie.optim.sfm.reprojection.ReprojectionFactor` passes).
     observed : numpy.ndarray
         ``(n, 2)`` pixels.
     jac : bool
@@ -526,11 +564,12 @@ def reproject(model: CameraModel, R: np.ndarray, t: np.ndarray, K: np.ndarray, X
 
 def _reproject(model, R, t, K, X, cam, pt, observed, jac, behind):
     P, Rc, Xo = transform_points(R, t, X, cam, pt)
-    n, k = len(cam), model.n_intrinsics
+    n, k = len(P), model.n_intrinsics
     Jc = np.empty((n, 2, 6 + k)) if jac else None
-    uv, JP, JK = model.project(P, np.take(K, cam, axis=0), jac, out=Jc)   # JP, JK inside Jc
+    Ko = K if cam is None else np.take(K, cam, axis=0)
+    uv, JP, JK = model.project(P, Ko, jac, out=Jc)   # JP, JK inside Jc
     res = uv - observed
-    valid = np.ones(len(cam), dtype=bool) if behind == "evaluate" else model.in_front(P)
+    valid = np.ones(n, dtype=bool) if behind == "evaluate" else model.in_front(P)
     if not jac:
         if behind == "drop":
             res[~valid] = 0.0

@@ -1,0 +1,563 @@
+"""Schur-complement elimination as a linear solver of the engine (``linear_solver="schur"``).
+
+The unknowns of ``H x = b`` come in blocks (nodes: one variable each). A set ``E`` of nodes
+whose diagonal blocks are the only blocks they share with one another (no two of them in one
+factor: landmarks) is eliminated:
+
+    [ A    B ] [x_r]   [b_r]
+    [ B^T  C ] [x_e] = [b_e],   C = blockdiag(C_1, ..., C_m),
+
+    S = A - B C^-1 B^T,   S x_r = b_r - B C^-1 b_e,   x_e = C^-1 (b_e - B^T x_r).
+
+With ``C_e = L_e L_e^T`` (batched Cholesky of the ``d x d`` blocks) and ``V_e = L_e^-1 B_e^T``
+(``B_e^T`` the ``d x k_e`` rows of node ``e`` against the ``k_e`` unknowns of its neighbours),
+node ``e`` adds ``-V_e^T V_e`` to ``S``: one batched matrix product per group of eliminated
+nodes of the same size ``(d, k_e)``, summed into ``S``'s compressed columns by one ``bincount``
+over scatter positions computed once. The reduced system is factorised by one of the
+backends of :func:`~microlie.optim.linalg.linear.make_solver` (dense LAPACK Cholesky when it
+is small or dense, the sparse supernodal Cholesky otherwise), analysed once as well: every
+symbolic step (the pattern of ``S``, fixed by ``H``'s, its ordering and the scatter maps)
+happens in :meth:`SchurSolver.analyse`, and each factorisation is numeric work only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from itertools import combinations
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import scipy.sparse as sp  # type: ignore[import-untyped]
+
+from .linear import LinearSolver, SingularSystemError, make_solver
+
+if TYPE_CHECKING:
+    from ..core.problem import Problem
+    from ..core.variables import Variables
+
+__all__ = ["SchurSolver", "REDUCED_SOLVERS", "landmark_batches", "reduced_choice"]
+
+#: The backends that can factorise the reduced system (``"auto"``: :func:`reduced_choice`).
+REDUCED_SOLVERS = ("auto", "dense", "cholesky", "scipy", "qdldl", "pardiso")
+#: The reduced system is factorised densely up to this many unknowns whatever its sparsity,
+#: and up to ``DENSE_MAX`` when at least ``DENSE_FILL`` of it is nonzero
+#: (see :func:`reduced_choice`).
+DENSE_ALWAYS = 600
+DENSE_FILL = 0.25
+DENSE_MAX = 4000
+
+
+def reduced_choice(n: int, nnz: int) -> str:
+    """The backend ``"auto"`` chooses for a reduced system of ``n`` unknowns and ``nnz`` stored
+    entries (full symmetric storage): ``"dense"`` up to :data:`DENSE_ALWAYS` unknowns, or up to
+    :data:`DENSE_MAX` when at least :data:`DENSE_FILL` of the matrix is nonzero; else
+    ``"cholesky"``.
+
+    Parameters
+    ----------
+    n : int
+        Unknowns of the reduced system.
+    nnz : int
+        Its stored entries.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> from microlie.optim.linalg.schur_solver import reduced_choice
+    >>> reduced_choice(441, 441 ** 2), reduced_choice(30000, 30000 * 60)
+    ('dense', 'cholesky')
+    """
+    if n <= DENSE_ALWAYS or (n <= DENSE_MAX and nnz >= DENSE_FILL * n * n):
+        return "dense"
+    return "cholesky"
+
+
+@dataclass
+class _Group:
+    """Eliminated nodes of one size: ``d`` unknowns each, ``k`` neighbouring unknowns."""
+
+    cols: np.ndarray  # (m, d) their unknowns
+    cidx: np.ndarray  # (m, d, d) positions of C_e in the extended data
+    bidx: np.ndarray  # (m, d, k) positions of B_e^T
+    rows: np.ndarray  # (m, k) neighbouring unknowns, reduced numbering
+    span: tuple[int, int]  # their products' slice of the contribution buffer
+
+
+class SchurSolver(LinearSolver):
+    """Solve ``H x = b`` by eliminating a set of nodes whose blocks of ``H`` are block
+    diagonal, then factorising the reduced system ``S = A - B C^-1 B^T`` with a backend.
+
+    Built by ``FactorGraph.optimize(linear_solver="schur", eliminate=...)`` through
+    :meth:`for_problem`; directly, on any CSC pattern whose unknowns are grouped in nodes.
+
+    Parameters
+    ----------
+    node_off : array_like of int
+        ``(nodes + 1,)`` the first unknown of each node, then the number of unknowns.
+    eliminate : array_like of int
+        The nodes to eliminate: no two of them may share an off-diagonal block of ``H``
+        (checked by :meth:`analyse`), and at least one node must remain.
+    reduced : str
+        The backend of the reduced system: ``"auto"`` (:func:`reduced_choice`, by its size and
+        fill), ``"dense"``, ``"cholesky"``, ``"scipy"``, ``"qdldl"`` or ``"pardiso"``.
+
+    Raises
+    ------
+    ValueError
+        Bad ``node_off``, ``eliminate`` or ``reduced``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from microlie.optim.linalg.schur_solver import SchurSolver
+    >>> H = np.array([[4.0, 1.0, 1.0], [1.0, 3.0, 0.0], [1.0, 0.0, 2.0]])
+    >>> A = sp.csc_matrix(H)
+    >>> s = SchurSolver([0, 1, 2, 3], eliminate=[1, 2])  # nodes 1 and 2 share no block
+    >>> s.analyse(A.indptr, A.indices, 3)
+    >>> s.factorize(A.data)
+    >>> x = s.solve(np.array([6.0, 4.0, 3.0]))
+    >>> np.allclose(x, np.linalg.solve(H, [6.0, 4.0, 3.0])), s.reduced_solver.name
+    (True, 'dense')
+    """
+
+    name = "schur"
+
+    def __init__(self, node_off: Any, eliminate: Any, reduced: str = "auto") -> None:
+        off = np.asarray(node_off, dtype=np.int64)
+        if off.ndim != 1 or off.size < 2 or off[0] != 0 or np.any(np.diff(off) <= 0):
+            raise ValueError("node_off must be increasing node offsets starting at 0, "
+                             f"got {np.asarray(node_off).tolist()[:8]}")
+        elim = np.asarray(eliminate, dtype=np.int64).ravel()
+        nn = off.size - 1
+        if elim.size == 0:
+            raise ValueError("eliminate is empty: name at least one node to eliminate")
+        if elim.min() < 0 or elim.max() >= nn:
+            raise ValueError(f"eliminate must hold node numbers in [0, {nn}), got "
+                             f"{int(elim.min())}..{int(elim.max())}")
+        if np.unique(elim).size != elim.size:
+            raise ValueError("eliminate names a node twice")
+        if elim.size == nn:
+            raise ValueError("eliminate names every node: nothing is left to reduce to")
+        if reduced not in REDUCED_SOLVERS:
+            raise ValueError(f"reduced must be one of {REDUCED_SOLVERS}, got {reduced!r}")
+        self.node_off = off
+        self.eliminated = np.sort(elim)
+        self.reduced = reduced
+        #: what :meth:`Problem.analysed` caches the analysed solver under
+        self.key: tuple = ("schur", reduced, self.eliminated.tobytes())
+        self.reduced_solver: LinearSolver | None = None
+
+    @classmethod
+    def for_problem(cls, problem: Problem, eliminate: Any = None,
+                    reduced: str = "auto") -> SchurSolver:
+        """The solver of a :class:`~microlie.optim.core.problem.Problem` that eliminates the free
+        variables of the batches ``eliminate`` (default: :func:`landmark_batches`).
+
+        Parameters
+        ----------
+        problem : Problem
+            The problem (its node numbering and factors).
+        eliminate : Variables or sequence of Variables, optional
+            Batches to eliminate; no two of their variables may share a factor.
+        reduced : str
+            The backend of the reduced system (see :class:`SchurSolver`).
+
+        Returns
+        -------
+        SchurSolver
+            Not analysed yet.
+
+        Raises
+        ------
+        ValueError
+            ``eliminate`` names a batch not in the problem, without free variables, or whose
+            variables share a factor (with each other or another named batch), or leaves
+            nothing to reduce to; or (default) no batch qualifies.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import CustomFactor, FactorGraph, PriorFactor
+        >>> from microlie.optim.linalg.schur_solver import SchurSolver
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(1), name="x")
+        >>> p = g.add_variables(np.zeros((4, 2)), name="p")
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(CustomFactor(lambda a, b: b - a.translation(), [(x, [0] * 4),
+        ...                        (p, range(4))], 2))
+        >>> s = SchurSolver.for_problem(g.problem())
+        >>> s.eliminated.tolist()  # the four points (node 0 is x[0])
+        [1, 2, 3, 4]
+        """
+        batches = _chosen(problem, eliminate)
+        nodes = np.concatenate([problem.node_of[problem.key(v)] for v in batches])
+        return cls(problem.node_off, nodes[nodes >= 0], reduced)
+
+    # ---------------------------------------------------------------- analysis
+    def analyse(self, indptr, indices, n, block_size=1):
+        super().analyse(indptr, indices, n)
+        off = self.node_off
+        if off[-1] != n:
+            raise ValueError(f"node_off ends at {int(off[-1])}, the matrix has {n} unknowns")
+        nn = off.size - 1
+        dof = np.diff(off)
+        ip = np.asarray(indptr, dtype=np.int64)
+        ix = np.asarray(indices, dtype=np.int64)
+        nnz = ix.size
+        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(ip))
+        node = np.repeat(np.arange(nn, dtype=np.int64), dof)  # node of each unknown
+        is_e = np.zeros(nn, dtype=bool)
+        is_e[self.eliminated] = True
+        e_unk = is_e[node]
+        ecol, erow = e_unk[cols], e_unk[ix]
+        nc, nr = node[cols], node[ix]
+        clash = np.flatnonzero(ecol & erow & (nc != nr))
+        if clash.size:
+            a, b = int(nr[clash[0]]), int(nc[clash[0]])
+            raise ValueError(f"eliminated nodes {a} and {b} share a block of the matrix: only "
+                             f"nodes that share no factor can be eliminated together")
+        # the reduced numbering: nodes and unknowns that stay
+        rn = np.flatnonzero(~is_e)
+        rnode = np.full(nn, -1, np.int64)
+        rnode[rn] = np.arange(rn.size)
+        rdof = dof[rn]
+        roff = np.concatenate([[0], np.cumsum(rdof)]).astype(np.int64)
+        nR = int(roff[-1])
+        self._r_unk = np.flatnonzero(~e_unk)  # reduced unknown -> unknown
+        r_of = np.full(n, -1, np.int64)
+        r_of[self._r_unk] = np.arange(nR)
+        # positions of H's entries by key col * n + row (CSC with sorted rows: ascending)
+        hkey = cols * n + ix
+        if nnz > 1 and np.any(np.diff(hkey) <= 0):
+            raise ValueError("indices must be sorted within each column (canonical CSC)")
+
+        def at(row: np.ndarray, col: np.ndarray) -> np.ndarray:
+            """Positions of entries (row, col) of H; ``nnz`` (a zero) where not stored."""
+            q = col * n + row
+            k = np.minimum(np.searchsorted(hkey, q), max(nnz - 1, 0))
+            return np.where(hkey[k] == q, k, nnz) if nnz else np.full(q.shape, 0)
+
+        # the blocks (e, u) of eliminated nodes against the others, by e then u
+        sel = ecol & ~erow
+        eu = np.unique(nc[sel] * nn + nr[sel])
+        pe, pu = eu // nn, eu % nn
+        # the pattern of S, by blocks of the reduced nodes: A's blocks and, for every
+        # eliminated node, all pairs of its neighbours
+        ra = ~ecol & ~erow
+        keys = [rnode[nc[ra]] * rn.size + rnode[nr[ra]], np.arange(rn.size) * (rn.size + 1)]
+        # eliminated nodes grouped by (dof, degree, neighbouring unknowns)
+        deg = np.bincount(pe, minlength=nn)
+        kun = np.bincount(pe, weights=dof[pu], minlength=nn).astype(np.int64)
+        pstart = np.concatenate([[0], np.cumsum(deg)])  # node e's pairs: pstart[e]..
+        sig = np.stack([dof[self.eliminated], deg[self.eliminated], kun[self.eliminated]], 1)
+        sigs, inv = np.unique(sig, axis=0, return_inverse=True)
+        inv = inv.ravel()
+        plan = []
+        for g, (d, dg, k) in enumerate(sigs.tolist()):
+            es = self.eliminated[inv == g]
+            if dg:
+                nb = pu[pstart[es][:, None] + np.arange(dg)]  # (m, dg) neighbour nodes
+                rb = rnode[nb]
+                keys.append((rb[:, None, :] * rn.size + rb[:, :, None]).ravel())
+            else:
+                nb = np.zeros((es.size, 0), np.int64)
+            plan.append((es, nb, d, dg, k))
+        bkey = np.unique(np.concatenate(keys))  # col * nRn + row, ascending
+        bv, bu = bkey // rn.size, bkey % rn.size
+        s_ip, s_ix, pos0, collen = _block_csc(bu, bv, rdof, roff)
+        self._s_nnz = int(s_ip[-1])
+
+        def s_at(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+            """The position in S of entry (0, 0) of block (u, v) (reduced nodes)."""
+            return pos0[np.searchsorted(bkey, v * rn.size + u)]
+
+        # A's entries: H position -> S position
+        ar, ac = nr[ra], nc[ra]
+        self._a_src = np.flatnonzero(ra)
+        self._a_dst = (s_at(rnode[ar], rnode[ac]) + (cols[ra] - off[ac]) * collen[rnode[ac]]
+                       + (ix[ra] - off[ar]))
+        # per group: the index arrays of C_e, B_e^T, the rows and the scatter into S
+        groups, dests, total = [], [], 0
+        rowsall, at_rows = [], []
+        for es, nb, d, dg, k in plan:
+            m = es.size
+            ecols = off[es][:, None] + np.arange(d)  # (m, d)
+            cidx = at(ecols[:, :, None], ecols[:, None, :])  # C[a, b] = H[col_a, col_b]
+            if dg:
+                # the neighbouring unknowns of each node, in order: (m, k), and for each the
+                # position of its neighbour in the list and its offset in that node
+                nd = dof[nb]  # (m, dg)
+                first = np.cumsum(nd, axis=1) - nd
+                jt = np.zeros((m, k), np.int64)
+                np.put_along_axis(jt, first, 1, axis=1)
+                jt = np.cumsum(jt, axis=1) - 1
+                loc = np.arange(k) - np.take_along_axis(first, jt, axis=1)
+                un = np.take_along_axis(nb, jt, axis=1)  # node of each row
+                rows = off[un] + loc  # (m, k) unknowns
+                bidx = at(rows[:, None, :], ecols[:, :, None])  # B^T[a, t] = H[row_t, col_a]
+                rb = rnode[nb]
+                P0 = s_at(rb[:, :, None], rb[:, None, :])  # (m, dg, dg): block (row j1, col j2)
+                ii = np.arange(m)[:, None, None]
+                j1, j2 = jt[:, :, None], jt[:, None, :]
+                cl = collen[rnode[un]]  # (m, k)
+                dest = P0[ii, j1, j2] + loc[:, None, :] * cl[:, None, :] + loc[:, :, None]
+                dests.append(dest.ravel())
+                rr = r_of[rows]
+                rowsall.append(rr.ravel())
+            else:
+                bidx = np.zeros((m, d, 0), np.int64)
+                rr = np.zeros((m, 0), np.int64)
+            at_rows.append(total)
+            groups.append(_Group(ecols, cidx, bidx, rr, (total, total + m * k * k)))
+            total += m * k * k
+        self._groups = groups
+        self._dest = np.concatenate(dests) if dests else np.zeros(0, np.int64)
+        self._w = np.empty(total)  # the products V_e^T V_e of every group
+        # the rhs scatter: t (sum m k) -> reduced rows, as one sparse 0/1 product
+        rr_all = np.concatenate(rowsall) if rowsall else np.zeros(0, np.int64)
+        self._rhs_sum = sp.csr_matrix((np.ones(rr_all.size), (rr_all, np.arange(rr_all.size))),
+                                      shape=(nR, rr_all.size))
+        self._dz = np.zeros(nnz + 1)  # H's data then one zero (entries not stored)
+        self._e_unk = np.flatnonzero(e_unk)
+        self.n_reduced = nR
+        choice = reduced_choice(nR, self._s_nnz) if self.reduced == "auto" else self.reduced
+        bs = int(np.gcd.reduce(rdof))
+        inner = make_solver(choice, nR, bs)
+        inner.analyse(s_ip, s_ix, nR, bs)
+        self.reduced_solver = inner
+        self._factored = False
+
+    # ---------------------------------------------------------------- numeric
+    def factorize(self, data: np.ndarray) -> None:
+        data = np.asarray(data, dtype=np.float64)
+        if data.shape != (self.indices.size,):
+            raise ValueError(f"data has shape {data.shape}; the analysed pattern has "
+                             f"{self.indices.size} entries")
+        self._factored = False
+        dz = self._dz
+        dz[:-1] = data
+        S = np.zeros(self._s_nnz)
+        S[self._a_dst] = dz[self._a_src]
+        self._li, self._vt = [], []
+        w = self._w
+        for g in self._groups:
+            C = dz[g.cidx]
+            try:
+                L = np.linalg.cholesky(C)
+            except np.linalg.LinAlgError:
+                L = np.full_like(C, np.nan)
+            piv = np.diagonal(L, axis1=1, axis2=2) ** 2
+            if not np.all(np.isfinite(piv)):
+                bad = int(np.flatnonzero(~np.isfinite(piv).all(1)
+                                         | ~(np.linalg.eigvalsh(C)[:, 0] > 0))[0])
+                raise SingularSystemError(
+                    "the linear system is singular or not positive definite: the block of an "
+                    "eliminated variable is not positive definite", unknown=int(g.cols[bad, 0]))
+            self._check_pivots(data, piv.ravel(), g.cols.ravel())
+            Li = np.linalg.inv(L)  # lower triangular, d x d
+            self._li.append(Li)
+            if g.rows.shape[1]:
+                VT = Li @ dz[g.bidx]  # (m, d, k) = L^-1 B^T
+                a, b = g.span
+                m, k = g.rows.shape
+                np.matmul(np.swapaxes(VT, 1, 2), VT, out=w[a:b].reshape(m, k, k))
+                self._vt.append(VT)
+            else:
+                self._vt.append(None)
+        if self._dest.size:
+            S -= np.bincount(self._dest, weights=w, minlength=self._s_nnz)
+        assert self.reduced_solver is not None
+        try:
+            self.reduced_solver.factorize(S)
+        except SingularSystemError as e:
+            u = None if e.unknown is None else int(self._r_unk[e.unknown])
+            raise SingularSystemError(str(e).replace(f"unknown {e.unknown} ",
+                                                     f"unknown {u} ") if u is not None
+                                      else str(e), unknown=u) from None
+        self._factored = True
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        b = np.asarray(b, dtype=np.float64)
+        if b.ndim not in (1, 2) or b.shape[0] != self.n:
+            raise ValueError(f"the right-hand side has shape {b.shape}; expected ({self.n},) "
+                             f"or ({self.n}, k)")
+        if not self._factored:
+            raise SingularSystemError("no factorisation to solve with (none yet, or the last "
+                                      "one failed)")
+        B = b.reshape(self.n, -1)
+        j = B.shape[1]
+        ys, ts = [], []
+        for g, Li, VT in zip(self._groups, self._li, self._vt, strict=True):
+            y = Li @ B[g.cols]  # (m, d, j) = L^-1 b_e
+            ys.append(y)
+            if VT is not None:
+                ts.append((np.swapaxes(VT, 1, 2) @ y).reshape(-1, j))  # (m k, j) B C^-1 b_e
+        rhs = B[self._r_unk]
+        if ts:
+            rhs = rhs - self._rhs_sum @ np.concatenate(ts)
+        assert self.reduced_solver is not None
+        xr = self.reduced_solver.solve(rhs if b.ndim == 2 else rhs[:, 0])
+        xr = xr.reshape(-1, j)
+        x = np.empty((self.n, j))
+        x[self._r_unk] = xr
+        for g, Li, VT, y in zip(self._groups, self._li, self._vt, ys, strict=True):
+            z = y if VT is None else y - VT @ xr[g.rows]  # L^-1 (b_e - B^T x_r)
+            x[g.cols] = np.swapaxes(Li, 1, 2) @ z
+        if not np.all(np.isfinite(x)):
+            raise SingularSystemError("the linear system is singular (the solution is not "
+                                      "finite)")
+        return x[:, 0] if b.ndim == 1 else x
+
+
+def _block_csc(bu: np.ndarray, bv: np.ndarray, dof: np.ndarray, off: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The CSC pattern (full symmetric storage, dense blocks) of the blocks ``(bu, bv)``
+    (sorted by column ``bv``, then row ``bu``; nodes of ``dof`` unknowns at ``off``): every
+    scalar column of block column ``v`` holds the same ``collen[v]`` rows, so entry ``(a, b)``
+    of block ``(u, v)`` is at ``pos0 + b * collen[v] + a``. Returns ``indptr``, ``indices``,
+    ``pos0`` (per block) and ``collen`` (per node)."""
+    nb = dof.size
+    n = int(off[-1])
+    du = dof[bu]
+    cs = np.cumsum(du) - du
+    rowoff = cs - cs[np.searchsorted(bv, bv)]
+    collen = np.bincount(bv, weights=du, minlength=nb).astype(np.int64)
+    base = np.concatenate([[0], np.cumsum(dof * collen)]).astype(np.int64)
+    pos0 = base[bv] + rowoff
+    cnode = np.repeat(np.arange(nb), dof)  # node of each scalar column
+    cin = np.arange(n) - off[cnode]  # column within its node
+    indptr = np.concatenate([base[cnode] + cin * collen[cnode], [base[-1]]]).astype(np.int64)
+    # the rows of each block column, once: blocks in order, each expanded to its unknowns
+    rstart = np.concatenate([[0], np.cumsum(collen)])
+    rowlist = np.repeat(off[bu], du) + (np.arange(int(du.sum())) - np.repeat(cs, du))
+    lens = collen[cnode]
+    within = np.arange(int(base[-1])) - np.repeat(indptr[:-1], lens)
+    indices = rowlist[np.repeat(rstart[cnode], lens) + within]
+    return indptr, indices.astype(np.int32), pos0, collen
+
+
+def _conflicts(problem: Problem) -> tuple[np.ndarray, list[list[str]]]:
+    """Which variable batches share a factor (both arguments free in some row): a boolean
+    matrix over the problem's batches (the diagonal: two variables of one batch), and the
+    first factor batch responsible for each entry, for messages."""
+    nb = len(problem.variables)
+    conflict = np.zeros((nb, nb), dtype=bool)
+    why: list[list[str]] = [[""] * nb for _ in range(nb)]
+    for fi, (f, nodes) in enumerate(zip(problem.factors, problem.fargs, strict=True)):
+        keys = [problem.key(var) for var, _ in f.args]
+        for k, l in combinations(range(len(keys)), 2):
+            if np.any((nodes[k] >= 0) & (nodes[l] >= 0)):
+                a, b = keys[k], keys[l]
+                if not conflict[a, b]:
+                    why[a][b] = why[b][a] = f"factor batch {fi} ({f.name})"
+                conflict[a, b] = conflict[b, a] = True
+    return conflict, why
+
+
+def landmark_batches(problem: Problem) -> list[Variables]:
+    """The default elimination set of ``linear_solver="schur"``: among the variable batches
+    whose free variables share no factor with each other (landmark-like), the set of batches
+    that share no factor with one another with the most unknowns, leaving at least one free
+    variable outside it.
+
+    Parameters
+    ----------
+    problem : Problem
+        The problem.
+
+    Returns
+    -------
+    list of Variables
+        In graph order; empty when no batch qualifies.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import BetweenFactor, CustomFactor, FactorGraph, PriorFactor
+    >>> from microlie.optim.linalg.schur_solver import landmark_batches
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(2), name="x")
+    >>> p = g.add_variables(np.zeros((3, 2)), name="p")
+    >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+    >>> _ = g.add(BetweenFactor(x, 0, 1, SE2.identity()))
+    >>> _ = g.add(CustomFactor(lambda a, b: b - a.translation(), [(x, [0, 1, 1]),
+    ...                        (p, [0, 1, 2])], 2))
+    >>> [v.name for v in landmark_batches(g.problem())]
+    ['p']
+    """
+    conflict, _ = _conflicts(problem)
+    nvar = len(problem.variables)
+    unknowns = np.array([int((problem.node_of[k] >= 0).sum()) * problem.variables[k].dof
+                         for k in range(nvar)])
+    cand = [k for k in range(nvar) if unknowns[k] and not conflict[k, k]]
+    best: tuple[int, ...] = ()
+    best_size = 0
+
+    def ok(sub: Sequence[int]) -> bool:
+        return not any(conflict[a, b] for a, b in combinations(sub, 2))
+
+    if len(cand) <= 12:
+        for r in range(1, len(cand) + 1):
+            for sub in combinations(cand, r):
+                size = int(unknowns[list(sub)].sum())
+                if best_size < size < problem.size and ok(sub):
+                    best, best_size = sub, size
+    else:  # greedily by size
+        chosen: list[int] = []
+        for k in sorted(cand, key=lambda k: -unknowns[k]):
+            size = int(unknowns[[*chosen, k]].sum())
+            if size < problem.size and ok([*chosen, k]):
+                chosen.append(k)
+        best = tuple(sorted(chosen))
+    return [problem.variables[k] for k in best]
+
+
+def _chosen(problem: Problem, eliminate: Any) -> list[Variables]:
+    """The batches to eliminate: ``eliminate`` checked, or :func:`landmark_batches`."""
+    if eliminate is None:
+        batches = landmark_batches(problem)
+        if not batches:
+            raise ValueError(
+                "linear_solver='schur' found no variables to eliminate: no variable batch has "
+                "free variables that share no factor with each other (landmarks), or "
+                "eliminating them would leave nothing; pass eliminate=[handles] or use "
+                "linear_solver='cholesky'")
+        return batches
+    from ..core.variables import Variables
+
+    items = [eliminate] if isinstance(eliminate, Variables) else list(eliminate)
+    if not items:
+        raise ValueError("eliminate is empty: pass variable handles, or None for the default")
+    conflict, why = _conflicts(problem)
+    keys: list[int] = []
+    for i, v in enumerate(items):
+        if not isinstance(v, Variables) or id(v) not in {id(u) for u in problem.variables}:
+            raise ValueError(f"eliminate[{i}] is not a variable handle of this graph: pass "
+                             f"handles returned by add_variables")
+        k = problem.key(v)
+        if k in keys:
+            raise ValueError(f"eliminate names {v.name!r} twice")
+        if not (problem.node_of[k] >= 0).any():
+            raise ValueError(f"eliminate: every variable of {v.name!r} is fixed; nothing to "
+                             f"eliminate")
+        if conflict[k, k]:
+            raise ValueError(f"eliminate: variables of {v.name!r} share a factor with each "
+                             f"other ({why[k][k]}); only variables that share no factor can be "
+                             f"eliminated")
+        for j in keys:
+            if conflict[j, k]:
+                raise ValueError(f"eliminate: {problem.variables[j].name!r} and {v.name!r} "
+                                 f"share a factor ({why[j][k]}); only variables that share no "
+                                 f"factor can be eliminated together")
+        keys.append(k)
+    size = sum(int((problem.node_of[k] >= 0).sum()) * problem.variables[k].dof for k in keys)
+    if size >= problem.size:
+        raise ValueError("eliminate names every free variable: leave some to reduce to")
+    return [problem.variables[k] for k in sorted(keys)]

@@ -1,0 +1,274 @@
+"""``linear_solver="schur"`` (microlie.optim.linalg.schur_solver): the Schur solve against a
+dense solve of ``H`` on random block patterns, a mixed graph (SE3 poses, R(3) landmarks,
+between factors, a position prior) against the sparse Cholesky and
+scipy.optimize.least_squares, the ``eliminate=`` checks, and one symbolic analysis per
+problem."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.optimize import least_squares
+
+from microlie import SE3
+from microlie.optim import (
+    BetweenFactor,
+    CustomFactor,
+    Diagonal,
+    FactorGraph,
+    Isotropic,
+    PriorFactor,
+    SingularSystemError,
+    check_jacobians,
+)
+from microlie.optim.linalg.cholesky import SupernodalSolver
+from microlie.optim.linalg.schur_solver import SchurSolver, landmark_batches
+
+
+def _random_system(rng, nr, ne, dofs_e=(3, 6)):
+    """A random SPD ``H`` (``J^T J`` of random block rows) on a random block pattern: ``nr``
+    kept nodes and ``ne`` eliminated ones (dofs 3 and 6 mixed, interleaved), no two eliminated
+    nodes in one block. Returns the dense H, its CSC (full dense blocks), node offsets and the
+    eliminated nodes."""
+    dofs = np.concatenate([rng.choice([3, 6], nr), rng.choice(dofs_e, ne)])
+    perm = rng.permutation(dofs.size)
+    dofs = dofs[perm]
+    is_e = np.zeros(dofs.size, bool)
+    is_e[np.argsort(perm)[nr:]] = True
+    off = np.concatenate([[0], np.cumsum(dofs)])
+    n, nn = int(off[-1]), dofs.size
+    M = rng.random((nn, nn)) < 0.4
+    M = M | M.T
+    np.fill_diagonal(M, True)
+    M[np.ix_(is_e, is_e)] = np.eye(int(is_e.sum()), dtype=bool)
+    rows = []
+    for u, v in zip(*np.nonzero(np.triu(M)), strict=True):
+        r = np.zeros((4, n))
+        r[:, off[u]:off[u + 1]] = rng.standard_normal((4, dofs[u]))
+        r[:, off[v]:off[v + 1]] = rng.standard_normal((4, dofs[v]))
+        rows.append(r)
+    J = np.vstack(rows)
+    H = J.T @ J + 1e-6 * np.eye(n)  # J may be rank deficient: a tiny ridge
+    full = np.zeros((n, n), bool)
+    for u, v in zip(*np.nonzero(M), strict=True):
+        full[off[u]:off[u + 1], off[v]:off[v + 1]] = True
+    c, r = np.nonzero(full.T)  # column by column, rows sorted
+    A = sp.csc_matrix((H[r, c], (r, c)), shape=(n, n))
+    A.sort_indices()
+    assert A.nnz == full.sum()
+    return H, A, off, np.flatnonzero(is_e)
+
+
+@pytest.mark.parametrize("reduced", ["dense", "cholesky"])
+@pytest.mark.parametrize("seed", range(12))
+def test_schur_solve_equals_dense_solve(seed, reduced):
+    """x = S^-1 ... back-substituted equals numpy.linalg.solve(H, b), for one and several
+    right-hand sides, undamped and with LM damping added to the diagonal in place."""
+    rng = np.random.default_rng(seed)
+    H, A, off, elim = _random_system(rng, int(rng.integers(1, 7)), int(rng.integers(1, 25)))
+    n = H.shape[0]
+    s = SchurSolver(off, elim, reduced)
+    s.analyse(A.indptr, A.indices, n)
+    assert s.reduced_solver.name == reduced
+    diag = np.flatnonzero(A.indices == np.repeat(np.arange(n), np.diff(A.indptr)))
+    for lam in (0.0, 1e-3, 10.0):
+        data = A.data.copy()
+        data[diag] += lam
+        Hd = H + lam * np.eye(n)
+        s.factorize(data)
+        b = rng.standard_normal((n, 3))
+        ref = np.linalg.solve(Hd, b)
+        tol = 1e-10 * np.linalg.cond(Hd)
+        x = s.solve(b)
+        assert np.abs(x - ref).max() <= tol * np.abs(ref).max()
+        x0 = s.solve(b[:, 0])
+        assert x0.shape == (n,)
+        assert np.abs(x0 - ref[:, 0]).max() <= tol * np.abs(ref).max()
+
+
+def test_schur_solver_rejects_bad_input():
+    rng = np.random.default_rng(3)
+    H, A, off, elim = _random_system(rng, 2, 4)
+    n = H.shape[0]
+    with pytest.raises(ValueError, match="eliminate names every node"):
+        SchurSolver(off, np.arange(off.size - 1))
+    with pytest.raises(ValueError, match="reduced must be one of"):
+        SchurSolver(off, elim, "lu")
+    with pytest.raises(ValueError, match="node_off"):
+        SchurSolver([0, 3, 3], [0])
+    kept = np.setdiff1d(np.arange(off.size - 1), elim)
+    s = SchurSolver(off, np.r_[elim, kept[:1]])  # a kept node shares blocks with the others
+    if (np.abs(H[off[kept[0]]:off[kept[0] + 1]][:, np.r_[[i for e in elim for i in
+                                                          range(off[e], off[e + 1])]]])
+            > 0).any():
+        with pytest.raises(ValueError, match="share a block"):
+            s.analyse(A.indptr, A.indices, n)
+    s = SchurSolver(off, elim)
+    s.analyse(A.indptr, A.indices, n)
+    bad = A.data.copy()
+    e0 = off[elim[0]]
+    bad[(A.indices == e0) & (np.repeat(np.arange(n), np.diff(A.indptr)) == e0)] = -1.0
+    with pytest.raises(SingularSystemError) as err:
+        s.factorize(bad)
+    assert off[elim[0]] <= err.value.unknown < off[elim[0] + 1]
+
+
+# ------------------------------------------------------------------ the mixed graph
+def _observe(T, p, z):
+    """r = T^-1 p - z (the landmark in the camera frame), with the right Jacobians:
+    d r / d xi = [-I, [q]x] (xi = (rho, phi), T Exp(xi)) and d r / d p = R^T."""
+    R, t = T.rotation().matrix(), T.translation()
+    q = np.einsum("mji,mj->mi", R, p - t)
+    m = q.shape[0]
+    hat = np.zeros((m, 3, 3))
+    hat[:, 0, 1], hat[:, 0, 2], hat[:, 1, 2] = -q[:, 2], q[:, 1], -q[:, 0]
+    hat -= np.swapaxes(hat, 1, 2)
+    JT = np.concatenate([np.broadcast_to(-np.eye(3), (m, 3, 3)), hat], axis=2)
+    return q - z, [JT, np.swapaxes(R, 1, 2)]
+
+
+def _scene(seed=0, n_poses=6, n_points=40):
+    rng = np.random.default_rng(seed)
+    truth_T = SE3.exp(np.concatenate([np.stack([np.arange(n_poses) * 1.0,
+                                                np.zeros(n_poses), np.zeros(n_poses)], 1),
+                                      0.1 * rng.standard_normal((n_poses, 3))], 1))
+    truth_p = rng.uniform([-2, -3, 4], [n_poses + 2, 3, 9], (n_points, 3))
+    g = FactorGraph()
+    T = g.add_variables(truth_T @ SE3.exp(0.05 * rng.standard_normal((n_poses, 6))),
+                        name="poses")
+    P = g.add_variables(truth_p + 0.3 * rng.standard_normal((n_points, 3)), name="points")
+    cam, pt = [], []
+    for j in range(n_points):
+        for i in rng.choice(n_poses, 3, replace=False):
+            cam.append(i)
+            pt.append(j)
+    cam, pt = np.array(cam), np.array(pt)
+    zt = np.einsum("mji,mj->mi", truth_T[cam].rotation().matrix(),
+                   truth_p[pt] - truth_T[cam].translation())
+    z = zt + 0.01 * rng.standard_normal(zt.shape)
+    obs = CustomFactor(_observe, [(T, cam), (P, pt)], 3, Isotropic(3, 0.01), data=[z],
+                       jac="analytic")
+    g.add(obs)
+    i = np.arange(n_poses - 1)
+    rel = (truth_T[i].inverse() @ truth_T[i + 1]) @ SE3.exp(0.01 * rng.standard_normal(
+        (n_poses - 1, 6)))
+    g.add(BetweenFactor(T, i, i + 1, rel, Diagonal([0.02] * 3 + [0.01] * 3)))
+    gps = truth_T.translation() + 0.05 * rng.standard_normal((n_poses, 3))
+    g.add(CustomFactor(lambda X, zz: X.translation() - zz, [(T, np.arange(n_poses))], 3,
+                       Isotropic(3, 0.05), data=[gps]))
+    g.add(PriorFactor(T, 0, truth_T[0], Isotropic(6, 0.01)))
+    return g, T, P, obs
+
+
+def test_observation_jacobians():
+    g, T, P, obs = _scene()
+    assert check_jacobians(obs).ok
+
+
+@pytest.mark.parametrize("solver", ["lm", "gn", "dogleg"])
+def test_mixed_graph_schur_equals_cholesky_and_scipy(solver):
+    """The same graph solved with "schur" and "cholesky" (and, for the values, scipy's
+    least_squares on the whole residual vector) agree to 1e-8."""
+    g, T, P, _ = _scene()
+    assert landmark_batches(g.problem()) == [P]
+    kw = dict(solver=solver, rel_tol=1e-14, abs_tol=1e-14, max_iter=50)
+    rs = g.optimize(linear_solver="schur", **kw)
+    rc = g.optimize(linear_solver="cholesky", **kw)
+    assert rs.linear_solver == "schur" and rs.iterations > 2
+    assert abs(rs.final_cost - rc.final_cost) <= 1e-8 * rc.final_cost
+    assert np.abs(rs.values[P] - rc.values[P]).max() <= 1e-8
+    assert np.abs(rs.values[T].params - rc.values[T].params).max() <= 1e-8
+
+    # scipy: the whitened residuals as a function of (pose tangents, points)
+    p = g.problem()
+    x0 = [v.initial for v in p.variables]
+
+    def fun(dx):
+        states = p.retract(x0, dx)
+        out = []
+        for f in p.factors:
+            r = np.asarray(f.evaluate(p.gather(f, states), False))
+            out.append(p.whiten(f, r).ravel())
+        return np.concatenate(out)
+
+    ref = least_squares(fun, np.zeros(p.size), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert abs(rs.final_cost - ref.cost) <= 1e-8 * ref.cost
+    sx = p.retract(x0, ref.x)
+    assert np.abs(rs.values[P] - sx[p.key(P)]).max() <= 1e-7
+    assert np.abs(rs.values[T].params - sx[p.key(T)]).max() <= 1e-7
+
+
+def test_marginals_through_schur():
+    g, T, P, _ = _scene(1)
+    res = g.optimize(linear_solver="cholesky")
+    a = g.marginal_covariance(res.values, [(T, 2), (P, 5)], linear_solver="schur")
+    b = g.marginal_covariance(res.values, [(T, 2), (P, 5)], linear_solver="dense")
+    assert np.abs(a - b).max() <= 1e-10 * np.abs(b).max()
+
+
+def test_eliminate_argument():
+    g, T, P, _ = _scene(2, n_poses=4, n_points=10)
+    rd = g.optimize(linear_solver="schur", eliminate=[P])
+    rs = g.optimize(linear_solver="schur")
+    assert abs(rd.final_cost - rs.final_cost) <= 1e-12 * rs.final_cost
+    with pytest.raises(ValueError, match="'poses' share a factor with each other"):
+        g.optimize(linear_solver="schur", eliminate=[T])
+    with pytest.raises(ValueError, match="names every free variable"):
+        h = FactorGraph()
+        q = h.add_variables(np.zeros((3, 2)), name="q")
+        h.add(PriorFactor(q, [0, 1, 2], np.ones((3, 2))))
+        h.optimize(linear_solver="schur", eliminate=q)
+    with pytest.raises(ValueError, match="eliminate\\[0\\] is not a variable handle"):
+        g.optimize(linear_solver="schur", eliminate=[q])
+    with pytest.raises(ValueError, match="applies to linear_solver='schur' only"):
+        g.optimize(linear_solver="cholesky", eliminate=[P])
+    with pytest.raises(ValueError, match="found no variables to eliminate"):
+        h.optimize(linear_solver="schur")  # one batch only: nothing would remain
+    # two batches that share a factor cannot both be eliminated
+    k = FactorGraph()
+    a = k.add_variables(np.zeros((2, 2)), name="a")
+    b = k.add_variables(np.zeros((2, 2)), name="b")
+    c = k.add_variables(np.zeros((1, 2)), name="c")
+    k.add(CustomFactor(lambda u, v, w: u + v + w - 1.0, [(a, [0, 1]), (b, [0, 1]),
+                                                         (c, [0, 0])], 2))
+    k.add(PriorFactor(a, [0, 1], np.zeros((2, 2))))
+    k.add(PriorFactor(b, [0, 1], np.zeros((2, 2))))
+    k.add(PriorFactor(c, 0, np.zeros(2)))
+    with pytest.raises(ValueError, match="'a' and 'b' share a factor"):
+        k.optimize(linear_solver="schur", eliminate=[a, b])
+    assert [v.name for v in landmark_batches(k.problem())] in (["a"], ["b"])
+    fixed = FactorGraph()
+    f1 = fixed.add_variables(np.zeros((2, 2)), name="f1", fixed=True)
+    f2 = fixed.add_variables(np.zeros((2, 2)), name="f2")
+    fixed.add(CustomFactor(lambda u, v: u - v, [(f1, [0, 1]), (f2, [0, 1])], 2))
+    with pytest.raises(ValueError, match="every variable of 'f1' is fixed"):
+        fixed.optimize(linear_solver="schur", eliminate=[f1])
+
+
+def test_symbolic_analysis_runs_once(monkeypatch):
+    """Across the iterations of a solve and a second solve of the same graph, the Schur
+    solver and its reduced system's supernodal Cholesky are analysed once; every iteration
+    refactorises."""
+    calls = {"schur": 0, "reduced": 0, "factorize": 0}
+    real_s, real_r, real_f = SchurSolver.analyse, SupernodalSolver.analyse, \
+        SchurSolver.factorize
+
+    def count(name, real):
+        def wrapped(self, *a, **k):
+            calls[name] += 1
+            return real(self, *a, **k)
+        return wrapped
+
+    monkeypatch.setattr(SchurSolver, "analyse", count("schur", real_s))
+    monkeypatch.setattr(SupernodalSolver, "analyse", count("reduced", real_r))
+    monkeypatch.setattr(SchurSolver, "factorize", count("factorize", real_f))
+    monkeypatch.setattr("microlie.optim.linalg.schur_solver.DENSE_ALWAYS", 0)
+    monkeypatch.setattr("microlie.optim.linalg.schur_solver.DENSE_MAX", 0)
+    g, T, P, _ = _scene(3)
+    r1 = g.optimize(linear_solver="schur", rel_tol=1e-12, abs_tol=1e-12)
+    r2 = g.optimize(linear_solver="schur", max_iter=3)
+    assert r1.iterations > 2
+    assert calls["schur"] == 1 and calls["reduced"] == 1
+    assert calls["factorize"] >= r1.iterations + r2.iterations
+    assert g.problem().analysed("schur").reduced_solver.name == "cholesky"
