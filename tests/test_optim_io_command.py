@@ -12,7 +12,7 @@ import pytest
 from conftest import data_file, require
 
 from microlie.cli import main
-from microlie.optim.command import detect_format
+from microlie.optim.io.formats import detect_format
 from microlie.optim.io.g2o import read_g2o, write_g2o
 from microlie.optim.io.toro import read_toro, write_toro
 

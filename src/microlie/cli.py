@@ -38,13 +38,14 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TextIO, TypeVar
 
+from .traj.formats import FORMATS, WRITABLE
+
 __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_ERROR", "EXIT_USAGE", "EXIT_DEPENDENCY"]
 
 T = TypeVar("T")
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_DEPENDENCY = 0, 1, 2, 3
 
-FORMATS = ("tum", "kitti", "euroc")
 BAG_WORDS = ("bag", "bag2")
 ALIGNMENTS = ("none", "se3", "sim3", "scale", "origin")
 # native names and evo's; -r rot is the rotation angle in --angle-unit
@@ -230,7 +231,7 @@ class _Source:
 def _format_word(args: argparse.Namespace, n_files: int | None) -> None:
     """Take evo's leading format word (``ape tum GT EST``) off the positional arguments."""
     files = args.files
-    if files and files[0] in (*FORMATS, *BAG_WORDS) and not os.path.exists(files[0]) and (
+    if files and files[0] in (*WRITABLE, *BAG_WORDS) and not os.path.exists(files[0]) and (
         n_files is None or len(files) == n_files + 1 or files[0] in BAG_WORDS
     ):
         word = files.pop(0)
@@ -312,11 +313,11 @@ def _add_files(p: argparse.ArgumentParser) -> None:
 
 
 def _add_formats(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--format", "-f", choices=(*FORMATS, "bag"), default=None,
+    p.add_argument("--format", "-f", choices=tuple(FORMATS), default=None,
                    help="file format (default tum; the leading format word sets it too)")
-    p.add_argument("--ref-format", choices=(*FORMATS, "bag"), default=None,
+    p.add_argument("--ref-format", choices=tuple(FORMATS), default=None,
                    help="format of the reference (default: --format)")
-    p.add_argument("--est-format", choices=(*FORMATS, "bag"), default=None,
+    p.add_argument("--est-format", choices=tuple(FORMATS), default=None,
                    help="format of the estimate(s) (default: --format; tum for euroc)")
     p.add_argument("--topic", default=None,
                    help="ROS bag topic of the estimate (and of the reference unless "
@@ -807,8 +808,9 @@ def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     method = _resolve_align(args)
     if method != "none" and not args.ref:
         raise UsageError("--align needs --ref")
-    if args.save_as and args.save_as[0] not in FORMATS:
-        raise UsageError(f"--save-as format must be one of {FORMATS}, got {args.save_as[0]!r}")
+    if args.save_as and args.save_as[0] not in WRITABLE:
+        raise UsageError(f"--save-as format must be one of {WRITABLE}, got "
+                         f"{args.save_as[0]!r}")
     _check_outputs(args, [s.path for s in sources] + [args.ref], {"--plot": args.plot})
     trajs = [s.read() for s in _progress(sources, "reading")]
     ref = None
@@ -868,7 +870,7 @@ def _run_traj(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     if args.save_as:
         fmt, folder = args.save_as
         Path(folder).mkdir(parents=True, exist_ok=True)
-        ext = {"tum": ".tum", "kitti": ".kitti", "euroc": ".csv"}[fmt]
+        ext = FORMATS[fmt].suffix
         targets = [Path(folder) / (_file_stem(t.name) + ext) for t in trajs]
         for target in targets:
             _check_outputs(args, [s.path for s in sources] + [args.ref], {"--save-as": target})

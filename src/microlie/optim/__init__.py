@@ -11,7 +11,7 @@ your own with analytic Jacobians is a :class:`Factor` subclass implementing
 ``Information``, ``SqrtInformation``, ``Covariance``, ``Diagonal``, ``Isotropic``; robust losses
 (``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
 ``DCS``, ``Barron``, applied as in Ceres. ``result = g.optimize(solver="lm"|"gn"|"dogleg",
-linear_solver="auto"|"cholesky"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
+linear_solver="auto"|"cholesky"|"schur"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
 :class:`Result` with ``values`` (``result.values[poses]`` is the optimised batch),
 ``initial_cost``, ``final_cost`` (``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``,
 ``converged``, ``message``, ``history`` and ``time_s``; a graph without a prior or a fixed
@@ -41,6 +41,7 @@ _LAZY = {
     "io.g2o": ("read_g2o", "write_g2o"),
     "core.graph": ("FactorGraph", "from_pose_graph"),
     "linalg.linear": ("LinearSolver", "SingularSystemError", "available_solvers", "make_solver"),
+    "linalg.schur_solver": ("SchurSolver",),
     "core.noise": ("Covariance", "Diagonal", "Information", "Isotropic", "NoiseModel",
               "SqrtInformation", "Unit"),
     "io.pose_graph": ("PoseGraph",),
@@ -95,6 +96,7 @@ if TYPE_CHECKING:
     from .io.pose_graph import PoseGraph
     from .io.toro import read_toro, write_toro
     from .linalg.linear import LinearSolver, SingularSystemError, available_solvers, make_solver
+    from .linalg.schur_solver import SchurSolver
     from .sfm.bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
     from .sfm.camera import BALCamera, PinholeCamera
     from .sfm.reprojection import ReprojectionFactor
@@ -105,7 +107,7 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
-           "available_solvers",
+           "available_solvers", "SchurSolver",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
            "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera", "ReprojectionFactor",
            "PoseGraph", "read_g2o",

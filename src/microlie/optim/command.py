@@ -32,16 +32,14 @@ The report's ``termination`` is the solver's (:class:`~microlie.optim.core.solve
 exit with status 0, as Ceres calls both usable; ``failure`` (the cost could not be decreased)
 prints the reason on stderr, writes no ``-o`` file and exits with status 1.
 
-Formats are handled by the functions in :data:`FORMATS` (format name -> ``"module:function"``,
-imported on use), each called as ``run(args, err) -> dict`` and returning the JSON report: a
-new format is one entry there.
+Formats come from the registry :data:`microlie.optim.io.formats.FORMATS`: its handler is called
+as ``handler(args, err) -> dict`` and returns the JSON report; a new format is one entry there.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib
 import json
 import sys
 import time
@@ -49,14 +47,10 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from .core.threads import blas_threads_limit
+from .io.formats import FORMATS, detect_format, output_format
 
-__all__ = ["register", "run", "run_pose_graph", "FORMATS", "detect_format"]
+__all__ = ["register", "run", "run_pose_graph"]
 
-FORMATS: dict[str, str] = {
-    "g2o": "microlie.optim.command:run_pose_graph",
-    "toro": "microlie.optim.command:run_pose_graph",
-    "bal": "microlie.optim.command_bal:run_bal",
-}
 SOLVERS = ("lm", "gn", "dogleg")
 INITS = ("auto", "file", "odometry", "chordal")
 GAUGES = ("check", "fix_first", "none")
@@ -156,61 +150,11 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def detect_format(path: str | Path) -> str:
-    r"""The format of a file from its first data line.
-
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        The file.
-
-    Returns
-    -------
-    str
-        ``"g2o"``, ``"toro"`` or ``"bal"``.
-
-    Raises
-    ------
-    ValueError
-        No known format.
-
-    Examples
-    --------
-    >>> import argparse, io, json, os, tempfile
-    >>> from microlie.optim.command import register
-    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
-    >>> _ = open(path, "w").write(
-    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
-    >>> parser = argparse.ArgumentParser(prog="microlie")
-    >>> _ = register(parser.add_subparsers())
-    >>> from microlie.optim.command import detect_format
-    >>> detect_format(path)
-    'g2o'
-    """
-    # only the tag is needed here: a byte that is not UTF-8 is left to the reader to report
-    with open(path, encoding="utf-8-sig", errors="replace") as f:
-        for lineno, line in enumerate(f, start=1):
-            toks = line.split()
-            if not toks or toks[0].startswith("#"):
-                continue
-            tag = toks[0]
-            if tag in ("VERTEX2", "EDGE2", "VERTEX3", "EDGE3"):
-                return "toro"
-            if tag.startswith(("VERTEX_", "EDGE_")) or tag == "FIX":
-                return "g2o"
-            if len(toks) == 3 and all(t.isdigit() for t in toks):
-                return "bal"
-            raise ValueError(f"{path}:{lineno}: cannot tell the file format from {tag!r}; "
-                             "give --format")
-    raise ValueError(f"{path}: the file has no data lines")
-
-
 def _handler(fmt: str) -> Any:
-    target = FORMATS.get(fmt)
-    if target is None:
+    entry = FORMATS.get(fmt)
+    if entry is None:
         raise ValueError(f"format {fmt!r} is not supported here (known: {', '.join(FORMATS)})")
-    module, _, name = target.partition(":")
-    return getattr(importlib.import_module(module), name)
+    return entry.load("handler")
 
 
 def run(args: argparse.Namespace, out: TextIO | None = None, err: TextIO | None = None) -> int:
@@ -299,25 +243,11 @@ def _label(path: str | None) -> str:
 
 
 def _read(path: str, fmt: str) -> Any:
-    if fmt == "toro":
-        from .io.toro import read_toro
-
-        return read_toro(path)
-    from .io.g2o import read_g2o
-
-    return read_g2o(path)
+    return FORMATS[fmt].load("reader")(path)
 
 
 def _write(path: str, graph: Any, poses: Any, fmt: str) -> None:
-    suffix = Path(path).suffix.lower()
-    if suffix in (".graph", ".toro") or (fmt == "toro" and suffix != ".g2o"):
-        from .io.toro import write_toro
-
-        write_toro(path, graph, poses)
-    else:
-        from .io.g2o import write_g2o
-
-        write_g2o(path, graph, poses)
+    output_format(path, fmt).load("writer")(path, graph, poses)
 
 
 def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:

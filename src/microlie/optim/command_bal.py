@@ -1,6 +1,6 @@
 """``microlie optimize problem.txt --format bal``: bundle adjustment of a BAL file.
 
-:func:`run_bal` is the BAL entry of :data:`microlie.optim.command.FORMATS`: it reads the file,
+:func:`run_bal` is the BAL entry of :data:`microlie.optim.io.formats.FORMATS`: it reads the file,
 runs :func:`microlie.optim.sfm.bundle.bundle_adjust` (Levenberg-Marquardt with Ceres' rules on the
 Schur
 system, BAL camera model, points behind a camera evaluated as in the standard BAL model) and

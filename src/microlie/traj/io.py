@@ -34,6 +34,7 @@ from microlie import SE3, _fast
 from microlie._files import atomic_write
 from microlie._textfile import plain_error, read_text
 
+from .formats import FORMATS, trajectory_format
 from .trajectory import Trajectory
 
 __all__ = [
@@ -49,7 +50,6 @@ __all__ = [
     "FORMATS",
 ]
 
-FORMATS = ("tum", "kitti", "euroc", "bag")
 
 PathLike = str | os.PathLike
 
@@ -559,19 +559,13 @@ def read_trajectory(
     >>> len(read_trajectory(example_paths()[1], "tum"))
     145
     """
-    if fmt == "tum":
-        return read_tum(path)
-    if fmt == "kitti":
-        return read_kitti(path, timestamps)
-    if fmt == "euroc":
-        return read_euroc(path)
-    if fmt == "bag":
-        if not topic:
-            raise ValueError(f"{path}: reading a bag needs a topic")
-        from .rosbag import read_bag
-
-        return read_bag(path, topic)
-    raise ValueError(f"unknown trajectory format {fmt!r}; expected one of {FORMATS}")
+    entry = trajectory_format(fmt)
+    given = {"timestamps": timestamps, "topic": topic}
+    if "topic" in entry.options and not topic:
+        raise ValueError(f"{path}: reading a bag needs a topic")
+    options = {k: v for k, v in given.items() if k in entry.options and v is not None}
+    reader: Callable[..., Trajectory] = entry.load("reader")
+    return reader(path, **options)
 
 
 def write_tum(path: PathLike, traj: Trajectory, *, header: str | None = None) -> None:
@@ -689,7 +683,4 @@ def write_trajectory(path: PathLike, traj: Trajectory, fmt: str = "tum") -> None
     >>> len(read_tum(path)) == len(traj)
     True
     """
-    writers = {"tum": write_tum, "kitti": write_kitti, "euroc": write_euroc}
-    if fmt not in writers:
-        raise ValueError(f"cannot write format {fmt!r}; expected one of {tuple(writers)}")
-    writers[fmt](path, traj)
+    trajectory_format(fmt, write=True).load("writer")(path, traj)

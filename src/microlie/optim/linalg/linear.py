@@ -483,9 +483,13 @@ def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
             prefs = ("qdldl", "pardiso", "cholesky", "scipy")
         return SOLVERS[next(k for k in prefs if k in avail)]()()
     make = SOLVERS.get(name)
+    if name == "schur":
+        raise ValueError("linear_solver='schur' needs the problem's variables: pass it to "
+                         "FactorGraph.optimize or Problem.analysed, or build a "
+                         "microlie.optim.linalg.schur_solver.SchurSolver(node_off, eliminate)")
     if make is None:
         raise ValueError(f"unknown linear solver {name!r}; known: auto, "
-                         f"{', '.join(SOLVERS)}")
+                         f"{', '.join(SOLVERS)}, schur")
     if name in _MODULES and importlib.util.find_spec(_MODULES[name]) is None:
         raise ImportError(f"linear_solver={name!r} needs the package {_MODULES[name]!r} "
                           f"(pip install {_EXTRAS[name]!r})")
