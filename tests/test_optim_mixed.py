@@ -124,7 +124,11 @@ def build(fx: dict, form: str):
 
 
 def solve(g: FactorGraph, linear_solver: str):
-    return g.optimize(linear_solver=linear_solver, rel_tol=1e-14, abs_tol=1e-14, max_iter=100)
+    """LM to a relative cost decrease of 1e-12 (5 iterations here, as GTSAM's). Not tighter:
+    a further step decreases the cost by ~1e-16 relative, at its rounding floor, so whether it
+    is accepted is a coin toss that differs between linear solvers, and it moves the weakly
+    determined directions (the focal lengths) by up to 4e-7 px without changing the cost."""
+    return g.optimize(linear_solver=linear_solver, rel_tol=1e-12, abs_tol=1e-12, max_iter=100)
 
 
 def _T_cw(T: SE3, form: str) -> SE3:
@@ -160,9 +164,9 @@ def _compare_to_gtsam(fx, res, poses, pts, K, form):
     assert res.final_cost == pytest.approx(ref["final_error"], rel=1e-6)
     assert res.initial_cost == pytest.approx(ref["initial_error"], rel=1e-10)
     T = _T_cw(res.values[poses], form)
-    assert np.abs(_poses(ref["final"]["T_cw"]).inverse().compose(T).log()).max() < 1e-6
-    assert np.abs(res.values[pts] - np.array(ref["final"]["landmarks"])).max() < 1e-6
-    assert np.abs(res.values[K][0] - np.array(ref["final"]["K"])).max() < 1e-5
+    assert np.abs(_poses(ref["final"]["T_cw"]).inverse().compose(T).log()).max() < 1e-8
+    assert np.abs(res.values[pts] - np.array(ref["final"]["landmarks"])).max() < 1e-8
+    assert np.abs(res.values[K][0] - np.array(ref["final"]["K"])).max() < 1e-7
 
 
 @pytest.mark.parametrize("form", FORMS)
