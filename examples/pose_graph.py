@@ -14,8 +14,8 @@ import argparse
 from pathlib import Path
 
 from microlie.optim.command import detect_format
-from microlie.optim.io.g2o import read_g2o, write_g2o
 from microlie.optim.init import initialize
+from microlie.optim.io.g2o import read_g2o, write_g2o
 from microlie.optim.io.toro import read_toro
 
 DEFAULT = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "pose_graph" / "MIT.g2o"

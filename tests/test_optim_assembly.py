@@ -208,3 +208,21 @@ def test_solvers_take_the_same_run_with_and_without_kept_jacobians(numpy_path, m
                                rtol=1e-13)
     for u, v in zip(pa, pb, strict=True):
         np.testing.assert_allclose(u, v, rtol=0, atol=1e-12)
+
+
+def test_a_problem_without_free_variables(numpy_path):
+    """Every variable fixed: an empty system, and the cost of the residuals
+    ``Log(Z^-1 X_i^-1 X_j)`` written out here (failed in the pattern lookup on 1bd9510)."""
+    from microlie import SE2
+    from microlie.optim import BetweenFactor, FactorGraph
+
+    X = SE2.exp(np.array([[0.0, 0.0, 0.0], [1.0, 0.5, 0.3], [2.0, -0.5, 1.0]]))
+    Z = SE2.exp(np.array([[0.9, 0.4, 0.2], [1.1, -1.2, 0.6]]))
+    fg = FactorGraph()
+    x = fg.add_variables(X, fixed=[0, 1, 2])
+    fg.add(BetweenFactor(x, [0, 1], [1, 2], Z))
+    p = fg.problem(gauge="none")
+    lin = p.linearize([x.initial])
+    assert p.size == 0 and lin.data.shape == (0,) and lin.grad.shape == (0,)
+    r = (Z.inverse() @ X[np.array([0, 1])].inverse() @ X[np.array([1, 2])]).log()
+    assert np.isclose(lin.cost, 0.5 * float((r ** 2).sum()), rtol=1e-12)

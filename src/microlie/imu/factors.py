@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..groups import SE23
+from ..groups import SE23, R
 from ..optim.core.factors import Factor
 from ..optim.core.noise import Covariance, Diagonal
 from ..optim.core.variables import Variables
@@ -68,7 +68,7 @@ class ImuFactor(Factor):
                  loss: Any = None) -> None:
         if states.group is not SE23:
             raise TypeError("ImuFactor: states must be SE23 variables")
-        if biases.group is not None or biases.dof != 6:
+        if biases.group is not R(6):
             raise TypeError("ImuFactor: biases must be an (n, 6) vector variable (b_g, b_a)")
         if error not in ERRORS:
             raise ValueError(f"ImuFactor: error must be one of {ERRORS}, got {error!r}")
@@ -162,7 +162,7 @@ class BiasRandomWalkFactor(Factor):
 
     def __init__(self, biases: Variables, i: Any, j: Any, gyro_walk: float, accel_walk: float,
                  dt: Any, loss: Any = None) -> None:
-        if biases.group is not None or biases.dof != 6:
+        if biases.group is not R(6):
             raise TypeError("BiasRandomWalkFactor: biases must be an (n, 6) vector variable")
         t = np.atleast_1d(np.asarray(dt, dtype=np.float64))
         if np.any(t <= 0) or not np.all(np.isfinite(t)):

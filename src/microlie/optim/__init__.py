@@ -1,8 +1,10 @@
 """Factor graphs on Lie groups: sparse non-linear least squares (specification: MATH.md section 8).
 
 API in one paragraph: ``g = FactorGraph()``; ``poses = g.add_variables(SE3_batch, fixed=...)``
-adds one batch of variables of one type (any :class:`~microlie.LieGroup`, or an ``(n, d)``
-array of vectors) and returns a handle; factors are batches too:
+adds one batch of variables of one type (any :class:`~microlie.LieGroup`; an ``(n, d)``
+array of vectors is a batch of ``R(d)``, whose values stay plain arrays) and returns a handle;
+``g.fix(handle, idx, components=[...])`` holds whole variables or some of their tangent
+coordinates; factors are batches too:
 ``PriorFactor(poses, idx, Z, noise)`` (``r = X (-) Z``), ``BetweenFactor(poses, i, j, Z, noise)``
 (``r = (X_i^-1 X_j) (-) Z_ij``) and ``CustomFactor(fn, [(var, idx), ...], dim, noise,
 jac="numerical"|"analytic"|"jax"|"torch")``, each added with ``g.add(...)``; a factor type of
@@ -10,13 +12,16 @@ your own with analytic Jacobians is a :class:`Factor` subclass implementing
 ``residual(*values, jac=False)``, checked with ``check_jacobians(factor)``; noise models are
 ``Information``, ``SqrtInformation``, ``Covariance``, ``Diagonal``, ``Isotropic``; robust losses
 (``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
-``DCS``, ``Barron``, applied as in Ceres. ``result = g.optimize(solver="lm"|"gn"|"dogleg",
-linear_solver="auto"|"cholesky"|"schur"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a
-:class:`Result` with ``values`` (``result.values[poses]`` is the optimised batch),
-``initial_cost``, ``final_cost`` (``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``,
-``converged``, ``message``, ``history`` and ``time_s``; a graph without a prior or a fixed
-variable is a ``GaugeError`` unless ``gauge="fix_first"``. ``g.marginals(result.values, poses,
-idx)`` gives :class:`~microlie.Gaussian` marginals in the right-perturbation frame.
+``DCS``, ``Barron``, applied as in Ceres.
+``result = g.optimize(solver="lm"|"gn"|"dogleg"|"trust-region", linear_solver="auto"|
+"cholesky"|"schur"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a :class:`Result` with ``values``
+(``result.values[poses]`` is the optimised batch), ``initial_cost``, ``final_cost``
+(``0.5 * sum r^T Omega r``, GTSAM's error), ``iterations``, ``converged``, ``message``,
+``history`` and ``time_s``; ``solver`` also takes a strategy object with its options
+(``LevenbergMarquardt(...)``, GTSAM's rules; ``GaussNewton()``; ``Dogleg(...)``;
+``TrustRegion(...)``, Levenberg-Marquardt with Ceres' rules); a graph without a prior or a
+fixed variable is a ``GaugeError`` unless ``gauge="fix_first"``. ``g.marginals(result.values,
+poses, idx)`` gives :class:`~microlie.Gaussian` marginals in the right-perturbation frame.
 Conventions: every variable is perturbed on the right (``X Exp(delta)``), every Jacobian is a
 right Jacobian, tangents are translation first.
 
@@ -49,6 +54,8 @@ _LAZY = {
     "core.robust": ("DCS", "Barron", "Cauchy", "GemanMcClure", "Huber", "RobustLoss", "Tukey",
                "make_loss"),
     "core.solvers": ("IterationRecord", "Result"),
+    "core.strategies": ("Dogleg", "GaussNewton", "LevenbergMarquardt", "Strategy",
+                        "TrustRegion"),
     "io.toro": ("read_toro", "write_toro"),
     "core.variables": ("Values", "Variables"),
 }
@@ -90,6 +97,7 @@ if TYPE_CHECKING:
     from .core.problem import GaugeError, NonFiniteError, Problem
     from .core.robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
     from .core.solvers import IterationRecord, Result
+    from .core.strategies import Dogleg, GaussNewton, LevenbergMarquardt, Strategy, TrustRegion
     from .core.variables import Values, Variables
     from .io.bal import BALProblem, read_bal, write_bal
     from .io.g2o import read_g2o, write_g2o
@@ -106,6 +114,7 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "Information", "SqrtInformation",
            "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
            "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
+           "Strategy", "LevenbergMarquardt", "GaussNewton", "Dogleg", "TrustRegion",
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
            "available_solvers", "SchurSolver",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",

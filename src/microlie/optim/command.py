@@ -51,7 +51,7 @@ from .io.formats import FORMATS, detect_format, output_format
 
 __all__ = ["register", "run", "run_pose_graph"]
 
-SOLVERS = ("lm", "gn", "dogleg")
+SOLVERS = ("lm", "gn", "dogleg", "trust-region")  # microlie.optim.core.strategies
 INITS = ("auto", "file", "odometry", "chordal")
 GAUGES = ("check", "fix_first", "none")
 
@@ -103,7 +103,9 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--format", "-f", choices=("auto", *FORMATS), default="auto",
                    help="input format (default: detected from the first data line)")
     p.add_argument("--solver", choices=SOLVERS, default="lm",
-                   help="lm (Levenberg-Marquardt, default), gn (Gauss-Newton), dogleg")
+                   help="lm (Levenberg-Marquardt with GTSAM's rules, default), gn "
+                        "(Gauss-Newton), dogleg, trust-region (Levenberg-Marquardt with "
+                        "Ceres' rules)")
     p.add_argument("--robust", metavar="LOSS[:SCALE]", default=None,
                    help="robust loss on every edge: huber, cauchy, tukey, geman-mcclure, dcs, "
                         "barron, optionally with a scale, e.g. huber:1.0")

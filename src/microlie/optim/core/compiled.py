@@ -202,7 +202,7 @@ def plan(problem: Any, f: Factor) -> EdgePlan | None:
     if mod is None or type(f) is not BetweenFactor:
         return None
     (var, ii), (_, jj) = f.args
-    name = _KERNELS.get(var.group.__name__ if var.group is not None else "")
+    name = _KERNELS.get(var.group.__name__)
     if name is None or not hasattr(mod, f"{name}_between_normal"):
         return None
     d = f.dim

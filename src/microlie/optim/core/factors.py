@@ -356,21 +356,20 @@ class Factor:
 
 
 def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
-    if var.group is None:
-        z = np.asarray(Z, dtype=np.float64)
-        if z.shape not in ((var.dof,), (m, var.dof)):
-            raise ValueError(f"{what}: vector measurement must have shape ({var.dof},) or "
-                             f"({m}, {var.dof}), got {z.shape}")
-        if not np.all(np.isfinite(z)):
-            raise ValueError(f"{what}: measurement has non-finite entries")
-        return np.broadcast_to(z, (m, var.dof)).copy()
-    if not isinstance(Z, var.group):
-        raise TypeError(f"{what}: measurement must be a {var.group.__name__} "
-                        f"(batch of {m} or a single element), got {type(Z).__name__}")
-    p = np.asarray(Z.params, dtype=np.float64)
-    if p.shape not in ((var.group.param_dim,), (m, var.group.param_dim)):
-        raise ValueError(f"{what}: measurement batch shape {Z.batch_shape} for {m} factors")
-    return element(var.group, np.broadcast_to(p, (m, var.group.param_dim)).copy())
+    """``Z`` as ``m`` values of ``var``'s kind (a group batch, an ``(m, d)`` array for
+    vectors)."""
+    try:
+        p = np.asarray(var.params_of(Z), dtype=np.float64)
+    except TypeError:
+        raise TypeError(f"{what}: measurement must be a {var.group.__name__} (batch of {m} or "
+                        f"a single element), got {type(Z).__name__}") from None
+    pd = var.group.param_dim
+    if p.shape not in ((pd,), (m, pd)):
+        raise ValueError(f"{what}: measurement must have parameters of shape ({pd},) or "
+                         f"({m}, {pd}), got {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError(f"{what}: measurement has non-finite entries")
+    return var.wrap(np.broadcast_to(p, (m, pd)).copy())
 
 
 class PriorFactor(Factor):
@@ -409,8 +408,7 @@ class PriorFactor(Factor):
                  loss: RobustLoss | str | None = None) -> None:
         super().__init__([(variables, idx)], variables.dof, noise, loss)
         self.Z = _measurement(variables, Z, self.count, self.name)
-        if variables.group is not None:
-            self._Zinv = self.Z.inverse()
+        self._Zinv = variables.inverse(self.Z)
 
     def residual(self, X: Any, jac: bool = False) -> Any:
         """``r = Log(Z^-1 X)`` and, with ``jac``, ``[Jr^-1(r)]`` (:meth:`Factor.residual`).
@@ -438,15 +436,11 @@ class PriorFactor(Factor):
         >>> np.round(r, 12).tolist(), J.tolist()
         ([[0.75]], [[[1.0]]])
         """
-        if self.args[0][0].group is None:
-            r = X - self.Z
-            if not jac:
-                return r
-            return r, [np.broadcast_to(np.eye(self.dim), (self.count, self.dim, self.dim))]
-        E = self._Zinv.compose(X)
+        var = self.args[0][0]
+        E = var.compose(self._Zinv, X)
         if not jac:
-            return E.log()
-        r, J = E.log(jac=True)
+            return var.log(E)
+        r, J = var.log(E, jac=True)
         return r, [J]
 
 
@@ -494,10 +488,15 @@ class BetweenFactor(Factor):
             k = int(np.flatnonzero(same)[0])
             raise ValueError(f"BetweenFactor {k}: i == j == {int(self.args[0][1][k])}")
         self.Z = _measurement(variables, Z, self.count, self.name)
-        if variables.group is not None:
-            # r = Log((X_i Z)^-1 X_j) = X_j (-) (X_i Z): one fused minus with its Jacobians;
-            # d r / d X_i = d r / d (X_i Z) . Ad_(Z^-1), a constant of the factor
-            self._Ad_Zinv = np.ascontiguousarray(self.Z.inverse().adjoint())
+        # r = Log((X_i Z)^-1 X_j) = X_j (-) (X_i Z): one fused minus with its Jacobians;
+        # d r / d X_i = d r / d (X_i Z) . Ad_(Z^-1), a constant of the factor
+        # (None when every Ad_(Z^-1) is the identity, as in the abelian groups R(d) and SO2:
+        # then d r / d X_i = d r / d (X_i Z), no product)
+        Zinv = element(variables.group, variables.params_of(self.Z)).inverse()
+        Ad = np.ascontiguousarray(Zinv.adjoint())
+        eye = np.eye(self.dim)
+        ident = (Ad.reshape(-1, self.dim, self.dim)[0] == eye).all() and (Ad == eye).all()
+        self._Ad_Zinv: np.ndarray | None = None if ident else Ad
 
     def residual(self, Xi: Any, Xj: Any, jac: bool = False) -> Any:
         """``r = Log((X_i Z)^-1 X_j)`` and, with ``jac``, ``[d r / d X_i, d r / d X_j]``
@@ -526,33 +525,30 @@ class BetweenFactor(Factor):
         >>> np.round(r, 12).tolist(), Ji.tolist(), Jj.tolist()
         ([[0.25]], [[[-1.0]]], [[[1.0]]])
         """
-        if self.args[0][0].group is None:
-            r = Xj - Xi - self.Z
-            if not jac:
-                return r
-            eye = np.broadcast_to(np.eye(self.dim), (self.count, self.dim, self.dim))
-            return r, [-eye, eye]
+        var = self.args[0][0]
         if not jac:
-            return Xj.minus(Xi.compose(self.Z))
+            return var.minus(Xj, var.compose(Xi, self.Z))
         d = self.dim
         out = np.empty((self.count, d, 2 * d))
         r = self._fill(Xi, Xj, out)
         return r, [out[:, :, :d], out[:, :, d:]]
 
     def evaluate_into(self, values: Sequence[Any], out: np.ndarray) -> np.ndarray:
-        if self.args[0][0].group is None:
-            return super().evaluate_into(values, out)
         Xi, Xj = values
         return self._fill(Xi, Xj, out)
 
     def _fill(self, Xi: Any, Xj: Any, out: np.ndarray) -> np.ndarray:
         """The residuals, with ``[J_i J_j]`` written into ``out`` ``(m, d, 2 d)``."""
-        r, Jj, Jc = Xj.minus(Xi.compose(self.Z), jac=True)
+        var = self.args[0][0]
+        r, Jj, Jc = var.minus(Xj, var.compose(Xi, self.Z), jac=True)
         d = self.dim
         # Jc (component-major from the kernel) copied row-major into the second half first:
         # the product then runs on contiguous rows (measured 2-3x faster than on Jc itself)
-        np.copyto(out[:, :, d:], Jc)
-        np.matmul(out[:, :, d:], self._Ad_Zinv, out=out[:, :, :d])
+        if self._Ad_Zinv is None:
+            np.copyto(out[:, :, :d], Jc)
+        else:
+            np.copyto(out[:, :, d:], Jc)
+            np.matmul(out[:, :, d:], self._Ad_Zinv, out=out[:, :, :d])
         out[:, :, d:] = Jj
         return np.asarray(r, dtype=np.float64)
 
@@ -565,8 +561,7 @@ def _numerical_jacobians(fn: Callable[[list[Any]], np.ndarray],
     (``x +- h e_a`` for vectors), every row of the batch at once."""
     Js = []
     for k, (var, _) in enumerate(args):
-        p = values[k] if var.group is None else values[k].params
-        p = np.asarray(p)
+        p = np.asarray(var.params_of(values[k]))
         cols = []
         for a in range(var.dof):
             d = np.zeros((p.shape[0], var.dof), dtype=p.dtype)
@@ -693,18 +688,16 @@ class CustomFactor(Factor):
 
 
 def _parts(factor: CustomFactor, values: list[Any]) -> list[np.ndarray]:
-    return [np.asarray(v if var.group is None else v.params)
-            for (var, _), v in zip(factor.args, values, strict=False)]
+    return [np.asarray(var.params_of(v)) for (var, _), v in zip(factor.args, values, strict=False)]
 
 
 def _make_autodiff(factor: CustomFactor) -> Callable[[list[Any], bool], Any]:
     """The residuals and Jacobians of ``factor`` by JAX or torch (:mod:`microlie._autodiff`):
     ``fn`` of the perturbed arguments ``X_k Exp(delta_k)`` (``x + delta`` for vectors)."""
-    groups = [var.group for var, _ in factor.args]
+    handles = [var for var, _ in factor.args]
 
     def f(deltas, params, data):
-        vals = [p + d if G is None else element(G, p).plus(d)
-                for G, d, p in zip(groups, deltas, params, strict=True)]
+        vals = [var.plus(p, d) for var, d, p in zip(handles, deltas, params, strict=True)]
         return factor.fn(*vals, *data)
 
     run = _autodiff.residual_jacobians(factor.mode, f, [var.dof for var, _ in factor.args],
@@ -821,13 +814,16 @@ def check_jacobians(factor: Factor, values: Any = None, *, step: float | None = 
                          f"{len(factor.args)} arguments")
     dtypes = []
     for k, ((var, _), v) in enumerate(zip(factor.args, vals, strict=True)):
-        p = np.asarray(v if var.group is None else getattr(v, "params", None))
-        want = (factor.count, var.group.param_dim if var.group is not None else var.dof)
-        if var.group is not None and not isinstance(v, var.group) or p.shape != want:
-            kind = var.group.__name__ if var.group is not None else "array"
+        want = (factor.count, var.group.param_dim)
+        try:
+            p = np.asarray(var.params_of(v))
+        except TypeError:
+            p = None
+        if p is None or p.shape != want:
             raise ValueError(f"check_jacobians({what}): value {k} (argument {var.name}) must be "
-                             f"a {kind} batch of {factor.count} (params {want}), got "
-                             f"{type(v).__name__} of shape {p.shape}")
+                             f"{var.value_type} batch of {factor.count} (params {want}), "
+                             f"got {type(v).__name__} of shape {np.shape(v)}")
+        vals[k] = var.wrap(p)  # an R(d) batch of a vector variable: its array
         dtypes.append(p.dtype)
     single = all(d == np.float32 for d in dtypes)
     eps = float(np.finfo(np.float32 if single else np.float64).eps)

@@ -10,9 +10,10 @@ import numpy as np
 from ..linalg.linear import LinearSolver
 from .factors import Factor
 from .problem import Problem
-from .solvers import Result, SolverOptions, solve
+from .solvers import Result, solve
+from .strategies import Strategy, make_strategy
 from .threads import with_blas_threads
-from .variables import Values, Variables
+from .variables import Values, Variables, new_variables
 
 __all__ = ["FactorGraph", "from_pose_graph"]
 
@@ -55,7 +56,9 @@ class FactorGraph:
         ----------
         values : LieGroup or array_like
             A 1-D batch of group elements (any :class:`~microlie.LieGroup`) or an ``(n, d)`` array
-            of vectors: the initial values.
+            of vectors: the initial values. Vectors (an array or an ``R(d)`` batch) are
+            variables of group ``R(d)`` whose values are plain ``(n, d)`` arrays: what factors
+            receive and ``result.values[handle]`` gives.
         fixed : optional
             Variables held constant: indices, a boolean mask, or ``True`` for all.
         name : str, optional
@@ -75,10 +78,9 @@ class FactorGraph:
         >>> g.add_variables(SE3.identity(4), fixed=[0], name="poses")
         Variables('poses', SE3, n=4, fixed=1)
         >>> g.add_variables(np.zeros((2, 3)), name="landmarks")
-        Variables('landmarks', R^3, n=2, fixed=0)
+        Variables('landmarks', R3, n=2, fixed=0)
         """
-        v = Variables(self, len(self.variables), values, None,
-                      name or f"x{len(self.variables)}")
+        v = new_variables(self, len(self.variables), values, name or f"x{len(self.variables)}")
         if fixed is not None:
             v.fix(fixed)
         self.variables.append(v)
@@ -121,8 +123,16 @@ class FactorGraph:
         self._changed()
         return factor
 
-    def fix(self, variables: Variables, idx: Any = None) -> None:
-        """Hold ``variables[idx]`` constant (the same as ``variables.fix(idx)``).
+    def fix(self, variables: Variables, idx: Any = None, components: Any = None) -> None:
+        """Hold ``variables[idx]`` constant, or only their tangent ``components`` (the same as
+        ``variables.fix(idx, components)``).
+
+        ``components`` are tangent coordinates (the group's order, translation first) held at
+        zero in every step of every solver and linear solver: ``fix(K, components=[1, 2])``
+        holds ``k1, k2`` of BAL intrinsics ``(f, k1, k2)``, for every camera or for ``idx``;
+        ``fix(T, 0, components=[3, 4, 5])`` holds the rotation of SE3 pose 0. Held components
+        have zero marginal variance; a variable with only some components held does not anchor
+        the gauge; one with all of them held is fixed.
 
         Parameters
         ----------
@@ -130,6 +140,9 @@ class FactorGraph:
             A handle of this graph.
         idx : optional
             Indices or a boolean mask; all if ``None``.
+        components : int or sequence of int, optional
+            Tangent coordinates to hold, ``0 <= c < dof``, no duplicates (else a
+            ``ValueError``); ``None``: the whole variables.
 
         Examples
         --------
@@ -144,8 +157,11 @@ class FactorGraph:
         >>> g.fix(x, 0)
         >>> x
         Variables('x', SE2, n=3, fixed=1)
+        >>> g.fix(x, [1, 2], components=[2])  # headings of x[1], x[2] stay at their start
+        >>> np.round(g.optimize().values[x].log()[:, 2], 12).tolist()
+        [0.0, 0.0, 0.0]
         """
-        variables.fix(idx)
+        variables.fix(idx, components)
 
     def _changed(self) -> None:
         self._problem = None
@@ -231,7 +247,7 @@ class FactorGraph:
         >>> g.problem().size  # free unknowns: 3 poses x 3
         9
         """
-        key = (gauge, tuple(v.fixed.tobytes() for v in self.variables))
+        key = (gauge, tuple(v.fixed.tobytes() + v.held.tobytes() for v in self.variables))
         if self._problem is None or self._problem_key != key:
             if not self.factors:
                 raise ValueError("the graph has no factors")
@@ -295,20 +311,23 @@ class FactorGraph:
 
     # ------------------------------------------------------------------ solving
     @with_blas_threads
-    def optimize(self, values: Values | None = None, *, solver: str = "lm",
+    def optimize(self, values: Values | None = None, *, solver: str | Strategy = "lm",
                  linear_solver: str | LinearSolver = "auto", eliminate: Any = None,
-                 max_iter: int = 100, rel_tol: float = 1e-5, abs_tol: float = 1e-5,
-                 cost_tol: float = 0.0, step_tol: float = 0.0, gauge: str = "check",
-                 verbose: bool | None = None, blas_threads: int | None = 1,
-                 **options: Any) -> Result:
+                 max_iter: int = 100, rel_tol: float | None = None, abs_tol: float | None = None,
+                 cost_tol: float | None = None, step_tol: float | None = None,
+                 gauge: str = "check", verbose: bool | None = None,
+                 blas_threads: int | None = 1, **options: Any) -> Result:
         """Minimise the robust cost from ``values``.
 
         Parameters
         ----------
         values : Values, optional
             The starting point (the initial values if ``None``).
-        solver : {"lm", "gn", "dogleg"}
-            Levenberg-Marquardt (default), Gauss-Newton or Powell's dogleg.
+        solver : str or Strategy
+            The strategy (:mod:`microlie.optim.core.strategies`): ``"lm"`` (default,
+            :class:`LevenbergMarquardt`, GTSAM's rules), ``"gn"`` (:class:`GaussNewton`),
+            ``"dogleg"`` (:class:`Dogleg`), ``"trust-region"`` (:class:`TrustRegion`,
+            Levenberg-Marquardt with Ceres' rules), or an instance with its options.
         linear_solver : str or LinearSolver
             ``"auto"``, ``"cholesky"``, ``"schur"``, ``"scipy"``, ``"qdldl"``, ``"pardiso"``,
             ``"dense"`` or an instance (see :func:`make_solver`). ``"schur"`` eliminates
@@ -320,24 +339,30 @@ class FactorGraph:
             landmark-like batches with the most unknowns
             (:func:`~microlie.optim.linalg.schur_solver.landmark_batches`).
         max_iter : int
-            Iteration limit.
-        rel_tol, abs_tol, cost_tol, step_tol : float
-            Convergence: relative and absolute cost decrease, cost threshold, step norm.
+            Iteration limit (as the strategy counts them, :attr:`Result.iterations`).
+        rel_tol, abs_tol, cost_tol, step_tol : float, optional
+            GTSAM's convergence tests of ``"lm"``, ``"gn"`` and ``"dogleg"`` (relative and
+            absolute cost decrease, cost threshold, step norm; defaults ``1e-5``, ``1e-5``,
+            ``0``, ``0``). With a named strategy only.
         gauge : {"check", "fix_first", "none"}
             ``"check"`` raises a :class:`GaugeError` (a ValueError) when variables are not
             anchored by a prior or a fixed variable, ``"fix_first"`` holds the first variable of
             each such component constant (reported in ``result.gauge_fixed``), ``"none"`` skips
             the check.
         verbose : bool, optional
-            Print one line per iteration on stderr (default: when stderr is a terminal).
+            Print Ceres' iteration table on stderr, one line per iteration (default: when
+            stderr is a terminal).
         blas_threads : int or None
             BLAS threads during the call (default 1: a multithreaded BLAS makes the solve
             several times slower on a busy machine; :mod:`microlie.optim.core.threads`); ``None``
             keeps the user's setting (``OPENBLAS_NUM_THREADS``, threadpoolctl) or the library's
             default. The previous setting is restored on return.
         **options
-            ``lambda_initial``, ``lambda_factor``, ``lambda_max``, ``diagonal_damping``,
-            ``radius_initial``.
+            Other constructor parameters of the named strategy: ``lambda_initial``,
+            ``lambda_factor``, ``lambda_max``, ``lambda_min``, ``diagonal_damping`` (``"lm"``),
+            ``radius_initial`` (``"dogleg"``, ``"trust-region"``), ``function_tolerance``,
+            ``gradient_tolerance``, ``parameter_tolerance``, ... (``"trust-region"``). An
+            option the strategy does not take is a ``TypeError``.
 
         Returns
         -------
@@ -357,15 +382,13 @@ class FactorGraph:
         >>> res.converged, np.round(res.values[x].params[2], 9).tolist()
         (True, [2.0, 0.0, 1.0, 0.0])
         """
-        o = SolverOptions(solver=solver, linear_solver=linear_solver, eliminate=eliminate,
-                          max_iter=max_iter,
-                          rel_tol=rel_tol, abs_tol=abs_tol, cost_tol=cost_tol,
-                          step_tol=step_tol, verbose=verbose)
-        for k, val in options.items():
-            if not hasattr(o, k):
-                raise TypeError(f"optimize() got an unknown option {k!r}")
-            setattr(o, k, val)
-        return solve(self.problem(gauge), self._states(values), o)
+        tols = {"rel_tol": rel_tol, "abs_tol": abs_tol, "cost_tol": cost_tol,
+                "step_tol": step_tol}
+        given = {k: v for k, v in tols.items() if v is not None}
+        strategy = make_strategy(solver, **given, **options)
+        return solve(self.problem(gauge), self._states(values), strategy,
+                     linear_solver=linear_solver, eliminate=eliminate, max_iter=max_iter,
+                     verbose=verbose)
 
     # ------------------------------------------------------------------ marginals
     def _factorized(self, values: Values | None, linear_solver: Any) -> tuple:
@@ -399,7 +422,8 @@ class FactorGraph:
         Returns
         -------
         numpy.ndarray
-            ``(sum dof, sum dof)``.
+            ``(sum dof, sum dof)``; zero in the rows and columns of held components
+            (:meth:`fix` with ``components``).
 
         Examples
         --------
@@ -428,6 +452,7 @@ class FactorGraph:
         E = np.zeros((prob.size, idx.size))
         E[idx, np.arange(idx.size)] = 1.0
         X = ls.solve(E)
+        X[prob.held] = 0.0  # held components: zero variance (Problem.hold)
         C = X[idx]
         return 0.5 * (C + C.T)
 
@@ -456,7 +481,9 @@ class FactorGraph:
         -------
         Gaussian or VectorGaussian
             One batched :class:`microlie.Gaussian` with ``frame="right"`` (``X = mean Exp(eps)``)
-            for group variables, or a :class:`microlie.VectorGaussian` for vectors.
+            for group variables, or a :class:`microlie.VectorGaussian` for vectors
+            (``Variables.gaussian``). Held components (:meth:`fix` with ``components``) have
+            zero variance and covariance.
 
         Examples
         --------
@@ -473,8 +500,6 @@ class FactorGraph:
         >>> m.frame, m.cov.shape, round(float(m.cov[1, 0, 0]), 9)  # prior + one edge
         ('right', (3, 3, 3), 0.02)
         """
-        from ...uncertainty import Gaussian, VectorGaussian
-
         ix = np.arange(variables.n) if idx is None else variables.indices(idx)
         prob, states, ls = self._factorized(values, linear_solver)
         nodes = prob.node_of[prob.key(variables)][ix]
@@ -489,14 +514,13 @@ class FactorGraph:
             rows = (prob.node_off[sel][:, None] + np.arange(d)).ravel()
             E = np.zeros((prob.size, rows.size))
             E[rows, np.arange(rows.size)] = 1.0
-            X = ls.solve(E)[rows].reshape(sel.size, d, sel.size, d)
+            X = ls.solve(E)
+            X[prob.held] = 0.0  # held components: zero variance (Problem.hold)
+            X = X[rows].reshape(sel.size, d, sel.size, d)
             k = np.arange(sel.size)
             blk = X[k, :, k, :]
             covs[s:s + sel.size] = 0.5 * (blk + np.swapaxes(blk, 1, 2))
-        params = states[prob.key(variables)][ix]
-        if variables.group is None:
-            return VectorGaussian(params, covs)
-        return Gaussian(variables.wrap(params), covs, frame="right")
+        return variables.gaussian(states[prob.key(variables)][ix], covs)
 
 
 def from_pose_graph(pose_graph: Any, poses: Any = None, loss: Any = None

@@ -105,7 +105,8 @@ class Linearization:
     Attributes
     ----------
     data : numpy.ndarray
-        ``H = J^T J`` (whitened, robust weights applied) as CSC data in the problem's pattern.
+        ``H = J^T J`` (whitened, robust weights applied) as CSC data in the problem's pattern
+        (the rows and columns of held components replaced, see :meth:`Problem.hold`).
     grad : numpy.ndarray
         ``g = J^T e``.
     cost, robust_cost : float
@@ -180,6 +181,7 @@ class Problem:
             if self.gauge_fixed:
                 self._number()
         self._build_pattern()
+        self._held_pos = self._held_positions()
         # the compiled edge loop of each factor batch (None: the NumPy path)
         self.plans = [compiled.plan(self, f) for f in factors]
         self._build_scatter()
@@ -192,7 +194,7 @@ class Problem:
         node_of, dofs, nn = [], [], 0
         for v in self.variables:
             nodes = np.full(v.n, -1, dtype=np.int64)
-            fixed = v.fixed.copy()
+            fixed = v.fixed | v.held.all(axis=1)  # every component held: fixed
             fixed[extra.get(id(v), [])] = True
             free = np.flatnonzero(~fixed)
             nodes[free] = nn + np.arange(free.size)
@@ -207,12 +209,16 @@ class Problem:
         self.block_size = int(np.gcd.reduce(self.node_dof)) if nn else 1
         self.fargs = [[node_of[self._key[id(var)]][idx] for var, idx in f.args]
                       for f in self.factors]
-        # per variable batch: its free rows (None: all) and their entries of a step dx
+        # per variable batch: its free rows (None: all) and their entries of a step dx; the
+        # unknowns of held components (Variables.fix(..., components))
         self._steps = []
+        held = [np.zeros(0, np.int64)]
         for v, nodes in zip(self.variables, node_of, strict=True):
             free = np.flatnonzero(nodes >= 0)
             idx = self.node_off[nodes[free]][:, None] + np.arange(v.dof)
             self._steps.append((None if free.size == v.n else free, idx))
+            held.append(idx[v.held[free]])
+        self.held = np.concatenate(held)
 
     def key(self, var: Variables) -> int:
         """The position of a variable batch in the problem.
@@ -325,70 +331,110 @@ class Problem:
 
     # ------------------------------------------------------------------ pattern
     def _build_pattern(self) -> None:
-        nn = self.num_nodes
-        keys = [np.arange(nn, dtype=np.int64) * (nn + 1)]
+        """The pattern of ``H``: the block pattern (one block per pair of nodes that share a
+        factor, and the diagonal) as a symmetric block CSC, expanded into the scalar CSC
+        (``indptr``, ``indices``; sorted rows) by SciPy's block-sparse conversion. Entry
+        ``(r, c)`` of block ``(u, v)`` is at ``bstart_uv + c * collen_v + r`` (every scalar
+        column of block column ``v`` holds the same ``collen_v`` rows); kept per block, not per
+        entry."""
+        nn, dof, bs = self.num_nodes, self.node_dof, self.block_size
+        itype = np.int32 if nn < 2**31 else np.int64
+        rows, cols = [np.arange(nn, dtype=itype)], [np.arange(nn, dtype=itype)]
         for nodes in self.fargs:
             for k in range(len(nodes)):
                 for l in range(k + 1, len(nodes)):
                     a, b = nodes[k], nodes[l]
                     both = (a >= 0) & (b >= 0)
-                    keys.append(a[both] * nn + b[both])
-                    keys.append(b[both] * nn + a[both])
-        uniq = np.unique(np.concatenate(keys))
-        pu, pv = uniq // max(nn, 1), uniq % max(nn, 1)
-        du, dv = self.node_dof[pu], self.node_dof[pv]
-        psize = du * dv
-        pbase = np.concatenate([[0], np.cumsum(psize)]).astype(np.int64)
-        nnz = int(pbase[-1])
-        # CSC positions without sorting the entries: every scalar column of block column v
-        # holds the same rows (the blocks (u, v) in order of u), so entry (a, b) of block
-        # (u, v) is at base_v + b * collen_v + rowoff_uv + a
-        nb = uniq.size
-        bord = np.lexsort((pu, pv))  # the blocks column by column
-        du_s, pv_s = du[bord], pv[bord]
-        cum = np.cumsum(du_s) - du_s
-        rowoff = np.empty(nb, np.int64)
-        rowoff[bord] = cum - cum[np.searchsorted(pv_s, pv_s)]
-        collen = np.bincount(pv, weights=du, minlength=nn).astype(np.int64)
-        base = np.concatenate([[0], np.cumsum(self.node_dof * collen)]).astype(np.int64)
-        pos = np.empty(nnz, np.int64)
-        indices = np.empty(nnz, np.int32)
-        for a_dof, b_dof in set(zip(du.tolist(), dv.tolist(), strict=False)):
-            sel = np.flatnonzero((du == a_dof) & (dv == b_dof))
-            ra, cb = np.divmod(np.arange(a_dof * b_dof), b_dof)
-            slots = pbase[sel][:, None] + np.arange(a_dof * b_dof)
-            v = pv[sel][:, None]
-            at = base[v] + cb * collen[v] + rowoff[sel][:, None] + ra
-            pos[slots] = at
-            indices[at] = self.node_off[pu[sel]][:, None] + ra
-        indptr = np.empty(self.size + 1, np.int64)
-        indptr[-1] = nnz
-        for d in np.unique(self.node_dof):
-            of_d = np.flatnonzero(self.node_dof == d)
-            indptr[self.node_off[of_d][:, None] + np.arange(d)] = (
-                base[of_d][:, None] + np.arange(d) * collen[of_d][:, None])
+                    a, b = a[both].astype(itype), b[both].astype(itype)
+                    rows += [a, b]
+                    cols += [b, a]
+        r, c = np.concatenate(rows), np.concatenate(cols)
+        # symmetric: its CSR is its CSC (column v holds the rows u, sorted, no duplicates)
+        B = sp.csr_matrix((np.ones(r.size, bool), (r, c)), shape=(nn, nn))
+        del r, c, rows, cols
+        B.sum_duplicates()
+        bptr, brow = B.indptr.astype(np.int64), B.indices.astype(np.int64)
+        bcol = np.repeat(np.arange(nn, dtype=np.int64), np.diff(bptr))
+        du = dof[brow]
+        cs = np.r_[0, np.cumsum(du)]
+        collen = cs[bptr[1:]] - cs[bptr[:-1]]  # rows of each scalar column of block column v
+        base = np.r_[0, np.cumsum(dof * collen)]
+        self._bkey = bcol * max(nn, 1) + brow  # block (u, v) as v * nn + u, sorted
+        self._bstart = base[bcol] + cs[:-1] - cs[bptr[bcol]]  # CSC position of its (0, 0)
+        self._collen = collen
+        nnz = int(base[-1])
+        # the scalar pattern: the sub-block pattern of bs x bs blocks, expanded by SciPy
+        if nn and (dof != bs).any():
+            owner = np.repeat(np.arange(nn), dof // bs)
+            B = B[owner][:, owner]
+            B.sort_indices()
+        nsub = B.nnz
+        S = sp.bsr_matrix((np.ones((nsub, bs, bs), bool), B.indices, B.indptr),
+                          shape=(self.size, self.size)).tocsr()
+        if S.nnz != nnz:
+            raise AssertionError("pattern: the scalar pattern disagrees with the block one")
         self.nnz = nnz
-        self.indices = indices
-        self.indptr = indptr.astype(np.int32)
-        # diagonal positions (for damping)
-        pdiag = np.searchsorted(uniq, np.arange(nn, dtype=np.int64) * (nn + 1))
-        dpos = [pos[pbase[pdiag][self.node_dof == d][:, None] + np.arange(d) * (d + 1)]
-                for d in np.unique(self.node_dof)]
-        diag = np.empty(self.size, np.int64)
-        for d, dp in zip(np.unique(self.node_dof), dpos, strict=False):
-            offs = self.node_off[:-1][self.node_dof == d][:, None] + np.arange(d)
-            diag[offs.ravel()] = dp.ravel()
-        self.diag_pos = diag
-        self._uniq, self._pbase, self._pos = uniq, pbase, pos
+        ptype = np.int32 if nnz < 2**31 else np.int64
+        self.indices = S.indices.astype(np.int32, copy=False)
+        self.indptr = S.indptr.astype(ptype, copy=False)
+        del S, B
+        # diagonal positions (for damping): entry (c, c) of each diagonal block
+        kd = np.searchsorted(self._bkey, np.arange(nn, dtype=np.int64) * (nn + 1))
+        node = np.repeat(np.arange(nn), dof)
+        cc = np.arange(self.size) - self.node_off[node]
+        self.diag_pos = self._bstart[kd][node] + cc * (collen[node] + 1)
+
+    def _held_positions(self) -> np.ndarray:
+        """CSC positions of the rows and columns of the held unknowns (``self.held``)."""
+        if not self.held.size:
+            return self.held
+        mask = np.zeros(self.size, bool)
+        mask[self.held] = True
+        col = np.repeat(mask, np.diff(self.indptr))
+        return np.flatnonzero(mask[self.indices] | col)
+
+    def hold(self, data: np.ndarray, grad: np.ndarray) -> None:
+        """Hold the unknowns ``self.held`` (tangent components fixed with
+        ``Variables.fix(..., components)``) at a zero step, in place: their rows and columns
+        of ``H`` zero, unit diagonal, zero gradient. Every solve of ``H dx = -g`` (damped or
+        not, any backend, Schur or not) then gives exactly ``dx = 0`` there, and the inverse
+        has zero off-diagonal entries in those rows (a marginal zeroes its unit diagonal).
+        Done by :meth:`linearize`; the block pattern and the numbering stay those of the whole
+        variables.
+
+        Parameters
+        ----------
+        data, grad : numpy.ndarray
+            ``Linearization.data`` and ``grad``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(np.zeros((1, 2)))
+        >>> _ = g.add(PriorFactor(x, 0, [1.0, 2.0]))
+        >>> g.fix(x, components=[1])
+        >>> p = g.problem()
+        >>> lin = p.linearize([x.initial])
+        >>> p.matrix(lin.data).toarray().tolist(), lin.grad.tolist()
+        ([[1.0, 0.0], [0.0, 1.0]], [-1.0, 0.0])
+        """
+        if self.held.size:
+            data[self._held_pos] = 0.0
+            data[self.diag_pos[self.held]] = 1.0
+            grad[self.held] = 0.0
 
     def _build_scatter(self) -> None:
-        """The sum of the NumPy-path factors' contributions into the pattern, as one sparse 0/1
-        matrix ``S``: ``[data, grad] = S w``. Per factor, ``w`` holds the products
-        ``[A e]^T [A e]`` (``(m, D + 1, D + 1)``, row-major; ``D`` = the sum of the arguments'
-        dofs), whose ``D x D`` block is ``A^T A`` and whose last row holds ``e^T A``; rows
-        of ``S`` are the CSC values of ``H`` then the gradient. Entries of fixed variables (and
-        the unused last row of each product) have no row."""
-        nn, uniq, pbase, pos = self.num_nodes, self._uniq, self._pbase, self._pos
+        """Where the NumPy-path factors' contributions go in ``[data, grad]``: per factor,
+        ``w`` holds the products ``[A e]^T [A e]`` (``(m, D + 1, D + 1)``, row-major; ``D`` =
+        the sum of the arguments' dofs), whose ``D x D`` block is ``A^T A`` and whose last row
+        holds ``e^T A``; ``_dest`` holds one position per entry of ``w`` (intp: with int32,
+        ``np.bincount`` copies, measured 1.5x slower): the CSC values of ``H``, then the
+        gradient, then one dump slot for entries of fixed variables and the unused ``e^T e``.
+        ``np.bincount`` sums ``w`` into place (as fast as the sparse 0/1 sum matrix it
+        replaces, which cost 9x this to build and 1.5x its memory)."""
+        dump = self.nnz + self.size
         dests, start = [], 0
         self._spans: dict[int, tuple[int, list[int]]] = {}
         for fi, (f, nodes, pl) in enumerate(zip(self.factors, self.fargs, self.plans,
@@ -399,37 +445,26 @@ class Problem:
             offs = np.concatenate([[0], np.cumsum(dofs)]).astype(np.int64)
             D = int(offs[-1])
             m = f.count
-            big = np.full((m, D + 1, D + 1), -1, np.int64)
+            # each product is symmetric: entry (a, b) is read from (b, a), so that the rows of
+            # a CSC block column (consecutive a) come from consecutive memory
+            big = np.full((m, D + 1, D + 1), dump, np.intp)
             for k in range(len(nodes)):
                 for l in range(len(nodes)):
-                    big[:, offs[k]:offs[k + 1], offs[l]:offs[l + 1]] = self._dest(
-                        nodes[k], nodes[l], dofs[k], dofs[l], uniq, pbase, pos, nn
-                    ).reshape(m, dofs[k], dofs[l])
-                big[:, offs[k]:offs[k + 1], D] = np.where(
+                    st = self.block_start(nodes[k], nodes[l])
+                    cl = self.column_length(nodes[l])[:, None, None]
+                    at = st[:, None, None] + np.arange(dofs[l])[:, None] * cl + np.arange(dofs[k])
+                    big[:, offs[l]:offs[l + 1], offs[k]:offs[k + 1]] = np.where(
+                        st[:, None, None] >= 0, at, dump)
+                big[:, D, offs[k]:offs[k + 1]] = np.where(
                     nodes[k][:, None] >= 0,
                     self.nnz + self.node_off[np.maximum(nodes[k], 0)][:, None]
-                    + np.arange(dofs[k]), -1)
-            # each product is symmetric: read entry (a, b) from (b, a), so that the rows of a
-            # CSC block column (consecutive a) come from consecutive memory (measured 15-20%
-            # faster than strided reads; the same numbers)
-            dests.append(big.transpose(0, 2, 1).ravel())
+                    + np.arange(dofs[k]), dump)
+            dests.append(big.ravel())
             self._spans[fi] = (start, offs.tolist())
             start += big.size
-        dest = np.concatenate(dests) if dests else np.zeros(0, np.int64)
-        keep = dest >= 0
-        self._sum = sp.csr_matrix((np.ones(int(keep.sum())), (dest[keep], np.flatnonzero(keep))),
-                                  shape=(self.nnz + self.size, dest.size))
+        self._dest = np.concatenate(dests) if dests else np.zeros(0, np.intp)
         self._work: dict[int, tuple[np.ndarray, ...]] = {}
         self._held: list[np.ndarray] | None = None  # the states whose [A e] the work arrays hold
-
-    def _dest(self, a, b, da, db, uniq, pbase, pos, nn):
-        """Positions in the CSC data of block ``(a, b)`` (``da x db``, row-major) per factor;
-        ``-1`` where either variable is fixed."""
-        ok = (a >= 0) & (b >= 0)
-        p = np.searchsorted(uniq, np.where(ok, a * nn + b, 0))
-        local = (np.arange(da)[:, None] * db + np.arange(db)).ravel()
-        d = pos[np.minimum(pbase[p][:, None] + local, self.nnz - 1)]
-        return np.where(ok[:, None], d, -1).ravel()
 
     def block_start(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """CSC positions of entry (0, 0) of the blocks ``(a[k], b[k])`` of ``H``.
@@ -463,12 +498,17 @@ class Problem:
         a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
         nn = self.num_nodes
         ok = (a >= 0) & (b >= 0)
-        k = np.searchsorted(self._uniq, np.where(ok, a * nn + b, 0))
-        k = np.minimum(k, self._uniq.size - 1)
-        found = ok & (self._uniq[k] == a * nn + b)
+        q = b * nn + a  # the block key: column-major
+        if not self._bkey.size:  # no free variable
+            if ok.any():
+                raise KeyError("block not in the pattern")
+            return np.full(a.shape, -1, np.int64)
+        k = np.searchsorted(self._bkey, np.where(ok, q, 0))
+        k = np.minimum(k, self._bkey.size - 1)
+        found = ok & (self._bkey[k] == q)
         if np.any(ok & ~found):
             raise KeyError("block not in the pattern")
-        return np.where(found, self._pos[self._pbase[k]], -1)
+        return np.where(found, self._bstart[k], -1)
 
     def column_length(self, nodes: np.ndarray) -> np.ndarray:
         """The number of stored rows in each scalar column of the block columns ``nodes``.
@@ -496,9 +536,8 @@ class Problem:
         [6, 9, 0]
         """
         nodes = np.asarray(nodes, np.int64)
-        c = self.node_off[np.maximum(nodes, 0)]
-        ip = self.indptr.astype(np.int64)
-        return np.where(nodes >= 0, ip[c + 1] - ip[c], 0)
+        collen = np.r_[self._collen, 0]  # then the length of a fixed one
+        return collen[np.where(nodes >= 0, nodes, -1)]
 
     def analysed(self, linear_solver: Any, eliminate: Any = None) -> Any:
         """A linear solver that has analysed this problem's pattern (for a backend given by
@@ -858,9 +897,10 @@ class Problem:
                 np.matmul(at, A[a:b], out=M[a:b])
             t_prod += time.perf_counter() - tb
         tc = time.perf_counter()
-        if numpy_any:  # every contribution summed into its place by one sparse product
-            y = self._sum @ self._contrib
-            data, grad = y[: self.nnz], y[self.nnz:]
+        if numpy_any:  # every contribution summed into its place (one bincount)
+            y: np.ndarray = np.bincount(self._dest, weights=self._contrib,
+                            minlength=self.nnz + self.size + 1)
+            data, grad = y[: self.nnz], y[self.nnz:-1]
         elif out is not None:
             data, grad = out.data, out.grad
             data.fill(0.0)
@@ -883,6 +923,7 @@ class Problem:
             cost += 0.5 * float(s.sum())
             rcost += 0.5 * float((rho if f.loss is not None else s).sum())
             t_fused += time.perf_counter() - ta
+        self.hold(data, grad)
         t_end = time.perf_counter()
         return Linearization(data, grad, cost, rcost,
                              {"linearize": t_lin, "products": t_prod, "compiled": t_fused,
@@ -894,7 +935,7 @@ class Problem:
         ``(m, D + 1, D + 1)`` (a view of the contribution vector that ``S`` sums), ``s``
         ``(m,)``, and a chunk of ``[A e]^T`` ``(chunk, D + 1, dim)``."""
         if not self._work:
-            self._contrib = np.empty(self._sum.shape[1])
+            self._contrib = np.empty(self._dest.size)
             for k, (start, offs) in self._spans.items():
                 f = self.factors[k]
                 m, d, D = f.count, f.dim, offs[-1]

@@ -1,23 +1,23 @@
-"""Levenberg-Marquardt, Gauss-Newton and Powell's dogleg on a :class:`Problem`.
+"""The one solve loop: every strategy, one :class:`Result`, one :class:`IterationRecord`.
 
-Every solver works on the whitened, robustly corrected normal equations
-``H dx = -g`` (``H = sum A^T A``, ``g = sum A^T e``) assembled in the problem's fixed pattern,
-retracts ``X <- X Exp(dx)`` per variable, and keeps the best point: the returned values never
-have a higher (robust) cost than the start.
+:func:`solve` linearises the problem at the start (the whitened, robustly corrected normal
+equations ``H dx = -g``, ``H = sum A^T A``, ``g = sum A^T e``, assembled in the problem's fixed
+pattern), then repeats: the strategy's tests before an iteration
+(:meth:`~microlie.optim.core.strategies.Strategy.stop_before`), ``max_iter``, one iteration of
+the strategy (:meth:`~microlie.optim.core.strategies.Strategy.iterate`: damped solves and trial
+points ``X Exp(dx)`` per variable), one record, and after an accepted step the strategy's tests
+(:meth:`~microlie.optim.core.strategies.Strategy.converged`) and the linearisation at the new
+point. The strategies and their rules are in :mod:`microlie.optim.core.strategies`
+(``"lm"``: GTSAM's Levenberg-Marquardt, the default; ``"gn"``; ``"dogleg"``;
+``"trust-region"``: Ceres' Levenberg-Marquardt). Every strategy keeps the best point: the
+returned values never have a higher (robust) cost than the start.
 
-Levenberg-Marquardt follows GTSAM's ``LevenbergMarquardtParams()`` defaults: damping
-``H + lambda I`` (or ``lambda diag(H)`` with ``diagonal_damping=True``), ``lambda`` starts at
-``1e-5``, is divided by 10 after an accepted step and multiplied by 10 after a rejected one,
-and the run stops when ``lambda`` exceeds ``1e5``. Stopping rules (all solvers): relative cost
-decrease below ``rel_tol``, absolute decrease below ``abs_tol``, cost below ``cost_tol``, step
-norm below ``step_tol``, or ``max_iter`` iterations.
-
-``Result.converged`` means that one of those tests passed (``termination="convergence"``);
-``max_iter`` is ``"no_convergence"`` (usable, as Ceres' NO_CONVERGENCE). A run that cannot
-decrease the cost (LM's ``lambda`` above ``lambda_max``, the dogleg radius collapsing, a
-Gauss-Newton step that increases it) is ``"failure"`` with the reason in ``message``, unless
-the first step tried from that point changed the cost by no more than the tolerances or its
-model predicted no larger decrease (a minimum to rounding: ``"convergence"``). A non-finite
+``Result.converged`` means that one of the strategy's convergence tests passed
+(``termination="convergence"``); ``max_iter`` is ``"no_convergence"`` (usable, as Ceres'
+NO_CONVERGENCE). A run that cannot decrease the cost (LM's ``lambda`` above ``lambda_max``,
+the dogleg radius collapsing, a Gauss-Newton step that increases it, ...) is ``"failure"`` with
+the reason in ``message``, unless the tries changed the cost by no more than the tolerances
+(a minimum to rounding: ``"convergence"``; each strategy's docstring says when). A non-finite
 cost or linearisation at the start or at an accepted point raises ``ValueError`` naming the
 factor; a non-finite cost at a trial point rejects that step (as Ceres does), and is named in
 the message if the run then fails.
@@ -33,31 +33,48 @@ from typing import Any
 
 import numpy as np
 
-from ..linalg.linear import LinearSolver, SingularSystemError
-from .problem import NonFiniteError, Problem
+from ..linalg.linear import LinearSolver
+from .problem import Linearization, NonFiniteError, Problem
+from .strategies import Outcome, SolveState, Strategy, make_strategy, norm
 from .variables import Values
 
-__all__ = ["Result", "IterationRecord", "SolverOptions", "solve"]
+__all__ = ["Result", "IterationRecord", "solve"]
 
 
 @dataclass(frozen=True)
 class IterationRecord:
-    """One accepted (or final rejected) iteration of a solve.
+    """One iteration of a solve (Ceres' iteration-table columns).
 
     Attributes
     ----------
     iteration : int
         Its number (1-based).
     cost : float
-        The robust cost after it.
+        The robust cost after it (the current point's: unchanged by a rejected try).
     step_norm : float
-        The norm of the step.
+        The norm of the step taken (of the last one tried if none was taken; 0 if none).
     damping : float
-        ``lambda`` for LM, the trust radius for dogleg, 0 for GN.
+        ``lambda`` for LM, the trust radius for dogleg and trust-region, 0 for GN, after the
+        iteration's update.
     time_s : float
         Time since the start, seconds.
     solves : int
         The linear solves it took.
+    cost_change : float
+        The cost before it minus the cost at the (last) trial point: the decrease of an
+        accepted step, negative or small for a rejected one (NaN: no trial point).
+    gradient_max : float
+        The max-norm of the gradient ``g`` at the point after it (NaN when that point was not
+        linearised: the run ended there).
+    tr_ratio : float
+        Actual over predicted decrease of the (last) trial (NaN: none).
+    tr_radius : float
+        Ceres' column: ``1 / lambda`` for LM, the trust radius for dogleg and trust-region,
+        NaN for GN (after the update).
+    accepted : bool
+        Whether a step was taken.
+    iter_time_s : float
+        The iteration's time (its linearisation included), seconds.
 
     Examples
     --------
@@ -68,8 +85,8 @@ class IterationRecord:
     >>> _ = g.add(PriorFactor(x, 0, SE2.exp([1.0, 2.0, 0.5])))
     >>> res = g.optimize()
     >>> rec = res.history[0]
-    >>> rec.iteration, rec.solves >= 1
-    (1, True)
+    >>> rec.iteration, rec.solves >= 1, rec.accepted
+    (1, True, True)
     """
 
     iteration: int
@@ -78,11 +95,17 @@ class IterationRecord:
     damping: float
     time_s: float
     solves: int
+    cost_change: float = math.nan
+    gradient_max: float = math.nan
+    tr_ratio: float = math.nan
+    tr_radius: float = math.nan
+    accepted: bool = True
+    iter_time_s: float = math.nan
 
 
 @dataclass
 class Result:
-    """The outcome of :meth:`FactorGraph.optimize`.
+    """The outcome of :meth:`FactorGraph.optimize` (every strategy).
 
     Attributes
     ----------
@@ -93,7 +116,12 @@ class Result:
     initial_robust_cost, final_robust_cost : float
         The minimised ``0.5 * sum rho(r^T Omega r)`` (equal to the plain ones without losses).
     iterations : int
-        Accepted iterations.
+        Iterations as the strategy counts them (what ``max_iter`` limits): accepted ones for
+        the GTSAM-rule strategies (``"lm"``, ``"gn"``, ``"dogleg"``: an iteration that takes
+        no step ends the run); for ``"trust-region"`` every try, accepted or rejected, as
+        Ceres counts. The try that ends a run without a step (a failed LM iteration, Ceres'
+        function or parameter tolerance met at a candidate) is recorded in ``history`` but not
+        counted (Ceres does not list it either).
     converged : bool
         Whether a convergence test was met: ``termination == "convergence"``.
     message : str
@@ -103,16 +131,22 @@ class Result:
         are usable); the cost could not be decreased (the values are the best point found,
         not a solution).
     history : list of IterationRecord
-        One record per iteration.
+        One record per iteration, and last the uncounted one of a run that stopped without a
+        step.
     time_s : float
         Solve time, seconds (graph construction excluded; the linear solver's symbolic analysis
         included on the first solve of a problem only: it is kept with the problem).
     solver, linear_solver : str
-        What ran.
+        What ran (the strategy's registry name).
     timings : dict
-        ``time_s`` split into linearise / assemble / factorise / solve / other.
+        ``time_s`` split into linearize / assemble / factorize / solve / cost / retract /
+        other.
     gauge_fixed : list
         ``(handle, index)`` of the variables held by ``gauge="fix_first"``.
+    accepted_steps : int
+        Steps taken (Ceres' ``num_successful_steps`` is this plus one: it counts iteration 0).
+    strategy : Strategy or None
+        The strategy instance with its options.
 
     Examples
     --------
@@ -122,8 +156,8 @@ class Result:
     >>> x = g.add_variables(SE2.identity(1))
     >>> _ = g.add(PriorFactor(x, 0, SE2.exp([1.0, 2.0, 0.5])))
     >>> res = g.optimize()
-    >>> res.converged, res.termination, round(res.final_cost, 12)
-    (True, 'convergence', 0.0)
+    >>> res.converged, res.termination, round(res.final_cost, 12), res.accepted_steps
+    (True, 'convergence', 0.0, 2)
     """
 
     values: Values
@@ -141,6 +175,8 @@ class Result:
     linear_solver: str
     timings: dict = field(default_factory=dict)
     gauge_fixed: list = field(default_factory=list)
+    accepted_steps: int = 0
+    strategy: Strategy | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
         n = sum(len(h) for h in self.values)
@@ -149,82 +185,10 @@ class Result:
                 f"{self.time_s * 1e3:.1f} ms, {self.termination}: {self.message})")
 
 
-@dataclass
-class SolverOptions:
-    """The options of one solve (the keyword arguments of :meth:`FactorGraph.optimize`).
-
-    Parameters
-    ----------
-    solver : {"lm", "gn", "dogleg"}
-        Levenberg-Marquardt, Gauss-Newton or Powell's dogleg.
-    linear_solver : str or LinearSolver
-        See :func:`~microlie.optim.make_solver`; ``"schur"``: Schur elimination
-        (:class:`~microlie.optim.linalg.schur_solver.SchurSolver`).
-    eliminate : Variables or sequence of Variables, optional
-        The batches ``"schur"`` eliminates (default: the landmark-like ones).
-    max_iter : int
-        Iteration limit.
-    rel_tol, abs_tol, cost_tol, step_tol : float
-        Convergence tests.
-    lambda_initial, lambda_factor, lambda_max, lambda_min : float
-        LM damping: start, growth factor and bounds.
-    diagonal_damping : bool
-        Damp with ``diag(H)`` (Marquardt) instead of the identity.
-    radius_initial : float
-        The dogleg trust radius at the start.
-    verbose : bool, optional
-        Ceres' iteration table on stderr, one flushed line per iteration (default: when stderr
-        is a terminal); see :func:`solve`.
-
-    Examples
-    --------
-    >>> from microlie.optim.core.solvers import SolverOptions
-    >>> SolverOptions(solver="gn").lambda_initial
-    1e-05
-    """
-    solver: str = "lm"
-    linear_solver: str | LinearSolver = "auto"
-    eliminate: Any = None
-    max_iter: int = 100
-    rel_tol: float = 1e-5
-    abs_tol: float = 1e-5
-    cost_tol: float = 0.0
-    step_tol: float = 0.0
-    lambda_initial: float = 1e-5
-    lambda_factor: float = 10.0
-    lambda_max: float = 1e5
-    lambda_min: float = 0.0
-    diagonal_damping: bool = False
-    radius_initial: float = 1.0
-    verbose: bool | None = None
-
-
-class _Timer:
-    def __init__(self) -> None:
-        self.t = {"linearize": 0.0, "assemble": 0.0, "factorize": 0.0, "solve": 0.0,
-                  "cost": 0.0, "retract": 0.0}
-
-
-def _converged(o: SolverOptions, old: float, new: float) -> str | None:
-    dec = old - new
-    if new <= o.cost_tol:
-        return f"cost {new:.6g} below cost_tol"
-    if dec >= 0 and dec < o.abs_tol:
-        return f"absolute cost decrease {dec:.3g} below abs_tol"
-    if dec >= 0 and old > 0 and dec / old < o.rel_tol:
-        return f"relative cost decrease {dec / old:.3g} below rel_tol"
-    return None
-
-
-def _final(o: SolverOptions, cost: float, predicted: float) -> bool:
-    """Whether a step whose model decrease is ``predicted`` would likely end the run (then its
-    trial point is not worth linearising in advance)."""
-    return _converged(o, cost, cost - predicted) is not None
-
-
-def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Result:
-    """Run the chosen solver on a problem from ``states`` (what :meth:`FactorGraph.optimize`
-    calls).
+def solve(problem: Problem, states: list[np.ndarray], strategy: str | Strategy = "lm", *,
+          linear_solver: str | LinearSolver = "auto", eliminate: Any = None,
+          max_iter: int = 100, verbose: bool | None = None) -> Result:
+    """Run a strategy on a problem from ``states`` (what :meth:`FactorGraph.optimize` calls).
 
     Parameters
     ----------
@@ -232,8 +196,18 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
         The linearisable problem.
     states : list of numpy.ndarray
         The starting parameters of each variable batch.
-    o : SolverOptions
-        The options.
+    strategy : str or Strategy
+        A name of :data:`~microlie.optim.core.strategies.STRATEGIES` (default options) or an
+        instance.
+    linear_solver : str or LinearSolver
+        See :func:`~microlie.optim.make_solver`; ``"schur"``: Schur elimination
+        (:class:`~microlie.optim.linalg.schur_solver.SchurSolver`).
+    eliminate : Variables or sequence of Variables, optional
+        The batches ``"schur"`` eliminates (default: the landmark-like ones).
+    max_iter : int
+        Iteration limit (as the strategy counts iterations, :attr:`Result.iterations`).
+    verbose : bool, optional
+        Ceres' iteration table on stderr (default: when stderr is a terminal).
 
     Returns
     -------
@@ -241,198 +215,117 @@ def solve(problem: Problem, states: list[np.ndarray], o: SolverOptions) -> Resul
 
     Notes
     -----
-    With ``o.verbose`` each iteration prints one line of Ceres' table to ``sys.stderr``,
+    With ``verbose`` each iteration prints one line of Ceres' table to ``sys.stderr``,
     flushed: ``iter``, ``cost`` (the minimised robust cost after it), ``cost_change``,
     ``|gradient|`` (max-norm at the new point; ``-`` after the last step, which is not
     linearised again), ``|step|``, ``tr_ratio`` (actual over predicted decrease),
-    ``tr_radius`` (the dogleg radius; ``1 / lambda`` for LM, Ceres' meaning; ``-`` for GN),
-    ``ls_iter`` (linear solves, one per damping trial), ``iter_time`` and ``total_time`` (s).
+    ``tr_radius`` (the trust radius; ``1 / lambda`` for LM, Ceres' meaning; ``-`` for GN),
+    ``ls_iter`` (linear solves), ``iter_time`` and ``total_time`` (s): the fields of its
+    :class:`IterationRecord`, for every iteration the strategy counts.
 
     Examples
     --------
     >>> import numpy as np
     >>> from microlie import SE2
     >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+    >>> from microlie.optim.core.solvers import solve
     >>> g = FactorGraph()
     >>> x = g.add_variables(SE2.identity(3))
     >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
     >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
-    >>> from microlie.optim.core.solvers import SolverOptions, solve
     >>> p = g.problem()
-    >>> res = solve(p, [v.initial for v in p.variables], SolverOptions(solver="gn"))
+    >>> res = solve(p, [v.initial for v in p.variables], "gn")
     >>> res.converged, round(res.final_cost, 12)
     (True, 0.0)
     """
-    if o.solver not in ("lm", "gn", "dogleg"):
-        raise ValueError(f"solver must be 'lm', 'gn' or 'dogleg', got {o.solver!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 0:
+        raise ValueError(f"max_iter must be an integer >= 0, got {max_iter!r}")
+    strategy = make_strategy(strategy)
     t_start = time.perf_counter()
-    tm = _Timer()
-    show = bool(o.verbose) if o.verbose is not None else sys.stderr.isatty()
-    ls = problem.analysed(o.linear_solver, o.eliminate)
+    tm = {"linearize": 0.0, "assemble": 0.0, "factorize": 0.0, "solve": 0.0, "cost": 0.0,
+          "retract": 0.0}
+    show = bool(verbose) if verbose is not None else sys.stderr.isatty()
+    ls = problem.analysed(linear_solver, eliminate)
     lin = _linearize(problem, states, tm)
     _require_finite(problem, states, lin, "at the start")
     c0, rc0 = lin.cost, lin.robust_cost
-    cur, cur_c, cur_rc = states, c0, rc0
+    s = SolveState(problem, ls, states, lin, tm)
+    run = strategy.started(s)
     history: list[IterationRecord] = []
-    message, termination = f"reached max_iter={o.max_iter}", "no_convergence"
+    message, termination = f"reached max_iter={max_iter}", "no_convergence"
     if problem.size == 0:
         message, termination = "no free variables", "convergence"
-    lam = o.lambda_initial
-    radius = o.radius_initial
-    log = _IterationLog(problem, o, t_start, rc0, lin.grad) if show and problem.size else None
-    it = 0
-    bad_trial: list[np.ndarray] | None = None  # the last trial point with a non-finite cost
-    while problem.size and it < o.max_iter:
+    log = _IterationLog(t_start, rc0, s.gradient_max(), run.tr_radius()) \
+        if show and problem.size else None
+    it = accepted_steps = 0
+    t_last = t_start
+    while problem.size:
+        before = run.stop_before(s)
+        if before is not None:
+            termination, message = before
+            break
+        if it >= max_iter:
+            break
         it += 1
-        solves = 0
-        accepted = False
-        stop = None
-        at_minimum = False  # the first trial's change (or its model's) is within tolerance
-        if o.solver == "lm":
-            dg = lin.data[problem.diag_pos]  # the undamped diagonal (a copy)
-            first_lm: tuple[float, float] | None = None  # the first trial: cost, prediction
-            while True:
-                # damp in place and restore the diagonal exactly after the solve (no copy of
-                # the whole matrix per trial)
-                lin.data[problem.diag_pos] = dg + lam * (np.maximum(dg, 1e-12)
-                                                         if o.diagonal_damping else 1.0)
-                solves += 1
-                try:
-                    dx = _factor_solve(ls, lin.data, -lin.grad, tm)
-                except SingularSystemError:
-                    dx = None
-                finally:
-                    lin.data[problem.diag_pos] = dg
-                if dx is not None:
-                    # the model's decrease: (H + lam D) dx = -g gives
-                    # -(g.dx + dx.H dx / 2) = (lam dx.D dx - g.dx) / 2
-                    damp = np.maximum(dg, 1e-12) if o.diagonal_damping else 1.0
-                    pred = 0.5 * (lam * _dot(dx, damp * dx) - _dot(lin.grad, dx))
-                    keep = solves == 1 and not _final(o, cur_rc, pred)
-                    new, new_c, new_rc = _try(problem, cur, dx, tm, keep=keep)
-                    if new_rc < cur_rc:
-                        accepted = True
-                        lam = max(lam / o.lambda_factor, o.lambda_min)
-                        break
-                    if new_rc == np.inf:
-                        bad_trial = new
-                    if first_lm is None:
-                        first_lm = (new_rc, pred)
-                lam *= o.lambda_factor
-                if lam > o.lambda_max:
-                    stop = f"lambda exceeded {o.lambda_max:g} without decreasing the cost"
-                    if first_lm is not None:
-                        at_minimum, stop = _at_minimum(o, cur_rc, *first_lm, stop)
-                    else:
-                        stop += " (the damped system was singular at every lambda)"
-                    break
-        elif o.solver == "gn":
-            solves += 1
-            dx = _factor_solve(ls, lin.data, -lin.grad, tm, gn=problem)
-            keep = not _final(o, cur_rc, -0.5 * _dot(lin.grad, dx))  # H dx = -g
-            new, new_c, new_rc = _try(problem, cur, dx, tm, keep=keep)
-            if new_rc < cur_rc:
-                accepted = True
-            elif _within(o, cur_rc, new_rc):
-                at_minimum = True
-                stop = "the Gauss-Newton step no longer decreases the cost"
-            else:
-                if new_rc == np.inf:
-                    bad_trial = new
-                stop = "the Gauss-Newton step did not decrease the cost"
-        else:  # dogleg
-            gn_dx = None
-            first = True
-            g = lin.grad
-            H = problem.matrix(lin.data)
-            Hg = H @ g
-            gHg = _dot(g, Hg)
-            sd = -(_dot(g, g) / gHg) * g if gHg > 0 else -g
-            while True:
-                if gn_dx is None:
-                    solves += 1
-                    gn_dx = _factor_solve(ls, lin.data, -g, tm, gn=problem)
-                dx = _dogleg_step(gn_dx, sd, radius)
-                pred = -(_dot(g, dx) + 0.5 * _dot(dx, H @ dx))
-                new, new_c, new_rc = _try(problem, cur, dx, tm,
-                                          keep=first and not _final(o, cur_rc, pred))
-                actual = cur_rc - new_rc
-                rho = actual / pred if pred > 0 else -1.0
-                step = _norm(dx)
-                if rho > 0.75:
-                    radius = max(radius, 3.0 * step)
-                elif rho < 0.25:
-                    radius = 0.5 * step if step > 0 else 0.5 * radius
-                if actual > 0:
-                    accepted = True
-                    break
-                if new_rc == np.inf:
-                    bad_trial = new
-                if first:
-                    first_trial = (new_rc, pred)
-                first = False
-                if radius < 1e-12 * (1.0 + _norm(_vec(cur))):
-                    stop = "trust region collapsed without decreasing the cost"
-                    at_minimum, stop = _at_minimum(o, cur_rc, *first_trial, stop)
-                    break
-            lam = radius
-        if not accepted:
-            message = stop or "no decrease"
-            termination = "convergence" if at_minimum else "failure"
-            if termination == "failure" and bad_trial is not None:
-                where = problem.nonfinite(bad_trial)
+        old_rc = s.robust_cost
+        out = run.iterate(s)
+        why = None
+        gmax = math.nan
+        if out.accepted:
+            assert out.trial is not None and out.dx is not None
+            accepted_steps += 1
+            step_norm = norm(out.dx)
+            why = run.converged(old_rc, out.trial.robust_cost, step_norm)
+            new_lin = None
+            if why is None and out.stop is None:
+                new_lin = _linearize(problem, out.trial.states, tm, old=s.lin)
+                _require_finite(problem, out.trial.states, new_lin, f"after iteration {it}")
+            s.move(out.trial, new_lin)
+            run.accepted(s)
+            if new_lin is not None:
+                gmax = s.gradient_max()
+        else:  # a rejected try of trust-region: its step, in its record and Ceres' row
+            step_norm = norm(out.dx) if out.dx is not None and run.counts_rejected and \
+                out.trial is not None else 0.0
+            gmax = s.gradient_max()
+        now = time.perf_counter()
+        rec = _record(it, s, old_rc, out, step_norm, gmax, now - t_start, now - t_last)
+        t_last = now
+        history.append(rec)
+        counted = out.accepted or (run.counts_rejected and out.stop is None)
+        if log is not None and counted:
+            log.row(rec)
+        if out.stop is not None and not out.accepted:
+            termination, message = out.stop
+            if termination == "failure" and out.bad_trial is not None:
+                where = problem.nonfinite(out.bad_trial)
                 if where:
                     message += f"; trial points had a non-finite cost ({where})"
-            history.append(IterationRecord(it, cur_rc, 0.0, lam, time.perf_counter() - t_start,
-                                           solves))
-            it -= 1
+            if not counted:
+                it -= 1
             break
-        assert dx is not None
-        step_norm = _norm(dx)
-        old_rc = cur_rc
-        cur, cur_c, cur_rc = new, new_c, new_rc
-        history.append(IterationRecord(it, new_rc, step_norm, lam if o.solver != "gn" else 0.0,
-                                       time.perf_counter() - t_start, solves))
-        if log is not None:
-            log.step(it, old_rc, new_rc, lin, dx, lam, solves)
-        why = _converged(o, old_rc, new_rc)
-        if why is None and step_norm <= o.step_tol:
-            why = f"step norm {step_norm:.3g} below step_tol"
         if why is not None:
             message, termination = why, "convergence"
             break
-        lin = _linearize(problem, cur, tm, old=lin)
-        _require_finite(problem, cur, lin, f"after iteration {it}")
-        if log is not None:
-            log.emit(lin.grad)
-    if log is not None:
-        log.emit(None)
-    final_c, final_rc = cur_c, cur_rc  # evaluated at the last accepted point already
     total = time.perf_counter() - t_start
-    timings = dict(tm.t)
+    timings = dict(tm)
     timings["other"] = total - sum(timings.values())
-    vals = Values(problem.variables, cur)
-    return Result(vals, c0, final_c, rc0, final_rc, it, termination == "convergence", message,
-                  termination, history, total, o.solver, ls.name, timings,
-                  list(problem.gauge_fixed))
+    vals = Values(problem.variables, s.states)
+    return Result(vals, c0, s.cost, rc0, s.robust_cost, it, termination == "convergence",
+                  message, termination, history, total, run.name, ls.name, timings,
+                  list(problem.gauge_fixed), accepted_steps, strategy)
 
 
-def _within(o: SolverOptions, old: float, new: float) -> bool:
-    """A cost change (either sign) no larger than the tolerances: a minimum to rounding."""
-    return abs(new - old) <= max(o.abs_tol, o.rel_tol * old)
-
-
-def _at_minimum(o: SolverOptions, cost: float, first_cost: float, first_pred: float,
-                stop: str) -> tuple[bool, str]:
-    """Whether a run that found no decrease from ``cost`` stopped at a minimum (to rounding):
-    the first (least damped) trial changed the cost, or its model predicted a decrease, by no
-    more than the tolerances. Else it failed: the linearisation does not describe the cost."""
-    if _within(o, cost, first_cost) or _final(o, cost, first_pred):
-        return True, (f"no step decreases the cost; the first changed it by "
-                      f"{first_cost - cost:.3g} with a predicted decrease of {first_pred:.3g}, "
-                      f"within abs_tol/rel_tol ({stop})")
-    return False, (f"{stop}: the first step changed it by {first_cost - cost:.3g} where its "
-                   f"model predicted a decrease of {first_pred:.3g}")
+def _record(it: int, s: SolveState, old: float, out: Outcome, step_norm: float, gmax: float,
+            total: float, iter_time: float) -> IterationRecord:
+    """The record of one iteration."""
+    if out.trial is None:
+        change = math.nan
+    else:
+        change = old - out.trial.robust_cost  # -inf for a non-finite trial cost
+    ratio = change / out.predicted if out.trial is not None and out.predicted > 0 else math.nan
+    return IterationRecord(it, s.robust_cost, step_norm, out.damping, total, out.solves,
+                           change, gmax, ratio, out.tr_radius, out.accepted, iter_time)
 
 
 def _require_finite(problem: Problem, states: list[np.ndarray], lin: Any, when: str) -> None:
@@ -456,126 +349,37 @@ def _require_finite(problem: Problem, states: list[np.ndarray], lin: Any, when: 
 
 class _IterationLog:
     """Ceres' iteration table on ``sys.stderr``, one flushed line per iteration (see
-    :func:`solve`); a row waits for the gradient at its point (:meth:`emit`)."""
+    :func:`solve`), from the iteration records."""
 
     HEADER = (f"{'iter':>4s} {'cost':>13s} {'cost_change':>12s} {'|gradient|':>10s} "
               f"{'|step|':>9s} {'tr_ratio':>10s} {'tr_radius':>10s} {'ls_iter':>8s} "
               f"{'iter_time':>10s} {'total_time':>11s}")
 
-    def __init__(self, problem: Problem, o: SolverOptions, t_start: float, cost: float,
-                 grad: np.ndarray) -> None:
-        self.problem, self.solver, self.t_start = problem, o.solver, t_start
-        self.t_last = t_start
-        self.pending: tuple | None = None
-        radius = {"lm": 1.0 / o.lambda_initial if o.lambda_initial > 0 else math.inf,
-                  "dogleg": o.radius_initial}.get(o.solver)
+    def __init__(self, t_start: float, cost: float, gmax: float, radius: float) -> None:
         self._print(self.HEADER)
-        self.pending = (0, cost, 0.0, 0.0, math.nan, radius, 0)
-        self.emit(grad)
+        now = time.perf_counter()
+        self.row(IterationRecord(0, cost, 0.0, 0.0, now - t_start, 0, 0.0, gmax, math.nan,
+                                 radius, True, now - t_start))
 
     @staticmethod
     def _print(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
-    def step(self, it: int, old: float, new: float, lin: Any, dx: np.ndarray, lam: float,
-             solves: int) -> None:
-        """Record an accepted step ``dx`` of the linearisation ``lin`` (its ``H`` undamped)."""
-        g = lin.grad
-        pred = -(_dot(g, dx) + 0.5 * _dot(dx, self.problem.matrix(lin.data) @ dx))
-        radius = {"lm": 1.0 / lam if lam > 0 else math.inf, "dogleg": lam}.get(self.solver)
-        self.pending = (it, new, old - new, _norm(dx), (old - new) / pred if pred > 0
-                        else math.nan, radius, solves)
-
-    def emit(self, grad: np.ndarray | None) -> None:
-        """Print the pending row with the max-norm of ``grad`` (``None``: not evaluated)."""
-        if self.pending is None:
-            return
-        it, cost, change, step, ratio, radius, solves = self.pending
-        self.pending = None
-        now = time.perf_counter()
-        gmax = "-" if grad is None or grad.size == 0 else f"{float(np.abs(grad).max()):.2e}"
-        self._print(f"{it:4d} {cost:13.6e} {change:12.2e} {gmax:>10s} {step:9.2e} "
-                    f"{_e(ratio, 10)} {_e(radius, 10)} {solves:8d} {now - self.t_last:10.2e} "
-                    f"{now - self.t_start:11.2e}")
-        self.t_last = now
+    def row(self, r: IterationRecord) -> None:
+        """Print one record (a NaN gradient, not evaluated, prints ``-``)."""
+        gmax = "-" if math.isnan(r.gradient_max) else f"{r.gradient_max:.2e}"
+        self._print(f"{r.iteration:4d} {r.cost:13.6e} {r.cost_change:12.2e} {gmax:>10s} "
+                    f"{r.step_norm:9.2e} {_e(r.tr_ratio, 10)} {_e(r.tr_radius, 10)} "
+                    f"{r.solves:8d} {r.iter_time_s:10.2e} {r.time_s:11.2e}")
 
 
-def _e(v: float | None, w: int) -> str:
-    return f"{'-':>{w}s}" if v is None or math.isnan(v) else f"{v:{w}.2e}"
+def _e(v: float, w: int) -> str:
+    return f"{'-':>{w}s}" if math.isnan(v) else f"{v:{w}.2e}"
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> float:
-    """``a . b`` of two vectors without BLAS: a multithreaded BLAS ``ddot`` on a shared machine
-    took 7.6 ms for 50k entries (measured, OpenBLAS with its default threads, load 4), this
-    loop 18 us."""
-    return float(np.einsum("i,i->", a, b))
-
-
-def _norm(x: np.ndarray) -> float:
-    return math.sqrt(_dot(x, x))
-
-
-def _vec(states: list[np.ndarray]) -> np.ndarray:
-    return np.concatenate([s.ravel() for s in states]) if states else np.zeros(0)
-
-
-def _linearize(problem: Problem, states: list[np.ndarray], tm: _Timer, old: Any = None
-               ) -> Any:
+def _linearize(problem: Problem, states: list[np.ndarray], tm: dict[str, float],
+               old: Linearization | None = None) -> Linearization:
     lin = problem.linearize(states, out=old)
-    tm.t["linearize"] += lin.times["linearize"] + lin.times["products"] + lin.times["compiled"]
-    tm.t["assemble"] += lin.times["assemble"]
+    tm["linearize"] += lin.times["linearize"] + lin.times["products"] + lin.times["compiled"]
+    tm["assemble"] += lin.times["assemble"]
     return lin
-
-
-def _factor_solve(ls: LinearSolver, data: np.ndarray, b: np.ndarray, tm: _Timer,
-                  gn: Problem | None = None) -> np.ndarray:
-    """Factorise and solve; with ``gn`` (the problem of an undamped system) a singular
-    system is an error naming the first variable it involves."""
-    t0 = time.perf_counter()
-    try:
-        ls.factorize(data)
-    except SingularSystemError as e:
-        if gn is not None:
-            at = f", first at {gn.unknown_name(e.unknown)}" if e.unknown is not None else ""
-            raise SingularSystemError(
-                f"{e}: the Gauss-Newton system is rank deficient (a gauge freedom or an "
-                f"unobservable variable{at}); add priors or use solver='lm'",
-                unknown=e.unknown) from None
-        raise
-    finally:
-        tm.t["factorize"] += time.perf_counter() - t0
-    t1 = time.perf_counter()
-    try:
-        return ls.solve(b)
-    finally:
-        tm.t["solve"] += time.perf_counter() - t1
-
-
-def _try(problem: Problem, cur: list[np.ndarray], dx: np.ndarray, tm: _Timer,
-         keep: bool) -> tuple:
-    """The trial point ``cur + dx`` and its costs; with ``keep`` (the first trial of an
-    iteration, usually accepted, unless the model predicts convergence) the factors whose
-    Jacobians come with their residuals keep them for the linearisation at that point."""
-    t0 = time.perf_counter()
-    new = problem.retract(cur, dx)
-    t1 = time.perf_counter()
-    c, rc = problem.costs(new, keep=keep)
-    t2 = time.perf_counter()
-    tm.t["retract"] += t1 - t0
-    tm.t["cost"] += t2 - t1
-    if not np.isfinite(rc):
-        rc = np.inf
-    return new, c, rc
-
-
-def _dogleg_step(gn: np.ndarray, sd: np.ndarray, radius: float) -> np.ndarray:
-    ngn = _norm(gn)
-    if ngn <= radius:
-        return gn
-    nsd = _norm(sd)
-    if nsd >= radius:
-        return sd * (radius / nsd)
-    d = gn - sd
-    a, b, c = _dot(d, d), 2.0 * _dot(sd, d), nsd * nsd - radius * radius
-    tau = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
-    return sd + tau * d

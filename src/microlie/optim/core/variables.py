@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from ...groups import LieGroup
+from ...groups import LieGroup, R, VectorSpace
 
-__all__ = ["Variables", "Values", "element"]
+__all__ = ["Variables", "VectorVariables", "Values", "element", "new_variables"]
 
 
 def element(group: type[LieGroup], params: Any) -> LieGroup:
@@ -37,14 +37,10 @@ def element(group: type[LieGroup], params: Any) -> LieGroup:
     return group.from_params(params, check=False)
 
 
-class Variables:
-    """A handle to one batch of ``n`` variables of one type in a :class:`FactorGraph`
-    (returned by :meth:`FactorGraph.add_variables`; not built directly).
-
-    ``group`` is a :class:`~microlie.LieGroup` subclass, or ``None`` for plain vectors of
-    dimension ``dof``. Variables are perturbed on the right (``X Exp(delta)``; ``x + delta``
-    for vectors), so every Jacobian and every marginal covariance is in the
-    right-perturbation frame.
+def new_variables(graph: Any, key: int, values: Any, name: str) -> Variables:
+    """The handle of a new batch (what :meth:`FactorGraph.add_variables` calls): a
+    :class:`VectorVariables` for an ``(n, d)`` array or an ``R(d)`` batch, a
+    :class:`Variables` for any other group.
 
     Parameters
     ----------
@@ -54,10 +50,76 @@ class Variables:
         Position in the graph.
     values : LieGroup or array_like
         A 1-D batch of elements or an ``(n, d)`` array.
-    fixed : optional
-        Indices, a mask or ``True`` for the constant ones.
     name : str
         The label.
+
+    Returns
+    -------
+    Variables
+
+    Raises
+    ------
+    ValueError
+        Not a 1-D batch or an ``(n, d)`` array, or non-finite vectors.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import R
+    >>> from microlie.optim.core.variables import new_variables
+    >>> a = new_variables(None, 0, np.zeros((2, 3)), "a")
+    >>> b = new_variables(None, 1, R(3)(np.zeros((2, 3))), "b")
+    >>> a.group is b.group is R(3), type(a).__name__
+    (True, 'VectorVariables')
+    """
+    if isinstance(values, LieGroup):
+        if len(values.batch_shape) != 1:
+            raise ValueError(f"{name}: variables must be a 1-D batch of elements (n,), got "
+                             f"batch shape {values.batch_shape}")
+        group: type[LieGroup] = type(values)
+        p = np.array(values.params, dtype=np.float64)
+    else:
+        p = np.array(values, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] < 1:
+            raise ValueError(f"{name}: vector variables must be an (n, d) array with d >= 1, "
+                             f"got shape {p.shape}")
+        group = R(int(p.shape[1]))
+    cls = VectorVariables if issubclass(group, VectorSpace) else Variables
+    return cls(graph, key, group, p, name)
+
+
+class Variables:
+    """A handle to one batch of ``n`` variables of one group in a :class:`FactorGraph`
+    (returned by :meth:`FactorGraph.add_variables`; not built directly).
+
+    ``group`` is a :class:`~microlie.LieGroup` subclass: ``R(d)`` for vectors (given as an
+    ``(n, d)`` array or an ``R(d)`` batch; their handle is a :class:`VectorVariables`, whose
+    values are plain ``(n, d)`` arrays). Variables are perturbed on the right
+    (``X Exp(delta)``, ``x + delta`` for vectors), so every Jacobian and every marginal
+    covariance is in the right-perturbation frame. The methods ``wrap``, ``params_of``,
+    ``retract``, ``plus``, ``inverse``, ``compose``, ``log``, ``minus`` and ``gaussian`` work on
+    this batch's values (group elements here, arrays for vectors).
+
+    Parameters
+    ----------
+    graph : FactorGraph
+        The owner.
+    key : int
+        Position in the graph.
+    group : type
+        The group.
+    params : numpy.ndarray
+        ``(n, param_dim)`` float64 initial parameters (this array is kept).
+    name : str
+        The label.
+
+    Attributes
+    ----------
+    fixed : numpy.ndarray
+        ``(n,)`` bool: variables held constant.
+    held : numpy.ndarray
+        ``(n, dof)`` bool: tangent components held at zero in every step
+        (:meth:`fix` with ``components``).
 
     Examples
     --------
@@ -70,33 +132,21 @@ class Variables:
     ('SE2', 3, 4)
     """
 
-    __slots__ = ("graph", "key", "group", "dof", "n", "initial", "fixed", "name")
+    __slots__ = ("graph", "key", "group", "dof", "n", "initial", "fixed", "held", "name")
 
-    def __init__(self, graph: Any, key: int, values: Any, fixed: Any, name: str) -> None:
+    def __init__(self, graph: Any, key: int, group: type[LieGroup], params: np.ndarray,
+                 name: str) -> None:
+        if not np.all(np.isfinite(params)):
+            raise ValueError(f"{name}: initial values have non-finite entries")
         self.graph = graph
         self.key = key
         self.name = name
-        if isinstance(values, LieGroup):
-            if len(values.batch_shape) != 1:
-                raise ValueError(f"{name}: variables must be a 1-D batch of elements (n,), got "
-                                 f"batch shape {values.batch_shape}")
-            self.group: type[LieGroup] | None = type(values)
-            self.dof = values.dof
-            p = np.asarray(values.params, dtype=np.float64)
-        else:
-            p = np.asarray(values, dtype=np.float64)
-            if p.ndim != 2:
-                raise ValueError(f"{name}: vector variables must be an (n, d) array, got shape "
-                                 f"{p.shape}")
-            if not np.all(np.isfinite(p)):
-                raise ValueError(f"{name}: vector variables have non-finite entries")
-            self.group = None
-            self.dof = int(p.shape[1])
-        self.initial = p.copy()
-        self.n = int(p.shape[0])
+        self.group = group
+        self.dof = int(group.dof)
+        self.initial = params
+        self.n = int(params.shape[0])
         self.fixed = np.zeros(self.n, dtype=bool)
-        if fixed is not None:
-            self.fix(fixed)
+        self.held = np.zeros((self.n, self.dof), dtype=bool)
 
     def indices(self, idx: Any, what: str = "index") -> np.ndarray:
         """Validated integer indices into this batch.
@@ -143,13 +193,64 @@ class Variables:
                              f"{self.n} variables)")
         return a
 
-    def fix(self, idx: Any = None) -> None:
-        """Hold the variables ``idx`` constant.
+    def components(self, components: Any) -> np.ndarray:
+        """Validated tangent coordinates of this group.
+
+        Parameters
+        ----------
+        components : int or sequence of int
+            Tangent coordinates, ``0 <= c < dof``, no duplicates (the group's tangent order,
+            translation first: SE3 ``(rho, phi)``).
+
+        Returns
+        -------
+        numpy.ndarray
+            1-D int64.
+
+        Raises
+        ------
+        ValueError
+            Not integers, out of range or repeated (the message names ``components``).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import FactorGraph
+        >>> k = FactorGraph().add_variables(np.zeros((2, 3)), name="K")
+        >>> k.components([1, 2]).tolist()
+        [1, 2]
+        """
+        a = np.asarray(components)
+        if a.ndim > 1 or (a.size and not np.issubdtype(a.dtype, np.integer)) or a.dtype == bool:
+            raise ValueError(f"{self.name}: components must be an int or a 1-D sequence of "
+                             f"ints (tangent coordinates), got {components!r}")
+        a = a.astype(np.int64).reshape(-1)
+        bad = a[(a < 0) | (a >= self.dof)]
+        if bad.size:
+            raise ValueError(f"{self.name}: components: {int(bad[0])} out of range (a "
+                             f"{self.group.__name__} variable has tangent coordinates 0 to "
+                             f"{self.dof - 1})")
+        u, c = np.unique(a, return_counts=True)
+        if np.any(c > 1):
+            raise ValueError(f"{self.name}: components: {int(u[c > 1][0])} given twice")
+        return a
+
+    def fix(self, idx: Any = None, components: Any = None) -> None:
+        """Hold the variables ``idx`` constant, or only their tangent ``components``.
+
+        With ``components``, those tangent coordinates of ``delta`` are zero in every step
+        (``X Exp(delta)``; ``x + delta`` for vectors): for BAL intrinsics ``(f, k1, k2)``,
+        ``components=[1, 2]`` holds ``k1, k2``; for an SE3 pose ``[3, 4, 5]`` holds its
+        rotation. A variable with every component held is fixed. The marginal covariance of a
+        held component is zero. A variable with only some components held does not anchor
+        the gauge.
 
         Parameters
         ----------
         idx : optional
             Indices or a mask; all if ``None`` or ``True`` (``False`` frees all).
+        components : int or sequence of int, optional
+            Tangent coordinates to hold (see :meth:`components`); ``None``: the whole variables.
 
         Examples
         --------
@@ -159,24 +260,32 @@ class Variables:
         >>> g = FactorGraph()
         >>> x = g.add_variables(SE2.identity(4), name="x")
         >>> x.fix([0, 1])
-        >>> x.fixed.tolist()
-        [True, True, False, False]
+        >>> x.fix(3, components=[2])  # the heading of x[3]
+        >>> x.fixed.tolist(), x.held[3].tolist()
+        ([True, True, False, False], [False, False, True])
         """
-        if idx is None or idx is True:
+        if components is not None:
+            rows = np.arange(self.n) if idx is None or idx is True else self.indices(idx)
+            self.held[np.ix_(rows, self.components(components))] = True
+        elif idx is None or idx is True:
             self.fixed[:] = True
         elif idx is False:
             self.fixed[:] = False
+            self.held[:] = False
         else:
             self.fixed[self.indices(idx)] = True
-        self.graph._changed()
+        self._changed()
 
-    def unfix(self, idx: Any = None) -> None:
-        """Let the variables ``idx`` vary again.
+    def unfix(self, idx: Any = None, components: Any = None) -> None:
+        """Let the variables ``idx`` vary again (all their components), or only their
+        tangent ``components``.
 
         Parameters
         ----------
         idx : optional
             Indices or a mask; all if ``None``.
+        components : int or sequence of int, optional
+            Tangent coordinates to release; ``None``: the whole variables (every component).
 
         Examples
         --------
@@ -190,14 +299,34 @@ class Variables:
         >>> x.fixed.tolist()
         [False, True, True, True]
         """
-        if idx is None:
-            self.fixed[:] = False
+        sel = np.arange(self.n) if idx is None else self.indices(idx)
+        if components is not None:
+            self.held[np.ix_(sel, self.components(components))] = False
         else:
-            self.fixed[self.indices(idx)] = False
-        self.graph._changed()
+            self.fixed[sel] = False
+            self.held[sel] = False
+        self._changed()
+
+    def _changed(self) -> None:
+        if self.graph is not None:
+            self.graph._changed()
+
+    @property
+    def value_type(self) -> str:
+        """What the values of this batch are, for messages: ``"a SE2"``, ``"an array"``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import FactorGraph
+        >>> FactorGraph().add_variables(np.zeros((1, 2))).value_type
+        'an array'
+        """
+        return f"a {self.group.__name__}"
 
     def wrap(self, params: Any) -> Any:
-        """Parameters of this batch as group elements (vectors are returned as they are).
+        """Parameters of this batch as the values that factors receive: group elements
+        (:class:`VectorVariables`: the arrays themselves).
 
         Parameters
         ----------
@@ -218,10 +347,41 @@ class Variables:
         >>> type(x.wrap(np.tile([0.0, 0, 1, 0], (2, 1)))).__name__
         'SE2'
         """
-        return params if self.group is None else element(self.group, params)
+        return element(self.group, params)
+
+    def params_of(self, value: Any) -> Any:
+        """The parameter array of a value of this batch (the inverse of :meth:`wrap`).
+
+        Parameters
+        ----------
+        value : LieGroup
+            Elements of ``group`` (:class:`VectorVariables`: an array or an ``R(d)`` batch).
+
+        Returns
+        -------
+        array
+            ``value.params`` (any backend, dtype kept).
+
+        Raises
+        ------
+        TypeError
+            ``value`` is not of this batch's kind.
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph
+        >>> x = FactorGraph().add_variables(SE2.identity(4))
+        >>> x.params_of(SE2.identity(2)).shape
+        (2, 4)
+        """
+        if not isinstance(value, self.group):
+            raise TypeError(f"{self.name}: expected a {self.group.__name__} batch, got "
+                            f"{type(value).__name__}")
+        return value.params
 
     def retract(self, params: np.ndarray, delta: np.ndarray) -> np.ndarray:
-        """The parameters of ``X Exp(delta)`` (``x + delta`` for vectors).
+        """The parameters of ``X Exp(delta)`` (``x + delta`` for vectors), NumPy in and out.
 
         Parameters
         ----------
@@ -245,16 +405,252 @@ class Variables:
         >>> x.retract(np.array([[0.0, 0, 1, 0]]), np.array([[1.0, 2.0, 0.0]])).tolist()
         [[1.0, 2.0, 1.0, 0.0]]
         """
-        if self.group is None:
-            return params + delta
         return np.asarray(element(self.group, params).plus(delta).params)
+
+    def plus(self, params: Any, delta: Any) -> Any:
+        """The value ``X Exp(delta)`` (``x + delta`` for vectors) of parameters of any array
+        backend (NumPy, PyTorch, JAX: what automatic differentiation perturbs).
+
+        Parameters
+        ----------
+        params : array
+            ``(k, params_dim)`` parameters.
+        delta : array
+            ``(k, dof)`` tangent steps, the same backend.
+
+        Returns
+        -------
+        LieGroup or array
+            A value of this batch (see :meth:`wrap`).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO2
+        >>> from microlie.optim import FactorGraph
+        >>> x = FactorGraph().add_variables(SO2.identity(1))
+        >>> np.round(x.plus(np.array([[1.0, 0.0]]), np.array([[0.5]])).log(), 12).tolist()
+        [[0.5]]
+        """
+        return element(self.group, params).plus(delta)
+
+    def inverse(self, X: Any) -> Any:
+        """``X^-1`` of a value of this batch (``-x`` for vectors).
+
+        Parameters
+        ----------
+        X : LieGroup or numpy.ndarray
+            A value (see :meth:`wrap`).
+
+        Returns
+        -------
+        LieGroup or numpy.ndarray
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO2
+        >>> from microlie.optim import FactorGraph
+        >>> x = FactorGraph().add_variables(SO2.identity(1))
+        >>> np.round(x.inverse(SO2.exp([[0.5]])).log(), 12).tolist()
+        [[-0.5]]
+        """
+        return X.inverse()
+
+    def compose(self, X: Any, Y: Any) -> Any:
+        """``X Y`` of two values of this batch (``x + y`` for vectors).
+
+        Parameters
+        ----------
+        X, Y : LieGroup or numpy.ndarray
+            Values (see :meth:`wrap`).
+
+        Returns
+        -------
+        LieGroup or numpy.ndarray
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO2
+        >>> from microlie.optim import FactorGraph
+        >>> x = FactorGraph().add_variables(SO2.identity(1))
+        >>> np.round(x.compose(SO2.exp([[0.5]]), SO2.exp([[0.25]])).log(), 12).tolist()
+        [[0.75]]
+        """
+        return X.compose(Y)
+
+    def log(self, X: Any, jac: bool = False) -> Any:
+        """``Log(X)`` of a value of this batch and, with ``jac``, ``Jr^-1(Log X)`` (the
+        identity for vectors).
+
+        Parameters
+        ----------
+        X : LieGroup or numpy.ndarray
+            A value (see :meth:`wrap`).
+        jac : bool
+            Also return the Jacobian.
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``(k, dof)``, or with ``jac`` ``(tau, J)``, ``J`` of shape ``(k, dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO2
+        >>> from microlie.optim import FactorGraph
+        >>> x = FactorGraph().add_variables(SO2.identity(1))
+        >>> tau, J = x.log(SO2.exp([[0.5]]), jac=True)
+        >>> np.round(tau, 12).tolist(), J.shape
+        ([[0.5]], (1, 1, 1))
+        """
+        return X.log(jac=jac)
+
+    def minus(self, Y: Any, X: Any, jac: bool = False) -> Any:
+        """``Y (-) X = Log(X^-1 Y)`` of two values of this batch (``y - x`` for vectors)
+        and, with ``jac``, its right Jacobians with respect to ``Y`` and ``X``.
+
+        Parameters
+        ----------
+        Y, X : LieGroup or numpy.ndarray
+            Values (see :meth:`wrap`).
+        jac : bool
+            Also return the Jacobians.
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``(k, dof)``, or with ``jac`` ``(tau, J_Y, J_X)`` (``I``, ``-I`` for vectors,
+            read-only views).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import FactorGraph
+        >>> x = FactorGraph().add_variables(np.zeros((1, 2)))
+        >>> r, Jy, Jx = x.minus(np.array([[3.0, 1.0]]), np.array([[1.0, 1.0]]), jac=True)
+        >>> r.tolist(), Jy[0].tolist(), Jx[0].tolist()
+        ([[2.0, 0.0]], [[1.0, 0.0], [0.0, 1.0]], [[-1.0, -0.0], [-0.0, -1.0]])
+        """
+        return Y.minus(X, jac=jac)
+
+    def gaussian(self, params: np.ndarray, cov: np.ndarray) -> Any:
+        """The Gaussian of this batch with mean ``params`` and tangent covariances ``cov``: a
+        :class:`~microlie.Gaussian` in the right frame (``X = mean Exp(eps)``), a
+        :class:`~microlie.VectorGaussian` for vectors.
+
+        Parameters
+        ----------
+        params : numpy.ndarray
+            ``(k, params_dim)`` parameters of the means.
+        cov : numpy.ndarray
+            ``(k, dof, dof)`` covariances.
+
+        Returns
+        -------
+        Gaussian or VectorGaussian
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SO2
+        >>> from microlie.optim import FactorGraph
+        >>> x = FactorGraph().add_variables(SO2.identity(1))
+        >>> x.gaussian(x.initial, np.ones((1, 1, 1))).frame
+        'right'
+        """
+        from ...uncertainty import Gaussian
+
+        return Gaussian(self.wrap(params), cov, frame="right")
 
     def __len__(self) -> int:
         return self.n
 
     def __repr__(self) -> str:
-        kind = self.group.__name__ if self.group is not None else f"R^{self.dof}"
-        return f"Variables({self.name!r}, {kind}, n={self.n}, fixed={int(self.fixed.sum())})"
+        held = int(self.held.any(axis=1).sum())
+        part = f", held={held}" if held else ""
+        return (f"Variables({self.name!r}, {self.group.__name__}, n={self.n}, "
+                f"fixed={int(self.fixed.sum())}{part})")
+
+
+class VectorVariables(Variables):
+    """The handle of a batch of vector variables, group ``R(d)`` (from an ``(n, d)`` array
+    or an ``R(d)`` batch): its values are plain ``(n, d)`` arrays (what factors receive and
+    ``result.values[handle]`` gives), ``x + delta`` is a plain addition.
+
+    Parameters
+    ----------
+    graph : FactorGraph
+        The owner.
+    key : int
+        Position in the graph.
+    group : type
+        ``R(d)``.
+    params : numpy.ndarray
+        ``(n, d)`` float64 initial values (this array is kept).
+    name : str
+        The label.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import FactorGraph
+    >>> g = FactorGraph()
+    >>> p = g.add_variables(np.zeros((2, 3)), name="p")
+    >>> p, type(g.initial_values()[p]).__name__
+    (Variables('p', R3, n=2, fixed=0), 'ndarray')
+    """
+
+    __slots__ = ()
+
+    @property
+    def value_type(self) -> str:
+        return "an array"
+
+    def wrap(self, params: Any) -> Any:
+        return params
+
+    def params_of(self, value: Any) -> Any:
+        if isinstance(value, LieGroup):
+            return super().params_of(value)
+        if not hasattr(value, "shape"):
+            value = np.asarray(value, dtype=np.float64)
+        return value
+
+    def retract(self, params: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        return params + delta
+
+    def plus(self, params: Any, delta: Any) -> Any:
+        return params + delta
+
+    def inverse(self, X: Any) -> Any:
+        return -X
+
+    def compose(self, X: Any, Y: Any) -> Any:
+        return X + Y
+
+    def log(self, X: Any, jac: bool = False) -> Any:
+        if not jac:
+            return X
+        return X, _eye(X.shape[0], self.dof)
+
+    def minus(self, Y: Any, X: Any, jac: bool = False) -> Any:
+        if not jac:
+            return Y - X
+        k = max(Y.shape[0], X.shape[0])
+        return Y - X, _eye(k, self.dof), _eye(k, self.dof, -1.0)
+
+    def gaussian(self, params: np.ndarray, cov: np.ndarray) -> Any:
+        from ...uncertainty import VectorGaussian
+
+        return VectorGaussian(params, cov)
+
+
+def _eye(k: int, d: int, scale: float = 1.0) -> np.ndarray:
+    """``scale * I_d`` repeated ``k`` times, a read-only view."""
+    return np.broadcast_to(scale * np.eye(d), (k, d, d))
 
 
 class Values:

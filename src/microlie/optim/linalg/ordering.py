@@ -71,8 +71,15 @@ def graph(indptr: np.ndarray, indices: np.ndarray, n: int, block_size: int = 1) 
     """
     bs = block_size if block_size > 0 and n % block_size == 0 else 1
     nb = n // bs
-    cols = np.repeat(np.arange(n), np.diff(indptr)) // bs
-    rows = np.asarray(indices) // bs
+    itype = np.int32 if n < 2**31 else np.int64
+    rows = np.asarray(indices).astype(itype, copy=False) // bs
+    cols = np.repeat(np.arange(n, dtype=itype) // bs, np.diff(indptr))
+    if bs > 1 and rows.size:  # a run of rows of one block in a column counts once
+        new = np.empty(rows.size, bool)
+        new[0] = True
+        np.not_equal(rows[1:], rows[:-1], out=new[1:])
+        new[1:] |= cols[1:] != cols[:-1]
+        rows, cols = rows[new], cols[new]
     A = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(nb, nb))
     return _clean(A)
 

@@ -350,10 +350,17 @@ class SchurSolver(LinearSolver):
                 bidx = at(rows[:, :, None], ecols[:, None, :])  # B[t, a] = H[row_t, col_a]
                 rb = rnode[nb]
                 P0 = s_at(rb[:, :, None], rb[:, None, :])  # (m, dg, dg): block (row j1, col j2)
-                ii = np.arange(m)[:, None, None]
-                j1, j2 = jt[:, :, None], jt[:, None, :]
-                cl = collen[rnode[un]]  # (m, k)
-                dest = P0[ii, j1, j2] + loc[:, None, :] * cl[:, None, :] + loc[:, :, None]
+                if np.all(nd == nd[0, 0]):  # neighbours of one size: by broadcasting
+                    dl = int(nd[0, 0])
+                    la = np.arange(dl)
+                    acl = collen[rb][:, :, None] * la  # (m, dg, dl): a2 * collen
+                    dest = (P0[:, :, None, :, None] + la[:, None, None]
+                            + acl[:, None, None, :, :]).reshape(m, k, k)
+                else:
+                    ii = np.arange(m)[:, None, None]
+                    j1, j2 = jt[:, :, None], jt[:, None, :]
+                    cl = collen[rnode[un]]  # (m, k)
+                    dest = P0[ii, j1, j2] + loc[:, None, :] * cl[:, None, :] + loc[:, :, None]
                 dests.append(dest.ravel())
                 rr = r_of[rows]
                 rowsall.append(rr.ravel())
