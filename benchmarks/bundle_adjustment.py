@@ -11,8 +11,9 @@ Run (bench venv: gtsam 4.3; Debian's libceres-dev, cmake and g++ for the Ceres r
 a forward-looking camera every metre along a 2-D street, landmarks on the two facades and the
 ground, each seen from the cameras 3-45 m behind it: a banded camera graph, unlike
 ``synthetic_scene``'s every-camera-sees-every-point cloud), written as a BAL file in a
-temporary directory and run like the file (microlie, and Ceres SPARSE_SCHUR; GTSAM, SciPy and
-Ceres DENSE_SCHUR only for ``--file``); ``--skip-file`` runs only the street scenes.
+temporary directory and run like the file (microlie's ``bundle_adjust`` with its default and
+its sparse reduced system, the engine, and Ceres SPARSE_SCHUR; GTSAM, SciPy and Ceres
+DENSE_SCHUR only for ``--file``); ``--skip-file`` runs only the street scenes.
 
 Every contender starts from the file's values and runs single-threaded; the runs are
 interleaved (one of each per round) and the table shows medians (min-max) and the ratio to
@@ -72,6 +73,27 @@ def run_microlie(path: Path, behind: str = "evaluate") -> dict:
     return {"time_s": r.time_s, "initial_cost": r.initial_cost, "final_cost": r.final_cost,
             "iterations": r.iterations, "accepted": r.successful_steps - 1,
             "timings": r.timings, "message": r.message}
+
+
+ENGINE = "microlie engine (graph, trust-region, schur)"
+
+
+def run_engine(path: Path) -> dict:
+    """The one engine: bundle_graph (FactorGraph with ReprojectionFactor) + TrustRegion +
+    linear_solver="schur"; timed as a user pays it (graph construction and solve)."""
+    import time
+
+    from microlie.optim import TrustRegion, bundle_graph
+    from microlie.optim.io.bal import read_bal
+
+    p = read_bal(path)
+    t0 = time.perf_counter()
+    bg = bundle_graph(p)
+    r = bg.graph.optimize(solver=TrustRegion(), linear_solver="schur", gauge="none")
+    t = time.perf_counter() - t0
+    return {"time_s": t, "initial_cost": r.initial_cost, "final_cost": r.final_cost,
+            "iterations": r.iterations, "accepted": r.accepted_steps,
+            "timings": {**r.timings, "build": t - r.time_s}, "message": r.message}
 
 
 def build_ceres() -> Path | None:
@@ -302,6 +324,17 @@ def bench(label: str, contenders: dict, repeat: int) -> None:
     for k in ("linearize", "schur_form", "reduced_solve", "back_substitution", "evaluate",
               "step", "structure"):
         print(f"| {k} | {1e3 * tm[k] / it:.1f} | {100 * tm[k] / total:.0f}% |")
+    if ENGINE in runs:
+        eng = runs[ENGINE][-1]
+        it = max(eng["iterations"], 1)
+        print(f"\nengine time breakdown (last round), ms per iteration ({it} iterations; "
+              f"engine / bundle_adjust {med[ENGINE] / ref:.2f}):\n")
+        print("| part | ms / iteration | share |")
+        print("|---|---|---|")
+        total = sum(v for v in eng["timings"].values() if isinstance(v, float))
+        for k, v in eng["timings"].items():
+            if isinstance(v, float):
+                print(f"| {k} | {1e3 * v / it:.1f} | {100 * v / total:.0f}% |")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -320,7 +353,8 @@ def main(argv: list[str] | None = None) -> int:
     exe = build_ceres()
     if not args.skip_file:
         path = args.file.resolve()
-        contenders: dict[str, Any] = {"microlie": lambda: run_microlie(path)}
+        contenders: dict[str, Any] = {"microlie": lambda: run_microlie(path),
+                                      ENGINE: lambda: run_engine(path)}
         if exe is not None:
             contenders["Ceres C++ SPARSE_SCHUR"] = lambda: run_ceres(exe, path, "SPARSE_SCHUR")
             contenders["Ceres C++ DENSE_SCHUR"] = lambda: run_ceres(exe, path, "DENSE_SCHUR")
@@ -347,6 +381,7 @@ def main(argv: list[str] | None = None) -> int:
                          f"{p.n_observations} observations (seed {args.seed})")
                 street: dict[str, Any] = {
                     "microlie": lambda f=f: run_microlie(f),
+                    ENGINE: lambda f=f: run_engine(f),
                     "microlie linear_solver=sparse":
                         lambda f=f: run_microlie_street(f, "sparse")}
                 if exe is not None:

@@ -6,6 +6,8 @@ optimum."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from conftest import data_file
@@ -422,3 +424,56 @@ def test_graph_reaches_bundle_adjust_optimum(model, form, robust):
     np.testing.assert_allclose(res.final_cost, ref.final_cost, rtol=1e-6)  # not stationary
     np.testing.assert_allclose(res.values[X], ref.problem.points, rtol=0, atol=1e-6)
     np.testing.assert_allclose(res.values[K], ref.problem.intrinsics, rtol=1e-5, atol=1e-5)
+
+
+# ------------------------------------------------------------ the engine path of bundle_adjust
+
+def test_engine_reaches_ceres_on_problem_49():
+    """bundle_graph + TrustRegion + Schur: problem-49-7776's Ceres optimum (13344.3184, the
+    data README's reference) in Ceres' 31 iterations."""
+    from microlie.optim import TrustRegion, bundle_graph
+
+    bg = bundle_graph(read_bal(data_file("bal/problem-49-7776-pre.txt")))
+    res = bg.graph.optimize(solver=TrustRegion(), linear_solver="schur", gauge="none")
+    assert res.final_cost == pytest.approx(13344.3184, rel=1e-6)
+    assert res.iterations == 31 and res.converged
+    assert bg.problem(res.values).cost() == pytest.approx(res.final_cost, rel=1e-12)
+
+
+@pytest.mark.parametrize("robust", [None, "cauchy:2.0"])
+def test_engine_history_equals_bundle_adjust(robust):
+    from microlie.optim import TrustRegion, bundle_graph
+
+    _, start = synthetic_scene(5, 40, noise=1.0, perturb=0.05, seed=13)
+    kw = dict(fix_cameras=[0], fix_points=[0], fix_intrinsics=[2], robust=robust)
+    ref = bundle_adjust(start, **kw)
+    res = bundle_graph(start, **kw).graph.optimize(solver=TrustRegion(), linear_solver="schur")
+    accepted = [h.cost for h in ref.history if h.accepted]
+    mine = [h.cost for h in res.history if h.accepted]
+    np.testing.assert_allclose(mine, accepted, rtol=1e-9)
+    np.testing.assert_allclose(res.final_robust_cost, ref.final_robust_cost, rtol=1e-10)
+
+
+def test_intrinsics_held_per_component():
+    """g.fix(K, components=[1, 2]) holds k1, k2 of every camera exactly; the focal lengths
+    reach a stationary point of the cost (central differences of g.cost)."""
+    from microlie.optim import TrustRegion, bundle_graph
+
+    _, start = synthetic_scene(4, 30, noise=1.0, perturb=0.03, seed=14)
+    start = replace(start, intrinsics=start.intrinsics * [1.02, 1.0, 1.0])
+    bg = bundle_graph(start, fix_cameras=[0], fix_points=[0])
+    bg.graph.fix(bg.intrinsics, components=[1, 2])
+    res = bg.graph.optimize(solver=TrustRegion(function_tolerance=1e-14), linear_solver="schur")
+    K = np.asarray(res.values[bg.intrinsics])
+    np.testing.assert_array_equal(K[:, 1:], start.intrinsics[:, 1:])
+    assert np.all(np.abs(K[:, 0] - start.intrinsics[:, 0]) > 1.0)
+
+    def cost_at(f: np.ndarray) -> float:
+        p = bg.problem(res.values)
+        return replace(p, intrinsics=np.column_stack([f, p.intrinsics[:, 1:]])).cost()
+
+    h = 1e-3
+    grad = [(cost_at(K[:, 0] + h * e) - cost_at(K[:, 0] - h * e)) / (2 * h) for e in np.eye(4)]
+    grad0 = [(cost_at(start.intrinsics[:, 0] + h * e) - cost_at(start.intrinsics[:, 0] - h * e))
+             / (2 * h) for e in np.eye(4)]
+    assert np.max(np.abs(grad)) < 1e-5 * max(1.0, np.max(np.abs(grad0)))

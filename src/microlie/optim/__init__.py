@@ -38,7 +38,8 @@ from typing import TYPE_CHECKING, Any
 
 _LAZY = {
     "io.bal": ("BALProblem", "read_bal", "write_bal"),
-    "sfm.bundle": ("BundleProblem", "BundleResult", "bundle_adjust", "plot_bundle"),
+    "sfm.bundle": ("BundleGraph", "BundleProblem", "BundleResult", "bundle_adjust", "bundle_graph",
+                   "plot_bundle"),
     "sfm.camera": ("BALCamera", "PinholeCamera"),
     "sfm.reprojection": ("ReprojectionFactor",),
     "core.factors": ("BetweenFactor", "CustomFactor", "Factor", "JacobianCheck", "PriorFactor",
@@ -105,7 +106,14 @@ if TYPE_CHECKING:
     from .io.toro import read_toro, write_toro
     from .linalg.linear import LinearSolver, SingularSystemError, available_solvers, make_solver
     from .linalg.schur_solver import SchurSolver
-    from .sfm.bundle import BundleProblem, BundleResult, bundle_adjust, plot_bundle
+    from .sfm.bundle import (
+        BundleGraph,
+        BundleProblem,
+        BundleResult,
+        bundle_adjust,
+        bundle_graph,
+        plot_bundle,
+    )
     from .sfm.camera import BALCamera, PinholeCamera
     from .sfm.reprojection import ReprojectionFactor
 
@@ -118,6 +126,7 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
            "available_solvers", "SchurSolver",
            "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
-           "bundle_adjust", "plot_bundle", "BALCamera", "PinholeCamera", "ReprojectionFactor",
+           "BundleGraph", "bundle_graph", "bundle_adjust", "plot_bundle", "BALCamera",
+           "PinholeCamera", "ReprojectionFactor",
            "PoseGraph", "read_g2o",
            "write_g2o", "read_toro", "write_toro"]

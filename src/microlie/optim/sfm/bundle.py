@@ -52,8 +52,9 @@ from ..io.bal import BALProblem
 from ..linalg.schur import LinearSolverKind, NormalEquations, SchurStructure
 from .camera import BALCamera, CameraModel, camera_model, reproject
 
-__all__ = ["BundleProblem", "BundleResult", "BundleIteration", "bundle_adjust", "synthetic_scene",
-           "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec"]
+__all__ = ["BundleProblem", "BundleResult", "BundleIteration", "BundleGraph", "bundle_adjust",
+           "bundle_graph", "synthetic_scene", "plot_bundle", "rotvec_to_matrix",
+           "matrix_to_rotvec"]
 
 
 def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
@@ -1030,6 +1031,145 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
     return BundleResult(x, plain0, plain1, initial_cost, cost, it, successful,
                         termination == "convergence", message, termination, time_s, history, tm,
                         behind, "lm", linear_solver, ne)
+
+
+# ---------------------------------------------------------------------------- as a factor graph
+
+@dataclass(frozen=True)
+class BundleGraph:
+    """A bundle problem as a :class:`~microlie.optim.FactorGraph` (built by
+    :func:`bundle_graph`): the graph and its handles.
+
+    Attributes
+    ----------
+    graph : FactorGraph
+        The graph: one :class:`~microlie.optim.ReprojectionFactor` batch (add other factors).
+    rotations : Variables
+        ``SO3`` world-to-camera rotations (``R Exp(dphi)``).
+    translations : Variables
+        ``R(3)`` world-to-camera translations (``t + dt``).
+    intrinsics : Variables
+        ``R(k)`` intrinsics in the model's order.
+    points : Variables
+        ``R(3)`` world points.
+    factor : ReprojectionFactor
+        The reprojection factors, one per observation.
+    model : CameraModel
+        The camera model.
+
+    Examples
+    --------
+    >>> from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
+    >>> truth, start = synthetic_scene(3, 20, seed=1)
+    >>> bg = bundle_graph(start, fix_cameras=[0], fix_points=[0])
+    >>> res = bg.graph.optimize(solver="trust-region", linear_solver="schur")
+    >>> bool(abs(bg.problem(res.values).cost() - res.final_cost) < 1e-9 * res.final_cost)
+    True
+    """
+
+    graph: Any
+    rotations: Any
+    translations: Any
+    intrinsics: Any
+    points: Any
+    factor: Any
+    model: CameraModel
+
+    def problem(self, values: Any = None) -> BundleProblem:
+        """The :class:`BundleProblem` at ``values`` (``result.values``; default: the initial
+        values), with the graph's observations.
+
+        Parameters
+        ----------
+        values : Values, optional
+            Values of the graph.
+
+        Returns
+        -------
+        BundleProblem
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
+        >>> truth, start = synthetic_scene(3, 20, seed=1)
+        >>> bool(np.allclose(bundle_graph(start).problem().points, start.points))
+        True
+        """
+        v = self.graph.initial_values() if values is None else values
+        f = self.factor
+        return BundleProblem(np.asarray(v[self.rotations].matrix()),
+                             np.asarray(v.params(self.translations)),
+                             np.asarray(v.params(self.intrinsics)),
+                             np.asarray(v.params(self.points)), f.args[0][1], f.args[2][1],
+                             f.observations, self.model)
+
+
+def bundle_graph(problem: BundleProblem | BALProblem, *, robust: Any = None,
+                 behind: str = "evaluate", fix_cameras: Sequence[int] | None = None,
+                 fix_points: Sequence[int] | None = None,
+                 fix_intrinsics: Sequence[int] | bool | None = None) -> BundleGraph:
+    """The bundle problem as a factor graph: ``SO3`` and ``R(3)`` camera poses (BAL's
+    parametrisation), ``R(k)`` intrinsics, ``R(3)`` points and one
+    :class:`~microlie.optim.ReprojectionFactor` per observation; solve it with
+    ``graph.optimize(solver=TrustRegion(), linear_solver="schur")`` (Ceres' rules on the
+    Schur complement of the points; add ``gauge="none"`` when nothing is held, as
+    :func:`bundle_adjust` leaves BAL's 7-dof gauge to the damping).
+
+    Parameters
+    ----------
+    problem : BundleProblem or BALProblem
+        The starting point.
+    robust : str or RobustLoss, optional
+        A loss on each observation's squared residual norm (pixels).
+    behind : {"evaluate", "drop"}
+        Points behind a camera (:mod:`microlie.optim.sfm.camera`).
+    fix_cameras : sequence of int, optional
+        Cameras whose pose (rotation and translation) is held.
+    fix_points : sequence of int, optional
+        Held points.
+    fix_intrinsics : sequence of int or bool, optional
+        Cameras whose intrinsics are held (``True``: all).
+
+    Returns
+    -------
+    BundleGraph
+
+    Examples
+    --------
+    >>> from microlie.optim.sfm.bundle import bundle_adjust, bundle_graph, synthetic_scene
+    >>> truth, start = synthetic_scene(3, 20, seed=1)
+    >>> bg = bundle_graph(start, fix_cameras=[0], fix_points=[0])
+    >>> res = bg.graph.optimize(solver="trust-region", linear_solver="schur")
+    >>> ref = bundle_adjust(start, fix_cameras=[0], fix_points=[0])
+    >>> bool(abs(res.final_cost - ref.final_cost) <= 1e-9 * ref.final_cost)
+    True
+    """
+    from ...groups import SO3
+    from ..core.graph import FactorGraph
+    from .reprojection import ReprojectionFactor
+
+    if isinstance(problem, BALProblem):
+        problem = BundleProblem.from_bal(problem)
+    g = FactorGraph()
+    rot = g.add_variables(SO3.from_matrix(problem.rotations, normalize=True), name="rotations")
+    tr = g.add_variables(problem.translations, name="translations")
+    K = g.add_variables(problem.intrinsics, name="intrinsics")
+    X = g.add_variables(problem.points, name="points")
+    if fix_cameras is not None:
+        g.fix(rot, np.asarray(fix_cameras, dtype=np.intp))
+        g.fix(tr, np.asarray(fix_cameras, dtype=np.intp))
+    if fix_intrinsics is True:
+        g.fix(K)
+    elif fix_intrinsics is not None and fix_intrinsics is not False:
+        g.fix(K, np.asarray(fix_intrinsics, dtype=np.intp))
+    if fix_points is not None:
+        g.fix(X, np.asarray(fix_points, dtype=np.intp))
+    ci, pi = problem.camera_index, problem.point_index
+    f = g.add(ReprojectionFactor(((rot, ci), (tr, ci)), (X, pi), problem.observations,
+                                 model=problem.model, intrinsics=(K, ci), loss=robust,
+                                 behind=behind))
+    return BundleGraph(g, rot, tr, K, X, f, problem.model)
 
 
 # ---------------------------------------------------------------------------- synthetic scenes
