@@ -22,8 +22,9 @@ from microlie.optim import (
     SingularSystemError,
     check_jacobians,
 )
+from microlie.optim.core.elimination import landmark_batches
 from microlie.optim.linalg.cholesky import SupernodalSolver
-from microlie.optim.linalg.schur_solver import SchurSolver, landmark_batches
+from microlie.optim.linalg.schur_solver import SchurSolver
 
 
 def _random_system(rng, nr, ne, dofs_e=(3, 6)):

@@ -572,9 +572,9 @@ class Problem:
         from ..linalg.linear import make_solver
 
         if linear_solver == "schur":
-            from ..linalg.schur_solver import SchurSolver
+            from .elimination import schur_solver
 
-            ls: Any = SchurSolver.for_problem(self, eliminate)
+            ls: Any = schur_solver(self, eliminate)
         elif eliminate is not None:
             raise ValueError(f"eliminate applies to linear_solver='schur' only, got "
                              f"linear_solver={linear_solver!r}")
