@@ -20,9 +20,6 @@ KNOWN_PRIVATE = {
     ("microlie.imu.residual", "microlie.imu.preintegration", "_hat"),
     ("microlie.imu.residual", "microlie.imu.preintegration", "_predict"),
     ("microlie.imu.simulate", "microlie.imu.preintegration", "_prefix_scan"),
-    ("microlie.optim.command_bal", "microlie.optim.command", "_header"),
-    ("microlie.optim.command_bal", "microlie.optim.command", "_progress"),
-    ("microlie.optim.command_bal", "microlie.optim.command", "_to"),
 }
 
 

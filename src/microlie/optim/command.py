@@ -311,17 +311,18 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     t3 = time.perf_counter()
     problem = (f"{graph.group.__name__} pose graph, {graph.num_vertices} poses, "
                f"{graph.num_edges} edges")
-    _header(args, err, f"{problem}; {args.solver} (linear solver {args.linear_solver}), start "
-                       f"{init}, at most {args.max_iter} iterations; read {t1 - t0:.3f} s, "
-                       f"init {t2 - t1:.3f} s, build {t3 - t2:.3f} s")
+    print_header(args, err, f"{problem}; {args.solver} (linear solver {args.linear_solver}), "
+                 f"start {init}, at most {args.max_iter} iterations; read {t1 - t0:.3f} s, "
+                 f"init {t2 - t1:.3f} s, build {t3 - t2:.3f} s")
     from .core.problem import GaugeError, NonFiniteError
 
     gauge = args.gauge or "check"
     try:
-        with _to(err):
+        with solver_output_to(err):
             res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
-                              max_iter=args.max_iter, gauge=gauge, verbose=_progress(err, args),
-                              blas_threads=None)  # run() holds --blas-threads
+                              max_iter=args.max_iter, gauge=gauge,
+                              # run() holds --blas-threads
+                              verbose=show_iterations(err, args), blas_threads=None)
     except NonFiniteError as e:  # batch 0 is the file's edges, in order
         what = f"edge {e.row} of the file" if e.factor == 0 else "the gauge prior"
         on = " -> ".join(str(graph.ids[i]) for _, i in e.variables)
@@ -389,7 +390,7 @@ def _position_rmse(X: Any, truth: Any) -> float:
     return float(np.sqrt(np.mean(np.sum(d * d, axis=-1))))
 
 
-def _progress(err: TextIO, args: argparse.Namespace | None = None) -> bool:
+def show_iterations(err: TextIO, args: argparse.Namespace | None = None) -> bool:
     """Whether to print the iteration table: ``--verbose``, or a terminal without
     ``--quiet``."""
     if getattr(args, "verbose", False):
@@ -399,13 +400,13 @@ def _progress(err: TextIO, args: argparse.Namespace | None = None) -> bool:
     return bool(getattr(err, "isatty", None) and err.isatty())
 
 
-def _header(args: argparse.Namespace, err: TextIO, text: str) -> None:
+def print_header(args: argparse.Namespace, err: TextIO, text: str) -> None:
     """The line printed before the iterations (not with ``--quiet``), flushed."""
     if not getattr(args, "quiet", False):
         err.write(f"microlie optimize: {_label(args.input)}: {text}\n")
         err.flush()
 
 
-def _to(err: TextIO) -> contextlib.AbstractContextManager:
+def solver_output_to(err: TextIO) -> contextlib.AbstractContextManager:
     """The solvers print on ``sys.stderr``: send that to ``err``."""
     return contextlib.nullcontext() if err is sys.stderr else contextlib.redirect_stderr(err)

@@ -57,7 +57,7 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     >>> report["final_cost"] < report["initial_cost"]
     True
     """
-    from .command import _header, _progress, _to
+    from .command import print_header, show_iterations, solver_output_to
     from .io.bal import read_bal, write_bal
     from .sfm.bundle import BundleProblem, bundle_adjust, plot_bundle
 
@@ -78,12 +78,12 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     max_iter = getattr(args, "max_iter", 100)
     problem = (f"bundle adjustment, {bal.n_cameras} cameras, {bal.n_points} points, "
                f"{bal.n_observations} observations")
-    _header(args, err, f"{problem}; lm (linear solver {linear}), at most {max_iter} "
+    print_header(args, err, f"{problem}; lm (linear solver {linear}), at most {max_iter} "
                        f"iterations; read {t1 - t0:.3f} s")
-    with _to(err):
+    with solver_output_to(err):
         res = bundle_adjust(start, robust=getattr(args, "robust", None),
                             linear_solver=_LINEAR[linear], max_iter=max_iter,
-                            verbose=_progress(err, args),
+                            verbose=show_iterations(err, args),
                             blas_threads=None)  # run() holds the command's --blas-threads
     report: dict[str, Any] = {
         "file": str(args.input),

@@ -7,15 +7,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from itertools import combinations
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..linalg.schur_solver import SchurSolver
 from .variables import Variables
 
-if TYPE_CHECKING:
-    from .problem import Problem
+# a Problem is passed in, not imported: problem.py calls this module (no import cycle)
+Problem = Any
 
 __all__ = ["schur_solver", "landmark_batches"]
 
