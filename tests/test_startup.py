@@ -63,3 +63,38 @@ def test_commands_import_only_what_they_use(command):
             "sorted(m for m in ('scipy', 'matplotlib', 'microlie.uncertainty', "
             "'microlie.optim.command', 'microlie.traj.plot', 'rosbags') if m in sys.modules))")
     assert _run(["-c", code]) == ["0", "[]"]
+
+
+#: Not needed to read, solve and write a pose graph: plotting, the array backends, the
+#: trajectory readers and metrics, bundle adjustment, IMU, the other linear solvers, and SciPy's
+#: modules that the solve does not use (scipy vendors its own array-api-compat; the
+#: stand-alone package is a torch/jax probe).
+OPTIMIZE_NEVER = ("matplotlib", "torch", "jax", "array_api_compat", "pandas", "qdldl",
+                  "pypardiso", "pymetis", "rosbags", "scipy.optimize", "scipy.stats",
+                  "scipy.spatial", "scipy.interpolate", "scipy.integrate", "scipy.special",
+                  "microlie.optim.plot", "microlie.optim.sfm", "microlie.optim.command_bal",
+                  "microlie.optim.io.bal", "microlie.optim.io.toro",
+                  "microlie.optim.linalg.schur", "microlie.optim.linalg.schur_solver",
+                  "microlie.optim.core.elimination", "microlie.imu", "microlie.uncertainty",
+                  "microlie.calibration", "microlie.data", "microlie.traj.io",
+                  "microlie.traj.evaluate", "microlie.traj.metrics", "microlie.traj.plot",
+                  "microlie.traj.sync", "microlie.traj.rosbag")
+
+
+@pytest.mark.parametrize("fast", ["1", "0"])
+def test_optimize_imports_only_what_it_uses(tmp_path, fast):
+    # an SE3 chain with a loop closure; the compiled extra (if installed) or the NumPy loops
+    lines = [f"VERTEX_SE3:QUAT {i} {i + 0.1 * (i % 2)} 0 0 0 0 0 1" for i in range(4)]
+    info = " ".join("1" if r == c else "0" for r in range(6) for c in range(r, 6))
+    lines += [f"EDGE_SE3:QUAT {i} {i + 1} 1 0 0 0 0 0 1 {info}" for i in range(3)]
+    lines.append(f"EDGE_SE3:QUAT 0 3 3 0 0 0 0 0 1 {info}")
+    path, out = tmp_path / "g.g2o", tmp_path / "out.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    argv = ["optimize", str(path), "--json", "-o", str(out)]
+    code = ("import io, sys; from microlie.cli import main; "
+            f"code = main({argv!r}, out=io.StringIO(), err=io.StringIO()); "
+            f"never = {OPTIMIZE_NEVER!r}; "
+            "print(code, sorted(m for m in sys.modules if m in never "
+            "or m.startswith(tuple(n + '.' for n in never))))")
+    assert _run(["-c", code], MICROLIE_FAST=fast) == ["0", "[]"]
+    assert out.read_text().count("VERTEX_SE3:QUAT") == 4
