@@ -50,6 +50,12 @@ setup(
             include_dirs=[np.get_include()],
             extra_compile_args=flags,
         ),
+        Extension(  # the Schur complement of linear_solver="schur" (linalg/schur_solver.py)
+            "microlie_fast._elim",
+            sources=["src/microlie_fast/_elim.c"],
+            include_dirs=[np.get_include()],
+            extra_compile_args=flags,
+        ),
         Extension(  # the reader of numeric text tables (microlie.traj.io)
             "microlie_fast._text",
             sources=["src/microlie_fast/_text.c"],

@@ -61,11 +61,14 @@ def _random_system(rng, nr, ne, dofs_e=(3, 6)):
     return H, A, off, np.flatnonzero(is_e)
 
 
+@pytest.mark.parametrize("fast", ["1", "0"])
 @pytest.mark.parametrize("reduced", ["dense", "cholesky"])
 @pytest.mark.parametrize("seed", range(12))
-def test_schur_solve_equals_dense_solve(seed, reduced):
+def test_schur_solve_equals_dense_solve(seed, reduced, fast, monkeypatch):
     """x = S^-1 ... back-substituted equals numpy.linalg.solve(H, b), for one and several
-    right-hand sides, undamped and with LM damping added to the diagonal in place."""
+    right-hand sides, undamped and with LM damping added to the diagonal in place; by the
+    compiled formation of S (microlie_fast._elim, when installed) and by the NumPy one."""
+    monkeypatch.setenv("MICROLIE_FAST", fast)
     rng = np.random.default_rng(seed)
     H, A, off, elim = _random_system(rng, int(rng.integers(1, 7)), int(rng.integers(1, 25)))
     n = H.shape[0]
