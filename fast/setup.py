@@ -50,9 +50,9 @@ setup(
             include_dirs=[np.get_include()],
             extra_compile_args=flags,
         ),
-        Extension(  # the Schur complement of linear_solver="schur" (linalg/schur_solver.py)
-            "microlie_fast._elim",
-            sources=["src/microlie_fast/_elim.c"],
+        Extension(  # the engine's normal equations: core/problem.py, linalg/schur_solver.py
+            "microlie_fast._normal",
+            sources=["src/microlie_fast/_normal.c"],
             include_dirs=[np.get_include()],
             extra_compile_args=flags,
         ),

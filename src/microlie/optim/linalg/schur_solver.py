@@ -283,7 +283,7 @@ class SchurSolver(LinearSolver):
         # per group: the index arrays of C_e, B_e^T, the rows and the scatter into S
         # the compiled loop writes straight into S from the blocks' positions; the NumPy one
         # scatters every product through one bincount over all their destinations
-        self._elim = compiled_module("_elim")
+        self._elim = compiled_module("_normal")
         groups, dests, total = [], [], 0
         rowsall, at_rows = [], []
         for es, nb, d, dg, k in plan:
@@ -440,7 +440,7 @@ class SchurSolver(LinearSolver):
         self._factored = True
 
     def _form_compiled(self, g: _Group, data: np.ndarray, S: np.ndarray) -> None:
-        """Group ``g``'s part of :meth:`factorize` by the compiled loop (``_elim.form``)."""
+        """Group ``g``'s part of :meth:`factorize` by the compiled loop (``_normal.form``)."""
         m, d = g.cols.shape
         k = g.rows.shape[1]
         Li, V, piv = np.empty((m, d, d)), np.empty((m, k, d)), np.empty((m, d))
