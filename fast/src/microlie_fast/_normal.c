@@ -238,7 +238,104 @@ static PyObject *products_(PyObject *self, PyObject *const *args, Py_ssize_t nar
     Py_RETURN_NONE;
 }
 
+/* rhs(Li, V, rows, be, y, r): the eliminated nodes' part of the reduced right-hand side, one
+ * group: y_e = L_e^-1 b_e (y (m, d) out), r[rows[e, t]] -= V_e[t] . y_e (r in and out).
+ * back(Li, V, rows, y, xr, xe): x_e = L_e^-T (y_e - V_e^T xr[rows_e]) (xe (m, d) out). */
+static int solve_args(PyObject *const *args, PyArrayObject **Li, PyArrayObject **V,
+                      PyArrayObject **rows, PyArrayObject **a, PyArrayObject **b,
+                      PyArrayObject **c, ix *m, ix *d, ix *k, int back) {
+    ix any1[1] = {-1}, any3[3] = {-1, -1, -1};
+    if (!(*Li = arg(args[0], "Li", NPY_DOUBLE, 3, any3))) return -1;
+    *m = PyArray_DIM(*Li, 0), *d = PyArray_DIM(*Li, 1);
+    ix dv[3] = {*m, -1, *d};
+    if (!(*V = arg(args[1], "V", NPY_DOUBLE, 3, dv))) return -1;
+    *k = PyArray_DIM(*V, 1);
+    ix dr[2] = {*m, *k}, de[2] = {*m, *d};
+    if (!(*rows = arg(args[2], "rows", NPY_INTP, 2, dr)) ||
+        !(*a = arg(args[3], back ? "y" : "be", NPY_DOUBLE, 2, de)) ||
+        !(*b = arg(args[4], back ? "xr" : "y", NPY_DOUBLE, back ? 1 : 2, back ? any1 : de)) ||
+        !(*c = arg(args[5], back ? "xe" : "r", NPY_DOUBLE, back ? 2 : 1, back ? de : any1)))
+        return -1;
+    ix nr = PyArray_DIM(back ? *b : *c, 0);
+    const ix *rp = (const ix *)PyArray_DATA(*rows);
+    for (ix q = 0; q < *m * *k; q++)
+        if (rp[q] < 0 || rp[q] >= nr) {
+            PyErr_SetString(PyExc_ValueError, "rows holds an unknown outside the reduced system");
+            return -1;
+        }
+    return 0;
+}
+
+static PyObject *rhs_(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "rhs(Li, V, rows, be, y, r) takes 6 arguments");
+        return NULL;
+    }
+    PyArrayObject *Li, *V, *rows, *be, *y, *r;
+    ix m, d, k;
+    if (solve_args(args, &Li, &V, &rows, &be, &y, &r, &m, &d, &k, 0)) return NULL;
+    const double *L = PyArray_DATA(Li), *Vp = PyArray_DATA(V), *b = PyArray_DATA(be);
+    const ix *rp = PyArray_DATA(rows);
+    double *yp = PyArray_DATA(y), *rr = PyArray_DATA(r);
+    for (ix e = 0; e < m; e++) {
+        const double *Le = L + e * d * d, *bb = b + e * d, *Ve = Vp + e * k * d;
+        double *ye = yp + e * d;
+        for (ix a = 0; a < d; a++) {
+            double s = 0.0;
+            for (ix c = 0; c <= a; c++) s += Le[a * d + c] * bb[c];
+            ye[a] = s;
+        }
+        for (ix t = 0; t < k; t++) {
+            double s = 0.0;
+            for (ix a = 0; a < d; a++) s += Ve[t * d + a] * ye[a];
+            rr[rp[e * k + t]] -= s;
+        }
+    }
+    Py_RETURN_NONE;
+}
+
+static PyObject *back_(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "back(Li, V, rows, y, xr, xe) takes 6 arguments");
+        return NULL;
+    }
+    PyArrayObject *Li, *V, *rows, *y, *xr, *xe;
+    ix m, d, k;
+    if (solve_args(args, &Li, &V, &rows, &y, &xr, &xe, &m, &d, &k, 1)) return NULL;
+    if (d > 64) {
+        PyErr_SetString(PyExc_ValueError, "Li: at most 64 unknowns per node");
+        return NULL;
+    }
+    const double *L = PyArray_DATA(Li), *Vp = PyArray_DATA(V), *yp = PyArray_DATA(y);
+    const double *x = PyArray_DATA(xr);
+    const ix *rp = PyArray_DATA(rows);
+    double *out = PyArray_DATA(xe);
+    double z[64];
+    for (ix e = 0; e < m; e++) {
+        const double *Le = L + e * d * d, *Ve = Vp + e * k * d;
+        for (ix a = 0; a < d; a++) z[a] = yp[e * d + a];
+        for (ix t = 0; t < k; t++) {
+            double xt = x[rp[e * k + t]];
+            for (ix a = 0; a < d; a++) z[a] -= Ve[t * d + a] * xt;
+        }
+        for (ix c = 0; c < d; c++) {
+            double s = 0.0;
+            for (ix a = c; a < d; a++) s += Le[a * d + c] * z[a];
+            out[e * d + c] = s;
+        }
+    }
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
+    {"rhs", (PyCFunction)(void (*)(void))rhs_, METH_FASTCALL,
+     "rhs(Li, V, rows, be, y, r) -> None: y = L^-1 b_e and r[rows] -= V y for one group of "
+     "eliminated nodes"},
+    {"back", (PyCFunction)(void (*)(void))back_, METH_FASTCALL,
+     "back(Li, V, rows, y, xr, xe) -> None: xe = L^-T (y - V^T xr[rows]) for one group of "
+     "eliminated nodes"},
     {"products", (PyCFunction)(void (*)(void))products_, METH_FASTCALL,
      "products(A, dest, y) -> None: y[dest] += the products [J e]^T [J e] of one factor batch "
      "(see the module source)"},

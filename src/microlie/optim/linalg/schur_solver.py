@@ -392,7 +392,7 @@ class SchurSolver(LinearSolver):
         S = np.zeros(self._s_nnz)
         S[self._a_dst] = dz[self._a_src]
         self._li: list[np.ndarray] = []
-        self._vt: list[tuple[np.ndarray, np.ndarray] | None] = []
+        self._vt: list[tuple[np.ndarray, np.ndarray | None] | None] = []
         w = self._w
         for g in self._groups:
             if self._elim is not None:
@@ -451,7 +451,7 @@ class SchurSolver(LinearSolver):
                 "eliminated variable is not positive definite", unknown=int(g.cols[bad, 0]))
         self._check_pivots(data, piv.ravel(), g.cols.ravel())
         self._li.append(Li)
-        self._vt.append((V, np.ascontiguousarray(np.swapaxes(V, 1, 2))) if k else None)
+        self._vt.append((V, None))  # V^T: formed by solve only for several right-hand sides
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """Solve ``H x = b`` with the last factorisation: the reduced right-hand side
@@ -494,6 +494,8 @@ class SchurSolver(LinearSolver):
                                       "one failed)")
         B = b.reshape(self.n, -1)
         j = B.shape[1]
+        if self._elim is not None and j == 1:
+            return self._solve_compiled(b)
         ys, ts = [], []
         for g, Li, VT in zip(self._groups, self._li, self._vt, strict=True):
             y = Li @ B[g.cols]  # (m, d, j) = L^-1 b_e
@@ -509,12 +511,39 @@ class SchurSolver(LinearSolver):
         x = np.empty((self.n, j))
         x[self._r_unk] = xr
         for g, Li, VT, y in zip(self._groups, self._li, self._vt, ys, strict=True):
-            z = y if VT is None else y - VT[1] @ xr[g.rows]  # L^-1 (b_e - B^T x_r)
+            if VT is not None:
+                Vt = VT[1] if VT[1] is not None else np.ascontiguousarray(np.swapaxes(VT[0], 1, 2))
+            z = y if VT is None else y - Vt @ xr[g.rows]  # L^-1 (b_e - B^T x_r)
             x[g.cols] = np.swapaxes(Li, 1, 2) @ z
         if not np.all(np.isfinite(x)):
             raise SingularSystemError("the linear system is singular (the solution is not "
                                       "finite)")
         return x[:, 0] if b.ndim == 1 else x
+
+    def _solve_compiled(self, b: np.ndarray) -> np.ndarray:
+        """:meth:`solve` for one right-hand side by the compiled loops (``_normal.rhs`` and
+        ``_normal.back``)."""
+        B = b.reshape(self.n)
+        rhs = B[self._r_unk]
+        ys = []
+        for g, Li, VT in zip(self._groups, self._li, self._vt, strict=True):
+            assert VT is not None
+            y = np.empty(g.cols.shape)
+            self._elim.rhs(Li, VT[0], g.rows, B[g.cols], y, rhs)
+            ys.append(y)
+        assert self.reduced_solver is not None
+        xr = np.ascontiguousarray(self.reduced_solver.solve(rhs), dtype=np.float64).reshape(-1)
+        x = np.empty(self.n)
+        x[self._r_unk] = xr
+        for g, Li, VT, y in zip(self._groups, self._li, self._vt, ys, strict=True):
+            assert VT is not None
+            xe = np.empty(g.cols.shape)
+            self._elim.back(Li, VT[0], g.rows, y, xr, xe)
+            x[g.cols] = xe
+        if not np.all(np.isfinite(x)):
+            raise SingularSystemError("the linear system is singular (the solution is not "
+                                      "finite)")
+        return x.reshape(b.shape)
 
 
 def _block_csc(bu: np.ndarray, bv: np.ndarray, dof: np.ndarray, off: np.ndarray
