@@ -266,7 +266,7 @@ class SchurSolver(LinearSolver):
             else:
                 nb = np.zeros((es.size, 0), np.int64)
             plan.append((es, nb, d, dg, k))
-        bkey = np.unique(np.concatenate(keys))  # col * nRn + row, ascending
+        bkey = _unique_keys(keys, rn.size * rn.size)  # col * nRn + row, ascending
         bv, bu = bkey // rn.size, bkey % rn.size
         s_ip, s_ix, pos0, collen = _block_csc(bu, bv, rdof, roff)
         self._s_nnz = int(s_ip[-1])
@@ -544,6 +544,22 @@ class SchurSolver(LinearSolver):
             raise SingularSystemError("the linear system is singular (the solution is not "
                                       "finite)")
         return x.reshape(b.shape)
+
+
+#: :func:`_unique_keys` marks keys in a dense table up to this many possible keys (bytes)
+DENSE_KEYS = 1 << 26
+
+
+def _unique_keys(keys: list[np.ndarray], size: int) -> np.ndarray:
+    """The sorted distinct values of ``keys`` (in ``[0, size)``): by marking a table of
+    ``size`` flags when it is at most :data:`DENSE_KEYS` (linear time; a sort of the tens of
+    millions of neighbour pairs of a street scene takes seconds), else by ``numpy.unique``."""
+    if size <= DENSE_KEYS:
+        seen = np.zeros(size, dtype=bool)
+        for k in keys:
+            seen[k] = True
+        return np.flatnonzero(seen)
+    return np.unique(np.concatenate(keys))
 
 
 def _block_csc(bu: np.ndarray, bv: np.ndarray, dof: np.ndarray, off: np.ndarray
