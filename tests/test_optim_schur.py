@@ -298,3 +298,20 @@ def test_make_solver_schur_names_the_way():
 
     with pytest.raises(ValueError, match="needs the problem's variables"):
         make_solver("schur")
+
+
+def test_schur_analysis_by_sort_and_search_equals_dense_solve(monkeypatch):
+    """Without the dense key and position tables of SchurSolver.analyse (large reduced
+    systems: numpy.unique and binary search), the solution still equals numpy.linalg.solve."""
+    import microlie.optim.linalg.schur_solver as ss
+    monkeypatch.setattr(ss, "DENSE_KEYS", 0)
+    monkeypatch.setattr(ss, "DENSE_TABLE", 0)
+    rng = np.random.default_rng(5)
+    H, A, off, elim = _random_system(rng, 5, 20)
+    s = SchurSolver(off, elim)
+    s.analyse(A.indptr, A.indices, H.shape[0])
+    s.factorize(A.data)
+    b = rng.standard_normal(H.shape[0])
+    ref = np.linalg.solve(H, b)
+    np.testing.assert_allclose(s.solve(b), ref, rtol=0, atol=1e-10 * np.linalg.cond(H)
+                               * np.abs(ref).max())

@@ -271,8 +271,17 @@ class SchurSolver(LinearSolver):
         s_ip, s_ix, pos0, collen = _block_csc(bu, bv, rdof, roff)
         self._s_nnz = int(s_ip[-1])
 
+        # the blocks' positions by key: a table when it is small (a street scene asks for tens
+        # of millions of neighbour pairs: a gather instead of as many binary searches)
+        table = None
+        if rn.size * rn.size <= DENSE_TABLE:
+            table = np.zeros(rn.size * rn.size, np.int64)
+            table[bkey] = pos0
+
         def s_at(u: np.ndarray, v: np.ndarray) -> np.ndarray:
             """The position in S of entry (0, 0) of block (u, v) (reduced nodes)."""
+            if table is not None:
+                return table[v * rn.size + u]
             return pos0[np.searchsorted(bkey, v * rn.size + u)]
 
         # A's entries: H position -> S position
@@ -548,6 +557,9 @@ class SchurSolver(LinearSolver):
 
 #: :func:`_unique_keys` marks keys in a dense table up to this many possible keys (bytes)
 DENSE_KEYS = 1 << 26
+#: :meth:`SchurSolver.analyse` looks the reduced blocks up in a dense table of their positions
+#: up to this many possible blocks (8 bytes each), by binary search above
+DENSE_TABLE = 1 << 23
 
 
 def _unique_keys(keys: list[np.ndarray], size: int) -> np.ndarray:
