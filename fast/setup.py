@@ -55,6 +55,7 @@ setup(
             sources=["src/microlie_fast/_normal.c"],
             include_dirs=[np.get_include()],
             extra_compile_args=flags,
+            libraries=["m"],  # fma() where the target has no fused multiply-add instruction
         ),
         Extension(  # the reader of numeric text tables (microlie.traj.io)
             "microlie_fast._text",
