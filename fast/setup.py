@@ -50,6 +50,13 @@ setup(
             include_dirs=[np.get_include()],
             extra_compile_args=flags,
         ),
+        Extension(  # the engine's normal equations: core/problem.py, linalg/schur_solver.py
+            "microlie_fast._normal",
+            sources=["src/microlie_fast/_normal.c"],
+            include_dirs=[np.get_include()],
+            extra_compile_args=flags,
+            libraries=["m"],  # fma() where the target has no fused multiply-add instruction
+        ),
         Extension(  # the reader of numeric text tables (microlie.traj.io)
             "microlie_fast._text",
             sources=["src/microlie_fast/_text.c"],

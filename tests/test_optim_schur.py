@@ -61,11 +61,14 @@ def _random_system(rng, nr, ne, dofs_e=(3, 6)):
     return H, A, off, np.flatnonzero(is_e)
 
 
+@pytest.mark.parametrize("fast", ["1", "0"])
 @pytest.mark.parametrize("reduced", ["dense", "cholesky"])
 @pytest.mark.parametrize("seed", range(12))
-def test_schur_solve_equals_dense_solve(seed, reduced):
+def test_schur_solve_equals_dense_solve(seed, reduced, fast, monkeypatch):
     """x = S^-1 ... back-substituted equals numpy.linalg.solve(H, b), for one and several
-    right-hand sides, undamped and with LM damping added to the diagonal in place."""
+    right-hand sides, undamped and with LM damping added to the diagonal in place; by the
+    compiled formation of S (microlie_fast._normal, when installed) and by the NumPy one."""
+    monkeypatch.setenv("MICROLIE_FAST", fast)
     rng = np.random.default_rng(seed)
     H, A, off, elim = _random_system(rng, int(rng.integers(1, 7)), int(rng.integers(1, 25)))
     n = H.shape[0]
@@ -295,3 +298,20 @@ def test_make_solver_schur_names_the_way():
 
     with pytest.raises(ValueError, match="needs the problem's variables"):
         make_solver("schur")
+
+
+def test_schur_analysis_by_sort_and_search_equals_dense_solve(monkeypatch):
+    """Without the dense key and position tables of SchurSolver.analyse (large reduced
+    systems: numpy.unique and binary search), the solution still equals numpy.linalg.solve."""
+    import microlie.optim.linalg.schur_solver as ss
+    monkeypatch.setattr(ss, "DENSE_KEYS", 0)
+    monkeypatch.setattr(ss, "DENSE_TABLE", 0)
+    rng = np.random.default_rng(5)
+    H, A, off, elim = _random_system(rng, 5, 20)
+    s = SchurSolver(off, elim)
+    s.analyse(A.indptr, A.indices, H.shape[0])
+    s.factorize(A.data)
+    b = rng.standard_normal(H.shape[0])
+    ref = np.linalg.solve(H, b)
+    np.testing.assert_allclose(s.solve(b), ref, rtol=0, atol=1e-10 * np.linalg.cond(H)
+                               * np.abs(ref).max())

@@ -21,6 +21,7 @@ from microlie.optim import (
     Isotropic,
     ReprojectionFactor,
     bundle_adjust,
+    bundle_graph,
     check_jacobians,
     read_bal,
 )
@@ -477,3 +478,24 @@ def test_intrinsics_held_per_component():
     grad0 = [(cost_at(start.intrinsics[:, 0] + h * e) - cost_at(start.intrinsics[:, 0] - h * e))
              / (2 * h) for e in np.eye(4)]
     assert np.max(np.abs(grad)) < 1e-5 * max(1.0, np.max(np.abs(grad0)))
+
+
+@pytest.mark.parametrize("robust", [None, "huber:1.0"])
+def test_assembly_equals_numpy_and_the_cost_gradient(robust, monkeypatch):
+    """Problem.linearize on a bundle graph: the compiled products of microlie_fast._normal
+    (when installed) and NumPy's matmul and bincount assemble the same H and g (to rounding),
+    and g equals the central differences of the (robust) cost."""
+    _, start = synthetic_scene(3, 12, noise=1.0, perturb=0.05, seed=4)
+    p = bundle_graph(start, robust=robust).graph.problem(gauge="none")
+    states = [v.initial for v in p.variables]
+    lin = p.linearize(states)
+    monkeypatch.setenv("MICROLIE_FAST", "0")
+    ref = p.linearize(states)
+    # bit for bit where NumPy's matmul runs BLAS kernels with fused multiply-adds (x86-64
+    # OpenBLAS); to rounding elsewhere
+    np.testing.assert_allclose(lin.data, ref.data, rtol=1e-14, atol=1e-14 * np.abs(ref.data).max())
+    np.testing.assert_allclose(lin.grad, ref.grad, rtol=1e-14, atol=1e-14 * np.abs(ref.grad).max())
+    n, h = lin.grad.size, 1e-6
+    fd = [(p.costs(p.retract(states, h * e))[1] - p.costs(p.retract(states, -h * e))[1])
+          / (2 * h) for e in np.eye(n)]
+    np.testing.assert_allclose(lin.grad, fd, rtol=1e-5, atol=1e-6 * np.abs(lin.grad).max())

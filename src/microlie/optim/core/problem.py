@@ -19,6 +19,7 @@ import numpy as np
 import scipy.sparse as sp  # type: ignore[import-untyped]
 from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
 
+from ..._fast import compiled as compiled_module
 from . import compiled
 from .factors import Factor
 from .robust import corrected_weights
@@ -863,6 +864,11 @@ class Problem:
         t_lin = t_prod = t_fused = 0.0
         numpy_any = False
         held, self._held = self._held is states, None
+        # the compiled products add straight into y; else every product is kept for bincount
+        normal = compiled_module("_normal") if self._spans else None
+        y: np.ndarray | None = None
+        if normal is not None:
+            y = np.zeros(self.nnz + self.size + 1)
         for fi, (f, pl) in enumerate(zip(self.factors, self.plans, strict=True)):
             if pl is not None:
                 continue
@@ -887,6 +893,11 @@ class Problem:
                 rcost += 0.5 * float(s.sum())
             tb = time.perf_counter()
             t_lin += tb - ta
+            if y is not None and normal is not None:
+                start, offs = self._spans[fi]
+                normal.products(A, self._dest[start:start + f.count * (D + 1) ** 2], y)
+                t_prod += time.perf_counter() - tb
+                continue
             # A^T A and A^T e (and e^T e, unused), chunk by chunk with [A e]^T made contiguous
             # in a small cache-resident buffer: batched matmul on a transposed view is 3x
             # slower than on contiguous operands (measured, NumPy 2.4)
@@ -898,8 +909,9 @@ class Problem:
             t_prod += time.perf_counter() - tb
         tc = time.perf_counter()
         if numpy_any:  # every contribution summed into its place (one bincount)
-            y: np.ndarray = np.bincount(self._dest, weights=self._contrib,
-                            minlength=self.nnz + self.size + 1)
+            if y is None:
+                y = np.bincount(self._dest, weights=self._contrib,
+                                minlength=self.nnz + self.size + 1)
             data, grad = y[: self.nnz], y[self.nnz:-1]
         elif out is not None:
             data, grad = out.data, out.grad

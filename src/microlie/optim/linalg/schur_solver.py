@@ -93,6 +93,9 @@ class _Group:
     bidx: np.ndarray  # (m, k, d) positions of B_e
     rows: np.ndarray  # (m, k) neighbouring unknowns, reduced numbering
     span: tuple[int, int]  # their products' slice of the contribution buffer
+    p0: np.ndarray  # (m, dg, dg) position in S of entry (0, 0) of each pair of neighbours
+    nd: np.ndarray  # (m, dg) unknowns of each neighbour
+    cl: np.ndarray  # (m, dg) length of the scalar columns of each neighbour in S
 
 
 class SchurSolver(LinearSolver):
@@ -263,13 +266,22 @@ class SchurSolver(LinearSolver):
             else:
                 nb = np.zeros((es.size, 0), np.int64)
             plan.append((es, nb, d, dg, k))
-        bkey = np.unique(np.concatenate(keys))  # col * nRn + row, ascending
+        bkey = _unique_keys(keys, rn.size * rn.size)  # col * nRn + row, ascending
         bv, bu = bkey // rn.size, bkey % rn.size
         s_ip, s_ix, pos0, collen = _block_csc(bu, bv, rdof, roff)
         self._s_nnz = int(s_ip[-1])
 
+        # the blocks' positions by key: a table when it is small (a street scene asks for tens
+        # of millions of neighbour pairs: a gather instead of as many binary searches)
+        table = None
+        if rn.size * rn.size <= DENSE_TABLE:
+            table = np.zeros(rn.size * rn.size, np.int64)
+            table[bkey] = pos0
+
         def s_at(u: np.ndarray, v: np.ndarray) -> np.ndarray:
             """The position in S of entry (0, 0) of block (u, v) (reduced nodes)."""
+            if table is not None:
+                return table[v * rn.size + u]
             return pos0[np.searchsorted(bkey, v * rn.size + u)]
 
         # A's entries: H position -> S position
@@ -278,16 +290,21 @@ class SchurSolver(LinearSolver):
         self._a_dst = (s_at(rnode[ar], rnode[ac]) + (cols[ra] - off[ac]) * collen[rnode[ac]]
                        + (ix[ra] - off[ar]))
         # per group: the index arrays of C_e, B_e^T, the rows and the scatter into S
+        # the compiled loop writes straight into S from the blocks' positions; the NumPy one
+        # scatters every product through one bincount over all their destinations
+        self._elim = compiled_module("_normal")
         groups, dests, total = [], [], 0
         rowsall, at_rows = [], []
         for es, nb, d, dg, k in plan:
             m = es.size
             ecols = off[es][:, None] + np.arange(d)  # (m, d)
             cidx = at(ecols[:, :, None], ecols[:, None, :])  # C[a, b] = H[col_a, col_b]
+            nd = dof[nb]  # (m, dg)
+            rb = rnode[nb]
+            P0 = s_at(rb[:, :, None], rb[:, None, :])  # (m, dg, dg): block (row j1, col j2)
             if dg:
                 # the neighbouring unknowns of each node, in order: (m, k), and for each the
                 # position of its neighbour in the list and its offset in that node
-                nd = dof[nb]  # (m, dg)
                 first = np.cumsum(nd, axis=1) - nd
                 jt = np.zeros((m, k), np.int64)
                 np.put_along_axis(jt, first, 1, axis=1)
@@ -296,29 +313,41 @@ class SchurSolver(LinearSolver):
                 un = np.take_along_axis(nb, jt, axis=1)  # node of each row
                 rows = off[un] + loc  # (m, k) unknowns
                 bidx = at(rows[:, :, None], ecols[:, None, :])  # B[t, a] = H[row_t, col_a]
-                rb = rnode[nb]
-                P0 = s_at(rb[:, :, None], rb[:, None, :])  # (m, dg, dg): block (row j1, col j2)
-                if np.all(nd == nd[0, 0]):  # neighbours of one size: by broadcasting
+                if self._elim is None and np.all(nd == nd[0, 0]):  # one size: broadcasting
                     dl = int(nd[0, 0])
                     la = np.arange(dl)
                     acl = collen[rb][:, :, None] * la  # (m, dg, dl): a2 * collen
-                    dest = (P0[:, :, None, :, None] + la[:, None, None]
-                            + acl[:, None, None, :, :]).reshape(m, k, k)
-                else:
+                    dests.append((P0[:, :, None, :, None] + la[:, None, None]
+                                  + acl[:, None, None, :, :]).ravel())
+                elif self._elim is None:
                     ii = np.arange(m)[:, None, None]
                     j1, j2 = jt[:, :, None], jt[:, None, :]
                     cl = collen[rnode[un]]  # (m, k)
-                    dest = P0[ii, j1, j2] + loc[:, None, :] * cl[:, None, :] + loc[:, :, None]
-                dests.append(dest.ravel())
+                    dests.append((P0[ii, j1, j2] + loc[:, None, :] * cl[:, None, :]
+                                  + loc[:, :, None]).ravel())
                 rr = r_of[rows]
                 rowsall.append(rr.ravel())
             else:
                 bidx = np.zeros((m, 0, d), np.int64)
                 rr = np.zeros((m, 0), np.int64)
             at_rows.append(total)
-            groups.append(_Group(ecols, cidx, bidx, rr, (total, total + m * k * k)))
-            total += m * k * k
+            span = (0, 0) if self._elim is not None else (total, total + m * k * k)
+            groups.append(_Group(ecols, cidx, bidx, rr, span, P0, nd,
+                                 np.ascontiguousarray(collen[rb])))
+            total += span[1] - span[0]
         self._groups = groups
+        if self._elim is not None:
+            # the compiled loop writes S's upper block triangle only: the positions of the
+            # lower blocks' entries and of their transposes, copied after it
+            lb = np.flatnonzero(bu > bv)
+            du, dv = rdof[bu[lb]], rdof[bv[lb]]
+            cnt = du * dv
+            rep = np.repeat(np.arange(lb.size), cnt)
+            within = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            bb, aa = within // du[rep], within % du[rep]
+            u, v = bu[lb][rep], bv[lb][rep]
+            self._low = pos0[lb][rep] + bb * collen[v] + aa
+            self._up = s_at(v, u) + aa * collen[u] + bb
         # int64: bincount converts anything else to it, a copy per factorisation
         self._dest = np.concatenate(dests) if dests else np.zeros(0, np.int64)
         self._w = np.empty(total)  # the products V_e^T V_e of every group
@@ -372,9 +401,12 @@ class SchurSolver(LinearSolver):
         S = np.zeros(self._s_nnz)
         S[self._a_dst] = dz[self._a_src]
         self._li: list[np.ndarray] = []
-        self._vt: list[tuple[np.ndarray, np.ndarray] | None] = []
+        self._vt: list[tuple[np.ndarray, np.ndarray | None] | None] = []
         w = self._w
         for g in self._groups:
+            if self._elim is not None:
+                self._form_compiled(g, data, S)
+                continue
             C = dz[g.cidx]
             try:
                 L = np.linalg.cholesky(C)
@@ -402,7 +434,9 @@ class SchurSolver(LinearSolver):
                 self._vt.append((V, VT))
             else:
                 self._vt.append(None)
-        if self._dest.size:
+        if self._elim is not None:
+            S[self._low] = S[self._up]
+        elif self._dest.size:
             S -= np.bincount(self._dest, weights=w, minlength=self._s_nnz)
         assert self.reduced_solver is not None
         try:
@@ -413,6 +447,20 @@ class SchurSolver(LinearSolver):
                                                      f"unknown {u} ") if u is not None
                                       else str(e), unknown=u) from None
         self._factored = True
+
+    def _form_compiled(self, g: _Group, data: np.ndarray, S: np.ndarray) -> None:
+        """Group ``g``'s part of :meth:`factorize` by the compiled loop (``_normal.form``)."""
+        m, d = g.cols.shape
+        k = g.rows.shape[1]
+        Li, V, piv = np.empty((m, d, d)), np.empty((m, k, d)), np.empty((m, d))
+        bad = self._elim.form(self._dz, g.cidx, g.bidx, g.p0, g.nd, g.cl, S, Li, V, piv)
+        if bad >= 0:
+            raise SingularSystemError(
+                "the linear system is singular or not positive definite: the block of an "
+                "eliminated variable is not positive definite", unknown=int(g.cols[bad, 0]))
+        self._check_pivots(data, piv.ravel(), g.cols.ravel())
+        self._li.append(Li)
+        self._vt.append((V, None))  # V^T: formed by solve only for several right-hand sides
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """Solve ``H x = b`` with the last factorisation: the reduced right-hand side
@@ -455,6 +503,8 @@ class SchurSolver(LinearSolver):
                                       "one failed)")
         B = b.reshape(self.n, -1)
         j = B.shape[1]
+        if self._elim is not None and j == 1:
+            return self._solve_compiled(b)
         ys, ts = [], []
         for g, Li, VT in zip(self._groups, self._li, self._vt, strict=True):
             y = Li @ B[g.cols]  # (m, d, j) = L^-1 b_e
@@ -470,12 +520,58 @@ class SchurSolver(LinearSolver):
         x = np.empty((self.n, j))
         x[self._r_unk] = xr
         for g, Li, VT, y in zip(self._groups, self._li, self._vt, ys, strict=True):
-            z = y if VT is None else y - VT[1] @ xr[g.rows]  # L^-1 (b_e - B^T x_r)
+            if VT is not None:
+                Vt = VT[1] if VT[1] is not None else np.ascontiguousarray(np.swapaxes(VT[0], 1, 2))
+            z = y if VT is None else y - Vt @ xr[g.rows]  # L^-1 (b_e - B^T x_r)
             x[g.cols] = np.swapaxes(Li, 1, 2) @ z
         if not np.all(np.isfinite(x)):
             raise SingularSystemError("the linear system is singular (the solution is not "
                                       "finite)")
         return x[:, 0] if b.ndim == 1 else x
+
+    def _solve_compiled(self, b: np.ndarray) -> np.ndarray:
+        """:meth:`solve` for one right-hand side by the compiled loops (``_normal.rhs`` and
+        ``_normal.back``)."""
+        B = b.reshape(self.n)
+        rhs = B[self._r_unk]
+        ys = []
+        for g, Li, VT in zip(self._groups, self._li, self._vt, strict=True):
+            assert VT is not None
+            y = np.empty(g.cols.shape)
+            self._elim.rhs(Li, VT[0], g.rows, B[g.cols], y, rhs)
+            ys.append(y)
+        assert self.reduced_solver is not None
+        xr = np.ascontiguousarray(self.reduced_solver.solve(rhs), dtype=np.float64).reshape(-1)
+        x = np.empty(self.n)
+        x[self._r_unk] = xr
+        for g, Li, VT, y in zip(self._groups, self._li, self._vt, ys, strict=True):
+            assert VT is not None
+            xe = np.empty(g.cols.shape)
+            self._elim.back(Li, VT[0], g.rows, y, xr, xe)
+            x[g.cols] = xe
+        if not np.all(np.isfinite(x)):
+            raise SingularSystemError("the linear system is singular (the solution is not "
+                                      "finite)")
+        return x.reshape(b.shape)
+
+
+#: :func:`_unique_keys` marks keys in a dense table up to this many possible keys (bytes)
+DENSE_KEYS = 1 << 26
+#: :meth:`SchurSolver.analyse` looks the reduced blocks up in a dense table of their positions
+#: up to this many possible blocks (8 bytes each), by binary search above
+DENSE_TABLE = 1 << 23
+
+
+def _unique_keys(keys: list[np.ndarray], size: int) -> np.ndarray:
+    """The sorted distinct values of ``keys`` (in ``[0, size)``): by marking a table of
+    ``size`` flags when it is at most :data:`DENSE_KEYS` (linear time; a sort of the tens of
+    millions of neighbour pairs of a street scene takes seconds), else by ``numpy.unique``."""
+    if size <= DENSE_KEYS:
+        seen = np.zeros(size, dtype=bool)
+        for k in keys:
+            seen[k] = True
+        return np.flatnonzero(seen)
+    return np.unique(np.concatenate(keys))
 
 
 def _block_csc(bu: np.ndarray, bv: np.ndarray, dof: np.ndarray, off: np.ndarray
