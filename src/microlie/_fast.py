@@ -29,8 +29,8 @@ _modules: dict[str, Any] = {}
 
 def compiled(name: str) -> Any:
     """The compiled module ``microlie_fast.<name>`` (``"_graph"``, ``"_chol"``, ``"_schur"``,
-    ``"_normal"``, ``"_text"``), or ``None``: ``MICROLIE_FAST=0`` (read on every call), microlie-fast not
-    installed, or a build older than that module."""
+    ``"_normal"``, ``"_text"``), or ``None``: ``MICROLIE_FAST=0`` (read on every call),
+    microlie-fast not installed, or a build older than that module."""
     if os.environ.get("MICROLIE_FAST", "1").strip() == "0":
         return None
     if name not in _modules:
