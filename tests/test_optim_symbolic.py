@@ -279,9 +279,10 @@ def test_a_cancelling_factor_keeps_its_symbolic_entries(compiled):
 
 @pytest.mark.parametrize("bs", [1, 2, 3, 6])
 def test_block_assembly_map_is_the_entrywise_one(bs, monkeypatch):
-    """The assembly map of a pattern of dense blocks, found once per block, equals the one
-    looked up entry by entry (the path of patterns whose blocks are not dense)."""
-    real, taken = ch._dense_amap, []
+    """The assembly map of a pattern of dense blocks, found once per block (and the order
+    from its block pattern), equals the one looked up entry by entry from the scalar pattern's
+    block graph (the path of patterns whose blocks are not dense)."""
+    real, taken = ch._blocks, []
 
     def spy(*a):
         taken.append(real(*a))
@@ -295,12 +296,12 @@ def test_block_assembly_map_is_the_entrywise_one(bs, monkeypatch):
         H = sp.csc_matrix(_matrix(adj, bs, rng) + np.kron(np.eye(nb), np.full((bs, bs), 0.05)))
         H.sort_indices()
         with monkeypatch.context() as mp:
-            mp.setattr(ch, "_dense_amap", spy)
+            mp.setattr(ch, "_blocks", spy)
             fast = ch.SupernodalSolver(compiled=False)
             fast.analyse(H.indptr, H.indices, H.shape[0], bs)
         assert taken[-1] is not None  # the pattern is block-dense: the block path ran
         with monkeypatch.context() as mp:
-            mp.setattr(ch, "_dense_amap", lambda *a: None)
+            mp.setattr(ch, "_blocks", lambda *a: None)
             slow = ch.SupernodalSolver(compiled=False)
             slow.analyse(H.indptr, H.indices, H.shape[0], bs)
         np.testing.assert_array_equal(fast.amap, slow.amap)
