@@ -15,7 +15,8 @@ the code at 1bd9510 unpacked with ``git archive``), interleaved with this one, `
 times below 1e6 poses, each figure the smallest; ``--fast 0`` runs without the compiled extra::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/symbolic.py scale \\
-        --sizes 1000 10000 100000 1000000 [--dim 3] [--fast 0] [--old SRC --old-max N]
+        --sizes 1000 10000 100000 1000000 [--dim 3] [--fast 0] [--old SRC --old-max N] \\
+        [--graphs sphere2500 parking-garage]
 
 ``flops``: the factorisation flops ``sum(counts**2)`` of the block factor under minimum degree
 and under other orderings given as code bases (``--nd SRC``: the nested dissection of the code
@@ -108,8 +109,14 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
-def _graph(n: int, dim: int):
-    """The factor graph of :func:`synthetic_pose_graph` with the first pose fixed."""
+def _graph(n: int | str, dim: int):
+    """The factor graph of :func:`synthetic_pose_graph` (or of the shared graph named ``n``)
+    with the first pose fixed."""
+    if isinstance(n, str):
+        from microlie.optim.io.g2o import read_g2o
+
+        g, _ = read_g2o(DATA / GRAPHS[n]).to_factor_graph(gauge="fix")
+        return g
     g, _ = synthetic_pose_graph(n, dim).to_factor_graph(gauge="fix")
     return g
 
@@ -119,7 +126,7 @@ def _problem(n: int, dim: int = 2):
     return _graph(n, dim).problem()
 
 
-def _child(n: int, dim: int) -> None:
+def _child(n: int | str, dim: int) -> None:
     """Run in the subprocess: print one JSON line. The setup (``g.problem()``: pattern,
     compiled plans or scatter map; then the supernodal solver's analysis: ordering, symbolic
     factor, its maps) is timed and the process's peak resident memory read before and after
@@ -150,23 +157,25 @@ def _child(n: int, dim: int) -> None:
                       "iteration": res.time_s / max(len(res.history), 1)}))
 
 
-def _run(src: str, n: int, dim: int, fast: str) -> dict:
+def _run(src: str, n: int | str, dim: int, fast: str) -> dict:
     env = dict(os.environ, PYTHONPATH=src, MICROLIE_FAST=fast)
     r = subprocess.run([sys.executable, __file__, "_child", str(n), str(dim)],
                        env=env, capture_output=True, text=True, check=True)
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def scale(sizes: list[int], dim: int, old: str | None, old_max: int, fast: str,
+def scale(sizes: list[int | str], dim: int, old: str | None, old_max: int, fast: str,
           repeat: int) -> None:
     new = str(Path(__file__).resolve().parents[1] / "src")
     print("| poses | code | problem() s | analysis s | setup s | LM iteration s | "
           "setup / iteration | peak RSS MB: setup (before) / solve | supernodes |")
     print("|---|---|---|---|---|---|---|---|---|")
     for n in sizes:
-        runs = [("new", new)] + ([("old", old)] if old and n <= old_max else [])
+        big = isinstance(n, int) and n >= 1_000_000
+        runs = [("new", new)] + ([("old", old)] if old and (
+            isinstance(n, str) or n <= old_max) else [])
         res: dict[str, dict] = {}
-        for _ in range(repeat if n < 1_000_000 else 1):  # interleaved; the fastest of each
+        for _ in range(1 if big else repeat):  # interleaved; the fastest of each
             for name, src in runs:
                 r = _run(src, n, dim, fast)
                 res[name] = r if name not in res else {
@@ -223,12 +232,15 @@ def flops(nd_src: str | None) -> None:
 
 def main() -> None:
     if sys.argv[1:2] == ["_child"]:
-        _child(int(sys.argv[2]), int(sys.argv[3]))
+        a = sys.argv[2]
+        _child(a if a in GRAPHS else int(a), int(sys.argv[3]))
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("scale")
     s.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000])
+    s.add_argument("--graphs", nargs="*", default=[], choices=list(GRAPHS),
+                   help="shared pose graphs to time after the synthetic sizes")
     s.add_argument("--old", help="src folder of the code to compare with")
     s.add_argument("--old-max", type=int, default=100000, help="largest size for --old")
     s.add_argument("--dim", type=int, choices=(2, 3), default=2, help="2-D (SE2) or 3-D (SE3)")
@@ -240,7 +252,8 @@ def main() -> None:
     f.add_argument("--nd", help="src folder of a code base with ordering.nested_dissection")
     args = ap.parse_args()
     if args.cmd == "scale":
-        scale(args.sizes, args.dim, args.old, args.old_max, args.fast, args.repeat)
+        scale([*args.sizes, *args.graphs], args.dim, args.old, args.old_max, args.fast,
+              args.repeat)
     else:
         flops(args.nd)
 

@@ -279,9 +279,10 @@ def test_a_cancelling_factor_keeps_its_symbolic_entries(compiled):
 
 @pytest.mark.parametrize("bs", [1, 2, 3, 6])
 def test_block_assembly_map_is_the_entrywise_one(bs, monkeypatch):
-    """The assembly map of a pattern of dense blocks, found once per block, equals the one
-    looked up entry by entry (the path of patterns whose blocks are not dense)."""
-    real, taken = ch._dense_amap, []
+    """The assembly map of a pattern of dense blocks, found once per block (and the order
+    from its block pattern), equals the one looked up entry by entry from the scalar pattern's
+    block graph (the path of patterns whose blocks are not dense)."""
+    real, taken = ch._blocks, []
 
     def spy(*a):
         taken.append(real(*a))
@@ -295,12 +296,33 @@ def test_block_assembly_map_is_the_entrywise_one(bs, monkeypatch):
         H = sp.csc_matrix(_matrix(adj, bs, rng) + np.kron(np.eye(nb), np.full((bs, bs), 0.05)))
         H.sort_indices()
         with monkeypatch.context() as mp:
-            mp.setattr(ch, "_dense_amap", spy)
+            mp.setattr(ch, "_blocks", spy)
             fast = ch.SupernodalSolver(compiled=False)
             fast.analyse(H.indptr, H.indices, H.shape[0], bs)
         assert taken[-1] is not None  # the pattern is block-dense: the block path ran
         with monkeypatch.context() as mp:
-            mp.setattr(ch, "_dense_amap", lambda *a: None)
+            mp.setattr(ch, "_blocks", lambda *a: None)
             slow = ch.SupernodalSolver(compiled=False)
             slow.analyse(H.indptr, H.indices, H.shape[0], bs)
         np.testing.assert_array_equal(fast.amap, slow.amap)
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+def test_blocks_that_are_not_dense_go_entry_by_entry(compiled):
+    """A pattern whose blocks are not all dense (here: one off-diagonal block with a single
+    entry, and one scalar column of a block column holding a row its twin lacks) is not read
+    as blocks, and the factor still solves the system (against a dense solve)."""
+    rng = np.random.default_rng(3)
+    bs, nb = 2, 6
+    A = np.kron(np.eye(nb), np.ones((bs, bs))) * 0.1
+    A[0, 5] = A[5, 0] = 0.05  # block (0, 2): one entry of four
+    A[7, 10] = A[10, 7] = 0.03  # block (3, 5): one entry; columns 6 and 7 differ
+    A += np.diag(rng.uniform(2.0, 3.0, nb * bs))
+    H = sp.csc_matrix(A)
+    H.sort_indices()
+    assert ch._blocks(H.indptr, H.indices, bs) is None
+    s = ch.SupernodalSolver(compiled=compiled)
+    s.analyse(H.indptr, H.indices, nb * bs, bs)
+    s.factorize(H.data)
+    b = rng.standard_normal(nb * bs)
+    np.testing.assert_allclose(s.solve(b), np.linalg.solve(A, b), rtol=1e-12, atol=1e-12)

@@ -28,6 +28,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from ..._fast import compiled as compiled_module
 from .base import LinearSolver, SingularSystemError
@@ -86,7 +87,13 @@ class SupernodalSolver(LinearSolver):
         nb = n // bs
         # elimination tree, postorder (supernodes contiguous) and column counts of the block
         # graph: from the pattern alone (ordering.symbolic)
-        sym = fill_order(graph(indptr, indices, n, bs), self.ordering)
+        blocks = _blocks(indptr, indices, bs)
+        if blocks is None:
+            adj = graph(indptr, indices, n, bs)
+        else:  # one entry per block
+            adj = sp.csr_matrix((np.ones(blocks.col.size), (blocks.row, blocks.col)),
+                                shape=(nb, nb))
+        sym = fill_order(adj, self.ordering)
         parent, count = sym.parent, sym.counts
         nchild = np.bincount(parent[parent >= 0], minlength=nb)
         j = np.arange(1, nb)
@@ -94,12 +101,15 @@ class SupernodalSolver(LinearSolver):
         sn_start = np.r_[0, j[~cont]].astype(np.int64)
         bstart = _amalgamate(sn_start, count, parent, nb)
         self.sperm = (sym.perm[:, None] * bs + np.arange(bs)).ravel()  # scalar: new -> old
-        self._symbolic(bstart, _structure(bstart, parent, count, sym.lower), n, nb, bs)
+        self._symbolic(bstart, _structure(bstart, parent, count, sym.lower), n, nb, bs,
+                       blocks)
         self._numpy_plan = None if self._c is not None else NumpyLoop(self)
 
-    def _symbolic(self, bstart: np.ndarray, key: np.ndarray, n: int, nb: int, bs: int) -> None:
+    def _symbolic(self, bstart: np.ndarray, key: np.ndarray, n: int, nb: int, bs: int,
+                  blocks: _Blocks | None) -> None:
         """Panels, row structures, the assembly map and the update pairs (vectorised) from the
-        block row structures ``key = s * nb + row`` (sorted) of the supernodes."""
+        block row structures ``key = s * nb + row`` (sorted) of the supernodes (and the
+        pattern's blocks, when it is made of dense blocks)."""
         ns = bstart.size
         bend = np.r_[bstart[1:], nb]
         sn_of_b = np.repeat(np.arange(ns), bend - bstart)
@@ -123,9 +133,10 @@ class SupernodalSolver(LinearSolver):
         # slot nx for the strict upper triangle
         inv_b = np.empty(nb, np.int64)
         inv_b[self.sperm[::bs] // bs] = np.arange(nb)
-        amap = _dense_amap(self.indptr, self.indices, bs, inv_b, sn_of_b, key, brptr, px, c0,
-                           m, self.nx)
-        if amap is None:  # blocks that are not dense: entry by entry
+        if blocks is not None:
+            amap = _dense_amap(blocks, bs, nb, inv_b, sn_of_b, key, brptr, px, c0, m,
+                               self.nx)
+        else:  # blocks that are not dense: entry by entry
             inv_s = np.empty(n, np.int64)
             inv_s[self.sperm] = np.arange(n)
             cols_old = np.repeat(np.arange(n), np.diff(self.indptr))
@@ -249,56 +260,73 @@ class SupernodalSolver(LinearSolver):
         return x[:, 0] if vec else x
 
 
-def _dense_amap(indptr: np.ndarray, indices: np.ndarray, bs: int, inv_b: np.ndarray,
-                sn_of_b: np.ndarray, key: np.ndarray, brptr: np.ndarray, px: np.ndarray,
-                c0: np.ndarray, m: np.ndarray, nx: int) -> np.ndarray | None:
-    """The assembly map of a pattern made of dense ``bs x bs`` blocks (``None`` otherwise),
-    from one lookup per block: each scalar column of a block column holds the rows of its
-    first column, and an entry's place is its first-column twin's plus ``cc * m`` (``cc`` its
-    column in the block)."""
+class _Blocks:
+    """The pattern of a matrix made of dense ``bs x bs`` blocks (from :func:`_blocks`). The
+    scalar CSC's entries come in groups of ``bs`` (the rows of one block in one scalar
+    column), group ``g`` holding rows ``bs * row[block[g]] + (0..bs-1)`` of column ``bs *
+    col[block[g]] + cc[g]``; block ``b`` is in block column ``col[b]``, block row ``row[b]``."""
+
+    def __init__(self, col: np.ndarray, row: np.ndarray, block: np.ndarray,
+                 cc: np.ndarray) -> None:
+        self.col, self.row, self.block, self.cc = col, row, block, cc
+
+
+def _blocks(indptr: np.ndarray, indices: np.ndarray, bs: int) -> _Blocks | None:
+    """The block pattern of a scalar CSC pattern made of dense ``bs x bs`` blocks (``None``
+    when it is not: then the analysis works entry by entry)."""
     n = indptr.size - 1
+    if bs < 1 or n % bs:
+        return None
     nb = n // bs
-    lens = np.diff(indptr).reshape(nb, bs)
+    ip = np.asarray(indptr, dtype=np.int64)
+    lens = np.diff(ip).reshape(nb, bs)
     l0 = lens[:, 0]
     if not (lens == l0[:, None]).all() or (l0 % bs).any():
         return None
-    cum0 = np.r_[0, np.cumsum(l0)]
-    first = indptr[:-1:bs]
-    # the first columns' entries (compact numbering f) and their rows
-    f_abs = np.repeat(first - cum0[:-1], l0) + np.arange(cum0[-1])
-    rf = indices[f_abs].astype(np.int64)
-    rr = rf % bs
-    if not np.array_equal(rr, np.arange(rf.size) % bs):  # l0 % bs == 0: groups align
+    # every column's entries come in runs of bs rows, bs-aligned
+    ix = np.asarray(indices).reshape(-1, bs)
+    r = ix[:, 0]
+    if (r % bs).any() or not (ix == r[:, None] + np.arange(bs, dtype=ix.dtype)).all():
         return None
-    rb = rf // bs
-    if rb.size and not (rb.reshape(-1, bs) == rb[::bs, None]).all():
+    G = r // bs  # each group's block row
+    nblk = l0 // bs
+    ng = G.size
+    gcol = np.repeat(np.arange(nb, dtype=np.int64), bs * nblk)
+    gnb = nblk[gcol]
+    o = np.arange(ng, dtype=np.int64) - np.repeat(ip[:-1:bs] // bs, bs * nblk)
+    cc, k = np.divmod(o, gnb)
+    # the scalar columns of a block column hold the same block rows
+    if not np.array_equal(G[np.arange(ng) - cc * gnb], G):
         return None
-    # every entry's first-column twin
-    tc = np.arange(indices.size) - np.repeat(indptr[:-1] - np.repeat(cum0[:-1], bs),
-                                              lens.ravel())
-    if not np.array_equal(rf[tc], indices):
-        return None
-    cold = np.repeat(np.arange(nb), l0)  # block column (old numbering)
-    Cb, Rb = inv_b[cold], inv_b[rb]
+    first = cc == 0
+    block = (np.cumsum(nblk) - nblk)[gcol] + k
+    return _Blocks(gcol[first], G[first].astype(np.int64), block, cc)
+
+
+def _dense_amap(blocks: _Blocks, bs: int, nb: int, inv_b: np.ndarray, sn_of_b: np.ndarray,
+                key: np.ndarray, brptr: np.ndarray, px: np.ndarray, c0: np.ndarray,
+                m: np.ndarray, nx: int) -> np.ndarray:
+    """The assembly map of a pattern of dense blocks, from one lookup per block: entry
+    ``(rr, cc)`` of a block of the lower triangle goes to its block's place in its panel plus
+    ``cc * m + rr``; the upper triangle (blocks above the diagonal, and ``rr < cc`` in the
+    diagonal blocks) to the dump slot ``nx``."""
+    Cb, Rb = inv_b[blocks.col], inv_b[blocks.row]
     low = Rb >= Cb
-    s = sn_of_b[Cb[low]]
-    q = s * nb + Rb[low]
+    s = sn_of_b[Cb]
+    q = s[low] * nb + Rb[low]
     bpos = np.searchsorted(key, q)
     if bpos.size and not np.array_equal(key[np.minimum(bpos, key.size - 1)], q):
         raise AssertionError("supernodal analysis: an entry outside its supernode")
-    base = np.full(rf.size, -(1 << 62), np.int64)  # upper blocks: negative, then the dump
-    base[low] = px[s] + (Cb[low] * bs - c0[s]) * m[s] + (bpos - brptr[s]) * bs + rr[low]
-    cc = np.tile(np.arange(bs), nb)
-    amap = base[tc] + np.repeat(cc * np.repeat(m[sn_of_b[inv_b]], bs), lens.ravel())
-    amap[amap < 0] = nx
-    # in the diagonal blocks, row rr < column cc is the strict upper triangle
-    d = np.flatnonzero(Rb == Cb)[::bs]  # first-column entry of each diagonal block's row 0
+    sl = s[low]
+    base = np.zeros(Cb.size, np.int64)
+    base[low] = px[sl] + (Cb[low] * bs - c0[sl]) * m[sl] + (bpos - brptr[sl]) * bs
+    b, cc = blocks.block, blocks.cc
+    amap = (base[b] + cc * m[s][b])[:, None] + np.arange(bs, dtype=np.int64)
+    amap[~low[b]] = nx
+    d = np.flatnonzero((Rb == Cb)[b])  # groups of the diagonal blocks: rows rr < cc dumped
     if d.size and bs > 1:
-        C = cold[d]
-        r_, c_ = np.triu_indices(bs, 1)
-        e = (indptr[C[:, None] * bs + c_] + (d - cum0[C])[:, None] + r_).ravel()
-        amap[e] = nx
-    return amap
+        amap[d] = np.where(np.arange(bs) < cc[d, None], nx, amap[d])
+    return amap.ravel()
 
 
 def _structure(bstart: np.ndarray, parent: np.ndarray, count: np.ndarray,

@@ -261,31 +261,30 @@ class NumpyLoop:
         u = self.u
         ps = np.repeat(np.arange(ns), np.diff(s.pptr))
         a, b = s.pa, s.pb
-        wa = (u[ps] - a) // bs
-        cnt = (b - a) * wa
-        pid = np.repeat(np.arange(ps.size), cnt)
-        e = np.arange(int(cnt.sum())) - np.repeat(np.r_[0, np.cumsum(cnt)][:-1], cnt)
-        # each temporary is dropped as soon as it is used: this plan is the peak of memory of
-        # a default-install solve (sphere2500: 109 -> 57 MB above the problem's)
-        q, r = np.divmod(e, wa[pid])
-        del e
-        jj = a[pid] + q
-        del q
-        ii = r * bs
-        del r
-        row = a[pid] + ii
-        keep = row // bs >= jj // bs
-        pid, jj, ii, row = pid[keep], jj[keep], ii[keep], row[keep]
-        del keep
-        sp_, t = ps[pid], s.pt[pid]
-        src = (wpos[sp_] + jj * self.U[sp_] + row) // bs
-        del row
-        col = s.rows[s.rptr[sp_] + s.k[sp_] + jj] - s.c0[t]
-        del jj
-        dst = self._at(t, col, s.rel[s.relptr[pid] + ii]) // bs
-        del t, col, ii, pid
-        el = lev[sp_]
-        del sp_
+        # every quantity is a multiple of bs (shapes, offsets, rows), so each is computed in
+        # runs of bs: per pair and column jj of W in [a, b) first, then per run r of rows
+        # a + r bs of that column in the lower block triangle (r >= (jj - a) // bs)
+        ncol = b - a
+        pc = np.repeat(np.arange(ps.size), ncol)  # (pair, column)
+        jj = a[pc] + np.arange(int(ncol.sum())) - np.repeat(np.cumsum(ncol) - ncol, ncol)
+        sc, tc = ps[pc], s.pt[pc]
+        r0 = (jj - a[pc]) // bs
+        nrun = (u[sc] - a[pc]) // bs - r0
+        src1 = (wpos[sc] + jj * self.U[sc] + a[pc]) // bs
+        col = s.rows[s.rptr[sc] + s.k[sc] + jj] - s.c0[tc]
+        dia1 = (self.dpos[tc] + col * self.K[tc]) // bs
+        bel1 = (self.bpos[tc] + col * self.U[tc] - self.k[tc]) // bs
+        kt1 = self.k[tc] // bs
+        rel1 = s.relptr[pc] // bs + r0  # the first run's place in the block rel
+        el1 = lev[sc]
+        del sc, tc, col, jj
+        x = np.repeat(np.arange(pc.size), nrun)
+        r = np.arange(int(nrun.sum())) - np.repeat(np.cumsum(nrun) - nrun, nrun)
+        src = src1[x] + r0[x] + r
+        rowb = s.rel[::bs][rel1[x] + r] // bs
+        dst = np.where(rowb < kt1[x], dia1[x], bel1[x]) + rowb
+        el = el1[x]
+        del x, r, rowb
         # by level, then destination (one stable sort of one key: 2.7x faster than lexsort)
         so = np.argsort(el * (int(dst.max(initial=0)) + 1) + dst, kind="stable")
         el, src, dst = el[so], src[so], dst[so]
