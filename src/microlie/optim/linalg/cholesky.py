@@ -209,7 +209,12 @@ class SupernodalSolver(LinearSolver):
                 raise SingularSystemError(
                     NOT_PD, unknown=None if j is None else int(self.sperm[self.c0[j]])) from None
         else:
-            Lx = np.empty(self.nx + self.bs)  # the panels, then a dump block (zeroed in C)
+            # the panels, then a dump block (zeroed in C); the last factor's buffer is reused
+            # (a failed factorisation leaves none to solve with anyway): a fresh one would
+            # hold two factors at the peak
+            Lx = self.__dict__.get("Lx")
+            if Lx is None or Lx.size != self.nx + self.bs:
+                Lx = np.empty(self.nx + self.bs)
             info = self._c.factor(Lx, data, self.amap, self.c0, self.k, self.m, self.px,
                                   self.rows, self.rptr, self.pptr, self.pt, self.pa, self.pb,
                                   self.relptr, self.rel, self.wsize, self.bs)
