@@ -22,25 +22,7 @@
 #include <numpy/arrayobject.h>
 #include <string.h>
 
-typedef npy_intp ix;
-
-/* arg as a C-contiguous array of type t with nd axes; dims[k] >= 0 must match */
-static PyArrayObject *arg(PyObject *o, const char *name, int t, int nd, const ix *dims) {
-    if (!PyArray_Check(o) || PyArray_TYPE((PyArrayObject *)o) != t ||
-        PyArray_NDIM((PyArrayObject *)o) != nd || !PyArray_IS_C_CONTIGUOUS((PyArrayObject *)o)) {
-        PyErr_Format(PyExc_ValueError, "%s must be a C-contiguous %s array with %d axes",
-                     name, t == NPY_DOUBLE ? "float64" : t == NPY_BOOL ? "bool" : "intp", nd);
-        return NULL;
-    }
-    PyArrayObject *a = (PyArrayObject *)o;
-    for (int k = 0; k < nd; k++)
-        if (dims[k] >= 0 && PyArray_DIM(a, k) != dims[k]) {
-            PyErr_Format(PyExc_ValueError, "%s has length %zd on axis %d, expected %zd",
-                         name, (Py_ssize_t)PyArray_DIM(a, k), k, (Py_ssize_t)dims[k]);
-            return NULL;
-        }
-    return a;
-}
+#include "array_args.h"
 
 /* the d x d block of S at (r0, c0) -= A^T B (A, B: 3 x d, row-major), or -= (A^T B)^T when tr */
 static inline __attribute__((always_inline)) void sub_block(double *S, ix N, ix r0, ix c0,
