@@ -367,6 +367,10 @@ def _tiny():
 
 def test_registry_names_and_instances():
     assert set(STRATEGIES) == {"lm", "gn", "dogleg", "trust-region"}
+    # the command line lists them literally (building its parser imports no solver code)
+    from microlie.optim.command import SOLVERS
+
+    assert SOLVERS == tuple(STRATEGIES)
     for name, cls in STRATEGIES.items():
         assert issubclass(cls, Strategy) and cls.name == name
         assert isinstance(make_strategy(name), cls)

@@ -108,18 +108,16 @@ class GraphFormat:
 
 _POSE_GRAPH = "microlie.optim.command:run_pose_graph"
 FORMATS: dict[str, GraphFormat] = {f.name: f for f in (
-    GraphFormat("toro", "pose_graph", "microlie.optim.io.toro:read_toro",
-                "microlie.optim.io.toro:write_toro", _POSE_GRAPH, (".graph", ".toro"),
-                tags=("VERTEX2", "EDGE2", "VERTEX3", "EDGE3")),
     GraphFormat("g2o", "pose_graph", "microlie.optim.io.g2o:read_g2o",
                 "microlie.optim.io.g2o:write_g2o", _POSE_GRAPH, (".g2o",), tags=("FIX",),
                 prefixes=("VERTEX_", "EDGE_")),
+    GraphFormat("toro", "pose_graph", "microlie.optim.io.toro:read_toro",
+                "microlie.optim.io.toro:write_toro", _POSE_GRAPH, (".graph", ".toro"),
+                tags=("VERTEX2", "EDGE2", "VERTEX3", "EDGE3")),
     GraphFormat("bal", "bundle", "microlie.optim.io.bal:read_bal",
                 "microlie.optim.io.bal:write_bal", "microlie.optim.command_bal:run_bal",
                 (".bal",), int_header=3),
 )}
-# the listing order users see (the detection order above tries TORO's exact tags first)
-FORMATS = {name: FORMATS[name] for name in ("g2o", "toro", "bal")}
 
 
 def detect_format(path: str | Path) -> str:
@@ -155,7 +153,7 @@ def detect_format(path: str | Path) -> str:
             toks = line.split()
             if not toks or toks[0].startswith("#"):
                 continue
-            for fmt in sorted(FORMATS.values(), key=lambda g: not g.tags):
+            for fmt in FORMATS.values():  # no first word matches two of them
                 if fmt.matches(toks):
                     return fmt.name
             raise ValueError(f"{path}:{lineno}: cannot tell the file format from {toks[0]!r}; "
