@@ -44,12 +44,6 @@ setup(
             extra_compile_args=flags,
             libraries=libs,
         ),
-        Extension(  # the Schur complement of bundle adjustment (microlie.optim.linalg.schur)
-            "microlie_fast._schur",
-            sources=["src/microlie_fast/_schur.c"],
-            include_dirs=[np.get_include()],
-            extra_compile_args=flags,
-        ),
         Extension(  # the engine's normal equations: core/problem.py, linalg/schur_solver.py
             "microlie_fast._normal",
             sources=["src/microlie_fast/_normal.c"],

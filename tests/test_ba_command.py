@@ -1,4 +1,5 @@
-"""The BAL branch of ``microlie optimize`` (JSON report keys and values, -o, --plot)."""
+"""The BAL branch of ``microlie optimize`` (JSON report keys and values, -o, --plot), run through
+the one engine with its solver and linear-solver words."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from microlie.optim.io.bal import read_bal
 
 
 def _args(path, **kw):
-    base = dict(input=str(path), robust=None, max_iter=100, output=None, plot=None, solver="lm",
+    base = dict(input=str(path), robust=None, max_iter=100, output=None, plot=None, solver=None,
                 linear_solver="auto", json=True)
     base.update(kw)
     return argparse.Namespace(**base)
@@ -46,7 +47,48 @@ def test_robust_report_separates_plain_and_robust_costs():
 
 def test_unsupported_options_rejected():
     src = data_file("bal/dubrovnik-1-1-pre.txt")
-    with pytest.raises(ValueError, match="lm only"):
-        run_bal(_args(src, solver="dogleg"), io.StringIO())
-    with pytest.raises(ValueError, match="linear-solver"):
-        run_bal(_args(src, linear_solver="qdldl"), io.StringIO())
+    # bundle_adjust's own words before issue 20: an error naming the engine's words
+    with pytest.raises(ValueError, match=r"--linear-solver sparse is gone.*use schur"):
+        run_bal(_args(src, linear_solver="sparse"), io.StringIO())
+    with pytest.raises(ValueError, match=r"--linear-solver full is gone.*use cholesky"):
+        run_bal(_args(src, linear_solver="full"), io.StringIO())
+    with pytest.raises(ValueError, match="unknown linear solver 'qr'"):
+        run_bal(_args(src, linear_solver="qr"), io.StringIO())
+    with pytest.raises(ValueError, match="--gauge applies to pose graphs"):
+        run_bal(_args(src, gauge="check"), io.StringIO())
+
+
+def test_engine_words_reach_the_same_optimum():
+    """--solver and --linear-solver take the engine's words: the default (trust-region on the
+    Schur system), the full system, and GTSAM-rule LM end at GTSAM's regression value."""
+    src = data_file("bal/dubrovnik-3-7-pre.txt")
+    ref = run_bal(_args(src, max_iter=200), io.StringIO())
+    assert (ref["solver"], ref["linear_solver"]) == ("trust-region", "schur")
+    full = run_bal(_args(src, max_iter=200, linear_solver="cholesky"), io.StringIO())
+    assert full["linear_solver"] == "cholesky"
+    assert full["iterations"] == ref["iterations"]
+    assert full["final_cost"] == pytest.approx(ref["final_cost"], rel=1e-6, abs=1e-9)
+    lm = run_bal(_args(src, max_iter=200, solver="lm"), io.StringIO())
+    assert lm["solver"] == "lm"
+    for r in (ref, full, lm):
+        assert r["final_cost"] <= 0.0199833 + 1e-5                   # GTSAM regression
+
+
+def test_command_line_defaults_per_format(tmp_path):
+    """Through the parser: BAL defaults to trust-region/schur, pose graphs to lm."""
+    import json
+
+    from microlie.optim.command import register, run
+
+    parser = argparse.ArgumentParser(prog="microlie")
+    register(parser.add_subparsers())
+    src = data_file("bal/dubrovnik-3-7-pre.txt")
+    out = io.StringIO()
+    assert run(parser.parse_args(["optimize", str(src), "--json", "-q"]), out, io.StringIO()) == 0
+    r = json.loads(out.getvalue())
+    assert (r["solver"], r["linear_solver"]) == ("trust-region", "schur")
+    g2o = tmp_path / "tiny.g2o"
+    g2o.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    out = io.StringIO()
+    assert run(parser.parse_args(["optimize", str(g2o), "--json", "-q"]), out, io.StringIO()) == 0
+    assert json.loads(out.getvalue())["solver"] == "lm"

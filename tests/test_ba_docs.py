@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 from conftest import data_file
 
+from microlie.optim.io.bal import read_bal
+
 ROOT = Path(__file__).resolve().parents[1]
 BLOCKS = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "bundle_adjustment.md").read_text(),
                     re.S)
@@ -30,7 +32,9 @@ def test_bal_example(monkeypatch, tmp_path):
     assert lines[0] == "49 7776 31843"
     a, b = map(float, lines[1].split())
     assert a == pytest.approx(850912.46, abs=0.01) and b == pytest.approx(13344.3184, rel=1e-6)
-    assert lines[2] == "32 True"
+    assert lines[2] == "31 True"                  # Ceres' count (the old loop's was 32)
+    back = read_bal(tmp_path / "s.txt")
+    assert back.cost() == pytest.approx(13344.3184, rel=1e-6)   # the written optimum
 
 
 def test_two_view_example():

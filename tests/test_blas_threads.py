@@ -23,8 +23,8 @@ import microlie
 from microlie import SE2
 from microlie.optim import BetweenFactor, Diagonal, FactorGraph, PriorFactor, bundle_adjust
 from microlie.optim.core import graph as graph_module
-from microlie.optim.linalg import schur as schur_module
-from microlie.optim.sfm.bundle import synthetic_scene
+from microlie.optim.linalg.schur_solver import SchurSolver
+from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
 
 
 def _blas_threads() -> dict[str, int]:
@@ -90,13 +90,13 @@ def test_issue19_item13_bad_blas_threads_is_refused(bad):
 
 def test_issue19_item13_bundle_adjust_runs_with_one_blas_thread(monkeypatch):
     seen: list[dict[str, int]] = []
-    inner = schur_module.NormalEquations.solve
+    inner = SchurSolver.factorize
 
-    def solve(self, *args, **kwargs):
+    def factorize(self, *args, **kwargs):
         seen.append(_blas_threads())
         return inner(self, *args, **kwargs)
 
-    monkeypatch.setattr(schur_module.NormalEquations, "solve", solve)
+    monkeypatch.setattr(SchurSolver, "factorize", factorize)
     _, start = synthetic_scene(n_cameras=3, n_points=30, seed=4)
     with threadpool_limits(limits=2, user_api="blas"):
         bundle_adjust(start, fix_cameras=[0], max_iter=3)
@@ -131,21 +131,21 @@ def test_issue19_item13_marginals_run_with_one_blas_thread(monkeypatch):
 
 
 def test_issue19_item13_camera_covariance_runs_with_one_blas_thread(monkeypatch):
+    """BundleGraph.camera_covariance goes through FactorGraph.marginal_covariance: its limit."""
     seen: list[dict[str, int]] = []
-    real = np.linalg.pinv
+    inner = graph_module.FactorGraph._factorized
 
-    def pinv(*args, **kwargs):
+    def factorized(self, *args, **kwargs):
         seen.append(_blas_threads())
-        return real(*args, **kwargs)
+        return inner(self, *args, **kwargs)
 
     _, start = synthetic_scene(n_cameras=3, n_points=30, seed=4)
-    res = bundle_adjust(start, max_iter=3)
-    import microlie.optim.sfm.bundle as bundle_module
-
-    monkeypatch.setattr(bundle_module.np.linalg, "pinv", pinv)
+    bg = bundle_graph(start, fix_cameras=[0], fix_points=[0])
+    res = bg.graph.optimize(solver="trust-region", linear_solver="schur", max_iter=3)
+    monkeypatch.setattr(graph_module.FactorGraph, "_factorized", factorized)
     with threadpool_limits(limits=2, user_api="blas"):
-        res.camera_covariance([1])
-        res.camera_covariance([1], blas_threads=None)
+        bg.camera_covariance(res.values, [1])
+        bg.camera_covariance(res.values, [1], blas_threads=None)
     assert [set(s.values()) for s in seen] == [{1}, {2}]
 
 

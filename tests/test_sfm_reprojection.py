@@ -1,8 +1,9 @@
 """ReprojectionFactor: residuals against independent projection formulas (Ceres'
 SnavelyReprojectionError, OpenCV's radial-tangential pinhole) and BALProblem.residuals on
 problem-49-7776; Jacobians against check_jacobians and a central difference on the 4x4 / 3x3
-matrix exponential, at hard points; a small bundle-adjustment graph reaches bundle_adjust's
-optimum."""
+matrix exponential, at hard points; a small bundle-adjustment graph (SE3 or SO3 x R3 poses, LM
+with GTSAM's rules on the full system) reaches bundle_adjust's optimum (trust region on the Schur
+system)."""
 
 from __future__ import annotations
 
@@ -423,8 +424,9 @@ def test_graph_reaches_bundle_adjust_optimum(model, form, robust):
     assert ref.converged and res.converged
     np.testing.assert_allclose(res.final_robust_cost, ref.final_robust_cost, rtol=1e-9)
     np.testing.assert_allclose(res.final_cost, ref.final_cost, rtol=1e-6)  # not stationary
-    np.testing.assert_allclose(res.values[X], ref.problem.points, rtol=0, atol=1e-6)
-    np.testing.assert_allclose(res.values[K], ref.problem.intrinsics, rtol=1e-5, atol=1e-5)
+    solved = start.with_values(ref.values)
+    np.testing.assert_allclose(res.values[X], solved.points, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(res.values[K], solved.intrinsics, rtol=1e-5, atol=1e-5)
 
 
 # ------------------------------------------------------------ the engine path of bundle_adjust
@@ -439,20 +441,6 @@ def test_engine_reaches_ceres_on_problem_49():
     assert res.final_cost == pytest.approx(13344.3184, rel=1e-6)
     assert res.iterations == 31 and res.converged
     assert bg.problem(res.values).cost() == pytest.approx(res.final_cost, rel=1e-12)
-
-
-@pytest.mark.parametrize("robust", [None, "cauchy:2.0"])
-def test_engine_history_equals_bundle_adjust(robust):
-    from microlie.optim import TrustRegion, bundle_graph
-
-    _, start = synthetic_scene(5, 40, noise=1.0, perturb=0.05, seed=13)
-    kw = dict(fix_cameras=[0], fix_points=[0], fix_intrinsics=[2], robust=robust)
-    ref = bundle_adjust(start, **kw)
-    res = bundle_graph(start, **kw).graph.optimize(solver=TrustRegion(), linear_solver="schur")
-    accepted = [h.cost for h in ref.history if h.accepted]
-    mine = [h.cost for h in res.history if h.accepted]
-    np.testing.assert_allclose(mine, accepted, rtol=1e-9)
-    np.testing.assert_allclose(res.final_robust_cost, ref.final_robust_cost, rtol=1e-10)
 
 
 def test_intrinsics_held_per_component():

@@ -74,7 +74,7 @@ OPTIMIZE_NEVER = ("matplotlib", "torch", "jax", "array_api_compat", "pandas", "q
                   "scipy.spatial", "scipy.interpolate", "scipy.integrate", "scipy.special",
                   "microlie.optim.plot", "microlie.optim.sfm", "microlie.optim.command_bal",
                   "microlie.optim.io.bal", "microlie.optim.io.toro",
-                  "microlie.optim.linalg.schur", "microlie.optim.linalg.schur_solver",
+                  "microlie.optim.linalg.schur_solver",
                   "microlie.optim.core.elimination", "microlie.imu", "microlie.uncertainty",
                   "microlie.calibration", "microlie.data", "microlie.traj.io",
                   "microlie.traj.evaluate", "microlie.traj.metrics", "microlie.traj.plot",

@@ -28,7 +28,7 @@ _modules: dict[str, Any] = {}
 
 
 def compiled(name: str) -> Any:
-    """The compiled module ``microlie_fast.<name>`` (``"_graph"``, ``"_chol"``, ``"_schur"``,
+    """The compiled module ``microlie_fast.<name>`` (``"_graph"``, ``"_chol"``,
     ``"_normal"``, ``"_text"``), or ``None``: ``MICROLIE_FAST=0`` (read on every call),
     microlie-fast not installed, or a build older than that module."""
     if os.environ.get("MICROLIE_FAST", "1").strip() == "0":

@@ -38,8 +38,7 @@ from typing import TYPE_CHECKING, Any
 
 _LAZY = {
     "io.bal": ("BALProblem", "read_bal", "write_bal"),
-    "sfm.bundle": ("BundleGraph", "BundleProblem", "BundleResult", "bundle_adjust", "bundle_graph",
-                   "plot_bundle"),
+    "sfm.bundle": ("BundleGraph", "BundleProblem", "bundle_adjust", "bundle_graph", "plot_bundle"),
     "sfm.camera": ("BALCamera", "PinholeCamera"),
     "sfm.reprojection": ("ReprojectionFactor",),
     "core.factors": ("BetweenFactor", "CustomFactor", "Factor", "JacobianCheck", "PriorFactor",
@@ -111,7 +110,6 @@ if TYPE_CHECKING:
     from .sfm.bundle import (
         BundleGraph,
         BundleProblem,
-        BundleResult,
         bundle_adjust,
         bundle_graph,
         plot_bundle,
@@ -127,7 +125,7 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "Strategy", "LevenbergMarquardt", "GaussNewton", "Dogleg", "TrustRegion",
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
            "available_solvers", "SchurSolver",
-           "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem", "BundleResult",
+           "make_solver", "BALProblem", "read_bal", "write_bal", "BundleProblem",
            "BundleGraph", "bundle_graph", "bundle_adjust", "plot_bundle", "BALCamera",
            "PinholeCamera", "ReprojectionFactor",
            "PoseGraph", "read_g2o",

@@ -2,8 +2,9 @@
 
 ::
 
-    microlie optimize (IN.g2o | --example) [-o OUT.g2o] [--solver lm|gn|dogleg] [--robust huber:1.0]
-                     [--init auto|file|odometry|chordal] [--linear-solver auto|cholesky|...]
+    microlie optimize (IN.g2o | --example) [-o OUT.g2o] [--solver lm|gn|dogleg|trust-region]
+                     [--robust huber:1.0] [--init auto|file|odometry|chordal]
+                     [--linear-solver auto|cholesky|schur|...]
                      [--max-iter N] [--gauge check|fix_first|none] [--plot FILE] [--json]
                      [--format auto|g2o|toro|bal] [--force] [-v | -q] [--blas-threads N]
 
@@ -102,10 +103,10 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         ".graph/.toro for TORO, else the input's format)")
     p.add_argument("--format", "-f", choices=("auto", *FORMATS), default="auto",
                    help="input format (default: detected from the first data line)")
-    p.add_argument("--solver", choices=SOLVERS, default="lm",
-                   help="lm (Levenberg-Marquardt with GTSAM's rules, default), gn "
-                        "(Gauss-Newton), dogleg, trust-region (Levenberg-Marquardt with "
-                        "Ceres' rules)")
+    p.add_argument("--solver", choices=SOLVERS, default=None,
+                   help="lm (Levenberg-Marquardt with GTSAM's rules, the default for pose "
+                        "graphs), gn (Gauss-Newton), dogleg, trust-region (Levenberg-Marquardt "
+                        "with Ceres' rules, the default for BAL)")
     p.add_argument("--robust", metavar="LOSS[:SCALE]", default=None,
                    help="robust loss on every edge: huber, cauchy, tukey, geman-mcclure, dcs, "
                         "barron, optionally with a scale, e.g. huber:1.0")
@@ -113,8 +114,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="initial guess: the file's vertices, the odometry chain, or chordal "
                         "(default auto: the file's vertices, else odometry, else chordal)")
     p.add_argument("--linear-solver", default="auto", metavar="NAME",
-                   help="linear solver, auto (default) or forced: for pose graphs cholesky, "
-                        "scipy, qdldl, pardiso, dense; for BAL dense, sparse, full")
+                   help="linear solver, auto (default; schur for BAL) or forced: cholesky, "
+                        "schur (landmarks eliminated), scipy, qdldl, pardiso, dense")
     p.add_argument("--max-iter", type=_positive_int, default=100, metavar="N",
                    help="maximum number of iterations, at least 1 (default 100)")
     p.add_argument("--gauge", choices=GAUGES, default=None,
@@ -284,6 +285,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     """
     from .init import InitMethod, initialize
 
+    solver = args.solver or "lm"
     t0 = time.perf_counter()
     truth = None
     if getattr(args, "example", False):
@@ -311,7 +313,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     t3 = time.perf_counter()
     problem = (f"{graph.group.__name__} pose graph, {graph.num_vertices} poses, "
                f"{graph.num_edges} edges")
-    print_header(args, err, f"{problem}; {args.solver} (linear solver {args.linear_solver}), "
+    print_header(args, err, f"{problem}; {solver} (linear solver {args.linear_solver}), "
                  f"start {init}, at most {args.max_iter} iterations; read {t1 - t0:.3f} s, "
                  f"init {t2 - t1:.3f} s, build {t3 - t2:.3f} s")
     from .core.problem import GaugeError, NonFiniteError
@@ -319,7 +321,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     gauge = args.gauge or "check"
     try:
         with solver_output_to(err):
-            res = fg.optimize(solver=args.solver, linear_solver=args.linear_solver,
+            res = fg.optimize(solver=solver, linear_solver=args.linear_solver,
                               max_iter=args.max_iter, gauge=gauge,
                               # run() holds --blas-threads
                               verbose=show_iterations(err, args), blas_threads=None)
@@ -347,7 +349,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         "num_edges": graph.num_edges,
         "init": init,
         "robust": args.robust,
-        "solver": args.solver,
+        "solver": solver,
         "linear_solver": res.linear_solver,
         "initial_cost": graph.cost(X0),
         "final_cost": graph.cost(X),

@@ -1,34 +1,24 @@
-"""Bundle adjustment: Levenberg-Marquardt with Ceres' trust-region rules on the Schur system.
+"""Bundle adjustment as a factor graph: the problem type, its graph, and the one-call solve.
 
 Unknowns: per camera a world-to-camera rotation ``R`` (perturbed ``R Exp(dphi)``), a translation
 ``t`` (``t + dt``) and intrinsics ``K`` (``K + dK``), tangent ``(dt, dphi, dK)``; per point a
 3-vector. Cost ``0.5 * sum rho(|r|^2)`` in pixels (``rho(s) = s`` without a robust loss).
 
-The iteration follows Ceres' ``TrustRegionMinimizer`` with ``LevenbergMarquardtStrategy`` so
-that iteration counts compare with Ceres': Jacobi scaling of the columns by
-``s = 1 / (1 + |J_col|)`` fixed at iteration 0 (applied exactly, as the equivalent damping
-``D^2 / s^2`` of the unscaled system, so the Jacobians are never rescaled); damping
-``D^2 = clamp(diag(J^T J), 1e-6, 1e32) / radius`` of the scaled Jacobian (radius starts at
-1e4, diagonal reused after a rejected step); step quality
-``rho = actual / model cost decrease``; accepted when ``rho > 1e-3``, then
-``radius /= max(1/3, 1 - (2 rho - 1)^3)``; rejected: ``radius /= 2, 4, 8, ...``. Stops on
-``|cost change| <= 1e-6 cost`` (the step is then not taken, as in Ceres), a step shorter than
-``1e-8 (|x| + 1e-8)``, a gradient max-norm below ``1e-10``, ``radius < 1e-32``, or
-``max_iter`` tries (accepted plus rejected, Ceres' ``iterations``).
-
-The stops are Ceres', their meaning stricter (``BundleResult.termination``, as
-:class:`~microlie.optim.core.solvers.Result`'s): ``"convergence"`` for the gradient test, and for
-the function and parameter tests and the radius floor when the candidate decreased the cost,
-was the first try from the current point, or the first try's model predicted a decrease
-within ``function_tolerance``; otherwise ``"failure"`` (the steps of a shrinking radius change
-the cost little only because they are short: Ceres reports CONVERGENCE there). ``max_iter``
-is ``"no_convergence"``.
+:func:`bundle_graph` builds the problem as a :class:`~microlie.optim.FactorGraph` (one
+:class:`~microlie.optim.ReprojectionFactor` per observation; add other factors beside them);
+:func:`bundle_adjust` is the convenience that builds it and runs the one engine,
+:meth:`FactorGraph.optimize <microlie.optim.FactorGraph.optimize>`, by default with
+:class:`~microlie.optim.TrustRegion` (Levenberg-Marquardt with Ceres' rules: Jacobi scaling,
+trust radius, Ceres' stopping tests and iteration count) and ``linear_solver="schur"`` (the
+points eliminated). It returns the engine's :class:`~microlie.optim.core.solvers.Result`;
+:meth:`BundleProblem.with_values` turns its values back into a :class:`BundleProblem`.
+Marginal covariances of cameras come from the graph's one marginals path
+(:meth:`BundleGraph.camera_covariance`, :meth:`BundleGraph.marginals`).
 
 The gauge (7 degrees of freedom for BAL: rotation, translation, scale) is left free by default
 (the damping keeps the system definite, as in Ceres); ``fix_cameras=[0]`` holds camera 0 (and
 with it 6 of the 7), ``fix_points`` holds points.
 
->>> import numpy as np
 >>> from microlie.optim.sfm.bundle import bundle_adjust, synthetic_scene
 >>> truth, start = synthetic_scene(n_cameras=3, n_points=40, noise=0.0, seed=1)
 >>> result = bundle_adjust(start, fix_cameras=[0])
@@ -38,8 +28,6 @@ with it 6 of the 7), ``fix_points`` holds points.
 
 from __future__ import annotations
 
-import sys
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -47,14 +35,11 @@ from typing import Any
 import numpy as np
 
 from ..._files import save_figure
-from ..core.threads import with_blas_threads
 from ..io.bal import BALProblem
-from ..linalg.schur import LinearSolverKind, NormalEquations, SchurStructure
 from .camera import BALCamera, CameraModel, camera_model, reproject
 
-__all__ = ["BundleProblem", "BundleResult", "BundleIteration", "BundleGraph", "bundle_adjust",
-           "bundle_graph", "synthetic_scene", "plot_bundle", "rotvec_to_matrix",
-           "matrix_to_rotvec"]
+__all__ = ["BundleProblem", "BundleGraph", "bundle_adjust", "bundle_graph", "synthetic_scene",
+           "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec"]
 
 
 def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
@@ -355,682 +340,51 @@ class BundleProblem:
         r = self.residuals(behind)
         return 0.5 * float(np.sum(r * r))
 
-    def retract(self, dc: np.ndarray, dp: np.ndarray) -> BundleProblem:
-        """The problem at ``R Exp(dphi)``, ``t + dt``, ``K + dK``, ``X + dX``.
+    def with_values(self, values: Any) -> BundleProblem:
+        """This problem (observations, camera model) at the cameras and points of ``values``:
+        ``result.values`` of :func:`bundle_adjust`, or of a :func:`bundle_graph` graph. Reads
+        the batches that :func:`bundle_graph` names ``rotations``, ``translations``,
+        ``intrinsics`` and ``points``.
 
         Parameters
         ----------
-        dc : numpy.ndarray
-            ``(n_cameras, 6 + k)`` camera steps ``(dt, dphi, dK)``.
-        dp : numpy.ndarray
-            ``(n_points, 3)`` point steps.
+        values : Values
+            Values of a bundle graph of this problem (same numbers of cameras and points).
 
         Returns
         -------
         BundleProblem
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
-        >>> cams = np.zeros((2, 9))
-        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
-        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
-        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
-        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
-        >>> bal = BALProblem(cams, pts, ci, pi, uv)
-        >>> problem = BundleProblem.from_bal(bal)
-        >>> moved = problem.retract(np.zeros((2, 9)), np.ones((6, 3)))
-        >>> np.round(moved.points - problem.points, 12)[0].tolist()
-        [1.0, 1.0, 1.0]
-        """
-        from ...groups import SO3
-
-        dR = np.asarray(SO3.exp(dc[:, 3:6]).matrix())
-        return replace(self, rotations=self.rotations @ dR,
-                       translations=self.translations + dc[:, 0:3],
-                       intrinsics=self.intrinsics + dc[:, 6:], points=self.points + dp)
-
-
-@dataclass(frozen=True)
-class BundleIteration:
-    """One try of :func:`bundle_adjust`.
-
-    Attributes
-    ----------
-    iteration : int
-        Its number.
-    cost : float
-        The cost after it (the candidate's for a rejected try).
-    accepted : bool
-        Whether the step was taken.
-    rho : float
-        The step quality (actual over predicted decrease).
-    radius : float
-        The trust radius used.
-    step_norm : float
-        The step norm.
-
-    Examples
-    --------
-    >>> from microlie.optim.sfm.bundle import bundle_adjust, synthetic_scene
-    >>> truth, start = synthetic_scene(3, 20, seed=1)
-    >>> rec = bundle_adjust(start, fix_cameras=[0]).history[0]
-    >>> rec.iteration, isinstance(rec.accepted, bool)
-    (1, True)
-    """
-
-    iteration: int
-    cost: float
-    accepted: bool
-    rho: float
-    radius: float
-    step_norm: float
-
-
-@dataclass
-class BundleResult:
-    """Outcome of :func:`bundle_adjust`, with the fields of
-    :class:`microlie.optim.core.solvers.Result`.
-
-    Attributes
-    ----------
-    problem : BundleProblem
-        The optimised problem.
-    initial_cost, final_cost : float
-        ``0.5 sum |r|^2`` in pixels without the robust loss.
-    initial_robust_cost, final_robust_cost : float
-        The minimised ``0.5 sum rho(|r|^2)`` (equal without a loss).
-    iterations : int
-        Tries, accepted or not, the stopping one included.
-    successful_steps : int
-        Ceres' count: accepted steps plus iteration 0.
-    converged : bool
-        ``termination == "convergence"``, with the reason in ``message``.
-    message : str
-    termination : {"convergence", "no_convergence", "failure"}
-        See :class:`microlie.optim.core.solvers.Result` and the module docstring.
-    time_s : float
-        Wall time, seconds; ``timings`` its breakdown.
-    history : list of BundleIteration
-        One per try.
-    timings : dict
-    behind, solver, linear_solver : str
-        The options used.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
-    >>> cams = np.zeros((2, 9))
-    >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
-    >>> pts = np.random.default_rng(0).normal(size=(6, 3))
-    >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
-    >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
-    >>> bal = BALProblem(cams, pts, ci, pi, uv)
-    >>> problem = BundleProblem.from_bal(bal)
-    >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
-    >>> d[0] = 0.0  # point 0 is held at its true value
-    >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
-    >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
-    >>> res.converged, res.final_cost < 1e-6 * res.initial_cost
-    (True, True)
-    """
-
-    problem: BundleProblem
-    initial_cost: float
-    final_cost: float
-    initial_robust_cost: float
-    final_robust_cost: float
-    iterations: int
-    successful_steps: int
-    converged: bool
-    message: str
-    termination: str
-    time_s: float
-    history: list[BundleIteration]
-    timings: dict[str, float]
-    behind: str = "evaluate"
-    solver: str = "lm"
-    linear_solver: str = "auto"
-    _normal: Any = field(default=None, repr=False)
-
-    def __repr__(self) -> str:
-        p = self.problem
-        return (f"BundleResult({self.solver}, {self.linear_solver}: cost {self.initial_cost:.10g}"
-                f" -> {self.final_cost:.10g} in {self.iterations} iterations "
-                f"({self.successful_steps} successful), {p.n_cameras} cameras, {p.n_points} "
-                f"points, {len(p.observations)} observations, {self.time_s * 1e3:.1f} ms, "
-                f"converged={self.converged}: {self.message})")
-
-    def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready summary (costs, iterations, time, convergence).
-
-        Returns
-        -------
-        dict
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
-        >>> cams = np.zeros((2, 9))
-        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
-        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
-        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
-        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
-        >>> bal = BALProblem(cams, pts, ci, pi, uv)
-        >>> problem = BundleProblem.from_bal(bal)
-        >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
-        >>> d[0] = 0.0  # point 0 is held at its true value
-        >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
-        >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
-        >>> sorted(res.to_dict())[:3]
-        ['converged', 'final_cost', 'final_robust_cost']
-        """
-        return {"initial_cost": self.initial_cost, "final_cost": self.final_cost,
-                "initial_robust_cost": self.initial_robust_cost,
-                "final_robust_cost": self.final_robust_cost, "iterations": self.iterations,
-                "time_s": self.time_s, "converged": self.converged, "message": self.message,
-                "termination": self.termination, "successful_steps": self.successful_steps}
-
-    @with_blas_threads
-    def camera_covariance(self, cameras: Sequence[int], *,
-                          blas_threads: int | None = 1) -> np.ndarray:
-        """Marginal covariances of the camera tangents ``(dt, dphi, dK)`` at the solution, from the
-        reduced camera system: the camera block of ``(J^T J)^-1`` is ``S^-1`` (``S`` the Schur
-        complement of the points). With a free gauge ``S`` is singular: the pseudo-inverse
-        (minimum-norm gauge) is returned for a dense ``S``; a sparse one (many cameras) needs the
-        gauge held (``fix_cameras`` and a point). Held unknowns have zero covariance. A free
-        unknown without any information (a camera with no observations) is unobservable, its
-        variance infinite: asking for its camera raises ``LinAlgError``; other cameras are
-        independent of it.
-
-        Parameters
-        ----------
-        cameras : sequence of int
-            The cameras.
-        blas_threads : int or None
-            BLAS threads while factorising and solving (default 1, as :func:`bundle_adjust`;
-            ``None`` keeps the process's setting).
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(len(cameras), d, d)``.
-
         Raises
         ------
-        numpy.linalg.LinAlgError
-            A requested camera has free unknowns without information (a ``ValueError``).
+        ValueError
+            ``values`` lack one of the four batches, or their sizes differ from this problem's.
 
         Examples
         --------
-        >>> import numpy as np
-        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
-        >>> cams = np.zeros((2, 9))
-        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
-        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
-        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
-        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
-        >>> bal = BALProblem(cams, pts, ci, pi, uv)
-        >>> problem = BundleProblem.from_bal(bal)
-        >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
-        >>> d[0] = 0.0  # point 0 is held at its true value
-        >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
-        >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
-        >>> res.camera_covariance([1]).shape
-        (1, 9, 9)
+        >>> from microlie.optim.sfm.bundle import bundle_adjust, synthetic_scene
+        >>> truth, start = synthetic_scene(3, 20, noise=0.0, seed=1)
+        >>> result = bundle_adjust(start, fix_cameras=[0])
+        >>> solved = start.with_values(result.values)   # a BundleProblem; .to_bal() for BAL
+        >>> bool(abs(solved.cost() - result.final_cost) <= 1e-12 * max(start.cost(), 1.0))
+        True
         """
-        d = self.problem.cam_dim
-        idx = np.concatenate([np.arange(c * d, (c + 1) * d) for c in cameras])
-        S = _undamped_schur(self)
-        n = S.shape[0]
-        keep = np.ones(n, bool)
-        if self._normal is not None and self._normal.fixed_cameras is not None:
-            keep = ~self._normal.fixed_cameras.reshape(-1)
-        # free unknowns without information: their rows of S are zero (no observation reaches
-        # them), their variance is infinite, never the pseudo-inverse's zero
-        empty = keep & ~(np.asarray(S.diagonal()).ravel() > 0)
-        asked = idx[empty[idx]]
-        if asked.size:
-            bad = sorted({int(i) // d for i in asked})
-            nobs = np.bincount(self.problem.camera_index, minlength=self.problem.n_cameras)
-            raise np.linalg.LinAlgError(
-                f"camera(s) {bad} are not observable ({', '.join(str(int(nobs[c])) for c in bad)}"
-                f" observations; unknowns {sorted(int(i) % d for i in asked)} of {d} without "
-                f"information): their covariance is infinite; hold them (fix_cameras, "
-                f"fix_intrinsics) or remove them")
-        if empty.any():  # decoupled from the rest: held like fixed unknowns (unit rows)
-            keep = keep & ~empty
-            unit = empty.astype(float)
-            S = S + (_sp_diags(unit) if _issparse(S) else np.diag(unit))
-        cov = np.zeros((len(idx), len(idx)))
-        sel = keep[idx]
-        if _issparse(S):
-            from ..linalg.linear import SingularSystemError, make_solver
-
-            solver = make_solver("auto", n)
-            E = np.zeros((n, int(sel.sum())))
-            E[idx[sel], np.arange(E.shape[1])] = 1.0
-            try:
-                solver.analyse(S.indptr, S.indices, n)
-                solver.factorize(S.data)
-                X = np.column_stack([solver.solve(E[:, k]) for k in range(E.shape[1])])
-            except SingularSystemError:
-                raise np.linalg.LinAlgError(
-                    "the reduced camera system is singular: hold the gauge (fix_cameras=[0] "
-                    "and fix_points=[k]) to get marginal covariances") from None
-            cov[np.ix_(sel, sel)] = X[idx[sel]]
-        else:
-            Sk = S[np.ix_(keep, keep)]
-            pos = -np.ones(n, int)
-            pos[keep] = np.arange(keep.sum())
-            try:
-                cf = np.linalg.cholesky(Sk)
-                inv = np.linalg.inv(cf)
-                cov_k = inv.T @ inv
-            except np.linalg.LinAlgError:
-                cov_k = np.linalg.pinv(Sk, hermitian=True)
-            cov[np.ix_(sel, sel)] = cov_k[np.ix_(pos[idx][sel], pos[idx][sel])]
-        cov = 0.5 * (cov + cov.T)
-        return np.stack([cov[i * d:(i + 1) * d, i * d:(i + 1) * d] for i in range(len(cameras))])
-
-    def marginals(self, cameras: Sequence[int]) -> list[Any]:
-        """Marginal Gaussians of the chosen camera poses as world-to-camera ``SE3`` elements,
-        ``frame="right"``: ``T = Tbar Exp(rho, phi)``. The solver's translation step ``dt`` is
-        in the camera frame, so ``rho = R^T dt`` (first order) and the SE(3) covariance is
-        ``blockdiag(R^T, I) P blockdiag(R, I)`` of the pose block ``P`` of
-        :meth:`camera_covariance` (intrinsics are marginalised out).
-
-        Parameters
-        ----------
-        cameras : sequence of int
-            The cameras.
-
-        Returns
-        -------
-        list of Gaussian
-            One per camera.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
-        >>> cams = np.zeros((2, 9))
-        >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
-        >>> pts = np.random.default_rng(0).normal(size=(6, 3))
-        >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
-        >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
-        >>> bal = BALProblem(cams, pts, ci, pi, uv)
-        >>> problem = BundleProblem.from_bal(bal)
-        >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
-        >>> d[0] = 0.0  # point 0 is held at its true value
-        >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
-        >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
-        >>> g = res.marginals([1])[0]
-        >>> g.frame, g.cov.shape
-        ('right', (6, 6))
-        """
-        from ...uncertainty import Gaussian
-
-        covs = self.camera_covariance(cameras)
-        poses = self.problem.poses()
-        out = []
-        for c, P in zip(cameras, covs, strict=True):
-            Rt = self.problem.rotations[c].T
-            T = np.zeros((6, 6))
-            T[:3, :3] = Rt
-            T[3:, 3:] = np.eye(3)
-            Pse3 = T @ P[:6, :6] @ T.T
-            out.append(Gaussian(poses[c], 0.5 * (Pse3 + Pse3.T), frame="right"))
-        return out
-
-
-def _sp_diags(v: np.ndarray) -> Any:
-    """A sparse CSC diagonal matrix."""
-    import scipy.sparse
-
-    return scipy.sparse.diags(v, format="csc")
-
-
-def _issparse(S: Any) -> bool:
-    """A SciPy sparse matrix (the sparse reduced camera system), not a dense array."""
-    import scipy.sparse
-
-    return bool(scipy.sparse.issparse(S))
-
-
-def _undamped_schur(res: BundleResult) -> Any:
-    ne = res._normal
-    if ne is None:
-        raise ValueError("no linearisation stored in this result")
-    st = ne.structure
-    Dc2 = np.zeros((st.n_cameras, st.cam_dim))
-    Dp2 = np.zeros((st.n_points, 3))
-    red = ne.reduced_system(Dc2, Dp2, st.sparse_reduced("auto"))
-    if red is None:
-        raise np.linalg.LinAlgError("a point block is singular: some point is not determined")
-    return red[0]
-
-
-def _as_mask(idx: Sequence[int] | np.ndarray | None, n: int, what: str) -> np.ndarray | None:
-    if idx is None:
-        return None
-    a = np.asarray(idx)
-    if a.dtype == bool:
-        if a.shape != (n,):
-            raise ValueError(f"{what} mask must have shape ({n},)")
-        return a.copy()
-    a = a.astype(np.intp).ravel()
-    if len(a) and (a.min() < 0 or a.max() >= n):
-        raise ValueError(f"{what} index out of range 0..{n - 1}")
-    m = np.zeros(n, bool)
-    m[a] = True
-    return m if m.any() else None
-
-
-def _camera_mask(pose: np.ndarray | None, intr: np.ndarray | None, n: int, d: int
-                 ) -> np.ndarray | None:
-    if pose is None and intr is None:
-        return None
-    m = np.zeros((n, d), bool)
-    if pose is not None:
-        m[pose, :6] = True
-    if intr is not None:
-        m[intr, 6:] = True
-    return m
-
-
-@with_blas_threads
-def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
-                  behind: str = "evaluate", fix_cameras: Sequence[int] | None = None,
-                  fix_points: Sequence[int] | None = None,
-                  fix_intrinsics: Sequence[int] | bool | None = None,
-                  linear_solver: LinearSolverKind = "auto", max_iter: int = 100,
-                  function_tolerance: float = 1e-6, gradient_tolerance: float = 1e-10,
-                  parameter_tolerance: float = 1e-8, initial_radius: float = 1e4,
-                  jacobi_scaling: bool = True, verbose: bool = False,
-                  blas_threads: int | None = 1) -> BundleResult:
-    """Levenberg-Marquardt bundle adjustment (Ceres' rules, module docstring).
-
-    Parameters
-    ----------
-    problem : BundleProblem or BALProblem
-        The starting point.
-    robust : str or RobustLoss, optional
-        A loss of :mod:`microlie.optim.core.robust` or a spec such as ``"huber:1.0"`` (scale in
-        pixels) applied to each observation's squared residual norm.
-    behind : {"evaluate", "drop"}
-        Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
-        :mod:`microlie.optim.sfm.camera`.
-    fix_cameras : sequence of int, optional
-        Cameras whose *pose* is held (the gauge: one camera holds 6 of BAL's 7 degrees of
-        freedom; the scale stays free and the damping handles it).
-    fix_points : sequence of int, optional
-        Held points.
-    fix_intrinsics : sequence of int or bool, optional
-        Cameras whose intrinsics are held (``True``: all).
-    linear_solver : str
-        The reduced camera system's solver (``"auto"``, ...; module docstring).
-    max_iter : int
-        Iteration limit.
-    function_tolerance, gradient_tolerance, parameter_tolerance : float
-        Ceres' convergence tests.
-    initial_radius : float
-        The initial trust radius (``1 / lambda``).
-    jacobi_scaling : bool
-        Scale the columns as Ceres does.
-    verbose : bool
-        One line per iteration on stderr.
-    blas_threads : int or None
-        BLAS threads during the call (default 1, as Ceres' default;
-        :mod:`microlie.optim.core.threads`);
-        ``None`` keeps the user's setting or the library's default. Restored on return.
-
-    Returns
-    -------
-    BundleResult
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from microlie.optim import BALProblem, BundleProblem, bundle_adjust
-    >>> cams = np.zeros((2, 9))
-    >>> cams[:, 5], cams[:, 6], cams[1, 3] = -5.0, 500.0, 1.0  # t_z = -5, f = 500
-    >>> pts = np.random.default_rng(0).normal(size=(6, 3))
-    >>> ci, pi = np.repeat([0, 1], 6), np.tile(np.arange(6), 2)
-    >>> uv = BALProblem(cams, pts, ci, pi, np.zeros((12, 2))).residuals()  # the projections
-    >>> bal = BALProblem(cams, pts, ci, pi, uv)
-    >>> problem = BundleProblem.from_bal(bal)
-    >>> d = 0.01 * np.sin(np.arange(18.0)).reshape(6, 3)
-    >>> d[0] = 0.0  # point 0 is held at its true value
-    >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
-    >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
-    >>> res.converged, res.initial_cost > 1.0, res.final_cost < 1e-6 * res.initial_cost
-    (True, True, True)
-    """
-    t_start = time.perf_counter()
-    if isinstance(problem, BALProblem):
-        problem = BundleProblem.from_bal(problem)
-    loss = None
-    if robust is not None:
-        from ..core.robust import make_loss
-
-        loss = make_loss(robust)
-    if max_iter < 0:
-        raise ValueError("max_iter must be >= 0")
-    if initial_radius <= 0:
-        raise ValueError("initial_radius must be positive")
-    model = problem.model
-    nc, npt, d = problem.n_cameras, problem.n_points, problem.cam_dim
-    intr: Sequence[int] | np.ndarray | None
-    if fix_intrinsics is True:
-        intr = np.arange(nc)
-    elif fix_intrinsics is False:
-        intr = None
-    else:
-        intr = fix_intrinsics
-    fc = _camera_mask(_as_mask(fix_cameras, nc, "fix_cameras"),
-                      _as_mask(intr, nc, "fix_intrinsics"), nc, d)
-    fp = _as_mask(fix_points, npt, "fix_points")
-    # observations sorted by camera (then point), once
-    order = np.lexsort((problem.point_index, problem.camera_index))
-    cam = np.asarray(problem.camera_index)[order].astype(np.intp)
-    pt = np.asarray(problem.point_index)[order].astype(np.intp)
-    obs = np.asarray(problem.observations, dtype=float)[order]
-    tm: dict[str, Any] = {"structure": 0.0, "evaluate": 0.0, "linearize": 0.0,
-                          "schur_form": 0.0, "reduced_solve": 0.0, "back_substitution": 0.0,
-                          "step": 0.0}
-    t0 = time.perf_counter()
-    structure = SchurStructure(cam, pt, nc, npt, d)
-    tm["structure"] += time.perf_counter() - t0
-
-    def evaluate(p: BundleProblem) -> float:
-        t = time.perf_counter()
-        r = reproject(model, p.rotations, p.translations, p.intrinsics, p.points, cam, pt, obs,
-                      jac=False, behind=behind).residuals  # type: ignore[arg-type]
-        s = (r * r).sum(1)
-        c = 0.5 * float(loss.rho(s).sum() if loss is not None else s.sum())
-        tm["evaluate"] += time.perf_counter() - t
-        return c
-
-    scale_c: np.ndarray | None = None
-    scale_p: np.ndarray | None = None
-
-    def linearize(p: BundleProblem) -> tuple[float, NormalEquations, float, np.ndarray]:
-        nonlocal scale_c, scale_p
-        t = time.perf_counter()
-        rp = reproject(model, p.rotations, p.translations, p.intrinsics, p.points, cam, pt, obs,
-                       behind=behind)  # type: ignore[arg-type]
-        r, Jc, Jp = rp.residuals, rp.J_cam, rp.J_point
-        assert Jc is not None and Jp is not None
-        s = (r * r).sum(1)
-        if loss is not None:
-            from ..core.robust import corrected_weights
-
-            rho, rscale, aos = corrected_weights(loss, s)
-            cost = 0.5 * float(rho.sum())
-            w = np.sqrt(np.maximum(loss.evaluate(s)[1], 0.0))
-            if np.any(aos != 0):
-                # J <- sqrt(rho') (I - aos r r^T) J, with the unscaled residual
-                rJc = np.einsum("nr,nrk->nk", r, Jc)
-                rJp = np.einsum("nr,nrk->nk", r, Jp)
-                Jc = Jc - (aos[:, None, None] * r[:, :, None]) * rJc[:, None, :]
-                Jp = Jp - (aos[:, None, None] * r[:, :, None]) * rJp[:, None, :]
-            Jc = Jc * w[:, None, None]
-            Jp = Jp * w[:, None, None]
-            r = r * rscale[:, None]
-        else:
-            cost = 0.5 * float(s.sum())
-        ne = NormalEquations(structure, r, Jc, Jp, fc, fp, tm)
-        if scale_c is None:
-            # Ceres' Jacobi scaling 1 / (1 + |J_col|), fixed at iteration 0. Solving the scaled
-            # system (S J^T J S + D_s) y = -S g, delta = S y, is solving
-            # (J^T J + S^-1 D_s S^-1) delta = -g: the scaling only changes the damping.
-            if jacobi_scaling:
-                scale_c = 1.0 / (1.0 + np.sqrt(ne.diag_c))
-                scale_p = 1.0 / (1.0 + np.sqrt(ne.diag_p))
-            else:
-                scale_c, scale_p = np.ones((nc, d)), np.ones((npt, 3))
-        g = ne.gradient
-        gmask = np.ones(len(g), bool)
-        if fc is not None:
-            gmask[: nc * d] &= ~fc.reshape(-1)
-        if fp is not None:
-            gmask[nc * d:].reshape(npt, 3)[fp] = False
-        gmax = float(np.max(np.abs(g[gmask]))) if gmask.any() else 0.0
-        tm["linearize"] += time.perf_counter() - t
-        return cost, ne, gmax, r
-
-    def xnorm(p: BundleProblem) -> float:
-        return float(np.sqrt(np.sum(p.translations ** 2) + np.sum(p.intrinsics ** 2)
-                             + np.sum(p.points ** 2) + np.sum(matrix_to_rotvec(p.rotations) ** 2)))
-
-    x = problem
-    cost, ne, gmax, r = linearize(x)
-    if not np.isfinite(cost):
-        bad = np.nonzero(~np.isfinite(r).all(axis=1))[0]
-        k = int(order[bad[0]]) if len(bad) else -1
-        raise ValueError(f"the initial residual of observation {k} is not finite (camera "
-                         f"{cam[bad[0]]}, point {pt[bad[0]]}: a point on the plane of its "
-                         f"camera, P_z = 0, or non-finite intrinsics); use behind='drop' or "
-                         f"move it")
-    initial_cost = cost
-    radius, decrease = float(initial_radius), 2.0
-    diag_c = diag_p = None
-    reuse = False
-    history: list[BundleIteration] = []
-    it, successful = 0, 1                      # Ceres counts iteration 0 as successful
-    termination, message = "no_convergence", "maximum number of iterations reached"
-    first_pred: float | None = None            # the model decrease of the first try from x
-    tries = 0                                  # tries from x
-
-    def settled(cand_cost: float) -> bool:
-        """Whether a stop at a candidate that changes the cost little is a convergence."""
-        return (cand_cost < cost or tries <= 1
-                or (first_pred is not None and first_pred <= function_tolerance * cost))
-    x_norm = -1.0                              # as Ceres: no parameter test before a step
-    t_it = time.perf_counter()
-    if verbose:   # Ceres' progress columns
-        print("iter      cost      cost_change  |gradient|   |step|    tr_ratio  tr_radius  "
-              "iter_time", file=sys.stderr, flush=True)
-        print(f"{0:4d} {cost:13.6e} {0.0:12.2e} {gmax:10.2e} {0.0:9.2e} {0.0:10.2e} "
-              f"{radius:10.2e} {t_it - t_start:9.2e}", file=sys.stderr, flush=True)
-    while True:
-        if gmax <= gradient_tolerance:
-            termination, message = "convergence", f"gradient tolerance reached ({gmax:.3e})"
-            break
-        if radius <= 1e-32:
-            termination = "convergence" if settled(np.inf) else "failure"
-            message = "minimum trust region radius reached" + (
-                "" if termination == "convergence" else
-                f" without decreasing the cost (the first step's model predicted a decrease "
-                f"of {first_pred:.3g})")
-            break
-        if it >= max_iter:
-            break
-        it += 1
-        tries += 1
-        ts = time.perf_counter()
-        if not reuse or diag_c is None:
-            # LM diagonal of the scaled Jacobian, clamped as Ceres does, in unscaled units
-            assert scale_c is not None and scale_p is not None
-            diag_c = np.clip(ne.diag_c * scale_c ** 2, 1e-6, 1e32) / scale_c ** 2
-            diag_p = np.clip(ne.diag_p * scale_p ** 2, 1e-6, 1e32) / scale_p ** 2
-        assert diag_p is not None
-        tm["step"] += time.perf_counter() - ts
-        step = ne.solve(diag_c / radius, diag_p / radius, linear_solver)
-        ts = time.perf_counter()
-        if step is None:
-            # invalid step: shrink the radius and retry (Ceres' StepIsInvalid)
-            radius /= decrease
-            decrease *= 2.0
-            reuse = True
-            history.append(BundleIteration(it, cost, False, 0.0, radius, 0.0))
-            tm["step"] += time.perf_counter() - ts
-            continue
-        dc, dp = step
-        Jd = ne.jvp(dc, dp)
-        model_change = -float(np.sum(Jd * (r + 0.5 * Jd)))
-        tm["step"] += time.perf_counter() - ts
-        if not model_change > 0.0:
-            radius /= decrease
-            decrease *= 2.0
-            reuse = True
-            history.append(BundleIteration(it, cost, False, 0.0, radius, 0.0))
-            continue
-        if first_pred is None:
-            first_pred = model_change
-        cand = x.retract(dc, dp)
-        cand_cost = evaluate(cand)
-        if not np.isfinite(cand_cost):
-            cand_cost = float(np.finfo(float).max)
-        step_norm = float(np.sqrt(np.sum(dc * dc) + np.sum(dp * dp)))
-        stop = None
-        if step_norm <= parameter_tolerance * (x_norm + parameter_tolerance):
-            stop = "parameter tolerance reached"
-        elif abs(cost - cand_cost) <= function_tolerance * cost:
-            stop = (f"function tolerance reached (|cost change|/cost = "
-                    f"{abs(cost - cand_cost) / cost:.3e})")
-        if stop is not None:
-            termination = "convergence" if settled(cand_cost) else "failure"
-            message = stop if termination == "convergence" else (
-                f"{stop} after {tries - 1} rejected steps, without decreasing the cost (the "
-                f"first step's model predicted a decrease of {first_pred:.3g})")
-            history.append(BundleIteration(it, cand_cost, False, 0.0, radius, step_norm))
-            break
-        rho = (cost - cand_cost) / model_change
-        cost_change = cost - cand_cost
-        used_radius = radius
-        if rho > 1e-3:
-            x = cand
-            x_norm = xnorm(x)
-            cost, ne, gmax, r = linearize(x)
-            radius = min(1e16, radius / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
-            decrease, reuse = 2.0, False
-            successful += 1
-            first_pred, tries = None, 0
-        else:
-            radius /= decrease
-            decrease *= 2.0
-            reuse = True
-        history.append(BundleIteration(it, cand_cost, rho > 1e-3, rho, used_radius, step_norm))
-        if verbose:
-            now = time.perf_counter()
-            print(f"{it:4d} {cost:13.6e} {cost_change:12.2e} {gmax:10.2e} {step_norm:9.2e} "
-                  f"{rho:10.2e} {radius:10.2e} {now - t_it:9.2e}"
-                  f"{'' if rho > 1e-3 else '  (rejected)'}", file=sys.stderr, flush=True)
-            t_it = now
-    time_s = time.perf_counter() - t_start
-    tm["total"] = time_s
-    if loss is None:
-        plain0, plain1 = initial_cost, cost
-    else:
-        plain0, plain1 = problem.cost(behind), x.cost(behind)
-    return BundleResult(x, plain0, plain1, initial_cost, cost, it, successful,
-                        termination == "convergence", message, termination, time_s, history, tm,
-                        behind, "lm", linear_solver, ne)
+        names = [h.name for h in values]
+        found = {}
+        for name, n in (("rotations", self.n_cameras), ("translations", self.n_cameras),
+                        ("intrinsics", self.n_cameras), ("points", self.n_points)):
+            hs = [h for h in values if h.name == name]
+            if len(hs) != 1:
+                raise ValueError(f"values must hold one batch named {name!r} (the values of a "
+                                 f"bundle_graph graph), got batches {names}")
+            if hs[0].n != n:
+                raise ValueError(f"values: batch {name!r} has {hs[0].n} variables, this problem "
+                                 f"{n}")
+            found[name] = hs[0]
+        return replace(self, rotations=np.asarray(values[found["rotations"]].matrix()),
+                       translations=values.params(found["translations"]),
+                       intrinsics=values.params(found["intrinsics"]),
+                       points=values.params(found["points"]))
 
 
 # ---------------------------------------------------------------------------- as a factor graph
@@ -1104,6 +458,122 @@ class BundleGraph:
                              np.asarray(v.params(self.points)), f.args[0][1], f.args[2][1],
                              f.observations, self.model)
 
+    def camera_covariance(self, values: Any, cameras: Sequence[int], *,
+                          linear_solver: str = "auto", blas_threads: int | None = 1
+                          ) -> np.ndarray:
+        """Marginal covariances of the camera tangents ``(dt, dphi, dK)`` at ``values``, through
+        :meth:`FactorGraph.marginal_covariance <microlie.optim.FactorGraph.marginal_covariance>`
+        (the graph's one marginals path: ``H^-1`` of the Gauss-Newton matrix, robust weights
+        in, no damping). The gauge must be held (``fix_cameras`` and a point for BAL's 7
+        degrees of freedom), else ``H`` is singular. Held unknowns have zero covariance.
+
+        Parameters
+        ----------
+        values : Values
+            Where (``result.values``).
+        cameras : sequence of int
+            The cameras.
+        linear_solver : str
+            The solver of ``H`` (:meth:`FactorGraph.marginal_covariance
+            <microlie.optim.FactorGraph.marginal_covariance>`).
+        blas_threads : int or None
+            BLAS threads while factorising and solving (default 1; ``None`` keeps the process's
+            setting).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(len(cameras), 6 + k, 6 + k)``.
+
+        Raises
+        ------
+        ValueError
+            A free camera without observations (its covariance is infinite: hold it or remove
+            it); a free gauge (:class:`~microlie.optim.GaugeError`).
+
+        Examples
+        --------
+        >>> from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
+        >>> truth, start = synthetic_scene(3, 20, seed=1)
+        >>> bg = bundle_graph(start, fix_cameras=[0], fix_points=[0])
+        >>> res = bg.graph.optimize(solver="trust-region", linear_solver="schur")
+        >>> bg.camera_covariance(res.values, [0, 2]).shape
+        (2, 9, 9)
+        """
+        cams = [int(c) for c in np.asarray(cameras, dtype=np.intp).reshape(-1)]
+        parts = (self.translations, self.rotations, self.intrinsics)
+        nobs = np.bincount(self.factor.args[0][1], minlength=self.rotations.n)
+        free = np.zeros(self.rotations.n, bool)
+        for v in parts:
+            free |= ~v.fixed
+        blind = np.flatnonzero(free & (nobs == 0))
+        if blind.size:
+            raise ValueError(f"camera(s) {blind.tolist()} are not observable (0 observations): "
+                             f"their covariance is infinite; hold them (fix_cameras and "
+                             f"fix_intrinsics) or remove them")
+        offs = np.cumsum([0] + [v.dof for v in parts])
+        items, cols = [], []
+        for k, c in enumerate(cams):
+            for v, o in zip(parts, offs[:-1], strict=True):
+                if not v.fixed[v.indices(c)[0]]:
+                    items.append((v, c))
+                    cols.append(k * offs[-1] + o + np.arange(v.dof))
+        out = np.zeros((len(cams) * offs[-1],) * 2)
+        if items:
+            ix = np.concatenate(cols)
+            out[np.ix_(ix, ix)] = self.graph.marginal_covariance(values, items, linear_solver,
+                                                                  blas_threads=blas_threads)
+        d = int(offs[-1])
+        return np.stack([out[k * d:(k + 1) * d, k * d:(k + 1) * d] for k in range(len(cams))])
+
+    def marginals(self, values: Any, cameras: Sequence[int], *,
+                  linear_solver: str = "auto", blas_threads: int | None = 1) -> list[Any]:
+        """Marginal Gaussians of camera poses as world-to-camera ``SE3`` elements,
+        ``frame="right"`` (``T = Tbar Exp(rho, phi)``), from :meth:`camera_covariance`: the
+        translation step ``dt`` is ``R rho`` to first order, so the covariance is
+        ``blockdiag(R^T, I) P blockdiag(R, I)`` of its pose block ``P`` (intrinsics
+        marginalised out).
+
+        Parameters
+        ----------
+        values : Values
+            Where (``result.values``).
+        cameras : sequence of int
+            The cameras.
+        linear_solver : str
+            As :meth:`camera_covariance`.
+        blas_threads : int or None
+            As :meth:`camera_covariance`.
+
+        Returns
+        -------
+        list of Gaussian
+            One per camera.
+
+        Examples
+        --------
+        >>> from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
+        >>> truth, start = synthetic_scene(3, 20, seed=1)
+        >>> bg = bundle_graph(start, fix_cameras=[0], fix_points=[0])
+        >>> res = bg.graph.optimize(solver="trust-region", linear_solver="schur")
+        >>> g = bg.marginals(res.values, [1])[0]
+        >>> g.frame, g.cov.shape
+        ('right', (6, 6))
+        """
+        from ...uncertainty import Gaussian
+
+        covs = self.camera_covariance(values, cameras, linear_solver=linear_solver,
+                                      blas_threads=blas_threads)
+        p = self.problem(values)
+        poses = p.poses()
+        out = []
+        for c, P in zip(cameras, covs, strict=True):
+            T = np.eye(6)
+            T[:3, :3] = p.rotations[c].T
+            Pse3 = T @ P[:6, :6] @ T.T
+            out.append(Gaussian(poses[c], 0.5 * (Pse3 + Pse3.T), frame="right"))
+        return out
+
 
 def bundle_graph(problem: BundleProblem | BALProblem, *, robust: Any = None,
                  behind: str = "evaluate", fix_cameras: Sequence[int] | None = None,
@@ -1170,6 +640,123 @@ def bundle_graph(problem: BundleProblem | BALProblem, *, robust: Any = None,
                                  model=problem.model, intrinsics=(K, ci), loss=robust,
                                  behind=behind))
     return BundleGraph(g, rot, tr, K, X, f, problem.model)
+
+
+def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
+                  behind: str = "evaluate", fix_cameras: Sequence[int] | None = None,
+                  fix_points: Sequence[int] | None = None,
+                  fix_intrinsics: Sequence[int] | bool | None = None,
+                  solver: Any = "trust-region", linear_solver: Any = "schur",
+                  max_iter: int = 100, gauge: str = "none", verbose: bool | None = False,
+                  blas_threads: int | None = 1, **options: Any) -> Any:
+    """Bundle adjustment through the one engine: :func:`bundle_graph` then
+    :meth:`FactorGraph.optimize <microlie.optim.FactorGraph.optimize>`, by default with
+    :class:`~microlie.optim.TrustRegion` (Levenberg-Marquardt with Ceres' rules, so that
+    iterations count as Ceres') on the Schur complement of the points. Costs are
+    ``0.5 * sum rho(|r|^2)`` in pixels; the gauge (7 degrees of freedom for BAL) is left to the
+    damping, as in Ceres, unless ``fix_cameras`` (and ``fix_points``) hold it.
+
+    Parameters
+    ----------
+    problem : BundleProblem or BALProblem
+        The starting point.
+    robust : str or RobustLoss, optional
+        A loss of :mod:`microlie.optim.core.robust` or a spec such as ``"huber:1.0"`` (scale in
+        pixels) on each observation's squared residual norm.
+    behind : {"evaluate", "drop"}
+        Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
+        :mod:`microlie.optim.sfm.camera`.
+    fix_cameras : sequence of int, optional
+        Cameras whose *pose* is held.
+    fix_points : sequence of int, optional
+        Held points.
+    fix_intrinsics : sequence of int or bool, optional
+        Cameras whose intrinsics are held (``True``: all).
+    solver : str or Strategy
+        The strategy (default ``"trust-region"``; any of :meth:`FactorGraph.optimize
+        <microlie.optim.FactorGraph.optimize>`'s, or an instance with its options).
+    linear_solver : str or LinearSolver
+        Default ``"schur"`` (the points eliminated); any of :func:`~microlie.optim.make_solver`'s
+        (``"auto"``, ``"cholesky"``, ``"dense"``, ...) for the full system.
+    max_iter : int
+        Iteration limit, as the strategy counts (``"trust-region"``: every try, as Ceres).
+    gauge : {"none", "check", "fix_first"}
+        :meth:`FactorGraph.optimize <microlie.optim.FactorGraph.optimize>`'s (default
+        ``"none"``: the damping handles the free gauge).
+    verbose : bool or None
+        Ceres' iteration table on stderr (``None``: when stderr is a terminal).
+    blas_threads : int or None
+        BLAS threads during the call (default 1; ``None`` keeps the process's setting).
+    **options
+        The named strategy's options: ``function_tolerance``, ``gradient_tolerance``,
+        ``parameter_tolerance``, ``radius_initial``, ``jacobi_scaling``, ... (``TypeError``
+        for one it does not take).
+
+    Returns
+    -------
+    Result
+        The engine's :class:`~microlie.optim.core.solvers.Result`;
+        ``problem.with_values(result.values)`` (:meth:`BundleProblem.with_values`) is the
+        optimised :class:`BundleProblem` (``.to_bal()`` for BAL). For marginal covariances
+        build the graph with :func:`bundle_graph` and use :meth:`BundleGraph.marginals`.
+
+    Raises
+    ------
+    ValueError
+        An index out of range, an unknown option, or a non-finite initial residual (naming
+        the observation: a point on the plane of its camera, ``P_z = 0``; use
+        ``behind="drop"`` or move it).
+
+    Examples
+    --------
+    >>> from microlie.optim.sfm.bundle import bundle_adjust, synthetic_scene
+    >>> truth, start = synthetic_scene(n_cameras=3, n_points=40, noise=0.0, seed=1)
+    >>> result = bundle_adjust(start, fix_cameras=[0])
+    >>> result.converged, result.final_cost < 1e-12, result.solver
+    (True, True, 'trust-region')
+    >>> start.with_values(result.values).cost() < 1e-12
+    True
+    """
+    from ..core.problem import NonFiniteError
+
+    if isinstance(problem, BALProblem):
+        problem = BundleProblem.from_bal(problem)
+    held = [_indices(name, idx, n) for name, idx, n in (
+        ("fix_cameras", fix_cameras, problem.n_cameras),
+        ("fix_points", fix_points, problem.n_points),
+        ("fix_intrinsics", fix_intrinsics, problem.n_cameras))]
+    bg = bundle_graph(problem, robust=robust, behind=behind, fix_cameras=held[0],
+                      fix_points=held[1], fix_intrinsics=held[2])
+    try:
+        return bg.graph.optimize(solver=solver, linear_solver=linear_solver, max_iter=max_iter,
+                                 gauge=gauge, verbose=verbose, blas_threads=blas_threads,
+                                 **options)
+    except NonFiniteError as e:
+        if e.factor != bg.graph.factors.index(bg.factor):
+            raise
+        k = e.row
+        raise NonFiniteError(
+            f"{e} (observation {k} is not finite: camera {problem.camera_index[k]}, point "
+            f"{problem.point_index[k]}; a point on the plane of its camera, P_z = 0, or "
+            f"non-finite intrinsics; use behind='drop' or move it)", e.factor, e.row,
+            e.variables) from None
+
+
+def _indices(name: str, idx: Any, n: int) -> Any:
+    """``fix_*`` as indices (``True``: all), checked against ``n``; ``None`` and ``False``:
+    nothing held."""
+    if idx is None or idx is False:
+        return None
+    if idx is True:
+        return np.arange(n)
+    a = np.asarray(idx).reshape(-1)
+    if a.dtype == bool:
+        if a.size != n:
+            raise ValueError(f"{name}: a mask must have {n} entries, got {a.size}")
+        return np.flatnonzero(a)
+    if a.size and (not np.issubdtype(a.dtype, np.integer) or a.min() < 0 or a.max() >= n):
+        raise ValueError(f"{name}: indices must be integers in 0..{n - 1}, got {idx!r}")
+    return a.astype(np.intp)
 
 
 # ---------------------------------------------------------------------------- synthetic scenes
@@ -1286,7 +873,8 @@ def plot_bundle(initial: BundleProblem, optimised: BundleProblem, path: Any = No
     >>> noisy = BALProblem(cams, pts + d, ci, pi, uv)
     >>> res = bundle_adjust(noisy, fix_cameras=[0], fix_points=[0], fix_intrinsics=True)
     >>> from microlie.optim import plot_bundle
-    >>> fig = plot_bundle(BundleProblem.from_bal(noisy), res.problem)
+    >>> before = BundleProblem.from_bal(noisy)
+    >>> fig = plot_bundle(before, before.with_values(res.values))
     >>> len(fig.axes)
     2
     """
