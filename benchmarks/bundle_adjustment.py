@@ -11,17 +11,18 @@ Run (bench venv: gtsam 4.3; Debian's libceres-dev, cmake and g++ for the Ceres r
 a forward-looking camera every metre along a 2-D street, landmarks on the two facades and the
 ground, each seen from the cameras 3-45 m behind it: a banded camera graph, unlike
 ``synthetic_scene``'s every-camera-sees-every-point cloud), written as a BAL file in a
-temporary directory and run like the file (microlie's ``bundle_adjust`` with its default and
-its sparse reduced system, the engine, and Ceres SPARSE_SCHUR; GTSAM, SciPy and Ceres
-DENSE_SCHUR only for ``--file``); ``--skip-file`` runs only the street scenes.
+temporary directory and run like the file (microlie's ``bundle_adjust`` and Ceres
+SPARSE_SCHUR; GTSAM, SciPy and Ceres DENSE_SCHUR only for ``--file``); ``--skip-file`` runs only
+the street scenes.
 
 Every contender starts from the file's values and runs single-threaded; the runs are
 interleaved (one of each per round) and the table shows medians (min-max) and the ratio to
 microlie. Contenders:
 
-* microlie: ``microlie.optim.sfm.bundle.bundle_adjust`` (BAL model, Ceres' LM rules, dense Schur),
-time
-  of ``bundle_adjust`` (includes the sparsity analysis, excludes reading the file);
+* microlie: ``microlie.optim.sfm.bundle.bundle_adjust``, the one engine (``bundle_graph`` +
+  ``FactorGraph.optimize`` with ``TrustRegion``, Ceres' LM rules, and ``linear_solver="schur"``;
+  BAL model), timed as a user pays it: the whole ``bundle_adjust`` call (graph construction,
+  symbolic analysis and solve; excludes reading the file);
 * Ceres 2.1 C++ (``benchmarks/ceres_bal/ceres_bal.cc``, built here with cmake against
   ``libceres-dev``): autodiff BAL cost, LM, SPARSE_SCHUR and DENSE_SCHUR, one thread; time
   ``Summary::total_time_in_seconds`` (excludes reading the file);
@@ -65,31 +66,14 @@ DEFAULT_FILE = ROOT / ".." / "shared" / "data" / "bal" / "problem-49-7776-pre.tx
 # ---------------------------------------------------------------------------- contenders
 
 def run_microlie(path: Path, behind: str = "evaluate") -> dict:
+    """``bundle_adjust`` (the engine: bundle_graph + TrustRegion + linear_solver="schur"), timed
+    as a user pays it (graph construction and solve, not reading the file)."""
     from microlie.optim.io.bal import read_bal
     from microlie.optim.sfm.bundle import bundle_adjust
 
     p = read_bal(path)
-    r = bundle_adjust(p, behind=behind)
-    return {"time_s": r.time_s, "initial_cost": r.initial_cost, "final_cost": r.final_cost,
-            "iterations": r.iterations, "accepted": r.successful_steps - 1,
-            "timings": r.timings, "message": r.message}
-
-
-ENGINE = "microlie engine (graph, trust-region, schur)"
-
-
-def run_engine(path: Path) -> dict:
-    """The one engine: bundle_graph (FactorGraph with ReprojectionFactor) + TrustRegion +
-    linear_solver="schur"; timed as a user pays it (graph construction and solve)."""
-    import time
-
-    from microlie.optim import TrustRegion, bundle_graph
-    from microlie.optim.io.bal import read_bal
-
-    p = read_bal(path)
     t0 = time.perf_counter()
-    bg = bundle_graph(p)
-    r = bg.graph.optimize(solver=TrustRegion(), linear_solver="schur", gauge="none")
+    r = bundle_adjust(p, behind=behind)
     t = time.perf_counter() - t0
     return {"time_s": t, "initial_cost": r.initial_cost, "final_cost": r.final_cost,
             "iterations": r.iterations, "accepted": r.accepted_steps,
@@ -271,16 +255,6 @@ def street_scene(n_cameras: int, seed: int = 0, points_per_camera: float = 20.0,
 
 # ---------------------------------------------------------------------------- main
 
-def run_microlie_street(path: Path, linear_solver: str) -> dict:
-    from microlie.optim.io.bal import read_bal
-    from microlie.optim.sfm.bundle import bundle_adjust
-
-    r = bundle_adjust(read_bal(path), linear_solver=linear_solver)  # type: ignore[arg-type]
-    return {"time_s": r.time_s, "initial_cost": r.initial_cost, "final_cost": r.final_cost,
-            "iterations": r.iterations, "accepted": r.successful_steps - 1,
-            "timings": r.timings, "message": r.message}
-
-
 def bench(label: str, contenders: dict, repeat: int) -> None:
     """Interleaved rounds of ``contenders`` (name -> callable), a markdown table, the ratios."""
     runs: dict[str, list[dict]] = {k: [] for k in contenders}
@@ -314,27 +288,15 @@ def bench(label: str, contenders: dict, repeat: int) -> None:
         print(f"- GTSAM / microlie behind=drop (same objective): "
               f"{g / med['microlie behind=drop']:.2f}; GTSAM / microlie: "
               f"{g / med['microlie']:.2f} (goal: at least 2)")
-    tm = runs["microlie"][-1]["timings"]
-    it = max(runs["microlie"][-1]["iterations"], 1)
-    print("\nmicrolie time breakdown (last round), ms per iteration "
-          f"({it} iterations):\n")
+    eng = runs["microlie"][-1]
+    it = max(eng["iterations"], 1)
+    print(f"\nmicrolie time breakdown (last round), ms per iteration ({it} iterations):\n")
     print("| part | ms / iteration | share |")
     print("|---|---|---|")
-    total = tm["total"]
-    for k in ("linearize", "schur_form", "reduced_solve", "back_substitution", "evaluate",
-              "step", "structure"):
-        print(f"| {k} | {1e3 * tm[k] / it:.1f} | {100 * tm[k] / total:.0f}% |")
-    if ENGINE in runs:
-        eng = runs[ENGINE][-1]
-        it = max(eng["iterations"], 1)
-        print(f"\nengine time breakdown (last round), ms per iteration ({it} iterations; "
-              f"engine / bundle_adjust {med[ENGINE] / ref:.2f}):\n")
-        print("| part | ms / iteration | share |")
-        print("|---|---|---|")
-        total = sum(v for v in eng["timings"].values() if isinstance(v, float))
-        for k, v in eng["timings"].items():
-            if isinstance(v, float):
-                print(f"| {k} | {1e3 * v / it:.1f} | {100 * v / total:.0f}% |")
+    total = sum(v for v in eng["timings"].values() if isinstance(v, float))
+    for k, v in eng["timings"].items():
+        if isinstance(v, float):
+            print(f"| {k} | {1e3 * v / it:.1f} | {100 * v / total:.0f}% |")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -353,8 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     exe = build_ceres()
     if not args.skip_file:
         path = args.file.resolve()
-        contenders: dict[str, Any] = {"microlie": lambda: run_microlie(path),
-                                      ENGINE: lambda: run_engine(path)}
+        contenders: dict[str, Any] = {"microlie": lambda: run_microlie(path)}
         if exe is not None:
             contenders["Ceres C++ SPARSE_SCHUR"] = lambda: run_ceres(exe, path, "SPARSE_SCHUR")
             contenders["Ceres C++ DENSE_SCHUR"] = lambda: run_ceres(exe, path, "DENSE_SCHUR")
@@ -379,11 +340,7 @@ def main(argv: list[str] | None = None) -> int:
                 write_bal(f, p)
                 label = (f"synthetic street, {n} cameras, {p.n_points} points, "
                          f"{p.n_observations} observations (seed {args.seed})")
-                street: dict[str, Any] = {
-                    "microlie": lambda f=f: run_microlie(f),
-                    ENGINE: lambda f=f: run_engine(f),
-                    "microlie linear_solver=sparse":
-                        lambda f=f: run_microlie_street(f, "sparse")}
+                street: dict[str, Any] = {"microlie": lambda f=f: run_microlie(f)}
                 if exe is not None:
                     street["Ceres C++ SPARSE_SCHUR"] = (
                         lambda f=f: run_ceres(exe, f, "SPARSE_SCHUR"))

@@ -1,5 +1,5 @@
-"""``linear_solver="schur"`` against ``"cholesky"`` on a bundle-adjustment graph, and against
-today's bundle-adjustment Schur (``bundle_adjust``), interleaved, printing ratios.
+"""``linear_solver="schur"`` against ``"cholesky"`` on a bundle-adjustment graph, interleaved,
+printing ratios (``bundle_adjust`` itself runs this engine since issue 20).
 
 The graph is a BAL problem (default problem-49-7776) as factors of the one engine: per camera
 an SO3 rotation, an R(3) translation and R(3) intrinsics ``(f, k1, k2)``, per point an R(3)
@@ -13,11 +13,8 @@ Printed, per repetition (each round runs every contender once, in turn):
   ``--inner`` calls, ms. Schur includes
   forming and factorising the reduced system and the back-substitution.
 - ``iteration``: a Levenberg-Marquardt run of ``--iters`` iterations on the graph, time per
-  iteration (linearisation, solve, trial cost); and ``bundle_adjust`` (Ceres' rules, its own
-  Schur from the Jacobians, camera blocks of 9) on the same file with the same iteration
-  limit. ``in-run solve``: the linear-solve part of those runs per linear solve
-  (factorisation and solve; for ``bundle_adjust`` Schur formation, reduced solve and
-  back-substitution).
+  iteration (linearisation, solve, trial cost). ``in-run solve``: the linear-solve part of
+  those runs per linear solve (factorisation and solve).
 - ``analysis``: the one-off symbolic analysis of each solver, ms.
 
 Usage::
@@ -37,7 +34,6 @@ import numpy as np
 from microlie import SO3
 from microlie.optim import CustomFactor, FactorGraph, read_bal
 from microlie.optim.core.threads import blas_threads_limit
-from microlie.optim.sfm.bundle import bundle_adjust
 from microlie.optim.sfm.camera import BALCamera, reproject
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "bal"
@@ -115,12 +111,6 @@ def main() -> None:
             rows.setdefault(f"iteration {name}", []).append(res.time_s / res.iterations)
             rows.setdefault(f"in-run solve {name}", []).append(
                 (res.timings["factorize"] + res.timings["solve"]) / solves)
-        res = bundle_adjust(bal, max_iter=args.iters, function_tolerance=0.0,
-                            gradient_tolerance=0.0, parameter_tolerance=0.0)
-        t = res.timings
-        rows.setdefault("iteration bundle_adjust", []).append(res.time_s / res.iterations)
-        rows.setdefault("in-run solve bundle_adjust", []).append(
-            (t["schur_form"] + t["reduced_solve"] + t["back_substitution"]) / res.iterations)
         print(f"round {r + 1} (ms): " + ", ".join(f"{k} {1e3 * v[-1]:.1f}"
                                                for k, v in rows.items()), flush=True)
     med = {k: statistics.median(v) for k, v in rows.items()}
@@ -130,9 +120,6 @@ def main() -> None:
     for what in ("linear", "in-run solve", "iteration"):
         print(f"  {what + ' schur / cholesky:':38s} "
               f"{med[f'{what} schur'] / med[f'{what} cholesky']:.2f}x")
-    for what in ("in-run solve", "iteration"):
-        print(f"  {what + ' schur / bundle_adjust:':38s} "
-              f"{med[f'{what} schur'] / med[f'{what} bundle_adjust']:.2f}x")
 
 
 if __name__ == "__main__":
