@@ -241,6 +241,16 @@ def test_bad_input_rejected():
         bundle_adjust(start, fix_points=[True, False])
     with pytest.raises(TypeError, match="lambda_initial"):
         bundle_adjust(start, lambda_initial=1.0)       # an option trust-region does not take
+    # with_values: values of another graph, or of another problem's size
+    from microlie.optim import FactorGraph
+
+    g = FactorGraph()
+    g.add_variables(np.zeros((2, 3)), name="points")
+    with pytest.raises(ValueError, match="one batch named 'rotations'"):
+        start.with_values(g.initial_values())
+    bigger = replace(start, points=np.r_[start.points, start.points[:1]])
+    with pytest.raises(ValueError, match="batch 'points' has 6 variables, this problem 5"):
+        start.with_values(bundle_graph(bigger).graph.initial_values())
     # a boolean mask holds what it marks
     masked = bundle_adjust(start, fix_cameras=[False, True], max_iter=3)
     np.testing.assert_array_equal(start.with_values(masked.values).translations[1],
