@@ -30,13 +30,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..._files import save_figure
 from ..io.bal import BALProblem
 from .camera import BALCamera, CameraModel, camera_model, reproject
+
+if TYPE_CHECKING:
+    from ..core.solvers import Result
+    from ..core.strategies import Strategy
+    from ..linalg.base import LinearSolver
 
 __all__ = ["BundleProblem", "BundleGraph", "bundle_adjust", "bundle_graph", "synthetic_scene",
            "plot_bundle", "rotvec_to_matrix", "matrix_to_rotvec"]
@@ -646,9 +651,10 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
                   behind: str = "evaluate", fix_cameras: Sequence[int] | None = None,
                   fix_points: Sequence[int] | None = None,
                   fix_intrinsics: Sequence[int] | bool | None = None,
-                  solver: Any = "trust-region", linear_solver: Any = "schur",
-                  max_iter: int = 100, gauge: str = "none", verbose: bool | None = False,
-                  blas_threads: int | None = 1, **options: Any) -> Any:
+                  solver: str | Strategy = "trust-region",
+                  linear_solver: str | LinearSolver = "schur", max_iter: int = 100,
+                  gauge: str = "none", verbose: bool | None = False,
+                  blas_threads: int | None = 1, **options: Any) -> Result:
     """Bundle adjustment through the one engine: :func:`bundle_graph` then
     :meth:`FactorGraph.optimize <microlie.optim.FactorGraph.optimize>`, by default with
     :class:`~microlie.optim.TrustRegion` (Levenberg-Marquardt with Ceres' rules, so that
