@@ -220,16 +220,24 @@ class SchurSolver(LinearSolver):
             a, b = int(nr[clash[0]]), int(nc[clash[0]])
             raise ValueError(f"eliminated nodes {a} and {b} share a block of the matrix: only "
                              f"nodes that share no factor can be eliminated together")
-        # the reduced numbering: nodes and unknowns that stay
-        rn = np.flatnonzero(~is_e)
-        rnode = np.full(nn, -1, np.int64)
-        rnode[rn] = np.arange(rn.size)
-        rdof = dof[rn]
+        # the reduced numbering: the nodes that stay, grouped in supernodes (nodes with the
+        # same closed neighbourhood in H's block graph, e.g. the rotation, translation and
+        # intrinsics of one camera: their blocks of S are dense together, so one block of
+        # their summed size loses no sparsity), unknowns supernode by supernode
+        rnode = _supernodes(nc, nr, cols, ix, off, is_e)  # node -> supernode, -1: eliminated
+        ns = int(rnode.max()) + 1
+        kept = np.flatnonzero(~is_e)
+        kept = kept[np.argsort(rnode[kept], kind="stable")]  # the nodes in reduced order
+        rdof = np.bincount(rnode[kept], weights=dof[kept], minlength=ns).astype(np.int64)
         roff = np.concatenate([[0], np.cumsum(rdof)]).astype(np.int64)
         nR = int(roff[-1])
-        self._r_unk = np.flatnonzero(~e_unk)  # reduced unknown -> unknown
-        r_of = np.full(n, -1, np.int64)
-        r_of[self._r_unk] = np.arange(nR)
+        kd = dof[kept]
+        self._r_unk = (np.repeat(off[kept], kd)
+                       + np.arange(nR) - np.repeat(np.cumsum(kd) - kd, kd))  # reduced -> H
+        # each reduced unknown's place in its supernode
+        lin = np.full(n, -1, np.int64)
+        lin[self._r_unk] = np.arange(nR) - roff[rnode[node[self._r_unk]]]
+        self.supernodes = ns
         # positions of H's entries by key col * n + row (CSC with sorted rows: ascending)
         hkey = cols * n + ix
         if nnz > 1 and np.any(np.diff(hkey) <= 0):
@@ -242,16 +250,19 @@ class SchurSolver(LinearSolver):
             return np.where(hkey[k] == q, k, nnz) if nnz else np.full(q.shape, 0)
 
         # the blocks (e, u) of eliminated nodes against the others, by e then u
-        sel = ecol & ~erow
-        eu = np.unique(nc[sel] * nn + nr[sel])
-        pe, pu = eu // nn, eu % nn
+        # (the first entry of each run of one node's rows in a column: rows are sorted)
+        run = np.ones(nnz, dtype=bool)
+        run[1:] = (nr[1:] != nr[:-1]) | (cols[1:] != cols[:-1])
+        sel = ecol & ~erow & run
+        eu = np.unique(nc[sel] * ns + rnode[nr[sel]])
+        pe, pu = eu // ns, eu % ns  # eliminated node, neighbouring supernode
         # the pattern of S, by blocks of the reduced nodes: A's blocks and, for every
         # eliminated node, all pairs of its neighbours
         ra = ~ecol & ~erow
-        keys = [rnode[nc[ra]] * rn.size + rnode[nr[ra]], np.arange(rn.size) * (rn.size + 1)]
+        keys = [rnode[nc[ra]] * ns + rnode[nr[ra]], np.arange(ns) * (ns + 1)]
         # eliminated nodes grouped by (dof, degree, neighbouring unknowns)
         deg = np.bincount(pe, minlength=nn)
-        kun = np.bincount(pe, weights=dof[pu], minlength=nn).astype(np.int64)
+        kun = np.bincount(pe, weights=rdof[pu], minlength=nn).astype(np.int64)
         pstart = np.concatenate([[0], np.cumsum(deg)])  # node e's pairs: pstart[e]..
         sig = np.stack([dof[self.eliminated], deg[self.eliminated], kun[self.eliminated]], 1)
         sigs, inv = np.unique(sig, axis=0, return_inverse=True)
@@ -260,35 +271,34 @@ class SchurSolver(LinearSolver):
         for g, (d, dg, k) in enumerate(sigs.tolist()):
             es = self.eliminated[inv == g]
             if dg:
-                nb = pu[pstart[es][:, None] + np.arange(dg)]  # (m, dg) neighbour nodes
-                rb = rnode[nb]
-                keys.append((rb[:, None, :] * rn.size + rb[:, :, None]).ravel())
+                nb = pu[pstart[es][:, None] + np.arange(dg)]  # (m, dg) neighbours
+                keys.append((nb[:, None, :] * ns + nb[:, :, None]).ravel())
             else:
                 nb = np.zeros((es.size, 0), np.int64)
             plan.append((es, nb, d, dg, k))
-        bkey = _unique_keys(keys, rn.size * rn.size)  # col * nRn + row, ascending
-        bv, bu = bkey // rn.size, bkey % rn.size
+        bkey = _unique_keys(keys, ns * ns)  # col * ns + row, ascending
+        bv, bu = bkey // ns, bkey % ns
         s_ip, s_ix, pos0, collen = _block_csc(bu, bv, rdof, roff)
         self._s_nnz = int(s_ip[-1])
 
         # the blocks' positions by key: a table when it is small (a street scene asks for tens
         # of millions of neighbour pairs: a gather instead of as many binary searches)
         table = None
-        if rn.size * rn.size <= DENSE_TABLE:
-            table = np.zeros(rn.size * rn.size, np.int64)
+        if ns * ns <= DENSE_TABLE:
+            table = np.zeros(ns * ns, np.int64)
             table[bkey] = pos0
 
         def s_at(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-            """The position in S of entry (0, 0) of block (u, v) (reduced nodes)."""
+            """The position in S of entry (0, 0) of block (u, v) (supernodes)."""
             if table is not None:
-                return table[v * rn.size + u]
-            return pos0[np.searchsorted(bkey, v * rn.size + u)]
+                return table[v * ns + u]
+            return pos0[np.searchsorted(bkey, v * ns + u)]
 
         # A's entries: H position -> S position
         ar, ac = nr[ra], nc[ra]
         self._a_src = np.flatnonzero(ra)
-        self._a_dst = (s_at(rnode[ar], rnode[ac]) + (cols[ra] - off[ac]) * collen[rnode[ac]]
-                       + (ix[ra] - off[ar]))
+        self._a_dst = (s_at(rnode[ar], rnode[ac]) + lin[cols[ra]] * collen[rnode[ac]]
+                       + lin[ix[ra]])
         # per group: the index arrays of C_e, B_e^T, the rows and the scatter into S
         # the compiled loop writes straight into S from the blocks' positions; the NumPy one
         # scatters every product through one bincount over all their destinations
@@ -299,8 +309,8 @@ class SchurSolver(LinearSolver):
             m = es.size
             ecols = off[es][:, None] + np.arange(d)  # (m, d)
             cidx = at(ecols[:, :, None], ecols[:, None, :])  # C[a, b] = H[col_a, col_b]
-            nd = dof[nb]  # (m, dg)
-            rb = rnode[nb]
+            nd = rdof[nb]  # (m, dg)
+            rb = nb
             P0 = s_at(rb[:, :, None], rb[:, None, :])  # (m, dg, dg): block (row j1, col j2)
             if dg:
                 # the neighbouring unknowns of each node, in order: (m, k), and for each the
@@ -310,8 +320,9 @@ class SchurSolver(LinearSolver):
                 np.put_along_axis(jt, first, 1, axis=1)
                 jt = np.cumsum(jt, axis=1) - 1
                 loc = np.arange(k) - np.take_along_axis(first, jt, axis=1)
-                un = np.take_along_axis(nb, jt, axis=1)  # node of each row
-                rows = off[un] + loc  # (m, k) unknowns
+                un = np.take_along_axis(nb, jt, axis=1)  # supernode of each row
+                rr = roff[un] + loc  # (m, k) reduced unknowns
+                rows = self._r_unk[rr]  # and in H
                 bidx = at(rows[:, :, None], ecols[:, None, :])  # B[t, a] = H[row_t, col_a]
                 if self._elim is None and np.all(nd == nd[0, 0]):  # one size: broadcasting
                     dl = int(nd[0, 0])
@@ -322,10 +333,9 @@ class SchurSolver(LinearSolver):
                 elif self._elim is None:
                     ii = np.arange(m)[:, None, None]
                     j1, j2 = jt[:, :, None], jt[:, None, :]
-                    cl = collen[rnode[un]]  # (m, k)
+                    cl = collen[un]  # (m, k)
                     dests.append((P0[ii, j1, j2] + loc[:, None, :] * cl[:, None, :]
                                   + loc[:, :, None]).ravel())
-                rr = r_of[rows]
                 rowsall.append(rr.ravel())
             else:
                 bidx = np.zeros((m, 0, d), np.int64)
@@ -572,6 +582,43 @@ def _unique_keys(keys: list[np.ndarray], size: int) -> np.ndarray:
             seen[k] = True
         return np.flatnonzero(seen)
     return np.unique(np.concatenate(keys))
+
+
+def _supernodes(nc: np.ndarray, nr: np.ndarray, cols: np.ndarray, rows: np.ndarray,
+                off: np.ndarray, is_e: np.ndarray) -> np.ndarray:
+    """The supernode of each node that stays (-1 for the eliminated ones), numbered by their
+    first node: nodes with the same closed neighbourhood in the block graph of ``H`` (the
+    nodes of the blocks stored in their first scalar column, themselves included, read off
+    the blocks' first entries: ``nc``, ``nr`` the nodes of the entries at ``(rows, cols)``,
+    CSC order) form one
+    supernode. Such nodes are adjacent and have the same blocks in ``S`` too, so storing them
+    as one dense block loses no sparsity; the neighbourhoods are compared by their size and a
+    64-bit sum of fixed per-node keys (two different ones with the same keys would only make
+    one denser block: the solve stays exact)."""
+    nn = is_e.size
+    first = (cols == off[nc]) & (rows == off[nr])  # one entry per block, sorted by (u, w)
+    u, w = nc[first], nr[first]
+    # splitmix64 of the node numbers: fixed pseudo-random keys, summed with wrap-around
+    z = (np.arange(nn, dtype=np.uint64) + np.uint64(1)) * np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z ^= z >> np.uint64(31)
+    cs = np.concatenate([np.zeros(1, np.uint64), np.cumsum(z[w], dtype=np.uint64)])
+    end = np.searchsorted(u, np.arange(nn), side="right")
+    start = np.concatenate([[0], end[:-1]])
+    h = cs[end] - cs[start]
+    deg = (end - start).astype(np.uint64)
+    kept = np.flatnonzero(~is_e)
+    _, grp = np.unique(np.stack([deg[kept], h[kept]], 1), axis=0, return_inverse=True)
+    grp = grp.ravel()
+    # number the groups by their first node (kept is ascending)
+    firsts = np.full(int(grp.max()) + 1 if grp.size else 0, nn, np.int64)
+    np.minimum.at(firsts, grp, kept)
+    rank = np.empty(firsts.size, np.int64)
+    rank[np.argsort(firsts)] = np.arange(firsts.size)
+    out = np.full(nn, -1, np.int64)
+    out[kept] = rank[grp]
+    return out
 
 
 def _block_csc(bu: np.ndarray, bv: np.ndarray, dof: np.ndarray, off: np.ndarray
