@@ -7,8 +7,9 @@ products ``A^T A`` and ``A^T e``, added straight into the CSC values of the prob
 pattern. So is a batch of :class:`~microlie.optim.ReprojectionFactor` observations with the BAL
 camera model and an ``SO3`` x ``R(3)`` world-to-camera pose (what
 :func:`~microlie.optim.sfm.bundle.bundle_graph` builds), by ``microlie_fast._reproj``
-(:class:`ReprojectionPlan`). The NumPy path of :class:`~microlie.optim.core.problem.Problem` stays the reference and the
-fallback; both give the same linear system to rounding (``tests/test_optim_compiled.py``).
+(:class:`ReprojectionPlan`). The NumPy path of :class:`~microlie.optim.core.problem.Problem`
+stays the reference and the fallback; both give the same linear system to rounding
+(``tests/test_optim_compiled.py``, ``tests/test_reprojection_compiled.py``).
 ``MICROLIE_FAST=0`` (read when a problem is built) keeps the NumPy path.
 
 >>> from microlie.optim.core.compiled import available
@@ -220,7 +221,8 @@ class ReprojectionPlan:
         self.keys, self.idx, self.obs, self.L, self.drop, self.K = keys, idx, obs, L, drop, K
         self.starts, self.lens, self.goff = starts, lens, goff
 
-    def _arrays(self, states: list[np.ndarray]) -> tuple[np.ndarray, ...]:
+    def _arrays(self, states: list[np.ndarray]
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``R`` (one matrix per rotation variable), ``t``, ``X`` and ``K`` as the kernel
         reads them."""
         from ...groups import SO3
@@ -228,7 +230,8 @@ class ReprojectionPlan:
         kr, kt, kx, kk = self.keys
         R = np.ascontiguousarray(SO3.from_params(states[kr], check=False).matrix(),
                                  dtype=np.float64)
-        K = self.K if kk is None else _rows(states[kk])
+        K = _rows(states[kk]) if kk is not None else self.K
+        assert K is not None
         return R, _rows(states[kt]), _rows(states[kx]), K
 
     def cost(self, states: list[np.ndarray]) -> np.ndarray:
@@ -309,7 +312,7 @@ def _reprojection_plan(problem: Any, f: Factor) -> ReprojectionPlan | None:
     if mod is None:
         return None
     m = f.count
-    args = list(f.args)
+    args: list[tuple[Any, Any]] = list(f.args)
     const = f.intrinsics
     if const is not None:
         args.append((None, np.arange(m)))
