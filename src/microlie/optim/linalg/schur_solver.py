@@ -272,6 +272,10 @@ class SchurSolver(LinearSolver):
             es = self.eliminated[inv == g]
             if dg:
                 nb = pu[pstart[es][:, None] + np.arange(dg)]  # (m, dg) neighbours
+                # nodes with the same neighbours one after the other: they update the same
+                # blocks of S while these are in cache
+                o = np.lexsort(nb.T[::-1])
+                es, nb = es[o], nb[o]
                 keys.append((nb[:, None, :] * ns + nb[:, :, None]).ravel())
             else:
                 nb = np.zeros((es.size, 0), np.int64)
