@@ -381,3 +381,22 @@ def test_supernodes_of_camera_nodes(fast, sizes, monkeypatch):
         ref = np.linalg.solve(Hd, b)
         x = s.solve(b)
         assert np.abs(x - ref).max() <= 1e-10 * np.linalg.cond(Hd) * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("fast", ["1", "0"])
+def test_blocks_not_stored_in_full(fast, monkeypatch):
+    """A pattern whose blocks are not dense (entries of B_e and C_e not stored: read as
+    zeros) solves as numpy.linalg.solve does."""
+    monkeypatch.setenv("MICROLIE_FAST", fast)
+    H = np.array([[5.0, 1.0, 0.5, 0.0, 0.0],
+                  [1.0, 4.0, 0.3, 0.2, 0.4],
+                  [0.5, 0.3, 3.0, 0.0, 0.0],
+                  [0.0, 0.2, 0.0, 2.0, 0.0],
+                  [0.0, 0.4, 0.0, 0.0, 6.0]])
+    A = sp.csc_matrix(H)  # stores the nonzeros only
+    s = SchurSolver([0, 2, 4, 5], eliminate=[1, 2], reduced="dense")
+    s.analyse(A.indptr, A.indices, 5)
+    assert s._pad  # entries read as the zero after H's data
+    s.factorize(A.data)
+    b = np.arange(1.0, 6.0)
+    np.testing.assert_allclose(s.solve(b), np.linalg.solve(H, b), rtol=1e-13)

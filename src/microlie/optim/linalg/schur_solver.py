@@ -369,7 +369,10 @@ class SchurSolver(LinearSolver):
         rr_all = np.concatenate(rowsall) if rowsall else np.zeros(0, np.int64)
         self._rhs_sum = sp.csr_matrix((np.ones(rr_all.size), (rr_all, np.arange(rr_all.size))),
                                       shape=(nR, rr_all.size))
-        self._dz = np.zeros(nnz + 1)  # H's data then one zero (entries not stored)
+        # H's data then one zero, for the entries of C_e and B_e not stored (an H whose
+        # blocks are dense has none: then the data is read in place, not copied)
+        self._pad = any(bool((g.cidx == nnz).any() or (g.bidx == nnz).any()) for g in groups)
+        self._dz = np.zeros(nnz + 1) if self._pad else np.zeros(0)
         self._e_unk = np.flatnonzero(e_unk)
         self.n_reduced = nR
         choice = reduced_choice(nR, self._s_nnz) if self.reduced == "auto" else self.reduced
@@ -405,13 +408,16 @@ class SchurSolver(LinearSolver):
         >>> s.analyse(A.indptr, A.indices, 3)
         >>> s.factorize(A.data)
         """
-        data = np.asarray(data, dtype=np.float64)
+        data = np.ascontiguousarray(data, dtype=np.float64)
         if data.shape != (self.indices.size,):
             raise ValueError(f"data has shape {data.shape}; the analysed pattern has "
                              f"{self.indices.size} entries")
         self._factored = False
-        dz = self._dz
-        dz[:-1] = data
+        if self._pad:
+            dz = self._dz
+            dz[:-1] = data
+        else:
+            dz = data
         S = np.zeros(self._s_nnz)
         S[self._a_dst] = dz[self._a_src]
         self._li: list[np.ndarray] = []
@@ -419,7 +425,7 @@ class SchurSolver(LinearSolver):
         w = self._w
         for g in self._groups:
             if self._elim is not None:
-                self._form_compiled(g, data, S)
+                self._form_compiled(g, dz, data, S)
                 continue
             C = dz[g.cidx]
             try:
@@ -462,12 +468,13 @@ class SchurSolver(LinearSolver):
                                       else str(e), unknown=u) from None
         self._factored = True
 
-    def _form_compiled(self, g: _Group, data: np.ndarray, S: np.ndarray) -> None:
+    def _form_compiled(self, g: _Group, dz: np.ndarray, data: np.ndarray, S: np.ndarray
+                       ) -> None:
         """Group ``g``'s part of :meth:`factorize` by the compiled loop (``_normal.form``)."""
         m, d = g.cols.shape
         k = g.rows.shape[1]
         Li, V, piv = np.empty((m, d, d)), np.empty((m, k, d)), np.empty((m, d))
-        bad = self._elim.form(self._dz, g.cidx, g.bidx, g.p0, g.nd, g.cl, S, Li, V, piv)
+        bad = self._elim.form(dz, g.cidx, g.bidx, g.p0, g.nd, g.cl, S, Li, V, piv)
         if bad >= 0:
             raise SingularSystemError(
                 "the linear system is singular or not positive definite: the block of an "
