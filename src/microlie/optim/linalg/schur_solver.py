@@ -249,6 +249,30 @@ class SchurSolver(LinearSolver):
             k = np.minimum(np.searchsorted(hkey, q), max(nnz - 1, 0))
             return np.where(hkey[k] == q, k, nnz) if nnz else np.full(q.shape, 0)
 
+        # the eliminated nodes' columns: when each holds the rows of the node's first column
+        # (blocks stored in full), entry (row, off_e + a) is at the position of (row, off_e)
+        # plus a times that column's length, found among the first columns' entries only
+        elen = np.zeros(nn, np.int64)
+        elen[self.eliminated] = ip[off[self.eliminated] + 1] - ip[off[self.eliminated]]
+        qe = np.flatnonzero(ecol)
+        ce, ne = cols[qe], nc[qe]
+        q0 = ip[off[ne]] + (qe - ip[ce])
+        uniform = bool(np.all(ip[ce + 1] - ip[ce] == elen[ne]) and np.all(ix[qe] == ix[q0]))
+        q1 = qe[ce == off[ne]]
+        key1 = nc[q1] * n + ix[q1]  # ascending
+        del qe, ce, ne, q0
+
+        def at_e(row: np.ndarray, es: np.ndarray, d: int) -> np.ndarray:
+            """``at(row[..., None], off[es] + arange(d))``: ``(m, r, d)``."""
+            col = off[es][:, None, None] + np.arange(d)
+            if not uniform or not key1.size:
+                return at(row[:, :, None], col)
+            q = es[:, None] * n + row
+            k = np.minimum(np.searchsorted(key1, q), key1.size - 1)
+            pos = np.where(key1[k] == q, q1[k], -1)[:, :, None] \
+                + np.arange(d) * elen[es][:, None, None]
+            return np.where(pos[:, :, :1] >= 0, pos, nnz)
+
         # the blocks (e, u) of eliminated nodes against the others, by e then u
         # (the first entry of each run of one node's rows in a column: rows are sorted)
         run = np.ones(nnz, dtype=bool)
@@ -312,7 +336,7 @@ class SchurSolver(LinearSolver):
         for es, nb, d, dg, k in plan:
             m = es.size
             ecols = off[es][:, None] + np.arange(d)  # (m, d)
-            cidx = at(ecols[:, :, None], ecols[:, None, :])  # C[a, b] = H[col_a, col_b]
+            cidx = at_e(ecols, es, d)  # C[a, b] = H[col_a, col_b]
             nd = rdof[nb]  # (m, dg)
             rb = nb
             P0 = s_at(rb[:, :, None], rb[:, None, :])  # (m, dg, dg): block (row j1, col j2)
@@ -327,7 +351,7 @@ class SchurSolver(LinearSolver):
                 un = np.take_along_axis(nb, jt, axis=1)  # supernode of each row
                 rr = roff[un] + loc  # (m, k) reduced unknowns
                 rows = self._r_unk[rr]  # and in H
-                bidx = at(rows[:, :, None], ecols[:, None, :])  # B[t, a] = H[row_t, col_a]
+                bidx = at_e(rows, es, d)  # B[t, a] = H[row_t, col_a]
                 if self._elim is None and np.all(nd == nd[0, 0]):  # one size: broadcasting
                     dl = int(nd[0, 0])
                     la = np.arange(dl)
