@@ -224,7 +224,7 @@ class SchurSolver(LinearSolver):
         # same closed neighbourhood in H's block graph, e.g. the rotation, translation and
         # intrinsics of one camera: their blocks of S are dense together, so one block of
         # their summed size loses no sparsity), unknowns supernode by supernode
-        rnode = _supernodes(nc, nr, cols, ix, off, is_e)  # node -> supernode, -1: eliminated
+        rnode = _supernodes(ip, ix, off, node, is_e)  # node -> supernode, -1: eliminated
         ns = int(rnode.max()) + 1
         kept = np.flatnonzero(~is_e)
         kept = kept[np.argsort(rnode[kept], kind="stable")]  # the nodes in reduced order
@@ -275,9 +275,11 @@ class SchurSolver(LinearSolver):
 
         # the blocks (e, u) of eliminated nodes against the others, by e then u
         # (the first entry of each run of one node's rows in a column: rows are sorted)
-        run = np.ones(nnz, dtype=bool)
-        run[1:] = (nr[1:] != nr[:-1]) | (cols[1:] != cols[:-1])
-        sel = ecol & ~erow & run
+        # (uniform columns: the first column of each eliminated node is enough)
+        qs = q1 if uniform else np.arange(nnz)
+        run = np.ones(qs.size, dtype=bool)
+        run[1:] = (nr[qs[1:]] != nr[qs[:-1]]) | (cols[qs[1:]] != cols[qs[:-1]])
+        sel = qs[ecol[qs] & ~erow[qs] & run]
         eu = np.unique(nc[sel] * ns + rnode[nr[sel]])
         pe, pu = eu // ns, eu % ns  # eliminated node, neighbouring supernode
         # the pattern of S, by blocks of the reduced nodes: A's blocks and, for every
@@ -619,20 +621,26 @@ def _unique_keys(keys: list[np.ndarray], size: int) -> np.ndarray:
     return np.unique(np.concatenate(keys))
 
 
-def _supernodes(nc: np.ndarray, nr: np.ndarray, cols: np.ndarray, rows: np.ndarray,
-                off: np.ndarray, is_e: np.ndarray) -> np.ndarray:
+def _supernodes(ip: np.ndarray, ix: np.ndarray, off: np.ndarray, node: np.ndarray,
+                is_e: np.ndarray) -> np.ndarray:
     """The supernode of each node that stays (-1 for the eliminated ones), numbered by their
     first node: nodes with the same closed neighbourhood in the block graph of ``H`` (the
     nodes of the blocks stored in their first scalar column, themselves included, read off
-    the blocks' first entries: ``nc``, ``nr`` the nodes of the entries at ``(rows, cols)``,
-    CSC order) form one
+    the blocks' first entries of the CSC pattern ``ip``, ``ix``; ``node`` the node of each
+    unknown) form one
     supernode. Such nodes are adjacent and have the same blocks in ``S`` too, so storing them
     as one dense block loses no sparsity; the neighbourhoods are compared by their size and a
     64-bit sum of fixed per-node keys (two different ones with the same keys would only make
     one denser block: the solve stays exact)."""
     nn = is_e.size
-    first = (cols == off[nc]) & (rows == off[nr])  # one entry per block, sorted by (u, w)
-    u, w = nc[first], nr[first]
+    # the entries of each node's first column (not a pass over all of H)
+    c0 = off[:-1]
+    lens = ip[c0 + 1] - ip[c0]
+    pos = np.repeat(ip[c0] - np.cumsum(lens) + lens, lens) + np.arange(int(lens.sum()))
+    rows = ix[pos]
+    w = node[rows]
+    first = rows == off[w]  # one entry per block, sorted by (u, w)
+    u, w = np.repeat(np.arange(nn), lens)[first], w[first]
     # splitmix64 of the node numbers: fixed pseudo-random keys, summed with wrap-around
     z = (np.arange(nn, dtype=np.uint64) + np.uint64(1)) * np.uint64(0x9E3779B97F4A7C15)
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
