@@ -24,6 +24,8 @@
  *   caller mirrors it);
  *   Li (m, d, d) out: L_e^-1 (lower triangular, C_e = L_e L_e^T); V (m, k, d) out:
  *   B_e L_e^-T; piv (m, d) out: the squared pivots of the Cholesky factorisations.
+ *   Points (d = 3) whose neighbours all have 9 unknowns (camera supernodes) take a path with
+ *   fixed 9 x 9 blocks formed straight into S.
  * Returns -1, or the first node whose block C_e is not positive definite (S is then partly
  * updated). All float64. */
 #define PY_SSIZE_T_CLEAN

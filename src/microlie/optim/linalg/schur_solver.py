@@ -13,7 +13,10 @@ With ``C_e = L_e L_e^T`` (batched Cholesky of the ``d x d`` blocks) and ``V_e = 
 (``B_e^T`` the ``d x k_e`` rows of node ``e`` against the ``k_e`` unknowns of its neighbours),
 node ``e`` adds ``-V_e^T V_e`` to ``S``: one batched matrix product per group of eliminated
 nodes of the same size ``(d, k_e)``, summed into ``S``'s compressed columns by one ``bincount``
-over scatter positions computed once. The reduced system is factorised by one of the
+over scatter positions computed once. The nodes that stay are grouped in supernodes (nodes
+with the same neighbours, such as the rotation, translation and intrinsics of one bundle
+adjustment camera), so that ``S`` is stored and formed in their larger dense blocks. The
+reduced system is factorised by one of the
 backends of :func:`~microlie.optim.linalg.linear.make_solver` (dense LAPACK Cholesky when it
 is small or dense, the sparse supernodal Cholesky otherwise), analysed once as well: every
 symbolic step (the pattern of ``S``, fixed by ``H``'s, its ordering and the scatter maps)
