@@ -394,10 +394,10 @@ class SchurSolver(LinearSolver):
         # int64: bincount converts anything else to it, a copy per factorisation
         self._dest = np.concatenate(dests) if dests else np.zeros(0, np.int64)
         self._w = np.empty(total)  # the products V_e^T V_e of every group
-        # the rhs scatter: t (sum m k) -> reduced rows, as one sparse 0/1 product
-        rr_all = np.concatenate(rowsall) if rowsall else np.zeros(0, np.int64)
-        self._rhs_sum = sp.csr_matrix((np.ones(rr_all.size), (rr_all, np.arange(rr_all.size))),
-                                      shape=(nR, rr_all.size))
+        # the rhs scatter of the NumPy solve (t (sum m k) -> reduced rows, one sparse 0/1
+        # product): built on its first use (the compiled solve of one right-hand side has none)
+        self._rhs_rows = rowsall
+        self._rhs_sum: Any = None
         # H's data then one zero, for the entries of C_e and B_e not stored (an H whose
         # blocks are dense has none: then the data is read in place, not copied)
         self._pad = any(bool((g.cidx == nnz).any() or (g.bidx == nnz).any()) for g in groups)
@@ -563,6 +563,11 @@ class SchurSolver(LinearSolver):
                 ts.append((VT[0] @ y).reshape(-1, j))  # (m k, j) B C^-1 b_e
         rhs = B[self._r_unk]
         if ts:
+            if self._rhs_sum is None:
+                rr = (np.concatenate(self._rhs_rows) if self._rhs_rows
+                      else np.zeros(0, np.int64))
+                self._rhs_sum = sp.csr_matrix((np.ones(rr.size), (rr, np.arange(rr.size))),
+                                              shape=(self.n_reduced, rr.size))
             rhs = rhs - self._rhs_sum @ np.concatenate(ts)
         assert self.reduced_solver is not None
         xr = self.reduced_solver.solve(rhs if b.ndim == 2 else rhs[:, 0])
