@@ -51,6 +51,12 @@ setup(
             extra_compile_args=flags,
             libraries=["m"],  # fma() where the target has no fused multiply-add instruction
         ),
+        Extension(  # BAL reprojection factors (microlie.optim.core.compiled.ReprojectionPlan)
+            "microlie_fast._reproj",
+            sources=["src/microlie_fast/_reproj.c"],
+            include_dirs=[np.get_include()],
+            extra_compile_args=flags,
+        ),
         Extension(  # the reader of numeric text tables (microlie.traj.io)
             "microlie_fast._text",
             sources=["src/microlie_fast/_text.c"],

@@ -315,3 +315,88 @@ def test_schur_analysis_by_sort_and_search_equals_dense_solve(monkeypatch):
     ref = np.linalg.solve(H, b)
     np.testing.assert_allclose(s.solve(b), ref, rtol=0, atol=1e-10 * np.linalg.cond(H)
                                * np.abs(ref).max())
+
+
+def _camera_system(rng, nc, npt, sizes=(3, 3, 3)):
+    """A bundle-like SPD ``H``: ``nc`` cameras of ``len(sizes)`` nodes each (numbered batch
+    by batch, as a graph numbers rotations, translations and intrinsics), ``npt`` 3-unknown
+    points each seen by 2-5 cameras (a block row touching every node of the camera and the
+    point), one point seen by no camera. Returns the dense H, its CSC, node offsets, the
+    point nodes and each camera's nodes."""
+    nb = len(sizes)
+    dofs = np.array(list(np.repeat(sizes, nc)) + [3] * npt)
+    off = np.concatenate([[0], np.cumsum(dofs)])
+    n = int(off[-1])
+    cam_nodes = [[b * nc + c for b in range(nb)] for c in range(nc)]
+    rows = []
+    for j in range(npt - 1):
+        pn = nb * nc + j
+        for c in rng.choice(nc, size=rng.integers(2, min(nc, 5) + 1), replace=False):
+            r = np.zeros((2, n))
+            for u in [*cam_nodes[c], pn]:
+                r[:, off[u]:off[u + 1]] = rng.standard_normal((2, dofs[u]))
+            rows.append(r)
+    J = np.vstack(rows)
+    H = J.T @ J + 1e-3 * np.eye(n)
+    A = sp.csc_matrix(np.where(np.abs(H) > 0, H, 0.0))
+    # the pattern: full dense blocks of every pair of nodes that share a row (and diagonals)
+    nn = dofs.size
+    node = np.repeat(np.arange(nn), dofs)
+    M = np.eye(nn, dtype=bool)
+    for r in rows:
+        us = np.unique(node[np.flatnonzero(r.any(0))])
+        M[np.ix_(us, us)] = True
+    full = M[node][:, node]
+    c, r = np.nonzero(full.T)
+    A = sp.csc_matrix((H[r, c], (r, c)), shape=(n, n))
+    A.sort_indices()
+    return H, A, off, np.arange(nb * nc, nn), cam_nodes
+
+
+@pytest.mark.parametrize("fast", ["1", "0"])
+@pytest.mark.parametrize("sizes", [(3, 3, 3), (3, 3, 2), (6, 3)])
+def test_supernodes_of_camera_nodes(fast, sizes, monkeypatch):
+    """The nodes of one camera (always together in every block row) become one supernode of
+    the reduced system (9 x 9 blocks for three 3-unknown nodes: the compiled formation's
+    block path), and the solve still equals numpy.linalg.solve, damped or not."""
+    monkeypatch.setenv("MICROLIE_FAST", fast)
+    rng = np.random.default_rng(11)
+    nc = 7
+    H, A, off, elim, cams = _camera_system(rng, nc, 40, sizes)
+    n = H.shape[0]
+    s = SchurSolver(off, elim, "cholesky")
+    s.analyse(A.indptr, A.indices, n)
+    assert s.supernodes == nc and s.n_reduced == nc * sum(sizes)
+    # each camera's unknowns are consecutive in the reduced numbering
+    nodes_of = np.repeat(np.arange(off.size - 1), np.diff(off))[s._r_unk]
+    for k, c in enumerate(cams):
+        assert set(nodes_of[k * sum(sizes):(k + 1) * sum(sizes)]) == set(c)
+    diag = np.flatnonzero(A.indices == np.repeat(np.arange(n), np.diff(A.indptr)))
+    for lam in (0.0, 1e-2, 10.0):
+        data = A.data.copy()
+        data[diag] += lam
+        Hd = H + lam * np.eye(n)
+        s.factorize(data)
+        b = rng.standard_normal(n)
+        ref = np.linalg.solve(Hd, b)
+        x = s.solve(b)
+        assert np.abs(x - ref).max() <= 1e-10 * np.linalg.cond(Hd) * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("fast", ["1", "0"])
+def test_blocks_not_stored_in_full(fast, monkeypatch):
+    """A pattern whose blocks are not dense (entries of B_e and C_e not stored: read as
+    zeros) solves as numpy.linalg.solve does."""
+    monkeypatch.setenv("MICROLIE_FAST", fast)
+    H = np.array([[5.0, 1.0, 0.5, 0.0, 0.0],
+                  [1.0, 4.0, 0.3, 0.2, 0.4],
+                  [0.5, 0.3, 3.0, 0.0, 0.0],
+                  [0.0, 0.2, 0.0, 2.0, 0.0],
+                  [0.0, 0.4, 0.0, 0.0, 6.0]])
+    A = sp.csc_matrix(H)  # stores the nonzeros only
+    s = SchurSolver([0, 2, 4, 5], eliminate=[1, 2], reduced="dense")
+    s.analyse(A.indptr, A.indices, 5)
+    assert s._pad  # entries read as the zero after H's data
+    s.factorize(A.data)
+    b = np.arange(1.0, 6.0)
+    np.testing.assert_allclose(s.solve(b), np.linalg.solve(H, b), rtol=1e-13)

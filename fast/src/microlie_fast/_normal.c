@@ -24,6 +24,8 @@
  *   caller mirrors it);
  *   Li (m, d, d) out: L_e^-1 (lower triangular, C_e = L_e L_e^T); V (m, k, d) out:
  *   B_e L_e^-T; piv (m, d) out: the squared pivots of the Cholesky factorisations.
+ *   Points (d = 3) whose neighbours all have 9 unknowns (camera supernodes) take a path with
+ *   fixed 9 x 9 blocks formed straight into S.
  * Returns -1, or the first node whose block C_e is not positive definite (S is then partly
  * updated). All float64. */
 #define PY_SSIZE_T_CLEAN
@@ -44,6 +46,18 @@ static inline __attribute__((always_inline)) void column(
         const double *w = W + c * k;
         double x = vb[c];
         for (ix t = 0; t < lim; t++) tmp[t] += w[t] * x;
+    }
+}
+
+/* S's 9 x 9 block at B (column stride c2) -= W[:, f1:f1+9]^T V2^T, W = V^T (3 x k), V2 the 9
+ * rows (3 each) of V of the block's column neighbour */
+static inline __attribute__((always_inline)) void block9(
+    const double *W, const double *V2, double *B, ix f1, ix k, ix c2) {
+    const double *w0 = W + f1, *w1 = W + k + f1, *w2 = W + 2 * k + f1;
+    for (int b = 0; b < 9; b++) {
+        double x0 = V2[3 * b], x1 = V2[3 * b + 1], x2 = V2[3 * b + 2];
+        double *col = B + b * c2;
+        for (int a = 0; a < 9; a++) col[a] -= w0[a] * x0 + w1[a] * x1 + w2[a] * x2;
     }
 }
 
@@ -88,6 +102,16 @@ static inline __attribute__((always_inline)) int node(
      * unknowns of the neighbours j1 <= j2, written as runs of n1 rows */
     for (ix t = 0; t < k; t++)
         for (ix a = 0; a < d; a++) W[a * k + t] = V[t * d + a];
+    if (d == 3 && k == 9 * dg) {
+        int all9 = 1;
+        for (ix j = 0; j < dg; j++) all9 &= nd[j] == 9;
+        if (all9) {  /* 9 x 9 blocks (BA cameras), each formed straight into S */
+            for (ix j2 = 0; j2 < dg; j2++)
+                for (ix j1 = 0; j1 <= j2; j1++)
+                    block9(W, V + 27 * j2, S + p0[j1 * dg + j2], 9 * j1, k, cl[j2]);
+            return 0;
+        }
+    }
     ix f2 = 0;
     for (ix j2 = 0; j2 < dg; j2++) {
         ix n2 = nd[j2], c2 = cl[j2];

@@ -13,7 +13,10 @@ With ``C_e = L_e L_e^T`` (batched Cholesky of the ``d x d`` blocks) and ``V_e = 
 (``B_e^T`` the ``d x k_e`` rows of node ``e`` against the ``k_e`` unknowns of its neighbours),
 node ``e`` adds ``-V_e^T V_e`` to ``S``: one batched matrix product per group of eliminated
 nodes of the same size ``(d, k_e)``, summed into ``S``'s compressed columns by one ``bincount``
-over scatter positions computed once. The reduced system is factorised by one of the
+over scatter positions computed once. The nodes that stay are grouped in supernodes (nodes
+with the same neighbours, such as the rotation, translation and intrinsics of one bundle
+adjustment camera), so that ``S`` is stored and formed in their larger dense blocks. The
+reduced system is factorised by one of the
 backends of :func:`~microlie.optim.linalg.linear.make_solver` (dense LAPACK Cholesky when it
 is small or dense, the sparse supernodal Cholesky otherwise), analysed once as well: every
 symbolic step (the pattern of ``S``, fixed by ``H``'s, its ordering and the scatter maps)
@@ -220,16 +223,24 @@ class SchurSolver(LinearSolver):
             a, b = int(nr[clash[0]]), int(nc[clash[0]])
             raise ValueError(f"eliminated nodes {a} and {b} share a block of the matrix: only "
                              f"nodes that share no factor can be eliminated together")
-        # the reduced numbering: nodes and unknowns that stay
-        rn = np.flatnonzero(~is_e)
-        rnode = np.full(nn, -1, np.int64)
-        rnode[rn] = np.arange(rn.size)
-        rdof = dof[rn]
+        # the reduced numbering: the nodes that stay, grouped in supernodes (nodes with the
+        # same closed neighbourhood in H's block graph, e.g. the rotation, translation and
+        # intrinsics of one camera: their blocks of S are dense together, so one block of
+        # their summed size loses no sparsity), unknowns supernode by supernode
+        rnode = _supernodes(ip, ix, off, node, is_e)  # node -> supernode, -1: eliminated
+        ns = int(rnode.max()) + 1
+        kept = np.flatnonzero(~is_e)
+        kept = kept[np.argsort(rnode[kept], kind="stable")]  # the nodes in reduced order
+        rdof = np.bincount(rnode[kept], weights=dof[kept], minlength=ns).astype(np.int64)
         roff = np.concatenate([[0], np.cumsum(rdof)]).astype(np.int64)
         nR = int(roff[-1])
-        self._r_unk = np.flatnonzero(~e_unk)  # reduced unknown -> unknown
-        r_of = np.full(n, -1, np.int64)
-        r_of[self._r_unk] = np.arange(nR)
+        kd = dof[kept]
+        self._r_unk = (np.repeat(off[kept], kd)
+                       + np.arange(nR) - np.repeat(np.cumsum(kd) - kd, kd))  # reduced -> H
+        # each reduced unknown's place in its supernode
+        lin = np.full(n, -1, np.int64)
+        lin[self._r_unk] = np.arange(nR) - roff[rnode[node[self._r_unk]]]
+        self.supernodes = ns
         # positions of H's entries by key col * n + row (CSC with sorted rows: ascending)
         hkey = cols * n + ix
         if nnz > 1 and np.any(np.diff(hkey) <= 0):
@@ -241,17 +252,46 @@ class SchurSolver(LinearSolver):
             k = np.minimum(np.searchsorted(hkey, q), max(nnz - 1, 0))
             return np.where(hkey[k] == q, k, nnz) if nnz else np.full(q.shape, 0)
 
+        # the eliminated nodes' columns: when each holds the rows of the node's first column
+        # (blocks stored in full), entry (row, off_e + a) is at the position of (row, off_e)
+        # plus a times that column's length, found among the first columns' entries only
+        elen = np.zeros(nn, np.int64)
+        elen[self.eliminated] = ip[off[self.eliminated] + 1] - ip[off[self.eliminated]]
+        qe = np.flatnonzero(ecol)
+        ce, ne = cols[qe], nc[qe]
+        q0 = ip[off[ne]] + (qe - ip[ce])
+        uniform = bool(np.all(ip[ce + 1] - ip[ce] == elen[ne]) and np.all(ix[qe] == ix[q0]))
+        q1 = qe[ce == off[ne]]
+        key1 = nc[q1] * n + ix[q1]  # ascending
+        del qe, ce, ne, q0
+
+        def at_e(row: np.ndarray, es: np.ndarray, d: int) -> np.ndarray:
+            """``at(row[..., None], off[es] + arange(d))``: ``(m, r, d)``."""
+            col = off[es][:, None, None] + np.arange(d)
+            if not uniform or not key1.size:
+                return at(row[:, :, None], col)
+            q = es[:, None] * n + row
+            k = np.minimum(np.searchsorted(key1, q), key1.size - 1)
+            pos = np.where(key1[k] == q, q1[k], -1)[:, :, None] \
+                + np.arange(d) * elen[es][:, None, None]
+            return np.where(pos[:, :, :1] >= 0, pos, nnz)
+
         # the blocks (e, u) of eliminated nodes against the others, by e then u
-        sel = ecol & ~erow
-        eu = np.unique(nc[sel] * nn + nr[sel])
-        pe, pu = eu // nn, eu % nn
+        # (the first entry of each run of one node's rows in a column: rows are sorted)
+        # (uniform columns: the first column of each eliminated node is enough)
+        qs = q1 if uniform else np.arange(nnz)
+        run = np.ones(qs.size, dtype=bool)
+        run[1:] = (nr[qs[1:]] != nr[qs[:-1]]) | (cols[qs[1:]] != cols[qs[:-1]])
+        sel = qs[ecol[qs] & ~erow[qs] & run]
+        eu = np.unique(nc[sel] * ns + rnode[nr[sel]])
+        pe, pu = eu // ns, eu % ns  # eliminated node, neighbouring supernode
         # the pattern of S, by blocks of the reduced nodes: A's blocks and, for every
         # eliminated node, all pairs of its neighbours
         ra = ~ecol & ~erow
-        keys = [rnode[nc[ra]] * rn.size + rnode[nr[ra]], np.arange(rn.size) * (rn.size + 1)]
+        keys = [rnode[nc[ra]] * ns + rnode[nr[ra]], np.arange(ns) * (ns + 1)]
         # eliminated nodes grouped by (dof, degree, neighbouring unknowns)
         deg = np.bincount(pe, minlength=nn)
-        kun = np.bincount(pe, weights=dof[pu], minlength=nn).astype(np.int64)
+        kun = np.bincount(pe, weights=rdof[pu], minlength=nn).astype(np.int64)
         pstart = np.concatenate([[0], np.cumsum(deg)])  # node e's pairs: pstart[e]..
         sig = np.stack([dof[self.eliminated], deg[self.eliminated], kun[self.eliminated]], 1)
         sigs, inv = np.unique(sig, axis=0, return_inverse=True)
@@ -260,35 +300,38 @@ class SchurSolver(LinearSolver):
         for g, (d, dg, k) in enumerate(sigs.tolist()):
             es = self.eliminated[inv == g]
             if dg:
-                nb = pu[pstart[es][:, None] + np.arange(dg)]  # (m, dg) neighbour nodes
-                rb = rnode[nb]
-                keys.append((rb[:, None, :] * rn.size + rb[:, :, None]).ravel())
+                nb = pu[pstart[es][:, None] + np.arange(dg)]  # (m, dg) neighbours
+                # nodes with the same neighbours one after the other: they update the same
+                # blocks of S while these are in cache
+                o = np.lexsort(nb.T[::-1])
+                es, nb = es[o], nb[o]
+                keys.append((nb[:, None, :] * ns + nb[:, :, None]).ravel())
             else:
                 nb = np.zeros((es.size, 0), np.int64)
             plan.append((es, nb, d, dg, k))
-        bkey = _unique_keys(keys, rn.size * rn.size)  # col * nRn + row, ascending
-        bv, bu = bkey // rn.size, bkey % rn.size
+        bkey = _unique_keys(keys, ns * ns)  # col * ns + row, ascending
+        bv, bu = bkey // ns, bkey % ns
         s_ip, s_ix, pos0, collen = _block_csc(bu, bv, rdof, roff)
         self._s_nnz = int(s_ip[-1])
 
         # the blocks' positions by key: a table when it is small (a street scene asks for tens
         # of millions of neighbour pairs: a gather instead of as many binary searches)
         table = None
-        if rn.size * rn.size <= DENSE_TABLE:
-            table = np.zeros(rn.size * rn.size, np.int64)
+        if ns * ns <= DENSE_TABLE:
+            table = np.zeros(ns * ns, np.int64)
             table[bkey] = pos0
 
         def s_at(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-            """The position in S of entry (0, 0) of block (u, v) (reduced nodes)."""
+            """The position in S of entry (0, 0) of block (u, v) (supernodes)."""
             if table is not None:
-                return table[v * rn.size + u]
-            return pos0[np.searchsorted(bkey, v * rn.size + u)]
+                return table[v * ns + u]
+            return pos0[np.searchsorted(bkey, v * ns + u)]
 
         # A's entries: H position -> S position
         ar, ac = nr[ra], nc[ra]
         self._a_src = np.flatnonzero(ra)
-        self._a_dst = (s_at(rnode[ar], rnode[ac]) + (cols[ra] - off[ac]) * collen[rnode[ac]]
-                       + (ix[ra] - off[ar]))
+        self._a_dst = (s_at(rnode[ar], rnode[ac]) + lin[cols[ra]] * collen[rnode[ac]]
+                       + lin[ix[ra]])
         # per group: the index arrays of C_e, B_e^T, the rows and the scatter into S
         # the compiled loop writes straight into S from the blocks' positions; the NumPy one
         # scatters every product through one bincount over all their destinations
@@ -298,9 +341,9 @@ class SchurSolver(LinearSolver):
         for es, nb, d, dg, k in plan:
             m = es.size
             ecols = off[es][:, None] + np.arange(d)  # (m, d)
-            cidx = at(ecols[:, :, None], ecols[:, None, :])  # C[a, b] = H[col_a, col_b]
-            nd = dof[nb]  # (m, dg)
-            rb = rnode[nb]
+            cidx = at_e(ecols, es, d)  # C[a, b] = H[col_a, col_b]
+            nd = rdof[nb]  # (m, dg)
+            rb = nb
             P0 = s_at(rb[:, :, None], rb[:, None, :])  # (m, dg, dg): block (row j1, col j2)
             if dg:
                 # the neighbouring unknowns of each node, in order: (m, k), and for each the
@@ -310,9 +353,10 @@ class SchurSolver(LinearSolver):
                 np.put_along_axis(jt, first, 1, axis=1)
                 jt = np.cumsum(jt, axis=1) - 1
                 loc = np.arange(k) - np.take_along_axis(first, jt, axis=1)
-                un = np.take_along_axis(nb, jt, axis=1)  # node of each row
-                rows = off[un] + loc  # (m, k) unknowns
-                bidx = at(rows[:, :, None], ecols[:, None, :])  # B[t, a] = H[row_t, col_a]
+                un = np.take_along_axis(nb, jt, axis=1)  # supernode of each row
+                rr = roff[un] + loc  # (m, k) reduced unknowns
+                rows = self._r_unk[rr]  # and in H
+                bidx = at_e(rows, es, d)  # B[t, a] = H[row_t, col_a]
                 if self._elim is None and np.all(nd == nd[0, 0]):  # one size: broadcasting
                     dl = int(nd[0, 0])
                     la = np.arange(dl)
@@ -322,10 +366,9 @@ class SchurSolver(LinearSolver):
                 elif self._elim is None:
                     ii = np.arange(m)[:, None, None]
                     j1, j2 = jt[:, :, None], jt[:, None, :]
-                    cl = collen[rnode[un]]  # (m, k)
+                    cl = collen[un]  # (m, k)
                     dests.append((P0[ii, j1, j2] + loc[:, None, :] * cl[:, None, :]
                                   + loc[:, :, None]).ravel())
-                rr = r_of[rows]
                 rowsall.append(rr.ravel())
             else:
                 bidx = np.zeros((m, 0, d), np.int64)
@@ -351,11 +394,14 @@ class SchurSolver(LinearSolver):
         # int64: bincount converts anything else to it, a copy per factorisation
         self._dest = np.concatenate(dests) if dests else np.zeros(0, np.int64)
         self._w = np.empty(total)  # the products V_e^T V_e of every group
-        # the rhs scatter: t (sum m k) -> reduced rows, as one sparse 0/1 product
-        rr_all = np.concatenate(rowsall) if rowsall else np.zeros(0, np.int64)
-        self._rhs_sum = sp.csr_matrix((np.ones(rr_all.size), (rr_all, np.arange(rr_all.size))),
-                                      shape=(nR, rr_all.size))
-        self._dz = np.zeros(nnz + 1)  # H's data then one zero (entries not stored)
+        # the rhs scatter of the NumPy solve (t (sum m k) -> reduced rows, one sparse 0/1
+        # product): built on its first use (the compiled solve of one right-hand side has none)
+        self._rhs_rows = rowsall
+        self._rhs_sum: Any = None
+        # H's data then one zero, for the entries of C_e and B_e not stored (an H whose
+        # blocks are dense has none: then the data is read in place, not copied)
+        self._pad = any(bool((g.cidx == nnz).any() or (g.bidx == nnz).any()) for g in groups)
+        self._dz = np.zeros(nnz + 1) if self._pad else np.zeros(0)
         self._e_unk = np.flatnonzero(e_unk)
         self.n_reduced = nR
         choice = reduced_choice(nR, self._s_nnz) if self.reduced == "auto" else self.reduced
@@ -391,13 +437,16 @@ class SchurSolver(LinearSolver):
         >>> s.analyse(A.indptr, A.indices, 3)
         >>> s.factorize(A.data)
         """
-        data = np.asarray(data, dtype=np.float64)
+        data = np.ascontiguousarray(data, dtype=np.float64)
         if data.shape != (self.indices.size,):
             raise ValueError(f"data has shape {data.shape}; the analysed pattern has "
                              f"{self.indices.size} entries")
         self._factored = False
-        dz = self._dz
-        dz[:-1] = data
+        if self._pad:
+            dz = self._dz
+            dz[:-1] = data
+        else:
+            dz = data
         S = np.zeros(self._s_nnz)
         S[self._a_dst] = dz[self._a_src]
         self._li: list[np.ndarray] = []
@@ -405,7 +454,7 @@ class SchurSolver(LinearSolver):
         w = self._w
         for g in self._groups:
             if self._elim is not None:
-                self._form_compiled(g, data, S)
+                self._form_compiled(g, dz, data, S)
                 continue
             C = dz[g.cidx]
             try:
@@ -448,12 +497,13 @@ class SchurSolver(LinearSolver):
                                       else str(e), unknown=u) from None
         self._factored = True
 
-    def _form_compiled(self, g: _Group, data: np.ndarray, S: np.ndarray) -> None:
+    def _form_compiled(self, g: _Group, dz: np.ndarray, data: np.ndarray, S: np.ndarray
+                       ) -> None:
         """Group ``g``'s part of :meth:`factorize` by the compiled loop (``_normal.form``)."""
         m, d = g.cols.shape
         k = g.rows.shape[1]
         Li, V, piv = np.empty((m, d, d)), np.empty((m, k, d)), np.empty((m, d))
-        bad = self._elim.form(self._dz, g.cidx, g.bidx, g.p0, g.nd, g.cl, S, Li, V, piv)
+        bad = self._elim.form(dz, g.cidx, g.bidx, g.p0, g.nd, g.cl, S, Li, V, piv)
         if bad >= 0:
             raise SingularSystemError(
                 "the linear system is singular or not positive definite: the block of an "
@@ -513,6 +563,11 @@ class SchurSolver(LinearSolver):
                 ts.append((VT[0] @ y).reshape(-1, j))  # (m k, j) B C^-1 b_e
         rhs = B[self._r_unk]
         if ts:
+            if self._rhs_sum is None:
+                rr = (np.concatenate(self._rhs_rows) if self._rhs_rows
+                      else np.zeros(0, np.int64))
+                self._rhs_sum = sp.csr_matrix((np.ones(rr.size), (rr, np.arange(rr.size))),
+                                              shape=(self.n_reduced, rr.size))
             rhs = rhs - self._rhs_sum @ np.concatenate(ts)
         assert self.reduced_solver is not None
         xr = self.reduced_solver.solve(rhs if b.ndim == 2 else rhs[:, 0])
@@ -572,6 +627,49 @@ def _unique_keys(keys: list[np.ndarray], size: int) -> np.ndarray:
             seen[k] = True
         return np.flatnonzero(seen)
     return np.unique(np.concatenate(keys))
+
+
+def _supernodes(ip: np.ndarray, ix: np.ndarray, off: np.ndarray, node: np.ndarray,
+                is_e: np.ndarray) -> np.ndarray:
+    """The supernode of each node that stays (-1 for the eliminated ones), numbered by their
+    first node: nodes with the same closed neighbourhood in the block graph of ``H`` (the
+    nodes of the blocks stored in their first scalar column, themselves included, read off
+    the blocks' first entries of the CSC pattern ``ip``, ``ix``; ``node`` the node of each
+    unknown) form one
+    supernode. Such nodes are adjacent and have the same blocks in ``S`` too, so storing them
+    as one dense block loses no sparsity; the neighbourhoods are compared by their size and a
+    64-bit sum of fixed per-node keys (two different ones with the same keys would only make
+    one denser block: the solve stays exact)."""
+    nn = is_e.size
+    # the entries of each node's first column (not a pass over all of H)
+    c0 = off[:-1]
+    lens = ip[c0 + 1] - ip[c0]
+    pos = np.repeat(ip[c0] - np.cumsum(lens) + lens, lens) + np.arange(int(lens.sum()))
+    rows = ix[pos]
+    w = node[rows]
+    first = rows == off[w]  # one entry per block, sorted by (u, w)
+    u, w = np.repeat(np.arange(nn), lens)[first], w[first]
+    # splitmix64 of the node numbers: fixed pseudo-random keys, summed with wrap-around
+    z = (np.arange(nn, dtype=np.uint64) + np.uint64(1)) * np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z ^= z >> np.uint64(31)
+    cs = np.concatenate([np.zeros(1, np.uint64), np.cumsum(z[w], dtype=np.uint64)])
+    end = np.searchsorted(u, np.arange(nn), side="right")
+    start = np.concatenate([[0], end[:-1]])
+    h = cs[end] - cs[start]
+    deg = (end - start).astype(np.uint64)
+    kept = np.flatnonzero(~is_e)
+    _, grp = np.unique(np.stack([deg[kept], h[kept]], 1), axis=0, return_inverse=True)
+    grp = grp.ravel()
+    # number the groups by their first node (kept is ascending)
+    firsts = np.full(int(grp.max()) + 1 if grp.size else 0, nn, np.int64)
+    np.minimum.at(firsts, grp, kept)
+    rank = np.empty(firsts.size, np.int64)
+    rank[np.argsort(firsts)] = np.arange(firsts.size)
+    out = np.full(nn, -1, np.int64)
+    out[kept] = rank[grp]
+    return out
 
 
 def _block_csc(bu: np.ndarray, bv: np.ndarray, dof: np.ndarray, off: np.ndarray
