@@ -4,6 +4,9 @@ The functions work on a graph: the symmetric adjacency (``scipy.sparse`` CSR, no
 the block pattern of the normal equations (one vertex per block of unknowns). An ordering is a
 permutation ``p`` (new -> old: the matrix is factorised as ``A[p][:, p]``).
 
+- :func:`minimum_degree_blocks`: the default order of a block (node) graph given as CSR arrays:
+  our approximate minimum degree (Amestoy, Davis and Duff 1996; compiled,
+  ``microlie_fast._order``), or without the compiled code SciPy's :func:`minimum_degree`.
 - :func:`minimum_degree`: multiple minimum degree (SuperLU's ``MMD_AT_PLUS_A``; SuperLU only
   orders: its incomplete factorisation with every off-diagonal entry dropped follows).
 - :func:`symbolic`: the symbolic factor for an ordering, computed from the pattern alone, as
@@ -32,11 +35,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp  # type: ignore[import-untyped]
-from scipy.sparse.csgraph import depth_first_order  # type: ignore[import-untyped]
-from scipy.sparse.linalg import spilu, splu  # type: ignore[import-untyped]
 
-__all__ = ["ORDERINGS", "Symbolic", "fill_order", "graph", "minimum_degree", "symbolic"]
+from ..._fast import compiled
+
+__all__ = ["ORDERINGS", "Symbolic", "fill_order", "graph", "minimum_degree",
+           "minimum_degree_blocks", "symbolic"]
 
 # "auto" is minimum degree (nested dissection was measured and removed: issue 20)
 ORDERINGS = ("auto", "mmd")
@@ -69,6 +72,8 @@ def graph(indptr: np.ndarray, indices: np.ndarray, n: int, block_size: int = 1) 
     >>> graph(H.indptr, H.indices, 6, 2).toarray().astype(int).tolist()
     [[0, 1, 0], [1, 0, 1], [0, 1, 0]]
     """
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+
     bs = block_size if block_size > 0 and n % block_size == 0 else 1
     nb = n // bs
     itype = np.int32 if n < 2**31 else np.int64
@@ -86,6 +91,8 @@ def graph(indptr: np.ndarray, indices: np.ndarray, n: int, block_size: int = 1) 
 
 def _clean(A: Any) -> Any:
     """The pattern of ``A + A^T`` without diagonal, unit data, sorted CSR."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+
     A = sp.csr_matrix(A)
     A = abs(A) + abs(A.T)
     A.setdiag(0)
@@ -97,6 +104,8 @@ def _clean(A: Any) -> Any:
 
 def splu_symmetric(B: Any, spec: str) -> Any:
     """SuperLU in symmetric mode (diagonal pivots only) with the column order ``spec``."""
+    from scipy.sparse.linalg import splu  # type: ignore[import-untyped]
+
     return splu(B, permc_spec=spec, diag_pivot_thresh=0.0, options={"SymmetricMode": True})
 
 
@@ -132,6 +141,9 @@ def minimum_degree(A: Any) -> np.ndarray:
 
 def _mmd(A: Any) -> np.ndarray:
     """:func:`minimum_degree` of a clean graph (:func:`_clean`)."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+    from scipy.sparse.linalg import spilu  # type: ignore[import-untyped]
+
     n = A.shape[0]
     if n == 0:
         return np.zeros(0, np.int64)
@@ -139,6 +151,80 @@ def _mmd(A: Any) -> np.ndarray:
     lu = spilu(B, drop_tol=1e300, fill_factor=1, permc_spec="MMD_AT_PLUS_A",
                diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     return np.argsort(lu.perm_c).astype(np.int64)
+
+
+def minimum_degree_blocks(indptr: np.ndarray, indices: np.ndarray, nb: int) -> np.ndarray:
+    """The fill-reducing order of a block (node) graph: approximate minimum degree.
+
+    With the compiled code, our approximate minimum degree (Amestoy, Davis and Duff 1996:
+    quotient graph, element absorption, approximate external degrees, supervariables and mass
+    elimination, aggressive absorption; nodes of degree above ``max(16, 10 sqrt(nb))`` last);
+    without it (or ``MICROLIE_FAST=0``), :func:`minimum_degree` (SciPy's SuperLU). Both are
+    deterministic.
+
+    Parameters
+    ----------
+    indptr : numpy.ndarray
+        ``nb + 1`` row pointers (int32 or int64) of the symmetric CSR pattern.
+    indices : numpy.ndarray
+        The column of each entry (int32 or int64), in ``[0, nb)``. A diagonal and repeated
+        entries are ignored; the order within a row does not matter.
+    nb : int
+        The number of nodes.
+
+    Returns
+    -------
+    numpy.ndarray
+        The order, new -> old (int64): node ``perm[k]`` is eliminated ``k``-th.
+
+    Raises
+    ------
+    ValueError
+        ``indptr`` is not ``nb + 1`` non-decreasing pointers from 0, an index is outside
+        ``[0, nb)``, or the pattern is not symmetric (``(i, j)`` without ``(j, i)``).
+
+    Examples
+    --------
+    A star: the hub (node 0) is eliminated last, so there is no fill.
+
+    >>> import numpy as np
+    >>> from microlie.optim.linalg.ordering import minimum_degree_blocks
+    >>> indptr = np.array([0, 4, 5, 6, 7, 8])
+    >>> indices = np.array([1, 2, 3, 4, 0, 0, 0, 0])
+    >>> int(minimum_degree_blocks(indptr, indices, 5)[-1])
+    0
+    """
+    nb = int(nb)
+    if nb < 0:
+        raise ValueError(f"nb must be >= 0, got {nb}")
+    indptr = np.asarray(indptr)
+    indices = np.asarray(indices)
+    for name, a in (("indptr", indptr), ("indices", indices)):
+        if a.ndim != 1 or a.dtype.kind not in "iu":
+            raise ValueError(f"{name} must be a 1-D integer array, got {a.dtype} {a.shape}")
+    if indptr.size != nb + 1:
+        raise ValueError(f"indptr must have nb + 1 = {nb + 1} entries, got {indptr.size}")
+    mod = compiled("_order")
+    if mod is not None:
+        return mod.order(np.ascontiguousarray(indptr, np.intp),
+                         np.ascontiguousarray(indices, np.intp), nb).astype(np.int64, copy=False)
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+
+    if indptr[0] != 0 or (np.diff(indptr) < 0).any() or indptr[-1] > indices.size:
+        raise ValueError("indptr must start at 0, be non-decreasing and end at most at "
+                         "len(indices)")
+    idx = indices[:indptr[-1]]
+    if idx.size and (idx.min() < 0 or idx.max() >= nb):
+        raise ValueError(f"indices must be in [0, {nb})")
+    A = sp.csr_matrix((np.ones(idx.size), idx, indptr), shape=(nb, nb))
+    A.sum_duplicates()
+    A.setdiag(0)
+    A.eliminate_zeros()
+    A.data[:] = 1.0
+    if (A != A.T).nnz:
+        raise ValueError("the pattern must be symmetric: (i, j) present iff (j, i) present")
+    A.sort_indices()
+    return _mmd(A)
 
 
 @dataclass(frozen=True)
@@ -247,6 +333,8 @@ def _symbolic(A: Any, perm: np.ndarray) -> Symbolic:
 
 def _lower(A: Any, perm: np.ndarray) -> Any:
     """The strictly lower pattern of ``A[perm][:, perm]`` (CSR, sorted, int64 indices)."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+
     L = sp.tril(A[perm][:, perm], -1, format="csr")
     L.sort_indices()
     return L
@@ -278,6 +366,9 @@ def _postorder(parent: np.ndarray) -> np.ndarray:
     """A postorder of the forest ``parent`` (children before parents, subtrees contiguous,
     children in ascending order): the reversed preorder of SciPy's compiled depth-first search
     from a virtual root, with the nodes relabelled ``n - 1 - j``."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+    from scipy.sparse.csgraph import depth_first_order  # type: ignore[import-untyped]
+
     n = parent.size
     p = np.where(parent < 0, n, n - 1 - parent)
     tree = sp.csr_matrix((np.ones(n), (p, n - 1 - np.arange(n))), shape=(n + 1, n + 1))
@@ -372,4 +463,4 @@ def fill_order(A: Any, method: str = "auto") -> Symbolic:
     if method not in ORDERINGS:
         raise ValueError(f"unknown ordering {method!r}: expected one of {ORDERINGS}")
     A = _clean(A)
-    return _symbolic(A, _mmd(A))
+    return _symbolic(A, minimum_degree_blocks(A.indptr, A.indices, A.shape[0]))
