@@ -41,7 +41,8 @@ from ..._fast import compiled
 __all__ = ["ORDERINGS", "Symbolic", "fill_order", "graph", "minimum_degree",
            "minimum_degree_blocks", "symbolic"]
 
-# "auto" is minimum degree (nested dissection was measured and removed: issue 20)
+# "auto": minimum_degree_blocks (our AMD when compiled); "mmd": SciPy's SuperLU MMD (nested
+# dissection was measured and removed: issue 20)
 ORDERINGS = ("auto", "mmd")
 
 
@@ -430,9 +431,10 @@ def _counts(lower: Any, parent: np.ndarray, up: list[np.ndarray]) -> np.ndarray:
 def fill_order(A: Any, method: str = "auto") -> Symbolic:
     """The fill-reducing order of the supernodal Cholesky, with its symbolic factor.
 
-    ``"mmd"`` and ``"auto"``: :func:`minimum_degree` (George's nested dissection as it was
-    here cost 1.0-1.7x its flops on the shared pose graphs and was removed; see
-    ``benchmarks/symbolic.py``).
+    ``"auto"``: :func:`minimum_degree_blocks` (our approximate minimum degree with the
+    compiled code, else SciPy's multiple minimum degree); ``"mmd"``: :func:`minimum_degree`
+    (SciPy's). George's nested dissection as it was here cost 1.0-1.7x the flops of minimum
+    degree on the shared pose graphs and was removed; see ``benchmarks/symbolic.py``.
 
     Parameters
     ----------
@@ -463,4 +465,6 @@ def fill_order(A: Any, method: str = "auto") -> Symbolic:
     if method not in ORDERINGS:
         raise ValueError(f"unknown ordering {method!r}: expected one of {ORDERINGS}")
     A = _clean(A)
+    if method == "mmd":
+        return _symbolic(A, _mmd(A))
     return _symbolic(A, minimum_degree_blocks(A.indptr, A.indices, A.shape[0]))
