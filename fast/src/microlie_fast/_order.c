@@ -502,7 +502,68 @@ static PyObject *order_(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     return (PyObject *)out;
 }
 
+/* postorder(parent) -> intp array: a postorder of the forest parent (-1: a root; any
+ * labels), children before their parent, each subtree contiguous, children and roots in
+ * ascending order */
+static PyObject *postorder_(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 1) {
+        PyErr_SetString(PyExc_TypeError, "postorder(parent)");
+        return NULL;
+    }
+    ix dx[1] = {-1};
+    PyArrayObject *Pa = arg(args[0], "parent", NPY_INTP, 1, dx);
+    if (!Pa) return NULL;
+    ix n = PyArray_DIM(Pa, 0);
+    const ix *parent = PyArray_DATA(Pa);
+    for (ix j = 0; j < n; j++)
+        if (parent[j] < -1 || parent[j] >= n || parent[j] == j) {
+            PyErr_SetString(PyExc_ValueError, "parent must hold -1 or another node's index");
+            return NULL;
+        }
+    npy_intp od[1] = {n};
+    PyArrayObject *out = (PyArrayObject *)PyArray_SimpleNew(1, od, NPY_INTP);
+    if (!out) return NULL;
+    ix *post = PyArray_DATA(out);
+    ix *w = malloc(sizeof(ix) * (size_t)(3 * n + 1));
+    if (!w) {
+        Py_DECREF(out);
+        return PyErr_NoMemory();
+    }
+    ix *head = w, *next = w + n + 1, *stack = w + 2 * n + 1, k = 0, bad = 0;
+    for (ix j = 0; j <= n; j++) head[j] = -1;
+    for (ix j = n - 1; j >= 0; j--) {  /* children lists in ascending order; roots under n */
+        ix p = parent[j] < 0 ? n : parent[j];
+        next[j] = head[p];
+        head[p] = j;
+    }
+    for (ix r = head[n]; r >= 0; r = next[r]) {
+        ix top = 0;
+        stack[top++] = r;
+        while (top > 0) {  /* head[] is consumed: the next child to visit */
+            ix v = stack[top - 1], c = head[v];
+            if (c >= 0) {
+                head[v] = next[c];
+                stack[top++] = c;
+            } else {
+                post[k++] = v;
+                top--;
+            }
+        }
+    }
+    bad = k != n;  /* a cycle: nodes not reached from a root */
+    free(w);
+    if (bad) {
+        Py_DECREF(out);
+        PyErr_SetString(PyExc_ValueError, "parent must be a forest (it has a cycle)");
+        return NULL;
+    }
+    return (PyObject *)out;
+}
+
 static PyMethodDef methods[] = {
+    {"postorder", (PyCFunction)(void (*)(void))postorder_, METH_FASTCALL,
+     "postorder(parent) -> intp array: a postorder of the forest (children ascending)."},
     {"order", (PyCFunction)(void (*)(void))order_, METH_FASTCALL,
      "order(indptr, indices, n, ties=0) -> intp array: approximate minimum degree order "
      "(new -> old) of the symmetric CSR pattern (n x n, intp arrays; diagonal and repeats "

@@ -24,6 +24,8 @@ import sys
 from collections.abc import Callable
 from typing import Any, ParamSpec, TypeVar
 
+from ..._fast import compiled
+
 __all__ = ["blas_threads_limit", "limit_new_libraries", "with_blas_threads"]
 
 P = ParamSpec("P")
@@ -31,7 +33,8 @@ R = TypeVar("R")
 
 
 class _Limit:
-    """The context of :func:`blas_threads_limit`: SciPy's BLAS loaded first, every loaded BLAS
+    """The context of :func:`blas_threads_limit`: SciPy's BLAS loaded first (unless the compiled
+    Cholesky calls NumPy's, ``microlie_fast._chol.BLAS == "numpy"``), every loaded BLAS
     held at ``n`` threads, libraries loaded later in the block held too when the code that
     loads them calls :func:`limit_new_libraries`, all restored on exit."""
 
@@ -40,7 +43,9 @@ class _Limit:
         self._stack = contextlib.ExitStack()
 
     def __enter__(self) -> _Limit:
-        import scipy.linalg  # noqa: F401  # SciPy's own BLAS (the factorisations) is loaded
+        chol = compiled("_chol")
+        if chol is None or getattr(chol, "BLAS", "scipy") == "scipy":
+            import scipy.linalg  # noqa: F401  # SciPy's own BLAS (the factorisations) is loaded
 
         self._stack.enter_context(_controller().limit(limits=self.n, user_api="blas"))
         _ACTIVE.append(self)
