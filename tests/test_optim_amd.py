@@ -219,3 +219,43 @@ def test_supernodal_solver_uses_it(fast):
     s.factorize(H.data)
     b = np.arange(2 * n, dtype=float)
     np.testing.assert_allclose(H @ s.solve(b), b, rtol=1e-10, atol=1e-9)
+
+
+def test_connected_components_is_scipys():
+    from scipy.sparse.csgraph import connected_components as scipy_components
+
+    from microlie.optim.linalg.ordering import connected_components
+
+    rng = np.random.default_rng(5)
+    for _ in range(100):
+        n = int(rng.integers(0, 300))
+        m = int(rng.integers(0, 2 * n + 1))
+        r, c = rng.integers(0, max(n, 1), m), rng.integers(0, max(n, 1), m)
+        k, label = connected_components(n, r, c)
+        A = sp.coo_matrix((np.ones(m), (r, c)), shape=(n, n))
+        k2, label2 = scipy_components(A, directed=False) if n else (0, np.zeros(0))
+        assert k == k2
+        np.testing.assert_array_equal(label, label2)
+    # a long chain: one component
+    n = 100_000
+    assert connected_components(n, np.arange(n - 1), np.arange(1, n))[0] == 1
+
+
+def test_compiled_postorder_is_the_depth_first_one(monkeypatch):
+    # the elimination tree's postorder (children ascending) with and without the compiled code
+    from microlie.optim.linalg import ordering as O
+
+    if not HAVE_C:
+        pytest.skip("microlie_fast._order not built")
+    rng = np.random.default_rng(6)
+    for _ in range(50):
+        n = int(rng.integers(1, 300))
+        parent = np.array([int(rng.integers(j + 1, n)) if j < n - 1 and rng.random() < 0.9
+                           else -1 for j in range(n)])
+        ours = O._postorder(parent)
+        monkeypatch.setenv("MICROLIE_FAST", "0")
+        ref = O._postorder(parent)
+        monkeypatch.delenv("MICROLIE_FAST")
+        np.testing.assert_array_equal(ours, ref)
+    with pytest.raises(ValueError, match="cycle"):
+        compiled("_order").postorder(np.array([1, 0], np.intp))
