@@ -406,9 +406,14 @@ def end_to_end(args) -> list[str]:
     for exe in {args.python, args.gtsam_python}:
         subprocess.run([exe, "-m", "compileall", "-q", src], check=True, env=env,
                        stdout=subprocess.DEVNULL)
+    # this checkout's compiled code when it is built in place (cd fast && python setup.py
+    # build_ext --inplace), before the one installed in --python's environment
+    fast_src = Path(__file__).resolve().parents[1] / "fast" / "src"
+    built = any((fast_src / "microlie_fast").glob("*.so"))
+    env_all = dict(env, PYTHONPATH=f"{src}{os.pathsep}{fast_src}") if built else env
     contenders = {
         "GTSAM script": (args.gtsam_python, env, "gtsam"),
-        "microlie, all installed": (args.python, env, "cli"),
+        "microlie, all installed": (args.python, env_all, "cli"),
         "microlie, default install": (args.gtsam_python, dict(env, MICROLIE_FAST="0"), "cli"),
     }
     lines = ["## End to end: `microlie optimize FILE --json -o OUT --init file` against "

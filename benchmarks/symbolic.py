@@ -24,6 +24,16 @@ before issue 20, ``ordering.nested_dissection`` with its default and its coarse 
 the shared pose graphs; the counts are this module's exact symbolic ones for every order::
 
     PYTHONPATH=src python benchmarks/symbolic.py flops --nd /work/base/src
+
+``order``: the orderings of the block graph compared on the shared pose graphs and on synthetic
+ones (``--sizes``, 2-D and 3-D): our approximate minimum degree (``microlie_fast._order``,
+what :func:`~microlie.optim.linalg.ordering.minimum_degree_blocks` runs with the compiled code)
+against SciPy's SuperLU multiple minimum degree (``MMD_AT_PLUS_A``, the order without the
+compiled code) and COLAMD (on the same symmetric pattern). For each: the nonzero blocks of
+``L`` and the factorisation flops ``sum(counts**2)`` (exact symbolic counts), and the ordering
+time (the smallest of ``--repeat`` runs)::
+
+    PYTHONPATH=src:fast/src python benchmarks/symbolic.py order --sizes 10000 100000
 """
 
 from __future__ import annotations
@@ -230,6 +240,71 @@ def flops(nd_src: str | None) -> None:
         print(f"| {name} | {n} | " + " | ".join(cells) + " |", flush=True)
 
 
+def _adjacency(name: str | int, dim: int):
+    """The symmetric block adjacency (CSR, no diagonal) of a shared graph or a synthetic one."""
+    if isinstance(name, str):
+        from microlie.optim.io.g2o import read_g2o
+
+        g = read_g2o(DATA / GRAPHS[name])
+        a, b, n = np.asarray(g.i), np.asarray(g.j), len(g.ids)
+    else:
+        g = synthetic_pose_graph(name, dim)
+        a, b, n = np.asarray(g.i), np.asarray(g.j), name
+    keep = a != b
+    A = sp.csr_matrix((np.ones(keep.sum()), (a[keep], b[keep])), shape=(n, n))
+    A = A + A.T
+    A.data[:] = 1.0
+    A.sort_indices()
+    return A
+
+
+def order(sizes: list[int], repeat: int) -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+    from scipy.sparse.linalg import spilu
+
+    from microlie._fast import compiled
+    from microlie.optim.linalg.ordering import minimum_degree, symbolic
+
+    amd = compiled("_order")
+    if amd is None:
+        raise SystemExit("order: the compiled microlie_fast._order is needed (build fast/)")
+
+    def superlu(spec: str):
+        def run(A):
+            B = (sp.diags(np.diff(A.indptr) + 1.0) - A).tocsc()
+            lu = spilu(B, drop_tol=1e300, fill_factor=1, permc_spec=spec,
+                       diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+            return np.argsort(lu.perm_c)
+        return run
+
+    methods = {"amd": lambda A: amd.order(A.indptr.astype(np.intp),
+                                          A.indices.astype(np.intp), A.shape[0]),
+               "mmd": minimum_degree, "colamd": superlu("COLAMD")}
+    print("| graph | blocks | amd nnz(L) | amd flops | mmd nnz/amd | mmd flops/amd | "
+          "colamd nnz/amd | colamd flops/amd | amd s | mmd s | colamd s | mmd s / amd s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    cases: list[tuple[str | int, int, str]] = [(g, 0, g) for g in GRAPHS
+                                              if (DATA / GRAPHS[g]).exists()]
+    cases += [(n, d, f"synthetic {d}-D {n}") for d in (2, 3) for n in sizes]
+    for name, dim, label in cases:
+        A = _adjacency(name, dim)
+        res = {}
+        for m, fn in methods.items():
+            best = np.inf
+            for _ in range(repeat):
+                t = time.perf_counter()
+                p = fn(A)
+                best = min(best, time.perf_counter() - t)
+            s = symbolic(A, p)
+            res[m] = (s.nnz, s.flops, best)
+        a = res["amd"]
+        print(f"| {label} | {A.shape[0]} | {a[0]} | {a[1]:.3e} | "
+              f"{res['mmd'][0] / a[0]:.3f} | {res['mmd'][1] / a[1]:.3f} | "
+              f"{res['colamd'][0] / a[0]:.3f} | {res['colamd'][1] / a[1]:.3f} | "
+              f"{a[2]:.4f} | {res['mmd'][2]:.4f} | {res['colamd'][2]:.4f} | "
+              f"{res['mmd'][2] / a[2]:.1f} |", flush=True)
+
+
 def main() -> None:
     if sys.argv[1:2] == ["_child"]:
         a = sys.argv[2]
@@ -250,8 +325,13 @@ def main() -> None:
                    help="runs per size below 1e6 (interleaved; each figure the smallest)")
     f = sub.add_parser("flops")
     f.add_argument("--nd", help="src folder of a code base with ordering.nested_dissection")
+    o = sub.add_parser("order")
+    o.add_argument("--sizes", type=int, nargs="*", default=[10000, 100000])
+    o.add_argument("--repeat", type=int, default=3, help="runs per ordering (the fastest)")
     args = ap.parse_args()
-    if args.cmd == "scale":
+    if args.cmd == "order":
+        order(args.sizes, args.repeat)
+    elif args.cmd == "scale":
         scale([*args.sizes, *args.graphs], args.dim, args.old, args.old_max, args.fast,
               args.repeat)
     else:

@@ -63,6 +63,13 @@ setup(
             include_dirs=[np.get_include()],
             extra_compile_args=flags,
         ),
+        Extension(  # approximate minimum degree ordering (microlie.optim.linalg.ordering)
+            "microlie_fast._order",
+            sources=["src/microlie_fast/_order.c"],
+            include_dirs=[np.get_include(), "src/microlie_fast"],
+            extra_compile_args=flags,
+            libraries=["m"],
+        ),
         # the numeric supernodal Cholesky loop on SciPy's BLAS/LAPACK (capsules, no BLAS link)
         Extension(
             "microlie_fast._chol",

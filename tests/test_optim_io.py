@@ -245,3 +245,31 @@ def test_pose_graph_checks_its_fields():
     with pytest.raises(ValueError, match="vertex id 5"):
         PoseGraph(SE2, ids=np.arange(2), poses=None, i=[0], j=[5], measurements=Z,
                   information=np.eye(3)[None])
+
+
+@pytest.mark.parametrize("name", ["parking-garage.g2o", "ais2klinik.g2o", "sphere2500.g2o"])
+def test_compiled_bulk_reader_reads_the_same_bits(name, monkeypatch):
+    # the compiled table reader (microlie_fast._text) against the NumPy bulk path
+    from microlie._fast import text_parser
+
+    if text_parser() is None:
+        pytest.skip("microlie_fast._text not built")
+    path = data_file(f"pose_graph/{name}")
+    a = read_g2o(path)
+    monkeypatch.setenv("MICROLIE_FAST", "0")
+    b = read_g2o(path)
+    np.testing.assert_array_equal(np.asarray(a.i), np.asarray(b.i))
+    np.testing.assert_array_equal(np.asarray(a.ids), np.asarray(b.ids))
+    np.testing.assert_array_equal(np.asarray(a.poses.params), np.asarray(b.poses.params))
+    np.testing.assert_array_equal(np.asarray(a.measurements.params),
+                                  np.asarray(b.measurements.params))
+    np.testing.assert_array_equal(a.information, b.information)
+
+
+@pytest.mark.parametrize("fast", ["1", "0"])
+def test_ids_must_be_digits_on_every_path(tmp_path, monkeypatch, fast):
+    monkeypatch.setenv("MICROLIE_FAST", fast)
+    p = tmp_path / "g.g2o"
+    p.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1.0 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    with pytest.raises(ValueError, match=":2"):
+        read_g2o(p)

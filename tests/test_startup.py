@@ -98,3 +98,36 @@ def test_optimize_imports_only_what_it_uses(tmp_path, fast):
             "or m.startswith(tuple(n + '.' for n in never))))")
     assert _run(["-c", code], MICROLIE_FAST=fast) == ["0", "[]"]
     assert out.read_text().count("VERTEX_SE3:QUAT") == 4
+
+
+#: With the compiled code, SciPy's dense linear algebra (its own OpenBLAS: ~0.18 s of CPU and
+#: 30 MB at import; the compiled Cholesky calls NumPy's OpenBLAS) and its sparse graph and
+#: sparse solver modules are not imported either (the order is ours, the components NumPy's).
+COMPILED_NEVER = ("scipy.linalg", "scipy.sparse.linalg", "scipy.sparse.csgraph")
+
+
+def test_optimize_with_the_compiled_code_imports_no_scipy_linalg(tmp_path):
+    import importlib.util
+
+    if importlib.util.find_spec("microlie_fast._order") is None:
+        pytest.skip("microlie_fast (with _order) is not built")
+    import microlie_fast._chol as chol
+
+    if chol.BLAS != "numpy":  # not a Linux NumPy wheel's OpenBLAS: SciPy's BLAS is used
+        pytest.skip(f"the compiled Cholesky calls {chol.BLAS}'s BLAS here")
+    path, out = tmp_path / "g.g2o", tmp_path / "out.g2o"
+    lines = [f"VERTEX_SE2 {i} {i + 0.1 * (i % 2)} 0 0" for i in range(5)]
+    lines += [f"EDGE_SE2 {i} {i + 1} 1 0 0 1 0 0 1 0 1" for i in range(4)]
+    path.write_text("\n".join(lines + ["EDGE_SE2 0 4 4 0 0 1 0 0 1 0 1"]) + "\n")
+    # the supernodal Cholesky (what "auto" takes for 3-D graphs above 8,000 unknowns without
+    # PARDISO; below 300 unknowns "auto" is the dense LAPACK Cholesky, SciPy's)
+    argv = ["optimize", str(path), "--json", "-o", str(out), "--linear-solver", "cholesky"]
+    code = ("import io, sys; from microlie.cli import main; "
+            f"code = main({argv!r}, out=io.StringIO(), err=io.StringIO()); "
+            f"never = {COMPILED_NEVER!r}; "
+            "print(code, sorted(m for m in sys.modules if m in never "
+            "or m.startswith(tuple(n + '.' for n in never))))")
+    fast = str(Path(chol.__file__).resolve().parents[1])  # the microlie_fast imported here
+    assert _run(["-c", code], MICROLIE_FAST="1",
+                PYTHONPATH=os.pathsep.join([SRC, fast])) == ["0", "[]"]
+    assert out.read_text().count("VERTEX_SE2") == 5

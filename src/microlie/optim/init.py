@@ -32,7 +32,6 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from ..groups import SE2, SE3, LieGroup
 from .io.pose_graph import PoseGraph
@@ -197,6 +196,8 @@ def _prefix_compose(steps: LieGroup) -> LieGroup:
 def _solve_spd(H: Any, b: np.ndarray, block: int) -> np.ndarray:
     """Solve ``H x = b`` (symmetric positive definite, unknowns in blocks of ``block``) with the
     solver's own sparse Cholesky interface (:func:`microlie.optim.linalg.linear.make_solver`)."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+
     from .linalg.linear import make_solver
 
     H = sp.csc_matrix(H)
@@ -212,6 +213,8 @@ def _block_normal_equations(ii: np.ndarray, jj: np.ndarray, Wi: np.ndarray, Wj: 
                             Wij: np.ndarray, n: int, keep: np.ndarray) -> Any:
     """Assemble ``H`` with blocks ``H_ii += Wi``, ``H_jj += Wj``, ``H_ij += Wij``,
     ``H_ji += Wij^T`` (blocks of size m), restricted to the blocks in ``keep``."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+
     m = Wi.shape[-1]
     pos = np.full(n, -1, dtype=np.int64)
     pos[keep] = np.arange(keep.size)
@@ -318,6 +321,7 @@ def chordal(graph: PoseGraph) -> LieGroup:
 def _require_connected(graph: PoseGraph, ii: np.ndarray, jj: np.ndarray, k0: int) -> None:
     """Raise naming the vertices that no chain of edges joins to the anchor ``k0`` (their
     poses relative to it are undetermined; the normal equations would be singular)."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
     from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
 
     n = graph.num_vertices

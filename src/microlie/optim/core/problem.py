@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp  # type: ignore[import-untyped]
-from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
 
 from ..._fast import compiled as compiled_module
+from ..linalg.ordering import connected_components
 from . import compiled
 from .factors import Factor
 from .robust import corrected_weights
@@ -271,8 +271,7 @@ class Problem:
                     cols.append(stack[l][both])
         r = np.concatenate(rows) if rows else np.zeros(0, np.int64)
         c = np.concatenate(cols) if cols else np.zeros(0, np.int64)
-        adj = sp.coo_matrix((np.ones(r.size), (r, c)), shape=(nn, nn))
-        ncomp, label = connected_components(adj, directed=False)
+        ncomp, label = connected_components(nn, r, c)
         ok = np.zeros(ncomp, dtype=bool)
         ok[label[anchored]] = True
         if ok.all():

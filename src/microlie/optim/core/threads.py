@@ -24,6 +24,8 @@ import sys
 from collections.abc import Callable
 from typing import Any, ParamSpec, TypeVar
 
+from ..._fast import compiled
+
 __all__ = ["blas_threads_limit", "limit_new_libraries", "with_blas_threads"]
 
 P = ParamSpec("P")
@@ -31,7 +33,8 @@ R = TypeVar("R")
 
 
 class _Limit:
-    """The context of :func:`blas_threads_limit`: SciPy's BLAS loaded first, every loaded BLAS
+    """The context of :func:`blas_threads_limit`: SciPy's BLAS loaded first (unless the compiled
+    Cholesky calls NumPy's, ``microlie_fast._chol.BLAS == "numpy"``), every loaded BLAS
     held at ``n`` threads, libraries loaded later in the block held too when the code that
     loads them calls :func:`limit_new_libraries`, all restored on exit."""
 
@@ -40,7 +43,12 @@ class _Limit:
         self._stack = contextlib.ExitStack()
 
     def __enter__(self) -> _Limit:
-        import scipy.linalg  # noqa: F401  # SciPy's own BLAS (the factorisations) is loaded
+        chol = compiled("_chol")
+        if chol is None or getattr(chol, "BLAS", "scipy") == "scipy":
+            import scipy.linalg  # noqa: F401  # SciPy's own BLAS (the factorisations) is loaded
+        elif "scipy.linalg" not in sys.modules and _SCIPY_HOOK not in sys.meta_path:
+            # not needed by the solve: held when (if) something imports it inside the block
+            sys.meta_path.insert(0, _SCIPY_HOOK)
 
         self._stack.enter_context(_controller().limit(limits=self.n, user_api="blas"))
         _ACTIVE.append(self)
@@ -48,9 +56,35 @@ class _Limit:
 
     def __exit__(self, *exc: object) -> None:
         _ACTIVE.remove(self)
+        if not _ACTIVE and _SCIPY_HOOK in sys.meta_path:
+            sys.meta_path.remove(_SCIPY_HOOK)
         self._stack.close()  # the libraries loaded inside first, then the others
 
 
+class _ScipyLinalgHook:
+    """A ``sys.meta_path`` finder that lets ``scipy.linalg`` load as usual and then holds its
+    BLAS (:func:`limit_new_libraries`); removed once used or when no limit is active."""
+
+    def find_spec(self, name: str, path: Any, target: Any = None) -> Any:
+        if name != "scipy.linalg":
+            return None
+        sys.meta_path.remove(self)
+        from importlib.machinery import PathFinder
+
+        spec = PathFinder.find_spec(name, path, target)
+        if spec is None or spec.loader is None or not _ACTIVE:
+            return spec
+        run = spec.loader.exec_module
+
+        def exec_module(module: Any) -> None:
+            run(module)
+            limit_new_libraries()
+
+        spec.loader.exec_module = exec_module  # type: ignore[method-assign]
+        return spec
+
+
+_SCIPY_HOOK = _ScipyLinalgHook()
 _ACTIVE: list[_Limit] = []
 _CONTROLLER: list[Any] = []  # [threadpoolctl.ThreadpoolController, len(sys.modules) at its scan]
 

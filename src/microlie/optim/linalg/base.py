@@ -6,8 +6,12 @@ share (:data:`PIVOT_TOL`). The backends (:mod:`microlie.optim.linalg.linear`,
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import scipy.sparse as sp  # type: ignore[import-untyped]
+
+if TYPE_CHECKING:  # SciPy is imported by the backends that use it
+    import scipy.sparse as sp  # type: ignore[import-untyped]
 
 __all__ = ["LinearSolver", "SingularSystemError", "PIVOT_TOL"]
 
@@ -144,6 +148,8 @@ class LinearSolver:
         >>> ls.full(A.data).toarray()[0].tolist()
         [4.0, 1.0, 0.0]
         """
+        import scipy.sparse as sp  # type: ignore[import-untyped]
+
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
 
     def factorize(self, data: np.ndarray) -> None:

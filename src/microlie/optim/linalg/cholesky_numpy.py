@@ -39,7 +39,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
 
 from .base import SingularSystemError
 
@@ -366,6 +365,8 @@ class NumpyLoop:
             L[self._amap] = data
         Lw, Wf = (L.view(np.complex128), self._Wbuf.view(np.complex128)) if self.word == 2 \
             else (L, self._Wbuf)
+        from scipy.linalg import blas, lapack  # type: ignore[import-untyped]  # (this loop only)
+
         potrf, trsm, syrk, tbtrs = lapack.dpotrf, blas.dtrsm, blas.dsyrk, lapack.dtbtrs
         for bl, (dst, src) in zip(self.levels, self._scatter, strict=True):
             for b in bl:
@@ -401,6 +402,8 @@ class NumpyLoop:
     def solve(self, y: np.ndarray) -> None:
         """Solve in place: ``y`` is ``(n + 2, nrhs)`` (the right-hand side in the factor's
         order, then the zero row and the dump row)."""
+        from scipy.linalg import blas, lapack  # type: ignore[import-untyped]
+
         trsm, tbsv, tbtrs, mm = blas.dtrsm, blas.dtbsv, lapack.dtbtrs, np.matmul
         nr = y.shape[1]
         plan = list(zip(self.levels, self._cols, self._rows, strict=True))

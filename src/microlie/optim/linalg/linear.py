@@ -28,13 +28,13 @@ import importlib.util
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla  # type: ignore[import-untyped]
-import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from ..._fast import compiled as compiled_module
 from ..core.threads import limit_new_libraries
 from .base import LinearSolver, SingularSystemError
-from .ordering import graph, minimum_degree, splu_symmetric
+from .ordering import graph, minimum_degree_blocks, splu_symmetric
+
+# SciPy is imported where a backend needs it (not by the supernodal Cholesky's path)
 
 __all__ = ["make_solver", "available_solvers", "auto_order", "SOLVERS"]
 
@@ -47,10 +47,12 @@ def _checked(x: np.ndarray) -> np.ndarray:
 
 def block_order(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> np.ndarray:
     """A fill-reducing order of the unknowns (new -> old) from the minimum-degree order of the
-    block graph (``bs`` times smaller than the scalar one)."""
+    block graph (``bs`` times smaller than the scalar one; see
+    :func:`~microlie.optim.linalg.ordering.minimum_degree_blocks`)."""
     if bs <= 0 or n % bs:
         bs = 1
-    q = minimum_degree(graph(indptr, indices, n, bs))
+    G = graph(indptr, indices, n, bs)
+    q = minimum_degree_blocks(G.indptr, G.indices, G.shape[0])
     return (q[:, None] * bs + np.arange(bs)).ravel()
 
 
@@ -62,6 +64,8 @@ class ScipySolver(LinearSolver):
     name = "scipy"
 
     def analyse(self, indptr, indices, n, block_size=1):
+        import scipy.sparse as sp  # type: ignore[import-untyped]
+
         super().analyse(indptr, indices, n)
         p = block_order(indptr, indices, n, block_size)
         tag = sp.csc_matrix((np.arange(1, indices.size + 1, dtype=np.float64), indices,
@@ -72,6 +76,8 @@ class ScipySolver(LinearSolver):
         self._p = p
 
     def factorize(self, data: np.ndarray) -> None:
+        import scipy.sparse as sp  # type: ignore[import-untyped]
+
         A = sp.csc_matrix((data[self._map], self._pindices, self._pindptr),
                           shape=(self.n, self.n))
         try:
@@ -102,6 +108,8 @@ class QdldlSolver(LinearSolver):
         self._solver: Any = None
 
     def factorize(self, data: np.ndarray) -> None:
+        import scipy.sparse as sp  # type: ignore[import-untyped]
+
         U = sp.csc_matrix((data[self._upper], self.upper_indices, self.upper_indptr),
                           shape=(self.n, self.n))
         try:
@@ -138,6 +146,8 @@ class PardisoSolver(LinearSolver):
     def analyse(self, indptr, indices, n, block_size=1):
         super().analyse(indptr, indices, n)
         self._triangles()
+        import scipy.sparse as sp  # type: ignore[import-untyped]
+
         self._ps = _pardiso_instance()
         self._A = sp.csr_matrix((np.zeros(self._lower.size), self.lower_indices,
                                  self.lower_indptr), shape=(n, n))
@@ -197,7 +207,9 @@ class DenseSolver(LinearSolver):
     name = "dense"
 
     def factorize(self, data: np.ndarray) -> None:
-        c, info = sla.lapack.dpotrf(self.full(data).toarray(), lower=1, clean=0,
+        from scipy.linalg import lapack  # type: ignore[import-untyped]
+
+        c, info = lapack.dpotrf(self.full(data).toarray(), lower=1, clean=0,
                                     overwrite_a=1)
         if info:
             self._c = None
@@ -208,7 +220,9 @@ class DenseSolver(LinearSolver):
         self._check_pivots(data, np.diagonal(c) ** 2, np.arange(self.n))
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        return _checked(sla.cho_solve(self._c, b, check_finite=False))
+        from scipy.linalg import cho_solve  # type: ignore[import-untyped]
+
+        return _checked(cho_solve(self._c, b, check_finite=False))
 
 
 def _supernodal() -> type[LinearSolver]:

@@ -4,6 +4,9 @@ The functions work on a graph: the symmetric adjacency (``scipy.sparse`` CSR, no
 the block pattern of the normal equations (one vertex per block of unknowns). An ordering is a
 permutation ``p`` (new -> old: the matrix is factorised as ``A[p][:, p]``).
 
+- :func:`minimum_degree_blocks`: the default order of a block (node) graph given as CSR arrays:
+  our approximate minimum degree (Amestoy, Davis and Duff 1996; compiled,
+  ``microlie_fast._order``), or without the compiled code SciPy's :func:`minimum_degree`.
 - :func:`minimum_degree`: multiple minimum degree (SuperLU's ``MMD_AT_PLUS_A``; SuperLU only
   orders: its incomplete factorisation with every off-diagonal entry dropped follows).
 - :func:`symbolic`: the symbolic factor for an ordering, computed from the pattern alone, as
@@ -15,15 +18,16 @@ permutation ``p`` (new -> old: the matrix is factorised as ``A[p][:, p]``).
 
 Examples
 --------
-A star: its hub last gives no fill.
+A star: minimum degree eliminates the leaves before the hub, so there is no fill (``L`` has
+the 5 diagonal entries and the 4 edges).
 
 >>> import numpy as np
 >>> import scipy.sparse as sp
 >>> from microlie.optim.linalg.ordering import fill_order
 >>> star = sp.csr_matrix((np.ones(8), ([0, 0, 0, 0, 1, 2, 3, 4], [1, 2, 3, 4, 0, 0, 0, 0])))
 >>> s = fill_order(star)
->>> int(s.perm[-1]), s.counts.tolist()
-(0, [2, 2, 2, 2, 1])
+>>> int(s.perm[0]) != 0, s.counts.tolist(), s.nnz
+(True, [2, 2, 2, 2, 1], 9)
 """
 
 from __future__ import annotations
@@ -32,13 +36,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp  # type: ignore[import-untyped]
-from scipy.sparse.csgraph import depth_first_order  # type: ignore[import-untyped]
-from scipy.sparse.linalg import spilu, splu  # type: ignore[import-untyped]
 
-__all__ = ["ORDERINGS", "Symbolic", "fill_order", "graph", "minimum_degree", "symbolic"]
+from ..._fast import compiled
 
-# "auto" is minimum degree (nested dissection was measured and removed: issue 20)
+__all__ = ["ORDERINGS", "Symbolic", "connected_components", "fill_order", "graph",
+           "minimum_degree", "minimum_degree_blocks", "symbolic"]
+
+# "auto": minimum_degree_blocks (our AMD when compiled); "mmd": SciPy's SuperLU MMD (nested
+# dissection was measured and removed: issue 20)
 ORDERINGS = ("auto", "mmd")
 
 
@@ -69,6 +74,8 @@ def graph(indptr: np.ndarray, indices: np.ndarray, n: int, block_size: int = 1) 
     >>> graph(H.indptr, H.indices, 6, 2).toarray().astype(int).tolist()
     [[0, 1, 0], [1, 0, 1], [0, 1, 0]]
     """
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+
     bs = block_size if block_size > 0 and n % block_size == 0 else 1
     nb = n // bs
     itype = np.int32 if n < 2**31 else np.int64
@@ -86,6 +93,8 @@ def graph(indptr: np.ndarray, indices: np.ndarray, n: int, block_size: int = 1) 
 
 def _clean(A: Any) -> Any:
     """The pattern of ``A + A^T`` without diagonal, unit data, sorted CSR."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+
     A = sp.csr_matrix(A)
     A = abs(A) + abs(A.T)
     A.setdiag(0)
@@ -97,6 +106,8 @@ def _clean(A: Any) -> Any:
 
 def splu_symmetric(B: Any, spec: str) -> Any:
     """SuperLU in symmetric mode (diagonal pivots only) with the column order ``spec``."""
+    from scipy.sparse.linalg import splu  # type: ignore[import-untyped]
+
     return splu(B, permc_spec=spec, diag_pivot_thresh=0.0, options={"SymmetricMode": True})
 
 
@@ -132,6 +143,9 @@ def minimum_degree(A: Any) -> np.ndarray:
 
 def _mmd(A: Any) -> np.ndarray:
     """:func:`minimum_degree` of a clean graph (:func:`_clean`)."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+    from scipy.sparse.linalg import spilu  # type: ignore[import-untyped]
+
     n = A.shape[0]
     if n == 0:
         return np.zeros(0, np.int64)
@@ -139,6 +153,81 @@ def _mmd(A: Any) -> np.ndarray:
     lu = spilu(B, drop_tol=1e300, fill_factor=1, permc_spec="MMD_AT_PLUS_A",
                diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     return np.argsort(lu.perm_c).astype(np.int64)
+
+
+def minimum_degree_blocks(indptr: np.ndarray, indices: np.ndarray, nb: int) -> np.ndarray:
+    """The fill-reducing order of a block (node) graph: approximate minimum degree.
+
+    With the compiled code, our approximate minimum degree (Amestoy, Davis and Duff 1996:
+    quotient graph, element absorption, approximate external degrees, supervariables and mass
+    elimination, aggressive absorption; nodes of degree above ``max(16, 10 sqrt(nb))`` last);
+    without it (or ``MICROLIE_FAST=0``), :func:`minimum_degree` (SciPy's SuperLU). Both are
+    deterministic.
+
+    Parameters
+    ----------
+    indptr : numpy.ndarray
+        ``nb + 1`` row pointers (int32 or int64) of the symmetric CSR pattern.
+    indices : numpy.ndarray
+        The column of each entry (int32 or int64), in ``[0, nb)``. A diagonal and repeated
+        entries are ignored; the order within a row does not matter.
+    nb : int
+        The number of nodes.
+
+    Returns
+    -------
+    numpy.ndarray
+        The order, new -> old (int64): node ``perm[k]`` is eliminated ``k``-th.
+
+    Raises
+    ------
+    ValueError
+        ``indptr`` is not ``nb + 1`` non-decreasing pointers from 0, an index is outside
+        ``[0, nb)``, or the pattern is not symmetric (``(i, j)`` without ``(j, i)``).
+
+    Examples
+    --------
+    A path 0 - 1 - 2 - 3: an end first (degree 1), never an inner node (no fill).
+
+    >>> import numpy as np
+    >>> from microlie.optim.linalg.ordering import minimum_degree_blocks
+    >>> indptr = np.array([0, 1, 3, 5, 6])
+    >>> indices = np.array([1, 0, 2, 1, 3, 2])
+    >>> p = minimum_degree_blocks(indptr, indices, 4)
+    >>> sorted(p.tolist()), int(p[0]) in (0, 3)
+    ([0, 1, 2, 3], True)
+    """
+    nb = int(nb)
+    if nb < 0:
+        raise ValueError(f"nb must be >= 0, got {nb}")
+    indptr = np.asarray(indptr)
+    indices = np.asarray(indices)
+    for name, a in (("indptr", indptr), ("indices", indices)):
+        if a.ndim != 1 or a.dtype.kind not in "iu":
+            raise ValueError(f"{name} must be a 1-D integer array, got {a.dtype} {a.shape}")
+    if indptr.size != nb + 1:
+        raise ValueError(f"indptr must have nb + 1 = {nb + 1} entries, got {indptr.size}")
+    mod = compiled("_order")
+    if mod is not None:
+        return mod.order(np.ascontiguousarray(indptr, np.intp),
+                         np.ascontiguousarray(indices, np.intp), nb).astype(np.int64, copy=False)
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+
+    if indptr[0] != 0 or (np.diff(indptr) < 0).any() or indptr[-1] > indices.size:
+        raise ValueError("indptr must start at 0, be non-decreasing and end at most at "
+                         "len(indices)")
+    idx = indices[:indptr[-1]]
+    if idx.size and (idx.min() < 0 or idx.max() >= nb):
+        raise ValueError(f"indices must be in [0, {nb})")
+    A = sp.csr_matrix((np.ones(idx.size), idx, indptr), shape=(nb, nb))
+    A.sum_duplicates()
+    A.setdiag(0)
+    A.eliminate_zeros()
+    A.data[:] = 1.0
+    if (A != A.T).nnz:
+        raise ValueError("the pattern must be symmetric: (i, j) present iff (j, i) present")
+    A.sort_indices()
+    return _mmd(A)
 
 
 @dataclass(frozen=True)
@@ -247,6 +336,8 @@ def _symbolic(A: Any, perm: np.ndarray) -> Symbolic:
 
 def _lower(A: Any, perm: np.ndarray) -> Any:
     """The strictly lower pattern of ``A[perm][:, perm]`` (CSR, sorted, int64 indices)."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+
     L = sp.tril(A[perm][:, perm], -1, format="csr")
     L.sort_indices()
     return L
@@ -278,11 +369,68 @@ def _postorder(parent: np.ndarray) -> np.ndarray:
     """A postorder of the forest ``parent`` (children before parents, subtrees contiguous,
     children in ascending order): the reversed preorder of SciPy's compiled depth-first search
     from a virtual root, with the nodes relabelled ``n - 1 - j``."""
+    mod = compiled("_order")
+    if mod is not None:  # the same order, without SciPy
+        return mod.postorder(np.ascontiguousarray(parent, np.intp)).astype(np.int64, copy=False)
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+    from scipy.sparse.csgraph import depth_first_order  # type: ignore[import-untyped]
+
     n = parent.size
     p = np.where(parent < 0, n, n - 1 - parent)
     tree = sp.csr_matrix((np.ones(n), (p, n - 1 - np.arange(n))), shape=(n + 1, n + 1))
     pre = depth_first_order(tree, n, directed=True, return_predecessors=False)
     return (n - 1 - pre[1:])[::-1].astype(np.int64)
+
+
+def connected_components(n: int, rows: np.ndarray, cols: np.ndarray) -> tuple[int, np.ndarray]:
+    """The connected components of an undirected graph given by its edges (NumPy only).
+
+    Hooking of roots to the smaller root of each edge and pointer jumping (Shiloach-Vishkin
+    style), repeated until every edge joins two nodes of one label.
+
+    Parameters
+    ----------
+    n : int
+        The number of nodes.
+    rows, cols : numpy.ndarray
+        The edges ``rows[k] - cols[k]`` (integers in ``[0, n)``; either direction, repeats and
+        loops allowed).
+
+    Returns
+    -------
+    ncomp : int
+        The number of components (isolated nodes included).
+    label : numpy.ndarray
+        The component of each node (int64), ``0 .. ncomp - 1`` in the order of each
+        component's smallest node.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.linalg.ordering import connected_components
+    >>> ncomp, label = connected_components(6, np.array([0, 4, 2]), np.array([1, 5, 1]))
+    >>> ncomp, label.tolist()
+    (3, [0, 0, 0, 1, 2, 2])
+    """
+    L = np.arange(n, dtype=np.int64)
+    r = np.asarray(rows, dtype=np.int64).ravel()
+    c = np.asarray(cols, dtype=np.int64).ravel()
+    while r.size:
+        lr, lc = L[r], L[c]
+        diff = lr != lc
+        if not diff.any():
+            break
+        r, c, lr, lc = r[diff], c[diff], lr[diff], lc[diff]  # the edges still to join
+        m = np.minimum(lr, lc)
+        np.minimum.at(L, lr, m)  # each root hooks under the smallest root it meets
+        np.minimum.at(L, lc, m)
+        while True:  # pointer jumping to the roots
+            LL = L[L]
+            if np.array_equal(LL, L):
+                break
+            L = LL
+    _, label = np.unique(L, return_inverse=True)
+    return int(label.max()) + 1 if n else 0, label.astype(np.int64).ravel()
 
 
 def _lifting(parent: np.ndarray) -> list[np.ndarray]:
@@ -339,9 +487,10 @@ def _counts(lower: Any, parent: np.ndarray, up: list[np.ndarray]) -> np.ndarray:
 def fill_order(A: Any, method: str = "auto") -> Symbolic:
     """The fill-reducing order of the supernodal Cholesky, with its symbolic factor.
 
-    ``"mmd"`` and ``"auto"``: :func:`minimum_degree` (George's nested dissection as it was
-    here cost 1.0-1.7x its flops on the shared pose graphs and was removed; see
-    ``benchmarks/symbolic.py``).
+    ``"auto"``: :func:`minimum_degree_blocks` (our approximate minimum degree with the
+    compiled code, else SciPy's multiple minimum degree); ``"mmd"``: :func:`minimum_degree`
+    (SciPy's). George's nested dissection as it was here cost 1.0-1.7x the flops of minimum
+    degree on the shared pose graphs and was removed; see ``benchmarks/symbolic.py``.
 
     Parameters
     ----------
@@ -372,4 +521,6 @@ def fill_order(A: Any, method: str = "auto") -> Symbolic:
     if method not in ORDERINGS:
         raise ValueError(f"unknown ordering {method!r}: expected one of {ORDERINGS}")
     A = _clean(A)
-    return _symbolic(A, _mmd(A))
+    if method == "mmd":
+        return _symbolic(A, _mmd(A))
+    return _symbolic(A, minimum_degree_blocks(A.indptr, A.indices, A.shape[0]))
