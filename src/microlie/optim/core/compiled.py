@@ -302,6 +302,8 @@ class ReprojectionPlan:
 
 def _reprojection_plan(problem: Any, f: Factor) -> ReprojectionPlan | None:
     """:class:`ReprojectionPlan` of a BAL reprojection batch, or ``None``."""
+    if type(f).__name__ != "ReprojectionFactor":  # no import of sfm for other factors
+        return None
     from ..sfm.camera import BALCamera
     from ..sfm.reprojection import ReprojectionFactor
 
