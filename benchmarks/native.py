@@ -39,9 +39,10 @@ def build(blocked: bool = False) -> ctypes.CDLL:
     """The plain native loops (lie_native.cpp) or the blocked ones (lie_blocked.c)."""
     out = Path(tempfile.mkdtemp()) / "liblie_native.so"
     if blocked:
-        cmd = ["gcc", *FLAGS, "-std=c11", "-DLM_LIBMVEC",
-               f"-I{HERE.parent / 'fast' / 'src' / 'microlie_fast'}",
-               str(BLOCKED)]
+        fast = HERE.parent / "fast" / "src" / "microlie_fast"
+        stub = [] if (fast / "vecmath.h").exists() else ["-DLM_VECMATH_STUB"]
+        cmd = ["gcc", *FLAGS, "-std=c11", "-fno-trapping-math", "-DLM_LIBMVEC", *stub,
+               f"-I{fast}", f"-I{fast / 'generated'}", str(BLOCKED)]
     else:
         cmd = ["g++", *FLAGS, str(SRC)]
     subprocess.run([*cmd, "-o", str(out), "-lmvec", "-lm"], check=True)

@@ -73,6 +73,7 @@ from ._array import NUMPY, NUMPY_CHUNKS, SCALAR, Array, Deferred
 from ._trace import compile_scalar
 
 __all__ = ["Kernel", "KERNELS", "run", "run_floats", "scalar_function", "register",
+           "register_single",
            "replacements", "CHUNK", "TORCH_CHUNK"]
 
 # Large NumPy batches are evaluated in chunks of this many elements, so that the dozens of
@@ -94,8 +95,8 @@ class Kernel:
     NumPy replacement, if any.
     """
 
-    __slots__ = ("name", "group", "fn", "array_fn", "ins", "outs", "finite", "impl", "_flat",
-                 "frozen", "_scalar", "_sizes")
+    __slots__ = ("name", "group", "fn", "array_fn", "ins", "outs", "finite", "impl", "one",
+                 "_flat", "frozen", "_scalar", "_sizes")
 
     def __init__(self, name: str, group: Any, fn: Callable[..., Any] | None,
                  ins: Sequence[str], outs: Sequence[Shape], finite: bool = False,
@@ -108,6 +109,7 @@ class Kernel:
         self.outs = tuple(tuple(s) for s in outs)
         self.finite = finite
         self.impl: Callable[..., Any] | None = None
+        self.one: Callable[..., Any] | None = None
         self._flat = len(self.outs) == 1
         self.frozen = frozen  # the first output becomes an element's parameters: read-only
         self._scalar: Callable[..., Any] | None = None  # the traced single-element function
@@ -138,6 +140,20 @@ def register(name: str, impl: Callable[..., Any] | None, backend: str = "numpy")
     KERNELS[name].impl = impl
 
 
+def register_single(name: str, one: Callable[..., Any] | None) -> None:
+    """Use ``one`` for single float64 NumPy elements of kernel ``name`` (``None``: back to the
+    traced Python code). Contract: ``one(*inputs)`` takes one one-dimensional array per input and
+    returns the output (one output) or the tuple of outputs as fresh float64 arrays, output 0
+    read-only if the kernel is ``frozen``, or ``None`` for any input it does not handle (not a
+    contiguous float64 vector of the right length) and for a non-finite result of a ``finite``
+    kernel; the caller then evaluates the generic kernel (which raises the errors)."""
+    if name not in KERNELS:
+        raise KeyError(f"no kernel named {name!r}")
+    if one is not None and not callable(one):
+        raise TypeError("one must be callable (or None)")
+    KERNELS[name].one = one
+
+
 def replacements() -> list[str]:
     """Names of the kernels that currently have a registered replacement."""
     return [k for k, v in KERNELS.items() if v.impl is not None]
@@ -149,6 +165,10 @@ def replacements() -> list[str]:
 def run(k: Kernel, *arrays: Array) -> Any:
     """Evaluate kernel ``k`` on ``arrays``: one array per output (a tuple if several)."""
     a = arrays[0]
+    if k.one is not None:  # compiled single element (None for anything else)
+        r = k.one(*arrays)
+        if r is not None:
+            return r
     if k.fn is not None and type(a) is np.ndarray and a.ndim == 1:
         # single NumPy elements: plain Python floats, far faster than NumPy on tiny arrays
         if len(arrays) == 1:

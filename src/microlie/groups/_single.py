@@ -114,13 +114,15 @@ def _make(cls: Any, op: str, set_params: Callable[..., Any], set_floats: Callabl
 
 
 def use_compiled(one: Any) -> list[str]:
-    """Use the one-element C functions of ``one`` (the module ``microlie_fast._one``) for the
-    groups and operations it implements; return their names (``"SE3.exp"``, ...). Its functions
-    follow the contract of the Python ones above (``None`` for anything they do not handle)."""
+    """Use the one-element C functions of ``one`` (the module ``microlie_fast._one``, generated
+    from the same kernels) for the groups and operations it implements; return their names
+    (``"SE3.exp"``, ...). Its functions follow the contract of the Python ones above (``None``
+    for anything they do not handle)."""
     from .. import groups
     from .base import LieGroup
 
-    one.setup(LieGroup.__dict__["_params"], LieGroup.__dict__["_floats"], groups.SO3, groups.SE3)
+    classes = [getattr(groups, name) for name in one.GROUPS]
+    one.setup(LieGroup.__dict__["_params"], LieGroup.__dict__["_floats"], *classes)
     done = []
     for name, fns in one.OPS.items():
         cls = getattr(groups, name)
