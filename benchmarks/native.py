@@ -8,7 +8,9 @@ glibc's libmvec) into a shared library called through ctypes on the same NumPy a
 the three variants are timed round-robin in one process ("fast" = with the extra, "generic" =
 the NumPy kernels, same process with the replacements unregistered). Prints ns per element
 (medians, with the interquartile spread) and the ratios microlie/native. One element: us per
-call of the public API, against gtsam's Pose3 binding when gtsam is importable (bench venv).
+call of the public API, values and with jac=True (exp, log, between with both Jacobians),
+against gtsam's Pose3 binding when gtsam is importable (bench venv): Expmap(v, H), Logmap(p, H),
+between(q, H1, H2).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import numpy as np
 
 from microlie import SE3, SO3, Sim3
 from microlie import _kernels as K
+from microlie.groups import _single
 
 HERE = Path(__file__).parent
 SRC = HERE / "native" / "lie_native.cpp"
@@ -77,16 +80,29 @@ def native_fn(lib: ctypes.CDLL, name: str, ins: list[np.ndarray], shapes: list[t
     return call_fresh if fresh else call_warm
 
 
-def generic(name: str, fn):
-    """``fn`` with the compiled replacement of kernel ``name`` unregistered during the call."""
+def generic(name: str, fn, single: bool = False):
+    """``fn`` with the compiled replacement of kernel ``name`` unregistered during the call (and,
+    with ``single``, its compiled one-element function and, for an element operation, the
+    compiled single-element path of the class: the traced Python code)."""
     k = K.KERNELS[name]
+    group, op = name.split(".")
+    cls = {"SE3": SE3, "SO3": SO3, "Sim3": Sim3}[group]
+    attr = f"_one_{op}"
+    py_one = _single.build(cls).get(op) if single else None
 
     def call():
-        impl, k.impl = k.impl, None
+        impl, one, k.impl = k.impl, k.one, None
+        saved = cls.__dict__.get(attr)
+        if single:
+            k.one = None
+            if py_one is not None:
+                setattr(cls, attr, staticmethod(py_one))
         try:
             return fn()
         finally:
-            k.impl = impl
+            k.impl, k.one = impl, one
+            if single and saved is not None:
+                setattr(cls, attr, saved)
     return call
 
 
@@ -230,23 +246,30 @@ def single(rounds: int) -> None:
     X, Y = SE3.exp(tau), SE3.exp(rng.standard_normal(6))
     v = rng.standard_normal(3)
     ops = {"SE3.exp": (lambda: SE3.exp(tau)), "SE3.log": (lambda: X.log()),
-           "SE3.compose": (lambda: X @ Y), "SE3.act": (lambda: X.act(v))}
+           "SE3.compose": (lambda: X @ Y), "SE3.act": (lambda: X.act(v)),
+           "SE3.exp_jac": (lambda: SE3.exp(tau, jac=True)),
+           "SE3.log_jac": (lambda: X.log(jac=True)),
+           "SE3.between_jac": (lambda: X.between(Y, jac=True))}
     peers: dict = {}
     try:
         import gtsam
 
         gx, gy = gtsam.Pose3(X.matrix()), gtsam.Pose3(Y.matrix())
         gt = np.concatenate([tau[3:], tau[:3]])  # gtsam's tangent is (omega, v)
+        H, H1, H2 = (np.zeros((6, 6), order="F") for _ in range(3))  # gtsam's Jacobian outputs
         peers = {"SE3.exp": lambda: gtsam.Pose3.Expmap(gt),
                  "SE3.log": lambda: gtsam.Pose3.Logmap(gx),
                  "SE3.compose": lambda: gx.compose(gy),
-                 "SE3.act": lambda: gx.transformFrom(v)}
+                 "SE3.act": lambda: gx.transformFrom(v),
+                 "SE3.exp_jac": lambda: gtsam.Pose3.Expmap(gt, H),
+                 "SE3.log_jac": lambda: gtsam.Pose3.Logmap(gx, H),
+                 "SE3.between_jac": lambda: gx.between(gy, H1, H2)}
     except ImportError:
         print("(gtsam not importable: run in the bench venv for the gtsam column)")
     print(f"\none element, us per call, median [q1, q3] of {rounds} interleaved rounds")
     print(f"{'op':12s} {'fast':>20s} {'generic':>20s} {'gtsam':>20s} {'fast/gtsam':>10s}")
     for name, fn in ops.items():
-        fns = {"fast": fn, "generic": generic(name, fn)}
+        fns = {"fast": fn, "generic": generic(name, fn, single=True)}
         if name in peers:
             fns["gtsam"] = peers[name]
         ts = interleaved(fns, rounds, number=2000)

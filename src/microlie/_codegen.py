@@ -23,9 +23,9 @@ functions. Elementary functions are called as ``lm_sin``, ``lm_cos``, ``lm_tan``
 (one ``X(fn, "Group.op", nin, k0, k1, nout, r0, r1, r2, c0, c1, c2, finite, frozen, plain)`` per
 kernel: ``rj, cj`` the shape of output ``j`` (``cj = 0`` for a vector), ``plain`` 1 where a row
 loop is cheaper than structure-of-arrays blocks), ``LK_GROUPS(X)`` (one ``X(G_SE3, "SE3",
-param_dim)`` per group) and ``LK_ONE(X)`` (the one-element operations of
-:data:`microlie.groups._single.OPS`). ``python -m microlie._codegen OUTDIR`` does the same from a
-build script.
+param_dim)`` per group), ``LK_ONE(X)`` (the one-element operations of
+:data:`microlie.groups._single.OPS`) and ``LK_JAC(X)`` (the same with ``jac=True``).
+``python -m microlie._codegen OUTDIR`` does the same from a build script.
 """
 
 from __future__ import annotations
@@ -178,6 +178,7 @@ def source() -> str:
     parts = [_HEAD]
     table: list[str] = []
     one: list[str] = []
+    jac: list[str] = []
     groups: dict[str, int] = {}
     for k, rec in _kernels():
         fn = c_name(k.name)
@@ -193,12 +194,20 @@ def source() -> str:
                      f"{int(k.finite)}, {int(k.frozen)}, {plain})")
         gname, op = k.name.split(".")
         groups.setdefault(gname, k.group.param_dim)
-        if op in OPS and not getattr(k.group, "_range_check", None):
-            ins, res = OPS[op]
+        base = op.removesuffix("_jac")
+        if base in OPS and not getattr(k.group, "_range_check", None):
+            ins, res = OPS[base]
             kin = rec.sizes[-1] if ins[-1] in "tv" else 0
             kout = math.prod(k.outs[0])
-            one.append(f"    X({fn}, G_{gname.upper()}, \"{ins}\", {kin}, {int(res == 'e')}, "
-                       f"{kout}, {int(k.finite)})")
+            row = (f"{fn}, G_{gname.upper()}, \"{ins}\", {kin}, {int(res == 'e')}, {kout}, "
+                   f"{int(k.finite)}")
+            if op == base:
+                one.append(f"    X({row})")
+            else:  # the Jacobians (1 or 2 matrices), and an identity for compose and between
+                eye = k.group.dof if base in ("compose", "between") else 0
+                mats = [*k.outs[1:], (0, 0)][:2]
+                jac.append(f"    X({row}, {len(k.outs) - 1}, {mats[0][0]}, {mats[0][1]}, "
+                           f"{mats[1][0]}, {mats[1][1]}, {eye})")
     parts.append("/* X(fn, name, nin, k0, k1, nout, r0, r1, r2, c0, c1, c2, finite, frozen, "
                  "plain) */\n#define LK_KERNELS(X) \\\n" + " \\\n".join(table) + "\n")
     gl = [f"    X(G_{g.upper()}, \"{g}\", {d})" for g, d in groups.items()]
@@ -206,6 +215,9 @@ def source() -> str:
                  + "\n")
     parts.append("/* X(fn, group, inputs, vector width, element output, output width, finite) "
                  "*/\n#define LK_ONE(X) \\\n" + " \\\n".join(one) + "\n")
+    parts.append("/* X(fn, group, inputs, vector width, element output, output width, finite, "
+                 "number of Jacobians, their shapes (r1, c1, r2, c2), identity size) */\n"
+                 "#define LK_JAC(X) \\\n" + " \\\n".join(jac) + "\n")
     return "\n".join(parts)
 
 

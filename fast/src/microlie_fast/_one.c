@@ -121,6 +121,111 @@ static PyObject *call(const op *k, PyObject *const *args, Py_ssize_t nargs) {
     return obj;
 }
 
+/* ------------------------------------------------------------------ with Jacobians
+ * j_<kernel>(...): the element operation with jac=True (right Jacobians), same inputs and
+ * contract as the operations above; returns (output, J...) with the Jacobians as fresh writable
+ * float64 (r, c) arrays, and for compose and between the identity as the second Jacobian. */
+typedef struct {
+    op base;
+    int nmat, rows[2], cols[2], eye;
+} jop;
+
+static PyObject *new_matrix(npy_intp r, npy_intp c, const double *v) {
+    npy_intp dims[2] = {r, c};
+    PyObject *a = PyArray_SimpleNew(2, dims, NPY_DOUBLE);
+    if (!a) return NULL;
+    double *d = (double *)PyArray_DATA((PyArrayObject *)a);
+    if (v) memcpy(d, v, sizeof(double) * (size_t)(r * c));
+    else
+        for (npy_intp i = 0; i < r * c; i++) d[i] = i % (c + 1) == 0 ? 1.0 : 0.0;
+    return a;
+}
+
+static PyObject *call_jac(const jop *j, PyObject *const *args, Py_ssize_t nargs) {
+    const op *k = &j->base;
+    int nin = (int)strlen(k->ins);
+    if (nargs != nin) {
+        PyErr_Format(PyExc_TypeError, "expected %d arguments, got %zd", nin, nargs);
+        return NULL;
+    }
+    if (params_off < 0) {
+        PyErr_SetString(PyExc_RuntimeError, "microlie_fast._one.setup was not called");
+        return NULL;
+    }
+    const double *a = NULL, *b = NULL;
+    if (k->ins[0] == 't') {
+        a = vector_data(args[0], k->kin);
+    } else {
+        a = element_data(args[0], k->group);
+        if (a && nin == 2)
+            b = k->ins[1] == 'e' ? element_data(args[1], k->group)
+                                 : vector_data(args[1], k->kin);
+        if (nin == 2 && !b) a = NULL;
+    }
+    if (!a) Py_RETURN_NONE;
+    double r[MAXW];
+    k->fn(a, b ? b : a, r, 1);
+    int total = k->kout;
+    for (int m = 0; m < j->nmat; m++) total += j->rows[m] * j->cols[m];
+    if (k->finite) {
+        double s = 0.0;
+        for (int i = 0; i < total; i++) s += r[i] * 0.0;
+        if (s != 0.0) Py_RETURN_NONE;
+    }
+    int nres = 1 + j->nmat + (j->eye ? 1 : 0);
+    PyObject *res = PyTuple_New(nres);
+    if (!res) return NULL;
+    npy_intp n = k->kout;
+    PyObject *arr = PyArray_SimpleNew(1, &n, NPY_DOUBLE);
+    if (!arr) {
+        Py_DECREF(res);
+        return NULL;
+    }
+    memcpy(PyArray_DATA((PyArrayObject *)arr), r, sizeof(double) * (size_t)k->kout);
+    if (k->out_element) {
+        PyArray_CLEARFLAGS((PyArrayObject *)arr, NPY_ARRAY_WRITEABLE);
+        PyTypeObject *t = types[k->group];
+        PyObject *obj = t->tp_alloc(t, 0);
+        if (!obj) {
+            Py_DECREF(arr);
+            Py_DECREF(res);
+            return NULL;
+        }
+        *(PyObject **)((char *)obj + params_off) = arr; /* the new reference moves in */
+        Py_INCREF(Py_None);
+        *(PyObject **)((char *)obj + floats_off) = Py_None;
+        arr = obj;
+    }
+    PyTuple_SET_ITEM(res, 0, arr);
+    int off = k->kout;
+    for (int m = 0; m < j->nmat; m++) {
+        PyObject *M = new_matrix(j->rows[m], j->cols[m], r + off);
+        if (!M) {
+            Py_DECREF(res);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(res, 1 + m, M);
+        off += j->rows[m] * j->cols[m];
+    }
+    if (j->eye) {
+        PyObject *M = new_matrix(j->eye, j->eye, NULL);
+        if (!M) {
+            Py_DECREF(res);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(res, 1 + j->nmat, M);
+    }
+    return res;
+}
+
+#define JWRAP(FN, G, INS, KIN, OUTE, KOUT, FIN, NM, R1, C1, R2, C2, EYE)                        \
+    static const jop j_##FN = {{G, INS, KIN, OUTE, KOUT, FIN, FN}, NM, {R1, R2}, {C1, C2}, EYE}; \
+    static PyObject *py_j_##FN(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {    \
+        (void)self;                                                                            \
+        return call_jac(&j_##FN, args, nargs);                                                 \
+    }
+LK_JAC(JWRAP)
+
 /* the one-element operations of the generated table LK_ONE */
 #define WRAP(FN, G, INS, KIN, OUTE, KOUT, FIN)                                                 \
     static const op o_##FN = {G, INS, KIN, OUTE, KOUT, FIN, FN};                              \
@@ -239,13 +344,14 @@ static PyObject *setup(PyObject *self, PyObject *const *args, Py_ssize_t nargs) 
     Py_RETURN_NONE;
 }
 
+#define JENTRY(FN, ...) {"j_" #FN, (PyCFunction)(void (*)(void))py_j_##FN, METH_FASTCALL, NULL},
 #define KENTRY(FN, ...) {"k_" #FN, (PyCFunction)(void (*)(void))k_##FN, METH_FASTCALL, NULL},
 #define ENTRY(NAME, ...) {#NAME, (PyCFunction)(void (*)(void))py_##NAME, METH_FASTCALL, NULL},
 static PyMethodDef methods[] = {
     {"setup", (PyCFunction)(void (*)(void))setup, METH_FASTCALL,
      "setup(params_descriptor, floats_descriptor, *classes): the element layout and the classes "
      "named in GROUPS."},
-    LK_ONE(ENTRY) LK_KERNELS(KENTRY){NULL, NULL, 0, NULL}};
+    LK_ONE(ENTRY) LK_JAC(JENTRY) LK_KERNELS(KENTRY){NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_one",
                                     "One-element entry points of every group for microlie (generated kernels).", -1,
@@ -305,6 +411,39 @@ PyMODINIT_FUNC PyInit__one(void) {
         Py_DECREF(s);                                                                          \
     }
     LK_ONE(ONE_ADD)
+    /* JAC: {"SE3": {"exp": "j_se3_exp_jac"}} */
+    PyObject *jd = PyDict_New();
+    if (!jd || PyModule_AddObject(m, "JAC", jd) < 0) {
+        Py_XDECREF(jd);
+        Py_DECREF(m);
+        return NULL;
+    }
+#define JAC_ADD(FN, G, ...)                                                                    \
+    {                                                                                          \
+        char opname[32];                                                                       \
+        const char *n = strchr(#FN, '_') + 1; /* "exp_jac" */                                  \
+        size_t len = strlen(n) - 4;                                                            \
+        memcpy(opname, n, len);                                                                \
+        opname[len] = 0;                                                                       \
+        PyObject *g = PyDict_GetItemString(jd, GROUP_NAMES[G]);                                \
+        if (!g) {                                                                              \
+            g = PyDict_New();                                                                  \
+            if (!g || PyDict_SetItemString(jd, GROUP_NAMES[G], g) < 0) {                       \
+                Py_XDECREF(g);                                                                 \
+                Py_DECREF(m);                                                                  \
+                return NULL;                                                                   \
+            }                                                                                  \
+            Py_DECREF(g);                                                                      \
+        }                                                                                      \
+        PyObject *s = PyUnicode_FromString("j_" #FN);                                          \
+        if (!s || PyDict_SetItemString(g, opname, s) < 0) {                                    \
+            Py_XDECREF(s);                                                                     \
+            Py_DECREF(m);                                                                      \
+            return NULL;                                                                       \
+        }                                                                                      \
+        Py_DECREF(s);                                                                          \
+    }
+    LK_JAC(JAC_ADD)
 #define K_ADD(FN, NAME, ...)                                                                   \
     {                                                                                          \
         PyObject *s = PyUnicode_FromString("k_" #FN);                                          \
