@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from microlie import SE3, SO3, Sim3
+from microlie import SE2, SE3, SE23, SO2, SO3, Sim3
 from microlie import _kernels as K
 from microlie.groups import _single
 
@@ -86,7 +86,7 @@ def generic(name: str, fn, single: bool = False):
     compiled single-element path of the class: the traced Python code)."""
     k = K.KERNELS[name]
     group, op = name.split(".")
-    cls = {"SE3": SE3, "SO3": SO3, "Sim3": Sim3}[group]
+    cls = {"SE3": SE3, "SO3": SO3, "Sim3": Sim3, "SO2": SO2, "SE2": SE2, "SE23": SE23}[group]
     attr = f"_one_{op}"
     py_one = _single.build(cls).get(op) if single else None
 
@@ -166,6 +166,10 @@ def batched(n: int, rounds: int, only: list[str] | None = None) -> None:
     z7 = rng.standard_normal((n, 7))
     S, U = Sim3.exp(z7), Sim3.exp(rng.standard_normal((n, 7)))
     s8, u8 = S.params, U.params
+    t1, t9 = rng.standard_normal((n, 1)), rng.standard_normal((n, 9))
+    A2, B2 = SE2.exp(t3), SE2.exp(rng.standard_normal((n, 3)))
+    A9, B9 = SE23.exp(t9), SE23.exp(rng.standard_normal((n, 9)))
+    a2, b2, a9, b9 = A2.params, B2.params, A9.params, B9.params
     # name, microlie's call, the kernel's inputs, native loops (plain n_, blocked b_)
     cases: list = [
         ("SO3.exp", lambda: SO3.exp(t3), [t3], ["n_"]),
@@ -192,6 +196,14 @@ def batched(n: int, rounds: int, only: list[str] | None = None) -> None:
         ("Sim3.jr", lambda: Sim3.jr(z7), [z7], []),
         ("Sim3.jr_inv", lambda: Sim3.jr_inv(z7), [z7], []),
         ("Sim3.minus_jac", lambda: U.minus(S, jac=True), [u8, s8], []),
+        # SO2, SE2, SE_2(3): no native loop either
+        ("SO2.exp", lambda: SO2.exp(t1), [t1], []),
+        ("SE2.exp", lambda: SE2.exp(t3), [t3], []),
+        ("SE2.compose", lambda: A2 @ B2, [a2, b2], []),
+        ("SE2.minus_jac", lambda: B2.minus(A2, jac=True), [b2, a2], []),
+        ("SE23.exp", lambda: SE23.exp(t9), [t9], []),
+        ("SE23.compose", lambda: A9 @ B9, [a9, b9], []),
+        ("SE23.act", lambda: A9.act(v), [a9, v], []),
     ]
     fast_on = K.KERNELS["SE3.exp"].impl is not None
     print(f"batched, N = {n}, ns per element ({clock_name} time), median [q1, q3] of {rounds} "
