@@ -8,7 +8,9 @@ glibc's libmvec) into a shared library called through ctypes on the same NumPy a
 the three variants are timed round-robin in one process ("fast" = with the extra, "generic" =
 the NumPy kernels, same process with the replacements unregistered). Prints ns per element
 (medians, with the interquartile spread) and the ratios microlie/native. One element: us per
-call of the public API, against gtsam's Pose3 binding when gtsam is importable (bench venv).
+call of the public API, values and with jac=True (exp, log, between with both Jacobians),
+against gtsam's Pose3 binding when gtsam is importable (bench venv): Expmap(v, H), Logmap(p, H),
+between(q, H1, H2).
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from microlie import SE3, SO3, Sim3
+from microlie import SE2, SE3, SE23, SO2, SO3, Sim3
 from microlie import _kernels as K
+from microlie.groups import _single
 
 HERE = Path(__file__).parent
 SRC = HERE / "native" / "lie_native.cpp"
@@ -39,9 +42,10 @@ def build(blocked: bool = False) -> ctypes.CDLL:
     """The plain native loops (lie_native.cpp) or the blocked ones (lie_blocked.c)."""
     out = Path(tempfile.mkdtemp()) / "liblie_native.so"
     if blocked:
-        cmd = ["gcc", *FLAGS, "-std=c11", "-DLM_LIBMVEC",
-               f"-I{HERE.parent / 'fast' / 'src' / 'microlie_fast'}",
-               str(BLOCKED)]
+        fast = HERE.parent / "fast" / "src" / "microlie_fast"
+        stub = [] if (fast / "vecmath.h").exists() else ["-DLM_VECMATH_STUB"]
+        cmd = ["gcc", *FLAGS, "-std=c11", "-fno-trapping-math", "-DLM_LIBMVEC", *stub,
+               f"-I{fast}", f"-I{fast / 'generated'}", str(BLOCKED)]
     else:
         cmd = ["g++", *FLAGS, str(SRC)]
     subprocess.run([*cmd, "-o", str(out), "-lmvec", "-lm"], check=True)
@@ -76,16 +80,29 @@ def native_fn(lib: ctypes.CDLL, name: str, ins: list[np.ndarray], shapes: list[t
     return call_fresh if fresh else call_warm
 
 
-def generic(name: str, fn):
-    """``fn`` with the compiled replacement of kernel ``name`` unregistered during the call."""
+def generic(name: str, fn, single: bool = False):
+    """``fn`` with the compiled replacement of kernel ``name`` unregistered during the call (and,
+    with ``single``, its compiled one-element function and, for an element operation, the
+    compiled single-element path of the class: the traced Python code)."""
     k = K.KERNELS[name]
+    group, op = name.split(".")
+    cls = {"SE3": SE3, "SO3": SO3, "Sim3": Sim3, "SO2": SO2, "SE2": SE2, "SE23": SE23}[group]
+    attr = f"_one_{op}"
+    py_one = _single.build(cls).get(op) if single else None
 
     def call():
-        impl, k.impl = k.impl, None
+        impl, one, k.impl = k.impl, k.one, None
+        saved = cls.__dict__.get(attr)
+        if single:
+            k.one = None
+            if py_one is not None:
+                setattr(cls, attr, staticmethod(py_one))
         try:
             return fn()
         finally:
-            k.impl = impl
+            k.impl, k.one = impl, one
+            if single and saved is not None:
+                setattr(cls, attr, saved)
     return call
 
 
@@ -149,6 +166,10 @@ def batched(n: int, rounds: int, only: list[str] | None = None) -> None:
     z7 = rng.standard_normal((n, 7))
     S, U = Sim3.exp(z7), Sim3.exp(rng.standard_normal((n, 7)))
     s8, u8 = S.params, U.params
+    t1, t9 = rng.standard_normal((n, 1)), rng.standard_normal((n, 9))
+    A2, B2 = SE2.exp(t3), SE2.exp(rng.standard_normal((n, 3)))
+    A9, B9 = SE23.exp(t9), SE23.exp(rng.standard_normal((n, 9)))
+    a2, b2, a9, b9 = A2.params, B2.params, A9.params, B9.params
     # name, microlie's call, the kernel's inputs, native loops (plain n_, blocked b_)
     cases: list = [
         ("SO3.exp", lambda: SO3.exp(t3), [t3], ["n_"]),
@@ -175,6 +196,14 @@ def batched(n: int, rounds: int, only: list[str] | None = None) -> None:
         ("Sim3.jr", lambda: Sim3.jr(z7), [z7], []),
         ("Sim3.jr_inv", lambda: Sim3.jr_inv(z7), [z7], []),
         ("Sim3.minus_jac", lambda: U.minus(S, jac=True), [u8, s8], []),
+        # SO2, SE2, SE_2(3): no native loop either
+        ("SO2.exp", lambda: SO2.exp(t1), [t1], []),
+        ("SE2.exp", lambda: SE2.exp(t3), [t3], []),
+        ("SE2.compose", lambda: A2 @ B2, [a2, b2], []),
+        ("SE2.minus_jac", lambda: B2.minus(A2, jac=True), [b2, a2], []),
+        ("SE23.exp", lambda: SE23.exp(t9), [t9], []),
+        ("SE23.compose", lambda: A9 @ B9, [a9, b9], []),
+        ("SE23.act", lambda: A9.act(v), [a9, v], []),
     ]
     fast_on = K.KERNELS["SE3.exp"].impl is not None
     print(f"batched, N = {n}, ns per element ({clock_name} time), median [q1, q3] of {rounds} "
@@ -229,23 +258,30 @@ def single(rounds: int) -> None:
     X, Y = SE3.exp(tau), SE3.exp(rng.standard_normal(6))
     v = rng.standard_normal(3)
     ops = {"SE3.exp": (lambda: SE3.exp(tau)), "SE3.log": (lambda: X.log()),
-           "SE3.compose": (lambda: X @ Y), "SE3.act": (lambda: X.act(v))}
+           "SE3.compose": (lambda: X @ Y), "SE3.act": (lambda: X.act(v)),
+           "SE3.exp_jac": (lambda: SE3.exp(tau, jac=True)),
+           "SE3.log_jac": (lambda: X.log(jac=True)),
+           "SE3.between_jac": (lambda: X.between(Y, jac=True))}
     peers: dict = {}
     try:
         import gtsam
 
         gx, gy = gtsam.Pose3(X.matrix()), gtsam.Pose3(Y.matrix())
         gt = np.concatenate([tau[3:], tau[:3]])  # gtsam's tangent is (omega, v)
+        H, H1, H2 = (np.zeros((6, 6), order="F") for _ in range(3))  # gtsam's Jacobian outputs
         peers = {"SE3.exp": lambda: gtsam.Pose3.Expmap(gt),
                  "SE3.log": lambda: gtsam.Pose3.Logmap(gx),
                  "SE3.compose": lambda: gx.compose(gy),
-                 "SE3.act": lambda: gx.transformFrom(v)}
+                 "SE3.act": lambda: gx.transformFrom(v),
+                 "SE3.exp_jac": lambda: gtsam.Pose3.Expmap(gt, H),
+                 "SE3.log_jac": lambda: gtsam.Pose3.Logmap(gx, H),
+                 "SE3.between_jac": lambda: gx.between(gy, H1, H2)}
     except ImportError:
         print("(gtsam not importable: run in the bench venv for the gtsam column)")
     print(f"\none element, us per call, median [q1, q3] of {rounds} interleaved rounds")
     print(f"{'op':12s} {'fast':>20s} {'generic':>20s} {'gtsam':>20s} {'fast/gtsam':>10s}")
     for name, fn in ops.items():
-        fns = {"fast": fn, "generic": generic(name, fn)}
+        fns = {"fast": fn, "generic": generic(name, fn, single=True)}
         if name in peers:
             fns["gtsam"] = peers[name]
         ts = interleaved(fns, rounds, number=2000)

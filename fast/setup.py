@@ -1,4 +1,5 @@
-"""Build of the compiled kernels. Flags: -O3 with the host's vector ISA (this is a local build
+"""Build of the compiled kernels. The group kernels (_lie, _one, and the edge loop of _graph) are
+generated first from microlie's component formulas (microlie._codegen -> generated/). Flags: -O3 with the host's vector ISA (this is a local build
 from source; a distributed wheel would target a fixed ISA level), math without errno so that
 GCC may vectorise calls, and glibc's libmvec for the vector versions of tan/sin/cos/atan2.
 Set MICROLIE_FAST_CFLAGS to override the flags (for example on a compiler without -march)."""
@@ -10,6 +11,26 @@ import sys
 import numpy as np
 from setuptools import Extension, setup
 
+HERE = os.path.dirname(os.path.abspath(__file__))
+SRC = os.path.join(HERE, "src", "microlie_fast")
+GENERATED = os.path.join(SRC, "generated")
+
+
+def generate_kernels(outdir: str) -> None:
+    """Write the generated group kernels (lie_kernels.h) from microlie's component formulas
+    (microlie._codegen.generate; the microlie sources beside this folder, or an installed
+    microlie)."""
+    root = os.path.join(os.path.dirname(HERE), "src")
+    if os.path.isdir(os.path.join(root, "microlie")):
+        sys.path.insert(0, root)
+    os.environ["MICROLIE_FAST"] = "0"  # the generic kernels only, whatever is installed
+    from microlie._codegen import generate
+
+    generate(outdir)
+
+
+generate_kernels(GENERATED)
+
 flags = ["-O3", "-fno-math-errno", "-fopenmp-simd", "-std=c11"]
 libs = ["m"]
 if sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64"):
@@ -18,30 +39,38 @@ if sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64"
     flags.append("-DLM_LIBMVEC")
 elif platform.machine() in ("arm64", "aarch64"):
     flags.append("-mcpu=native")
+if not os.path.exists(os.path.join(SRC, "vecmath.h")):
+    flags.append("-DLM_VECMATH_STUB")  # libm through vecmath_stub.h until vecmath.h exists
 if os.environ.get("MICROLIE_FAST_CFLAGS"):
     flags = os.environ["MICROLIE_FAST_CFLAGS"].split()
+# the group kernels: exactly the operations of the component formulas (no fused multiply-add
+# contraction), so that one element and a batch give the same bits, equal to the generic kernel
+# to the rounding of the elementary functions; both sides of a small-angle selection are
+# computed (-fno-trapping-math: no floating-point trap is enabled, so GCC may evaluate the side
+# not taken and vectorise the loop; the results do not change)
+kernel_flags = [*flags, "-ffp-contract=off", "-fno-trapping-math"]
 
 setup(
     ext_modules=[
         Extension(
             "microlie_fast._lie",
             sources=["src/microlie_fast/_lie.c"],
-            include_dirs=[np.get_include(), "src/microlie_fast"],
-            extra_compile_args=flags,
+            include_dirs=[np.get_include(), "src/microlie_fast", "src/microlie_fast/generated"],
+            extra_compile_args=kernel_flags,
             libraries=libs,
         ),
         Extension(
             "microlie_fast._graph",
             sources=["src/microlie_fast/_graph.c"],
-            include_dirs=[np.get_include(), "src/microlie_fast"],
-            extra_compile_args=flags,
+            include_dirs=[np.get_include(), "src/microlie_fast", "src/microlie_fast/generated"],
+            extra_compile_args=[*flags, "-fno-trapping-math"],
             libraries=libs,
         ),
         Extension(  # one-element entry points (microlie.groups._single)
             "microlie_fast._one",
             sources=["src/microlie_fast/_one.c"],
-            include_dirs=[np.get_include(), "src/microlie_fast"],
-            extra_compile_args=flags,
+            include_dirs=[np.get_include(), "src/microlie_fast", "src/microlie_fast/generated"],
+            extra_compile_args=kernel_flags,
             libraries=libs,
         ),
         Extension(  # the engine's normal equations: core/problem.py, linalg/schur_solver.py

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import require, tangent_with_angle
+from conftest import GROUPS, require, tangent_with_angle
 
 import microlie as ml
 from microlie.groups import _single
@@ -41,20 +41,21 @@ def _compiled():
 
 
 def _exact_pi_params(G, rng, n):
-    """Parameters of rotations by exactly pi (w = 0 exactly), and some with w < 0."""
-    q = rng.standard_normal((n, 4))
-    q[: n // 2, 3] = 0.0
-    q[: 2] = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    q[n // 2:, 3] = -np.abs(q[n // 2:, 3])
-    if G.param_dim == 4:
-        return q
-    t = rng.standard_normal((n, 3))
-    if G.param_dim == 8:  # Sim3: a scale, exactly 1 for half of them
-        s = np.exp(rng.uniform(-5.0, 5.0, (n, 1)))
-        s[::2] = 1.0
-        return np.concatenate([t, q, s], axis=1)
-    return np.concatenate([t, q], axis=1)
+    """Parameters of elements whose rotation is by exactly pi (``_exact_pi_element``, no
+    rounding), alone and composed with random elements of rotation 0 (translations, velocities,
+    scale exponent 0 for Sim3), and some whose quaternion has w < 0 (rotation groups of 3D)."""
+    X = G._exact_pi_element()
+    tau = rng.standard_normal((n, G.dof))
+    tau[:, G._rotation_slice] = 0.0
+    if G.dof == 7:
+        tau[::2, 6] = 0.0
+    p = np.array((G.exp(tau) @ X).params)
+    p[0] = X.params
+    rot = G if not hasattr(G, "_dims") else G._rotation
+    if rot is ml.SO3:  # quaternions: the other sign of the double cover, w <= 0
+        lo, hi = (0, 4) if G is ml.SO3 else G._dims()
+        p[n // 2:, lo:hi] = -p[n // 2:, lo:hi]
+    return p
 
 
 # Sim3 log-scales: 0 exactly, tiny, around the series/recurrence switch at |sigma| = 2, large,
@@ -66,7 +67,7 @@ SIGMAS = (0.0, 0.0, 1e-12, -1e-7, 1.9999, -2.0001, 7.5, -30.0, 50.0, -50.0)
 def _inputs(k, dtype, rng):
     G = k.group
     taus = np.concatenate([tangent_with_angle(G, rng, th, 4) for th in HARD])
-    if G.dof == 7:  # Sim3: every hard angle paired with several hard scales
+    if G is ml.Sim3:  # every hard angle paired with several hard scales
         taus = np.concatenate([taus] * 3)
         taus[:, 6] = np.resize(SIGMAS, len(taus))
         taus = taus[rng.permutation(len(taus))]
@@ -76,7 +77,7 @@ def _inputs(k, dtype, rng):
             x = taus
         elif kind == "p":
             t = taus.copy()
-            if G.dof == 7:
+            if G is ml.Sim3:
                 t[:, 6] = np.clip(t[:, 6], -20.0, 20.0)
             x = np.concatenate([G.exp(t).params, _exact_pi_params(G, rng, 8)])[: len(taus)]
             x = rng.permutation(x)
@@ -98,30 +99,35 @@ def _row_error(g, w, single: bool) -> float:
 
 
 def test_compiled_kernels_agree_with_the_generic_kernels():
-    """float64 against the generic kernel (1e-13); float32 (computed in float64, rounded once)
-    against the compiled kernel's own float64 result on the same inputs (a few float32 ulps)
-    and against the generic float64 kernel on them (1e-5: float32 inputs are not exactly unit
-    quaternions, on which equivalent formulas differ, e.g. Sim3 minus_jac by 2.4e-6). The
-    generic float32 kernel is no reference: its float32 intermediates cancel (Y X^-1 of two equal
-    Sim3 elements with translations of 3e7 and scale e^20 comes out 0.5 off, one float32 ulp of
-    the translation)."""
+    """Every compiled kernel of every group (the generated batched kernels of ``_lie`` and the
+    one-element ones of ``_one``): float64 against the generic kernel (1e-13); float32 (computed in
+    float64, rounded once) against the compiled kernel's own float64 result on the same inputs
+    (a few float32 ulps) and against the generic float64 kernel on them (1e-5: float32 inputs
+    are not exactly unit quaternions, on which equivalent formulas differ, e.g. Sim3 minus_jac
+    by 2.4e-6). The generic float32 kernel is no reference: its float32 intermediates cancel (Y
+    X^-1 of two equal Sim3 elements with translations of 3e7 and scale e^20 comes out 0.5 off,
+    one float32 ulp of the translation)."""
     K, names = _compiled()
+    generated = {n for n, k in K.KERNELS.items()
+                 if k.group in GROUPS and k.fn is not None and n != "SO3.from_matrix"}
+    assert set(names) == generated  # every element-wise kernel of every group is compiled
     rng = np.random.default_rng(11)
     for name in names:
         k = K.KERNELS[name]
-        assert k.impl is not None, name
+        assert k.impl is not None and k.one is not None, name
         for dtype in (np.float64, np.float32):
             ins = _inputs(k, dtype, rng)
             n = len(ins[0])
             for case in [ins, *([x[i] for x in ins] for i in (0, 5, n - 1))]:
                 single = case[0].ndim == 1
                 got = K.run(k, *case)
-                impl, k.impl = k.impl, None
+                impl, one = k.impl, k.one
+                k.impl = k.one = None
                 try:
                     want = K.run(k, *case)
                     ref = K.run(k, *[x.astype(np.float64) for x in case])
                 finally:
-                    k.impl = impl
+                    k.impl, k.one = impl, one
                 same = K.run(k, *[x.astype(np.float64) for x in case])  # compiled, float64
                 got = got if isinstance(got, tuple) else (got,)
                 want = want if isinstance(want, tuple) else (want,)
@@ -158,20 +164,23 @@ def test_compiled_kernels_are_used_by_the_classes():
     assert calls == [(5, 6)]
 
 
-def _gen():
-    spec = importlib.util.spec_from_file_location("gen_coeffs", ROOT / "fast" / "gen_coeffs.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def test_the_build_holds_the_kernels_generated_from_todays_formulas():
+    """The compiled kernels are generated from the component formulas (microlie._codegen): the
+    header of the build is what the generator writes from the formulas of this checkout (a
+    formula changed without a rebuild fails here), and it has one C function per element-wise
+    kernel of every group."""
+    from microlie import _codegen
+    from microlie import _kernels as K
 
-
-def test_coefficient_header_is_generated_from_the_generic_series():
-    gen = _gen()
-    assert gen.HEADER.read_text() == gen.render(), "run: PYTHONPATH=src python fast/gen_coeffs.py"
-    from microlie.groups import _math as M
-
-    text = gen.render()
-    assert repr(M.C_COT[-1]) in text and f"#define SMALL2 {M.SMALL2!r}" in text
+    header = ROOT / "fast" / "src" / "microlie_fast" / "generated" / "lie_kernels.h"
+    if not header.exists():
+        pytest.skip(f"{header} not generated (fast/ not built from this checkout)")
+    text = _codegen.source()
+    assert header.read_text() == text, "rebuild: cd fast && python setup.py build_ext --inplace"
+    for name, k in K.KERNELS.items():
+        if k.group in GROUPS and k.fn is not None and name != "SO3.from_matrix":
+            assert f"LK_FN void {_codegen.c_name(name)}(" in text, name
+    assert "SO3.from_matrix" not in text  # a Python branch on a value: not traceable
 
 
 def test_environment_variable_disables_the_compiled_kernels():
@@ -249,20 +258,58 @@ def test_output_cache_limit_from_the_environment_is_validated():
 
 
 def test_compiled_one_element_functions_are_in_use():
-    """With the extra, SO3/SE3 single elements run the C functions of ``microlie_fast._one``
-    (moved here from test_single.py, whose every test runs on two implementations)."""
+    """With the extra, single elements of every group but Sim3 run the C functions of
+    ``microlie_fast._one`` (moved here from test_single.py, whose every test runs on two
+    implementations)."""
     if os.environ.get("MICROLIE_FAST") == "0":
         pytest.skip("MICROLIE_FAST=0: the Python functions only")
     one = require("microlie_fast._one")
     from microlie import _fast
 
-    names = {f"{g}.{op}" for g in ("SO3", "SE3") for op in _single.OPS}
+    groups = ("SO2", "SE2", "SO3", "SE3", "SE23")  # Sim3 checks tangent ranges in Python
+    names = {f"{g}.{op}{j}" for g in groups for op in _single.OPS for j in ("", "_jac")}
     assert set(_fast.installed_single()) == names
     for name in names:
         g, op = name.split(".")
-        assert getattr(getattr(ml, g), f"_one_{op}") is getattr(one, f"{g.lower()}_{op}")
+        c_name = f"j_{g.lower()}_{op}" if op.endswith("_jac") else f"{g.lower()}_{op}"
+        assert getattr(getattr(ml, g), f"_one_{op}") is getattr(one, c_name)
     X = ml.SE3.random(rng=0)
     with pytest.raises(TypeError, match="expected 2 arguments"):
         one.se3_compose(X)
     assert type(X @ X) is ml.SE3 and (X @ X)._floats is None  # built in C
-    assert sorted(one.OPS) == ["SE3", "SO3"] and sorted(one.OPS["SE3"]) == sorted(_single.OPS)
+    assert sorted(one.OPS) == sorted(groups) and sorted(one.OPS["SE3"]) == sorted(_single.OPS)
+
+
+@pytest.mark.parametrize("G", [g for g in GROUPS if g is not ml.Sim3], ids=lambda g: g.__name__)
+def test_compiled_one_element_operations_with_jacobians_equal_the_generic_ones(G):
+    """``jac=True`` on one element (the generated C of ``_one``: ``X.exp(tau, jac=True)``,
+    ``X.between(Y, jac=True)``, ...) returns what the generic path returns (the same types, the
+    same values to rounding: 1e-13) at the hard angles 0, 1e-12, near pi and pi."""
+    if os.environ.get("MICROLIE_FAST") == "0":
+        pytest.skip("MICROLIE_FAST=0: the Python functions only")
+    require("microlie_fast._one")
+    rng = np.random.default_rng(5)
+    taus = [tangent_with_angle(G, rng, th) for th in (0.0, 1e-12, 0.7, np.pi - 1e-6, np.pi)]
+    elements = [G.exp(t) for t in taus] + [G._exact_pi_element()]
+    v = rng.standard_normal(G.point_dim)
+    jacs = {a: G.__dict__[a] for a in G.__dict__ if a.startswith("_one_") and a.endswith("_jac")}
+    assert len(jacs) == len(_single.OPS)
+    for i, X in enumerate(elements):
+        tau, Y = taus[i % len(taus)], elements[(i + 2) % len(elements)]
+        calls = [(G.exp, (tau,)), (X.log, ()), (X.inverse, ()), (X.compose, (Y,)),
+                 (X.between, (Y,)), (X.act, (v,)), (X.plus, (tau,)), (X.minus, (Y,))]
+        for method, args in calls:
+            got = method(*args, jac=True)
+            for a in jacs:
+                setattr(G, a, staticmethod(lambda *args: None))
+            try:
+                want = method(*args, jac=True)
+            finally:
+                for a, f in jacs.items():
+                    setattr(G, a, f)
+            assert len(got) == len(want)
+            for g, w in zip(got, want, strict=True):
+                assert type(g) is type(w)
+                g, w = np.asarray(getattr(g, "params", g)), np.asarray(getattr(w, "params", w))
+                assert g.shape == w.shape and g.dtype == w.dtype == np.float64
+                np.testing.assert_allclose(g, w, rtol=0, atol=1e-13 * max(1.0, np.abs(w).max()))

@@ -223,8 +223,3 @@ def test_bad_arguments(graph_mod):
         graph_mod.se2_between_normal(*args)
 
 
-def test_series_coefficients(graph_mod):
-    """The h cot h series of the SE(2) loop is microlie's."""
-    from microlie.groups import _math
-
-    assert graph_mod.X_COT == tuple(_math.X_COT)

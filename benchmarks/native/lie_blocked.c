@@ -1,11 +1,13 @@
 /* The native loop in the blocked form (benchmarks/native.py): rows copied into
- * structure-of-arrays blocks of S elements, the element formula of microlie_fast's lie_math.h
- * in an `omp simd` loop over the block (GCC vectorises it, libmvec for tan/sin/cos/atan2), copied
- * back; outputs preallocated. This is what a careful C programmer gets on microlie's row layout
+ * structure-of-arrays blocks of S elements, the element formula (the generated lie_kernels.h of
+ * the build, microlie._codegen) in an `omp simd` loop over the block (GCC vectorises it, libmvec
+ * for tan/sin/cos/atan2), copied back; outputs preallocated. This is what a careful C programmer gets on microlie's row layout
  * for the operations whose rows of 6 or 7 do not vectorise as plain loops (lie_native.cpp).
  * Built by benchmarks/native.py: gcc -O3 -march=native -fno-math-errno -fopenmp-simd -std=c11
- * -DLM_LIBMVEC -shared -fPIC -I fast/src/microlie_fast -lmvec */
-#include "lie_math.h"
+ * -fno-trapping-math -DLM_LIBMVEC -shared -fPIC -I fast/src/microlie_fast
+ * -I fast/src/microlie_fast/generated -lmvec */
+#define S 32
+#include "lie_kernels.h"
 
 typedef long ix;
 
@@ -33,7 +35,7 @@ void b_se3_exp(const double *t, double *p, ix n) {
         ix m = n - i0 < S ? n - i0 : S;
         load_6(t + 6 * i0, m, ib);
 #pragma omp simd
-        for (ix j = 0; j < m; j++) se3_exp(ib + j, ib + j, ob + j);
+        for (ix j = 0; j < m; j++) se3_exp(ib + j, ib + j, ob + j, S);
         store_7(ob, m, p + 7 * i0);
     }
 }
@@ -44,7 +46,7 @@ void b_se3_log(const double *p, double *t, ix n) {
         ix m = n - i0 < S ? n - i0 : S;
         load_7(p + 7 * i0, m, ib);
 #pragma omp simd
-        for (ix j = 0; j < m; j++) se3_log(ib + j, ib + j, ob + j);
+        for (ix j = 0; j < m; j++) se3_log(ib + j, ib + j, ob + j, S);
         store_6(ob, m, t + 6 * i0);
     }
 }
@@ -55,7 +57,7 @@ void b_se3_exp_jac(const double *t, double *p, double *J, ix n) {
         ix m = n - i0 < S ? n - i0 : S;
         load_6(t + 6 * i0, m, ib);
 #pragma omp simd
-        for (ix j = 0; j < m; j++) se3_exp_jac(ib + j, ib + j, ob + j);
+        for (ix j = 0; j < m; j++) se3_exp_jac(ib + j, ib + j, ob + j, S);
         store_7(ob, m, p + 7 * i0);
         store_36(ob + 7 * S, m, J + 36 * i0);
     }
@@ -67,7 +69,7 @@ void b_se3_between_jac(const double *p, const double *q, double *z, double *J, i
         ix m = n - i0 < S ? n - i0 : S;
         load_77(p + 7 * i0, q + 7 * i0, m, ib);
 #pragma omp simd
-        for (ix j = 0; j < m; j++) se3_between_jac(ib + j, ib + 7 * S + j, ob + j);
+        for (ix j = 0; j < m; j++) se3_between_jac(ib + j, ib + 7 * S + j, ob + j, S);
         store_7(ob, m, z + 7 * i0);
         store_36(ob + 7 * S, m, J + 36 * i0);
     }
@@ -79,7 +81,7 @@ void b_se3_minus_jac(const double *y, const double *x, double *t, double *Jy, do
         ix m = n - i0 < S ? n - i0 : S;
         load_77(y + 7 * i0, x + 7 * i0, m, ib);
 #pragma omp simd
-        for (ix j = 0; j < m; j++) se3_minus_jac(ib + j, ib + 7 * S + j, ob + j);
+        for (ix j = 0; j < m; j++) se3_minus_jac(ib + j, ib + 7 * S + j, ob + j, S);
         store_6(ob, m, t + 6 * i0);
         store_36(ob + 6 * S, m, Jy + 36 * i0);
         store_36(ob + 42 * S, m, Jx + 36 * i0);

@@ -120,10 +120,8 @@ class ArrayOps:
     #: ``times(k, v)``: the components of a common factor ``k`` times a vector ``v``
     times = staticmethod(times)
     #: ``negated(x)``, ``add_out(a, b)``, ``sub_out(a, b)``, ``mul_out(a, b)``: ``-x``,
-    #: ``a + b``, ``a - b``, ``a * b`` as an *output* component only (never used in further
-    #: arithmetic): a chunked NumPy evaluation computes it straight into the output
-    #: (``np.add(a, b, out=...)``, see :class:`Deferred`), one pass instead of a temporary and
-    #: a copy
+    #: ``a + b``, ``a - b``, ``a * b`` as an *output* component (plain arithmetic; the names
+    #: mark output components in the formulas)
     negated = staticmethod(operator.neg)
     add_out = staticmethod(operator.add)
     sub_out = staticmethod(operator.sub)
@@ -173,8 +171,7 @@ class _NumpyOps(ArrayOps):
         gathered elements of the minority, scattered into the result (the results are the
         ones ``where`` would give, element by element)."""
         if type(cond) is not np.ndarray or cond.ndim != 1:
-            return super().select(cond, lambda *a: concrete(f(*a)),
-                                  lambda *a: concrete(g(*a)), *args)
+            return super().select(cond, f, g, *args)
         n = cond.shape[0]
         m = int(np.count_nonzero(cond))
         if m == 0:
@@ -187,18 +184,14 @@ class _NumpyOps(ArrayOps):
         sub = minor(*[a[idx] if type(a) is np.ndarray and a.shape == (n,) else a for a in args])
         if not isinstance(out, tuple):
             return _scatter(out, idx, sub, n, args)
-        return tuple(_scatter(o, idx, x, n, args) for o, x in zip(out, sub, strict=True))
+        res: list = []  # an array the branch returns twice is patched in two copies
+        for o, x in zip(out, sub, strict=True):
+            res.append(_scatter(o, idx, x, n, (*args, *res)))
+        return tuple(res)
 
 
 def _scatter(out: Any, idx: np.ndarray, sub: Any, n: int, args: tuple) -> Any:
-    """``out`` (a fresh array of ``n`` elements) with ``sub`` written at ``idx``; a
-    :class:`Deferred` ``out`` takes ``sub`` as a patch applied after it is written."""
-    if type(sub) is Deferred:
-        sub = sub.value()
-    if type(out) is Deferred:  # a new one: the branch may return one Deferred twice
-        d = Deferred(out.f, *out.args)
-        d.patches = (*out.patches, (idx, sub))
-        return d
+    """``out`` (a fresh array of ``n`` elements) with ``sub`` written at ``idx``."""
     if type(out) is not np.ndarray or out.shape != (n,) or any(out is a for a in args):
         out = np.array(np.broadcast_to(out, (n,)), dtype=np.result_type(out, sub))
     out[idx] = sub
@@ -208,61 +201,6 @@ def _scatter(out: Any, idx: np.ndarray, sub: Any, n: int, args: tuple) -> Any:
 NUMPY = _NumpyOps()
 
 
-class Deferred:
-    """An output component ``f(*args)`` (``f`` a NumPy ufunc: ``negative``, ``add``,
-    ``subtract``, ``multiply``) that the chunked NumPy evaluator computes straight into its
-    output row (``f(*args, out=row)``) instead of into a temporary that it then copies; then
-    ``patches`` (``(index, values)`` pairs from :meth:`_NumpyOps.select`) are written over it."""
-
-    __slots__ = ("f", "args", "patches")
-
-    def __init__(self, f: Any, *args: Any) -> None:
-        self.f = f
-        self.args = args
-        self.patches: tuple = ()
-
-    def write(self, out: np.ndarray) -> None:
-        """Compute into ``out`` (an array of the batch shape)."""
-        self.f(*self.args, out=out)
-        for idx, sub in self.patches:
-            out[idx] = sub
-
-    def value(self) -> np.ndarray:
-        """The component as a fresh array."""
-        out = self.f(*self.args)
-        for idx, sub in self.patches:
-            out[idx] = sub
-        return out
-
-
-def concrete(x: Any) -> Any:
-    """``x`` (a component or a tuple of them) with :class:`Deferred` components evaluated."""
-    if type(x) is tuple:
-        return tuple(concrete(c) for c in x)
-    return x.value() if type(x) is Deferred else x
-
-
-def _deferred(f: Any, op: Any) -> Any:
-    def make(a: Any, b: Any) -> Any:
-        return Deferred(f, a, b) if type(a) is np.ndarray or type(b) is np.ndarray else op(a, b)
-    return staticmethod(make)
-
-
-class _NumpyChunkOps(_NumpyOps):
-    """The ops of a chunked NumPy evaluation (see :func:`microlie._kernels.run`): output
-    components ``negated(x)``, ``add_out(a, b)``, ``sub_out(a, b)`` and ``mul_out(a, b)`` are
-    :class:`Deferred`."""
-
-    @staticmethod
-    def negated(x: Any) -> Any:
-        return Deferred(np.negative, x) if type(x) is np.ndarray else -x
-
-    add_out = _deferred(np.add, operator.add)
-    sub_out = _deferred(np.subtract, operator.sub)
-    mul_out = _deferred(np.multiply, operator.mul)
-
-
-NUMPY_CHUNKS = _NumpyChunkOps()
 _OPS_CACHE: dict[int, ArrayOps] = {}
 
 

@@ -1,14 +1,16 @@
-"""The optional compiled kernels (``pip install "microlie[fast]"``; from a checkout
-``pip install ./fast``).
+"""The optional compiled kernels (``pip install "microlie[fast]"``; from a checkout ``pip install
+./fast``).
 
-When the package ``microlie_fast`` is importable, :func:`install` (called once by
-``import microlie``) registers its functions as the NumPy replacements of the kernels they
-implement (see :func:`microlie._kernels.register`): SO(3), SE(3) and Sim(3) values and fused
-Jacobians, float64 and float32 (computed in float64, rounded once). Set the environment variable
-``MICROLIE_FAST=0`` to keep the generic NumPy kernels. The classes and their results do not
-change: each compiled kernel agrees with the generic one to rounding (``tests/test_kernels.py``).
-Single float64 SO(3)/SE(3) elements go through the one-element C functions of
-``microlie_fast._one`` (:func:`installed_single`). Large outputs reuse freed blocks (bounded by
+When the package ``microlie_fast`` is importable, :func:`install` (called once by ``import
+microlie``) registers its functions as the NumPy replacements of the kernels they implement (see
+:func:`microlie._kernels.register`): every element-wise kernel of every group, values and fused
+Jacobians, generated at build time from the component formulas (:mod:`microlie._codegen`), float64
+and float32 (computed in float64, rounded once). Set the environment variable ``MICROLIE_FAST=0``
+to keep the generic NumPy kernels. The classes and their results do not change: each compiled
+kernel agrees with the generic one to rounding (``tests/test_kernels.py``). Single float64 elements
+go through the one-element C functions of ``microlie_fast._one``: the element operations of every
+group but Sim(3) (:func:`installed_single`) and every kernel, Jacobians included
+(:func:`microlie._kernels.register_single`). Large outputs reuse freed blocks (bounded by
 ``MICROLIE_FAST_CACHE_MB``, default 256, plus the latest freed block above it; see
 ``microlie_fast``).
 """
@@ -60,8 +62,11 @@ def install() -> list[str]:
         one = importlib.import_module("microlie_fast._one")
     except ImportError:
         one = None
-    if one is not None:
+    if one is not None and hasattr(one, "GROUPS"):  # absent from a build before generation
         _single[:] = importlib.import_module("microlie.groups._single").use_compiled(one)
+        for name, fn in one.KERNELS.items():
+            if name in K.KERNELS:
+                K.register_single(name, getattr(one, fn))
     return list(_installed)
 
 

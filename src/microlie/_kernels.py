@@ -20,12 +20,6 @@ kernels under ``"<Group>.<op>"`` when its class is created, e.g. ``"SO3.exp"``, 
   multiplications, but XLA then computes ``k`` once instead of once per output column (a
   stack of separately computed columns repeats every shared subexpression per column).
 
-An output component written ``ops.negated(x)``, ``ops.add_out(a, b)``, ``ops.sub_out(a, b)`` or
-``ops.mul_out(a, b)`` (``-x``, ``a + b``, ``a - b``, ``a * b``; only as an output, never in
-further arithmetic) is computed by the chunked NumPy evaluation straight into its output row
-(``np.add(a, b, out=...)``): one pass instead of a temporary and a copy. Every other path
-computes it as plain arithmetic, with the same result.
-
 Matrix outputs of more than 8 entries (Jacobians, adjoints) of NumPy batches are views of
 component-major arrays: shape ``(*batch, r, c)``, memory order ``(r, c, *batch)``. Each entry is
 then one contiguous write (a row-major result costs a transposition that takes as long as the
@@ -58,10 +52,7 @@ without touching the group classes; ``register(name, None)`` restores the generi
 from __future__ import annotations
 
 import math
-import os
 import struct
-import sys
-import threading
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
@@ -69,10 +60,11 @@ from typing import Any
 import numpy as np
 
 from . import _array as A
-from ._array import NUMPY, NUMPY_CHUNKS, SCALAR, Array, Deferred
+from ._array import NUMPY, SCALAR, Array
 from ._trace import compile_scalar
 
 __all__ = ["Kernel", "KERNELS", "run", "run_floats", "scalar_function", "register",
+           "register_single",
            "replacements", "CHUNK", "TORCH_CHUNK"]
 
 # Large NumPy batches are evaluated in chunks of this many elements, so that the dozens of
@@ -94,8 +86,8 @@ class Kernel:
     NumPy replacement, if any.
     """
 
-    __slots__ = ("name", "group", "fn", "array_fn", "ins", "outs", "finite", "impl", "_flat",
-                 "frozen", "_scalar", "_sizes")
+    __slots__ = ("name", "group", "fn", "array_fn", "ins", "outs", "finite", "impl", "one",
+                 "_flat", "frozen", "_scalar", "_sizes")
 
     def __init__(self, name: str, group: Any, fn: Callable[..., Any] | None,
                  ins: Sequence[str], outs: Sequence[Shape], finite: bool = False,
@@ -108,6 +100,7 @@ class Kernel:
         self.outs = tuple(tuple(s) for s in outs)
         self.finite = finite
         self.impl: Callable[..., Any] | None = None
+        self.one: Callable[..., Any] | None = None
         self._flat = len(self.outs) == 1
         self.frozen = frozen  # the first output becomes an element's parameters: read-only
         self._scalar: Callable[..., Any] | None = None  # the traced single-element function
@@ -138,6 +131,20 @@ def register(name: str, impl: Callable[..., Any] | None, backend: str = "numpy")
     KERNELS[name].impl = impl
 
 
+def register_single(name: str, one: Callable[..., Any] | None) -> None:
+    """Use ``one`` for single float64 NumPy elements of kernel ``name`` (``None``: back to the
+    traced Python code). Contract: ``one(*inputs)`` takes one one-dimensional array per input and
+    returns the output (one output) or the tuple of outputs as fresh float64 arrays, output 0
+    read-only if the kernel is ``frozen``, or ``None`` for any input it does not handle (not a
+    contiguous float64 vector of the right length) and for a non-finite result of a ``finite``
+    kernel; the caller then evaluates the generic kernel (which raises the errors)."""
+    if name not in KERNELS:
+        raise KeyError(f"no kernel named {name!r}")
+    if one is not None and not callable(one):
+        raise TypeError("one must be callable (or None)")
+    KERNELS[name].one = one
+
+
 def replacements() -> list[str]:
     """Names of the kernels that currently have a registered replacement."""
     return [k for k, v in KERNELS.items() if v.impl is not None]
@@ -149,6 +156,10 @@ def replacements() -> list[str]:
 def run(k: Kernel, *arrays: Array) -> Any:
     """Evaluate kernel ``k`` on ``arrays``: one array per output (a tuple if several)."""
     a = arrays[0]
+    if k.one is not None:  # compiled single element (None for anything else)
+        r = k.one(*arrays)
+        if r is not None:
+            return r
     if k.fn is not None and type(a) is np.ndarray and a.ndim == 1:
         # single NumPy elements: plain Python floats, far faster than NumPy on tiny arrays
         if len(arrays) == 1:
@@ -290,11 +301,11 @@ def _pack(ops: Any, comps: Any, shape: Shape, dt: Any, batch: Shape) -> Array:
     flat = comps if len(shape) == 1 else [c for row in comps for c in row]
     if ops is NUMPY:
         if len(shape) == 2 and len(flat) > _WIDE:  # component-major, as in _chunked
-            out = _empty((len(flat), *batch), dt)
+            out = np.empty((len(flat), *batch), dt)
             for j, c in enumerate(flat):
                 out[j] = c
             return np.moveaxis(out, 0, -1).reshape(*batch, *shape)
-        out = _empty((*batch, len(flat)), dt)
+        out = np.empty((*batch, len(flat)), dt)
         for j, c in enumerate(flat):
             out[..., j] = c
         return out.reshape(*batch, *shape) if len(shape) > 1 else out
@@ -332,91 +343,6 @@ def _stack_blocks(xp: Any, arrays: list, blocks: dict) -> Array:
     return parts[0] if len(parts) == 1 else xp.concat(parts, axis=-1)
 
 
-# ---------------------------------------------------------------------------- output blocks
-#
-# A fresh output of many megabytes costs a page fault per page on its first write (the kernel
-# zeroes it), as much as computing it. Large outputs therefore come from a small pool of blocks
-# that stay mapped: a block is handed out again once no array refers to it any more (its
-# reference count is back to the pool's own), so a live result never shares memory with a new
-# one. Outputs below ``_POOL_MIN`` bytes (4 MB) use NumPy's allocator. The pool holds at most
-# MICROLIE_CACHE_MB megabytes (default 256; 0 disables it) in up to ``_POOL_SLOTS`` blocks, plus
-# one block larger than that limit: the latest output above it (``_big``; an SE3 ``log``
-# Jacobian of 1e6 elements is 288 MB, and allocating it afresh on every call cost 1.3x the
-# compiled call's CPU time and 1.4x its wall time at load 3: issue 19, item 17). A new
-# output above the limit that does not fit it replaces it, so the pool never holds more than
-# the limit plus one output as large as the largest one the program held. The compiled kernels
-# keep their own (MICROLIE_FAST_CACHE_MB).
-
-_POOL_MIN = 1 << 22  # 4 MB: below, NumPy (glibc) reuses freed memory as well
-_POOL_SLOTS = 16
-
-
-def _pool_limit() -> int:
-    text = os.environ.get("MICROLIE_CACHE_MB", "256")
-    try:
-        mb = float(text)
-    except ValueError:
-        mb = -1.0
-    if not mb >= 0:
-        raise ValueError(f"MICROLIE_CACHE_MB must be a number of megabytes >= 0, got {text!r}")
-    return int(mb * (1 << 20))
-
-
-_POOL_LIMIT = _pool_limit()
-_pool: list[np.ndarray] = []  # owned byte blocks, oldest first
-_big: list[np.ndarray] = []  # at most one block above the limit: the latest such output
-_pool_lock = threading.Lock()
-
-
-def _refs(block: np.ndarray) -> int:
-    return sys.getrefcount(block)
-
-
-def _free_count() -> int:
-    """References to a block held by the pool only, seen from a loop over the pool."""
-    for block in [np.empty(0)]:
-        return _refs(block)
-    raise AssertionError
-
-
-_FREE = _free_count()
-
-
-def _empty(shape: Shape, dt: Any) -> np.ndarray:
-    """An uninitialised array, from the pool of warm blocks when it is large."""
-    dt = np.dtype(dt)
-    nbytes = math.prod(shape) * dt.itemsize
-    if nbytes < _POOL_MIN or _POOL_LIMIT == 0:
-        return np.empty(shape, dtype=dt)
-    if nbytes > _POOL_LIMIT:
-        with _pool_lock:
-            for block in _big:
-                if block.nbytes == nbytes and _refs(block) <= _FREE:
-                    break
-            else:
-                block = np.empty(nbytes, dtype=np.uint8)
-                _big[:] = [block]  # the previous one is freed with its last array
-            return block.view(dt).reshape(shape)
-    with _pool_lock:
-        for block in _pool:
-            if block.nbytes == nbytes and _refs(block) <= _FREE:
-                break
-        else:
-            block = np.empty(nbytes, dtype=np.uint8)
-            free = [b for b in _pool if _refs(b) <= _FREE]
-            total = sum(b.nbytes for b in _pool) + nbytes
-            gone: set[int] = set()  # evict the oldest free blocks (by identity)
-            while free and (total > _POOL_LIMIT or len(_pool) - len(gone) >= _POOL_SLOTS):
-                old = free.pop(0)
-                total -= old.nbytes
-                gone.add(id(old))
-            _pool[:] = [b for b in _pool if id(b) not in gone]
-            del free
-            if total <= _POOL_LIMIT and len(_pool) < _POOL_SLOTS:
-                _pool.append(block)
-        return block.view(dt).reshape(shape)
-
-
 def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> Any:
     n = math.prod(batch)
     fn = k.fn
@@ -428,7 +354,7 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
     # result costs a transposition (1-2 ns per value, as much as computing it). Wide vectors
     # (parameters of product groups) stay row-major, filled through a transposed buffer.
     soa = [len(s) == 2 and math.prod(s) > _WIDE for s in k.outs]
-    outs = [_empty((math.prod(s), n) if m else (n, math.prod(s)), dt)
+    outs = [np.empty((math.prod(s), n) if m else (n, math.prod(s)), dt)
             for s, m in zip(k.outs, soa, strict=True)]
     width = max((s[0] for s, m in zip(k.outs, soa, strict=True) if not m), default=0)
     buf = np.empty((width, CHUNK), dtype=dt) if width > _WIDE else None
@@ -437,7 +363,7 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
     consts: list[dict[int, tuple[float, int]]] = [{} for _ in outs]
     for s in range(0, n, CHUNK):
         e = min(s + CHUNK, n)
-        r = fn(NUMPY_CHUNKS, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
+        r = fn(NUMPY, *[A.components(f[s:e]) if isinstance(f, np.ndarray) else f
                                for f in flats])
         for res, out, shape, m, pend in zip([r] if k._flat else r, outs, k.outs, soa, consts,
                                             strict=True):
@@ -454,25 +380,16 @@ def _chunked(k: Kernel, arrays: Sequence[np.ndarray], batch: Shape, dt: Any) -> 
                     if pend and j in pend:
                         c0, s0 = pend.pop(j)
                         out[j, s0:s] = c0
-                    if tc is Deferred:
-                        c.write(out[j, s:e])
-                    else:
-                        out[j, s:e] = c
+                    out[j, s:e] = c
             elif buf is not None and len(res) > _WIDE:
                 b = buf[:len(res), :e - s]
                 for j, c in enumerate(res):
-                    if type(c) is Deferred:
-                        c.write(b[j])
-                    else:
-                        b[j] = c
+                    b[j] = c
                 out[s:e] = b.T
             else:
                 for j, c in enumerate(res if len(shape) == 1 else
                                       [c for row in res for c in row]):
-                    if type(c) is Deferred:
-                        c.write(out[s:e, j])
-                    else:
-                        out[s:e, j] = c
+                    out[s:e, j] = c
     for out, pend in zip(outs, consts, strict=True):
         _fill_constants(out, pend)
     return [o.T.reshape(*batch, *shape) if m else o.reshape(*batch, *shape)

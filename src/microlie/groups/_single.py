@@ -1,4 +1,4 @@
-"""The single-element fast path: one float64 NumPy element, no Jacobians.
+"""The single-element fast path: one float64 NumPy element (Jacobians: compiled only).
 
 Most calls on one element spend their time around the formula (dispatch, conversions, the output
 array and object), not in it. For each group, :func:`build` makes one small function per
@@ -13,8 +13,9 @@ keep beside their read-only ``params`` (``LieGroup._floats``). An output element
 holding the result's floats; its ``params`` array is made when first read (so a chain of
 compositions builds no arrays). A tangent or point output is one fresh writable array. The
 methods of :class:`~microlie.groups.base.LieGroup` call them as ``cls._one_<op>``; the compiled
-extra replaces the SO(3)/SE(3) ones with C functions of the same contract
-(:mod:`microlie._fast`).
+extra replaces them with C functions of the same contract (:mod:`microlie._fast`), and adds
+``_one_<op>_jac``: the operation with ``jac=True`` and right Jacobians, returning the tuple of
+the public method (``None`` here: the generic path).
 """
 
 from __future__ import annotations
@@ -50,7 +51,14 @@ def build(cls: Any) -> dict[str, Callable[..., Any]]:
     from .base import LieGroup
 
     slots = LieGroup.__dict__
-    return {op: _make(cls, op, slots["_params"].__set__, slots["_floats"].__set__) for op in OPS}
+    fns = {op: _make(cls, op, slots["_params"].__set__, slots["_floats"].__set__) for op in OPS}
+    for op in OPS:  # with jac=True: only compiled (use_compiled); None sends to the generic path
+        fns[f"{op}_jac"] = _none
+    return fns
+
+
+def _none(*args: Any) -> None:
+    return None
 
 
 def _floats_of(x: Any) -> list[float] | tuple[float, ...] | None:
@@ -114,13 +122,15 @@ def _make(cls: Any, op: str, set_params: Callable[..., Any], set_floats: Callabl
 
 
 def use_compiled(one: Any) -> list[str]:
-    """Use the one-element C functions of ``one`` (the module ``microlie_fast._one``) for the
-    groups and operations it implements; return their names (``"SE3.exp"``, ...). Its functions
-    follow the contract of the Python ones above (``None`` for anything they do not handle)."""
+    """Use the one-element C functions of ``one`` (the module ``microlie_fast._one``, generated
+    from the same kernels) for the groups and operations it implements; return their names
+    (``"SE3.exp"``, ...). Its functions follow the contract of the Python ones above (``None``
+    for anything they do not handle)."""
     from .. import groups
     from .base import LieGroup
 
-    one.setup(LieGroup.__dict__["_params"], LieGroup.__dict__["_floats"], groups.SO3, groups.SE3)
+    classes = [getattr(groups, name) for name in one.GROUPS]
+    one.setup(LieGroup.__dict__["_params"], LieGroup.__dict__["_floats"], *classes)
     done = []
     for name, fns in one.OPS.items():
         cls = getattr(groups, name)
@@ -130,4 +140,8 @@ def use_compiled(one: Any) -> list[str]:
             if op in OPS:
                 setattr(cls, f"_one_{op}", staticmethod(getattr(one, fn)))
                 done.append(f"{name}.{op}")
+        for op, fn in getattr(one, "JAC", {}).get(name, {}).items():
+            if op in OPS:
+                setattr(cls, f"_one_{op}_jac", staticmethod(getattr(one, fn)))
+                done.append(f"{name}.{op}_jac")
     return done

@@ -240,6 +240,14 @@ class LieGroup:
     _one_act: ClassVar[Callable[..., Any]]
     _one_plus: ClassVar[Callable[..., Any]]
     _one_minus: ClassVar[Callable[..., Any]]
+    _one_exp_jac: ClassVar[Callable[..., Any]]
+    _one_log_jac: ClassVar[Callable[..., Any]]
+    _one_inverse_jac: ClassVar[Callable[..., Any]]
+    _one_compose_jac: ClassVar[Callable[..., Any]]
+    _one_between_jac: ClassVar[Callable[..., Any]]
+    _one_act_jac: ClassVar[Callable[..., Any]]
+    _one_plus_jac: ClassVar[Callable[..., Any]]
+    _one_minus_jac: ClassVar[Callable[..., Any]]
 
     __slots__ = ("_params", "_floats")
     _params: Array | None  # None: made from _floats on first use
@@ -903,6 +911,10 @@ class LieGroup:
             X = cls._one_exp(tau)
             if X is not None:
                 return X
+        elif side == "right":
+            r = cls._one_exp_jac(tau)
+            if r is not None:
+                return r
         t = cls._tangent(tau, kernel_checks=True)
         if not jac:
             return cls._adopt(run(cls._K["exp"], t))
@@ -947,6 +959,10 @@ class LieGroup:
             if t is not None:
                 return t
             return self._tangent_out(run(self._K["log"], self.params))
+        elif side == "right":
+            r = self._one_log_jac(self)
+            if r is not None:
+                return r
         tau, J = run(self._K["log_jac"], self.params)
         return _left_vec(side, self._tangent_out(tau), [(J, self)])
 
@@ -988,6 +1004,10 @@ class LieGroup:
             if Y is not None:
                 return Y
             return self._adopt(run(self._K["inverse"], self.params))
+        elif side == "right":
+            r = self._one_inverse_jac(self)
+            if r is not None:
+                return r
         p, J = run(self._K["inverse_jac"], self.params)
         return self._adopt(p)._left(side, [(J, self)])
 
@@ -1033,6 +1053,10 @@ class LieGroup:
             Z = self._one_compose(self, other)
             if Z is not None:
                 return Z
+        elif side == "right":
+            r = self._one_compose_jac(self, other)
+            if r is not None:
+                return r
         if type(other) is not type(self):
             self._same_group(other)
         if not jac:
@@ -1088,6 +1112,10 @@ class LieGroup:
             Z = self._one_between(self, other)
             if Z is not None:
                 return Z
+        elif side == "right":
+            r = self._one_between_jac(self, other)
+            if r is not None:
+                return r
         self._same_group(other)
         if not jac:
             return self._adopt(run(self._K["between"], self.params, other.params))
@@ -1140,6 +1168,10 @@ class LieGroup:
             q = self._one_act(self, points)
             if q is not None:
                 return q
+        elif side == "right":
+            r = self._one_act_jac(self, points)
+            if r is not None:
+                return r
         p = self.params
         v = A.as_float_array(points, like=p)
         A.check_last_dim(v, self.point_dim, "points")
@@ -1224,6 +1256,10 @@ class LieGroup:
             Y = self._one_plus(self, tau)
             if Y is not None:
                 return Y
+        elif side == "right":
+            r = self._one_plus_jac(self, tau)
+            if r is not None:
+                return r
         t = self._tangent(tau, like=self.params, kernel_checks=True)
         if not jac:
             return self._adopt(run(self._K["plus"], self.params, t))
@@ -1272,6 +1308,10 @@ class LieGroup:
             t = self._one_minus(self, other)
             if t is not None:
                 return t
+        elif side == "right":
+            r = self._one_minus_jac(self, other)
+            if r is not None:
+                return r
         self._same_group(other)
         if not jac:
             return self._tangent_out(run(self._K["minus"], self.params, other.params))
