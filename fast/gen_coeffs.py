@@ -100,9 +100,9 @@ def _vm_specs():
         # cos r = 1 - r^2/2 + r^4 P(r^2)
         "COS": (lambda t: (mp.cos(sq(t)) - 1 + t / 2) / t ** 2,
                 lambda t: t ** 2 / mp.cos(sq(t)), q * 1e-12, q),
-        # atan u = u + u^3 P(u^2), |u| <= tan(pi/8)
+        # atan u = u + u^3 P(u^2), |u| <= 7/16
         "ATAN": (lambda t: (mp.atan(sq(t)) - sq(t)) / t ** 1.5,
-                 lambda t: t * sq(t) / mp.atan(sq(t)), 1e-14, mp.tan(mp.pi / 8) ** 2),
+                 lambda t: t * sq(t) / mp.atan(sq(t)), 1e-14, mp.mpf(7 / 16) ** 2),
         # expm1 r = r + r^2/2 + r^3 P(r), |r| <= ln2/2 (relative to expm1: also exp's bound)
         "EXPM1": (lambda r: (mp.expm1(r) - r - r * r / 2) / r ** 3,
                   lambda r: abs(r) ** 3 / abs(mp.expm1(r)), -ln2 / 2, ln2 / 2),
@@ -148,8 +148,10 @@ def render_vecmath() -> str:
     lines.append(f"#define LM_PIO4_HI {hi!r}\n#define LM_PIO4_LO {lo!r}")
     hi, lo = _split(mp.log(2), 42, 2)
     lines.append(f"#define LM_LN2_HI {hi!r}\n#define LM_LN2_LO {lo!r}")
+    hi, lo = _split(mp.atan(0.5), 53, 2)
+    lines.append(f"#define LM_ATAN_HALF_HI {hi!r}\n#define LM_ATAN_HALF_LO {lo!r}")
     for name, v in (("LM_2_PI", 2 / mp.pi), ("LM_INV_LN2", 1 / mp.log(2)),
-                    ("LM_TAN_PI_8", mp.tan(mp.pi / 8)), ("LM_SQRT2", mp.sqrt(2))):
+                    ("LM_SQRT2", mp.sqrt(2))):
         lines.append(f"#define {name} {float(v)!r}")
     return "\n".join(lines) + "\n"
 

@@ -164,29 +164,34 @@ LM_VM float lm_tanf(float x) { return (float)lm__tan((double)x, 1); }
 
 /* ---- atan2 ---------------------------------------------------------------------------------- */
 
+/* atan2 from z = min(|x|,|y|)/max(|x|,|y|) in [0, 1]: atan z = b + atan u with (b, u) =
+ * (0, z) below 7/16, (atan 1/2, (2z - 1)/(2 + z)) below 11/16, (pi/4, (z - 1)/(z + 1)) above
+ * (|u| <= 7/16; u from the unrounded operands); then the octant (m pi/4 +- ...) and the sign. */
 LM_VM double lm__atan2(double y, double x, int f32) {
     double ax = fabs(x), ay = fabs(y);
     int swap = ay > ax;
     double num = lm__sel(swap, ax, ay), den = lm__sel(swap, ay, ax); /* num <= den */
+    int same = num == den;                                          /* also both infinite */
     double z = lm__sel(den == 0.0, 0.0, num / den);                 /* atan2(+-0, +-0) */
-    z = lm__sel(num == den, 1.0, z);                                /* both infinite */
-    int big = z > LM_TAN_PI_8;
-    /* atan z = pi/4 + atan u, u = (num - den)/(num + den), scaled against overflow */
+    z = lm__sel(same, 1.0, z);
+    int r1 = z >= 7.0 / 16.0, r2 = z >= 11.0 / 16.0;
     double sc = lm__sel(den > 0x1p1020, 0.25, 1.0), ns = num * sc, ds = den * sc;
-    double uq = (ns - ds) / (ns + ds); /* both conditions below computed in every lane */
-    int same = num == den;
-    uq = lm__sel(same, 0.0, uq);
-    double u = lm__sel(big, uq, z);
-    double t = u * u;
+    double ua = lm__sel(r2, ns - ds, 2.0 * ns - ds), ub = lm__sel(r2, ns + ds, 2.0 * ds + ns);
+    double uq = lm__sel(same, 0.0, ua / ub);
+    double u = lm__sel(r1, uq, z), t = u * u;
     double p = u + u * t * (f32 ? lm__poly(t, C_ATANF, N_ATANF) : lm__poly(t, C_ATAN, N_ATAN));
-    /* result = m pi/4 + sg p: m in 0..4 */
-    double m = lm__sel(big, 1.0, 0.0), sg = 1.0;
-    m = lm__sel(swap, 2.0 - m, m);
-    sg = lm__sel(swap, -sg, sg);
+    double bh = lm__sel(r2, LM_PIO4_HI, lm__sel(r1, LM_ATAN_HALF_HI, 0.0));
+    double bl = lm__sel(r2, LM_PIO4_LO, lm__sel(r1, LM_ATAN_HALF_LO, 0.0));
+    /* result = m pi/4 + sg (bh + bl + p), m in 0..4 */
+    double m = 0.0, sg = 1.0;
+    m = lm__sel(swap, 2.0, m);
+    sg = lm__sel(swap, -1.0, sg);
     int neg = copysign(1.0, x) < 0.0;
     m = lm__sel(neg, 4.0 - m, m);
     sg = lm__sel(neg, -sg, sg);
-    double r = m * LM_PIO4_HI + (m * LM_PIO4_LO + sg * p);
+    double A = m * LM_PIO4_HI, B = sg * bh, h = A + B; /* A exact: LM_PIO4_HI ends in 3 zeros */
+    double bv = h - A, err = (A - (h - bv)) + (B - bv);
+    double r = h + (err + (m * LM_PIO4_LO + sg * (bl + p)));
     r = copysign(r, y);
     int nan = (x != x) | (y != y);
     return lm__sel(nan, x + y, r);
