@@ -1,6 +1,7 @@
 """Build of the compiled kernels. Flags: -O3 with the host's vector ISA (this is a local build
-from source; a distributed wheel would target a fixed ISA level), math without errno so that
-GCC may vectorise calls, and glibc's libmvec for the vector versions of tan/sin/cos/atan2.
+from source; a distributed wheel would target a fixed ISA level) and math without errno. The
+elementary functions of the group kernels come from vecmath.h (our own vectorisable kernels), so
+no vector math library is linked.
 Set MICROLIE_FAST_CFLAGS to override the flags (for example on a compiler without -march)."""
 
 import os
@@ -14,8 +15,6 @@ flags = ["-O3", "-fno-math-errno", "-fopenmp-simd", "-std=c11"]
 libs = ["m"]
 if sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64"):
     flags.append("-march=native")
-    libs.insert(0, "mvec")  # glibc's vector math library
-    flags.append("-DLM_LIBMVEC")
 elif platform.machine() in ("arm64", "aarch64"):
     flags.append("-mcpu=native")
 if os.environ.get("MICROLIE_FAST_CFLAGS"):

@@ -57,7 +57,9 @@ static ix dim0(PyObject *o) { return PyArray_DIM((PyArrayObject *)o, 0); }
 static const double X_COT[3] = {1.0, -1.0 / 3.0, -1.0 / 45.0};
 LM_INLINE double half_cot(double h) {
     double h2 = h * h, small = h2 < TINY2 ? 1.0 : 0.0, hs = h + small;
-    double closed = hs * cos(hs) / sin(hs);
+    double sn, cs;
+    lm_sincos(hs, &sn, &cs);
+    double closed = hs * cs / sn;
     return small != 0.0 ? horner(h2, X_COT, 3) : closed;
 }
 
@@ -87,7 +89,7 @@ LM_INLINE void se2_minus_l(const double *a, const double *b, double *t) {
     double ix = -(c * x + s * y), iy = s * x - c * y; /* X^-1 = (ix, iy, c, -s) */
     double zx = ix + c * a[0] + s * a[S], zy = iy - s * a[0] + c * a[S];
     double zc = c * a[2 * S] + s * a[3 * S], zs = -s * a[2 * S] + c * a[3 * S];
-    double th = atan2(zs, zc), h = 0.5 * th, k = half_cot(h);
+    double th = lm_atan2(zs, zc), h = 0.5 * th, k = half_cot(h);
     t[0] = k * zx + h * zy;
     t[1] = -h * zx + k * zy;
     t[2] = th;

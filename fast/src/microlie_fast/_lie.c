@@ -8,7 +8,7 @@
  * are not supported), so each kernel works on blocks of S elements: the rows of a block are
  * copied into structure-of-arrays buffers (component i of element j at buf[i * S + j], converted
  * to double), an `omp simd` loop over the block evaluates the element formula of lie_math.h with
- * unit-stride accesses (vectorised, with glibc's libmvec for tan, sin, cos and atan2), and the
+ * unit-stride accesses (vectorised, with vecmath.h for tan, sin, cos, atan2, exp, log), and the
  * results are copied back to rows (rounded to float for float32 inputs). */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>

@@ -9,20 +9,7 @@
 #pragma once
 #include <math.h>
 #include "coeffs.h"
-
-/* glibc's libmvec supplies vector versions of these; declaring them lets GCC vectorise loops
- * that call them without -ffast-math (IEEE semantics are kept). Only where setup.py links
- * libmvec (LM_LIBMVEC: Linux x86-64); elsewhere the loops call the scalar functions. */
-#ifdef LM_LIBMVEC
-#pragma omp declare simd notinbranch
-extern double tan(double);
-#pragma omp declare simd notinbranch
-extern double sin(double);
-#pragma omp declare simd notinbranch
-extern double cos(double);
-#pragma omp declare simd notinbranch
-extern double atan2(double, double);
-#endif
+#include "vecmath.h" /* lm_tan, lm_sincos, lm_atan2: vectorisable, no libmvec */
 
 #define LM_INLINE static inline __attribute__((always_inline))
 #ifndef S
@@ -46,7 +33,7 @@ LM_INLINE void cross3(const double *a, const double *b, double *c) {
 LM_INLINE void half_angle(double t2, double *k, double *ch) {
     double small = t2 < TINY2 ? 1.0 : 0.0;
     double t = sqrt(t2 + small);
-    double u = tan(0.25 * t), u2 = u * u, r = 1.0 / (1.0 + u2);
+    double u = lm_tan(0.25 * t), u2 = u * u, r = 1.0 / (1.0 + u2);
     double kk = (2.0 * r) * u / t, cc = (1.0 - u2) * r;
     *k = small != 0.0 ? 0.5 - t2 * (1.0 / 48.0) : kk;
     *ch = small != 0.0 ? 1.0 - 0.125 * t2 : cc;
@@ -103,7 +90,7 @@ LM_INLINE void quat_log(const double *q, double *phi, double *kl_out, double *aw
     double aw = fabs(w), n2 = x * x + y * y + z * z;
     double small = n2 < TINY2 ? 1.0 : 0.0;
     double n = sqrt(n2 + small);
-    double kc = 2.0 * atan2(n, aw) / n;
+    double kc = 2.0 * lm_atan2(n, aw) / n;
     double kl = small != 0.0 ? 2.0 + n2 * (1.0 / 3.0) : kc;
     double ks = w < 0.0 ? -kl : kl;
     phi[0] = ks * x; phi[1] = ks * y; phi[2] = ks * z;
@@ -155,9 +142,8 @@ LM_INLINE void q_parts(const double *rho, const double *phi, double *even, doubl
     half_angle(t2, &k, &ch);
     double c1 = coef_b(t2, k, ch);
     double small = t2 < SMALL2 ? 1.0 : 0.0;
-    /* cos(t + 0.0) (= cos t): keeps GCC from fusing sin and cos into a sincos, which does not
-     * vectorise */
-    double t2s = t2 + small, t = sqrt(t2s), st = sin(t), ct = cos(t + 0.0), t4 = t2s * t2s;
+    double t2s = t2 + small, t = sqrt(t2s), st, ct, t4 = t2s * t2s;
+    lm_sincos(t, &st, &ct);
     double c2c = (t2s + 2.0 * ct - 2.0) / (2.0 * t4);
     double c3c = (2.0 * t - 3.0 * st + t * ct) / (2.0 * t4 * t);
     double c2 = small != 0.0 ? horner(t2, C_COS4, N_COS4) : c2c;

@@ -8,15 +8,6 @@
 #pragma once
 #include "lie_math.h"
 
-#ifdef LM_LIBMVEC
-#pragma omp declare simd notinbranch
-extern double exp(double);
-#pragma omp declare simd notinbranch
-extern double expm1(double);
-#pragma omp declare simd notinbranch
-extern double log(double);
-#endif
-
 /* horner() for the longer series (fully unrolled, so that the element loop vectorises) */
 LM_INLINE double horner_long(double x, const double *c, int n) {
     double acc = c[n - 1];
@@ -27,14 +18,14 @@ LM_INLINE double horner_long(double x, const double *c, int n) {
 
 /* (e^x, phi_1, phi_2, phi_3, phi_4) at x = sigma (sim3.phi_functions) */
 LM_INLINE void sim3_phi(double sigma, double *E, double *a, double *d, double *e, double *f) {
-    *E = exp(sigma);
+    *E = lm_exp(sigma);
     double small = fabs(sigma) < PHI_SMALL ? 1.0 : 0.0;
     double f_s = horner_long(sigma, C_PHI4, N_PHI4);
     double e_s = 1.0 / 6.0 + sigma * f_s;
     double d_s = 0.5 + sigma * e_s;
     double a_s = 1.0 + sigma * d_s;
     double x = small != 0.0 ? 3.0 : sigma;
-    double a_c = expm1(x) / x;
+    double a_c = lm_expm1(x) / x;
     double d_c = (a_c - 1.0) / x;
     double e_c = (d_c - 0.5) / x;
     double f_c = (e_c - 1.0 / 6.0) / x;
@@ -138,7 +129,7 @@ LM_INLINE void sim3_exp_l(const double *tau, double *p) {
 LM_INLINE void sim3_log_l(const double *p, double *tau) {
     double *phi = tau + 3, kl, aw, W[3], H[5], Wi[3];
     quat_log(p + 3, phi, &kl, &aw);
-    double sigma = log(p[7]), t2 = norm2_3(phi);
+    double sigma = lm_log(p[7]), t2 = norm2_3(phi);
     sim3_coefficients(sigma, t2, 1.0 / kl, aw, W, H, (double *)0);
     poly_inv(W, t2, Wi);
     poly_apply(Wi, phi, p, tau);
