@@ -47,8 +47,10 @@ def render() -> str:
 
 # ---- vecmath_coeffs.h: minimax polynomials and split constants of vecmath.h ----------------
 # Each polynomial P minimises max |w (f - P)| on its interval (a discretised Remez exchange in
-# mpmath at 50 digits); the degree is the smallest whose weighted (= relative) error is below
-# 2^-58 (the double kernels) or 2^-32 (the float kernels, evaluated in double).
+# mpmath at 50 digits); VM_DEGREES are the smallest degrees whose weighted (= relative) error is
+# below 2^-58 (the double kernels) or 2^-32 (the float kernels, evaluated in double): render
+# checks both bounds and that one degree less would miss them.
+VM_DEGREES = {"SIN": (6, 3), "COS": (5, 2), "ATAN": (11, 5), "EXPM1": (9, 5), "LOG": (6, 3)}
 VM_HEADER = Path(__file__).parent / "src" / "microlie_fast" / "vecmath_coeffs.h"
 
 
@@ -134,11 +136,10 @@ def render_vecmath() -> str:
              "mpmath; constants split", " * in parts whose products with small integers are "
              "exact): do not edit. See vecmath.h. */", "#pragma once"]
     for name, (f, w, a, b) in _vm_specs().items():
-        for suffix, bound in (("", 2.0 ** -58), ("F", 2.0 ** -32)):
-            for deg in range(1, 16):
-                coef, err = remez(f, w, a, b, deg)
-                if err < bound:
-                    break
+        for deg, suffix, bound in zip(VM_DEGREES[name], ("", "F"), (2.0 ** -58, 2.0 ** -32)):
+            coef, err = remez(f, w, a, b, deg)
+            if not err < bound <= remez(f, w, a, b, deg - 1)[1]:
+                raise AssertionError(f"VM_DEGREES[{name!r}]: degree {deg} is not the least")
             lines.append(f"/* {name}{suffix}: degree {deg}, weighted error {err:.1e} */")
             lines += _array(f"C_{name}{suffix}", coef)
     pio2 = mp.pi / 2

@@ -168,6 +168,8 @@ def _gen():
 def test_coefficient_header_is_generated_from_the_generic_series():
     gen = _gen()
     assert gen.HEADER.read_text() == gen.render(), "run: PYTHONPATH=src python fast/gen_coeffs.py"
+    assert gen.VM_HEADER.read_text() == gen.render_vecmath(), \
+        "run: PYTHONPATH=src python fast/gen_coeffs.py"
     from microlie.groups import _math as M
 
     text = gen.render()

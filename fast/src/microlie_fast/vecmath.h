@@ -171,14 +171,17 @@ LM_VM double lm__atan2(double y, double x, int f32) {
     double ax = fabs(x), ay = fabs(y);
     int swap = ay > ax;
     double num = lm__sel(swap, ax, ay), den = lm__sel(swap, ay, ax); /* num <= den */
-    int same = num == den;                                          /* also both infinite */
-    double z = lm__sel(den == 0.0, 0.0, num / den);                 /* atan2(+-0, +-0) */
-    z = lm__sel(same, 1.0, z);
-    int r1 = z >= 7.0 / 16.0, r2 = z >= 11.0 / 16.0;
+    int same = num == den; /* also both infinite */
+    /* the range from exact comparisons (16 num exact; 7 den, 11 den rounded only at overflow) */
+    int zero = den == 0.0, r1 = (16.0 * num >= 7.0 * den) & !zero;
+    int r2 = (16.0 * num >= 11.0 * den) & !zero;
     double sc = lm__sel(den > 0x1p1020, 0.25, 1.0), ns = num * sc, ds = den * sc;
     double ua = lm__sel(r2, ns - ds, 2.0 * ns - ds), ub = lm__sel(r2, ns + ds, 2.0 * ds + ns);
-    double uq = lm__sel(same, 0.0, ua / ub);
-    double u = lm__sel(r1, uq, z), t = u * u;
+    ua = lm__sel(r1, ua, num);
+    ub = lm__sel(r1, ub, den);
+    double u = ua / ub;                   /* one division */
+    u = lm__sel(same | zero, 0.0, u); /* atan2(+-0, +-0), atan2(+-inf, +-inf) */
+    double t = u * u;
     double p = u + u * t * (f32 ? lm__poly(t, C_ATANF, N_ATANF) : lm__poly(t, C_ATAN, N_ATAN));
     double bh = lm__sel(r2, LM_PIO4_HI, lm__sel(r1, LM_ATAN_HALF_HI, 0.0));
     double bl = lm__sel(r2, LM_PIO4_LO, lm__sel(r1, LM_ATAN_HALF_LO, 0.0));
