@@ -122,7 +122,7 @@ def samples(name: str, dtype, rng: np.random.Generator, n: int) -> list[np.ndarr
 
 # (function, max ulp) for double; every float function is within 1 ulp (0.51 measured)
 BOUNDS = {"sin": 1.0, "cos": 1.0, "tan": 2.0, "exp": 1.0, "expm1": 1.5, "log": 1.0,
-          "atan2": 1.2}
+          "atan2": 1.5}
 
 
 @pytest.mark.parametrize("name", sorted(BOUNDS))

@@ -48,10 +48,17 @@ LM_VM double lm__sel(int c, double a, double b) {
     return lm__dbl((lm__bits(a) & m) | (lm__bits(b) & ~m));
 }
 
+/* Horner's scheme, fused where the target has FMA (-mfma, -march=x86-64-v3, AArch64) */
 LM_VM double lm__poly(double x, const double *c, int n) {
     double acc = c[n - 1];
 #pragma GCC unroll 16
-    for (int i = n - 2; i >= 0; i--) acc = acc * x + c[i];
+    for (int i = n - 2; i >= 0; i--) {
+#if defined(__FMA__) || defined(__ARM_FEATURE_FMA)
+        acc = __builtin_fma(acc, x, c[i]);
+#else
+        acc = acc * x + c[i];
+#endif
+    }
     return acc;
 }
 
