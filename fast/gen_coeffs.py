@@ -136,7 +136,8 @@ def render_vecmath() -> str:
              "mpmath; constants split", " * in parts whose products with small integers are "
              "exact): do not edit. See vecmath.h. */", "#pragma once"]
     for name, (f, w, a, b) in _vm_specs().items():
-        for deg, suffix, bound in zip(VM_DEGREES[name], ("", "F"), (2.0 ** -58, 2.0 ** -32)):
+        for deg, suffix, bound in zip(VM_DEGREES[name], ("", "F"), (2.0 ** -58, 2.0 ** -32),
+                                      strict=True):
             coef, err = remez(f, w, a, b, deg)
             if not err < bound <= remez(f, w, a, b, deg - 1)[1]:
                 raise AssertionError(f"VM_DEGREES[{name!r}]: degree {deg} is not the least")

@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import IN_CI, require
 
 HEADERS = Path(__file__).resolve().parent.parent / "fast" / "src" / "microlie_fast"
@@ -107,7 +106,8 @@ def samples(name: str, dtype, rng: np.random.Generator, n: int) -> list[np.ndarr
     if name == "log":
         tiny = np.finfo(dtype).smallest_subnormal
         return [np.concatenate([10.0 ** rng.uniform(-300 if f64 else -37, 300 if f64 else 38, n),
-                                rng.uniform(0.5, 2.0, n), 1.0 + 10.0 ** rng.uniform(-15, -1, n // 4),
+                                rng.uniform(0.5, 2.0, n),
+                                1.0 + 10.0 ** rng.uniform(-15, -1, n // 4),
                                 [tiny, 3 * tiny, np.finfo(dtype).max, np.nextafter(1.0, 2),
                                  np.nextafter(1.0, 0), np.sqrt(2)]]).astype(dtype)]
     a = rng.standard_normal(n) * 10.0 ** rng.uniform(-5, 5, n)
