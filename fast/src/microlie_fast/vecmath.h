@@ -7,8 +7,9 @@
  * (vecmath_coeffs.h), fdlibm-style reconstruction. The float functions evaluate in double with
  * shorter polynomials and round once at the end.
  *
- * Accuracy (tests/test_vecmath.py against mpmath; figures in its docstring): double within
- * 2 ulp (sin/cos/exp/expm1/log about 1 ulp), float within 1 ulp.
+ * Accuracy (tests/test_vecmath.py against mpmath; measured maxima, without / with FMA): double
+ * sin 0.72/0.72, cos 0.76/0.74, tan 1.77/1.68, exp 0.79/0.85, expm1 1.36/1.27, log 0.76/0.74,
+ * atan2 1.06/1.13 ulp; every float function 0.50-0.51 ulp.
  * Special values follow C99 Annex F: signed zeros kept, NaN propagated, sin/cos/tan(+-inf) = NaN,
  * every +-0/+-inf case of atan2, exp/expm1 overflow to inf and underflow to 0 / -1 (gradual
  * through the subnormals), log(0) = -inf, log(<0) = NaN, log of subnormals exact.
