@@ -1,7 +1,8 @@
 """Build of the compiled kernels. The group kernels (_lie, _one, and the edge loop of _graph) are
-generated first from microlie's component formulas (microlie._codegen -> generated/). Flags: -O3 with the host's vector ISA (this is a local build
-from source; a distributed wheel would target a fixed ISA level), math without errno so that
-GCC may vectorise calls, and glibc's libmvec for the vector versions of tan/sin/cos/atan2.
+generated first from microlie's component formulas (microlie._codegen -> generated/). Flags: -O3
+with the host's vector ISA (this is a local build from source; a distributed wheel would target a
+fixed ISA level), math without errno or traps. The elementary functions of the group kernels come
+from vecmath.h (our own vectorisable kernels), so no vector math library is linked.
 Set MICROLIE_FAST_CFLAGS to override the flags (for example on a compiler without -march)."""
 
 import os
@@ -31,24 +32,22 @@ def generate_kernels(outdir: str) -> None:
 
 generate_kernels(GENERATED)
 
-flags = ["-O3", "-fno-math-errno", "-fopenmp-simd", "-std=c11"]
+# -fno-trapping-math: the kernels never read floating-point exception flags, and without it GCC
+# does not if-convert the selects of the element formulas (their operands could trap) on targets
+# without masked vector instructions, so the element loops stay scalar
+flags = ["-O3", "-fno-math-errno", "-fno-trapping-math", "-fopenmp-simd", "-std=c11"]
 libs = ["m"]
 if sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64"):
     flags.append("-march=native")
-    libs.insert(0, "mvec")  # glibc's vector math library
-    flags.append("-DLM_LIBMVEC")
 elif platform.machine() in ("arm64", "aarch64"):
     flags.append("-mcpu=native")
-if not os.path.exists(os.path.join(SRC, "vecmath.h")):
-    flags.append("-DLM_VECMATH_STUB")  # libm through vecmath_stub.h until vecmath.h exists
 if os.environ.get("MICROLIE_FAST_CFLAGS"):
     flags = os.environ["MICROLIE_FAST_CFLAGS"].split()
 # the group kernels: exactly the operations of the component formulas (no fused multiply-add
 # contraction), so that one element and a batch give the same bits, equal to the generic kernel
 # to the rounding of the elementary functions; both sides of a small-angle selection are
-# computed (-fno-trapping-math: no floating-point trap is enabled, so GCC may evaluate the side
-# not taken and vectorise the loop; the results do not change)
-kernel_flags = [*flags, "-ffp-contract=off", "-fno-trapping-math"]
+# computed (-fno-trapping-math above: GCC may evaluate the side not taken and vectorise the loop)
+kernel_flags = [*flags, "-ffp-contract=off"]
 
 setup(
     ext_modules=[

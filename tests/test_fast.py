@@ -183,6 +183,13 @@ def test_the_build_holds_the_kernels_generated_from_todays_formulas():
     assert "SO3.from_matrix" not in text  # a Python branch on a value: not traceable
 
 
+def test_vecmath_coefficient_header_is_what_its_generator_writes():
+    spec = importlib.util.spec_from_file_location("gen_coeffs", ROOT / "fast" / "gen_coeffs.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    assert gen.VM_HEADER.read_text() == gen.render_vecmath(), "run: python fast/gen_coeffs.py"
+
+
 def test_environment_variable_disables_the_compiled_kernels():
     if os.environ.get("MICROLIE_FAST") != "0":
         require("microlie_fast")
