@@ -370,6 +370,8 @@ class Problem:
             B = B[owner][:, owner]
             B.sort_indices()
         nsub = B.nnz
+        # the pattern of bs x bs blocks, for the analyses that work on blocks
+        self.block_pattern = (B.indptr.astype(np.int64), B.indices.astype(np.int64))
         S = sp.bsr_matrix((np.ones((nsub, bs, bs), bool), B.indices, B.indptr),
                           shape=(self.size, self.size)).tocsr()
         if S.nnz != nnz:
@@ -588,7 +590,11 @@ class Problem:
             cache = self.__dict__.setdefault("_analysed", {})
             if key in cache:
                 return cache[key]
-        ls.analyse(self.indptr, self.indices, self.size, self.block_size)
+        if ls.name == "schur":  # it takes its blocks from this problem
+            ls.analyse(self.indptr, self.indices, self.size, self.block_size)
+        else:
+            ls.analyse(self.indptr, self.indices, self.size, self.block_size,
+                       block_pattern=self.block_pattern)
         if isinstance(linear_solver, str):
             cache[key] = ls
         return ls

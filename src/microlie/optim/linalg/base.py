@@ -59,7 +59,8 @@ class LinearSolver:
     name = "base"
 
     def analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int,
-                block_size: int = 1) -> None:
+                block_size: int = 1, block_pattern: tuple[np.ndarray, np.ndarray] | None = None
+                ) -> None:
         """See the pattern (symbolic analysis, ordering).
 
         Parameters
@@ -70,6 +71,12 @@ class LinearSolver:
             The matrix size.
         block_size : int
             The unknowns come in dense blocks of that size.
+        block_pattern : (numpy.ndarray, numpy.ndarray), optional
+            ``(bptr, bidx)``: the CSC (rows sorted, diagonal included) of the
+            ``n / block_size`` square block pattern whose dense expansion into
+            ``block_size x block_size`` blocks is exactly ``(indptr, indices)``, when the caller
+            has it (:class:`~microlie.optim.core.problem.Problem` does); backends that work on
+            blocks then need not read them back from the scalar pattern. Others ignore it.
 
         Examples
         --------

@@ -34,7 +34,7 @@ import scipy.sparse as sp  # type: ignore[import-untyped]
 from ..._fast import compiled as compiled_module
 from ..core.threads import limit_new_libraries
 from .base import LinearSolver, SingularSystemError
-from .ordering import graph, minimum_degree, splu_symmetric
+from .ordering import graph, minimum_degree, minimum_degree_blocks, splu_symmetric
 
 __all__ = ["make_solver", "available_solvers", "auto_order", "SOLVERS"]
 
@@ -45,12 +45,17 @@ def _checked(x: np.ndarray) -> np.ndarray:
     return x
 
 
-def block_order(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> np.ndarray:
+def block_order(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int,
+                block_pattern: Any = None) -> np.ndarray:
     """A fill-reducing order of the unknowns (new -> old) from the minimum-degree order of the
-    block graph (``bs`` times smaller than the scalar one)."""
+    block graph (``bs`` times smaller than the scalar one; ``block_pattern``: its CSC, else
+    read from the scalar pattern)."""
     if bs <= 0 or n % bs:
         bs = 1
-    q = minimum_degree(graph(indptr, indices, n, bs))
+    if block_pattern is not None and bs > 1:
+        q = minimum_degree_blocks(block_pattern[0], block_pattern[1], n // bs)
+    else:
+        q = minimum_degree(graph(indptr, indices, n, bs))
     return (q[:, None] * bs + np.arange(bs)).ravel()
 
 
@@ -61,9 +66,9 @@ class ScipySolver(LinearSolver):
 
     name = "scipy"
 
-    def analyse(self, indptr, indices, n, block_size=1):
+    def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
         super().analyse(indptr, indices, n)
-        p = block_order(indptr, indices, n, block_size)
+        p = block_order(indptr, indices, n, block_size, block_pattern)
         tag = sp.csc_matrix((np.arange(1, indices.size + 1, dtype=np.float64), indices,
                              indptr), shape=(n, n))[p][:, p].tocsc()
         tag.sort_indices()
@@ -93,7 +98,7 @@ class QdldlSolver(LinearSolver):
 
     name = "qdldl"
 
-    def analyse(self, indptr, indices, n, block_size=1):
+    def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
         super().analyse(indptr, indices, n)
         self._triangles()
         import qdldl  # type: ignore[import-not-found]
@@ -135,7 +140,7 @@ class PardisoSolver(LinearSolver):
 
     name = "pardiso"
 
-    def analyse(self, indptr, indices, n, block_size=1):
+    def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
         super().analyse(indptr, indices, n)
         self._triangles()
         self._ps = _pardiso_instance()
