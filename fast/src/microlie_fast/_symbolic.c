@@ -30,7 +30,7 @@
  *   The place in the panels of every entry of the scalar CSC of a pattern of dense bs x bs
  *   blocks (bptr, bidx: the block CSC, rows sorted): entry (rr, cc) of block (u, v) with
  *   inv[u] >= inv[v] goes to its supernode's panel, the strict upper triangle to the dump
- *   slot nx. */
+ *   slot nx. int32 when nx < 2^31 - 1, else int64. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
@@ -431,9 +431,14 @@ static PyObject *amap(PyObject *self, PyObject *args) {
         PyErr_SetString(PyExc_ValueError, "bptr does not fit bidx, or bs < 1");
         return NULL;
     }
-    PyArrayObject *oout = new_ints(nblk * bs * bs);
+    /* int32 when every place (and the dump slot) fits: half the memory */
+    int small = nx < 2147483647;
+    npy_intp dim[1] = {(npy_intp)(nblk * bs * bs)};
+    PyArrayObject *oout = (PyArrayObject *)PyArray_SimpleNew(1, dim, small ? NPY_INT32 : NPY_INT64);
     if (!oout) return NULL;
-    i64 *out = PyArray_DATA(oout);
+    i64 *out64 = PyArray_DATA(oout);
+    npy_int32 *out32 = PyArray_DATA(oout);
+#define PUT(x) (small ? (void)(out32[e++] = (npy_int32)(x)) : (void)(out64[e++] = (x)))
     int bad = 0;
     Py_BEGIN_ALLOW_THREADS
     i64 e = 0;
@@ -451,7 +456,7 @@ static PyObject *amap(PyObject *self, PyObject *args) {
                 }
                 i64 U = inv[u];
                 if (U < V) {
-                    for (i64 rr = 0; rr < bs; rr++) out[e++] = nx;
+                    for (i64 rr = 0; rr < bs; rr++) PUT(nx);
                     continue;
                 }
                 i64 pos = bsearch_i64(st, sl, U);
@@ -460,11 +465,11 @@ static PyObject *amap(PyObject *self, PyObject *args) {
                     break;
                 }
                 i64 base = px[s] + (V * bs + cc - c0) * m + pos * bs;
-                for (i64 rr = 0; rr < bs; rr++)
-                    out[e++] = (U == V && rr < cc) ? nx : base + rr;
+                for (i64 rr = 0; rr < bs; rr++) PUT((U == V && rr < cc) ? nx : base + rr);
             }
     }
     Py_END_ALLOW_THREADS
+#undef PUT
     if (bad) {
         Py_DECREF(oout);
         PyErr_SetString(bad == 1 ? PyExc_ValueError : PyExc_AssertionError,

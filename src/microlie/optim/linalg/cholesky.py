@@ -190,7 +190,8 @@ class SupernodalSolver(LinearSolver):
                 raise AssertionError("supernodal analysis: an entry outside its supernode")
             amap = np.full(self.indices.size, self.nx, np.int64)
             amap[low] = px[s] + (cn[low] - c0[s]) * m[s] + pos - rptr[s]
-        self.amap = amap
+        # int32 when it fits (half the memory; the compiled loop takes either)
+        self.amap = amap.astype(np.int32, copy=False) if self.nx < 2**31 - 1 else amap
         u = (m - k)
         self.wsize = int((u * u).max()) if ns else 0
         self.usize = int(u.max()) if ns else 0
@@ -200,8 +201,7 @@ class SupernodalSolver(LinearSolver):
         self._ldiag = px[:-1][sid] + col * (m[sid] + 1)
         if sym_c is not None:
             pptr, pt, pa, pb, relptr, relb = sym_c.updates(brptr, brow, bstart, nb)
-            self.rel = (relb[:, None] * bs + np.arange(bs)).ravel()
-            self.relptr, self.pptr = relptr * bs, pptr
+            self.rel, self.relptr, self.pptr = relb, relptr, pptr
             self.pt, self.pa, self.pb = pt, pa * bs, pb * bs
             return
         assert key is not None
@@ -232,9 +232,8 @@ class SupernodalSolver(LinearSolver):
         bpos = np.searchsorted(key, q)
         if bpos.size and not np.array_equal(key[np.minimum(bpos, key.size - 1)], q):
             raise AssertionError("supernodal analysis: an update outside its target")
-        relb = bpos - brptr[t_rep]
-        self.rel = (relb[:, None] * bs + np.arange(bs)).ravel()
-        self.relptr = start * bs
+        self.rel = bpos - brptr[t_rep]
+        self.relptr = start
         self.pptr = np.searchsorted(ps, np.arange(ns + 1)).astype(np.int64)
         self.pt, self.pa, self.pb = pt, pa * bs, pb * bs
 

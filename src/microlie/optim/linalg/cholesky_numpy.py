@@ -275,13 +275,13 @@ class NumpyLoop:
         dia1 = (self.dpos[tc] + col * self.K[tc]) // bs
         bel1 = (self.bpos[tc] + col * self.U[tc] - self.k[tc]) // bs
         kt1 = self.k[tc] // bs
-        rel1 = s.relptr[pc] // bs + r0  # the first run's place in the block rel
+        rel1 = s.relptr[pc] + r0  # the first run's place in the block rel
         el1 = lev[sc]
         del sc, tc, col, jj
         x = np.repeat(np.arange(pc.size), nrun)
         r = np.arange(int(nrun.sum())) - np.repeat(np.cumsum(nrun) - nrun, nrun)
         src = src1[x] + r0[x] + r
-        rowb = s.rel[::bs][rel1[x] + r] // bs
+        rowb = s.rel[rel1[x] + r]
         dst = np.where(rowb < kt1[x], dia1[x], bel1[x]) + rowb
         el = el1[x]
         del x, r, rowb
