@@ -108,23 +108,14 @@ class SupernodalSolver(LinearSolver):
         self._factored = False
         bs = block_size if block_size > 0 and n % block_size == 0 else 1
         nb = n // bs
-        ne = np.asarray(indices).size
-        if block_pattern is not None:  # the caller's block pattern: nothing is read back
-            bptr, bidx = (np.ascontiguousarray(a, dtype=np.int64) for a in block_pattern)
-            if bptr.shape != (nb + 1,) or bidx.size * bs * bs != ne or bptr[-1] != bidx.size:
-                raise ValueError(
-                    f"block_pattern must be the block CSC (indptr of {nb + 1}, indices of "
-                    f"{ne // (bs * bs)} blocks) of {bs}x{bs} blocks whose dense expansion is "
-                    f"the scalar pattern; got {bptr.shape[0]} and {bidx.size}")
-            blocks: tuple[np.ndarray, np.ndarray] | None = (bptr, bidx)
-        else:
-            blocks = _blocks(indptr, indices, bs)
-        self.indptr, self.indices, self.n = indptr, indices, n
-        diag = None if blocks is None else _block_diagonal(*blocks, bs)
-        if diag is None:
-            super().analyse(indptr, indices, n)
-        else:
-            self._diag_at = diag
+        if block_pattern is not None and len(block_pattern[0]) != nb + 1:
+            raise ValueError(f"block_pattern must have {nb + 1} block column pointers for "
+                             f"blocks of {bs}, got {len(block_pattern[0])}")
+        super().analyse(indptr, indices, n, bs, block_pattern)
+        # the block pattern: the caller's (nothing is read back), else read from the scalar one
+        blocks = self._given_blocks[:2] if self._given_blocks is not None else \
+            _blocks(indptr, self.indices, bs)
+        self.dense_blocks = blocks is not None
         if blocks is None:  # the block graph of a pattern whose blocks are not dense
             adj = graph(indptr, indices, n, bs)
             aptr, aidx = adj.indptr.astype(np.int64), adj.indices.astype(np.int64)
@@ -188,7 +179,7 @@ class SupernodalSolver(LinearSolver):
             if pos.size and not np.array_equal(gkey[np.minimum(pos, gkey.size - 1)],
                                                s * n + rn[low]):
                 raise AssertionError("supernodal analysis: an entry outside its supernode")
-            amap = np.full(self.indices.size, self.nx, np.int64)
+            amap = np.full(self.nnz, self.nx, np.int64)
             amap[low] = px[s] + (cn[low] - c0[s]) * m[s] + pos - rptr[s]
         # int32 when it fits (half the memory; the compiled loop takes either)
         self.amap = amap.astype(np.int32, copy=False) if self.nx < 2**31 - 1 else amap
@@ -241,9 +232,9 @@ class SupernodalSolver(LinearSolver):
 
     def factorize(self, data: np.ndarray) -> None:
         data = np.ascontiguousarray(data, dtype=np.float64)
-        if data.shape != (self.indices.size,):
+        if data.shape != (self.nnz,):
             raise ValueError(f"data has shape {data.shape}; the analysed pattern has "
-                             f"{self.indices.size} entries")
+                             f"{self.nnz} entries")
         # a failed factorisation leaves no factor to solve with (the NumPy loop overwrites
         # the last one in place; the C loop's would be stale)
         self._factored = False
@@ -349,21 +340,6 @@ def _groups(bptr: np.ndarray, bs: int) -> tuple[np.ndarray, np.ndarray]:
     o = np.arange(ng, dtype=np.int64) - np.repeat(bs * bptr[:-1], bs * nblk)
     cc, k = np.divmod(o, nblk[gcol]) if ng else (o, o)
     return cc, bptr[:-1][gcol] + k
-
-
-def _block_diagonal(bptr: np.ndarray, bidx: np.ndarray, bs: int) -> np.ndarray | None:
-    """The scalar CSC positions of the diagonal entries of a dense-block pattern (``None``
-    when some diagonal block is missing)."""
-    nb = bptr.size - 1
-    bcol = np.repeat(np.arange(nb, dtype=np.int64), np.diff(bptr))
-    d = np.flatnonzero(bidx == bcol)
-    if d.size != nb:
-        return None
-    kvv = d - bptr[:-1]
-    nblk = np.diff(bptr)
-    cc = np.arange(bs)
-    pos = (bs * bs * bptr[:-1] + bs * kvv)[:, None] + cc * (bs * nblk[:, None] + 1)
-    return pos.ravel()
 
 
 def _dense_amap(blocks: tuple[np.ndarray, np.ndarray], bs: int, nb: int, inv_b: np.ndarray,

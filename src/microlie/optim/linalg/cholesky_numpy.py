@@ -235,9 +235,11 @@ class NumpyLoop:
         (a run of the diagonal block also writes the unused upper part of ``L11``), in words
         of :attr:`word` entries; else entry by entry."""
         bs, nx, w = self.bs, s.nx, self.word
-        ip, ix = np.asarray(s.indptr), np.asarray(s.indices)
-        runs = ix.size % bs == 0 and bool(np.all(ip % bs == 0))
-        if runs and ix.size:
+        runs = s.dense_blocks  # else look for runs of bs rows in the scalar pattern
+        if not runs:
+            ip, ix = np.asarray(s.indptr), np.asarray(s.indices)
+            runs = ix.size % bs == 0 and bool(np.all(ip % bs == 0))
+        if not s.dense_blocks and runs and ix.size:
             r = ix.reshape(-1, bs)
             runs = bool(np.all(r[:, 0] % bs == 0) and np.all(r - r[:, :1] == np.arange(bs)))
         amap = s.amap

@@ -67,7 +67,8 @@ class ScipySolver(LinearSolver):
     name = "scipy"
 
     def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
-        super().analyse(indptr, indices, n)
+        super().analyse(indptr, indices, n, block_size, block_pattern)
+        indices = self.indices
         p = block_order(indptr, indices, n, block_size, block_pattern)
         tag = sp.csc_matrix((np.arange(1, indices.size + 1, dtype=np.float64), indices,
                              indptr), shape=(n, n))[p][:, p].tocsc()
@@ -99,7 +100,7 @@ class QdldlSolver(LinearSolver):
     name = "qdldl"
 
     def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
-        super().analyse(indptr, indices, n)
+        super().analyse(indptr, indices, n, block_size, block_pattern)
         self._triangles()
         import qdldl  # type: ignore[import-not-found]
 
@@ -141,7 +142,7 @@ class PardisoSolver(LinearSolver):
     name = "pardiso"
 
     def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
-        super().analyse(indptr, indices, n)
+        super().analyse(indptr, indices, n, block_size, block_pattern)
         self._triangles()
         self._ps = _pardiso_instance()
         self._A = sp.csr_matrix((np.zeros(self._lower.size), self.lower_indices,

@@ -167,7 +167,7 @@ class SchurSolver(LinearSolver):
         self.reduced_solver: LinearSolver | None = None
 
     # ---------------------------------------------------------------- analysis
-    def analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int,
+    def analyse(self, indptr: np.ndarray, indices: np.ndarray | None, n: int,
                 block_size: int = 1, block_pattern: Any = None) -> None:
         """The symbolic work, once per pattern: the eliminated blocks' positions, the pattern
         of the reduced system (its blocks: ``A``'s and every pair of neighbours of an
