@@ -8,7 +8,12 @@ order of the block graph, its elimination tree and column counts computed from t
 amalgamation (as CHOLMOD does), the supernodes' row structures (each the union of its columns'
 rows and its children's), and, vectorised over all supernodes, the scatter maps of the numeric
 phase.
-It runs once per pattern (:meth:`SupernodalSolver.analyse`).
+It runs once per pattern (:meth:`SupernodalSolver.analyse`), on the block pattern the caller
+hands over (``block_pattern``: :class:`~microlie.optim.core.problem.Problem` does, so the
+scalar pattern is never read back, nor even expanded); with the compiled extra the
+elimination tree, column counts, supernodes, structures, update pairs and assembly map are
+C loops (``microlie_fast._symbolic``), else the vectorised NumPy twin above (the same arrays,
+tested equal).
 
 The factor is stored as one array of dense panels: supernode ``s`` owns the ``m_s x k_s``
 column-major panel of its ``k_s`` columns and their ``m_s`` rows (the ``k_s x k_s`` diagonal
