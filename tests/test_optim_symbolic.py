@@ -382,3 +382,32 @@ def test_a_given_block_pattern_is_the_read_back_one(compiled, bs):
     with pytest.raises(ValueError, match="block_pattern"):
         ch.SupernodalSolver(compiled=compiled).analyse(
             H.indptr, H.indices, H.shape[0], bs, block_pattern=(B.indptr, B.indices[:-1]))
+
+
+def test_backends_analyse_from_the_block_pattern_alone():
+    """``analyse(indptr, None, ..., block_pattern=...)``: every backend solves the system
+    (against a dense solve); those that need the scalar rows expand them (equal to SciPy's
+    own CSC of the matrix, via ``expand_blocks``); neither rows nor blocks is a ValueError."""
+    from microlie.optim import available_solvers, make_solver
+    from microlie.optim.linalg.base import expand_blocks
+
+    rng = np.random.default_rng(7)
+    bs, nb = 3, 12
+    adj = _pattern("pose", nb, rng)
+    M = _matrix(adj, bs, rng) + np.kron(np.eye(nb), np.full((bs, bs), 0.05))
+    H = sp.csc_matrix(M)
+    H.sort_indices()
+    B = sp.csc_matrix(np.abs(M[::bs, ::bs]) > 0)
+    B.sort_indices()
+    ip, ix = expand_blocks(B.indptr, B.indices, bs)
+    np.testing.assert_array_equal(ip, H.indptr)
+    np.testing.assert_array_equal(ix, H.indices)
+    b = rng.standard_normal(nb * bs)
+    for name in available_solvers():
+        ls = make_solver(name)
+        ls.analyse(H.indptr, None, nb * bs, bs, block_pattern=(B.indptr, B.indices))
+        ls.factorize(H.data)
+        np.testing.assert_allclose(ls.solve(b), np.linalg.solve(M, b), rtol=1e-9, atol=1e-12,
+                                   err_msg=name)
+    with pytest.raises(ValueError, match="indices is None"):
+        make_solver("dense").analyse(H.indptr, None, nb * bs, bs)
