@@ -168,7 +168,9 @@ def _child(n: int | str, dim: int) -> None:
 
 
 def _run(src: str, n: int | str, dim: int, fast: str) -> dict:
-    env = dict(os.environ, PYTHONPATH=src, MICROLIE_FAST=fast)
+    built = Path(src).parent / "fast" / "src"  # that tree's own build of the compiled extra
+    path = src + (os.pathsep + str(built) if any(built.glob("microlie_fast/*.so")) else "")
+    env = dict(os.environ, PYTHONPATH=path, MICROLIE_FAST=fast)
     r = subprocess.run([sys.executable, __file__, "_child", str(n), str(dim)],
                        env=env, capture_output=True, text=True, check=True)
     return json.loads(r.stdout.strip().splitlines()[-1])

@@ -98,6 +98,12 @@ setup(
             extra_compile_args=flags,
             libraries=["m"],
         ),
+        Extension(  # the symbolic supernodal analysis (microlie.optim.linalg.cholesky)
+            "microlie_fast._symbolic",
+            sources=["src/microlie_fast/_symbolic.c"],
+            include_dirs=[np.get_include(), "src/microlie_fast"],
+            extra_compile_args=flags,
+        ),
         # the numeric supernodal Cholesky loop on SciPy's BLAS/LAPACK (capsules, no BLAS link)
         Extension(
             "microlie_fast._chol",

@@ -326,3 +326,88 @@ def test_blocks_that_are_not_dense_go_entry_by_entry(compiled):
     s.factorize(H.data)
     b = rng.standard_normal(nb * bs)
     np.testing.assert_allclose(s.solve(b), np.linalg.solve(A, b), rtol=1e-12, atol=1e-12)
+
+
+_FIELDS = ("sperm", "c0", "k", "m", "px", "rows", "rptr", "sparent", "amap", "pptr", "pt", "pa",
+           "pb", "relptr", "rel", "_ldiag", "_diag_at")
+
+
+@pytest.mark.skipif(True not in PATHS, reason="the compiled analysis is not installed")
+@pytest.mark.parametrize("bs", [1, 2, 3, 6])
+def test_compiled_analysis_equals_the_numpy_one(bs):
+    """The C analysis (microlie_fast._symbolic: elimination tree, postorder, column counts,
+    supernodes, structures, update pairs, assembly map) produces every array of the NumPy
+    analysis exactly, on 60 random block patterns of every shape (and the factor solves)."""
+    for seed in range(60):
+        rng = np.random.default_rng(500 + seed)
+        nb = int(rng.integers(1, 45))
+        adj = _pattern(["random", "pose", "grid", "arrow", "forest"][seed % 5], nb, rng)
+        M = _matrix(adj, bs, rng) + np.kron(np.eye(nb), np.full((bs, bs), 0.05))
+        H = sp.csc_matrix(M)
+        H.sort_indices()
+        c = ch.SupernodalSolver(compiled=True)
+        c.analyse(H.indptr, H.indices, H.shape[0], bs)
+        p = ch.SupernodalSolver(compiled=False)
+        p.analyse(H.indptr, H.indices, H.shape[0], bs)
+        for name in _FIELDS:
+            np.testing.assert_array_equal(getattr(c, name), getattr(p, name), err_msg=name)
+        assert (c.ns, c.nx, c.wsize, c.usize) == (p.ns, p.nx, p.wsize, p.usize)
+        c.factorize(H.data)
+        b = rng.standard_normal(nb * bs)
+        np.testing.assert_allclose(c.solve(b), np.linalg.solve(M, b), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+@pytest.mark.parametrize("bs", [1, 3])
+def test_a_given_block_pattern_is_the_read_back_one(compiled, bs):
+    """The block pattern handed to ``analyse`` (as ``Problem`` does) gives the same analysis
+    as the one read back from the scalar pattern; a block pattern that does not expand to the
+    scalar one is a ValueError."""
+    for seed in range(10):
+        rng = np.random.default_rng(900 + seed)
+        nb = int(rng.integers(2, 40))
+        adj = _pattern(["random", "pose", "arrow"][seed % 3], nb, rng)
+        M = _matrix(adj, bs, rng) + np.kron(np.eye(nb), np.full((bs, bs), 0.05))
+        H = sp.csc_matrix(M)
+        H.sort_indices()
+        B = sp.csc_matrix(np.abs(M[::bs, ::bs]) > 0)
+        B.sort_indices()
+        given = ch.SupernodalSolver(compiled=compiled)
+        given.analyse(H.indptr, H.indices, H.shape[0], bs, block_pattern=(B.indptr, B.indices))
+        read = ch.SupernodalSolver(compiled=compiled)
+        read.analyse(H.indptr, H.indices, H.shape[0], bs)
+        for name in _FIELDS:
+            if hasattr(read, name):
+                np.testing.assert_array_equal(getattr(given, name), getattr(read, name))
+    with pytest.raises(ValueError, match="block_pattern"):
+        ch.SupernodalSolver(compiled=compiled).analyse(
+            H.indptr, H.indices, H.shape[0], bs, block_pattern=(B.indptr, B.indices[:-1]))
+
+
+def test_backends_analyse_from_the_block_pattern_alone():
+    """``analyse(indptr, None, ..., block_pattern=...)``: every backend solves the system
+    (against a dense solve); those that need the scalar rows expand them (equal to SciPy's
+    own CSC of the matrix, via ``expand_blocks``); neither rows nor blocks is a ValueError."""
+    from microlie.optim import available_solvers, make_solver
+    from microlie.optim.linalg.base import expand_blocks
+
+    rng = np.random.default_rng(7)
+    bs, nb = 3, 12
+    adj = _pattern("pose", nb, rng)
+    M = _matrix(adj, bs, rng) + np.kron(np.eye(nb), np.full((bs, bs), 0.05))
+    H = sp.csc_matrix(M)
+    H.sort_indices()
+    B = sp.csc_matrix(np.abs(M[::bs, ::bs]) > 0)
+    B.sort_indices()
+    ip, ix = expand_blocks(B.indptr, B.indices, bs)
+    np.testing.assert_array_equal(ip, H.indptr)
+    np.testing.assert_array_equal(ix, H.indices)
+    b = rng.standard_normal(nb * bs)
+    for name in available_solvers():
+        ls = make_solver(name)
+        ls.analyse(H.indptr, None, nb * bs, bs, block_pattern=(B.indptr, B.indices))
+        ls.factorize(H.data)
+        np.testing.assert_allclose(ls.solve(b), np.linalg.solve(M, b), rtol=1e-9, atol=1e-12,
+                                   err_msg=name)
+    with pytest.raises(ValueError, match="indices is None"):
+        make_solver("dense").analyse(H.indptr, None, nb * bs, bs)

@@ -17,8 +17,9 @@
  * lower; plain loops instead of these three BLAS calls for supernodes of at most SMALL_K
  * columns), and for each update pair p of s (ancestor t, W columns pa[p] .. pb[p] owned by t)
  * the subtraction of W[i, j] (i >= j) from t's panel at column rows(s, k + j) - c0[t] and local
- * row rel[relptr[p] + i - pa[p]] (runs of bs consecutive rows from pa[p]). Returns 0, or 1 + s
- * for a pivot of supernode s that is not positive.
+ * row bs rel[relptr[p] + q] + rr for i = pa[p] + bs q + rr (rel: the block rows, in t's
+ * structure, of s's below rows from pa[p] on, in runs of bs). amap is int32 or int64. Returns
+ * 0, or 1 + s for a pivot of supernode s that is not positive.
  *
  * solve: y (n x nrhs, column-major, permuted) <- L^-T L^-1 y. */
 #define PY_SSIZE_T_CLEAN
@@ -228,7 +229,11 @@ static PyObject *factor(PyObject *self, PyObject *args) {
     i64 nx, ne, ns, np_;
     double *Lx = arr(oLx, NPY_FLOAT64, -1, "Lx", &nx);
     double *data = Lx ? arr(odata, NPY_FLOAT64, -1, "data", &ne) : NULL;
-    i64 *amap = data ? arr(oamap, NPY_INT64, ne, "amap", NULL) : NULL;
+    /* amap: int32 (half the memory) or int64 */
+    int a32 = PyArray_Check(oamap) && PyArray_TYPE((PyArrayObject *)oamap) == NPY_INT32;
+    void *amap = data ? arr(oamap, a32 ? NPY_INT32 : NPY_INT64, ne, "amap", NULL) : NULL;
+    const npy_int32 *amap32 = amap;
+    const i64 *amap64 = amap;
     i64 *c0 = amap ? arr(oc0, NPY_INT64, -1, "c0", &ns) : NULL;
     i64 *kk = c0 ? arr(ok, NPY_INT64, ns, "k", NULL) : NULL;
     i64 *mm = kk ? arr(om, NPY_INT64, ns, "m", NULL) : NULL;
@@ -242,17 +247,22 @@ static PyObject *factor(PyObject *self, PyObject *args) {
     i64 *relptr = pb ? arr(orelptr, NPY_INT64, np_ + 1, "relptr", NULL) : NULL;
     i64 *rel = relptr ? arr(orel, NPY_INT64, -1, "rel", NULL) : NULL;
     if (!rel) return NULL;
-    for (i64 e = 0; e < ne; e++)
-        if (amap[e] < 0 || amap[e] >= nx) {
+    for (i64 e = 0; e < ne; e++) {
+        i64 at = a32 ? (i64)amap32[e] : amap64[e];
+        if (at < 0 || at >= nx) {
             PyErr_SetString(PyExc_ValueError, "amap out of range");
             return NULL;
         }
+    }
     double *W = PyMem_Malloc((size_t)(wsize > 0 ? wsize : 1) * sizeof(double));
     if (!W) return PyErr_NoMemory();
     i64 bad = 0;
     Py_BEGIN_ALLOW_THREADS
     memset(Lx, 0, (size_t)nx * sizeof(double));
-    for (i64 e = 0; e < ne; e++) Lx[amap[e]] = data[e];
+    if (a32)
+        for (i64 e = 0; e < ne; e++) Lx[amap32[e]] = data[e];
+    else
+        for (i64 e = 0; e < ne; e++) Lx[amap64[e]] = data[e];
     /* the entries of the strict upper triangle went to the dump block after the panels */
     char cL = 'L', cR = 'R', cT = 'T', cN = 'N';
     double one = 1.0, zero = 0.0;
@@ -279,28 +289,30 @@ static PyObject *factor(PyObject *self, PyObject *args) {
         const i64 *below = rows + rptr[s] + k;
         for (i64 p = pptr[s]; p < pptr[s + 1]; p++) {
             i64 t = pt[p], a = pa[p], b = pb[p], mt = mm[t];
-            const i64 *r = rel + relptr[p] - a; /* r[i] for i in a .. u-1 */
+            const i64 *rb = rel + relptr[p]; /* block rows from a, in t */
             double *Pt = Lx + px[t];
             for (i64 j = a; j < b; j++) {
                 double *dst = Pt + (below[j] - c0[t]) * mt;
                 const double *w = W + j * (i64)u;
                 /* rows come in runs of bs consecutive local rows from a: the rest of j's run
                  * one by one, then whole runs as contiguous vectors */
-                i64 i = j, end = j + (bs - (j - a) % bs);
-                for (; i < end; i++) dst[r[i]] -= w[i];
+                i64 q0 = (j - a) / bs, rr = (j - a) % bs, i = j;
+                double *d0 = dst + rb[q0] * bs;
+                for (; rr < bs; rr++, i++) d0[rr] -= w[i];
+                const i64 *rq = rb + q0 + 1;
                 if (bs == 6)
                     for (; i < u; i += 6) {
-                        double *d = dst + r[i];
+                        double *d = dst + 6 * *rq++;
                         for (int q = 0; q < 6; q++) d[q] -= w[i + q];
                     }
                 else if (bs == 3)
                     for (; i < u; i += 3) {
-                        double *d = dst + r[i];
+                        double *d = dst + 3 * *rq++;
                         for (int q = 0; q < 3; q++) d[q] -= w[i + q];
                     }
                 else
                     for (; i < u; i += bs) {
-                        double *d = dst + r[i];
+                        double *d = dst + bs * *rq++;
                         for (i64 q = 0; q < bs; q++) d[q] -= w[i + q];
                     }
             }

@@ -19,6 +19,7 @@ import numpy as np
 import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from ..._fast import compiled as compiled_module
+from ..linalg.base import expand_blocks
 from ..linalg.ordering import connected_components
 from . import compiled
 from .factors import Factor
@@ -368,21 +369,45 @@ class Problem:
             owner = np.repeat(np.arange(nn), dof // bs)
             B = B[owner][:, owner]
             B.sort_indices()
-        nsub = B.nnz
-        S = sp.bsr_matrix((np.ones((nsub, bs, bs), bool), B.indices, B.indptr),
-                          shape=(self.size, self.size)).tocsr()
-        if S.nnz != nnz:
+        # the pattern of bs x bs blocks, for the analyses that work on blocks
+        self.block_pattern = (B.indptr.astype(np.int64), B.indices.astype(np.int64))
+        if B.nnz * bs * bs != nnz:
             raise AssertionError("pattern: the scalar pattern disagrees with the block one")
         self.nnz = nnz
         ptype = np.int32 if nnz < 2**31 else np.int64
-        self.indices = S.indices.astype(np.int32, copy=False)
-        self.indptr = S.indptr.astype(ptype, copy=False)
-        del S, B
+        # the scalar pattern's column pointers (each scalar column of a sub-block column holds
+        # its blocks' bs rows each); its row indices are expanded on first use (indices)
+        self.indptr = np.r_[0, np.cumsum(np.repeat(np.diff(B.indptr) * bs, bs))].astype(ptype)
+        self._indices: np.ndarray | None = None
+        del B
         # diagonal positions (for damping): entry (c, c) of each diagonal block
         kd = np.searchsorted(self._bkey, np.arange(nn, dtype=np.int64) * (nn + 1))
         node = np.repeat(np.arange(nn), dof)
         cc = np.arange(self.size) - self.node_off[node]
         self.diag_pos = self._bstart[kd][node] + cc * (collen[node] + 1)
+
+    @property
+    def indices(self) -> np.ndarray:
+        """The row indices of the scalar CSC pattern of ``H`` (int32, rows sorted; with
+        :attr:`indptr`), expanded from :attr:`block_pattern` on first use: the supernodal
+        Cholesky works on the blocks and never needs them.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(2))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0], [1], SE2.exp([1.0, 0.0, 0.0])))
+        >>> p = g.problem()
+        >>> p.indices[:6].tolist(), p.indices.size == p.nnz == 36
+        ([0, 1, 2, 3, 4, 5], True)
+        """
+        if self._indices is None:
+            self._indices = expand_blocks(*self.block_pattern, self.block_size)[1]
+        return self._indices
 
     def _held_positions(self) -> np.ndarray:
         """CSC positions of the rows and columns of the held unknowns (``self.held``)."""
@@ -587,7 +612,13 @@ class Problem:
             cache = self.__dict__.setdefault("_analysed", {})
             if key in cache:
                 return cache[key]
-        ls.analyse(self.indptr, self.indices, self.size, self.block_size)
+        if ls.name == "schur":  # it takes its blocks from this problem
+            ls.analyse(self.indptr, self.indices, self.size, self.block_size)
+        else:
+            # the row indices only if expanded already (else the backend expands them if it
+            # needs them: the supernodal Cholesky does not)
+            ls.analyse(self.indptr, self._indices, self.size, self.block_size,
+                       block_pattern=self.block_pattern)
         if isinstance(linear_solver, str):
             cache[key] = ls
         return ls

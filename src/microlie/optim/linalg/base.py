@@ -13,11 +13,48 @@ import numpy as np
 if TYPE_CHECKING:  # SciPy is imported by the backends that use it
     import scipy.sparse as sp  # type: ignore[import-untyped]
 
-__all__ = ["LinearSolver", "SingularSystemError", "PIVOT_TOL"]
+__all__ = ["LinearSolver", "SingularSystemError", "PIVOT_TOL", "expand_blocks"]
 
 #: A pivot at most this fraction of its column's diagonal entry counts as zero (the column
 #: is, to rounding, a combination of the columns eliminated before it).
 PIVOT_TOL = 1e-10
+
+
+def expand_blocks(bptr: np.ndarray, bidx: np.ndarray, block_size: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The scalar CSC pattern (rows sorted) of a block pattern of dense square blocks.
+
+    Parameters
+    ----------
+    bptr, bidx : numpy.ndarray
+        The CSC of the block pattern (``nb`` block columns, rows sorted).
+    block_size : int
+        The size ``d`` of every block.
+
+    Returns
+    -------
+    indptr, indices : numpy.ndarray
+        The ``nb d x nb d`` pattern: ``indptr`` int32 (int64 beyond 2**31 entries),
+        ``indices`` int32; column ``d v + c`` holds the rows ``d u + (0..d-1)`` of each block
+        ``(u, v)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.linalg.base import expand_blocks
+    >>> ip, ix = expand_blocks(np.array([0, 2, 3]), np.array([0, 1, 1]), 2)
+    >>> ip.tolist(), ix.tolist()
+    ([0, 4, 8, 10, 12], [0, 1, 2, 3, 0, 1, 2, 3, 2, 3, 2, 3])
+    """
+    d = int(block_size)
+    nb = len(bptr) - 1
+    nnz = int(bptr[-1]) * d * d
+    # SciPy's compiled block-sparse conversion: the block CSC arrays of a matrix are the block
+    # CSR arrays of its transpose, whose CSR arrays are the matrix's CSC ones
+    S = sp.bsr_matrix((np.ones((int(bptr[-1]), d, d), bool), np.asarray(bidx),
+                       np.asarray(bptr)), shape=(nb * d, nb * d)).tocsr()
+    ptype = np.int32 if nnz < 2**31 else np.int64
+    return S.indptr.astype(ptype, copy=False), S.indices.astype(np.int32, copy=False)
 
 
 class SingularSystemError(ValueError):
@@ -62,18 +99,27 @@ class LinearSolver:
 
     name = "base"
 
-    def analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int,
-                block_size: int = 1) -> None:
+    def analyse(self, indptr: np.ndarray, indices: np.ndarray | None, n: int,
+                block_size: int = 1, block_pattern: tuple[np.ndarray, np.ndarray] | None = None
+                ) -> None:
         """See the pattern (symbolic analysis, ordering).
 
         Parameters
         ----------
         indptr, indices : numpy.ndarray
-            The CSC pattern of the full symmetric matrix.
+            The CSC pattern of the full symmetric matrix. ``indices`` may be ``None`` when
+            ``block_pattern`` is given: it is then expanded from the blocks on first use
+            (:attr:`indices`), and backends that work on blocks never expand it.
         n : int
             The matrix size.
         block_size : int
             The unknowns come in dense blocks of that size.
+        block_pattern : (numpy.ndarray, numpy.ndarray), optional
+            ``(bptr, bidx)``: the CSC (rows sorted, diagonal included) of the
+            ``n / block_size`` square block pattern whose dense expansion into
+            ``block_size x block_size`` blocks is exactly ``(indptr, indices)``, when the caller
+            has it (:class:`~microlie.optim.core.problem.Problem` does); backends that work on
+            blocks then need not read them back from the scalar pattern. Others ignore it.
 
         Examples
         --------
@@ -86,12 +132,58 @@ class LinearSolver:
         >>> ls.n
         3
         """
-        self.indptr, self.indices, self.n = indptr, indices, n
+        if indices is None and block_pattern is None:
+            raise ValueError("indices is None: pass the pattern's indices or its block_pattern")
+        self.indptr, self._indices, self.n = indptr, indices, n
+        self.nnz = int(indptr[-1]) if len(indptr) else 0
+        self._given_blocks = None
+        if block_pattern is not None:
+            bptr, bidx = (np.ascontiguousarray(a, dtype=np.int64) for a in block_pattern)
+            nb = bptr.size - 1
+            bs = n // nb if nb and n % nb == 0 else 0
+            if bs < 1 or bptr[-1] != bidx.size or bidx.size * bs * bs != self.nnz:
+                raise ValueError(
+                    f"block_pattern must be the block CSC of dense square blocks whose "
+                    f"expansion is the {n} x {n} pattern of {self.nnz} entries; got "
+                    f"{nb} block columns and {bidx.size} blocks")
+            self._given_blocks = (bptr, bidx, bs)
         # the position of each diagonal entry in the CSC data (-1: not in the pattern)
-        cols = np.repeat(np.arange(n), np.diff(indptr))
-        hit = np.flatnonzero(np.asarray(indices) == cols)
-        self._diag_at = np.full(n, -1, dtype=np.int64)
-        self._diag_at[cols[hit]] = hit
+        diag = self._block_diagonal()
+        if diag is None:
+            ix = self.indices
+            cols = np.repeat(np.arange(n), np.diff(indptr))
+            hit = np.flatnonzero(np.asarray(ix) == cols)
+            diag = np.full(n, -1, dtype=np.int64)
+            diag[cols[hit]] = hit
+        self._diag_at = diag
+
+    @property
+    def indices(self) -> np.ndarray:
+        """The row indices of the analysed CSC pattern (expanded from the block pattern on
+        first use when :meth:`analyse` was given ``indices=None``)."""
+        if self._indices is None:
+            bptr, bidx, bs = self._given_blocks  # type: ignore[misc]
+            self._indices = expand_blocks(bptr, bidx, bs)[1]
+        return self._indices
+
+    @indices.setter
+    def indices(self, value: np.ndarray) -> None:
+        self._indices = value
+
+    def _block_diagonal(self) -> np.ndarray | None:
+        """The CSC positions of the diagonal entries from the given block pattern (``None``
+        without one, or when a diagonal block is missing)."""
+        if self._given_blocks is None:
+            return None
+        bptr, bidx, bs = self._given_blocks
+        nb = bptr.size - 1
+        nblk = np.diff(bptr)
+        d = np.flatnonzero(bidx == np.repeat(np.arange(nb, dtype=np.int64), nblk))
+        if d.size != nb:
+            return None
+        pos = (bs * bs * bptr[:-1] + bs * (d - bptr[:-1]))[:, None] + \
+            np.arange(bs) * (bs * nblk[:, None] + 1)
+        return pos.ravel()
 
     def _check_pivots(self, data: np.ndarray, pivots: np.ndarray, order: np.ndarray) -> None:
         """Raise :class:`SingularSystemError` unless every pivot exceeds :data:`PIVOT_TOL`

@@ -8,7 +8,12 @@ order of the block graph, its elimination tree and column counts computed from t
 amalgamation (as CHOLMOD does), the supernodes' row structures (each the union of its columns'
 rows and its children's), and, vectorised over all supernodes, the scatter maps of the numeric
 phase.
-It runs once per pattern (:meth:`SupernodalSolver.analyse`).
+It runs once per pattern (:meth:`SupernodalSolver.analyse`), on the block pattern the caller
+hands over (``block_pattern``: :class:`~microlie.optim.core.problem.Problem` does, so the
+scalar pattern is never read back, nor even expanded); with the compiled extra the
+elimination tree, column counts, supernodes, structures, update pairs and assembly map are
+C loops (``microlie_fast._symbolic``), else the vectorised NumPy twin above (the same arrays,
+tested equal).
 
 The factor is stored as one array of dense panels: supernode ``s`` owns the ``m_s x k_s``
 column-major panel of its ``k_s`` columns and their ``m_s`` rows (the ``k_s x k_s`` diagonal
@@ -33,7 +38,7 @@ import scipy.sparse as sp  # type: ignore[import-untyped]
 from ..._fast import compiled as compiled_module
 from .base import LinearSolver, SingularSystemError
 from .cholesky_numpy import NOT_PD, NumpyLoop
-from .ordering import ORDERINGS, fill_order, graph
+from .ordering import ORDERINGS, graph, minimum_degree_blocks, symbolic
 
 __all__ = ["SupernodalSolver"]
 
@@ -45,6 +50,30 @@ _RELAX = ((4, 0.8), (16, 0.1), (48, 0.05))
 def _compiled() -> Any:
     """The compiled supernode loop (``microlie_fast._chol``) or ``None``."""
     return compiled_module("_chol")
+
+
+def _compiled_symbolic() -> Any:
+    """The compiled symbolic analysis (``microlie_fast._symbolic``) or ``None``."""
+    return compiled_module("_symbolic")
+
+
+def _supernodes(aptr: np.ndarray, aidx: np.ndarray, nb: int, order: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The NumPy twin of ``microlie_fast._symbolic.supernodes``: the postordered order, the
+    first block column of each (amalgamated) supernode and the block row structures
+    (``brow[brptr[s]:brptr[s + 1]]``, sorted, its own columns first) of the block graph
+    ``(aptr, aidx)`` (CSR) under ``order``."""
+    adj = sp.csr_matrix((np.ones(aidx.size), aidx, aptr), shape=(nb, nb))
+    sym = symbolic(adj, order)
+    parent, count = sym.parent, sym.counts
+    nchild = np.bincount(parent[parent >= 0], minlength=nb)
+    j = np.arange(1, nb)
+    cont = (parent[j - 1] == j) & (nchild[j] == 1) & (count[j - 1] == count[j] + 1)
+    sn_start = np.r_[0, j[~cont]].astype(np.int64) if nb else np.zeros(0, np.int64)
+    bstart = _amalgamate(sn_start, count, parent, nb)
+    key = _structure(bstart, parent, count, sym.lower)
+    brptr = np.r_[0, np.cumsum(np.bincount(key // max(nb, 1), minlength=bstart.size))]
+    return sym.perm, bstart, brptr.astype(np.int64), key % max(nb, 1)
 
 
 class SupernodalSolver(LinearSolver):
@@ -80,43 +109,45 @@ class SupernodalSolver(LinearSolver):
                               "(pip install 'microlie[fast]') and MICROLIE_FAST != 0")
         self._c: Any = mod
 
-    def analyse(self, indptr, indices, n, block_size=1):
-        super().analyse(indptr, indices, n)
+    def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
         self._factored = False
         bs = block_size if block_size > 0 and n % block_size == 0 else 1
         nb = n // bs
-        # elimination tree, postorder (supernodes contiguous) and column counts of the block
-        # graph: from the pattern alone (ordering.symbolic)
-        blocks = _blocks(indptr, indices, bs)
-        if blocks is None:
+        if block_pattern is not None and len(block_pattern[0]) != nb + 1:
+            raise ValueError(f"block_pattern must have {nb + 1} block column pointers for "
+                             f"blocks of {bs}, got {len(block_pattern[0])}")
+        super().analyse(indptr, indices, n, bs, block_pattern)
+        # the block pattern: the caller's (nothing is read back), else read from the scalar one
+        blocks = self._given_blocks[:2] if self._given_blocks is not None else \
+            _blocks(indptr, self.indices, bs)
+        self.dense_blocks = blocks is not None
+        if blocks is None:  # the block graph of a pattern whose blocks are not dense
             adj = graph(indptr, indices, n, bs)
-        else:  # one entry per block
-            adj = sp.csr_matrix((np.ones(blocks.col.size), (blocks.row, blocks.col)),
-                                shape=(nb, nb))
-        sym = fill_order(adj, self.ordering)
-        parent, count = sym.parent, sym.counts
-        nchild = np.bincount(parent[parent >= 0], minlength=nb)
-        j = np.arange(1, nb)
-        cont = (parent[j - 1] == j) & (nchild[j] == 1) & (count[j - 1] == count[j] + 1)
-        sn_start = np.r_[0, j[~cont]].astype(np.int64)
-        bstart = _amalgamate(sn_start, count, parent, nb)
-        self.sperm = (sym.perm[:, None] * bs + np.arange(bs)).ravel()  # scalar: new -> old
-        self._symbolic(bstart, _structure(bstart, parent, count, sym.lower), n, nb, bs,
-                       blocks)
+            aptr, aidx = adj.indptr.astype(np.int64), adj.indices.astype(np.int64)
+        else:
+            aptr, aidx = blocks
+        order = minimum_degree_blocks(aptr, aidx, nb).astype(np.int64)
+        sym_c = _compiled_symbolic() if self._c is not None else None
+        if sym_c is not None:  # elimination tree, counts, supernodes, structures in C
+            perm, _, _, bstart, brptr, brow = sym_c.supernodes(aptr, aidx, order, sum(_RELAX, ()))
+        else:
+            perm, bstart, brptr, brow = _supernodes(aptr, aidx, nb, order)
+        self.sperm = (perm[:, None] * bs + np.arange(bs)).ravel()  # scalar: new -> old
+        self._symbolic(perm, bstart, brptr, brow, n, nb, bs, blocks, sym_c)
         self._numpy_plan = None if self._c is not None else NumpyLoop(self)
 
-    def _symbolic(self, bstart: np.ndarray, key: np.ndarray, n: int, nb: int, bs: int,
-                  blocks: _Blocks | None) -> None:
-        """Panels, row structures, the assembly map and the update pairs (vectorised) from the
-        block row structures ``key = s * nb + row`` (sorted) of the supernodes (and the
-        pattern's blocks, when it is made of dense blocks)."""
+    def _symbolic(self, perm: np.ndarray, bstart: np.ndarray, brptr: np.ndarray,
+                  brow: np.ndarray, n: int, nb: int, bs: int,
+                  blocks: tuple[np.ndarray, np.ndarray] | None, sym_c: Any) -> None:
+        """Panels, row structures, the assembly map and the update pairs from the block row
+        structures of the supernodes (``brow[brptr[s]:brptr[s + 1]]``, sorted: its columns
+        first) and, when the pattern is made of dense blocks, its block CSC ``blocks``; the
+        maps in C with ``sym_c`` (``microlie_fast._symbolic``), else vectorised."""
         ns = bstart.size
         bend = np.r_[bstart[1:], nb]
         sn_of_b = np.repeat(np.arange(ns), bend - bstart)
-        bsid, brow = key // nb, key % nb
-        bm = np.bincount(bsid, minlength=ns)
+        bm = np.diff(brptr)
         bk = bend - bstart
-        brptr = np.r_[0, np.cumsum(bm)]
         k, m = bk * bs, bm * bs
         c0 = bstart * bs
         px = np.r_[0, np.cumsum(m * k)]
@@ -129,11 +160,16 @@ class SupernodalSolver(LinearSolver):
         self.ns, self.bs, self.nx = ns, bs, int(px[-1])
         self.c0, self.k, self.m, self.px = c0, k, m, px[:-1].copy()
         self.rows, self.rptr, self.sparent = rows, rptr, sparent
+        key = None if sym_c is not None else np.repeat(np.arange(ns), bm) * nb + brow
         # assembly: pattern entry e (old numbering) -> its place in the panels, or the dump
         # slot nx for the strict upper triangle
         inv_b = np.empty(nb, np.int64)
-        inv_b[self.sperm[::bs] // bs] = np.arange(nb)
-        if blocks is not None:
+        inv_b[perm] = np.arange(nb)
+        if blocks is not None and sym_c is not None:
+            amap = sym_c.amap(blocks[0], blocks[1], inv_b, sn_of_b, brptr, brow, bstart,
+                              self.px, bs, self.nx)
+        elif blocks is not None:
+            assert key is not None
             amap = _dense_amap(blocks, bs, nb, inv_b, sn_of_b, key, brptr, px, c0, m,
                                self.nx)
         else:  # blocks that are not dense: entry by entry
@@ -148,9 +184,23 @@ class SupernodalSolver(LinearSolver):
             if pos.size and not np.array_equal(gkey[np.minimum(pos, gkey.size - 1)],
                                                s * n + rn[low]):
                 raise AssertionError("supernodal analysis: an entry outside its supernode")
-            amap = np.full(self.indices.size, self.nx, np.int64)
+            amap = np.full(self.nnz, self.nx, np.int64)
             amap[low] = px[s] + (cn[low] - c0[s]) * m[s] + pos - rptr[s]
-        self.amap = amap
+        # int32 when it fits (half the memory; the compiled loop takes either)
+        self.amap = amap.astype(np.int32, copy=False) if self.nx < 2**31 - 1 else amap
+        u = (m - k)
+        self.wsize = int((u * u).max()) if ns else 0
+        self.usize = int(u.max()) if ns else 0
+        # the diagonal of L in the compiled layout (column c of supernode s at px + c m + c)
+        sid = np.repeat(np.arange(ns), k)
+        col = np.arange(n) - np.repeat(c0, k)
+        self._ldiag = px[:-1][sid] + col * (m[sid] + 1)
+        if sym_c is not None:
+            pptr, pt, pa, pb, relptr, relb = sym_c.updates(brptr, brow, bstart, nb)
+            self.rel, self.relptr, self.pptr = relb, relptr, pptr
+            self.pt, self.pa, self.pb = pt, pa * bs, pb * bs
+            return
+        assert key is not None
         # update pairs (s, t): the rows below s's diagonal block owned by ancestor t form the
         # run [a, b) of s's below rows; rel are the local rows in t of s's below rows a..u-1
         bu = bm - bk
@@ -164,7 +214,7 @@ class SupernodalSolver(LinearSolver):
             np.zeros(0, bool)
         first = np.flatnonzero(new)
         ps, pt, pa = b_s[first], b_t[first], b_i[first]
-        pb = np.r_[pa[1:], 0]
+        pb = np.r_[pa[1:], 0] if pa.size else pa.copy()
         last = np.r_[ps[1:] != ps[:-1], True] if ps.size else np.zeros(0, bool)
         pb[last] = bu[ps[last]]
         lens = bu[ps] - pa  # block rows a..u-1 of each pair
@@ -178,26 +228,18 @@ class SupernodalSolver(LinearSolver):
         bpos = np.searchsorted(key, q)
         if bpos.size and not np.array_equal(key[np.minimum(bpos, key.size - 1)], q):
             raise AssertionError("supernodal analysis: an update outside its target")
-        relb = bpos - brptr[t_rep]
-        self.rel = (relb[:, None] * bs + np.arange(bs)).ravel()
-        self.relptr = start * bs
+        self.rel = bpos - brptr[t_rep]
+        self.relptr = start
         self.pptr = np.searchsorted(ps, np.arange(ns + 1)).astype(np.int64)
         self.pt, self.pa, self.pb = pt, pa * bs, pb * bs
-        u = (m - k)
-        self.wsize = int((u * u).max()) if ns else 0
-        self.usize = int(u.max()) if ns else 0
-        # the diagonal of L in the compiled layout (column c of supernode s at px + c m + c)
-        sid = np.repeat(np.arange(ns), k)
-        col = np.arange(n) - np.repeat(c0, k)
-        self._ldiag = px[:-1][sid] + col * (m[sid] + 1)
 
     # ---- numeric factorisation -------------------------------------------------------------
 
     def factorize(self, data: np.ndarray) -> None:
         data = np.ascontiguousarray(data, dtype=np.float64)
-        if data.shape != (self.indices.size,):
+        if data.shape != (self.nnz,):
             raise ValueError(f"data has shape {data.shape}; the analysed pattern has "
-                             f"{self.indices.size} entries")
+                             f"{self.nnz} entries")
         # a failed factorisation leaves no factor to solve with (the NumPy loop overwrites
         # the last one in place; the C loop's would be stale)
         self._factored = False
@@ -265,20 +307,10 @@ class SupernodalSolver(LinearSolver):
         return x[:, 0] if vec else x
 
 
-class _Blocks:
-    """The pattern of a matrix made of dense ``bs x bs`` blocks (from :func:`_blocks`). The
-    scalar CSC's entries come in groups of ``bs`` (the rows of one block in one scalar
-    column), group ``g`` holding rows ``bs * row[block[g]] + (0..bs-1)`` of column ``bs *
-    col[block[g]] + cc[g]``; block ``b`` is in block column ``col[b]``, block row ``row[b]``."""
-
-    def __init__(self, col: np.ndarray, row: np.ndarray, block: np.ndarray,
-                 cc: np.ndarray) -> None:
-        self.col, self.row, self.block, self.cc = col, row, block, cc
-
-
-def _blocks(indptr: np.ndarray, indices: np.ndarray, bs: int) -> _Blocks | None:
-    """The block pattern of a scalar CSC pattern made of dense ``bs x bs`` blocks (``None``
-    when it is not: then the analysis works entry by entry)."""
+def _blocks(indptr: np.ndarray, indices: np.ndarray, bs: int
+            ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The block CSC ``(bptr, bidx)`` (int64) of a scalar CSC pattern made of dense ``bs x
+    bs`` blocks (``None`` when it is not: then the analysis works entry by entry)."""
     n = indptr.size - 1
     if bs < 1 or n % bs:
         return None
@@ -295,27 +327,36 @@ def _blocks(indptr: np.ndarray, indices: np.ndarray, bs: int) -> _Blocks | None:
         return None
     G = r // bs  # each group's block row
     nblk = l0 // bs
-    ng = G.size
-    gcol = np.repeat(np.arange(nb, dtype=np.int64), bs * nblk)
-    gnb = nblk[gcol]
-    o = np.arange(ng, dtype=np.int64) - np.repeat(ip[:-1:bs] // bs, bs * nblk)
-    cc, k = np.divmod(o, gnb)
+    bptr = np.r_[0, np.cumsum(nblk)].astype(np.int64)
+    cc, _ = _groups(bptr, bs)
     # the scalar columns of a block column hold the same block rows
-    if not np.array_equal(G[np.arange(ng) - cc * gnb], G):
+    if not np.array_equal(G[np.arange(G.size) - cc * np.repeat(nblk, bs * nblk)], G):
         return None
-    first = cc == 0
-    block = (np.cumsum(nblk) - nblk)[gcol] + k
-    return _Blocks(gcol[first], G[first].astype(np.int64), block, cc)
+    return bptr, G[cc == 0].astype(np.int64)
 
 
-def _dense_amap(blocks: _Blocks, bs: int, nb: int, inv_b: np.ndarray, sn_of_b: np.ndarray,
-                key: np.ndarray, brptr: np.ndarray, px: np.ndarray, c0: np.ndarray,
-                m: np.ndarray, nx: int) -> np.ndarray:
-    """The assembly map of a pattern of dense blocks, from one lookup per block: entry
-    ``(rr, cc)`` of a block of the lower triangle goes to its block's place in its panel plus
-    ``cc * m + rr``; the upper triangle (blocks above the diagonal, and ``rr < cc`` in the
-    diagonal blocks) to the dump slot ``nx``."""
-    Cb, Rb = inv_b[blocks.col], inv_b[blocks.row]
+def _groups(bptr: np.ndarray, bs: int) -> tuple[np.ndarray, np.ndarray]:
+    """The groups of ``bs`` consecutive entries of the scalar CSC of a dense-block pattern
+    (block CSC ``bptr``), in order: each one's column within its block (``cc``) and its
+    block (index into the block CSC)."""
+    nblk = np.diff(bptr)
+    ng = bs * int(bptr[-1])
+    gcol = np.repeat(np.arange(nblk.size, dtype=np.int64), bs * nblk)
+    o = np.arange(ng, dtype=np.int64) - np.repeat(bs * bptr[:-1], bs * nblk)
+    cc, k = np.divmod(o, nblk[gcol]) if ng else (o, o)
+    return cc, bptr[:-1][gcol] + k
+
+
+def _dense_amap(blocks: tuple[np.ndarray, np.ndarray], bs: int, nb: int, inv_b: np.ndarray,
+                sn_of_b: np.ndarray, key: np.ndarray, brptr: np.ndarray, px: np.ndarray,
+                c0: np.ndarray, m: np.ndarray, nx: int) -> np.ndarray:
+    """The assembly map of a pattern of dense blocks (block CSC ``blocks``), from one
+    lookup per block: entry ``(rr, cc)`` of a block of the lower triangle goes to its block's
+    place in its panel plus ``cc * m + rr``; the upper triangle (blocks above the diagonal,
+    and ``rr < cc`` in the diagonal blocks) to the dump slot ``nx``."""
+    bptr, bidx = blocks
+    Cb = inv_b[np.repeat(np.arange(nb, dtype=np.int64), np.diff(bptr))]
+    Rb = inv_b[bidx]
     low = Rb >= Cb
     s = sn_of_b[Cb]
     q = s[low] * nb + Rb[low]
@@ -325,7 +366,7 @@ def _dense_amap(blocks: _Blocks, bs: int, nb: int, inv_b: np.ndarray, sn_of_b: n
     sl = s[low]
     base = np.zeros(Cb.size, np.int64)
     base[low] = px[sl] + (Cb[low] * bs - c0[sl]) * m[sl] + (bpos - brptr[sl]) * bs
-    b, cc = blocks.block, blocks.cc
+    cc, b = _groups(bptr, bs)
     amap = (base[b] + cc * m[s][b])[:, None] + np.arange(bs, dtype=np.int64)
     amap[~low[b]] = nx
     d = np.flatnonzero((Rb == Cb)[b])  # groups of the diagonal blocks: rows rr < cc dumped

@@ -234,9 +234,11 @@ class NumpyLoop:
         (a run of the diagonal block also writes the unused upper part of ``L11``), in words
         of :attr:`word` entries; else entry by entry."""
         bs, nx, w = self.bs, s.nx, self.word
-        ip, ix = np.asarray(s.indptr), np.asarray(s.indices)
-        runs = ix.size % bs == 0 and bool(np.all(ip % bs == 0))
-        if runs and ix.size:
+        runs = s.dense_blocks  # else look for runs of bs rows in the scalar pattern
+        if not runs:
+            ip, ix = np.asarray(s.indptr), np.asarray(s.indices)
+            runs = ix.size % bs == 0 and bool(np.all(ip % bs == 0))
+        if not s.dense_blocks and runs and ix.size:
             r = ix.reshape(-1, bs)
             runs = bool(np.all(r[:, 0] % bs == 0) and np.all(r - r[:, :1] == np.arange(bs)))
         amap = s.amap
@@ -274,13 +276,13 @@ class NumpyLoop:
         dia1 = (self.dpos[tc] + col * self.K[tc]) // bs
         bel1 = (self.bpos[tc] + col * self.U[tc] - self.k[tc]) // bs
         kt1 = self.k[tc] // bs
-        rel1 = s.relptr[pc] // bs + r0  # the first run's place in the block rel
+        rel1 = s.relptr[pc] + r0  # the first run's place in the block rel
         el1 = lev[sc]
         del sc, tc, col, jj
         x = np.repeat(np.arange(pc.size), nrun)
         r = np.arange(int(nrun.sum())) - np.repeat(np.cumsum(nrun) - nrun, nrun)
         src = src1[x] + r0[x] + r
-        rowb = s.rel[::bs][rel1[x] + r] // bs
+        rowb = s.rel[rel1[x] + r]
         dst = np.where(rowb < kt1[x], dia1[x], bel1[x]) + rowb
         el = el1[x]
         del x, r, rowb

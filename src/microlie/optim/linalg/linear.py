@@ -45,14 +45,19 @@ def _checked(x: np.ndarray) -> np.ndarray:
     return x
 
 
-def block_order(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int) -> np.ndarray:
+def block_order(indptr: np.ndarray, indices: np.ndarray, n: int, bs: int,
+                block_pattern: Any = None) -> np.ndarray:
     """A fill-reducing order of the unknowns (new -> old) from the minimum-degree order of the
-    block graph (``bs`` times smaller than the scalar one; see
+    block graph (``bs`` times smaller than the scalar one; ``block_pattern``: its CSC, else
+    read from the scalar pattern; see
     :func:`~microlie.optim.linalg.ordering.minimum_degree_blocks`)."""
     if bs <= 0 or n % bs:
         bs = 1
-    G = graph(indptr, indices, n, bs)
-    q = minimum_degree_blocks(G.indptr, G.indices, G.shape[0])
+    if block_pattern is not None and bs > 1:
+        q = minimum_degree_blocks(block_pattern[0], block_pattern[1], n // bs)
+    else:
+        G = graph(indptr, indices, n, bs)
+        q = minimum_degree_blocks(G.indptr, G.indices, G.shape[0])
     return (q[:, None] * bs + np.arange(bs)).ravel()
 
 
@@ -63,11 +68,12 @@ class ScipySolver(LinearSolver):
 
     name = "scipy"
 
-    def analyse(self, indptr, indices, n, block_size=1):
+    def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
         import scipy.sparse as sp  # type: ignore[import-untyped]
 
-        super().analyse(indptr, indices, n)
-        p = block_order(indptr, indices, n, block_size)
+        super().analyse(indptr, indices, n, block_size, block_pattern)
+        indices = self.indices
+        p = block_order(indptr, indices, n, block_size, block_pattern)
         tag = sp.csc_matrix((np.arange(1, indices.size + 1, dtype=np.float64), indices,
                              indptr), shape=(n, n))[p][:, p].tocsc()
         tag.sort_indices()
@@ -99,8 +105,8 @@ class QdldlSolver(LinearSolver):
 
     name = "qdldl"
 
-    def analyse(self, indptr, indices, n, block_size=1):
-        super().analyse(indptr, indices, n)
+    def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
+        super().analyse(indptr, indices, n, block_size, block_pattern)
         self._triangles()
         import qdldl  # type: ignore[import-not-found]
 
@@ -143,8 +149,8 @@ class PardisoSolver(LinearSolver):
 
     name = "pardiso"
 
-    def analyse(self, indptr, indices, n, block_size=1):
-        super().analyse(indptr, indices, n)
+    def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
+        super().analyse(indptr, indices, n, block_size, block_pattern)
         self._triangles()
         import scipy.sparse as sp  # type: ignore[import-untyped]
 

@@ -170,8 +170,8 @@ class SchurSolver(LinearSolver):
         self.reduced_solver: LinearSolver | None = None
 
     # ---------------------------------------------------------------- analysis
-    def analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int,
-                block_size: int = 1) -> None:
+    def analyse(self, indptr: np.ndarray, indices: np.ndarray | None, n: int,
+                block_size: int = 1, block_pattern: Any = None) -> None:
         """The symbolic work, once per pattern: the eliminated blocks' positions, the pattern
         of the reduced system (its blocks: ``A``'s and every pair of neighbours of an
         eliminated node), the scatter of every product into it, and the reduced system's own
@@ -183,7 +183,7 @@ class SchurSolver(LinearSolver):
             The CSC pattern of the full symmetric matrix (rows sorted in each column).
         n : int
             The matrix size (``node_off[-1]``).
-        block_size : int
+        block_size, block_pattern
             Unused (the nodes give the blocks); for the common interface.
 
         Raises
