@@ -49,12 +49,17 @@ def expand_blocks(bptr: np.ndarray, bidx: np.ndarray, block_size: int
     d = int(block_size)
     nb = len(bptr) - 1
     nnz = int(bptr[-1]) * d * d
-    # SciPy's compiled block-sparse conversion: the block CSC arrays of a matrix are the block
-    # CSR arrays of its transpose, whose CSR arrays are the matrix's CSC ones
-    S = sp.bsr_matrix((np.ones((int(bptr[-1]), d, d), bool), np.asarray(bidx),
-                       np.asarray(bptr)), shape=(nb * d, nb * d)).tocsr()
     ptype = np.int32 if nnz < 2**31 else np.int64
-    return S.indptr.astype(ptype, copy=False), S.indices.astype(np.int32, copy=False)
+    bptr = np.asarray(bptr, np.int64)
+    # the rows of block column v's scalar columns: each stored block (u, v) gives d u + (0..d-1);
+    # the d scalar columns of v repeat that list (NumPy only: no SciPy import on this path)
+    rows = (np.asarray(bidx, np.int64)[:, None] * d + np.arange(d)).ravel()
+    lens = np.repeat(np.diff(bptr) * d, d)
+    indptr = np.zeros(nb * d + 1, ptype)
+    np.cumsum(lens, out=indptr[1:])
+    starts = np.repeat(bptr[:-1] * d, d)
+    pos = np.arange(nnz, dtype=np.int64) - np.repeat(indptr[:-1].astype(np.int64) - starts, lens)
+    return indptr, rows[pos].astype(np.int32, copy=False)
 
 
 class SingularSystemError(ValueError):

@@ -126,7 +126,7 @@ class SupernodalSolver(LinearSolver):
             aptr, aidx = adj.indptr.astype(np.int64), adj.indices.astype(np.int64)
         else:
             aptr, aidx = blocks
-        order = minimum_degree_blocks(aptr, aidx, nb).astype(np.int64)
+        order = minimum_degree_blocks(aptr, aidx, nb, self.ordering).astype(np.int64)
         sym_c = _compiled_symbolic() if self._c is not None else None
         if sym_c is not None:  # elimination tree, counts, supernodes, structures in C
             perm, _, _, bstart, brptr, brow = sym_c.supernodes(aptr, aidx, order, sum(_RELAX, ()))

@@ -155,7 +155,8 @@ def _mmd(A: Any) -> np.ndarray:
     return np.argsort(lu.perm_c).astype(np.int64)
 
 
-def minimum_degree_blocks(indptr: np.ndarray, indices: np.ndarray, nb: int) -> np.ndarray:
+def minimum_degree_blocks(indptr: np.ndarray, indices: np.ndarray, nb: int,
+                          method: str = "auto") -> np.ndarray:
     """The fill-reducing order of a block (node) graph: approximate minimum degree.
 
     With the compiled code, our approximate minimum degree (Amestoy, Davis and Duff 1996:
@@ -173,6 +174,9 @@ def minimum_degree_blocks(indptr: np.ndarray, indices: np.ndarray, nb: int) -> n
         entries are ignored; the order within a row does not matter.
     nb : int
         The number of nodes.
+    method : {"auto", "mmd"}
+        ``"auto"`` as above; ``"mmd"`` always SciPy's SuperLU minimum degree (the order a
+        default install without the compiled code uses).
 
     Returns
     -------
@@ -182,8 +186,9 @@ def minimum_degree_blocks(indptr: np.ndarray, indices: np.ndarray, nb: int) -> n
     Raises
     ------
     ValueError
-        ``indptr`` is not ``nb + 1`` non-decreasing pointers from 0, an index is outside
-        ``[0, nb)``, or the pattern is not symmetric (``(i, j)`` without ``(j, i)``).
+        ``method`` is not one of :data:`ORDERINGS`, ``indptr`` is not ``nb + 1``
+        non-decreasing pointers from 0, an index is outside ``[0, nb)``, or the pattern is
+        not symmetric (``(i, j)`` without ``(j, i)``).
 
     Examples
     --------
@@ -200,6 +205,8 @@ def minimum_degree_blocks(indptr: np.ndarray, indices: np.ndarray, nb: int) -> n
     nb = int(nb)
     if nb < 0:
         raise ValueError(f"nb must be >= 0, got {nb}")
+    if method not in ORDERINGS:
+        raise ValueError(f"unknown ordering {method!r}: expected one of {ORDERINGS}")
     indptr = np.asarray(indptr)
     indices = np.asarray(indices)
     for name, a in (("indptr", indptr), ("indices", indices)):
@@ -207,7 +214,7 @@ def minimum_degree_blocks(indptr: np.ndarray, indices: np.ndarray, nb: int) -> n
             raise ValueError(f"{name} must be a 1-D integer array, got {a.dtype} {a.shape}")
     if indptr.size != nb + 1:
         raise ValueError(f"indptr must have nb + 1 = {nb + 1} entries, got {indptr.size}")
-    mod = compiled("_order")
+    mod = compiled("_order") if method == "auto" else None
     if mod is not None:
         return mod.order(np.ascontiguousarray(indptr, np.intp),
                          np.ascontiguousarray(indices, np.intp), nb).astype(np.int64, copy=False)
