@@ -1,5 +1,5 @@
 """microlie against a native C++ loop (benchmarks/native/lie_native.cpp), with and without the
-compiled kernels of microlie[fast], at N = 1e6 (batched) and on one element (against gtsam).
+compiled kernels (microlie._c), at N = 1e6 (batched) and on one element (against gtsam).
 
     PYTHONPATH=src python benchmarks/native.py [--n 1000000] [--rounds 7]
 
@@ -40,7 +40,7 @@ def build(blocked: bool = False) -> ctypes.CDLL:
     out = Path(tempfile.mkdtemp()) / "liblie_native.so"
     if blocked:
         cmd = ["gcc", *FLAGS, "-std=c11", "-DLM_LIBMVEC",
-               f"-I{HERE.parent / 'fast' / 'src' / 'microlie_fast'}",
+               f"-I{HERE.parent / 'src' / 'microlie' / '_c'}",
                str(BLOCKED)]
     else:
         cmd = ["g++", *FLAGS, str(SRC)]
@@ -90,8 +90,8 @@ def generic(name: str, fn):
 
 
 def uncached(fn):
-    """``fn`` with the output cache of microlie_fast switched off (fresh pages every call)."""
-    lie = sys.modules.get("microlie_fast._lie")
+    """``fn`` with the output cache of microlie._c._lie switched off (fresh pages every call)."""
+    lie = sys.modules.get("microlie._c._lie")
     if lie is None or not hasattr(lie, "set_cache_limit"):
         return None
 
@@ -122,7 +122,7 @@ def timed(fn, number: int = 1) -> float:
 
 def interleaved(fns: dict, rounds: int, number: int = 1) -> dict:
     """Round-robin rounds; in each, every variant is called once untimed before its timed
-    calls, so that each is measured in its steady state (e.g. microlie_fast's output cache,
+    calls, so that each is measured in its steady state (e.g. microlie._c._lie's output cache,
     which another variant may have emptied, is refilled) rather than after its neighbour."""
     times: dict = {k: [] for k in fns}
     for _ in range(rounds):

@@ -1,4 +1,4 @@
-"""The optional compiled kernels (microlie[fast], ``pip install ./fast``): every one agrees with
+"""The compiled kernels (``microlie._c``, built by ``pip install .``): every one agrees with
 the generic kernel it replaces on the hard inputs (float64 and float32, batched and single), the
 generated header matches microlie.groups._math, ``MICROLIE_FAST=0`` disables them, bad arguments
 are errors. The reference is the generic component kernel (independent code: NumPy formulas of
@@ -28,7 +28,7 @@ def _compiled():
     test may have swapped a replacement)."""
     if os.environ.get("MICROLIE_FAST") == "0":
         pytest.skip("MICROLIE_FAST=0: the generic kernels only")
-    require("microlie_fast")
+    require("microlie._c._lie")
     K = importlib.import_module("microlie._kernels")
     from microlie import _fast
 
@@ -159,7 +159,7 @@ def test_compiled_kernels_are_used_by_the_classes():
 
 
 def _gen():
-    spec = importlib.util.spec_from_file_location("gen_coeffs", ROOT / "fast" / "gen_coeffs.py")
+    spec = importlib.util.spec_from_file_location("gen_coeffs", ROOT / "tools" / "gen_coeffs.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -167,7 +167,7 @@ def _gen():
 
 def test_coefficient_header_is_generated_from_the_generic_series():
     gen = _gen()
-    assert gen.HEADER.read_text() == gen.render(), "run: PYTHONPATH=src python fast/gen_coeffs.py"
+    assert gen.HEADER.read_text() == gen.render(), "run: PYTHONPATH=src python tools/gen_coeffs.py"
     from microlie.groups import _math as M
 
     text = gen.render()
@@ -176,7 +176,7 @@ def test_coefficient_header_is_generated_from_the_generic_series():
 
 def test_environment_variable_disables_the_compiled_kernels():
     if os.environ.get("MICROLIE_FAST") != "0":
-        require("microlie_fast")
+        require("microlie._c._lie")
     code = "from microlie import _fast; print(len(_fast.installed()), _fast.install())"
     env = dict(os.environ, MICROLIE_FAST="0")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
@@ -187,7 +187,7 @@ def test_environment_variable_disables_the_compiled_kernels():
 def test_compiled_kernel_rejects_bad_arguments():
     if os.environ.get("MICROLIE_FAST") == "0":
         pytest.skip("MICROLIE_FAST=0")
-    lie = require("microlie_fast._lie")
+    lie = require("microlie._c._lie")
     with pytest.raises(ValueError, match=r"SE3.exp: argument 0 .*\(N, 6\)"):
         lie.se3_exp(np.zeros((2, 5)))
     with pytest.raises(ValueError, match="same N and dtype"):
@@ -205,7 +205,7 @@ def test_output_cache_reuses_freed_blocks_and_never_a_live_one():
     an array still alive never shares memory with a new result, and the limit 0 disables it."""
     if os.environ.get("MICROLIE_FAST") == "0":
         pytest.skip("MICROLIE_FAST=0")
-    lie = require("microlie_fast._lie")
+    lie = require("microlie._c._lie")
     from microlie import SE3
 
     rng = np.random.default_rng(3)
@@ -237,8 +237,8 @@ def test_output_cache_reuses_freed_blocks_and_never_a_live_one():
 
 
 def test_output_cache_limit_from_the_environment_is_validated():
-    require("microlie_fast._lie")
-    code = "import microlie_fast._lie as L; print(L.cache_info()['limit'])"
+    require("microlie._c._lie")
+    code = "import microlie._c._lie as L; print(L.cache_info()['limit'])"
     env = dict(os.environ, MICROLIE_FAST_CACHE_MB="3")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True).stdout.split()
@@ -249,11 +249,11 @@ def test_output_cache_limit_from_the_environment_is_validated():
 
 
 def test_compiled_one_element_functions_are_in_use():
-    """With the extra, SO3/SE3 single elements run the C functions of ``microlie_fast._one``
+    """With the extra, SO3/SE3 single elements run the C functions of ``microlie._c._one``
     (moved here from test_single.py, whose every test runs on two implementations)."""
     if os.environ.get("MICROLIE_FAST") == "0":
         pytest.skip("MICROLIE_FAST=0: the Python functions only")
-    one = require("microlie_fast._one")
+    one = require("microlie._c._one")
     from microlie import _fast
 
     names = {f"{g}.{op}" for g in ("SO3", "SE3") for op in _single.OPS}

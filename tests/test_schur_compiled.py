@@ -1,4 +1,4 @@
-"""The compiled Schur complement of bundle adjustment (``microlie_fast._schur``): the dense
+"""The compiled Schur complement of bundle adjustment (``microlie._c._schur``): the dense
 reduced camera system it forms equals the one computed directly from the dense normal matrix
 (``H_cc - H_cp H_pp^-1 H_pc``, an independent computation), as does the NumPy formation it
 replaces, with held cameras and points, points seen twice by one camera and a point block that is
@@ -20,7 +20,7 @@ from microlie.optim.linalg.schur import NormalEquations, SchurStructure
 def _compiled():
     if os.environ.get("MICROLIE_FAST") == "0":
         pytest.skip("MICROLIE_FAST=0: the NumPy formation only")
-    require("microlie_fast._schur")
+    require("microlie._c._schur")
     assert schur._fast() is not None
 
 

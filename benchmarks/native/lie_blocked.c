@@ -1,10 +1,22 @@
 /* The native loop in the blocked form (benchmarks/native.py): rows copied into
- * structure-of-arrays blocks of S elements, the element formula of microlie_fast's lie_math.h
+ * structure-of-arrays blocks of S elements, the element formula of src/microlie/_c/lie_math.h
  * in an `omp simd` loop over the block (GCC vectorises it, libmvec for tan/sin/cos/atan2), copied
  * back; outputs preallocated. This is what a careful C programmer gets on microlie's row layout
  * for the operations whose rows of 6 or 7 do not vectorise as plain loops (lie_native.cpp).
  * Built by benchmarks/native.py: gcc -O3 -march=native -fno-math-errno -fopenmp-simd -std=c11
- * -DLM_LIBMVEC -shared -fPIC -I fast/src/microlie_fast -lmvec */
+ * -DLM_LIBMVEC -shared -fPIC -I src/microlie/_c -lmvec. The reference keeps glibc's libmvec (the
+ * package itself no longer links it: its build is portable, issue 21). */
+#include <math.h>
+#ifdef LM_LIBMVEC
+#pragma omp declare simd notinbranch
+extern double tan(double);
+#pragma omp declare simd notinbranch
+extern double sin(double);
+#pragma omp declare simd notinbranch
+extern double cos(double);
+#pragma omp declare simd notinbranch
+extern double atan2(double, double);
+#endif
 #include "lie_math.h"
 
 typedef long ix;

@@ -1,11 +1,12 @@
-"""Compiled kernels for microlie's kernel registry (see ``microlie._kernels``).
+"""The compiled kernels of microlie: extension modules built from the C sources of this folder
+by the package's ``setup.py`` (``pip install .``), reached only through
+:func:`microlie._fast.module` (``None`` when a module was not built or ``MICROLIE_FAST=0``).
+The build is optional: without a C compiler none of them exists and the generic NumPy kernels
+run (``microlie --version`` says which are active).
 
-Installed with ``pip install "microlie[fast]"`` (from a checkout: ``pip install ./fast``);
-``import microlie`` registers them for NumPy inputs when this package is importable, unless the
-environment variable ``MICROLIE_FAST=0`` is set (``microlie._fast``). ``_lie.KERNELS`` maps each
-registry name (``"SE3.exp"``) to the function of ``_lie`` that implements it; each function takes
-C-contiguous arrays of shape ``(N, k)``, all float64 or all float32, and returns a tuple of fresh
-arrays of that dtype, one per output.
+``_lie.KERNELS`` maps each registry name (``"SE3.exp"``) to the function of ``_lie`` that
+implements it; each function takes C-contiguous arrays of shape ``(N, k)``, all float64 or all
+float32, and returns a tuple of fresh arrays of that dtype, one per output.
 
 Outputs of 1 MB or more come from a small cache of freed blocks, so that a loop over large
 batches reuses memory whose pages are already mapped instead of paying a page fault per 4 KB page
@@ -16,9 +17,7 @@ reused too; ``set_cache_limit`` releases it); ``_lie.cache_info()`` reports it (
 A block is only reused after the array that owned it is freed.
 
 ``_text.parse_table`` reads numeric text tables (TUM, KITTI, EuRoC trajectory files) for
-``microlie.traj.io``, with the values of Python's ``float`` (see ``_text.c``).
+``microlie.traj.io``, with the values of Python's ``float`` (see ``_text.c``). ``_info.info()``
+says which ISA the modules were built for and which version of the hot loops runs on this CPU
+(``dispatch.h``).
 """
-
-from . import _lie
-
-__all__ = ["_lie"]

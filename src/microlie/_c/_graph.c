@@ -1,4 +1,4 @@
-/* microlie_fast._graph: the pose-graph edge loop of microlie.optim in one compiled pass.
+/* microlie._c._graph: the pose-graph edge loop of microlie.optim in one compiled pass.
  *
  * For a batch of SE(3) or SE(2) BetweenFactors r = Log((X_i Z)^-1 X_j) with square-root
  * information L
@@ -317,6 +317,23 @@ LM_INLINE void normal_loop(int g, const double *X, const int64_t *ii, const int6
     }
 }
 
+/* the loops of both groups, one function per dispatched ISA (LM_HOT: dispatch.h) */
+LM_HOT static void cost_any(int g, const double *X, const int64_t *ii, const int64_t *jj,
+                            const double *Z, const double *L, ix lstep, ix m, double *s) {
+    if (g == SE3) cost_loop(SE3, X, ii, jj, Z, L, lstep, m, s);
+    else cost_loop(SE2, X, ii, jj, Z, L, lstep, m, s);
+}
+
+LM_HOT static void normal_any(int g, const double *X, const int64_t *ii, const int64_t *jj,
+                              const double *Z, const double *L, ix lstep, const double *wts,
+                              ix m, const int64_t *starts, const int64_t *lens,
+                              const int64_t *goff, double *s, double *data, double *grad) {
+    if (g == SE3)
+        normal_loop(SE3, X, ii, jj, Z, L, lstep, wts, m, starts, lens, goff, s, data, grad);
+    else
+        normal_loop(SE2, X, ii, jj, Z, L, lstep, wts, m, starts, lens, goff, s, data, grad);
+}
+
 /* ------------------------------------------------------------------ Python entry points */
 
 static const char *const GNAME[2] = {"se2", "se3"};
@@ -362,8 +379,7 @@ static PyObject *between_cost(int g, PyObject *const *args, Py_ssize_t nargs) {
     const double *x = (const double *)X, *z = (const double *)Z, *l = (const double *)L;
     const int64_t *a = (const int64_t *)ii, *b = (const int64_t *)jj;
     Py_BEGIN_ALLOW_THREADS
-    if (g == SE3) cost_loop(SE3, x, a, b, z, l, lstep, m, (double *)s);
-    else cost_loop(SE2, x, a, b, z, l, lstep, m, (double *)s);
+    cost_any(g, x, a, b, z, l, lstep, m, (double *)s);
     Py_END_ALLOW_THREADS
     Py_RETURN_NONE;
 }
@@ -410,12 +426,8 @@ static PyObject *between_normal(int g, PyObject *const *args, Py_ssize_t nargs) 
     const double *wt = (const double *)w;
     const int64_t *a = (const int64_t *)ii, *b = (const int64_t *)jj;
     Py_BEGIN_ALLOW_THREADS
-    if (g == SE3)
-        normal_loop(SE3, x, a, b, z, l, lstep, wt, m, S4, L2, G2, (double *)s, (double *)data,
-                    (double *)grad);
-    else
-        normal_loop(SE2, x, a, b, z, l, lstep, wt, m, S4, L2, G2, (double *)s, (double *)data,
-                    (double *)grad);
+    normal_any(g, x, a, b, z, l, lstep, wt, m, S4, L2, G2, (double *)s, (double *)data,
+               (double *)grad);
     Py_END_ALLOW_THREADS
     Py_RETURN_NONE;
 }

@@ -1,4 +1,4 @@
-/* microlie_fast._lie: compiled NumPy kernels for microlie's kernel registry.
+/* microlie._c._lie: compiled NumPy kernels for microlie's kernel registry.
  *
  * Each kernel takes C-contiguous arrays of shape (N, k_i), all float64 or all float32 (the caller
  * broadcasts and flattens batch axes), and returns a tuple of fresh arrays of that dtype, one per
@@ -8,7 +8,7 @@
  * are not supported), so each kernel works on blocks of S elements: the rows of a block are
  * copied into structure-of-arrays buffers (component i of element j at buf[i * S + j], converted
  * to double), an `omp simd` loop over the block evaluates the element formula of lie_math.h with
- * unit-stride accesses (vectorised, with glibc's libmvec for tan, sin, cos and atan2), and the
+ * unit-stride accesses (vectorised; the block functions are LM_HOT: dispatch.h), and the
  * results are copied back to rows (rounded to float for float32 inputs). */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -198,7 +198,7 @@ static void *cache_get(size_t n, size_t *cap) {
 }
 
 static void cache_release(PyObject *capsule) {
-    void *p = PyCapsule_GetPointer(capsule, "microlie_fast.block");
+    void *p = PyCapsule_GetPointer(capsule, "microlie._c.block");
     size_t cap = (size_t)(uintptr_t)PyCapsule_GetContext(capsule);
     if (p) cache_put(p, cap);
 }
@@ -209,7 +209,7 @@ static PyObject *new_output(int nd, npy_intp *dims, int type) {
     size_t cap;
     void *p = cache_get(n, &cap);
     if (!p) return PyErr_NoMemory();
-    PyObject *capsule = PyCapsule_New(p, "microlie_fast.block", cache_release);
+    PyObject *capsule = PyCapsule_New(p, "microlie._c.block", cache_release);
     if (!capsule || PyCapsule_SetContext(capsule, (void *)(uintptr_t)cap) < 0) {
         Py_XDECREF(capsule);
         cache_put(p, cap);
@@ -306,14 +306,14 @@ static PyObject *call(const kernel *k, PyObject *const *args, Py_ssize_t nargs) 
 
 /* the block function of an element operation of lie_math.h; input 0 occupies rows 0..KA-1 */
 #define BLOCK(FN, KA)                                                                          \
-    static void blk_##FN(const double *restrict in, double *restrict out, ix m) {               \
+    LM_HOT static void blk_##FN(const double *restrict in, double *restrict out, ix m) {               \
         _Pragma("omp simd") for (ix j = 0; j < m; j++) FN(in + j, in + (KA) * S + j, out + j);  \
     }
 
 /* row loops of the cheap operations (quaternion products): as fast as the native loop, while
  * the copies to and from blocks would double their time */
 #define PLAIN(FN, KA, KB, KO, BODY)                                                            \
-    static void pl_##FN(const double *restrict a, const double *restrict b, double *restrict o,  \
+    LM_HOT static void pl_##FN(const double *restrict a, const double *restrict b, double *restrict o,  \
                         ix n) {                                                                \
         (void)b;                                                                               \
         _Pragma("omp simd") for (ix i = 0; i < n; i++) {                                       \

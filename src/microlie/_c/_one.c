@@ -1,4 +1,4 @@
-/* microlie_fast._one: one-element entry points of SO(3) and SE(3) for microlie's single-element
+/* microlie._c._one: one-element entry points of SO(3) and SE(3) for microlie's single-element
  * fast path (microlie/groups/_single.py).
  *
  * A call on one element costs mostly what surrounds the formula: dispatch, reading the inputs,
@@ -74,7 +74,7 @@ static PyObject *call(const op *k, PyObject *const *args, Py_ssize_t nargs) {
         return NULL;
     }
     if (params_off < 0) {
-        PyErr_SetString(PyExc_RuntimeError, "microlie_fast._one.setup was not called");
+        PyErr_SetString(PyExc_RuntimeError, "microlie._c._one.setup was not called");
         return NULL;
     }
     const double *a = NULL, *b = NULL;

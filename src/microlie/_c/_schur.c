@@ -1,4 +1,4 @@
-/* microlie_fast._schur: the dense reduced camera system of bundle adjustment (the Schur
+/* microlie._c._schur: the dense reduced camera system of bundle adjustment (the Schur
  * complement of the points), the compiled form of the dense path of
  * microlie.optim.schur.NormalEquations.reduced_system, which stays the reference and the fallback.
  *
@@ -23,6 +23,7 @@
 #include <string.h>
 
 #include "array_args.h"
+#include "dispatch.h"
 
 /* the d x d block of S at (r0, c0) -= A^T B (A, B: 3 x d, row-major), or -= (A^T B)^T when tr */
 static inline __attribute__((always_inline)) void sub_block(double *S, ix N, ix r0, ix c0,
@@ -110,7 +111,7 @@ static inline __attribute__((always_inline)) int form(
     return ok;
 }
 
-static int form_any(const double *Jc, const double *Jp, const double *V, const double *Gp,
+LM_HOT static int form_any(const double *Jc, const double *Jp, const double *V, const double *Gp,
                     const double *U, const double *Gc, const ix *C, const ix *P, const ix *O,
                     ix nc, ix np_, double *S, double *rhs, double *Ci, double *Z, int d) {
     switch (d) { /* BAL cameras (9), poses (6), pinhole with 4 or 8 intrinsics (10, 14) */
@@ -226,7 +227,7 @@ static inline __attribute__((always_inline)) void sums(
     }
 }
 
-static void sums_any(const double *Jc, const double *Jp, const double *R, const ix *C,
+LM_HOT static void sums_any(const double *Jc, const double *Jp, const double *R, const ix *C,
                      const ix *P, ix n, double *V, double *Gp, double *U, double *Gc, int d) {
     switch (d) {
     case 9: sums(Jc, Jp, R, C, P, n, V, Gp, U, Gc, 9); break;

@@ -10,19 +10,10 @@
 #include <math.h>
 #include "coeffs.h"
 
-/* glibc's libmvec supplies vector versions of these; declaring them lets GCC vectorise loops
- * that call them without -ffast-math (IEEE semantics are kept). Only where setup.py links
- * libmvec (LM_LIBMVEC: Linux x86-64); elsewhere the loops call the scalar functions. */
-#ifdef LM_LIBMVEC
-#pragma omp declare simd notinbranch
-extern double tan(double);
-#pragma omp declare simd notinbranch
-extern double sin(double);
-#pragma omp declare simd notinbranch
-extern double cos(double);
-#pragma omp declare simd notinbranch
-extern double atan2(double, double);
-#endif
+/* Elementary functions: scalar libm calls until the vectorisable ones (vecmath.h) land; no
+ * libmvec (it ties a build to glibc >= 2.22 on x86-64 and to one vector ISA). The hot loops that
+ * call these formulas are marked LM_HOT (dispatch.h: wider clones chosen at load time). */
+#include "dispatch.h"
 
 #define LM_INLINE static inline __attribute__((always_inline))
 #ifndef S

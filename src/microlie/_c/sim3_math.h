@@ -8,15 +8,6 @@
 #pragma once
 #include "lie_math.h"
 
-#ifdef LM_LIBMVEC
-#pragma omp declare simd notinbranch
-extern double exp(double);
-#pragma omp declare simd notinbranch
-extern double expm1(double);
-#pragma omp declare simd notinbranch
-extern double log(double);
-#endif
-
 /* horner() for the longer series (fully unrolled, so that the element loop vectorises) */
 LM_INLINE double horner_long(double x, const double *c, int n) {
     double acc = c[n - 1];

@@ -1,8 +1,8 @@
-"""The compiled edge loops of ``microlie-fast`` for factor batches (``pip install
-"microlie[fast]"``; from a checkout ``pip install ./fast``).
+"""The compiled edge loops of ``microlie._c._graph`` for factor batches (built by ``pip install
+microlie`` where a C compiler exists; ``microlie --version`` says whether they were).
 
 A batch of SE(3) or SE(2) :class:`~microlie.optim.BetweenFactor` edges is linearised in one pass of
-``microlie_fast._graph``: residuals, right Jacobians, whitening, the robust correction, the block
+``microlie._c._graph``: residuals, right Jacobians, whitening, the robust correction, the block
 products ``A^T A`` and ``A^T e``, added straight into the CSC values of the problem's fixed
 pattern. The NumPy path of :class:`~microlie.optim.core.problem.Problem` stays the reference and the
 fallback; both give the same linear system to rounding (``tests/test_optim_compiled.py``).
@@ -29,7 +29,7 @@ _KERNELS = {"SE3": "se3", "SE2": "se2"}
 
 
 def _graph() -> Any:
-    """``microlie_fast._graph``, or ``None`` (not installed, an older build, or
+    """``microlie._c._graph``, or ``None`` (not installed, an older build, or
     ``MICROLIE_FAST=0``)."""
     return compiled_module("_graph")
 
@@ -57,7 +57,7 @@ class EdgePlan:
     Parameters
     ----------
     kernels : tuple
-        ``(cost, normal)`` functions of ``microlie_fast._graph``.
+        ``(cost, normal)`` functions of ``microlie._c._graph``.
     key : int
         The position of the variable batch in the problem's states.
     ii, jj : numpy.ndarray

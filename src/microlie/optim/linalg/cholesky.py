@@ -16,12 +16,11 @@ block first). The numeric factorisation is right-looking: scatter the matrix int
 (one indexed assignment), then for each supernode in elimination order ``potrf`` on its
 diagonal block, ``trsm`` for the rows below, ``syrk`` for the update ``W = L21 L21^T``, and
 subtract ``W`` from the panels of its ancestors through precomputed relative row indices.
-With ``microlie-fast`` installed (``pip install "microlie[fast]"``) the whole loop is one C call
-on SciPy's own BLAS/LAPACK (``microlie_fast._chol``); without it (or with ``MICROLIE_FAST=0``)
-the NumPy loop of :mod:`microlie.optim.linalg.cholesky_numpy` runs a few batched steps per level of
-the
-supernodal elimination tree (its own layout of the same factor). Both
-compute the same factor (to rounding)."""
+With the compiled kernels (built by ``pip install microlie`` where a C compiler exists) the
+whole loop is one C call on SciPy's own BLAS/LAPACK (``microlie._c._chol``); without it (or
+with ``MICROLIE_FAST=0``) the NumPy loop of :mod:`microlie.optim.linalg.cholesky_numpy` runs a
+few batched steps per level of the supernodal elimination tree (its own layout of the same
+factor). Both compute the same factor (to rounding)."""
 
 from __future__ import annotations
 
@@ -43,12 +42,12 @@ _RELAX = ((4, 0.8), (16, 0.1), (48, 0.05))
 
 
 def _compiled() -> Any:
-    """The compiled supernode loop (``microlie_fast._chol``) or ``None``."""
+    """The compiled supernode loop (``microlie._c._chol``) or ``None``."""
     return compiled_module("_chol")
 
 
 class SupernodalSolver(LinearSolver):
-    """Supernodal Cholesky (NumPy/LAPACK, or one C call with ``microlie-fast``) on blocks of
+    """Supernodal Cholesky (NumPy/LAPACK, or one C call with the compiled kernels) on blocks of
     ``block_size`` unknowns (the greatest common divisor of the variables' dimensions).
 
     Examples
@@ -76,8 +75,9 @@ class SupernodalSolver(LinearSolver):
         self.ordering = ordering
         mod = _compiled() if compiled is not False else None
         if compiled and mod is None:
-            raise ImportError("the compiled supernode loop needs microlie-fast "
-                              "(pip install 'microlie[fast]') and MICROLIE_FAST != 0")
+            raise ImportError("the compiled supernode loop needs microlie._c._chol, built by pip "
+                              "install with a C compiler (microlie --version says whether "
+                              "it was), and MICROLIE_FAST != 0")
         self._c: Any = mod
 
     def analyse(self, indptr, indices, n, block_size=1):

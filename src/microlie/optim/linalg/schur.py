@@ -13,7 +13,7 @@ observation: ``W_a V^-1 W_b^T = J_ca^T q_ab J_cb`` with the 2x2 ``q_ab = G_a G_b
 share a point are sorted by camera pair once (:class:`SchurStructure`), so each camera-pair block
 is one matrix product over contiguous memory instead of a scatter (``np.add.at``).
 
-With the compiled extra (``microlie_fast._schur``, unless ``MICROLIE_FAST=0``) the dense reduced
+With the compiled extra (``microlie._c._schur``, unless ``MICROLIE_FAST=0``) the dense reduced
 system is formed in one compiled pass over the points (the same products, summed per point); the
 NumPy formation below stays the reference, the fallback and the sparse path.
 
@@ -48,7 +48,7 @@ _fast_module: Any = None
 
 
 def _fast() -> Any:
-    """``microlie_fast._schur``, or ``None`` (not installed, an older build, or
+    """``microlie._c._schur``, or ``None`` (not installed, an older build, or
     ``MICROLIE_FAST=0``); ``_fast_module`` set to a module or ``False`` forces a path."""
     if _fast_module is not None:
         return _fast_module or None
