@@ -175,12 +175,15 @@ class OptionalBuildExt(build_ext):
     # ---------------------------------------------------------------- the record
 
     def _write_outcome(self) -> None:
-        """``microlie/_c/_build.json`` beside the built modules (build_lib, or the source
-        tree for --inplace)."""
-        base = Path(self.build_lib) if not self.inplace else ROOT / "src"
-        path = base / "microlie" / "_c" / "_build.json"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.outcome, indent=1, sort_keys=True) + "\n")
+        """``microlie/_c/_build.json`` beside the built modules: in build_lib, and in the
+        source tree for ``--inplace`` and editable installs (which copy the modules there)."""
+        bases = [Path(self.build_lib)]
+        if self.inplace or getattr(self, "editable_mode", False):
+            bases.append(ROOT / "src")
+        for base in bases:
+            path = base / "microlie" / "_c" / "_build.json"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(json.dumps(self.outcome, indent=1, sort_keys=True) + "\n")
 
     def get_outputs(self) -> list[str]:  # the record is installed with the modules
         path = Path(self.build_lib) / "microlie" / "_c" / "_build.json"

@@ -106,11 +106,14 @@ def test_built_extensions_have_no_wide_instruction_outside_the_clones():
 def test_source_archive_holds_what_the_build_and_the_tests_need(tmp_path):
     """setup.py sdist: every C source and header, the generator, the tests and fixtures, the
     licence, changelog and citation; no built file."""
+    import setuptools
+
+    if int(setuptools.__version__.split(".")[0]) < 77 and not IN_CI:
+        pytest.skip(f"setuptools {setuptools.__version__} < 77 (the build requirement) "
+                    "cannot read pyproject.toml's license")
     r = subprocess.run([sys.executable, "setup.py", "-q", "sdist", "-d", str(tmp_path)],
                        cwd=ROOT, capture_output=True, text=True, env=dict(
                            os.environ, MICROLIE_BUILD_EXT="0"))
-    if r.returncode != 0 and "No module named" in r.stderr and not IN_CI:
-        pytest.skip(f"setup.py sdist cannot run here: {r.stderr.strip().splitlines()[-1]}")
     assert r.returncode == 0, r.stderr
     (archive,) = tmp_path.glob("microlie-*.tar.gz")
     with tarfile.open(archive) as tar:

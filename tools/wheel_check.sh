@@ -82,16 +82,23 @@ if "$W/tools/bin/pip" install -q auditwheel > /dev/null 2>&1; then
 fi
 
 # 3. a fresh virtualenv, no compiler: install the wheel, run the kernel tests of the sdist
+#    (setuptools>=77: tests/test_build.py makes an sdist of the unpacked sdist; objdump alone on
+#    PATH besides the venv, for the ISA check)
 "$PY" -m venv "$W/venv"
-"$W/venv/bin/pip" install -q "$WHEEL" pytest hypothesis mpmath
-mkdir "$W/src" && tar xzf "$SDIST" -C "$W/src"
+"$W/venv/bin/pip" install -q "$WHEEL" pytest hypothesis mpmath "setuptools>=77"
+mkdir "$W/src" "$W/bin" && tar xzf "$SDIST" -C "$W/src"
+if command -v objdump > /dev/null; then ln -s "$(command -v objdump)" "$W/bin/objdump"; fi
 cd "$W/src"/microlie-*
-rm -rf src  # the tests must import the installed wheel, not the sources
-env -i HOME="$HOME" PATH="$W/venv/bin" CC="$NOCC" "$W/venv/bin/microlie" --version
-env -i HOME="$HOME" PATH="$W/venv/bin" CC="$NOCC" "$W/venv/bin/python" -c \
+RUN=(env -i HOME="$HOME" PATH="$W/venv/bin:$W/bin" CC="$NOCC")
+"${RUN[@]}" "$W/venv/bin/python" -c "import shutil, sys; found = [c for c in ('gcc', 'cc', \
+'clang', 'c99') if shutil.which(c)]; print('compilers on PATH:', found or 'none'); \
+sys.exit(1 if found else 0)" || { echo "FAIL: a compiler is on PATH"; exit 1; }
+"${RUN[@]}" "$W/venv/bin/microlie" --version
+# the tests import the installed wheel, not the unpacked sources (src/ is not on sys.path)
+"${RUN[@]}" "$W/venv/bin/python" -c \
     "import microlie, sys; assert '$W/venv' in microlie.__file__, microlie.__file__"
 set +e
-env -i HOME="$HOME" PATH="$W/venv/bin" CC="$NOCC" "$W/venv/bin/python" -m pytest \
+"${RUN[@]}" "$W/venv/bin/python" -m pytest \
     -p no:cacheprovider -o addopts="" -q -rs tests/test_fast.py tests/test_kernels.py \
     tests/test_single.py tests/test_build.py tests/test_traj_io_fast.py 2>&1 | tee "$W/pytest.log"
 status=${PIPESTATUS[0]}
