@@ -13,10 +13,10 @@
 #        failing if any compiled-code test was skipped or microlie came from anywhere but the
 #        venv.
 #   tools/wheel_check.sh no-compiler [pytest args]
-#     installs the checkout (`pip install .`) in a fresh virtualenv whose CC is a missing
-#     program: the install must succeed, `microlie --version` must say "generic", then runs
-#     pytest with the given arguments (default: the whole suite, minus the doctests of src/
-#     and docs/ that need the checkout's src on the path) from the checkout against it.
+#     installs a clean copy of the checkout (`pip install ".[test]"`) in a fresh virtualenv
+#     whose CC is a missing program: the install must succeed and `microlie --version` must
+#     say "generic"; then runs pytest with the given arguments (default: tests/, the whole
+#     suite) from the copy against the installed package.
 #
 # Environment: PYTHON (default python3), KEEP=1 keeps the work directory (printed).
 set -euo pipefail
@@ -29,16 +29,19 @@ NOCC="$W/no-such-compiler/cc"
 
 if [ "${1:-}" = no-compiler ]; then
     shift
+    # a clean copy of the checkout (tracked and new files, not the ignored build/ or *.so that
+    # setuptools would reuse), beside a link to ../shared/data for the tests that read it
+    mkdir "$W/checkout"
+    (cd "$ROOT" && git ls-files -co --exclude-standard -z | xargs -0 tar c) | tar x -C "$W/checkout"
+    [ -d "$ROOT/../shared" ] && ln -s "$(cd "$ROOT/../shared" && pwd)" "$W/shared"
     "$PY" -m venv "$W/venv"
-    "$W/venv/bin/pip" install -q "$ROOT[test]"  # no compiler for the build: CC below
-    "$W/venv/bin/pip" uninstall -q -y microlie
-    CC="$NOCC" "$W/venv/bin/pip" install -v --no-deps "$ROOT" > "$W/install.log" 2>&1 \
+    CC="$NOCC" "$W/venv/bin/pip" install -v "$W/checkout[test]" > "$W/install.log" 2>&1 \
         || { tail -30 "$W/install.log"; echo "FAIL: pip install without a compiler"; exit 1; }
     grep -m3 "microlie: " "$W/install.log" || true
     line=$(cd /tmp && PATH="$W/venv/bin" "$W/venv/bin/microlie" --version)
     echo "microlie --version: $line"
     case "$line" in *"kernels: generic"*) ;; *) echo "FAIL: expected generic kernels"; exit 1;; esac
-    cd "$ROOT"
+    cd "$W/checkout"
     args=("$@")
     [ ${#args[@]} -gt 0 ] || args=(tests)
     env PATH="$W/venv/bin:/usr/bin:/bin" CC="$NOCC" "$W/venv/bin/python" -m pytest \
