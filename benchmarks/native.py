@@ -5,7 +5,7 @@ compiled kernels (microlie._c), at N = 1e6 (batched) and on one element (against
 
 The C++ source is compiled in the run (g++ -O3 -march=native -fno-math-errno -fopenmp-simd,
 glibc's libmvec) into a shared library called through ctypes on the same NumPy arrays, so that
-the three variants are timed round-robin in one process ("fast" = with the extra, "generic" =
+the three variants are timed round-robin in one process ("fast" = compiled kernels, "generic" =
 the NumPy kernels, same process with the replacements unregistered). Prints ns per element
 (medians, with the interquartile spread) and the ratios microlie/native. One element: us per
 call of the public API, against gtsam's Pose3 binding when gtsam is importable (bench venv).
@@ -179,10 +179,10 @@ def batched(n: int, rounds: int, only: list[str] | None = None) -> None:
     fast_on = K.KERNELS["SE3.exp"].impl is not None
     print(f"batched, N = {n}, ns per element ({clock_name} time), median [q1, q3] of {rounds} "
           f"interleaved rounds; compiled kernels {'registered' if fast_on else 'NOT registered'}")
-    print("fast: microlie with the extra (its output cache on); fast-nc: the same with the cache "
-          "off; generic: the NumPy kernels; native: the faster C loop (plain lie_native.cpp or "
-          "blocked lie_blocked.c) into outputs allocated once; native+a: the same loop into "
-          "fresh outputs each call (both agree with microlie to 1e-9, checked)")
+    print("fast: microlie with its compiled kernels (output cache on); fast-nc: the same with "
+          "the cache off; generic: the NumPy kernels; native: the faster C loop (plain "
+          "lie_native.cpp or blocked lie_blocked.c) into outputs allocated once; native+a: "
+          "the same loop into fresh outputs each call (both agree with microlie to 1e-9, checked)")
     cols = ["fast", "fast-nc", "generic", "native", "native+a"]
     print(f"{'op':16s} " + " ".join(f"{c:>21s}" for c in cols)
           + f" {'fast/nat':>8s} {'fast/nat+a':>10s} {'fast-nc/nat':>11s} {'gen/nat':>8s}")
