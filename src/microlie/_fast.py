@@ -142,10 +142,11 @@ def describe() -> str:
         elif record.get("failed"):
             first = next(iter(record["failed"].values())).strip().splitlines()
             why = "compiled extensions failed to build: " + (first[-1] if first else "?")
-        elif _errors:
-            why = "compiled extensions do not import: " + next(iter(_errors.values()))
+        elif [e for e in _errors.values() if not e.startswith("No module named")]:
+            why = "compiled extensions do not import: " + next(
+                e for e in _errors.values() if not e.startswith("No module named"))
         else:
-            why = "compiled extensions not built (pip install . builds them)"
+            why = "compiled extensions not built: pip install . builds them"
         return f"kernels: generic NumPy ({why})"
     info_mod = module("_info")
     info = info_mod.info() if info_mod is not None else {}
