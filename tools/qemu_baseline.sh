@@ -11,7 +11,9 @@
 # whose microlie is tested; default python3), PYTHONPATH as for any run (e.g. src for the
 # inplace build), CPUS (default "Nehalem Haswell"). Default tests: the compiled kernels against
 # the generic ones on the hard inputs, float32 and float64, batched and single
-# (tests/test_fast.py) and the compiled text reader.
+# (tests/test_fast.py) and the compiled text reader. Also run (session 8, Nehalem: pass):
+# tests/test_optim_compiled.py tests/test_schur_compiled.py; tests/test_optim_cholesky.py is too
+# slow under emulation (more than 10 min).
 set -euo pipefail
 PY=${PYTHON:-python3}
 QEMU=$(command -v qemu-x86_64 || command -v qemu-x86_64-static || true)
