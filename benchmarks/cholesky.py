@@ -3,9 +3,9 @@ against PARDISO (pypardiso), qdldl and SuperLU, interleaved, on the Gauss-Newton
 shared pose graphs.
 
 Run (benchmark environment, one command; build the compiled loop first with
-``pip install --no-deps --target /tmp/microlie-fast ./fast`` or install ``microlie[fast]``)::
+``python setup.py build_ext --inplace`` at the root)::
 
-    PYTHONPATH=/tmp/microlie-fast:src /work/bench-venv/bin/python benchmarks/cholesky.py \
+    PYTHONPATH=src /work/bench-venv/bin/python benchmarks/cholesky.py \
         [--repeat 9] [--graphs sphere2500 ...] [--out benchmarks/results/cholesky-latest.md]
 
 For each graph the matrix is ``H = J^T J`` of microlie's problem at the benchmark's starting

@@ -13,7 +13,7 @@ Run (one command)::
 Per graph and checkout: ``linearize NumPy`` (the problem built with ``MICROLIE_FAST=0``: every
 factor through ``evaluate_into``), ``cost NumPy`` (residuals only, through ``evaluate``) and
 ``linearize compiled`` (the compiled edge loop for the between factors, the gauge prior through
-the NumPy path; skipped without ``microlie[fast]``). Each worker times ``--calls`` calls of each,
+the NumPy path; skipped without the compiled kernels). Each worker times ``--calls`` calls of each,
 interleaved, and reports their median; the table shows the median over rounds.
 """
 

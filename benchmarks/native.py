@@ -1,11 +1,11 @@
 """microlie against a native C++ loop (benchmarks/native/lie_native.cpp), with and without the
-compiled kernels of microlie[fast], at N = 1e6 (batched) and on one element (against gtsam).
+compiled kernels (microlie._c), at N = 1e6 (batched) and on one element (against gtsam).
 
     PYTHONPATH=src python benchmarks/native.py [--n 1000000] [--rounds 7]
 
 The C++ source is compiled in the run (g++ -O3 -march=native -fno-math-errno -fopenmp-simd,
 glibc's libmvec) into a shared library called through ctypes on the same NumPy arrays, so that
-the three variants are timed round-robin in one process ("fast" = with the extra, "generic" =
+the three variants are timed round-robin in one process ("fast" = compiled kernels, "generic" =
 the NumPy kernels, same process with the replacements unregistered). Prints ns per element
 (medians, with the interquartile spread) and the ratios microlie/native. One element: us per
 call of the public API, values and with jac=True (exp, log, between with both Jacobians),
@@ -37,15 +37,42 @@ SRC = HERE / "native" / "lie_native.cpp"
 BLOCKED = HERE / "native" / "lie_blocked.c"
 FLAGS = ["-O3", "-march=native", "-fno-math-errno", "-fopenmp-simd", "-shared", "-fPIC"]
 
+LIBMVEC_VECMATH = """#pragma once
+#include <math.h>
+#pragma omp declare simd notinbranch
+extern double sin(double);
+#pragma omp declare simd notinbranch
+extern double cos(double);
+#pragma omp declare simd notinbranch
+extern double tan(double);
+#pragma omp declare simd notinbranch
+extern double atan2(double, double);
+#pragma omp declare simd notinbranch
+extern double exp(double);
+#pragma omp declare simd notinbranch
+extern double log(double);
+#define LM_FN static inline __attribute__((always_inline, unused))
+LM_FN double lm_sin(double x) { return sin(x); }
+LM_FN double lm_cos(double x) { return cos(x + 0.0); }  /* no sincos merge (not vectorised) */
+LM_FN double lm_tan(double x) { return tan(x); }
+LM_FN double lm_atan2(double y, double x) { return atan2(y, x); }
+LM_FN double lm_exp(double x) { return exp(x); }
+LM_FN double lm_expm1(double x) { return expm1(x); }
+LM_FN double lm_log(double x) { return log(x); }
+"""
+
 
 def build(blocked: bool = False) -> ctypes.CDLL:
     """The plain native loops (lie_native.cpp) or the blocked ones (lie_blocked.c)."""
     out = Path(tempfile.mkdtemp()) / "liblie_native.so"
     if blocked:
-        fast = HERE.parent / "fast" / "src" / "microlie_fast"
-        stub = [] if (fast / "vecmath.h").exists() else ["-DLM_VECMATH_STUB"]
-        cmd = ["gcc", *FLAGS, "-std=c11", "-fno-trapping-math", "-DLM_LIBMVEC", *stub,
-               f"-I{fast}", f"-I{fast / 'generated'}", str(BLOCKED)]
+        # the reference keeps glibc's libmvec (the package links none: issue 21): a vecmath.h of
+        # its own maps the generated kernels' lm_* functions to libm's, declared SIMD-callable
+        tmp = out.parent
+        (tmp / "vecmath.h").write_text(LIBMVEC_VECMATH)
+        gen = HERE.parent / "src" / "microlie" / "_c" / "generated"
+        cmd = ["gcc", *FLAGS, "-std=c11", "-fno-trapping-math", f"-I{tmp}", f"-I{gen}",
+               str(BLOCKED)]
     else:
         cmd = ["g++", *FLAGS, str(SRC)]
     subprocess.run([*cmd, "-o", str(out), "-lmvec", "-lm"], check=True)
@@ -107,8 +134,8 @@ def generic(name: str, fn, single: bool = False):
 
 
 def uncached(fn):
-    """``fn`` with the output cache of microlie_fast switched off (fresh pages every call)."""
-    lie = sys.modules.get("microlie_fast._lie")
+    """``fn`` with the output cache of microlie._c._lie switched off (fresh pages every call)."""
+    lie = sys.modules.get("microlie._c._lie")
     if lie is None or not hasattr(lie, "set_cache_limit"):
         return None
 
@@ -139,7 +166,7 @@ def timed(fn, number: int = 1) -> float:
 
 def interleaved(fns: dict, rounds: int, number: int = 1) -> dict:
     """Round-robin rounds; in each, every variant is called once untimed before its timed
-    calls, so that each is measured in its steady state (e.g. microlie_fast's output cache,
+    calls, so that each is measured in its steady state (e.g. microlie._c._lie's output cache,
     which another variant may have emptied, is refilled) rather than after its neighbour."""
     times: dict = {k: [] for k in fns}
     for _ in range(rounds):
@@ -208,10 +235,10 @@ def batched(n: int, rounds: int, only: list[str] | None = None) -> None:
     fast_on = K.KERNELS["SE3.exp"].impl is not None
     print(f"batched, N = {n}, ns per element ({clock_name} time), median [q1, q3] of {rounds} "
           f"interleaved rounds; compiled kernels {'registered' if fast_on else 'NOT registered'}")
-    print("fast: microlie with the extra (its output cache on); fast-nc: the same with the cache "
-          "off; generic: the NumPy kernels; native: the faster C loop (plain lie_native.cpp or "
-          "blocked lie_blocked.c) into outputs allocated once; native+a: the same loop into "
-          "fresh outputs each call (both agree with microlie to 1e-9, checked)")
+    print("fast: microlie with its compiled kernels (output cache on); fast-nc: the same with "
+          "the cache off; generic: the NumPy kernels; native: the faster C loop (plain "
+          "lie_native.cpp or blocked lie_blocked.c) into outputs allocated once; native+a: "
+          "the same loop into fresh outputs each call (both agree with microlie to 1e-9, checked)")
     cols = ["fast", "fast-nc", "generic", "native", "native+a"]
     print(f"{'op':16s} " + " ".join(f"{c:>21s}" for c in cols)
           + f" {'fast/nat':>8s} {'fast/nat+a':>10s} {'fast-nc/nat':>11s} {'gen/nat':>8s}")

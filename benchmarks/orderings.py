@@ -11,7 +11,7 @@ Run (one command, the dev or the benchmark environment)::
 For each graph it builds the Gauss-Newton matrix at the start poses (the file's vertices, else
 the odometry chain; the pattern is what matters), analyses it once per ordering and loop, then
 times ``factorize`` in rounds that alternate the orderings and the loops (the NumPy loop, and
-the compiled loop of ``microlie-fast`` when it is installed and ``MICROLIE_FAST`` is not 0),
+the compiled loop ``microlie._c._chol`` when it was built and ``MICROLIE_FAST`` is not 0),
 after one warm-up round. Columns: scalar nonzeros of the factor (the panels' lower
 trapezoids), the flops of the updates ``sum_s k_s u_s^2`` (``u_s`` the rows below supernode
 ``s``), the update entries moved into ancestors, the supernodes, the height of the supernodal

@@ -4,13 +4,13 @@ after (issue 19, item 17).
 Run from the repository root (with the compiled extra of each side importable)::
 
     python benchmarks/output_cache.py [--rounds 7] [--sizes 1e4 1e5 1e6 2e6] \\
-        [--before /work/base/src] [--after src[:DIR_WITH_THE_NEW_microlie_fast]] [--generic]
+        [--before /work/base/src] [--after src[:DIR_WITH_ITS_BUILT_microlie]] [--generic]
 
 Each side is a ``PYTHONPATH``: the compiled kernels are a C extension, so the two sides cannot
 be imported into one process (``groups.py --before-after`` imports the older Python package next
-to the new one, with one ``microlie_fast``) and run in subprocesses instead: in each round, for
-each N, one process of each side, in turn (interleaved, so that a burst of load hits both). A
-process makes N random SE3 elements, calls ``X.log(jac=True)`` once untimed (the first call
+to the new one, with its own built ``microlie._c``) and run in subprocesses instead: in each
+round, for each N, one process of each side, in turn (interleaved, so that a burst of load hits
+both). A process makes N random SE3 elements, calls ``X.log(jac=True)`` once untimed (the first call
 allocates the output), then ``--calls`` times, freeing each result before the next call (a loop
 over batches); it reports the median per call of wall time, CPU time (``process_time``) and
 minor page faults (``ru_minflt``). The table gives, per N and side, the median over the rounds

@@ -5,8 +5,8 @@ Run (benchmark environment, one command)::
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=src /work/bench-venv/bin/python benchmarks/pose_graph.py \
         --repeat 3 --out benchmarks/results/pose_graph-latest.md [--graphs ...]
 
-Two passes, each interleaved with GTSAM: pass 1 in this process (with the compiled extra
-``microlie-fast`` when it is installed: its group kernels and the SE(3) edge loop of
+Two passes, each interleaved with GTSAM: pass 1 in this process (with the compiled kernels
+(``microlie._c``) when they were built: the group kernels and the SE(3) edge loop of
 ``microlie.optim.core.compiled``), every backend; pass 2 in a fresh process with ``MICROLIE_FAST=0``
 (the default install: NumPy and SciPy only) on the default-install backends (skip it with
 ``--no-default-pass``).
@@ -273,7 +273,7 @@ def solve_passes(args, backends: list[str]) -> list[str]:
     fast = compiled.available()
     load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     head = (f"pose_graph.py, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-            f"repeat {args.repeat}, one BLAS thread; compiled extra (microlie_fast): "
+            f"repeat {args.repeat}, one BLAS thread; compiled kernels (microlie._c): "
             f"{'on' if fast else 'OFF'}; `uptime` at the start: {load}")
     print(head, flush=True)
     res = measure(args, backends, [])
@@ -406,11 +406,9 @@ def end_to_end(args) -> list[str]:
     for exe in {args.python, args.gtsam_python}:
         subprocess.run([exe, "-m", "compileall", "-q", src], check=True, env=env,
                        stdout=subprocess.DEVNULL)
-    # this checkout's compiled code when it is built in place (cd fast && python setup.py
-    # build_ext --inplace), before the one installed in --python's environment
-    fast_src = Path(__file__).resolve().parents[1] / "fast" / "src"
-    built = any((fast_src / "microlie_fast").glob("*.so"))
-    env_all = dict(env, PYTHONPATH=f"{src}{os.pathsep}{fast_src}") if built else env
+    # with PYTHONPATH=src, this checkout's compiled code is the one built in place (pip
+    # install -e . or python setup.py build_ext --inplace put it in src/microlie/_c)
+    env_all = env
     contenders = {
         "GTSAM script": (args.gtsam_python, env, "gtsam"),
         "microlie, all installed": (args.python, env_all, "cli"),

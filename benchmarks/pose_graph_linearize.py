@@ -1,9 +1,9 @@
 """One linearisation (residuals, Jacobians, whitening, block products and the scatter into the
 fixed pattern) and one trial cost of the shared pose graphs: the compiled edge loop of
-``microlie-fast`` (``microlie.optim.core.compiled``) against the NumPy path, interleaved in one
+``microlie._c._graph`` (``microlie.optim.core.compiled``) against the NumPy path, interleaved in one
 process.
 
-Run (one command; needs the compiled extra, ``pip install ./fast``)::
+Run (one command; needs the compiled kernels: ``python setup.py build_ext --inplace``)::
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python benchmarks/pose_graph_linearize.py [--rounds 20]
 
@@ -55,7 +55,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=20)
     args = ap.parse_args(argv)
     if not compiled.available():
-        print("the compiled edge loop is not installed (pip install ./fast) or MICROLIE_FAST=0")
+        print("the compiled edge loop was not built (python setup.py build_ext --inplace) "
+              "or MICROLIE_FAST=0")
         return 1
     load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     print(f"pose_graph_linearize.py, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "

@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-# the generic NumPy kernels on both sides: SE3's compiled replacements (microlie_fast, when
+# the generic NumPy kernels on both sides: SE3's compiled replacements (microlie._c, when
 # installed) are a different comparison; pass --fast to keep them
 if "--fast" not in sys.argv:
     os.environ["MICROLIE_FAST"] = "0"

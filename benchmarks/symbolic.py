@@ -26,7 +26,7 @@ the shared pose graphs; the counts are this module's exact symbolic ones for eve
     PYTHONPATH=src python benchmarks/symbolic.py flops --nd /work/base/src
 
 ``order``: the orderings of the block graph compared on the shared pose graphs and on synthetic
-ones (``--sizes``, 2-D and 3-D): our approximate minimum degree (``microlie_fast._order``,
+ones (``--sizes``, 2-D and 3-D): our approximate minimum degree (``microlie._c._order``,
 what :func:`~microlie.optim.linalg.ordering.minimum_degree_blocks` runs with the compiled code)
 against SciPy's SuperLU multiple minimum degree (``MMD_AT_PLUS_A``, the order without the
 compiled code) and COLAMD (on the same symmetric pattern). For each: the nonzero blocks of
@@ -168,9 +168,8 @@ def _child(n: int | str, dim: int) -> None:
 
 
 def _run(src: str, n: int | str, dim: int, fast: str) -> dict:
-    built = Path(src).parent / "fast" / "src"  # that tree's own build of the compiled extra
-    path = src + (os.pathsep + str(built) if any(built.glob("microlie_fast/*.so")) else "")
-    env = dict(os.environ, PYTHONPATH=path, MICROLIE_FAST=fast)
+    # that tree's own in-place build of the compiled code lies in src/microlie/_c
+    env = dict(os.environ, PYTHONPATH=src, MICROLIE_FAST=fast)
     r = subprocess.run([sys.executable, __file__, "_child", str(n), str(dim)],
                        env=env, capture_output=True, text=True, check=True)
     return json.loads(r.stdout.strip().splitlines()[-1])
@@ -269,7 +268,7 @@ def order(sizes: list[int], repeat: int) -> None:
 
     amd = compiled("_order")
     if amd is None:
-        raise SystemExit("order: the compiled microlie_fast._order is needed (build fast/)")
+        raise SystemExit("order: the compiled microlie._c._order is needed (build fast/)")
 
     def superlu(spec: str):
         def run(A):

@@ -4,10 +4,10 @@ evo is GPL-3 and only *run* here (never imported by microlie). Run in an environ
 both (from the repository root)::
 
     python3 -m venv /work/evo-venv && /work/evo-venv/bin/pip install evo==1.38.1 array-api-compat
-    /work/evo-venv/bin/pip install ./fast   # microlie[fast]: the compiled kernels and file reader
+    /work/evo-venv/bin/pip install .   # microlie with its compiled kernels and file reader
     PYTHONPATH=src /work/evo-venv/bin/python benchmarks/trajectory.py [--n 100000] [--no-write]
 
-Without ``microlie_fast`` (or with ``MICROLIE_FAST=0``) microlie reads files with NumPy's
+Without the compiled kernels (or with ``MICROLIE_FAST=0``) microlie reads files with NumPy's
 ``loadtxt``; the command table has a row for that default install on the 1e5 pair.
 
 Cases: a synthetic 1e5-pose pair (TUM files written to a temporary directory) and the fr2/desk
@@ -337,7 +337,7 @@ def table(rows: list[dict], imports: dict[str, float],
         f"{imports['numpy'] * 1e3:.0f} ms, `microlie.traj` {imports['microlie'] * 1e3:.0f} ms, "
         f"evo's file_interface + metrics + sync {imports['evo'] * 1e3:.0f} ms, each "
         "including numpy). microlie reads the files with its compiled reader "
-        "(`microlie_fast._text`, microlie[fast]) when it is installed, otherwise with "
+        "(`microlie._c._text`) when it is installed, otherwise with "
         "`numpy.loadtxt` (the MICROLIE_FAST=0 row of the command table); both give the values "
         "of Python's `float`, and a malformed file falls back to a line-by-line parser that "
         "names the bad line. "
@@ -401,7 +401,7 @@ def main() -> None:
     from microlie import _fast
 
     fast_reader = _fast.text_parser() is not None
-    print(f"compiled file reader (microlie[fast]): {'yes' if fast_reader else 'no'}")
+    print(f"compiled file reader (microlie._c._text): {'yes' if fast_reader else 'no'}")
     load_start = os.getloadavg()
     imports = import_times()
     print("import times: " + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in imports.items()))
@@ -415,7 +415,7 @@ def main() -> None:
         rows += run_case(synth, gt, est, args.rounds)
         cmd_rows = command_rows([(synth + " (TUM)", "tum", gt, est)],
                                 max(3, args.command_runs - 2))
-        if fast_reader:  # the default install (no microlie[fast]): NumPy's loadtxt reads
+        if fast_reader:  # the default install (no compiled kernels): NumPy's loadtxt reads
             cmd_rows += command_rows([(synth + " (TUM), MICROLIE_FAST=0", "tum", gt, est)],
                                      max(3, args.command_runs - 2), {"MICROLIE_FAST": "0"})
     rows += run_case("fr2/desk (TUM)", fr2_gt, fr2_est, args.rounds)
@@ -423,7 +423,7 @@ def main() -> None:
                              args.command_runs)
     load = (load_start, os.getloadavg())
     text = (table(rows, imports, load) + "\n" + command_table(cmd_rows)
-            + f"\nmicrolie's compiled file reader (microlie[fast]): "
+            + f"\nmicrolie's compiled file reader (microlie._c._text): "
             f"{'installed' if fast_reader else 'not installed'}.\n")
     print()
     print(text)

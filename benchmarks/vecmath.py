@@ -1,4 +1,4 @@
-"""Throughput of vecmath.h (fast/src/microlie_fast) against glibc's scalar libm and its vector
+"""Throughput of vecmath.h (src/microlie/_c) against glibc's scalar libm and its vector
 library libmvec, on arrays of 4096 values in `omp simd` loops, for each ISA level.
 
     python benchmarks/vecmath.py [--rounds 15]
@@ -23,7 +23,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-HEADERS = Path(__file__).resolve().parent.parent / "fast" / "src" / "microlie_fast"
+HEADERS = Path(__file__).resolve().parent.parent / "src" / "microlie" / "_c"
 FUNCS = [("sin", 1), ("cos", 1), ("tan", 1), ("atan2", 2), ("exp", 1), ("expm1", 1), ("log", 1)]
 
 PROGRAM = r"""

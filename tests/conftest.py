@@ -35,9 +35,14 @@ def require(module: str):
     try:
         return importlib.import_module(module)
     except ImportError:
+        why = f"{module} not installed"
+        if module.startswith("microlie._c"):  # a compiled module: say why it is missing
+            from microlie import _fast
+
+            why = f"{module} was not built: {_fast.describe()}"
         if IN_CI:
-            pytest.fail(f"{module} is required in CI but is not installed")
-        pytest.skip(f"{module} not installed")
+            pytest.fail(f"{why}; CI requires it")
+        pytest.skip(why)
 
 
 def data_file(rel: str) -> Path:

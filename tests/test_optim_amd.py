@@ -1,5 +1,5 @@
 """The default fill-reducing order of a block graph (ordering.minimum_degree_blocks): our
-approximate minimum degree (compiled, microlie_fast._order) and, with MICROLIE_FAST=0, SciPy's
+approximate minimum degree (compiled, microlie._c._order) and, with MICROLIE_FAST=0, SciPy's
 multiple minimum degree. Checked against an exact greedy minimum degree and a brute-force
 minimum fill written here on explicit sets, and against the known optimal fill of trees and
 cycles."""
@@ -18,7 +18,7 @@ from microlie.optim.linalg.ordering import minimum_degree_blocks, symbolic
 
 HAVE_C = compiled("_order") is not None
 #: the compiled order and the SciPy fallback (MICROLIE_FAST=0)
-PATHS = [pytest.param("1", marks=pytest.mark.skipif(not HAVE_C, reason="microlie_fast._order "
+PATHS = [pytest.param("1", marks=pytest.mark.skipif(not HAVE_C, reason="microlie._c._order "
                                                     "not built (cd fast && pip install .)")),
          "0"]
 
@@ -95,7 +95,7 @@ def test_valid_on_random_graphs_int32_and_int64(fast):
         np.testing.assert_array_equal(_order(A, np.int32), p64)
 
 
-@pytest.mark.skipif(not HAVE_C, reason="microlie_fast._order not built (or MICROLIE_FAST=0)")
+@pytest.mark.skipif(not HAVE_C, reason="microlie._c._order not built (or MICROLIE_FAST=0)")
 def test_fill_against_an_exact_minimum_degree():
     # our approximate degrees and tie rules against exact minimum degree on the eliminated
     # graph: never much worse on one graph, and no worse in total
@@ -160,7 +160,7 @@ def test_dense_rows_go_last():
     # a hub joined to every node of a 30 x 30 grid (degree 900 > 10 sqrt(901)) is ordered
     # last, its row of L full, and the grid ordered about as well as without it
     if not HAVE_C:
-        pytest.skip("microlie_fast._order not built")
+        pytest.skip("microlie._c._order not built")
     k = 30
     idx = np.arange(k * k).reshape(k, k)
     a = np.r_[idx[:, :-1].ravel(), idx[:-1, :].ravel()]
@@ -247,7 +247,7 @@ def test_compiled_postorder_is_the_depth_first_one(monkeypatch):
     from microlie.optim.linalg import ordering as O
 
     if not HAVE_C:
-        pytest.skip("microlie_fast._order not built")
+        pytest.skip("microlie._c._order not built")
     rng = np.random.default_rng(6)
     for _ in range(50):
         n = int(rng.integers(1, 300))

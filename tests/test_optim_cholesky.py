@@ -1,7 +1,7 @@
 """The supernodal Cholesky (microlie.optim.linalg.cholesky): its factor against LAPACK's dense
 Cholesky
 of the same permuted matrix, its solves against dense solves and SuperLU, with the compiled
-loop (microlie-fast) and with the NumPy loop."""
+loop (microlie._c._chol) and with the NumPy loop."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from microlie.optim import SingularSystemError, make_solver
 from microlie.optim.linalg.cholesky import SupernodalSolver
 
 try:
-    import microlie_fast._chol  # noqa: F401
+    import microlie._c._chol  # noqa: F401
 
     INSTALLED = True
 except ImportError:
@@ -30,7 +30,7 @@ def _paths():
     from conftest import IN_CI
 
     if IN_CI and not INSTALLED:
-        pytest.fail("microlie_fast._chol is required in CI but is not installed")
+        pytest.fail("microlie._c._chol is required in CI but was not built")
     return [False, True] if HAVE_C else [False]
 
 
@@ -167,7 +167,7 @@ def test_compiled_and_numpy_loops_agree():
 def test_compiled_switch(monkeypatch):
     monkeypatch.setenv("MICROLIE_FAST", "0")
     assert SupernodalSolver()._c is None
-    with pytest.raises(ImportError, match="microlie-fast"):
+    with pytest.raises(ImportError, match="microlie._c._chol"):
         SupernodalSolver(compiled=True)
     assert make_solver("cholesky").name == "cholesky"
 

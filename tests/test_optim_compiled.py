@@ -1,4 +1,4 @@
-"""The compiled edge loop of microlie-fast (``microlie_fast._graph``,
+"""The compiled edge loop (``microlie._c._graph``,
 ``microlie.optim.core.compiled``)
 against the NumPy path of ``Problem``: the same linear system (CSC values of H and the gradient),
 costs and solutions to rounding, on SE(3) graphs with the hard residuals (rotation angle 0,
@@ -21,7 +21,7 @@ from microlie.optim.core.problem import Problem
 @pytest.fixture
 def graph_mod(monkeypatch):
     monkeypatch.delenv("MICROLIE_FAST", raising=False)
-    return require("microlie_fast._graph")
+    return require("microlie._c._graph")
 
 
 def _generic_problem(fg: FactorGraph, monkeypatch) -> Problem:

@@ -249,11 +249,11 @@ def test_pose_graph_checks_its_fields():
 
 @pytest.mark.parametrize("name", ["parking-garage.g2o", "ais2klinik.g2o", "sphere2500.g2o"])
 def test_compiled_bulk_reader_reads_the_same_bits(name, monkeypatch):
-    # the compiled table reader (microlie_fast._text) against the NumPy bulk path
+    # the compiled table reader (microlie._c._text) against the NumPy bulk path
     from microlie._fast import text_parser
 
     if text_parser() is None:
-        pytest.skip("microlie_fast._text not built")
+        pytest.skip("microlie._c._text not built")
     path = data_file(f"pose_graph/{name}")
     a = read_g2o(path)
     monkeypatch.setenv("MICROLIE_FAST", "0")

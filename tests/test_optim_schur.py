@@ -67,7 +67,7 @@ def _random_system(rng, nr, ne, dofs_e=(3, 6)):
 def test_schur_solve_equals_dense_solve(seed, reduced, fast, monkeypatch):
     """x = S^-1 ... back-substituted equals numpy.linalg.solve(H, b), for one and several
     right-hand sides, undamped and with LM damping added to the diagonal in place; by the
-    compiled formation of S (microlie_fast._normal, when installed) and by the NumPy one."""
+    compiled formation of S (microlie._c._normal, when installed) and by the NumPy one."""
     monkeypatch.setenv("MICROLIE_FAST", fast)
     rng = np.random.default_rng(seed)
     H, A, off, elim = _random_system(rng, int(rng.integers(1, 7)), int(rng.integers(1, 25)))

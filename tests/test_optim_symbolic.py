@@ -335,7 +335,7 @@ _FIELDS = ("sperm", "c0", "k", "m", "px", "rows", "rptr", "sparent", "amap", "pp
 @pytest.mark.skipif(True not in PATHS, reason="the compiled analysis is not installed")
 @pytest.mark.parametrize("bs", [1, 2, 3, 6])
 def test_compiled_analysis_equals_the_numpy_one(bs):
-    """The C analysis (microlie_fast._symbolic: elimination tree, postorder, column counts,
+    """The C analysis (microlie._c._symbolic: elimination tree, postorder, column counts,
     supernodes, structures, update pairs, assembly map) produces every array of the NumPy
     analysis exactly, on 60 random block patterns of every shape (and the factor solves)."""
     for seed in range(60):

@@ -1,7 +1,7 @@
 """Outputs larger than the block cache (issue 19, item 17).
 
 Both output caches (the generic kernels' pool in ``microlie._kernels`` and the compiled
-kernels' cache in ``microlie_fast._lie``) keep one freed block above their limit, the latest,
+kernels' cache in ``microlie._c._lie``) keep one freed block above their limit, the latest,
 for the next output of that size: a Jacobian of 1e6 SE3 elements (288 MB, above the default
 256 MB) no longer comes in fresh pages on every call. Checked here with small limits: the
 results above the limit equal the same kernel's results computed in small batches (which never
@@ -75,7 +75,7 @@ def test_issue19_item17_generic_outputs_above_the_pool_limit(monkeypatch, dtype)
 def test_issue19_item17_compiled_outputs_above_the_cache_limit(dtype):
     if os.environ.get("MICROLIE_FAST") == "0":
         pytest.skip("MICROLIE_FAST=0")
-    lie = require("microlie_fast._lie")
+    lie = require("microlie._c._lie")
     from microlie._fast import installed
 
     assert "SE3.log_jac" in installed()

@@ -1,4 +1,4 @@
-"""The compiled linearisation of BAL reprojection factors (``microlie_fast._reproj``,
+"""The compiled linearisation of BAL reprojection factors (``microlie._c._reproj``,
 ``microlie.optim.core.compiled.ReprojectionPlan``) against the NumPy path of ``Problem``
 (``ReprojectionFactor.evaluate_into``, whitening, robust correction, products and scatter:
 independent code) and against ``H = J^T J``, ``g = J^T e`` assembled densely from central
@@ -24,7 +24,7 @@ from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
 @pytest.fixture
 def reproj(monkeypatch):
     monkeypatch.delenv("MICROLIE_FAST", raising=False)
-    return require("microlie_fast._reproj")
+    return require("microlie._c._reproj")
 
 
 def _scene(rng, nc=4, npt=25, behind=0):

@@ -470,7 +470,7 @@ def test_intrinsics_held_per_component():
 
 @pytest.mark.parametrize("robust", [None, "huber:1.0"])
 def test_assembly_equals_numpy_and_the_cost_gradient(robust, monkeypatch):
-    """Problem.linearize on a bundle graph: the compiled products of microlie_fast._normal
+    """Problem.linearize on a bundle graph: the compiled products of microlie._c._normal
     (when installed) and NumPy's matmul and bincount assemble the same H and g (to rounding),
     and g equals the central differences of the (robust) cost."""
     _, start = synthetic_scene(3, 12, noise=1.0, perturb=0.05, seed=4)

@@ -1,5 +1,5 @@
 """The single-element fast path (``microlie.groups._single``, and the compiled one of
-``microlie_fast._one`` when installed): taken for one float64 NumPy element, declined for
+``microlie._c._one`` when installed): taken for one float64 NumPy element, declined for
 everything else, and indistinguishable from the generic path in values and in errors."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from microlie.groups._single import OPS
 
 @pytest.fixture(autouse=True, params=["installed", "python"])
 def implementation(request, monkeypatch):
-    """Every test runs on the functions in use (the compiled SO3/SE3 ones when microlie[fast]
+    """Every test runs on the functions in use (the compiled SO3/SE3 ones when microlie._c
     is installed) and on the Python ones of every group."""
     if request.param == "python":
         for G in GROUPS:

@@ -109,9 +109,9 @@ COMPILED_NEVER = ("scipy.linalg", "scipy.sparse.linalg", "scipy.sparse.csgraph")
 def test_optimize_with_the_compiled_code_imports_no_scipy_linalg(tmp_path):
     import importlib.util
 
-    if importlib.util.find_spec("microlie_fast._order") is None:
-        pytest.skip("microlie_fast (with _order) is not built")
-    import microlie_fast._chol as chol
+    if importlib.util.find_spec("microlie._c._order") is None:
+        pytest.skip("microlie._c._order is not built")
+    import microlie._c._chol as chol
 
     if chol.BLAS != "numpy":  # not a Linux NumPy wheel's OpenBLAS: SciPy's BLAS is used
         pytest.skip(f"the compiled Cholesky calls {chol.BLAS}'s BLAS here")
@@ -127,7 +127,6 @@ def test_optimize_with_the_compiled_code_imports_no_scipy_linalg(tmp_path):
             f"never = {COMPILED_NEVER!r}; "
             "print(code, sorted(m for m in sys.modules if m in never "
             "or m.startswith(tuple(n + '.' for n in never))))")
-    fast = str(Path(chol.__file__).resolve().parents[1])  # the microlie_fast imported here
-    assert _run(["-c", code], MICROLIE_FAST="1",
-                PYTHONPATH=os.pathsep.join([SRC, fast])) == ["0", "[]"]
+    root = str(Path(chol.__file__).resolve().parents[2])  # the microlie (and build) imported here
+    assert _run(["-c", code], MICROLIE_FAST="1", PYTHONPATH=root) == ["0", "[]"]
     assert out.read_text().count("VERTEX_SE2") == 5

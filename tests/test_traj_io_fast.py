@@ -1,4 +1,4 @@
-"""The compiled reader of trajectory files (``microlie_fast._text.parse_table``, microlie[fast]):
+"""The compiled reader of trajectory files (``microlie._c._text.parse_table``):
 every value it returns is bit-identical to Python's ``float`` of the field (the independent
 reference, also what ``numpy.loadtxt`` and the careful line-by-line path use), everything outside
 its plain grammar is handed back (``None``) to the NumPy / careful paths, so the readers give the
@@ -16,7 +16,7 @@ EVO = "trajectory/evo/"
 
 
 def _parse():
-    return require("microlie_fast._text").parse_table
+    return require("microlie._c._text").parse_table
 
 
 def _bits(a) -> np.ndarray:

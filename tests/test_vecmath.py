@@ -1,4 +1,4 @@
-"""fast/src/microlie_fast/vecmath.h: our vectorisable elementary functions, compiled here into a
+"""src/microlie/_c/vecmath.h: our vectorisable elementary functions, compiled here into a
 small shared library (the system C compiler; skipped locally without one, an error in CI) of
 `omp simd` loops over arrays, checked against mpmath in ulp on sampled and hard points, on the
 C99 Annex F special values, and for vectorisation by GCC at the baseline x86-64-v2 and with
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from conftest import IN_CI, require
 
-HEADERS = Path(__file__).resolve().parent.parent / "fast" / "src" / "microlie_fast"
+HEADERS = Path(__file__).resolve().parent.parent / "src" / "microlie" / "_c"
 X86 = platform.machine() in ("x86_64", "AMD64")
 TRIG_MAX = 2.0 ** 26  # LM_TRIG_MAX
 
@@ -260,7 +260,7 @@ def test_the_compiled_kernels_link_no_vector_math_library():
     from microlie import _codegen
 
     assert '#include "vecmath.h"' in _codegen.source()
-    mod = require("microlie_fast._lie")
+    mod = require("microlie._c._lie")
     data = Path(mod.__file__).read_bytes()
     assert data.startswith(b"\x7fELF") or sys.platform != "linux"
     assert b"libmvec" not in data

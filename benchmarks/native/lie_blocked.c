@@ -1,11 +1,12 @@
 /* The native loop in the blocked form (benchmarks/native.py): rows copied into
  * structure-of-arrays blocks of S elements, the element formula (the generated lie_kernels.h of
- * the build, microlie._codegen) in an `omp simd` loop over the block (GCC vectorises it, libmvec
- * for tan/sin/cos/atan2), copied back; outputs preallocated. This is what a careful C programmer gets on microlie's row layout
- * for the operations whose rows of 6 or 7 do not vectorise as plain loops (lie_native.cpp).
- * Built by benchmarks/native.py: gcc -O3 -march=native -fno-math-errno -fopenmp-simd -std=c11
- * -fno-trapping-math -DLM_LIBMVEC -shared -fPIC -I fast/src/microlie_fast
- * -I fast/src/microlie_fast/generated -lmvec */
+ * the build, microlie._codegen) in an `omp simd` loop over the block (GCC vectorises it; the
+ * elementary functions are glibc's libmvec, through the vecmath.h that benchmarks/native.py
+ * writes for this reference), copied back; outputs preallocated. This is what a careful C
+ * programmer gets on microlie's row layout for the operations whose rows of 6 or 7 do not
+ * vectorise as plain loops (lie_native.cpp). Built by benchmarks/native.py: gcc -O3
+ * -march=native -fno-math-errno -fopenmp-simd -std=c11 -fno-trapping-math -shared -fPIC
+ * -I <its vecmath.h> -I src/microlie/_c/generated -lmvec */
 #define S 32
 #include "lie_kernels.h"
 

@@ -17,7 +17,7 @@ _command_setup()  # `microlie ape ...`: one BLAS thread, no cyclic GC (see micro
 from . import _fast  # noqa: E402 - after the command's set-up, before NumPy loads
 from .groups import SE2, SE3, SE23, SO2, SO3, LieGroup, Product, R, Side, Sim3  # noqa: E402
 
-_fast.install()  # the compiled kernels of microlie[fast], when installed
+_fast.install()  # the compiled kernels (microlie._c), when they were built
 
 __version__ = "0.1.0"
 

@@ -588,11 +588,22 @@ COMMANDS: list[Callable[[Any], None]] = [
 ]
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: one line, the version and which kernels are active (compiled, with the ISA
+    of the build and the version of the hot loops running on this CPU, or generic and why;
+    :func:`microlie._fast.describe`), computed only when asked."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        from . import __version__, _fast
+
+        sys.stdout.write(f"microlie {__version__}; {_fast.describe()}\n")
+        parser.exit()
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The argument parser of the ``microlie`` command (with ``command``, e.g. ``"ape"``: only
     that subcommand, which is all :func:`main` needs to run it)."""
-    from . import __version__
-
     parser = argparse.ArgumentParser(
         prog="microlie",
         description="microlie from the shell: trajectory evaluation (APE, RPE, KITTI metric, "
@@ -601,7 +612,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                "dependency.\nexample: microlie ape tum groundtruth.txt estimate.txt -a",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--version", action="version", version=f"microlie {__version__}")
+    parser.add_argument("--version", action=_VersionAction, nargs=0,
+                        help="print the version and which kernels are active, then exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for register in COMMANDS:
         if command is None or register.__name__ == f"_register_{command}":

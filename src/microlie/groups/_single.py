@@ -122,7 +122,7 @@ def _make(cls: Any, op: str, set_params: Callable[..., Any], set_floats: Callabl
 
 
 def use_compiled(one: Any) -> list[str]:
-    """Use the one-element C functions of ``one`` (the module ``microlie_fast._one``, generated
+    """Use the one-element C functions of ``one`` (the module ``microlie._c._one``, generated
     from the same kernels) for the groups and operations it implements; return their names
     (``"SE3.exp"``, ...). Its functions follow the contract of the Python ones above (``None``
     for anything they do not handle)."""

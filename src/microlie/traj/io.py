@@ -271,9 +271,9 @@ def _read_matrix(
 ) -> tuple[_LineNumbers, np.ndarray]:
     """(line numbers of the data rows, float matrix) of a numeric text file.
 
-    With ``microlie[fast]`` the bytes are parsed by the compiled reader (same values as
+    With the compiled kernels the bytes are parsed by the compiled reader (same values as
     ``float``); a file it does not take (anything but plain ASCII numbers, see
-    ``microlie_fast._text``) goes through the NumPy and line-by-line paths below.
+    ``microlie._c._text``) goes through the NumPy and line-by-line paths below.
     """
     parse = _fast.text_parser()
     if parse is not None:

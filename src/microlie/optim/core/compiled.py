@@ -1,12 +1,12 @@
-"""The compiled edge loops of ``microlie-fast`` for factor batches (``pip install
-"microlie[fast]"``; from a checkout ``pip install ./fast``).
+"""The compiled edge loops of ``microlie._c._graph`` for factor batches (built by ``pip install
+microlie`` where a C compiler exists; ``microlie --version`` says whether they were).
 
 A batch of SE(3) or SE(2) :class:`~microlie.optim.BetweenFactor` edges is linearised in one pass of
-``microlie_fast._graph``: residuals, right Jacobians, whitening, the robust correction, the block
+``microlie._c._graph``: residuals, right Jacobians, whitening, the robust correction, the block
 products ``A^T A`` and ``A^T e``, added straight into the CSC values of the problem's fixed
 pattern. So is a batch of :class:`~microlie.optim.ReprojectionFactor` observations with the BAL
 camera model and an ``SO3`` x ``R(3)`` world-to-camera pose (what
-:func:`~microlie.optim.sfm.bundle.bundle_graph` builds), by ``microlie_fast._reproj``
+:func:`~microlie.optim.sfm.bundle.bundle_graph` builds), by ``microlie._c._reproj``
 (:class:`ReprojectionPlan`). The NumPy path of :class:`~microlie.optim.core.problem.Problem`
 stays the reference and the fallback; both give the same linear system to rounding
 (``tests/test_optim_compiled.py``, ``tests/test_reprojection_compiled.py``).
@@ -33,7 +33,7 @@ _KERNELS = {"SE3": "se3", "SE2": "se2"}
 
 
 def _graph() -> Any:
-    """``microlie_fast._graph``, or ``None`` (not installed, an older build, or
+    """``microlie._c._graph``, or ``None`` (not installed, an older build, or
     ``MICROLIE_FAST=0``)."""
     return compiled_module("_graph")
 
@@ -61,7 +61,7 @@ class EdgePlan:
     Parameters
     ----------
     kernels : tuple
-        ``(cost, normal)`` functions of ``microlie_fast._graph``.
+        ``(cost, normal)`` functions of ``microlie._c._graph``.
     key : int
         The position of the variable batch in the problem's states.
     ii, jj : numpy.ndarray
@@ -171,14 +171,14 @@ class EdgePlan:
 
 class ReprojectionPlan:
     """A batch of BAL :class:`~microlie.optim.ReprojectionFactor` observations on the compiled
-    path (``microlie_fast._reproj``; built by :func:`plan`): the rotations ``R`` are formed once
+    path (``microlie._c._reproj``; built by :func:`plan`): the rotations ``R`` are formed once
     per camera variable, not per observation, and each observation's residual, Jacobians,
     whitening, robust correction and products are one pass, added straight into the pattern.
 
     Parameters
     ----------
     module : module
-        ``microlie_fast._reproj``.
+        ``microlie._c._reproj``.
     keys : tuple of int or None
         The positions in the problem's states of the rotation, translation, point and
         intrinsics batches (``None``: constant intrinsics).

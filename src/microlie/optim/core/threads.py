@@ -34,7 +34,7 @@ R = TypeVar("R")
 
 class _Limit:
     """The context of :func:`blas_threads_limit`: SciPy's BLAS loaded first (unless the compiled
-    Cholesky calls NumPy's, ``microlie_fast._chol.BLAS == "numpy"``), every loaded BLAS
+    Cholesky calls NumPy's, ``microlie._c._chol.BLAS == "numpy"``), every loaded BLAS
     held at ``n`` threads, libraries loaded later in the block held too when the code that
     loads them calls :func:`limit_new_libraries`, all restored on exit."""
 

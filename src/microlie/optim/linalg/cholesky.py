@@ -12,7 +12,7 @@ It runs once per pattern (:meth:`SupernodalSolver.analyse`), on the block patter
 hands over (``block_pattern``: :class:`~microlie.optim.core.problem.Problem` does, so the
 scalar pattern is never read back, nor even expanded); with the compiled extra the
 elimination tree, column counts, supernodes, structures, update pairs and assembly map are
-C loops (``microlie_fast._symbolic``), else the vectorised NumPy twin above (the same arrays,
+C loops (``microlie._c._symbolic``), else the vectorised NumPy twin above (the same arrays,
 tested equal).
 
 The factor is stored as one array of dense panels: supernode ``s`` owns the ``m_s x k_s``
@@ -21,12 +21,11 @@ block first). The numeric factorisation is right-looking: scatter the matrix int
 (one indexed assignment), then for each supernode in elimination order ``potrf`` on its
 diagonal block, ``trsm`` for the rows below, ``syrk`` for the update ``W = L21 L21^T``, and
 subtract ``W`` from the panels of its ancestors through precomputed relative row indices.
-With ``microlie-fast`` installed (``pip install "microlie[fast]"``) the whole loop is one C call
-on SciPy's own BLAS/LAPACK (``microlie_fast._chol``); without it (or with ``MICROLIE_FAST=0``)
-the NumPy loop of :mod:`microlie.optim.linalg.cholesky_numpy` runs a few batched steps per level of
-the
-supernodal elimination tree (its own layout of the same factor). Both
-compute the same factor (to rounding)."""
+With the compiled kernels (built by ``pip install microlie`` where a C compiler exists) the
+whole loop is one C call on SciPy's own BLAS/LAPACK (``microlie._c._chol``); without it (or
+with ``MICROLIE_FAST=0``) the NumPy loop of :mod:`microlie.optim.linalg.cholesky_numpy` runs a
+few batched steps per level of the supernodal elimination tree (its own layout of the same
+factor). Both compute the same factor (to rounding)."""
 
 from __future__ import annotations
 
@@ -48,18 +47,18 @@ _RELAX = ((4, 0.8), (16, 0.1), (48, 0.05))
 
 
 def _compiled() -> Any:
-    """The compiled supernode loop (``microlie_fast._chol``) or ``None``."""
+    """The compiled supernode loop (``microlie._c._chol``) or ``None``."""
     return compiled_module("_chol")
 
 
 def _compiled_symbolic() -> Any:
-    """The compiled symbolic analysis (``microlie_fast._symbolic``) or ``None``."""
+    """The compiled symbolic analysis (``microlie._c._symbolic``) or ``None``."""
     return compiled_module("_symbolic")
 
 
 def _supernodes(aptr: np.ndarray, aidx: np.ndarray, nb: int, order: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The NumPy twin of ``microlie_fast._symbolic.supernodes``: the postordered order, the
+    """The NumPy twin of ``microlie._c._symbolic.supernodes``: the postordered order, the
     first block column of each (amalgamated) supernode and the block row structures
     (``brow[brptr[s]:brptr[s + 1]]``, sorted, its own columns first) of the block graph
     ``(aptr, aidx)`` (CSR) under ``order``."""
@@ -77,7 +76,7 @@ def _supernodes(aptr: np.ndarray, aidx: np.ndarray, nb: int, order: np.ndarray
 
 
 class SupernodalSolver(LinearSolver):
-    """Supernodal Cholesky (NumPy/LAPACK, or one C call with ``microlie-fast``) on blocks of
+    """Supernodal Cholesky (NumPy/LAPACK, or one C call with the compiled kernels) on blocks of
     ``block_size`` unknowns (the greatest common divisor of the variables' dimensions).
 
     Examples
@@ -105,8 +104,9 @@ class SupernodalSolver(LinearSolver):
         self.ordering = ordering
         mod = _compiled() if compiled is not False else None
         if compiled and mod is None:
-            raise ImportError("the compiled supernode loop needs microlie-fast "
-                              "(pip install 'microlie[fast]') and MICROLIE_FAST != 0")
+            raise ImportError("the compiled supernode loop needs microlie._c._chol, built by pip "
+                              "install with a C compiler (microlie --version says whether "
+                              "it was), and MICROLIE_FAST != 0")
         self._c: Any = mod
 
     def analyse(self, indptr, indices, n, block_size=1, block_pattern=None):
@@ -142,7 +142,7 @@ class SupernodalSolver(LinearSolver):
         """Panels, row structures, the assembly map and the update pairs from the block row
         structures of the supernodes (``brow[brptr[s]:brptr[s + 1]]``, sorted: its columns
         first) and, when the pattern is made of dense blocks, its block CSC ``blocks``; the
-        maps in C with ``sym_c`` (``microlie_fast._symbolic``), else vectorised."""
+        maps in C with ``sym_c`` (``microlie._c._symbolic``), else vectorised."""
         ns = bstart.size
         bend = np.r_[bstart[1:], nb]
         sn_of_b = np.repeat(np.arange(ns), bend - bstart)

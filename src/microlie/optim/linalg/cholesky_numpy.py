@@ -1,7 +1,7 @@
 """The NumPy loop of the supernodal Cholesky
 (:class:`~microlie.optim.linalg.cholesky.SupernodalSolver`
-without ``microlie-fast``): the same factor as the compiled loop, organised so that the
-Python loop runs a few times per level of the supernodal elimination tree, not once per
+without the compiled ``microlie._c._chol``): the same factor as the compiled loop, organised
+so that the Python loop runs a few times per level of the supernodal elimination tree, not once per
 supernode.
 
 Plan (made once per pattern by :class:`NumpyLoop`):

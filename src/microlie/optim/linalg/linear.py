@@ -276,7 +276,7 @@ def auto_order(n: int, block_size: int = 1, compiled: bool | None = None) -> tup
     """The backends ``"auto"`` tries, best first, for ``n`` unknowns in blocks of ``block_size``.
 
     The fastest measured per problem kind and size, as a user pays it (analysis included), with
-    and without the compiled supernodal loop (``microlie-fast``): below :data:`AUTO_DENSE`
+    and without the compiled supernodal loop (``microlie._c._chol``): below :data:`AUTO_DENSE`
     unknowns the dense Cholesky; 2-D problems (blocks under 6) qdldl (its scalar LDL^T has
     almost no analysis to pay, and these graphs fill little), except from
     :data:`AUTO_QDLDL_2D` unknowns with the compiled loop: the supernodal Cholesky; 3-D
@@ -295,7 +295,7 @@ def auto_order(n: int, block_size: int = 1, compiled: bool | None = None) -> tup
         Unknowns per block (the variables' common dimension).
     compiled : bool, optional
         Whether the supernodal Cholesky runs its compiled loop (default: whether
-        ``microlie_fast`` is importable and ``MICROLIE_FAST`` is not ``0``).
+        ``microlie._c._chol`` was built and ``MICROLIE_FAST`` is not ``0``).
 
     Returns
     -------

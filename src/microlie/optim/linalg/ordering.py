@@ -6,7 +6,7 @@ permutation ``p`` (new -> old: the matrix is factorised as ``A[p][:, p]``).
 
 - :func:`minimum_degree_blocks`: the default order of a block (node) graph given as CSR arrays:
   our approximate minimum degree (Amestoy, Davis and Duff 1996; compiled,
-  ``microlie_fast._order``), or without the compiled code SciPy's :func:`minimum_degree`.
+  ``microlie._c._order``), or without the compiled code SciPy's :func:`minimum_degree`.
 - :func:`minimum_degree`: multiple minimum degree (SuperLU's ``MMD_AT_PLUS_A``; SuperLU only
   orders: its incomplete factorisation with every off-diagonal entry dropped follows).
 - :func:`symbolic`: the symbolic factor for an ordering, computed from the pattern alone, as

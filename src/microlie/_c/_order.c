@@ -1,4 +1,4 @@
-/* microlie_fast._order: an approximate minimum degree ordering of a symmetric graph.
+/* microlie._c._order: an approximate minimum degree ordering of a symmetric graph.
  *
  * The method of Amestoy, Davis and Duff (SIAM J. Matrix Anal. Appl. 17(4), 1996), written here
  * from the paper's description:

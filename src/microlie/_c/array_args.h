@@ -1,4 +1,4 @@
-/* microlie_fast: the argument check array-taking modules share (_normal.c).
+/* microlie._c: the argument check the array-taking modules share (_normal.c, _reproj.c).
  * Include after Python.h and numpy/arrayobject.h. */
 #ifndef MICROLIE_FAST_ARRAY_ARGS_H
 #define MICROLIE_FAST_ARRAY_ARGS_H

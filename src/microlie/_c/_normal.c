@@ -1,4 +1,4 @@
-/* microlie_fast._normal: two numeric loops of the engine's normal equations, the compiled
+/* microlie._c._normal: two numeric loops of the engine's normal equations, the compiled
  * forms of NumPy loops that stay the reference and the fallback.
  *
  * products(A, dest, y): the assembly of H and g from the factors of the NumPy path
@@ -36,6 +36,7 @@
 #include <stdlib.h>
 
 #include "array_args.h"
+#include "dispatch.h"
 
 /* the products of one neighbour unknown t2 (V row vb) with the unknowns 0..lim-1:
  * tmp[t] = W[:, t] . vb (W = V^T, d x k): contiguous in t, vectorised */
@@ -130,6 +131,44 @@ static inline __attribute__((always_inline)) int node(
     return 0;
 }
 
+/* the nodes of form(), one function per dispatched ISA (LM_HOT: dispatch.h); returns -1, or
+ * the first node whose block is not positive definite */
+LM_HOT static ix form_loop(ix m, const double *z, const ix *cip, const ix *bip, const ix *pp,
+                           const ix *ndp, const ix *clp, double *Sp, double *Lip, double *Vp,
+                           double *pv, ix d, ix k, ix dg, double *L, double *W, double *tmp) {
+    for (ix e = 0; e < m; e++) {
+        int r;
+        if (d == 3)  /* points: the constant size lets the compiler unroll */
+            r = node(z, cip + e * 9, bip + e * k * 3, pp + e * dg * dg, ndp + e * dg,
+                     clp + e * dg, Sp, Lip + e * 9, Vp + e * k * 3, pv + e * 3, 3, k, dg, L, W, tmp);
+        else
+            r = node(z, cip + e * d * d, bip + e * k * d, pp + e * dg * dg, ndp + e * dg,
+                     clp + e * dg, Sp, Lip + e * d * d, Vp + e * k * d, pv + e * d, d, k, dg,
+                     L, W, tmp);
+        if (r) return e;
+    }
+    return -1;
+}
+
+/* y[dest] += the products of products(), one function per dispatched ISA; 1 when a position
+ * lies outside y */
+LM_HOT static int products_loop(const double *a, const ix *de, double *yp, ix ny, ix m, ix r,
+                                ix c) {
+    for (ix i = 0; i < m; i++) {
+        const double *ai = a + i * r * c;
+        const ix *di = de + i * c * c;
+        for (ix q = 0; q < c; q++)
+            for (ix p = 0; p < c; p++) {
+                double s = 0.0;
+                for (ix t = 0; t < r; t++) s = fma(ai[t * c + p], ai[t * c + q], s);
+                ix u = di[p * c + q];
+                if (u < 0 || u >= ny) return 1;
+                yp[u] += s;
+            }
+    }
+    return 0;
+}
+
 static PyObject *form_(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
     if (nargs != 10) {
@@ -184,19 +223,9 @@ static PyObject *form_(PyObject *self, PyObject *const *args, Py_ssize_t nargs) 
     double L[64 * 64];
     double *W = (double *)malloc(sizeof(double) * (size_t)((d + 1) * k + 1)), *tmp = W + d * k;
     if (!W) return PyErr_NoMemory();
-    ix bad = -1;
+    ix bad;
     Py_BEGIN_ALLOW_THREADS
-    for (ix e = 0; e < m; e++) {
-        int r;
-        if (d == 3)  /* points: the constant size lets the compiler unroll */
-            r = node(z, cip + e * 9, bip + e * k * 3, pp + e * dg * dg, ndp + e * dg,
-                     clp + e * dg, Sp, Lip + e * 9, Vp + e * k * 3, pv + e * 3, 3, k, dg, L, W, tmp);
-        else
-            r = node(z, cip + e * d * d, bip + e * k * d, pp + e * dg * dg, ndp + e * dg,
-                     clp + e * dg, Sp, Lip + e * d * d, Vp + e * k * d, pv + e * d, d, k, dg,
-                     L, W, tmp);
-        if (r) { bad = e; break; }
-    }
+    bad = form_loop(m, z, cip, bip, pp, ndp, clp, Sp, Lip, Vp, pv, d, k, dg, L, W, tmp);
     Py_END_ALLOW_THREADS
     free(W);
     return PyLong_FromSsize_t((Py_ssize_t)bad);
@@ -222,20 +251,9 @@ static PyObject *products_(PyObject *self, PyObject *const *args, Py_ssize_t nar
     const ix *de = (const ix *)PyArray_DATA(dest);
     double *yp = (double *)PyArray_DATA(y);
     ix ny = PyArray_DIM(y, 0);
-    int bad = 0;
+    int bad;
     Py_BEGIN_ALLOW_THREADS
-    for (ix i = 0; i < m && !bad; i++) {
-        const double *ai = a + i * r * c;
-        const ix *di = de + i * c * c;
-        for (ix q = 0; q < c && !bad; q++)
-            for (ix p = 0; p < c; p++) {
-                double s = 0.0;
-                for (ix t = 0; t < r; t++) s = fma(ai[t * c + p], ai[t * c + q], s);
-                ix u = di[p * c + q];
-                if (u < 0 || u >= ny) { bad = 1; break; }
-                yp[u] += s;
-            }
-    }
+    bad = products_loop(a, de, yp, ny, m, r, c);
     Py_END_ALLOW_THREADS
     if (bad) {
         PyErr_SetString(PyExc_ValueError, "dest holds a position outside y");

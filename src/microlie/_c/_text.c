@@ -1,4 +1,4 @@
-/* microlie_fast._text: a compiled reader of numeric text tables (trajectory files).
+/* microlie._c._text: a compiled reader of numeric text tables (trajectory files).
  *
  * parse_table(data: bytes, ncols: int, comma: bool, at_least: bool) -> ndarray | None
  *

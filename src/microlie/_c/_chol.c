@@ -1,4 +1,4 @@
-/* microlie_fast._chol: the numeric supernodal Cholesky of microlie.optim.cholesky in one C call.
+/* microlie._c._chol: the numeric supernodal Cholesky of microlie.optim.cholesky in one C call.
  *
  * The symbolic analysis (supernodes, panels, row structures, the assembly map and the update
  * pairs) is microlie's (NumPy); this file runs the loops over it. There is no link-time BLAS:
@@ -28,6 +28,8 @@
 #include <numpy/arrayobject.h>
 #include <math.h>
 #include <string.h>
+
+#include "dispatch.h"
 
 typedef npy_int64 i64;
 typedef void (*potrf_t)(char *, int *, double *, int *, int *);
@@ -166,7 +168,7 @@ static int load_blas(void) {
  * kitti_00 1.6 -> 1.0 ms, sphere2500 and parking-garage unchanged (8 and 32 were no better). */
 #define SMALL_K 16
 
-static int small_panel(int k, int m, double *restrict P) {
+LM_HOT static int small_panel(int k, int m, double *restrict P) {
     for (int j = 0; j < k; j++) {
         double *restrict cj = P + (i64)j * m;
         double d = cj[j];
@@ -184,7 +186,7 @@ static int small_panel(int k, int m, double *restrict P) {
     return 0;
 }
 
-static void small_syrk(int u, int k, const double *restrict A, int lda, double *restrict W) {
+LM_HOT static void small_syrk(int u, int k, const double *restrict A, int lda, double *restrict W) {
     for (int j = 0; j < u; j++) { /* W[j:, j] = A[j:, :] A[j, :]^T */
         double *restrict w = W + (i64)j * u;
         for (int i = j; i < u; i++) w[i] = 0.0;

@@ -1,4 +1,4 @@
-/* microlie_fast._symbolic: the symbolic analysis of microlie.optim.linalg.cholesky in C.
+/* microlie._c._symbolic: the symbolic analysis of microlie.optim.linalg.cholesky in C.
  *
  * Everything works on the block graph (one node per dense block of unknowns) and int64 arrays.
  *

@@ -1,4 +1,4 @@
-/* microlie_fast._reproj: the compiled linearisation of BAL reprojection factors
+/* microlie._c._reproj: the compiled linearisation of BAL reprojection factors
  * (microlie.optim.ReprojectionFactor with the "bal" model and an SO3 x R(3) world-to-camera
  * pose; microlie.optim.core.compiled.ReprojectionPlan), the compiled form of the NumPy path
  * (ReprojectionFactor.evaluate_into, then Problem.linearize's whitening, robust correction

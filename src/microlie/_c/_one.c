@@ -1,4 +1,4 @@
-/* microlie_fast._one: one-element entry points of every group for microlie's single-element
+/* microlie._c._one: one-element entry points of every group for microlie's single-element
  * fast path (microlie/groups/_single.py) and for single elements of every kernel
  * (microlie._kernels.register_single: values and fused Jacobians, e.g. SE3.exp(tau, jac=True)).
  *
@@ -82,7 +82,7 @@ static PyObject *call(const op *k, PyObject *const *args, Py_ssize_t nargs) {
         return NULL;
     }
     if (params_off < 0) {
-        PyErr_SetString(PyExc_RuntimeError, "microlie_fast._one.setup was not called");
+        PyErr_SetString(PyExc_RuntimeError, "microlie._c._one.setup was not called");
         return NULL;
     }
     const double *a = NULL, *b = NULL;
@@ -149,7 +149,7 @@ static PyObject *call_jac(const jop *j, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     }
     if (params_off < 0) {
-        PyErr_SetString(PyExc_RuntimeError, "microlie_fast._one.setup was not called");
+        PyErr_SetString(PyExc_RuntimeError, "microlie._c._one.setup was not called");
         return NULL;
     }
     const double *a = NULL, *b = NULL;
