@@ -461,9 +461,9 @@ class SchurSolver(LinearSolver):
         >>> s.factorize(A.data)
         """
         data = np.ascontiguousarray(data, dtype=np.float64)
-        if data.shape != (self.indices.size,):
+        if data.shape != (self.nnz,):
             raise ValueError(f"data has shape {data.shape}; the analysed pattern has "
-                             f"{self.indices.size} entries")
+                             f"{self.nnz} entries")
         self._factored = False
         if self._pad:
             dz = self._dz
