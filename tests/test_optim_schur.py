@@ -400,3 +400,35 @@ def test_blocks_not_stored_in_full(fast, monkeypatch):
     s.factorize(A.data)
     b = np.arange(1.0, 6.0)
     np.testing.assert_allclose(s.solve(b), np.linalg.solve(H, b), rtol=1e-13)
+
+
+@pytest.mark.parametrize("fast", ["1", "0"])
+@pytest.mark.parametrize("seed", range(6))
+def test_analysis_from_the_block_pattern(seed, fast, monkeypatch):
+    """Analysed from the pattern of 3 x 3 blocks alone (``indices=None``, as a Problem hands
+    it over: H's node blocks read off it, never off the scalar pattern), the solve equals
+    numpy.linalg.solve, on random block patterns (nodes of 3 and 6 unknowns) and bundle-like
+    ones (cameras of three nodes)."""
+    monkeypatch.setenv("MICROLIE_FAST", fast)
+    rng = np.random.default_rng(100 + seed)
+    if seed % 2:
+        H, A, off, elim, _ = _camera_system(rng, 5, 30)
+    else:
+        H, A, off, elim = _random_system(rng, int(rng.integers(1, 7)), int(rng.integers(1, 25)))
+    n = H.shape[0]
+    Bk = A.tobsr(blocksize=(3, 3))  # symmetric pattern: its block CSR is its block CSC
+    Bk.sort_indices()
+    s = SchurSolver(off, elim, "cholesky")
+    s.analyse(A.indptr, None, n, 3, block_pattern=(Bk.indptr, Bk.indices))
+    assert not s._pad  # the blocks are stored in full: H's data is read in place
+    assert s._indices is None  # the scalar pattern was never expanded
+    for lam in (0.0, 1e-2):
+        data = A.data.copy()
+        diag = np.flatnonzero(A.indices == np.repeat(np.arange(n), np.diff(A.indptr)))
+        data[diag] += lam
+        Hd = H + lam * np.eye(n)
+        s.factorize(data)
+        b = rng.standard_normal(n)
+        ref = np.linalg.solve(Hd, b)
+        x = s.solve(b)
+        assert np.abs(x - ref).max() <= 1e-10 * np.linalg.cond(Hd) * np.abs(ref).max()

@@ -612,13 +612,10 @@ class Problem:
             cache = self.__dict__.setdefault("_analysed", {})
             if key in cache:
                 return cache[key]
-        if ls.name == "schur":  # it takes its blocks from this problem
-            ls.analyse(self.indptr, self.indices, self.size, self.block_size)
-        else:
-            # the row indices only if expanded already (else the backend expands them if it
-            # needs them: the supernodal Cholesky does not)
-            ls.analyse(self.indptr, self._indices, self.size, self.block_size,
-                       block_pattern=self.block_pattern)
+        # the row indices only if expanded already (else the backend expands them if it
+        # needs them: the supernodal Cholesky and the Schur elimination work on the blocks)
+        ls.analyse(self.indptr, self._indices, self.size, self.block_size,
+                   block_pattern=self.block_pattern)
         if isinstance(linear_solver, str):
             cache[key] = ls
         return ls

@@ -183,8 +183,13 @@ class SchurSolver(LinearSolver):
             The CSC pattern of the full symmetric matrix (rows sorted in each column).
         n : int
             The matrix size (``node_off[-1]``).
-        block_size, block_pattern
-            Unused (the nodes give the blocks); for the common interface.
+        block_size : int
+            The unknowns come in blocks of that size (each node holds whole blocks).
+        block_pattern : (numpy.ndarray, numpy.ndarray), optional
+            The CSC of the ``block_size`` blocks (see
+            :meth:`~microlie.optim.linalg.base.LinearSolver.analyse`): when given, ``H``'s
+            blocks of nodes are read off it, never off the scalar pattern (``indices`` may then
+            be ``None``).
 
         Raises
         ------
@@ -202,32 +207,31 @@ class SchurSolver(LinearSolver):
         >>> s.n_reduced, s.reduced_solver.name
         (1, 'dense')
         """
-        super().analyse(indptr, indices, n)
+        super().analyse(indptr, indices, n, block_size, block_pattern)
         off = self.node_off
         if off[-1] != n:
             raise ValueError(f"node_off ends at {int(off[-1])}, the matrix has {n} unknowns")
         nn = off.size - 1
         dof = np.diff(off)
-        ip = np.asarray(indptr, dtype=np.int64)
-        ix = np.asarray(indices, dtype=np.int64)
-        nnz = ix.size
-        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(ip))
-        node = np.repeat(np.arange(nn, dtype=np.int64), dof)  # node of each unknown
+        # H by blocks of nodes: every step below works on these (a few per pair of nodes that
+        # share a factor), never on H's scalar entries; entry (a, b) of block (u, v) is at
+        # hpos[block] + b * hlen[v] + a of H's data (padded when H does not store it)
+        bu, bv = self._node_blocks(block_size, block_pattern)
+        hpos, hlen = _block_offsets(bu, bv, dof)
+        hkey = bv * nn + bu  # ascending
         is_e = np.zeros(nn, dtype=bool)
         is_e[self.eliminated] = True
-        e_unk = is_e[node]
-        ecol, erow = e_unk[cols], e_unk[ix]
-        nc, nr = node[cols], node[ix]
-        clash = np.flatnonzero(ecol & erow & (nc != nr))
+        eu_, ev_ = is_e[bu], is_e[bv]
+        clash = np.flatnonzero(eu_ & ev_ & (bu != bv))
         if clash.size:
-            a, b = int(nr[clash[0]]), int(nc[clash[0]])
+            a, b = int(bu[clash[0]]), int(bv[clash[0]])
             raise ValueError(f"eliminated nodes {a} and {b} share a block of the matrix: only "
                              f"nodes that share no factor can be eliminated together")
         # the reduced numbering: the nodes that stay, grouped in supernodes (nodes with the
         # same closed neighbourhood in H's block graph, e.g. the rotation, translation and
         # intrinsics of one camera: their blocks of S are dense together, so one block of
         # their summed size loses no sparsity), unknowns supernode by supernode
-        rnode = _supernodes(ip, ix, off, node, is_e)  # node -> supernode, -1: eliminated
+        rnode = _supernodes(bv, bu, is_e)  # node -> supernode, -1: eliminated
         ns = int(rnode.max()) + 1
         kept = np.flatnonzero(~is_e)
         kept = kept[np.argsort(rnode[kept], kind="stable")]  # the nodes in reduced order
@@ -237,58 +241,28 @@ class SchurSolver(LinearSolver):
         kd = dof[kept]
         self._r_unk = (np.repeat(off[kept], kd)
                        + np.arange(nR) - np.repeat(np.cumsum(kd) - kd, kd))  # reduced -> H
+        node = np.repeat(np.arange(nn, dtype=np.int64), dof)  # node of each unknown
         # each reduced unknown's place in its supernode
         lin = np.full(n, -1, np.int64)
         lin[self._r_unk] = np.arange(nR) - roff[rnode[node[self._r_unk]]]
         self.supernodes = ns
-        # positions of H's entries by key col * n + row (CSC with sorted rows: ascending)
-        hkey = cols * n + ix
-        if nnz > 1 and np.any(np.diff(hkey) <= 0):
-            raise ValueError("indices must be sorted within each column (canonical CSC)")
-
-        def at(row: np.ndarray, col: np.ndarray) -> np.ndarray:
-            """Positions of entries (row, col) of H; ``nnz`` (a zero) where not stored."""
-            q = col * n + row
-            k = np.minimum(np.searchsorted(hkey, q), max(nnz - 1, 0))
-            return np.where(hkey[k] == q, k, nnz) if nnz else np.full(q.shape, 0)
-
-        # the eliminated nodes' columns: when each holds the rows of the node's first column
-        # (blocks stored in full), entry (row, off_e + a) is at the position of (row, off_e)
-        # plus a times that column's length, found among the first columns' entries only
-        elen = np.zeros(nn, np.int64)
-        elen[self.eliminated] = ip[off[self.eliminated] + 1] - ip[off[self.eliminated]]
-        qe = np.flatnonzero(ecol)
-        ce, ne = cols[qe], nc[qe]
-        q0 = ip[off[ne]] + (qe - ip[ce])
-        uniform = bool(np.all(ip[ce + 1] - ip[ce] == elen[ne]) and np.all(ix[qe] == ix[q0]))
-        q1 = qe[ce == off[ne]]
-        key1 = nc[q1] * n + ix[q1]  # ascending
-        del qe, ce, ne, q0
 
         def at_e(row: np.ndarray, es: np.ndarray, d: int) -> np.ndarray:
-            """``at(row[..., None], off[es] + arange(d))``: ``(m, r, d)``."""
-            col = off[es][:, None, None] + np.arange(d)
-            if not uniform or not key1.size:
-                return at(row[:, :, None], col)
-            q = es[:, None] * n + row
-            k = np.minimum(np.searchsorted(key1, q), key1.size - 1)
-            pos = np.where(key1[k] == q, q1[k], -1)[:, :, None] \
-                + np.arange(d) * elen[es][:, None, None]
-            return np.where(pos[:, :, :1] >= 0, pos, nnz)
+            """The positions of ``H[row, off[es] + arange(d)]``: ``(m, r, d)`` (the blocks
+            are stored: the rows are the node's own and its neighbours')."""
+            rn = node[row]
+            k = np.searchsorted(hkey, es[:, None] * nn + rn)
+            p0 = hpos[k] + row - off[rn]
+            return p0[:, :, None] + np.arange(d) * hlen[es][:, None, None]
 
-        # the blocks (e, u) of eliminated nodes against the others, by e then u
-        # (the first entry of each run of one node's rows in a column: rows are sorted)
-        # (uniform columns: the first column of each eliminated node is enough)
-        qs = q1 if uniform else np.arange(nnz)
-        run = np.ones(qs.size, dtype=bool)
-        run[1:] = (nr[qs[1:]] != nr[qs[:-1]]) | (cols[qs[1:]] != cols[qs[:-1]])
-        sel = qs[ecol[qs] & ~erow[qs] & run]
-        eu = np.unique(nc[sel] * ns + rnode[nr[sel]])
+        # the blocks (e, u) of eliminated nodes against the supernodes that stay, by e then u
+        sel = ev_ & ~eu_
+        eu = _unique_keys([bv[sel] * ns + rnode[bu[sel]]], nn * ns)
         pe, pu = eu // ns, eu % ns  # eliminated node, neighbouring supernode
         # the pattern of S, by blocks of the reduced nodes: A's blocks and, for every
         # eliminated node, all pairs of its neighbours
-        ra = ~ecol & ~erow
-        keys = [rnode[nc[ra]] * ns + rnode[nr[ra]], np.arange(ns) * (ns + 1)]
+        ra = np.flatnonzero(~eu_ & ~ev_)
+        keys = [rnode[bv[ra]] * ns + rnode[bu[ra]], np.arange(ns) * (ns + 1)]
         # eliminated nodes grouped by (dof, degree, neighbouring unknowns)
         deg = np.bincount(pe, minlength=nn)
         kun = np.bincount(pe, weights=rdof[pu], minlength=nn).astype(np.int64)
@@ -310,9 +284,10 @@ class SchurSolver(LinearSolver):
                 nb = np.zeros((es.size, 0), np.int64)
             plan.append((es, nb, d, dg, k))
         bkey = _unique_keys(keys, ns * ns)  # col * ns + row, ascending
-        bv, bu = bkey // ns, bkey % ns
-        s_ip, s_ix, pos0, collen = _block_csc(bu, bv, rdof, roff)
-        self._s_nnz = int(s_ip[-1])
+        su, sv = bkey % ns, bkey // ns
+        pos0, collen = _block_offsets(su, sv, rdof)
+        sptr = np.searchsorted(sv, np.arange(ns + 1))
+        self._s_nnz = int(np.sum(rdof * collen))
 
         # the blocks' positions by key: a table when it is small (a street scene asks for tens
         # of millions of neighbour pairs: a gather instead of as many binary searches)
@@ -327,11 +302,17 @@ class SchurSolver(LinearSolver):
                 return table[v * ns + u]
             return pos0[np.searchsorted(bkey, v * ns + u)]
 
-        # A's entries: H position -> S position
-        ar, ac = nr[ra], nc[ra]
-        self._a_src = np.flatnonzero(ra)
-        self._a_dst = (s_at(rnode[ar], rnode[ac]) + lin[cols[ra]] * collen[rnode[ac]]
-                       + lin[ix[ra]])
+        # A's entries: H position -> S position, block by block
+        du, dv = dof[bu[ra]], dof[bv[ra]]
+        cnt = du * dv
+        rep = np.repeat(np.arange(ra.size), cnt)
+        within = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        bb, aa = within // du[rep], within % du[rep]
+        u, v = bu[ra][rep], bv[ra][rep]
+        self._a_src = hpos[ra][rep] + bb * hlen[v] + aa
+        self._a_dst = (s_at(rnode[u], rnode[v]) + lin[off[v] + bb] * collen[rnode[v]]
+                       + lin[off[u] + aa])
+        del du, dv, cnt, rep, within, bb, aa, u, v
         # per group: the index arrays of C_e, B_e^T, the rows and the scatter into S
         # the compiled loop writes straight into S from the blocks' positions; the NumPy one
         # scatters every product through one bincount over all their destinations
@@ -382,13 +363,13 @@ class SchurSolver(LinearSolver):
         if self._elim is not None:
             # the compiled loop writes S's upper block triangle only: the positions of the
             # lower blocks' entries and of their transposes, copied after it
-            lb = np.flatnonzero(bu > bv)
-            du, dv = rdof[bu[lb]], rdof[bv[lb]]
+            lb = np.flatnonzero(su > sv)
+            du, dv = rdof[su[lb]], rdof[sv[lb]]
             cnt = du * dv
             rep = np.repeat(np.arange(lb.size), cnt)
             within = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
             bb, aa = within // du[rep], within % du[rep]
-            u, v = bu[lb][rep], bv[lb][rep]
+            u, v = su[lb][rep], sv[lb][rep]
             self._low = pos0[lb][rep] + bb * collen[v] + aa
             self._up = s_at(v, u) + aa * collen[u] + bb
         # int64: bincount converts anything else to it, a copy per factorisation
@@ -400,16 +381,58 @@ class SchurSolver(LinearSolver):
         self._rhs_sum: Any = None
         # H's data then one zero, for the entries of C_e and B_e not stored (an H whose
         # blocks are dense has none: then the data is read in place, not copied)
-        self._pad = any(bool((g.cidx == nnz).any() or (g.bidx == nnz).any()) for g in groups)
-        self._dz = np.zeros(nnz + 1) if self._pad else np.zeros(0)
-        self._e_unk = np.flatnonzero(e_unk)
+        self._pad = self._spread is not None
+        self._dz = np.zeros(int(np.sum(dof[bu] * dof[bv])) + 1) if self._pad else np.zeros(0)
         self.n_reduced = nR
         choice = reduced_choice(nR, self._s_nnz) if self.reduced == "auto" else self.reduced
         bs = int(np.gcd.reduce(rdof))
         inner = make_solver(choice, nR, bs)
-        inner.analyse(s_ip, s_ix, nR, bs)
+        if np.all(rdof == bs):  # S's blocks are its supernodes': the backend expands them
+            inner.analyse(_scalar_ptr(sptr, bs), None, nR, bs, block_pattern=(sptr, su))
+        else:
+            s_ip, s_ix = _block_csc(su, sv, rdof, roff, pos0, collen)
+            inner.analyse(s_ip, s_ix, nR, bs)
         self.reduced_solver = inner
         self._factored = False
+
+    def _node_blocks(self, bs: int, block_pattern: Any) -> tuple[np.ndarray, np.ndarray]:
+        """H's blocks of nodes ``(rows, columns)`` (sorted by column, then row), read off the
+        pattern of ``bs x bs`` blocks when given (the first sub-block of every node block),
+        else off the scalar pattern. When H does not store its node blocks in full (a scalar
+        pattern with holes), sets ``_spread``: the position of each stored entry in the data
+        of the full blocks (:meth:`factorize` spreads the data into it, zeros elsewhere)."""
+        off, n = self.node_off, self.n
+        nn = off.size - 1
+        dof = np.diff(off)
+        self._spread: np.ndarray | None = None
+        if block_pattern is not None and bs > 0 and not np.any(off % bs):
+            bptr, bidx = (np.asarray(a, dtype=np.int64) for a in block_pattern)
+            first = off[:-1] // bs  # first sub-block of each node
+            sbnode = np.repeat(np.arange(nn, dtype=np.int64), dof // bs)
+            lens = bptr[first + 1] - bptr[first]
+            pos = (np.repeat(bptr[first] - np.cumsum(lens) + lens, lens)
+                   + np.arange(int(lens.sum())))
+            rows = bidx[pos]
+            keep = rows * bs == off[sbnode[rows]]
+            bu = sbnode[rows[keep]]
+            bv = np.repeat(np.arange(nn, dtype=np.int64), lens)[keep]
+            if int(np.sum(dof[bu] * dof[bv])) == self.nnz:  # every node block in full
+                return bu, bv
+        ip = np.asarray(self.indptr, dtype=np.int64)
+        ix = np.asarray(self.indices, dtype=np.int64)
+        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(ip))
+        if ix.size > 1 and np.any(np.diff(cols * n + ix) <= 0):
+            raise ValueError("indices must be sorted within each column (canonical CSC)")
+        node = np.repeat(np.arange(nn, dtype=np.int64), dof)
+        cn = node[cols]
+        key = _unique_keys([cn * nn + node[ix]], nn * nn)
+        bu, bv = key % nn, key // nn
+        if int(np.sum(dof[bu] * dof[bv])) != ix.size:
+            pos0, collen = _block_offsets(bu, bv, dof)
+            rn = node[ix]
+            k = np.searchsorted(key, cn * nn + rn)
+            self._spread = pos0[k] + (cols - off[cn]) * collen[cn] + ix - off[rn]
+        return bu, bv
 
     # ---------------------------------------------------------------- numeric
     def factorize(self, data: np.ndarray) -> None:
@@ -438,13 +461,13 @@ class SchurSolver(LinearSolver):
         >>> s.factorize(A.data)
         """
         data = np.ascontiguousarray(data, dtype=np.float64)
-        if data.shape != (self.indices.size,):
+        if data.shape != (self.nnz,):
             raise ValueError(f"data has shape {data.shape}; the analysed pattern has "
-                             f"{self.indices.size} entries")
+                             f"{self.nnz} entries")
         self._factored = False
         if self._pad:
             dz = self._dz
-            dz[:-1] = data
+            dz[self._spread] = data
         else:
             dz = data
         S = np.zeros(self._s_nnz)
@@ -629,26 +652,15 @@ def _unique_keys(keys: list[np.ndarray], size: int) -> np.ndarray:
     return np.unique(np.concatenate(keys))
 
 
-def _supernodes(ip: np.ndarray, ix: np.ndarray, off: np.ndarray, node: np.ndarray,
-                is_e: np.ndarray) -> np.ndarray:
+def _supernodes(u: np.ndarray, w: np.ndarray, is_e: np.ndarray) -> np.ndarray:
     """The supernode of each node that stays (-1 for the eliminated ones), numbered by their
     first node: nodes with the same closed neighbourhood in the block graph of ``H`` (the
-    nodes of the blocks stored in their first scalar column, themselves included, read off
-    the blocks' first entries of the CSC pattern ``ip``, ``ix``; ``node`` the node of each
-    unknown) form one
-    supernode. Such nodes are adjacent and have the same blocks in ``S`` too, so storing them
-    as one dense block loses no sparsity; the neighbourhoods are compared by their size and a
-    64-bit sum of fixed per-node keys (two different ones with the same keys would only make
-    one denser block: the solve stays exact)."""
+    blocks ``(w, u)``, sorted by ``u`` then ``w``, diagonal included) form one supernode. Such
+    nodes are adjacent and have the same blocks in ``S`` too, so storing them as one dense
+    block loses no sparsity; the neighbourhoods are compared by their size and a 64-bit sum of
+    fixed per-node keys (two different ones with the same keys would only make one denser
+    block: the solve stays exact)."""
     nn = is_e.size
-    # the entries of each node's first column (not a pass over all of H)
-    c0 = off[:-1]
-    lens = ip[c0 + 1] - ip[c0]
-    pos = np.repeat(ip[c0] - np.cumsum(lens) + lens, lens) + np.arange(int(lens.sum()))
-    rows = ix[pos]
-    w = node[rows]
-    first = rows == off[w]  # one entry per block, sorted by (u, w)
-    u, w = np.repeat(np.arange(nn), lens)[first], w[first]
     # splitmix64 of the node numbers: fixed pseudo-random keys, summed with wrap-around
     z = (np.arange(nn, dtype=np.uint64) + np.uint64(1)) * np.uint64(0x9E3779B97F4A7C15)
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -672,21 +684,37 @@ def _supernodes(ip: np.ndarray, ix: np.ndarray, off: np.ndarray, node: np.ndarra
     return out
 
 
-def _block_csc(bu: np.ndarray, bv: np.ndarray, dof: np.ndarray, off: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The CSC pattern (full symmetric storage, dense blocks) of the blocks ``(bu, bv)``
-    (sorted by column ``bv``, then row ``bu``; nodes of ``dof`` unknowns at ``off``): every
-    scalar column of block column ``v`` holds the same ``collen[v]`` rows, so entry ``(a, b)``
-    of block ``(u, v)`` is at ``pos0 + b * collen[v] + a``. Returns ``indptr``, ``indices``,
-    ``pos0`` (per block) and ``collen`` (per node)."""
+def _block_offsets(bu: np.ndarray, bv: np.ndarray, dof: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Where the dense blocks ``(bu, bv)`` (sorted by column ``bv``, then row ``bu``; nodes of
+    ``dof`` unknowns) sit in their CSC data (full storage, rows sorted): every scalar column of
+    block column ``v`` holds the same ``collen[v]`` rows, so entry ``(a, b)`` of block
+    ``(u, v)`` is at ``pos0 + b * collen[v] + a``. Returns ``pos0`` (per block) and ``collen``
+    (per node)."""
     nb = dof.size
-    n = int(off[-1])
     du = dof[bu]
     cs = np.cumsum(du) - du
     rowoff = cs - cs[np.searchsorted(bv, bv)]
     collen = np.bincount(bv, weights=du, minlength=nb).astype(np.int64)
     base = np.concatenate([[0], np.cumsum(dof * collen)]).astype(np.int64)
-    pos0 = base[bv] + rowoff
+    return base[bv] + rowoff, collen
+
+
+def _scalar_ptr(bptr: np.ndarray, bs: int) -> np.ndarray:
+    """The scalar CSC column pointers of the pattern of ``bs x bs`` blocks ``bptr``."""
+    return np.concatenate([[0], np.cumsum(np.repeat(np.diff(bptr) * bs, bs))]).astype(np.int64)
+
+
+def _block_csc(bu: np.ndarray, bv: np.ndarray, dof: np.ndarray, off: np.ndarray,
+               pos0: np.ndarray, collen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The scalar CSC pattern (``indptr``, ``indices``) of the dense blocks ``(bu, bv)`` laid
+    out by :func:`_block_offsets` (``pos0``, ``collen``; nodes of ``dof`` unknowns at
+    ``off``)."""
+    nb = dof.size
+    n = int(off[-1])
+    du = dof[bu]
+    cs = np.cumsum(du) - du
+    base = np.concatenate([[0], np.cumsum(dof * collen)]).astype(np.int64)
     cnode = np.repeat(np.arange(nb), dof)  # node of each scalar column
     cin = np.arange(n) - off[cnode]  # column within its node
     indptr = np.concatenate([base[cnode] + cin * collen[cnode], [base[-1]]]).astype(np.int64)
@@ -696,4 +724,4 @@ def _block_csc(bu: np.ndarray, bv: np.ndarray, dof: np.ndarray, off: np.ndarray
     lens = collen[cnode]
     within = np.arange(int(base[-1])) - np.repeat(indptr[:-1], lens)
     indices = rowlist[np.repeat(rstart[cnode], lens) + within]
-    return indptr, indices.astype(np.int32), pos0, collen
+    return indptr, indices.astype(np.int32)
