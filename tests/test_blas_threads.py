@@ -67,7 +67,9 @@ def test_issue19_item13_optimize_runs_with_one_blas_thread(spy_solve):
     assert inside and set(inside.values()) == {1}, inside
     # NumPy's and SciPy's BLAS (two libraries in the usual wheels) are all held
     assert set(before) <= set(inside)
-    assert after == before  # the user's setting is back
+    # the user's setting is back (a BLAS that the solve loaded first, e.g. SciPy's when
+    # scipy.linalg is imported on first use, keeps its own default)
+    assert {k: after[k] for k in before} == before
 
 
 def test_issue19_item13_opt_out_and_explicit_count(spy_solve):
