@@ -411,3 +411,32 @@ def test_backends_analyse_from_the_block_pattern_alone():
                                    err_msg=name)
     with pytest.raises(ValueError, match="indices is None"):
         make_solver("dense").analyse(H.indptr, None, nb * bs, bs)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_numpy_patterns_equal_scipys(seed):
+    """``pattern_csr`` (coordinates with duplicates -> sorted CSR) equals SciPy's
+    ``csr_matrix(...).sum_duplicates()``, and ``split_blocks`` equals SciPy's
+    ``B[owner][:, owner]`` (what the problem's pattern was built with before: no SciPy on the
+    solve path now); bad coordinates are a ValueError."""
+    from microlie.optim.linalg.base import pattern_csr, split_blocks
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 30))
+    m = int(rng.integers(0, 4 * n))
+    r, c = rng.integers(0, n, m), rng.integers(0, n, m)
+    r, c = np.r_[r, c, np.arange(n)], np.r_[c, r, np.arange(n)]  # symmetric, with diagonal
+    B = sp.csr_matrix((np.ones(r.size, bool), (r, c)), shape=(n, n))
+    B.sum_duplicates()
+    ip, ix = pattern_csr(r, c, n)
+    np.testing.assert_array_equal(ip, B.indptr)
+    np.testing.assert_array_equal(ix, B.indices)
+    parts = rng.integers(1, 4, n)
+    owner = np.repeat(np.arange(n), parts)
+    S = B[owner][:, owner]
+    S.sort_indices()
+    sp_, sx = split_blocks(ip, ix, parts)
+    np.testing.assert_array_equal(sp_, S.indptr)
+    np.testing.assert_array_equal(sx, S.indices)
+    with pytest.raises(ValueError, match=r"rows and cols must be in \[0, "):
+        pattern_csr(np.array([0, n]), np.array([0, 0]), n)

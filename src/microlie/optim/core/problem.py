@@ -16,10 +16,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from ..._fast import compiled as compiled_module
-from ..linalg.base import expand_blocks
+from ..linalg.base import expand_blocks, pattern_csr, split_blocks
 from ..linalg.ordering import connected_components
 from . import compiled
 from .factors import Factor
@@ -334,7 +333,7 @@ class Problem:
     def _build_pattern(self) -> None:
         """The pattern of ``H``: the block pattern (one block per pair of nodes that share a
         factor, and the diagonal) as a symmetric block CSC, expanded into the scalar CSC
-        (``indptr``, ``indices``; sorted rows) by SciPy's block-sparse conversion. Entry
+        (``indptr``, ``indices``; sorted rows) in NumPy. Entry
         ``(r, c)`` of block ``(u, v)`` is at ``bstart_uv + c * collen_v + r`` (every scalar
         column of block column ``v`` holds the same ``collen_v`` rows); kept per block, not per
         entry."""
@@ -349,12 +348,10 @@ class Problem:
                     a, b = a[both].astype(itype), b[both].astype(itype)
                     rows += [a, b]
                     cols += [b, a]
-        r, c = np.concatenate(rows), np.concatenate(cols)
-        # symmetric: its CSR is its CSC (column v holds the rows u, sorted, no duplicates)
-        B = sp.csr_matrix((np.ones(r.size, bool), (r, c)), shape=(nn, nn))
-        del r, c, rows, cols
-        B.sum_duplicates()
-        bptr, brow = B.indptr.astype(np.int64), B.indices.astype(np.int64)
+        # symmetric: its CSR is its CSC (column v holds the rows u, sorted, no duplicates);
+        # NumPy only (no SciPy import on the solve path)
+        bptr, brow = pattern_csr(np.concatenate(rows), np.concatenate(cols), nn)
+        del rows, cols
         bcol = np.repeat(np.arange(nn, dtype=np.int64), np.diff(bptr))
         du = dof[brow]
         cs = np.r_[0, np.cumsum(du)]
@@ -364,22 +361,20 @@ class Problem:
         self._bstart = base[bcol] + cs[:-1] - cs[bptr[bcol]]  # CSC position of its (0, 0)
         self._collen = collen
         nnz = int(base[-1])
-        # the scalar pattern: the sub-block pattern of bs x bs blocks, expanded by SciPy
+        del bcol, du, cs, base
+        # the pattern of bs x bs sub-blocks (a node of dimension d is d / bs sub-blocks)
         if nn and (dof != bs).any():
-            owner = np.repeat(np.arange(nn), dof // bs)
-            B = B[owner][:, owner]
-            B.sort_indices()
+            bptr, brow = split_blocks(bptr, brow, dof // bs)
         # the pattern of bs x bs blocks, for the analyses that work on blocks
-        self.block_pattern = (B.indptr.astype(np.int64), B.indices.astype(np.int64))
-        if B.nnz * bs * bs != nnz:
+        self.block_pattern = (bptr, brow)
+        if int(bptr[-1]) * bs * bs != nnz:
             raise AssertionError("pattern: the scalar pattern disagrees with the block one")
         self.nnz = nnz
         ptype = np.int32 if nnz < 2**31 else np.int64
         # the scalar pattern's column pointers (each scalar column of a sub-block column holds
         # its blocks' bs rows each); its row indices are expanded on first use (indices)
-        self.indptr = np.r_[0, np.cumsum(np.repeat(np.diff(B.indptr) * bs, bs))].astype(ptype)
+        self.indptr = np.r_[0, np.cumsum(np.repeat(np.diff(bptr) * bs, bs))].astype(ptype)
         self._indices: np.ndarray | None = None
-        del B
         # diagonal positions (for damping): entry (c, c) of each diagonal block
         kd = np.searchsorted(self._bkey, np.arange(nn, dtype=np.int64) * (nn + 1))
         node = np.repeat(np.arange(nn), dof)
@@ -620,7 +615,7 @@ class Problem:
             cache[key] = ls
         return ls
 
-    def matrix(self, data: np.ndarray) -> sp.csc_matrix:
+    def matrix(self, data: np.ndarray) -> Any:
         """The sparse ``H`` of CSC ``data`` in the problem's pattern.
 
         Parameters
@@ -648,6 +643,8 @@ class Problem:
         >>> H.shape, bool(abs(H - H.T).max() == 0)
         ((9, 9), True)
         """
+        import scipy.sparse as sp  # type: ignore[import-untyped]
+
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
 
     # ------------------------------------------------------------------ evaluation

@@ -13,7 +13,8 @@ import numpy as np
 if TYPE_CHECKING:  # SciPy is imported by the backends that use it
     import scipy.sparse as sp  # type: ignore[import-untyped]
 
-__all__ = ["LinearSolver", "SingularSystemError", "PIVOT_TOL", "expand_blocks"]
+__all__ = ["LinearSolver", "SingularSystemError", "PIVOT_TOL", "expand_blocks", "pattern_csr",
+           "split_blocks"]
 
 #: A pivot at most this fraction of its column's diagonal entry counts as zero (the column
 #: is, to rounding, a combination of the columns eliminated before it).
@@ -60,6 +61,95 @@ def expand_blocks(bptr: np.ndarray, bidx: np.ndarray, block_size: int
     starts = np.repeat(bptr[:-1] * d, d)
     pos = np.arange(nnz, dtype=np.int64) - np.repeat(indptr[:-1].astype(np.int64) - starts, lens)
     return indptr, rows[pos].astype(np.int32, copy=False)
+
+
+def pattern_csr(rows: np.ndarray, cols: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The CSR pattern (columns sorted, duplicates merged) of the ``n x n`` entries
+    ``(rows[k], cols[k])``, in NumPy (no SciPy import).
+
+    Parameters
+    ----------
+    rows, cols : numpy.ndarray
+        Integer coordinates in ``[0, n)``, same length, duplicates allowed.
+    n : int
+        The matrix size.
+
+    Returns
+    -------
+    indptr, indices : numpy.ndarray
+        int64; row ``i`` holds the columns ``indices[indptr[i]:indptr[i + 1]]``, increasing.
+        (For a symmetric pattern this is also its CSC.)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.linalg.base import pattern_csr
+    >>> ip, ix = pattern_csr(np.array([1, 0, 1, 1]), np.array([0, 2, 0, 1]), 3)
+    >>> ip.tolist(), ix.tolist()
+    ([0, 1, 3, 3], [2, 0, 1])
+    """
+    n = int(n)
+    rows = np.asarray(rows)
+    cols = np.asarray(cols)
+    if rows.shape != cols.shape or rows.ndim != 1:
+        raise ValueError(f"rows and cols must be 1-D of one length, got {rows.shape} and "
+                         f"{cols.shape}")
+    if rows.size and (min(rows.min(), cols.min()) < 0 or max(rows.max(), cols.max()) >= n):
+        raise ValueError(f"rows and cols must be in [0, {n})")
+    key = np.unique(rows.astype(np.int64) * max(n, 1) + cols)  # sorted row-major, merged
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(key // max(n, 1), minlength=n), out=indptr[1:])
+    return indptr, key % max(n, 1)
+
+
+def split_blocks(bptr: np.ndarray, bidx: np.ndarray, parts: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The pattern of a block pattern whose block ``u`` is split into ``parts[u]`` sub-blocks
+    (every sub-block of a stored block stored), in NumPy.
+
+    Parameters
+    ----------
+    bptr, bidx : numpy.ndarray
+        A CSR (or symmetric CSC) block pattern, indices sorted within each row.
+    parts : numpy.ndarray
+        Sub-blocks per block (``>= 1``).
+
+    Returns
+    -------
+    indptr, indices : numpy.ndarray
+        int64, the pattern of the ``parts.sum()`` sub-blocks (indices sorted), what
+        ``B[owner][:, owner]`` gives for ``owner = np.repeat(np.arange(nb), parts)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.linalg.base import split_blocks
+    >>> ip, ix = split_blocks(np.array([0, 2, 3]), np.array([0, 1, 1]), np.array([1, 2]))
+    >>> ip.tolist(), ix.tolist()
+    ([0, 3, 5, 7], [0, 1, 2, 1, 2, 1, 2])
+    """
+    bptr = np.asarray(bptr, np.int64)
+    bidx = np.asarray(bidx, np.int64)
+    parts = np.asarray(parts, np.int64)
+    nb = bptr.size - 1
+    soff = np.zeros(nb + 1, np.int64)
+    np.cumsum(parts, out=soff[1:])
+    ecnt = parts[bidx]  # the sub-columns of each stored block
+    scol = _ranges(soff[bidx], ecnt)  # each block row's sub-columns, concatenated
+    eoff = np.zeros(bidx.size + 1, np.int64)
+    np.cumsum(ecnt, out=eoff[1:])
+    seg, lrow = eoff[bptr[:-1]], eoff[bptr[1:]] - eoff[bptr[:-1]]
+    owner = np.repeat(np.arange(nb), parts)  # every sub-row repeats its block row's list
+    indptr = np.zeros(owner.size + 1, np.int64)
+    np.cumsum(lrow[owner], out=indptr[1:])
+    return indptr, scol[_ranges(seg[owner], lrow[owner])]
+
+
+def _ranges(starts: np.ndarray, lens: np.ndarray) -> np.ndarray:
+    """``concatenate([arange(s, s + l) for s, l in zip(starts, lens)])``, vectorised."""
+    ends = np.cumsum(lens)
+    return np.arange(int(ends[-1]) if ends.size else 0, dtype=np.int64) - \
+        np.repeat(ends - lens - starts, lens)
 
 
 class SingularSystemError(ValueError):

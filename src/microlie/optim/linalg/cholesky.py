@@ -32,7 +32,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from ..._fast import compiled as compiled_module
 from .base import LinearSolver, SingularSystemError
@@ -62,6 +61,8 @@ def _supernodes(aptr: np.ndarray, aidx: np.ndarray, nb: int, order: np.ndarray
     first block column of each (amalgamated) supernode and the block row structures
     (``brow[brptr[s]:brptr[s + 1]]``, sorted, its own columns first) of the block graph
     ``(aptr, aidx)`` (CSR) under ``order``."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]  # the fallback only
+
     adj = sp.csr_matrix((np.ones(aidx.size), aidx, aptr), shape=(nb, nb))
     sym = symbolic(adj, order)
     parent, count = sym.parent, sym.counts
