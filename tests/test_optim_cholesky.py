@@ -306,4 +306,6 @@ def test_numpy_loop_residual_within_2x_of_the_compiled_loop(name, start):
         res[compiled] = float(np.linalg.norm(H @ x - b) / np.linalg.norm(b))
     print(f"{name}: relative residual NumPy loop {res[False]:.2e}, compiled loop "
           f"{res[True]:.2e} ({res[False] / res[True]:.2f}x)")
-    assert res[False] <= 2.0 * max(res[True], np.finfo(float).eps)
+    # a relative residual of a few eps is rounding, where a ratio of two measures noise
+    # (manhattan with the portable build: 8.5e-16 against 4.3e-16); the floor is 4 eps
+    assert res[False] <= 2.0 * max(res[True], 4 * np.finfo(float).eps)

@@ -226,7 +226,8 @@ def minimum_degree_blocks(indptr: np.ndarray, indices: np.ndarray, nb: int,
     idx = indices[:indptr[-1]]
     if idx.size and (idx.min() < 0 or idx.max() >= nb):
         raise ValueError(f"indices must be in [0, {nb})")
-    A = sp.csr_matrix((np.ones(idx.size), idx, indptr), shape=(nb, nb))
+    # copies: the clean-up below works in place, and must not change the caller's arrays
+    A = sp.csr_matrix((np.ones(idx.size), idx.copy(), indptr.copy()), shape=(nb, nb))
     A.sum_duplicates()
     A.setdiag(0)
     A.eliminate_zeros()
