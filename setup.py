@@ -126,7 +126,9 @@ class OptionalBuildExt(build_ext):
             ext.include_dirs = [np.get_include(), str(C_DIR), str(GENERATED)]
             exact = ["-ffp-contract=off"] if ext.name.rsplit(".", 1)[1] in EXACT else []
             ext.extra_compile_args = flags + exact
-            ext.define_macros = defines
+            # one element: libm's scalar functions (vecmath.h), the bits of Python's math module
+            one = [("LM_USE_LIBM", "1")] if ext.name.endswith("._one") else []
+            ext.define_macros = defines + one
             ext.libraries = ["m"] if os.name != "nt" else []
         self._failed: list[Extension] = []
         super().build_extensions()

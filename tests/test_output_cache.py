@@ -15,10 +15,9 @@ import os
 
 import numpy as np
 import pytest
-from conftest import generic, require
+from conftest import require
 
 from microlie import SE3
-from microlie import _kernels as K
 
 N = 60_000  # Jacobians of 17.3 MB (float64) and 8.6 MB (float32): above the limits below
 
@@ -42,33 +41,6 @@ def _check(got: tuple, want: tuple, dtype) -> None:
     for g, w in zip(got, want, strict=True):
         assert g.dtype == dtype and g.shape == w.shape
         np.testing.assert_allclose(g, w, rtol=tol, atol=tol)
-
-
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_issue19_item17_generic_outputs_above_the_pool_limit(monkeypatch, dtype):
-    monkeypatch.setattr(K, "_POOL_LIMIT", 6 << 20)  # 6 MB
-    monkeypatch.setattr(K, "_big", [], raising=False)
-    monkeypatch.setattr(K, "_pool", [])  # blocks left by earlier tests are under the old limit
-    X, Y, Z = (_elements(s, N, dtype) for s in (1, 2, 3))
-    with generic("SE3.log_jac"):
-        want = {k: _small_batches(V) for k, V in (("X", X), ("Y", Y), ("Z", Z))}
-        a = X.log(jac=True)
-        assert a[1].nbytes > K._POOL_LIMIT
-        b = Y.log(jac=True)  # a is alive: b gets other memory
-        assert not np.shares_memory(a[1], b[1])
-        _check(a, want["X"], dtype)
-        _check(b, want["Y"], dtype)
-        addr = _address(b[1])
-        del a, b
-        assert len(K._big) == 1  # one block above the limit is kept, the latest
-        c = Z.log(jac=True)  # ... and reused
-        assert _address(c[1]) == addr and np.shares_memory(c[1], K._big[0])
-        _check(c, want["Z"], dtype)
-        del c
-        d = _elements(4, N + 5000, dtype).log(jac=True)  # another size above the limit
-        del d
-    assert len(K._big) == 1 and K._big[0].nbytes == (N + 5000) * 36 * np.dtype(dtype).itemsize
-    assert sum(b.nbytes for b in K._pool) <= K._POOL_LIMIT
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])

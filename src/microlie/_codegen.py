@@ -148,6 +148,10 @@ def _sizes(k: Any) -> tuple[int, ...]:
         return ()
 
 
+#: the groups whose kernels are compiled (products of groups and user groups are not)
+BUILT_IN = ("SO2", "SE2", "SO3", "SE3", "Sim3", "SE23")
+
+
 def _kernels() -> list[tuple[Any, Trace]]:
     from . import groups  # noqa: F401  (defines every group's kernels)
     from ._kernels import KERNELS
@@ -155,8 +159,8 @@ def _kernels() -> list[tuple[Any, Trace]]:
     out = []
     for name in sorted(KERNELS):
         k = KERNELS[name]
-        if not getattr(k.group, "__module__", "").startswith("microlie.groups."):
-            continue  # the groups of microlie only (a program may define more)
+        if getattr(k.group, "__name__", "") not in BUILT_IN:
+            continue  # microlie's groups only (a program or a Product may define more)
         sizes = _sizes(k)
         if k.fn is None or not sizes or len(sizes) > 2 or len(k.outs) > 3:
             continue

@@ -24,6 +24,29 @@
 #include <stdint.h>
 #include <string.h>
 
+#ifdef LM_USE_LIBM
+/* The one-element entry points (_one.c, built with LM_USE_LIBM): nothing to vectorise there, so
+ * the C library's scalar functions, the ones Python's math module calls: a single element in C
+ * gives the same bits as the traced Python formula (the exact-lock tests of as_rpy, signed zeros
+ * of doctests, the torch single-element path). */
+#define LM_VM static inline __attribute__((always_inline, unused))
+LM_VM double lm_sin(double x) { return sin(x); }
+LM_VM double lm_cos(double x) { return cos(x); }
+LM_VM void lm_sincos(double x, double *s, double *c) { *s = sin(x); *c = cos(x); }
+LM_VM double lm_tan(double x) { return tan(x); }
+LM_VM double lm_atan2(double y, double x) { return atan2(y, x); }
+LM_VM double lm_exp(double x) { return exp(x); }
+LM_VM double lm_expm1(double x) { return expm1(x); }
+LM_VM double lm_log(double x) { return log(x); }
+LM_VM float lm_sinf(float x) { return sinf(x); }
+LM_VM float lm_cosf(float x) { return cosf(x); }
+LM_VM float lm_tanf(float x) { return tanf(x); }
+LM_VM float lm_atan2f(float y, float x) { return atan2f(y, x); }
+LM_VM float lm_expf(float x) { return expf(x); }
+LM_VM float lm_expm1f(float x) { return expm1f(x); }
+LM_VM float lm_logf(float x) { return logf(x); }
+#else
+
 #include "vecmath_coeffs.h"
 
 #define LM_VM static inline __attribute__((always_inline))
@@ -277,3 +300,5 @@ LM_VM double lm__log(double x, int f32) {
 
 LM_VM double lm_log(double x) { return lm__log(x, 0); }
 LM_VM float lm_logf(float x) { return (float)lm__log((double)x, 1); }
+
+#endif /* LM_USE_LIBM */
