@@ -266,9 +266,7 @@ def available_solvers() -> list[str]:
 #: ``benchmarks/pose_graph.py --user-pays`` (``benchmarks/results/scaling-latest.md``,
 #: ``pose_graph-latest.md``; see :func:`auto_order`).
 AUTO_DENSE = 300
-AUTO_QDLDL_2D = 100_000
 AUTO_QDLDL_3D = 12_000
-AUTO_QDLDL_3D_COMPILED = 8_000
 AUTO_SCIPY = 5_000
 
 
@@ -277,15 +275,14 @@ def auto_order(n: int, block_size: int = 1, compiled: bool | None = None) -> tup
 
     The fastest measured per problem kind and size, as a user pays it (analysis included), with
     and without the compiled supernodal loop (``microlie._c._chol``): below :data:`AUTO_DENSE`
-    unknowns the dense Cholesky; 2-D problems (blocks under 6) qdldl (its scalar LDL^T has
-    almost no analysis to pay, and these graphs fill little), except from
-    :data:`AUTO_QDLDL_2D` unknowns with the compiled loop: the supernodal Cholesky; 3-D
-    problems (blocks of 6) the supernodal Cholesky, or qdldl below
-    :data:`AUTO_QDLDL_3D_COMPILED` unknowns (:data:`AUTO_QDLDL_3D` without the compiled loop);
-    without qdldl, SuperLU before the NumPy supernodal loop below :data:`AUTO_SCIPY` unknowns.
-    PARDISO, not installed where the tables were measured, keeps the place its solve-only
-    measurements gave it: first in 3-D, after the compiled supernodal loop and before the NumPy
-    one in 2-D.
+    unknowns the dense Cholesky; with the compiled loop, the supernodal Cholesky on every 2-D
+    and 3-D size measured (1e3-1e5 poses and the shared graphs, session 8); without it, 2-D
+    problems (blocks under 6) qdldl (its scalar LDL^T has almost no analysis to pay, and these
+    graphs fill little), 3-D problems (blocks of 6) qdldl below :data:`AUTO_QDLDL_3D` unknowns,
+    else the NumPy supernodal loop; without qdldl, SuperLU before the NumPy supernodal loop
+    below :data:`AUTO_SCIPY` unknowns. PARDISO, not installed where the tables were measured,
+    keeps the place its solve-only measurements gave it: first in 3-D, after the compiled
+    supernodal loop and before the NumPy one in 2-D.
 
     Parameters
     ----------
@@ -306,10 +303,8 @@ def auto_order(n: int, block_size: int = 1, compiled: bool | None = None) -> tup
     Examples
     --------
     >>> from microlie.optim.linalg.linear import auto_order
-    >>> auto_order(30_000, 3)[0], auto_order(300_000, 3, compiled=True)[0]
-    ('qdldl', 'cholesky')
-    >>> auto_order(300_000, 3, compiled=False)[0]
-    'qdldl'
+    >>> auto_order(30_000, 3, compiled=True)[0], auto_order(30_000, 3, compiled=False)[0]
+    ('cholesky', 'qdldl')
     >>> auto_order(15_000, 6, compiled=False)[:2]
     ('pardiso', 'cholesky')
     """
@@ -319,10 +314,11 @@ def auto_order(n: int, block_size: int = 1, compiled: bool | None = None) -> tup
         return ("dense", "cholesky", "scipy")
     sup = ("cholesky", "scipy") if compiled or n >= AUTO_SCIPY else ("scipy", "cholesky")
     if block_size >= 6:
-        small = n < (AUTO_QDLDL_3D_COMPILED if compiled else AUTO_QDLDL_3D)
+        small = not compiled and n < AUTO_QDLDL_3D
         return ("pardiso", "qdldl", *sup) if small else ("pardiso", *sup, "qdldl")
-    mid = (sup[0], "pardiso", sup[1]) if compiled else ("pardiso", *sup)
-    return ("qdldl", *mid) if n < AUTO_QDLDL_2D or not compiled else (*mid, "qdldl")
+    if compiled:
+        return (sup[0], "pardiso", sup[1], "qdldl")
+    return ("qdldl", "pardiso", *sup)
 
 
 def make_solver(name: str | LinearSolver, n: int = 0, block_size: int = 1,
