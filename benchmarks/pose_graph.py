@@ -411,8 +411,8 @@ def end_to_end(args) -> list[str]:
     env_all = env
     contenders = {
         "GTSAM script": (args.gtsam_python, env, "gtsam"),
-        "microlie, all installed": (args.python, env_all, "cli"),
-        "microlie, default install": (args.gtsam_python, dict(env, MICROLIE_FAST="0"), "cli"),
+        "microlie (pip install: compiled code)": (args.python, env_all, "cli"),
+        "microlie, no compiled code": (args.gtsam_python, dict(env, MICROLIE_FAST="0"), "cli"),
     }
     lines = ["## End to end: `microlie optimize FILE --json -o OUT --init file` against "
              "`gtsam_optimize.py FILE OUT`", "",
@@ -420,10 +420,10 @@ def end_to_end(args) -> list[str]:
              "rounds after one warm-up round (file cache), medians; ratio: median of the "
              "per-round ratios to the GTSAM script (range); peak = the process's ru_maxrss "
              "(wait4 in a small launcher process, so no parent's peak is inherited); "
-             "microlie's sources byte-compiled first, as pip install does. 'all "
-             "installed': --python's environment (compiled extra, qdldl); "
-             "'default install': numpy + scipy only, MICROLIE_FAST=0. Both start from the "
-             "file's vertices.", "",
+             "microlie's sources byte-compiled first, as pip install does. 'pip "
+             "install': --python's environment with the compiled code that pip install builds "
+             "(and qdldl); 'no compiled code': numpy + scipy only, MICROLIE_FAST=0 (an install "
+             "without a C compiler). Both start from the file's vertices.", "",
              "| graph | contender | wall s | vs GTSAM | peak MB | vs GTSAM | final cost (it) |",
              "|---|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory() as tmp:
