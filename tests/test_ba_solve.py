@@ -121,6 +121,25 @@ def test_free_and_fixed_gauge_reach_the_same_cost():
     np.testing.assert_array_equal(held.translations[0], start.translations[0])
 
 
+def test_bundle_graph_reads_a_boolean_mask_as_a_mask():
+    # a mask [False, True, False, True] holds cameras 1 and 3; read as indices it would hold
+    # cameras 0 and 1 (the bug this guards against)
+    from microlie.optim import TrustRegion
+
+    _, start = synthetic_scene(4, 40, noise=0.5, seed=11)
+    mask = np.array([False, True, False, True])
+    bg = bundle_graph(start, fix_cameras=mask, fix_points=np.arange(40) < 1)
+    r = bg.graph.optimize(solver=TrustRegion(), linear_solver="schur")
+    out = start.with_values(r.values)
+    for c in range(4):
+        moved = not np.array_equal(out.translations[c], start.translations[c])
+        assert moved == (not mask[c]), c
+    np.testing.assert_array_equal(out.points[0], start.points[0])
+    assert not np.array_equal(out.points[1], start.points[1])
+    with pytest.raises(ValueError, match="fix_cameras: a mask must have 4 entries"):
+        bundle_graph(start, fix_cameras=[True, False])
+
+
 def test_pinhole_noise_free_scene_solved_exactly():
     truth, start = synthetic_scene(4, 50, noise=0.0, seed=3, model="pinhole")
     r = bundle_adjust(start, fix_cameras=[0])

@@ -580,10 +580,15 @@ class BundleGraph:
         return out
 
 
+#: What ``fix_cameras``, ``fix_points`` and ``fix_intrinsics`` take: indices, a boolean mask,
+#: ``True`` (all) or ``None``/``False`` (none).
+Held = Sequence[int] | Sequence[bool] | bool | None
+
+
 def bundle_graph(problem: BundleProblem | BALProblem, *, robust: Any = None,
-                 behind: str = "evaluate", fix_cameras: Sequence[int] | None = None,
-                 fix_points: Sequence[int] | None = None,
-                 fix_intrinsics: Sequence[int] | bool | None = None) -> BundleGraph:
+                 behind: str = "evaluate", fix_cameras: Held = None,
+                 fix_points: Held = None,
+                 fix_intrinsics: Held = None) -> BundleGraph:
     """The bundle problem as a factor graph: ``SO3`` and ``R(3)`` camera poses (BAL's
     parametrisation), ``R(k)`` intrinsics, ``R(3)`` points and one
     :class:`~microlie.optim.ReprojectionFactor` per observation; solve it with
@@ -599,10 +604,11 @@ def bundle_graph(problem: BundleProblem | BALProblem, *, robust: Any = None,
         A loss on each observation's squared residual norm (pixels).
     behind : {"evaluate", "drop"}
         Points behind a camera (:mod:`microlie.optim.sfm.camera`).
-    fix_cameras : sequence of int, optional
-        Cameras whose pose (rotation and translation) is held.
-    fix_points : sequence of int, optional
-        Held points.
+    fix_cameras : sequence of int or bool, optional
+        Cameras whose pose (rotation and translation) is held: indices, a boolean mask over the
+        cameras, or ``True`` for all.
+    fix_points : sequence of int or bool, optional
+        Held points: indices, a boolean mask over the points, or ``True`` for all.
     fix_intrinsics : sequence of int or bool, optional
         Cameras whose intrinsics are held (``True``: all).
 
@@ -631,15 +637,16 @@ def bundle_graph(problem: BundleProblem | BALProblem, *, robust: Any = None,
     tr = g.add_variables(problem.translations, name="translations")
     K = g.add_variables(problem.intrinsics, name="intrinsics")
     X = g.add_variables(problem.points, name="points")
-    if fix_cameras is not None:
-        g.fix(rot, np.asarray(fix_cameras, dtype=np.intp))
-        g.fix(tr, np.asarray(fix_cameras, dtype=np.intp))
-    if fix_intrinsics is True:
-        g.fix(K)
-    elif fix_intrinsics is not None and fix_intrinsics is not False:
-        g.fix(K, np.asarray(fix_intrinsics, dtype=np.intp))
-    if fix_points is not None:
-        g.fix(X, np.asarray(fix_points, dtype=np.intp))
+    cams = _indices("fix_cameras", fix_cameras, problem.n_cameras)
+    if cams is not None:
+        g.fix(rot, cams)
+        g.fix(tr, cams)
+    held_k = _indices("fix_intrinsics", fix_intrinsics, problem.n_cameras)
+    if held_k is not None:
+        g.fix(K, held_k)
+    pts = _indices("fix_points", fix_points, problem.n_points)
+    if pts is not None:
+        g.fix(X, pts)
     ci, pi = problem.camera_index, problem.point_index
     f = g.add(ReprojectionFactor(((rot, ci), (tr, ci)), (X, pi), problem.observations,
                                  model=problem.model, intrinsics=(K, ci), loss=robust,
@@ -648,9 +655,9 @@ def bundle_graph(problem: BundleProblem | BALProblem, *, robust: Any = None,
 
 
 def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
-                  behind: str = "evaluate", fix_cameras: Sequence[int] | None = None,
-                  fix_points: Sequence[int] | None = None,
-                  fix_intrinsics: Sequence[int] | bool | None = None,
+                  behind: str = "evaluate", fix_cameras: Held = None,
+                  fix_points: Held = None,
+                  fix_intrinsics: Held = None,
                   solver: str | Strategy = "trust-region",
                   linear_solver: str | LinearSolver = "schur", max_iter: int = 100,
                   gauge: str = "none", verbose: bool | None = False,
@@ -672,10 +679,10 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
     behind : {"evaluate", "drop"}
         Points behind a camera: evaluated (BAL convention) or dropped (GTSAM/COLMAP), see
         :mod:`microlie.optim.sfm.camera`.
-    fix_cameras : sequence of int, optional
-        Cameras whose *pose* is held.
-    fix_points : sequence of int, optional
-        Held points.
+    fix_cameras : sequence of int or bool, optional
+        Cameras whose *pose* is held: indices, a boolean mask over the cameras, or ``True``.
+    fix_points : sequence of int or bool, optional
+        Held points: indices, a boolean mask over the points, or ``True`` for all.
     fix_intrinsics : sequence of int or bool, optional
         Cameras whose intrinsics are held (``True``: all).
     solver : str or Strategy
@@ -727,12 +734,8 @@ def bundle_adjust(problem: BundleProblem | BALProblem, *, robust: Any = None,
 
     if isinstance(problem, BALProblem):
         problem = BundleProblem.from_bal(problem)
-    held = [_indices(name, idx, n) for name, idx, n in (
-        ("fix_cameras", fix_cameras, problem.n_cameras),
-        ("fix_points", fix_points, problem.n_points),
-        ("fix_intrinsics", fix_intrinsics, problem.n_cameras))]
-    bg = bundle_graph(problem, robust=robust, behind=behind, fix_cameras=held[0],
-                      fix_points=held[1], fix_intrinsics=held[2])
+    bg = bundle_graph(problem, robust=robust, behind=behind, fix_cameras=fix_cameras,
+                      fix_points=fix_points, fix_intrinsics=fix_intrinsics)
     try:
         return bg.graph.optimize(solver=solver, linear_solver=linear_solver, max_iter=max_iter,
                                  gauge=gauge, verbose=verbose, blas_threads=blas_threads,
