@@ -241,8 +241,13 @@ def test_solve_with_the_subclass_reaches_the_custom_factor_optimum(other):
         assert res.final_cost < 0.01 * res.initial_cost
         sols[kind] = (res.values[x], res.values[p], res.final_cost)
     (Xa, La, ca), (Xb, Lb, cb) = sols["subclass"], sols[other]
-    assert np.abs(Xa.minus(Xb)).max() < 1e-9
-    assert np.abs(La - Lb).max() < 1e-9
+    # JAX's Jacobians are exact: the fixed points agree to rounding. Central differences with
+    # h = 1e-6 carry a rounding error of about eps / h = 2e-10 per Jacobian entry, and the
+    # numerical solve stops where J_num^T r = 0, which moves the answer by that error times the
+    # conditioning (seen: 2.8e-9 under the generic kernels, 7.1e-10 under the compiled ones)
+    tol = 1e-9 if other == "jax" else 2e-8
+    assert np.abs(Xa.minus(Xb)).max() < tol
+    assert np.abs(La - Lb).max() < tol
     assert ca == pytest.approx(cb, rel=1e-12)
 
 
