@@ -26,8 +26,8 @@ not depend on the units); ``--information`` what the reader does with informatio
 that are not positive definite (:mod:`microlie.optim.io.information`; the report's
 ``repaired_edges`` counts them). ``-o`` or ``--plot`` onto the input file is refused
 without ``--force``; every file is written to a temporary file renamed into place, so a
-failed write leaves the old file as it was. The whole command runs with one BLAS thread unless ``--blas-threads``
-says otherwise (:mod:`microlie.optim.core.threads`).
+failed write leaves the old file as it was. The whole command runs with one BLAS thread
+unless ``--blas-threads`` says otherwise (:mod:`microlie.optim.core.threads`).
 
 ``--example`` replaces IN (giving both, or neither, is a usage error): it solves the synthetic
 2-D pose graph of :func:`microlie.data.example_pose_graph` (500 poses, 693 edges, made from a
