@@ -289,6 +289,9 @@ def _summary(r: dict) -> str:
             f"cost {r['initial_cost']:.10g} -> {r['final_cost']:.10g} in {r['iterations']} "
             f"iterations, {r['time_s']:.3f} s, "
             f"{'converged' if r['converged'] else 'not converged'} ({r['message']})")
+    if r.get("repaired_edges"):
+        text += (f"\n  --information {r['information']}: {r['repaired_edges']} of "
+                 f"{r['num_edges']} edges had information that is not positive definite")
     truth = r.get("ground_truth")
     if truth:
         text += (f"\n  position error against the ground truth (RMS): "
