@@ -18,7 +18,7 @@ from conftest import data_file
 
 from microlie import SE2, SE3
 from microlie.cli import main
-from microlie.optim import BetweenFactor, FactorGraph, Information, PriorFactor
+from microlie.optim import BetweenFactor, CustomFactor, FactorGraph, Information, PriorFactor
 from microlie.optim.core.strategies import LevenbergMarquardt
 from microlie.optim.io.g2o import read_g2o, write_g2o
 from microlie.optim.io.information import (
@@ -137,6 +137,27 @@ def test_auto_is_gtsams_identity_in_metres_and_diagonal_in_micrometres():
     auto, diag = (fg.optimize(solver="lm", damping=d) for d in ("auto", "diagonal"))
     assert [h.cost for h in auto.history] == [h.cost for h in diag.history]
     assert "damping auto: diag(H)" in auto.message
+
+
+def test_auto_switches_where_the_identity_stops_too_damped():
+    # a soft coordinate (curvature 1e-8) beside an arctan residual from b = 3, where
+    # Gauss-Newton overshoots: LM raises lambda to ~1 for b, which freezes a; the identity
+    # then stops at a ~ 0 reporting convergence. The minimum is a = 5, b = 0.
+    g = FactorGraph()
+    x = g.add_variables(np.array([[0.0, 3.0]]))
+
+    def res(p):
+        return np.stack([1e-4 * (p[..., 0] - 5.0), 10.0 * np.arctan(p[..., 1])], axis=-1)
+
+    g.add(CustomFactor(res, [(x, [0])], 2))
+    # lambda_initial 1e-12 < 1e-3 x 1e-8: auto starts with the identity
+    ident = g.optimize(solver="lm", damping="identity", lambda_initial=1e-12)
+    assert ident.converged and abs(ident.values[x][0, 0]) < 1e-3
+    auto = g.optimize(solver="lm", damping="auto", lambda_initial=1e-12)
+    assert auto.converged and "switched from I to diag(H)" in auto.message
+    np.testing.assert_allclose(auto.values[x][0], [5.0, 0.0], atol=1e-6)
+    n = len(ident.history)
+    assert [h.cost for h in auto.history[:n]] == [h.cost for h in ident.history]
 
 
 def test_damping_bad_input():
