@@ -274,7 +274,7 @@ def _curve_problem():
 
 @pytest.mark.parametrize("strategy", [
     LevenbergMarquardt(rel_tol=1e-14, abs_tol=0.0),
-    LevenbergMarquardt(diagonal_damping=True, rel_tol=1e-14, abs_tol=0.0),
+    LevenbergMarquardt(damping="diagonal", rel_tol=1e-14, abs_tol=0.0),
     GaussNewton(rel_tol=1e-14, abs_tol=0.0),
     Dogleg(rel_tol=1e-14, abs_tol=0.0),
     TrustRegion(function_tolerance=1e-14),
@@ -362,8 +362,8 @@ def test_registry_names_and_instances():
 
 def test_keyword_options_equal_the_strategy_object():
     g, x = _tiny()
-    a = g.optimize(solver="lm", lambda_initial=1e-2, diagonal_damping=True, rel_tol=1e-9)
-    b = g.optimize(solver=LevenbergMarquardt(lambda_initial=1e-2, diagonal_damping=True,
+    a = g.optimize(solver="lm", lambda_initial=1e-2, damping="diagonal", rel_tol=1e-9)
+    b = g.optimize(solver=LevenbergMarquardt(lambda_initial=1e-2, damping="diagonal",
                                              rel_tol=1e-9))
     assert [h.cost for h in a.history] == [h.cost for h in b.history]
     assert [h.damping for h in a.history] == [h.damping for h in b.history]

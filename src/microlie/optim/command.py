@@ -7,6 +7,8 @@
                      [--linear-solver auto|cholesky|schur|...]
                      [--max-iter N] [--gauge check|fix_first|none] [--plot FILE] [--json]
                      [--format auto|g2o|toro|bal] [--force] [-v | -q] [--blas-threads N]
+                     [--damping auto|identity|diagonal]
+                     [--information strict|nearest-psd|isotropic]
 
 The reported costs are GTSAM's ``0.5 sum r^T Omega r`` over the file's edges (plain, even with
 ``--robust``, and without the gauge prior); ``time_s`` is the solve alone (reading, initial
@@ -18,10 +20,14 @@ vertices, or the odometry chain when the file has none, or chordal when that cha
 incomplete (said on stderr). Before the solve a header line (file, problem size, solver,
 start) goes to stderr, flushed, unless ``--quiet``; then Ceres' iteration table, one flushed
 line per iteration, with ``--verbose`` or on a terminal (stdout, with ``--json`` too, carries
-the report only). ``-o`` or ``--plot`` onto the input file is refused without ``--force``;
-every file is written to a temporary file renamed into place, so a failed write leaves the
-old file as it was. The whole command runs with one BLAS thread unless ``--blas-threads``
-says otherwise (:mod:`microlie.optim.core.threads`).
+the report only). ``--damping`` picks LM's damping matrix
+(:class:`~microlie.optim.core.strategies.LevenbergMarquardt`; ``auto``, the default, does
+not depend on the units); ``--information`` what the reader does with information matrices
+that are not positive definite (:mod:`microlie.optim.io.information`; the report's
+``repaired_edges`` counts them). ``-o`` or ``--plot`` onto the input file is refused
+without ``--force``; every file is written to a temporary file renamed into place, so a
+failed write leaves the old file as it was. The whole command runs with one BLAS thread
+unless ``--blas-threads`` says otherwise (:mod:`microlie.optim.core.threads`).
 
 ``--example`` replaces IN (giving both, or neither, is a usage error): it solves the synthetic
 2-D pose graph of :func:`microlie.data.example_pose_graph` (500 poses, 693 edges, made from a
@@ -50,7 +56,7 @@ from typing import Any, TextIO
 from .core.threads import blas_threads_limit
 from .io.formats import FORMATS, detect_format, output_format
 
-__all__ = ["register", "run", "run_pose_graph"]
+__all__ = ["register", "run", "run_pose_graph", "policy_options"]
 
 SOLVERS = ("lm", "gn", "dogleg", "trust-region")  # microlie.optim.core.strategies
 INITS = ("auto", "file", "odometry", "chordal")
@@ -133,6 +139,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--force", action="store_true",
                    help="allow -o or --plot to overwrite the input file")
+    _add_policy_options(p)
     talk = p.add_mutually_exclusive_group()
     talk.add_argument("-v", "--verbose", action="store_true",
                       help="print the iteration table on stderr even when it is not a terminal")
@@ -140,6 +147,55 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                       help="print neither the header nor the iterations on stderr")
     p.set_defaults(func=run)
     return p
+
+
+def _add_policy_options(p: argparse.ArgumentParser) -> None:
+    """``--damping`` and ``--information`` (pose graphs; issue 22)."""
+    from .core.strategies import DAMPINGS
+    from .io.information import INFORMATION_POLICIES
+
+    p.add_argument("--damping", choices=DAMPINGS, default=None,
+                   help="--solver lm's damping matrix: auto (default: the identity, as GTSAM, "
+                        "where it is negligible against every coordinate's curvature, else "
+                        "diag(H); the answer does not depend on the units), identity, or "
+                        "diagonal (Marquardt's diag(H))")
+    p.add_argument("--information", choices=INFORMATION_POLICIES, default=None,
+                   help="pose graphs: information matrices that are not positive definite are "
+                        "refused with FILE:LINE and their count (strict, default), replaced by "
+                        "the nearest positive definite ones (nearest-psd), or every matrix is "
+                        "replaced by SE-Sync's isotropic precisions (isotropic)")
+
+
+def policy_options(args: argparse.Namespace, solver: str) -> tuple[dict, str]:
+    """``--damping`` as the optimiser's keywords (refused with a solver other than ``lm``) and
+    ``--information`` resolved (default ``strict``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments.
+    solver : str
+        The strategy's name.
+
+    Returns
+    -------
+    options : dict
+        ``{"damping": ...}`` or empty.
+    information : str
+        The reader's ``information=``.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> from microlie.optim.command import policy_options
+    >>> policy_options(argparse.Namespace(damping="diagonal", information=None), "lm")
+    ({'damping': 'diagonal'}, 'strict')
+    """
+    damping = getattr(args, "damping", None)
+    if damping is not None and solver != "lm":
+        raise ValueError(f"--damping applies to --solver lm, not {solver} (drop --damping)")
+    return ({} if damping is None else {"damping": damping}), \
+        getattr(args, "information", None) or "strict"
 
 
 def _positive_int(text: str) -> int:
@@ -233,6 +289,9 @@ def _summary(r: dict) -> str:
             f"cost {r['initial_cost']:.10g} -> {r['final_cost']:.10g} in {r['iterations']} "
             f"iterations, {r['time_s']:.3f} s, "
             f"{'converged' if r['converged'] else 'not converged'} ({r['message']})")
+    if r.get("repaired_edges"):
+        text += (f"\n  --information {r['information']}: {r['repaired_edges']} of "
+                 f"{r['num_edges']} edges had information that is not positive definite")
     truth = r.get("ground_truth")
     if truth:
         text += (f"\n  position error against the ground truth (RMS): "
@@ -245,8 +304,8 @@ def _label(path: str | None) -> str:
     return "example (microlie.data.example_pose_graph)" if path is None else str(path)
 
 
-def _read(path: str, fmt: str) -> Any:
-    return FORMATS[fmt].load("reader")(path)
+def _read(path: str, fmt: str, information: str = "strict") -> Any:
+    return FORMATS[fmt].load("reader")(path, information=information)
 
 
 def _write(path: str, graph: Any, poses: Any, fmt: str) -> None:
@@ -286,14 +345,20 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     from .init import InitMethod, initialize
 
     solver = args.solver or "lm"
+    damping, information = policy_options(args, solver)
     t0 = time.perf_counter()
     truth = None
     if getattr(args, "example", False):
         from ..data import example_pose_graph
 
         graph, truth = example_pose_graph()
+        if information == "isotropic":  # its matrices are positive definite: nothing else
+            from .io.information import apply_information_policy
+
+            graph = graph.replace(information=apply_information_policy(
+                graph.information, information, graph.dim)[0])
     else:
-        graph = _read(args.input, args.format)
+        graph = _read(args.input, args.format, information)
     t1 = time.perf_counter()
     init: InitMethod
     if args.init == "auto":
@@ -322,7 +387,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     try:
         with solver_output_to(err):
             res = fg.optimize(solver=solver, linear_solver=args.linear_solver,
-                              max_iter=args.max_iter, gauge=gauge,
+                              max_iter=args.max_iter, gauge=gauge, **damping,
                               # run() holds --blas-threads
                               verbose=show_iterations(err, args), blas_threads=None)
     except NonFiniteError as e:  # batch 0 is the file's edges, in order
@@ -365,6 +430,8 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         "timings": {k: float(v) for k, v in res.timings.items()},
         "gauge": gauge,
         "gauge_fixed": [int(graph.ids[i]) for _, i in res.gauge_fixed],
+        "information": information,
+        "repaired_edges": int(graph.repaired.size),
     }
     if truth is not None:  # the example: how far the start and the result are from the truth
         report["ground_truth"] = {

@@ -59,7 +59,7 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     >>> report["final_cost"] < report["initial_cost"], report["linear_solver"]
     (True, 'schur')
     """
-    from .command import print_header, show_iterations, solver_output_to
+    from .command import policy_options, print_header, show_iterations, solver_output_to
     from .io.bal import read_bal, write_bal
     from .sfm.bundle import BundleProblem, bundle_adjust, plot_bundle
 
@@ -67,6 +67,10 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     if getattr(args, "gauge", None) is not None:
         raise ValueError("--gauge applies to pose graphs: bundle adjustment leaves its gauge "
                          "free (the damping keeps the system solvable, as in Ceres)")
+    damping, _ = policy_options(args, solver)
+    if getattr(args, "information", None) is not None:
+        raise ValueError("--information applies to pose graphs: a BAL file has no information "
+                         "matrices (drop --information)")
     linear = getattr(args, "linear_solver", "auto")
     if linear in _OLD_WORDS:
         raise ValueError(f"--linear-solver {linear} is gone: bundle adjustment runs on the one "
@@ -86,7 +90,7 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     with solver_output_to(err):
         res = bundle_adjust(start, robust=getattr(args, "robust", None), solver=solver,
                             linear_solver=linear, max_iter=max_iter,
-                            verbose=show_iterations(err, args),
+                            verbose=show_iterations(err, args), **damping,
                             blas_threads=None)  # run() holds the command's --blas-threads
     solved = start.with_values(res.values)
     report: dict[str, Any] = {

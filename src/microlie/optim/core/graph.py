@@ -359,7 +359,8 @@ class FactorGraph:
             default. The previous setting is restored on return.
         **options
             Other constructor parameters of the named strategy: ``lambda_initial``,
-            ``lambda_factor``, ``lambda_max``, ``lambda_min``, ``diagonal_damping`` (``"lm"``),
+            ``lambda_factor``, ``lambda_max``, ``lambda_min``, ``damping``, ``stall_ratio``
+            (``"lm"``; ``damping="auto"``, the default, does not depend on the units),
             ``radius_initial`` (``"dogleg"``, ``"trust-region"``), ``function_tolerance``,
             ``gradient_tolerance``, ``parameter_tolerance``, ... (``"trust-region"``). An
             option the strategy does not take is a ``TypeError``.

@@ -36,7 +36,10 @@ from ..linalg.linear import LinearSolver, SingularSystemError
 from .problem import Linearization, Problem
 
 __all__ = ["Strategy", "LevenbergMarquardt", "GaussNewton", "Dogleg", "TrustRegion",
-           "SolveState", "Trial", "Outcome", "STRATEGIES", "make_strategy"]
+           "SolveState", "Trial", "Outcome", "STRATEGIES", "DAMPINGS", "make_strategy"]
+
+#: :class:`LevenbergMarquardt`'s damping matrices (``damping=``, ``microlie optimize --damping``)
+DAMPINGS = ("auto", "identity", "diagonal")
 
 
 def dot(a: np.ndarray, b: np.ndarray) -> float:
@@ -739,9 +742,8 @@ class _GTSAMRules(Strategy):
 class LevenbergMarquardt(_GTSAMRules):
     """Levenberg-Marquardt with GTSAM's rules (``LevenbergMarquardtParams()`` defaults).
 
-    Each iteration solves ``(H + lambda D) dx = -g`` with ``D = I`` (or ``diag(H)``, floored
-    at ``1e-12``, with ``diagonal_damping``), from the least damping: a step that decreases
-    the cost is accepted and ``lambda`` divided by ``lambda_factor`` (not below
+    Each iteration solves ``(H + lambda D) dx = -g`` from the least damping: a step that
+    decreases the cost is accepted and ``lambda`` divided by ``lambda_factor`` (not below
     ``lambda_min``); otherwise ``lambda`` is multiplied by ``lambda_factor`` and the system
     solved again, in the same iteration. The run stops when ``lambda`` exceeds
     ``lambda_max`` ("failure", or "convergence" when the first trial's change or its model's
@@ -750,16 +752,40 @@ class LevenbergMarquardt(_GTSAMRules):
     relative decrease below ``rel_tol``, step norm below ``step_tol``. An iteration is counted
     only when it takes a step.
 
+    The damping matrix ``D`` (``damping``):
+
+    * ``"identity"``: ``D = I``, from ``lambda = 1e-5`` (GTSAM's default). It depends on the
+      units: ``lambda`` changes coordinate ``k``'s curvature by ``lambda / H_kk``, and with
+      translations in micrometres ``H_kk`` is ``1e-12`` of its value in metres: the damping
+      swamps it, and LM stops far from the minimum (M3500: 1,213,782.6 instead of 68.957)
+      while reporting convergence.
+    * ``"diagonal"``: ``D = diag(H)`` (Marquardt; a zero entry, a coordinate that no factor
+      constrains and whose gradient is zero, is taken as 1), from ``lambda = 1e-12``.
+      Rescaling a coordinate rescales its row and column of ``H`` and ``D`` alike, so the
+      iterates do not depend on the units. The small start matters: a pose chain's softest
+      modes have eigenvalues near ``1e-7`` of the diagonal, and ``lambda = 1e-5`` would damp
+      them (manhattan: 21 iterations against 5).
+    * ``"auto"`` (default): the identity where it is negligible, else ``diag(H)``. The run
+      starts with the identity when ``lambda_initial < stall_ratio * min_k H_kk`` at the
+      start (the file's units are ones in which GTSAM's default barely touches any
+      coordinate: then the iterates are GTSAM's), else with ``diag(H)``. A stop with the
+      identity (a decrease test, or ``lambda`` above ``lambda_max``) whose ``lambda`` was not
+      below ``stall_ratio * min_k H_kk`` is not trusted either: the run switches to
+      ``diag(H)`` there and goes on. The message of a run that used ``diag(H)`` says so.
+
     Parameters
     ----------
-    lambda_initial : float
-        The damping at the start.
+    lambda_initial : float, optional
+        The damping at the start (default ``1e-5`` with the identity, ``1e-12`` with
+        ``diag(H)``).
     lambda_factor : float
         Its growth after a rejected step and its decrease after an accepted one (> 1).
     lambda_max, lambda_min : float
         Its bounds (above ``lambda_max`` the run stops).
-    diagonal_damping : bool
-        Damp with ``diag(H)`` (Marquardt) instead of the identity.
+    damping : {"auto", "identity", "diagonal"}
+        The damping matrix ``D`` (above).
+    stall_ratio : float
+        ``"auto"``'s bound on ``lambda / H_kk`` for the identity, in ``(0, 1)``.
     rel_tol, abs_tol, cost_tol, step_tol : float
         GTSAM's stopping tests.
 
@@ -776,51 +802,101 @@ class LevenbergMarquardt(_GTSAMRules):
     >>> res = g.optimize(solver=LevenbergMarquardt(lambda_initial=1e-3, abs_tol=0.0))
     >>> res.solver, res.converged, res.final_cost < 1e-20
     ('lm', True, True)
+    >>> g.optimize(solver="lm", damping="diagonal", abs_tol=0.0).final_cost < 1e-20
+    True
     """
 
     name = "lm"
 
-    def __init__(self, lambda_initial: float = 1e-5, lambda_factor: float = 10.0,
-                 lambda_max: float = 1e5, lambda_min: float = 0.0,
-                 diagonal_damping: bool = False, *, rel_tol: float = 1e-5,
-                 abs_tol: float = 1e-5, cost_tol: float = 0.0, step_tol: float = 0.0) -> None:
+    def __init__(self, lambda_initial: float | None = None, lambda_factor: float = 10.0,
+                 lambda_max: float = 1e5, lambda_min: float = 0.0, damping: str = "auto", *,
+                 stall_ratio: float = 1e-3, rel_tol: float = 1e-5, abs_tol: float = 1e-5,
+                 cost_tol: float = 0.0, step_tol: float = 0.0) -> None:
         super().__init__(rel_tol, abs_tol, cost_tol, step_tol)
-        self.lambda_initial = _positive("lambda_initial", lambda_initial, zero=True)
+        self.lambda_initial = None if lambda_initial is None else \
+            _positive("lambda_initial", lambda_initial, zero=True)
         self.lambda_factor = float(lambda_factor)
         if not self.lambda_factor > 1.0:
             raise ValueError(f"lambda_factor must be > 1, got {lambda_factor!r}")
         self.lambda_max = _positive("lambda_max", lambda_max)
         self.lambda_min = _positive("lambda_min", lambda_min, zero=True)
-        self.diagonal_damping = bool(diagonal_damping)
-        self._lam = self.lambda_initial
+        if damping not in DAMPINGS:
+            raise ValueError(f"damping must be one of {', '.join(map(repr, DAMPINGS))}, got "
+                             f"{damping!r}")
+        self.damping = damping
+        self.stall_ratio = float(stall_ratio)
+        if not 0.0 < self.stall_ratio < 1.0:
+            raise ValueError(f"stall_ratio must be in (0, 1), got {stall_ratio!r}")
+        self._diagonal = damping == "diagonal"  # the damping in use: diag(H), else I
+        self._why: str | None = None            # why "auto" uses diag(H)
+        self._stalled = False                   # the identity was not negligible
+        self._lam = self._first_lambda()
 
     def _options(self) -> dict[str, Any]:
         return {k: v for k, v in vars(self).items() if not k.startswith("_")}
 
+    def _first_lambda(self) -> float:
+        if self.lambda_initial is not None:
+            return self.lambda_initial
+        return 1e-12 if self._diagonal else 1e-5
+
     def start(self, s: SolveState) -> None:
-        self._lam = self.lambda_initial
+        self._diagonal, self._why, self._stalled = self.damping == "diagonal", None, False
+        if self.damping == "auto":
+            lam = self._first_lambda()
+            small = _smallest_positive(s.diagonal())
+            if not lam < self.stall_ratio * small:
+                self._diagonal = True
+                self._why = (f"damping auto: diag(H), as lambda {lam:.3g} is not below "
+                             f"stall_ratio x the smallest curvature {small:.3g}")
+        self._lam = self._first_lambda()
 
     def tr_radius(self) -> float:
         return 1.0 / self._lam if self._lam > 0 else math.inf
 
+    def _switch(self) -> bool:
+        """``"auto"`` at a stop of the identity that is not trusted: go on with ``diag(H)``."""
+        if self.damping != "auto" or self._diagonal or not self._stalled:
+            return False
+        self._diagonal, self._stalled = True, False
+        self._lam = self._first_lambda()
+        self._why = ("damping auto: switched from I to diag(H) where the identity stopped "
+                     "with lambda not below stall_ratio x the smallest curvature")
+        return True
+
+    def converged(self, old: float, new: float, step_norm: float) -> str | None:
+        why = super().converged(old, new, step_norm)
+        if why is not None and self._switch():
+            return None
+        return f"{why} ({self._why})" if why is not None and self._why else why
+
     def iterate(self, s: SolveState) -> Outcome:
         dg = s.diagonal()  # the undamped diagonal (a copy)
-        floor = np.maximum(dg, 1e-12) if self.diagonal_damping else None
+        while True:
+            out = self._iterate(s, dg)
+            if out.stop is None or out.accepted or not self._switch():
+                return out
+
+    def _iterate(self, s: SolveState, dg: np.ndarray) -> Outcome:
+        watch = self.damping == "auto" and not self._diagonal
+        damp: np.ndarray | float = np.where(dg > 0, dg, 1.0) if self._diagonal else 1.0
+        bound = self.stall_ratio * _smallest_positive(dg) if watch else 0.0
         first: tuple[float, float] | None = None  # the first trial: cost, prediction
         solves = 0
         bad = None
         cur = s.robust_cost
+        lam0 = self._lam  # the least damping of this iteration
         while True:
             lam = self._lam
             solves += 1
-            dx = s.solve(lam * (floor if floor is not None else 1.0), diagonal=dg)
+            dx = s.solve(lam * damp, diagonal=dg)
             if dx is not None:
                 # the model's decrease: (H + lam D) dx = -g gives
                 # -(g.dx + dx.H dx / 2) = (lam dx.D dx - g.dx) / 2
-                damp = floor if floor is not None else 1.0
                 pred = 0.5 * (lam * dot(dx, damp * dx) - dot(s.lin.grad, dx))
                 trial = s.trial(dx, keep=solves == 1 and not self._final(cur, pred))
                 if trial.robust_cost < cur:
+                    self._stalled = watch and not lam < bound
                     self._lam = max(lam / self.lambda_factor, self.lambda_min)
                     return Outcome(True, solves, self._lam, self.tr_radius(), trial, dx, pred,
                                    bad_trial=bad)
@@ -830,7 +906,10 @@ class LevenbergMarquardt(_GTSAMRules):
                     first = (trial.robust_cost, pred)
             self._lam = lam * self.lambda_factor
             if self._lam > self.lambda_max:
+                self._stalled = watch and not lam0 < bound  # the least damped trial's
                 stop = f"lambda exceeded {self.lambda_max:g} without decreasing the cost"
+                if self._why and not self._stalled:
+                    stop += f" ({self._why})"
                 if first is not None:
                     end = self._at_minimum(cur, *first, stop)
                 else:
@@ -838,6 +917,12 @@ class LevenbergMarquardt(_GTSAMRules):
                            stop + " (the damped system was singular at every lambda)")
                 return Outcome(False, solves, self._lam, self.tr_radius(), stop=end,
                                bad_trial=bad)
+
+
+def _smallest_positive(d: np.ndarray) -> float:
+    """The smallest positive entry of ``d`` (1 when none is)."""
+    pos = d[d > 0]
+    return float(pos.min()) if pos.size else 1.0
 
 
 class GaussNewton(_GTSAMRules):

@@ -31,7 +31,9 @@ class GraphFormat:
     kind : {"pose_graph", "bundle"}
         What a file holds.
     reader, writer : str
-        ``"module:function"``: ``reader(path)`` and ``writer(path, problem, ...)``.
+        ``"module:function"``: ``reader(path)`` (a pose-graph reader also takes
+        ``information=``, :mod:`microlie.optim.io.information`) and
+        ``writer(path, problem, ...)``.
     handler : str
         ``"module:function"`` that ``microlie optimize`` runs as ``handler(args, err) -> dict``.
     suffixes : tuple of str

@@ -76,7 +76,7 @@ EDGE_TAGS = {
 }
 
 
-def read_g2o(path: str | Path) -> PoseGraph:
+def read_g2o(path: str | Path, *, information: str = "strict") -> PoseGraph:
     r"""Read a g2o pose graph (2-D or 3-D).
 
     The information matrices come back in our tangent order, which is g2o's (see the module
@@ -86,6 +86,11 @@ def read_g2o(path: str | Path) -> PoseGraph:
     ----------
     path : str or pathlib.Path
         The file.
+    information : {"strict", "nearest-psd", "isotropic"}
+        Information matrices that are not positive definite: refused with ``FILE:LINE`` and
+        their count (default), replaced by the nearest positive definite ones, or every
+        matrix replaced by SE-Sync's isotropic precisions
+        (:mod:`microlie.optim.io.information`; the replaced edges are in ``repaired``).
 
     Returns
     -------
@@ -109,7 +114,8 @@ def read_g2o(path: str | Path) -> PoseGraph:
     >>> graph.group.__name__, graph.ids.tolist(), graph.i.tolist(), graph.j.tolist()
     ('SE2', [0, 1, 2], [0, 1], [1, 2])
     """
-    return parse_pose_graph(path, VERTEX_TAGS, EDGE_TAGS, fix_tag="FIX", kind="g2o")
+    return parse_pose_graph(path, VERTEX_TAGS, EDGE_TAGS, fix_tag="FIX", kind="g2o",
+                            information=information)
 
 
 def write_g2o(path: str | Path, graph: PoseGraph, poses: LieGroup | None = None) -> None:

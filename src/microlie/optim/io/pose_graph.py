@@ -25,6 +25,7 @@ import numpy as np
 from ..._fast import text_parser
 from ..._textfile import digits_only, numbers_by_line, plain_error, read_text
 from ...groups import SE2, SE3, LieGroup
+from .information import INFORMATION_POLICIES, apply_information_policy
 
 __all__ = ["PoseGraph", "VertexTag", "EdgeTag", "parse_pose_graph", "symmetric_from_upper",
            "se2_params", "pose_values", "format_rows"]
@@ -54,6 +55,10 @@ class PoseGraph:
         ``(E, d, d)`` information matrices, tangent translation first.
     fixed : numpy.ndarray
         Ids of fixed vertices.
+    repaired : numpy.ndarray
+        Indices of the edges whose information matrix in the file was not positive definite
+        and was replaced by the reader's ``information=`` policy
+        (:mod:`microlie.optim.io.information`); empty by default.
 
     Examples
     --------
@@ -76,6 +81,8 @@ class PoseGraph:
     measurements: LieGroup
     information: np.ndarray
     fixed: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    repaired: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def __post_init__(self) -> None:
         if self.group not in (SE2, SE3):
@@ -83,13 +90,16 @@ class PoseGraph:
         d = self.group.dof
         ids = np.asarray(self.ids, dtype=np.int64)
         object.__setattr__(self, "ids", ids)
-        for name in ("i", "j", "fixed"):
+        for name in ("i", "j", "fixed", "repaired"):
             object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=np.int64))
         if ids.ndim != 1 or np.any(np.diff(ids) <= 0):
             raise ValueError("ids must be a strictly increasing 1-D array of vertex ids")
         n_e = self.i.shape[0]
         if self.i.shape != (n_e,) or self.j.shape != (n_e,):
             raise ValueError("i and j must be 1-D arrays of the same length")
+        rep = self.repaired
+        if rep.ndim != 1 or np.any((rep < 0) | (rep >= n_e)):
+            raise ValueError(f"repaired must be a 1-D array of edge indices in 0 .. {n_e - 1}")
         if self.measurements.batch_shape != (n_e,) or type(self.measurements) is not self.group:
             raise ValueError(f"measurements must be a {self.group.__name__} batch of {n_e}")
         info = np.asarray(self.information, dtype=np.float64)
@@ -524,7 +534,7 @@ class _Lines:
 
 def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
                      edge_tags: dict[str, EdgeTag], fix_tag: str | None = None,
-                     kind: str = "pose-graph") -> PoseGraph:
+                     kind: str = "pose-graph", *, information: str = "strict") -> PoseGraph:
     r"""Parse a line-based pose-graph file with the given tags (see :mod:`.g2o`, :mod:`.toro`).
 
     The file is UTF-8 (a byte order mark is dropped). Blank lines and lines starting with
@@ -546,6 +556,10 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
         The fixed-vertex tag (``"FIX"`` for g2o).
     kind : str
         The format's name, for messages.
+    information : {"strict", "nearest-psd", "isotropic"}
+        What to do with information matrices that are not positive definite: refuse the file
+        (default), repair them, or make every matrix isotropic
+        (:mod:`microlie.optim.io.information`).
 
     Returns
     -------
@@ -566,6 +580,9 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
     >>> len(parse_pose_graph(path, VERTEX_TAGS, EDGE_TAGS, "FIX").ids)
     3
     """
+    if information not in INFORMATION_POLICIES:
+        raise ValueError(f"information must be one of "
+                         f"{', '.join(map(repr, INFORMATION_POLICIES))}, got {information!r}")
     path = Path(path)
     name = str(path)
     known = sorted([*vertex_tags, *edge_tags, *([fix_tag] if fix_tag else [])])
@@ -623,7 +640,7 @@ def parse_pose_graph(path: str | Path, vertex_tags: dict[str, VertexTag],
         raise ValueError(min(errors)[1])
     if group is None:
         raise ValueError(f"{name}: no vertex or edge lines (tags: {', '.join(known)})")
-    return _assemble(name, group, vertices, edges, fixed, vertex_tags, edge_tags)
+    return _assemble(name, group, vertices, edges, fixed, vertex_tags, edge_tags, information)
 
 
 class _LineError(ValueError):
@@ -742,7 +759,7 @@ def _is_float(s: str) -> bool:
 
 def _assemble(name: str, group: type[LieGroup], vertices: _Lines, edges: _Lines,
               fixed: _Lines, vertex_tags: dict[str, VertexTag],
-              edge_tags: dict[str, EdgeTag]) -> PoseGraph:
+              edge_tags: dict[str, EdgeTag], information: str) -> PoseGraph:
     vspec = next((s for s in vertex_tags.values() if s.group is group), None)
     espec = next((s for s in edge_tags.values() if s.group is group), None)
     if espec is None:
@@ -783,8 +800,9 @@ def _assemble(name: str, group: type[LieGroup], vertices: _Lines, edges: _Lines,
                                  f"vertex {ij[k, col]}, which has no vertex line")
     vals = edges.values
     Z = group(_checked_params(espec.to_params, vals[:, :espec.n], name, elines, "measurement"))
-    info = espec.to_information(vals[:, espec.n:])
-    _check_information(info, name, elines)
+    info, repaired = apply_information_policy(espec.to_information(vals[:, espec.n:]),
+                                              information, group.point_dim, name=name,
+                                              lines=elines)
     fix = np.asarray(fixed.ids, dtype=np.int64).reshape(-1)
     flines = fixed.lines
     unknown = np.flatnonzero(~np.isin(fix, ids))
@@ -793,7 +811,7 @@ def _assemble(name: str, group: type[LieGroup], vertices: _Lines, edges: _Lines,
         raise ValueError(f"{name}:{flines[k]}: FIX names vertex {fix[k]}, which is not in "
                          "the graph")
     return PoseGraph(group, ids=ids, poses=poses, i=ij[:, 0], j=ij[:, 1], measurements=Z,
-                     information=info, fixed=np.unique(fix))
+                     information=info, fixed=np.unique(fix), repaired=repaired)
 
 
 def _checked_params(to_params: Callable[[np.ndarray], np.ndarray], vals: np.ndarray,
@@ -823,17 +841,3 @@ def unit_quaternions(q: np.ndarray) -> np.ndarray:
         k = bad[0]
         raise _BadRow(k, f"quaternion {q[k].tolist()} has norm {n[k]:.6g}, not 1")
     return q / n[:, None]
-
-
-def _check_information(info: np.ndarray, name: str, lines: np.ndarray) -> None:
-    """Every information matrix must be symmetric positive definite."""
-    try:
-        np.linalg.cholesky(info)
-        return
-    except np.linalg.LinAlgError:
-        pass
-    lam = np.linalg.eigvalsh(info)
-    k = int(np.flatnonzero(lam[:, 0] <= 0)[0]) if np.any(lam[:, 0] <= 0) else \
-        int(np.argmin(lam[:, 0]))
-    raise ValueError(f"{name}:{lines[k]}: information matrix is not positive definite "
-                     f"(smallest eigenvalue {lam[k, 0]:.6g})")

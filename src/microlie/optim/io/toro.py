@@ -73,7 +73,7 @@ EDGE_TAGS = {
 }
 
 
-def read_toro(path: str | Path) -> PoseGraph:
+def read_toro(path: str | Path, *, information: str = "strict") -> PoseGraph:
     r"""Read a TORO pose graph (2-D or 3-D); information matrices come back in our tangent
     order (see the module docstring for TORO's 2-D order).
 
@@ -81,6 +81,11 @@ def read_toro(path: str | Path) -> PoseGraph:
     ----------
     path : str or pathlib.Path
         The file.
+    information : {"strict", "nearest-psd", "isotropic"}
+        Information matrices that are not positive definite: refused with ``FILE:LINE`` and
+        their count (default), replaced by the nearest positive definite ones, or every
+        matrix replaced by SE-Sync's isotropic precisions
+        (:mod:`microlie.optim.io.information`; the replaced edges are in ``repaired``).
 
     Returns
     -------
@@ -108,7 +113,8 @@ def read_toro(path: str | Path) -> PoseGraph:
     >>> round(back.cost(), 12), bool(np.allclose(back.information, graph.information))
     (0.025, True)
     """
-    return parse_pose_graph(path, VERTEX_TAGS, EDGE_TAGS, kind="TORO")
+    return parse_pose_graph(path, VERTEX_TAGS, EDGE_TAGS, kind="TORO",
+                            information=information)
 
 
 def _toro_values(X: LieGroup) -> np.ndarray:
