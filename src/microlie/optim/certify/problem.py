@@ -146,12 +146,10 @@ class SESyncProblem:
         self.Sigma = _csr([_block_coo(ii, ii, tt, d, d)], d * n, d * n)
         vt = tau[:, None, None] * tz[:, None, :]  # (E, 1, d)
         self.V = _csr([_block_coo(ii, ii, vt, 1, d), _block_coo(jj, ii, -vt, 1, d)], n, d * n)
-        ones = np.ones(ii.size)
         self.L_tau = sp.coo_matrix(
             (np.concatenate([tau, tau, -tau, -tau]),
              (np.concatenate([ii, jj, ii, jj]), np.concatenate([ii, jj, jj, ii]))),
             shape=(n, n)).tocsr()
-        del ones
         self._keep = np.delete(np.arange(n), anchor)
         self._Lred = self.L_tau[self._keep][:, self._keep].tocsc()
         self._Lred.sort_indices()
@@ -176,6 +174,27 @@ class SESyncProblem:
         """``Q Y`` for ``Y`` of shape ``(dn, k)``."""
         Y = np.asarray(Y, dtype=np.float64)
         return np.asarray(self._LS @ Y) - np.asarray(self.V.T @ self.translations_solve(Y))
+
+    def preconditioner(self, shift: float) -> Any:
+        """``Z -> (Q + shift I)^-1 Z``: one sparse Cholesky factorisation of the augmented
+        matrix ``M`` with ``shift`` on its rotation diagonal (``Q + shift I`` is its Schur
+        complement), reused for every product."""
+        import scipy.sparse as sp
+
+        A = self.certificate_matrix(np.broadcast_to(-shift * np.eye(self.d),
+                                                    (self.n, self.d, self.d)))
+        A.sort_indices()
+        chol = make_solver("cholesky")
+        chol.analyse(A.indptr, A.indices, A.shape[0])
+        chol.factorize(A.data)
+        m = self.n - 1
+
+        def apply(Z: np.ndarray) -> np.ndarray:
+            rhs = np.zeros((A.shape[0],) + Z.shape[1:])
+            rhs[m:] = Z
+            return np.asarray(chol.solve(rhs)[m:])
+
+        return apply
 
     def objective(self, Y: np.ndarray) -> float:
         """``tr(Y^T Q Y)``: SE-Sync's ``F`` with the optimal translations (``Y``'s block ``i``

@@ -250,8 +250,14 @@ def _escape(problem: SESyncProblem, Y: np.ndarray, v: np.ndarray, f: float
     return retract(Yp, alpha * Vp, d)
 
 
+#: the preconditioner's shift, relative to the scale of Q
+PRECON_RSHIFT = 1e-6
+
+
 def _refine(problem: SESyncProblem, Y: np.ndarray, grad_tol: float, max_iter: int) -> Any:
-    return trust_region(problem.Q, Y, problem.d, grad_tol=grad_tol, max_iter=max_iter)
+    precon = problem.preconditioner(PRECON_RSHIFT * problem.scale)
+    return trust_region(problem.Q, Y, problem.d, grad_tol=grad_tol, max_iter=max_iter,
+                        precon=precon)
 
 
 def certified_pose_graph(graph: PoseGraph | str | Path, initial: LieGroup | None = None, *,

@@ -54,7 +54,8 @@ class TrustRegionOutcome:
 
 def trust_region(Q: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, d: int, *,
                  grad_tol: float, max_iter: int = 500, max_inner: int = 200,
-                 delta: float | None = None, rel_decrease: float = 1e-14
+                 delta: float | None = None, rel_decrease: float = 1e-14,
+                 precon: Callable[[np.ndarray], np.ndarray] | None = None
                  ) -> TrustRegionOutcome:
     """Minimise ``tr(Y^T Q Y)`` over the product of Stiefel manifolds from ``Y``.
 
@@ -71,9 +72,13 @@ def trust_region(Q: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, d: int, *
     max_iter, max_inner : int
         Outer iterations; conjugate-gradient steps per outer iteration.
     delta : float, optional
-        Initial trust radius (default: ``sqrt(n d) / 8``, an eighth of the manifold's scale).
+        Initial trust radius, in the norm of the preconditioner's inverse (default:
+        ``sqrt(f)`` with one, ``sqrt(n d) / 8`` without).
     rel_decrease : float
         Also stop when an accepted step lowers the objective by less than this fraction.
+    precon : callable, optional
+        ``Z -> P Z``, ``P`` symmetric positive definite approximating the Hessian's inverse
+        (projected onto the tangent space here).
 
     Returns
     -------
@@ -81,8 +86,12 @@ def trust_region(Q: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, d: int, *
     """
     QY = Q(Y)
     f = float(np.sum(Y * QY))
-    big = np.sqrt(Y.shape[0])
-    delta = big / 8 if delta is None else delta
+    if precon is None:
+        big = np.sqrt(Y.shape[0])
+        delta = big / 8 if delta is None else delta
+    else:
+        delta = np.sqrt(max(f, 1e-300)) if delta is None else delta
+        big = 1e6 * delta
     inner_total = 0
     it = 0
     for it in range(1, max_iter + 1):  # noqa: B007
@@ -97,7 +106,7 @@ def trust_region(Q: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, d: int, *
             LV = (Lam @ V.reshape(-1, d, r)).reshape(V.shape)
             return project(Y, 2.0 * (Q(V) - LV), d)
 
-        eta, Heta, k = _tcg(g, hess, delta, max_inner, Y, d)
+        eta, Heta, k, k_boundary = _tcg(g, hess, delta, max_inner, Y, d, precon)
         inner_total += k
         Yn = retract(Y, eta, d)
         QYn = Q(Yn)
@@ -105,10 +114,9 @@ def trust_region(Q: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, d: int, *
         model = -float(np.sum(g * eta)) - 0.5 * float(np.sum(eta * Heta))
         actual = f - fn
         rho = actual / model if model > 0 else (1.0 if actual >= 0 else -1.0)
-        en = float(np.linalg.norm(eta))
         if rho < 0.25:
             delta = 0.25 * delta
-        elif rho > 0.75 and en >= 0.99 * delta:
+        elif rho > 0.75 and k_boundary:
             delta = min(2.0 * delta, big)
         if rho > 0.1 and actual >= 0:
             small = actual <= rel_decrease * max(abs(f), 1e-300)
@@ -129,41 +137,42 @@ def _lam(Y: np.ndarray, QY: np.ndarray, d: int) -> np.ndarray:
 
 
 def _tcg(g: np.ndarray, hess: Callable[[np.ndarray], np.ndarray], delta: float,
-         max_inner: int, Y: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """Steihaug-Toint truncated CG for ``min <g, e> + 1/2 <e, H e>`` with ``|e| <= delta``;
-    returns the step, ``H`` times it and the number of Hessian products."""
+         max_inner: int, Y: np.ndarray, d: int,
+         precon: Callable[[np.ndarray], np.ndarray] | None
+         ) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """Steihaug-Toint truncated CG for ``min <g, e> + 1/2 <e, H e>`` with ``|e|_P <= delta``
+    (the norm of the preconditioner's inverse; Euclidean without one); returns the step,
+    ``H`` times it, the number of Hessian products and whether it stopped on the boundary."""
+    def prec(r: np.ndarray) -> np.ndarray:
+        return r if precon is None else project(Y, precon(r), d)
+
     eta = np.zeros_like(g)
     Heta = np.zeros_like(g)
     r = g.copy()
-    p = -r
-    rr = float(np.sum(r * r))
-    r0 = np.sqrt(rr)
+    z = prec(r)
+    zr = float(np.sum(z * r))
+    p = -z
+    e_pe, e_pd, d_pd = 0.0, 0.0, zr
+    r0 = float(np.linalg.norm(r))
     k = 0
     for k in range(1, max_inner + 1):  # noqa: B007
         Hp = hess(p)
         pHp = float(np.sum(p * Hp))
-        if pHp <= 0:
-            t = _to_boundary(eta, p, delta)
-            return eta + t * p, Heta + t * Hp, k
-        alpha = rr / pHp
-        en = eta + alpha * p
-        if np.linalg.norm(en) >= delta:
-            t = _to_boundary(eta, p, delta)
-            return eta + t * p, Heta + t * Hp, k
-        eta, Heta = en, Heta + alpha * Hp
-        r = r + alpha * Hp
-        r = project(Y, r, d)  # keep it tangent (rounding)
-        rr_new = float(np.sum(r * r))
-        if np.sqrt(rr_new) <= r0 * min(r0, 0.1):  # superlinear: kappa = 0.1, theta = 1
+        alpha = zr / pHp if pHp > 0 else 0.0
+        e_pe_new = e_pe + 2.0 * alpha * e_pd + alpha * alpha * d_pd
+        if pHp <= 0 or e_pe_new >= delta * delta:
+            t = (-e_pd + np.sqrt(max(e_pd * e_pd + d_pd * (delta * delta - e_pe), 0.0))) / d_pd
+            return eta + t * p, Heta + t * Hp, k, True
+        e_pe = e_pe_new
+        eta, Heta = eta + alpha * p, Heta + alpha * Hp
+        r = project(Y, r + alpha * Hp, d)  # keep it tangent (rounding)
+        if np.linalg.norm(r) <= r0 * min(r0, 0.1):  # superlinear: kappa = 0.1, theta = 1
             break
-        p = -r + (rr_new / rr) * p
-        rr = rr_new
-    return eta, Heta, k
-
-
-def _to_boundary(eta: np.ndarray, p: np.ndarray, delta: float) -> float:
-    """``t >= 0`` with ``|eta + t p| = delta``."""
-    a = float(np.sum(p * p))
-    b = 2.0 * float(np.sum(eta * p))
-    c = float(np.sum(eta * eta)) - delta * delta
-    return (-b + np.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a) if a > 0 else 0.0
+        z = prec(r)
+        zr_new = float(np.sum(z * r))
+        beta = zr_new / zr
+        zr = zr_new
+        p = -z + beta * p
+        e_pd = beta * (e_pd + alpha * d_pd)
+        d_pd = zr + beta * beta * d_pd
+    return eta, Heta, k, False
