@@ -67,6 +67,9 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     if getattr(args, "gauge", None) is not None:
         raise ValueError("--gauge applies to pose graphs: bundle adjustment leaves its gauge "
                          "free (the damping keeps the system solvable, as in Ceres)")
+    if getattr(args, "certify", False) or getattr(args, "init", None) == "certified":
+        raise ValueError("--certify and --init certified apply to pose graphs (SE2/SE3), not "
+                         "to bundle adjustment")
     linear = getattr(args, "linear_solver", "auto")
     if linear in _OLD_WORDS:
         raise ValueError(f"--linear-solver {linear} is gone: bundle adjustment runs on the one "
