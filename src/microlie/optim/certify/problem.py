@@ -27,9 +27,10 @@ from typing import Any
 import numpy as np
 
 from ..io.pose_graph import PoseGraph
+from ..linalg.base import SingularSystemError
 from ..linalg.linear import make_solver
 
-__all__ = ["isotropic_weights", "SESyncProblem"]
+__all__ = ["isotropic_weights", "SESyncProblem", "project_so"]
 
 
 def isotropic_weights(graph: PoseGraph) -> tuple[np.ndarray, np.ndarray]:
@@ -155,7 +156,12 @@ class SESyncProblem:
         self._Lred.sort_indices()
         self._chol = make_solver("cholesky")
         self._chol.analyse(self._Lred.indptr, self._Lred.indices, n - 1)
-        self._chol.factorize(self._Lred.data)
+        try:
+            self._chol.factorize(self._Lred.data)
+        except SingularSystemError:
+            raise ValueError("graph: its edges do not join all vertices to the anchor vertex "
+                             f"{graph.ids[anchor]} (the translation Laplacian is singular); "
+                             "add edges or solve each connected part apart") from None
         self._LS = (self.L_rho + self.Sigma).tocsr()
         #: scale of Q (its largest diagonal entry of L_rho + Sigma), for relative tolerances
         self.scale = float(max(self._LS.diagonal().max(), np.finfo(float).tiny))
@@ -179,8 +185,6 @@ class SESyncProblem:
         """``Z -> (Q + shift I)^-1 Z``: one sparse Cholesky factorisation of the augmented
         matrix ``M`` with ``shift`` on its rotation diagonal (``Q + shift I`` is its Schur
         complement), reused for every product."""
-        import scipy.sparse as sp
-
         A = self.certificate_matrix(np.broadcast_to(-shift * np.eye(self.d),
                                                     (self.n, self.d, self.d)))
         A.sort_indices()
@@ -195,6 +199,24 @@ class SESyncProblem:
             return np.asarray(chol.solve(rhs)[m:])
 
         return apply
+
+    def chordal_rotations(self) -> np.ndarray:
+        """The chordal start ``(n, d, d)``: ``min tr(R L_rho R^T)`` over all ``d x d`` blocks
+        with the anchor's held at ``I`` (one sparse Cholesky solve with ``d`` right-hand
+        sides), each block projected to SO(d) (as :func:`microlie.optim.init.chordal`'s
+        rotations, with SE-Sync's weights)."""
+        d, a = self.d, self.anchor
+        keep = np.flatnonzero(np.repeat(np.arange(self.n) != a, d))
+        L = self.L_rho.tocsc()
+        Lkk = L[keep][:, keep].tocsc()
+        Lkk.sort_indices()
+        chol = make_solver("cholesky")
+        chol.analyse(Lkk.indptr, Lkk.indices, Lkk.shape[0])
+        chol.factorize(Lkk.data)
+        Y = np.zeros((self.n * d, d))
+        Y[a * d:(a + 1) * d] = np.eye(d)
+        Y[keep] = chol.solve(-np.asarray(L[keep][:, a * d:(a + 1) * d].todense()))
+        return project_so(np.swapaxes(Y.reshape(-1, d, d), 1, 2))
 
     def objective(self, Y: np.ndarray) -> float:
         """``tr(Y^T Q Y)``: SE-Sync's ``F`` with the optimal translations (``Y``'s block ``i``
@@ -242,3 +264,11 @@ def _csr(parts: list, nr: int, nc: int) -> Any:
     cols = np.concatenate([p[1] for p in parts])
     vals = np.concatenate([p[2] for p in parts])
     return sp.coo_matrix((vals, (rows, cols)), shape=(nr, nc)).tocsr()
+
+
+def project_so(M: np.ndarray) -> np.ndarray:
+    """The nearest rotation (Frobenius norm) to each ``(d, d)`` block of ``M``."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.ones(M.shape[:-1])
+    D[:, -1] = np.linalg.det(U @ Vt)
+    return (U * D[:, None, :]) @ Vt

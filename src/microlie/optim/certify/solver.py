@@ -14,7 +14,7 @@ from ...groups import SE2, SE3, LieGroup
 from ..io.pose_graph import PoseGraph
 from ..linalg.base import SingularSystemError
 from ..linalg.linear import make_solver
-from .problem import SESyncProblem
+from .problem import SESyncProblem, project_so
 from .stiefel import retract, trust_region
 
 __all__ = ["CertifiedResult", "certified_pose_graph", "certify_poses", "min_eigenvalue"]
@@ -127,14 +127,7 @@ def _round(Y: np.ndarray, d: int) -> np.ndarray:
     B = (U[:, :d] * s[:d]).reshape(-1, d, d)  # blocks ~ R_i^T up to a common O(d) factor
     if np.sum(np.linalg.det(B) > 0) < B.shape[0] / 2:
         B = B * np.r_[np.ones(d - 1), -1.0]
-    return _project_so(np.swapaxes(B, 1, 2))
-
-
-def _project_so(M: np.ndarray) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(M)
-    D = np.ones(M.shape[:-1])
-    D[:, -1] = np.linalg.det(U @ Vt)
-    return (U * D[:, None, :]) @ Vt
+    return project_so(np.swapaxes(B, 1, 2))
 
 
 def min_eigenvalue(problem: SESyncProblem, Y: np.ndarray, tolerance: float
@@ -277,7 +270,8 @@ def certified_pose_graph(graph: PoseGraph | str | Path, initial: LieGroup | None
     graph : PoseGraph or path
         An SE2/SE3 pose graph (or a g2o/TORO file) whose edges join all vertices.
     initial : LieGroup, optional
-        Start poses (only the rotations are used); default the chordal initialisation.
+        Start poses (only the rotations are used); default the chordal rotations
+        (:meth:`SESyncProblem.chordal_rotations`).
     tolerance : float, optional
         The certificate accepts ``lambda_min(S) >= -tolerance``; default ``1e-6`` times the
         largest diagonal entry of ``L_rho + Sigma``.
@@ -309,18 +303,14 @@ def certified_pose_graph(graph: PoseGraph | str | Path, initial: LieGroup | None
     graph = _graph(graph)
     if max_rank < graph.dim:
         raise ValueError(f"max_rank must be at least the dimension {graph.dim}, got {max_rank}")
-    if initial is None:
-        from ..init import chordal
-
-        initial = chordal(graph)
-    if len(initial) != graph.num_vertices:
+    if initial is not None and len(initial) != graph.num_vertices:
         raise ValueError(f"initial must hold {graph.num_vertices} poses (one per vertex), got "
                          f"{len(initial)}")
     problem = SESyncProblem(graph, _anchor(graph))
     d = problem.d
     tol = EIG_RTOL * problem.scale if tolerance is None else float(tolerance)
     gtol = GRAD_RTOL * problem.scale * np.sqrt(d * problem.n)
-    Y = _stack(_rotations(initial))
+    Y = _stack(problem.chordal_rotations() if initial is None else _rotations(initial))
     iters = 0
     lower = -np.inf
     r = d
@@ -353,7 +343,7 @@ def certified_pose_graph(graph: PoseGraph | str | Path, initial: LieGroup | None
 
 def _rotations_of(Y: np.ndarray, d: int) -> np.ndarray:
     """Rotations from a rank-``d`` point (blocks ``R_i^T``), projected to SO(d) (rounding)."""
-    return _project_so(np.swapaxes(Y.reshape(-1, d, d), 1, 2))
+    return project_so(np.swapaxes(Y.reshape(-1, d, d), 1, 2))
 
 
 def certify_poses(graph: PoseGraph | str | Path, poses: LieGroup, *, refine: bool = True,
@@ -426,8 +416,9 @@ def certify_poses(graph: PoseGraph | str | Path, poses: LieGroup, *, refine: boo
     k = problem.anchor
     rel0 = np.swapaxes(R0[k], 0, 1) @ R0
     rel = np.swapaxes(R[k], 0, 1) @ R
-    c = (np.trace(np.swapaxes(rel0, 1, 2) @ rel, axis1=1, axis2=2) - (d - 2)) / 2.0
-    moved = float(np.max(np.arccos(np.clip(c, -1.0, 1.0)))) if refine else 0.0
+    # the angle from the chord: ||A - B||_F = 2 sqrt(2) sin(angle / 2) in SO(2) and SO(3)
+    chord = np.linalg.norm(rel - rel0, axis=(1, 2)) / (2.0 * np.sqrt(2.0))
+    moved = float(2.0 * np.arcsin(min(float(chord.max()), 1.0))) if refine else 0.0
     X = _poses(problem, R)
     return CertifiedResult(poses=X, objective=f, lower_bound=f if ok else -np.inf,
                            cost=graph.cost(X), certified=ok, min_eigenvalue=float(lam),
