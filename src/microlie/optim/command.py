@@ -392,7 +392,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     if getattr(args, "certify", False):
         from .certify import certify_poses
 
-        report["certificate"] = _certificate_report(certify_poses(graph, X))
+        report["certificate"] = _certificate_report(certify_poses(graph, X, blas_threads=None))
     if truth is not None:  # the example: how far the start and the result are from the truth
         report["ground_truth"] = {
             "cost": graph.cost(truth),
@@ -415,7 +415,7 @@ def _certified_start(graph: Any, err: TextIO) -> Any:
     """``--init certified``: the certified solver's result (a warning when not certified)."""
     from .certify import certified_pose_graph
 
-    res = certified_pose_graph(graph)
+    res = certified_pose_graph(graph, blas_threads=None)  # run() holds --blas-threads
     if not res.certified:
         err.write(f"microlie optimize: warning: the certified initialisation did not verify "
                   f"(smallest eigenvalue {res.min_eigenvalue:.6g} < -{res.tolerance:.3g} at "
