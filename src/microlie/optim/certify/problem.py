@@ -22,6 +22,7 @@ optimal translations are ``T^T = -L_tau^+ V R^T``, the anchor's at the origin).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -167,9 +168,8 @@ class SESyncProblem:
         self.scale = float(max(self._LS.diagonal().max(), np.finfo(float).tiny))
 
     # ------------------------------------------------------------------ products
-    def translations_solve(self, Y: np.ndarray) -> np.ndarray:
-        """``L_tau^+ V Y`` with the anchor's row zero (``(n, k)``) for ``Y`` of shape
-        ``(dn, k)``."""
+    def _marginal(self, Y: np.ndarray) -> np.ndarray:
+        """``L_tau^+ V Y`` with the anchor's row zero (``(n, k)``) for ``Y`` ``(dn, k)``."""
         W = np.asarray(self.V @ Y)
         out = np.zeros_like(W)
         if self.n > 1:
@@ -177,14 +177,71 @@ class SESyncProblem:
         return out
 
     def Q(self, Y: np.ndarray) -> np.ndarray:
-        """``Q Y`` for ``Y`` of shape ``(dn, k)``."""
-        Y = np.asarray(Y, dtype=np.float64)
-        return np.asarray(self._LS @ Y) - np.asarray(self.V.T @ self.translations_solve(Y))
+        """The product ``Q Y``.
 
-    def preconditioner(self, shift: float) -> Any:
+        Parameters
+        ----------
+        Y : numpy.ndarray
+            ``(dn, k)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(dn, k)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim.io.pose_graph import PoseGraph
+        >>> from microlie.optim.certify import SESyncProblem
+        >>> X = SE2.from_xy_theta([0.0, 1.0, 1.0], [0.0, 0.0, 1.0], [0.0, 1.5, 3.0])
+        >>> i, j = np.array([0, 1, 0]), np.array([1, 2, 2])
+        >>> p = SESyncProblem(PoseGraph(SE2, ids=np.arange(3), poses=X, i=i, j=j,
+        ...                   measurements=X[i].between(X[j]),
+        ...                   information=np.tile(np.eye(3), (3, 1, 1))))
+        >>> R = np.asarray(X.rotation().matrix())
+        >>> Y = np.swapaxes(R, 1, 2).reshape(-1, 2)  # blocks R_i^T
+        >>> bool(np.allclose(p.Q(Y), 0.0, atol=1e-12))  # noise-free: Q R^T = 0
+        True
+        """
+        Y = np.asarray(Y, dtype=np.float64)
+        return np.asarray(self._LS @ Y) - np.asarray(self.V.T @ self._marginal(Y))
+
+    def preconditioner(self, shift: float) -> Callable[[np.ndarray], np.ndarray]:
         """``Z -> (Q + shift I)^-1 Z``: one sparse Cholesky factorisation of the augmented
         matrix ``M`` with ``shift`` on its rotation diagonal (``Q + shift I`` is its Schur
-        complement), reused for every product."""
+        complement), reused for every product.
+
+        Parameters
+        ----------
+        shift : float
+            ``> 0`` (``Q`` is only semi-definite).
+
+        Returns
+        -------
+        callable
+            ``(dn, k)`` arrays to ``(dn, k)`` arrays.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim.io.pose_graph import PoseGraph
+        >>> from microlie.optim.certify import SESyncProblem
+        >>> X = SE2.from_xy_theta([0.0, 1.0, 1.0], [0.0, 0.0, 1.0], [0.0, 1.5, 3.0])
+        >>> i, j = np.array([0, 1, 0]), np.array([1, 2, 2])
+        >>> p = SESyncProblem(PoseGraph(SE2, ids=np.arange(3), poses=X, i=i, j=j,
+        ...                   measurements=X[i].between(X[j]),
+        ...                   information=np.tile(np.eye(3), (3, 1, 1))))
+        >>> R = np.asarray(X.rotation().matrix())
+        >>> Y = np.swapaxes(R, 1, 2).reshape(-1, 2)  # blocks R_i^T
+        >>> Z = np.random.default_rng(0).standard_normal((6, 2))
+        >>> bool(np.allclose(p.preconditioner(0.5)(p.Q(Z) + 0.5 * Z), Z))
+        True
+        """
+        if not shift > 0:
+            raise ValueError(f"shift must be > 0, got {shift}")
         A = self.certificate_matrix(np.broadcast_to(-shift * np.eye(self.d),
                                                     (self.n, self.d, self.d)))
         A.sort_indices()
@@ -201,10 +258,33 @@ class SESyncProblem:
         return apply
 
     def chordal_rotations(self) -> np.ndarray:
-        """The chordal start ``(n, d, d)``: ``min tr(R L_rho R^T)`` over all ``d x d`` blocks
-        with the anchor's held at ``I`` (one sparse Cholesky solve with ``d`` right-hand
-        sides), each block projected to SO(d) (as :func:`microlie.optim.init.chordal`'s
-        rotations, with SE-Sync's weights)."""
+        """The chordal start: ``min tr(R L_rho R^T)`` over all ``d x d`` blocks with the
+        anchor's held at ``I`` (one sparse Cholesky solve with ``d`` right-hand sides), each
+        block projected to SO(d) (as :func:`microlie.optim.init.chordal`'s rotations, with
+        SE-Sync's weights).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n, d, d)`` rotations.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim.io.pose_graph import PoseGraph
+        >>> from microlie.optim.certify import SESyncProblem
+        >>> X = SE2.from_xy_theta([0.0, 1.0, 1.0], [0.0, 0.0, 1.0], [0.0, 1.5, 3.0])
+        >>> i, j = np.array([0, 1, 0]), np.array([1, 2, 2])
+        >>> p = SESyncProblem(PoseGraph(SE2, ids=np.arange(3), poses=X, i=i, j=j,
+        ...                   measurements=X[i].between(X[j]),
+        ...                   information=np.tile(np.eye(3), (3, 1, 1))))
+        >>> R = np.asarray(X.rotation().matrix())
+        >>> Y = np.swapaxes(R, 1, 2).reshape(-1, 2)  # blocks R_i^T
+        >>> Rc = p.chordal_rotations()  # noise-free: the true rotations relative to vertex 0
+        >>> bool(np.allclose(Rc, R[0].T @ R))
+        True
+        """
         d, a = self.d, self.anchor
         keep = np.flatnonzero(np.repeat(np.arange(self.n) != a, d))
         L = self.L_rho.tocsc()
@@ -219,29 +299,157 @@ class SESyncProblem:
         return project_so(np.swapaxes(Y.reshape(-1, d, d), 1, 2))
 
     def objective(self, Y: np.ndarray) -> float:
-        """``tr(Y^T Q Y)``: SE-Sync's ``F`` with the optimal translations (``Y``'s block ``i``
-        is ``R_i^T``, or a Stiefel element of the relaxation)."""
+        """``tr(Y^T Q Y)``: SE-Sync's ``F`` with the optimal translations.
+
+        Parameters
+        ----------
+        Y : numpy.ndarray
+            ``(dn, r)``: blocks ``R_i^T``, or a point of the rank-``r`` relaxation.
+
+        Returns
+        -------
+        float
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim.io.pose_graph import PoseGraph
+        >>> from microlie.optim.certify import SESyncProblem
+        >>> X = SE2.from_xy_theta([0.0, 1.0, 1.0], [0.0, 0.0, 1.0], [0.0, 1.5, 3.0])
+        >>> i, j = np.array([0, 1, 0]), np.array([1, 2, 2])
+        >>> p = SESyncProblem(PoseGraph(SE2, ids=np.arange(3), poses=X, i=i, j=j,
+        ...                   measurements=X[i].between(X[j]),
+        ...                   information=np.tile(np.eye(3), (3, 1, 1))))
+        >>> R = np.asarray(X.rotation().matrix())
+        >>> Y = np.swapaxes(R, 1, 2).reshape(-1, 2)  # blocks R_i^T
+        >>> abs(p.objective(Y)) < 1e-12
+        True
+        """
         return float(np.sum(Y * self.Q(Y)))
 
     def dense_Q(self) -> np.ndarray:
-        """``Q`` as a dense ``(dn, dn)`` matrix (small problems; for checks)."""
+        """``Q`` as a dense matrix (small problems; for checks).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(dn, dn)``, symmetric positive semi-definite.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim.io.pose_graph import PoseGraph
+        >>> from microlie.optim.certify import SESyncProblem
+        >>> X = SE2.from_xy_theta([0.0, 1.0, 1.0], [0.0, 0.0, 1.0], [0.0, 1.5, 3.0])
+        >>> i, j = np.array([0, 1, 0]), np.array([1, 2, 2])
+        >>> p = SESyncProblem(PoseGraph(SE2, ids=np.arange(3), poses=X, i=i, j=j,
+        ...                   measurements=X[i].between(X[j]),
+        ...                   information=np.tile(np.eye(3), (3, 1, 1))))
+        >>> R = np.asarray(X.rotation().matrix())
+        >>> Y = np.swapaxes(R, 1, 2).reshape(-1, 2)  # blocks R_i^T
+        >>> p.dense_Q().shape
+        (6, 6)
+        """
         return self.Q(np.eye(self.d * self.n))
 
     def translations(self, R: np.ndarray) -> np.ndarray:
-        """The optimal translations ``(n, d)`` for rotations ``R`` of shape ``(n, d, d)``,
-        the anchor's at the origin."""
+        """The translations that minimise ``F`` for given rotations, the anchor's at the
+        origin.
+
+        Parameters
+        ----------
+        R : numpy.ndarray
+            ``(n, d, d)`` rotations.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n, d)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim.io.pose_graph import PoseGraph
+        >>> from microlie.optim.certify import SESyncProblem
+        >>> X = SE2.from_xy_theta([0.0, 1.0, 1.0], [0.0, 0.0, 1.0], [0.0, 1.5, 3.0])
+        >>> i, j = np.array([0, 1, 0]), np.array([1, 2, 2])
+        >>> p = SESyncProblem(PoseGraph(SE2, ids=np.arange(3), poses=X, i=i, j=j,
+        ...                   measurements=X[i].between(X[j]),
+        ...                   information=np.tile(np.eye(3), (3, 1, 1))))
+        >>> R = np.asarray(X.rotation().matrix())
+        >>> Y = np.swapaxes(R, 1, 2).reshape(-1, 2)  # blocks R_i^T
+        >>> (np.round(p.translations(R), 9) + 0.0).tolist()  # the anchor's pose is already I
+        [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]
+        """
         Y = np.swapaxes(R, 1, 2).reshape(-1, self.d)
-        return -self.translations_solve(Y)
+        return -self._marginal(Y)
 
     def lagrange_multipliers(self, Y: np.ndarray) -> np.ndarray:
-        """``Lambda_i = sym((Q Y)_i Y_i^T)``, ``(n, d, d)``: the symmetric block-diagonal
-        multipliers of the first-order conditions at ``Y`` (``(dn, r)``)."""
+        """The symmetric block-diagonal multipliers of the first-order conditions at ``Y``:
+        ``Lambda_i = sym((Q Y)_i Y_i^T)``.
+
+        Parameters
+        ----------
+        Y : numpy.ndarray
+            ``(dn, r)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n, d, d)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim.io.pose_graph import PoseGraph
+        >>> from microlie.optim.certify import SESyncProblem
+        >>> X = SE2.from_xy_theta([0.0, 1.0, 1.0], [0.0, 0.0, 1.0], [0.0, 1.5, 3.0])
+        >>> i, j = np.array([0, 1, 0]), np.array([1, 2, 2])
+        >>> p = SESyncProblem(PoseGraph(SE2, ids=np.arange(3), poses=X, i=i, j=j,
+        ...                   measurements=X[i].between(X[j]),
+        ...                   information=np.tile(np.eye(3), (3, 1, 1))))
+        >>> R = np.asarray(X.rotation().matrix())
+        >>> Y = np.swapaxes(R, 1, 2).reshape(-1, 2)  # blocks R_i^T
+        >>> p.lagrange_multipliers(Y).shape
+        (3, 2, 2)
+        """
         return _lagrange(Y, self.Q(Y), self.d)
 
     def certificate_matrix(self, Lam: np.ndarray) -> Any:
         """The sparse augmented matrix ``[[L_tau, V], [V^T, L_rho + Sigma - Lambda]]`` with the
         anchor's row and column removed: ``S = Q - Lambda`` is its Schur complement, so it is
-        positive (semi)definite exactly when ``S`` is (Sylvester's law of inertia)."""
+        positive (semi)definite exactly when ``S`` is (Sylvester's law of inertia).
+
+        Parameters
+        ----------
+        Lam : numpy.ndarray
+            ``(n, d, d)`` symmetric blocks of ``Lambda``.
+
+        Returns
+        -------
+        scipy.sparse.csc_matrix
+            ``(n - 1 + dn)`` square.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim.io.pose_graph import PoseGraph
+        >>> from microlie.optim.certify import SESyncProblem
+        >>> X = SE2.from_xy_theta([0.0, 1.0, 1.0], [0.0, 0.0, 1.0], [0.0, 1.5, 3.0])
+        >>> i, j = np.array([0, 1, 0]), np.array([1, 2, 2])
+        >>> p = SESyncProblem(PoseGraph(SE2, ids=np.arange(3), poses=X, i=i, j=j,
+        ...                   measurements=X[i].between(X[j]),
+        ...                   information=np.tile(np.eye(3), (3, 1, 1))))
+        >>> R = np.asarray(X.rotation().matrix())
+        >>> Y = np.swapaxes(R, 1, 2).reshape(-1, 2)  # blocks R_i^T
+        >>> p.certificate_matrix(p.lagrange_multipliers(Y)).shape
+        (8, 8)
+        """
         import scipy.sparse as sp
 
         d, n = self.d, self.n
@@ -267,7 +475,24 @@ def _csr(parts: list, nr: int, nc: int) -> Any:
 
 
 def project_so(M: np.ndarray) -> np.ndarray:
-    """The nearest rotation (Frobenius norm) to each ``(d, d)`` block of ``M``."""
+    """The nearest rotation (Frobenius norm) to each ``(d, d)`` block of ``M``.
+
+    Parameters
+    ----------
+    M : numpy.ndarray
+        ``(n, d, d)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, d, d)`` rotations: ``U diag(1, .., det(U V^T)) V^T`` from ``M = U S V^T``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> np.round(project_so(np.array([[[2.0, 0.1], [-0.1, 2.0]]])), 4).tolist()
+    [[[0.9988, 0.0499], [-0.0499, 0.9988]]]
+    """
     U, _, Vt = np.linalg.svd(M)
     D = np.ones(M.shape[:-1])
     D[:, -1] = np.linalg.det(U @ Vt)

@@ -59,6 +59,20 @@ class CertifiedResult:
         given poses and the refined ones; 0 otherwise.
     time_s : float
         Wall time.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim.io.pose_graph import PoseGraph
+    >>> from microlie.optim.certify import certified_pose_graph
+    >>> X = SE2.from_xy_theta([0.0, 1.0, 1.0], [0.0, 0.0, 1.0], [0.0, 1.5, 3.0])
+    >>> i, j = np.array([0, 1, 0]), np.array([1, 2, 2])
+    >>> g = PoseGraph(SE2, ids=np.arange(3), poses=X, i=i, j=j,
+    ...               measurements=X[i].between(X[j]), information=np.tile(np.eye(3), (3, 1, 1)))
+    >>> res = certified_pose_graph(g)
+    >>> res.certified, res.rank, res.min_eigenvalue >= -res.tolerance
+    (True, 2, True)
     """
 
     poses: LieGroup
