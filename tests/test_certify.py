@@ -231,7 +231,7 @@ def test_bad_input_is_refused():
 
 @pytest.mark.parametrize("name,published,digits", [
     ("sphere2500.g2o", 1.687e3, 0.5e0), ("parking-garage.g2o", 1.263e0, 0.5e-3),
-    ("tinyGrid3D.g2o", None, None)])
+    ("CSAIL.g2o", 3.170e1, 0.5e-2), ("tinyGrid3D.g2o", None, None)])
 def test_se_sync_published_optima(name, published, digits):
     from microlie.optim.io.g2o import read_g2o
 
@@ -271,3 +271,34 @@ def test_command_says_a_local_minimum_is_not_certified(tmp_path):
     args = parser.parse_args(["optimize", str(path), "-q", "--init", "file", "--certify"])
     args.func(args, text, io.StringIO())
     assert "NOT certified" in text.getvalue()
+
+
+def test_command_refuses_certify_for_bundle_adjustment(tmp_path):
+    from microlie.optim.command import register
+
+    path = tmp_path / "one.txt"  # BAL: 1 camera, 1 point, 1 observation
+    path.write_text("1 1 1\n0 0 1.0 2.0\n" + "\n".join(["0.0"] * 6 + ["500.0", "0.0", "0.0"])
+                    + "\n0.0\n0.0\n-5.0\n")
+    parser = argparse.ArgumentParser(prog="microlie")
+    register(parser.add_subparsers())
+    for extra in (["--certify"], ["--init", "certified"]):
+        args = parser.parse_args(["optimize", str(path), "-q", "--format", "bal", *extra])
+        with pytest.raises(ValueError, match="apply to pose graphs"):
+            args.func(args, io.StringIO(), io.StringIO())
+
+
+def test_bignoise_from_the_file_vertices_is_a_local_minimum_and_the_staircase_leaves_it():
+    """sphere_bignoise_vertex3: the critical point of F next to the file's vertices is not
+    certified; the staircase from there (rank 4) reaches a certified optimum whose value equals
+    the relaxation's lower bound."""
+    from microlie.optim.io.g2o import read_g2o
+
+    g = read_g2o(data_file("pose_graph/sphere_bignoise_vertex3.g2o"))
+    local = certify_poses(g, g.poses)
+    assert not local.certified and local.min_eigenvalue < -local.tolerance
+    again = certified_pose_graph(g, g.poses)
+    assert again.certified and again.rank > 3 and again.objective < local.objective
+    assert np.isclose(again.lower_bound, again.objective, rtol=1e-9)
+    R = np.asarray(again.poses.rotation().matrix())
+    assert np.isclose(_F(g, R, np.asarray(again.poses.translation())), again.objective,
+                      rtol=1e-9)
