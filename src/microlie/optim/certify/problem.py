@@ -166,6 +166,7 @@ class SESyncProblem:
         self._LS = (self.L_rho + self.Sigma).tocsr()
         #: scale of Q (its largest diagonal entry of L_rho + Sigma), for relative tolerances
         self.scale = float(max(self._LS.diagonal().max(), np.finfo(float).tiny))
+        self._preconditioners: dict[float, Callable[[np.ndarray], np.ndarray]] = {}
 
     # ------------------------------------------------------------------ products
     def _marginal(self, Y: np.ndarray) -> np.ndarray:
@@ -211,7 +212,7 @@ class SESyncProblem:
     def preconditioner(self, shift: float) -> Callable[[np.ndarray], np.ndarray]:
         """``Z -> (Q + shift I)^-1 Z``: one sparse Cholesky factorisation of the augmented
         matrix ``M`` with ``shift`` on its rotation diagonal (``Q + shift I`` is its Schur
-        complement), reused for every product.
+        complement), reused for every product and cached per ``shift``.
 
         Parameters
         ----------
@@ -242,6 +243,9 @@ class SESyncProblem:
         """
         if not shift > 0:
             raise ValueError(f"shift must be > 0, got {shift}")
+        cached = self._preconditioners.get(shift)
+        if cached is not None:  # one factorisation per shift, shared by the staircase's ranks
+            return cached
         A = self.certificate_matrix(np.broadcast_to(-shift * np.eye(self.d),
                                                     (self.n, self.d, self.d)))
         A.sort_indices()
@@ -255,6 +259,7 @@ class SESyncProblem:
             rhs[m:] = Z
             return np.asarray(chol.solve(rhs)[m:])
 
+        self._preconditioners[shift] = apply
         return apply
 
     def chordal_rotations(self) -> np.ndarray:

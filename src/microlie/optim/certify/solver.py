@@ -191,7 +191,11 @@ def min_eigenvalue(problem: SESyncProblem, Y: np.ndarray, tolerance: float
     (True, True)
     """
     import scipy.sparse as sp  # type: ignore[import-untyped]
-    from scipy.sparse.linalg import LinearOperator, eigsh  # type: ignore[import-untyped]
+    from scipy.sparse.linalg import (  # type: ignore[import-untyped]
+        ArpackNoConvergence,
+        LinearOperator,
+        eigsh,
+    )
 
     if not tolerance > 0:
         raise ValueError(f"tolerance must be > 0, got {tolerance}")
@@ -234,8 +238,15 @@ def min_eigenvalue(problem: SESyncProblem, Y: np.ndarray, tolerance: float
         mu, v = w[-1], V[:, -1]
     else:
         v0 = np.random.default_rng(0).standard_normal(dn)
-        w, V = eigsh(op, k=1, which="LA", v0=v0, tol=1e-10, ncv=min(dn, 40),
-                     maxiter=20 * dn)
+        try:
+            w, V = eigsh(op, k=1, which="LA", v0=v0, tol=1e-10, ncv=min(dn, 40),
+                         maxiter=20 * dn)
+        except ArpackNoConvergence as e:  # keep Lanczos' best estimate when it has one
+            if not len(e.eigenvalues):
+                raise ValueError("the certificate's eigenvalue did not converge (Lanczos); "
+                                 "the factorisation says certified="
+                                 f"{bool(certified)}") from None
+            w, V = e.eigenvalues, e.eigenvectors
         mu, v = float(w[0]), V[:, 0]
     return sigma + 1.0 / mu, v / np.linalg.norm(v), bool(certified)
 
