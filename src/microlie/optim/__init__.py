@@ -29,6 +29,9 @@ Files: ``read_g2o``/``write_g2o`` (:mod:`microlie.optim.io.g2o`), ``read_toro``/
 (:mod:`microlie.optim.io.toro`), both with a :class:`microlie.optim.io.pose_graph.PoseGraph`, and
 ``read_bal``/``write_bal`` (:mod:`microlie.optim.io.bal`), all importable from here; every writer
 replaces its file only once the new one is complete. Initialisation: :mod:`microlie.optim.init`.
+Certified global optimum of a pose graph: ``certified_pose_graph(graph)`` and
+``certify_poses(graph, poses)`` (:mod:`microlie.optim.certify`), returning a
+``CertifiedResult``.
 """
 
 # Submodules load on first use (PEP 562), so that ``microlie optimize``'s argument parser and the
@@ -59,6 +62,7 @@ _LAZY = {
                         "TrustRegion"),
     "io.toro": ("read_toro", "write_toro"),
     "core.variables": ("Values", "Variables"),
+    "certify": ("CertifiedResult", "certified_pose_graph", "certify_poses"),
 }
 _WHERE = {name: module for module, names in _LAZY.items() for name in names}
 
@@ -77,6 +81,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:
+    from .certify import CertifiedResult, certified_pose_graph, certify_poses
     from .core.factors import (
         BetweenFactor,
         CustomFactor,
@@ -129,4 +134,5 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "BundleGraph", "bundle_graph", "bundle_adjust", "plot_bundle", "BALCamera",
            "PinholeCamera", "ReprojectionFactor",
            "PoseGraph", "read_g2o",
-           "write_g2o", "read_toro", "write_toro"]
+           "write_g2o", "read_toro", "write_toro", "CertifiedResult", "certified_pose_graph",
+           "certify_poses"]

@@ -3,7 +3,8 @@
 ::
 
     microlie optimize (IN.g2o | --example) [-o OUT.g2o] [--solver lm|gn|dogleg|trust-region]
-                     [--robust huber:1.0] [--init auto|file|odometry|chordal]
+                     [--robust huber:1.0] [--init auto|file|odometry|chordal|certified]
+                     [--certify]
                      [--linear-solver auto|cholesky|schur|...]
                      [--max-iter N] [--gauge check|fix_first|none] [--plot FILE] [--json]
                      [--format auto|g2o|toro|bal] [--force] [-v | -q] [--blas-threads N]
@@ -34,6 +35,13 @@ unless ``--blas-threads`` says otherwise (:mod:`microlie.optim.core.threads`).
 seed, nothing read from disk) from its drifting odometry start, and reports beside the costs
 the RMS position error against the ground truth before and after.
 
+``--init certified`` starts from the global minimiser of SE-Sync's isotropic objective, solved
+with a certificate (:mod:`microlie.optim.certify`; the report's ``certified_init``, and a
+warning when it does not verify). ``--certify`` certifies the answer (report ``certificate``):
+whether it is at the global minimum of that objective, after refining its rotations to the
+nearest critical point of it (``moved``: the largest rotation change, rad); a local minimum
+is reported "NOT certified".
+
 The report's ``termination`` is the solver's (:class:`~microlie.optim.core.solvers.Result`):
 ``convergence`` and ``no_convergence`` (``--max-iter`` reached; printed "not converged")
 exit with status 0, as Ceres calls both usable; ``failure`` (the cost could not be decreased)
@@ -59,7 +67,7 @@ from .io.formats import FORMATS, detect_format, output_format
 __all__ = ["register", "run", "run_pose_graph", "policy_options"]
 
 SOLVERS = ("lm", "gn", "dogleg", "trust-region")  # microlie.optim.core.strategies
-INITS = ("auto", "file", "odometry", "chordal")
+INITS = ("auto", "file", "odometry", "chordal", "certified")
 GAUGES = ("check", "fix_first", "none")
 
 
@@ -117,8 +125,13 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="robust loss on every edge: huber, cauchy, tukey, geman-mcclure, dcs, "
                         "barron, optionally with a scale, e.g. huber:1.0")
     p.add_argument("--init", choices=INITS, default="auto",
-                   help="initial guess: the file's vertices, the odometry chain, or chordal "
-                        "(default auto: the file's vertices, else odometry, else chordal)")
+                   help="initial guess: the file's vertices, the odometry chain, chordal, or "
+                        "certified (the certified global optimum of SE-Sync's isotropic "
+                        "objective) (default auto: the file's vertices, else odometry, else "
+                        "chordal)")
+    p.add_argument("--certify", action="store_true",
+                   help="pose graphs: say whether the answer is the certified global optimum "
+                        "of SE-Sync's isotropic objective or a local minimum")
     p.add_argument("--linear-solver", default="auto", metavar="NAME",
                    help="linear solver, auto (default; schur for BAL) or forced: cholesky, "
                         "schur (landmarks eliminated), scipy, qdldl, pardiso, dense")
@@ -292,6 +305,10 @@ def _summary(r: dict) -> str:
     if r.get("repaired_edges"):
         text += (f"\n  --information {r['information']}: {r['repaired_edges']} of "
                  f"{r['num_edges']} edges had information that is not positive definite")
+    if r.get("certified_init"):
+        text += _certificate_line("start", r["certified_init"])
+    if r.get("certificate"):
+        text += _certificate_line("certificate", r["certificate"])
     truth = r.get("ground_truth")
     if truth:
         text += (f"\n  position error against the ground truth (RMS): "
@@ -370,6 +387,10 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
             init = "chordal"
             err.write(f"microlie optimize: {e}; starting from the chordal initialisation\n")
             X0 = initialize(graph, init)
+    elif args.init == "certified":
+        init = "certified"
+        start = _certified_start(graph, err)
+        X0 = start.poses
     else:
         init = args.init
         X0 = initialize(graph, init)
@@ -433,6 +454,12 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         "information": information,
         "repaired_edges": int(graph.repaired.size),
     }
+    if init == "certified":
+        report["certified_init"] = _certificate_report(start)
+    if getattr(args, "certify", False):
+        from .certify import certify_poses
+
+        report["certificate"] = _certificate_report(certify_poses(graph, X, blas_threads=None))
     if truth is not None:  # the example: how far the start and the result are from the truth
         report["ground_truth"] = {
             "cost": graph.cost(truth),
@@ -449,6 +476,34 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         plot_pose_graph(graph, X0, X, args.plot, title=title)
         report["plot"] = str(args.plot)
     return report
+
+
+def _certified_start(graph: Any, err: TextIO) -> Any:
+    """``--init certified``: the certified solver's result (a warning when not certified)."""
+    from .certify import certified_pose_graph
+
+    res = certified_pose_graph(graph, blas_threads=None)  # run() holds --blas-threads
+    if not res.certified:
+        err.write(f"microlie optimize: warning: the certified initialisation did not verify "
+                  f"(smallest eigenvalue {res.min_eigenvalue:.6g} < -{res.tolerance:.3g} at "
+                  f"rank {res.rank}); starting from its rounded poses\n")
+    return res
+
+
+def _certificate_report(c: Any) -> dict:
+    """The JSON fields of a :class:`~microlie.optim.certify.CertifiedResult`."""
+    return {"certified": bool(c.certified), "min_eigenvalue": c.min_eigenvalue,
+            "tolerance": c.tolerance, "objective": c.objective, "lower_bound": c.lower_bound,
+            "cost": c.cost, "rank": c.rank, "moved": c.moved, "time_s": c.time_s}
+
+
+def _certificate_line(name: str, c: dict) -> str:
+    verdict = ("certified global optimum" if c["certified"] else
+               "NOT certified (a local minimum)")
+    moved = f", rotations refined by at most {c['moved']:.3g} rad" if c["moved"] else ""
+    return (f"\n  {name}: {verdict} of SE-Sync's objective F = {c['objective']:.10g} "
+            f"(smallest eigenvalue of the certificate matrix {c['min_eigenvalue']:.3g}, "
+            f"tolerance {c['tolerance']:.3g}, rank {c['rank']}{moved}, {c['time_s']:.3f} s)")
 
 
 def _position_rmse(X: Any, truth: Any) -> float:

@@ -71,6 +71,9 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     if getattr(args, "information", None) is not None:
         raise ValueError("--information applies to pose graphs: a BAL file has no information "
                          "matrices (drop --information)")
+    if getattr(args, "certify", False) or getattr(args, "init", None) == "certified":
+        raise ValueError("--certify and --init certified apply to pose graphs (SE2/SE3), not "
+                         "to bundle adjustment")
     linear = getattr(args, "linear_solver", "auto")
     if linear in _OLD_WORDS:
         raise ValueError(f"--linear-solver {linear} is gone: bundle adjustment runs on the one "

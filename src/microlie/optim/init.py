@@ -1,6 +1,7 @@
-"""Initial guesses for pose graphs: the file's vertices, an odometry chain, chordal relaxation.
+"""Initial guesses for pose graphs: the file's vertices, an odometry chain, chordal relaxation,
+the certified global optimum of SE-Sync's objective.
 
-All three return one batch of poses aligned with ``graph.ids``.
+All four return one batch of poses aligned with ``graph.ids``.
 
 - :func:`from_file`: the vertices the file holds (an error when it has none).
 - :func:`odometry`: compose the edges ``ids[k] -> ids[k+1]`` (an edge stored the other way
@@ -10,6 +11,8 @@ All three return one batch of poses aligned with ``graph.ids``.
   held), one sparse Cholesky solve shared by the ``n`` rows of ``R``; projection of each
   estimate to SO(n) by SVD; then translations by linear least squares with those rotations
   fixed, ``R_i^T (t_j - t_i) = t_ij`` weighted by the translation block of the information.
+- :func:`certified`: the global minimiser of SE-Sync's isotropic objective, with a verified
+  certificate (:func:`microlie.optim.certify.certified_pose_graph`, started from chordal).
 
 The odometry chain starts at the first vertex; the chordal anchor is the first fixed vertex
 (``FIX``), else the first vertex. Either keeps its file pose when the file has vertices and is
@@ -36,10 +39,11 @@ import numpy as np
 from ..groups import SE2, SE3, LieGroup
 from .io.pose_graph import PoseGraph
 
-__all__ = ["initialize", "from_file", "odometry", "chordal", "INIT_METHODS", "InitMethod"]
+__all__ = ["initialize", "from_file", "odometry", "chordal", "certified", "INIT_METHODS",
+           "InitMethod"]
 
-InitMethod = Literal["file", "odometry", "chordal"]
-INIT_METHODS: tuple[str, ...] = ("file", "odometry", "chordal")
+InitMethod = Literal["file", "odometry", "chordal", "certified"]
+INIT_METHODS: tuple[str, ...] = ("file", "odometry", "chordal", "certified")
 
 
 def initialize(graph: PoseGraph, method: InitMethod = "file") -> LieGroup:
@@ -49,8 +53,8 @@ def initialize(graph: PoseGraph, method: InitMethod = "file") -> LieGroup:
     ----------
     graph : PoseGraph
         The graph.
-    method : {"file", "odometry", "chordal"}
-        See :func:`from_file`, :func:`odometry` and :func:`chordal`.
+    method : {"file", "odometry", "chordal", "certified"}
+        See :func:`from_file`, :func:`odometry`, :func:`chordal` and :func:`certified`.
 
     Returns
     -------
@@ -77,6 +81,8 @@ def initialize(graph: PoseGraph, method: InitMethod = "file") -> LieGroup:
         return odometry(graph)
     if method == "chordal":
         return chordal(graph)
+    if method == "certified":
+        return certified(graph)
     raise ValueError(f"unknown initialisation {method!r}; choose one of {INIT_METHODS}")
 
 
@@ -316,6 +322,51 @@ def chordal(graph: PoseGraph) -> LieGroup:
     T[:, d, d] = 1.0
     X = (SE2 if d == 2 else SE3).from_matrix(T)  # R is a rotation to rounding
     return _anchored(graph, X, k0)
+
+
+def certified(graph: PoseGraph) -> LieGroup:
+    r"""The certified global minimiser of SE-Sync's isotropic objective
+    (:func:`microlie.optim.certify.certified_pose_graph` from the chordal start); raises when
+    its certificate does not verify. The anchor vertex keeps its file pose.
+
+    Parameters
+    ----------
+    graph : PoseGraph
+        An SE2 or SE3 graph whose edges join all its vertices.
+
+    Returns
+    -------
+    LieGroup
+
+    Raises
+    ------
+    ValueError
+        The certificate did not verify (the message gives the smallest eigenvalue and the
+        tolerance); call ``certified_pose_graph`` for the uncertified answer.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from microlie.optim.io.g2o import read_g2o
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nVERTEX_SE2 2 2.1 0 0\n"
+    ...     "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    >>> from microlie.optim.init import certified
+    >>> np.round(certified(read_g2o(path)).translation()[:, 0], 9).tolist()
+    [0.0, 1.0, 2.0]
+    """
+    from .certify import certified_pose_graph
+
+    res = certified_pose_graph(graph)
+    if not res.certified:
+        raise ValueError(
+            f"certified initialisation: the certificate did not verify (smallest eigenvalue "
+            f"{res.min_eigenvalue:.6g} below -{res.tolerance:.3g} at rank {res.rank}); use "
+            f"microlie.optim.certify.certified_pose_graph for the uncertified poses, or another "
+            f"initialisation")
+    return res.poses
 
 
 def _require_connected(graph: PoseGraph, ii: np.ndarray, jj: np.ndarray, k0: int) -> None:
