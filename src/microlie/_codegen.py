@@ -46,13 +46,16 @@ _CALLS = ("sin", "cos", "tan", "atan2", "exp", "expm1", "log")
 
 def _plain(k: Any, rec: Trace) -> bool:
     """Whether the batched kernel runs as a loop over rows rather than over structure-of-arrays
-    blocks (measured at N = 1e6 on AVX-512: rows win for one output without elementary
-    functions (products, actions: the block copies would double their time) and for rows of at
-    most 4 components; rows of 6 or more with elementary functions vectorise only as blocks)."""
+    blocks. Measured at N = 1e6 (x86-64-v2, v3 and v4 builds): rows win for one output without
+    elementary functions (products, actions: the block copies would double their time) and for
+    rows of at most 2 components (SO2); with elementary functions and rows of 3 or 4 components
+    the row loop vectorises through shuffles that cost more than the copies (SO3.log 9.5 ns per
+    element as rows, 5.0 as blocks with AVX-512; SO3.exp 33 against 13 at x86-64-v2), and rows
+    of 6 or more vectorise only as blocks."""
     if len(k.outs) != 1:
         return False
     calls = any(op in _CALLS for op, _ in rec.nodes)
-    return not calls or max(*rec.sizes, math.prod(k.outs[0])) <= 4
+    return not calls or max(*rec.sizes, math.prod(k.outs[0])) <= 2
 
 
 def c_name(name: str) -> str:

@@ -10,9 +10,10 @@
  * are not supported), so each kernel works on blocks of S elements: the rows of a block are
  * copied into structure-of-arrays buffers (component i of element j at buf[i * S + j], converted
  * to double), an `omp simd` loop over the block evaluates the generated element function with
- * unit-stride accesses (vectorised, with vecmath.h's elementary functions; the block and row
- * functions are LM_HOT, dispatch.h), and the results are copied back to rows (rounded to float
- * for float32 inputs). */
+ * unit-stride accesses (vectorised, with vecmath.h's elementary functions; the block, row and
+ * float64 copy functions are LM_HOT, dispatch.h), and the results are copied back to rows
+ * (rounded to float for float32 inputs). Kernels with one output and no elementary function,
+ * or rows of at most 2 components, run as a plain row loop instead (microlie._codegen). */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
@@ -61,27 +62,46 @@ static int width(const kernel *k, int j) { return k->rows[j] * (k->cols[j] ? k->
 COPY_FUNCS(double, f64)
 COPY_FUNCS(float, f32)
 
-/* rows with a constant width: the compiler unrolls the component loop */
-#define LOADK(KW)                                                                              \
-    static void load_f64_##KW(const double *restrict x, ix m, double *restrict buf) {          \
+/* rows with a constant width: the compiler unrolls the component loop (LM_HOT: the copies
+ * of a cheap kernel such as SO3.log cost as much as its formula, so they take the wide vector
+ * units too) */
+#define COPYK(KW)                                                                              \
+    LM_HOT static void load_f64_##KW(const double *restrict x, ix m, double *restrict buf) {   \
         for (ix j = 0; j < m; j++)                                                              \
             for (int c = 0; c < KW; c++) buf[c * S + j] = x[KW * j + c];                      \
+    }                                                                                          \
+    LM_HOT static void store_f64_##KW(const double *restrict buf, ix m, double *restrict y) {  \
+        for (ix j = 0; j < m; j++)                                                              \
+            for (int c = 0; c < KW; c++) y[KW * j + c] = buf[c * S + j];                      \
     }
-LOADK(2) LOADK(3) LOADK(4) LOADK(6) LOADK(7) LOADK(8) LOADK(9) LOADK(10)
+COPYK(1) COPYK(2) COPYK(3) COPYK(4) COPYK(6) COPYK(7) COPYK(8) COPYK(9) COPYK(10)
+
+#define CASES(F, ...)                                                                          \
+    case 1: F##_1(__VA_ARGS__); break;                                                         \
+    case 2: F##_2(__VA_ARGS__); break;                                                         \
+    case 3: F##_3(__VA_ARGS__); break;                                                         \
+    case 4: F##_4(__VA_ARGS__); break;                                                         \
+    case 6: F##_6(__VA_ARGS__); break;                                                         \
+    case 7: F##_7(__VA_ARGS__); break;                                                         \
+    case 8: F##_8(__VA_ARGS__); break;                                                         \
+    case 9: F##_9(__VA_ARGS__); break;                                                         \
+    case 10: F##_10(__VA_ARGS__); break;
 
 static void load_rows(int f32, const char *x, int kw, ix m, double *buf) {
     if (f32) { load_f32((const float *)x, kw, m, buf); return; }
     const double *d = (const double *)x;
     switch (kw) {
-    case 2: load_f64_2(d, m, buf); break;
-    case 3: load_f64_3(d, m, buf); break;
-    case 4: load_f64_4(d, m, buf); break;
-    case 6: load_f64_6(d, m, buf); break;
-    case 7: load_f64_7(d, m, buf); break;
-    case 8: load_f64_8(d, m, buf); break;
-    case 9: load_f64_9(d, m, buf); break;
-    case 10: load_f64_10(d, m, buf); break;
+    CASES(load_f64, d, m, buf)
     default: load_f64(d, kw, m, buf);
+    }
+}
+
+static void store_rows(int f32, const double *buf, int kw, ix m, char *y) {
+    if (f32) { store_f32(buf, kw, m, (float *)y); return; }
+    double *d = (double *)y;
+    switch (kw) {
+    CASES(store_f64, buf, m, d)
+    default: store_f64(buf, kw, m, d);
     }
 }
 
@@ -106,8 +126,7 @@ static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *cons
         off = 0;
         for (int j = 0; j < k->nout; j++) {
             char *y = out[j] + (size_t)(i0 * wo[j]) * es;
-            if (f32) store_f32(obuf + off * S, wo[j], m, (float *)y);
-            else store_f64(obuf + off * S, wo[j], m, (double *)y);
+            store_rows(f32, obuf + off * S, wo[j], m, y);
             off += wo[j];
         }
     }
