@@ -51,6 +51,7 @@ EXTENSIONS = {
     "_reproj": ["_reproj.c"],  # BAL reprojection factors (microlie.optim.core.compiled)
     "_normal": ["_normal.c"],  # the engine's normal equations (core/problem, schur_solver)
     "_order": ["_order.c"],  # approximate minimum degree (microlie.optim.linalg.ordering)
+    "_pattern": ["_pattern.c"],  # the block pattern of H (microlie.optim.core.problem)
     "_symbolic": ["_symbolic.c"],  # the supernodal symbolic analysis (linalg.cholesky)
     "_chol": ["_chol.c"],  # the supernodal Cholesky loop on NumPy's or SciPy's BLAS/LAPACK
     "_text": ["_text.c"],  # the numeric text-table reader (microlie.traj.io)

@@ -309,3 +309,23 @@ def test_numpy_loop_residual_within_2x_of_the_compiled_loop(name, start):
     # a relative residual of a few eps is rounding, where a ratio of two measures noise
     # (manhattan with the portable build: 8.5e-16 against 4.3e-16); the floor is 4 eps
     assert res[False] <= 2.0 * max(res[True], 4 * np.finfo(float).eps)
+
+
+@pytest.mark.skipif(not HAVE_C, reason="the compiled loop is not installed")
+def test_compiled_assembly_map_by_runs():
+    """The C analysis maps runs of bs rows (one entry per run; the factor equals the dense
+    Cholesky); a map of neither length is refused."""
+    M, H = _random_spd(3, 30, 11)
+    s = SupernodalSolver(compiled=True)
+    s.analyse(H.indptr, H.indices, H.shape[0], 3)
+    assert s.amap.size * 3 == H.nnz
+    s.factorize(H.data)
+    L = _dense_factor(s)
+    P = np.eye(s.n)[:, s.sperm]  # new -> old: A[perm][:, perm] = L L^T
+    np.testing.assert_allclose(L, np.linalg.cholesky(P.T @ M @ P), rtol=0,
+                               atol=1e-10 * np.abs(M).max())
+    amap = s.amap
+    s.amap = amap[:-1]
+    with pytest.raises(ValueError, match="amap must have one entry per entry"):
+        s.factorize(H.data)
+    s.amap = amap

@@ -12,7 +12,9 @@
  * Storage: supernode s owns the m_s x k_s column-major panel at Lx + px[s] (rows rows[rptr[s] ..
  * rptr[s] + m_s), the first k_s of them its own columns c0[s] .. c0[s] + k_s).
  *
- * factor: Lx[amap[e]] = data[e] for every pattern entry e, then for each supernode in order:
+ * factor: Lx[amap[e]] = data[e] for every pattern entry e (or, when amap has one entry per run
+ * of bs rows, Lx[amap[q] + r] = data[q bs + r]; Lx holds bs slots after the panels, the
+ * dump), then for each supernode in order:
  * potrf on the diagonal block, trsm for the rows below (L21 = A21 L11^-T), W = L21 L21^T (syrk,
  * lower; plain loops instead of these three BLAS calls for supernodes of at most SMALL_K
  * columns), and for each update pair p of s (ancestor t, W columns pa[p] .. pb[p] owned by t)
@@ -228,12 +230,19 @@ static PyObject *factor(PyObject *self, PyObject *args) {
         PyErr_SetString(PyExc_ValueError, "bs must be positive");
         return NULL;
     }
-    i64 nx, ne, ns, np_;
+    i64 nx = 0, ne = 0, ns = 0, np_ = 0;
     double *Lx = arr(oLx, NPY_FLOAT64, -1, "Lx", &nx);
     double *data = Lx ? arr(odata, NPY_FLOAT64, -1, "data", &ne) : NULL;
-    /* amap: int32 (half the memory) or int64 */
+    /* amap: int32 (half the memory) or int64; one entry per pattern entry, or per run of bs */
     int a32 = PyArray_Check(oamap) && PyArray_TYPE((PyArrayObject *)oamap) == NPY_INT32;
-    void *amap = data ? arr(oamap, a32 ? NPY_INT32 : NPY_INT64, ne, "amap", NULL) : NULL;
+    i64 na = PyArray_Check(oamap) ? (i64)PyArray_SIZE((PyArrayObject *)oamap) : -1;
+    i64 run = na == ne ? 1 : bs;
+    if (data && na * run != ne) {
+        PyErr_SetString(PyExc_ValueError, "amap must have one entry per entry of data or per "
+                                          "run of bs entries");
+        return NULL;
+    }
+    void *amap = data ? arr(oamap, a32 ? NPY_INT32 : NPY_INT64, na, "amap", NULL) : NULL;
     const npy_int32 *amap32 = amap;
     const i64 *amap64 = amap;
     i64 *c0 = amap ? arr(oc0, NPY_INT64, -1, "c0", &ns) : NULL;
@@ -249,9 +258,9 @@ static PyObject *factor(PyObject *self, PyObject *args) {
     i64 *relptr = pb ? arr(orelptr, NPY_INT64, np_ + 1, "relptr", NULL) : NULL;
     i64 *rel = relptr ? arr(orel, NPY_INT64, -1, "rel", NULL) : NULL;
     if (!rel) return NULL;
-    for (i64 e = 0; e < ne; e++) {
+    for (i64 e = 0; e < na; e++) {
         i64 at = a32 ? (i64)amap32[e] : amap64[e];
-        if (at < 0 || at >= nx) {
+        if (at < 0 || at + run > nx) {
             PyErr_SetString(PyExc_ValueError, "amap out of range");
             return NULL;
         }
@@ -261,7 +270,13 @@ static PyObject *factor(PyObject *self, PyObject *args) {
     i64 bad = 0;
     Py_BEGIN_ALLOW_THREADS
     memset(Lx, 0, (size_t)nx * sizeof(double));
-    if (a32)
+    if (run > 1)
+        for (i64 q = 0; q < na; q++) {
+            double *dst = Lx + (a32 ? (i64)amap32[q] : amap64[q]);
+            const double *src = data + q * run;
+            for (i64 r = 0; r < run; r++) dst[r] = src[r];
+        }
+    else if (a32)
         for (i64 e = 0; e < ne; e++) Lx[amap32[e]] = data[e];
     else
         for (i64 e = 0; e < ne; e++) Lx[amap64[e]] = data[e];

@@ -27,10 +27,12 @@
  *   structure of s's below row pa[p] + i (i = 0 .. u_s - pa[p] - 1: to the end of s's rows).
  *
  * amap(bptr, bidx, inv, sn_of, brptr, brow, bstart, px, bs, nx) -> amap
- *   The place in the panels of every entry of the scalar CSC of a pattern of dense bs x bs
- *   blocks (bptr, bidx: the block CSC, rows sorted): entry (rr, cc) of block (u, v) with
- *   inv[u] >= inv[v] goes to its supernode's panel, the strict upper triangle to the dump
- *   slot nx. int32 when nx < 2^31 - 1, else int64. */
+ *   The place in the panels of every run of bs rows (one scalar column of one block) of the
+ *   scalar CSC of a pattern of dense bs x bs blocks (bptr, bidx: the block CSC, rows sorted):
+ *   run cc of block (u, v) with inv[u] >= inv[v] goes to its supernode's panel (rows rr of a
+ *   diagonal block above its diagonal land in the panel's upper triangle, never read), the
+ *   blocks of the strict upper triangle to the dump slot nx (bs entries). One entry per run:
+ *   1/bs of a map per entry. int32 when nx < 2^31 - 1, else int64. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
@@ -433,7 +435,7 @@ static PyObject *amap(PyObject *self, PyObject *args) {
     }
     /* int32 when every place (and the dump slot) fits: half the memory */
     int small = nx < 2147483647;
-    npy_intp dim[1] = {(npy_intp)(nblk * bs * bs)};
+    npy_intp dim[1] = {(npy_intp)(nblk * bs)};
     PyArrayObject *oout = (PyArrayObject *)PyArray_SimpleNew(1, dim, small ? NPY_INT32 : NPY_INT64);
     if (!oout) return NULL;
     i64 *out64 = PyArray_DATA(oout);
@@ -456,7 +458,7 @@ static PyObject *amap(PyObject *self, PyObject *args) {
                 }
                 i64 U = inv[u];
                 if (U < V) {
-                    for (i64 rr = 0; rr < bs; rr++) PUT(nx);
+                    PUT(nx);
                     continue;
                 }
                 i64 pos = bsearch_i64(st, sl, U);
@@ -465,7 +467,7 @@ static PyObject *amap(PyObject *self, PyObject *args) {
                     break;
                 }
                 i64 base = px[s] + (V * bs + cc - c0) * m + pos * bs;
-                for (i64 rr = 0; rr < bs; rr++) PUT((U == V && rr < cc) ? nx : base + rr);
+                PUT(base);
             }
     }
     Py_END_ALLOW_THREADS

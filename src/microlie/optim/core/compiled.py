@@ -323,11 +323,8 @@ def _reprojection_plan(problem: Any, f: Factor) -> ReprojectionPlan | None:
     nodes = [np.full(m, -1, np.int64) if var is None else
              np.asarray(problem.node_of[problem.key(var)][np.asarray(i, np.intp)], np.int64)
              for var, i in args]
-    nodes = [np.broadcast_to(n, (m,)) for n in nodes]
-    starts = np.stack([problem.block_start(a, b) for a in nodes for b in nodes], axis=1)
-    lens = np.stack([problem.column_length(n) for n in nodes], axis=1)
-    goff = np.stack([np.where(n >= 0, problem.node_off[np.maximum(n, 0)], -1) for n in nodes],
-                    axis=1)
+    starts, lens, goff = problem.scatter_positions(
+        np.stack([np.broadcast_to(n, (m,)) for n in nodes], axis=1))
     L = np.ascontiguousarray(np.asarray(f.noise.sqrt_info, np.float64).reshape(-1, 2, 2))
     K = None if const is None else np.ascontiguousarray(np.broadcast_to(const, (m, 3)),
                                                         dtype=np.float64)
@@ -382,11 +379,9 @@ def plan(problem: Any, f: Factor) -> EdgePlan | ReprojectionPlan | None:
         return None
     d = f.dim
     k = problem.key(var)
-    ni, nj = (problem.node_of[k][ii], problem.node_of[k][jj])
-    starts = np.stack([problem.block_start(a, b) for a in (ni, nj) for b in (ni, nj)], axis=1)
-    lens = np.stack([problem.column_length(ni), problem.column_length(nj)], axis=1)
-    goff = np.stack([np.where(n >= 0, problem.node_off[np.maximum(n, 0)], -1) for n in (ni, nj)],
-                    axis=1)
+    nodes = np.empty((f.count, 2), np.intp)
+    nodes[:, 0], nodes[:, 1] = problem.node_of[k][ii], problem.node_of[k][jj]
+    starts, lens, goff = problem.scatter_positions(nodes)
     L = f.noise.sqrt_info
     L = np.ascontiguousarray(L.reshape(-1, d, d), dtype=np.float64)
     Z = np.ascontiguousarray(f.Z.params, dtype=np.float64)

@@ -176,12 +176,15 @@ class Problem:
         self.has_loss = any(f.loss is not None for f in factors)
         self._key = {id(v): k for k, v in enumerate(variables)}
         self.gauge_fixed: list[tuple[Variables, int]] = []
+        if gauge not in ("check", "fix_first", "none"):
+            raise ValueError(f"gauge must be 'check', 'fix_first' or 'none', got {gauge!r}")
         self._number()
+        self._build_pattern()
         if gauge != "none":
-            self._check_gauge(gauge)
+            self._check_gauge(gauge)  # on the block pattern (its graph is the factors')
             if self.gauge_fixed:
                 self._number()
-        self._build_pattern()
+                self._build_pattern()
         self._held_pos = self._held_positions()
         # the compiled edge loop of each factor batch (None: the NumPy path)
         self.plans = [compiled.plan(self, f) for f in factors]
@@ -251,12 +254,13 @@ class Problem:
 
     # ------------------------------------------------------------------ gauge
     def _check_gauge(self, gauge: str) -> None:
-        if gauge not in ("check", "fix_first"):
-            raise ValueError(f"gauge must be 'check', 'fix_first' or 'none', got {gauge!r}")
+        """Anchor each connected component of the pattern's graph (two free nodes are joined
+        when a factor holds both) by a prior-like factor or a fixed variable, or raise
+        :class:`GaugeError` (``"check"``) or hold the first variable of each unanchored
+        component (``"fix_first"``, :attr:`gauge_fixed`)."""
         nn = self.num_nodes
         if nn == 0:
             return
-        rows, cols = [], []
         anchored = np.zeros(nn, dtype=bool)
         for nodes in self.fargs:
             stack = np.stack(nodes)  # (K, m)
@@ -265,13 +269,13 @@ class Problem:
             absolute = (len(nodes) == 1) | (nfree < len(nodes))
             for k in range(len(nodes)):
                 anchored[stack[k][free[k] & absolute]] = True
-                for l in range(k + 1, len(nodes)):
-                    both = free[k] & free[l]
-                    rows.append(stack[k][both])
-                    cols.append(stack[l][both])
-        r = np.concatenate(rows) if rows else np.zeros(0, np.int64)
-        c = np.concatenate(cols) if cols else np.zeros(0, np.int64)
-        ncomp, label = connected_components(nn, r, c)
+        bptr, brow = self._bptr, self._brow
+        mod = compiled_module("_pattern")
+        if mod is not None:
+            ncomp, label = mod.components(bptr, brow)
+        else:
+            ncomp, label = connected_components(
+                nn, np.repeat(np.arange(nn, dtype=np.int64), np.diff(bptr)), brow)
         ok = np.zeros(ncomp, dtype=bool)
         ok[label[anchored]] = True
         if ok.all():
@@ -330,38 +334,50 @@ class Problem:
         return self._node_name(int(np.searchsorted(self.node_off, unknown, side="right")) - 1)
 
     # ------------------------------------------------------------------ pattern
-    def _build_pattern(self) -> None:
-        """The pattern of ``H``: the block pattern (one block per pair of nodes that share a
-        factor, and the diagonal) as a symmetric block CSC, expanded into the scalar CSC
-        (``indptr``, ``indices``; sorted rows) in NumPy. Entry
-        ``(r, c)`` of block ``(u, v)`` is at ``bstart_uv + c * collen_v + r`` (every scalar
-        column of block column ``v`` holds the same ``collen_v`` rows); kept per block, not per
-        entry."""
-        nn, dof, bs = self.num_nodes, self.node_dof, self.block_size
-        itype = np.int32 if nn < 2**31 else np.int64
-        rows, cols = [np.arange(nn, dtype=itype)], [np.arange(nn, dtype=itype)]
+    def _pairs(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The node pairs ``(a, b)`` (intp, -1: fixed) of every two arguments of each factor."""
+        out = []
         for nodes in self.fargs:
             for k in range(len(nodes)):
                 for l in range(k + 1, len(nodes)):
-                    a, b = nodes[k], nodes[l]
-                    both = (a >= 0) & (b >= 0)
-                    a, b = a[both].astype(itype), b[both].astype(itype)
-                    rows += [a, b]
-                    cols += [b, a]
-        # symmetric: its CSR is its CSC (column v holds the rows u, sorted, no duplicates);
-        # NumPy only (no SciPy import on the solve path)
-        bptr, brow = pattern_csr(np.concatenate(rows), np.concatenate(cols), nn)
-        del rows, cols
-        bcol = np.repeat(np.arange(nn, dtype=np.int64), np.diff(bptr))
-        du = dof[brow]
-        cs = np.r_[0, np.cumsum(du)]
-        collen = cs[bptr[1:]] - cs[bptr[:-1]]  # rows of each scalar column of block column v
-        base = np.r_[0, np.cumsum(dof * collen)]
-        self._bkey = bcol * max(nn, 1) + brow  # block (u, v) as v * nn + u, sorted
-        self._bstart = base[bcol] + cs[:-1] - cs[bptr[bcol]]  # CSC position of its (0, 0)
-        self._collen = collen
-        nnz = int(base[-1])
-        del bcol, du, cs, base
+                    out.append((np.ascontiguousarray(nodes[k], np.intp),
+                                np.ascontiguousarray(nodes[l], np.intp)))
+        return out
+
+    def _build_pattern(self) -> None:
+        """The pattern of ``H``: the block pattern (one block per pair of nodes that share a
+        factor, and the diagonal) as a symmetric block CSC with sorted rows, in C
+        (``microlie._c._pattern``) or NumPy; the scalar CSC column pointers (``indptr``; the row
+        indices expanded on first use). Entry ``(r, c)`` of block ``(u, v)`` is at
+        ``bstart_uv + c * collen_v + r`` (every scalar column of block column ``v`` holds the
+        same ``collen_v`` rows); kept per block, not per entry."""
+        nn, dof, bs = self.num_nodes, self.node_dof, self.block_size
+        mod = compiled_module("_pattern")
+        self._bkey_: np.ndarray | None = None  # block keys v * nn + u, for the NumPy lookup
+        if mod is not None:
+            bptr, brow, bstart, collen = mod.block_pattern(nn, self._pairs(), dof)
+            nnz = int(np.dot(dof, collen))
+        else:
+            itype = np.int32 if nn < 2**31 else np.int64
+            rows, cols = [], []
+            for a, b in self._pairs():
+                both = (a >= 0) & (b >= 0)
+                a, b = a[both].astype(itype), b[both].astype(itype)
+                rows += [a, b]
+                cols += [b, a]
+            diag = np.arange(nn, dtype=itype)
+            # symmetric: its CSR is its CSC (column v holds the rows u, sorted, no duplicates)
+            bptr, brow = pattern_csr(np.concatenate(rows + [diag]),
+                                     np.concatenate(cols + [diag]), nn)
+            del rows, cols
+            bcol = np.repeat(np.arange(nn, dtype=np.int64), np.diff(bptr))
+            cs = np.r_[0, np.cumsum(dof[brow])]
+            collen = cs[bptr[1:]] - cs[bptr[:-1]]  # rows of each scalar column of column v
+            base = np.r_[0, np.cumsum(dof * collen)]
+            bstart = base[bcol] + cs[:-1] - cs[bptr[bcol]]  # CSC position of its (0, 0)
+            nnz = int(base[-1])
+            del bcol, cs, base
+        self._bptr, self._brow, self._bstart, self._collen = bptr, brow, bstart, collen
         # the pattern of bs x bs sub-blocks (a node of dimension d is d / bs sub-blocks)
         if nn and (dof != bs).any():
             bptr, brow = split_blocks(bptr, brow, dof // bs)
@@ -376,10 +392,10 @@ class Problem:
         self.indptr = np.r_[0, np.cumsum(np.repeat(np.diff(bptr) * bs, bs))].astype(ptype)
         self._indices: np.ndarray | None = None
         # diagonal positions (for damping): entry (c, c) of each diagonal block
-        kd = np.searchsorted(self._bkey, np.arange(nn, dtype=np.int64) * (nn + 1))
+        diag = self.block_start(np.arange(nn), np.arange(nn))
         node = np.repeat(np.arange(nn), dof)
         cc = np.arange(self.size) - self.node_off[node]
-        self.diag_pos = self._bstart[kd][node] + cc * (collen[node] + 1)
+        self.diag_pos = diag[node] + cc * (collen[node] + 1)
 
     @property
     def indices(self) -> np.ndarray:
@@ -515,20 +531,84 @@ class Problem:
         >>> p.block_start(np.array([0, 1, -1]), np.array([0, 0, 1])).tolist()
         [0, 3, -1]
         """
-        a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
+        a, b = np.asarray(a, np.intp), np.asarray(b, np.intp)
         nn = self.num_nodes
+        if a.shape != b.shape:
+            raise ValueError(f"a and b must have one shape, got {a.shape} and {b.shape}")
+        mod = compiled_module("_pattern")
+        if mod is not None:  # a binary search in the block column
+            try:
+                pos = mod.positions(self._bptr, self._brow, self._bstart, a.ravel(), b.ravel())
+            except ValueError as e:
+                raise KeyError(str(e)) from None
+            return pos.reshape(a.shape)
         ok = (a >= 0) & (b >= 0)
-        q = b * nn + a  # the block key: column-major
-        if not self._bkey.size:  # no free variable
+        q = b.astype(np.int64) * nn + a  # the block key: column-major
+        if self._bkey_ is None:
+            self._bkey_ = np.repeat(np.arange(nn, dtype=np.int64) * max(nn, 1),
+                                    np.diff(self._bptr)) + self._brow
+        bkey = self._bkey_
+        if not bkey.size:  # no free variable
             if ok.any():
                 raise KeyError("block not in the pattern")
             return np.full(a.shape, -1, np.int64)
-        k = np.searchsorted(self._bkey, np.where(ok, q, 0))
-        k = np.minimum(k, self._bkey.size - 1)
-        found = ok & (self._bkey[k] == q)
+        k = np.searchsorted(bkey, np.where(ok, q, 0))
+        k = np.minimum(k, bkey.size - 1)
+        found = ok & (bkey[k] == q)
         if np.any(ok & ~found):
             raise KeyError("block not in the pattern")
         return np.where(found, self._bstart[k], -1)
+
+    def scatter_positions(self, nodes: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where a batch of factors adds into ``H`` and ``g``: what a compiled factor loop
+        (:mod:`microlie.optim.core.compiled`) reads.
+
+        Parameters
+        ----------
+        nodes : numpy.ndarray
+            ``(m, K)`` node numbers of the ``K`` arguments of each factor (``-1``: fixed).
+
+        Returns
+        -------
+        starts : numpy.ndarray
+            ``(m, K * K)`` int64: at ``k * K + l`` the :meth:`block_start` of the block
+            ``(nodes[:, k], nodes[:, l])`` (``-1`` when either is fixed).
+        lens : numpy.ndarray
+            ``(m, K)`` int64 :meth:`column_length` of each argument.
+        goff : numpy.ndarray
+            ``(m, K)`` int64 first unknown of each argument (``-1``: fixed).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+        >>> st, ln, go = g.problem().scatter_positions(np.array([[1, 2], [2, -1]]))
+        >>> st.tolist(), ln.tolist(), go.tolist()
+        ([[21, 45, 24, 48], [48, -1, -1, -1]], [[9, 6], [6, 0]], [[3, 6], [6, -1]])
+        """
+        nodes = np.ascontiguousarray(nodes, np.intp)
+        if nodes.ndim != 2:
+            raise ValueError(f"nodes must be (m, K), got shape {nodes.shape}")
+        mod = compiled_module("_pattern")
+        if mod is not None:
+            try:
+                return mod.plan(self._bptr, self._brow, self._bstart, self._collen,
+                                self.node_off, nodes)
+            except ValueError as e:
+                raise KeyError(str(e)) from None
+        cols = nodes.T
+        starts = np.stack([self.block_start(a, b) for a in cols for b in cols], axis=1)
+        lens = np.stack([self.column_length(n) for n in cols], axis=1)
+        goff = np.stack([np.where(n >= 0, self.node_off[np.maximum(n, 0)], -1) for n in cols],
+                        axis=1)
+        return (starts.reshape(nodes.shape[0], -1).astype(np.int64),
+                lens.reshape(nodes.shape[0], -1).astype(np.int64), goff.astype(np.int64))
 
     def column_length(self, nodes: np.ndarray) -> np.ndarray:
         """The number of stored rows in each scalar column of the block columns ``nodes``.

@@ -332,8 +332,10 @@ class PoseGraph:
             raise ValueError(f"gauge must be 'prior', 'fix' or 'none', got {gauge!r}")
         handle = fg.add_variables(X, fixed=fixed, name="poses")
         ii, jj = self.edge_index()
-        fg.add(BetweenFactor(handle, ii, jj, self.measurements, Information(self.information),
-                             loss=loss))
+        info = np.asarray(self.information)
+        if len(info) and bool(np.all(info == info[0])):  # one matrix for every edge: one
+            info = info[0]  # square root shared (as GTSAM shares one noise model)
+        fg.add(BetweenFactor(handle, ii, jj, self.measurements, Information(info), loss=loss))
         if fixed is None and gauge == "prior":
             fg.add(PriorFactor(handle, [0], X[0:1], Isotropic(self.group.dof, prior_sigma)))
         return fg, handle

@@ -96,7 +96,10 @@ def pattern_csr(rows: np.ndarray, cols: np.ndarray, n: int) -> tuple[np.ndarray,
                          f"{cols.shape}")
     if rows.size and (min(rows.min(), cols.min()) < 0 or max(rows.max(), cols.max()) >= n):
         raise ValueError(f"rows and cols must be in [0, {n})")
-    key = np.unique(rows.astype(np.int64) * max(n, 1) + cols)  # sorted row-major, merged
+    key = rows.astype(np.int64) * max(n, 1) + cols
+    key.sort()  # row-major; then merged (np.unique hashes first: 10x slower here, NumPy 2.4)
+    if key.size:
+        key = key[np.r_[True, key[1:] != key[:-1]]]
     indptr = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(key // max(n, 1), minlength=n), out=indptr[1:])
     return indptr, key % max(n, 1)

@@ -277,7 +277,9 @@ class SupernodalSolver(LinearSolver):
         if self._numpy_plan is not None:
             return self._numpy_plan.panel(j)
         p0, k, m = int(self.px[j]), int(self.k[j]), int(self.m[j])
-        return self.Lx[p0:p0 + m * k].reshape(k, m).T
+        P = self.Lx[p0:p0 + m * k].reshape(k, m).T.copy()
+        P[:k][np.triu_indices(k, 1)] = 0.0  # the assembly leaves H there, never read
+        return P
 
     # ---- solve -----------------------------------------------------------------------------
 
