@@ -22,9 +22,11 @@ larger or smaller than the real noise, choose ``quantile`` accordingly). The fir
 from the start values (``first="values"``, the default) or, as in the paper, from the plain
 least-squares estimate (``first="least-squares"``); ``mu`` starts as the paper's Remark 5
 (:func:`initial_mu`) from the largest residual there. The outer
-loop stops when the relative change of the weighted cost is below ``cost_tol``, when every TLS
-weight is within ``weights_tol`` of 0 or 1, when GM's ``mu`` reached 1, or after ``max_iter``
-outer iterations. Known inliers (odometry, priors) keep weight 1 throughout.
+loop stops when every TLS weight is within ``weights_tol`` of 0 or 1 (they are then rounded and
+the inliers solved once more: the result is the least-squares optimum of the factors judged
+inliers), when the relative change of the weighted cost is below ``cost_tol`` (for GM once
+``mu`` has reached 1: the reweighting continues to Geman-McClure's fixed point), or after
+``max_iter`` outer iterations. Known inliers (odometry, priors) keep weight 1 throughout.
 
 Examples
 --------
@@ -544,11 +546,15 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                 if gnc.surrogate == "tls" and \
                         np.all(np.abs(wj - np.round(wj)) <= gnc.weights_tol):
                     message, termination = "GNC weights converged to 0 or 1", "convergence"
+                    snapped = [np.round(w) for w in weights]
+                    if any(np.any(a != w) for a, w in zip(snapped, weights, strict=True)):
+                        for a, w in zip(snapped, weights, strict=True):
+                            w[:] = a  # the TLS solution: least squares on the inliers
+                        cur = inner(cur)
+                        s = squared_norms(problem, cur)
                     break
-                if gnc.surrogate == "gm" and mu == 1.0:
-                    message, termination = "GNC mu reached 1 (Geman-McClure)", "convergence"
-                    break
-                if abs(cost - prev) / max(prev, 1e-7) < gnc.cost_tol:
+                if abs(cost - prev) / max(prev, 1e-7) < gnc.cost_tol and \
+                        (gnc.surrogate == "tls" or mu == 1.0):
                     message, termination = "GNC weighted cost converged", "convergence"
                     break
                 prev = cost
