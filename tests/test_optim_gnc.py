@@ -144,9 +144,12 @@ def test_weights_minimise_the_outlier_processes(mu):
     for fn, dual, m in ((tls_weights, _tls_dual, mu), (gm_weights, _gm_dual, 1.0 + mu)):
         w = fn(r2, c2, m)
         for rk, wk in zip(r2, w, strict=True):
-            opt = minimize_scalar(lambda v, rk=rk: dual(v, rk, c2, m), bounds=(0.0, 1.0),
-                                  method="bounded", options={"xatol": 1e-12})
-            best = min((opt.x, 0.0, 1.0), key=lambda v, rk=rk: dual(v, rk, c2, m))
+            def obj(v, rk=rk, dual=dual, m=m):
+                return dual(v, rk, c2, m)
+
+            opt = minimize_scalar(obj, bounds=(0.0, 1.0), method="bounded",
+                                  options={"xatol": 1e-12})
+            best = min((opt.x, 0.0, 1.0), key=obj)
             assert dual(wk, rk, c2, m) <= dual(best, rk, c2, m) + 1e-9 * max(1.0, rk)
             assert abs(wk - best) < 1e-4 or abs(dual(wk, rk, c2, m) - dual(best, rk, c2, m)) \
                 < 1e-12 * max(1.0, rk)

@@ -566,7 +566,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         for f, loss in zip(factors, saved, strict=True):
             f.loss = loss
     inliers = [kk | (sk <= ck) for kk, sk, ck in zip(known, s, c2, strict=True)]
-    history = []
+    history: list[Any] = []
     offset = 0.0
     for r in runs:
         for rec in r.history:
