@@ -206,3 +206,41 @@ def test_bad_options_raise():
     with pytest.raises(ValueError, match="replaces robust losses"):
         g2.optimize(robust="gnc-tls")
     assert g2.factors[0].loss is not None  # left as it was
+
+
+def _g2o_with_outliers(path):
+    ii, jj, Z, out, odo, truth = _loop_graph(SE2, seed=2)
+    X0 = _odometry(SE2, ii, jj, Z, truth, 40)
+    p, z = np.asarray(X0.params), np.asarray(Z.params)
+    lines = [f"VERTEX_SE2 {k} {float(p[k, 0])!r} {float(p[k, 1])!r} {float(np.arctan2(p[k, 3], p[k, 2]))!r}"
+             for k in range(40)]
+    lines += [f"EDGE_SE2 {a} {b} {float(z[e, 0])!r} {float(z[e, 1])!r} {float(np.arctan2(z[e, 3], z[e, 2]))!r} "
+              "10000 0 0 10000 0 10000" for e, (a, b) in enumerate(zip(ii, jj, strict=True))]
+    path.write_text("\n".join(lines) + "\n")
+    return np.flatnonzero(out).tolist()
+
+
+def test_command_reports_the_outlier_edges(tmp_path):
+    import argparse
+    import io
+    import json
+
+    from microlie.optim.command import register, run
+
+    path = tmp_path / "out.g2o"
+    planted = _g2o_with_outliers(path)
+    parser = argparse.ArgumentParser(prog="microlie")
+    register(parser.add_subparsers())
+    for extra in ([], ["--known-inliers", "odometry"], ["--gnc-quantile", "0.9999"]):
+        out = io.StringIO()
+        args = parser.parse_args(["optimize", str(path), "--robust", "gnc-tls", "--json",
+                                  *extra])
+        assert run(args, out, io.StringIO()) == 0
+        rep = json.loads(out.getvalue())
+        assert rep["gnc"]["outlier_edges"] == planted
+        assert rep["gnc"]["quantile"] == (0.9999 if "--gnc-quantile" in extra else 0.99)
+    for bad in (["--known-inliers", "odometry"], ["--gnc-quantile", "0.9"],
+                ["--robust", "gnc-huber"], ["--robust", "gnc-tls", "--gnc-quantile", "1.5"]):
+        with pytest.raises(ValueError):
+            run(parser.parse_args(["optimize", str(path), *bad]), io.StringIO(),
+                io.StringIO())

@@ -55,6 +55,7 @@ __all__ = ["register", "run", "run_pose_graph"]
 SOLVERS = ("lm", "gn", "dogleg", "trust-region")  # microlie.optim.core.strategies
 INITS = ("auto", "file", "odometry", "chordal")
 GAUGES = ("check", "fix_first", "none")
+KNOWN_INLIERS = ("odometry",)
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
@@ -109,7 +110,17 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         "with Ceres' rules, the default for BAL)")
     p.add_argument("--robust", metavar="LOSS[:SCALE]", default=None,
                    help="robust loss on every edge: huber, cauchy, tukey, geman-mcclure, dcs, "
-                        "barron, optionally with a scale, e.g. huber:1.0")
+                        "barron, optionally with a scale, e.g. huber:1.0; or gnc-tls / gnc-gm: "
+                        "graduated non-convexity, which judges every edge and reports the "
+                        "outliers")
+    # graduated non-convexity (microlie.optim.core.gnc): its own options
+    p.add_argument("--known-inliers", choices=KNOWN_INLIERS, default=None,
+                   help="with --robust gnc-*: edges that keep weight 1 (odometry: the edges "
+                        "between consecutive vertex ids)")
+    p.add_argument("--gnc-quantile", type=float, default=None, metavar="P",
+                   help="with --robust gnc-*: the chi-square quantile of the inlier threshold "
+                        "(default 0.99; lower it when the file's information overstates the "
+                        "noise)")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, or chordal "
                         "(default auto: the file's vertices, else odometry, else chordal)")
@@ -233,6 +244,10 @@ def _summary(r: dict) -> str:
             f"cost {r['initial_cost']:.10g} -> {r['final_cost']:.10g} in {r['iterations']} "
             f"iterations, {r['time_s']:.3f} s, "
             f"{'converged' if r['converged'] else 'not converged'} ({r['message']})")
+    gnc = r.get("gnc")
+    if gnc:
+        text += (f"\n  {r['robust']}: {gnc['outliers']} of {r['num_edges']} edges judged "
+                 f"outliers ({gnc['outer_iterations']} outer iterations)")
     truth = r.get("ground_truth")
     if truth:
         text += (f"\n  position error against the ground truth (RMS): "
@@ -309,7 +324,11 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         init = args.init
         X0 = initialize(graph, init)
     t2 = time.perf_counter()
-    fg, poses = graph.to_factor_graph(X0, loss=args.robust)
+    gnc = _gnc_options(args)
+    fg, poses = graph.to_factor_graph(X0, loss=None if gnc else args.robust)
+    robust: Any = None
+    if gnc is not None:
+        robust = _gnc_for(graph, fg, gnc, args)
     t3 = time.perf_counter()
     problem = (f"{graph.group.__name__} pose graph, {graph.num_vertices} poses, "
                f"{graph.num_edges} edges")
@@ -324,7 +343,8 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
             res = fg.optimize(solver=solver, linear_solver=args.linear_solver,
                               max_iter=args.max_iter, gauge=gauge,
                               # run() holds --blas-threads
-                              verbose=show_iterations(err, args), blas_threads=None)
+                              verbose=show_iterations(err, args), blas_threads=None,
+                              robust=robust)
     except NonFiniteError as e:  # batch 0 is the file's edges, in order
         what = f"edge {e.row} of the file" if e.factor == 0 else "the gauge prior"
         on = " -> ".join(str(graph.ids[i]) for _, i in e.variables)
@@ -366,6 +386,12 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         "gauge": gauge,
         "gauge_fixed": [int(graph.ids[i]) for _, i in res.gauge_fixed],
     }
+    if res.inliers is not None:  # GNC: the file's edges judged outliers (file order)
+        bad = [int(k) for k, ok in enumerate(res.inliers[0]) if not ok]
+        report["gnc"] = {"outer_iterations": res.outer_iterations,
+                         "known_inliers": args.known_inliers,
+                         "quantile": robust.quantile,
+                         "outliers": len(bad), "outlier_edges": bad}
     if truth is not None:  # the example: how far the start and the result are from the truth
         report["ground_truth"] = {
             "cost": graph.cost(truth),
@@ -382,6 +408,35 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         plot_pose_graph(graph, X0, X, args.plot, title=title)
         report["plot"] = str(args.plot)
     return report
+
+
+def _gnc_options(args: argparse.Namespace) -> str | None:
+    """The GNC surrogate of ``--robust gnc-*`` (None for a loss); GNC's options without it are
+    an error."""
+    robust = getattr(args, "robust", None)
+    if robust is not None and str(robust).lower().startswith("gnc"):
+        return str(robust).lower()
+    for flag, value in (("--known-inliers", getattr(args, "known_inliers", None)),
+                        ("--gnc-quantile", getattr(args, "gnc_quantile", None))):
+        if value is not None:
+            raise ValueError(f"{flag} applies to --robust gnc-tls or gnc-gm only")
+    return None
+
+
+def _gnc_for(graph: Any, fg: Any, spec: str, args: argparse.Namespace) -> Any:
+    """GNC options for the command: the gauge prior (when there is one) and, with
+    ``--known-inliers odometry``, the edges between consecutive vertices are known inliers."""
+    from .core.gnc import GNC, SURROGATES
+
+    name = spec[4:] if spec.startswith("gnc-") else ""
+    if name not in SURROGATES:
+        raise ValueError(f"--robust {spec}: graduated non-convexity is gnc-tls or gnc-gm")
+    known: list[Any] = list(fg.factors[1:])  # the gauge prior
+    if args.known_inliers == "odometry":
+        ii, jj = graph.edge_index()
+        known.append((fg.factors[0], abs(jj - ii) == 1))
+    quantile = 0.99 if args.gnc_quantile is None else args.gnc_quantile
+    return GNC(name, known_inliers=known, quantile=quantile)
 
 
 def _position_rmse(X: Any, truth: Any) -> float:
