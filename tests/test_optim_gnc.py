@@ -211,11 +211,12 @@ def test_bad_options_raise():
 def _g2o_with_outliers(path):
     ii, jj, Z, out, odo, truth = _loop_graph(SE2, seed=2)
     X0 = _odometry(SE2, ii, jj, Z, truth, 40)
-    p, z = np.asarray(X0.params), np.asarray(Z.params)
-    lines = [f"VERTEX_SE2 {k} {float(p[k, 0])!r} {float(p[k, 1])!r} {float(np.arctan2(p[k, 3], p[k, 2]))!r}"
-             for k in range(40)]
-    lines += [f"EDGE_SE2 {a} {b} {float(z[e, 0])!r} {float(z[e, 1])!r} {float(np.arctan2(z[e, 3], z[e, 2]))!r} "
-              "10000 0 0 10000 0 10000" for e, (a, b) in enumerate(zip(ii, jj, strict=True))]
+    p, z = np.asarray(X0.params).tolist(), np.asarray(Z.params).tolist()
+    th = np.arctan2(np.asarray(X0.params)[:, 3], np.asarray(X0.params)[:, 2]).tolist()
+    tz = np.arctan2(np.asarray(Z.params)[:, 3], np.asarray(Z.params)[:, 2]).tolist()
+    lines = [f"VERTEX_SE2 {k} {p[k][0]!r} {p[k][1]!r} {th[k]!r}" for k in range(40)]
+    lines += [f"EDGE_SE2 {a} {b} {z[e][0]!r} {z[e][1]!r} {tz[e]!r} 10000 0 0 10000 0 10000"
+              for e, (a, b) in enumerate(zip(ii, jj, strict=True))]
     path.write_text("\n".join(lines) + "\n")
     return np.flatnonzero(out).tolist()
 
