@@ -48,10 +48,11 @@ path, is3d, known, prob, out = sys.argv[1], sys.argv[2] == "1", json.loads(sys.a
     float(sys.argv[4]), sys.argv[5]
 graph, initial = gtsam.readG2o(path, is3d)
 n_edges = graph.size()
+tight = gtsam.noiseModel.Isotropic.Sigma(6 if is3d else 3, 1e-6)
 if is3d:
-    graph.add(gtsam.PriorFactorPose3(0, initial.atPose3(0), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    graph.add(gtsam.PriorFactorPose3(0, initial.atPose3(0), tight))
 else:
-    graph.add(gtsam.PriorFactorPose2(0, initial.atPose2(0), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
+    graph.add(gtsam.PriorFactorPose2(0, initial.atPose2(0), tight))
 params = gtsam.GncLMParams()
 params.setLossType(gtsam.GncLossType.TLS)
 params.setKnownInliers(known + [n_edges])
