@@ -245,3 +245,17 @@ def test_command_reports_the_outlier_edges(tmp_path):
         with pytest.raises(ValueError):
             run(parser.parse_args(["optimize", str(path), *bad]), io.StringIO(),
                 io.StringIO())
+
+
+def test_docs_section_prints_what_the_page_shows(capsys):
+    """The section "Outliers: graduated non-convexity" of docs/optim.md runs on its own."""
+    import re
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "optim.md").read_text()
+    sec = page[page.index("## Outliers: graduated non-convexity"):]
+    sec = sec[:sec.index("\n## ")]
+    (kind, code), (kind2, text) = re.findall(r"```(python|text)\n(.*?)```", sec, flags=re.S)
+    assert (kind, kind2) == ("python", "text")
+    exec(compile(code, "docs/optim.md", "exec"), {})
+    assert capsys.readouterr().out == text
