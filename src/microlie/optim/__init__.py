@@ -88,6 +88,7 @@ if TYPE_CHECKING:
         PriorFactor,
         check_jacobians,
     )
+    from .core.gnc import GNC
     from .core.graph import FactorGraph, from_pose_graph
     from .core.noise import (
         Covariance,
@@ -100,7 +101,6 @@ if TYPE_CHECKING:
     )
     from .core.problem import GaugeError, NonFiniteError, Problem
     from .core.robust import DCS, Barron, Cauchy, GemanMcClure, Huber, RobustLoss, Tukey, make_loss
-    from .core.gnc import GNC
     from .core.solvers import IterationRecord, Result
     from .core.strategies import Dogleg, GaussNewton, LevenbergMarquardt, Strategy, TrustRegion
     from .core.variables import Values, Variables
