@@ -3,7 +3,8 @@
 ::
 
     microlie optimize (IN.g2o | --example) [-o OUT.g2o] [--solver lm|gn|dogleg|trust-region]
-                     [--robust huber:1.0] [--init auto|file|odometry|chordal]
+                     [--robust huber:1.0|gnc-tls|gnc-gm] [--known-inliers odometry]
+                     [--gnc-quantile P] [--init auto|file|odometry|chordal]
                      [--linear-solver auto|cholesky|schur|...]
                      [--max-iter N] [--gauge check|fix_first|none] [--plot FILE] [--json]
                      [--format auto|g2o|toro|bal] [--force] [-v | -q] [--blas-threads N]
@@ -32,6 +33,12 @@ The report's ``termination`` is the solver's (:class:`~microlie.optim.core.solve
 ``convergence`` and ``no_convergence`` (``--max-iter`` reached; printed "not converged")
 exit with status 0, as Ceres calls both usable; ``failure`` (the cost could not be decreased)
 prints the reason on stderr, writes no ``-o`` file and exits with status 1.
+
+``--robust gnc-tls`` (or ``gnc-gm``) runs graduated non-convexity
+(:mod:`microlie.optim.core.gnc`) instead of a loss: the gauge prior and, with
+``--known-inliers odometry``, the edges between consecutive vertex ids keep weight 1, the inlier
+threshold is the ``--gnc-quantile`` (default 0.99) chi-square quantile, and the report lists the
+edges judged outliers (``gnc.outlier_edges``, in file order).
 
 Formats come from the registry :data:`microlie.optim.io.formats.FORMATS`: its handler is called
 as ``handler(args, err) -> dict`` and returns the JSON report; a new format is one entry there.
