@@ -259,3 +259,19 @@ def test_docs_section_prints_what_the_page_shows(capsys):
     assert (kind, kind2) == ("python", "text")
     exec(compile(code, "docs/optim.md", "exec"), {})
     assert capsys.readouterr().out == text
+
+
+@pytest.mark.parametrize("backend", ["cholesky", "dense"])
+def test_symbolic_analysis_once_for_all_outer_iterations(backend, monkeypatch):
+    from microlie.optim import make_solver
+
+    ii, jj, Z, out, odo, truth = _loop_graph(SE2, seed=4)
+    X0 = _odometry(SE2, ii, jj, Z, truth, 40)
+    g, x, f = _graph(SE2, ii, jj, Z, X0)
+    cls = type(make_solver(backend, 3, 3))
+    calls = []
+    orig = cls.analyse
+    monkeypatch.setattr(cls, "analyse", lambda self, *a, **k: (calls.append(1),
+                                                               orig(self, *a, **k))[1])
+    res = g.optimize(robust="gnc-tls", linear_solver=backend)
+    assert res.outer_iterations > 5 and len(calls) == 1
