@@ -466,6 +466,12 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
     ValueError
         A factor batch with a robust loss, or bad known inliers.
 
+    Notes
+    -----
+    The weights reach the engine as a fixed-weight loss set on the judged factor batches for
+    the duration of the call (``rho(s) = w s``, no curvature correction) and removed on return,
+    also on an error: do not share the graph's factors with another thread meanwhile.
+
     Examples
     --------
     >>> import numpy as np
