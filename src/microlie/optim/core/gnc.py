@@ -55,7 +55,7 @@ from .strategies import Strategy
 from .variables import Values
 
 __all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initial_mu",
-           "inlier_thresholds", "gnc_solve"]
+           "inlier_thresholds", "squared_norms", "gnc_solve"]
 
 SURROGATES = ("tls", "gm")
 
