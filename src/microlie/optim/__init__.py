@@ -12,7 +12,9 @@ your own with analytic Jacobians is a :class:`Factor` subclass implementing
 ``residual(*values, jac=False)``, checked with ``check_jacobians(factor)``; noise models are
 ``Information``, ``SqrtInformation``, ``Covariance``, ``Diagonal``, ``Isotropic``; robust losses
 (``loss=Huber(1.0)`` or ``"cauchy:2"``) are ``Huber``, ``Cauchy``, ``Tukey``, ``GemanMcClure``,
-``DCS``, ``Barron``, applied as in Ceres.
+``DCS``, ``Barron``, applied as in Ceres; ``g.optimize(robust="gnc-tls")`` (or a :class:`GNC`
+with known inliers and the chi-square quantile) finds the outliers by graduated non-convexity
+and returns ``result.inliers`` and ``result.weights``.
 ``result = g.optimize(solver="lm"|"gn"|"dogleg"|"trust-region", linear_solver="auto"|
 "cholesky"|"schur"|"scipy"|"qdldl"|"pardiso"|"dense")`` returns a :class:`Result` with ``values``
 (``result.values[poses]`` is the optimised batch), ``initial_cost``, ``final_cost``
@@ -58,6 +60,7 @@ _LAZY = {
     "core.robust": ("DCS", "Barron", "Cauchy", "GemanMcClure", "Huber", "RobustLoss", "Tukey",
                "make_loss"),
     "core.solvers": ("IterationRecord", "Result"),
+    "core.gnc": ("GNC",),
     "core.strategies": ("Dogleg", "GaussNewton", "LevenbergMarquardt", "Strategy",
                         "TrustRegion"),
     "io.toro": ("read_toro", "write_toro"),
@@ -90,6 +93,7 @@ if TYPE_CHECKING:
         PriorFactor,
         check_jacobians,
     )
+    from .core.gnc import GNC
     from .core.graph import FactorGraph, from_pose_graph
     from .core.noise import (
         Covariance,
@@ -126,7 +130,7 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "BetweenFactor", "CustomFactor", "check_jacobians", "JacobianCheck", "NoiseModel",
            "Information", "SqrtInformation",
            "Covariance", "Diagonal", "Isotropic", "Unit", "RobustLoss", "Huber", "Cauchy", "Tukey",
-           "GemanMcClure", "DCS", "Barron", "make_loss", "Result", "IterationRecord",
+           "GemanMcClure", "DCS", "Barron", "make_loss", "GNC", "Result", "IterationRecord",
            "Strategy", "LevenbergMarquardt", "GaussNewton", "Dogleg", "TrustRegion",
            "LinearSolver", "SingularSystemError", "GaugeError", "NonFiniteError", "Problem",
            "available_solvers", "SchurSolver",

@@ -3,7 +3,8 @@
 ::
 
     microlie optimize (IN.g2o | --example) [-o OUT.g2o] [--solver lm|gn|dogleg|trust-region]
-                     [--robust huber:1.0] [--init auto|file|odometry|chordal|certified]
+                     [--robust huber:1.0|gnc-tls|gnc-gm] [--known-inliers odometry]
+                     [--gnc-quantile P] [--init auto|file|odometry|chordal|certified]
                      [--certify]
                      [--linear-solver auto|cholesky|schur|...]
                      [--max-iter N] [--gauge check|fix_first|none] [--plot FILE] [--json]
@@ -47,6 +48,12 @@ The report's ``termination`` is the solver's (:class:`~microlie.optim.core.solve
 exit with status 0, as Ceres calls both usable; ``failure`` (the cost could not be decreased)
 prints the reason on stderr, writes no ``-o`` file and exits with status 1.
 
+``--robust gnc-tls`` (or ``gnc-gm``) runs graduated non-convexity
+(:mod:`microlie.optim.core.gnc`) instead of a loss: the gauge prior and, with
+``--known-inliers odometry``, the edges between consecutive vertex ids keep weight 1, the inlier
+threshold is the ``--gnc-quantile`` (default 0.99) chi-square quantile, and the report lists the
+edges judged outliers (``gnc.outlier_edges``, in file order).
+
 Formats come from the registry :data:`microlie.optim.io.formats.FORMATS`: its handler is called
 as ``handler(args, err) -> dict`` and returns the JSON report; a new format is one entry there.
 """
@@ -69,6 +76,7 @@ __all__ = ["register", "run", "run_pose_graph", "policy_options"]
 SOLVERS = ("lm", "gn", "dogleg", "trust-region")  # microlie.optim.core.strategies
 INITS = ("auto", "file", "odometry", "chordal", "certified")
 GAUGES = ("check", "fix_first", "none")
+KNOWN_INLIERS = ("odometry",)
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
@@ -123,7 +131,17 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         "with Ceres' rules, the default for BAL)")
     p.add_argument("--robust", metavar="LOSS[:SCALE]", default=None,
                    help="robust loss on every edge: huber, cauchy, tukey, geman-mcclure, dcs, "
-                        "barron, optionally with a scale, e.g. huber:1.0")
+                        "barron, optionally with a scale, e.g. huber:1.0; or gnc-tls / gnc-gm: "
+                        "graduated non-convexity, which judges every edge and reports the "
+                        "outliers")
+    # graduated non-convexity (microlie.optim.core.gnc): its own options
+    p.add_argument("--known-inliers", choices=KNOWN_INLIERS, default=None,
+                   help="with --robust gnc-*: edges that keep weight 1 (odometry: the edges "
+                        "between consecutive vertex ids)")
+    p.add_argument("--gnc-quantile", type=float, default=None, metavar="P",
+                   help="with --robust gnc-*: the chi-square quantile of the inlier threshold "
+                        "(default 0.99; lower it when the file's information overstates the "
+                        "noise)")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, chordal, or "
                         "certified (the certified global optimum of SE-Sync's isotropic "
@@ -309,6 +327,10 @@ def _summary(r: dict) -> str:
         text += _certificate_line("start", r["certified_init"])
     if r.get("certificate"):
         text += _certificate_line("certificate", r["certificate"])
+    gnc = r.get("gnc")
+    if gnc:
+        text += (f"\n  {r['robust']}: {gnc['outliers']} of {r['num_edges']} edges judged "
+                 f"outliers ({gnc['outer_iterations']} outer iterations)")
     truth = r.get("ground_truth")
     if truth:
         text += (f"\n  position error against the ground truth (RMS): "
@@ -395,7 +417,11 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         init = args.init
         X0 = initialize(graph, init)
     t2 = time.perf_counter()
-    fg, poses = graph.to_factor_graph(X0, loss=args.robust)
+    gnc = _gnc_options(args)
+    fg, poses = graph.to_factor_graph(X0, loss=None if gnc else args.robust)
+    robust: Any = None
+    if gnc is not None:
+        robust = _gnc_for(graph, fg, gnc, args)
     t3 = time.perf_counter()
     problem = (f"{graph.group.__name__} pose graph, {graph.num_vertices} poses, "
                f"{graph.num_edges} edges")
@@ -410,7 +436,8 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
             res = fg.optimize(solver=solver, linear_solver=args.linear_solver,
                               max_iter=args.max_iter, gauge=gauge, **damping,
                               # run() holds --blas-threads
-                              verbose=show_iterations(err, args), blas_threads=None)
+                              verbose=show_iterations(err, args), blas_threads=None,
+                              robust=robust)
     except NonFiniteError as e:  # batch 0 is the file's edges, in order
         what = f"edge {e.row} of the file" if e.factor == 0 else "the gauge prior"
         on = " -> ".join(str(graph.ids[i]) for _, i in e.variables)
@@ -460,6 +487,12 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         from .certify import certify_poses
 
         report["certificate"] = _certificate_report(certify_poses(graph, X, blas_threads=None))
+    if res.inliers is not None:  # GNC: the file's edges judged outliers (file order)
+        bad = [int(k) for k, ok in enumerate(res.inliers[0]) if not ok]
+        report["gnc"] = {"outer_iterations": res.outer_iterations,
+                         "known_inliers": args.known_inliers,
+                         "quantile": robust.quantile,
+                         "outliers": len(bad), "outlier_edges": bad}
     if truth is not None:  # the example: how far the start and the result are from the truth
         report["ground_truth"] = {
             "cost": graph.cost(truth),
@@ -504,6 +537,35 @@ def _certificate_line(name: str, c: dict) -> str:
     return (f"\n  {name}: {verdict} of SE-Sync's objective F = {c['objective']:.10g} "
             f"(smallest eigenvalue of the certificate matrix {c['min_eigenvalue']:.3g}, "
             f"tolerance {c['tolerance']:.3g}, rank {c['rank']}{moved}, {c['time_s']:.3f} s)")
+
+
+def _gnc_options(args: argparse.Namespace) -> str | None:
+    """The GNC surrogate of ``--robust gnc-*`` (None for a loss); GNC's options without it are
+    an error."""
+    robust = getattr(args, "robust", None)
+    if robust is not None and str(robust).lower().startswith("gnc"):
+        return str(robust).lower()
+    for flag, value in (("--known-inliers", getattr(args, "known_inliers", None)),
+                        ("--gnc-quantile", getattr(args, "gnc_quantile", None))):
+        if value is not None:
+            raise ValueError(f"{flag} applies to --robust gnc-tls or gnc-gm only")
+    return None
+
+
+def _gnc_for(graph: Any, fg: Any, spec: str, args: argparse.Namespace) -> Any:
+    """GNC options for the command: the gauge prior (when there is one) and, with
+    ``--known-inliers odometry``, the edges between consecutive vertices are known inliers."""
+    from .core.gnc import GNC, SURROGATES
+
+    name = spec[4:] if spec.startswith("gnc-") else ""
+    if name not in SURROGATES:
+        raise ValueError(f"--robust {spec}: graduated non-convexity is gnc-tls or gnc-gm")
+    known: list[Any] = list(fg.factors[1:])  # the gauge prior
+    if args.known_inliers == "odometry":
+        ii, jj = graph.edge_index()
+        known.append((fg.factors[0], abs(jj - ii) == 1))
+    quantile = 0.99 if args.gnc_quantile is None else args.gnc_quantile
+    return GNC(name, known_inliers=known, quantile=quantile)
 
 
 def _position_rmse(X: Any, truth: Any) -> float:

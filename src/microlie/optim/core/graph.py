@@ -316,7 +316,7 @@ class FactorGraph:
                  max_iter: int = 100, rel_tol: float | None = None, abs_tol: float | None = None,
                  cost_tol: float | None = None, step_tol: float | None = None,
                  gauge: str = "check", verbose: bool | None = None,
-                 blas_threads: int | None = 1, **options: Any) -> Result:
+                 blas_threads: int | None = 1, robust: Any = None, **options: Any) -> Result:
         """Minimise the robust cost from ``values``.
 
         Parameters
@@ -357,6 +357,12 @@ class FactorGraph:
             several times slower on a busy machine; :mod:`microlie.optim.core.threads`); ``None``
             keeps the user's setting (``OPENBLAS_NUM_THREADS``, threadpoolctl) or the library's
             default. The previous setting is restored on return.
+        robust : {"gnc-tls", "gnc-gm"} or GNC, optional
+            Graduated non-convexity (:mod:`microlie.optim.core.gnc`): truncated least squares
+            or Geman-McClure with default options, or a :class:`~microlie.optim.core.gnc.GNC`
+            with its options (known inliers, chi-square quantile, ...). Every inner weighted
+            solve uses ``solver``, ``linear_solver`` and ``max_iter``; ``result.weights`` and
+            ``result.inliers`` give the verdict per factor. The factors may not carry losses.
         **options
             Other constructor parameters of the named strategy: ``lambda_initial``,
             ``lambda_factor``, ``lambda_max``, ``lambda_min``, ``damping``, ``stall_ratio``
@@ -387,6 +393,12 @@ class FactorGraph:
                 "step_tol": step_tol}
         given = {k: v for k, v in tols.items() if v is not None}
         strategy = make_strategy(solver, **given, **options)
+        if robust is not None:
+            from .gnc import gnc_solve, make_gnc
+
+            return gnc_solve(self.problem(gauge), self._states(values), make_gnc(robust),
+                             strategy, linear_solver=linear_solver, eliminate=eliminate,
+                             max_iter=max_iter, verbose=verbose)
         return solve(self.problem(gauge), self._states(values), strategy,
                      linear_solver=linear_solver, eliminate=eliminate, max_iter=max_iter,
                      verbose=verbose)

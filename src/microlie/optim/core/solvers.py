@@ -147,6 +147,12 @@ class Result:
         Steps taken (Ceres' ``num_successful_steps`` is this plus one: it counts iteration 0).
     strategy : Strategy or None
         The strategy instance with its options.
+    weights, inliers : list of numpy.ndarray or None
+        With graduated non-convexity (``optimize(robust="gnc-tls")``,
+        :mod:`microlie.optim.core.gnc`): per factor batch, in graph order, the final weights
+        in ``[0, 1]`` and whether each factor was judged an inlier; ``None`` otherwise.
+    outer_iterations : int
+        GNC's weight updates, each followed by a weighted solve (0 without GNC).
 
     Examples
     --------
@@ -177,6 +183,9 @@ class Result:
     gauge_fixed: list = field(default_factory=list)
     accepted_steps: int = 0
     strategy: Strategy | None = field(default=None, repr=False)
+    weights: list[np.ndarray] | None = field(default=None, repr=False)
+    inliers: list[np.ndarray] | None = field(default=None, repr=False)
+    outer_iterations: int = 0
 
     def __repr__(self) -> str:
         n = sum(len(h) for h in self.values)

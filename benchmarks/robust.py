@@ -1,0 +1,201 @@
+"""Graduated non-convexity on pose graphs with random loop-closure outliers (issue 22).
+
+For each graph, outlier rate, seed and start: a fraction of the loop closures (edges between
+non-consecutive vertices) is replaced by random ones (random endpoints two or more vertices
+apart, translation uniform in [-10, 10] m per axis, uniformly random rotation, the replaced
+edge's information). The reference is the outlier-free optimum: LM from the chordal start on
+the graph without the replaced edges. GNC-TLS (``FactorGraph.optimize(robust=GNC(...))``) runs
+from the odometry or the chordal start of the corrupted graph, without and with the odometry as
+known inliers; the table gives the APE (RMS position difference to the reference, same gauge:
+the first vertex held at the same pose, no alignment), the precision and recall of
+``result.inliers`` over the loop closures (inlier sense), the outer and inner iterations and
+the time. GTSAM's ``GncOptimizer`` (TLS, LM inner solver, the same known inliers and threshold
+probability, a prior on the first pose) runs in a child process on the ``--gtsam-cases``
+subset with a timeout; its APE and our time over its time are printed.
+
+Run from the worktree root with the benchmark environment::
+
+    PYTHONPATH=src /work/bench-venv/bin/python benchmarks/robust.py --graphs M3500 \\
+        --rates 0.1 --seeds 0 --starts odometry --gtsam-cases M3500:0.1:0:odometry:known
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from microlie import SE2, SO2, SO3
+from microlie.optim.core.gnc import GNC
+from microlie.optim.init import initialize
+from microlie.optim.io.g2o import read_g2o, write_g2o
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "pose_graph"
+GRAPHS = {"M3500": "input_M3500_g2o.g2o", "sphere2500": "sphere2500.g2o"}
+
+CHILD = r"""
+import json, sys, time
+import numpy as np
+import gtsam
+path, is3d, known, prob, out = sys.argv[1], sys.argv[2] == "1", json.loads(sys.argv[3]), \
+    float(sys.argv[4]), sys.argv[5]
+graph, initial = gtsam.readG2o(path, is3d)
+n_edges = graph.size()
+tight = gtsam.noiseModel.Isotropic.Sigma(6 if is3d else 3, 1e-6)
+if is3d:
+    graph.add(gtsam.PriorFactorPose3(0, initial.atPose3(0), tight))
+else:
+    graph.add(gtsam.PriorFactorPose2(0, initial.atPose2(0), tight))
+params = gtsam.GncLMParams()
+params.setLossType(gtsam.GncLossType.TLS)
+params.setKnownInliers(known + [n_edges])
+t0 = time.perf_counter()
+opt = gtsam.GncLMOptimizer(graph, initial, params)
+opt.setInlierCostThresholdsAtProbability(prob)
+res = opt.optimize()
+dt = time.perf_counter() - t0
+keys = sorted(res.keys())
+P = np.array([(res.atPose3(k).translation() if is3d else
+               np.array([res.atPose2(k).x(), res.atPose2(k).y()])) for k in keys])
+w = np.asarray(opt.getWeights())[:n_edges]
+np.save(out, P)
+print(json.dumps({"time_s": dt, "weights_in": (w > 0.5).tolist()}))
+"""
+
+
+def corrupt(pg, rate: float, seed: int):
+    """The graph with ``rate`` of its loop closures replaced by random edges, and the indices
+    of the replaced edges."""
+    ii, jj = pg.edge_index()
+    loops = np.flatnonzero(np.abs(ii - jj) != 1)
+    rng = np.random.default_rng(seed)
+    k = int(round(rate * loops.size))
+    bad = np.sort(rng.choice(loops, k, replace=False))
+    V = pg.ids.size
+    a = rng.integers(0, V, k)
+    b = (a + rng.integers(2, V - 1, k)) % V
+    d = 2 if pg.group is SE2 else 3
+    rot = (SO2 if pg.group is SE2 else SO3).random(k, rng=rng)
+    Z = pg.group.from_rotation_translation(rot, rng.uniform(-10.0, 10.0, (k, d)))
+    i2, j2 = pg.i.copy(), pg.j.copy()
+    i2[bad], j2[bad] = pg.ids[a], pg.ids[b]
+    meas = np.asarray(pg.measurements.params).copy()
+    meas[bad] = np.asarray(Z.params)
+    return pg.replace(i=i2, j=j2, measurements=pg.group.from_params(meas)), bad
+
+
+def reference(pg, bad):
+    """The outlier-free optimum: LM from chordal on the graph without the replaced edges."""
+    keep = np.setdiff1d(np.arange(pg.i.size), bad)
+    clean = pg.replace(i=pg.i[keep], j=pg.j[keep], measurements=pg.measurements[keep],
+                       information=pg.information[keep])
+    fg, x = clean.to_factor_graph(initialize(clean, "chordal"), gauge="fix")
+    res = fg.optimize()
+    return np.asarray(res.values[x].translation()), res.final_cost
+
+
+def scores(pred_in, bad, loops):
+    truth = np.ones(pred_in.size, bool)
+    truth[bad] = False
+    p, t = pred_in[loops], truth[loops]
+    tp = int(np.sum(p & t))
+    return tp / max(1, int(p.sum())), tp / max(1, int(t.sum()))
+
+
+def ape(P, P0) -> float:
+    return float(np.sqrt(np.mean(np.sum((np.asarray(P) - P0) ** 2, axis=1))))
+
+
+def run_gtsam(pg2, X0, known, quantile, timeout, python):
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "g.g2o")
+        write_g2o(path, pg2, X0)
+        out = os.path.join(tmp, "p.npy")
+        cmd = [python, "-c", CHILD, path, "1" if pg2.group is not SE2 else "0",
+               json.dumps([int(k) for k in known]), str(quantile), out]
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return None
+        if proc.returncode != 0:
+            raise RuntimeError(proc.stderr[-2000:])
+        info = json.loads(proc.stdout.strip().splitlines()[-1])
+        return info["time_s"], np.load(out), np.array(info["weights_in"])
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--graphs", nargs="+", default=list(GRAPHS), choices=list(GRAPHS))
+    ap.add_argument("--rates", nargs="+", type=float, default=[0.1, 0.3, 0.5, 0.7])
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    ap.add_argument("--starts", nargs="+", default=["odometry", "chordal"],
+                    choices=["odometry", "chordal"])
+    ap.add_argument("--known", nargs="+", default=["none", "odometry"],
+                    choices=["none", "odometry"], help="runs without / with known inliers")
+    ap.add_argument("--quantile", type=float, default=0.99,
+                    help="chi-square quantile of the inlier threshold (GNC and GTSAM)")
+    ap.add_argument("--first", default="values", choices=["values", "least-squares"])
+    ap.add_argument("--gtsam-cases", nargs="*", default=[],
+                    help="GRAPH:RATE:SEED:START:KNOWN cases GTSAM's GncOptimizer also runs "
+                         "(KNOWN: none or known)")
+    ap.add_argument("--gtsam-timeout", type=float, default=600.0)
+    ap.add_argument("--python", default=sys.executable, help="Python with gtsam")
+    args = ap.parse_args(argv)
+    gcases = {tuple(c.split(":")) for c in args.gtsam_cases}
+    print(f"quantile {args.quantile}, first weights from {args.first}; APE in m against the "
+          f"outlier-free optimum; P/R: precision/recall of result.inliers over loop closures")
+    print("| graph | outliers | seed | start | known inliers | APE (m) | P | R | outer | "
+          "inner | time (s) | GTSAM APE (m) | GTSAM P / R | GTSAM time (s) | ratio |")
+    print("|" + " --- |" * 15)
+    for gname in args.graphs:
+        pg = read_g2o(DATA / GRAPHS[gname])
+        ii, jj = pg.edge_index()
+        loops = np.flatnonzero(np.abs(ii - jj) != 1)
+        odo = np.abs(ii - jj) == 1
+        for rate in args.rates:
+            for seed in args.seeds:
+                pg2, bad = corrupt(pg, rate, seed)
+                P0, _ = reference(pg2, bad)
+                for start in args.starts:
+                    X0 = initialize(pg2, start)
+                    for known in args.known:
+                        fg, x = pg2.to_factor_graph(X0, gauge="fix")
+                        ki = [(fg.factors[0], odo)] if known == "odometry" else None
+                        gnc = GNC("tls", known_inliers=ki, quantile=args.quantile,
+                                  first=args.first)
+                        t0 = time.perf_counter()
+                        res = fg.optimize(robust=gnc, verbose=False)
+                        dt = time.perf_counter() - t0
+                        p, r = scores(res.inliers[0], bad, loops)
+                        row = (f"| {gname} | {rate:.0%} | {seed} | {start} | {known} | "
+                               f"{ape(res.values[x].translation(), P0):.2e} | {p:.4f} | "
+                               f"{r:.4f} | {res.outer_iterations} | {res.iterations} | "
+                               f"{dt:.2f} |")
+                        key = (gname, f"{rate:g}", str(seed), start,
+                               "known" if known == "odometry" else "none")
+                        if key in gcases:
+                            kidx = np.flatnonzero(odo) if known == "odometry" else []
+                            got = run_gtsam(pg2, X0, kidx, args.quantile, args.gtsam_timeout,
+                                            args.python)
+                            if got is None:
+                                row += (f" - | - | > {args.gtsam_timeout:.0f} (timeout) | "
+                                        f"< {dt / args.gtsam_timeout:.3f} |")
+                            else:
+                                gt, gP, gin = got
+                                gp, gr = scores(gin, bad, loops)
+                                row += (f" {ape(gP, P0):.2e} | {gp:.4f} / {gr:.4f} | {gt:.2f} |"
+                                        f" {dt / gt:.3f} |")
+                        else:
+                            row += " | | | |"
+                        print(row, flush=True)
+
+
+if __name__ == "__main__":
+    main()

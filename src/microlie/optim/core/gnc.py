@@ -1,0 +1,598 @@
+"""Graduated non-convexity (GNC): robust estimation that finds the outliers itself.
+
+Yang, Antonante, Tzoumas and Carlone, "Graduated Non-Convexity for Robust Spatial Perception:
+From Non-Minimal Solvers to Global Outlier Rejection", RA-L 2020. GNC minimises
+``0.5 * sum rho(s_k)`` with ``s_k = |e_k|^2`` the whitened squared residual of factor ``k`` and
+``rho`` truncated least squares (TLS, ``rho(s) = min(s, c^2)``) or Geman-McClure (GM,
+``rho(s) = c^2 s / (c^2 + s)``), by a sequence of surrogates ``rho_mu`` that starts convex and
+ends at ``rho``. Each outer iteration alternates
+
+1. the weights in closed form at the current residuals (:func:`tls_weights`,
+   :func:`gm_weights`: the minimisers of the surrogate's Black-Rangarajan duality), then
+2. the weighted least-squares problem ``min 0.5 * sum w_k s_k`` solved on the one engine
+   (:func:`~microlie.optim.core.solvers.solve`, warm-started from the previous estimate; the
+   pattern does not change, so the symbolic analysis of a named linear solver is reused),
+3. ``mu`` updated: ``mu <- mu_step * mu`` for TLS (non-convexity grows as ``mu -> inf``),
+   ``mu <- max(1, mu / mu_step)`` for GM (``mu = 1`` is GM itself).
+
+The threshold ``c^2`` of each factor is the ``quantile`` of the chi-square distribution with the
+factor's dimension degrees of freedom (:func:`inlier_thresholds`): an inlier's ``s_k`` is below
+it with that probability (this assumes calibrated information matrices: with information far
+larger or smaller than the real noise, choose ``quantile`` accordingly). The first weights come
+from the start values (``first="values"``, the default) or, as in the paper, from the plain
+least-squares estimate (``first="least-squares"``); ``mu`` starts as the paper's Remark 5
+(:func:`initial_mu`) from the largest residual there. The outer
+loop stops when every TLS weight is within ``weights_tol`` of 0 or 1 (they are then rounded and
+the inliers solved once more: the result is the least-squares optimum of the factors judged
+inliers), when the relative change of the weighted cost is below ``cost_tol`` (for GM once
+``mu`` has reached 1: the reweighting continues to Geman-McClure's fixed point), or after
+``max_iter`` outer iterations. Known inliers (odometry, priors) keep weight 1 throughout.
+
+Examples
+--------
+>>> import numpy as np
+>>> from microlie.optim.core.gnc import tls_weights
+>>> np.round(tls_weights(np.array([0.5, 4.0, 100.0]), 4.0, 1.0), 6).tolist()  # c^2 4, mu 1
+[1.0, 0.414214, 0.0]
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .factors import Factor
+from .problem import Problem
+from .robust import RobustLoss
+from .solvers import Result, solve
+from .strategies import Strategy
+from .variables import Values
+
+__all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initial_mu",
+           "inlier_thresholds", "squared_norms", "gnc_solve"]
+
+SURROGATES = ("tls", "gm")
+
+
+class GNC:
+    """Options of graduated non-convexity (:meth:`FactorGraph.optimize`'s ``robust``).
+
+    Parameters
+    ----------
+    surrogate : {"tls", "gm"}
+        Truncated least squares (the paper's GNC-TLS, the default) or Geman-McClure.
+    quantile : float
+        ``0 < quantile < 1``: the inlier threshold of a factor of dimension ``d`` is
+        ``c^2 = chi2.ppf(quantile, d)`` on its whitened squared residual (default 0.99, as
+        GTSAM's ``GncOptimizer``).
+    known_inliers : sequence, optional
+        Factors that keep weight 1 (never judged): each item a factor batch of the graph (all
+        its rows) or ``(factor, rows)`` with row indices or a boolean mask of that batch.
+    mu_step : float
+        The factor ``mu`` is multiplied (TLS) or divided (GM) by each outer iteration, > 1
+        (default 1.4, the paper's and GTSAM's).
+    max_iter : int
+        Outer iterations at most, >= 1 (default 100).
+    cost_tol : float
+        Stop when the weighted cost changes by less than this relative amount between outer
+        iterations, >= 0 (default 1e-5).
+    weights_tol : float
+        TLS: stop when every weight is within this of 0 or 1, ``0 <= weights_tol < 0.5``
+        (default 1e-4).
+    first : {"values", "least-squares"}
+        Where the first weights and ``mu`` come from: the residuals at the start values
+        (default: an odometry or chordal start is not yet bent by the outliers), or, as in the
+        paper and GTSAM, at the plain least-squares estimate from the start (one more solve;
+        the outliers pull it, measured worse on pose graphs with random loop closures).
+
+    Examples
+    --------
+    >>> from microlie.optim.core.gnc import GNC
+    >>> GNC("gm", quantile=0.95)
+    GNC('gm', quantile=0.95, known_inliers=0 batches)
+    """
+
+    def __init__(self, surrogate: str = "tls", *, quantile: float = 0.99,
+                 known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
+                 max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
+                 first: str = "values") -> None:
+        if surrogate not in SURROGATES:
+            raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
+                             f"{surrogate!r}")
+        if not (isinstance(quantile, (float, int)) and 0.0 < quantile < 1.0):
+            raise ValueError(f"GNC quantile must be a probability strictly between 0 and 1, got "
+                             f"{quantile!r}")
+        if not (isinstance(mu_step, (float, int)) and math.isfinite(mu_step) and mu_step > 1.0):
+            raise ValueError(f"GNC mu_step must be a finite number > 1, got {mu_step!r}")
+        if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or \
+                max_iter < 1:
+            raise ValueError(f"GNC max_iter must be an integer >= 1, got {max_iter!r}")
+        if not (isinstance(cost_tol, (float, int)) and math.isfinite(cost_tol) and cost_tol >= 0):
+            raise ValueError(f"GNC cost_tol must be a finite number >= 0, got {cost_tol!r}")
+        if not (isinstance(weights_tol, (float, int)) and 0.0 <= weights_tol < 0.5):
+            raise ValueError(f"GNC weights_tol must be in [0, 0.5), got {weights_tol!r}")
+        if first not in ("values", "least-squares"):
+            raise ValueError(f"GNC first must be 'values' or 'least-squares', got {first!r}")
+        if known_inliers is not None and (isinstance(known_inliers, (Factor, str)) or
+                                          not isinstance(known_inliers, Sequence)):
+            raise ValueError("GNC known_inliers must be a sequence of factor batches or "
+                             "(factor, rows) pairs, e.g. [odometry]")
+        self.surrogate = surrogate
+        self.quantile = float(quantile)
+        self.known_inliers = list(known_inliers or [])
+        self.mu_step = float(mu_step)
+        self.max_iter = int(max_iter)
+        self.cost_tol = float(cost_tol)
+        self.weights_tol = float(weights_tol)
+        self.first = first
+
+    def __repr__(self) -> str:
+        return (f"GNC({self.surrogate!r}, quantile={self.quantile}, "
+                f"known_inliers={len(self.known_inliers)} batches)")
+
+    def known_masks(self, factors: Sequence[Factor]) -> list[np.ndarray]:
+        """Boolean masks of the known inliers, one per factor batch of ``factors``.
+
+        Parameters
+        ----------
+        factors : sequence of Factor
+            The graph's factor batches, in order.
+
+        Returns
+        -------
+        list of numpy.ndarray
+            ``(count,)`` booleans per batch.
+
+        Raises
+        ------
+        ValueError
+            An item that is not a batch of ``factors`` or rows out of range.
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+        >>> from microlie.optim.core.gnc import GNC
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(3))
+        >>> p = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> b = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.identity(2)))
+        >>> [m.tolist() for m in GNC(known_inliers=[p, (b, [1])]).known_masks(g.factors)]
+        [[True], [False, True]]
+        """
+        masks = [np.zeros(f.count, dtype=bool) for f in factors]
+        where = {id(f): k for k, f in enumerate(factors)}
+        for item in self.known_inliers:
+            f, rows = (item, None) if isinstance(item, Factor) else _pair(item)
+            k = where.get(id(f))
+            if k is None:
+                raise ValueError(f"GNC known_inliers: {f!r} is not a factor batch of this graph")
+            if rows is None:
+                masks[k][:] = True
+                continue
+            r = np.asarray(rows)
+            if r.dtype == bool:
+                if r.shape != (f.count,):
+                    raise ValueError(f"GNC known_inliers: the mask of {f!r} must have shape "
+                                     f"({f.count},), got {r.shape}")
+                masks[k] |= r
+                continue
+            if r.size and (r.dtype.kind not in "iu" or r.min() < -f.count or
+                           r.max() >= f.count):
+                raise ValueError(f"GNC known_inliers: rows of {f!r} must be integers in "
+                                 f"[0, {f.count}), got {rows!r}")
+            masks[k][r.astype(np.int64)] = True
+        return masks
+
+
+def _pair(item: Any) -> tuple[Factor, Any]:
+    if isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], Factor):
+        return item[0], item[1]
+    raise ValueError(f"GNC known_inliers: each item must be a factor batch or (factor, rows), "
+                     f"got {item!r}")
+
+
+def make_gnc(spec: str | GNC) -> GNC:
+    """GNC options from ``"gnc-tls"``, ``"gnc-gm"`` or a :class:`GNC`.
+
+    Parameters
+    ----------
+    spec : str or GNC
+        ``"gnc-tls"`` / ``"gnc-gm"`` (default options) or an instance.
+
+    Returns
+    -------
+    GNC
+
+    Examples
+    --------
+    >>> from microlie.optim.core.gnc import make_gnc
+    >>> make_gnc("gnc-gm").surrogate
+    'gm'
+    """
+    if isinstance(spec, GNC):
+        return spec
+    if isinstance(spec, str) and spec.lower().startswith("gnc-"):
+        return GNC(spec.lower()[4:]) if spec.lower()[4:] in SURROGATES else GNC(spec[4:])
+    raise ValueError(f"robust must be 'gnc-tls', 'gnc-gm' or a GNC instance, got {spec!r} (a "
+                     f"robust loss goes on the factors: loss='huber:1')")
+
+
+def tls_weights(s: np.ndarray, c2: Any, mu: float) -> np.ndarray:
+    """GNC-TLS weights at squared residuals ``s``: 1 for ``s <= mu/(mu+1) c^2``, 0 for
+    ``s >= (mu+1)/mu c^2``, ``c sqrt(mu (mu+1) / s) - mu`` between (the paper's closed form).
+
+    Parameters
+    ----------
+    s : numpy.ndarray
+        Whitened squared residual norms (>= 0).
+    c2 : float or numpy.ndarray
+        Inlier thresholds ``c^2`` (broadcast with ``s``).
+    mu : float
+        The surrogate's parameter, > 0.
+
+    Returns
+    -------
+    numpy.ndarray
+        Weights in ``[0, 1]``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.core.gnc import tls_weights
+    >>> tls_weights(np.array([0.0, 8.9, 9.1]), 9.0, 1e6).tolist()  # large mu: a step at c^2
+    [1.0, 1.0, 0.0]
+    """
+    s = np.asarray(s, dtype=np.float64)
+    c2 = np.broadcast_to(np.asarray(c2, dtype=np.float64), s.shape)
+    lo, hi = mu / (mu + 1.0) * c2, (mu + 1.0) / mu * c2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mid = np.sqrt(c2 * mu * (mu + 1.0) / s) - mu
+    w = np.where(s <= lo, 1.0, np.where(s >= hi, 0.0, mid))
+    return np.clip(w, 0.0, 1.0)
+
+
+def gm_weights(s: np.ndarray, c2: Any, mu: float) -> np.ndarray:
+    """GNC-GM weights at squared residuals ``s``: ``(mu c^2 / (s + mu c^2))^2``.
+
+    Parameters
+    ----------
+    s : numpy.ndarray
+        Whitened squared residual norms (>= 0).
+    c2 : float or numpy.ndarray
+        Inlier thresholds ``c^2`` (broadcast with ``s``).
+    mu : float
+        The surrogate's parameter, >= 1 (1 is Geman-McClure itself).
+
+    Returns
+    -------
+    numpy.ndarray
+        Weights in ``(0, 1]``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.core.gnc import gm_weights
+    >>> gm_weights(np.array([0.0, 4.0]), 4.0, 1.0).tolist()
+    [1.0, 0.25]
+    """
+    s = np.asarray(s, dtype=np.float64)
+    m = mu * np.asarray(c2, dtype=np.float64)
+    return (m / (s + m)) ** 2
+
+
+def initial_mu(surrogate: str, s: np.ndarray, c2: np.ndarray) -> float | None:
+    """The starting ``mu`` of the paper's Remark 5 from the residuals of the least-squares
+    estimate: TLS ``c^2 / (2 s_max - c^2)`` (the smallest over the factors with
+    ``2 s > c^2``), GM ``max(1, max 2 s / c^2)``.
+
+    Parameters
+    ----------
+    surrogate : {"tls", "gm"}
+        The surrogate.
+    s : numpy.ndarray
+        Squared residuals of the factors GNC judges.
+    c2 : numpy.ndarray
+        Their thresholds, ``s``'s shape.
+
+    Returns
+    -------
+    float or None
+        ``None`` for TLS when no residual exceeds half its threshold (least squares is then
+        already the TLS solution).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim.core.gnc import initial_mu
+    >>> initial_mu("tls", np.array([1.0, 50.0]), np.array([10.0, 10.0]))  # 10 / 90
+    0.1111111111111111
+    >>> initial_mu("gm", np.array([1.0, 50.0]), np.array([10.0, 10.0]))
+    10.0
+    """
+    if surrogate == "gm":
+        return max(1.0, float(np.max(2.0 * s / c2, initial=0.0)))
+    ex = 2.0 * s - c2
+    pos = ex > 0
+    if not pos.any():
+        return None
+    return float(np.min(c2[pos] / ex[pos]))
+
+
+def inlier_thresholds(factors: Sequence[Factor], quantile: float) -> list[float]:
+    """``c^2`` of each factor batch: the chi-square quantile with the factor's dimension.
+
+    Parameters
+    ----------
+    factors : sequence of Factor
+        Factor batches.
+    quantile : float
+        Probability, ``0 < quantile < 1``.
+
+    Returns
+    -------
+    list of float
+        ``scipy.stats.chi2.ppf(quantile, f.dim)`` per batch.
+
+    Examples
+    --------
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor
+    >>> from microlie.optim.core.gnc import inlier_thresholds
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(1))
+    >>> f = g.add(PriorFactor(x, 0, SE2.identity()))
+    >>> [round(c, 4) for c in inlier_thresholds([f], 0.99)]  # chi2(3) at 0.99
+    [11.3449]
+    """
+    if not 0.0 < quantile < 1.0:
+        raise ValueError(f"quantile must be strictly between 0 and 1, got {quantile!r}")
+    from scipy.stats import chi2  # type: ignore[import-untyped]
+
+    return [float(chi2.ppf(quantile, f.dim)) for f in factors]
+
+
+class _Weighted(RobustLoss):
+    """Fixed per-row weights: ``rho(s) = w s`` (a weighted least-squares factor batch)."""
+
+    def __init__(self, weights: np.ndarray) -> None:
+        super().__init__(1.0)
+        self.w = weights
+
+    def evaluate(self, s):
+        if s.shape != self.w.shape:  # the engine evaluates whole batches only
+            raise ValueError(f"GNC weights of shape {self.w.shape} for residuals {s.shape}")
+        return self.w * s, self.w, np.zeros_like(s)
+
+
+def squared_norms(problem: Problem, states: list[np.ndarray]) -> list[np.ndarray]:
+    """Whitened squared residual norms ``s = |e|^2`` of every factor row at ``states``.
+
+    Parameters
+    ----------
+    problem : Problem
+        The problem.
+    states : list of numpy.ndarray
+        The parameters of each variable batch, in graph order.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        ``(count,)`` per factor batch.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor, Isotropic
+    >>> from microlie.optim.core.gnc import squared_norms
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(1))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.exp([3.0, 0, 0]), Isotropic(3, 0.5)))
+    >>> p = g.problem()
+    >>> [s.round(9).tolist() for s in squared_norms(p, [v.initial for v in p.variables])]
+    [[36.0]]
+    """
+    out = []
+    for f, pl in zip(problem.factors, problem.plans, strict=True):
+        if pl is not None:
+            s = np.array(pl.cost(states), dtype=np.float64)
+        else:
+            e = problem.whiten(f, np.asarray(f.evaluate(problem.gather(f, states), False),
+                                             dtype=np.float64))
+            s = np.einsum("mi,mi->m", e, e)
+        out.append(s)
+    return out
+
+
+def _objective(surrogate: str, s: list[np.ndarray], c2: list[float],
+               known: list[np.ndarray]) -> float:
+    """``0.5 * sum rho(s)`` with TLS or GM (mu at its final value) on the judged rows, plain
+    least squares on the known inliers."""
+    total = 0.0
+    for sk, ck, kk in zip(s, c2, known, strict=True):
+        r = np.minimum(sk, ck) if surrogate == "tls" else ck * sk / (ck + sk)
+        total += 0.5 * float(np.where(kk, sk, r).sum())
+    return total
+
+
+def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
+              strategy: str | Strategy = "lm", *, linear_solver: Any = "auto",
+              eliminate: Any = None, max_iter: int = 100, verbose: bool | None = None
+              ) -> Result:
+    """Graduated non-convexity on a problem (what ``FactorGraph.optimize(robust=...)`` calls).
+
+    Parameters
+    ----------
+    problem : Problem
+        The problem; its factor batches may not carry robust losses (GNC is the loss).
+    states : list of numpy.ndarray
+        The starting parameters of each variable batch.
+    gnc : GNC
+        The options.
+    strategy : str or Strategy
+        The strategy of every weighted inner solve (:func:`~microlie.optim.core.solvers.solve`).
+    linear_solver : str or LinearSolver
+        See :func:`~microlie.optim.make_solver`; a name is analysed once and reused by every
+        inner solve.
+    eliminate : Variables or sequence of Variables, optional
+        With ``linear_solver="schur"``.
+    max_iter : int
+        Iteration limit of each inner solve.
+    verbose : bool, optional
+        One line per outer iteration on stderr (``mu``, weighted cost, inliers, inner
+        iterations); default: when stderr is a terminal.
+
+    Returns
+    -------
+    Result
+        ``weights`` and ``inliers`` hold one array per factor batch (graph order): the last
+        weights and whether the factor's final ``s`` is within its threshold ``c^2`` (known
+        inliers: always True); ``outer_iterations`` counts the weight updates (each followed
+        by a weighted solve); ``iterations`` and ``history`` are the inner solves'
+        together; ``initial_robust_cost`` / ``final_robust_cost`` are ``0.5 * sum rho(s)``
+        with TLS ``min(s, c^2)`` or GM ``c^2 s / (c^2 + s)`` (plain on known inliers);
+        ``converged`` is True when a stopping rule of the outer loop was met; ``weights`` are
+        all 1 when no residual exceeded half its threshold at the first estimate.
+
+    Raises
+    ------
+    ValueError
+        A factor batch with a robust loss, or bad known inliers.
+
+    Notes
+    -----
+    The weights reach the engine as a fixed-weight loss set on the judged factor batches for
+    the duration of the call (``rho(s) = w s``, no curvature correction) and removed on return,
+    also on an error: do not share the graph's factors with another thread meanwhile.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor, Isotropic
+    >>> from microlie.optim.core.gnc import GNC, gnc_solve
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(1))
+    >>> z = SE2.exp(np.array([[0.0, 0, 0]] * 5 + [[9.0, 0, 0]]))  # one wild prior
+    >>> _ = g.add(PriorFactor(x, [0] * 6, z, Isotropic(3, 0.1)))
+    >>> p = g.problem()
+    >>> res = gnc_solve(p, [v.initial for v in p.variables], GNC("tls"))
+    >>> res.inliers[0].tolist(), np.round(res.values[x].log(), 9).tolist()
+    ([True, True, True, True, True, False], [[0.0, 0.0, 0.0]])
+    """
+    t0 = time.perf_counter()
+    factors = problem.factors
+    for k, f in enumerate(factors):
+        if f.loss is not None:
+            raise ValueError(f"GNC replaces robust losses: factor batch {k} ({f.name}) has "
+                             f"loss {f.loss!r}; build it without a loss")
+    known = gnc.known_masks(factors)
+    c2 = inlier_thresholds(factors, gnc.quantile)
+    show = bool(verbose) if verbose is not None else sys.stderr.isatty()
+    weights = [np.ones(f.count) for f in factors]
+    judged = [~kk for kk in known]
+    runs: list[Result] = []
+
+    def inner(st: list[np.ndarray]) -> list[np.ndarray]:
+        res = solve(problem, st, strategy, linear_solver=linear_solver, eliminate=eliminate,
+                    max_iter=max_iter, verbose=False)
+        runs.append(res)
+        return [np.asarray(res.values.params(v), dtype=np.float64) for v in problem.variables]
+
+    saved = [f.loss for f in factors]
+    try:
+        for f, w, jk in zip(factors, weights, judged, strict=True):
+            if jk.any():
+                f.loss = _Weighted(w)  # weighted least squares, weights updated in place
+        s_start = squared_norms(problem, states)
+        if gnc.first == "values":
+            cur = [np.asarray(st, dtype=np.float64) for st in states]
+            s = s_start
+        else:
+            cur = inner(states)
+            s = squared_norms(problem, cur)
+        sj = np.concatenate([sk[jk] for sk, jk in zip(s, judged, strict=True)])
+        cj = np.concatenate([np.full(int(jk.sum()), ck) for ck, jk in zip(c2, judged,
+                                                                           strict=True)])
+        mu = initial_mu(gnc.surrogate, sj, cj) if sj.size else None
+        outer = 0
+        message, termination = "", "convergence"
+        if mu is None:
+            message = ("every residual of the least-squares estimate is within its threshold"
+                       if sj.size else "every factor is a known inlier")
+        else:
+            prev = 0.5 * sum(float(sk.sum()) for sk in s)
+            weight_fn = tls_weights if gnc.surrogate == "tls" else gm_weights
+            message, termination = f"reached max_iter={gnc.max_iter} outer iterations", \
+                "no_convergence"
+            if show:
+                print(f"{'outer':>5s} {'mu':>10s} {'weighted_cost':>14s} {'inliers':>8s} "
+                      f"{'iters':>6s} {'time':>8s}", file=sys.stderr, flush=True)
+            while outer < gnc.max_iter:
+                outer += 1
+                for w, sk, ck, jk in zip(weights, s, c2, judged, strict=True):
+                    w[jk] = weight_fn(sk[jk], ck, mu)
+                cur = inner(cur)
+                s = squared_norms(problem, cur)
+                cost = 0.5 * sum(float((w * sk).sum()) for w, sk in zip(weights, s,
+                                                                         strict=True))
+                if show:
+                    n_in = sum(int((w >= 0.5).sum()) for w in weights)
+                    print(f"{outer:5d} {mu:10.3e} {cost:14.6e} {n_in:8d} "
+                          f"{runs[-1].iterations:6d} {time.perf_counter() - t0:8.3f}",
+                          file=sys.stderr, flush=True)
+                wj = np.concatenate([w[jk] for w, jk in zip(weights, judged, strict=True)])
+                if gnc.surrogate == "tls" and \
+                        np.all(np.abs(wj - np.round(wj)) <= gnc.weights_tol):
+                    message, termination = "GNC weights converged to 0 or 1", "convergence"
+                    snapped = [np.round(w) for w in weights]
+                    if any(np.any(a != w) for a, w in zip(snapped, weights, strict=True)):
+                        for a, w in zip(snapped, weights, strict=True):
+                            w[:] = a  # the TLS solution: least squares on the inliers
+                        cur = inner(cur)
+                        s = squared_norms(problem, cur)
+                    break
+                if abs(cost - prev) / max(prev, 1e-7) < gnc.cost_tol and \
+                        (gnc.surrogate == "tls" or mu == 1.0):
+                    message, termination = "GNC weighted cost converged", "convergence"
+                    break
+                prev = cost
+                mu = mu * gnc.mu_step if gnc.surrogate == "tls" else max(1.0, mu / gnc.mu_step)
+        if not runs:  # least squares is the answer: every weight 1
+            cur = inner(cur)
+            s = squared_norms(problem, cur)
+    finally:
+        for f, loss in zip(factors, saved, strict=True):
+            f.loss = loss
+    inliers = [kk | (sk <= ck) for kk, sk, ck in zip(known, s, c2, strict=True)]
+    history: list[Any] = []
+    offset = 0.0
+    for r in runs:
+        for rec in r.history:
+            history.append(dataclasses.replace(rec, iteration=len(history) + 1,
+                                               time_s=offset + rec.time_s))
+        offset += r.time_s
+    timings: dict[str, float] = {}
+    for r in runs:
+        for key, val in r.timings.items():
+            timings[key] = timings.get(key, 0.0) + val
+    total = time.perf_counter() - t0
+    timings["other"] = timings.get("other", 0.0) + total - sum(r.time_s for r in runs)
+    last = runs[-1]
+    name = f"GNC-{gnc.surrogate.upper()}"
+    return Result(Values(problem.variables, cur), 0.5 * sum(float(v.sum()) for v in s_start),
+                  0.5 * sum(float(v.sum()) for v in s),
+                  _objective(gnc.surrogate, s_start, c2, known),
+                  _objective(gnc.surrogate, s, c2, known),
+                  sum(r.iterations for r in runs), termination == "convergence",
+                  f"{name}: {message} after {outer} outer iterations ({len(runs)} solves)",
+                  termination, history, total, f"{name} + {last.solver}", last.linear_solver,
+                  timings, list(problem.gauge_fixed), sum(r.accepted_steps for r in runs),
+                  last.strategy, weights=weights, inliers=inliers, outer_iterations=outer)
