@@ -85,6 +85,31 @@ static void load_rows(int f32, const char *x, int kw, ix m, double *buf) {
     }
 }
 
+#define STOREK(KW)                                                                             \
+    static void store_f64_##KW(const double *restrict buf, ix m, double *restrict y) {         \
+        for (ix j = 0; j < m; j++)                                                              \
+            for (int c = 0; c < KW; c++) y[KW * j + c] = buf[c * S + j];                      \
+    }
+STOREK(1) STOREK(2) STOREK(3) STOREK(4) STOREK(6) STOREK(7) STOREK(8) STOREK(9) STOREK(10)
+
+/* the output widths of the kernels: a runtime width leaves the copy loop unvectorised */
+static void store_rows(int f32, const double *buf, int kw, ix m, char *y) {
+    if (f32) { store_f32(buf, kw, m, (float *)y); return; }
+    double *d = (double *)y;
+    switch (kw) {
+    case 1: store_f64_1(buf, m, d); break;
+    case 2: store_f64_2(buf, m, d); break;
+    case 3: store_f64_3(buf, m, d); break;
+    case 4: store_f64_4(buf, m, d); break;
+    case 6: store_f64_6(buf, m, d); break;
+    case 7: store_f64_7(buf, m, d); break;
+    case 8: store_f64_8(buf, m, d); break;
+    case 9: store_f64_9(buf, m, d); break;
+    case 10: store_f64_10(buf, m, d); break;
+    default: store_f64(buf, kw, m, d);
+    }
+}
+
 static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *const *out) {
     if (k->plain && !f32) {
         k->plain((const double *)in[0], (const double *)in[k->nin - 1], (double *)out[0], n);
@@ -105,9 +130,7 @@ static void evaluate(const kernel *k, int f32, ix n, char *const *in, char *cons
         k->fn(ibuf, obuf, m);
         off = 0;
         for (int j = 0; j < k->nout; j++) {
-            char *y = out[j] + (size_t)(i0 * wo[j]) * es;
-            if (f32) store_f32(obuf + off * S, wo[j], m, (float *)y);
-            else store_f64(obuf + off * S, wo[j], m, (double *)y);
+            store_rows(f32, obuf + off * S, wo[j], m, out[j] + (size_t)(i0 * wo[j]) * es);
             off += wo[j];
         }
     }
