@@ -317,7 +317,7 @@ def test_output_cache_limit_from_the_environment_is_validated():
 
 
 def test_compiled_one_element_functions_are_in_use():
-    """With the extra, single elements of every group but Sim3 run the C functions of
+    """With the extra, single elements of every group run the C functions of
     ``microlie._c._one`` (moved here from test_single.py, whose every test runs on two
     implementations)."""
     if os.environ.get("MICROLIE_FAST") == "0":
@@ -325,7 +325,7 @@ def test_compiled_one_element_functions_are_in_use():
     one = require("microlie._c._one")
     from microlie import _fast
 
-    groups = ("SO2", "SE2", "SO3", "SE3", "SE23")  # Sim3 checks tangent ranges in Python
+    groups = ("SO2", "SE2", "SO3", "SE3", "Sim3", "SE23")
     names = {f"{g}.{op}{j}" for g in groups for op in _single.OPS for j in ("", "_jac")}
     assert set(_fast.installed_single()) == names
     for name in names:
@@ -339,39 +339,96 @@ def test_compiled_one_element_functions_are_in_use():
     assert sorted(one.OPS) == sorted(groups) and sorted(one.OPS["SE3"]) == sorted(_single.OPS)
 
 
-@pytest.mark.parametrize("G", [g for g in GROUPS if g is not ml.Sim3], ids=lambda g: g.__name__)
-def test_compiled_one_element_operations_with_jacobians_equal_the_generic_ones(G):
-    """``jac=True`` on one element (the generated C of ``_one``: ``X.exp(tau, jac=True)``,
-    ``X.between(Y, jac=True)``, ...) returns what the generic path returns (the same types, the
-    same values to rounding: 1e-13) at the hard angles 0, 1e-12, near pi and pi."""
+def _hard_single_inputs(G, rng):
+    """Tangent vectors at the hard angles 0, 1e-12, near pi and pi (Sim3: each with a hard
+    log-scale, down to 0 and out to +-SIGMA_MAX) and the elements they make, with the exact pi
+    element."""
+    taus = [tangent_with_angle(G, rng, th) for th in (0.0, 1e-12, 0.7, np.pi - 1e-6, np.pi)]
+    if G is ml.Sim3:
+        taus = [t.copy() for t in taus for _ in range(2)]
+        for t, sg in zip(taus, SIGMAS, strict=True):
+            t[6] = sg
+    elements = [G.exp(t) for t in taus] + [G._exact_pi_element()]
+    return taus, elements
+
+
+@pytest.mark.parametrize("G", GROUPS, ids=lambda g: g.__name__)
+def test_compiled_one_element_operations_equal_the_generic_ones(G):
+    """Every one-element operation, values and ``jac=True`` (the generated C of ``_one``:
+    ``G.exp(tau)``, ``X.between(Y, jac=True)``, ...), returns what the generic path returns (the
+    same types, the same values to rounding: 1e-13 relative to the element's largest entry) at
+    the hard angles 0, 1e-12, near pi and pi, and for Sim3 at the hard scales (sigma = 0,
+    1e-12, +-2, +-50 = SIGMA_MAX)."""
     if os.environ.get("MICROLIE_FAST") == "0":
         pytest.skip("MICROLIE_FAST=0: the Python functions only")
-    require("microlie._c._one")
+    one = require("microlie._c._one")
     rng = np.random.default_rng(5)
-    taus = [tangent_with_angle(G, rng, th) for th in (0.0, 1e-12, 0.7, np.pi - 1e-6, np.pi)]
-    elements = [G.exp(t) for t in taus] + [G._exact_pi_element()]
+    taus, elements = _hard_single_inputs(G, rng)
     v = rng.standard_normal(G.point_dim)
-    jacs = {a: G.__dict__[a] for a in G.__dict__ if a.startswith("_one_") and a.endswith("_jac")}
-    assert len(jacs) == len(_single.OPS)
+    fast = {a: G.__dict__[a] for a in G.__dict__ if a.startswith("_one_")}
+    assert len(fast) == 2 * len(_single.OPS)
+    assert all(getattr(G, a).__self__ is one for a in fast)  # the C functions, not Python's
+    # second operands: for Sim3 those of log-scale at most 2.5 (minus stays within the range)
+    ys = [e for e in elements if G is not ml.Sim3 or abs(np.log(e.params[7])) <= 2.5]
     for i, X in enumerate(elements):
-        tau, Y = taus[i % len(taus)], elements[(i + 2) % len(elements)]
+        tau, Y = taus[i % len(taus)], ys[(i + 3) % len(ys)]
         calls = [(G.exp, (tau,)), (X.log, ()), (X.inverse, ()), (X.compose, (Y,)),
                  (X.between, (Y,)), (X.act, (v,)), (X.plus, (tau,)), (X.minus, (Y,))]
         for method, args in calls:
-            got = method(*args, jac=True)
-            for a in jacs:
-                setattr(G, a, staticmethod(lambda *args: None))
-            try:
-                want = method(*args, jac=True)
-            finally:
-                for a, f in jacs.items():
-                    setattr(G, a, f)
-            assert len(got) == len(want)
-            for g, w in zip(got, want, strict=True):
-                assert type(g) is type(w)
-                g, w = np.asarray(getattr(g, "params", g)), np.asarray(getattr(w, "params", w))
-                assert g.shape == w.shape and g.dtype == w.dtype == np.float64
-                np.testing.assert_allclose(g, w, rtol=0, atol=1e-13 * max(1.0, np.abs(w).max()))
+            for jac in (False, True):
+                got = method(*args, jac=True) if jac else method(*args)
+                for a in fast:
+                    setattr(G, a, staticmethod(lambda *args: None))
+                try:
+                    want = method(*args, jac=True) if jac else method(*args)
+                finally:
+                    for a, f in fast.items():
+                        setattr(G, a, f)
+                got, want = (got, want) if jac else ((got,), (want,))
+                assert len(got) == len(want)
+                for g, w in zip(got, want, strict=True):
+                    assert type(g) is type(w)
+                    g, w = np.asarray(getattr(g, "params", g)), np.asarray(getattr(w, "params", w))
+                    assert g.shape == w.shape and g.dtype == w.dtype == np.float64
+                    np.testing.assert_allclose(g, w, rtol=0,
+                                               atol=1e-13 * max(1.0, np.abs(w).max()))
+
+
+def test_compiled_sim3_single_elements_apply_the_scale_range():
+    """Sim3's range check |sigma| <= SIGMA_MAX in the compiled single elements: a tangent input
+    (exp, plus) or output (log, minus) beyond it makes the C function return None, and the
+    public call then raises the generic path's ValueError; at the bound itself the C result
+    equals the exponential of the 4x4 algebra matrix (scipy)."""
+    if os.environ.get("MICROLIE_FAST") == "0":
+        pytest.skip("MICROLIE_FAST=0: the Python functions only")
+    from scipy.linalg import expm
+
+    from microlie.groups.sim3 import SIGMA_MAX
+
+    one = require("microlie._c._one")
+    G = ml.Sim3
+    at = np.array([0.3, -0.2, 0.1, 0.4, -0.5, 0.6, -SIGMA_MAX])
+    X = one.sim3_exp(at)
+    assert type(X) is G
+    got, want = X.matrix(), expm(G.hat(at))
+    for block in (np.s_[:3, :3], np.s_[:3, 3]):  # s R (about e^-50) and t, each to its scale
+        np.testing.assert_allclose(got[block], want[block], rtol=0,
+                                   atol=1e-11 * np.abs(want[block]).max())
+    beyond = at.copy()
+    beyond[6] = -SIGMA_MAX * (1.0 + 1e-9)
+    E = G.identity()
+    big = G.exp(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 30.0]))  # big @ big: sigma = 60
+    for fn, args in [(one.sim3_exp, (beyond,)), (one.j_sim3_exp_jac, (beyond,)),
+                     (one.sim3_plus, (E, beyond)), (one.j_sim3_plus_jac, (E, beyond)),
+                     (one.sim3_log, (big @ big,)), (one.j_sim3_log_jac, (big @ big,)),
+                     (one.sim3_minus, (big @ big, E)), (one.j_sim3_minus_jac, (big @ big, E))]:
+        assert fn(*args) is None, fn.__name__
+    for call in (lambda: G.exp(beyond), lambda: G.exp(beyond, jac=True),
+                 lambda: E.plus(beyond), lambda: (big @ big).log(),
+                 lambda: (big @ big).log(jac=True), lambda: (big @ big).minus(E)):
+        with pytest.raises(ValueError, match="exceeds SIGMA_MAX"):
+            call()
+    assert one.sim3_log(big) is not None and one.sim3_minus(big, E) is not None
 
 
 @pytest.mark.parametrize("G", [ml.SO3, ml.SE3, ml.Sim3])

@@ -12,79 +12,66 @@
 
 typedef long ix;
 
-#define LOAD(KW)                                                                               \
-    static void load_##KW(const double *restrict x, ix m, double *restrict buf) {             \
-        for (ix j = 0; j < m; j++)                                                             \
-            for (int c = 0; c < KW; c++) buf[c * S + j] = x[KW * j + c];                      \
-    }
-#define STORE(KW)                                                                              \
-    static void store_##KW(const double *restrict buf, ix m, double *restrict y) {            \
-        for (ix j = 0; j < m; j++)                                                             \
-            for (int c = 0; c < KW; c++) y[KW * j + c] = buf[c * S + j];                      \
-    }
-LOAD(6) LOAD(7) STORE(6) STORE(7) STORE(36)
-
-/* two inputs of 7 into one block buffer (rows 0..6 and 7..13) */
-static void load_77(const double *a, const double *b, ix m, double *buf) {
-    load_7(a, m, buf);
-    load_7(b, m, buf + 7 * S);
+/* rows of kw components <-> a structure-of-arrays block of m <= S elements */
+static inline void load(const double *restrict x, ix m, int kw, double *restrict buf) {
+    for (ix j = 0; j < m; j++)
+        for (int c = 0; c < kw; c++) buf[c * S + j] = x[kw * j + c];
+}
+static inline void store(const double *restrict buf, ix m, int kw, double *restrict y) {
+    for (ix j = 0; j < m; j++)
+        for (int c = 0; c < kw; c++) y[kw * j + c] = buf[c * S + j];
 }
 
-void b_se3_exp(const double *t, double *p, ix n) {
-    double ib[6 * S] __attribute__((aligned(64))), ob[7 * S] __attribute__((aligned(64)));
-    for (ix i0 = 0; i0 < n; i0 += S) {
-        ix m = n - i0 < S ? n - i0 : S;
-        load_6(t + 6 * i0, m, ib);
-#pragma omp simd
-        for (ix j = 0; j < m; j++) se3_exp(ib + j, ib + j, ob + j, S);
-        store_7(ob, m, p + 7 * i0);
+/* b_<group>_<op>: the generated element function G_OP over blocks; A, B the input widths (B = 0:
+ * one input), O the outputs' widths (value, then Jacobians), written to the output pointers */
+#define BLOCKS(FN, A, B, NO, ...)                                                              \
+    {                                                                                          \
+        const int ow[3] = {__VA_ARGS__};                                                       \
+        int tot = 0;                                                                           \
+        for (int k = 0; k < NO; k++) tot += ow[k];                                             \
+        double ib[(A + B) * S] __attribute__((aligned(64)));                                   \
+        double ob[tot * S] __attribute__((aligned(64)));                                       \
+        for (ix i0 = 0; i0 < n; i0 += S) {                                                     \
+            ix m = n - i0 < S ? n - i0 : S;                                                    \
+            load(x + A * i0, m, A, ib);                                                        \
+            if (B) load(y + B * i0, m, B, ib + A * S);                                         \
+            _Pragma("omp simd") for (ix j = 0; j < m; j++)                                     \
+                FN(ib + j, ib + A * S + j, ob + j, S);                                         \
+            int off = 0;                                                                       \
+            for (int k = 0; k < NO; k++) {                                                     \
+                store(ob + off * S, m, ow[k], outs[k] + ow[k] * i0);                           \
+                off += ow[k];                                                                  \
+            }                                                                                  \
+        }                                                                                      \
     }
-}
 
-void b_se3_log(const double *p, double *t, ix n) {
-    double ib[7 * S] __attribute__((aligned(64))), ob[6 * S] __attribute__((aligned(64)));
-    for (ix i0 = 0; i0 < n; i0 += S) {
-        ix m = n - i0 < S ? n - i0 : S;
-        load_7(p + 7 * i0, m, ib);
-#pragma omp simd
-        for (ix j = 0; j < m; j++) se3_log(ib + j, ib + j, ob + j, S);
-        store_6(ob, m, t + 6 * i0);
+#define B1(FN, A, O)                                                                           \
+    void b_##FN(const double *x, double *o, ix n) {                                            \
+        const double *y = x;                                                                   \
+        double *outs[1] = {o};                                                                 \
+        BLOCKS(FN, A, 0, 1, O)                                                                 \
     }
-}
+#define B1J(FN, A, O, J)                                                                       \
+    void b_##FN(const double *x, double *o, double *jac, ix n) {                               \
+        const double *y = x;                                                                   \
+        double *outs[2] = {o, jac};                                                            \
+        BLOCKS(FN, A, 0, 2, O, J)                                                              \
+    }
+#define B2J(FN, A, O, J)                                                                       \
+    void b_##FN(const double *x, const double *y, double *o, double *jac, ix n) {              \
+        double *outs[2] = {o, jac};                                                            \
+        BLOCKS(FN, A, A, 2, O, J)                                                              \
+    }
+#define B2JJ(FN, A, O, J)                                                                      \
+    void b_##FN(const double *x, const double *y, double *o, double *j1, double *j2, ix n) {    \
+        double *outs[3] = {o, j1, j2};                                                         \
+        BLOCKS(FN, A, A, 3, O, J, J)                                                           \
+    }
 
-void b_se3_exp_jac(const double *t, double *p, double *J, ix n) {
-    double ib[6 * S] __attribute__((aligned(64))), ob[43 * S] __attribute__((aligned(64)));
-    for (ix i0 = 0; i0 < n; i0 += S) {
-        ix m = n - i0 < S ? n - i0 : S;
-        load_6(t + 6 * i0, m, ib);
-#pragma omp simd
-        for (ix j = 0; j < m; j++) se3_exp_jac(ib + j, ib + j, ob + j, S);
-        store_7(ob, m, p + 7 * i0);
-        store_36(ob + 7 * S, m, J + 36 * i0);
-    }
-}
-
-void b_se3_between_jac(const double *p, const double *q, double *z, double *J, ix n) {
-    double ib[14 * S] __attribute__((aligned(64))), ob[43 * S] __attribute__((aligned(64)));
-    for (ix i0 = 0; i0 < n; i0 += S) {
-        ix m = n - i0 < S ? n - i0 : S;
-        load_77(p + 7 * i0, q + 7 * i0, m, ib);
-#pragma omp simd
-        for (ix j = 0; j < m; j++) se3_between_jac(ib + j, ib + 7 * S + j, ob + j, S);
-        store_7(ob, m, z + 7 * i0);
-        store_36(ob + 7 * S, m, J + 36 * i0);
-    }
-}
-
-void b_se3_minus_jac(const double *y, const double *x, double *t, double *Jy, double *Jx, ix n) {
-    double ib[14 * S] __attribute__((aligned(64))), ob[78 * S] __attribute__((aligned(64)));
-    for (ix i0 = 0; i0 < n; i0 += S) {
-        ix m = n - i0 < S ? n - i0 : S;
-        load_77(y + 7 * i0, x + 7 * i0, m, ib);
-#pragma omp simd
-        for (ix j = 0; j < m; j++) se3_minus_jac(ib + j, ib + 7 * S + j, ob + j, S);
-        store_6(ob, m, t + 6 * i0);
-        store_36(ob + 6 * S, m, Jy + 36 * i0);
-        store_36(ob + 42 * S, m, Jx + 36 * i0);
-    }
-}
+/* rows of 6 or more with elementary functions (the plain loops do not vectorise them well) */
+B1(se3_exp, 6, 7) B1(se3_log, 7, 6) B1J(se3_exp_jac, 6, 7, 36) B2J(se3_between_jac, 7, 7, 36)
+B2JJ(se3_minus_jac, 7, 6, 36)
+B1(sim3_exp, 7, 8) B1(sim3_log, 8, 7) B1J(sim3_exp_jac, 7, 8, 49) B2J(sim3_between_jac, 8, 8, 49)
+B2JJ(sim3_minus_jac, 8, 7, 49)
+B1(se23_exp, 9, 10) B1(se23_log, 10, 9) B1J(se23_exp_jac, 9, 10, 81)
+B2J(se23_between_jac, 10, 10, 81) B2JJ(se23_minus_jac, 10, 9, 81)

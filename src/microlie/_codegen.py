@@ -197,12 +197,18 @@ def source() -> str:
         gname, op = k.name.split(".")
         groups.setdefault(gname, k.group.param_dim)
         base = op.removesuffix("_jac")
-        if base in OPS and not getattr(k.group, "_range_check", None):
+        check = getattr(k.group, "_range_check", None)
+        bound = getattr(k.group, "_range_bound", None)
+        if base in OPS and (check is None or bound is not None):
             ins, res = OPS[base]
             kin = rec.sizes[-1] if ins[-1] in "tv" else 0
             kout = math.prod(k.outs[0])
+            # the range check as data: the component of the tangent input (last input) and of
+            # the tangent output whose magnitude must not exceed the bound (-1: none)
+            b_in = bound[0] if bound and ins[-1] == "t" else -1
+            b_out = bound[0] if bound and res == "t" else -1
             row = (f"{fn}, G_{gname.upper()}, \"{ins}\", {kin}, {int(res == 'e')}, {kout}, "
-                   f"{int(k.finite)}")
+                   f"{int(k.finite)}, {b_in}, {b_out}, {_const(bound[1] if bound else 0.0)}")
             if op == base:
                 one.append(f"    X({row})")
             else:  # the Jacobians (1 or 2 matrices), and an identity for compose and between
@@ -215,10 +221,12 @@ def source() -> str:
     gl = [f"    X(G_{g.upper()}, \"{g}\", {d})" for g, d in groups.items()]
     parts.append("/* X(id, name, param_dim) */\n#define LK_GROUPS(X) \\\n" + " \\\n".join(gl)
                  + "\n")
-    parts.append("/* X(fn, group, inputs, vector width, element output, output width, finite) "
-                 "*/\n#define LK_ONE(X) \\\n" + " \\\n".join(one) + "\n")
     parts.append("/* X(fn, group, inputs, vector width, element output, output width, finite, "
-                 "number of Jacobians, their shapes (r1, c1, r2, c2), identity size) */\n"
+                 "range: component of the tangent input, of the tangent output (-1: none), "
+                 "largest magnitude) */\n#define LK_ONE(X) \\\n" + " \\\n".join(one) + "\n")
+    parts.append("/* X(fn, group, inputs, vector width, element output, output width, finite, "
+                 "range (3 entries as in LK_ONE), number of Jacobians, their shapes (r1, c1, r2, "
+                 "c2), identity size) */\n"
                  "#define LK_JAC(X) \\\n" + " \\\n".join(jac) + "\n")
     return "\n".join(parts)
 

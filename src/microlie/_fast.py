@@ -14,8 +14,8 @@ values and fused Jacobians, generated at build time from the component formulas
 environment variable ``MICROLIE_FAST=0`` to keep the generic NumPy kernels. The classes and
 their results do not change: each compiled kernel agrees with the generic one to rounding
 (``tests/test_kernels.py``). Single float64 elements go through the one-element C functions of
-``microlie._c._one``: the element operations of every group but Sim(3)
-(:func:`installed_single`) and every kernel, Jacobians included
+``microlie._c._one``: the element operations of every group (:func:`installed_single`; Sim(3)'s
+range check of tangent vectors is in the generated table) and every kernel, Jacobians included
 (:func:`microlie._kernels.register_single`). Large outputs reuse freed blocks (bounded by
 ``MICROLIE_FAST_CACHE_MB``, default 256, plus the latest freed block above it; see
 ``microlie._c``).

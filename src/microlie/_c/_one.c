@@ -14,8 +14,9 @@
  * None unless its inputs are exactly what it handles: elements of exactly its group whose
  * `params` is a one-dimensional, aligned, contiguous, native float64 NumPy array (the ones
  * microlie makes), and finite one-dimensional float64 NumPy vectors of the right length. On a
- * non-finite result of a kernel with a tangent input it returns None too. The caller then takes
- * the generic path, which raises the errors. `setup` is called once by microlie with the member
+ * non-finite result of a kernel with a tangent input, and on a tangent input or output outside
+ * the group's range (Sim3: |sigma| <= SIGMA_MAX, the generated table's bound), it returns None
+ * too. The caller then takes the generic path, which raises the errors. `setup` is called once by microlie with the member
  * descriptors of the `params` and `_floats` slots and the classes named in GROUPS. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -44,6 +45,10 @@ typedef struct {
     int out_element; /* 1: the output is an element, 0: a vector of width kout */
     int kout;
     int finite; /* a tangent input: check the result for NaN/inf (as the generic kernel) */
+    /* the group's range check (Sim3: |sigma| <= SIGMA_MAX): the component of the tangent input
+     * and of the tangent output whose magnitude must not exceed `bound` (-1: none) */
+    int b_in, b_out;
+    double bound;
     el_fn fn;
 } op;
 
@@ -75,34 +80,54 @@ static inline const double *vector_data(PyObject *v, int k) {
     return s == 0.0 ? d : NULL;
 }
 
-static PyObject *call(const op *k, PyObject *const *args, Py_ssize_t nargs) {
+/* whether |x| <= bound (false for NaN) */
+static inline int within(double x, double bound) { return fabs(x) <= bound; }
+
+/* the inputs of operation k: -1 with an exception set (wrong count, no setup), 0 for inputs it
+ * does not handle (the caller returns None), 1 with *a, *b set (b = a for one input) */
+static int read_inputs(const op *k, PyObject *const *args, Py_ssize_t nargs, const double **a,
+                       const double **b) {
     int nin = (int)strlen(k->ins);
     if (nargs != nin) {
         PyErr_Format(PyExc_TypeError, "expected %d arguments, got %zd", nin, nargs);
-        return NULL;
+        return -1;
     }
     if (params_off < 0) {
         PyErr_SetString(PyExc_RuntimeError, "microlie._c._one.setup was not called");
-        return NULL;
+        return -1;
     }
-    const double *a = NULL, *b = NULL;
+    const double *x, *y = NULL;
     if (k->ins[0] == 't') {
-        a = vector_data(args[0], k->kin);
+        x = vector_data(args[0], k->kin);
     } else {
-        a = element_data(args[0], k->group);
-        if (a && nin == 2)
-            b = k->ins[1] == 'e' ? element_data(args[1], k->group)
+        x = element_data(args[0], k->group);
+        if (x && nin == 2)
+            y = k->ins[1] == 'e' ? element_data(args[1], k->group)
                                  : vector_data(args[1], k->kin);
-        if (nin == 2 && !b) a = NULL;
+        if (nin == 2 && !y) x = NULL;
     }
-    if (!a) Py_RETURN_NONE;
+    if (!x) return 0;
+    if (k->b_in >= 0 && !within((nin == 2 ? y : x)[k->b_in], k->bound)) return 0;
+    *a = x;
+    *b = y ? y : x;
+    return 1;
+}
+
+static PyObject *call(const op *k, PyObject *const *args, Py_ssize_t nargs) {
+    const double *a, *b;
+    int got = read_inputs(k, args, nargs, &a, &b);
+    if (got <= 0) {
+        if (got < 0) return NULL;
+        Py_RETURN_NONE;
+    }
     double r[MAXW];
-    k->fn(a, b ? b : a, r, 1);
+    k->fn(a, b, r, 1);
     if (k->finite) {
         double s = 0.0;
         for (int i = 0; i < k->kout; i++) s += r[i] * 0.0;
         if (s != 0.0) Py_RETURN_NONE;
     }
+    if (k->b_out >= 0 && !within(r[k->b_out], k->bound)) Py_RETURN_NONE;
     npy_intp n = k->kout;
     PyObject *arr = PyArray_SimpleNew(1, &n, NPY_DOUBLE);
     if (!arr) return NULL;
@@ -143,28 +168,14 @@ static PyObject *new_matrix(npy_intp r, npy_intp c, const double *v) {
 
 static PyObject *call_jac(const jop *j, PyObject *const *args, Py_ssize_t nargs) {
     const op *k = &j->base;
-    int nin = (int)strlen(k->ins);
-    if (nargs != nin) {
-        PyErr_Format(PyExc_TypeError, "expected %d arguments, got %zd", nin, nargs);
-        return NULL;
+    const double *a, *b;
+    int got = read_inputs(k, args, nargs, &a, &b);
+    if (got <= 0) {
+        if (got < 0) return NULL;
+        Py_RETURN_NONE;
     }
-    if (params_off < 0) {
-        PyErr_SetString(PyExc_RuntimeError, "microlie._c._one.setup was not called");
-        return NULL;
-    }
-    const double *a = NULL, *b = NULL;
-    if (k->ins[0] == 't') {
-        a = vector_data(args[0], k->kin);
-    } else {
-        a = element_data(args[0], k->group);
-        if (a && nin == 2)
-            b = k->ins[1] == 'e' ? element_data(args[1], k->group)
-                                 : vector_data(args[1], k->kin);
-        if (nin == 2 && !b) a = NULL;
-    }
-    if (!a) Py_RETURN_NONE;
     double r[MAXW];
-    k->fn(a, b ? b : a, r, 1);
+    k->fn(a, b, r, 1);
     int total = k->kout;
     for (int m = 0; m < j->nmat; m++) total += j->rows[m] * j->cols[m];
     if (k->finite) {
@@ -172,6 +183,7 @@ static PyObject *call_jac(const jop *j, PyObject *const *args, Py_ssize_t nargs)
         for (int i = 0; i < total; i++) s += r[i] * 0.0;
         if (s != 0.0) Py_RETURN_NONE;
     }
+    if (k->b_out >= 0 && !within(r[k->b_out], k->bound)) Py_RETURN_NONE;
     int nres = 1 + j->nmat + (j->eye ? 1 : 0);
     PyObject *res = PyTuple_New(nres);
     if (!res) return NULL;
@@ -218,8 +230,9 @@ static PyObject *call_jac(const jop *j, PyObject *const *args, Py_ssize_t nargs)
     return res;
 }
 
-#define JWRAP(FN, G, INS, KIN, OUTE, KOUT, FIN, NM, R1, C1, R2, C2, EYE)                        \
-    static const jop j_##FN = {{G, INS, KIN, OUTE, KOUT, FIN, FN}, NM, {R1, R2}, {C1, C2}, EYE}; \
+#define JWRAP(FN, G, INS, KIN, OUTE, KOUT, FIN, BIN, BOUT, BOUND, NM, R1, C1, R2, C2, EYE)     \
+    static const jop j_##FN = {{G, INS, KIN, OUTE, KOUT, FIN, BIN, BOUT, BOUND, FN},            \
+                               NM, {R1, R2}, {C1, C2}, EYE};                                   \
     static PyObject *py_j_##FN(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {    \
         (void)self;                                                                            \
         return call_jac(&j_##FN, args, nargs);                                                 \
@@ -227,8 +240,8 @@ static PyObject *call_jac(const jop *j, PyObject *const *args, Py_ssize_t nargs)
 LK_JAC(JWRAP)
 
 /* the one-element operations of the generated table LK_ONE */
-#define WRAP(FN, G, INS, KIN, OUTE, KOUT, FIN)                                                 \
-    static const op o_##FN = {G, INS, KIN, OUTE, KOUT, FIN, FN};                              \
+#define WRAP(FN, G, INS, KIN, OUTE, KOUT, FIN, BIN, BOUT, BOUND)                              \
+    static const op o_##FN = {G, INS, KIN, OUTE, KOUT, FIN, BIN, BOUT, BOUND, FN};            \
     static PyObject *py_##FN(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {      \
         (void)self;                                                                            \
         return call(&o_##FN, args, nargs);                                                     \

@@ -134,8 +134,8 @@ def use_compiled(one: Any) -> list[str]:
     done = []
     for name, fns in one.OPS.items():
         cls = getattr(groups, name)
-        if cls._range_check is not None:  # the C functions do not check tangent ranges
-            continue
+        if cls._range_check is not None and cls._range_bound is None:
+            continue  # a range check that the C functions cannot apply
         for op, fn in fns.items():
             if op in OPS:
                 setattr(cls, f"_one_{op}", staticmethod(getattr(one, fn)))

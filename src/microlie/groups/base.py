@@ -229,6 +229,9 @@ class LieGroup:
     # A group's range check of tangent vectors (``ValueError`` outside the range where its
     # formulas are verified), applied to every tangent input and output; None: no limit.
     _range_check: ClassVar[Any] = None  # or a staticmethod f(tau) -> None
+    # The same check as data, for the compiled single elements (microlie._c._one): (component,
+    # largest magnitude) of every tangent input and output; None: the check is Python-only.
+    _range_bound: ClassVar[tuple[int, float] | None] = None
 
     # the single-element fast path (see :mod:`microlie.groups._single`): one function per
     # operation that returns None unless its inputs are single float64 NumPy values

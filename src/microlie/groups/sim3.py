@@ -42,6 +42,7 @@ from .so3 import SO3
 
 SIGMA_MAX = 50.0
 """Largest ``|sigma|`` (``|log s|``) accepted by ``exp``, ``log``, ``jr`` and ``jr_inv``."""
+SIGMA_BOUND = SIGMA_MAX * (1.0 + 1e-12)  # what the checks compare: room for log(exp(50))
 
 # phi_4(x) = sum_k x^k / (k + 4)!; then phi_3 = 1/6 + x phi_4, phi_2 = 1/2 + x phi_3, ...
 _PHI4 = M._series(lambda k: Fraction(1, factorial(k + 4)), 20)
@@ -372,6 +373,8 @@ class Sim3(Pose):
         plus, ...) and leaves (log, minus, lminus): ``|sigma| <= SIGMA_MAX``."""
         check_sigma(tau, "tangent vector")
 
+    _range_bound = (6, SIGMA_BOUND)  # the same check in the compiled single elements
+
     # ------------------------------------------------------------------ primitives
     @staticmethod
     def _exp(o, tau):
@@ -668,6 +671,6 @@ def check_sigma(tau: Array, what: str) -> None:
         if x is None or not x.size:
             return
         m = float(np.max(np.abs(x)))
-    if not m <= SIGMA_MAX * (1.0 + 1e-12):  # room for the rounding of log(exp(50))
+    if not m <= SIGMA_BOUND:
         raise ValueError(f"Sim3 {what}: |sigma| = {m:.6g} exceeds SIGMA_MAX = {SIGMA_MAX:g} "
                          f"(scales beyond e^+-{SIGMA_MAX:g}), outside the verified range")
