@@ -36,6 +36,7 @@ pose graphs)."""
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -113,6 +114,7 @@ def _buckets(k: np.ndarray, u: np.ndarray) -> list[np.ndarray]:
     return [order[start[i]:start[j]] for i, j in reversed(runs)]
 
 
+@functools.lru_cache(maxsize=64)
 def _band_maps(K: int) -> tuple[np.ndarray, np.ndarray]:
     """The entries of one member's ``(K, K)`` diagonal block ``D`` (``D[c, r] = L11[r, c]``)
     that its band rows hold, as flat positions in ``D`` and in the ``(K, K)`` band rows
