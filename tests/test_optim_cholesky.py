@@ -329,3 +329,61 @@ def test_compiled_assembly_map_by_runs():
     with pytest.raises(ValueError, match="amap must have one entry per entry"):
         s.factorize(H.data)
     s.amap = amap
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_numpy_buckets_are_the_cheapest_contiguous_partition(seed):
+    """The NumPy loop's buckets of one level: every supernode in exactly one bucket, the
+    buckets contiguous runs of the distinct shapes sorted by ``(k, u)``, and their summed cost
+    (``_bucket_cost`` of the run padded to its largest ``k`` and ``u``) the minimum over every
+    partition into contiguous runs, found here by enumerating all ``2**(S - 1)`` of them."""
+    from itertools import product
+
+    from microlie.optim.linalg.cholesky_numpy import _bucket_cost, _buckets
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 40))
+    k = rng.choice([3, 6, 18, 48], n)  # at most 12 shapes: 2048 partitions to enumerate
+    u = rng.choice([0, 12, 300], n)
+    out = _buckets(k, u)
+    members = np.sort(np.concatenate(out))
+    np.testing.assert_array_equal(members, np.arange(n))
+    shapes = sorted(set(zip(k.tolist(), u.tolist(), strict=True)))
+    cnt = [int(np.sum((k == a) & (u == b))) for a, b in shapes]
+    run_of = {s: r for r, s in enumerate(shapes)}
+    got = 0.0
+    prev = -1
+    for mem in out:
+        idx = sorted({run_of[(int(k[m]), int(u[m]))] for m in mem.tolist()})
+        assert idx == list(range(idx[0], idx[-1] + 1)) and idx[0] == prev + 1  # contiguous
+        assert sum(cnt[i] for i in idx) == mem.size
+        prev = idx[-1]
+        got += _bucket_cost(mem.size, int(k[mem].max()), int(u[mem].max()))
+    best = np.inf
+    S = len(shapes)
+    for cuts in product([False, True], repeat=S - 1):
+        total, start = 0.0, 0
+        for end in [i + 1 for i, c in enumerate(cuts) if c] + [S]:
+            run = shapes[start:end]
+            total += _bucket_cost(sum(cnt[start:end]), max(a for a, _ in run),
+                                  max(b for _, b in run))
+            start = end
+        best = min(best, total)
+    assert got == pytest.approx(best, rel=1e-12)
+
+
+@pytest.mark.parametrize("K", [1, 2, 6, 13])
+def test_numpy_band_maps_hold_the_lower_band(K):
+    """``_band_maps(K)``: the band rows of one member hold ``band[c, t] = L11[c + t, c]`` for
+    ``t < K - c`` (the layout of LAPACK's lower band storage, transposed), checked against the
+    dense matrix entry by entry."""
+    from microlie.optim.linalg.cholesky_numpy import _band_maps
+
+    L11 = np.tril(np.random.default_rng(K).standard_normal((K, K)))
+    D = L11.T.copy()  # D[c, r] = L11[r, c]
+    src, dst = _band_maps(K)
+    band = np.zeros((K, K))
+    band.ravel()[dst] = D.ravel()[src]
+    for c in range(K):
+        for t in range(K):
+            assert band[c, t] == (L11[c + t, c] if c + t < K else 0.0)

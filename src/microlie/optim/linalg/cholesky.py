@@ -443,24 +443,32 @@ def _amalgamate(sn_start: np.ndarray, count: np.ndarray, parent: np.ndarray,
     below = (count[ends - 1] - 1).tolist()  # rows strictly below the supernode's last column
     first_below = parent[ends - 1].tolist()
     (r0, z0), (r1, z1), (r2, z2) = _RELAX
-    out: list[list[int]] = []  # [start, end, rows below (count), true nonzeros]
+    # the stack of merged supernodes, as parallel lists: start, end, true nonzeros, the
+    # parent of the last column
+    st: list[int] = []
+    en: list[int] = []
+    tr: list[int] = []
+    fbs: list[int] = []
     for a, b, nbel, fb in zip(sn_start.tolist(), ends.tolist(), below, first_below,
                               strict=True):
         k = b - a
-        cur = [a, b, nbel, k * (k + 1) // 2 + k * nbel]
-        while out:
-            pa, pb, prow, ptrue, pfb = out[-1]
-            if pb != a or pfb != a:  # not contiguous, or a is not the child's parent
-                break
+        ctrue = k * (k + 1) // 2 + k * nbel
+        start = a
+        while st and en[-1] == a and fbs[-1] == a:  # contiguous, and a is its parent
             # the child's rows below (minus a's columns) are in the parent's structure, so
             # the merged supernode has the parent's rows below
-            k2 = b - pa
+            k2 = b - st[-1]
             total = k2 * (k2 + 1) // 2 + k2 * nbel
-            zeros = 1.0 - (ptrue + cur[3]) / total
+            zeros = 1.0 - (tr[-1] + ctrue) / total
             if not ((k2 <= r0 and zeros <= z0) or (k2 <= r1 and zeros <= z1)
                     or (k2 <= r2 and zeros <= z2)):
                 break
-            out.pop()
-            cur = [pa, b, nbel, ptrue + cur[3]]
-        out.append([*cur, fb])
-    return np.array([o[0] for o in out], dtype=np.int64)
+            start = st.pop()
+            ctrue += tr.pop()
+            en.pop()
+            fbs.pop()
+        st.append(start)
+        en.append(b)
+        tr.append(ctrue)
+        fbs.append(fb)
+    return np.array(st, dtype=np.int64)

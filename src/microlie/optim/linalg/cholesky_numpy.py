@@ -36,6 +36,7 @@ pose graphs)."""
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -83,27 +84,45 @@ def _buckets(k: np.ndarray, u: np.ndarray) -> list[np.ndarray]:
     """Partition the supernodes of one level (shapes ``k``, ``u``) into buckets: distinct
     shapes sorted by ``(k, u)``, cut into contiguous runs by dynamic programming on
     :func:`_bucket_cost` (a run is padded to its largest ``k`` and ``u``)."""
-    shapes, inv = np.unique(np.stack([k, u], 1), axis=0, return_inverse=True)
-    inv = inv.ravel()
-    cnt = np.bincount(inv, minlength=len(shapes)).tolist()
-    ks, us = shapes[:, 0].tolist(), shapes[:, 1].tolist()
+    wide = int(u.max(initial=0)) + 1
+    shapes, inv, cnt_a = np.unique(k * wide + u, return_inverse=True, return_counts=True)
+    cnt = cnt_a.tolist()
+    ks, us = (shapes // wide).tolist(), (shapes % wide).tolist()
     S = len(ks)
     best = [0.0] + [np.inf] * S
     cut = [0] * (S + 1)
-    for j in range(1, S + 1):  # runs i..j-1
-        G, U = 0, 0
+    cb, cm, cf, ce = _COST_BUCKET, _COST_MEMBER, _COST_FLOP, _COST_ENTRY
+    for j in range(1, S + 1):  # runs i..j-1 (_bucket_cost inlined: the plan's hot loop)
+        G, U, K = 0, 0, ks[j - 1]
+        bj, cj = best[j], cut[j]
         for i in range(j - 1, -1, -1):
             G += cnt[i]
-            U = max(U, us[i])
-            c = best[i] + _bucket_cost(G, ks[j - 1], U)
-            if c < best[j]:
-                best[j], cut[j] = c, i
+            if us[i] > U:
+                U = us[i]
+            c = best[i] + cb + G * (cm + (K ** 3 / 3.0 + K * K * U + K * U * U) * cf
+                                     + (K * K + K * U + U * U) * ce)
+            if c < bj:
+                bj, cj = c, i
+        best[j], cut[j] = bj, cj
     runs = []
     j = S
     while j > 0:
         runs.append((cut[j], j))
         j = cut[j]
-    return [np.flatnonzero((inv >= i) & (inv < j)) for i, j in reversed(runs)]
+    order = np.argsort(inv.ravel(), kind="stable")
+    start = np.r_[0, np.cumsum(cnt_a)]
+    return [order[start[i]:start[j]] for i, j in reversed(runs)]
+
+
+@functools.lru_cache(maxsize=64)
+def _band_maps(K: int) -> tuple[np.ndarray, np.ndarray]:
+    """The entries of one member's ``(K, K)`` diagonal block ``D`` (``D[c, r] = L11[r, c]``)
+    that its band rows hold, as flat positions in ``D`` and in the ``(K, K)`` band rows
+    (``band[c, t] = D[c, c + t]``, ``t < K - c``)."""
+    length = K - np.arange(K)
+    c = np.repeat(np.arange(K), length)
+    t = np.arange(c.size) - np.repeat(np.cumsum(length) - length, length)
+    return c * K + c + t, c * K + t
 
 
 class _Bucket:
@@ -269,28 +288,29 @@ class NumpyLoop:
         pc = np.repeat(np.arange(ps.size), ncol)  # (pair, column)
         jj = a[pc] + np.arange(int(ncol.sum())) - np.repeat(np.cumsum(ncol) - ncol, ncol)
         sc, tc = ps[pc], s.pt[pc]
+        # by level of the source (stable: pairs, then columns, in order within a level); the
+        # runs expanded below keep this order
+        so = np.argsort(lev[sc], kind="stable")
+        pc, jj, sc, tc = pc[so], jj[so], sc[so], tc[so]
+        bounds = np.searchsorted(lev[sc], np.arange(nlev + 1))
         r0 = (jj - a[pc]) // bs
         nrun = (u[sc] - a[pc]) // bs - r0
-        src1 = (wpos[sc] + jj * self.U[sc] + a[pc]) // bs
         col = s.rows[s.rptr[sc] + s.k[sc] + jj] - s.c0[tc]
-        dia1 = (self.dpos[tc] + col * self.K[tc]) // bs
-        bel1 = (self.bpos[tc] + col * self.U[tc] - self.k[tc]) // bs
         kt1 = self.k[tc] // bs
-        rel1 = s.relptr[pc] + r0  # the first run's place in the block rel
-        el1 = lev[sc]
-        del sc, tc, col, jj
-        x = np.repeat(np.arange(pc.size), nrun)
-        r = np.arange(int(nrun.sum())) - np.repeat(np.cumsum(nrun) - nrun, nrun)
-        src = src1[x] + r0[x] + r
+        dia1 = (self.dpos[tc] + col * self.K[tc]) // bs
+        bel1 = (self.bpos[tc] + col * self.U[tc]) // bs - kt1
+        # run r of (pair, column) x: source word src1 + r, block row rowb = rel[rel1 + r]
+        first = np.cumsum(nrun) - nrun
+        src1 = (wpos[sc] + jj * self.U[sc] + a[pc]) // bs + r0 - first
+        rel1 = s.relptr[pc] + r0 - first
+        bounds = np.r_[first, int(nrun.sum())][bounds]  # the levels' bounds in runs
+        del sc, tc, col, jj, pc
+        x = np.repeat(np.arange(nrun.size), nrun)
+        r = np.arange(x.size)
+        src = src1[x] + r
         rowb = s.rel[rel1[x] + r]
         dst = np.where(rowb < kt1[x], dia1[x], bel1[x]) + rowb
-        el = el1[x]
         del x, r, rowb
-        # by level, then destination (one stable sort of one key: 2.7x faster than lexsort)
-        so = np.argsort(el * (int(dst.max(initial=0)) + 1) + dst, kind="stable")
-        el, src, dst = el[so], src[so], dst[so]
-        del so
-        bounds = np.searchsorted(el, np.arange(nlev + 1))
         w = self.word
         run = np.arange(bs // w)
         # kept for every factorisation: int32 when the words of L and W allow (half the
@@ -341,12 +361,8 @@ class NumpyLoop:
                 b.D = L[d0:d0 + G * Kb * Kb].reshape(G, Kb, Kb)
                 b.B = L[d0 + G * Kb * Kb:d0 + G * Kb * (Kb + Ub)].reshape(G, Kb, Ub)
                 b.BT = np.swapaxes(b.B, 1, 2)
-                if G > 1:
-                    g, c, t = np.meshgrid(np.arange(G), np.arange(Kb), np.arange(Kb),
-                                          indexing="ij")
-                    low = c + t < Kb  # D[g, c, c + t] = L11[c + t, c]
-                    b.bsrc, b.bdst = (g * Kb * Kb + c * Kb + c + t)[low], ((g * Kb + c) * Kb
-                                                                           + t)[low]
+                if G > 1:  # band[g K + c, t] = D[g, c, c + t] = L11[c + t, c], t < K - c
+                    b.bsrc, b.bdst = _band_maps(Kb)
                     b.band = np.zeros((G * Kb, Kb))
         for bl in self.levels:
             w = 0
@@ -380,7 +396,7 @@ class NumpyLoop:
                         bad = next(g for g in range(b.G) if potrf(D[g].T.copy(), lower=1)[1])
                         raise _not_pd(int(b.members[bad])) from None
                     D[...] = np.swapaxes(L11, 1, 2)
-                    b.band.ravel()[b.bdst] = D.ravel()[b.bsrc]
+                    b.band.reshape(b.G, -1)[:, b.bdst] = D.reshape(b.G, -1)[:, b.bsrc]
                     if b.U:  # B = L21^T = L11^-1 B: one band solve for the bucket
                         BU = B.reshape(-1, b.U)
                         BU[...] = tbtrs(b.band.T, BU, uplo="L")[0]
@@ -392,7 +408,7 @@ class NumpyLoop:
                         if b.U:
                             trsm(1.0, DF, B[g].T, side=1, lower=1, trans_a=1, overwrite_b=1)
                     if b.G > 1:
-                        b.band.ravel()[b.bdst] = D.ravel()[b.bsrc]
+                        b.band.reshape(b.G, -1)[:, b.bdst] = D.reshape(b.G, -1)[:, b.bsrc]
                 if b.U:
                     if b.G == 1:
                         syrk(1.0, B[0].T, beta=0.0, c=b.W[0].T, lower=1, overwrite_c=1)
