@@ -63,6 +63,7 @@ _LAZY = {
     "io.toro": ("read_toro", "write_toro"),
     "core.variables": ("Values", "Variables"),
     "certify": ("CertifiedResult", "certified_pose_graph", "certify_poses"),
+    "online.incremental": ("IncrementalSmoother", "UpdateRecord"),
 }
 _WHERE = {name: module for module, names in _LAZY.items() for name in names}
 
@@ -106,6 +107,7 @@ if TYPE_CHECKING:
     from .core.strategies import Dogleg, GaussNewton, LevenbergMarquardt, Strategy, TrustRegion
     from .core.variables import Values, Variables
     from .io.bal import BALProblem, read_bal, write_bal
+    from .online.incremental import IncrementalSmoother, UpdateRecord
     from .io.g2o import read_g2o, write_g2o
     from .io.pose_graph import PoseGraph
     from .io.toro import read_toro, write_toro
@@ -135,4 +137,4 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "PinholeCamera", "ReprojectionFactor",
            "PoseGraph", "read_g2o",
            "write_g2o", "read_toro", "write_toro", "CertifiedResult", "certified_pose_graph",
-           "certify_poses"]
+           "certify_poses", "IncrementalSmoother", "UpdateRecord"]
