@@ -394,6 +394,26 @@ class IncrementalSmoother:
             P[live] = var.retract(P[live], self._dx[cols])
         return P
 
+    def max_step(self) -> float:
+        """The largest component of any variable's step from its linearisation point (what
+        the relinearisation threshold is compared with; 0 with no variables).
+
+        Returns
+        -------
+        float
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, PriorFactor, Diagonal
+        >>> s = IncrementalSmoother()
+        >>> x = s.add_variables(SE2.identity(1))
+        >>> _ = s.update([PriorFactor(x, 0, SE2.exp([0.5, 0, 0]), Diagonal([1, 1, 1]))])
+        >>> round(s.max_step(), 12)
+        0.5
+        """
+        return float(np.max(np.abs(self._dx))) if self._dx.size else 0.0
+
     def marginal_covariance(self, variables: Variables, idx: int) -> np.ndarray:
         """The marginal covariance of one variable from the current factorisation (the
         Gauss-Newton information at the linearisation points, as GTSAM's
