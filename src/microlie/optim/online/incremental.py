@@ -394,6 +394,30 @@ class IncrementalSmoother:
             P[live] = var.retract(P[live], self._dx[cols])
         return P
 
+    def linearization_point(self) -> Values:
+        """The linearisation points of the factorisation (GTSAM's ``getLinearizationPoint``;
+        the estimate is ``x_j Exp(delta_j)`` from them); elements that have not entered have
+        their initial values.
+
+        Returns
+        -------
+        Values
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, PriorFactor, Diagonal
+        >>> s = IncrementalSmoother(relinearize_skip=100)
+        >>> x = s.add_variables(SE2.identity(1))
+        >>> _ = s.update([PriorFactor(x, 0, SE2.exp([0.5, 0, 0]), Diagonal([1, 1, 1]))])
+        >>> s.linearization_point()[x].log().tolist()  # the step is not applied yet
+        [[0.0, 0.0, 0.0]]
+        """
+        self._sync()
+        vs = self.graph.variables
+        return Values(vs, [np.where(seen[:, None], lin, v.initial)
+                           for v, lin, seen in zip(vs, self._lin, self._seen, strict=True)])
+
     def max_step(self) -> float:
         """The largest component of any variable's step from its linearisation point (what
         the relinearisation threshold is compared with; 0 with no variables).
@@ -692,18 +716,18 @@ class IncrementalSmoother:
         return top
 
     def _detach(self, top: set[int]) -> tuple[list[tuple[tuple[int, ...], np.ndarray,
-                                                          np.ndarray]], list[int]]:
+                                                          np.ndarray, int]], list[int]]:
         """Remove the conditionals of ``top``; return the information to eliminate again (the
         rows with every node in ``top`` and the orphans' cached Schur complements) and the
         orphans."""
-        pool: list[tuple[tuple[int, ...], np.ndarray, np.ndarray]] = []
+        pool: list[tuple[tuple[int, ...], np.ndarray, np.ndarray, int]] = []
         orphans: list[int] = []
         seen: set[int] = set()
         for n in top:
             for ch in self._children[n]:
                 if ch not in top:
                     orphans.append(ch)
-                    pool.append((self._sep[ch], self._Hs[ch], self._bs[ch]))
+                    pool.append((self._sep[ch], self._Hs[ch], self._bs[ch], ch))
                     self._parent[ch] = -1
             self._children[n] = set()
             self._parent[n] = -1
@@ -712,7 +736,7 @@ class IncrementalSmoother:
                     continue
                 seen.add(id(r))
                 if all(m in top for m in r.nodes):
-                    pool.append((r.nodes, r.H, r.b))
+                    pool.append((r.nodes, r.H, r.b, -1))
         return pool, orphans
 
     def _order(self, top: set[int], pool: list, last: set[int]) -> list[int]:
@@ -724,7 +748,7 @@ class IncrementalSmoother:
             loc = {n: i for i, n in enumerate(head)}
             pairs_a: list[int] = []
             pairs_b: list[int] = []
-            for nodes, _, _ in pool:
+            for nodes, _, _, _ in pool:
                 ix = [loc[n] for n in nodes if n in loc]
                 for a in ix:
                     for b in ix:
@@ -766,7 +790,10 @@ class IncrementalSmoother:
                 o += self._dof[n]
             F = np.zeros((o, o))
             g = np.zeros(o)
-            for vs, H, b in items:
+            for vs, H, b, child in items:
+                if child >= 0:  # a subtree hangs from j
+                    self._parent[child] = j
+                    self._children[j].add(child)
                 ix = np.concatenate([np.arange(offs[n], offs[n] + self._dof[n]) for n in vs])
                 F[np.ix_(ix, ix)] += H
                 g[ix] += b
@@ -789,13 +816,9 @@ class IncrementalSmoother:
             bs = g[d:] - T.T @ c
             self._Hs[j] = Hs
             self._bs[j] = bs
+            self._parent[j] = -1
             if sep:
-                p = sep[0]
-                self._parent[j] = p
-                self._children[p].add(j)
-                waiting.setdefault(p, []).append((tuple(sep), Hs, bs))
-            else:
-                self._parent[j] = -1
+                waiting.setdefault(sep[0], []).append((tuple(sep), Hs, bs, j))
 
     def _solve(self, order: list[int], orphans: list[int]) -> int:
         """Back-substitute the re-eliminated nodes, then orphan subtrees where their
