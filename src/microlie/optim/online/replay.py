@@ -3,9 +3,10 @@
 
 from __future__ import annotations
 
+import argparse
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -14,7 +15,7 @@ from ..core.noise import Information, Isotropic
 from ..io.pose_graph import PoseGraph
 from .incremental import IncrementalSmoother
 
-__all__ = ["replay_pose_graph", "replay_schedule"]
+__all__ = ["replay_pose_graph", "replay_schedule", "run_incremental"]
 
 
 def replay_schedule(graph: PoseGraph) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
@@ -78,7 +79,8 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
     Parameters
     ----------
     graph : PoseGraph
-        With initial poses (vertex lines) for the vertices that have no odometry edge.
+        With initial poses (vertex lines) for the vertices that have no odometry edge
+        (without vertex lines: the first pose at the identity, every other by odometry).
     smoother : IncrementalSmoother, optional
         Default: ``IncrementalSmoother()`` (GTSAM's ISAM2 defaults).
     prior_sigma : float
@@ -112,8 +114,6 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
     >>> rep["updates"], rep["converged"], rep["final_cost"] < 1e-20
     (4, True, True)
     """
-    if graph.poses is None:
-        raise ValueError("graph: the replay needs the file's vertex poses (no VERTEX lines)")
     if not (np.isfinite(prior_sigma) and prior_sigma > 0):
         raise ValueError(f"prior_sigma must be a positive number, got {prior_sigma!r}")
     s = smoother if smoother is not None else IncrementalSmoother()
@@ -124,7 +124,13 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
     Zs = graph.measurements
     info = graph.information
     file_poses = graph.poses
-    assert file_poses is not None
+    if file_poses is None:  # no vertex lines: identity first pose, the rest by odometry
+        missing = np.flatnonzero(odometry[1:n] < 0)
+        if missing.size:
+            raise ValueError(f"graph: vertex {int(graph.ids[missing[0] + 1])} has no odometry "
+                             f"edge from the previous vertex and the file has no vertex poses "
+                             f"to start it from")
+        file_poses = graph.group.identity(V)
     x = s.add_variables(file_poses, name="poses")
     times = np.empty(n)
     t_start = time.perf_counter()
@@ -165,8 +171,69 @@ def _prefix(graph: PoseGraph, n: int) -> PoseGraph:
     """The first ``n`` vertices of ``graph`` and the edges among them."""
     ii, jj = graph.edge_index()
     keep = np.maximum(ii, jj) < n
-    assert graph.poses is not None
-    return graph.replace(ids=graph.ids[:n], poses=graph.poses[:n], i=graph.i[keep],
+    poses = None if graph.poses is None else graph.poses[:n]
+    return graph.replace(ids=graph.ids[:n], poses=poses, i=graph.i[keep],
                          j=graph.j[keep], measurements=graph.measurements[keep],
                          information=graph.information[keep],
                          fixed=graph.fixed[np.isin(graph.fixed, graph.ids[:n])])
+
+
+def run_incremental(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
+    r"""``microlie optimize FILE --incremental``: read the pose graph and replay it
+    (:func:`replay_pose_graph`, GTSAM's ISAM2 defaults).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        From ``microlie optimize``'s parser (``input``, ``format``, ``information``); options
+        of the batch solver do not apply (a ``ValueError`` names them).
+    err : text stream
+        Unused (the replay prints nothing while it runs).
+
+    Returns
+    -------
+    dict
+        The JSON report: ``final_cost``, ``updates``, ``update_ms_median``, ``update_ms_p99``,
+        ``total_s``, ``converged`` (see :func:`replay_pose_graph`), ``relinearized``,
+        ``reeliminated``, ``file``, ``problem``, ``incremental``.
+
+    Examples
+    --------
+    >>> import argparse, io, json, os, tempfile
+    >>> from microlie.optim.command import register, run
+    >>> path = os.path.join(tempfile.mkdtemp(), "tiny.g2o")
+    >>> _ = open(path, "w").write(
+    ...     "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0.9 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    >>> parser = argparse.ArgumentParser(prog="microlie")
+    >>> _ = register(parser.add_subparsers())
+    >>> out = io.StringIO()
+    >>> run(parser.parse_args(["optimize", path, "--incremental", "--json"]), out, io.StringIO())
+    0
+    >>> r = json.loads(out.getvalue())
+    >>> r["updates"], round(r["final_cost"], 12), r["converged"]
+    (2, 0.0, True)
+    """
+    from ..io.formats import FORMATS
+
+    del err
+    bad = [opt for opt, given in (("-o", args.output), ("--plot", args.plot),
+                                  ("--solver", args.solver), ("--robust", args.robust),
+                                  ("--certify", getattr(args, "certify", False)),
+                                  ("--example", getattr(args, "example", False)),
+                                  ("--init", args.init != "auto"),
+                                  ("--damping", getattr(args, "damping", None)))
+           if given]
+    if bad:
+        raise ValueError(f"--incremental replays the file with the incremental smoother: "
+                         f"{', '.join(bad)} do not apply (drop them)")
+    if args.format not in ("g2o", "toro"):
+        raise ValueError(f"--incremental replays pose graphs (g2o, toro), not {args.format}")
+    information = getattr(args, "information", None) or "strict"
+    graph = FORMATS[args.format].load("reader")(args.input, information=information)
+    rep = replay_pose_graph(graph)
+    for k in ("smoother", "poses", "update_ms"):
+        rep.pop(k)
+    rep.update(file=args.input, incremental=True,
+               problem=f"{graph.num_vertices} {graph.group.__name__} poses, "
+                       f"{graph.num_edges} edges")
+    return rep
