@@ -150,7 +150,7 @@ def main() -> int:
               f"{g['final_cost']:.6g} / {best:.10g} | {(o['final_cost'] - best) / best:.2e} | "
               f"{last.get('batch_cost', float('nan')):.10g} |")
         tot = o["total_s"]
-        print(f"|  | where our time goes: " + ", ".join(
+        print("|  | where our time goes: " + ", ".join(
             f"{k} {v:.2f} s ({100 * v / tot:.0f}%)" for k, v in o["parts"].items())
               + f"; {o['relinearized']} relinearisations, {o['reeliminated']} nodes "
               f"re-eliminated |")

@@ -107,13 +107,13 @@ if TYPE_CHECKING:
     from .core.strategies import Dogleg, GaussNewton, LevenbergMarquardt, Strategy, TrustRegion
     from .core.variables import Values, Variables
     from .io.bal import BALProblem, read_bal, write_bal
-    from .online.incremental import IncrementalSmoother, UpdateRecord
     from .io.g2o import read_g2o, write_g2o
     from .io.pose_graph import PoseGraph
     from .io.toro import read_toro, write_toro
     from .linalg.base import LinearSolver, SingularSystemError
     from .linalg.linear import available_solvers, make_solver
     from .linalg.schur_solver import SchurSolver
+    from .online.incremental import IncrementalSmoother, UpdateRecord
     from .sfm.bundle import (
         BundleGraph,
         BundleProblem,

@@ -68,6 +68,16 @@ class UpdateRecord:
         Wall time of the update.
     times : dict
         Its parts in seconds: ``linearize``, ``detach``, ``order``, ``eliminate``, ``solve``.
+
+    Examples
+    --------
+    >>> from microlie import SE2
+    >>> from microlie.optim import IncrementalSmoother, PriorFactor, Diagonal
+    >>> s = IncrementalSmoother()
+    >>> x = s.add_variables(SE2.identity(2))
+    >>> rec = s.update([PriorFactor(x, [0, 1], SE2.identity(), Diagonal([1, 1, 1]))])
+    >>> rec.factors_added, rec.variables_added, rec.reeliminated, s.records[-1] is rec
+    (2, 2, 2, True)
     """
 
     factors_added: int = 0
@@ -100,9 +110,9 @@ class IncrementalSmoother:
 
     Create a batch of variables with :meth:`add_variables`, with room for the whole run: an
     element enters at the first :meth:`update` whose factors or ``new_values`` name it (its
-    initial value is the batch's, or the one given in ``new_values``). Every factor kind of :class:`FactorGraph` works
-    (robust losses included); fixed variables (``fixed=``) are constants; variables with only
-    some components held are refused. The cost, steps and covariances are those of
+    initial value is the batch's, or the one given in ``new_values``). Every factor kind of
+    :class:`FactorGraph` works (robust losses included); fixed variables (``fixed=``) are
+    constants; variables with only some components held are refused. The cost, steps and covariances are those of
     :class:`FactorGraph` (right perturbation ``X Exp(delta)``, tangent translation first).
 
     Parameters
@@ -210,7 +220,7 @@ class IncrementalSmoother:
 
     # ------------------------------------------------------------------ update
     def update(self, new_factors: Iterable[Factor] = (),
-               new_values: Mapping[Variables, Any] | None = None,
+               new_values: Mapping[Any, Any] | None = None,
                remove: Iterable[Factor] = ()) -> UpdateRecord:
         """Add factors (and the variables created since the last update), optionally remove
         factors, relinearise where needed and update the estimate.
