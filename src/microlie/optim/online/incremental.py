@@ -113,7 +113,8 @@ class IncrementalSmoother:
     initial value is the batch's, or the one given in ``new_values``). Every factor kind of
     :class:`FactorGraph` works (robust losses included); fixed variables (``fixed=``) are
     constants; variables with only some components held are refused. The cost, steps and
-    covariances are those of :class:`FactorGraph` (right perturbation ``X Exp(delta)``, tangent translation first).
+    covariances are those of :class:`FactorGraph` (right perturbation ``X Exp(delta)``,
+    tangent translation first).
 
     Parameters
     ----------
