@@ -35,6 +35,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.linalg.lapack import dpotrf as _potrf  # type: ignore[import-untyped]
+from scipy.linalg.lapack import dtrtri as _trtri  # type: ignore[import-untyped]
 
 from ..core.factors import Factor
 from ..core.graph import FactorGraph
@@ -175,6 +177,8 @@ class IncrementalSmoother:
         self._idx: list[int] = []
         self._dof: list[int] = []
         self._off: list[int] = []
+        self._offa = np.zeros(16, dtype=np.int64)  # self._off as an array (with spare room)
+        self._fids: dict[int, int] = {}         # id(factor) -> its index in self._factors
         self._pos: list[int] = []
         self._sep: list[tuple[int, ...]] = []
         self._Rinv: list[np.ndarray] = []
@@ -269,7 +273,7 @@ class IncrementalSmoother:
         for f in new_factors:
             if not isinstance(f, Factor):
                 raise TypeError(f"new_factors: expected Factor objects, got {type(f).__name__}")
-            if any(f is g for g in self._factors):
+            if id(f) in self._fids:
                 raise ValueError(f"new_factors: {f.name} was already added")
         self._sync()
         for f in new_factors:
@@ -401,7 +405,7 @@ class IncrementalSmoother:
         P = np.where(self._seen[var.key][ix][:, None], self._lin[var.key][ix], var.initial[ix])
         live = nodes >= 0
         if live.any():
-            cols = (np.asarray(self._off)[nodes[live]][:, None] + np.arange(var.dof))
+            cols = (self._offa[nodes[live]][:, None] + np.arange(var.dof))
             P[live] = var.retract(P[live], self._dx[cols])
         return P
 
@@ -599,10 +603,14 @@ class IncrementalSmoother:
     def _enter(self, var: Variables, idx: np.ndarray) -> None:
         """Make elements ``idx`` of ``var`` enter (once): a node each unless fixed."""
         seen = self._seen[var.key]
-        new = np.unique(idx[~seen[idx]]) if np.ndim(idx) else (
-            np.array([idx]) if not seen[idx] else np.zeros(0, dtype=np.int64))
-        if new.size == 0:
-            return
+        if idx.size == 1:
+            if seen[idx[0]]:
+                return
+            new = idx
+        else:
+            new = np.unique(idx[~seen[idx]])
+            if new.size == 0:
+                return
         seen[new] = True
         self._lin[var.key][new] = var.initial[new]
         nodes = self._node_of[var.key]
@@ -612,6 +620,9 @@ class IncrementalSmoother:
             self._idx.append(int(i))
             self._dof.append(var.dof)
             self._off.append(self._size)
+            if len(self._off) > self._offa.size:
+                self._offa = np.concatenate([self._offa, np.zeros_like(self._offa)])
+            self._offa[len(self._off) - 1] = self._size
             self._size += var.dof
             self._pos.append(self._next_pos)
             self._next_pos += 1
@@ -628,6 +639,7 @@ class IncrementalSmoother:
     def _add_factor(self, f: Factor) -> list[_Row]:
         fid = len(self._factors)
         self._factors.append(f)
+        self._fids[id(f)] = fid
         nodes = [self._node_of[var.key][idx] for var, idx in f.args]
         rows = []
         for k in range(f.count):
@@ -642,7 +654,7 @@ class IncrementalSmoother:
         return rows
 
     def _remove(self, f: Factor, marked: set[int]) -> int:
-        fid = next((i for i, g in enumerate(self._factors) if g is f), None)
+        fid = self._fids.pop(id(f), None)
         if fid is None:
             raise ValueError(f"remove: {getattr(f, 'name', f)!r} is not a factor of this "
                              f"smoother")
@@ -658,7 +670,7 @@ class IncrementalSmoother:
         return len(rows)
 
     def _relinearize(self) -> np.ndarray:
-        off = np.asarray(self._off)
+        off = self._offa[:len(self._off)]
         big = np.maximum.reduceat(np.abs(self._dx), off) if off.size else off
         nodes = np.flatnonzero(big > self.relinearize_threshold)
         if nodes.size == 0:
@@ -809,14 +821,13 @@ class IncrementalSmoother:
                 F[np.ix_(ix, ix)] += H
                 g[ix] += b
             d = self._dof[j]
-            try:
-                L = np.linalg.cholesky(F[:d, :d])
-            except np.linalg.LinAlgError:
+            L, info = _potrf(F[:d, :d], lower=1, clean=1)
+            if info != 0:
                 var = self.graph.variables[self._key[j]]
                 raise ValueError(f"{var.name}[{self._idx[j]}] is not determined by the factors "
                                  f"(no prior or fixed variable anchors it, or a direction is "
                                  f"unobserved): add a prior or fix a variable") from None
-            Linv = np.linalg.inv(L)
+            Linv = _trtri(L, lower=1)[0]
             T = Linv @ F[:d, d:]
             c = Linv @ g[:d]
             self._Rinv[j] = Linv.T
