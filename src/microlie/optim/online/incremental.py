@@ -181,6 +181,7 @@ class IncrementalSmoother:
         self._fids: dict[int, int] = {}         # id(factor) -> its index in self._factors
         self._pos: list[int] = []
         self._sep: list[tuple[int, ...]] = []
+        self._sepcols: list[np.ndarray] = []    # the separator's columns in the step
         self._Rinv: list[np.ndarray] = []
         self._T: list[np.ndarray] = []
         self._c: list[np.ndarray] = []
@@ -627,6 +628,7 @@ class IncrementalSmoother:
             self._pos.append(self._next_pos)
             self._next_pos += 1
             self._sep.append(())
+            self._sepcols.append(np.zeros(0, dtype=np.int64))
             self._Rinv.append(np.zeros((0, 0)))
             self._T.append(np.zeros((0, 0)))
             self._c.append(np.zeros(0))
@@ -794,6 +796,8 @@ class IncrementalSmoother:
     def _eliminate(self, order: list[int], pool: list) -> None:
         """Multifrontal elimination of ``order`` (one variable per front)."""
         pos = self._pos
+        dof = self._dof
+        offa = self._offa
         waiting: dict[int, list] = {}
         for item in pool:
             if item[0]:
@@ -806,21 +810,32 @@ class IncrementalSmoother:
                 nodes.update(it[0])
             sep = sorted(nodes - {j}, key=pos.__getitem__)
             allv = [j] + sep
-            offs = {}
-            o = 0
-            for n in allv:
-                offs[n] = o
-                o += self._dof[n]
+            dofs = [dof[n] for n in allv]
+            if len(set(dofs)) == 1:  # one block size: local columns without a loop
+                dd = dofs[0]
+                ar = np.arange(dd)
+                loc = {n: i * dd for i, n in enumerate(allv)}
+                o = dd * len(allv)
+            else:
+                loc = {}
+                o = 0
+                for n, dn in zip(allv, dofs, strict=True):
+                    loc[n] = o
+                    o += dn
+                ar = None
             F = np.zeros((o, o))
             g = np.zeros(o)
             for vs, H, b, child in items:
                 if child >= 0:  # a subtree hangs from j
                     self._parent[child] = j
                     self._children[j].add(child)
-                ix = np.concatenate([np.arange(offs[n], offs[n] + self._dof[n]) for n in vs])
-                F[np.ix_(ix, ix)] += H
+                if ar is not None:
+                    ix = (np.array([loc[n] for n in vs])[:, None] + ar).ravel()
+                else:
+                    ix = np.concatenate([np.arange(loc[n], loc[n] + dof[n]) for n in vs])
+                F[ix[:, None], ix] += H
                 g[ix] += b
-            d = self._dof[j]
+            d = dof[j]
             L, info = _potrf(F[:d, :d], lower=1, clean=1)
             if info != 0:
                 var = self.graph.variables[self._key[j]]
@@ -834,6 +849,8 @@ class IncrementalSmoother:
             self._T[j] = T
             self._c[j] = c
             self._sep[j] = tuple(sep)
+            self._sepcols[j] = (np.concatenate([offa[n] + np.arange(dof[n]) for n in sep])
+                                if sep else np.zeros(0, dtype=np.int64))
             Hs = F[d:, d:] - T.T @ T
             bs = g[d:] - T.T @ c
             self._Hs[j] = Hs
@@ -850,14 +867,12 @@ class IncrementalSmoother:
         change: dict[int, float] = {}
 
         def back(k: int) -> None:
-            o0, d = off[k], self._dof[k]
-            v = self._c[k].copy()
-            if self._sep[k]:
-                xs = np.concatenate([dx[off[s]:off[s] + self._dof[s]] for s in self._sep[k]])
-                v -= self._T[k] @ xs
+            o0 = off[k]
+            o1 = o0 + self._dof[k]
+            v = self._c[k] - self._T[k] @ dx[self._sepcols[k]] if self._sep[k] else self._c[k]
             new = self._Rinv[k] @ v
-            change[k] = float(np.max(np.abs(new - dx[o0:o0 + d])))
-            dx[o0:o0 + d] = new
+            change[k] = float(np.abs(new - dx[o0:o1]).max())
+            dx[o0:o1] = new
 
         for k in reversed(order):
             back(k)
