@@ -572,9 +572,6 @@ class IncrementalSmoother:
     def _sync(self) -> None:
         """Register the handles added to the graph since the last call."""
         for v in self.graph.variables[len(self._seen):]:
-            if v.held.any() and not np.array_equal(v.held.all(1), v.fixed):
-                raise ValueError(f"{v.name}: held components are not supported by "
-                                 f"IncrementalSmoother; fix whole variables instead")
             self._lin.append(np.asarray(v.initial, dtype=np.float64).copy())
             self._node_of.append(np.full(v.n, -1, dtype=np.int64))
             self._seen.append(np.zeros(v.n, dtype=bool))
@@ -612,6 +609,11 @@ class IncrementalSmoother:
             new = np.unique(idx[~seen[idx]])
             if new.size == 0:
                 return
+        part = var.held[new].any(1) & ~var.held[new].all(1)
+        if part.any():
+            raise ValueError(f"{var.name}[{int(new[np.flatnonzero(part)[0]])}]: held components "
+                             f"are not supported by IncrementalSmoother; fix whole variables "
+                             f"instead")
         seen[new] = True
         self._lin[var.key][new] = var.initial[new]
         nodes = self._node_of[var.key]
