@@ -66,6 +66,7 @@ _LAZY = {
     "io.toro": ("read_toro", "write_toro"),
     "core.variables": ("Values", "Variables"),
     "certify": ("CertifiedResult", "certified_pose_graph", "certify_poses"),
+    "online.incremental": ("IncrementalSmoother", "UpdateRecord"),
 }
 _WHERE = {name: module for module, names in _LAZY.items() for name in names}
 
@@ -116,6 +117,7 @@ if TYPE_CHECKING:
     from .linalg.base import LinearSolver, SingularSystemError
     from .linalg.linear import available_solvers, make_solver
     from .linalg.schur_solver import SchurSolver
+    from .online.incremental import IncrementalSmoother, UpdateRecord
     from .sfm.bundle import (
         BundleGraph,
         BundleProblem,
@@ -139,4 +141,4 @@ __all__ = ["FactorGraph", "from_pose_graph", "Variables", "Values", "Factor", "P
            "PinholeCamera", "ReprojectionFactor",
            "PoseGraph", "read_g2o",
            "write_g2o", "read_toro", "write_toro", "CertifiedResult", "certified_pose_graph",
-           "certify_poses"]
+           "certify_poses", "IncrementalSmoother", "UpdateRecord"]

@@ -171,6 +171,12 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="allow -o or --plot to overwrite the input file")
     _add_policy_options(p)
+    # issue 23: replay pose by pose through the incremental smoother
+    p.add_argument("--incremental", action="store_true",
+                   help="pose graphs: replay the file pose by pose (vertices in id order, each "
+                        "edge when its later vertex arrives, new poses predicted through their "
+                        "odometry edge) through the incremental smoother and report its "
+                        "per-update times (microlie.optim.online.replay)")
     talk = p.add_mutually_exclusive_group()
     talk.add_argument("-v", "--verbose", action="store_true",
                       help="print the iteration table on stderr even when it is not a terminal")
@@ -316,6 +322,11 @@ def run(args: argparse.Namespace, out: TextIO | None = None, err: TextIO | None 
 
 def _summary(r: dict) -> str:
     head = f"{_label(r.get('file'))}: {r.get('problem', '')}".rstrip()
+    if r.get("incremental"):
+        return (f"{head}\n  incremental replay: {r['updates']} updates, cost {r['final_cost']:.10g}"
+                f", {r['total_s']:.3f} s (update median {r['update_ms_median']:.3f} ms, 99th "
+                f"percentile {r['update_ms_p99']:.3f} ms), "
+                f"{'converged' if r['converged'] else 'not converged'}")
     text = (f"{head}\n  {r['solver']} ({r['linear_solver']}), start {r.get('init', '-')}: "
             f"cost {r['initial_cost']:.10g} -> {r['final_cost']:.10g} in {r['iterations']} "
             f"iterations, {r['time_s']:.3f} s, "
@@ -383,6 +394,10 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     """
     from .init import InitMethod, initialize
 
+    if getattr(args, "incremental", False):
+        from .online.replay import run_incremental
+
+        return run_incremental(args, err)
     solver = args.solver or "lm"
     damping, information = policy_options(args, solver)
     t0 = time.perf_counter()

@@ -123,6 +123,32 @@ class FactorGraph:
         self._changed()
         return factor
 
+    def remove(self, factor: Factor) -> None:
+        """Remove a factor batch added with :meth:`add`.
+
+        Parameters
+        ----------
+        factor : Factor
+            A batch of this graph (the same object); otherwise a ``ValueError``.
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(1))
+        >>> f = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> g.remove(f)
+        >>> len(g.factors)
+        0
+        """
+        keep = [f for f in self.factors if f is not factor]
+        if len(keep) == len(self.factors):
+            raise ValueError(f"factor: {getattr(factor, 'name', factor)!r} is not a factor of "
+                             f"this graph")
+        self.factors = keep
+        self._changed()
+
     def fix(self, variables: Variables, idx: Any = None, components: Any = None) -> None:
         """Hold ``variables[idx]`` constant, or only their tangent ``components`` (the same as
         ``variables.fix(idx, components)``).

@@ -1,0 +1,1 @@
+"""Online estimation: incremental smoothing (:mod:`.incremental`)."""

@@ -1,0 +1,889 @@
+"""Incremental smoothing: iSAM2's algorithm on a variable-level Bayes tree.
+
+:class:`IncrementalSmoother` keeps the square-root information factor of the whole graph as a
+Bayes tree with one variable per clique (an elimination tree): node ``j`` stores its conditional
+``R_j x_j = c_j - T_j x_S`` on its separator ``S`` (variables eliminated after it) and the
+information its whole subtree passes to ``S`` (the Schur complement ``(H_S, b_S)``). An update
+(Kaess et al., "iSAM2: Incremental Smoothing and Mapping Using the Bayes Tree", IJRR 2012,
+Algorithms 4-6):
+
+1. new variables enter with zero step; every ``relinearize_skip``-th update the variables whose
+   step ``|delta_j|_inf`` exceeds ``relinearize_threshold`` are relinearised (their linearisation
+   point becomes ``x_j Exp(delta_j)``) and every factor touching them is linearised again;
+2. the nodes that consumed a new, removed or relinearised factor and all their ancestors (the
+   top of the tree) are detached; the subtrees hanging from them (orphans) keep their cached
+   Schur complements;
+3. the detached variables are ordered again (approximate minimum degree over them, the variables
+   of the new factors constrained last) and eliminated again from their factors and the orphans'
+   cached information;
+4. the step is back-substituted from the re-eliminated nodes downwards, entering an orphan
+   subtree only where its separator's step changed by more than ``wildfire`` (partial
+   back-substitution).
+
+Why a variable-level tree and not an incremental supernodal Cholesky: re-factoring "the trailing
+part of a fixed ordering" re-eliminates everything after the oldest touched variable (on a loop
+closure to an early pose: nearly everything), while the tree re-eliminates only the path to the
+root and reorders it, which keeps later updates local. Grouping nodes into supernodes (cliques)
+is an optimisation of the same structure, not done yet.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.linalg.lapack import dpotrf as _potrf  # type: ignore[import-untyped]
+from scipy.linalg.lapack import dtrtri as _trtri  # type: ignore[import-untyped]
+
+from ..core.factors import Factor
+from ..core.graph import FactorGraph
+from ..core.robust import corrected_weights
+from ..core.solvers import Result
+from ..core.variables import Values, Variables
+from ..linalg.ordering import minimum_degree_blocks
+
+__all__ = ["IncrementalSmoother", "UpdateRecord"]
+
+
+@dataclass
+class UpdateRecord:
+    """What one :meth:`IncrementalSmoother.update` did.
+
+    Attributes
+    ----------
+    factors_added : int
+        Factor rows (residuals) added.
+    factors_removed : int
+        Factor rows removed.
+    variables_added : int
+        Variables (elements) that entered.
+    relinearized : int
+        Variables whose linearisation point moved.
+    reeliminated : int
+        Nodes (variables; one per clique of the tree) eliminated again.
+    backsubstituted : int
+        Nodes whose step was recomputed.
+    time_s : float
+        Wall time of the update.
+    times : dict
+        Its parts in seconds: ``linearize``, ``detach``, ``order``, ``eliminate``, ``solve``.
+
+    Examples
+    --------
+    >>> from microlie import SE2
+    >>> from microlie.optim import IncrementalSmoother, PriorFactor, Diagonal
+    >>> s = IncrementalSmoother()
+    >>> x = s.add_variables(SE2.identity(2))
+    >>> rec = s.update([PriorFactor(x, [0, 1], SE2.identity(), Diagonal([1, 1, 1]))])
+    >>> rec.factors_added, rec.variables_added, rec.reeliminated, s.records[-1] is rec
+    (2, 2, 2, True)
+    """
+
+    factors_added: int = 0
+    factors_removed: int = 0
+    variables_added: int = 0
+    relinearized: int = 0
+    reeliminated: int = 0
+    backsubstituted: int = 0
+    time_s: float = 0.0
+    times: dict[str, float] = field(default_factory=dict)
+
+
+class _Row:
+    """One linearised residual: its nodes (free variables, in argument order), its columns in
+    the stacked argument Jacobian, and ``H = A^T A``, ``b = -A^T e`` over the nodes."""
+
+    __slots__ = ("fid", "k", "nodes", "H", "b")
+
+    def __init__(self, fid: int, k: int, nodes: tuple[int, ...]) -> None:
+        self.fid = fid
+        self.k = k
+        self.nodes = nodes
+        self.H: np.ndarray = np.zeros((0, 0))
+        self.b: np.ndarray = np.zeros(0)
+
+
+class IncrementalSmoother:
+    """An incremental nonlinear least-squares smoother (GTSAM's ISAM2): add variables and
+    factors as they arrive, keep the estimate current at a cost that depends on what changed.
+
+    Create a batch of variables with :meth:`add_variables`, with room for the whole run: an
+    element enters at the first :meth:`update` whose factors or ``new_values`` name it (its
+    initial value is the batch's, or the one given in ``new_values``). Every factor kind of
+    :class:`FactorGraph` works (robust losses included); fixed variables (``fixed=``) are
+    constants; variables with only some components held are refused. The cost, steps and
+    covariances are those of :class:`FactorGraph` (right perturbation ``X Exp(delta)``,
+    tangent translation first).
+
+    Parameters
+    ----------
+    relinearize_threshold : float
+        A variable is relinearised when its step's largest component (tangent units, radians
+        and metres) exceeds this (GTSAM's ``relinearizeThreshold``, default 0.1).
+    relinearize_skip : int
+        Check for relinearisation at every ``relinearize_skip``-th update only (GTSAM's
+        ``relinearizeSkip``, default 10; the first update checks).
+    wildfire : float
+        Partial back-substitution: an untouched subtree's step is recomputed only where its
+        separator's step changed by more than this (GTSAM's default 0.001; 0 recomputes every
+        step that changed).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import IncrementalSmoother, PriorFactor, BetweenFactor, Diagonal
+    >>> s = IncrementalSmoother()
+    >>> x = s.add_variables(SE2.identity(100))  # room for 100 poses; none has entered yet
+    >>> sigma = Diagonal([0.1, 0.1, 0.1])
+    >>> rec = s.update([PriorFactor(x, 0, SE2.identity(), sigma)])
+    >>> step = SE2.exp([1.0, 0.0, 0.1])
+    >>> for k in range(1, 4):  # each new pose predicted from the estimate, then its edge
+    ...     guess = s.calculate_estimate(x, [k - 1]) @ step
+    ...     rec = s.update([BetweenFactor(x, k - 1, k, step, sigma)], {(x, k): guess})
+    >>> rec.variables_added, rec.factors_added, rec.reeliminated
+    (1, 1, 2)
+    >>> (np.round(s.calculate_estimate(x, [3]).log(), 6) + 0.0).tolist()
+    [[3.0, 0.0, 0.3]]
+    """
+
+    def __init__(self, relinearize_threshold: float = 0.1, relinearize_skip: int = 10,
+                 wildfire: float = 0.001) -> None:
+        if not (np.isfinite(relinearize_threshold) and relinearize_threshold >= 0):
+            raise ValueError(f"relinearize_threshold must be a finite number >= 0, got "
+                             f"{relinearize_threshold!r}")
+        if int(relinearize_skip) != relinearize_skip or relinearize_skip < 1:
+            raise ValueError(f"relinearize_skip must be a positive integer, got "
+                             f"{relinearize_skip!r}")
+        if not (np.isfinite(wildfire) and wildfire >= 0):
+            raise ValueError(f"wildfire must be a finite number >= 0, got {wildfire!r}")
+        self.relinearize_threshold = float(relinearize_threshold)
+        self.relinearize_skip = int(relinearize_skip)
+        self.wildfire = float(wildfire)
+        #: The accumulated graph (every variable and factor added, none removed).
+        self.graph = FactorGraph()
+        #: One record per :meth:`update`.
+        self.records: list[UpdateRecord] = []
+        self._lin: list[np.ndarray] = []        # linearisation points per handle
+        self._node_of: list[np.ndarray] = []    # node id per element (-1: fixed or pending)
+        self._seen: list[np.ndarray] = []       # per handle: elements that have entered
+        self._factors: list[Factor | None] = []
+        self._rows: list[list[_Row]] = []       # rows per factor batch
+        # per node
+        self._key: list[int] = []
+        self._idx: list[int] = []
+        self._dof: list[int] = []
+        self._off: list[int] = []
+        self._offa = np.zeros(16, dtype=np.int64)  # self._off as an array (with spare room)
+        self._fids: dict[int, int] = {}         # id(factor) -> its index in self._factors
+        self._pos: list[int] = []
+        self._sep: list[tuple[int, ...]] = []
+        self._sepcols: list[np.ndarray] = []    # the separator's columns in the step
+        self._Rinv: list[np.ndarray] = []
+        self._T: list[np.ndarray] = []
+        self._c: list[np.ndarray] = []
+        self._Hs: list[np.ndarray] = []
+        self._bs: list[np.ndarray] = []
+        self._parent: list[int] = []
+        self._children: list[set[int]] = []
+        self._node_rows: list[list[_Row]] = []
+        self._dx = np.zeros(0)
+        self._size = 0
+        self._next_pos = 0
+        self._updates = 0
+
+    # ------------------------------------------------------------------ building
+    def add_variables(self, values: Any, fixed: Any = None, name: str | None = None
+                      ) -> Variables:
+        """Add a batch of variables; an element enters the estimate at the first :meth:`update`
+        whose factors or ``new_values`` name it.
+
+        Parameters
+        ----------
+        values : LieGroup or array_like
+            Initial values, as :meth:`FactorGraph.add_variables`.
+        fixed : optional
+            Variables held constant (indices, a mask or ``True``).
+        name : str, optional
+            A label for messages.
+
+        Returns
+        -------
+        Variables
+            The handle factors refer to.
+
+        Examples
+        --------
+        >>> from microlie import SE3
+        >>> from microlie.optim import IncrementalSmoother
+        >>> IncrementalSmoother().add_variables(SE3.identity(2), name="x")
+        Variables('x', SE3, n=2, fixed=0)
+        """
+        return self.graph.add_variables(values, fixed=fixed, name=name)
+
+    # ------------------------------------------------------------------ update
+    def update(self, new_factors: Iterable[Factor] = (),
+               new_values: Mapping[Any, Any] | None = None,
+               remove: Iterable[Factor] = ()) -> UpdateRecord:
+        """Add factors (and the variables created since the last update), optionally remove
+        factors, relinearise where needed and update the estimate.
+
+        Parameters
+        ----------
+        new_factors : iterable of Factor
+            Factor batches over this smoother's variables.
+        new_values : mapping, optional
+            Initial values of elements that have not entered yet (GTSAM's ``newTheta``), keyed
+            by ``(handle, index)`` (``index`` an int or a tuple of ints; the value one element
+            or a batch) or by a handle (all its elements). They replace the values given to
+            :meth:`add_variables` and make the elements enter.
+        remove : iterable of Factor
+            Factor batches added earlier, removed now (:meth:`remove_factors`).
+
+        Returns
+        -------
+        UpdateRecord
+            Also appended to :attr:`records`. The estimate: :meth:`calculate_estimate`.
+
+        Raises
+        ------
+        ValueError
+            A factor of another graph or added twice, a value for a variable that has already
+            entered, held components, or a variable the factors leave undetermined (no prior
+            and no fixed variable anchors it).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, PriorFactor, Diagonal
+        >>> s = IncrementalSmoother()
+        >>> x = s.add_variables(SE2.identity(2))
+        >>> rec = s.update([PriorFactor(x, [0, 1], SE2.exp([[1.0, 0, 0], [2.0, 0, 0]]),
+        ...                             Diagonal([0.1, 0.1, 0.1]))])
+        >>> np.round(s.calculate_estimate(x).translation()[:, 0], 9).tolist()
+        [1.0, 2.0]
+        """
+        t0 = time.perf_counter()
+        new_factors = list(new_factors)
+        remove = list(remove)
+        rec = UpdateRecord()
+        for f in new_factors:
+            if not isinstance(f, Factor):
+                raise TypeError(f"new_factors: expected Factor objects, got {type(f).__name__}")
+            if id(f) in self._fids:
+                raise ValueError(f"new_factors: {f.name} was already added")
+        self._sync()
+        for f in new_factors:
+            for var, _ in f.args:
+                if var.graph is not self.graph:
+                    raise ValueError(f"new_factors: {f.name} refers to {var!r} of another "
+                                     f"graph")
+        first = len(self._key)
+        self._set_values(new_values)
+        for f in new_factors:
+            for var, idx in f.args:
+                self._enter(var, idx)
+        rec.variables_added = len(self._key) - first
+        if rec.variables_added:
+            self._dx = np.concatenate([self._dx, np.zeros(self._size - self._dx.size)])
+        for f in new_factors:
+            self.graph.add(f)
+        times = rec.times
+        ta = time.perf_counter()
+        marked: set[int] = set()
+        last: set[int] = set(range(first, len(self._key)))
+        for f in remove:
+            rec.factors_removed += self._remove(f, marked)
+        new_rows: list[_Row] = []
+        for f in new_factors:
+            rows = self._add_factor(f)
+            new_rows.extend(rows)
+            rec.factors_added += len(rows)
+        relin: np.ndarray = np.zeros(0, dtype=np.int64)
+        if self._updates % self.relinearize_skip == 0 and self._size:
+            relin = self._relinearize()
+        rec.relinearized = int(relin.size)
+        redo = self._rows_touching(relin)
+        for r in new_rows:
+            redo.setdefault(id(r), r)
+            last.update(r.nodes)
+        self._linearize(list(redo.values()))
+        for r in redo.values():
+            if r.nodes:
+                marked.add(min(r.nodes, key=self._pos.__getitem__))
+        marked.update(last)
+        marked.update(int(n) for n in relin)
+        tb = time.perf_counter()
+        times["linearize"] = tb - ta
+        top = self._ancestors(marked)
+        pool, orphans = self._detach(top)
+        tc = time.perf_counter()
+        times["detach"] = tc - tb
+        order = self._order(top, pool, last)
+        td = time.perf_counter()
+        times["order"] = td - tc
+        self._eliminate(order, pool)
+        te = time.perf_counter()
+        times["eliminate"] = te - td
+        rec.reeliminated = len(order)
+        rec.backsubstituted = self._solve(order, orphans)
+        times["solve"] = time.perf_counter() - te
+        self._updates += 1
+        rec.time_s = time.perf_counter() - t0
+        self.records.append(rec)
+        return rec
+
+    def remove_factors(self, factors: Iterable[Factor]) -> UpdateRecord:
+        """Remove factor batches added earlier (outlier rejection after the fact) and update
+        the estimate: ``update(remove=factors)``.
+
+        Parameters
+        ----------
+        factors : iterable of Factor
+            Batches given to :meth:`update` before.
+
+        Returns
+        -------
+        UpdateRecord
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, PriorFactor, Diagonal
+        >>> s = IncrementalSmoother()
+        >>> x = s.add_variables(SE2.identity(1))
+        >>> sig = Diagonal([0.1, 0.1, 0.1])
+        >>> good = PriorFactor(x, 0, SE2.exp([1.0, 0, 0]), sig)
+        >>> bad = PriorFactor(x, 0, SE2.exp([5.0, 0, 0]), sig)
+        >>> _ = s.update([good, bad])
+        >>> _ = s.remove_factors([bad])
+        >>> round(float(s.calculate_estimate(x).translation()[0, 0]), 9)
+        1.0
+        """
+        return self.update(remove=factors)
+
+    # ------------------------------------------------------------------ results
+    def calculate_estimate(self, variables: Variables | None = None, idx: Any = None) -> Any:
+        """The current estimate ``x_j Exp(delta_j)`` (GTSAM's ``calculateEstimate``).
+
+        Parameters
+        ----------
+        variables : Variables, optional
+            One handle: its values only (a group batch or an array); ``None``: all.
+        idx : optional
+            Indices into ``variables`` (all if ``None``).
+
+        Returns
+        -------
+        Values or LieGroup or numpy.ndarray
+            Variables that have not entered yet have their initial values.
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother
+        >>> s = IncrementalSmoother()
+        >>> x = s.add_variables(SE2.identity(2))
+        >>> s.calculate_estimate()[x].batch_shape
+        (2,)
+        """
+        if variables is None:
+            vs = self.graph.variables
+            return Values(vs, [self._params(v, np.arange(v.n)) for v in vs])
+        self._check_handle(variables, "variables")
+        ix = np.arange(variables.n) if idx is None else variables.indices(idx)
+        return variables.wrap(self._params(variables, ix))
+
+    def _params(self, var: Variables, ix: np.ndarray) -> np.ndarray:
+        if var.key >= len(self._seen):
+            return var.initial[ix].copy()
+        nodes = self._node_of[var.key][ix]
+        P = np.where(self._seen[var.key][ix][:, None], self._lin[var.key][ix], var.initial[ix])
+        live = nodes >= 0
+        if live.any():
+            cols = (self._offa[nodes[live]][:, None] + np.arange(var.dof))
+            P[live] = var.retract(P[live], self._dx[cols])
+        return P
+
+    def linearization_point(self) -> Values:
+        """The linearisation points of the factorisation (GTSAM's ``getLinearizationPoint``;
+        the estimate is ``x_j Exp(delta_j)`` from them); elements that have not entered have
+        their initial values.
+
+        Returns
+        -------
+        Values
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, PriorFactor, Diagonal
+        >>> s = IncrementalSmoother(relinearize_skip=100)
+        >>> x = s.add_variables(SE2.identity(1))
+        >>> _ = s.update([PriorFactor(x, 0, SE2.exp([0.5, 0, 0]), Diagonal([1, 1, 1]))])
+        >>> s.linearization_point()[x].log().tolist()  # the step is not applied yet
+        [[0.0, 0.0, 0.0]]
+        """
+        self._sync()
+        vs = self.graph.variables
+        return Values(vs, [np.where(seen[:, None], lin, v.initial)
+                           for v, lin, seen in zip(vs, self._lin, self._seen, strict=True)])
+
+    def max_step(self) -> float:
+        """The largest component of any variable's step from its linearisation point (what
+        the relinearisation threshold is compared with; 0 with no variables).
+
+        Returns
+        -------
+        float
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, PriorFactor, Diagonal
+        >>> s = IncrementalSmoother()
+        >>> x = s.add_variables(SE2.identity(1))
+        >>> _ = s.update([PriorFactor(x, 0, SE2.exp([0.5, 0, 0]), Diagonal([1, 1, 1]))])
+        >>> round(s.max_step(), 12)
+        0.5
+        """
+        return float(np.max(np.abs(self._dx))) if self._dx.size else 0.0
+
+    def marginal_covariance(self, variables: Variables, idx: int) -> np.ndarray:
+        """The marginal covariance of one variable from the current factorisation (the
+        Gauss-Newton information at the linearisation points, as GTSAM's
+        ``marginalCovariance``), in the right-perturbation frame.
+
+        Parameters
+        ----------
+        variables : Variables
+            A handle of this smoother.
+        idx : int
+            The variable's index in the batch.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(dof, dof)``.
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, PriorFactor, Diagonal
+        >>> s = IncrementalSmoother()
+        >>> x = s.add_variables(SE2.identity(1))
+        >>> _ = s.update([PriorFactor(x, 0, SE2.identity(), Diagonal([0.1, 0.2, 0.3]))])
+        >>> s.marginal_covariance(x, 0).diagonal().round(9).tolist()
+        [0.01, 0.04, 0.09]
+        """
+        self._check_handle(variables, "variables")
+        i = int(variables.indices(idx)[0])
+        if variables.key >= len(self._seen) or not self._seen[variables.key][i]:
+            raise ValueError(f"variables: {variables.name}[{i}] has not entered yet (call "
+                             f"update first)")
+        j = int(self._node_of[variables.key][i])
+        if j < 0:
+            raise ValueError(f"variables: {variables.name}[{i}] is fixed: it has no marginal "
+                             f"covariance")
+        path = [j]
+        while self._parent[path[-1]] >= 0:
+            path.append(self._parent[path[-1]])
+        d = self._dof[j]
+        # forward: R^T y = e_j over the path (pos order), then back: R x = y
+        y: dict[int, np.ndarray] = {}
+        acc: dict[int, np.ndarray] = {j: np.eye(d)}
+        for k in path:
+            rhs = acc.pop(k, None)  # R_k^T y_k = rhs, R_k^-T = Rinv_k^T
+            yk = self._Rinv[k].T @ rhs if rhs is not None else np.zeros((self._dof[k], d))
+            y[k] = yk
+            o = 0
+            for s in self._sep[k]:
+                ds = self._dof[s]
+                contrib = -self._T[k][:, o:o + ds].T @ yk
+                acc[s] = acc[s] + contrib if s in acc else contrib
+                o += ds
+        x: dict[int, np.ndarray] = {}
+        for k in reversed(path):
+            v = y[k].copy()
+            o = 0
+            for s in self._sep[k]:
+                ds = self._dof[s]
+                v -= self._T[k][:, o:o + ds] @ x[s]
+                o += ds
+            x[k] = self._Rinv[k] @ v
+        C = x[j]
+        return 0.5 * (C + C.T)
+
+    def optimize(self, **options: Any) -> Result:
+        """Solve the accumulated graph in batch (:meth:`FactorGraph.optimize` from the current
+        estimate, the same answer) and restart the factorisation at its solution.
+
+        Parameters
+        ----------
+        **options
+            Passed to :meth:`FactorGraph.optimize` (``solver``, ``max_iter``, ...).
+
+        Returns
+        -------
+        Result
+
+        Examples
+        --------
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, PriorFactor, Diagonal
+        >>> s = IncrementalSmoother()
+        >>> x = s.add_variables(SE2.identity(1))
+        >>> _ = s.update([PriorFactor(x, 0, SE2.exp([1.0, 2.0, 3.0]), Diagonal([1, 1, 1]))])
+        >>> s.optimize().final_cost < 1e-20
+        True
+        """
+        self._sync()
+        saved = [v.fixed.copy() for v in self.graph.variables]
+        try:  # elements that have not entered are not part of the accumulated graph
+            for v, seen in zip(self.graph.variables, self._seen, strict=True):
+                v.fixed = v.fixed | ~seen
+            res = self.graph.optimize(self.calculate_estimate(), **options)
+        finally:
+            for v, fx in zip(self.graph.variables, saved, strict=True):
+                v.fixed = fx
+        for v in self.graph.variables:
+            self._lin[v.key] = np.asarray(res.values.params(v), dtype=np.float64).copy()
+        self._dx[:] = 0.0
+        rows = [r for rs in self._rows for r in rs]
+        self._linearize(rows)
+        top = self._ancestors(set(range(len(self._key))))
+        pool, orphans = self._detach(top)
+        order = self._order(top, pool, set())
+        self._eliminate(order, pool)
+        self._solve(order, orphans)
+        return res
+
+    # ------------------------------------------------------------------ internals
+    def _check_handle(self, var: Any, what: str) -> None:
+        if not isinstance(var, Variables) or var.graph is not self.graph:
+            raise ValueError(f"{what}: expected a Variables handle of this smoother "
+                             f"(IncrementalSmoother.add_variables), got {var!r}")
+
+    def _sync(self) -> None:
+        """Register the handles added to the graph since the last call."""
+        for v in self.graph.variables[len(self._seen):]:
+            self._lin.append(np.asarray(v.initial, dtype=np.float64).copy())
+            self._node_of.append(np.full(v.n, -1, dtype=np.int64))
+            self._seen.append(np.zeros(v.n, dtype=bool))
+
+    def _set_values(self, new_values: Mapping[Any, Any] | None) -> None:
+        if new_values is None:
+            return
+        if not isinstance(new_values, Mapping):
+            raise ValueError("new_values: expected a mapping {Variables or (Variables, index): "
+                             "values}")
+        for what, val in new_values.items():
+            var, idx = what if isinstance(what, tuple) else (what, None)
+            self._check_handle(var, "new_values")
+            ix = np.arange(var.n) if idx is None else var.indices(idx, "new_values index")
+            if self._seen[var.key][ix].any():
+                bad = int(ix[np.flatnonzero(self._seen[var.key][ix])[0]])
+                raise ValueError(f"new_values: {var.name}[{bad}] has already entered; its "
+                                 f"value is the estimate's")
+            p = np.asarray(var.params_of(val), dtype=np.float64)
+            shape = (ix.size,) + var.initial.shape[1:]
+            if p.reshape((-1,) + var.initial.shape[1:]).shape != shape:
+                raise ValueError(f"new_values: {var.name} takes values of shape {shape}, "
+                                 f"got {p.shape}")
+            var.initial[ix] = p.reshape(shape)
+            self._enter(var, ix)
+
+    def _enter(self, var: Variables, idx: np.ndarray) -> None:
+        """Make elements ``idx`` of ``var`` enter (once): a node each unless fixed."""
+        seen = self._seen[var.key]
+        if idx.size == 1:
+            if seen[idx[0]]:
+                return
+            new = idx
+        else:
+            new = np.unique(idx[~seen[idx]])
+            if new.size == 0:
+                return
+        part = var.held[new].any(1) & ~var.held[new].all(1)
+        if part.any():
+            raise ValueError(f"{var.name}[{int(new[np.flatnonzero(part)[0]])}]: held components "
+                             f"are not supported by IncrementalSmoother; fix whole variables "
+                             f"instead")
+        seen[new] = True
+        self._lin[var.key][new] = var.initial[new]
+        nodes = self._node_of[var.key]
+        for i in new[~var.fixed[new]]:
+            nodes[i] = len(self._key)
+            self._key.append(var.key)
+            self._idx.append(int(i))
+            self._dof.append(var.dof)
+            self._off.append(self._size)
+            if len(self._off) > self._offa.size:
+                self._offa = np.concatenate([self._offa, np.zeros_like(self._offa)])
+            self._offa[len(self._off) - 1] = self._size
+            self._size += var.dof
+            self._pos.append(self._next_pos)
+            self._next_pos += 1
+            self._sep.append(())
+            self._sepcols.append(np.zeros(0, dtype=np.int64))
+            self._Rinv.append(np.zeros((0, 0)))
+            self._T.append(np.zeros((0, 0)))
+            self._c.append(np.zeros(0))
+            self._Hs.append(np.zeros((0, 0)))
+            self._bs.append(np.zeros(0))
+            self._parent.append(-1)
+            self._children.append(set())
+            self._node_rows.append([])
+
+    def _add_factor(self, f: Factor) -> list[_Row]:
+        fid = len(self._factors)
+        self._factors.append(f)
+        self._fids[id(f)] = fid
+        nodes = [self._node_of[var.key][idx] for var, idx in f.args]
+        rows = []
+        for k in range(f.count):
+            nk = tuple(int(n[k]) for n in nodes if n[k] >= 0)
+            if len(set(nk)) != len(nk):
+                raise ValueError(f"new_factors: {f.name} row {k} takes the same variable twice")
+            r = _Row(fid, k, nk)
+            rows.append(r)
+            for n in nk:
+                self._node_rows[n].append(r)
+        self._rows.append(rows)
+        return rows
+
+    def _remove(self, f: Factor, marked: set[int]) -> int:
+        fid = self._fids.pop(id(f), None)
+        if fid is None:
+            raise ValueError(f"remove: {getattr(f, 'name', f)!r} is not a factor of this "
+                             f"smoother")
+        rows = self._rows[fid]
+        for r in rows:
+            if r.nodes:
+                marked.add(min(r.nodes, key=self._pos.__getitem__))
+            for n in r.nodes:
+                self._node_rows[n].remove(r)
+        self._factors[fid] = None
+        self._rows[fid] = []
+        self.graph.remove(f)
+        return len(rows)
+
+    def _relinearize(self) -> np.ndarray:
+        off = self._offa[:len(self._off)]
+        big = np.maximum.reduceat(np.abs(self._dx), off) if off.size else off
+        nodes = np.flatnonzero(big > self.relinearize_threshold)
+        if nodes.size == 0:
+            return nodes
+        keys = np.asarray(self._key)[nodes]
+        for key in np.unique(keys):
+            sel = nodes[keys == key]
+            var = self.graph.variables[key]
+            ix = np.asarray(self._idx)[sel]
+            cols = off[sel][:, None] + np.arange(var.dof)
+            self._lin[key][ix] = var.retract(self._lin[key][ix], self._dx[cols])
+            self._dx[cols] = 0.0
+        return nodes
+
+    def _rows_touching(self, nodes: np.ndarray) -> dict[int, _Row]:
+        out: dict[int, _Row] = {}
+        for n in nodes:
+            for r in self._node_rows[n]:
+                out.setdefault(id(r), r)
+        return out
+
+    def _linearize(self, rows: list[_Row]) -> None:
+        """Linearise ``rows`` at the linearisation points (each factor batch evaluated once)."""
+        by: dict[int, list[_Row]] = {}
+        for r in rows:
+            by.setdefault(r.fid, []).append(r)
+        for fid, rs in by.items():
+            f = self._factors[fid]
+            assert f is not None
+            vals = [var.wrap(np.take(self._lin[var.key], idx, axis=0)) for var, idx in f.args]
+            r, J = f.evaluate(vals, True)
+            sc = f.noise.scales
+            if sc is not None:
+                e = r * sc
+                A = [j * sc[..., :, None] for j in J]
+            else:
+                L = f.noise.sqrt_info
+                if L.ndim == 3:
+                    L = np.broadcast_to(L, (f.count,) + L.shape[1:])
+                    e = np.einsum("mij,mj->mi", L, r)
+                else:
+                    e = r @ L.T
+                A = [np.matmul(L, j) for j in J]
+            if f.loss is not None:
+                s = np.einsum("mi,mi->m", e, e)
+                _, scale, aos = corrected_weights(f.loss, s)
+                sq = np.sqrt(np.maximum(f.loss.evaluate(s)[1], 0.0))
+                A = [sq[:, None, None] * (a - (aos[:, None] * e)[:, :, None]
+                                          * np.einsum("mi,mij->mj", e, a)[:, None, :])
+                     for a in A]
+                e = e * scale[:, None]
+            for row in rs:
+                k = row.k
+                blocks = [A[a][k] for a, (var, idx) in enumerate(f.args)
+                          if self._node_of[var.key][idx[k]] >= 0]
+                Ak = np.concatenate(blocks, axis=1) if blocks else np.zeros((f.dim, 0))
+                row.H = Ak.T @ Ak
+                row.b = -(Ak.T @ e[k])
+
+    def _ancestors(self, marked: set[int]) -> set[int]:
+        top: set[int] = set()
+        for n in marked:
+            while n >= 0 and n not in top:
+                top.add(n)
+                n = self._parent[n]
+        return top
+
+    def _detach(self, top: set[int]) -> tuple[list[tuple[tuple[int, ...], np.ndarray,
+                                                          np.ndarray, int]], list[int]]:
+        """Remove the conditionals of ``top``; return the information to eliminate again (the
+        rows with every node in ``top`` and the orphans' cached Schur complements) and the
+        orphans."""
+        pool: list[tuple[tuple[int, ...], np.ndarray, np.ndarray, int]] = []
+        orphans: list[int] = []
+        seen: set[int] = set()
+        for n in top:
+            for ch in self._children[n]:
+                if ch not in top:
+                    orphans.append(ch)
+                    pool.append((self._sep[ch], self._Hs[ch], self._bs[ch], ch))
+                    self._parent[ch] = -1
+            self._children[n] = set()
+            self._parent[n] = -1
+            for r in self._node_rows[n]:
+                if id(r) in seen:
+                    continue
+                seen.add(id(r))
+                if all(m in top for m in r.nodes):
+                    pool.append((r.nodes, r.H, r.b, -1))
+        return pool, orphans
+
+    def _order(self, top: set[int], pool: list, last: set[int]) -> list[int]:
+        """Order ``top``: approximate minimum degree on the others, then ``last`` (the
+        variables of the new factors, in arrival order)."""
+        tail = sorted((n for n in top if n in last), key=self._pos.__getitem__)
+        head = sorted((n for n in top if n not in last), key=self._pos.__getitem__)
+        if len(head) > 2:
+            loc = {n: i for i, n in enumerate(head)}
+            pairs_a: list[int] = []
+            pairs_b: list[int] = []
+            for nodes, _, _, _ in pool:
+                ix = [loc[n] for n in nodes if n in loc]
+                for a in ix:
+                    for b in ix:
+                        if a != b:
+                            pairs_a.append(a)
+                            pairs_b.append(b)
+            nb = len(head)
+            a_arr = np.asarray(pairs_a, dtype=np.int64)
+            b_arr = np.asarray(pairs_b, dtype=np.int64)
+            o = np.argsort(a_arr, kind="stable")
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(a_arr, minlength=nb))])
+            perm = minimum_degree_blocks(indptr.astype(np.int64), b_arr[o], nb)
+            head = [head[int(p)] for p in perm]
+        order = head + tail
+        for n in order:
+            self._pos[n] = self._next_pos
+            self._next_pos += 1
+        return order
+
+    def _eliminate(self, order: list[int], pool: list) -> None:
+        """Multifrontal elimination of ``order`` (one variable per front)."""
+        pos = self._pos
+        dof = self._dof
+        offa = self._offa
+        waiting: dict[int, list] = {}
+        for item in pool:
+            if item[0]:
+                first = min(item[0], key=pos.__getitem__)
+                waiting.setdefault(first, []).append(item)
+        for j in order:
+            items = waiting.pop(j, [])
+            nodes = {j}
+            for it in items:
+                nodes.update(it[0])
+            sep = sorted(nodes - {j}, key=pos.__getitem__)
+            allv = [j] + sep
+            dofs = [dof[n] for n in allv]
+            if len(set(dofs)) == 1:  # one block size: local columns without a loop
+                dd = dofs[0]
+                ar = np.arange(dd)
+                loc = {n: i * dd for i, n in enumerate(allv)}
+                o = dd * len(allv)
+            else:
+                loc = {}
+                o = 0
+                for n, dn in zip(allv, dofs, strict=True):
+                    loc[n] = o
+                    o += dn
+                ar = None
+            F = np.zeros((o, o))
+            g = np.zeros(o)
+            for vs, H, b, child in items:
+                if child >= 0:  # a subtree hangs from j
+                    self._parent[child] = j
+                    self._children[j].add(child)
+                if ar is not None:
+                    ix = (np.array([loc[n] for n in vs])[:, None] + ar).ravel()
+                else:
+                    ix = np.concatenate([np.arange(loc[n], loc[n] + dof[n]) for n in vs])
+                F[ix[:, None], ix] += H
+                g[ix] += b
+            d = dof[j]
+            L, info = _potrf(F[:d, :d], lower=1, clean=1)
+            if info != 0:
+                var = self.graph.variables[self._key[j]]
+                raise ValueError(f"{var.name}[{self._idx[j]}] is not determined by the factors "
+                                 f"(no prior or fixed variable anchors it, or a direction is "
+                                 f"unobserved): add a prior or fix a variable") from None
+            Linv = _trtri(L, lower=1)[0]
+            T = Linv @ F[:d, d:]
+            c = Linv @ g[:d]
+            self._Rinv[j] = Linv.T
+            self._T[j] = T
+            self._c[j] = c
+            self._sep[j] = tuple(sep)
+            self._sepcols[j] = (np.concatenate([offa[n] + np.arange(dof[n]) for n in sep])
+                                if sep else np.zeros(0, dtype=np.int64))
+            Hs = F[d:, d:] - T.T @ T
+            bs = g[d:] - T.T @ c
+            self._Hs[j] = Hs
+            self._bs[j] = bs
+            self._parent[j] = -1
+            if sep:
+                waiting.setdefault(sep[0], []).append((tuple(sep), Hs, bs, j))
+
+    def _solve(self, order: list[int], orphans: list[int]) -> int:
+        """Back-substitute the re-eliminated nodes, then orphan subtrees where their
+        separator's step moved more than ``wildfire``."""
+        dx = self._dx
+        off = self._off
+        change: dict[int, float] = {}
+
+        def back(k: int) -> None:
+            o0 = off[k]
+            o1 = o0 + self._dof[k]
+            v = self._c[k] - self._T[k] @ dx[self._sepcols[k]] if self._sep[k] else self._c[k]
+            new = self._Rinv[k] @ v
+            change[k] = float(np.abs(new - dx[o0:o1]).max())
+            dx[o0:o1] = new
+
+        for k in reversed(order):
+            back(k)
+        count = len(order)
+        stack = list(orphans)
+        while stack:
+            k = stack.pop()
+            if max((change.get(s, 0.0) for s in self._sep[k]), default=0.0) > self.wildfire:
+                back(k)
+                count += 1
+                stack.extend(self._children[k])
+        return count
