@@ -63,6 +63,7 @@ _LAZY = {
     "io.toro": ("read_toro", "write_toro"),
     "core.variables": ("Values", "Variables"),
     "certify": ("CertifiedResult", "certified_pose_graph", "certify_poses"),
+    "online.fixed_lag": ("BatchFixedLagSmoother",),
 }
 _WHERE = {name: module for module, names in _LAZY.items() for name in names}
 
