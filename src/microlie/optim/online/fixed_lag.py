@@ -299,17 +299,28 @@ class BatchFixedLagSmoother:
 
     # ------------------------------------------------------------------ window graph
     def _build(self) -> tuple[FactorGraph, dict, list[Factor]]:
+        """The window graph: every key some factor touches (a key without factors, given
+        before its factors or left alone by a removal, waits outside it), every factor."""
         if self._graph is not None:
             return self._graph
+        if any(not rec.keys for rec in self._records):  # learn the keys of new factors
+            self._graph = self._assemble(list(self._values))
+        used = {k for rec in self._records for k in rec.keys}
+        keys = [k for k in self._values if k in used]
+        if self._graph is None or len(keys) != len(self._values):
+            self._graph = self._assemble(keys)
+        return self._graph
+
+    def _assemble(self, keys: list[Key]) -> tuple[FactorGraph, dict, list[Factor]]:
         fams: dict[Any, list[Key]] = {}
-        for k, (fam, _) in self._values.items():
-            fams.setdefault(fam, []).append(k)
+        for k in keys:
+            fams.setdefault(self._values[k][0], []).append(k)
         g = FactorGraph()
         where: dict[Key, tuple[Variables, int]] = {}
-        for fam, keys in fams.items():
-            P = np.stack([self._values[k][1] for k in keys])
-            h = g.add_variables(P if isinstance(fam, int) else fam(P), name=str(keys[0]))
-            for i, k in enumerate(keys):
+        for fam, ks in fams.items():
+            P = np.stack([self._values[k][1] for k in ks])
+            h = g.add_variables(P if isinstance(fam, int) else fam(P), name=str(ks[0]))
+            for i, k in enumerate(ks):
                 where[k] = (h, i)
         bind = Binding(where)
         owner = {(id(h), i): k for k, (h, i) in where.items()}
@@ -324,14 +335,15 @@ class BatchFixedLagSmoother:
                                                for i in ix))
             g.add(f)
             factors.append(f)
-        self._graph = (g, where, factors)
-        return self._graph
+        return g, where, factors
 
     # ------------------------------------------------------------------ the public calls
     def update(self, new_factors: Iterable[FactorFn] = (),
                new_values: Mapping[Key, Any] | None = None,
-               timestamps: Mapping[Key, float] | None = None) -> Result:
-        """Add variables and factors, solve the window, marginalise what left it.
+               timestamps: Mapping[Key, float] | None = None,
+               remove: Iterable[FactorFn] = ()) -> Result | None:
+        """Add variables and factors (and remove factors), solve the window, marginalise what
+        left it.
 
         Parameters
         ----------
@@ -344,17 +356,24 @@ class BatchFixedLagSmoother:
         timestamps : mapping, optional
             ``key -> time`` (seconds) of the new keys; required for every new key with
             ``lag``; with ``window`` a missing one gets the update's number.
+        remove : iterable of callable
+            Factor functions given to an earlier update (the same objects) to take out, for
+            example measurements found to be outliers. A key left without factors (or given
+            before its factors) stays in the window, outside the solve, with its given value,
+            and is dropped without marginalisation when it leaves (GTSAM issues #2478, #2479).
 
         Returns
         -------
-        Result
-            The engine's result on the window (before marginalisation).
+        Result or None
+            The engine's result on the window (before marginalisation); ``None`` when the
+            window has no factor.
 
         Raises
         ------
         ValueError
-            A key already in the window or marginalised, a missing or non-finite timestamp, a
-            factor referring to a key outside the window; nothing is changed then.
+            A key already in the window, a missing or non-finite timestamp, a factor referring
+            to a key outside the window, a factor to remove that is not in the window; nothing
+            is changed then.
 
         Examples
         --------
@@ -396,18 +415,29 @@ class BatchFixedLagSmoother:
         extra = set(timestamps) - set(added)
         if extra:
             raise ValueError(f"timestamps: keys {sorted(map(repr, extra))} are not new values")
+        drop = list(remove)
+        ids = {id(rec.fn): n for n, rec in enumerate(self._records) if rec.prior is None}
+        missing = [fn for fn in drop if id(fn) not in ids]
+        if missing:
+            raise ValueError(f"remove: {len(missing)} factor function(s) are not in the window "
+                             f"(never added, or marginalised with their variables)")
+        gone = {ids[id(fn)] for fn in drop}
         saved = (dict(self._values), dict(self._stamp), list(self._records), self._graph)
+        res = None
         try:
             self._values.update(added)
             self._stamp.update(stamps)
+            self._records = [r for n, r in enumerate(self._records) if n not in gone]
             self._records.extend(_Record(fn) for fn in fns)
             self._graph = None
-            g, where, _ = self._build()
-            res = g.optimize(max_iter=self.max_iter, **self.options)
+            if self._records:
+                g, where, _ = self._build()
+                res = g.optimize(max_iter=self.max_iter, **self.options)
         except Exception:
             self._values, self._stamp, self._records, self._graph = saved
             raise
-        self._store(g, where, res)
+        if res is not None:
+            self._store(g, where, res)
         if stamps:
             self.time = max(self.time, max(stamps.values()))
         self.marginalized = self._leaving()
@@ -452,7 +482,7 @@ class BatchFixedLagSmoother:
                     out.append(prob.node_off[node] + np.arange(h.dof))
                 return np.concatenate(out) if out else np.zeros(0, int)
 
-            m, s = cols(sorted(M, key=lambda k: list(where).index(k))), cols(sep)
+            m, s = cols([k for k in where if k in M]), cols(sep)
             Hmm = H[np.ix_(m, m)]
             try:
                 C = np.linalg.cholesky(Hmm)
@@ -534,10 +564,7 @@ class BatchFixedLagSmoother:
         >>> s.marginal_covariance("p").tolist()
         [[0.25, 0.0], [0.0, 0.25]]
         """
-        if key not in self._values:
-            raise ValueError(f"marginal_covariance: key {key!r} is not in the window")
-        g, where, _ = self._build()
-        return g.marginal_covariance(None, [where[key]])
+        return self.joint_covariance([key])
 
     def joint_covariance(self, keys: Sequence[Key]) -> np.ndarray:
         """The joint covariance of several keys of the window (as :meth:`marginal_covariance`).
@@ -566,8 +593,13 @@ class BatchFixedLagSmoother:
         """
         missing = [k for k in keys if k not in self._values]
         if missing:
-            raise ValueError(f"joint_covariance: keys {missing!r} are not in the window")
+            raise ValueError(f"covariance: keys {missing!r} are not in the window")
+        if not self._records:
+            raise ValueError("covariance: the window has no factor")
         g, where, _ = self._build()
+        free = [k for k in keys if k not in where]
+        if free:
+            raise ValueError(f"covariance: keys {free!r} have no factor (no information)")
         return g.marginal_covariance(None, [where[k] for k in keys])
 
     @property
