@@ -246,7 +246,9 @@ class BatchFixedLagSmoother:
         Levenberg-Marquardt iterations per update.
     **options
         Other keywords of :meth:`FactorGraph.optimize` (``solver``, ``linear_solver``,
-        ``rel_tol``, ...).
+        ``rel_tol``, ...). ``gauge`` defaults to ``"none"``: a window is usually anchored by
+        its marginal prior, a factor over several keys that the graph's topological gauge
+        check does not count as an anchor; an unanchored window shows as a singular system.
 
     Attributes
     ----------
@@ -289,7 +291,7 @@ class BatchFixedLagSmoother:
         self.lag = None if lag is None else float(lag)
         self.window = None if window is None else int(window)
         self.max_iter = int(max_iter)
-        self.options = options
+        self.options = {"gauge": "none", **options}
         self.time = -math.inf
         self.marginalized: list[Key] = []
         self._values: dict[Key, tuple[Any, np.ndarray]] = {}
@@ -600,7 +602,17 @@ class BatchFixedLagSmoother:
         free = [k for k in keys if k not in where]
         if free:
             raise ValueError(f"covariance: keys {free!r} have no factor (no information)")
-        return g.marginal_covariance(None, [where[k] for k in keys])
+        # the window's anchor may be a marginal prior over several keys, which the graph's
+        # topological gauge check does not count as one: factorise without it
+        prob = g.problem("none")
+        ls = prob.analysed(self.options.get("linear_solver", "auto"))
+        ls.factorize(prob.linearize([v.initial for v in g.variables]).data)
+        idx = np.concatenate([prob.node_off[prob.node_of[prob.key(h)][i]] + np.arange(h.dof)
+                              for h, i in (where[k] for k in keys)])
+        E = np.zeros((prob.size, idx.size))
+        E[idx, np.arange(idx.size)] = 1.0
+        C = ls.solve(E)[idx]
+        return 0.5 * (C + C.T)
 
     @property
     def priors(self) -> list[MarginalPrior]:
