@@ -224,6 +224,15 @@ def _family(value: Any) -> tuple[Any, np.ndarray]:
     return p.size, p
 
 
+def _prior_fn(keys: tuple, L: np.ndarray, r0: np.ndarray, x0: list[np.ndarray]) -> FactorFn:
+    """The factor function of a marginal prior."""
+
+    def fn(b: Binding) -> Factor:
+        return MarginalPrior([b[k] for k in keys], L, r0, x0)
+
+    return fn
+
+
 class BatchFixedLagSmoother:
     """A fixed-lag smoother: Levenberg-Marquardt over the variables of a window, the older
     ones marginalised into a :class:`MarginalPrior` with first-estimate Jacobians.
@@ -511,10 +520,7 @@ class BatchFixedLagSmoother:
         for k in M:
             del self._values[k], self._stamp[k]
         if prior is not None:
-            keys, L, r0, x0 = prior
-            self._records.append(_Record(
-                lambda b, keys=keys, L=L, r0=r0, x0=x0: MarginalPrior(
-                    [b[k] for k in keys], L, r0, x0), keys, prior))
+            self._records.append(_Record(_prior_fn(*prior), prior[0], prior))
         self._graph = None
 
     def calculate_estimate(self) -> dict[Key, Any]:
@@ -633,7 +639,7 @@ class BatchFixedLagSmoother:
             return []
         _, _, factors = self._build()
         return [f for f, rec in zip(factors, self._records, strict=True)
-                if rec.prior is not None]
+                if rec.prior is not None and isinstance(f, MarginalPrior)]
 
     def timestamps(self) -> dict[Key, float]:
         """The timestamp of every key in the window.
