@@ -173,6 +173,17 @@ def batch_run(inp: dict, pims: list, prm: dict, cov: bool = True) -> dict:
     return out
 
 
+def resolve_newest(inp: dict, pims: list, prm: dict) -> np.ndarray:
+    """What a user without a smoother does: the full batch smoother re-solved at every
+    keyframe ``k`` over the data up to ``k``; the positions of the newest keyframe, ``(K, 3)``."""
+    out = np.zeros((inp["K"], 3))
+    for k in range(1, inp["K"] + 1):
+        sub = dict(inp, K=k, z=inp["z"][: k + 1])
+        X = batch_run(sub, pims[:k], prm, cov=False)["X"]
+        out[k - 1] = np.asarray(SE23(X[k]).translation())
+    return out
+
+
 def nees(Xp: np.ndarray, bp: np.ndarray, C: np.ndarray, Xt: SE23, bt: np.ndarray) -> float:
     """``e^T C^-1 e`` with ``e = (Log(X^-1 X_true), b_true - b)``."""
     e = np.r_[np.asarray(Xt.minus(SE23(Xp))), bt - bp]
@@ -210,9 +221,11 @@ def eskf_positions(data: Any, runs: list[dict]) -> np.ndarray:
 
 
 def monte_carlo(runs: int, duration: float, window: int, variant: str = "fej",
-                seed: int = 11, eskf: bool = True) -> dict:
+                seed: int = 11, eskf: bool = True, resolve: bool = False) -> dict:
     """NEES and RMSE of the fixed-lag smoother, the full batch smoother and the ESKF over
-    ``runs`` Monte Carlo runs (see the module docstring)."""
+    ``runs`` Monte Carlo runs (see the module docstring); with ``resolve`` also the newest
+    keyframe of a batch re-solve at every keyframe (``resolve_newest``, against the fixed-lag
+    smoother's newest estimate on the same keyframes, ``newest_same``)."""
     data = make_data(runs, duration)
     rng = np.random.default_rng(seed)
     ins = [inputs(data, m, rng) for m in range(runs)]
@@ -220,7 +233,8 @@ def monte_carlo(runs: int, duration: float, window: int, variant: str = "fej",
     lag_nees = np.full((runs, K + 1), np.nan)
     new_nees = np.full((runs, K + 1), np.nan)
     bat_nees = np.zeros((runs, K + 1))
-    err = {"lag": [], "newest": [], "batch": []}
+    err: dict[str, list] = {"lag": [], "newest": [], "batch": [], "resolve_newest": [],
+                            "newest_same": []}
     t_lag = t_bat = 0.0
     for m in range(runs):
         t0 = time.perf_counter()
@@ -242,7 +256,14 @@ def monte_carlo(runs: int, duration: float, window: int, variant: str = "fej",
             if k in fl["oldest"]:
                 err["batch"].append(np.asarray(SE23(bt["X"][k]).translation()) -
                                     np.asarray(Xt[k].translation()))
-    rmse = {n: float(np.sqrt(np.mean(np.sum(np.array(v) ** 2, -1)))) for n, v in err.items()}
+        if resolve:
+            pr = resolve_newest(ins[m], fl["pims"], data.params)
+            err["resolve_newest"].extend(pr - np.asarray(Xt.translation())[1:])
+            err["newest_same"].extend(
+                np.asarray(SE23(fl["newest"][k][0]).translation()) -
+                np.asarray(Xt[k].translation()) for k in range(1, K + 1))
+    rmse = {n: float(np.sqrt(np.mean(np.sum(np.array(v) ** 2, -1)))) for n, v in err.items()
+            if v}
     if eskf:
         pe = eskf_positions(data, ins)
         pt = np.stack([np.asarray(r["X"].translation())[1:] for r in ins], 1)
@@ -265,11 +286,13 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=6.0, help="seconds per run")
     ap.add_argument("--window", type=int, default=10, help="keyframes in the window")
     ap.add_argument("--variant", default="fej", choices=["fej", "drop"])
+    ap.add_argument("--resolve", action="store_true",
+                    help="also re-solve the full batch at every keyframe (slow)")
     ap.add_argument("--steps", type=int, default=0, help="IMU steps of the timing run (0: skip)")
     a = ap.parse_args()
     print(f"load (1, 5, 15 min): {os.getloadavg()}")
     if a.runs:
-        r = monte_carlo(a.runs, a.duration, a.window, a.variant)
+        r = monte_carlo(a.runs, a.duration, a.window, a.variant, resolve=a.resolve)
         lo, hi = band(a.runs)
         print(f"{a.runs} runs of {a.duration} s, {r['K']} keyframes, window {a.window}, "
               f"variant {a.variant}; 95% band of the average NEES: [{lo:.2f}, {hi:.2f}]")
@@ -281,6 +304,9 @@ def main() -> None:
         print("  position RMSE (m): " + ", ".join(f"{k} {v:.4f}" for k, v in r["rmse"].items()
                                                    if np.isfinite(v)))
         print(f"  fixed-lag / batch RMSE: {r['rmse']['lag'] / r['rmse']['batch']:.3f}")
+        if a.resolve:
+            print(f"  newest: fixed-lag / batch re-solved at each keyframe RMSE: "
+                  f"{r['rmse']['newest_same'] / r['rmse']['resolve_newest']:.3f}")
         print(f"  time: fixed-lag {r['time_lag']:.1f} s, batch {r['time_batch']:.1f} s")
     if a.steps:
         steps(a.steps, a.window)
