@@ -17,8 +17,9 @@ the position RMSE of each estimator over all keyframes and runs (the full batch 
 
 ``--steps N``: ``N`` IMU samples at 200 Hz (one keyframe and fix every 20), the trajectory
 repeated; prints the median time per update over the first and the last 1,000 IMU steps
-(time per step = update time / 20) and the peak of Python's allocations (tracemalloc) and of
-the process (ru_maxrss).
+(time per step = update time / 20), the resident memory after the first 1000 steps and at the
+end, the process peak (ru_maxrss) and, with ``--trace``, the peak of Python's allocations
+(tracemalloc, which slows every update: not for the timing).
 
 The functions are imported by tests/test_fixed_lag.py (a smaller Monte Carlo in CI).
 """
@@ -288,6 +289,8 @@ def main() -> None:
     ap.add_argument("--variant", default="fej", choices=["fej", "drop"])
     ap.add_argument("--resolve", action="store_true",
                     help="also re-solve the full batch at every keyframe (slow)")
+    ap.add_argument("--trace", action="store_true",
+                    help="also trace Python allocations (tracemalloc; slows every update)")
     ap.add_argument("--steps", type=int, default=0, help="IMU steps of the timing run (0: skip)")
     a = ap.parse_args()
     print(f"load (1, 5, 15 min): {os.getloadavg()}")
@@ -309,10 +312,10 @@ def main() -> None:
                   f"{r['rmse']['newest_same'] / r['rmse']['resolve_newest']:.3f}")
         print(f"  time: fixed-lag {r['time_lag']:.1f} s, batch {r['time_batch']:.1f} s")
     if a.steps:
-        steps(a.steps, a.window)
+        steps(a.steps, a.window, a.trace)
 
 
-def steps(n: int, window: int) -> None:
+def steps(n: int, window: int, trace: bool = False) -> None:
     """Time per update and peak memory over ``n`` IMU steps (see the module docstring)."""
     import resource
     import tracemalloc
@@ -331,7 +334,9 @@ def steps(n: int, window: int) -> None:
              {("x", 0): x0, ("b", 0): b0.copy()}, {("x", 0): 0.0, ("b", 0): 0.0})
     updates = n // EVERY
     times = np.zeros(updates)
-    tracemalloc.start()
+    if trace:
+        tracemalloc.start()
+    rss = []
     offset = np.zeros(3)
     for k in range(1, updates + 1):
         kk = (k - 1) % per + 1  # the trajectory's samples, repeated; fixes shifted to follow
@@ -357,19 +362,25 @@ def steps(n: int, window: int) -> None:
         s.update(fns, {("x", k): pim.predict(xi), ("b", k): bi.copy()},
                  {("x", k): tk, ("b", k): tk})
         times[k - 1] = time.perf_counter() - t0
+        if k in (1000 // EVERY, updates):
+            with open("/proc/self/statm") as fh:
+                rss.append(int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6)
         if k % 1000 == 0:
             print(f"  {k * EVERY} steps, window {len(s.calculate_estimate())} keys, "
                   f"{len(s.priors)} prior(s)", flush=True)
-    cur, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
     first, last = times[: 1000 // EVERY], times[-(1000 // EVERY):]
     print(f"{n} IMU steps ({updates} updates, window {window} keyframes): median update "
           f"{1e3 * np.median(first):.2f} ms over the first 1000 steps, "
           f"{1e3 * np.median(last):.2f} ms over the last 1000 (ratio "
           f"{np.median(last) / np.median(first):.3f}); per IMU step "
           f"{1e3 * np.median(last) / EVERY:.3f} ms")
-    print(f"peak traced Python memory {peak / 1e6:.2f} MB (now {cur / 1e6:.2f} MB), "
-          f"process peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3:.0f} MB")
+    print(f"resident memory after the first 1000 steps {rss[0]:.1f} MB, at the end "
+          f"{rss[-1]:.1f} MB; process peak RSS "
+          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3:.0f} MB")
+    if trace:
+        cur, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        print(f"peak traced Python memory {peak / 1e6:.2f} MB (now {cur / 1e6:.2f} MB)")
 
 
 if __name__ == "__main__":
