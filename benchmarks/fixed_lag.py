@@ -366,8 +366,12 @@ def steps(n: int, window: int, trace: bool = False) -> None:
             with open("/proc/self/statm") as fh:
                 rss.append(int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6)
         if k % 1000 == 0:
-            print(f"  {k * EVERY} steps, window {len(s.calculate_estimate())} keys, "
-                  f"{len(s.priors)} prior(s)", flush=True)
+            with open("/proc/self/statm") as fh:
+                now = int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+            print(f"  {k * EVERY} steps: median update over the last 1000 steps "
+                  f"{1e3 * np.median(times[k - 1000 // EVERY:k]):.2f} ms, window "
+                  f"{len(s.calculate_estimate())} keys, {len(s.priors)} prior(s), resident "
+                  f"{now:.1f} MB", flush=True)
     first, last = times[: 1000 // EVERY], times[-(1000 // EVERY):]
     print(f"{n} IMU steps ({updates} updates, window {window} keyframes): median update "
           f"{1e3 * np.median(first):.2f} ms over the first 1000 steps, "
