@@ -10,12 +10,13 @@ filters' errors are ``(dtheta, dp, dv, db_g, db_a)`` (``ErrorStateEKF``) and
 >>> from microlie.imu import Preintegration
 """
 
-from .factors import BiasRandomWalkFactor, ImuFactor
+from .factors import BiasRandomWalkFactor, ImuFactor, PositionFactor
 from .filters import ErrorStateEKF, InvariantEKF, UpdateResult
 from .preintegration import Preintegration
 from .residual import Deltas, imu_residual
 from .simulate import EUROC_ADIS16448, ImuData, SmoothTrajectory, simulate_imu
 
-__all__ = ["Preintegration", "ImuFactor", "BiasRandomWalkFactor", "Deltas", "imu_residual",
+__all__ = ["Preintegration", "ImuFactor", "BiasRandomWalkFactor", "PositionFactor",
+           "Deltas", "imu_residual",
            "EUROC_ADIS16448", "ImuData", "SmoothTrajectory", "simulate_imu", "ErrorStateEKF",
            "InvariantEKF", "UpdateResult"]

@@ -24,7 +24,7 @@ from ..optim.core.variables import Variables
 from .preintegration import Preintegration
 from .residual import ERRORS, Deltas, imu_residual
 
-__all__ = ["ImuFactor", "BiasRandomWalkFactor"]
+__all__ = ["ImuFactor", "BiasRandomWalkFactor", "PositionFactor"]
 
 
 class ImuFactor(Factor):
@@ -203,3 +203,81 @@ class BiasRandomWalkFactor(Factor):
             return r
         eye = np.broadcast_to(np.eye(6), (self.count, 6, 6))
         return r, [-eye, eye]
+
+
+class PositionFactor(Factor):
+    """Position fixes of navigation states: ``r = p(X) - z`` (a GNSS or motion-capture fix).
+
+    With the right perturbation ``X Exp(rho, phi, nu)`` the position moves by ``R rho`` to
+    first order, so the Jacobian is ``[R, 0, 0]``.
+
+    Parameters
+    ----------
+    states : Variables
+        An ``SE23`` variable handle.
+    idx : array_like
+        The indices of the ``m`` fixed states.
+    z : array_like
+        ``(m, 3)`` (or ``(3,)``) measured positions, world frame.
+    noise : NoiseModel or array_like, optional
+        The fixes' noise (default unit).
+    loss : str or RobustLoss, optional
+        A robust loss.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE23
+    >>> from microlie.imu import PositionFactor
+    >>> from microlie.optim import FactorGraph, Isotropic
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE23.identity(1))
+    >>> _ = g.add(PositionFactor(x, 0, [0.0, 0.0, 0.2], Isotropic(3, 0.1)))
+    >>> round(g.cost(), 9)  # 0.5 (0.2 / 0.1)^2
+    2.0
+    """
+
+    def __init__(self, states: Variables, idx: Any, z: Any, noise: Any = None,
+                 loss: Any = None) -> None:
+        if states.group is not SE23:
+            raise TypeError("PositionFactor: states must be SE23 variables")
+        super().__init__([(states, idx)], 3, noise, loss)
+        zz = np.asarray(z, dtype=np.float64)
+        if zz.ndim == 1:
+            zz = zz[None]
+        if zz.shape not in ((1, 3), (self.count, 3)) or not np.all(np.isfinite(zz)):
+            raise ValueError(f"PositionFactor: z must be finite, (3,) or ({self.count}, 3), "
+                             f"got shape {zz.shape}")
+        self.z = zz
+
+    def residual(self, X: Any, jac: bool = False) -> Any:
+        """``p(X) - z`` and, with ``jac``, ``[R, 0, 0]`` (:meth:`Factor.residual`).
+
+        Parameters
+        ----------
+        X : SE23
+            The batch of states.
+        jac : bool
+            Also return the Jacobian.
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``r`` ``(m, 3)``, or ``(r, [J])`` with ``J`` ``(m, 3, 9)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> from microlie.imu import PositionFactor
+        >>> from microlie.optim import FactorGraph
+        >>> f = PositionFactor(FactorGraph().add_variables(SE23.identity(1)), 0, [1.0, 0, 0])
+        >>> f.residual(SE23.identity(1)).tolist()
+        [[-1.0, 0.0, 0.0]]
+        """
+        r = np.asarray(X.translation()) - self.z
+        if not jac:
+            return r
+        J = np.zeros((r.shape[0], 3, 9))
+        J[:, :, 0:3] = np.asarray(X.rotation().matrix())
+        return r, [J]

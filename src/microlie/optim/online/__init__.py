@@ -1,1 +1,11 @@
-"""Online estimation: incremental smoothing (:mod:`.incremental`)."""
+"""Online estimation: incremental smoothing (:mod:`.incremental`) and the fixed-lag smoother
+(:mod:`.fixed_lag`).
+
+>>> from microlie.optim.online import BatchFixedLagSmoother, IncrementalSmoother
+"""
+
+from .fixed_lag import BatchFixedLagSmoother, Binding, MarginalPrior
+from .incremental import IncrementalSmoother, UpdateRecord
+
+__all__ = ["BatchFixedLagSmoother", "Binding", "IncrementalSmoother", "MarginalPrior",
+           "UpdateRecord"]

@@ -1,0 +1,662 @@
+"""Batch fixed-lag smoothing: Levenberg-Marquardt over a sliding window, with what leaves the
+window marginalised into a dense Gaussian prior (GTSAM's ``BatchFixedLagSmoother``).
+
+Every :meth:`BatchFixedLagSmoother.update` adds values and factors, solves the window with
+:meth:`FactorGraph.optimize` (the one engine), then marginalises the variables that fell out of
+the window: the factors touching them are linearised at the current estimate, their Gauss-Newton
+system ``[H_mm H_ms; H_sm H_ss]``, ``[g_m; g_s]`` is reduced by the Schur complement
+``H = H_ss - H_sm H_mm^-1 H_ms``, ``g = g_s - H_sm H_mm^-1 g_m`` onto the separator (the window
+variables they touch), and replaced by one :class:`MarginalPrior`
+``r(x) = r0 + L (x (-) x0)`` with ``L^T L = H``, ``L^T r0 = g`` and the linearisation point
+``x0`` kept: the prior's Jacobian stays the first estimate's (FEJ), so it never gains
+information it did not have when it was made.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from ...groups import LieGroup
+from ..core.factors import Factor
+from ..core.graph import FactorGraph
+from ..core.problem import Problem
+from ..core.solvers import Result
+from ..core.variables import Variables
+
+__all__ = ["BatchFixedLagSmoother", "MarginalPrior", "Binding"]
+
+Key = Hashable
+FactorFn = Callable[["Binding"], Factor]
+
+
+class Binding:
+    """Where each key of the window lives in the window's :class:`FactorGraph`: what a factor
+    function receives to build its factor against the current window graph.
+
+    ``binding[key]`` is the pair ``(handle, index)`` (the ``args`` pair of a :class:`Factor`,
+    also ``PriorFactor(*binding[key], Z, noise)``); :meth:`var` and :meth:`idx` give its parts.
+
+    Parameters
+    ----------
+    where : dict
+        ``key -> (Variables, int)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import FactorGraph
+    >>> from microlie.optim.online.fixed_lag import Binding
+    >>> g = FactorGraph()
+    >>> v = g.add_variables(np.zeros((2, 3)))
+    >>> b = Binding({"a": (v, 0), "b": (v, 1)})
+    >>> b.var("b") is v, b.idx("b"), b["a"][1]
+    (True, 1, 0)
+    """
+
+    def __init__(self, where: dict[Key, tuple[Variables, int]]) -> None:
+        self._where = where
+
+    def __getitem__(self, key: Key) -> tuple[Variables, int]:
+        try:
+            return self._where[key]
+        except KeyError:
+            raise ValueError(f"a factor refers to key {key!r}, which is not in the window "
+                             f"(never added, or already marginalised): give its value in "
+                             f"new_values, or drop the factor") from None
+
+    def var(self, key: Key) -> Variables:
+        """The handle holding ``key``.
+
+        Parameters
+        ----------
+        key : hashable
+            A key of the window.
+
+        Returns
+        -------
+        Variables
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import FactorGraph
+        >>> from microlie.optim.online.fixed_lag import Binding
+        >>> v = FactorGraph().add_variables(np.zeros((1, 2)))
+        >>> Binding({7: (v, 0)}).var(7) is v
+        True
+        """
+        return self[key][0]
+
+    def idx(self, key: Key) -> int:
+        """The index of ``key`` in its handle.
+
+        Parameters
+        ----------
+        key : hashable
+            A key of the window.
+
+        Returns
+        -------
+        int
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import FactorGraph
+        >>> from microlie.optim.online.fixed_lag import Binding
+        >>> v = FactorGraph().add_variables(np.zeros((2, 2)))
+        >>> Binding({7: (v, 1)}).idx(7)
+        1
+        """
+        return self[key][1]
+
+
+class MarginalPrior(Factor):
+    """The dense Gaussian prior left by marginalisation: ``r(x) = r0 + L (x (-) x0)`` on the
+    separator variables, with ``x (-) x0 = Log(x0^-1 x)`` per variable (``x - x0`` for
+    vectors) stacked in the order of ``args``; ``L`` and ``x0`` stay those of the first
+    estimate (FEJ), only the chart Jacobian ``d(x (-) x0)/dx`` follows ``x``.
+
+    Parameters
+    ----------
+    args : sequence of (Variables, int)
+        The separator variables, one pair each.
+    L : array_like
+        ``(r, n)`` square-root information (``n`` the sum of their dofs).
+    r0 : array_like
+        ``(r,)`` residual at ``x0``.
+    x0 : sequence of numpy.ndarray
+        The parameters of each variable at linearisation.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie.optim import FactorGraph
+    >>> from microlie.optim.online.fixed_lag import MarginalPrior
+    >>> g = FactorGraph()
+    >>> v = g.add_variables(np.array([[1.0, 2.0]]))
+    >>> f = g.add(MarginalPrior([(v, 0)], 2 * np.eye(2), np.zeros(2), [np.zeros(2)]))
+    >>> round(g.cost(), 9)  # 0.5 |2 (x - 0)|^2 = 0.5 * 4 * 5
+    10.0
+    """
+
+    def __init__(self, args: Sequence[tuple[Variables, int]], L: Any, r0: Any,
+                 x0: Sequence[np.ndarray]) -> None:
+        L = np.asarray(L, dtype=np.float64)
+        r0 = np.asarray(r0, dtype=np.float64)
+        dofs = [var.dof for var, _ in args]
+        if L.ndim != 2 or L.shape[1] != sum(dofs) or r0.shape != (L.shape[0],):
+            raise ValueError(f"MarginalPrior: L must be (r, {sum(dofs)}) and r0 (r,), got "
+                             f"{L.shape} and {r0.shape}")
+        if len(x0) != len(args):
+            raise ValueError(f"MarginalPrior: {len(x0)} linearisation points for "
+                             f"{len(args)} variables")
+        self.L, self.r0 = L, r0
+        self.x0 = [np.asarray(p, dtype=np.float64).reshape(1, -1) for p in x0]
+        self._cols = np.concatenate([[0], np.cumsum(dofs)]).astype(int)
+        super().__init__([(var, int(i)) for var, i in args], L.shape[0])
+
+    def residual(self, *values: Any, jac: bool = False) -> Any:
+        """``r0 + L (x (-) x0)`` and, with ``jac``, its Jacobian blocks
+        ``L_k J_r^-1(x_k (-) x0_k)`` (:meth:`Factor.residual`).
+
+        Parameters
+        ----------
+        *values : LieGroup or numpy.ndarray
+            One batch of one value per separator variable.
+        jac : bool
+            Also return the Jacobians.
+
+        Returns
+        -------
+        numpy.ndarray or tuple
+            ``(1, r)``, or ``(r, [J_1, ...])``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import FactorGraph
+        >>> from microlie.optim.online.fixed_lag import MarginalPrior
+        >>> v = FactorGraph().add_variables(np.zeros((1, 2)))
+        >>> f = MarginalPrior([(v, 0)], np.eye(2), np.ones(2), [np.zeros(2)])
+        >>> f.residual(np.array([[1.0, -1.0]])).tolist()
+        [[2.0, 0.0]]
+        """
+        deltas, Js = [], []
+        for (var, _), x, x0 in zip(self.args, values, self.x0, strict=True):
+            out = var.minus(x, var.wrap(x0), jac=jac)
+            deltas.append(out[0] if jac else out)
+            if jac:
+                Js.append(out[1])
+        d = np.concatenate([np.asarray(t).reshape(-1, var.dof)
+                            for t, (var, _) in zip(deltas, self.args, strict=True)], axis=1)
+        r = self.r0[None] + d @ self.L.T
+        if not jac:
+            return r
+        blocks = [self.L[None, :, self._cols[k]:self._cols[k + 1]] @ np.asarray(J)
+                  for k, J in enumerate(Js)]
+        return r, blocks
+
+
+class _Record:
+    """A factor function of the window, the keys it touches, and its prior (if it is one)."""
+
+    __slots__ = ("fn", "keys", "prior")
+
+    def __init__(self, fn: FactorFn, keys: tuple = (), prior: Any = None) -> None:
+        self.fn, self.keys, self.prior = fn, keys, prior
+
+
+def _family(value: Any) -> tuple[Any, np.ndarray]:
+    """``(family, params)`` of one value: its group class (vectors: their length)."""
+    if isinstance(value, LieGroup):
+        if value.batch_shape != ():
+            raise ValueError(f"new_values: each value must be one element, got batch shape "
+                             f"{value.batch_shape}")
+        return type(value), np.array(value.params, dtype=np.float64)
+    p = np.array(value, dtype=np.float64)
+    if p.ndim != 1 or p.size < 1:
+        raise ValueError(f"new_values: a vector value must be 1-D, got shape {p.shape}")
+    return p.size, p
+
+
+def _prior_fn(keys: tuple, L: np.ndarray, r0: np.ndarray, x0: list[np.ndarray]) -> FactorFn:
+    """The factor function of a marginal prior."""
+
+    def fn(b: Binding) -> Factor:
+        return MarginalPrior([b[k] for k in keys], L, r0, x0)
+
+    return fn
+
+
+class BatchFixedLagSmoother:
+    """A fixed-lag smoother: Levenberg-Marquardt over the variables of a window, the older
+    ones marginalised into a :class:`MarginalPrior` with first-estimate Jacobians.
+
+    Named after GTSAM's ``BatchFixedLagSmoother`` (the same algorithm and the same
+    ``update``/``calculate_estimate``/``marginal_covariance`` calls); the incremental one is
+    ``IncrementalFixedLagSmoother``. Keys are any hashable; each holds one group element or one
+    1-D vector. Factors are given as functions ``fn(binding) -> Factor`` (a :class:`Binding`
+    maps keys to the window graph), because the window graph is rebuilt as the window slides.
+
+    Parameters
+    ----------
+    lag : float, optional
+        Window by time: after an update, the keys whose timestamp is older than the newest
+        timestamp minus ``lag`` are marginalised (GTSAM's rule).
+    window : int, optional
+        Window by count: keep the keys of the ``window`` newest distinct timestamps. Exactly one
+        of ``lag`` and ``window``.
+    max_iter : int
+        Levenberg-Marquardt iterations per update.
+    **options
+        Other keywords of :meth:`FactorGraph.optimize` (``solver``, ``linear_solver``,
+        ``rel_tol``, ...). ``gauge`` defaults to ``"none"``: a window is usually anchored by
+        its marginal prior, a factor over several keys that the graph's topological gauge
+        check does not count as an anchor; an unanchored window shows as a singular system.
+
+    Attributes
+    ----------
+    time : float
+        The newest timestamp seen.
+    marginalized : list
+        The keys marginalised by the last update.
+
+    Examples
+    --------
+    A random walk on the line, one position a second, a window of 2 s:
+
+    >>> import numpy as np
+    >>> from microlie.optim import BetweenFactor, PriorFactor, Isotropic
+    >>> from microlie.optim.online import BatchFixedLagSmoother
+    >>> s = BatchFixedLagSmoother(lag=2.0)
+    >>> _ = s.update([lambda b: PriorFactor(*b[0], np.zeros(1), Isotropic(1, 1.0))],
+    ...              {0: np.zeros(1)}, {0: 0.0})
+    >>> for k in range(1, 6):
+    ...     _ = s.update([lambda b, k=k: BetweenFactor(b.var(k - 1), b.idx(k - 1), b.idx(k),
+    ...                                                np.ones(1), Isotropic(1, 1.0))],
+    ...                  {k: np.zeros(1)}, {k: float(k)})
+    >>> sorted(s.calculate_estimate()), s.marginalized
+    ([3, 4, 5], [2])
+    >>> est, var = s.calculate_estimate()[5], s.marginal_covariance(5)
+    >>> round(float(est[0]), 6), round(float(var[0, 0]), 6)  # 5 steps, variance 1 + 5
+    (5.0, 6.0)
+    """
+
+    def __init__(self, lag: float | None = None, window: int | None = None, *,
+                 max_iter: int = 100, **options: Any) -> None:
+        if (lag is None) == (window is None):
+            raise ValueError("BatchFixedLagSmoother: give exactly one of lag (seconds) and "
+                             "window (a count of timestamps)")
+        if lag is not None and not (math.isfinite(lag) and lag >= 0):
+            raise ValueError(f"BatchFixedLagSmoother: lag must be finite and >= 0, got {lag!r}")
+        if window is not None and (int(window) != window or window < 1):
+            raise ValueError(f"BatchFixedLagSmoother: window must be an integer >= 1, got "
+                             f"{window!r}")
+        self.lag = None if lag is None else float(lag)
+        self.window = None if window is None else int(window)
+        self.max_iter = int(max_iter)
+        self.options = {"gauge": "none", **options}
+        self.time = -math.inf
+        self.marginalized: list[Key] = []
+        self._values: dict[Key, tuple[Any, np.ndarray]] = {}
+        self._stamp: dict[Key, float] = {}
+        self._records: list[_Record] = []
+        self._graph: tuple | None = None
+
+    # ------------------------------------------------------------------ window graph
+    def _build(self) -> tuple[FactorGraph, dict, list[Factor]]:
+        """The window graph: every key some factor touches (a key without factors, given
+        before its factors or left alone by a removal, waits outside it), every factor."""
+        if self._graph is not None:
+            return self._graph
+        if any(not rec.keys for rec in self._records):  # learn the keys of new factors
+            self._graph = self._assemble(list(self._values))
+        used = {k for rec in self._records for k in rec.keys}
+        keys = [k for k in self._values if k in used]
+        if self._graph is None or len(keys) != len(self._values):
+            self._graph = self._assemble(keys)
+        return self._graph
+
+    def _assemble(self, keys: list[Key]) -> tuple[FactorGraph, dict, list[Factor]]:
+        fams: dict[Any, list[Key]] = {}
+        for k in keys:
+            fams.setdefault(self._values[k][0], []).append(k)
+        g = FactorGraph()
+        where: dict[Key, tuple[Variables, int]] = {}
+        for fam, ks in fams.items():
+            P = np.stack([self._values[k][1] for k in ks])
+            h = g.add_variables(P if isinstance(fam, int) else fam(P), name=str(ks[0]))
+            for i, k in enumerate(ks):
+                where[k] = (h, i)
+        bind = Binding(where)
+        owner = {(id(h), i): k for k, (h, i) in where.items()}
+        factors = []
+        for rec in self._records:
+            f = rec.fn(bind)
+            if not isinstance(f, Factor):
+                raise TypeError(f"a factor function must return a Factor, got "
+                                f"{type(f).__name__}")
+            if not rec.keys:
+                rec.keys = tuple(dict.fromkeys(owner[(id(v), int(i))] for v, ix in f.args
+                                               for i in ix))
+            g.add(f)
+            factors.append(f)
+        return g, where, factors
+
+    # ------------------------------------------------------------------ the public calls
+    def update(self, new_factors: Iterable[FactorFn] = (),
+               new_values: Mapping[Key, Any] | None = None,
+               timestamps: Mapping[Key, float] | None = None,
+               remove: Iterable[FactorFn] = ()) -> Result | None:
+        """Add variables and factors (and remove factors), solve the window, marginalise what
+        left it.
+
+        Parameters
+        ----------
+        new_factors : iterable of callable
+            Functions ``fn(binding) -> Factor`` (see :class:`Binding`); each may refer to any
+            key of the window, new or old.
+        new_values : mapping, optional
+            ``key -> value`` of new variables: one group element, or a 1-D vector; the initial
+            estimate.
+        timestamps : mapping, optional
+            ``key -> time`` (seconds) of the new keys; required for every new key with
+            ``lag``; with ``window`` a missing one gets the update's number.
+        remove : iterable of callable
+            Factor functions given to an earlier update (the same objects) to take out, for
+            example measurements found to be outliers. A key left without factors (or given
+            before its factors) stays in the window, outside the solve, with its given value,
+            and is dropped without marginalisation when it leaves (GTSAM issues #2478, #2479).
+
+        Returns
+        -------
+        Result or None
+            The engine's result on the window (before marginalisation); ``None`` when the
+            window has no factor.
+
+        Raises
+        ------
+        ValueError
+            A key already in the window, a missing or non-finite timestamp, a factor referring
+            to a key outside the window, a factor to remove that is not in the window; nothing
+            is changed then.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> s = BatchFixedLagSmoother(window=3)
+        >>> res = s.update([lambda b: PriorFactor(*b["x0"], SE2.exp([1.0, 0, 0]),
+        ...                                       Isotropic(3, 0.1))],
+        ...                {"x0": SE2.identity()}, {"x0": 0.0})
+        >>> res.converged, np.round(s.calculate_estimate()["x0"].log(), 9).tolist()
+        (True, [1.0, 0.0, 0.0])
+        """
+        new_values = dict(new_values or {})
+        timestamps = dict(timestamps or {})
+        fns = list(new_factors)
+        for fn in fns:
+            if not callable(fn):
+                raise TypeError(f"new_factors: expected functions binding -> Factor, got "
+                                f"{type(fn).__name__}")
+        added: dict[Key, tuple[Any, np.ndarray]] = {}
+        for k, v in new_values.items():
+            if k in self._values:
+                raise ValueError(f"new_values: key {k!r} is already in the window")
+            added[k] = _family(v)
+        stamps: dict[Key, float] = {}
+        for k in added:
+            if k in timestamps:
+                t = float(timestamps[k])
+            elif self.lag is not None:
+                raise ValueError(f"timestamps: key {k!r} has none (a window by time needs "
+                                 f"one per new key)")
+            else:
+                t = float(max(self.time, 0.0) + 1.0) if self._stamp else 0.0
+            if not math.isfinite(t):
+                raise ValueError(f"timestamps: key {k!r} has a non-finite time {t!r}")
+            stamps[k] = t
+        extra = set(timestamps) - set(added)
+        if extra:
+            raise ValueError(f"timestamps: keys {sorted(map(repr, extra))} are not new values")
+        drop = list(remove)
+        ids = {id(rec.fn): n for n, rec in enumerate(self._records) if rec.prior is None}
+        missing = [fn for fn in drop if id(fn) not in ids]
+        if missing:
+            raise ValueError(f"remove: {len(missing)} factor function(s) are not in the window "
+                             f"(never added, or marginalised with their variables)")
+        gone = {ids[id(fn)] for fn in drop}
+        saved = (dict(self._values), dict(self._stamp), list(self._records), self._graph)
+        res = None
+        try:
+            self._values.update(added)
+            self._stamp.update(stamps)
+            self._records = [r for n, r in enumerate(self._records) if n not in gone]
+            self._records.extend(_Record(fn) for fn in fns)
+            self._graph = None
+            if self._records:
+                g, where, _ = self._build()
+                res = g.optimize(max_iter=self.max_iter, **self.options)
+        except Exception:
+            self._values, self._stamp, self._records, self._graph = saved
+            raise
+        if res is not None:
+            self._store(g, where, res)
+        if stamps:
+            self.time = max(self.time, max(stamps.values()))
+        self.marginalized = self._leaving()
+        if self.marginalized:
+            self._marginalize(set(self.marginalized))
+        return res
+
+    def _store(self, g: FactorGraph, where: dict, res: Result) -> None:
+        for h in g.variables:
+            P = np.asarray(res.values.params(h))
+            for k, (hk, i) in where.items():
+                if hk is h:
+                    self._values[k] = (self._values[k][0], P[i].copy())
+        g.set_values(res.values)
+
+    def _leaving(self) -> list[Key]:
+        if self.lag is not None:
+            cut = self.time - self.lag
+            return [k for k, t in self._stamp.items() if t < cut]
+        times = sorted(set(self._stamp.values()))
+        if len(times) <= (self.window or 0):
+            return []
+        cut = times[-(self.window or 0)]
+        return [k for k, t in self._stamp.items() if t < cut]
+
+    def _marginalize(self, M: set) -> None:
+        g, where, factors = self._build()
+        touch = [n for n, rec in enumerate(self._records) if M.intersection(rec.keys)]
+        sep = list(dict.fromkeys(k for n in touch for k in self._records[n].keys
+                                 if k not in M))
+        prior = None
+        if touch:
+            prob = Problem(g.variables, [factors[n] for n in touch], "none")
+            lin = prob.linearize([v.initial for v in g.variables])
+            H = prob.matrix(lin.data).toarray()
+
+            def cols(keys: list) -> np.ndarray:
+                out = []
+                for k in keys:
+                    h, i = where[k]
+                    node = prob.node_of[prob.key(h)][i]
+                    out.append(prob.node_off[node] + np.arange(h.dof))
+                return np.concatenate(out) if out else np.zeros(0, int)
+
+            m, s = cols([k for k in where if k in M]), cols(sep)
+            Hmm = H[np.ix_(m, m)]
+            try:
+                C = np.linalg.cholesky(Hmm)
+            except np.linalg.LinAlgError:
+                raise ValueError(f"marginalising {sorted(map(repr, M))}: their information is "
+                                 f"singular (a variable not determined by its factors)"
+                                 ) from None
+            if sep:
+                A = np.linalg.solve(C, H[np.ix_(m, s)])  # C^-1 H_ms
+                b = np.linalg.solve(C, lin.grad[m])
+                Hs = H[np.ix_(s, s)] - A.T @ A
+                gs = lin.grad[s] - A.T @ b
+                Hs = 0.5 * (Hs + Hs.T)
+                lam, U = np.linalg.eigh(Hs)
+                keep = lam > 1e-12 * max(float(lam.max()), 0.0)
+                if keep.any():
+                    sq = np.sqrt(lam[keep])
+                    L = sq[:, None] * U[:, keep].T
+                    r0 = (U[:, keep].T @ gs) / sq
+                    x0 = [self._values[k][1].copy() for k in sep]
+                    prior = (tuple(sep), L, r0, x0)
+        for n in sorted(touch, reverse=True):
+            del self._records[n]
+        for k in M:
+            del self._values[k], self._stamp[k]
+        if prior is not None:
+            self._records.append(_Record(_prior_fn(*prior), prior[0], prior))
+        self._graph = None
+
+    def calculate_estimate(self) -> dict[Key, Any]:
+        """The current estimate of every key in the window.
+
+        Returns
+        -------
+        dict
+            ``key -> value`` (a group element, or a 1-D array).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> s = BatchFixedLagSmoother(lag=1.0)
+        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.array([3.0]), Isotropic(1, 1.0))],
+        ...              {"p": np.zeros(1)}, {"p": 0.0})
+        >>> np.round(s.calculate_estimate()["p"], 6).tolist()
+        [3.0]
+        """
+        out: dict[Key, Any] = {}
+        for k, (fam, p) in self._values.items():
+            out[k] = p.copy() if isinstance(fam, int) else fam(p.copy())
+        return out
+
+    def marginal_covariance(self, key: Key) -> np.ndarray:
+        """The covariance of ``key`` given everything fused so far (the window's factors and
+        its marginal prior), at the current estimate, in the right-perturbation frame.
+
+        Parameters
+        ----------
+        key : hashable
+            A key of the window.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> s = BatchFixedLagSmoother(window=2)
+        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.zeros(2), Isotropic(2, 0.5))],
+        ...              {"p": np.zeros(2)}, {"p": 0.0})
+        >>> s.marginal_covariance("p").tolist()
+        [[0.25, 0.0], [0.0, 0.25]]
+        """
+        return self.joint_covariance([key])
+
+    def joint_covariance(self, keys: Sequence[Key]) -> np.ndarray:
+        """The joint covariance of several keys of the window (as :meth:`marginal_covariance`).
+
+        Parameters
+        ----------
+        keys : sequence of hashable
+            Keys of the window.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(sum dof, sum dof)`` in the order of ``keys``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> s = BatchFixedLagSmoother(window=2)
+        >>> _ = s.update([lambda b: PriorFactor(b.var("p"), [b.idx("p"), b.idx("q")],
+        ...                                     np.zeros((2, 1)), Isotropic(1, 1.0))],
+        ...              {"p": np.zeros(1), "q": np.zeros(1)}, {"p": 0.0, "q": 0.0})
+        >>> s.joint_covariance(["p", "q"]).tolist()
+        [[1.0, 0.0], [0.0, 1.0]]
+        """
+        missing = [k for k in keys if k not in self._values]
+        if missing:
+            raise ValueError(f"covariance: keys {missing!r} are not in the window")
+        if not self._records:
+            raise ValueError("covariance: the window has no factor")
+        g, where, _ = self._build()
+        free = [k for k in keys if k not in where]
+        if free:
+            raise ValueError(f"covariance: keys {free!r} have no factor (no information)")
+        # the window's anchor may be a marginal prior over several keys, which the graph's
+        # topological gauge check does not count as one: factorise without it
+        prob = g.problem("none")
+        ls = prob.analysed(self.options.get("linear_solver", "auto"))
+        ls.factorize(prob.linearize([v.initial for v in g.variables]).data)
+        idx = np.concatenate([prob.node_off[prob.node_of[prob.key(h)][i]] + np.arange(h.dof)
+                              for h, i in (where[k] for k in keys)])
+        E = np.zeros((prob.size, idx.size))
+        E[idx, np.arange(idx.size)] = 1.0
+        C = ls.solve(E)[idx]
+        return 0.5 * (C + C.T)
+
+    @property
+    def priors(self) -> list[MarginalPrior]:
+        """The marginal priors in the window (what marginalisation left), as built on the
+        current window graph.
+
+        Returns
+        -------
+        list of MarginalPrior
+
+        Examples
+        --------
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> BatchFixedLagSmoother(window=1).priors
+        []
+        """
+        if not any(rec.prior is not None for rec in self._records):
+            return []
+        _, _, factors = self._build()
+        return [f for f, rec in zip(factors, self._records, strict=True)
+                if rec.prior is not None and isinstance(f, MarginalPrior)]
+
+    def timestamps(self) -> dict[Key, float]:
+        """The timestamp of every key in the window.
+
+        Returns
+        -------
+        dict
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> s = BatchFixedLagSmoother(lag=1.0)
+        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.zeros(1), Isotropic(1, 1.0))],
+        ...              {"p": np.zeros(1)}, {"p": 2.5})
+        >>> s.timestamps()
+        {'p': 2.5}
+        """
+        return dict(self._stamp)
