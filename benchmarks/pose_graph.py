@@ -336,6 +336,11 @@ def user_pays(args) -> list[str]:
                                Path(__file__).resolve().parents[1] / "src")))
     avail = probe.stdout.split()
     back = [b for b in ("cholesky", "qdldl", "scipy", "pardiso") if b in avail]
+    if args.backends:  # --backends limits this pass too (it was ignored here)
+        missing = [b for b in args.backends if b not in avail]
+        if missing:
+            raise SystemExit(f"--backends: {missing} not installed for {args.python}")
+        back = [b for b in back if b in args.backends]
     contenders = (["gtsam"] + [f"fast:{b}" for b in back] + [f"numpy:{b}" for b in back])
     lines = ["## Timed as a user pays it (graph construction, pattern, ordering, symbolic "
              "analysis, solve; GTSAM: optimizer constructor + optimize())", "",
