@@ -271,6 +271,8 @@ def chordal(graph: PoseGraph) -> LieGroup:
     >>> bool(np.allclose(chordal(graph).translation()[:, 0], [0.0, 1.0, 2.0]))
     True
     """
+    from .certify.problem import project_so
+
     d = graph.dim
     n = graph.num_vertices
     ii, jj = graph.edge_index()
@@ -305,7 +307,7 @@ def chordal(graph: PoseGraph) -> LieGroup:
     xs = np.empty((n, d, d))
     xs[k0] = np.eye(d)
     xs[keep] = x.reshape(-1, d, d)
-    R = _project_so(np.swapaxes(xs, 1, 2))
+    R = project_so(np.swapaxes(xs, 1, 2))
     # translations: r = R_i^T (t_j - t_i) - t_ij, weight Omega_t; A_i = -R_i^T, A_j = R_i^T
     Ri = R[ii]
     W = Ri @ Itr @ np.swapaxes(Ri, 1, 2)
@@ -386,14 +388,4 @@ def _require_connected(graph: PoseGraph, ii: np.ndarray, jj: np.ndarray, k0: int
             f"chordal initialisation: {away.size} vertices are not connected by edges to the "
             f"anchor vertex {graph.ids[k0]}: {', '.join(ids)}{more}; add edges joining them to "
             f"the rest of the graph, or remove them")
-
-
-def _project_so(M: np.ndarray) -> np.ndarray:
-    """The nearest rotation (Frobenius norm) to each ``(d, d)`` matrix: ``U diag(1, .., det)
-    V^T``."""
-    U, _, Vt = np.linalg.svd(M)
-    det = np.linalg.det(U @ Vt)
-    D = np.ones(M.shape[:-1])
-    D[:, -1] = det
-    return (U * D[:, None, :]) @ Vt
 
