@@ -7,7 +7,8 @@
                      [--gnc-quantile P] [--init auto|file|odometry|chordal|certified]
                      [--certify]
                      [--linear-solver auto|cholesky|schur|...]
-                     [--max-iter N] [--gauge check|fix_first|none] [--plot FILE] [--json]
+                     [--max-iter N] [--abs-tol T] [--rel-tol T]
+                     [--gauge check|fix_first|none] [--plot FILE] [--json]
                      [--format auto|g2o|toro|bal] [--force] [-v | -q] [--blas-threads N]
                      [--damping auto|identity|diagonal]
                      [--information strict|nearest-psd|isotropic]
@@ -155,6 +156,12 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         "schur (landmarks eliminated), scipy, qdldl, pardiso, dense")
     p.add_argument("--max-iter", type=_positive_int, default=100, metavar="N",
                    help="maximum number of iterations, at least 1 (default 100)")
+    p.add_argument("--abs-tol", type=_tolerance, default=None, metavar="T",
+                   help="--solver lm, gn, dogleg: stop when an iteration lowers the cost by "
+                        "less than T (GTSAM's absoluteErrorTol; default 1e-5)")
+    p.add_argument("--rel-tol", type=_tolerance, default=None, metavar="T",
+                   help="--solver lm, gn, dogleg: stop when an iteration lowers the cost by "
+                        "less than T times the cost (GTSAM's relativeErrorTol; default 1e-5)")
     p.add_argument("--gauge", choices=GAUGES, default=None,
                    help="pose graphs: parts of the graph not connected to the first vertex or a "
                         "FIX vertex are an error (check, default), or have their first vertex "
@@ -233,6 +240,48 @@ def policy_options(args: argparse.Namespace, solver: str) -> tuple[dict, str]:
         raise ValueError(f"--damping applies to --solver lm, not {solver} (drop --damping)")
     return ({} if damping is None else {"damping": damping}), \
         getattr(args, "information", None) or "strict"
+
+
+def tolerance_options(args: argparse.Namespace, solver: str) -> dict:
+    """``--abs-tol`` and ``--rel-tol`` as the optimiser's keywords (only those given), refused
+    with ``--solver trust-region``, whose tests are Ceres' (``function_tolerance`` etc.).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments.
+    solver : str
+        The strategy's name.
+
+    Returns
+    -------
+    dict
+        ``abs_tol`` and ``rel_tol`` where given.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> from microlie.optim.command import tolerance_options
+    >>> tolerance_options(argparse.Namespace(abs_tol=0.0, rel_tol=None), "lm")
+    {'abs_tol': 0.0}
+    """
+    given = {k: v for k in ("abs_tol", "rel_tol")
+             if (v := getattr(args, k, None)) is not None}
+    if given and solver not in ("lm", "gn", "dogleg"):
+        raise ValueError(f"--abs-tol and --rel-tol apply to --solver lm, gn and dogleg, not "
+                         f"{solver} (drop them)")
+    return given
+
+
+def _tolerance(text: str) -> float:
+    """argparse type of a convergence tolerance: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
 
 
 def _positive_int(text: str) -> int:
@@ -399,7 +448,8 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
 
         return run_incremental(args, err)
     solver = args.solver or "lm"
-    damping, information = policy_options(args, solver)
+    solver_options, information = policy_options(args, solver)
+    solver_options.update(tolerance_options(args, solver))
     t0 = time.perf_counter()
     truth = None
     if getattr(args, "example", False):
@@ -449,7 +499,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
     try:
         with solver_output_to(err):
             res = fg.optimize(solver=solver, linear_solver=args.linear_solver,
-                              max_iter=args.max_iter, gauge=gauge, **damping,
+                              max_iter=args.max_iter, gauge=gauge, **solver_options,
                               # run() holds --blas-threads
                               verbose=show_iterations(err, args), blas_threads=None,
                               robust=robust)

@@ -59,7 +59,13 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     >>> report["final_cost"] < report["initial_cost"], report["linear_solver"]
     (True, 'schur')
     """
-    from .command import policy_options, print_header, show_iterations, solver_output_to
+    from .command import (
+        policy_options,
+        print_header,
+        show_iterations,
+        solver_output_to,
+        tolerance_options,
+    )
     from .io.bal import read_bal, write_bal
     from .sfm.bundle import BundleProblem, bundle_adjust, plot_bundle
 
@@ -67,7 +73,8 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     if getattr(args, "gauge", None) is not None:
         raise ValueError("--gauge applies to pose graphs: bundle adjustment leaves its gauge "
                          "free (the damping keeps the system solvable, as in Ceres)")
-    damping, _ = policy_options(args, solver)
+    options, _ = policy_options(args, solver)
+    options.update(tolerance_options(args, solver))
     if getattr(args, "information", None) is not None:
         raise ValueError("--information applies to pose graphs: a BAL file has no information "
                          "matrices (drop --information)")
@@ -93,7 +100,7 @@ def run_bal(args: argparse.Namespace, err: TextIO) -> dict[str, Any]:
     with solver_output_to(err):
         res = bundle_adjust(start, robust=getattr(args, "robust", None), solver=solver,
                             linear_solver=linear, max_iter=max_iter,
-                            verbose=show_iterations(err, args), **damping,
+                            verbose=show_iterations(err, args), **options,
                             blas_threads=None)  # run() holds the command's --blas-threads
     solved = start.with_values(res.values)
     report: dict[str, Any] = {
