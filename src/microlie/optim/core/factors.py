@@ -502,9 +502,10 @@ def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
     if not _finite(p):
         raise ValueError(f"{what}: measurement has non-finite entries")
     if p.ndim == 1:
-        p = p.reshape(1, pd)
-        return var.wrap(p.copy() if m == 1 else np.repeat(p, m, axis=0))
-    return var.wrap(np.array(p, order="C"))
+        p = p.reshape(1, pd) if m == 1 else np.repeat(p.reshape(1, pd), m, axis=0)
+    if isinstance(var, VectorVariables):
+        return np.array(p, order="C")  # the factor's own copy
+    return var.wrap(p)  # a group element copies the caller's array (from_params)
 
 
 class PriorFactor(Factor):
@@ -640,7 +641,8 @@ class BetweenFactor(Factor):
         super().__init__([(variables, i), (variables, j)], variables.dof, noise, loss)
         ii, jj = self.args[0][1], self.args[1][1]
         if self.count <= SMALL_BATCH:  # Python ints: cheaper than two NumPy calls
-            same = [k for k, (a, b) in enumerate(zip(ii.tolist(), jj.tolist())) if a == b]
+            pairs = zip(ii.tolist(), jj.tolist(), strict=True)
+            same = [k for k, (a, b) in enumerate(pairs) if a == b]
         else:
             same = np.flatnonzero(ii == jj).tolist()
         if same:
