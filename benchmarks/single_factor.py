@@ -52,8 +52,14 @@ def worker(calls: int) -> dict[str, float]:
     import numpy as np
 
     from microlie import SE2, SE3
-    from microlie.optim import (BetweenFactor, Diagonal, FactorGraph, Information, Isotropic,
-                                PriorFactor)
+    from microlie.optim import (
+        BetweenFactor,
+        Diagonal,
+        FactorGraph,
+        Information,
+        Isotropic,
+        PriorFactor,
+    )
 
     fns: dict[str, Callable[[], object]] = {}
     for G in (SE2, SE3):
