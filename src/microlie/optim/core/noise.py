@@ -47,19 +47,29 @@ def _finite(a: np.ndarray) -> bool:
 def _cholesky_checked(M: np.ndarray, what: str, upper: bool = False) -> np.ndarray:
     """Lower (``upper``: upper) Cholesky factor of each symmetric positive definite matrix, or
     a ValueError."""
-    if M.ndim == 2 and M.shape[0] <= 12:  # one small matrix: Python floats and LAPACK's potrf
-        v = M.tolist()
-        d = len(v)
-        if not all(abs(v[i][j] - v[j][i]) <= 1e-9 * (1.0 + abs(v[i][j]))
-                   for i in range(d) for j in range(d) if i != j):
-            raise ValueError(f"{what} is not symmetric")
-        c, info = dpotrf(M, lower=0 if upper else 1, clean=1)
-        if info == 0:
-            return np.ascontiguousarray(c)
-        ev = np.linalg.eigvalsh(M).min()
-        raise ValueError(f"{what} is not positive definite: smallest eigenvalue {ev:.3g}")
+    if M.shape[-1] <= 12 and (M.ndim == 2 or M.shape[0] <= 4):
+        # one or a few small matrices (a factor that arrives alone): Python floats for the
+        # symmetry check and LAPACK's potrf, far cheaper there than NumPy's batched calls
+        if M.ndim == 2:
+            return _cholesky_small(M, what, "", upper)
+        return np.stack([_cholesky_small(Mk, what, f" (factor {k})", upper)
+                         for k, Mk in enumerate(M)])
     C = _cholesky_stack(M, what)
     return np.swapaxes(C, -1, -2).copy() if upper else C
+
+
+def _cholesky_small(M: np.ndarray, what: str, where: str, upper: bool) -> np.ndarray:
+    """:func:`_cholesky_checked` of one ``(d, d)`` matrix (``where`` names it in errors)."""
+    v = M.tolist()
+    d = len(v)
+    if not all(abs(v[i][j] - v[j][i]) <= 1e-9 * (1.0 + abs(v[i][j]))
+               for i in range(d) for j in range(d) if i != j):
+        raise ValueError(f"{what} is not symmetric{where}")
+    c, info = dpotrf(M, lower=0 if upper else 1, clean=1)
+    if info == 0:
+        return np.ascontiguousarray(c)
+    ev = np.linalg.eigvalsh(M).min()
+    raise ValueError(f"{what} is not positive definite{where}: smallest eigenvalue {ev:.3g}")
 
 
 def _cholesky_stack(M: np.ndarray, what: str) -> np.ndarray:
