@@ -17,6 +17,8 @@ Run (one command, from the repository root; GTSAM from the benchmark environment
         --python /work/main/.venv/bin/python --before /tmp/before/src --after src --rounds 5
 
 Without ``--before`` only the current code is timed; without GTSAM its column is empty.
+``--threshold`` times the compiled row loop against the batched kernels by batch size instead
+(where ``microlie.optim.core.factors.SMALL_BATCH`` belongs).
 """
 
 from __future__ import annotations
@@ -159,6 +161,38 @@ def gtsam_times(calls: int) -> dict[str, float]:
         gc.enable()
 
 
+def threshold(calls: int) -> None:
+    """The row loop against the batched kernels by batch size (``evaluate_into``, dense
+    information): where ``SMALL_BATCH`` should be."""
+    import numpy as np
+
+    import microlie.optim.core.factors as F
+    from microlie import SE2, SE3
+    from microlie.optim import BetweenFactor, FactorGraph, Information
+
+    print("| group | rows m | batched us | row loop us | rows / batched |\n|---|---|---|---|---|")
+    keep = F.SMALL_BATCH
+    try:
+        for G in (SE2, SE3):
+            for m in (1, 4, 16, 64, 256, 1024, 4096):
+                g = FactorGraph()
+                x = g.add_variables(G.random(2 * m, rng=0))
+                f = BetweenFactor(x, np.arange(m), np.arange(m, 2 * m), G.random(m, rng=1),
+                                  Information(np.eye(G.dof) * 4))
+                vals = [x.wrap(x.initial[:m]), x.wrap(x.initial[m:])]
+                out = np.empty((m, G.dof, 2 * G.dof))
+                n = max(3, calls // m)
+                t = {}
+                for lim in (0, m):  # interleaved: batched, rows, batched, rows, ...
+                    F.SMALL_BATCH = lim
+                    t[lim] = _median_call(lambda f=f, vals=vals, out=out:
+                                          f.evaluate_into(vals, out), n)
+                print(f"| {G.__name__} | {m} | {t[0] * 1e6:.1f} | {t[m] * 1e6:.1f} | "
+                      f"{t[m] / t[0]:.2f} |")
+    finally:
+        F.SMALL_BATCH = keep
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--before", help="the src folder of the code before (optional)")
@@ -167,8 +201,13 @@ def main(argv: list[str] | None = None) -> int:
                     help="the interpreter of the microlie workers")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--calls", type=int, default=300)
+    ap.add_argument("--threshold", action="store_true",
+                    help="time the row loop against the batched kernels by batch size instead")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.threshold:
+        threshold(args.calls)
+        return 0
     if args.worker:
         print(json.dumps(worker(args.calls)))
         return 0
