@@ -6,8 +6,8 @@ information noise, of the noise constructors, and of evaluating one factor (``ev
 residual and Jacobians; ``linearize``: whitened ``e`` and ``A``), beside GTSAM's pybind
 equivalents (``BetweenFactorPose3(...)``, ``noiseModel.Gaussian.Information``, ``error``,
 ``linearize``). Checkouts of ``src`` run in alternating subprocesses (interleaved: a burst of
-load hits all alike) and GTSAM in this process between them; the table shows the median over
-rounds of each worker's median.
+load hits all alike) and GTSAM in this process between them; each worker takes the least mean
+of short batches of calls (``_least_call``), the table the median over rounds.
 
 Run (one command, from the repository root; GTSAM from the benchmark environment)::
 
@@ -34,8 +34,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 
-def _median_call(fn: Callable[[], object], calls: int, reps: int = 7) -> float:
-    """Median over ``reps`` batches of the mean seconds per call in a batch of ``calls``."""
+def _least_call(fn: Callable[[], object], calls: int, reps: int = 25) -> float:
+    """The least mean seconds per call over ``reps`` short batches of ``calls`` calls: on a
+    shared machine the batch that no other process interrupted (a batch that spans a
+    scheduler slice is inflated, more so for slower calls; the median would favour the
+    faster code)."""
     for _ in range(max(calls // 10, 5)):
         fn()
     out = []
@@ -44,7 +47,7 @@ def _median_call(fn: Callable[[], object], calls: int, reps: int = 7) -> float:
         for _ in range(calls):
             fn()
         out.append((time.perf_counter() - t0) / calls)
-    return statistics.median(out)
+    return min(out)
 
 
 def worker(calls: int) -> dict[str, float]:
@@ -97,7 +100,7 @@ def worker(calls: int) -> dict[str, float]:
             del fns[key]
     gc.disable()
     try:
-        return {k: _median_call(fn, calls) for k, fn in fns.items()}
+        return {k: _least_call(fn, calls) for k, fn in fns.items()}
     finally:
         gc.enable()
 
@@ -156,7 +159,7 @@ def gtsam_times(calls: int) -> dict[str, float]:
         fns[f"{n} linearize (e, A)"] = lambda f=f, v=v: f.linearize(v)
     gc.disable()
     try:
-        return {k: _median_call(fn, calls) for k, fn in fns.items()}
+        return {k: _least_call(fn, calls) for k, fn in fns.items()}
     finally:
         gc.enable()
 
@@ -185,7 +188,7 @@ def threshold(calls: int) -> None:
                 t = {}
                 for lim in (0, m):  # interleaved: batched, rows, batched, rows, ...
                     F.SMALL_BATCH = lim
-                    t[lim] = _median_call(lambda f=f, vals=vals, out=out:
+                    t[lim] = _least_call(lambda f=f, vals=vals, out=out:
                                           f.evaluate_into(vals, out), n)
                 print(f"| {G.__name__} | {m} | {t[0] * 1e6:.1f} | {t[m] * 1e6:.1f} | "
                       f"{t[m] / t[0]:.2f} |")
@@ -200,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--python", default=sys.executable,
                     help="the interpreter of the microlie workers")
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--calls", type=int, default=300)
+    ap.add_argument("--calls", type=int, default=30, help="calls per timed batch")
     ap.add_argument("--threshold", action="store_true",
                     help="time the row loop against the batched kernels by batch size instead")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
@@ -223,7 +226,8 @@ def main(argv: list[str] | None = None) -> int:
         runs["gtsam"].append(gtsam_times(args.calls))
     load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     print(f"single_factor.py, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-          f"{args.rounds} rounds x 7 x {args.calls} calls; `uptime`: {load}\n")
+          f"{args.rounds} rounds, least of 25 batches of {args.calls} calls; `uptime`: "
+          f"{load}\n")
 
     def med(w: str, key: str) -> float | None:
         vals = [r[key] for r in runs[w] if key in r]

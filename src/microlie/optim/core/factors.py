@@ -43,22 +43,20 @@ _F64 = np.dtype(np.float64)
 _row_groups: dict[type, int] = {}
 
 
-def _row_kernels(group: type, *params: Any) -> Any:
+def _row_kernels(group: type, shape: tuple[int, int], *params: Any) -> Any:
     """The compiled row module and the index of ``group`` in it, when it handles ``group`` and
-    every array of ``params`` is float64 NumPy; else ``None`` (the caller takes the batched
-    path)."""
+    every array of ``params`` is a float64 NumPy array of ``shape``; else ``None`` (the caller
+    takes the batched path)."""
+    for p in params:
+        if type(p) is not np.ndarray or p.dtype is not _F64 or p.shape != shape:
+            return None
     mod = _fast.module("_factors")
     if mod is None:
         return None
     if not _row_groups:
         _row_groups.update({getattr(_groups, n): k for k, n in enumerate(mod.GROUPS)})
     g = _row_groups.get(group)
-    if g is None:
-        return None
-    for p in params:
-        if type(p) is not np.ndarray or p.dtype is not _F64:
-            return None
-    return mod, g
+    return None if g is None else (mod, g)
 
 
 def _params(var: Variables, X: Any) -> Any:
@@ -592,9 +590,7 @@ class PriorFactor(Factor):
         var = self.args[0][0]
         (p,) = params
         m, d = self.count, self.dim
-        if m > SMALL_BATCH or np.shape(p) != (m, var.group.param_dim):
-            return None
-        rk = _row_kernels(var.group, p)
+        rk = _row_kernels(var.group, (m, var.group.param_dim), p) if m <= SMALL_BATCH else None
         if rk is None:
             return None
         r, J = np.empty((m, d)), np.empty((m, d, d))
@@ -715,10 +711,8 @@ class BetweenFactor(Factor):
         var = self.args[0][0]
         pi, pj = params
         m, d = self.count, self.dim
-        shape = (m, var.group.param_dim)
-        if m > SMALL_BATCH or np.shape(pi) != shape or np.shape(pj) != shape:
-            return None
-        rk = _row_kernels(var.group, pi, pj)
+        rk = (_row_kernels(var.group, (m, var.group.param_dim), pi, pj)
+              if m <= SMALL_BATCH else None)
         if rk is None or (out is not None and out.dtype is not _F64):
             return None
         r = np.empty((m, d))
