@@ -35,9 +35,9 @@ _SIGNATURE_OK: set[tuple[type, int]] = set()
 
 # BetweenFactor and PriorFactor batches of at most this many rows are evaluated row by row by
 # the compiled module _factors (one call, no NumPy temporaries: what a factor that arrives alone
-# costs); larger batches take the batched group kernels (evaluate_into, SE2 / SE3, load 15:
-# the rows cost 0.01-0.2x the batched path at 1-16 rows, 0.3-0.5x at 64, 0.6-1.0x at 256,
-# 1.0-2.6x from 1024; benchmarks/single_factor.py --threshold)
+# costs); larger batches take the batched group kernels (evaluate_into, SE2 / SE3: the rows
+# cost 0.10-0.23x the batched path at 1-16 rows, 0.35-0.53x at 64, 0.8-1.0x at 256, 1.3-1.7x
+# from 1024; benchmarks/single_factor.py --threshold, results/single_factor-s10.md)
 SMALL_BATCH = 64
 _F64 = np.dtype(np.float64)
 _row_groups: dict[type, int] = {}
