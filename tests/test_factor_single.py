@@ -258,3 +258,25 @@ def test_noise_constructors_check_single_matrices():
         assert np.allclose(L.T @ L, O, rtol=1e-12, atol=1e-12 * np.abs(O).max())
         assert np.allclose(L, scipy.linalg.cholesky(O, lower=False), rtol=1e-12, atol=1e-14)
     assert np.array_equal(Diagonal([0.5, 0.25]).sqrt_info, np.diag([2.0, 4.0]))
+
+
+def test_linearize_of_any_factor_is_the_whitened_evaluate():
+    """The general path (a CustomFactor, one information matrix per row): e = L r and
+    A = L J against dense products of evaluate's output."""
+    from microlie.optim import CustomFactor
+
+    rng = np.random.default_rng(12)
+    g = FactorGraph()
+    x = g.add_variables(rng.standard_normal((4, 2)))
+    B = rng.standard_normal((2, 2, 2))
+    info = B @ np.swapaxes(B, 1, 2) + np.eye(2)
+    f = CustomFactor(lambda a, b: np.sin(a) * b, [(x, [0, 1]), (x, [2, 3])], 2,
+                     Information(info), jac="numerical")
+    P = [x.initial[[0, 1]], x.initial[[2, 3]]]
+    e, A = f.linearize(P)
+    r, J = f.evaluate(P, True)
+    L = f.noise.sqrt_info
+    for k in range(2):
+        assert np.allclose(e[k], L[k] @ r[k], rtol=1e-14, atol=1e-14)
+        assert np.allclose(A[k], L[k] @ np.hstack([J[0][k], J[1][k]]), rtol=1e-14, atol=1e-14)
+    assert np.allclose(r, np.sin(P[0]) * P[1], rtol=1e-14)
