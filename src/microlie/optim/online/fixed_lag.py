@@ -205,10 +205,11 @@ class MarginalPrior(Factor):
 class _Record:
     """A factor function of the window, the keys it touches, and its prior (if it is one)."""
 
-    __slots__ = ("fn", "keys", "prior")
+    __slots__ = ("fn", "keys", "prior", "factor")
 
     def __init__(self, fn: FactorFn, keys: tuple = (), prior: Any = None) -> None:
         self.fn, self.keys, self.prior = fn, keys, prior
+        self.factor: Factor | None = None  # the incremental smoother's built factor
 
 
 def _family(value: Any) -> tuple[Any, np.ndarray]:
@@ -233,7 +234,125 @@ def _prior_fn(keys: tuple, L: np.ndarray, r0: np.ndarray, x0: list[np.ndarray]) 
     return fn
 
 
-class BatchFixedLagSmoother:
+def _dense_system(variables: list[Variables], factors: list[Factor], states: list[np.ndarray],
+                  items: list[tuple[Variables, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """The Gauss-Newton ``H = J^T J`` and gradient ``g = J^T r`` of ``factors`` at ``states``
+    over the unknowns of ``items`` (in that order), dense."""
+    prob = Problem(variables, factors, "none")
+    lin = prob.linearize(states)
+    ix = np.concatenate([prob.node_off[prob.node_of[prob.key(h)][i]] + np.arange(h.dof)
+                         for h, i in items]) if items else np.zeros(0, np.int64)
+    H = prob.matrix(lin.data)[ix][:, ix].toarray()
+    return H, np.asarray(lin.grad)[ix]
+
+
+def _schur_prior(H: np.ndarray, g: np.ndarray, nm: int, what: Any
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Marginalise the first ``nm`` unknowns of ``(H, g)``: ``(L, r0)`` with ``L^T L`` the
+    Schur complement on the others and ``L^T r0`` its gradient (``None``: nothing left)."""
+    try:
+        C = np.linalg.cholesky(H[:nm, :nm])
+    except np.linalg.LinAlgError:
+        raise ValueError(f"marginalising {what}: their information is singular (a variable "
+                         f"not determined by its factors)") from None
+    if H.shape[0] == nm:
+        return None
+    A = np.linalg.solve(C, H[:nm, nm:])  # C^-1 H_ms
+    b = np.linalg.solve(C, g[:nm])
+    Hs = H[nm:, nm:] - A.T @ A
+    gs = g[nm:] - A.T @ b
+    Hs = 0.5 * (Hs + Hs.T)
+    lam, U = np.linalg.eigh(Hs)
+    keep = lam > 1e-12 * max(float(lam.max()), 0.0)
+    if not keep.any():
+        return None
+    sq = np.sqrt(lam[keep])
+    return sq[:, None] * U[:, keep].T, (U[:, keep].T @ gs) / sq
+
+
+class _Window:
+    """What both fixed-lag smoothers share: the window rule (by time or by count), the keys'
+    timestamps, and the checks of new keys."""
+
+    def __init__(self, lag: float | None, window: int | None) -> None:
+        name = type(self).__name__
+        if (lag is None) == (window is None):
+            raise ValueError(f"{name}: give exactly one of lag (seconds) and window (a count "
+                             f"of timestamps)")
+        if lag is not None and not (math.isfinite(lag) and lag >= 0):
+            raise ValueError(f"{name}: lag must be finite and >= 0, got {lag!r}")
+        if window is not None and (int(window) != window or window < 1):
+            raise ValueError(f"{name}: window must be an integer >= 1, got {window!r}")
+        self.lag = None if lag is None else float(lag)
+        self.window = None if window is None else int(window)
+        self.time = -math.inf
+        self.marginalized: list[Key] = []
+        self._stamp: dict[Key, float] = {}
+
+    def _check_new(self, known: Any, fns: list, new_values: Mapping[Key, Any] | None,
+                   timestamps: Mapping[Key, float] | None
+                   ) -> tuple[dict[Key, tuple[Any, np.ndarray]], dict[Key, float]]:
+        """Check the factor functions and the new keys; their ``(family, params)`` and times."""
+        for fn in fns:
+            if not callable(fn):
+                raise TypeError(f"new_factors: expected functions binding -> Factor, got "
+                                f"{type(fn).__name__}")
+        new_values = dict(new_values or {})
+        timestamps = dict(timestamps or {})
+        added: dict[Key, tuple[Any, np.ndarray]] = {}
+        for k, v in new_values.items():
+            if k in known:
+                raise ValueError(f"new_values: key {k!r} is already in the window")
+            added[k] = _family(v)
+        stamps: dict[Key, float] = {}
+        for k in added:
+            if k in timestamps:
+                t = float(timestamps[k])
+            elif self.lag is not None:
+                raise ValueError(f"timestamps: key {k!r} has none (a window by time needs "
+                                 f"one per new key)")
+            else:
+                t = float(max(self.time, 0.0) + 1.0) if self._stamp else 0.0
+            if not math.isfinite(t):
+                raise ValueError(f"timestamps: key {k!r} has a non-finite time {t!r}")
+            stamps[k] = t
+        extra = set(timestamps) - set(added)
+        if extra:
+            raise ValueError(f"timestamps: keys {sorted(map(repr, extra))} are not new values")
+        return added, stamps
+
+    def _leaving(self) -> list[Key]:
+        if self.lag is not None:
+            cut = self.time - self.lag
+            return [k for k, t in self._stamp.items() if t < cut]
+        times = sorted(set(self._stamp.values()))
+        if len(times) <= (self.window or 0):
+            return []
+        cut = times[-(self.window or 0)]
+        return [k for k, t in self._stamp.items() if t < cut]
+
+    def timestamps(self) -> dict[Key, float]:
+        """The timestamp of every key in the window.
+
+        Returns
+        -------
+        dict
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> s = BatchFixedLagSmoother(lag=1.0)
+        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.zeros(1), Isotropic(1, 1.0))],
+        ...              {"p": np.zeros(1)}, {"p": 2.5})
+        >>> s.timestamps()
+        {'p': 2.5}
+        """
+        return dict(self._stamp)
+
+
+class BatchFixedLagSmoother(_Window):
     """A fixed-lag smoother: Levenberg-Marquardt over the variables of a window, the older
     ones marginalised into a :class:`MarginalPrior` with first-estimate Jacobians.
 
@@ -289,22 +408,10 @@ class BatchFixedLagSmoother:
 
     def __init__(self, lag: float | None = None, window: int | None = None, *,
                  max_iter: int = 100, **options: Any) -> None:
-        if (lag is None) == (window is None):
-            raise ValueError("BatchFixedLagSmoother: give exactly one of lag (seconds) and "
-                             "window (a count of timestamps)")
-        if lag is not None and not (math.isfinite(lag) and lag >= 0):
-            raise ValueError(f"BatchFixedLagSmoother: lag must be finite and >= 0, got {lag!r}")
-        if window is not None and (int(window) != window or window < 1):
-            raise ValueError(f"BatchFixedLagSmoother: window must be an integer >= 1, got "
-                             f"{window!r}")
-        self.lag = None if lag is None else float(lag)
-        self.window = None if window is None else int(window)
+        super().__init__(lag, window)
         self.max_iter = int(max_iter)
         self.options = {"gauge": "none", **options}
-        self.time = -math.inf
-        self.marginalized: list[Key] = []
         self._values: dict[Key, tuple[Any, np.ndarray]] = {}
-        self._stamp: dict[Key, float] = {}
         self._records: list[_Record] = []
         self._graph: tuple | None = None
 
@@ -399,33 +506,8 @@ class BatchFixedLagSmoother:
         >>> res.converged, np.round(s.calculate_estimate()["x0"].log(), 9).tolist()
         (True, [1.0, 0.0, 0.0])
         """
-        new_values = dict(new_values or {})
-        timestamps = dict(timestamps or {})
         fns = list(new_factors)
-        for fn in fns:
-            if not callable(fn):
-                raise TypeError(f"new_factors: expected functions binding -> Factor, got "
-                                f"{type(fn).__name__}")
-        added: dict[Key, tuple[Any, np.ndarray]] = {}
-        for k, v in new_values.items():
-            if k in self._values:
-                raise ValueError(f"new_values: key {k!r} is already in the window")
-            added[k] = _family(v)
-        stamps: dict[Key, float] = {}
-        for k in added:
-            if k in timestamps:
-                t = float(timestamps[k])
-            elif self.lag is not None:
-                raise ValueError(f"timestamps: key {k!r} has none (a window by time needs "
-                                 f"one per new key)")
-            else:
-                t = float(max(self.time, 0.0) + 1.0) if self._stamp else 0.0
-            if not math.isfinite(t):
-                raise ValueError(f"timestamps: key {k!r} has a non-finite time {t!r}")
-            stamps[k] = t
-        extra = set(timestamps) - set(added)
-        if extra:
-            raise ValueError(f"timestamps: keys {sorted(map(repr, extra))} are not new values")
+        added, stamps = self._check_new(self._values, fns, new_values, timestamps)
         drop = list(remove)
         ids = {id(rec.fn): n for n, rec in enumerate(self._records) if rec.prior is None}
         missing = [fn for fn in drop if id(fn) not in ids]
@@ -464,16 +546,6 @@ class BatchFixedLagSmoother:
                     self._values[k] = (self._values[k][0], P[i].copy())
         g.set_values(res.values)
 
-    def _leaving(self) -> list[Key]:
-        if self.lag is not None:
-            cut = self.time - self.lag
-            return [k for k, t in self._stamp.items() if t < cut]
-        times = sorted(set(self._stamp.values()))
-        if len(times) <= (self.window or 0):
-            return []
-        cut = times[-(self.window or 0)]
-        return [k for k, t in self._stamp.items() if t < cut]
-
     def _marginalize(self, M: set) -> None:
         g, where, factors = self._build()
         touch = [n for n, rec in enumerate(self._records) if M.intersection(rec.keys)]
@@ -481,40 +553,14 @@ class BatchFixedLagSmoother:
                                  if k not in M))
         prior = None
         if touch:
-            prob = Problem(g.variables, [factors[n] for n in touch], "none")
-            lin = prob.linearize([v.initial for v in g.variables])
-            H = prob.matrix(lin.data).toarray()
-
-            def cols(keys: list) -> np.ndarray:
-                out = []
-                for k in keys:
-                    h, i = where[k]
-                    node = prob.node_of[prob.key(h)][i]
-                    out.append(prob.node_off[node] + np.arange(h.dof))
-                return np.concatenate(out) if out else np.zeros(0, int)
-
-            m, s = cols([k for k in where if k in M]), cols(sep)
-            Hmm = H[np.ix_(m, m)]
-            try:
-                C = np.linalg.cholesky(Hmm)
-            except np.linalg.LinAlgError:
-                raise ValueError(f"marginalising {sorted(map(repr, M))}: their information is "
-                                 f"singular (a variable not determined by its factors)"
-                                 ) from None
-            if sep:
-                A = np.linalg.solve(C, H[np.ix_(m, s)])  # C^-1 H_ms
-                b = np.linalg.solve(C, lin.grad[m])
-                Hs = H[np.ix_(s, s)] - A.T @ A
-                gs = lin.grad[s] - A.T @ b
-                Hs = 0.5 * (Hs + Hs.T)
-                lam, U = np.linalg.eigh(Hs)
-                keep = lam > 1e-12 * max(float(lam.max()), 0.0)
-                if keep.any():
-                    sq = np.sqrt(lam[keep])
-                    L = sq[:, None] * U[:, keep].T
-                    r0 = (U[:, keep].T @ gs) / sq
-                    x0 = [self._values[k][1].copy() for k in sep]
-                    prior = (tuple(sep), L, r0, x0)
+            mk = [k for k in where if k in M]
+            H, grad = _dense_system(g.variables, [factors[n] for n in touch],
+                                    [v.initial for v in g.variables],
+                                    [where[k] for k in mk + sep])
+            nm = sum(where[k][0].dof for k in mk)
+            out = _schur_prior(H, grad, nm, sorted(map(repr, M)))
+            if out is not None:
+                prior = (tuple(sep), out[0], out[1], [self._values[k][1].copy() for k in sep])
         for n in sorted(touch, reverse=True):
             del self._records[n]
         for k in M:
@@ -640,23 +686,3 @@ class BatchFixedLagSmoother:
         _, _, factors = self._build()
         return [f for f, rec in zip(factors, self._records, strict=True)
                 if rec.prior is not None and isinstance(f, MarginalPrior)]
-
-    def timestamps(self) -> dict[Key, float]:
-        """The timestamp of every key in the window.
-
-        Returns
-        -------
-        dict
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from microlie.optim import PriorFactor, Isotropic
-        >>> from microlie.optim.online import BatchFixedLagSmoother
-        >>> s = BatchFixedLagSmoother(lag=1.0)
-        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.zeros(1), Isotropic(1, 1.0))],
-        ...              {"p": np.zeros(1)}, {"p": 2.5})
-        >>> s.timestamps()
-        {'p': 2.5}
-        """
-        return dict(self._stamp)
