@@ -27,7 +27,7 @@ from ..core.problem import Problem
 from ..core.solvers import Result
 from ..core.variables import Variables
 
-__all__ = ["BatchFixedLagSmoother", "MarginalPrior", "Binding"]
+__all__ = ["BatchFixedLagSmoother", "IncrementalFixedLagSmoother", "MarginalPrior", "Binding"]
 
 Key = Hashable
 FactorFn = Callable[["Binding"], Factor]
@@ -686,3 +686,427 @@ class BatchFixedLagSmoother(_Window):
         _, _, factors = self._build()
         return [f for f, rec in zip(factors, self._records, strict=True)
                 if rec.prior is not None and isinstance(f, MarginalPrior)]
+
+
+_SLOTS = 32  # elements per variable batch of the incremental smoother (one batch per family)
+
+
+class IncrementalFixedLagSmoother(_Window):
+    """A fixed-lag smoother on the incremental smoother: each update is one iSAM2 update of
+    :class:`IncrementalSmoother` over the window, and what leaves the window is marginalised
+    into a :class:`MarginalPrior` with first-estimate Jacobians, as in
+    :class:`BatchFixedLagSmoother` (GTSAM's ``IncrementalFixedLagSmoother``).
+
+    The same calls as :class:`BatchFixedLagSmoother` (``update``, ``calculate_estimate``,
+    ``marginal_covariance``, ``joint_covariance``, ``priors``, ``timestamps``), the same keys,
+    factor functions (``fn(binding) -> Factor``, called once per factor) and window rule.
+    Marginalisation: after an update the factors touching the leaving keys are linearised at
+    the current estimate and reduced by the Schur complement onto the keys they share with the
+    window; the next update hands the smoother the prior and takes those factors out, and each
+    leaving key keeps a unit prior at its last estimate, alone in its own component, so it no
+    longer influences the window. Those left-behind variables are dropped by rebuilding the
+    smoother from the window (its factors at the current estimate) once they outnumber
+    ``max(64, 2 x`` the window's keys ``)``: memory stays bounded.
+
+    Parameters
+    ----------
+    lag : float, optional
+        Window by time (as :class:`BatchFixedLagSmoother`).
+    window : int, optional
+        Window by count of timestamps. Exactly one of ``lag`` and ``window``.
+    relinearize_threshold : float
+        :class:`IncrementalSmoother`'s (GTSAM's ``relinearizeThreshold``, 0.1).
+    relinearize_skip : int
+        :class:`IncrementalSmoother`'s (GTSAM's ``relinearizeSkip``, 10); 1 with a threshold of
+        0 relinearises every variable at every update (Gauss-Newton over the window).
+    wildfire : float
+        :class:`IncrementalSmoother`'s partial back-substitution threshold (0.001).
+    iterations : int
+        Smoother updates per :meth:`update` (the extra ones without new factors, as GTSAM
+        users call ``update()`` again); 1 is iSAM2's one Gauss-Newton step per measurement.
+
+    Attributes
+    ----------
+    smoother : IncrementalSmoother
+        The smoother of the window (replaced when the window is rebuilt).
+    time : float
+        The newest timestamp seen.
+    marginalized : list
+        The keys marginalised by the last update.
+
+    Examples
+    --------
+    The random walk of :class:`BatchFixedLagSmoother`'s example:
+
+    >>> import numpy as np
+    >>> from microlie.optim import BetweenFactor, PriorFactor, Isotropic
+    >>> from microlie.optim.online import IncrementalFixedLagSmoother
+    >>> s = IncrementalFixedLagSmoother(lag=2.0)
+    >>> _ = s.update([lambda b: PriorFactor(*b[0], np.zeros(1), Isotropic(1, 1.0))],
+    ...              {0: np.zeros(1)}, {0: 0.0})
+    >>> for k in range(1, 6):
+    ...     _ = s.update([lambda b, k=k: BetweenFactor(b.var(k - 1), b.idx(k - 1), b.idx(k),
+    ...                                                np.ones(1), Isotropic(1, 1.0))],
+    ...                  {k: np.zeros(1)}, {k: float(k)})
+    >>> sorted(s.calculate_estimate()), s.marginalized
+    ([3, 4, 5], [2])
+    >>> est, var = s.calculate_estimate()[5], s.marginal_covariance(5)
+    >>> round(float(est[0]), 6), round(float(var[0, 0]), 6)  # 5 steps, variance 1 + 5
+    (5.0, 6.0)
+    """
+
+    def __init__(self, lag: float | None = None, window: int | None = None, *,
+                 relinearize_threshold: float = 0.1, relinearize_skip: int = 10,
+                 wildfire: float = 0.001, iterations: int = 1) -> None:
+        super().__init__(lag, window)
+        if int(iterations) != iterations or iterations < 1:
+            raise ValueError(f"IncrementalFixedLagSmoother: iterations must be an integer >= 1, "
+                             f"got {iterations!r}")
+        self.iterations = int(iterations)
+        self._options = {"relinearize_threshold": relinearize_threshold,
+                         "relinearize_skip": relinearize_skip, "wildfire": wildfire}
+        self._fam: dict[Key, Any] = {}            # key -> its family (group class or length)
+        self._where: dict[Key, tuple[Variables, int]] = {}
+        self._pending: dict[Key, np.ndarray] = {}  # keys not in the smoother yet: their value
+        self._parked: dict[Key, Factor] = {}       # keys in the smoother without factors
+        self._count: dict[Key, int] = {}           # factors (records) per key
+        self._records: list[_Record] = []
+        self._to_add: list[_Record] = []           # records the smoother has not got yet
+        self._extra: list[Factor] = []             # unit priors of left keys, not given yet
+        self._to_remove: list[Factor] = []         # factors of left keys, still in the smoother
+        self._dead = 0
+        self._reset()
+
+    def _reset(self) -> None:
+        from .incremental import IncrementalSmoother
+
+        self.smoother = IncrementalSmoother(**self._options)
+        self._slots: dict[Any, tuple[Variables, int]] = {}
+
+    def _slot(self, fam: Any) -> tuple[Variables, int]:
+        h, n = self._slots.get(fam, (None, _SLOTS))
+        if h is None or n >= _SLOTS:
+            h = self.smoother.add_variables(np.zeros((_SLOTS, fam)) if isinstance(fam, int)
+                                            else fam.identity(_SLOTS))
+            n = 0
+        self._slots[fam] = (h, n + 1)
+        return h, n
+
+    def _value(self, key: Key, p: np.ndarray) -> Any:
+        fam = self._fam[key]
+        return p.copy() if isinstance(fam, int) else fam(p.copy())
+
+    def _params(self) -> dict[Key, np.ndarray]:
+        """The current parameters of every key of the window."""
+        vals = self.smoother.calculate_estimate()
+        P: dict[int, np.ndarray] = {}
+        out = {}
+        for k, (h, i) in self._where.items():
+            if k in self._pending:
+                out[k] = self._pending[k]
+            else:
+                if id(h) not in P:
+                    P[id(h)] = np.asarray(vals.params(h))
+                out[k] = P[id(h)][i]
+        return out
+
+    def _park(self, key: Key, p: np.ndarray) -> None:
+        """Hold ``key``, left without factors, by a unit prior at ``p`` (its own component)."""
+        from ..core.factors import PriorFactor
+        from ..core.noise import Isotropic
+
+        h, i = self._where[key]
+        f = PriorFactor(h, i, self._value(key, p), Isotropic(h.dof, 1.0))
+        self._parked[key] = f
+        self._extra.append(f)
+
+    def _rebuild(self) -> None:
+        """A new smoother holding only the window (its factors at the current estimate)."""
+        est = self._params()
+        self._reset()
+        self._where = {k: self._slot(self._fam[k]) for k in self._where}
+        self._pending = {k: est[k].copy() for k in self._where}
+        self._parked = {}
+        bind = Binding(self._where)
+        for rec in self._records:
+            rec.factor = rec.fn(bind)
+        self._to_add = list(self._records)
+        self._extra, self._to_remove = [], []
+        self._dead = 0
+
+    def update(self, new_factors: Iterable[FactorFn] = (),
+               new_values: Mapping[Key, Any] | None = None,
+               timestamps: Mapping[Key, float] | None = None,
+               remove: Iterable[FactorFn] = ()) -> Any:
+        """Add variables and factors (and remove factors), update the estimate incrementally,
+        marginalise what left the window.
+
+        Parameters
+        ----------
+        new_factors : iterable of callable
+            Functions ``fn(binding) -> Factor`` (see :class:`Binding`), called once.
+        new_values : mapping, optional
+            ``key -> value`` of new variables (one group element or a 1-D vector).
+        timestamps : mapping, optional
+            ``key -> time`` of the new keys (as :meth:`BatchFixedLagSmoother.update`).
+        remove : iterable of callable
+            Factor functions given to an earlier update, to take out. A key left without
+            factors (or given before its factors) keeps its value outside the estimate and
+            is dropped without marginalisation when it leaves (GTSAM issues #2478, #2479).
+
+        Returns
+        -------
+        UpdateRecord
+            The record of the smoother's (first) update.
+
+        Raises
+        ------
+        ValueError
+            As :meth:`BatchFixedLagSmoother.update` (nothing is changed then); from the
+            smoother, a variable its factors leave undetermined (the smoother is then left
+            as the error found it).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import IncrementalFixedLagSmoother
+        >>> s = IncrementalFixedLagSmoother(window=3)
+        >>> rec = s.update([lambda b: PriorFactor(*b["x0"], SE2.exp([1.0, 0, 0]),
+        ...                                       Isotropic(3, 0.1))],
+        ...                {"x0": SE2.identity()}, {"x0": 0.0})
+        >>> rec.variables_added, np.round(s.calculate_estimate()["x0"].log(), 9).tolist()
+        (1, [1.0, 0.0, 0.0])
+        """
+        fns = list(new_factors)
+        added, stamps = self._check_new(self._fam, fns, new_values, timestamps)
+        drop = list(remove)
+        ids = {id(rec.fn): rec for rec in self._records if rec.prior is None}
+        missing = [fn for fn in drop if id(fn) not in ids]
+        if missing:
+            raise ValueError(f"remove: {len(missing)} factor function(s) are not in the window "
+                             f"(never added, or marginalised with their variables)")
+        if self._dead > max(64, 2 * len(self._where)):
+            self._rebuild()
+        saved = (dict(self._where), dict(self._slots))
+        try:
+            for k, (fam, _) in added.items():
+                self._where[k] = self._slot(fam)
+            bind = Binding(self._where)
+            owner = {(id(h), i): k for k, (h, i) in self._where.items()}
+            new: list[_Record] = []
+            for fn in fns:
+                f = fn(bind)
+                if not isinstance(f, Factor):
+                    raise TypeError(f"a factor function must return a Factor, got "
+                                    f"{type(f).__name__}")
+                try:
+                    keys = tuple(dict.fromkeys(owner[(id(v), int(i))] for v, ix in f.args
+                                               for i in ix))
+                except KeyError:
+                    raise ValueError("a factor refers to a variable that is not a key of the "
+                                     "window: build factors from the binding") from None
+                rec = _Record(fn, keys)
+                rec.factor = f
+                new.append(rec)
+        except Exception:
+            self._where, self._slots = saved
+            raise
+        old = self._params() if drop else {}
+        for k, (fam, p) in added.items():
+            self._fam[k] = fam
+            self._pending[k] = p
+            self._count[k] = 0
+        self._stamp.update(stamps)
+        removing, self._to_remove = self._to_remove, []
+        gone = [ids[id(fn)] for fn in drop]
+        for rec in gone:
+            self._records.remove(rec)
+            if any(r is rec for r in self._to_add):
+                self._to_add = [r for r in self._to_add if r is not rec]
+            else:
+                assert rec.factor is not None
+                removing.append(rec.factor)
+            for k in rec.keys:
+                self._count[k] -= 1
+        for rec in new:
+            self._records.append(rec)
+            for k in rec.keys:
+                self._count[k] += 1
+        adding = self._to_add + new
+        self._to_add = []
+        values: dict[Any, Any] = {}
+        for rec in adding:
+            for k in rec.keys:
+                if k in self._pending:
+                    values[self._where[k]] = self._value(k, self._pending.pop(k))
+                elif k in self._parked:
+                    removing.append(self._parked.pop(k))
+        for rec in gone:
+            for k in rec.keys:
+                if self._count[k] == 0 and k in old and k not in self._pending \
+                        and k not in self._parked:
+                    self._park(k, old[k])
+        factors = [rec.factor for rec in adding] + self._extra
+        self._extra = []
+        record = self.smoother.update(factors, values, removing)
+        for _ in range(self.iterations - 1):
+            self.smoother.update()
+        if stamps:
+            self.time = max(self.time, max(stamps.values()))
+        self.marginalized = self._leaving()
+        if self.marginalized:
+            self._marginalize(self.marginalized)
+        return record
+
+    def _marginalize(self, leaving: list[Key]) -> None:
+        M = set(leaving)
+        est = self._params()
+        active = [k for k in leaving if k not in self._pending and k not in self._parked]
+        self._dead += len(M) - sum(k in self._pending for k in M)
+        touch = [rec for rec in self._records if M.intersection(rec.keys)]
+        sep = list(dict.fromkeys(k for rec in touch for k in rec.keys if k not in M))
+        prior = None
+        if touch:
+            g = self.smoother.graph
+            vals = self.smoother.calculate_estimate()
+            factors = [rec.factor for rec in touch]
+            H, grad = _dense_system(g.variables, factors,  # type: ignore[arg-type]
+                                    [np.asarray(vals.params(v)) for v in g.variables],
+                                    [self._where[k] for k in active + sep])
+            nm = sum(self._where[k][0].dof for k in active)
+            out = _schur_prior(H, grad, nm, sorted(map(repr, M)))
+            if out is not None:
+                prior = (tuple(sep), out[0], out[1], [est[k].copy() for k in sep])
+        for rec in touch:
+            self._records.remove(rec)
+            assert rec.factor is not None
+            self._to_remove.append(rec.factor)
+            for k in rec.keys:
+                self._count[k] -= 1
+        for k in active:
+            self._park(k, est[k])
+        for k in M:
+            self._parked.pop(k, None)
+            self._pending.pop(k, None)
+            del self._where[k], self._fam[k], self._stamp[k], self._count[k]
+        if prior is not None:
+            rec = _Record(_prior_fn(*prior), prior[0], prior)
+            rec.factor = rec.fn(Binding(self._where))
+            self._records.append(rec)
+            self._to_add.append(rec)
+            for k in sep:
+                self._count[k] += 1
+        for k in sep:
+            if self._count[k] == 0:
+                self._park(k, est[k])
+
+    def calculate_estimate(self) -> dict[Key, Any]:
+        """The current estimate of every key in the window.
+
+        Returns
+        -------
+        dict
+            ``key -> value`` (a group element, or a 1-D array).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import IncrementalFixedLagSmoother
+        >>> s = IncrementalFixedLagSmoother(lag=1.0)
+        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.array([3.0]), Isotropic(1, 1.0))],
+        ...              {"p": np.zeros(1)}, {"p": 0.0})
+        >>> np.round(s.calculate_estimate()["p"], 6).tolist()
+        [3.0]
+        """
+        return {k: self._value(k, p) for k, p in self._params().items()}
+
+    def marginal_covariance(self, key: Key) -> np.ndarray:
+        """The covariance of ``key`` given everything fused so far (the window's factors and
+        marginal priors), the Gauss-Newton information at the current estimate (dense over the
+        window, as :meth:`BatchFixedLagSmoother.marginal_covariance`).
+
+        Parameters
+        ----------
+        key : hashable
+            A key of the window.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import IncrementalFixedLagSmoother
+        >>> s = IncrementalFixedLagSmoother(window=2)
+        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.zeros(2), Isotropic(2, 0.5))],
+        ...              {"p": np.zeros(2)}, {"p": 0.0})
+        >>> s.marginal_covariance("p").tolist()
+        [[0.25, 0.0], [0.0, 0.25]]
+        """
+        return self.joint_covariance([key])
+
+    def joint_covariance(self, keys: Sequence[Key]) -> np.ndarray:
+        """The joint covariance of several keys of the window (as :meth:`marginal_covariance`).
+
+        Parameters
+        ----------
+        keys : sequence of hashable
+            Keys of the window.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(sum dof, sum dof)`` in the order of ``keys``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import IncrementalFixedLagSmoother
+        >>> s = IncrementalFixedLagSmoother(window=2)
+        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.zeros(1), Isotropic(1, 2.0))],
+        ...              {"p": np.zeros(1)}, {"p": 0.0})
+        >>> s.joint_covariance(["p"]).tolist()
+        [[4.0]]
+        """
+        missing = [k for k in keys if k not in self._where]
+        if missing:
+            raise ValueError(f"covariance: keys {missing!r} are not in the window")
+        free = [k for k in keys if k in self._pending or k in self._parked]
+        if free:
+            raise ValueError(f"covariance: keys {free!r} have no factor (no information)")
+        live = [k for k in self._where if k not in self._pending and k not in self._parked]
+        g = self.smoother.graph
+        vals = self.smoother.calculate_estimate()
+        H, _ = _dense_system(g.variables,  # type: ignore[arg-type]
+                             [rec.factor for rec in self._records],
+                             [np.asarray(vals.params(v)) for v in g.variables],
+                             [self._where[k] for k in live])
+        off = np.concatenate([[0], np.cumsum([self._where[k][0].dof for k in live])])
+        pos = {k: n for n, k in enumerate(live)}
+        idx = np.concatenate([np.arange(off[pos[k]], off[pos[k] + 1]) for k in keys])
+        C = np.linalg.inv(H)[np.ix_(idx, idx)]
+        return 0.5 * (C + C.T)
+
+    @property
+    def priors(self) -> list[MarginalPrior]:
+        """The marginal priors in the window (what marginalisation left).
+
+        Returns
+        -------
+        list of MarginalPrior
+
+        Examples
+        --------
+        >>> from microlie.optim.online import IncrementalFixedLagSmoother
+        >>> IncrementalFixedLagSmoother(window=1).priors
+        []
+        """
+        return [rec.factor for rec in self._records
+                if rec.prior is not None and isinstance(rec.factor, MarginalPrior)]
