@@ -47,7 +47,7 @@ from microlie.imu import (
 from microlie.imu.filters import ESKF_STATE
 from microlie.imu.simulate import load_euroc_groundtruth
 from microlie.optim import Covariance, FactorGraph, Isotropic, PriorFactor
-from microlie.optim.online import BatchFixedLagSmoother
+from microlie.optim.online import BatchFixedLagSmoother, IncrementalFixedLagSmoother
 
 ROOT = Path(__file__).resolve().parents[1]
 GT = ROOT.parent / "shared" / "data" / "trajectory" / "evo" / "V102_groundtruth.csv"
@@ -97,14 +97,38 @@ class _Dropping(BatchFixedLagSmoother):
         return res
 
 
+class _DroppingIncremental(IncrementalFixedLagSmoother):
+    """The incremental smoother with its marginal priors thrown away."""
+
+    def update(self, *a: Any, **k: Any) -> Any:
+        res = super().update(*a, **k)
+        for rec in [r for r in self._records if r.prior is not None]:
+            self._records.remove(rec)
+            self._to_add = [r for r in self._to_add if r is not rec]
+            for key in rec.keys:
+                self._count[key] -= 1
+        return res
+
+
+def make_smoother(smoother: str, window: int, variant: str = "fej", **options: Any) -> Any:
+    """``"batch"``: BatchFixedLagSmoother (20 LM iterations at most per update);
+    ``"incremental"``: IncrementalFixedLagSmoother (GTSAM's ISAM2 defaults unless
+    ``options`` say otherwise)."""
+    if smoother == "batch":
+        cls: Any = _Dropping if variant == "drop" else BatchFixedLagSmoother
+        return cls(window=window, **{"max_iter": 20, **options})
+    cls = _DroppingIncremental if variant == "drop" else IncrementalFixedLagSmoother
+    return cls(window=window, **options)
+
+
 def fixed_lag_run(data: Any, m: int, inp: dict, window: int = 10, variant: str = "fej",
-                  cov: bool = True) -> dict:
-    """One run of the fixed-lag smoother; returns, per keyframe, the estimate (and joint
-    15x15 covariance of ``(x_k, b_k)``) when it is the oldest in the window and when it is the
-    newest, and the preintegrations it made (with the bias estimate of their start)."""
+                  cov: bool = True, smoother: str = "batch", **options: Any) -> dict:
+    """One run of a fixed-lag smoother (:func:`make_smoother`); returns, per keyframe, the
+    estimate (and joint 15x15 covariance of ``(x_k, b_k)``) when it is the oldest in the window
+    and when it is the newest, and the preintegrations it made (with the bias estimate of their
+    start)."""
     prm = data.params
-    cls = _Dropping if variant == "drop" else BatchFixedLagSmoother
-    s = cls(window=window, max_iter=20)
+    s = make_smoother(smoother, window, variant, **options)
     P0 = np.diag(P0_STD**2)
     x0, b0 = inp["x0"], inp["b0"]
     s.update([lambda b: PriorFactor(*b[("x", 0)], x0, Covariance(P0[:9, :9])),
@@ -222,11 +246,12 @@ def eskf_positions(data: Any, runs: list[dict]) -> np.ndarray:
 
 
 def monte_carlo(runs: int, duration: float, window: int, variant: str = "fej",
-                seed: int = 11, eskf: bool = True, resolve: bool = False) -> dict:
-    """NEES and RMSE of the fixed-lag smoother, the full batch smoother and the ESKF over
-    ``runs`` Monte Carlo runs (see the module docstring); with ``resolve`` also the newest
-    keyframe of a batch re-solve at every keyframe (``resolve_newest``, against the fixed-lag
-    smoother's newest estimate on the same keyframes, ``newest_same``)."""
+                seed: int = 11, eskf: bool = True, resolve: bool = False,
+                smoother: str = "batch", **options: Any) -> dict:
+    """NEES and RMSE of a fixed-lag smoother (:func:`make_smoother`), the full batch smoother
+    and the ESKF over ``runs`` Monte Carlo runs (see the module docstring); with ``resolve``
+    also the newest keyframe of a batch re-solve at every keyframe (``resolve_newest``, against
+    the fixed-lag smoother's newest estimate on the same keyframes, ``newest_same``)."""
     data = make_data(runs, duration)
     rng = np.random.default_rng(seed)
     ins = [inputs(data, m, rng) for m in range(runs)]
@@ -239,7 +264,7 @@ def monte_carlo(runs: int, duration: float, window: int, variant: str = "fej",
     t_lag = t_bat = 0.0
     for m in range(runs):
         t0 = time.perf_counter()
-        fl = fixed_lag_run(data, m, ins[m], window, variant)
+        fl = fixed_lag_run(data, m, ins[m], window, variant, smoother=smoother, **options)
         t_lag += time.perf_counter() - t0
         t0 = time.perf_counter()
         bt = batch_run(ins[m], fl["pims"], data.params)

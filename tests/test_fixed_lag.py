@@ -281,23 +281,23 @@ def test_incremental_equals_batch_on_a_nonlinear_window():
 
 
 def test_incremental_window_is_compacted_and_stays_exact():
-    """Left variables are dropped by rebuilding the smoother from the window (memory bounded):
-    over 150 steps the smoother is rebuilt, holds at most a bounded number of variable
-    batches, and the window still equals dense least squares over everything (linear)."""
-    steps = _random_problem(4, n=150)
+    """Left variables are dropped by rebuilding the smoother from the window when its batch is
+    full (memory bounded): over 300 steps the smoother is rebuilt, holds one batch of at most
+    128 elements, and the window still equals dense least squares over everything (linear)."""
+    steps = _random_problem(4, n=300)
     s = incremental(window=3)
     seen, first, most = [], s.smoother, 0
     for t, fs in enumerate(steps):
         s.update([_fn(*f) for f in fs], {t: np.zeros(D)}, {t: float(t)})
         seen += fs
-        most = max(most, len(s.smoother.graph.variables))
-        if t % 25 == 24 or t == len(steps) - 1:
+        most = max(most, sum(v.n for v in s.smoother.graph.variables))
+        if t % 50 == 49 or t in (126, 127, 128, len(steps) - 1):
             x, P = _dense(seen, list(range(t + 1)))
             for k, v in s.calculate_estimate().items():
                 np.testing.assert_allclose(v, x[k], atol=1e-8, rtol=0)
             np.testing.assert_allclose(s.marginal_covariance(t),
                                        P[D * t:D * t + D, D * t:D * t + D], atol=1e-8)
-    assert s.smoother is not first and most <= 4, most
+    assert s.smoother is not first and most <= 128, most
 
 
 def test_schur_prior_reproduces_the_full_covariance_at_the_marginalisation_point():

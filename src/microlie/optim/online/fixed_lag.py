@@ -688,7 +688,7 @@ class BatchFixedLagSmoother(_Window):
                 if rec.prior is not None and isinstance(f, MarginalPrior)]
 
 
-_SLOTS = 32  # elements per variable batch of the incremental smoother (one batch per family)
+_SLOTS = 128  # the smallest variable batch of the incremental smoother (one per family)
 
 
 class IncrementalFixedLagSmoother(_Window):
@@ -704,9 +704,12 @@ class IncrementalFixedLagSmoother(_Window):
     the current estimate and reduced by the Schur complement onto the keys they share with the
     window; the next update hands the smoother the prior and takes those factors out, and each
     leaving key keeps a unit prior at its last estimate, alone in its own component, so it no
-    longer influences the window. Those left-behind variables are dropped by rebuilding the
-    smoother from the window (its factors at the current estimate) once they outnumber
-    ``max(64, 2 x`` the window's keys ``)``: memory stays bounded.
+    longer influences the window. The keys of one family (group, or vector length) live in one
+    variable batch of the smoother, in the order they were added (as in the batch smoother's
+    window graph: a factor may take several keys of a batch by index); when a batch is full
+    (``max(128, 4 x`` the family's keys in the window ``)``), the smoother is rebuilt from the
+    window (its factors at the current estimate) into fresh batches, which drops the left
+    variables: memory stays bounded.
 
     Parameters
     ----------
@@ -774,21 +777,28 @@ class IncrementalFixedLagSmoother(_Window):
         self._to_add: list[_Record] = []           # records the smoother has not got yet
         self._extra: list[Factor] = []             # unit priors of left keys, not given yet
         self._to_remove: list[Factor] = []         # factors of left keys, still in the smoother
-        self._dead = 0
+        self._need: dict[Any, int] = {}            # new keys per family in this update
         self._reset()
 
     def _reset(self) -> None:
         from .incremental import IncrementalSmoother
 
         self.smoother = IncrementalSmoother(**self._options)
-        self._slots: dict[Any, tuple[Variables, int]] = {}
+        self._slots: dict[Any, tuple[Variables, int]] = {}  # family -> (batch, next free)
+
+    def _room(self) -> bool:
+        """Whether every family's batch has room for the new keys (``self._need``)."""
+        return all(self._slots[fam][1] + n <= self._slots[fam][0].n
+                   for fam, n in self._need.items() if fam in self._slots)
 
     def _slot(self, fam: Any) -> tuple[Variables, int]:
-        h, n = self._slots.get(fam, (None, _SLOTS))
-        if h is None or n >= _SLOTS:
-            h = self.smoother.add_variables(np.zeros((_SLOTS, fam)) if isinstance(fam, int)
-                                            else fam.identity(_SLOTS))
-            n = 0
+        if fam not in self._slots:  # room for 4 x the family's keys, new ones included
+            live = sum(f == fam for f in self._fam.values()) + self._need.get(fam, 0)
+            size = max(_SLOTS, 4 * live)
+            h = self.smoother.add_variables(np.zeros((size, fam)) if isinstance(fam, int)
+                                            else fam.identity(size))
+            self._slots[fam] = (h, 0)
+        h, n = self._slots[fam]
         self._slots[fam] = (h, n + 1)
         return h, n
 
@@ -832,7 +842,6 @@ class IncrementalFixedLagSmoother(_Window):
             rec.factor = rec.fn(bind)
         self._to_add = list(self._records)
         self._extra, self._to_remove = [], []
-        self._dead = 0
 
     def update(self, new_factors: Iterable[FactorFn] = (),
                new_values: Mapping[Key, Any] | None = None,
@@ -887,7 +896,10 @@ class IncrementalFixedLagSmoother(_Window):
         if missing:
             raise ValueError(f"remove: {len(missing)} factor function(s) are not in the window "
                              f"(never added, or marginalised with their variables)")
-        if self._dead > max(64, 2 * len(self._where)):
+        self._need: dict[Any, int] = {}
+        for fam, _ in added.values():
+            self._need[fam] = self._need.get(fam, 0) + 1
+        if not self._room():
             self._rebuild()
         saved = (dict(self._where), dict(self._slots))
         try:
@@ -964,7 +976,6 @@ class IncrementalFixedLagSmoother(_Window):
         M = set(leaving)
         est = self._params()
         active = [k for k in leaving if k not in self._pending and k not in self._parked]
-        self._dead += len(M) - sum(k in self._pending for k in M)
         touch = [rec for rec in self._records if M.intersection(rec.keys)]
         sep = list(dict.fromkeys(k for rec in touch for k in rec.keys if k not in M))
         prior = None
