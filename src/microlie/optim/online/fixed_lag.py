@@ -234,11 +234,26 @@ def _prior_fn(keys: tuple, L: np.ndarray, r0: np.ndarray, x0: list[np.ndarray]) 
     return fn
 
 
+def _stacked(factors: list[Factor]) -> list[Factor]:
+    """The factors with those of a class offering ``stack`` (``ImuFactor``, ...) merged into
+    few batches: one evaluation for the window's factors of a kind, not one per factor."""
+    out: list[Factor] = []
+    by: dict[type, list[Factor]] = {}
+    for f in factors:
+        if len(factors) > 1 and callable(getattr(type(f), "stack", None)):
+            by.setdefault(type(f), []).append(f)
+        else:
+            out.append(f)
+    for cls, fs in by.items():
+        out.extend(cls.stack(fs) if len(fs) > 1 else fs)  # type: ignore[attr-defined]
+    return out
+
+
 def _dense_system(variables: list[Variables], factors: list[Factor], states: list[np.ndarray],
                   items: list[tuple[Variables, int]]) -> tuple[np.ndarray, np.ndarray]:
     """The Gauss-Newton ``H = J^T J`` and gradient ``g = J^T r`` of ``factors`` at ``states``
     over the unknowns of ``items`` (in that order), dense."""
-    prob = Problem(variables, factors, "none")
+    prob = Problem(variables, _stacked(factors), "none")
     lin = prob.linearize(states)
     ix = np.concatenate([prob.node_off[prob.node_of[prob.key(h)][i]] + np.arange(h.dof)
                          for h, i in items]) if items else np.zeros(0, np.int64)
@@ -451,8 +466,9 @@ class BatchFixedLagSmoother(_Window):
             if not rec.keys:
                 rec.keys = tuple(dict.fromkeys(owner[(id(v), int(i))] for v, ix in f.args
                                                for i in ix))
-            g.add(f)
             factors.append(f)
+        for f in _stacked(factors):
+            g.add(f)
         return g, where, factors
 
     # ------------------------------------------------------------------ the public calls
@@ -1102,7 +1118,15 @@ class IncrementalFixedLagSmoother(_Window):
         off = np.concatenate([[0], np.cumsum([self._where[k][0].dof for k in live])])
         pos = {k: n for n, k in enumerate(live)}
         idx = np.concatenate([np.arange(off[pos[k]], off[pos[k] + 1]) for k in keys])
-        C = np.linalg.inv(H)[np.ix_(idx, idx)]
+        from scipy.linalg import cho_factor, cho_solve  # type: ignore[import-untyped]
+
+        E = np.zeros((H.shape[0], idx.size))
+        E[idx, np.arange(idx.size)] = 1.0
+        try:
+            C = cho_solve(cho_factor(H, lower=True), E)[idx]
+        except np.linalg.LinAlgError:
+            raise ValueError("covariance: the window's information is singular (a direction "
+                             "no factor or prior determines)") from None
         return 0.5 * (C + C.T)
 
     @property
