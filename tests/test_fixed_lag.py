@@ -498,33 +498,41 @@ def _lag_nees(r):
     return t[:, np.isfinite(t).all(0)].mean(0)
 
 
-def test_fixed_lag_imu_is_consistent_and_as_accurate_as_the_batch_smoother(bench):
-    """RUNS Monte Carlo runs (the 50-run figure: benchmarks/fixed_lag.py): the average over
-    the runs of the NEES of the last keyframe's fixed-lag estimate (independent runs: the band
-    is exact for RUNS) and the average over all keyframes (correlated in time, so a looser
-    check) inside the 95% chi-square band for RUNS runs; the newest estimate's position RMSE
-    within 10% of the full batch smoother re-solved at every keyframe on the data so far (what
-    the smoother replaces). The fixed-lag estimate ``x_{k|k+9}`` against the full batch
-    smoother over the whole run ``x_{k|K}`` (which also uses data beyond the lag) is only
-    bounded loosely here: 1.15x over 50 runs of 6 s (benchmarks/results/fixed_lag-s9.md)."""
-    r = bench.monte_carlo(RUNS, DURATION, window=10, eskf=False, resolve=True)
+@pytest.mark.parametrize("smoother", ["batch", "incremental"])
+def test_fixed_lag_imu_is_consistent_and_as_accurate_as_the_batch_smoother(bench, smoother):
+    """RUNS Monte Carlo runs (the 50-run figure: benchmarks/fixed_lag.py), both smoothers (the
+    incremental one with GTSAM's ISAM2 defaults): the average over the runs of the NEES of the
+    last keyframe's fixed-lag estimate (independent runs: the band is exact for RUNS) and the
+    average over all keyframes (correlated in time, so a looser check) inside the 95%
+    chi-square band for RUNS runs; on the same data as the full batch smoother re-solved at
+    every keyframe (what the smoother replaces), the newest estimate ``x_{k|k}`` and the
+    smoothed one ``x_{k|k+9}`` within 10% of its RMSE. Against the whole-run smoother
+    ``x_{k|K}``, which also uses the data beyond the lag, only a loose bound here: the ratio
+    falls with the window (the curve in benchmarks/fixed_lag.py --curve)."""
+    r = bench.monte_carlo(RUNS, DURATION, window=10, eskf=False, resolve=True,
+                          smoother=smoother)
     lo, hi = bench.band(RUNS)
     v = _lag_nees(r)
     assert lo < v[-1] < hi, (v, lo, hi)
     assert lo < v.mean() < hi, (v, lo, hi)
-    assert r["rmse"]["newest_same"] <= 1.1 * r["rmse"]["resolve_newest"], r["rmse"]
-    assert r["rmse"]["lag"] <= 1.25 * r["rmse"]["batch"], r["rmse"]
+    e = r["rmse"]
+    assert e["newest_same"] <= 1.1 * e["resolve_newest"], e
+    assert e["lag_same"] <= 1.1 * e["resolve_lag"], e
+    assert e["lag"] <= 1.25 * e["batch"], e
 
 
-def test_dropping_the_marginal_prior_breaks_the_smoother(bench):
+@pytest.mark.parametrize("smoother", ["batch", "incremental"])
+def test_dropping_the_marginal_prior_breaks_the_smoother(bench, smoother):
     """Without the prior the window forgets everything older than itself: inconsistent
     (NEES out of the band) or less accurate (RMSE beyond 1.1x the batch smoother's), or not
     even determined (a singular window)."""
     from microlie.optim import SingularSystemError
 
     try:
-        r = bench.monte_carlo(RUNS, DURATION, window=10, variant="drop", eskf=False)
-    except SingularSystemError:
+        r = bench.monte_carlo(RUNS, DURATION, window=10, variant="drop", eskf=False,
+                              smoother=smoother)
+    except (SingularSystemError, ValueError) as e:  # the incremental one: an undetermined node
+        assert isinstance(e, SingularSystemError) or "not determined" in str(e), e
         return
     lo, hi = bench.band(RUNS)
     v = _lag_nees(r)

@@ -26,6 +26,7 @@ from ..core.graph import FactorGraph
 from ..core.problem import Problem
 from ..core.solvers import Result
 from ..core.variables import Variables
+from .incremental import IncrementalSmoother
 
 __all__ = ["BatchFixedLagSmoother", "IncrementalFixedLagSmoother", "MarginalPrior", "Binding"]
 
@@ -782,7 +783,7 @@ class IncrementalFixedLagSmoother(_Window):
             raise ValueError(f"IncrementalFixedLagSmoother: iterations must be an integer >= 1, "
                              f"got {iterations!r}")
         self.iterations = int(iterations)
-        self._options = {"relinearize_threshold": relinearize_threshold,
+        self._options: dict[str, Any] = {"relinearize_threshold": relinearize_threshold,
                          "relinearize_skip": relinearize_skip, "wildfire": wildfire}
         self._fam: dict[Key, Any] = {}            # key -> its family (group class or length)
         self._where: dict[Key, tuple[Variables, int]] = {}
@@ -797,8 +798,6 @@ class IncrementalFixedLagSmoother(_Window):
         self._reset()
 
     def _reset(self) -> None:
-        from .incremental import IncrementalSmoother
-
         self.smoother = IncrementalSmoother(**self._options)
         self._slots: dict[Any, tuple[Variables, int]] = {}  # family -> (batch, next free)
 
@@ -912,7 +911,7 @@ class IncrementalFixedLagSmoother(_Window):
         if missing:
             raise ValueError(f"remove: {len(missing)} factor function(s) are not in the window "
                              f"(never added, or marginalised with their variables)")
-        self._need: dict[Any, int] = {}
+        self._need = {}
         for fam, _ in added.values():
             self._need[fam] = self._need.get(fam, 0) + 1
         if not self._room():
@@ -976,7 +975,7 @@ class IncrementalFixedLagSmoother(_Window):
                 if self._count[k] == 0 and k in old and k not in self._pending \
                         and k not in self._parked:
                     self._park(k, old[k])
-        factors = [rec.factor for rec in adding] + self._extra
+        factors = [f for f in (rec.factor for rec in adding) if f is not None] + self._extra
         self._extra = []
         record = self.smoother.update(factors, values, removing)
         for _ in range(self.iterations - 1):
@@ -998,8 +997,8 @@ class IncrementalFixedLagSmoother(_Window):
         if touch:
             g = self.smoother.graph
             vals = self.smoother.calculate_estimate()
-            factors = [rec.factor for rec in touch]
-            H, grad = _dense_system(g.variables, factors,  # type: ignore[arg-type]
+            factors = [f for f in (rec.factor for rec in touch) if f is not None]
+            H, grad = _dense_system(g.variables, factors,
                                     [np.asarray(vals.params(v)) for v in g.variables],
                                     [self._where[k] for k in active + sep])
             nm = sum(self._where[k][0].dof for k in active)
@@ -1111,8 +1110,8 @@ class IncrementalFixedLagSmoother(_Window):
         live = [k for k in self._where if k not in self._pending and k not in self._parked]
         g = self.smoother.graph
         vals = self.smoother.calculate_estimate()
-        H, _ = _dense_system(g.variables,  # type: ignore[arg-type]
-                             [rec.factor for rec in self._records],
+        H, _ = _dense_system(g.variables,
+                             [f for f in (rec.factor for rec in self._records) if f is not None],
                              [np.asarray(vals.params(v)) for v in g.variables],
                              [self._where[k] for k in live])
         off = np.concatenate([[0], np.cumsum([self._where[k][0].dof for k in live])])
