@@ -538,3 +538,56 @@ def test_dropping_the_marginal_prior_breaks_the_smoother(bench, smoother):
     v = _lag_nees(r)
     bad = not (lo < v[-1] < hi) or r["rmse"]["lag"] > 1.1 * r["rmse"]["batch"]
     assert bad, (v, r["rmse"])
+
+
+# ------------------------------------------- stacking the window's factors of one kind
+
+
+def test_stacked_imu_factors_give_the_same_system_as_one_batch_each():
+    """``ImuFactor/BiasRandomWalkFactor/PositionFactor.stack`` (what the batch smoother does to
+    its window): the cost, gradient and Gauss-Newton matrix of the stacked graph equal those
+    of one batch per factor at random states; different handles or losses stay apart."""
+    from microlie import SE23
+    from microlie.imu import BiasRandomWalkFactor, ImuFactor, PositionFactor, Preintegration
+    from microlie.optim import FactorGraph
+
+    rng = np.random.default_rng(9)
+    n = 5
+    pims = []
+    for k in range(n - 1):
+        pim = Preintegration(1e-3, 1e-2, 0.01 * rng.standard_normal(3),
+                             0.05 * rng.standard_normal(3))
+        pim.integrate(np.array([0, 0, 9.81]) + rng.standard_normal((20, 3)),
+                      0.3 * rng.standard_normal((20, 3)), 0.005)
+        pims.append(pim)
+    X = SE23.exp(rng.standard_normal((n, 9)))
+    B = 0.05 * rng.standard_normal((n, 6))
+    zs = rng.standard_normal((n, 3))
+    systems = []
+    for stack in (False, True):
+        g = FactorGraph()
+        x, b = g.add_variables(X), g.add_variables(B)
+        fs = [ImuFactor(x, b, [k], [k + 1], [pims[k]]) for k in range(n - 1)]
+        fs += [BiasRandomWalkFactor(b, [k], [k + 1], 1e-4 * (k + 1), 1e-3, 0.1)
+               for k in range(n - 1)]
+        fs += [PositionFactor(x, k, zs[k], Isotropic(3, 0.1 * (k + 1))) for k in range(n)]
+        if stack:
+            fs = (ImuFactor.stack(fs[:n - 1]) + BiasRandomWalkFactor.stack(fs[n - 1:2 * n - 2])
+                  + PositionFactor.stack(fs[2 * n - 2:]))
+            assert [f.count for f in fs] == [n - 1, n - 1, n]
+        for f in fs:
+            g.add(f)
+        p = g.problem("none")
+        lin = p.linearize([v.initial for v in g.variables])
+        systems.append((g.cost(), lin.grad, p.matrix(lin.data).toarray()))
+    (c0, g0, H0), (c1, g1, H1) = systems
+    np.testing.assert_allclose(c1, c0, rtol=1e-12)
+    np.testing.assert_allclose(g1, g0, rtol=1e-10, atol=1e-8)
+    np.testing.assert_allclose(H1, H0, rtol=1e-10, atol=1e-6 * np.abs(H0).max())
+    g = FactorGraph()
+    x, y = g.add_variables(X), g.add_variables(X)
+    parts = PositionFactor.stack([PositionFactor(x, 0, np.zeros(3)),
+                                  PositionFactor(y, 0, np.zeros(3)),
+                                  PositionFactor(x, 1, np.zeros(3), loss="huber"),
+                                  PositionFactor(x, 2, np.zeros(3))])
+    assert [(f.args[0][0] is x, f.count) for f in parts] == [(True, 2), (False, 1), (True, 1)]
