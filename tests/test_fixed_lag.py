@@ -554,7 +554,7 @@ def test_stacked_imu_factors_give_the_same_system_as_one_batch_each():
     rng = np.random.default_rng(9)
     n = 5
     pims = []
-    for k in range(n - 1):
+    for _ in range(n - 1):
         pim = Preintegration(1e-3, 1e-2, 0.01 * rng.standard_normal(3),
                              0.05 * rng.standard_normal(3))
         pim.integrate(np.array([0, 0, 9.81]) + rng.standard_normal((20, 3)),
