@@ -1,15 +1,15 @@
-"""Batch fixed-lag smoothing: Levenberg-Marquardt over a sliding window, with what leaves the
-window marginalised into a dense Gaussian prior (GTSAM's ``BatchFixedLagSmoother``).
+"""Fixed-lag smoothing: a sliding window of variables, with what leaves the window
+marginalised into a dense Gaussian prior; as Levenberg-Marquardt over the window
+(:class:`BatchFixedLagSmoother`, GTSAM's ``BatchFixedLagSmoother``) or as iSAM2 updates of an
+:class:`~microlie.optim.IncrementalSmoother` (:class:`IncrementalFixedLagSmoother`).
 
-Every :meth:`BatchFixedLagSmoother.update` adds values and factors, solves the window with
-:meth:`FactorGraph.optimize` (the one engine), then marginalises the variables that fell out of
-the window: the factors touching them are linearised at the current estimate, their Gauss-Newton
-system ``[H_mm H_ms; H_sm H_ss]``, ``[g_m; g_s]`` is reduced by the Schur complement
-``H = H_ss - H_sm H_mm^-1 H_ms``, ``g = g_s - H_sm H_mm^-1 g_m`` onto the separator (the window
-variables they touch), and replaced by one :class:`MarginalPrior`
-``r(x) = r0 + L (x (-) x0)`` with ``L^T L = H``, ``L^T r0 = g`` and the linearisation point
-``x0`` kept: the prior's Jacobian stays the first estimate's (FEJ), so it never gains
-information it did not have when it was made.
+Marginalisation (both): the factors touching the leaving variables are linearised at the
+current estimate, their Gauss-Newton system ``[H_mm H_ms; H_sm H_ss]``, ``[g_m; g_s]`` is
+reduced by the Schur complement ``H = H_ss - H_sm H_mm^-1 H_ms``, ``g = g_s - H_sm H_mm^-1 g_m``
+onto the separator (the window variables they touch), and replaced by one
+:class:`MarginalPrior` ``r(x) = r0 + L (x (-) x0)`` with ``L^T L = H``, ``L^T r0 = g`` and the
+linearisation point ``x0`` kept: the prior's Jacobian stays the first estimate's (FEJ), so it
+never gains information it did not have when it was made.
 """
 
 from __future__ import annotations
