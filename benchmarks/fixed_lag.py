@@ -333,14 +333,15 @@ def main() -> None:
     ap.add_argument("--resolve", action="store_true",
                     help="also re-solve the full batch at every keyframe (slow)")
     ap.add_argument("--curve", type=int, nargs="*", default=[],
-                    help="windows (keyframes) of the RMSE-ratio curve (no covariances)")
+                    help="windows (keyframes) of the RMSE-ratio curve over --runs runs (default "
+                         "10), no covariances; replaces the NEES pass")
     ap.add_argument("--trace", action="store_true",
                     help="also trace Python allocations (tracemalloc; slows every update)")
     ap.add_argument("--steps", type=int, default=0, help="IMU steps of the timing run (0: skip)")
     a = ap.parse_args()
     print(f"load (1, 5, 15 min): {os.getloadavg()}")
     lo, hi = band(a.runs) if a.runs else (0.0, 0.0)
-    for sm in a.smoothers if a.runs else []:
+    for sm in a.smoothers if a.runs and not a.curve else []:
         r = monte_carlo(a.runs, a.duration, a.window, a.variant, resolve=a.resolve, smoother=sm)
         e = r["rmse"]
         print(f"{sm}: {a.runs} runs of {a.duration} s, {r['K']} keyframes, window {a.window}, "
