@@ -1,19 +1,29 @@
 """Fixed-lag visual-inertial-style smoothing on synthetic EuRoC V1_02 IMU data: microlie's
-``BatchFixedLagSmoother`` (IMU preintegration factors, bias random walk, 10 Hz position fixes)
-against the error-state Kalman filter and the full batch smoother on the same measurements.
+``BatchFixedLagSmoother`` and ``IncrementalFixedLagSmoother`` (IMU preintegration factors,
+bias random walk, 10 Hz position fixes) against the error-state Kalman filter and the full
+batch smoother on the same measurements.
 
-Run from the repository root (shared data in ../shared/data):
+Run from the repository root (shared data in ../shared/data), with one BLAS thread:
 
-    PYTHONPATH=src /work/main/.venv/bin/python benchmarks/fixed_lag.py --runs 50
-    PYTHONPATH=src /work/main/.venv/bin/python benchmarks/fixed_lag.py --steps 100000
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=src /work/main/.venv/bin/python benchmarks/fixed_lag.py \
+        --runs 50 [--smoothers batch incremental] [--window 40] [--duration 12] [--resolve]
+    ... benchmarks/fixed_lag.py --runs 20 --curve 5 10 20 30 40
+    ... benchmarks/fixed_lag.py --steps 100000 --window 10
 
-``--runs M``: Monte Carlo consistency. For each run the initial state is drawn around the
-truth with the prior's covariance, the fixes get their noise, and every smoother sees the same
-numbers. Printed: the average NEES (15 dof: SE_2(3) tangent and both biases) of the
-fixed-lag estimate of each keyframe as it leaves the window (``x_{k | k + W - 1}``) and of the
-newest keyframe (the online estimate), against the 95% chi-square band for ``M`` runs, and
-the position RMSE of each estimator over all keyframes and runs (the full batch smoother: one
-``FactorGraph.optimize`` over every keyframe of the run; the ESKF: its estimate at each fix).
+``--runs M``: Monte Carlo consistency, for each smoother of ``--smoothers``. For each run the
+initial state is drawn around the truth with the prior's covariance, the fixes get their
+noise, and every estimator sees the same numbers. Printed: the average NEES (15 dof: SE_2(3)
+tangent and both biases) of the fixed-lag estimate of each keyframe as it leaves the window
+(``x_{k | k + W - 1}``, final) and of the newest keyframe (``x_{k|k}``, the online estimate),
+against the 95% chi-square band for ``M`` runs; the position RMSE of each estimator over all
+keyframes and runs and their ratios: the smoothed estimate against the full batch smoother
+over the whole run (``x_{k|K}``, which also uses the data after the lag), the newest against
+the ESKF (a filter: the same data); with ``--resolve`` also against the full batch smoother
+re-solved at every keyframe on the data so far (the same data as the window: what
+marginalisation costs).
+
+``--curve W1 W2 ...``: the smoothed / whole-run RMSE ratio for each window (no covariances),
+over ``--runs`` runs (default 10).
 
 ``--steps N``: ``N`` IMU samples at 200 Hz (one keyframe and fix every 20), the trajectory
 repeated; prints the median time per update over the first and the last 1,000 IMU steps
@@ -47,11 +57,12 @@ from microlie.imu import (
 from microlie.imu.filters import ESKF_STATE
 from microlie.imu.simulate import load_euroc_groundtruth
 from microlie.optim import Covariance, FactorGraph, Isotropic, PriorFactor
-from microlie.optim.online import BatchFixedLagSmoother
+from microlie.optim.online import BatchFixedLagSmoother, IncrementalFixedLagSmoother
 
 ROOT = Path(__file__).resolve().parents[1]
 GT = ROOT.parent / "shared" / "data" / "trajectory" / "evo" / "V102_groundtruth.csv"
 EVERY, SIGMA = 20, 0.05  # a keyframe and a position fix every 20 samples (10 Hz), 5 cm
+WINDOW = 40  # keyframes in the window (4 s): within 10% of the whole-run smoother's RMSE
 # prior standard deviations in the SE_2(3) tangent order (rho, phi, nu) then (b_g, b_a)
 P0_STD = np.r_[np.full(3, 0.05), np.full(3, 0.01), np.full(3, 0.05), np.full(3, 0.003),
                np.full(3, 0.02)]
@@ -97,14 +108,38 @@ class _Dropping(BatchFixedLagSmoother):
         return res
 
 
+class _DroppingIncremental(IncrementalFixedLagSmoother):
+    """The incremental smoother with its marginal priors thrown away."""
+
+    def update(self, *a: Any, **k: Any) -> Any:
+        res = super().update(*a, **k)
+        for rec in [r for r in self._records if r.prior is not None]:
+            self._records.remove(rec)
+            self._to_add = [r for r in self._to_add if r is not rec]
+            for key in rec.keys:
+                self._count[key] -= 1
+        return res
+
+
+def make_smoother(smoother: str, window: int, variant: str = "fej", **options: Any) -> Any:
+    """``"batch"``: BatchFixedLagSmoother (20 LM iterations at most per update);
+    ``"incremental"``: IncrementalFixedLagSmoother (GTSAM's ISAM2 defaults unless
+    ``options`` say otherwise)."""
+    if smoother == "batch":
+        cls: Any = _Dropping if variant == "drop" else BatchFixedLagSmoother
+        return cls(window=window, **{"max_iter": 20, **options})
+    cls = _DroppingIncremental if variant == "drop" else IncrementalFixedLagSmoother
+    return cls(window=window, **options)
+
+
 def fixed_lag_run(data: Any, m: int, inp: dict, window: int = 10, variant: str = "fej",
-                  cov: bool = True) -> dict:
-    """One run of the fixed-lag smoother; returns, per keyframe, the estimate (and joint
-    15x15 covariance of ``(x_k, b_k)``) when it is the oldest in the window and when it is the
-    newest, and the preintegrations it made (with the bias estimate of their start)."""
+                  cov: bool = True, smoother: str = "batch", **options: Any) -> dict:
+    """One run of a fixed-lag smoother (:func:`make_smoother`); returns, per keyframe, the
+    estimate (and joint 15x15 covariance of ``(x_k, b_k)``) when it is the oldest in the window
+    and when it is the newest, and the preintegrations it made (with the bias estimate of their
+    start)."""
     prm = data.params
-    cls = _Dropping if variant == "drop" else BatchFixedLagSmoother
-    s = cls(window=window, max_iter=20)
+    s = make_smoother(smoother, window, variant, **options)
     P0 = np.diag(P0_STD**2)
     x0, b0 = inp["x0"], inp["b0"]
     s.update([lambda b: PriorFactor(*b[("x", 0)], x0, Covariance(P0[:9, :9])),
@@ -174,15 +209,20 @@ def batch_run(inp: dict, pims: list, prm: dict, cov: bool = True) -> dict:
     return out
 
 
-def resolve_newest(inp: dict, pims: list, prm: dict) -> np.ndarray:
-    """What a user without a smoother does: the full batch smoother re-solved at every
-    keyframe ``k`` over the data up to ``k``; the positions of the newest keyframe, ``(K, 3)``."""
-    out = np.zeros((inp["K"], 3))
-    for k in range(1, inp["K"] + 1):
-        sub = dict(inp, K=k, z=inp["z"][: k + 1])
-        X = batch_run(sub, pims[:k], prm, cov=False)["X"]
-        out[k - 1] = np.asarray(SE23(X[k]).translation())
-    return out
+def resolved(inp: dict, pims: list, prm: dict, window: int) -> tuple[np.ndarray, dict]:
+    """The full batch smoother re-solved at every keyframe ``j`` over the data up to ``j`` (what
+    a user without a fixed-lag smoother runs; the same information as the window then): the
+    positions of the newest keyframe ``x_{j|j}``, ``(K, 3)``, and of the window's oldest,
+    ``{k: x_{k|k+W-1}}``."""
+    newest = np.zeros((inp["K"], 3))
+    oldest = {}
+    for j in range(1, inp["K"] + 1):
+        sub = dict(inp, K=j, z=inp["z"][: j + 1])
+        X = batch_run(sub, pims[:j], prm, cov=False)["X"]
+        newest[j - 1] = np.asarray(SE23(X[j]).translation())
+        if j - window + 1 >= 1:
+            oldest[j - window + 1] = np.asarray(SE23(X[j - window + 1]).translation())
+    return newest, oldest
 
 
 def nees(Xp: np.ndarray, bp: np.ndarray, C: np.ndarray, Xt: SE23, bt: np.ndarray) -> float:
@@ -222,11 +262,15 @@ def eskf_positions(data: Any, runs: list[dict]) -> np.ndarray:
 
 
 def monte_carlo(runs: int, duration: float, window: int, variant: str = "fej",
-                seed: int = 11, eskf: bool = True, resolve: bool = False) -> dict:
-    """NEES and RMSE of the fixed-lag smoother, the full batch smoother and the ESKF over
-    ``runs`` Monte Carlo runs (see the module docstring); with ``resolve`` also the newest
-    keyframe of a batch re-solve at every keyframe (``resolve_newest``, against the fixed-lag
-    smoother's newest estimate on the same keyframes, ``newest_same``)."""
+                seed: int = 11, eskf: bool = True, resolve: bool = False,
+                smoother: str = "batch", cov: bool = True, **options: Any) -> dict:
+    """NEES and RMSE of a fixed-lag smoother (:func:`make_smoother`), the full batch smoother
+    and the ESKF over ``runs`` Monte Carlo runs (see the module docstring); with ``resolve``
+    also the full batch smoother re-solved at every keyframe on the data so far
+    (:func:`resolved`): its newest keyframe (``resolve_newest``, against the fixed-lag
+    smoother's newest estimate on the same keyframes, ``newest_same``) and the window's oldest
+    (``resolve_lag``, against the fixed-lag estimate ``x_{k|k+W-1}`` on the same keyframes,
+    ``lag_same``); without ``cov`` no covariances (no NEES: NaN)."""
     data = make_data(runs, duration)
     rng = np.random.default_rng(seed)
     ins = [inputs(data, m, rng) for m in range(runs)]
@@ -235,14 +279,14 @@ def monte_carlo(runs: int, duration: float, window: int, variant: str = "fej",
     new_nees = np.full((runs, K + 1), np.nan)
     bat_nees = np.zeros((runs, K + 1))
     err: dict[str, list] = {"lag": [], "newest": [], "batch": [], "resolve_newest": [],
-                            "newest_same": []}
+                            "newest_same": [], "resolve_lag": [], "lag_same": []}
     t_lag = t_bat = 0.0
     for m in range(runs):
         t0 = time.perf_counter()
-        fl = fixed_lag_run(data, m, ins[m], window, variant)
+        fl = fixed_lag_run(data, m, ins[m], window, variant, cov, smoother, **options)
         t_lag += time.perf_counter() - t0
         t0 = time.perf_counter()
-        bt = batch_run(ins[m], fl["pims"], data.params)
+        bt = batch_run(ins[m], fl["pims"], data.params, cov)
         t_bat += time.perf_counter() - t0
         Xt, btrue = ins[m]["X"], ins[m]["b"]
         for k in range(1, K + 1):
@@ -250,19 +294,26 @@ def monte_carlo(runs: int, duration: float, window: int, variant: str = "fej",
                                        ("newest", fl["newest"], new_nees)):
                 if k in table:
                     Xp, bp, C = table[k]
-                    store[m, k] = nees(Xp, bp, C, Xt[k], btrue[k])
+                    if C is not None:
+                        store[m, k] = nees(Xp, bp, C, Xt[k], btrue[k])
                     err[name].append(np.asarray(SE23(Xp).translation()) -
                                      np.asarray(Xt[k].translation()))
-            bat_nees[m, k] = nees(bt["X"][k], bt["b"][k], bt["C"][k], Xt[k], btrue[k])
+            bat_nees[m, k] = (nees(bt["X"][k], bt["b"][k], bt["C"][k], Xt[k], btrue[k])
+                              if cov else np.nan)
             if k in fl["oldest"]:
                 err["batch"].append(np.asarray(SE23(bt["X"][k]).translation()) -
                                     np.asarray(Xt[k].translation()))
         if resolve:
-            pr = resolve_newest(ins[m], fl["pims"], data.params)
+            pr, po = resolved(ins[m], fl["pims"], data.params, window)
             err["resolve_newest"].extend(pr - np.asarray(Xt.translation())[1:])
             err["newest_same"].extend(
                 np.asarray(SE23(fl["newest"][k][0]).translation()) -
                 np.asarray(Xt[k].translation()) for k in range(1, K + 1))
+            for k, p in po.items():
+                if k in fl["oldest"]:
+                    err["resolve_lag"].append(p - np.asarray(Xt[k].translation()))
+                    err["lag_same"].append(np.asarray(SE23(fl["oldest"][k][0]).translation())
+                                           - np.asarray(Xt[k].translation()))
     rmse = {n: float(np.sqrt(np.mean(np.sum(np.array(v) ** 2, -1)))) for n, v in err.items()
             if v}
     if eskf:
@@ -284,38 +335,54 @@ def band(runs: int, dof: int = 15, p: float = 0.95) -> tuple[float, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=0, help="Monte Carlo runs (0: skip)")
-    ap.add_argument("--duration", type=float, default=6.0, help="seconds per run")
-    ap.add_argument("--window", type=int, default=10, help="keyframes in the window")
+    ap.add_argument("--duration", type=float, default=12.0, help="seconds per run")
+    ap.add_argument("--window", type=int, default=WINDOW, help="keyframes in the window")
+    ap.add_argument("--smoothers", nargs="+", default=["batch", "incremental"],
+                    choices=["batch", "incremental"], help="the fixed-lag smoothers to run")
     ap.add_argument("--variant", default="fej", choices=["fej", "drop"])
     ap.add_argument("--resolve", action="store_true",
                     help="also re-solve the full batch at every keyframe (slow)")
+    ap.add_argument("--curve", type=int, nargs="*", default=[],
+                    help="windows (keyframes) of the RMSE-ratio curve over --runs runs (default "
+                         "10), no covariances; replaces the NEES pass")
     ap.add_argument("--trace", action="store_true",
                     help="also trace Python allocations (tracemalloc; slows every update)")
     ap.add_argument("--steps", type=int, default=0, help="IMU steps of the timing run (0: skip)")
     a = ap.parse_args()
     print(f"load (1, 5, 15 min): {os.getloadavg()}")
-    if a.runs:
-        r = monte_carlo(a.runs, a.duration, a.window, a.variant, resolve=a.resolve)
-        lo, hi = band(a.runs)
-        print(f"{a.runs} runs of {a.duration} s, {r['K']} keyframes, window {a.window}, "
+    lo, hi = band(a.runs) if a.runs else (0.0, 0.0)
+    for sm in a.smoothers if a.runs and not a.curve else []:
+        r = monte_carlo(a.runs, a.duration, a.window, a.variant, resolve=a.resolve, smoother=sm)
+        e = r["rmse"]
+        print(f"{sm}: {a.runs} runs of {a.duration} s, {r['K']} keyframes, window {a.window}, "
               f"variant {a.variant}; 95% band of the average NEES: [{lo:.2f}, {hi:.2f}]")
         for name in ("lag_nees", "newest_nees", "batch_nees"):
             t = r[name][:, 1:]
             v = t[:, np.isfinite(t).all(0)].mean(0)
             print(f"  {name:12s} average over runs: mean {v.mean():.2f}, final {v[-1]:.2f}, "
                   f"outside the band at {np.mean((v < lo) | (v > hi)):.0%} of keyframes")
-        print("  position RMSE (m): " + ", ".join(f"{k} {v:.4f}" for k, v in r["rmse"].items()
+        print("  position RMSE (m): " + ", ".join(f"{k} {v:.4f}" for k, v in e.items()
                                                    if np.isfinite(v)))
-        print(f"  fixed-lag / batch RMSE: {r['rmse']['lag'] / r['rmse']['batch']:.3f}")
+        print(f"  RMSE ratios: smoothed x_k|k+W-1 / whole-run batch smoother x_k|K "
+              f"{e['lag'] / e['batch']:.3f}; newest x_k|k / ESKF x_k|k "
+              f"{e['newest'] / e['eskf']:.3f}; smoothed / ESKF {e['lag'] / e['eskf']:.3f}")
         if a.resolve:
-            print(f"  newest: fixed-lag / batch re-solved at each keyframe RMSE: "
-                  f"{r['rmse']['newest_same'] / r['rmse']['resolve_newest']:.3f}")
-        print(f"  time: fixed-lag {r['time_lag']:.1f} s, batch {r['time_batch']:.1f} s")
-    if a.steps:
-        steps(a.steps, a.window, a.trace)
+            print(f"  same data (batch re-solved at each keyframe): newest "
+                  f"{e['newest_same'] / e['resolve_newest']:.3f}, smoothed "
+                  f"{e['lag_same'] / e['resolve_lag']:.3f}")
+        print(f"  time: fixed-lag {r['time_lag']:.1f} s, batch {r['time_batch']:.1f} s",
+              flush=True)
+    for sm in a.smoothers if a.curve else []:
+        for w in a.curve:
+            r = monte_carlo(a.runs or 10, a.duration, w, smoother=sm, cov=False, eskf=False)
+            print(f"{sm} window {w}: smoothed x_k|k+W-1 / whole-run batch smoother RMSE "
+                  f"{r['rmse']['lag'] / r['rmse']['batch']:.3f} ({r['rmse']['lag']:.4f} / "
+                  f"{r['rmse']['batch']:.4f} m)", flush=True)
+    for sm in a.smoothers if a.steps else []:
+        steps(a.steps, a.window, sm, a.trace)
 
 
-def steps(n: int, window: int, trace: bool = False) -> None:
+def steps(n: int, window: int, smoother: str = "batch", trace: bool = False) -> None:
     """Time per update and peak memory over ``n`` IMU steps (see the module docstring)."""
     import resource
     import tracemalloc
@@ -327,7 +394,7 @@ def steps(n: int, window: int, trace: bool = False) -> None:
     per = inp["K"]
     prm = data.params
     P0 = np.diag(P0_STD**2)
-    s = BatchFixedLagSmoother(window=window, max_iter=20)
+    s = make_smoother(smoother, window)
     x0, b0 = inp["x0"], inp["b0"]
     s.update([lambda b: PriorFactor(*b[("x", 0)], x0, Covariance(P0[:9, :9])),
               lambda b: PriorFactor(*b[("b", 0)], b0, Covariance(P0[9:, 9:]))],
@@ -373,8 +440,8 @@ def steps(n: int, window: int, trace: bool = False) -> None:
                   f"{len(s.calculate_estimate())} keys, {len(s.priors)} prior(s), resident "
                   f"{now:.1f} MB", flush=True)
     first, last = times[: 1000 // EVERY], times[-(1000 // EVERY):]
-    print(f"{n} IMU steps ({updates} updates, window {window} keyframes): median update "
-          f"{1e3 * np.median(first):.2f} ms over the first 1000 steps, "
+    print(f"{smoother}: {n} IMU steps ({updates} updates, window {window} keyframes): "
+          f"median update {1e3 * np.median(first):.2f} ms over the first 1000 steps, "
           f"{1e3 * np.median(last):.2f} ms over the last 1000 (ratio "
           f"{np.median(last) / np.median(first):.3f}); per IMU step "
           f"{1e3 * np.median(last) / EVERY:.3f} ms")

@@ -19,12 +19,32 @@ import numpy as np
 
 from ..groups import SE23, R
 from ..optim.core.factors import Factor
-from ..optim.core.noise import Covariance, Diagonal
+from ..optim.core.noise import Covariance, Diagonal, NoiseModel
 from ..optim.core.variables import Variables
 from .preintegration import Preintegration
 from .residual import ERRORS, Deltas, imu_residual
 
 __all__ = ["ImuFactor", "BiasRandomWalkFactor", "PositionFactor"]
+
+
+def _groups(factors: Sequence[Factor], extra: Any = None) -> list[list[Any]]:
+    """``factors`` grouped by what one batch must share: variable handles, loss and
+    ``extra(f)``, in first-appearance order."""
+    out: dict[Any, list[Any]] = {}
+    for f in factors:
+        key = (tuple(id(v) for v, _ in f.args), id(f.loss), None if extra is None else extra(f))
+        out.setdefault(key, []).append(f)
+    return list(out.values())
+
+
+def _indices(group: Sequence[Factor], a: int) -> np.ndarray:
+    return np.concatenate([f.args[a][1] for f in group])
+
+
+def _noise(group: Sequence[Factor]) -> NoiseModel:
+    """The rows' square-root informations, stacked."""
+    return NoiseModel(np.concatenate([np.broadcast_to(f.noise.sqrt_info.reshape(
+        -1, f.dim, f.dim), (f.count, f.dim, f.dim)) for f in group]))
 
 
 class ImuFactor(Factor):
@@ -76,11 +96,47 @@ class ImuFactor(Factor):
         m = max(np.size(i), np.size(j))
         if len(pims) != m:
             raise ValueError(f"ImuFactor: {len(pims)} preintegrations for {m} pairs")
+        self.pims = pims
         self.deltas = Deltas(pims)
         super().__init__([(states, i), (states, j), (biases, i)], 9,
                          Covariance(self.deltas.cov if error == "forster" else
                                     self._logmap_cov(self.deltas)), loss)
         self.error = error
+
+    @classmethod
+    def stack(cls, factors: Sequence[ImuFactor]) -> list[ImuFactor]:
+        """Several batches as few: one per set of variable handles, loss and ``error``, the
+        rows in the order given (a window of batches of one evaluated in one call).
+
+        Parameters
+        ----------
+        factors : sequence of ImuFactor
+
+        Returns
+        -------
+        list of ImuFactor
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> from microlie.imu import ImuFactor, Preintegration
+        >>> from microlie.optim import FactorGraph
+        >>> pim = Preintegration(1e-3, 1e-2).integrate(np.tile([0, 0, 9.81], (10, 1)),
+        ...                                           np.zeros((10, 3)), 0.01)
+        >>> g = FactorGraph()
+        >>> x, b = g.add_variables(SE23.identity(3)), g.add_variables(np.zeros((3, 6)))
+        >>> [f.count for f in ImuFactor.stack([ImuFactor(x, b, [0], [1], [pim]),
+        ...                                    ImuFactor(x, b, [1], [2], [pim])])]
+        [2]
+        """
+        out = []
+        for grp in _groups(factors, lambda f: f.error):
+            f0 = grp[0]
+            out.append(f0 if len(grp) == 1 else
+                       cls(f0.args[0][0], f0.args[2][0], _indices(grp, 0), _indices(grp, 1),
+                           [p for f in grp for p in f.pims], error=f0.error, loss=f0.loss))
+        return out
 
     @staticmethod
     def _logmap_cov(d: Deltas) -> np.ndarray:
@@ -204,6 +260,39 @@ class BiasRandomWalkFactor(Factor):
         eye = np.broadcast_to(np.eye(6), (self.count, 6, 6))
         return r, [-eye, eye]
 
+    @classmethod
+    def stack(cls, factors: Sequence[BiasRandomWalkFactor]) -> list[BiasRandomWalkFactor]:
+        """Several batches as few (as :meth:`ImuFactor.stack`).
+
+        Parameters
+        ----------
+        factors : sequence of BiasRandomWalkFactor
+
+        Returns
+        -------
+        list of BiasRandomWalkFactor
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.imu import BiasRandomWalkFactor
+        >>> from microlie.optim import FactorGraph
+        >>> b = FactorGraph().add_variables(np.zeros((3, 6)))
+        >>> fs = [BiasRandomWalkFactor(b, [k], [k + 1], 1e-4, 1e-3, 0.1) for k in (0, 1)]
+        >>> [f.count for f in BiasRandomWalkFactor.stack(fs)]
+        [2]
+        """
+        out = []
+        for grp in _groups(factors):
+            f = grp[0]
+            if len(grp) > 1:
+                f = cls.__new__(cls)
+                Factor.__init__(f, [(grp[0].args[0][0], _indices(grp, 0)),
+                                    (grp[0].args[1][0], _indices(grp, 1))], 6, _noise(grp),
+                                grp[0].loss)
+            out.append(f)
+        return out
+
 
 class PositionFactor(Factor):
     """Position fixes of navigation states: ``r = p(X) - z`` (a GNSS or motion-capture fix).
@@ -281,3 +370,35 @@ class PositionFactor(Factor):
         J = np.zeros((r.shape[0], 3, 9))
         J[:, :, 0:3] = np.asarray(X.rotation().matrix())
         return r, [J]
+
+    @classmethod
+    def stack(cls, factors: Sequence[PositionFactor]) -> list[PositionFactor]:
+        """Several batches as few (as :meth:`ImuFactor.stack`).
+
+        Parameters
+        ----------
+        factors : sequence of PositionFactor
+
+        Returns
+        -------
+        list of PositionFactor
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE23
+        >>> from microlie.imu import PositionFactor
+        >>> from microlie.optim import FactorGraph, Isotropic
+        >>> x = FactorGraph().add_variables(SE23.identity(2))
+        >>> fs = [PositionFactor(x, k, [k, 0.0, 0.0], Isotropic(3, 0.1)) for k in (0, 1)]
+        >>> [f.count for f in PositionFactor.stack(fs)]
+        [2]
+        """
+        out = []
+        for grp in _groups(factors):
+            f = grp[0]
+            if len(grp) > 1:
+                z = np.concatenate([np.broadcast_to(g.z, (g.count, 3)) for g in grp])
+                f = cls(grp[0].args[0][0], _indices(grp, 0), z, _noise(grp), grp[0].loss)
+            out.append(f)
+        return out

@@ -67,7 +67,7 @@ _LAZY = {
     "core.variables": ("Values", "Variables"),
     "certify": ("CertifiedResult", "certified_pose_graph", "certify_poses"),
     "online.incremental": ("IncrementalSmoother", "UpdateRecord"),
-    "online.fixed_lag": ("BatchFixedLagSmoother",),
+    "online.fixed_lag": ("BatchFixedLagSmoother", "IncrementalFixedLagSmoother"),
 }
 _WHERE = {name: module for module, names in _LAZY.items() for name in names}
 
