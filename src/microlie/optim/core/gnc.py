@@ -58,6 +58,7 @@ __all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initia
            "inlier_thresholds", "squared_norms", "gnc_solve"]
 
 SURROGATES = ("tls", "gm")
+FIRST = ("auto", "chordal", "values", "least-squares")
 
 
 class GNC:
@@ -101,7 +102,7 @@ class GNC:
     def __init__(self, surrogate: str = "tls", *, quantile: float = 0.99,
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
-                 first: str = "values") -> None:
+                 first: str = "auto", scale: float = 1.0) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
@@ -117,8 +118,13 @@ class GNC:
             raise ValueError(f"GNC cost_tol must be a finite number >= 0, got {cost_tol!r}")
         if not (isinstance(weights_tol, (float, int)) and 0.0 <= weights_tol < 0.5):
             raise ValueError(f"GNC weights_tol must be in [0, 0.5), got {weights_tol!r}")
-        if first not in ("values", "least-squares"):
-            raise ValueError(f"GNC first must be 'values' or 'least-squares', got {first!r}")
+        if first not in FIRST:
+            raise ValueError(f"GNC first must be one of {', '.join(FIRST)}, got {first!r}")
+        if isinstance(scale, bool) or not (isinstance(scale, (float, int)) and
+                                           math.isfinite(scale) and scale > 0):
+            raise ValueError(f"GNC scale must be a finite number > 0 (the variance factor of "
+                             f"the information matrices; 1 when they are calibrated), got "
+                             f"{scale!r}")
         if known_inliers is not None and (isinstance(known_inliers, (Factor, str)) or
                                           not isinstance(known_inliers, Sequence)):
             raise ValueError("GNC known_inliers must be a sequence of factor batches or "
@@ -131,6 +137,7 @@ class GNC:
         self.cost_tol = float(cost_tol)
         self.weights_tol = float(weights_tol)
         self.first = first
+        self.scale = float(scale)
 
     def __repr__(self) -> str:
         return (f"GNC({self.surrogate!r}, quantile={self.quantile}, "
@@ -422,6 +429,28 @@ def _objective(surrogate: str, s: list[np.ndarray], c2: list[float],
     return total
 
 
+def _chordal_stage(problem: Problem, states: list[np.ndarray], gnc: GNC, edges: Any,
+                   known: list[np.ndarray], weights: list[np.ndarray]
+                   ) -> tuple[list[np.ndarray], float]:
+    """GNC-TLS on the chordal relaxation (:func:`~microlie.optim.core.gnc_chordal.chordal_gnc`):
+    the poses and ``mu`` where the nonlinear GNC continues; sets the BetweenFactor weights."""
+    from .gnc_chordal import chordal_gnc
+
+    var = edges.variables
+    kn = np.concatenate([known[k] for k, _ in edges.rows])
+    X0 = var.group.from_params(np.asarray(states[0][edges.anchor]))
+    X, w, mu = chordal_gnc(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info,
+                           edges.anchor, X0, kn, quantile=gnc.quantile, scale=gnc.scale,
+                           mu_step=gnc.mu_step, max_iter=gnc.max_iter,
+                           weights_tol=gnc.weights_tol)
+    for k, sl in edges.rows:
+        weights[k][~known[k]] = w[sl][~known[k]]
+    P = np.array(X.params, dtype=np.float64)
+    held = var.fixed
+    P[held] = np.asarray(states[0], dtype=np.float64)[held]  # fixed vertices stay put
+    return [P], mu
+
+
 def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
               strategy: str | Strategy = "lm", *, linear_solver: Any = "auto",
               eliminate: Any = None, max_iter: int = 100, verbose: bool | None = None
@@ -494,7 +523,18 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             raise ValueError(f"GNC replaces robust losses: factor batch {k} ({f.name}) has "
                              f"loss {f.loss!r}; build it without a loss")
     known = gnc.known_masks(factors)
-    c2 = inlier_thresholds(factors, gnc.quantile)
+    c2 = [gnc.scale * c for c in inlier_thresholds(factors, gnc.quantile)]
+    edges = None
+    if gnc.first in ("auto", "chordal"):
+        from .gnc_chordal import pose_graph_edges
+
+        edges = pose_graph_edges(problem)
+        if edges is None and gnc.first == "chordal":
+            raise ValueError("GNC first='chordal' needs a pose graph: one SE2 or SE3 variable "
+                             "batch with only BetweenFactor and PriorFactor batches and a "
+                             "fixed vertex or a prior; use first='values'")
+        if gnc.surrogate != "tls":
+            edges = None  # the chordal stage is TLS; GM starts from the values
     show = bool(verbose) if verbose is not None else sys.stderr.isatty()
     weights = [np.ones(f.count) for f in factors]
     judged = [~kk for kk in known]
@@ -512,7 +552,12 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             if jk.any():
                 f.loss = _Weighted(w)  # weighted least squares, weights updated in place
         s_start = squared_norms(problem, states)
-        if gnc.first == "values":
+        mu: float | None
+        if edges is not None:
+            cur, mu = _chordal_stage(problem, states, gnc, edges, known, weights)
+            cur = inner(cur)  # least squares on the inliers of the chordal stage
+            s = squared_norms(problem, cur)
+        elif gnc.first in ("values", "auto"):
             cur = [np.asarray(st, dtype=np.float64) for st in states]
             s = s_start
         else:
@@ -521,7 +566,8 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         sj = np.concatenate([sk[jk] for sk, jk in zip(s, judged, strict=True)])
         cj = np.concatenate([np.full(int(jk.sum()), ck) for ck, jk in zip(c2, judged,
                                                                            strict=True)])
-        mu = initial_mu(gnc.surrogate, sj, cj) if sj.size else None
+        if edges is None:
+            mu = initial_mu(gnc.surrogate, sj, cj) if sj.size else None
         outer = 0
         message, termination = "", "convergence"
         if mu is None:
