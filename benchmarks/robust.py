@@ -181,10 +181,9 @@ def main(argv: list[str] | None = None) -> None:
                     choices=["none", "odometry"], help="runs without / with known inliers")
     ap.add_argument("--quantile", type=float, default=0.99,
                     help="chi-square quantile of the inlier threshold (GNC and GTSAM)")
-    ap.add_argument("--first", default="auto", choices=["auto", "chordal", "values",
-                                                        "least-squares"])
-    ap.add_argument("--scale", type=float, default=1.0,
-                    help="GNC's variance factor of the information (thresholds times it)")
+    ap.add_argument("--first", default="chordal", choices=["chordal", "values",
+                                                           "least-squares"],
+                    help="GNC(first=...): where the first weights come from")
     ap.add_argument("--gtsam-cases", nargs="*", default=[],
                     help="GRAPH:RATE:SEED:START:KNOWN cases GTSAM's GncOptimizer also runs "
                          "(KNOWN: none or known)")
@@ -224,7 +223,7 @@ def main(argv: list[str] | None = None) -> None:
                         fg, x = pg2.to_factor_graph(X0, gauge="fix")
                         ki = [(fg.factors[0], odo)] if known == "odometry" else None
                         gnc = GNC("tls", known_inliers=ki, quantile=args.quantile,
-                                  first=args.first, scale=args.scale)
+                                  first=args.first)
                         t0 = time.perf_counter()
                         res = fg.optimize(robust=gnc, verbose=False)
                         dt = time.perf_counter() - t0
