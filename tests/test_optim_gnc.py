@@ -241,6 +241,7 @@ def test_command_reports_the_outlier_edges(tmp_path):
         assert rep["gnc"]["outlier_edges"] == planted
         assert rep["gnc"]["quantile"] == (0.9999 if "--gnc-quantile" in extra else 0.99)
     for bad in (["--known-inliers", "odometry"], ["--gnc-quantile", "0.9"],
+                ["--gnc-first", "chordal"],
                 ["--robust", "gnc-huber"], ["--robust", "gnc-tls", "--gnc-quantile", "1.5"]):
         with pytest.raises(ValueError):
             run(parser.parse_args(["optimize", str(path), *bad]), io.StringIO(),
