@@ -6,8 +6,9 @@ apart, translation uniform in [-10, 10] m per axis, uniformly random rotation, t
 edge's information). The reference is the outlier-free optimum: LM from the chordal start on
 the graph without the replaced edges. GNC-TLS (``FactorGraph.optimize(robust=GNC(...))``, with
 ``first="chordal"`` unless ``--first`` says otherwise) runs from the odometry or the chordal
-start of the corrupted graph, without and with the odometry as known inliers; the table gives the APE (RMS position difference to the reference, same gauge:
-the first vertex held at the same pose, no alignment), the precision and recall of
+start of the corrupted graph, without and with the odometry as known inliers; the table gives
+the APE (RMS position difference to the reference, same gauge: the first vertex held at the
+same pose, no alignment), the precision and recall of
 ``result.inliers`` over the loop closures (inlier sense), the outer and inner iterations and
 the time. GTSAM's ``GncOptimizer`` (TLS, LM inner solver, the same known inliers and threshold
 probability, a prior on the first pose) runs in a child process on the ``--gtsam-cases``
