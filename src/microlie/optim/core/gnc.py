@@ -21,8 +21,9 @@ it with that probability (this assumes calibrated information matrices: with inf
 larger or smaller than the real noise, choose ``quantile`` accordingly). The first weights come
 from the start values (``first="values"``, the default), as in the paper from the plain
 least-squares estimate (``first="least-squares"``), or, on pose graphs, from GNC-TLS run first
-on the chordal relaxation (``first="chordal"``, :mod:`microlie.optim.core.gnc_chordal`); ``mu`` starts as the paper's Remark 5
-(:func:`initial_mu`) from the largest residual there. The outer
+on the chordal relaxation (``first="chordal"``, :mod:`microlie.optim.core.gnc_chordal`);
+``mu`` starts as the paper's Remark 5 (:func:`initial_mu`) from the largest residual there (or
+where the chordal stage left it). The outer
 loop stops when every TLS weight is within ``weights_tol`` of 0 or 1 (they are then rounded and
 the inliers solved once more: the result is the least-squares optimum of the factors judged
 inliers), when the relative change of the weighted cost is below ``cost_tol`` (for GM once
