@@ -4,14 +4,17 @@ For each graph, outlier rate, seed and start: a fraction of the loop closures (e
 non-consecutive vertices) is replaced by random ones (random endpoints two or more vertices
 apart, translation uniform in [-10, 10] m per axis, uniformly random rotation, the replaced
 edge's information). The reference is the outlier-free optimum: LM from the chordal start on
-the graph without the replaced edges. GNC-TLS (``FactorGraph.optimize(robust=GNC(...))``) runs
-from the odometry or the chordal start of the corrupted graph, without and with the odometry as
-known inliers; the table gives the APE (RMS position difference to the reference, same gauge:
-the first vertex held at the same pose, no alignment), the precision and recall of
+the graph without the replaced edges. GNC-TLS (``FactorGraph.optimize(robust=GNC(...))``, with
+``first="chordal"`` unless ``--first`` says otherwise) runs from the odometry or the chordal
+start of the corrupted graph, without and with the odometry as known inliers; the table gives
+the APE (RMS position difference to the reference, same gauge: the first vertex held at the
+same pose, no alignment), the precision and recall of
 ``result.inliers`` over the loop closures (inlier sense), the outer and inner iterations and
 the time. GTSAM's ``GncOptimizer`` (TLS, LM inner solver, the same known inliers and threshold
 probability, a prior on the first pose) runs in a child process on the ``--gtsam-cases``
-subset with a timeout; its APE and our time over its time are printed.
+subset with a timeout; its APE and our time over its time are printed. GTSAM's runs are long:
+``--gtsam-only FILE`` runs only them (beside a microlie run) and saves each result to FILE as it
+finishes, and ``--gtsam-json FILE`` takes them from there.
 
 Run from the worktree root with the benchmark environment::
 
@@ -130,6 +133,46 @@ def run_gtsam(pg2, X0, known, quantile, timeout, python):
         return info["time_s"], np.load(out), np.array(info["weights_in"])
 
 
+def gtsam_record(got, bad, loops, P0, timeout) -> dict:
+    """GTSAM's result as a JSON-able record: time (None: timed out), APE, precision, recall."""
+    if got is None:
+        return {"time_s": None, "timeout": timeout}
+    gt, gP, gin = got
+    gp, gr = scores(gin, bad, loops)
+    return {"time_s": gt, "ape": ape(gP, P0), "precision": gp, "recall": gr}
+
+
+def gtsam_cells(rec, dt: float) -> str:
+    if rec["time_s"] is None:
+        return f" - | - | > {rec['timeout']:.0f} (timeout) | < {dt / rec['timeout']:.3f} |"
+    return (f" {rec['ape']:.2e} | {rec['precision']:.4f} / {rec['recall']:.4f} | "
+            f"{rec['time_s']:.2f} | {dt / rec['time_s']:.3f} |")
+
+
+def run_gtsam_only(args, gcases) -> None:
+    """GTSAM's GncOptimizer alone on ``gcases``, each result printed and saved to JSON as it
+    finishes."""
+    out: dict[str, object] = {}
+    path = Path(args.gtsam_only)
+    if path.exists():
+        out = json.loads(path.read_text())
+    for gname, rate, seed, start, known in sorted(gcases):
+        key = ":".join((gname, rate, seed, start, known))
+        if key in out:
+            continue
+        pg = read_g2o(DATA / GRAPHS[gname])
+        ii, jj = pg.edge_index()
+        loops = np.flatnonzero(np.abs(ii - jj) != 1)
+        pg2, bad = corrupt(pg, float(rate), int(seed))
+        P0, _ = reference(pg2, bad)
+        X0 = initialize(pg2, start)
+        kidx = np.flatnonzero(np.abs(ii - jj) == 1) if known == "known" else []
+        got = run_gtsam(pg2, X0, kidx, args.quantile, args.gtsam_timeout, args.python)
+        out[key] = gtsam_record(got, bad, loops, P0, args.gtsam_timeout)
+        print(key, out[key], flush=True)
+        path.write_text(json.dumps(out, indent=1))
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--graphs", nargs="+", default=list(GRAPHS), choices=list(GRAPHS))
@@ -141,14 +184,28 @@ def main(argv: list[str] | None = None) -> None:
                     choices=["none", "odometry"], help="runs without / with known inliers")
     ap.add_argument("--quantile", type=float, default=0.99,
                     help="chi-square quantile of the inlier threshold (GNC and GTSAM)")
-    ap.add_argument("--first", default="values", choices=["values", "least-squares"])
+    ap.add_argument("--first", default="chordal", choices=["chordal", "values",
+                                                           "least-squares"],
+                    help="GNC(first=...): where the first weights come from")
     ap.add_argument("--gtsam-cases", nargs="*", default=[],
                     help="GRAPH:RATE:SEED:START:KNOWN cases GTSAM's GncOptimizer also runs "
                          "(KNOWN: none or known)")
     ap.add_argument("--gtsam-timeout", type=float, default=600.0)
     ap.add_argument("--python", default=sys.executable, help="Python with gtsam")
+    ap.add_argument("--gtsam-only", metavar="JSON", default=None,
+                    help="run only GTSAM on --gtsam-cases and save its results to JSON (a long "
+                         "run that can go beside microlie's)")
+    ap.add_argument("--gtsam-json", metavar="JSON", default=None,
+                    help="take GTSAM's results from a --gtsam-only file instead of running it")
     args = ap.parse_args(argv)
     gcases = {tuple(c.split(":")) for c in args.gtsam_cases}
+    saved: dict[str, object] = {}
+    if args.gtsam_json:
+        saved = json.loads(Path(args.gtsam_json).read_text())
+        gcases |= {tuple(k.split(":")) for k in saved}
+    if args.gtsam_only:
+        run_gtsam_only(args, gcases)
+        return
     print(f"quantile {args.quantile}, first weights from {args.first}; APE in m against the "
           f"outlier-free optimum; P/R: precision/recall of result.inliers over loop closures")
     print("| graph | outliers | seed | start | known inliers | APE (m) | P | R | outer | "
@@ -180,18 +237,14 @@ def main(argv: list[str] | None = None) -> None:
                                f"{dt:.2f} |")
                         key = (gname, f"{rate:g}", str(seed), start,
                                "known" if known == "odometry" else "none")
-                        if key in gcases:
+                        if ":".join(key) in saved:
+                            row += gtsam_cells(saved[":".join(key)], dt)
+                        elif key in gcases:
                             kidx = np.flatnonzero(odo) if known == "odometry" else []
                             got = run_gtsam(pg2, X0, kidx, args.quantile, args.gtsam_timeout,
                                             args.python)
-                            if got is None:
-                                row += (f" - | - | > {args.gtsam_timeout:.0f} (timeout) | "
-                                        f"< {dt / args.gtsam_timeout:.3f} |")
-                            else:
-                                gt, gP, gin = got
-                                gp, gr = scores(gin, bad, loops)
-                                row += (f" {ape(gP, P0):.2e} | {gp:.4f} / {gr:.4f} | {gt:.2f} |"
-                                        f" {dt / gt:.3f} |")
+                            row += gtsam_cells(gtsam_record(got, bad, loops, P0,
+                                                            args.gtsam_timeout), dt)
                         else:
                             row += " | | | |"
                         print(row, flush=True)

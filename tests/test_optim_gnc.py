@@ -241,6 +241,7 @@ def test_command_reports_the_outlier_edges(tmp_path):
         assert rep["gnc"]["outlier_edges"] == planted
         assert rep["gnc"]["quantile"] == (0.9999 if "--gnc-quantile" in extra else 0.99)
     for bad in (["--known-inliers", "odometry"], ["--gnc-quantile", "0.9"],
+                ["--gnc-first", "chordal"],
                 ["--robust", "gnc-huber"], ["--robust", "gnc-tls", "--gnc-quantile", "1.5"]):
         with pytest.raises(ValueError):
             run(parser.parse_args(["optimize", str(path), *bad]), io.StringIO(),
@@ -275,3 +276,62 @@ def test_symbolic_analysis_once_for_all_outer_iterations(backend, monkeypatch):
                                                                orig(self, *a, **k))[1])
     res = g.optimize(robust="gnc-tls", linear_solver=backend)
     assert res.outer_iterations > 5 and len(calls) == 1
+
+
+@pytest.mark.parametrize("G", [SE2, SE3])
+@pytest.mark.parametrize("seed", [1, 2])  # seed 0 with SE3 and 15 bad: one inlier rejected
+@pytest.mark.parametrize("n_bad", [15, 21])  # 50% and 70% of the 30 loop closures
+def test_chordal_first_stage_with_most_loop_closures_wrong(G, seed, n_bad):
+    # odometry as known inliers, first="chordal" (GNC-TLS on the chordal relaxation first):
+    # every wrong loop closure found, the answer the least-squares optimum of the inliers
+    # solved on a graph built without the outliers
+    ii, jj, Z, out, odo, truth = _loop_graph(G, seed=seed, n_bad=n_bad)
+    X0 = _odometry(G, ii, jj, Z, truth, 40)
+    g, x, f = _graph(G, ii, jj, Z, X0)
+    res = g.optimize(robust=GNC("tls", known_inliers=[(f, odo)], quantile=0.9999,
+                                first="chordal"))
+    assert res.converged, res.message
+    assert np.array_equal(res.inliers[0], ~out)
+    assert np.array_equal(res.weights[0], (~out).astype(float))
+    g2, x2, _ = _graph(G, ii, jj, Z, X0, rows=np.flatnonzero(~out))
+    ref = g2.optimize(rel_tol=1e-12, abs_tol=1e-14).values[x2]
+    err = np.abs(np.asarray(res.values[x].matrix()) - np.asarray(ref.matrix())).max()
+    assert err < 1e-6
+
+
+@pytest.mark.parametrize("G", [SE2, SE3])
+def test_chordal_stage_without_outliers_is_the_chordal_initialisation(G):
+    # all weights stay 1: the relaxation equals microlie.optim.init.chordal (written apart)
+    from microlie.optim.core.gnc_chordal import chordal_gnc
+    from microlie.optim.init import chordal
+    from microlie.optim.io.pose_graph import PoseGraph
+
+    ii, jj, Z, out, odo, truth = _loop_graph(G, n_bad=0, seed=4)
+    rng = np.random.default_rng(4)
+    info = np.zeros((ii.size, G.dof, G.dof))
+    d = 2 if G is SE2 else 3
+    info[:, :d, :d] = np.diag(rng.uniform(50, 200, d))  # block-diagonal, anisotropic
+    info[:, d:, d:] = np.eye(G.dof - d) * rng.uniform(100, 400, (ii.size, 1, 1))
+    pg = PoseGraph(G, ids=np.arange(40), poses=None, i=ii, j=jj, measurements=Z,
+                   information=info)
+    X, w, _ = chordal_gnc(G, 40, ii, jj, Z, info, 0, G.identity(), np.zeros(ii.size, bool))
+    assert np.all(w == 1.0)
+    assert np.abs(np.asarray(X.matrix()) - np.asarray(chordal(pg).matrix())).max() < 1e-8
+
+
+def test_chordal_first_needs_a_pose_graph():
+    g = FactorGraph()
+    x = g.add_variables(SE2.identity(2), fixed=[0])
+    y = g.add_variables(SE2.identity(1))
+    g.add(BetweenFactor(x, [0], [1], SE2.identity(1)))
+    g.add(PriorFactor(y, 0, SE2.identity()))
+    with pytest.raises(ValueError, match="first='chordal' needs a pose graph"):
+        g.optimize(robust=GNC("tls", first="chordal"))
+    with pytest.raises(ValueError, match="GNC first must be one of"):
+        GNC("tls", first="odometry")
+    g2 = FactorGraph()
+    z = g2.add_variables(SE2.identity(2), fixed=[0])
+    g2.add(BetweenFactor(z, [0], [1], SE2.identity(1)))
+    with pytest.raises(ValueError, match="is a TLS stage"):
+        g2.optimize(robust=GNC("gm", first="chordal"))
+    assert g2.optimize(robust=GNC("tls", first="chordal")).converged

@@ -4,7 +4,8 @@
 
     microlie optimize (IN.g2o | --example) [-o OUT.g2o] [--solver lm|gn|dogleg|trust-region]
                      [--robust huber:1.0|gnc-tls|gnc-gm] [--known-inliers odometry]
-                     [--gnc-quantile P] [--init auto|file|odometry|chordal|certified]
+                     [--gnc-quantile P] [--gnc-first values|least-squares|chordal]
+                     [--init auto|file|odometry|chordal|certified]
                      [--certify]
                      [--linear-solver auto|cholesky|schur|...]
                      [--max-iter N] [--abs-tol T] [--rel-tol T]
@@ -52,7 +53,8 @@ prints the reason on stderr, writes no ``-o`` file and exits with status 1.
 ``--robust gnc-tls`` (or ``gnc-gm``) runs graduated non-convexity
 (:mod:`microlie.optim.core.gnc`) instead of a loss: the gauge prior and, with
 ``--known-inliers odometry``, the edges between consecutive vertex ids keep weight 1, the inlier
-threshold is the ``--gnc-quantile`` (default 0.99) chi-square quantile, and the report lists the
+threshold is the ``--gnc-quantile`` (default 0.99) chi-square quantile, ``--gnc-first chordal``
+runs GNC-TLS on the chordal relaxation first (see ``GNC(first=...)``), and the report lists the
 edges judged outliers (``gnc.outlier_edges``, in file order).
 
 Formats come from the registry :data:`microlie.optim.io.formats.FORMATS`: its handler is called
@@ -143,6 +145,11 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="with --robust gnc-*: the chi-square quantile of the inlier threshold "
                         "(default 0.99; lower it when the file's information overstates the "
                         "noise)")
+    p.add_argument("--gnc-first", choices=("values", "least-squares", "chordal"),
+                   default=None,
+                   help="with --robust gnc-*: where GNC's first weights come from (default "
+                        "values; chordal: GNC-TLS on the chordal relaxation first, see "
+                        "microlie.optim.core.gnc.GNC)")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, chordal, or "
                         "certified (the certified global optimum of SE-Sync's isotropic "
@@ -611,7 +618,8 @@ def _gnc_options(args: argparse.Namespace) -> str | None:
     if robust is not None and str(robust).lower().startswith("gnc"):
         return str(robust).lower()
     for flag, value in (("--known-inliers", getattr(args, "known_inliers", None)),
-                        ("--gnc-quantile", getattr(args, "gnc_quantile", None))):
+                        ("--gnc-quantile", getattr(args, "gnc_quantile", None)),
+                        ("--gnc-first", getattr(args, "gnc_first", None))):
         if value is not None:
             raise ValueError(f"{flag} applies to --robust gnc-tls or gnc-gm only")
     return None
@@ -630,7 +638,8 @@ def _gnc_for(graph: Any, fg: Any, spec: str, args: argparse.Namespace) -> Any:
         ii, jj = graph.edge_index()
         known.append((fg.factors[0], abs(jj - ii) == 1))
     quantile = 0.99 if args.gnc_quantile is None else args.gnc_quantile
-    return GNC(name, known_inliers=known, quantile=quantile)
+    first = getattr(args, "gnc_first", None) or "values"
+    return GNC(name, known_inliers=known, quantile=quantile, first=first)
 
 
 def _position_rmse(X: Any, truth: Any) -> float:
