@@ -326,3 +326,35 @@ def test_mixed_blocks_equal_dense_step(monkeypatch, fast):
         p.fixed = saved
     assert _close(s.calculate_estimate(x).params, after[x.key], 1e-8)
     assert _close(s.calculate_estimate(p), after[p.key], 1e-8)
+
+
+@pytest.mark.parametrize("group", [SE2, SE3])
+def test_edge_rows_equal_factor_jacobians(group):
+    """The compiled edge linearisation (online.edges.EdgeRows) against A = L [J_i J_j] from
+    BetweenFactor.evaluate, full information matrices, rows of two batches."""
+    from microlie.optim import SqrtInformation
+    from microlie.optim.online.edges import EdgeRows
+
+    e = EdgeRows()
+    if e.module is None:
+        pytest.skip("microlie._c._graph is not built")
+    rng = np.random.default_rng(2)
+    d = group.dof
+    g = FactorGraph()
+    x = g.add_variables(group.exp(rng.standard_normal((6, d))))
+    L = np.tril(rng.standard_normal((4, d, d))) + 3 * np.eye(d)
+    f1 = BetweenFactor(x, [0, 1, 2], [3, 4, 5], group.exp(rng.standard_normal((3, d))),
+                       SqrtInformation(L[:3]))
+    f2 = BetweenFactor(x, 5, 0, group.exp(rng.standard_normal(d)), SqrtInformation(L[3]))
+    e.add(f1, np.array([0, 1, 2]))
+    e.add(f2, np.array([3]))
+    done, H, b = e.linearize(np.array([3, 1]), [x.initial])
+    assert sorted(done.tolist()) == [1, 3]
+    for r, Hr, br in zip(done.tolist(), H, b, strict=True):
+        f, k = (f1, r) if r < 3 else (f2, 0)
+        vals = [x.initial[f.args[0][1]], x.initial[f.args[1][1]]]
+        res, (Ji, Jj) = f.evaluate([x.wrap(v) for v in vals], True)
+        Lk = f.noise.sqrt_info.reshape(-1, d, d)[min(k, f.count - 1) if f.count > 1 else 0]
+        A = Lk @ np.concatenate([Ji[k], Jj[k]], axis=1)
+        assert np.allclose(Hr, A.T @ A, rtol=1e-10, atol=1e-10)
+        assert np.allclose(br, -A.T @ (Lk @ res[k]), rtol=1e-10, atol=1e-10)

@@ -43,6 +43,7 @@ from ..core.solvers import Result
 from ..core.variables import Values, Variables
 from ..linalg.ordering import minimum_degree_blocks
 from .bayes_tree import BayesTree, NotDetermined
+from .edges import EdgeRows
 
 __all__ = ["IncrementalSmoother", "UpdateRecord"]
 
@@ -163,6 +164,7 @@ class IncrementalSmoother:
         self._idx: list[int] = []
         self._fids: dict[int, int] = {}         # id(factor) -> its index in self._factors
         self._tree = BayesTree()
+        self._edges = EdgeRows()
         self._dx = np.zeros(0)
         self._size = 0
         self._next_pos = 0
@@ -611,6 +613,7 @@ class IncrementalSmoother:
             self._row_fid.append(fid)
             self._row_k.append(k)
         self._rows.append(rows)
+        self._edges.add(f, np.asarray(rows, dtype=np.int64))
         return rows
 
     def _remove(self, f: Factor, marked: list[np.ndarray]) -> int:
@@ -651,13 +654,24 @@ class IncrementalSmoother:
             out.update(nr[n])
         return out
 
-    def _linearize(self, rows: Iterable[int]) -> None:
-        """Linearise ``rows`` at the linearisation points (each factor batch evaluated once)."""
+    def _linearize(self, rows: set[int]) -> None:
+        """Linearise ``rows`` at the linearisation points: the pose-graph edges in one
+        compiled call (:class:`EdgeRows`), the others one evaluation per factor batch."""
+        tree = self._tree
+        if rows:
+            done, Hs, bs = self._edges.linearize(np.fromiter(rows, np.int64, len(rows)),
+                                                 self._lin)
+            if done.size:
+                rH, rb = tree.rH, tree.rb
+                dl = done.tolist()
+                for r, H, b in zip(dl, Hs, bs, strict=True):
+                    rH[r] = H
+                    rb[r] = b
+                rows = rows.difference(dl)
         by: dict[int, list[int]] = {}
         fids = self._row_fid
         for r in rows:
             by.setdefault(fids[r], []).append(r)
-        tree = self._tree
         for fid, rs in by.items():
             f = self._factors[fid]
             assert f is not None
