@@ -596,6 +596,88 @@ static PyObject *backsubstitute(PyObject *self, PyObject *const *args, Py_ssize_
     return PyLong_FromLongLong((long long)count);
 }
 
+/* ------------------------------------------------------------------ ordering graph */
+
+/* the groups: the nodes of rows[q] (rnodes) and the separators of orphans[q] (sep) */
+static i64 *group_nodes(PyObject *rnodes, PyObject *sep, const i64 *rows, i64 nr,
+                        const i64 *orph, i64 q, i64 *nn) {
+    return q < nr ? item_i64(rnodes, rows[q], "rnodes", nn)
+                  : item_i64(sep, orph[q - nr], "sep", nn);
+}
+
+static PyObject *adjacency(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "adjacency(rows, orphans, rnodes, sep, loc, nb)");
+        return NULL;
+    }
+    i64 nr, no, N;
+    i64 *rows = arr(args[0], NPY_INT64, "rows", &nr);
+    i64 *orph = rows ? arr(args[1], NPY_INT64, "orphans", &no) : NULL;
+    if (!orph || !is_list(args[2], "rnodes") || !is_list(args[3], "sep")) return NULL;
+    i64 *loc = arr(args[4], NPY_INT64, "loc", &N);
+    i64 nb = PyLong_AsLongLong(args[5]);
+    if (!loc || PyErr_Occurred()) return NULL;
+    npy_intp n1 = (npy_intp)nb + 1;
+    PyObject *optr = PyArray_ZEROS(1, &n1, NPY_INT64, 0);
+    if (!optr) return NULL;
+    i64 *ptr = PyArray_DATA((PyArrayObject *)optr);
+    for (int pass = 0; pass < 2; pass++) {
+        PyObject *oind = NULL;
+        i64 *ind = NULL, *fill = NULL;
+        if (pass == 1) {
+            for (i64 k = 0; k < nb; k++) ptr[k + 1] += ptr[k];
+            npy_intp ne = (npy_intp)ptr[nb];
+            oind = PyArray_SimpleNew(1, &ne, NPY_INT64);
+            fill = malloc((size_t)(nb > 0 ? nb : 1) * sizeof(i64));
+            if (!oind || !fill) {
+                Py_XDECREF(oind);
+                free(fill);
+                Py_DECREF(optr);
+                return PyErr_NoMemory();
+            }
+            ind = PyArray_DATA((PyArrayObject *)oind);
+            memcpy(fill, ptr, (size_t)nb * sizeof(i64));
+        }
+        for (i64 q = 0; q < nr + no; q++) {
+            i64 nn;
+            i64 *nd = group_nodes(args[2], args[3], rows, nr, orph, q, &nn);
+            if (!nd) {
+                Py_XDECREF(oind);
+                free(fill);
+                Py_DECREF(optr);
+                return NULL;
+            }
+            i64 k = 0;
+            for (i64 t = 0; t < nn; t++)
+                if (nd[t] >= 0 && nd[t] < N && loc[nd[t]] >= 0 && loc[nd[t]] < nb) k++;
+            if (k < 2) continue;
+            for (i64 t = 0; t < nn; t++) {
+                if (nd[t] < 0 || nd[t] >= N) continue;
+                i64 a = loc[nd[t]];
+                if (a < 0 || a >= nb) continue;
+                if (pass == 0) {
+                    ptr[a + 1] += k - 1;
+                    continue;
+                }
+                for (i64 u = 0; u < nn; u++) {
+                    if (u == t || nd[u] < 0 || nd[u] >= N) continue;
+                    i64 b = loc[nd[u]];
+                    if (b >= 0 && b < nb) ind[fill[a]++] = b;
+                }
+            }
+        }
+        if (pass == 1) {
+            free(fill);
+            PyObject *out = PyTuple_Pack(2, optr, oind);
+            Py_DECREF(optr);
+            Py_DECREF(oind);
+            return out;
+        }
+    }
+    return NULL;
+}
+
 static PyMethodDef methods[] = {
     {"detach", (PyCFunction)(void (*)(void))detach, METH_FASTCALL,
      "detach(marked, parent, child, sib, mark, rseen, node_rows, rnodes) -> (top, orphans, "
@@ -606,6 +688,10 @@ static PyMethodDef methods[] = {
     {"backsubstitute", (PyCFunction)(void (*)(void))backsubstitute, METH_FASTCALL,
      "backsubstitute(order, orphans, dx, off, dof, sep, Rinv, T, c, child, sib, wildfire, "
      "chg) -> nodes computed"},
+    {"adjacency", (PyCFunction)(void (*)(void))adjacency, METH_FASTCALL,
+     "adjacency(rows, orphans, rnodes, sep, loc, nb) -> (indptr, indices): the graph of the "
+     "nodes with loc in [0, nb), an edge for two nodes of one row or orphan separator "
+     "(repeated entries kept)"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_incremental",

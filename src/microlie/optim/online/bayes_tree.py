@@ -253,6 +253,42 @@ class BayesTree:
             if sep.size:
                 put(sep, Hs, bs, j)
 
+    def adjacency(self, rows: np.ndarray, orphans: np.ndarray, head: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """The graph of the nodes ``head`` (local numbers ``0 .. len(head) - 1``) that the
+        elimination of ``rows`` and the orphans' information creates: an edge between two
+        nodes of one row or one orphan's separator. Returns CSR ``(indptr, indices)``
+        (repeated entries kept; for the ordering)."""
+        nb = int(head.size)
+        loc = self.loc
+        loc[head] = np.arange(nb)
+        try:
+            if self.module is not None:
+                return self.module.adjacency(np.ascontiguousarray(rows, dtype=np.int64),
+                                             np.ascontiguousarray(orphans, dtype=np.int64),
+                                             self.rnodes, self.sep, loc, nb)
+            pa: list[np.ndarray] = []
+            pb: list[np.ndarray] = []
+            groups = [self.rnodes[r] for r in rows.tolist()]
+            groups += [self.sep[o] for o in orphans.tolist()]
+            for g in groups:
+                ix = loc[g]
+                ix = ix[ix >= 0]
+                if ix.size > 1:
+                    pa.append(np.repeat(ix, ix.size))
+                    pb.append(np.tile(ix, ix.size))
+        finally:
+            loc[head] = -1
+        if pa:
+            a_arr, b_arr = np.concatenate(pa), np.concatenate(pb)
+            keep = a_arr != b_arr
+            a_arr, b_arr = a_arr[keep], b_arr[keep]
+        else:
+            a_arr = b_arr = np.zeros(0, dtype=np.int64)
+        o = np.argsort(a_arr, kind="stable")
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(a_arr, minlength=nb))])
+        return indptr.astype(np.int64), b_arr[o].astype(np.int64)
+
     def backsubstitute(self, order: np.ndarray, orphans: np.ndarray, dx: np.ndarray,
                        wildfire: float) -> int:
         """The step of the nodes of ``order`` (from the root down), then of the orphan subtrees

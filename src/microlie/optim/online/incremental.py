@@ -729,31 +729,8 @@ class IncrementalSmoother:
         head = head[np.argsort(pos[head], kind="stable")]
         nb = head.size
         if nb > 2:
-            loc = tree.loc
-            loc[head] = np.arange(nb)
-            groups = [tree.rnodes[r] for r in pool.tolist()]
-            groups += [tree.sep[o] for o in orphans.tolist()]
-            pa: list[np.ndarray] = []
-            pb: list[np.ndarray] = []
-            for g in groups:
-                ix = loc[g]
-                ix = ix[ix >= 0]
-                if ix.size > 1:
-                    pa.append(np.repeat(ix, ix.size))
-                    pb.append(np.tile(ix, ix.size))
-            loc[head] = -1
-            if pa:
-                a_arr = np.concatenate(pa)
-                b_arr = np.concatenate(pb)
-                keep = a_arr != b_arr
-                a_arr, b_arr = a_arr[keep], b_arr[keep]
-            else:
-                a_arr = b_arr = np.zeros(0, dtype=np.int64)
-            o = np.argsort(a_arr, kind="stable")
-            indptr = np.concatenate([[0], np.cumsum(np.bincount(a_arr, minlength=nb))])
-            perm = minimum_degree_blocks(indptr.astype(np.int64), b_arr[o].astype(np.int64),
-                                         nb)
-            head = head[np.asarray(perm, dtype=np.int64)]
+            indptr, indices = tree.adjacency(pool, orphans, head)
+            head = head[np.asarray(minimum_degree_blocks(indptr, indices, nb), dtype=np.int64)]
         order = np.concatenate([head, tail]).astype(np.int64)
         pos[order] = self._next_pos + np.arange(order.size)
         self._next_pos += int(order.size)
