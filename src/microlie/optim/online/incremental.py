@@ -40,7 +40,7 @@ from ..core.factors import Factor
 from ..core.graph import FactorGraph
 from ..core.robust import corrected_weights
 from ..core.solvers import Result
-from ..core.variables import Values, Variables
+from ..core.variables import Values, Variables, VectorVariables, element
 from ..linalg.ordering import minimum_degree_blocks
 from .bayes_tree import BayesTree, NotDetermined
 from .edges import EdgeRows
@@ -369,8 +369,27 @@ class IncrementalSmoother:
             vs = self.graph.variables
             return Values(vs, [self._params(v, np.arange(v.n)) for v in vs])
         self._check_handle(variables, "variables")
+        one = self._one(variables, idx)
+        if one is not None:
+            return one
         ix = np.arange(variables.n) if idx is None else variables.indices(idx)
         return variables.wrap(self._params(variables, ix))
+
+    def _one(self, var: Variables, idx: Any) -> Any:
+        """The estimate of one element of a group batch (``idx`` an int or a list of one)
+        through the single-element group operations, or ``None`` (the general path)."""
+        if type(idx) is list and len(idx) == 1:
+            idx = idx[0]
+        if type(idx) is not int or isinstance(var, VectorVariables) or \
+                var.key >= len(self._seen) or not -var.n <= idx < var.n:
+            return None
+        i = idx % var.n
+        node = int(self._node_of[var.key][i])
+        if node < 0:
+            return None
+        o = int(self._tree.off[node])
+        e = element(var.group, self._lin[var.key][i]).plus(self._dx[o:o + var.dof])
+        return element(var.group, np.asarray(e.params)[None])
 
     def _params(self, var: Variables, ix: np.ndarray) -> np.ndarray:
         if var.key >= len(self._seen):

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.factors import BetweenFactor, PriorFactor
 from ..core.noise import Information, Isotropic
+from ..core.variables import element
 from ..io.pose_graph import PoseGraph
 from .incremental import IncrementalSmoother
 
@@ -122,6 +123,8 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
     ii, jj = graph.edge_index()
     _, edges, odometry = replay_schedule(graph)
     Zs = graph.measurements
+    Zp = np.asarray(Zs.params)
+    group = graph.group
     info = graph.information
     file_poses = graph.poses
     if file_poses is None:  # no vertex lines: identity first pose, the rest by odometry
@@ -144,11 +147,11 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
             e = edges[k]
             factors = [BetweenFactor(x, ii[e], jj[e], Zs[e], Information(info[e]))] \
                 if e.size else []
-            o = odometry[k]
+            o = int(odometry[k])
             guess = None
-            if o >= 0:
-                prev = s.calculate_estimate(x, [k - 1])
-                Zo = Zs[int(o):int(o) + 1]
+            if o >= 0:  # single elements: the one-element group operations
+                prev = element(group, s.calculate_estimate(x, k - 1).params[0])
+                Zo = element(group, Zp[o])
                 guess = prev @ Zo if ii[o] == k - 1 else prev @ Zo.inverse()
         s.update(factors, {(x, k): guess} if guess is not None else {(x, k): file_poses[k:k + 1]})
         times[k] = time.perf_counter() - t0
