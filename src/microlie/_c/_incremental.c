@@ -339,7 +339,9 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             }
         }
         g = F + w * w;
-        memset(F, 0, (size_t)(w * w + w) * sizeof(double));
+        for (i64 r = 0; r < w; r++) /* the lower triangle only is used */
+            memset(F + r * w, 0, (size_t)(r + 1) * sizeof(double));
+        memset(g, 0, (size_t)w * sizeof(double));
         child[j] = -1;
         for (i64 it = head[j]; it >= 0; it = items[it].next) {
             const item *E = &items[it];
@@ -354,8 +356,10 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                     double *Fr = F + (la + r) * w;
                     const double *Hr = E->H + (io[a] + r) * m;
                     for (i64 bb = 0; bb < E->nn; bb++) {
-                        i64 nb = E->nodes[bb], db = dof[nb];
-                        double *dst = Fr + loc[nb];
+                        i64 nb = E->nodes[bb], lb = loc[nb];
+                        if (lb > la) continue; /* the upper triangle */
+                        i64 db = lb == la ? r + 1 : dof[nb];
+                        double *dst = Fr + lb;
                         const double *src = Hr + io[bb];
                         for (i64 t = 0; t < db; t++) dst[t] += src[t];
                     }
@@ -426,17 +430,18 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
         i64 *sp = PyArray_DATA((PyArrayObject *)os);
         for (i64 a = 0; a < d; a++)
             for (i64 bb = 0; bb < d; bb++) R[a * d + bb] = Li[bb * d + a]; /* Rinv = Li^T */
-        for (i64 a = 0; a < d; a++) { /* T = Li F_12, c = Li g_1 */
-            double *Ta = T + a * s;
-            for (i64 t = 0; t < s; t++) Ta[t] = 0.0;
-            double ca = 0.0;
-            for (i64 k = 0; k <= a; k++) {
-                double l = Li[a * d + k];
-                const double *Fk = F + k * w + d;
-                for (i64 t = 0; t < s; t++) Ta[t] += l * Fk[t];
-                ca += l * g[k];
+        for (i64 t = 0; t < s; t++) { /* T = Li F_12 = Li F_21^T */
+            const double *Ft = F + (d + t) * w;
+            for (i64 a = 0; a < d; a++) {
+                double v = 0.0;
+                for (i64 k = 0; k <= a; k++) v += Li[a * d + k] * Ft[k];
+                T[a * s + t] = v;
             }
-            c[a] = ca;
+        }
+        for (i64 a = 0; a < d; a++) { /* c = Li g_1 */
+            double v = 0.0;
+            for (i64 k = 0; k <= a; k++) v += Li[a * d + k] * g[k];
+            c[a] = v;
         }
         for (i64 p = 0; p < s; p++) { /* Hs = F_22 - T^T T (lower, then mirrored) */
             double *Hp = Hs + p * s;
@@ -497,8 +502,10 @@ typedef struct {
     ibuf touched;
 } bctx;
 
-/* x_k = Rinv_k (c_k - T_k x_sep); chg[k] = the largest change of a component; -1 on error */
-static int back_one(bctx *B, i64 k) {
+/* x_k = Rinv_k (c_k - T_k x_sep). keep: always keep the new value and mark k changed (a node
+ * of the re-eliminated top); else keep it and mark k changed only when a component moved by
+ * threshold or more, otherwise restore the old value (GTSAM's wildfire). -1 on error */
+static int back_one(bctx *B, i64 k, int keep, double threshold) {
     i64 ns, d = B->dof[k];
     i64 *sp = item_i64(B->sep, k, "sep", &ns);
     if (!sp) return -1;
@@ -531,8 +538,9 @@ static int back_one(bctx *B, i64 k) {
         double e = fabs(t - xk[i]);
         if (e > big || e != e) big = e;
     }
+    if (!keep && !(big >= threshold)) return 0; /* restored: not changed */
     for (i64 i = 0; i < d; i++) xk[i] = nw[i];
-    B->chg[k] = big;
+    B->chg[k] = 1.0;
     return ipush(&B->touched, k);
 }
 
@@ -564,21 +572,20 @@ static PyObject *backsubstitute(PyObject *self, PyObject *const *args, Py_ssize_
     i64 count = 0;
     int err = 0;
     for (i64 q = no - 1; q >= 0 && !err; q--, count++) /* the re-eliminated: root down */
-        if (back_one(&B, order[q])) err = 1;
+        if (back_one(&B, order[q], 1, wildfire)) err = 1;
     for (i64 t = 0; t < nor && !err; t++)
         if (ipush(&stack, orph[t])) err = 1;
-    while (stack.n > 0 && !err) { /* orphan subtrees where a separator step moved enough */
+    while (stack.n > 0 && !err) { /* orphan subtrees: recomputed where a separator changed */
         i64 o = stack.p[--stack.n], ns;
         i64 *so = item_i64(B.sep, o, "sep", &ns);
         if (!so) {
             err = 1;
             break;
         }
-        double m = 0.0;
-        for (i64 a = 0; a < ns; a++)
-            if (chg[so[a]] > m) m = chg[so[a]];
-        if (!(m > wildfire)) continue;
-        if (back_one(&B, o)) {
+        int dirty = 0;
+        for (i64 a = 0; a < ns && !dirty; a++) dirty = chg[so[a]] != 0.0;
+        if (!dirty) continue;
+        if (back_one(&B, o, 0, wildfire)) {
             err = 1;
             break;
         }

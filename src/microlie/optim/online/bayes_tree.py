@@ -291,9 +291,11 @@ class BayesTree:
 
     def backsubstitute(self, order: np.ndarray, orphans: np.ndarray, dx: np.ndarray,
                        wildfire: float) -> int:
-        """The step of the nodes of ``order`` (from the root down), then of the orphan subtrees
-        where a separator variable's step moved more than ``wildfire``; return how many nodes
-        were computed."""
+        """Back-substitution with GTSAM's wildfire: the step of the nodes of ``order`` (from
+        the root down; all *changed*), then, down the orphan subtrees, of every node with a
+        changed separator variable: it is *changed* (and keeps its new step) when a component
+        moved by ``wildfire`` or more, else it keeps its old step. Return how many nodes were
+        computed."""
         order = np.ascontiguousarray(order, dtype=np.int64)
         orphans = np.ascontiguousarray(orphans, dtype=np.int64)
         if self.module is not None:
@@ -302,35 +304,34 @@ class BayesTree:
                                                   self.child, self.sib, float(wildfire),
                                                   self.chg))
         off, dof = self.off, self.dof
-        change: dict[int, float] = {}
+        changed: set[int] = set()
 
-        def back(k: int) -> None:
+        def back(k: int, keep: bool) -> None:
             o0 = int(off[k])
             o1 = o0 + int(dof[k])
             sep = self.sep[k]
             if sep.size:
-                cols = (off[sep][:, None] + np.arange(int(dof[sep[0]]))).ravel() \
-                    if (dof[sep] == dof[sep[0]]).all() else \
-                    np.concatenate([np.arange(off[s], off[s] + dof[s]) for s in sep.tolist()])
+                cols = np.concatenate([np.arange(off[s], off[s] + dof[s]) for s in sep.tolist()])
                 v = self.c[k] - self.T[k] @ dx[cols]
             else:
                 v = self.c[k]
             new = self.Rinv[k] @ v
-            change[k] = float(np.abs(new - dx[o0:o1]).max())
-            dx[o0:o1] = new
+            if keep or not np.abs(new - dx[o0:o1]).max() < wildfire:
+                dx[o0:o1] = new
+                changed.add(k)
 
         for k in order[::-1].tolist():
-            back(k)
+            back(k, True)
         count = order.size
         stack = orphans.tolist()
         while stack:
             k = stack.pop()
-            if max((change.get(s, 0.0) for s in self.sep[k].tolist()), default=0.0) \
-                    > wildfire:
-                back(k)
-                count += 1
-                ch = int(self.child[k])
-                while ch >= 0:
-                    stack.append(ch)
-                    ch = int(self.sib[ch])
+            if not changed.intersection(self.sep[k].tolist()):
+                continue
+            back(k, False)
+            count += 1
+            ch = int(self.child[k])
+            while ch >= 0:
+                stack.append(ch)
+                ch = int(self.sib[ch])
         return int(count)

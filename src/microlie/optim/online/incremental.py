@@ -16,9 +16,10 @@ Algorithms 4-6):
 3. the detached variables are ordered again (approximate minimum degree over them, the variables
    of the new factors constrained last) and eliminated again from their factors and the orphans'
    cached information;
-4. the step is back-substituted from the re-eliminated nodes downwards, entering an orphan
-   subtree only where its separator's step changed by more than ``wildfire`` (partial
-   back-substitution).
+4. the step is back-substituted from the re-eliminated nodes downwards, then into the orphan
+   subtrees as GTSAM's wildfire does (partial back-substitution): a node is recomputed when a
+   variable of its separator *changed* (re-eliminated, or recomputed and moved by
+   ``wildfire`` or more); a recomputed node that moved less keeps its old step.
 
 Why a variable-level tree and not an incremental supernodal Cholesky: re-factoring "the trailing
 part of a fixed ordering" re-eliminates everything after the oldest touched variable (on a loop
@@ -113,9 +114,9 @@ class IncrementalSmoother:
         Check for relinearisation at every ``relinearize_skip``-th update only (GTSAM's
         ``relinearizeSkip``, default 10; the first update checks).
     wildfire : float
-        Partial back-substitution: an untouched subtree's step is recomputed only where its
-        separator's step changed by more than this (GTSAM's default 0.001; 0 recomputes every
-        step that changed).
+        Partial back-substitution (GTSAM's ``wildfireThreshold``, default 0.001): below the
+        re-eliminated nodes, a step is recomputed only where a separator variable changed, and
+        kept only when it moved by this or more (0: every step below a change is recomputed).
 
     Examples
     --------
