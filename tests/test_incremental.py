@@ -358,3 +358,15 @@ def test_edge_rows_equal_factor_jacobians(group):
         A = Lk @ np.concatenate([Ji[k], Jj[k]], axis=1)
         assert np.allclose(Hr, A.T @ A, rtol=1e-10, atol=1e-10)
         assert np.allclose(br, -A.T @ (Lk @ res[k]), rtol=1e-10, atol=1e-10)
+
+
+def test_best_estimate_is_the_complete_step():
+    """calculate_best_estimate: the dense Gauss-Newton step of the current factorisation
+    (the partial back-substitution of a coarse wildfire leaves calculate_estimate off it)."""
+    graph = _synthetic(SE2, 60, 15, seed=13)
+    rep = replay_pose_graph(graph, IncrementalSmoother(wildfire=0.05), until=60)
+    s, x = rep["smoother"], rep["poses"]
+    expect, _, _ = _dense_step(s, x, 59)
+    best = s.calculate_best_estimate()[x].params
+    assert _close(best, expect, 1e-9)
+    assert not _close(s.calculate_estimate(x).params, expect, 1e-6)  # stale steps

@@ -392,7 +392,45 @@ class IncrementalSmoother:
         e = element(var.group, self._lin[var.key][i]).plus(self._dx[o:o + var.dof])
         return element(var.group, np.asarray(e.params)[None])
 
-    def _params(self, var: Variables, ix: np.ndarray) -> np.ndarray:
+    def calculate_best_estimate(self) -> Values:
+        """The estimate with the complete step of the current factorisation, by a full
+        back-substitution (GTSAM's ``calculateBestEstimate``): :meth:`calculate_estimate`
+        without the wildfire's stale steps (each below the ``wildfire`` threshold, but they
+        add up down the tree). The stored step is not changed (the relinearisation decisions
+        stay those of the partial back-substitution, as in GTSAM).
+
+        Returns
+        -------
+        Values
+            Variables that have not entered yet have their initial values.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, PriorFactor, BetweenFactor, Diagonal
+        >>> s = IncrementalSmoother(wildfire=0.5)  # a coarse partial back-substitution
+        >>> x = s.add_variables(SE2.identity(3))
+        >>> sig = Diagonal([0.1, 0.1, 0.1])
+        >>> _ = s.update([PriorFactor(x, 0, SE2.identity(), sig),
+        ...               BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0, 0]), sig)])
+        >>> _ = s.update([PriorFactor(x, 2, SE2.exp([2.3, 0, 0]), sig)])
+        >>> (np.round(s.calculate_estimate(x).translation()[:, 0], 6) + 0.0).tolist()  # stale
+        [0.0, 1.0, 2.225]
+        >>> np.round(s.calculate_best_estimate()[x].translation()[:, 0], 6).tolist()
+        [0.075, 1.15, 2.225]
+        """
+        t = self._tree
+        order = np.argsort(t.pos[:t.n], kind="stable").astype(np.int64)
+        dx = self._dx.copy()
+        t.backsubstitute(order, np.zeros(0, dtype=np.int64), dx, 0.0)
+        vs = self.graph.variables
+        return Values(vs, [self._params(v, np.arange(v.n), dx) for v in vs])
+
+    def _params(self, var: Variables, ix: np.ndarray, dx: np.ndarray | None = None
+                ) -> np.ndarray:
+        if dx is None:
+            dx = self._dx
         if var.key >= len(self._seen):
             return var.initial[ix].copy()
         nodes = self._node_of[var.key][ix]
@@ -400,7 +438,7 @@ class IncrementalSmoother:
         live = nodes >= 0
         if live.any():
             cols = (self._tree.off[nodes[live]][:, None] + np.arange(var.dof))
-            P[live] = var.retract(P[live], self._dx[cols])
+            P[live] = var.retract(P[live], dx[cols])
         return P
 
     def linearization_point(self) -> Values:

@@ -95,8 +95,11 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
     -------
     dict
         ``final_cost`` (the file's edges at the final estimate, without the prior: GTSAM's
-        error), ``updates``, ``update_ms_median``, ``update_ms_p99`` (per pose: prediction,
-        factor construction and update), ``total_s`` (all of them, the Python loop included),
+        error; the estimate with the complete step of the final factorisation,
+        :meth:`~IncrementalSmoother.calculate_best_estimate`, as the wildfire leaves steps
+        stale), ``updates``, ``update_ms_median``, ``update_ms_p99`` (per pose: prediction,
+        factor construction and update), ``total_s`` (all of them, the Python loop and the
+        final back-substitution included),
         ``converged`` (no variable's step exceeds the relinearisation threshold at the end,
         so the estimate is at its linearisation points up to that threshold),
         ``relinearized``, ``reeliminated`` (totals), ``smoother``, ``poses`` (the handle) and
@@ -157,8 +160,8 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
         times[k] = time.perf_counter() - t0
         if callback is not None:
             callback(k, s)
+    X = s.calculate_best_estimate()[x][:n]  # the complete step (GTSAM's calculateBestEstimate)
     total = time.perf_counter() - t_start
-    X = s.calculate_estimate(x, np.arange(n))
     sub = graph if n == V else _prefix(graph, n)
     ms = times * 1e3
     return {"final_cost": float(sub.cost(X)), "updates": int(n),
