@@ -123,8 +123,10 @@ class BayesTree:
         self.node_rows.append([])
         return j
 
-    def add_row(self, nodes: Any, H: np.ndarray, b: np.ndarray) -> int:
-        """Add a row over ``nodes`` with its ``H`` and ``b``; return its id."""
+    def add_row(self, nodes: Any, H: np.ndarray | None = None, b: np.ndarray | None = None
+                ) -> int:
+        """Add a row over ``nodes`` with its ``H`` and ``b`` (``None``: set before the row is
+        eliminated); return its id."""
         r = len(self.rnodes)
         if r == self.rseen.size:
             self.rseen = np.concatenate([self.rseen, np.zeros_like(self.rseen)])
@@ -146,9 +148,10 @@ class BayesTree:
 
     # ------------------------------------------------------------------ operations
     def detach(self, marked: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Detach the top: ``marked`` nodes and their ancestors. Return ``(top, orphans, rows)``: the detached nodes, the roots of
-        the subtrees left hanging (their cached ``Hs, bs`` join the elimination) and the rows
-        whose nodes are all detached. The links of the top are cleared."""
+        """Detach the top: ``marked`` nodes and their ancestors. Return ``(top, orphans,
+        rows)``: the detached nodes, the roots of the subtrees left hanging (their cached
+        ``Hs, bs`` join the elimination) and the rows whose nodes are all detached. The links
+        of the top are cleared."""
         marked = np.ascontiguousarray(marked, dtype=np.int64)
         if self.module is not None:
             return self.module.detach(marked, self.parent, self.child, self.sib, self.mark,

@@ -667,7 +667,7 @@ class IncrementalSmoother:
             nk = [int(n[k]) for n in nodes if n[k] >= 0]
             if len(set(nk)) != len(nk):
                 raise ValueError(f"new_factors: {f.name} row {k} takes the same variable twice")
-            rows.append(tree.add_row(nk, None, None))
+            rows.append(tree.add_row(nk))
             self._row_fid.append(fid)
             self._row_k.append(k)
         self._rows.append(rows)
