@@ -94,9 +94,9 @@ static double *item_f64(PyObject *list, i64 k, const char *what, i64 want) {
 
 static PyObject *detach(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 8) {
+    if (nargs != 9) {
         PyErr_SetString(PyExc_TypeError, "detach(marked, parent, child, sib, mark, rseen, "
-                                         "node_rows, rnodes)");
+                                         "node_rows, rnodes, chain)");
         return NULL;
     }
     i64 nm, N, nr;
@@ -107,6 +107,8 @@ static PyObject *detach(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     i64 *mark = sib ? arr(args[4], NPY_INT64, "mark", NULL) : NULL;
     i64 *rseen = mark ? arr(args[5], NPY_INT64, "rseen", &nr) : NULL;
     if (!rseen || !is_list(args[6], "node_rows") || !is_list(args[7], "rnodes")) return NULL;
+    i64 *chain = arr(args[8], NPY_INT64, "chain", NULL);
+    if (!chain) return NULL;
     PyObject *node_rows = args[6], *rnodes = args[7];
     ibuf top = {0}, orph = {0}, rows = {0}, seen = {0};
     PyObject *out = NULL;
@@ -124,6 +126,12 @@ static PyObject *detach(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
             n = parent[n];
         }
     }
+    for (i64 q = 0; q < top.n && !err; q++) /* whole cliques: the nested children too */
+        for (i64 ch = child[top.p[q]]; ch >= 0 && !err; ch = sib[ch])
+            if (chain[ch] && !mark[ch]) {
+                mark[ch] = 1;
+                if (ipush(&top, ch)) err = 1;
+            }
     for (i64 q = 0; q < top.n && !err; q++) {
         i64 n = top.p[q];
         for (i64 ch = child[n]; ch >= 0;) {
@@ -214,10 +222,10 @@ static PyObject *new1(i64 n, int type) {
 
 static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 18) {
+    if (nargs != 19) {
         PyErr_SetString(PyExc_TypeError,
                         "eliminate(order, rows, orphans, rnodes, rH, rb, sep, Rinv, T, c, Hs, "
-                        "bs, parent, child, sib, dof, pos, loc)");
+                        "bs, parent, child, sib, dof, pos, loc, chain)");
         return NULL;
     }
     i64 no, nrw, nor, N;
@@ -235,7 +243,8 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
     i64 *dof = sib ? arr(args[15], NPY_INT64, "dof", NULL) : NULL;
     i64 *pos = dof ? arr(args[16], NPY_INT64, "pos", NULL) : NULL;
     i64 *loc = pos ? arr(args[17], NPY_INT64, "loc", NULL) : NULL;
-    if (!loc) return NULL;
+    i64 *chain = loc ? arr(args[18], NPY_INT64, "chain", NULL) : NULL;
+    if (!chain) return NULL;
     i64 nlist = (i64)PyList_GET_SIZE(Lsep);
     for (i64 q = 0; q < no; q++)
         if (order[q] < 0 || order[q] >= N || order[q] >= nlist) {
@@ -245,7 +254,7 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
     i64 cap = nrw + nor + no + 1;
     item *items = malloc((size_t)cap * sizeof(item));
     i64 *head = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64));
-    i64 *sepb = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64));
+    i64 *sepb = malloc((size_t)(N + 1) * sizeof(i64));
     i64 *io = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64)); /* offsets inside an item */
     double *F = NULL, *g = NULL, *Lm = NULL, *Li = NULL;
     i64 fcap = 0;
@@ -304,7 +313,7 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
     }
     for (i64 q = 0; q < no; q++) {
         i64 j = order[q], ns = 0;
-        /* the separator: the union of the items' nodes but j, by pos */
+        /* the front: j and the union of its items' nodes, by pos */
         loc[j] = -2;
         for (i64 it = head[j]; it >= 0; it = items[it].next)
             for (i64 t = 0; t < items[it].nn; t++) {
@@ -322,13 +331,14 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             }
             sepb[b + 1] = v;
         }
-        i64 d = dof[j], w = d;
-        loc[j] = 0;
-        for (i64 a = 0; a < ns; a++) {
+        /* fnodes: the front's nodes, j first (sepb shifted by one) */
+        for (i64 a = ns; a > 0; a--) sepb[a] = sepb[a - 1];
+        sepb[0] = j;
+        i64 nf = ns + 1, w = 0;
+        for (i64 a = 0; a < nf; a++) {
             loc[sepb[a]] = w;
             w += dof[sepb[a]];
         }
-        i64 s = w - d;
         if (w * w + w > fcap) {
             free(F);
             fcap = 2 * (w * w + w);
@@ -342,139 +352,181 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
         for (i64 r = 0; r < w; r++) /* the lower triangle only is used */
             memset(F + r * w, 0, (size_t)(r + 1) * sizeof(double));
         memset(g, 0, (size_t)w * sizeof(double));
-        child[j] = -1;
-        for (i64 it = head[j]; it >= 0; it = items[it].next) {
-            const item *E = &items[it];
-            i64 m = 0;
-            for (i64 t = 0; t < E->nn; t++) {
-                io[t] = m;
-                m += dof[E->nodes[t]];
-            }
-            for (i64 a = 0; a < E->nn; a++) {
-                i64 na = E->nodes[a], da = dof[na], la = loc[na];
-                for (i64 r = 0; r < da; r++) {
-                    double *Fr = F + (la + r) * w;
-                    const double *Hr = E->H + (io[a] + r) * m;
-                    for (i64 bb = 0; bb < E->nn; bb++) {
-                        i64 nb = E->nodes[bb], lb = loc[nb];
-                        if (lb > la) continue; /* the upper triangle */
-                        i64 db = lb == la ? r + 1 : dof[nb];
-                        double *dst = Fr + lb;
-                        const double *src = Hr + io[bb];
-                        for (i64 t = 0; t < db; t++) dst[t] += src[t];
+        i64 first = 0; /* sepb[first]: the node pivoted now */
+        i64 cur = j;
+        child[cur] = -1;
+        i64 addfrom = cur; /* the node whose waiting items are added next */
+        for (;;) {
+            for (i64 it = head[addfrom]; it >= 0; it = items[it].next) {
+                const item *E = &items[it];
+                i64 m = 0;
+                for (i64 t = 0; t < E->nn; t++) {
+                    io[t] = m;
+                    m += dof[E->nodes[t]];
+                }
+                for (i64 a = 0; a < E->nn; a++) {
+                    i64 na = E->nodes[a], da = dof[na], la = loc[na];
+                    for (i64 r = 0; r < da; r++) {
+                        double *Fr = F + (la + r) * w;
+                        const double *Hr = E->H + (io[a] + r) * m;
+                        for (i64 bb = 0; bb < E->nn; bb++) {
+                            i64 nb = E->nodes[bb], lb = loc[nb];
+                            if (lb > la) continue; /* the upper triangle */
+                            i64 db = lb == la ? r + 1 : dof[nb];
+                            double *dst = Fr + lb;
+                            const double *src = Hr + io[bb];
+                            for (i64 t = 0; t < db; t++) dst[t] += src[t];
+                        }
+                        g[la + r] += E->b[io[a] + r];
                     }
-                    g[la + r] += E->b[io[a] + r];
+                }
+                if (E->who >= 0) { /* a subtree hangs from addfrom */
+                    parent[E->who] = addfrom;
+                    sib[E->who] = child[addfrom];
+                    child[addfrom] = E->who;
                 }
             }
-            if (E->who >= 0) { /* a subtree hangs from j */
-                parent[E->who] = j;
-                sib[E->who] = child[j];
-                child[j] = E->who;
+            /* pivot cur: its block at p0, the s columns after it */
+            i64 d = dof[cur], p0 = loc[cur], s = w - p0 - d, nsep = nf - first - 1;
+            if (d * d * 2 > 0) {
+                Lm = realloc(Lm, (size_t)(2 * d * d) * sizeof(double));
+                if (!Lm) {
+                    err = 1;
+                    goto done;
+                }
+                Li = Lm + d * d;
             }
-        }
-        /* L L^T = F_11 (lower, row-major d x d), then its inverse */
-        if (d * d * 2 > 0) {
-            Lm = realloc(Lm, (size_t)(2 * d * d) * sizeof(double));
-            if (!Lm) {
+            int ok = 1;
+            for (i64 a = 0; a < d && ok; a++) {
+                for (i64 bb = 0; bb <= a; bb++) {
+                    double v = F[(p0 + a) * w + p0 + bb];
+                    for (i64 t = 0; t < bb; t++) v -= Lm[a * d + t] * Lm[bb * d + t];
+                    if (a == bb) {
+                        if (!(v > 0.0)) {
+                            ok = 0;
+                            break;
+                        }
+                        Lm[a * d + a] = sqrt(v);
+                    } else
+                        Lm[a * d + bb] = v / Lm[bb * d + bb];
+                }
+                for (i64 bb = a + 1; bb < d; bb++) Lm[a * d + bb] = 0.0;
+            }
+            if (!ok) {
+                bad = cur;
+                for (i64 a = 0; a < nf; a++) loc[sepb[a]] = -1;
+                goto done;
+            }
+            for (i64 a = 0; a < d; a++) { /* Li = L^-1 (lower) by forward substitution */
+                for (i64 bb = 0; bb < d; bb++) Li[a * d + bb] = 0.0;
+                Li[a * d + a] = 1.0 / Lm[a * d + a];
+                for (i64 bb = 0; bb < a; bb++) {
+                    double v = 0.0;
+                    for (i64 t = bb; t < a; t++) v += Lm[a * d + t] * Li[t * d + bb];
+                    Li[a * d + bb] = -v / Lm[a * d + a];
+                }
+            }
+            PyObject *oR = new2(d, d), *oT = new2(d, s), *oc = new1(d, NPY_FLOAT64),
+                     *os = new1(nsep, NPY_INT64);
+            if (!oR || !oT || !oc || !os) {
+                Py_XDECREF(oR);
+                Py_XDECREF(oT);
+                Py_XDECREF(oc);
+                Py_XDECREF(os);
                 err = 1;
                 goto done;
             }
-            Li = Lm + d * d;
-        }
-        int ok = 1;
-        for (i64 a = 0; a < d && ok; a++) {
-            for (i64 bb = 0; bb <= a; bb++) {
-                double v = F[a * w + bb];
-                for (i64 t = 0; t < bb; t++) v -= Lm[a * d + t] * Lm[bb * d + t];
-                if (a == bb) {
-                    if (!(v > 0.0)) {
-                        ok = 0;
+            double *R = PyArray_DATA((PyArrayObject *)oR),
+                   *T = PyArray_DATA((PyArrayObject *)oT),
+                   *c = PyArray_DATA((PyArrayObject *)oc);
+            i64 *sp = PyArray_DATA((PyArrayObject *)os);
+            for (i64 a = 0; a < d; a++)
+                for (i64 bb = 0; bb < d; bb++) R[a * d + bb] = Li[bb * d + a]; /* Li^T */
+            i64 q0 = p0 + d; /* the first column after the pivot */
+            for (i64 t = 0; t < s; t++) { /* T = Li F_12 = Li F_21^T */
+                const double *Ft = F + (q0 + t) * w + p0;
+                for (i64 a = 0; a < d; a++) {
+                    double v = 0.0;
+                    for (i64 k = 0; k <= a; k++) v += Li[a * d + k] * Ft[k];
+                    T[a * s + t] = v;
+                }
+            }
+            for (i64 a = 0; a < d; a++) { /* c = Li g_1 */
+                double v = 0.0;
+                for (i64 k = 0; k <= a; k++) v += Li[a * d + k] * g[p0 + k];
+                c[a] = v;
+            }
+            for (i64 p = 0; p < s; p++) { /* F_22 -= T^T T (lower), g_2 -= T^T c */
+                double *Fp = F + (q0 + p) * w + q0;
+                for (i64 a = 0; a < d; a++) {
+                    const double *Ta = T + a * s;
+                    double v = Ta[p];
+                    for (i64 t = 0; t <= p; t++) Fp[t] -= v * Ta[t];
+                }
+                double bv = 0.0;
+                for (i64 a = 0; a < d; a++) bv += T[a * s + p] * c[a];
+                g[q0 + p] -= bv;
+            }
+            for (i64 a = 0; a < nsep; a++) sp[a] = sepb[first + 1 + a];
+            PyList_SetItem(LRinv, cur, oR); /* steals the references */
+            PyList_SetItem(LT, cur, oT);
+            PyList_SetItem(Lc, cur, oc);
+            PyList_SetItem(Lsep, cur, os);
+            loc[cur] = -1;
+            /* continue the front with the next node (one clique) when it is the next in the
+             * order and its own items add no node: cur is then nested in it */
+            i64 nx = nsep ? sepb[first + 1] : -1;
+            int merge = nx >= 0 && q + 1 < no && order[q + 1] == nx;
+            for (i64 it = merge ? head[nx] : -1; it >= 0 && merge; it = items[it].next)
+                for (i64 t = 0; t < items[it].nn; t++)
+                    if (loc[items[it].nodes[t]] < 0) {
+                        merge = 0;
                         break;
                     }
-                    Lm[a * d + a] = sqrt(v);
-                } else
-                    Lm[a * d + bb] = v / Lm[bb * d + bb];
+            if (merge) {
+                Py_INCREF(Py_None);
+                PyList_SetItem(LHs, cur, Py_None);
+                Py_INCREF(Py_None);
+                PyList_SetItem(Lbs, cur, Py_None);
+                chain[cur] = 1;
+                child[nx] = -1;
+                parent[cur] = nx;
+                sib[cur] = -1;
+                child[nx] = cur;
+                q++;
+                first++;
+                cur = nx;
+                addfrom = nx;
+                continue;
             }
-            for (i64 bb = a + 1; bb < d; bb++) Lm[a * d + bb] = 0.0;
-        }
-        if (!ok) {
-            bad = j;
-            loc[j] = -1;
-            for (i64 a = 0; a < ns; a++) loc[sepb[a]] = -1;
-            goto done;
-        }
-        for (i64 a = 0; a < d; a++) { /* Li = L^-1 (lower) by forward substitution */
-            for (i64 bb = 0; bb < d; bb++) Li[a * d + bb] = 0.0;
-            Li[a * d + a] = 1.0 / Lm[a * d + a];
-            for (i64 bb = 0; bb < a; bb++) {
-                double v = 0.0;
-                for (i64 t = bb; t < a; t++) v += Lm[a * d + t] * Li[t * d + bb];
-                Li[a * d + bb] = -v / Lm[a * d + a];
-            }
-        }
-        PyObject *oR = new2(d, d), *oT = new2(d, s), *oc = new1(d, NPY_FLOAT64),
-                 *oH = new2(s, s), *ob = new1(s, NPY_FLOAT64), *os = new1(ns, NPY_INT64);
-        if (!oR || !oT || !oc || !oH || !ob || !os) {
-            Py_XDECREF(oR);
-            Py_XDECREF(oT);
-            Py_XDECREF(oc);
-            Py_XDECREF(oH);
-            Py_XDECREF(ob);
-            Py_XDECREF(os);
-            err = 1;
-            goto done;
-        }
-        double *R = PyArray_DATA((PyArrayObject *)oR), *T = PyArray_DATA((PyArrayObject *)oT),
-               *c = PyArray_DATA((PyArrayObject *)oc), *Hs = PyArray_DATA((PyArrayObject *)oH),
-               *bs = PyArray_DATA((PyArrayObject *)ob);
-        i64 *sp = PyArray_DATA((PyArrayObject *)os);
-        for (i64 a = 0; a < d; a++)
-            for (i64 bb = 0; bb < d; bb++) R[a * d + bb] = Li[bb * d + a]; /* Rinv = Li^T */
-        for (i64 t = 0; t < s; t++) { /* T = Li F_12 = Li F_21^T */
-            const double *Ft = F + (d + t) * w;
-            for (i64 a = 0; a < d; a++) {
-                double v = 0.0;
-                for (i64 k = 0; k <= a; k++) v += Li[a * d + k] * Ft[k];
-                T[a * s + t] = v;
-            }
-        }
-        for (i64 a = 0; a < d; a++) { /* c = Li g_1 */
-            double v = 0.0;
-            for (i64 k = 0; k <= a; k++) v += Li[a * d + k] * g[k];
-            c[a] = v;
-        }
-        for (i64 p = 0; p < s; p++) { /* Hs = F_22 - T^T T (lower, then mirrored) */
-            double *Hp = Hs + p * s;
-            const double *Fp = F + (d + p) * w + d;
-            for (i64 t = 0; t <= p; t++) Hp[t] = Fp[t];
-            for (i64 a = 0; a < d; a++) {
-                const double *Ta = T + a * s;
-                double v = Ta[p];
-                for (i64 t = 0; t <= p; t++) Hp[t] -= v * Ta[t];
-            }
-            double bv = g[d + p];
-            for (i64 a = 0; a < d; a++) bv -= T[a * s + p] * c[a];
-            bs[p] = bv;
-        }
-        for (i64 p = 0; p < s; p++)
-            for (i64 t = p + 1; t < s; t++) Hs[p * s + t] = Hs[t * s + p];
-        for (i64 a = 0; a < ns; a++) sp[a] = sepb[a];
-        PyList_SetItem(LRinv, j, oR); /* steals the references */
-        PyList_SetItem(LT, j, oT);
-        PyList_SetItem(Lc, j, oc);
-        PyList_SetItem(LHs, j, oH);
-        PyList_SetItem(Lbs, j, ob);
-        PyList_SetItem(Lsep, j, os);
-        parent[j] = -1;
-        loc[j] = -1;
-        for (i64 a = 0; a < ns; a++) loc[sepb[a]] = -1;
-        if (ns) {
-            if (nit >= cap) {
-                PyErr_SetString(PyExc_RuntimeError, "eliminate: item overflow");
+            /* the front ends: cur keeps the Schur complement on its separator */
+            chain[cur] = 0;
+            parent[cur] = -1;
+            PyObject *oH = new2(s, s), *ob = new1(s, NPY_FLOAT64);
+            if (!oH || !ob) {
+                Py_XDECREF(oH);
+                Py_XDECREF(ob);
                 err = 1;
                 goto done;
             }
-            PUT(sp, ns, Hs, bs, j);
+            double *Hs = PyArray_DATA((PyArrayObject *)oH), *bs = PyArray_DATA((PyArrayObject *)ob);
+            for (i64 p = 0; p < s; p++) {
+                const double *Fp = F + (q0 + p) * w + q0;
+                for (i64 t = 0; t <= p; t++) Hs[p * s + t] = Hs[t * s + p] = Fp[t];
+                bs[p] = g[q0 + p];
+            }
+            PyList_SetItem(LHs, cur, oH);
+            PyList_SetItem(Lbs, cur, ob);
+            for (i64 a = first + 1; a < nf; a++) loc[sepb[a]] = -1;
+            if (nsep) {
+                if (nit >= cap) {
+                    PyErr_SetString(PyExc_RuntimeError, "eliminate: item overflow");
+                    err = 1;
+                    goto done;
+                }
+                PUT(sp, nsep, Hs, bs, cur);
+            }
+            break;
         }
     }
 #undef PUT

@@ -82,6 +82,7 @@ class BayesTree:
         self.dof = np.zeros(cap, dtype=np.int64)
         self.off = np.zeros(cap, dtype=np.int64)
         self.pos = np.zeros(cap, dtype=np.int64)
+        self.chain = np.zeros(cap, dtype=np.int64)   # 1: nested in its parent (one clique)
         self.mark = np.zeros(cap, dtype=np.int64)    # scratch: 0 between calls
         self.loc = np.full(cap, -1, dtype=np.int64)  # scratch: -1 between calls
         self.chg = np.zeros(cap, dtype=np.float64)   # scratch: 0 between calls
@@ -106,7 +107,7 @@ class BayesTree:
             for name in ("parent", "child", "sib", "loc"):
                 setattr(self, name, np.concatenate([getattr(self, name),
                                                     np.full(grow, -1, dtype=np.int64)]))
-            for name in ("dof", "off", "pos", "mark"):
+            for name in ("dof", "off", "pos", "chain", "mark"):
                 setattr(self, name, np.concatenate([getattr(self, name),
                                                     np.zeros(grow, dtype=np.int64)]))
             self.chg = np.concatenate([self.chg, np.zeros(grow)])
@@ -155,7 +156,7 @@ class BayesTree:
         marked = np.ascontiguousarray(marked, dtype=np.int64)
         if self.module is not None:
             return self.module.detach(marked, self.parent, self.child, self.sib, self.mark,
-                                      self.rseen, self.node_rows, self.rnodes)
+                                      self.rseen, self.node_rows, self.rnodes, self.chain)
         parent, child, sib = self.parent, self.child, self.sib
         intop: set[int] = set()
         top: list[int] = []
@@ -164,6 +165,15 @@ class BayesTree:
                 intop.add(n)
                 top.append(n)
                 n = int(parent[n])
+        k = 0
+        while k < len(top):  # whole cliques: the nested children of the top too
+            ch = int(child[top[k]])
+            while ch >= 0:
+                if self.chain[ch] and ch not in intop:
+                    intop.add(ch)
+                    top.append(ch)
+                ch = int(sib[ch])
+            k += 1
         orphans: list[int] = []
         rows: list[int] = []
         seen: set[int] = set()
@@ -200,7 +210,7 @@ class BayesTree:
             bad = self.module.eliminate(order, rows, orphans, self.rnodes, self.rH, self.rb,
                                         self.sep, self.Rinv, self.T, self.c, self.Hs, self.bs,
                                         self.parent, self.child, self.sib, self.dof, self.pos,
-                                        self.loc)
+                                        self.loc, self.chain)
             if bad >= 0:
                 raise NotDetermined(int(bad))
             return
@@ -215,7 +225,7 @@ class BayesTree:
             put(self.rnodes[r], self.rH[r], self.rb[r], -1)
         for o in orphans.tolist():
             put(self.sep[o], self.Hs[o], self.bs[o], o)
-        for j in order.tolist():
+        for q, j in enumerate(order.tolist()):
             items = waiting.pop(j, [])
             nodes = {j}
             for it in items:
@@ -253,6 +263,14 @@ class BayesTree:
             self.Hs[j] = Hs
             self.bs[j] = bs
             self.parent[j] = -1
+            self.chain[j] = 0
+            if q > 0:  # the previous node nested in j (one clique): it keeps no Schur complement
+                prev = int(order[q - 1])
+                ps = self.sep[prev]
+                if ps.size == sep.size + 1 and ps[0] == j and (ps[1:] == sep).all():
+                    self.chain[prev] = 1
+                    self.Hs[prev] = None
+                    self.bs[prev] = None
             if sep.size:
                 put(sep, Hs, bs, j)
 
