@@ -68,9 +68,9 @@ class UpdateRecord:
     relinearized : int
         Variables whose linearisation point moved.
     reeliminated : int
-        Nodes (variables; one per clique of the tree) eliminated again.
+        Variables eliminated again (whole cliques).
     backsubstituted : int
-        Nodes whose step was recomputed.
+        Variables whose step was recomputed.
     time_s : float
         Wall time of the update.
     times : dict
