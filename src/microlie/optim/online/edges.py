@@ -33,6 +33,22 @@ class _Store:
         self.jj = np.zeros(16, dtype=np.int64)
         self.Z = np.zeros((16, P))
         self.L = np.zeros((16, D, D))
+        z = np.zeros((0, 2), dtype=np.int64)
+        self._lay: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros((0, 4), np.int64), z, z)
+
+    def layout(self, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where the kernel writes ``m`` rows: row ``q``'s ``(2 D, 2 D)`` block of ``A^T A``
+        at ``q (2 D)^2`` (blocks (i, i), (i, j), (j, i), (j, j)) and its ``A^T e`` at
+        ``q 2 D`` (kept for the largest ``m`` seen; views of it)."""
+        if m > self._lay[0].shape[0]:
+            D, W = self.D, 2 * self.D
+            k = max(m, 2 * self._lay[0].shape[0])
+            base = np.arange(k, dtype=np.int64) * (W * W)
+            self._lay = (np.ascontiguousarray(base[:, None] + np.array([0, D * W, D, D * W + D])),
+                         np.full((k, 2), W, dtype=np.int64),
+                         np.ascontiguousarray((np.arange(k, dtype=np.int64) * W)[:, None]
+                                              + np.array([0, D])))
+        return self._lay[0][:m], self._lay[1][:m], self._lay[2][:m]
 
     def add(self, ii: np.ndarray, jj: np.ndarray, Z: np.ndarray, L: np.ndarray) -> np.ndarray:
         m = ii.size
@@ -129,10 +145,7 @@ class EdgeRows:
             sl = self._slot[sel]
             m, D = sel.size, store.D
             W = 2 * D
-            base = np.arange(m, dtype=np.int64) * (W * W)
-            starts = base[:, None] + np.array([0, D * W, D, D * W + D], dtype=np.int64)
-            lens = np.full((m, 2), W, dtype=np.int64)
-            goff = (np.arange(m, dtype=np.int64) * W)[:, None] + np.array([0, D])
+            starts, lens, goff = store.layout(m)
             data = np.zeros(m * W * W)
             grad = np.zeros(m * W)
             s = np.empty(m)

@@ -619,7 +619,10 @@ class IncrementalSmoother:
         for what, val in new_values.items():
             var, idx = what if isinstance(what, tuple) else (what, None)
             self._check_handle(var, "new_values")
-            ix = np.arange(var.n) if idx is None else var.indices(idx, "new_values index")
+            if type(idx) is int and -var.n <= idx < var.n:  # one element: no validation pass
+                ix = np.array([idx % var.n])
+            else:
+                ix = np.arange(var.n) if idx is None else var.indices(idx, "new_values index")
             if self._seen[var.key][ix].any():
                 bad = int(ix[np.flatnonzero(self._seen[var.key][ix])[0]])
                 raise ValueError(f"new_values: {var.name}[{bad}] has already entered; its "
@@ -784,7 +787,10 @@ class IncrementalSmoother:
         positions."""
         tree = self._tree
         pos = tree.pos
-        is_last = np.isin(top, last)
+        flag = tree.mark  # scratch, 0 between calls
+        flag[last] = 1
+        is_last = flag[top] == 1
+        flag[last] = 0
         tail = top[is_last]
         tail = tail[np.argsort(pos[tail], kind="stable")]
         head = top[~is_last]
