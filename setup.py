@@ -48,6 +48,7 @@ EXTENSIONS = {
     "_lie": ["_lie.c"],  # the batched group kernels (microlie._kernels registry)
     "_one": ["_one.c"],  # one-element entry points of every group (microlie.groups._single)
     "_graph": ["_graph.c"],  # the pose-graph edge loop (microlie.optim.core.compiled)
+    "_factors": ["_factors.c"],  # between and prior rows of small batches (optim.core.factors)
     "_reproj": ["_reproj.c"],  # BAL reprojection factors (microlie.optim.core.compiled)
     "_normal": ["_normal.c"],  # the engine's normal equations (core/problem, schur_solver)
     "_order": ["_order.c"],  # approximate minimum degree (microlie.optim.linalg.ordering)
@@ -61,7 +62,7 @@ EXTENSIONS = {
 # the group kernels: exactly the operations of the component formulas (no contraction to fused
 # multiply-adds), so that one element and a batch give the same bits, equal to the generic
 # kernel to the rounding of the elementary functions
-EXACT = {"_lie", "_one"}
+EXACT = {"_lie", "_one", "_factors"}
 GENERATED = C_DIR / "generated"
 
 
@@ -129,7 +130,7 @@ class OptionalBuildExt(build_ext):
             exact = ["-ffp-contract=off"] if ext.name.rsplit(".", 1)[1] in EXACT else []
             ext.extra_compile_args = flags + exact
             # one element: libm's scalar functions (vecmath.h), the bits of Python's math module
-            one = [("LM_USE_LIBM", "1")] if ext.name.endswith("._one") else []
+            one = [("LM_USE_LIBM", "1")] if ext.name.endswith(("._one", "._factors")) else []
             ext.define_macros = defines + one
             ext.libraries = ["m"] if os.name != "nt" else []
         self._failed: list[Extension] = []

@@ -34,7 +34,8 @@ GRAPHS = {"sphere2500": ("sphere2500.g2o", "file"), "M3500": ("input_M3500_g2o.g
 
 def worker(calls: int) -> dict:
     """Median seconds per call of each measurement, per graph (run inside one checkout)."""
-    from microlie.optim import compiled, from_pose_graph
+    from microlie.optim import from_pose_graph
+    from microlie.optim.core import compiled
     from microlie.optim.core.problem import Problem
     from microlie.optim.init import initialize
     from microlie.optim.io.g2o import read_g2o

@@ -14,22 +14,62 @@ differences on the group.
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, final
 
 import numpy as np
 
-from ... import _autodiff
+from ... import _autodiff, _fast
+from ... import groups as _groups
 from .noise import NoiseModel, as_noise
-from .robust import RobustLoss, make_loss
-from .variables import Values, Variables, element
+from .robust import RobustLoss, corrected_weights, make_loss
+from .variables import Values, Variables, VectorVariables, element
 
 __all__ = ["Factor", "PriorFactor", "BetweenFactor", "CustomFactor", "check_jacobians",
            "JacobianCheck"]
 
 # (factor class, argument count) whose residual signature was checked (inspect is ~0.1 ms a call)
 _SIGNATURE_OK: set[tuple[type, int]] = set()
+
+# BetweenFactor and PriorFactor batches of at most this many rows are evaluated row by row by
+# the compiled module _factors (one call, no NumPy temporaries: what a factor that arrives alone
+# costs); larger batches take the batched group kernels (evaluate_into, SE2 / SE3: the rows
+# cost 0.10-0.23x the batched path at 1-16 rows, 0.35-0.53x at 64, 0.8-1.0x at 256, 1.3-1.7x
+# from 1024; benchmarks/single_factor.py --threshold, results/single_factor-s10.md)
+SMALL_BATCH = 64
+_F64 = np.dtype(np.float64)
+_row_groups: dict[type, int] = {}
+
+
+def _row_kernels(group: type, shape: tuple[int, int], *params: Any) -> Any:
+    """The compiled row module and the index of ``group`` in it, when it handles ``group`` and
+    every array of ``params`` is a float64 NumPy array of ``shape``; else ``None`` (the caller
+    takes the batched path)."""
+    for p in params:
+        if type(p) is not np.ndarray or p.dtype is not _F64 or p.shape != shape:
+            return None
+    mod = _fast.module("_factors")
+    if mod is None:
+        return None
+    if not _row_groups:
+        _row_groups.update({getattr(_groups, n): k for k, n in enumerate(mod.GROUPS)})
+    g = _row_groups.get(group)
+    return None if g is None else (mod, g)
+
+
+def _params(var: Variables, X: Any) -> Any:
+    """The parameters of ``X`` if it is an element of ``var``'s group, else ``None``."""
+    return X.params if isinstance(X, var.group) else None
+
+
+def _finite(a: np.ndarray) -> bool:
+    """Whether every entry of the float array ``a`` is finite (Python floats for small ones:
+    one NumPy reduction costs more than the loop)."""
+    if a.size <= 64:
+        return all(map(math.isfinite, a.ravel().tolist()))
+    return bool(np.isfinite(a).all())
 
 
 class Factor:
@@ -313,6 +353,81 @@ class Factor:
             o += k
         return r
 
+    def linearize(self, params: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
+        """The whitened linear system of the batch at ``params``: ``e = L r`` and ``A = L [J_1
+        ... J_K]``, with the robust loss's correction (Ceres' rule, as the solver) when the
+        factor has one; what an incremental solver adds for the factor (``A^T A`` and
+        ``A^T e``).
+
+        One call for the whole batch; :class:`BetweenFactor` and :class:`PriorFactor` batches
+        of up to :data:`SMALL_BATCH` rows run in one compiled call (float64 NumPy parameters,
+        with the compiled kernels), every other factor through :meth:`evaluate` (checked).
+
+        Parameters
+        ----------
+        params : sequence of numpy.ndarray
+            One ``(m, param_dim)`` parameter array per argument (``(m, d)`` for vectors): the
+            rows of the argument's variables, e.g. ``values.params(var)[idx]``.
+
+        Returns
+        -------
+        e : numpy.ndarray
+            ``(m, dim)`` whitened (and robustly scaled) residuals; ``0.5 |e|^2`` is the cost
+            without a loss.
+        A : numpy.ndarray
+            ``(m, dim, D)`` whitened Jacobians side by side, ``D`` the sum of the arguments'
+            dofs (right Jacobians, as :meth:`evaluate`).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import BetweenFactor, FactorGraph, Isotropic
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.identity(2))
+        >>> f = BetweenFactor(x, 0, 1, SE2.exp([1.0, 0.0, 0.0]), Isotropic(3, 0.5))
+        >>> e, A = f.linearize([x.initial[[0]], x.initial[[1]]])
+        >>> e.tolist(), A.shape
+        ([[-2.0, 0.0, 0.0]], (1, 3, 6))
+        >>> r, (Ji, Jj) = f.evaluate([SE2.identity(1), SE2.identity(1)], True)
+        >>> bool(np.allclose(A, 2.0 * np.concatenate([Ji, Jj], axis=2)))
+        True
+        """
+        if len(params) != len(self.args):
+            raise ValueError(f"{self.name}.linearize: {len(params)} parameter arrays for "
+                             f"{len(self.args)} arguments")
+        sc = self.noise.scales
+        d = self.dim
+        L = sc.reshape(-1, d) if sc is not None else self.noise.sqrt_info.reshape(-1, d, d)
+        out = self._rows(params, L)
+        if out is None:
+            vals = [var.wrap(p) for (var, _), p in zip(self.args, params, strict=True)]
+            r, Js = self.evaluate(vals, True)
+            if sc is not None:
+                e = r * sc
+                A = np.concatenate(Js, axis=2) * sc[..., :, None]
+            else:
+                A = np.matmul(self.noise.sqrt_info, np.concatenate(Js, axis=2))
+                e = np.matmul(self.noise.sqrt_info, r[:, :, None])[:, :, 0]
+        else:
+            e, A = out
+        if self.loss is not None:
+            s = np.einsum("mi,mi->m", e, e)
+            _, scale, aos = corrected_weights(self.loss, s)
+            sq = np.sqrt(np.maximum(self.loss.evaluate(s)[1], 0.0))
+            eA = np.einsum("mi,mij->mj", e, A)
+            A = sq[:, None, None] * (A - (aos[:, None] * e)[:, :, None] * eA[:, None, :])
+            e = e * scale[:, None]
+        return e, A
+
+    def _rows(self, params: Sequence[Any], L: np.ndarray | None
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(L r, L [J_1 ... J_K])`` from a compiled row loop (``L`` ``(1 or m, d)`` scales,
+        ``(1 or m, d, d)`` matrices or ``None``), or ``None`` where there is none for these
+        parameters (the caller evaluates the batch). Only :class:`BetweenFactor` and
+        :class:`PriorFactor` have one."""
+        return None
+
     def per_factor(self, data: Any, name: str) -> np.ndarray:
         """``data`` as one row per factor of the batch (a measurement, a constant): an array
         of ``m`` rows is kept, a scalar or a single row is repeated.
@@ -364,19 +479,33 @@ class Factor:
 
 def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
     """``Z`` as ``m`` values of ``var``'s kind (a group batch, an ``(m, d)`` array for
-    vectors)."""
+    vectors). A group's measurement may also be given by its parameters, a NumPy array
+    ``(param_dim,)`` or ``(m, param_dim)``, checked as the group's constructor does (unit
+    quaternions, ...)."""
+    pd = var.group.param_dim
+    if isinstance(Z, np.ndarray) and not isinstance(var, VectorVariables):
+        if Z.shape not in ((pd,), (m, pd)):
+            raise ValueError(f"{what}: measurement parameters must have shape ({pd},) or "
+                             f"({m}, {pd}), got {Z.shape}")
+        try:
+            Z = var.group(Z)
+        except ValueError as e:
+            raise ValueError(f"{what}: measurement: {e}") from None
     try:
         p = np.asarray(var.params_of(Z), dtype=np.float64)
     except TypeError:
         raise TypeError(f"{what}: measurement must be a {var.group.__name__} (batch of {m} or "
-                        f"a single element), got {type(Z).__name__}") from None
-    pd = var.group.param_dim
+                        f"a single element) or its parameters, got {type(Z).__name__}") from None
     if p.shape not in ((pd,), (m, pd)):
         raise ValueError(f"{what}: measurement must have parameters of shape ({pd},) or "
                          f"({m}, {pd}), got {p.shape}")
-    if not np.all(np.isfinite(p)):
+    if not _finite(p):
         raise ValueError(f"{what}: measurement has non-finite entries")
-    return var.wrap(np.broadcast_to(p, (m, pd)).copy())
+    if p.ndim == 1:
+        p = p.reshape(1, pd) if m == 1 else np.repeat(p.reshape(1, pd), m, axis=0)
+    if isinstance(var, VectorVariables):
+        return np.array(p, order="C")  # the factor's own copy
+    return var.wrap(p)  # a group element copies the caller's array (from_params)
 
 
 class PriorFactor(Factor):
@@ -415,7 +544,7 @@ class PriorFactor(Factor):
                  loss: RobustLoss | str | None = None) -> None:
         super().__init__([(variables, idx)], variables.dof, noise, loss)
         self.Z = _measurement(variables, Z, self.count, self.name)
-        self._Zinv = variables.inverse(self.Z)
+        self._Zinv: Any = None  # Z^-1 for the batched path, made on first use
 
     def residual(self, X: Any, jac: bool = False) -> Any:
         """``r = Log(Z^-1 X)`` and, with ``jac``, ``[Jr^-1(r)]`` (:meth:`Factor.residual`).
@@ -444,11 +573,29 @@ class PriorFactor(Factor):
         ([[0.75]], [[[1.0]]])
         """
         var = self.args[0][0]
+        if self.count <= SMALL_BATCH:
+            out = self._rows([_params(var, X)], None)
+            if out is not None:
+                return (out[0], [out[1]]) if jac else out[0]
+        if self._Zinv is None:
+            self._Zinv = var.inverse(self.Z)
         E = var.compose(self._Zinv, X)
         if not jac:
             return var.log(E)
         r, J = var.log(E, jac=True)
         return r, [J]
+
+    def _rows(self, params: Sequence[Any], L: np.ndarray | None
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+        var = self.args[0][0]
+        (p,) = params
+        m, d = self.count, self.dim
+        rk = _row_kernels(var.group, (m, var.group.param_dim), p) if m <= SMALL_BATCH else None
+        if rk is None:
+            return None
+        r, J = np.empty((m, d)), np.empty((m, d, d))
+        rk[0].prior(rk[1], p, self.Z.params, L, r, J)
+        return r, J
 
 
 class BetweenFactor(Factor):
@@ -490,20 +637,31 @@ class BetweenFactor(Factor):
     def __init__(self, variables: Variables, i: Any, j: Any, Z: Any,
                  noise: NoiseModel | None = None, loss: RobustLoss | str | None = None) -> None:
         super().__init__([(variables, i), (variables, j)], variables.dof, noise, loss)
-        same = self.args[0][1] == self.args[1][1]
-        if np.any(same):
-            k = int(np.flatnonzero(same)[0])
-            raise ValueError(f"BetweenFactor {k}: i == j == {int(self.args[0][1][k])}")
+        ii, jj = self.args[0][1], self.args[1][1]
+        if self.count <= SMALL_BATCH:  # Python ints: cheaper than two NumPy calls
+            pairs = zip(ii.tolist(), jj.tolist(), strict=True)
+            same = [k for k, (a, b) in enumerate(pairs) if a == b]
+        else:
+            same = np.flatnonzero(ii == jj).tolist()
+        if same:
+            raise ValueError(f"BetweenFactor {same[0]}: i == j == {int(ii[same[0]])}")
         self.Z = _measurement(variables, Z, self.count, self.name)
-        # r = Log((X_i Z)^-1 X_j) = X_j (-) (X_i Z): one fused minus with its Jacobians;
-        # d r / d X_i = d r / d (X_i Z) . Ad_(Z^-1), a constant of the factor
-        # (None when every Ad_(Z^-1) is the identity, as in the abelian groups R(d) and SO2:
-        # then d r / d X_i = d r / d (X_i Z), no product)
-        Zinv = element(variables.group, variables.params_of(self.Z)).inverse()
-        Ad = np.ascontiguousarray(Zinv.adjoint())
-        eye = np.eye(self.dim)
-        ident = (Ad.reshape(-1, self.dim, self.dim)[0] == eye).all() and (Ad == eye).all()
-        self._Ad_Zinv: np.ndarray | None = None if ident else Ad
+        self._Ad: Any = False  # Ad_(Z^-1) of the batched path, made on first use (_ad_zinv)
+
+    def _ad_zinv(self) -> np.ndarray | None:
+        """``Ad_(Z^-1)``, ``(m, d, d)``, or ``None`` when every one is the identity."""
+        if self._Ad is False:
+            # r = Log((X_i Z)^-1 X_j) = X_j (-) (X_i Z): one fused minus with its Jacobians;
+            # d r / d X_i = d r / d (X_i Z) . Ad_(Z^-1), a constant of the factor
+            # (None when every Ad_(Z^-1) is the identity, as in the abelian groups R(d) and
+            # SO2: then d r / d X_i = d r / d (X_i Z), no product)
+            var = self.args[0][0]
+            Zinv = element(var.group, var.params_of(self.Z)).inverse()
+            Ad = np.ascontiguousarray(Zinv.adjoint())
+            eye = np.eye(self.dim)
+            ident = (Ad.reshape(-1, self.dim, self.dim)[0] == eye).all() and (Ad == eye).all()
+            self._Ad = None if ident else Ad
+        return self._Ad  # type: ignore[no-any-return]
 
     def residual(self, Xi: Any, Xj: Any, jac: bool = False) -> Any:
         """``r = Log((X_i Z)^-1 X_j)`` and, with ``jac``, ``[d r / d X_i, d r / d X_j]``
@@ -533,29 +691,52 @@ class BetweenFactor(Factor):
         ([[0.25]], [[[-1.0]]], [[[1.0]]])
         """
         var = self.args[0][0]
-        if not jac:
-            return var.minus(Xj, var.compose(Xi, self.Z))
         d = self.dim
-        out = np.empty((self.count, d, 2 * d))
-        r = self._fill(Xi, Xj, out)
-        return r, [out[:, :, :d], out[:, :, d:]]
+        if not jac:
+            if self.count <= SMALL_BATCH:
+                out = self._rows([_params(var, Xi), _params(var, Xj)], None)
+                if out is not None:
+                    return out[0]
+            return var.minus(Xj, var.compose(Xi, self.Z))
+        J = np.empty((self.count, d, 2 * d))
+        r = self._fill(Xi, Xj, J)
+        return r, [J[:, :, :d], J[:, :, d:]]
 
     def evaluate_into(self, values: Sequence[Any], out: np.ndarray) -> np.ndarray:
         Xi, Xj = values
         return self._fill(Xi, Xj, out)
 
+    def _rows(self, params: Sequence[Any], L: np.ndarray | None,
+              out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+        var = self.args[0][0]
+        pi, pj = params
+        m, d = self.count, self.dim
+        rk = (_row_kernels(var.group, (m, var.group.param_dim), pi, pj)
+              if m <= SMALL_BATCH else None)
+        if rk is None or (out is not None and out.dtype is not _F64):
+            return None
+        r = np.empty((m, d))
+        J = np.empty((m, d, 2 * d)) if out is None else out
+        rk[0].between(rk[1], pi, pj, self.Z.params, L, r, J)
+        return r, J
+
     def _fill(self, Xi: Any, Xj: Any, out: np.ndarray) -> np.ndarray:
         """The residuals, with ``[J_i J_j]`` written into ``out`` ``(m, d, 2 d)``."""
         var = self.args[0][0]
+        if self.count <= SMALL_BATCH:
+            done = self._rows([_params(var, Xi), _params(var, Xj)], None, out)
+            if done is not None:
+                return done[0]
         r, Jj, Jc = var.minus(Xj, var.compose(Xi, self.Z), jac=True)
         d = self.dim
+        Ad = self._ad_zinv()
         # Jc (component-major from the kernel) copied row-major into the second half first:
         # the product then runs on contiguous rows (measured 2-3x faster than on Jc itself)
-        if self._Ad_Zinv is None:
+        if Ad is None:
             np.copyto(out[:, :, :d], Jc)
         else:
             np.copyto(out[:, :, d:], Jc)
-            np.matmul(out[:, :, d:], self._Ad_Zinv, out=out[:, :, :d])
+            np.matmul(out[:, :, d:], Ad, out=out[:, :, :d])
         out[:, :, d:] = Jj
         return np.asarray(r, dtype=np.float64)
 

@@ -14,9 +14,11 @@ True
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
+from scipy.linalg.lapack import dpotrf  # type: ignore[import-untyped]
 
 __all__ = ["NoiseModel", "Information", "SqrtInformation", "Covariance", "Diagonal",
            "Isotropic", "Unit", "as_noise"]
@@ -29,13 +31,49 @@ def _stack(x: Any, what: str) -> np.ndarray:
                          f"got shape {a.shape}")
     if a.ndim > 3:
         raise ValueError(f"{what} must have shape (d, d) or (m, d, d), got {a.shape}")
-    if not np.all(np.isfinite(a)):
+    if not _finite(a):
         raise ValueError(f"{what} has non-finite entries")
     return a
 
 
-def _cholesky_checked(M: np.ndarray, what: str) -> np.ndarray:
-    """Lower Cholesky factor of each symmetric positive definite matrix, or a ValueError."""
+def _finite(a: np.ndarray) -> bool:
+    """Whether every entry is finite (Python floats for small arrays: a NumPy reduction costs
+    more there)."""
+    if a.size <= 100:
+        return all(map(math.isfinite, a.ravel().tolist()))
+    return bool(np.isfinite(a).all())
+
+
+def _cholesky_checked(M: np.ndarray, what: str, upper: bool = False) -> np.ndarray:
+    """Lower (``upper``: upper) Cholesky factor of each symmetric positive definite matrix, or
+    a ValueError."""
+    if M.shape[-1] <= 12 and (M.ndim == 2 or M.shape[0] <= 4):
+        # one or a few small matrices (a factor that arrives alone): Python floats for the
+        # symmetry check and LAPACK's potrf, far cheaper there than NumPy's batched calls
+        if M.ndim == 2:
+            return _cholesky_small(M, what, "", upper)
+        return np.stack([_cholesky_small(Mk, what, f" (factor {k})", upper)
+                         for k, Mk in enumerate(M)])
+    C = _cholesky_stack(M, what)
+    return np.swapaxes(C, -1, -2).copy() if upper else C
+
+
+def _cholesky_small(M: np.ndarray, what: str, where: str, upper: bool) -> np.ndarray:
+    """:func:`_cholesky_checked` of one ``(d, d)`` matrix (``where`` names it in errors)."""
+    v = M.tolist()
+    d = len(v)
+    if not all(abs(v[i][j] - v[j][i]) <= 1e-9 * (1.0 + abs(v[i][j]))
+               for i in range(d) for j in range(d) if i != j):
+        raise ValueError(f"{what} is not symmetric{where}")
+    c, info = dpotrf(M, lower=0 if upper else 1, clean=1)
+    if info == 0:
+        return np.ascontiguousarray(c)
+    ev = np.linalg.eigvalsh(M).min()
+    raise ValueError(f"{what} is not positive definite{where}: smallest eigenvalue {ev:.3g}")
+
+
+def _cholesky_stack(M: np.ndarray, what: str) -> np.ndarray:
+    """:func:`_cholesky_checked` of any stack: NumPy's batched factorisation."""
     sym = np.abs(M - np.swapaxes(M, -1, -2)) <= 1e-9 * (1.0 + np.abs(M))
     if not np.all(sym):
         bad = np.argwhere(~sym.reshape(-1, M.shape[-1] ** 2).all(-1)).ravel()
@@ -118,8 +156,7 @@ class NoiseModel:
 
 
 def _upper_sqrt(info: np.ndarray, what: str) -> np.ndarray:
-    C = _cholesky_checked(info, what)  # info = C C^T, so L = C^T is upper and L^T L = info
-    return np.swapaxes(C, -1, -2).copy()
+    return _cholesky_checked(info, what, upper=True)  # L upper with L^T L = info
 
 
 class Information(NoiseModel):
@@ -141,7 +178,7 @@ class Information(NoiseModel):
 
     def __init__(self, information: Any) -> None:
         O = _stack(information, "Information")
-        super().__init__(_upper_sqrt(O, "the information matrix"))
+        self.sqrt_info = _upper_sqrt(O, "the information matrix")  # finite, square: no _stack
 
 
 class SqrtInformation(NoiseModel):
@@ -207,16 +244,19 @@ class Diagonal(NoiseModel):
 
     def __init__(self, sigmas: Any) -> None:
         s = np.asarray(sigmas, dtype=np.float64)
-        if s.ndim not in (1, 2) or not np.all(np.isfinite(s)):
+        if s.ndim not in (1, 2) or not _finite(s):
             raise ValueError(f"Diagonal sigmas must be finite with shape (d,) or (m, d), "
                              f"got {s.shape}")
-        if np.any(s <= 0):
+        if s.size and not float(s.min()) > 0:
             raise ValueError("Diagonal sigmas must be positive (the information would not be "
                              "positive definite)")
+        if s.ndim == 1:
+            self.sqrt_info = np.diag(1.0 / s)
+            return
         L = np.zeros((*s.shape, s.shape[-1]))
         idx = np.arange(s.shape[-1])
         L[..., idx, idx] = 1.0 / s
-        super().__init__(L)
+        self.sqrt_info = L
 
     @classmethod
     def from_variances(cls, variances: Any) -> Diagonal:
@@ -263,7 +303,9 @@ class Isotropic(NoiseModel):
     def __init__(self, dim: int, sigma: float) -> None:
         if not (np.isfinite(sigma) and sigma > 0):
             raise ValueError(f"Isotropic sigma must be positive and finite, got {sigma}")
-        super().__init__(np.eye(dim) / float(sigma))
+        if int(dim) != dim or dim < 1:
+            raise ValueError(f"Isotropic dim must be a positive integer, got {dim!r}")
+        self.sqrt_info = np.eye(int(dim)) / float(sigma)
 
 
 class Unit(Isotropic):

@@ -178,6 +178,11 @@ class Variables:
         >>> x.indices([True, False, True, False]).tolist(), x.indices(3).tolist()
         ([0, 2], [3])
         """
+        if type(idx) is int or type(idx) is np.int64:  # one index: no NumPy reductions
+            if 0 <= idx < self.n:
+                return np.array((idx,), dtype=np.int64)
+            raise ValueError(f"{self.name}: {what} {int(idx)} out of range (the batch has "
+                             f"{self.n} variables)")
         a = np.asarray(idx)
         if a.dtype == bool:
             if a.shape != (self.n,):
@@ -187,7 +192,10 @@ class Variables:
         if a.size and not np.issubdtype(a.dtype, np.integer):
             raise ValueError(f"{self.name}: {what} must be integers, got {a.dtype}")
         a = a.astype(np.int64).reshape(-1) if a.ndim else a.astype(np.int64).reshape(1)
-        if a.size and (a.min() < 0 or a.max() >= self.n):
+        # a few indices: Python's min and max cost less than NumPy's reductions
+        v = a.tolist() if a.size <= 16 else None
+        if a.size and ((min(v) < 0 or max(v) >= self.n) if v is not None
+                       else (a.min() < 0 or a.max() >= self.n)):
             bad = a[(a < 0) | (a >= self.n)][0]
             raise ValueError(f"{self.name}: {what} {int(bad)} out of range (the batch has "
                              f"{self.n} variables)")
