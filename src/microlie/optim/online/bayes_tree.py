@@ -58,7 +58,7 @@ class BayesTree:
     >>> import numpy as np
     >>> t = BayesTree()
     >>> a, b = t.add_node(1, 0), t.add_node(1, 1)
-    >>> r0 = t.add_row([a], np.array([[4.0]]), np.array([4.0]))      # 2 x_a = 2
+    >>> r0 = t.add_row([a], np.array([[4.0]]), np.array([4.0]))      # 4 x_a = 4
     >>> r1 = t.add_row([a, b], np.array([[1.0, -1.0], [-1.0, 1.0]]), np.zeros(2))  # x_b = x_a
     >>> top, orphans, rows = t.detach(np.array([a, b]))
     >>> t.pos[[a, b]] = [0, 1]
