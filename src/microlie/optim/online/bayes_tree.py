@@ -37,6 +37,11 @@ class NotDetermined(ValueError):
     ----------
     node : int
         The node.
+
+    Examples
+    --------
+    >>> NotDetermined(3).node
+    3
     """
 
     def __init__(self, node: int) -> None:
@@ -100,7 +105,14 @@ class BayesTree:
 
     # ------------------------------------------------------------------ building
     def add_node(self, dof: int, off: int) -> int:
-        """Add a node of ``dof`` columns at step offset ``off``; return its id."""
+        """Add a node of ``dof`` columns at step offset ``off``; return its id.
+
+        Examples
+        --------
+        >>> t = BayesTree()
+        >>> t.add_node(3, 0), t.add_node(3, 3), int(t.off[1])
+        (0, 1, 3)
+        """
         j = self.n
         if j == self.parent.size:
             grow = self.parent.size
@@ -127,7 +139,15 @@ class BayesTree:
     def add_row(self, nodes: Any, H: np.ndarray | None = None, b: np.ndarray | None = None
                 ) -> int:
         """Add a row over ``nodes`` with its ``H`` and ``b`` (``None``: set before the row is
-        eliminated); return its id."""
+        eliminated); return its id.
+
+        Examples
+        --------
+        >>> t = BayesTree()
+        >>> a, b = t.add_node(1, 0), t.add_node(1, 1)
+        >>> t.add_row([a, b]), t.node_rows[b]
+        (0, [0])
+        """
         r = len(self.rnodes)
         if r == self.rseen.size:
             self.rseen = np.concatenate([self.rseen, np.zeros_like(self.rseen)])
@@ -140,7 +160,16 @@ class BayesTree:
         return r
 
     def remove_row(self, r: int) -> None:
-        """Drop row ``r`` (its nodes keep their place in the tree)."""
+        """Drop row ``r`` (its nodes keep their place in the tree).
+
+        Examples
+        --------
+        >>> t = BayesTree()
+        >>> a = t.add_node(1, 0)
+        >>> t.remove_row(t.add_row([a]))
+        >>> t.node_rows[a], t.rnodes[0] is None
+        ([], True)
+        """
         for n in self.rnodes[r].tolist():
             self.node_rows[n].remove(r)
         self.rnodes[r] = None
@@ -279,7 +308,19 @@ class BayesTree:
         """The graph of the nodes ``head`` (local numbers ``0 .. len(head) - 1``) that the
         elimination of ``rows`` and the orphans' information creates: an edge between two
         nodes of one row or one orphan's separator. Returns CSR ``(indptr, indices)``
-        (repeated entries kept; for the ordering)."""
+        (repeated entries kept; for the ordering).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> t = BayesTree()
+        >>> a, b, c = (t.add_node(1, k) for k in range(3))
+        >>> r = t.add_row([a, b, c])
+        >>> indptr, indices = t.adjacency(np.array([r]), np.zeros(0, np.int64),
+        ...                               np.array([a, c]))
+        >>> indptr.tolist(), indices.tolist()  # a and c (local 0 and 1) share the row
+        ([0, 1, 2], [1, 0])
+        """
         nb = int(head.size)
         loc = self.loc
         loc[head] = np.arange(nb)
