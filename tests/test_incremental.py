@@ -370,3 +370,15 @@ def test_best_estimate_is_the_complete_step():
     best = s.calculate_best_estimate()[x].params
     assert _close(best, expect, 1e-9)
     assert not _close(s.calculate_estimate(x).params, expect, 1e-6)  # stale steps
+
+
+def test_wide_fronts_equal_dense_step():
+    """Many loop closures: separators above 48 columns (the compiled path's dsyrk); forced
+    relinearisation, so the estimate is the dense Gauss-Newton step."""
+    graph = _synthetic(SE3, 80, 60, seed=21)
+    rep = replay_pose_graph(graph, IncrementalSmoother(**FORCED))
+    s, x = rep["smoother"], rep["poses"]
+    t = s._tree
+    assert max(int(t.dof[sp].sum()) for sp in t.sep[:t.n]) >= 48
+    expect, _, _ = _dense_step(s, x, 79)
+    assert _close(s.calculate_estimate(x).params, expect, 1e-10)

@@ -20,6 +20,14 @@
 
 typedef npy_int64 i64;
 
+/* dsyrk of the BLAS SciPy links (Fortran convention, 32-bit integers), from the capsule of
+ * scipy.linalg.cython_blas that set_blas receives (bayes_tree.py, once); NULL: plain loops */
+typedef void (*syrk_t)(char *, char *, int *, int *, double *, double *, int *, double *,
+                       double *, int *);
+static syrk_t g_syrk = NULL;
+/* the Schur complement update goes to dsyrk from this many columns (below, the loops win) */
+#define SYRK_MIN 48
+
 /* ------------------------------------------------------------------ helpers */
 
 static void *arr(PyObject *o, int type, const char *what, i64 *size) {
@@ -256,8 +264,8 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
     i64 *head = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64));
     i64 *sepb = malloc((size_t)(N + 1) * sizeof(i64));
     i64 *io = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64)); /* offsets inside an item */
-    double *F = NULL, *g = NULL, *Lm = NULL, *Li = NULL;
-    i64 fcap = 0;
+    double *F = NULL, *g = NULL, *Lm = NULL, *Li = NULL, *P = NULL;
+    i64 fcap = 0, pcap = 0;
     i64 nit = 0, bad = -1;
     int err = 0;
     if (!items || !head || !sepb || !io) {
@@ -352,12 +360,24 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
         for (i64 r = 0; r < w; r++) /* the lower triangle only is used */
             memset(F + r * w, 0, (size_t)(r + 1) * sizeof(double));
         memset(g, 0, (size_t)w * sizeof(double));
-        i64 first = 0; /* sepb[first]: the node pivoted now */
-        i64 cur = j;
-        child[cur] = -1;
-        i64 addfrom = cur; /* the node whose waiting items are added next */
-        for (;;) {
-            for (i64 it = head[addfrom]; it >= 0; it = items[it].next) {
+        /* the clique: j and the nodes after it in the front that come next in the order and
+         * whose own items add no node (each then nested in the next: one dense front) */
+        i64 k = 1;
+        while (k < nf && q + k < no && order[q + k] == sepb[k]) {
+            int inside = 1;
+            for (i64 it = head[sepb[k]]; it >= 0 && inside; it = items[it].next)
+                for (i64 t = 0; t < items[it].nn; t++)
+                    if (loc[items[it].nodes[t]] < 0) {
+                        inside = 0;
+                        break;
+                    }
+            if (!inside) break;
+            k++;
+        }
+        for (i64 f = 0; f < k; f++) {
+            i64 nd = sepb[f];
+            child[nd] = -1;
+            for (i64 it = head[nd]; it >= 0; it = items[it].next) {
                 const item *E = &items[it];
                 i64 m = 0;
                 for (i64 t = 0; t < E->nn; t++) {
@@ -380,14 +400,80 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                         g[la + r] += E->b[io[a] + r];
                     }
                 }
-                if (E->who >= 0) { /* a subtree hangs from addfrom */
-                    parent[E->who] = addfrom;
-                    sib[E->who] = child[addfrom];
-                    child[addfrom] = E->who;
+                if (E->who >= 0) { /* a subtree hangs from nd */
+                    parent[E->who] = nd;
+                    sib[E->who] = child[nd];
+                    child[nd] = E->who;
                 }
             }
-            /* pivot cur: its block at p0, the s columns after it */
-            i64 d = dof[cur], p0 = loc[cur], s = w - p0 - d, nsep = nf - first - 1;
+        }
+        /* the partial Cholesky of the K frontal columns, on a column-major copy P (column c
+         * at P + c w, rows 0 .. w): right-looking, contiguous column updates (as _chol.c's
+         * small panels); then F_22 -= L21 L21^T row by row, y = L11^-1 g_1 (in g),
+         * g_2 -= L21 y */
+        i64 K = loc[sepb[k - 1]] + dof[sepb[k - 1]], s = w - K;
+        if (K * w > pcap) {
+            free(P);
+            pcap = 2 * K * w;
+            P = malloc((size_t)pcap * sizeof(double));
+            if (!P) {
+                err = 1;
+                goto done;
+            }
+        }
+        for (i64 c2 = 0; c2 < K; c2++) {
+            double *Pc = P + c2 * w;
+            for (i64 a = c2; a < w; a++) Pc[a] = F[a * w + c2];
+        }
+        i64 badcol = -1;
+        for (i64 c2 = 0; c2 < K; c2++) {
+            double *Pc = P + c2 * w;
+            double dv = Pc[c2];
+            if (!(dv > 0.0)) {
+                badcol = c2;
+                break;
+            }
+            dv = sqrt(dv);
+            Pc[c2] = dv;
+            double r = 1.0 / dv;
+            for (i64 a = c2 + 1; a < w; a++) Pc[a] *= r;
+            for (i64 c3 = c2 + 1; c3 < K; c3++) {
+                double *Pd = P + c3 * w;
+                double l = Pc[c3];
+                for (i64 a = c3; a < w; a++) Pd[a] -= l * Pc[a];
+            }
+        }
+        if (badcol >= 0) {
+            for (i64 f = 0; f < k; f++)
+                if (badcol >= loc[sepb[f]] && badcol < loc[sepb[f]] + dof[sepb[f]]) bad = sepb[f];
+            for (i64 a = 0; a < nf; a++) loc[sepb[a]] = -1;
+            goto done;
+        }
+        if (g_syrk && s >= SYRK_MIN && s <= 2147483647 / (w > 0 ? w : 1)) {
+            /* F's row-major lower triangle is the column-major upper one */
+            char cU = 'U', cN = 'N';
+            int n_ = (int)s, k_ = (int)K, ld = (int)w;
+            double mone = -1.0, one = 1.0;
+            g_syrk(&cU, &cN, &n_, &k_, &mone, P + K, &ld, &one, F + K * w + K, &ld);
+        } else
+            for (i64 p = 0; p < s; p++) {
+                double *Fp = F + (K + p) * w + K;
+                for (i64 c2 = 0; c2 < K; c2++) {
+                    const double *Pc = P + c2 * w + K;
+                    double v = Pc[p];
+                    for (i64 t = 0; t <= p; t++) Fp[t] -= v * Pc[t];
+                }
+            }
+        for (i64 c2 = 0; c2 < K; c2++) {
+            const double *Pc = P + c2 * w;
+            double y = g[c2] / Pc[c2];
+            g[c2] = y;
+            for (i64 a = c2 + 1; a < w; a++) g[a] -= Pc[a] * y;
+        }
+        /* each frontal variable's conditional: Rinv = L_ii^-T, T = (its columns of L below
+         * its block)^T, c = its part of y */
+        for (i64 f = 0; f < k; f++) {
+            i64 cur = sepb[f], d = dof[cur], oi = loc[cur], si = w - oi - d, nsep = nf - f - 1;
             if (d * d * 2 > 0) {
                 Lm = realloc(Lm, (size_t)(2 * d * d) * sizeof(double));
                 if (!Lm) {
@@ -396,27 +482,9 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                 }
                 Li = Lm + d * d;
             }
-            int ok = 1;
-            for (i64 a = 0; a < d && ok; a++) {
-                for (i64 bb = 0; bb <= a; bb++) {
-                    double v = F[(p0 + a) * w + p0 + bb];
-                    for (i64 t = 0; t < bb; t++) v -= Lm[a * d + t] * Lm[bb * d + t];
-                    if (a == bb) {
-                        if (!(v > 0.0)) {
-                            ok = 0;
-                            break;
-                        }
-                        Lm[a * d + a] = sqrt(v);
-                    } else
-                        Lm[a * d + bb] = v / Lm[bb * d + bb];
-                }
-                for (i64 bb = a + 1; bb < d; bb++) Lm[a * d + bb] = 0.0;
-            }
-            if (!ok) {
-                bad = cur;
-                for (i64 a = 0; a < nf; a++) loc[sepb[a]] = -1;
-                goto done;
-            }
+            for (i64 a = 0; a < d; a++)
+                for (i64 bb = 0; bb < d; bb++)
+                    Lm[a * d + bb] = bb <= a ? P[(oi + bb) * w + oi + a] : 0.0;
             for (i64 a = 0; a < d; a++) { /* Li = L^-1 (lower) by forward substitution */
                 for (i64 bb = 0; bb < d; bb++) Li[a * d + bb] = 0.0;
                 Li[a * d + a] = 1.0 / Lm[a * d + a];
@@ -426,7 +494,7 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                     Li[a * d + bb] = -v / Lm[a * d + a];
                 }
             }
-            PyObject *oR = new2(d, d), *oT = new2(d, s), *oc = new1(d, NPY_FLOAT64),
+            PyObject *oR = new2(d, d), *oT = new2(d, si), *oc = new1(d, NPY_FLOAT64),
                      *os = new1(nsep, NPY_INT64);
             if (!oR || !oT || !oc || !os) {
                 Py_XDECREF(oR);
@@ -442,64 +510,28 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             i64 *sp = PyArray_DATA((PyArrayObject *)os);
             for (i64 a = 0; a < d; a++)
                 for (i64 bb = 0; bb < d; bb++) R[a * d + bb] = Li[bb * d + a]; /* Li^T */
-            i64 q0 = p0 + d; /* the first column after the pivot */
-            for (i64 t = 0; t < s; t++) { /* T = Li F_12 = Li F_21^T */
-                const double *Ft = F + (q0 + t) * w + p0;
-                for (i64 a = 0; a < d; a++) {
-                    double v = 0.0;
-                    for (i64 k = 0; k <= a; k++) v += Li[a * d + k] * Ft[k];
-                    T[a * s + t] = v;
-                }
-            }
-            for (i64 a = 0; a < d; a++) { /* c = Li g_1 */
-                double v = 0.0;
-                for (i64 k = 0; k <= a; k++) v += Li[a * d + k] * g[p0 + k];
-                c[a] = v;
-            }
-            for (i64 p = 0; p < s; p++) { /* F_22 -= T^T T (lower), g_2 -= T^T c */
-                double *Fp = F + (q0 + p) * w + q0;
-                for (i64 a = 0; a < d; a++) {
-                    const double *Ta = T + a * s;
-                    double v = Ta[p];
-                    for (i64 t = 0; t <= p; t++) Fp[t] -= v * Ta[t];
-                }
-                double bv = 0.0;
-                for (i64 a = 0; a < d; a++) bv += T[a * s + p] * c[a];
-                g[q0 + p] -= bv;
-            }
-            for (i64 a = 0; a < nsep; a++) sp[a] = sepb[first + 1 + a];
+            for (i64 a = 0; a < d; a++)
+                memcpy(T + a * si, P + (oi + a) * w + oi + d, (size_t)si * sizeof(double));
+            for (i64 a = 0; a < d; a++) c[a] = g[oi + a];
+            for (i64 a = 0; a < nsep; a++) sp[a] = sepb[f + 1 + a];
             PyList_SetItem(LRinv, cur, oR); /* steals the references */
             PyList_SetItem(LT, cur, oT);
             PyList_SetItem(Lc, cur, oc);
             PyList_SetItem(Lsep, cur, os);
             loc[cur] = -1;
-            /* continue the front with the next node (one clique) when it is the next in the
-             * order and its own items add no node: cur is then nested in it */
-            i64 nx = nsep ? sepb[first + 1] : -1;
-            int merge = nx >= 0 && q + 1 < no && order[q + 1] == nx;
-            for (i64 it = merge ? head[nx] : -1; it >= 0 && merge; it = items[it].next)
-                for (i64 t = 0; t < items[it].nn; t++)
-                    if (loc[items[it].nodes[t]] < 0) {
-                        merge = 0;
-                        break;
-                    }
-            if (merge) {
+            if (f + 1 < k) { /* nested in the next frontal variable */
+                i64 nx = sepb[f + 1];
                 Py_INCREF(Py_None);
                 PyList_SetItem(LHs, cur, Py_None);
                 Py_INCREF(Py_None);
                 PyList_SetItem(Lbs, cur, Py_None);
                 chain[cur] = 1;
-                child[nx] = -1;
                 parent[cur] = nx;
-                sib[cur] = -1;
+                sib[cur] = child[nx];
                 child[nx] = cur;
-                q++;
-                first++;
-                cur = nx;
-                addfrom = nx;
                 continue;
             }
-            /* the front ends: cur keeps the Schur complement on its separator */
+            /* the clique root keeps the Schur complement on its separator */
             chain[cur] = 0;
             parent[cur] = -1;
             PyObject *oH = new2(s, s), *ob = new1(s, NPY_FLOAT64);
@@ -511,13 +543,13 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             }
             double *Hs = PyArray_DATA((PyArrayObject *)oH), *bs = PyArray_DATA((PyArrayObject *)ob);
             for (i64 p = 0; p < s; p++) {
-                const double *Fp = F + (q0 + p) * w + q0;
+                const double *Fp = F + (K + p) * w + K;
                 for (i64 t = 0; t <= p; t++) Hs[p * s + t] = Hs[t * s + p] = Fp[t];
-                bs[p] = g[q0 + p];
+                bs[p] = g[K + p];
             }
             PyList_SetItem(LHs, cur, oH);
             PyList_SetItem(Lbs, cur, ob);
-            for (i64 a = first + 1; a < nf; a++) loc[sepb[a]] = -1;
+            for (i64 a = k; a < nf; a++) loc[sepb[a]] = -1;
             if (nsep) {
                 if (nit >= cap) {
                     PyErr_SetString(PyExc_RuntimeError, "eliminate: item overflow");
@@ -526,8 +558,8 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                 }
                 PUT(sp, nsep, Hs, bs, cur);
             }
-            break;
         }
+        q += k - 1;
     }
 #undef PUT
 done:
@@ -536,6 +568,7 @@ done:
     free(sepb);
     free(io);
     free(F);
+    free(P);
     free(Lm);
     if (err) {
         if (!PyErr_Occurred()) PyErr_NoMemory();
@@ -737,7 +770,23 @@ static PyObject *adjacency(PyObject *self, PyObject *const *args, Py_ssize_t nar
     return NULL;
 }
 
+static PyObject *set_blas(PyObject *self, PyObject *cap) {
+    (void)self;
+    if (!PyCapsule_CheckExact(cap)) {
+        PyErr_SetString(PyExc_TypeError, "set_blas: expected the dsyrk capsule of "
+                                         "scipy.linalg.cython_blas.__pyx_capi__");
+        return NULL;
+    }
+    void *f = PyCapsule_GetPointer(cap, PyCapsule_GetName(cap));
+    if (!f) return NULL;
+    g_syrk = (syrk_t)f;
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
+    {"set_blas", (PyCFunction)set_blas, METH_O,
+     "set_blas(capsule): dsyrk (scipy.linalg.cython_blas.__pyx_capi__['dsyrk']) for the "
+     "Schur complements of wide fronts"},
     {"detach", (PyCFunction)(void (*)(void))detach, METH_FASTCALL,
      "detach(marked, parent, child, sib, mark, rseen, node_rows, rnodes) -> (top, orphans, "
      "rows)"},

@@ -29,6 +29,8 @@ from ... import _fast
 
 __all__ = ["BayesTree", "NotDetermined"]
 
+_BLAS: list[bool] = []  # the compiled module has SciPy's dsyrk
+
 
 class NotDetermined(ValueError):
     """Elimination met a variable whose information block is not positive definite.
@@ -79,6 +81,11 @@ class BayesTree:
         if compiled and mod is None:
             raise ValueError("compiled=True: microlie._c._incremental is not available (not "
                              "built, or MICROLIE_FAST=0)")
+        if self.module is not None and not _BLAS:  # SciPy's dsyrk for wide fronts, once
+            from scipy.linalg import cython_blas  # type: ignore[import-untyped]
+
+            self.module.set_blas(cython_blas.__pyx_capi__["dsyrk"])
+            _BLAS.append(True)
         self.n = 0
         cap = 16
         self.parent = np.full(cap, -1, dtype=np.int64)
