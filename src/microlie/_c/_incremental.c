@@ -6,10 +6,15 @@
  * sep (int64 arrays), Rinv (d x d), T (d x s), c (d), Hs (s x s), bs (s), all C-contiguous
  * float64, s the separator's columns; per row rnodes (int64 arrays, None when removed), rH, rb.
  * The conditional of node j is x_j = Rinv_j (c_j - T_j x_sep). Scratch arrays (mark, loc, chg,
- * rseen) are 0 / -1 / 0 / 0 between calls and are restored before returning. The arithmetic is
- * the NumPy fallback's (bayes_tree.BayesTree): multifrontal, one variable per front, the
- * Cholesky of the front's own block, its inverse, T = L^-1 F_12, c = L^-1 g_1, the Schur
- * complement Hs = F_22 - T^T T, bs = g_2 - T^T c. */
+ * rseen) are 0 / -1 / 0 / 0 between calls and are restored before returning.
+ *
+ * Elimination is multifrontal by cliques: a node and the nodes after it in its front that come
+ * next in the order and add no node of their own (each nested in the next, chain = 1; they keep
+ * no Schur complement) are one front: its K frontal columns are factored as one column-major
+ * panel (L11, L21), F_22 -= L21 L21^T in one update (SciPy's dsyrk from SYRK_MIN columns),
+ * y = L11^-1 g_1, g_2 -= L21 y. Each frontal variable's conditional is then Rinv = L_ii^-T,
+ * T = its columns of L below its block (transposed), c = its part of y: the same numbers as the
+ * NumPy fallback's one-variable fronts (bayes_tree.BayesTree.eliminate) up to rounding. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION

@@ -232,7 +232,9 @@ class BayesTree:
 
     def eliminate(self, order: np.ndarray, rows: np.ndarray, orphans: np.ndarray) -> None:
         """Eliminate the detached nodes in ``order`` (``pos`` increasing along it) from
-        ``rows`` and the orphans' cached information: multifrontal, one variable per front.
+        ``rows`` and the orphans' cached information: multifrontal (NumPy: one variable per
+        front; compiled: one front per clique, the same numbers up to rounding); a node nested
+        in the next of the order is marked ``chain`` and keeps no Schur complement.
 
         Raises
         ------
