@@ -55,6 +55,7 @@ EXTENSIONS = {
     "_pattern": ["_pattern.c"],  # the block pattern of H (microlie.optim.core.problem)
     "_symbolic": ["_symbolic.c"],  # the supernodal symbolic analysis (linalg.cholesky)
     "_chol": ["_chol.c"],  # the supernodal Cholesky loop on NumPy's or SciPy's BLAS/LAPACK
+    "_incremental": ["_incremental.c"],  # the Bayes tree of optim.online (bayes_tree.py)
     "_text": ["_text.c"],  # the numeric text-table reader (microlie.traj.io)
     "_info": ["_info.c"],  # build and dispatch information (microlie --version)
 }

@@ -250,3 +250,135 @@ def test_held_components_refused():
     x.fix(1, components=[3])
     with pytest.raises(ValueError, match=r"x0\[1\]: held components"):
         s.update([PriorFactor(x, [0, 1], SE3.identity(), Diagonal([0.1] * 6))])
+
+
+def _mixed_run(seed, compiled=None):
+    """SE3 poses and R^2 landmarks (two block sizes) with a robust odometry loss, a fixed
+    landmark and a custom pose-landmark factor: every branch of the tree code."""
+    from microlie.optim import CustomFactor, Isotropic
+    from microlie.optim.online.bayes_tree import BayesTree
+
+    rng = np.random.default_rng(seed)
+    s = IncrementalSmoother(relinearize_threshold=0.01, relinearize_skip=2, wildfire=1e-4)
+    if compiled is not None:
+        s._tree = BayesTree(compiled=compiled)
+    n, m = 40, 8
+    x = s.add_variables(SE3.exp(0.1 * rng.standard_normal((n, 6))))
+    p = s.add_variables(rng.standard_normal((m, 2)), fixed=[0])
+    sig = Diagonal([0.1] * 6)
+
+    def sees(X, q):  # the landmark's offset from the pose's (x, y)
+        return X.params[..., :2] - q
+
+    s.update([PriorFactor(x, 0, SE3.identity(), sig)])
+    for k in range(1, n):
+        fs = [BetweenFactor(x, k - 1, k, SE3.exp([1.0, 0, 0, 0, 0, 0.2]), sig, loss="huber:1.0")]
+        if k % 3 == 0:
+            fs.append(BetweenFactor(x, int(rng.integers(0, k - 1)), k,
+                                    SE3.exp(0.3 * rng.standard_normal(6)), sig))
+        if k % 2 == 0:
+            fs.append(CustomFactor(sees, [(x, k), (p, int(rng.integers(0, m)))], 2,
+                                   Isotropic(2, 0.5)))
+        s.update(fs)
+    return s, x, p
+
+
+def test_compiled_tree_equals_numpy():
+    """The compiled Bayes tree (microlie._c._incremental) against the NumPy one (the same
+    ordering code): the same estimate to rounding and the same nodes re-eliminated and
+    back-substituted."""
+    from microlie import _fast
+
+    if _fast.module("_incremental") is None:
+        pytest.skip("microlie._c._incremental is not built")
+    s1, x1, p1 = _mixed_run(4, compiled=True)
+    s0, x0, p0 = _mixed_run(4, compiled=False)
+    assert s1._tree.module is not None and s0._tree.module is None
+    assert _close(s1.calculate_estimate(x1).params, s0.calculate_estimate(x0).params, 1e-10)
+    assert _close(s1.calculate_estimate(p1), s0.calculate_estimate(p0), 1e-10)
+    for a, b in zip(s1.records, s0.records, strict=True):
+        assert (a.reeliminated, a.backsubstituted, a.relinearized) == \
+            (b.reeliminated, b.backsubstituted, b.relinearized)
+    C1, C0 = s1.marginal_covariance(p1, 3), s0.marginal_covariance(p0, 3)
+    assert _close(C1, C0, 1e-10)
+
+
+@pytest.mark.parametrize("fast", ["1", "0"])
+def test_mixed_blocks_equal_dense_step(monkeypatch, fast):
+    """Two block sizes, a robust loss, a fixed variable, forced relinearisation: the estimate
+    after the last update is the dense Gauss-Newton step from the linearisation point."""
+    monkeypatch.setenv("MICROLIE_FAST", fast)
+    s, x, p = _mixed_run(9)
+    s.relinearize_threshold, s.relinearize_skip, s.wildfire = 0.0, 1, 0.0
+    s.update([])
+    g = s.graph
+    lp = s.linearization_point()
+    saved = p.fixed.copy()
+    p.fixed = p.fixed | ~s._seen[p.key]  # landmarks never observed are not in the estimate
+    try:
+        prob = g.problem("none")
+        states = [np.asarray(lp.params(v)) for v in g.variables]
+        lin = prob.linearize(states)
+        H = prob.matrix(lin.data).toarray()
+        dx = np.linalg.solve(H, -lin.grad)
+        after = prob.retract(states, dx)
+    finally:
+        p.fixed = saved
+    assert _close(s.calculate_estimate(x).params, after[x.key], 1e-8)
+    assert _close(s.calculate_estimate(p), after[p.key], 1e-8)
+
+
+@pytest.mark.parametrize("group", [SE2, SE3])
+def test_edge_rows_equal_factor_jacobians(group):
+    """The compiled edge linearisation (online.edges.EdgeRows) against A = L [J_i J_j] from
+    BetweenFactor.evaluate, full information matrices, rows of two batches."""
+    from microlie.optim import SqrtInformation
+    from microlie.optim.online.edges import EdgeRows
+
+    e = EdgeRows()
+    if e.module is None:
+        pytest.skip("microlie._c._graph is not built")
+    rng = np.random.default_rng(2)
+    d = group.dof
+    g = FactorGraph()
+    x = g.add_variables(group.exp(rng.standard_normal((6, d))))
+    L = np.tril(rng.standard_normal((4, d, d))) + 3 * np.eye(d)
+    f1 = BetweenFactor(x, [0, 1, 2], [3, 4, 5], group.exp(rng.standard_normal((3, d))),
+                       SqrtInformation(L[:3]))
+    f2 = BetweenFactor(x, 5, 0, group.exp(rng.standard_normal(d)), SqrtInformation(L[3]))
+    e.add(f1, np.array([0, 1, 2]))
+    e.add(f2, np.array([3]))
+    done, H, b = e.linearize(np.array([3, 1]), [x.initial])
+    assert sorted(done.tolist()) == [1, 3]
+    for r, Hr, br in zip(done.tolist(), H, b, strict=True):
+        f, k = (f1, r) if r < 3 else (f2, 0)
+        vals = [x.initial[f.args[0][1]], x.initial[f.args[1][1]]]
+        res, (Ji, Jj) = f.evaluate([x.wrap(v) for v in vals], True)
+        Lk = f.noise.sqrt_info.reshape(-1, d, d)[min(k, f.count - 1) if f.count > 1 else 0]
+        A = Lk @ np.concatenate([Ji[k], Jj[k]], axis=1)
+        assert np.allclose(Hr, A.T @ A, rtol=1e-10, atol=1e-10)
+        assert np.allclose(br, -A.T @ (Lk @ res[k]), rtol=1e-10, atol=1e-10)
+
+
+def test_best_estimate_is_the_complete_step():
+    """calculate_best_estimate: the dense Gauss-Newton step of the current factorisation
+    (the partial back-substitution of a coarse wildfire leaves calculate_estimate off it)."""
+    graph = _synthetic(SE2, 60, 15, seed=13)
+    rep = replay_pose_graph(graph, IncrementalSmoother(wildfire=0.05), until=60)
+    s, x = rep["smoother"], rep["poses"]
+    expect, _, _ = _dense_step(s, x, 59)
+    best = s.calculate_best_estimate()[x].params
+    assert _close(best, expect, 1e-9)
+    assert not _close(s.calculate_estimate(x).params, expect, 1e-6)  # stale steps
+
+
+def test_wide_fronts_equal_dense_step():
+    """Many loop closures: separators above 48 columns (the compiled path's dsyrk); forced
+    relinearisation, so the estimate is the dense Gauss-Newton step."""
+    graph = _synthetic(SE3, 80, 60, seed=21)
+    rep = replay_pose_graph(graph, IncrementalSmoother(**FORCED))
+    s, x = rep["smoother"], rep["poses"]
+    t = s._tree
+    assert max(int(t.dof[sp].sum()) for sp in t.sep[:t.n]) >= 48
+    expect, _, _ = _dense_step(s, x, 79)
+    assert _close(s.calculate_estimate(x).params, expect, 1e-10)

@@ -16,15 +16,20 @@ Algorithms 4-6):
 3. the detached variables are ordered again (approximate minimum degree over them, the variables
    of the new factors constrained last) and eliminated again from their factors and the orphans'
    cached information;
-4. the step is back-substituted from the re-eliminated nodes downwards, entering an orphan
-   subtree only where its separator's step changed by more than ``wildfire`` (partial
-   back-substitution).
+4. the step is back-substituted from the re-eliminated nodes downwards, then into the orphan
+   subtrees as GTSAM's wildfire does (partial back-substitution): a node is recomputed when a
+   variable of its separator *changed* (re-eliminated, or recomputed and moved by
+   ``wildfire`` or more); a recomputed node that moved less keeps its old step.
 
-Why a variable-level tree and not an incremental supernodal Cholesky: re-factoring "the trailing
-part of a fixed ordering" re-eliminates everything after the oldest touched variable (on a loop
-closure to an early pose: nearly everything), while the tree re-eliminates only the path to the
-root and reorders it, which keeps later updates local. Grouping nodes into supernodes (cliques)
-is an optimisation of the same structure, not done yet.
+Why a Bayes tree and not an incremental supernodal Cholesky: re-factoring "the trailing part of
+a fixed ordering" re-eliminates everything after the oldest touched variable (on a loop closure
+to an early pose: nearly everything), while the tree re-eliminates only the path to the root
+and reorders it, which keeps later updates local. The tree (:mod:`.bayes_tree`) stores one
+conditional per variable, in flat arrays; a variable whose separator is its parent and the
+parent's separator is *nested* in it (the two are one clique of GTSAM's tree): such a chain
+is eliminated as one dense front (supernodal) and detached as a whole, so that only clique
+roots cache a Schur complement. Detaching, re-eliminating and back-substituting run in C
+(``microlie._c._incremental``) with a NumPy fallback.
 """
 
 from __future__ import annotations
@@ -35,15 +40,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf as _potrf  # type: ignore[import-untyped]
-from scipy.linalg.lapack import dtrtri as _trtri  # type: ignore[import-untyped]
 
 from ..core.factors import Factor
 from ..core.graph import FactorGraph
 from ..core.robust import corrected_weights
 from ..core.solvers import Result
-from ..core.variables import Values, Variables
+from ..core.variables import Values, Variables, VectorVariables, element
 from ..linalg.ordering import minimum_degree_blocks
+from .bayes_tree import BayesTree, NotDetermined
+from .edges import EdgeRows
 
 __all__ = ["IncrementalSmoother", "UpdateRecord"]
 
@@ -63,9 +68,9 @@ class UpdateRecord:
     relinearized : int
         Variables whose linearisation point moved.
     reeliminated : int
-        Nodes (variables; one per clique of the tree) eliminated again.
+        Variables eliminated again (whole cliques).
     backsubstituted : int
-        Nodes whose step was recomputed.
+        Variables whose step was recomputed.
     time_s : float
         Wall time of the update.
     times : dict
@@ -92,20 +97,6 @@ class UpdateRecord:
     times: dict[str, float] = field(default_factory=dict)
 
 
-class _Row:
-    """One linearised residual: its nodes (free variables, in argument order), its columns in
-    the stacked argument Jacobian, and ``H = A^T A``, ``b = -A^T e`` over the nodes."""
-
-    __slots__ = ("fid", "k", "nodes", "H", "b")
-
-    def __init__(self, fid: int, k: int, nodes: tuple[int, ...]) -> None:
-        self.fid = fid
-        self.k = k
-        self.nodes = nodes
-        self.H: np.ndarray = np.zeros((0, 0))
-        self.b: np.ndarray = np.zeros(0)
-
-
 class IncrementalSmoother:
     """An incremental nonlinear least-squares smoother (GTSAM's ISAM2): add variables and
     factors as they arrive, keep the estimate current at a cost that depends on what changed.
@@ -127,9 +118,9 @@ class IncrementalSmoother:
         Check for relinearisation at every ``relinearize_skip``-th update only (GTSAM's
         ``relinearizeSkip``, default 10; the first update checks).
     wildfire : float
-        Partial back-substitution: an untouched subtree's step is recomputed only where its
-        separator's step changed by more than this (GTSAM's default 0.001; 0 recomputes every
-        step that changed).
+        Partial back-substitution (GTSAM's ``wildfireThreshold``, default 0.001): below the
+        re-eliminated nodes, a step is recomputed only where a separator variable changed, and
+        kept only when it moved by this or more (0: every step below a change is recomputed).
 
     Examples
     --------
@@ -144,8 +135,8 @@ class IncrementalSmoother:
     >>> for k in range(1, 4):  # each new pose predicted from the estimate, then its edge
     ...     guess = s.calculate_estimate(x, [k - 1]) @ step
     ...     rec = s.update([BetweenFactor(x, k - 1, k, step, sigma)], {(x, k): guess})
-    >>> rec.variables_added, rec.factors_added, rec.reeliminated
-    (1, 1, 2)
+    >>> rec.variables_added, rec.factors_added, rec.reeliminated  # the root clique and x[3]
+    (1, 1, 3)
     >>> (np.round(s.calculate_estimate(x, [3]).log(), 6) + 0.0).tolist()
     [[3.0, 0.0, 0.3]]
     """
@@ -171,25 +162,14 @@ class IncrementalSmoother:
         self._node_of: list[np.ndarray] = []    # node id per element (-1: fixed or pending)
         self._seen: list[np.ndarray] = []       # per handle: elements that have entered
         self._factors: list[Factor | None] = []
-        self._rows: list[list[_Row]] = []       # rows per factor batch
-        # per node
-        self._key: list[int] = []
+        self._rows: list[list[int]] = []        # row ids per factor batch
+        self._row_fid: list[int] = []           # per row: its factor batch and row in it
+        self._row_k: list[int] = []
+        self._key: list[int] = []               # per node: handle key and element index
         self._idx: list[int] = []
-        self._dof: list[int] = []
-        self._off: list[int] = []
-        self._offa = np.zeros(16, dtype=np.int64)  # self._off as an array (with spare room)
         self._fids: dict[int, int] = {}         # id(factor) -> its index in self._factors
-        self._pos: list[int] = []
-        self._sep: list[tuple[int, ...]] = []
-        self._sepcols: list[np.ndarray] = []    # the separator's columns in the step
-        self._Rinv: list[np.ndarray] = []
-        self._T: list[np.ndarray] = []
-        self._c: list[np.ndarray] = []
-        self._Hs: list[np.ndarray] = []
-        self._bs: list[np.ndarray] = []
-        self._parent: list[int] = []
-        self._children: list[set[int]] = []
-        self._node_rows: list[list[_Row]] = []
+        self._tree = BayesTree()
+        self._edges = EdgeRows()
         self._dx = np.zeros(0)
         self._size = 0
         self._next_pos = 0
@@ -294,11 +274,10 @@ class IncrementalSmoother:
             self.graph.add(f)
         times = rec.times
         ta = time.perf_counter()
-        marked: set[int] = set()
-        last: set[int] = set(range(first, len(self._key)))
+        marked: list[np.ndarray] = [np.arange(first, len(self._key), dtype=np.int64)]
         for f in remove:
             rec.factors_removed += self._remove(f, marked)
-        new_rows: list[_Row] = []
+        new_rows: list[int] = []
         for f in new_factors:
             rows = self._add_factor(f)
             new_rows.extend(rows)
@@ -308,29 +287,28 @@ class IncrementalSmoother:
             relin = self._relinearize()
         rec.relinearized = int(relin.size)
         redo = self._rows_touching(relin)
-        for r in new_rows:
-            redo.setdefault(id(r), r)
-            last.update(r.nodes)
-        self._linearize(list(redo.values()))
-        for r in redo.values():
-            if r.nodes:
-                marked.add(min(r.nodes, key=self._pos.__getitem__))
-        marked.update(last)
-        marked.update(int(n) for n in relin)
+        redo.update(new_rows)
+        self._linearize(redo)
+        # a row's nodes are its first node and that node's ancestors: marking them all
+        # detaches what marking the first would
+        rn = self._tree.rnodes
+        new_nodes = [rn[r] for r in new_rows]
+        marked.extend(rn[r] for r in redo)
+        marked.append(relin)
         tb = time.perf_counter()
         times["linearize"] = tb - ta
-        top = self._ancestors(marked)
-        pool, orphans = self._detach(top)
+        top, orphans, pool = self._tree.detach(np.concatenate(marked))
         tc = time.perf_counter()
         times["detach"] = tc - tb
-        order = self._order(top, pool, last)
+        last = np.unique(np.concatenate([marked[0]] + new_nodes))
+        order = self._order(top, pool, orphans, last)
         td = time.perf_counter()
         times["order"] = td - tc
-        self._eliminate(order, pool)
+        self._eliminate(order, pool, orphans)
         te = time.perf_counter()
         times["eliminate"] = te - td
-        rec.reeliminated = len(order)
-        rec.backsubstituted = self._solve(order, orphans)
+        rec.reeliminated = int(order.size)
+        rec.backsubstituted = self._tree.backsubstitute(order, orphans, self._dx, self.wildfire)
         times["solve"] = time.perf_counter() - te
         self._updates += 1
         rec.time_s = time.perf_counter() - t0
@@ -396,18 +374,75 @@ class IncrementalSmoother:
             vs = self.graph.variables
             return Values(vs, [self._params(v, np.arange(v.n)) for v in vs])
         self._check_handle(variables, "variables")
+        one = self._one(variables, idx)
+        if one is not None:
+            return one
         ix = np.arange(variables.n) if idx is None else variables.indices(idx)
         return variables.wrap(self._params(variables, ix))
 
-    def _params(self, var: Variables, ix: np.ndarray) -> np.ndarray:
+    def _one(self, var: Variables, idx: Any) -> Any:
+        """The estimate of one element of a group batch (``idx`` an int or a list of one)
+        through the single-element group operations, or ``None`` (the general path)."""
+        if type(idx) is list and len(idx) == 1:
+            idx = idx[0]
+        if type(idx) is not int or isinstance(var, VectorVariables) or \
+                var.key >= len(self._seen) or not -var.n <= idx < var.n:
+            return None
+        i = idx % var.n
+        node = int(self._node_of[var.key][i])
+        if node < 0:
+            return None
+        o = int(self._tree.off[node])
+        e = element(var.group, self._lin[var.key][i]).plus(self._dx[o:o + var.dof])
+        return element(var.group, np.asarray(e.params)[None])
+
+    def calculate_best_estimate(self) -> Values:
+        """The estimate with the complete step of the current factorisation, by a full
+        back-substitution (GTSAM's ``calculateBestEstimate``): :meth:`calculate_estimate`
+        without the wildfire's stale steps (each below the ``wildfire`` threshold, but they
+        add up down the tree). The stored step is not changed (the relinearisation decisions
+        stay those of the partial back-substitution, as in GTSAM).
+
+        Returns
+        -------
+        Values
+            Variables that have not entered yet have their initial values.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, PriorFactor, BetweenFactor, Diagonal
+        >>> s = IncrementalSmoother(wildfire=0.5)  # a coarse partial back-substitution
+        >>> x = s.add_variables(SE2.identity(3))
+        >>> sig = Diagonal([0.1, 0.1, 0.1])
+        >>> _ = s.update([PriorFactor(x, 0, SE2.identity(), sig),
+        ...               BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0, 0]), sig)])
+        >>> _ = s.update([PriorFactor(x, 2, SE2.exp([2.3, 0, 0]), sig)])
+        >>> (np.round(s.calculate_estimate(x).translation()[:, 0], 6) + 0.0).tolist()  # stale
+        [0.0, 1.15, 2.225]
+        >>> np.round(s.calculate_best_estimate()[x].translation()[:, 0], 6).tolist()
+        [0.075, 1.15, 2.225]
+        """
+        t = self._tree
+        order = np.argsort(t.pos[:t.n], kind="stable").astype(np.int64)
+        dx = self._dx.copy()
+        t.backsubstitute(order, np.zeros(0, dtype=np.int64), dx, 0.0)
+        vs = self.graph.variables
+        return Values(vs, [self._params(v, np.arange(v.n), dx) for v in vs])
+
+    def _params(self, var: Variables, ix: np.ndarray, dx: np.ndarray | None = None
+                ) -> np.ndarray:
+        if dx is None:
+            dx = self._dx
         if var.key >= len(self._seen):
             return var.initial[ix].copy()
         nodes = self._node_of[var.key][ix]
         P = np.where(self._seen[var.key][ix][:, None], self._lin[var.key][ix], var.initial[ix])
         live = nodes >= 0
         if live.any():
-            cols = (self._offa[nodes[live]][:, None] + np.arange(var.dof))
-            P[live] = var.retract(P[live], self._dx[cols])
+            cols = (self._tree.off[nodes[live]][:, None] + np.arange(var.dof))
+            P[live] = var.retract(P[live], dx[cols])
         return P
 
     def linearization_point(self) -> Values:
@@ -490,32 +525,33 @@ class IncrementalSmoother:
         if j < 0:
             raise ValueError(f"variables: {variables.name}[{i}] is fixed: it has no marginal "
                              f"covariance")
+        t = self._tree
         path = [j]
-        while self._parent[path[-1]] >= 0:
-            path.append(self._parent[path[-1]])
-        d = self._dof[j]
+        while t.parent[path[-1]] >= 0:
+            path.append(int(t.parent[path[-1]]))
+        d = int(t.dof[j])
         # forward: R^T y = e_j over the path (pos order), then back: R x = y
         y: dict[int, np.ndarray] = {}
         acc: dict[int, np.ndarray] = {j: np.eye(d)}
         for k in path:
             rhs = acc.pop(k, None)  # R_k^T y_k = rhs, R_k^-T = Rinv_k^T
-            yk = self._Rinv[k].T @ rhs if rhs is not None else np.zeros((self._dof[k], d))
+            yk = t.Rinv[k].T @ rhs if rhs is not None else np.zeros((int(t.dof[k]), d))
             y[k] = yk
             o = 0
-            for s in self._sep[k]:
-                ds = self._dof[s]
-                contrib = -self._T[k][:, o:o + ds].T @ yk
+            for s in t.sep[k].tolist():
+                ds = int(t.dof[s])
+                contrib = -t.T[k][:, o:o + ds].T @ yk
                 acc[s] = acc[s] + contrib if s in acc else contrib
                 o += ds
         x: dict[int, np.ndarray] = {}
         for k in reversed(path):
             v = y[k].copy()
             o = 0
-            for s in self._sep[k]:
-                ds = self._dof[s]
-                v -= self._T[k][:, o:o + ds] @ x[s]
+            for s in t.sep[k].tolist():
+                ds = int(t.dof[s])
+                v -= t.T[k][:, o:o + ds] @ x[s]
                 o += ds
-            x[k] = self._Rinv[k] @ v
+            x[k] = t.Rinv[k] @ v
         C = x[j]
         return 0.5 * (C + C.T)
 
@@ -554,13 +590,11 @@ class IncrementalSmoother:
         for v in self.graph.variables:
             self._lin[v.key] = np.asarray(res.values.params(v), dtype=np.float64).copy()
         self._dx[:] = 0.0
-        rows = [r for rs in self._rows for r in rs]
-        self._linearize(rows)
-        top = self._ancestors(set(range(len(self._key))))
-        pool, orphans = self._detach(top)
-        order = self._order(top, pool, set())
-        self._eliminate(order, pool)
-        self._solve(order, orphans)
+        self._linearize({r for rs in self._rows for r in rs})
+        top, orphans, pool = self._tree.detach(np.arange(len(self._key), dtype=np.int64))
+        order = self._order(top, pool, orphans, np.zeros(0, dtype=np.int64))
+        self._eliminate(order, pool, orphans)
+        self._tree.backsubstitute(order, orphans, self._dx, self.wildfire)
         return res
 
     # ------------------------------------------------------------------ internals
@@ -585,7 +619,10 @@ class IncrementalSmoother:
         for what, val in new_values.items():
             var, idx = what if isinstance(what, tuple) else (what, None)
             self._check_handle(var, "new_values")
-            ix = np.arange(var.n) if idx is None else var.indices(idx, "new_values index")
+            if type(idx) is int and -var.n <= idx < var.n:  # one element: no validation pass
+                ix = np.array([idx % var.n])
+            else:
+                ix = np.arange(var.n) if idx is None else var.indices(idx, "new_values index")
             if self._seen[var.key][ix].any():
                 bad = int(ix[np.flatnonzero(self._seen[var.key][ix])[0]])
                 raise ValueError(f"new_values: {var.name}[{bad}] has already entered; its "
@@ -621,61 +658,47 @@ class IncrementalSmoother:
             nodes[i] = len(self._key)
             self._key.append(var.key)
             self._idx.append(int(i))
-            self._dof.append(var.dof)
-            self._off.append(self._size)
-            if len(self._off) > self._offa.size:
-                self._offa = np.concatenate([self._offa, np.zeros_like(self._offa)])
-            self._offa[len(self._off) - 1] = self._size
-            self._size += var.dof
-            self._pos.append(self._next_pos)
+            j = self._tree.add_node(var.dof, self._size)
+            self._tree.pos[j] = self._next_pos
             self._next_pos += 1
-            self._sep.append(())
-            self._sepcols.append(np.zeros(0, dtype=np.int64))
-            self._Rinv.append(np.zeros((0, 0)))
-            self._T.append(np.zeros((0, 0)))
-            self._c.append(np.zeros(0))
-            self._Hs.append(np.zeros((0, 0)))
-            self._bs.append(np.zeros(0))
-            self._parent.append(-1)
-            self._children.append(set())
-            self._node_rows.append([])
+            self._size += var.dof
 
-    def _add_factor(self, f: Factor) -> list[_Row]:
+    def _add_factor(self, f: Factor) -> list[int]:
         fid = len(self._factors)
         self._factors.append(f)
         self._fids[id(f)] = fid
         nodes = [self._node_of[var.key][idx] for var, idx in f.args]
         rows = []
+        tree = self._tree
         for k in range(f.count):
-            nk = tuple(int(n[k]) for n in nodes if n[k] >= 0)
+            nk = [int(n[k]) for n in nodes if n[k] >= 0]
             if len(set(nk)) != len(nk):
                 raise ValueError(f"new_factors: {f.name} row {k} takes the same variable twice")
-            r = _Row(fid, k, nk)
-            rows.append(r)
-            for n in nk:
-                self._node_rows[n].append(r)
+            rows.append(tree.add_row(nk))
+            self._row_fid.append(fid)
+            self._row_k.append(k)
         self._rows.append(rows)
+        self._edges.add(f, np.asarray(rows, dtype=np.int64))
         return rows
 
-    def _remove(self, f: Factor, marked: set[int]) -> int:
+    def _remove(self, f: Factor, marked: list[np.ndarray]) -> int:
         fid = self._fids.pop(id(f), None)
         if fid is None:
             raise ValueError(f"remove: {getattr(f, 'name', f)!r} is not a factor of this "
                              f"smoother")
         rows = self._rows[fid]
         for r in rows:
-            if r.nodes:
-                marked.add(min(r.nodes, key=self._pos.__getitem__))
-            for n in r.nodes:
-                self._node_rows[n].remove(r)
+            marked.append(self._tree.rnodes[r])
+            self._tree.remove_row(r)
         self._factors[fid] = None
         self._rows[fid] = []
         self.graph.remove(f)
         return len(rows)
 
     def _relinearize(self) -> np.ndarray:
-        off = self._offa[:len(self._off)]
-        big = np.maximum.reduceat(np.abs(self._dx), off) if off.size else off
+        n = len(self._key)
+        off = self._tree.off[:n]
+        big = np.maximum.reduceat(np.abs(self._dx), off) if n else off
         nodes = np.flatnonzero(big > self.relinearize_threshold)
         if nodes.size == 0:
             return nodes
@@ -689,18 +712,31 @@ class IncrementalSmoother:
             self._dx[cols] = 0.0
         return nodes
 
-    def _rows_touching(self, nodes: np.ndarray) -> dict[int, _Row]:
-        out: dict[int, _Row] = {}
-        for n in nodes:
-            for r in self._node_rows[n]:
-                out.setdefault(id(r), r)
+    def _rows_touching(self, nodes: np.ndarray) -> set[int]:
+        out: set[int] = set()
+        nr = self._tree.node_rows
+        for n in nodes.tolist():
+            out.update(nr[n])
         return out
 
-    def _linearize(self, rows: list[_Row]) -> None:
-        """Linearise ``rows`` at the linearisation points (each factor batch evaluated once)."""
-        by: dict[int, list[_Row]] = {}
+    def _linearize(self, rows: set[int]) -> None:
+        """Linearise ``rows`` at the linearisation points: the pose-graph edges in one
+        compiled call (:class:`EdgeRows`), the others one evaluation per factor batch."""
+        tree = self._tree
+        if rows:
+            done, Hs, bs = self._edges.linearize(np.fromiter(rows, np.int64, len(rows)),
+                                                 self._lin)
+            if done.size:
+                rH, rb = tree.rH, tree.rb
+                dl = done.tolist()
+                for r, H, b in zip(dl, Hs, bs, strict=True):
+                    rH[r] = H
+                    rb[r] = b
+                rows = rows.difference(dl)
+        by: dict[int, list[int]] = {}
+        fids = self._row_fid
         for r in rows:
-            by.setdefault(r.fid, []).append(r)
+            by.setdefault(fids[r], []).append(r)
         for fid, rs in by.items():
             f = self._factors[fid]
             assert f is not None
@@ -726,164 +762,53 @@ class IncrementalSmoother:
                                           * np.einsum("mi,mij->mj", e, a)[:, None, :])
                      for a in A]
                 e = e * scale[:, None]
+            if all(not var.fixed[idx].any() for var, idx in f.args):
+                Aall = np.concatenate(A, axis=2) if len(A) > 1 else A[0]
+                ks = np.asarray([self._row_k[q] for q in rs])
+                Ak = Aall[ks]
+                H = np.matmul(np.swapaxes(Ak, 1, 2), Ak)
+                b = -np.einsum("mij,mi->mj", Ak, e[ks])
+                for q, row in enumerate(rs):
+                    tree.rH[row] = H[q]
+                    tree.rb[row] = b[q]
+                continue
             for row in rs:
-                k = row.k
+                k = self._row_k[row]
                 blocks = [A[a][k] for a, (var, idx) in enumerate(f.args)
                           if self._node_of[var.key][idx[k]] >= 0]
                 Ak = np.concatenate(blocks, axis=1) if blocks else np.zeros((f.dim, 0))
-                row.H = Ak.T @ Ak
-                row.b = -(Ak.T @ e[k])
+                tree.rH[row] = Ak.T @ Ak
+                tree.rb[row] = -(Ak.T @ e[k])
 
-    def _ancestors(self, marked: set[int]) -> set[int]:
-        top: set[int] = set()
-        for n in marked:
-            while n >= 0 and n not in top:
-                top.add(n)
-                n = self._parent[n]
-        return top
-
-    def _detach(self, top: set[int]) -> tuple[list[tuple[tuple[int, ...], np.ndarray,
-                                                          np.ndarray, int]], list[int]]:
-        """Remove the conditionals of ``top``; return the information to eliminate again (the
-        rows with every node in ``top`` and the orphans' cached Schur complements) and the
-        orphans."""
-        pool: list[tuple[tuple[int, ...], np.ndarray, np.ndarray, int]] = []
-        orphans: list[int] = []
-        seen: set[int] = set()
-        for n in top:
-            for ch in self._children[n]:
-                if ch not in top:
-                    orphans.append(ch)
-                    pool.append((self._sep[ch], self._Hs[ch], self._bs[ch], ch))
-                    self._parent[ch] = -1
-            self._children[n] = set()
-            self._parent[n] = -1
-            for r in self._node_rows[n]:
-                if id(r) in seen:
-                    continue
-                seen.add(id(r))
-                if all(m in top for m in r.nodes):
-                    pool.append((r.nodes, r.H, r.b, -1))
-        return pool, orphans
-
-    def _order(self, top: set[int], pool: list, last: set[int]) -> list[int]:
+    def _order(self, top: np.ndarray, pool: np.ndarray, orphans: np.ndarray,
+               last: np.ndarray) -> np.ndarray:
         """Order ``top``: approximate minimum degree on the others, then ``last`` (the
-        variables of the new factors, in arrival order)."""
-        tail = sorted((n for n in top if n in last), key=self._pos.__getitem__)
-        head = sorted((n for n in top if n not in last), key=self._pos.__getitem__)
-        if len(head) > 2:
-            loc = {n: i for i, n in enumerate(head)}
-            pairs_a: list[int] = []
-            pairs_b: list[int] = []
-            for nodes, _, _, _ in pool:
-                ix = [loc[n] for n in nodes if n in loc]
-                for a in ix:
-                    for b in ix:
-                        if a != b:
-                            pairs_a.append(a)
-                            pairs_b.append(b)
-            nb = len(head)
-            a_arr = np.asarray(pairs_a, dtype=np.int64)
-            b_arr = np.asarray(pairs_b, dtype=np.int64)
-            o = np.argsort(a_arr, kind="stable")
-            indptr = np.concatenate([[0], np.cumsum(np.bincount(a_arr, minlength=nb))])
-            perm = minimum_degree_blocks(indptr.astype(np.int64), b_arr[o], nb)
-            head = [head[int(p)] for p in perm]
-        order = head + tail
-        for n in order:
-            self._pos[n] = self._next_pos
-            self._next_pos += 1
+        variables of the new factors and the new variables, in arrival order); set the
+        positions."""
+        tree = self._tree
+        pos = tree.pos
+        flag = tree.mark  # scratch, 0 between calls
+        flag[last] = 1
+        is_last = flag[top] == 1
+        flag[last] = 0
+        tail = top[is_last]
+        tail = tail[np.argsort(pos[tail], kind="stable")]
+        head = top[~is_last]
+        head = head[np.argsort(pos[head], kind="stable")]
+        nb = head.size
+        if nb > 2:
+            indptr, indices = tree.adjacency(pool, orphans, head)
+            head = head[np.asarray(minimum_degree_blocks(indptr, indices, nb), dtype=np.int64)]
+        order = np.concatenate([head, tail]).astype(np.int64)
+        pos[order] = self._next_pos + np.arange(order.size)
+        self._next_pos += int(order.size)
         return order
 
-    def _eliminate(self, order: list[int], pool: list) -> None:
-        """Multifrontal elimination of ``order`` (one variable per front)."""
-        pos = self._pos
-        dof = self._dof
-        offa = self._offa
-        waiting: dict[int, list] = {}
-        for item in pool:
-            if item[0]:
-                first = min(item[0], key=pos.__getitem__)
-                waiting.setdefault(first, []).append(item)
-        for j in order:
-            items = waiting.pop(j, [])
-            nodes = {j}
-            for it in items:
-                nodes.update(it[0])
-            sep = sorted(nodes - {j}, key=pos.__getitem__)
-            allv = [j] + sep
-            dofs = [dof[n] for n in allv]
-            if len(set(dofs)) == 1:  # one block size: local columns without a loop
-                dd = dofs[0]
-                ar = np.arange(dd)
-                loc = {n: i * dd for i, n in enumerate(allv)}
-                o = dd * len(allv)
-            else:
-                loc = {}
-                o = 0
-                for n, dn in zip(allv, dofs, strict=True):
-                    loc[n] = o
-                    o += dn
-                ar = None
-            F = np.zeros((o, o))
-            g = np.zeros(o)
-            for vs, H, b, child in items:
-                if child >= 0:  # a subtree hangs from j
-                    self._parent[child] = j
-                    self._children[j].add(child)
-                if ar is not None:
-                    ix = (np.array([loc[n] for n in vs])[:, None] + ar).ravel()
-                else:
-                    ix = np.concatenate([np.arange(loc[n], loc[n] + dof[n]) for n in vs])
-                F[ix[:, None], ix] += H
-                g[ix] += b
-            d = dof[j]
-            L, info = _potrf(F[:d, :d], lower=1, clean=1)
-            if info != 0:
-                var = self.graph.variables[self._key[j]]
-                raise ValueError(f"{var.name}[{self._idx[j]}] is not determined by the factors "
-                                 f"(no prior or fixed variable anchors it, or a direction is "
-                                 f"unobserved): add a prior or fix a variable") from None
-            Linv = _trtri(L, lower=1)[0]
-            T = Linv @ F[:d, d:]
-            c = Linv @ g[:d]
-            self._Rinv[j] = Linv.T
-            self._T[j] = T
-            self._c[j] = c
-            self._sep[j] = tuple(sep)
-            self._sepcols[j] = (np.concatenate([offa[n] + np.arange(dof[n]) for n in sep])
-                                if sep else np.zeros(0, dtype=np.int64))
-            Hs = F[d:, d:] - T.T @ T
-            bs = g[d:] - T.T @ c
-            self._Hs[j] = Hs
-            self._bs[j] = bs
-            self._parent[j] = -1
-            if sep:
-                waiting.setdefault(sep[0], []).append((tuple(sep), Hs, bs, j))
-
-    def _solve(self, order: list[int], orphans: list[int]) -> int:
-        """Back-substitute the re-eliminated nodes, then orphan subtrees where their
-        separator's step moved more than ``wildfire``."""
-        dx = self._dx
-        off = self._off
-        change: dict[int, float] = {}
-
-        def back(k: int) -> None:
-            o0 = off[k]
-            o1 = o0 + self._dof[k]
-            v = self._c[k] - self._T[k] @ dx[self._sepcols[k]] if self._sep[k] else self._c[k]
-            new = self._Rinv[k] @ v
-            change[k] = float(np.abs(new - dx[o0:o1]).max())
-            dx[o0:o1] = new
-
-        for k in reversed(order):
-            back(k)
-        count = len(order)
-        stack = list(orphans)
-        while stack:
-            k = stack.pop()
-            if max((change.get(s, 0.0) for s in self._sep[k]), default=0.0) > self.wildfire:
-                back(k)
-                count += 1
-                stack.extend(self._children[k])
-        return count
+    def _eliminate(self, order: np.ndarray, pool: np.ndarray, orphans: np.ndarray) -> None:
+        try:
+            self._tree.eliminate(order, pool, orphans)
+        except NotDetermined as e:
+            var = self.graph.variables[self._key[e.node]]
+            raise ValueError(f"{var.name}[{self._idx[e.node]}] is not determined by the factors "
+                             f"(no prior or fixed variable anchors it, or a direction is "
+                             f"unobserved): add a prior or fix a variable") from None

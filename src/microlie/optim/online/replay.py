@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.factors import BetweenFactor, PriorFactor
 from ..core.noise import Information, Isotropic
+from ..core.variables import element
 from ..io.pose_graph import PoseGraph
 from .incremental import IncrementalSmoother
 
@@ -94,8 +95,11 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
     -------
     dict
         ``final_cost`` (the file's edges at the final estimate, without the prior: GTSAM's
-        error), ``updates``, ``update_ms_median``, ``update_ms_p99`` (per pose: prediction,
-        factor construction and update), ``total_s`` (all of them, the Python loop included),
+        error; the estimate with the complete step of the final factorisation,
+        :meth:`~IncrementalSmoother.calculate_best_estimate`, as the wildfire leaves steps
+        stale), ``updates``, ``update_ms_median``, ``update_ms_p99`` (per pose: prediction,
+        factor construction and update), ``total_s`` (all of them, the Python loop and the
+        final back-substitution included),
         ``converged`` (no variable's step exceeds the relinearisation threshold at the end,
         so the estimate is at its linearisation points up to that threshold),
         ``relinearized``, ``reeliminated`` (totals), ``smoother``, ``poses`` (the handle) and
@@ -122,6 +126,8 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
     ii, jj = graph.edge_index()
     _, edges, odometry = replay_schedule(graph)
     Zs = graph.measurements
+    Zp = np.asarray(Zs.params)
+    group = graph.group
     info = graph.information
     file_poses = graph.poses
     if file_poses is None:  # no vertex lines: identity first pose, the rest by odometry
@@ -144,18 +150,18 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
             e = edges[k]
             factors = [BetweenFactor(x, ii[e], jj[e], Zs[e], Information(info[e]))] \
                 if e.size else []
-            o = odometry[k]
+            o = int(odometry[k])
             guess = None
-            if o >= 0:
-                prev = s.calculate_estimate(x, [k - 1])
-                Zo = Zs[int(o):int(o) + 1]
+            if o >= 0:  # single elements: the one-element group operations
+                prev = element(group, s.calculate_estimate(x, k - 1).params[0])
+                Zo = element(group, Zp[o])
                 guess = prev @ Zo if ii[o] == k - 1 else prev @ Zo.inverse()
         s.update(factors, {(x, k): guess} if guess is not None else {(x, k): file_poses[k:k + 1]})
         times[k] = time.perf_counter() - t0
         if callback is not None:
             callback(k, s)
+    X = s.calculate_best_estimate()[x][:n]  # the complete step (GTSAM's calculateBestEstimate)
     total = time.perf_counter() - t_start
-    X = s.calculate_estimate(x, np.arange(n))
     sub = graph if n == V else _prefix(graph, n)
     ms = times * 1e3
     return {"final_cost": float(sub.cost(X)), "updates": int(n),

@@ -1,0 +1,817 @@
+/* microlie._c._incremental: the Bayes tree operations of microlie.optim.online.bayes_tree
+ * (IncrementalSmoother) in one C call each: detach the top, re-eliminate it, back-substitute.
+ *
+ * The tree is the Python module's: per node the int64 arrays parent, child (first child), sib
+ * (next sibling), dof, off (step offset), pos (elimination position); per node the Python lists
+ * sep (int64 arrays), Rinv (d x d), T (d x s), c (d), Hs (s x s), bs (s), all C-contiguous
+ * float64, s the separator's columns; per row rnodes (int64 arrays, None when removed), rH, rb.
+ * The conditional of node j is x_j = Rinv_j (c_j - T_j x_sep). Scratch arrays (mark, loc, chg,
+ * rseen) are 0 / -1 / 0 / 0 between calls and are restored before returning.
+ *
+ * Elimination is multifrontal by cliques: a node and the nodes after it in its front that come
+ * next in the order and add no node of their own (each nested in the next, chain = 1; they keep
+ * no Schur complement) are one front: its K frontal columns are factored as one column-major
+ * panel (L11, L21), F_22 -= L21 L21^T in one update (SciPy's dsyrk from SYRK_MIN columns),
+ * y = L11^-1 g_1, g_2 -= L21 y. Each frontal variable's conditional is then Rinv = L_ii^-T,
+ * T = its columns of L below its block (transposed), c = its part of y: the same numbers as the
+ * NumPy fallback's one-variable fronts (bayes_tree.BayesTree.eliminate) up to rounding. */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
+#include <numpy/arrayobject.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef npy_int64 i64;
+
+/* dsyrk of the BLAS SciPy links (Fortran convention, 32-bit integers), from the capsule of
+ * scipy.linalg.cython_blas that set_blas receives (bayes_tree.py, once); NULL: plain loops */
+typedef void (*syrk_t)(char *, char *, int *, int *, double *, double *, int *, double *,
+                       double *, int *);
+static syrk_t g_syrk = NULL;
+/* the Schur complement update goes to dsyrk from this many columns (below, the loops win) */
+#define SYRK_MIN 48
+
+/* ------------------------------------------------------------------ helpers */
+
+static void *arr(PyObject *o, int type, const char *what, i64 *size) {
+    if (!PyArray_Check(o) || PyArray_TYPE((PyArrayObject *)o) != type ||
+        !PyArray_IS_C_CONTIGUOUS((PyArrayObject *)o)) {
+        PyErr_Format(PyExc_TypeError, "%s must be a C-contiguous %s array", what,
+                     type == NPY_FLOAT64 ? "float64" : "int64");
+        return NULL;
+    }
+    if (size) *size = (i64)PyArray_SIZE((PyArrayObject *)o);
+    return PyArray_DATA((PyArrayObject *)o);
+}
+
+static int is_list(PyObject *o, const char *what) {
+    if (!PyList_Check(o)) {
+        PyErr_Format(PyExc_TypeError, "%s must be a list", what);
+        return 0;
+    }
+    return 1;
+}
+
+/* a growable int64 buffer */
+typedef struct {
+    i64 *p;
+    i64 n, cap;
+} ibuf;
+
+static int ipush(ibuf *b, i64 v) {
+    if (b->n == b->cap) {
+        i64 cap = b->cap ? 2 * b->cap : 64;
+        i64 *p = realloc(b->p, (size_t)cap * sizeof(i64));
+        if (!p) return -1;
+        b->p = p;
+        b->cap = cap;
+    }
+    b->p[b->n++] = v;
+    return 0;
+}
+
+static PyObject *to_array(const ibuf *b) {
+    npy_intp n = (npy_intp)b->n;
+    PyObject *a = PyArray_SimpleNew(1, &n, NPY_INT64);
+    if (a && n) memcpy(PyArray_DATA((PyArrayObject *)a), b->p, (size_t)n * sizeof(i64));
+    return a;
+}
+
+/* the i64 data of list[k] (an int64 array), or NULL with an error */
+static i64 *item_i64(PyObject *list, i64 k, const char *what, i64 *n) {
+    if (k < 0 || k >= (i64)PyList_GET_SIZE(list)) {
+        PyErr_Format(PyExc_IndexError, "%s: index %lld out of range", what, (long long)k);
+        return NULL;
+    }
+    return arr(PyList_GET_ITEM(list, k), NPY_INT64, what, n);
+}
+
+static double *item_f64(PyObject *list, i64 k, const char *what, i64 want) {
+    if (k < 0 || k >= (i64)PyList_GET_SIZE(list)) {
+        PyErr_Format(PyExc_IndexError, "%s: index %lld out of range", what, (long long)k);
+        return NULL;
+    }
+    i64 n = 0;
+    double *p = arr(PyList_GET_ITEM(list, k), NPY_FLOAT64, what, &n);
+    if (p && n != want) {
+        PyErr_Format(PyExc_ValueError, "%s[%lld] has %lld entries, expected %lld", what,
+                     (long long)k, (long long)n, (long long)want);
+        return NULL;
+    }
+    return p;
+}
+
+/* ------------------------------------------------------------------ detach */
+
+static PyObject *detach(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 9) {
+        PyErr_SetString(PyExc_TypeError, "detach(marked, parent, child, sib, mark, rseen, "
+                                         "node_rows, rnodes, chain)");
+        return NULL;
+    }
+    i64 nm, N, nr;
+    i64 *marked = arr(args[0], NPY_INT64, "marked", &nm);
+    i64 *parent = marked ? arr(args[1], NPY_INT64, "parent", &N) : NULL;
+    i64 *child = parent ? arr(args[2], NPY_INT64, "child", NULL) : NULL;
+    i64 *sib = child ? arr(args[3], NPY_INT64, "sib", NULL) : NULL;
+    i64 *mark = sib ? arr(args[4], NPY_INT64, "mark", NULL) : NULL;
+    i64 *rseen = mark ? arr(args[5], NPY_INT64, "rseen", &nr) : NULL;
+    if (!rseen || !is_list(args[6], "node_rows") || !is_list(args[7], "rnodes")) return NULL;
+    i64 *chain = arr(args[8], NPY_INT64, "chain", NULL);
+    if (!chain) return NULL;
+    PyObject *node_rows = args[6], *rnodes = args[7];
+    ibuf top = {0}, orph = {0}, rows = {0}, seen = {0};
+    PyObject *out = NULL;
+    int err = 0;
+    for (i64 q = 0; q < nm && !err; q++) {
+        i64 n = marked[q];
+        if (n < -1 || n >= N) {
+            PyErr_SetString(PyExc_IndexError, "marked: node out of range");
+            err = 1;
+            break;
+        }
+        while (n >= 0 && !mark[n]) {
+            mark[n] = 1;
+            if (ipush(&top, n)) err = 1;
+            n = parent[n];
+        }
+    }
+    for (i64 q = 0; q < top.n && !err; q++) /* whole cliques: the nested children too */
+        for (i64 ch = child[top.p[q]]; ch >= 0 && !err; ch = sib[ch])
+            if (chain[ch] && !mark[ch]) {
+                mark[ch] = 1;
+                if (ipush(&top, ch)) err = 1;
+            }
+    for (i64 q = 0; q < top.n && !err; q++) {
+        i64 n = top.p[q];
+        for (i64 ch = child[n]; ch >= 0;) {
+            i64 next = sib[ch];
+            if (!mark[ch]) {
+                if (ipush(&orph, ch)) err = 1;
+                parent[ch] = -1;
+                sib[ch] = -1;
+            }
+            ch = next;
+        }
+        if (n >= (i64)PyList_GET_SIZE(node_rows)) {
+            PyErr_SetString(PyExc_IndexError, "node_rows: node out of range");
+            err = 1;
+            break;
+        }
+        PyObject *lst = PyList_GET_ITEM(node_rows, n);
+        if (!is_list(lst, "node_rows[n]")) {
+            err = 1;
+            break;
+        }
+        for (Py_ssize_t a = 0; a < PyList_GET_SIZE(lst) && !err; a++) {
+            i64 r = PyLong_AsLongLong(PyList_GET_ITEM(lst, a));
+            if (r < 0 || r >= nr) {
+                if (!PyErr_Occurred()) PyErr_SetString(PyExc_IndexError, "row out of range");
+                err = 1;
+                break;
+            }
+            if (rseen[r]) continue;
+            rseen[r] = 1;
+            if (ipush(&seen, r)) {
+                err = 1;
+                break;
+            }
+            i64 k;
+            i64 *nd = item_i64(rnodes, r, "rnodes", &k);
+            if (!nd) {
+                err = 1;
+                break;
+            }
+            int all = 1;
+            for (i64 t = 0; t < k; t++)
+                if (nd[t] < 0 || nd[t] >= N || !mark[nd[t]]) {
+                    all = 0;
+                    break;
+                }
+            if (all && ipush(&rows, r)) err = 1;
+        }
+    }
+    for (i64 q = 0; q < top.n; q++) { /* after every child list was read */
+        i64 n = top.p[q];
+        child[n] = parent[n] = sib[n] = -1;
+        mark[n] = 0;
+    }
+    for (i64 q = 0; q < seen.n; q++) rseen[seen.p[q]] = 0;
+    if (!err) {
+        PyObject *a = to_array(&top), *b = to_array(&orph), *c = to_array(&rows);
+        if (a && b && c) out = PyTuple_Pack(3, a, b, c);
+        Py_XDECREF(a);
+        Py_XDECREF(b);
+        Py_XDECREF(c);
+    } else if (!PyErr_Occurred())
+        PyErr_NoMemory();
+    free(top.p);
+    free(orph.p);
+    free(rows.p);
+    free(seen.p);
+    return out;
+}
+
+/* ------------------------------------------------------------------ eliminate */
+
+typedef struct {
+    const i64 *nodes;
+    i64 nn;
+    const double *H, *b;
+    i64 who, next; /* who: the node whose subtree this is (-1: a factor row) */
+} item;
+
+static PyObject *new2(i64 r, i64 c) {
+    npy_intp dims[2] = {(npy_intp)r, (npy_intp)c};
+    return PyArray_SimpleNew(2, dims, NPY_FLOAT64);
+}
+static PyObject *new1(i64 n, int type) {
+    npy_intp dims[1] = {(npy_intp)n};
+    return PyArray_SimpleNew(1, dims, type);
+}
+
+static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 19) {
+        PyErr_SetString(PyExc_TypeError,
+                        "eliminate(order, rows, orphans, rnodes, rH, rb, sep, Rinv, T, c, Hs, "
+                        "bs, parent, child, sib, dof, pos, loc, chain)");
+        return NULL;
+    }
+    i64 no, nrw, nor, N;
+    i64 *order = arr(args[0], NPY_INT64, "order", &no);
+    i64 *rws = order ? arr(args[1], NPY_INT64, "rows", &nrw) : NULL;
+    i64 *orph = rws ? arr(args[2], NPY_INT64, "orphans", &nor) : NULL;
+    if (!orph) return NULL;
+    for (int k = 3; k < 12; k++)
+        if (!is_list(args[k], "rnodes, rH, rb, sep, Rinv, T, c, Hs and bs")) return NULL;
+    PyObject *rnodes = args[3], *rH = args[4], *rb = args[5], *Lsep = args[6],
+             *LRinv = args[7], *LT = args[8], *Lc = args[9], *LHs = args[10], *Lbs = args[11];
+    i64 *parent = arr(args[12], NPY_INT64, "parent", &N);
+    i64 *child = parent ? arr(args[13], NPY_INT64, "child", NULL) : NULL;
+    i64 *sib = child ? arr(args[14], NPY_INT64, "sib", NULL) : NULL;
+    i64 *dof = sib ? arr(args[15], NPY_INT64, "dof", NULL) : NULL;
+    i64 *pos = dof ? arr(args[16], NPY_INT64, "pos", NULL) : NULL;
+    i64 *loc = pos ? arr(args[17], NPY_INT64, "loc", NULL) : NULL;
+    i64 *chain = loc ? arr(args[18], NPY_INT64, "chain", NULL) : NULL;
+    if (!chain) return NULL;
+    i64 nlist = (i64)PyList_GET_SIZE(Lsep);
+    for (i64 q = 0; q < no; q++)
+        if (order[q] < 0 || order[q] >= N || order[q] >= nlist) {
+            PyErr_SetString(PyExc_IndexError, "order: node out of range");
+            return NULL;
+        }
+    i64 cap = nrw + nor + no + 1;
+    item *items = malloc((size_t)cap * sizeof(item));
+    i64 *head = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64));
+    i64 *sepb = malloc((size_t)(N + 1) * sizeof(i64));
+    i64 *io = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64)); /* offsets inside an item */
+    double *F = NULL, *g = NULL, *Lm = NULL, *Li = NULL, *P = NULL;
+    i64 fcap = 0, pcap = 0;
+    i64 nit = 0, bad = -1;
+    int err = 0;
+    if (!items || !head || !sepb || !io) {
+        err = 1;
+        goto done;
+    }
+    for (i64 q = 0; q < no; q++) head[order[q]] = -1;
+    /* every item waits at its first node (least pos) */
+#define PUT(ND, NN, HH, BB, WHO)                                                               \
+    do {                                                                                       \
+        i64 first_ = -1;                                                                       \
+        for (i64 t_ = 0; t_ < (NN); t_++)                                                      \
+            if (first_ < 0 || pos[(ND)[t_]] < pos[first_]) first_ = (ND)[t_];                  \
+        items[nit] = (item){(ND), (NN), (HH), (BB), (WHO), head[first_]};                      \
+        head[first_] = nit++;                                                                  \
+    } while (0)
+    for (i64 q = 0; q < nrw; q++) {
+        i64 r = rws[q], nn, m = 0;
+        i64 *nd = item_i64(rnodes, r, "rnodes", &nn);
+        if (!nd) {
+            err = 1;
+            goto done;
+        }
+        for (i64 t = 0; t < nn; t++) {
+            if (nd[t] < 0 || nd[t] >= N) {
+                PyErr_SetString(PyExc_IndexError, "rnodes: node out of range");
+                err = 1;
+                goto done;
+            }
+            m += dof[nd[t]];
+        }
+        double *H = item_f64(rH, r, "rH", m * m), *b = H ? item_f64(rb, r, "rb", m) : NULL;
+        if (!b) {
+            err = 1;
+            goto done;
+        }
+        if (nn) PUT(nd, nn, H, b, -1);
+    }
+    for (i64 q = 0; q < nor; q++) {
+        i64 o = orph[q], nn, m = 0;
+        i64 *nd = item_i64(Lsep, o, "sep", &nn);
+        if (!nd) {
+            err = 1;
+            goto done;
+        }
+        for (i64 t = 0; t < nn; t++) m += dof[nd[t]];
+        double *H = item_f64(LHs, o, "Hs", m * m), *b = H ? item_f64(Lbs, o, "bs", m) : NULL;
+        if (!b) {
+            err = 1;
+            goto done;
+        }
+        if (nn) PUT(nd, nn, H, b, o);
+    }
+    for (i64 q = 0; q < no; q++) {
+        i64 j = order[q], ns = 0;
+        /* the front: j and the union of its items' nodes, by pos */
+        loc[j] = -2;
+        for (i64 it = head[j]; it >= 0; it = items[it].next)
+            for (i64 t = 0; t < items[it].nn; t++) {
+                i64 n = items[it].nodes[t];
+                if (loc[n] == -1) {
+                    loc[n] = -2;
+                    sepb[ns++] = n;
+                }
+            }
+        for (i64 a = 1; a < ns; a++) { /* insertion sort by pos */
+            i64 v = sepb[a], pv = pos[v], b = a - 1;
+            while (b >= 0 && pos[sepb[b]] > pv) {
+                sepb[b + 1] = sepb[b];
+                b--;
+            }
+            sepb[b + 1] = v;
+        }
+        /* fnodes: the front's nodes, j first (sepb shifted by one) */
+        for (i64 a = ns; a > 0; a--) sepb[a] = sepb[a - 1];
+        sepb[0] = j;
+        i64 nf = ns + 1, w = 0;
+        for (i64 a = 0; a < nf; a++) {
+            loc[sepb[a]] = w;
+            w += dof[sepb[a]];
+        }
+        if (w * w + w > fcap) {
+            free(F);
+            fcap = 2 * (w * w + w);
+            F = malloc((size_t)fcap * sizeof(double));
+            if (!F) {
+                err = 1;
+                goto done;
+            }
+        }
+        g = F + w * w;
+        for (i64 r = 0; r < w; r++) /* the lower triangle only is used */
+            memset(F + r * w, 0, (size_t)(r + 1) * sizeof(double));
+        memset(g, 0, (size_t)w * sizeof(double));
+        /* the clique: j and the nodes after it in the front that come next in the order and
+         * whose own items add no node (each then nested in the next: one dense front) */
+        i64 k = 1;
+        while (k < nf && q + k < no && order[q + k] == sepb[k]) {
+            int inside = 1;
+            for (i64 it = head[sepb[k]]; it >= 0 && inside; it = items[it].next)
+                for (i64 t = 0; t < items[it].nn; t++)
+                    if (loc[items[it].nodes[t]] < 0) {
+                        inside = 0;
+                        break;
+                    }
+            if (!inside) break;
+            k++;
+        }
+        for (i64 f = 0; f < k; f++) {
+            i64 nd = sepb[f];
+            child[nd] = -1;
+            for (i64 it = head[nd]; it >= 0; it = items[it].next) {
+                const item *E = &items[it];
+                i64 m = 0;
+                for (i64 t = 0; t < E->nn; t++) {
+                    io[t] = m;
+                    m += dof[E->nodes[t]];
+                }
+                for (i64 a = 0; a < E->nn; a++) {
+                    i64 na = E->nodes[a], da = dof[na], la = loc[na];
+                    for (i64 r = 0; r < da; r++) {
+                        double *Fr = F + (la + r) * w;
+                        const double *Hr = E->H + (io[a] + r) * m;
+                        for (i64 bb = 0; bb < E->nn; bb++) {
+                            i64 nb = E->nodes[bb], lb = loc[nb];
+                            if (lb > la) continue; /* the upper triangle */
+                            i64 db = lb == la ? r + 1 : dof[nb];
+                            double *dst = Fr + lb;
+                            const double *src = Hr + io[bb];
+                            for (i64 t = 0; t < db; t++) dst[t] += src[t];
+                        }
+                        g[la + r] += E->b[io[a] + r];
+                    }
+                }
+                if (E->who >= 0) { /* a subtree hangs from nd */
+                    parent[E->who] = nd;
+                    sib[E->who] = child[nd];
+                    child[nd] = E->who;
+                }
+            }
+        }
+        /* the partial Cholesky of the K frontal columns, on a column-major copy P (column c
+         * at P + c w, rows 0 .. w): right-looking, contiguous column updates (as _chol.c's
+         * small panels); then F_22 -= L21 L21^T row by row, y = L11^-1 g_1 (in g),
+         * g_2 -= L21 y */
+        i64 K = loc[sepb[k - 1]] + dof[sepb[k - 1]], s = w - K;
+        if (K * w > pcap) {
+            free(P);
+            pcap = 2 * K * w;
+            P = malloc((size_t)pcap * sizeof(double));
+            if (!P) {
+                err = 1;
+                goto done;
+            }
+        }
+        for (i64 c2 = 0; c2 < K; c2++) {
+            double *Pc = P + c2 * w;
+            for (i64 a = c2; a < w; a++) Pc[a] = F[a * w + c2];
+        }
+        i64 badcol = -1;
+        for (i64 c2 = 0; c2 < K; c2++) {
+            double *Pc = P + c2 * w;
+            double dv = Pc[c2];
+            if (!(dv > 0.0)) {
+                badcol = c2;
+                break;
+            }
+            dv = sqrt(dv);
+            Pc[c2] = dv;
+            double r = 1.0 / dv;
+            for (i64 a = c2 + 1; a < w; a++) Pc[a] *= r;
+            for (i64 c3 = c2 + 1; c3 < K; c3++) {
+                double *Pd = P + c3 * w;
+                double l = Pc[c3];
+                for (i64 a = c3; a < w; a++) Pd[a] -= l * Pc[a];
+            }
+        }
+        if (badcol >= 0) {
+            for (i64 f = 0; f < k; f++)
+                if (badcol >= loc[sepb[f]] && badcol < loc[sepb[f]] + dof[sepb[f]]) bad = sepb[f];
+            for (i64 a = 0; a < nf; a++) loc[sepb[a]] = -1;
+            goto done;
+        }
+        if (g_syrk && s >= SYRK_MIN && s <= 2147483647 / (w > 0 ? w : 1)) {
+            /* F's row-major lower triangle is the column-major upper one */
+            char cU = 'U', cN = 'N';
+            int n_ = (int)s, k_ = (int)K, ld = (int)w;
+            double mone = -1.0, one = 1.0;
+            g_syrk(&cU, &cN, &n_, &k_, &mone, P + K, &ld, &one, F + K * w + K, &ld);
+        } else
+            for (i64 p = 0; p < s; p++) {
+                double *Fp = F + (K + p) * w + K;
+                for (i64 c2 = 0; c2 < K; c2++) {
+                    const double *Pc = P + c2 * w + K;
+                    double v = Pc[p];
+                    for (i64 t = 0; t <= p; t++) Fp[t] -= v * Pc[t];
+                }
+            }
+        for (i64 c2 = 0; c2 < K; c2++) {
+            const double *Pc = P + c2 * w;
+            double y = g[c2] / Pc[c2];
+            g[c2] = y;
+            for (i64 a = c2 + 1; a < w; a++) g[a] -= Pc[a] * y;
+        }
+        /* each frontal variable's conditional: Rinv = L_ii^-T, T = (its columns of L below
+         * its block)^T, c = its part of y */
+        for (i64 f = 0; f < k; f++) {
+            i64 cur = sepb[f], d = dof[cur], oi = loc[cur], si = w - oi - d, nsep = nf - f - 1;
+            if (d * d * 2 > 0) {
+                Lm = realloc(Lm, (size_t)(2 * d * d) * sizeof(double));
+                if (!Lm) {
+                    err = 1;
+                    goto done;
+                }
+                Li = Lm + d * d;
+            }
+            for (i64 a = 0; a < d; a++)
+                for (i64 bb = 0; bb < d; bb++)
+                    Lm[a * d + bb] = bb <= a ? P[(oi + bb) * w + oi + a] : 0.0;
+            for (i64 a = 0; a < d; a++) { /* Li = L^-1 (lower) by forward substitution */
+                for (i64 bb = 0; bb < d; bb++) Li[a * d + bb] = 0.0;
+                Li[a * d + a] = 1.0 / Lm[a * d + a];
+                for (i64 bb = 0; bb < a; bb++) {
+                    double v = 0.0;
+                    for (i64 t = bb; t < a; t++) v += Lm[a * d + t] * Li[t * d + bb];
+                    Li[a * d + bb] = -v / Lm[a * d + a];
+                }
+            }
+            PyObject *oR = new2(d, d), *oT = new2(d, si), *oc = new1(d, NPY_FLOAT64),
+                     *os = new1(nsep, NPY_INT64);
+            if (!oR || !oT || !oc || !os) {
+                Py_XDECREF(oR);
+                Py_XDECREF(oT);
+                Py_XDECREF(oc);
+                Py_XDECREF(os);
+                err = 1;
+                goto done;
+            }
+            double *R = PyArray_DATA((PyArrayObject *)oR),
+                   *T = PyArray_DATA((PyArrayObject *)oT),
+                   *c = PyArray_DATA((PyArrayObject *)oc);
+            i64 *sp = PyArray_DATA((PyArrayObject *)os);
+            for (i64 a = 0; a < d; a++)
+                for (i64 bb = 0; bb < d; bb++) R[a * d + bb] = Li[bb * d + a]; /* Li^T */
+            for (i64 a = 0; a < d; a++)
+                memcpy(T + a * si, P + (oi + a) * w + oi + d, (size_t)si * sizeof(double));
+            for (i64 a = 0; a < d; a++) c[a] = g[oi + a];
+            for (i64 a = 0; a < nsep; a++) sp[a] = sepb[f + 1 + a];
+            PyList_SetItem(LRinv, cur, oR); /* steals the references */
+            PyList_SetItem(LT, cur, oT);
+            PyList_SetItem(Lc, cur, oc);
+            PyList_SetItem(Lsep, cur, os);
+            loc[cur] = -1;
+            if (f + 1 < k) { /* nested in the next frontal variable */
+                i64 nx = sepb[f + 1];
+                Py_INCREF(Py_None);
+                PyList_SetItem(LHs, cur, Py_None);
+                Py_INCREF(Py_None);
+                PyList_SetItem(Lbs, cur, Py_None);
+                chain[cur] = 1;
+                parent[cur] = nx;
+                sib[cur] = child[nx];
+                child[nx] = cur;
+                continue;
+            }
+            /* the clique root keeps the Schur complement on its separator */
+            chain[cur] = 0;
+            parent[cur] = -1;
+            PyObject *oH = new2(s, s), *ob = new1(s, NPY_FLOAT64);
+            if (!oH || !ob) {
+                Py_XDECREF(oH);
+                Py_XDECREF(ob);
+                err = 1;
+                goto done;
+            }
+            double *Hs = PyArray_DATA((PyArrayObject *)oH), *bs = PyArray_DATA((PyArrayObject *)ob);
+            for (i64 p = 0; p < s; p++) {
+                const double *Fp = F + (K + p) * w + K;
+                for (i64 t = 0; t <= p; t++) Hs[p * s + t] = Hs[t * s + p] = Fp[t];
+                bs[p] = g[K + p];
+            }
+            PyList_SetItem(LHs, cur, oH);
+            PyList_SetItem(Lbs, cur, ob);
+            for (i64 a = k; a < nf; a++) loc[sepb[a]] = -1;
+            if (nsep) {
+                if (nit >= cap) {
+                    PyErr_SetString(PyExc_RuntimeError, "eliminate: item overflow");
+                    err = 1;
+                    goto done;
+                }
+                PUT(sp, nsep, Hs, bs, cur);
+            }
+        }
+        q += k - 1;
+    }
+#undef PUT
+done:
+    free(items);
+    free(head);
+    free(sepb);
+    free(io);
+    free(F);
+    free(P);
+    free(Lm);
+    if (err) {
+        if (!PyErr_Occurred()) PyErr_NoMemory();
+        return NULL;
+    }
+    return PyLong_FromLongLong((long long)bad);
+}
+
+/* ------------------------------------------------------------------ back-substitution */
+
+typedef struct {
+    double *dx;
+    const i64 *off, *dof;
+    PyObject *sep, *Rinv, *T, *c;
+    double *chg;
+    ibuf touched;
+} bctx;
+
+/* x_k = Rinv_k (c_k - T_k x_sep). keep: always keep the new value and mark k changed (a node
+ * of the re-eliminated top); else keep it and mark k changed only when a component moved by
+ * threshold or more, otherwise restore the old value (GTSAM's wildfire). -1 on error */
+static int back_one(bctx *B, i64 k, int keep, double threshold) {
+    i64 ns, d = B->dof[k];
+    i64 *sp = item_i64(B->sep, k, "sep", &ns);
+    if (!sp) return -1;
+    if (d > 64) {
+        PyErr_SetString(PyExc_ValueError, "backsubstitute: a variable of more than 64 dof");
+        return -1;
+    }
+    i64 s = 0;
+    for (i64 a = 0; a < ns; a++) s += B->dof[sp[a]];
+    double *R = item_f64(B->Rinv, k, "Rinv", d * d);
+    double *T = R ? item_f64(B->T, k, "T", d * s) : NULL;
+    double *c = T ? item_f64(B->c, k, "c", d) : NULL;
+    if (!c) return -1;
+    double v[64], nw[64];
+    for (i64 a = 0; a < d; a++) v[a] = c[a];
+    i64 col = 0;
+    for (i64 a = 0; a < ns; a++) {
+        i64 n = sp[a], dn = B->dof[n];
+        const double *xs = B->dx + B->off[n];
+        for (i64 r = 0; r < dn; r++, col++) {
+            double x = xs[r];
+            for (i64 i = 0; i < d; i++) v[i] -= T[i * s + col] * x;
+        }
+    }
+    double big = 0.0, *xk = B->dx + B->off[k];
+    for (i64 i = 0; i < d; i++) {
+        double t = 0.0;
+        for (i64 a = 0; a < d; a++) t += R[i * d + a] * v[a];
+        nw[i] = t;
+        double e = fabs(t - xk[i]);
+        if (e > big || e != e) big = e;
+    }
+    if (!keep && !(big >= threshold)) return 0; /* restored: not changed */
+    for (i64 i = 0; i < d; i++) xk[i] = nw[i];
+    B->chg[k] = 1.0;
+    return ipush(&B->touched, k);
+}
+
+static PyObject *backsubstitute(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 13) {
+        PyErr_SetString(PyExc_TypeError, "backsubstitute(order, orphans, dx, off, dof, sep, "
+                                         "Rinv, T, c, child, sib, wildfire, chg)");
+        return NULL;
+    }
+    i64 no, nor;
+    i64 *order = arr(args[0], NPY_INT64, "order", &no);
+    i64 *orph = order ? arr(args[1], NPY_INT64, "orphans", &nor) : NULL;
+    double *dx = orph ? arr(args[2], NPY_FLOAT64, "dx", NULL) : NULL;
+    i64 *off = dx ? arr(args[3], NPY_INT64, "off", NULL) : NULL;
+    i64 *dof = off ? arr(args[4], NPY_INT64, "dof", NULL) : NULL;
+    if (!dof) return NULL;
+    for (int k = 5; k < 9; k++)
+        if (!is_list(args[k], "sep, Rinv, T and c")) return NULL;
+    i64 *child = arr(args[9], NPY_INT64, "child", NULL);
+    i64 *sib = child ? arr(args[10], NPY_INT64, "sib", NULL) : NULL;
+    if (!sib) return NULL;
+    double wildfire = PyFloat_AsDouble(args[11]);
+    if (PyErr_Occurred()) return NULL;
+    double *chg = arr(args[12], NPY_FLOAT64, "chg", NULL);
+    if (!chg) return NULL;
+    bctx B = {dx, off, dof, args[5], args[6], args[7], args[8], chg, {0}};
+    ibuf stack = {0};
+    i64 count = 0;
+    int err = 0;
+    for (i64 q = no - 1; q >= 0 && !err; q--, count++) /* the re-eliminated: root down */
+        if (back_one(&B, order[q], 1, wildfire)) err = 1;
+    for (i64 t = 0; t < nor && !err; t++)
+        if (ipush(&stack, orph[t])) err = 1;
+    while (stack.n > 0 && !err) { /* orphan subtrees: recomputed where a separator changed */
+        i64 o = stack.p[--stack.n], ns;
+        i64 *so = item_i64(B.sep, o, "sep", &ns);
+        if (!so) {
+            err = 1;
+            break;
+        }
+        int dirty = 0;
+        for (i64 a = 0; a < ns && !dirty; a++) dirty = chg[so[a]] != 0.0;
+        if (!dirty) continue;
+        if (back_one(&B, o, 0, wildfire)) {
+            err = 1;
+            break;
+        }
+        count++;
+        for (i64 ch = child[o]; ch >= 0 && !err; ch = sib[ch])
+            if (ipush(&stack, ch)) err = 1;
+    }
+    for (i64 q = 0; q < B.touched.n; q++) chg[B.touched.p[q]] = 0.0;
+    free(B.touched.p);
+    free(stack.p);
+    if (err) {
+        if (!PyErr_Occurred()) PyErr_NoMemory();
+        return NULL;
+    }
+    return PyLong_FromLongLong((long long)count);
+}
+
+/* ------------------------------------------------------------------ ordering graph */
+
+/* the groups: the nodes of rows[q] (rnodes) and the separators of orphans[q] (sep) */
+static i64 *group_nodes(PyObject *rnodes, PyObject *sep, const i64 *rows, i64 nr,
+                        const i64 *orph, i64 q, i64 *nn) {
+    return q < nr ? item_i64(rnodes, rows[q], "rnodes", nn)
+                  : item_i64(sep, orph[q - nr], "sep", nn);
+}
+
+static PyObject *adjacency(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "adjacency(rows, orphans, rnodes, sep, loc, nb)");
+        return NULL;
+    }
+    i64 nr, no, N;
+    i64 *rows = arr(args[0], NPY_INT64, "rows", &nr);
+    i64 *orph = rows ? arr(args[1], NPY_INT64, "orphans", &no) : NULL;
+    if (!orph || !is_list(args[2], "rnodes") || !is_list(args[3], "sep")) return NULL;
+    i64 *loc = arr(args[4], NPY_INT64, "loc", &N);
+    i64 nb = PyLong_AsLongLong(args[5]);
+    if (!loc || PyErr_Occurred()) return NULL;
+    npy_intp n1 = (npy_intp)nb + 1;
+    PyObject *optr = PyArray_ZEROS(1, &n1, NPY_INT64, 0);
+    if (!optr) return NULL;
+    i64 *ptr = PyArray_DATA((PyArrayObject *)optr);
+    for (int pass = 0; pass < 2; pass++) {
+        PyObject *oind = NULL;
+        i64 *ind = NULL, *fill = NULL;
+        if (pass == 1) {
+            for (i64 k = 0; k < nb; k++) ptr[k + 1] += ptr[k];
+            npy_intp ne = (npy_intp)ptr[nb];
+            oind = PyArray_SimpleNew(1, &ne, NPY_INT64);
+            fill = malloc((size_t)(nb > 0 ? nb : 1) * sizeof(i64));
+            if (!oind || !fill) {
+                Py_XDECREF(oind);
+                free(fill);
+                Py_DECREF(optr);
+                return PyErr_NoMemory();
+            }
+            ind = PyArray_DATA((PyArrayObject *)oind);
+            memcpy(fill, ptr, (size_t)nb * sizeof(i64));
+        }
+        for (i64 q = 0; q < nr + no; q++) {
+            i64 nn;
+            i64 *nd = group_nodes(args[2], args[3], rows, nr, orph, q, &nn);
+            if (!nd) {
+                Py_XDECREF(oind);
+                free(fill);
+                Py_DECREF(optr);
+                return NULL;
+            }
+            i64 k = 0;
+            for (i64 t = 0; t < nn; t++)
+                if (nd[t] >= 0 && nd[t] < N && loc[nd[t]] >= 0 && loc[nd[t]] < nb) k++;
+            if (k < 2) continue;
+            for (i64 t = 0; t < nn; t++) {
+                if (nd[t] < 0 || nd[t] >= N) continue;
+                i64 a = loc[nd[t]];
+                if (a < 0 || a >= nb) continue;
+                if (pass == 0) {
+                    ptr[a + 1] += k - 1;
+                    continue;
+                }
+                for (i64 u = 0; u < nn; u++) {
+                    if (u == t || nd[u] < 0 || nd[u] >= N) continue;
+                    i64 b = loc[nd[u]];
+                    if (b >= 0 && b < nb) ind[fill[a]++] = b;
+                }
+            }
+        }
+        if (pass == 1) {
+            free(fill);
+            PyObject *out = PyTuple_Pack(2, optr, oind);
+            Py_DECREF(optr);
+            Py_DECREF(oind);
+            return out;
+        }
+    }
+    return NULL;
+}
+
+static PyObject *set_blas(PyObject *self, PyObject *cap) {
+    (void)self;
+    if (!PyCapsule_CheckExact(cap)) {
+        PyErr_SetString(PyExc_TypeError, "set_blas: expected the dsyrk capsule of "
+                                         "scipy.linalg.cython_blas.__pyx_capi__");
+        return NULL;
+    }
+    void *f = PyCapsule_GetPointer(cap, PyCapsule_GetName(cap));
+    if (!f) return NULL;
+    g_syrk = (syrk_t)f;
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef methods[] = {
+    {"set_blas", (PyCFunction)set_blas, METH_O,
+     "set_blas(capsule): dsyrk (scipy.linalg.cython_blas.__pyx_capi__['dsyrk']) for the "
+     "Schur complements of wide fronts"},
+    {"detach", (PyCFunction)(void (*)(void))detach, METH_FASTCALL,
+     "detach(marked, parent, child, sib, mark, rseen, node_rows, rnodes) -> (top, orphans, "
+     "rows)"},
+    {"eliminate", (PyCFunction)(void (*)(void))eliminate, METH_FASTCALL,
+     "eliminate(order, rows, orphans, rnodes, rH, rb, sep, Rinv, T, c, Hs, bs, parent, child, "
+     "sib, dof, pos, loc) -> -1, or the node whose front is not positive definite"},
+    {"backsubstitute", (PyCFunction)(void (*)(void))backsubstitute, METH_FASTCALL,
+     "backsubstitute(order, orphans, dx, off, dof, sep, Rinv, T, c, child, sib, wildfire, "
+     "chg) -> nodes computed"},
+    {"adjacency", (PyCFunction)(void (*)(void))adjacency, METH_FASTCALL,
+     "adjacency(rows, orphans, rnodes, sep, loc, nb) -> (indptr, indices): the graph of the "
+     "nodes with loc in [0, nb), an edge for two nodes of one row or orphan separator "
+     "(repeated entries kept)"},
+    {NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_incremental",
+                                    "The Bayes tree operations of IncrementalSmoother.", -1,
+                                    methods};
+
+PyMODINIT_FUNC PyInit__incremental(void) {
+    import_array();
+    return PyModule_Create(&moddef);
+}

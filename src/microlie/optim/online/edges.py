@@ -1,0 +1,160 @@
+"""Linearising many pose-graph edges of :class:`IncrementalSmoother` in one compiled call.
+
+An incremental smoother relinearises a few rows of many factor batches at a time (one batch of
+one edge per odometry step). :class:`EdgeRows` keeps the measurement and square-root
+information of every SE(2) / SE(3) :class:`~microlie.optim.BetweenFactor` row without a robust
+loss or a fixed end, and linearises any set of them in one call of the engine's compiled edge
+loop (``microlie._c._graph``: residual, right Jacobians, whitening, ``A^T A`` and ``A^T e``),
+whatever batch each came from. Other rows, or without the compiled module, take the smoother's
+NumPy path (one :meth:`~microlie.optim.Factor.evaluate` per factor batch).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ... import _fast
+from ..core.factors import BetweenFactor, Factor
+
+__all__ = ["EdgeRows"]
+
+_NAMES = {"SE2": "se2", "SE3": "se3"}
+
+
+class _Store:
+    """The edge rows of one variable handle."""
+
+    def __init__(self, fn: Any, P: int, D: int) -> None:
+        self.fn, self.P, self.D = fn, P, D
+        self.n = 0
+        self.ii = np.zeros(16, dtype=np.int64)
+        self.jj = np.zeros(16, dtype=np.int64)
+        self.Z = np.zeros((16, P))
+        self.L = np.zeros((16, D, D))
+        z = np.zeros((0, 2), dtype=np.int64)
+        self._lay: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros((0, 4), np.int64), z, z)
+
+    def layout(self, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where the kernel writes ``m`` rows: row ``q``'s ``(2 D, 2 D)`` block of ``A^T A``
+        at ``q (2 D)^2`` (blocks (i, i), (i, j), (j, i), (j, j)) and its ``A^T e`` at
+        ``q 2 D`` (kept for the largest ``m`` seen; views of it)."""
+        if m > self._lay[0].shape[0]:
+            D, W = self.D, 2 * self.D
+            k = max(m, 2 * self._lay[0].shape[0])
+            base = np.arange(k, dtype=np.int64) * (W * W)
+            self._lay = (np.ascontiguousarray(base[:, None] + np.array([0, D * W, D, D * W + D])),
+                         np.full((k, 2), W, dtype=np.int64),
+                         np.ascontiguousarray((np.arange(k, dtype=np.int64) * W)[:, None]
+                                              + np.array([0, D])))
+        return self._lay[0][:m], self._lay[1][:m], self._lay[2][:m]
+
+    def add(self, ii: np.ndarray, jj: np.ndarray, Z: np.ndarray, L: np.ndarray) -> np.ndarray:
+        m = ii.size
+        while self.n + m > self.ii.size:
+            for name in ("ii", "jj", "Z", "L"):
+                a = getattr(self, name)
+                setattr(self, name, np.concatenate([a, np.zeros_like(a)]))
+        sl = np.arange(self.n, self.n + m)
+        self.ii[sl], self.jj[sl], self.Z[sl], self.L[sl] = ii, jj, Z, L
+        self.n += m
+        return sl
+
+
+class EdgeRows:
+    """The compiled linearisation of pose-graph edge rows (see the module docstring).
+
+    Parameters
+    ----------
+    compiled : bool, optional
+        Use ``microlie._c._graph`` (default: when it is built and ``MICROLIE_FAST`` is not 0);
+        ``False``: every row takes the NumPy path.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, BetweenFactor, Diagonal
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(3))
+    >>> f = BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0, 0]), Diagonal([0.5, 0.5, 0.5]))
+    >>> e = EdgeRows()
+    >>> e.add(f, np.array([10, 11]))
+    >>> rows, H, b = e.linearize(np.array([11, 3]), [x.initial])
+    >>> rows.tolist() == ([11] if e.module is not None else [])
+    True
+    """
+
+    def __init__(self, compiled: bool | None = None) -> None:
+        mod = _fast.module("_graph")
+        self.module: Any = mod if (compiled is None or compiled) else None
+        self._stores: dict[int, _Store] = {}
+        self._key = np.full(16, -1, dtype=np.int64)   # per row id: the handle, -1: NumPy path
+        self._slot = np.zeros(16, dtype=np.int64)
+
+    def add(self, f: Factor, rows: np.ndarray) -> None:
+        """Register the rows ``rows`` (ids, one per factor of ``f``) of the batch ``f``: kept
+        when ``f`` is an SE(2) / SE(3) BetweenFactor without a loss or a fixed end."""
+        rows = np.asarray(rows, dtype=np.int64)
+        if rows.size and rows.max() >= self._key.size:
+            grow = max(int(rows.max()) + 1, 2 * self._key.size)
+            self._key = np.concatenate([self._key, np.full(grow - self._key.size, -1,
+                                                           dtype=np.int64)])
+            self._slot = np.concatenate([self._slot, np.zeros(grow - self._slot.size,
+                                                              dtype=np.int64)])
+        if self.module is None or type(f) is not BetweenFactor or f.loss is not None:
+            return
+        (var, ii), (_, jj) = f.args
+        name = _NAMES.get(var.group.__name__)
+        if name is None or var.fixed[ii].any() or var.fixed[jj].any():
+            return
+        fn = getattr(self.module, f"{name}_between_normal", None)
+        if fn is None:
+            return
+        store = self._stores.get(var.key)
+        if store is None:
+            store = self._stores[var.key] = _Store(fn, var.initial.shape[-1], var.dof)
+        D = var.dof
+        L = np.broadcast_to(f.noise.sqrt_info, (f.count, D, D))
+        Z = np.asarray(var.params_of(f.Z), dtype=np.float64).reshape(f.count, -1)
+        self._slot[rows] = store.add(ii, jj, Z, L)
+        self._key[rows] = var.key
+
+    def linearize(self, rows: np.ndarray, lin: list[np.ndarray]
+                  ) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+        """Linearise the kept rows among ``rows`` at the parameters ``lin`` (per handle key).
+
+        Returns
+        -------
+        done : numpy.ndarray
+            The row ids linearised here (the others take the NumPy path).
+        H, b : list of numpy.ndarray
+            Per row of ``done``: ``A^T A`` ``(2 D, 2 D)`` and ``-A^T e`` ``(2 D,)`` over its
+            two ends (first, second).
+        """
+        rows = np.asarray(rows, dtype=np.int64)
+        keys = self._key[rows]
+        done: list[np.ndarray] = []
+        Hs: list[np.ndarray] = []
+        bs: list[np.ndarray] = []
+        for key, store in self._stores.items():
+            sel = rows[keys == key]
+            if sel.size == 0:
+                continue
+            sl = self._slot[sel]
+            m, D = sel.size, store.D
+            W = 2 * D
+            starts, lens, goff = store.layout(m)
+            data = np.zeros(m * W * W)
+            grad = np.zeros(m * W)
+            s = np.empty(m)
+            X = np.ascontiguousarray(lin[key], dtype=np.float64)
+            store.fn(X, store.ii[sl], store.jj[sl], store.Z[sl], store.L[sl], None, starts,
+                     lens, goff, s, data, grad)
+            np.negative(grad, out=grad)
+            Hs.extend(data.reshape(m, W, W))
+            bs.extend(grad.reshape(m, W))
+            done.append(sel)
+        out = np.concatenate(done) if done else np.zeros(0, dtype=np.int64)
+        return out, Hs, bs
