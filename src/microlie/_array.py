@@ -328,35 +328,125 @@ def components(x: Array) -> list[Array]:
     return [x[..., i] for i in range(x.shape[-1])]
 
 
+def values_known(x: Array) -> bool:
+    """Whether the values of ``x`` can be read for a check (the rule of :func:`check_finite`):
+    not for a JAX tracer, a tensor while ``torch.compile`` traces, a tensor that a
+    ``torch.func`` transform wraps (its inputs and what is computed from them), nor a tensor on
+    the ``meta`` device (it has no values)."""
+    if type(x) is np.ndarray:
+        return True
+    if is_torch(x):
+        return not (_torch_compiling(x) or _functorch_wrapped(x) or x.device.type == "meta")
+    if is_jax(x):
+        return not is_traced(x)
+    return True
+
+
 def host_values(x: Array) -> np.ndarray | None:
-    """The values of ``x`` as a NumPy array, or ``None`` when they are unknown (a JAX tracer, a
-    tensor under ``torch.compile`` or inside a ``torch.func`` transform). Never forces a traced
-    value: a concrete JAX array closed over by a jitted function is read on the host, not
-    through a (traced) JAX operation. Torch tensors are detached first. For value checks only."""
+    """The values of ``x`` as a NumPy array, or ``None`` when they are unknown (see
+    :func:`values_known`, and inside a ``torch.func`` transform, where a tensor's memory cannot
+    be read). Never forces a traced value: a concrete JAX array closed over by a jitted
+    function is read on the host, not through a (traced) JAX operation. Arrays in CPU memory
+    are viewed, not copied; arrays on another device (a GPU) are copied to the host, so the
+    checks of every operation use :func:`all_finite` and :func:`max_abs` instead, which reduce
+    on the device. For value checks only."""
     if type(x) is np.ndarray:
         return x
+    if not values_known(x):
+        return None
     if is_torch(x):
-        if _torch_compiling(x) or _functorch_wrapped(x):  # compile, torch.func transforms
-            return None
-        return x.detach().cpu().numpy()
-    if is_jax(x):
-        return None if is_traced(x) else np.asarray(x)
+        if _in_functorch():
+            return None  # detach() would wrap it: no memory to read
+        d = x.detach()
+        return d.numpy() if d.device.type == "cpu" and d.layout == _strided() else \
+            d.cpu().to_dense().numpy()
     return np.asarray(x)
 
 
-def check_finite(x: Array, what: str) -> None:
-    """Raise ``ValueError`` if ``x`` holds NaN or inf (skipped for traced values)."""
-    v = host_values(x)
-    if v is None:
-        return
+def _on_host(x: Array) -> bool:
+    """``x`` (torch or JAX, values known) lives in CPU memory that NumPy can view."""
+    if is_torch(x):
+        return x.device.type == "cpu" and x.layout == _strided() and not _in_functorch()
+    try:
+        return all(d.platform == "cpu" for d in x.devices())
+    except AttributeError:
+        return True
+
+
+def reduce_values(x: Array, fn: Any) -> float | None:
+    """``fn(xp, v)``, a reduction of the values ``v`` of ``x`` to one number in the namespace
+    ``xp``, as a Python float; ``None`` when the values are unknown (see
+    :func:`values_known`). Arrays in CPU memory (NumPy, and torch and JAX arrays there) are
+    viewed as NumPy, not copied; arrays on another device are reduced there, with one
+    synchronisation (torch without autograd; JAX eagerly, also inside ``jax.jit`` for a
+    concrete array it closes over: never a traced value)."""
+    if type(x) is np.ndarray:
+        return float(fn(np, x))
+    if not values_known(x):
+        return None
+    if _on_host(x):
+        v = host_values(x)
+        assert v is not None
+        return float(fn(np, v))
+    xp = namespace(x)
+    if is_torch(x):
+        import torch
+
+        with torch.no_grad():
+            return float(fn(xp, x))
+    import jax
+
+    with jax.ensure_compile_time_eval():
+        return float(fn(xp, x))
+
+
+def all_finite(x: Array) -> bool | None:
+    """Whether every value of ``x`` is finite; ``None`` when the values are unknown. As
+    :func:`reduce_values`: on the host for arrays in CPU memory, else one sum on the device
+    (the exact test runs only when the sum is not finite)."""
+    if type(x) is not np.ndarray:
+        if math.prod(x.shape) == 0:
+            return True
+        s = reduce_values(x, _sum)
+        if s is None or math.isfinite(s):
+            return None if s is None else True
+        return reduce_values(x, _all_finite) == 1.0
+    return _np_finite(x)
+
+
+def _sum(xp: Any, v: Array) -> Array:
+    return xp.sum(v)
+
+
+def _all_finite(xp: Any, v: Array) -> Array:
+    return xp.all(xp.isfinite(v))
+
+
+def _np_finite(v: np.ndarray) -> bool:
     # one sum: NaN/inf make it non-finite (so can overflow of huge values, in which case the
     # exact test decides). Not a BLAS call: no thread wake-up, no copy of a slice.
     if v.ndim == 1 and v.size <= 16:  # one element: a Python sum is the cheapest test
-        bad = not math.isfinite(sum(v.tolist())) and not np.isfinite(v).all()
-    else:
-        bad = bool(v.size) and not math.isfinite(np.add.reduce(v, axis=None)) \
-            and not np.isfinite(v).all()
-    if bad:
+        return math.isfinite(sum(v.tolist())) or bool(np.isfinite(v).all())
+    return not v.size or math.isfinite(np.add.reduce(v, axis=None)) \
+        or bool(np.isfinite(v).all())
+
+
+def max_abs(x: Array) -> float | None:
+    """``max |x|`` over every value (0.0 for an empty array; NaN if a value is NaN), or
+    ``None`` when the values are unknown; computed as :func:`reduce_values` says."""
+    if math.prod(x.shape) == 0:
+        return 0.0
+    return reduce_values(x, _max_abs)
+
+
+def _max_abs(xp: Any, v: Array) -> Array:
+    return xp.max(xp.abs(v))
+
+
+def check_finite(x: Array, what: str) -> None:
+    """Raise ``ValueError`` if ``x`` holds NaN or inf (skipped when its values are unknown:
+    see :func:`values_known`; on the array's device, see :func:`all_finite`)."""
+    if not (_np_finite(x) if type(x) is np.ndarray else all_finite(x) is not False):
         raise ValueError(f"{what} contains NaN or infinite values")
 
 
@@ -412,6 +502,20 @@ def _functorch_wrapped(x: Array) -> bool:
     import torch
 
     return bool(torch._C._functorch.is_functorch_wrapped_tensor(x))
+
+
+def _in_functorch() -> bool:
+    """True inside a ``torch.func`` transform (even a tensor it does not wrap cannot then be
+    viewed as NumPy: ``detach`` wraps it)."""
+    import torch
+
+    return torch._C._functorch.maybe_current_level() is not None
+
+
+def _strided() -> Any:
+    import torch
+
+    return torch.strided
 
 
 def floats_like(values: Any, like: Array) -> Array:
