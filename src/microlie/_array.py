@@ -328,18 +328,39 @@ def components(x: Array) -> list[Array]:
     return [x[..., i] for i in range(x.shape[-1])]
 
 
+_UNKNOWN, _HOST, _DEVICE = 0, 1, 2
+
+
+def _where(x: Array) -> int:
+    """Where the values of a torch or JAX array ``x`` can be read: ``_UNKNOWN`` (see
+    :func:`values_known`), ``_HOST`` (CPU memory that NumPy can view without a copy; not inside
+    a ``torch.func`` transform, where ``detach`` wraps even a tensor it does not) or
+    ``_DEVICE`` (another device, or inside a transform: reduce in the array's namespace)."""
+    torch = sys.modules.get("torch")
+    if torch is not None and isinstance(x, torch.Tensor):
+        fc = torch._C._functorch
+        if torch.compiler.is_compiling() or fc.is_functorch_wrapped_tensor(x):
+            return _UNKNOWN
+        dev = x.device.type
+        if dev == "cpu" and x.layout is torch.strided and fc.maybe_current_level() is None:
+            return _HOST
+        return _UNKNOWN if dev == "meta" else _DEVICE
+    if is_jax(x):
+        if is_traced(x):
+            return _UNKNOWN
+        try:
+            return _HOST if all(d.platform == "cpu" for d in x.devices()) else _DEVICE
+        except AttributeError:
+            return _HOST
+    return _HOST
+
+
 def values_known(x: Array) -> bool:
     """Whether the values of ``x`` can be read for a check (the rule of :func:`check_finite`):
     not for a JAX tracer, a tensor while ``torch.compile`` traces, a tensor that a
     ``torch.func`` transform wraps (its inputs and what is computed from them), nor a tensor on
     the ``meta`` device (it has no values)."""
-    if type(x) is np.ndarray:
-        return True
-    if is_torch(x):
-        return not (_torch_compiling(x) or _functorch_wrapped(x) or x.device.type == "meta")
-    if is_jax(x):
-        return not is_traced(x)
-    return True
+    return type(x) is np.ndarray or _where(x) != _UNKNOWN
 
 
 def host_values(x: Array) -> np.ndarray | None:
@@ -352,25 +373,17 @@ def host_values(x: Array) -> np.ndarray | None:
     on the device. For value checks only."""
     if type(x) is np.ndarray:
         return x
-    if not values_known(x):
-        return None
-    if is_torch(x):
-        if _in_functorch():
-            return None  # detach() would wrap it: no memory to read
-        d = x.detach()
-        return d.numpy() if d.device.type == "cpu" and d.layout == _strided() else \
-            d.cpu().to_dense().numpy()
-    return np.asarray(x)
+    w = _where(x)
+    if w == _HOST:
+        return _view(x)
+    if w == _UNKNOWN or (is_torch(x) and _in_functorch()):
+        return None  # inside a transform detach() would wrap it: no memory to read
+    return x.detach().cpu().to_dense().numpy() if is_torch(x) else np.asarray(x)
 
 
-def _on_host(x: Array) -> bool:
-    """``x`` (torch or JAX, values known) lives in CPU memory that NumPy can view."""
-    if is_torch(x):
-        return x.device.type == "cpu" and x.layout == _strided() and not _in_functorch()
-    try:
-        return all(d.platform == "cpu" for d in x.devices())
-    except AttributeError:
-        return True
+def _view(x: Array) -> np.ndarray:
+    """The NumPy view of an array in CPU memory (``_where(x) == _HOST``)."""
+    return x.detach().numpy() if is_torch(x) else np.asarray(x)
 
 
 def reduce_values(x: Array, fn: Any) -> float | None:
@@ -382,12 +395,11 @@ def reduce_values(x: Array, fn: Any) -> float | None:
     concrete array it closes over: never a traced value)."""
     if type(x) is np.ndarray:
         return float(fn(np, x))
-    if not values_known(x):
+    w = _where(x)
+    if w == _HOST:
+        return float(fn(np, _view(x)))
+    if w == _UNKNOWN:
         return None
-    if _on_host(x):
-        v = host_values(x)
-        assert v is not None
-        return float(fn(np, v))
     xp = namespace(x)
     if is_torch(x):
         import torch
@@ -405,12 +417,15 @@ def all_finite(x: Array) -> bool | None:
     :func:`reduce_values`: on the host for arrays in CPU memory, else one sum on the device
     (the exact test runs only when the sum is not finite)."""
     if type(x) is not np.ndarray:
-        if math.prod(x.shape) == 0:
-            return True
-        s = reduce_values(x, _sum)
-        if s is None or math.isfinite(s):
-            return None if s is None else True
-        return reduce_values(x, _all_finite) == 1.0
+        w = _where(x)
+        if w == _UNKNOWN:
+            return None
+        if w == _DEVICE:
+            if math.prod(x.shape) == 0:
+                return True
+            s = reduce_values(x, _sum)
+            return True if s is None or math.isfinite(s) else reduce_values(x, _all_finite) == 1
+        x = _view(x)
     return _np_finite(x)
 
 
@@ -510,12 +525,6 @@ def _in_functorch() -> bool:
     import torch
 
     return torch._C._functorch.maybe_current_level() is not None
-
-
-def _strided() -> Any:
-    import torch
-
-    return torch.strided
 
 
 def floats_like(values: Any, like: Array) -> Array:
