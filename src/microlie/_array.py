@@ -328,35 +328,140 @@ def components(x: Array) -> list[Array]:
     return [x[..., i] for i in range(x.shape[-1])]
 
 
+_UNKNOWN, _HOST, _DEVICE = 0, 1, 2
+
+
+def _where(x: Array) -> int:
+    """Where the values of a torch or JAX array ``x`` can be read: ``_UNKNOWN`` (see
+    :func:`values_known`), ``_HOST`` (CPU memory that NumPy can view without a copy; not inside
+    a ``torch.func`` transform, where ``detach`` wraps even a tensor it does not) or
+    ``_DEVICE`` (another device, or inside a transform: reduce in the array's namespace)."""
+    torch = sys.modules.get("torch")
+    if torch is not None and isinstance(x, torch.Tensor):
+        fc = torch._C._functorch
+        if torch.compiler.is_compiling() or fc.is_functorch_wrapped_tensor(x):
+            return _UNKNOWN
+        dev = x.device.type
+        if dev == "cpu" and x.layout is torch.strided and fc.maybe_current_level() is None:
+            return _HOST
+        return _UNKNOWN if dev == "meta" else _DEVICE
+    if is_jax(x):
+        if is_traced(x):
+            return _UNKNOWN
+        try:
+            return _HOST if all(d.platform == "cpu" for d in x.devices()) else _DEVICE
+        except AttributeError:
+            return _HOST
+    return _HOST
+
+
+def values_known(x: Array) -> bool:
+    """Whether the values of ``x`` can be read for a check (the rule of :func:`check_finite`):
+    not for a JAX tracer, a tensor while ``torch.compile`` traces, a tensor that a
+    ``torch.func`` transform wraps (its inputs and what is computed from them), nor a tensor on
+    the ``meta`` device (it has no values)."""
+    return type(x) is np.ndarray or _where(x) != _UNKNOWN
+
+
 def host_values(x: Array) -> np.ndarray | None:
-    """The values of ``x`` as a NumPy array, or ``None`` when they are unknown (a JAX tracer, a
-    tensor under ``torch.compile`` or inside a ``torch.func`` transform). Never forces a traced
-    value: a concrete JAX array closed over by a jitted function is read on the host, not
-    through a (traced) JAX operation. Torch tensors are detached first. For value checks only."""
+    """The values of ``x`` as a NumPy array, or ``None`` when they are unknown (see
+    :func:`values_known`, and inside a ``torch.func`` transform, where a tensor's memory cannot
+    be read). Never forces a traced value: a concrete JAX array closed over by a jitted
+    function is read on the host, not through a (traced) JAX operation. Arrays in CPU memory
+    are viewed, not copied; arrays on another device (a GPU) are copied to the host, so the
+    checks of every operation use :func:`all_finite` and :func:`max_abs` instead, which reduce
+    on the device. For value checks only."""
     if type(x) is np.ndarray:
         return x
+    w = _where(x)
+    if w == _HOST:
+        return _view(x)
+    if w == _UNKNOWN or (is_torch(x) and _in_functorch()):
+        return None  # inside a transform detach() would wrap it: no memory to read
+    return x.detach().cpu().to_dense().numpy() if is_torch(x) else np.asarray(x)
+
+
+def _view(x: Array) -> np.ndarray:
+    """The NumPy view of an array in CPU memory (``_where(x) == _HOST``)."""
+    return x.detach().numpy() if is_torch(x) else np.asarray(x)
+
+
+def reduce_values(x: Array, fn: Any) -> float | None:
+    """``fn(xp, v)``, a reduction of the values ``v`` of ``x`` to one number in the namespace
+    ``xp``, as a Python float; ``None`` when the values are unknown (see
+    :func:`values_known`). Arrays in CPU memory (NumPy, and torch and JAX arrays there) are
+    viewed as NumPy, not copied; arrays on another device are reduced there, with one
+    synchronisation (torch without autograd; JAX eagerly, also inside ``jax.jit`` for a
+    concrete array it closes over: never a traced value)."""
+    if type(x) is np.ndarray:
+        return float(fn(np, x))
+    w = _where(x)
+    if w == _HOST:
+        return float(fn(np, _view(x)))
+    if w == _UNKNOWN:
+        return None
+    xp = namespace(x)
     if is_torch(x):
-        if _torch_compiling(x) or _functorch_wrapped(x):  # compile, torch.func transforms
+        import torch
+
+        with torch.no_grad():
+            return float(fn(xp, x))
+    import jax
+
+    with jax.ensure_compile_time_eval():
+        return float(fn(xp, x))
+
+
+def all_finite(x: Array) -> bool | None:
+    """Whether every value of ``x`` is finite; ``None`` when the values are unknown. As
+    :func:`reduce_values`: on the host for arrays in CPU memory, else one sum on the device
+    (the exact test runs only when the sum is not finite)."""
+    if type(x) is not np.ndarray:
+        w = _where(x)
+        if w == _UNKNOWN:
             return None
-        return x.detach().cpu().numpy()
-    if is_jax(x):
-        return None if is_traced(x) else np.asarray(x)
-    return np.asarray(x)
+        if w == _DEVICE:
+            if math.prod(x.shape) == 0:
+                return True
+            s = reduce_values(x, _sum)
+            return True if s is None or math.isfinite(s) else reduce_values(x, _all_finite) == 1
+        x = _view(x)
+    return _np_finite(x)
 
 
-def check_finite(x: Array, what: str) -> None:
-    """Raise ``ValueError`` if ``x`` holds NaN or inf (skipped for traced values)."""
-    v = host_values(x)
-    if v is None:
-        return
+def _sum(xp: Any, v: Array) -> Array:
+    return xp.sum(v)
+
+
+def _all_finite(xp: Any, v: Array) -> Array:
+    return xp.all(xp.isfinite(v))
+
+
+def _np_finite(v: np.ndarray) -> bool:
     # one sum: NaN/inf make it non-finite (so can overflow of huge values, in which case the
     # exact test decides). Not a BLAS call: no thread wake-up, no copy of a slice.
     if v.ndim == 1 and v.size <= 16:  # one element: a Python sum is the cheapest test
-        bad = not math.isfinite(sum(v.tolist())) and not np.isfinite(v).all()
-    else:
-        bad = bool(v.size) and not math.isfinite(np.add.reduce(v, axis=None)) \
-            and not np.isfinite(v).all()
-    if bad:
+        return math.isfinite(sum(v.tolist())) or bool(np.isfinite(v).all())
+    return not v.size or math.isfinite(np.add.reduce(v, axis=None)) \
+        or bool(np.isfinite(v).all())
+
+
+def max_abs(x: Array) -> float | None:
+    """``max |x|`` over every value (0.0 for an empty array; NaN if a value is NaN), or
+    ``None`` when the values are unknown; computed as :func:`reduce_values` says."""
+    if math.prod(x.shape) == 0:
+        return 0.0
+    return reduce_values(x, _max_abs)
+
+
+def _max_abs(xp: Any, v: Array) -> Array:
+    return xp.max(xp.abs(v))
+
+
+def check_finite(x: Array, what: str) -> None:
+    """Raise ``ValueError`` if ``x`` holds NaN or inf (skipped when its values are unknown:
+    see :func:`values_known`; on the array's device, see :func:`all_finite`)."""
+    if not (_np_finite(x) if type(x) is np.ndarray else all_finite(x) is not False):
         raise ValueError(f"{what} contains NaN or infinite values")
 
 
@@ -412,6 +517,14 @@ def _functorch_wrapped(x: Array) -> bool:
     import torch
 
     return bool(torch._C._functorch.is_functorch_wrapped_tensor(x))
+
+
+def _in_functorch() -> bool:
+    """True inside a ``torch.func`` transform (even a tensor it does not wrap cannot then be
+    viewed as NumPy: ``detach`` wraps it)."""
+    import torch
+
+    return torch._C._functorch.maybe_current_level() is not None
 
 
 def floats_like(values: Any, like: Array) -> Array:

@@ -9,8 +9,10 @@ right perturbations of argument ``k``, zero), ``params[k]`` and ``data[j]``. Its
 differentiated with respect to the deltas at zero:
 
 * ``"jax"``: ``f`` sees the rows of one residual (it is ``jax.vmap``-ed over the batch and
-  ``jax.jit``-ted once); it returns ``dim`` values. Enables float64 in JAX
-  (``jax_enable_x64``), which the solver needs.
+  ``jax.jit``-ted once); it returns ``dim`` values. Needs float64 in JAX (the solver works in
+  float64): :func:`check_backend` raises ``ValueError`` when ``jax_enable_x64`` is off.
+  microlie never changes that process-wide setting; the program enables it, at its start:
+  ``jax.config.update("jax_enable_x64", True)``.
 * ``"torch"``: ``f`` sees the whole batch (float64 CPU tensors) and returns ``(count, dim)``
   residuals; row ``m`` must depend on row ``m`` of the inputs only (one backward pass per
   residual component then gives every row's Jacobian).
@@ -31,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["residual_jacobians", "BACKENDS"]
+__all__ = ["residual_jacobians", "check_backend", "BACKENDS"]
 
 BACKENDS = ("jax", "torch")
 
@@ -76,11 +78,39 @@ def residual_jacobians(backend: str, f: Callable[..., Any], dofs: Sequence[int],
                      f"got {backend!r}")
 
 
+def check_backend(backend: str, what: str) -> None:
+    """Raise ``ValueError`` when ``backend`` cannot give the solver float64 Jacobians: JAX with
+    ``jax_enable_x64`` off (its arrays are then float32, and Jacobians would keep about 7
+    digits). microlie does not switch that process-wide flag: the program does, at its start.
+
+    Parameters
+    ----------
+    backend : {"jax", "torch"}
+        The automatic differentiation backend.
+    what : str
+        Who needs it, for the message.
+
+    Examples
+    --------
+    >>> from microlie._autodiff import check_backend
+    >>> check_backend("torch", "CustomFactor(jac='torch')")  # float64 tensors: always
+    """
+    if backend != "jax":
+        return
+    import jax
+
+    if not jax.config.read("jax_enable_x64"):
+        raise ValueError(
+            f"{what} needs JAX in float64, and jax_enable_x64 is off: enable it at the start "
+            "of the program, jax.config.update('jax_enable_x64', True) (microlie does not "
+            "change this process-wide setting)")
+
+
 def _jax(f: Callable[..., Any], dofs: Sequence[int], count: int, dim: int) -> Run:
     import jax
     import jax.numpy as jnp
 
-    jax.config.update("jax_enable_x64", True)
+    check_backend("jax", "automatic differentiation by JAX")
 
     def single(deltas, params, data):
         return jnp.asarray(f(deltas, params, data)).reshape(dim)

@@ -196,16 +196,11 @@ def readonly(a: Array) -> Array:
 
 
 def concrete(a: Array) -> np.ndarray | None:
-    """The values of ``a`` as a NumPy array, or ``None`` when they are not known (a JAX tracer,
-    a tensor under ``torch.compile``). Never forces a traced value; torch tensors are detached
-    and moved to the CPU. For value checks only."""
+    """The values of ``a`` as a NumPy array, or ``None`` when they are not known:
+    :func:`microlie._array.host_values` (which it is, for anything but NumPy-like input)."""
     if _is_np(a):
         return np.asarray(a)
-    if A.is_traced(a):
-        return None
-    if A.is_torch(a):
-        return a.detach().cpu().numpy()
-    return np.asarray(a)
+    return A.host_values(a)
 
 
 # ---------------------------------------------------------------------------- solves

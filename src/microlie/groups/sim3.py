@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 
 from .. import _array as A
-from .. import _linalg as L
 from .._array import Array
 from . import _math as M
 from . import so3
@@ -667,10 +666,10 @@ def check_sigma(tau: Array, what: str) -> None:
     if type(tau) is np.ndarray and tau.ndim == 1:
         m = abs(float(tau[6]))
     else:
-        x = L.concrete(tau[..., 6])
-        if x is None or not x.size:
+        x = A.max_abs(tau[..., 6])  # on the device; None when the values are unknown
+        if x is None:
             return
-        m = float(np.max(np.abs(x)))
+        m = x
     if not m <= SIGMA_BOUND:
         raise ValueError(f"Sim3 {what}: |sigma| = {m:.6g} exceeds SIGMA_MAX = {SIGMA_MAX:g} "
                          f"(scales beyond e^+-{SIGMA_MAX:g}), outside the verified range")

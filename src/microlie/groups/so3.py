@@ -275,18 +275,17 @@ def unit_tolerance(dtype: Any) -> float:
 def checked_unit_quat(q: Array, normalize: bool, what: str, kind: str = "quaternion") -> Array:
     """``q / |q|`` after checking that ``|q|`` is 1 within tolerance (or ``normalize``).
 
-    Also serves SO(2)'s unit complex numbers (``kind``). The check reads the values on the host
-    (:func:`microlie._array.host_values`): never on a traced value."""
+    Also serves SO(2)'s unit complex numbers (``kind``). The check reduces on the device of
+    ``q`` (one synchronisation) and is skipped when the values are unknown (a traced value,
+    see :func:`microlie._array.values_known`)."""
     xp = A.namespace(q)
     n = xp.sqrt(xp.sum(q * q, axis=-1, keepdims=True))
-    v = A.host_values(q)
-    if v is not None and v.size:
-        nv = n if type(n) is np.ndarray else np.sqrt(np.sum(v * v, axis=-1))
+    if math.prod(q.shape):
         if normalize:
-            if bool(np.any(nv == 0)):
+            if A.reduce_values(q, _min_norm2) == 0:
                 raise ValueError(f"{what}: a zero {kind} cannot be normalized")
-        else:
-            dev = float(np.max(np.abs(nv - 1.0)))
+        elif (dev := float(np.max(np.abs(n - 1.0))) if type(n) is np.ndarray
+              else A.reduce_values(q, _norm_deviation)) is not None:
             tol = unit_tolerance(q.dtype)
             if dev > tol:
                 raise ValueError(
@@ -294,6 +293,15 @@ def checked_unit_quat(q: Array, normalize: bool, what: str, kind: str = "quatern
                     "pass normalize=True to normalize it"
                 )
     return q / n
+
+
+def _min_norm2(xp: Any, q: Array) -> Array:
+    return xp.min(xp.sum(q * q, axis=-1))
+
+
+def _norm_deviation(xp: Any, q: Array) -> Array:
+    """``max | |q| - 1 |`` over the batch (a reduction for :func:`A.reduce_values`)."""
+    return xp.max(xp.abs(xp.sqrt(xp.sum(q * q, axis=-1)) - 1.0))
 
 
 _RANK_TOL = 1e-12  # second singular value below this times the first: rank < 2

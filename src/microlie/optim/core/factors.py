@@ -789,7 +789,8 @@ class CustomFactor(Factor):
           ``(m, dim, dof_k)``, right Jacobians (``d r / d delta`` for ``X_k Exp(delta)``);
         * ``"jax"`` / ``"torch"``: automatic differentiation through that backend (imported
           only then); ``fn`` must use microlie group operations or the backend's array
-          functions.
+          functions. ``"jax"`` needs ``jax_enable_x64`` on (``ValueError`` otherwise; the
+          program sets it: microlie never changes it).
     step : float
         The numerical-difference step.
     loss : str or RobustLoss, optional
@@ -820,6 +821,8 @@ class CustomFactor(Factor):
                              f"'torch', got {jac!r}")
         if not step > 0:
             raise ValueError(f"CustomFactor: step must be positive, got {step!r}")
+        if jac in _autodiff.BACKENDS:
+            _autodiff.check_backend(jac, f"CustomFactor(jac={jac!r})")
         self.fn = fn
         self.mode = jac
         self.step = float(step)
