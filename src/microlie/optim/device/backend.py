@@ -126,7 +126,10 @@ class Backend:
         a = np.asarray(x, dtype=np.int64)
         if self.name == "torch":
             return self.xp.as_tensor(a, device=self.device)
-        return self.xp.asarray(a, dtype=self.int)
+        import jax
+
+        with jax.ensure_compile_time_eval():  # a constant even when made inside a trace (the
+            return self.xp.asarray(a, dtype=self.int)  # problem caches it across traces)
 
     def zeros(self, shape: tuple[int, ...], like: Any = None) -> Any:
         """Zeros of this dtype (of ``like``'s dtype when given)."""

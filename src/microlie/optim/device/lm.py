@@ -310,7 +310,11 @@ def solve(problem: DeviceProblem, theta: Theta, x0: list[Any],
         return _try(problem, eng, opts, th, st)
 
     n_tries = opts.tries()
-    if be.name == "jax":
+    if be.name == "jax" and fixed:  # a static trip count: reverse-differentiable (unrolling)
+        from jax import lax
+
+        st = lax.fori_loop(0, n_tries, lambda _, s: body(s), st)
+    elif be.name == "jax":
         from jax import lax
 
         def cond(st: dict) -> Any:
