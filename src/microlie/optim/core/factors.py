@@ -21,9 +21,10 @@ from typing import Any, final
 import numpy as np
 
 from ... import _autodiff
+from ..._array import is_jax, is_torch
 from .noise import NoiseModel, as_noise
 from .robust import RobustLoss, make_loss
-from .variables import Values, Variables, element
+from .variables import Values, Variables, element, host_params
 
 __all__ = ["Factor", "PriorFactor", "BetweenFactor", "CustomFactor", "check_jacobians",
            "JacobianCheck"]
@@ -366,7 +367,7 @@ def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
     """``Z`` as ``m`` values of ``var``'s kind (a group batch, an ``(m, d)`` array for
     vectors)."""
     try:
-        p = np.asarray(var.params_of(Z), dtype=np.float64)
+        p = np.asarray(host_params(var.params_of(Z), var.group), dtype=np.float64)
     except TypeError:
         raise TypeError(f"{what}: measurement must be a {var.group.__name__} (batch of {m} or "
                         f"a single element), got {type(Z).__name__}") from None
@@ -377,6 +378,13 @@ def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
     if not np.all(np.isfinite(p)):
         raise ValueError(f"{what}: measurement has non-finite entries")
     return var.wrap(np.broadcast_to(p, (m, pd)).copy())
+
+
+def measurement_source(var: Variables, Z: Any) -> Any:
+    """The torch tensor or JAX array of measurement ``Z``'s parameters (kept for the device
+    engine, which solves with it and differentiates through it), or ``None``."""
+    p = var.params_of(Z)
+    return p if is_torch(p) or is_jax(p) else None
 
 
 class PriorFactor(Factor):
@@ -415,6 +423,7 @@ class PriorFactor(Factor):
                  loss: RobustLoss | str | None = None) -> None:
         super().__init__([(variables, idx)], variables.dof, noise, loss)
         self.Z = _measurement(variables, Z, self.count, self.name)
+        self.Z_source = measurement_source(variables, Z)
         self._Zinv = variables.inverse(self.Z)
 
     def residual(self, X: Any, jac: bool = False) -> Any:
@@ -495,6 +504,7 @@ class BetweenFactor(Factor):
             k = int(np.flatnonzero(same)[0])
             raise ValueError(f"BetweenFactor {k}: i == j == {int(self.args[0][1][k])}")
         self.Z = _measurement(variables, Z, self.count, self.name)
+        self.Z_source = measurement_source(variables, Z)
         # r = Log((X_i Z)^-1 X_j) = X_j (-) (X_i Z): one fused minus with its Jacobians;
         # d r / d X_i = d r / d (X_i Z) . Ad_(Z^-1), a constant of the factor
         # (None when every Ad_(Z^-1) is the identity, as in the abelian groups R(d) and SO2:

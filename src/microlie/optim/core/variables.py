@@ -7,10 +7,11 @@ from typing import Any
 
 import numpy as np
 
-from ..._array import is_jax, is_torch
+from ..._array import host_values, is_jax, is_torch
 from ...groups import LieGroup, R, VectorSpace
 
-__all__ = ["Variables", "VectorVariables", "Values", "element", "new_variables"]
+__all__ = ["Variables", "VectorVariables", "Values", "element", "host_params",
+           "new_variables"]
 
 
 def element(group: type[LieGroup], params: Any) -> LieGroup:
@@ -79,9 +80,9 @@ def new_variables(graph: Any, key: int, values: Any, name: str) -> Variables:
             raise ValueError(f"{name}: variables must be a 1-D batch of elements (n,), got "
                              f"batch shape {values.batch_shape}")
         group: type[LieGroup] = type(values)
-        p = np.array(_host(values.params), dtype=np.float64)
+        p = np.array(host_params(values.params, group), dtype=np.float64)
     else:
-        p = np.array(_host(values), dtype=np.float64)
+        p = np.array(host_params(values), dtype=np.float64)
         if p.ndim != 2 or p.shape[1] < 1:
             raise ValueError(f"{name}: vector variables must be an (n, d) array with d >= 1, "
                              f"got shape {p.shape}")
@@ -98,9 +99,39 @@ def _device_params(values: Any) -> Any:
     return p if is_torch(p) or is_jax(p) else None
 
 
-def _host(x: Any) -> Any:
-    """A NumPy-convertible view of ``x`` (a torch tensor detached and on the host)."""
-    return x.detach().cpu().numpy() if is_torch(x) else x
+def host_params(x: Any, group: Any = None) -> Any:
+    """The NumPy-convertible values of parameters ``x`` (a torch tensor detached and on the
+    host). Values unknown while a function is traced (a JAX tracer under ``jax.jit``/``grad``,
+    a tensor under ``torch.compile``) are stood in for by the identity of ``group`` (zeros for
+    vectors): the graph's NumPy copy then only carries its structure, and the solve runs on
+    the traced arrays (:mod:`microlie.optim.device`).
+
+    Parameters
+    ----------
+    x : array_like
+        ``(..., param_dim)`` parameters.
+    group : type, optional
+        Their group (``None``: vectors).
+
+    Returns
+    -------
+    array_like
+
+    Examples
+    --------
+    >>> import torch
+    >>> from microlie import SE2
+    >>> host_params(torch.ones(1, 4, requires_grad=True), SE2).tolist()
+    [[1.0, 1.0, 1.0, 1.0]]
+    """
+    if not (is_torch(x) or is_jax(x)):
+        return x
+    v = host_values(x)
+    if v is not None:
+        return v
+    one = np.zeros(x.shape[-1]) if group is None or issubclass(group, VectorSpace) else \
+        np.asarray(group.identity().params, dtype=np.float64)
+    return np.broadcast_to(one, tuple(x.shape))
 
 
 class Variables:

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._array import is_jax, is_torch
+from ..._array import is_jax, is_torch, is_traced
 
 __all__ = ["BACKENDS", "backend_of", "Backend", "make_backend"]
 
@@ -249,6 +249,6 @@ def make_backend(arrays: list[Any], dtype: str | None = None, device: Any = None
         if name == "torch":
             device = first.device
         else:
-            devs = list(getattr(first, "devices", lambda: [])())
+            devs = [] if is_traced(first) else list(getattr(first, "devices", lambda: [])())
             device = devs[0] if len(devs) == 1 else None
     return Backend(name, dtype, device)

@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["DIFFERENTIATE", "ImplicitSpec", "implicit_jax", "implicit_torch",
-           "solve_differentiable", "spec_of"]
+           "solve_differentiable", "spec_of", "traced_result"]
 
 #: the ways gradients go through a solve
 DIFFERENTIATE = ("implicit", "unroll")
@@ -424,3 +424,52 @@ def solve_differentiable(problem: Any, theta: Any, x0: list, options: Any = None
         x = [a[0] for a in x]
         info = type(info)(*(v[0] for v in info))
     return x, info
+
+
+def traced_result(problem: Any, x: list, info: Any, options: Any) -> Any:
+    """The :class:`~microlie.optim.Result` of a solve traced by ``jax.jit`` or ``jax.grad``
+    (a graph built inside the traced function): its numbers stay arrays of the trace.
+
+    Parameters
+    ----------
+    problem : DeviceProblem
+        The structure.
+    x : list of arrays
+        The solve's values.
+    info : SolveInfo
+        The solve's report (traced arrays).
+    options : LMOptions
+        The solve's options.
+
+    Returns
+    -------
+    Result
+        ``initial_cost``, ``final_cost``, ``iterations`` and ``accepted_steps`` are 0-d
+        arrays, ``converged`` a 0-d bool array, ``termination`` ``"traced"`` and ``message``
+        says where the codes are (:data:`~microlie.optim.device.lm.STATUS` in ``status``
+        of :func:`~microlie.optim.device.solve`); ``time_s`` is 0 (the solve runs later).
+
+    Examples
+    --------
+    >>> import jax, jax.numpy as jnp
+    >>> from microlie.optim import FactorGraph, PriorFactor
+    >>> def final(z):  # a graph made inside a jitted function
+    ...     g = FactorGraph()
+    ...     x = g.add_variables(jnp.zeros((1, 2), dtype=z.dtype))
+    ...     _ = g.add(PriorFactor(x, 0, z))
+    ...     res = g.optimize()
+    ...     return res.values[x][0, 0], res.converged
+    >>> v, ok = jax.jit(final)(jnp.array([[2.0, 3.0]]))
+    >>> float(v), bool(ok)
+    (2.0, True)
+    """
+    from ..core.solvers import Result
+    from ..core.variables import Values
+
+    dense = options.linear == "dense" or (options.linear == "auto" and problem.size <= 1500)
+    return Result(Values(problem.variables, x), info.initial_cost, info.cost, info.initial_cost,
+                  info.cost, info.iterations, info.status == 1,
+                  "traced by JAX: the solve's status is an array (1 converged, 2 max_iter, "
+                  "3 failure)", "traced", [], 0.0, "lm",
+                  f"{problem.backend.name}:{'dense' if dense else 'pcg'}", {},
+                  list(problem.gauge_fixed), info.iterations, None)

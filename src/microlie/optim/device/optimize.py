@@ -7,10 +7,12 @@ from typing import Any
 
 import numpy as np
 
+from ..._array import is_traced
 from ..core.solvers import Result
 from ..core.strategies import LevenbergMarquardt
 from ..core.variables import Values
-from .lm import STATUS, LMOptions, solve
+from .implicit import solve_differentiable, traced_result
+from .lm import STATUS, LMOptions
 from .problem import DeviceProblem
 
 __all__ = ["optimize_graph", "stack", "lm_options"]
@@ -88,7 +90,9 @@ def optimize_graph(graph: Any, values: Values | None = None, *, solver: Any = "l
         Graduated non-convexity is not available on devices (a ``ValueError``).
     **options
         :class:`LMOptions` fields: the tolerances, damping options, ``cg_max_iter``,
-        ``eta_max``, ``eta_min``, ``schur``.
+        ``eta_max``, ``eta_min``, ``schur``; and ``differentiate``: how gradients reach the
+        measurements and initial values given as tensors (``"implicit"``, default, or
+        ``"unroll"``, :mod:`microlie.optim.device.implicit`).
 
     Returns
     -------
@@ -114,11 +118,14 @@ def optimize_graph(graph: Any, values: Values | None = None, *, solver: Any = "l
                          "NumPy variables")
     for k in ("verbose", "blas_threads", "eliminate"):
         options.pop(k, None)
+    differentiate = options.pop("differentiate", "implicit")
     opts = lm_options(solver, linear_solver, max_iter, **options)
     t0 = time.perf_counter()
     prob = DeviceProblem.from_graph(graph, gauge=gauge)
-    x, info = solve(prob, prob.theta(), prob.initial(values), opts)
+    x, info = solve_differentiable(prob, prob.theta(), prob.initial(values), opts, differentiate)
     be = prob.backend
+    if is_traced(info.status):  # inside jax.jit / jax.grad: no values on the host
+        return traced_result(prob, x, info, opts)
     total = time.perf_counter() - t0
     status = int(be.to_numpy(info.status))
     term = STATUS[status] if status else "no_convergence"

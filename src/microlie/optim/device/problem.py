@@ -264,6 +264,9 @@ class DeviceProblem:
             if t.kind in ("prior", "between"):
                 var = f.args[0][0]
                 d["Z"] = be.asarray(np.asarray(var.params_of(f.Z), dtype=np.float64))
+                src = getattr(f, "Z_source", None)  # the caller's tensors: gradients reach them
+                if src is not None:
+                    d["Z"] = be.asarray(src) + 0.0 * d["Z"]  # broadcast to (m, param_dim)
             else:
                 d["obs"] = be.asarray(f.observations)
                 if t.info["const_K"]:
