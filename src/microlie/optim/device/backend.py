@@ -126,10 +126,7 @@ class Backend:
         a = np.asarray(x, dtype=np.int64)
         if self.name == "torch":
             return self.xp.as_tensor(a, device=self.device)
-        import jax
-
-        with jax.ensure_compile_time_eval():  # a constant even when made inside a trace (the
-            return self.xp.asarray(a, dtype=self.int)  # problem caches it across traces)
+        return a  # JAX: a NumPy constant (never a tracer, whatever trace builds it)
 
     def zeros(self, shape: tuple[int, ...], like: Any = None) -> Any:
         """Zeros of this dtype (of ``like``'s dtype when given)."""

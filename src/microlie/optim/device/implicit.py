@@ -465,8 +465,9 @@ def traced_result(problem: Any, x: list, info: Any, options: Any) -> Any:
     """
     from ..core.solvers import Result
     from ..core.variables import Values
+    from .problem import DENSE_MAX
 
-    dense = options.linear == "dense" or (options.linear == "auto" and problem.size <= 1500)
+    dense = options.linear == "dense" or (options.linear == "auto" and problem.size <= DENSE_MAX)
     return Result(Values(problem.variables, x), info.initial_cost, info.cost, info.initial_cost,
                   info.cost, info.iterations, info.status == 1,
                   "traced by JAX: the solve's status is an array (1 converged, 2 max_iter, "

@@ -21,15 +21,12 @@ from typing import Any, NamedTuple
 
 from .dense import dense_step, normal_equations
 from .pcg import block_diagonal, diagonal_of, pcg_step
-from .problem import DeviceProblem, Linear, Theta
+from .problem import DENSE_MAX, DeviceProblem, Linear, Theta
 
 __all__ = ["LMOptions", "SolveInfo", "solve", "STATUS"]
 
 #: ``SolveInfo.status`` codes: running, converged, max_iter reached, failure.
 STATUS = {0: "running", 1: "convergence", 2: "no_convergence", 3: "failure"}
-
-#: Problems up to this many unknowns take dense Cholesky steps with ``linear="auto"``.
-DENSE_MAX = 1500
 
 
 @dataclass(frozen=True)
@@ -89,8 +86,8 @@ class LMOptions:
     step_tol: float = 0.0
     linear: str = "auto"
     schur: bool = True
-    cg_max_iter: int = 500
-    eta_max: float = 0.1
+    cg_max_iter: int = 3000
+    eta_max: float = 1e-4
     eta_min: float = 1e-10
     loop: str = "auto"
     max_tries: int | None = None

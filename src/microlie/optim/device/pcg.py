@@ -123,8 +123,7 @@ def _block_inverses(problem: DeviceProblem, blocks: list[Any], damping: Any) -> 
     ext = extend(be, damping)
     B = damping.shape[0]
     one = be.zeros((B, problem.size + 1), like=damping)
-    one = add_last(be, one, be.index(np.array([problem.size])), be.full((B, 1), 1.0,
-                                                                         dtype=damping.dtype))
+    one = add_last(be, one, problem._sink, be.full((B, 1), 1.0, dtype=damping.dtype))
     ext = ext + one
     out = []
     for k, blk in enumerate(blocks):
@@ -313,11 +312,7 @@ def pcg_step(problem: DeviceProblem, lin: Linear, g: Any, blocks: list[Any], dam
     if not elim:
         dx, it = pcg(be, H, lambda v: _apply_blocks(problem, inv, v), b, eta, max_iter, fixed)
     else:
-        cm = np.ones(problem.size + 1)
-        for k in elim:
-            cm[problem.blocks[k].cols.reshape(-1)] = 0.0
-        cm[-1] = 0.0
-        mc = be.asarray(cm[:-1])          # 1 on the reduced (camera) columns
+        mc = problem._keep_mask           # 1 on the reduced (camera) columns
         mp = 1.0 - mc
         keep = [k for k in range(len(problem.blocks)) if k not in elim]
 
