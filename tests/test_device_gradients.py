@@ -10,8 +10,8 @@ perturbed on the group (``Z (+) eps``), square-root informations entry by entry.
 
 import numpy as np
 import pytest
-
 from conftest import require
+
 from microlie import SE3
 from microlie.optim import BetweenFactor, Diagonal, FactorGraph
 from microlie.optim.device import DeviceProblem, LMOptions

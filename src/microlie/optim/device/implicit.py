@@ -159,7 +159,7 @@ def _where_fixed(xp: Any, fixed: Sequence[Any], xs: Sequence[Any], x0: Sequence[
 # ---------------------------------------------------------------------------------------- JAX
 
 
-def implicit_jax(spec: ImplicitSpec) -> Callable[[Any, list], list]:
+def implicit_jax(spec: ImplicitSpec) -> Callable[[Any, list], tuple[list, Any]]:
     """``spec.solve`` with a ``jax.custom_vjp``: reverse-mode gradients by implicit
     differentiation (module docstring).
 
@@ -203,7 +203,7 @@ def implicit_jax(spec: ImplicitSpec) -> Callable[[Any, list], list]:
         return _jax_vjp(spec, x, theta, x0, list(cot[0]))
 
     f.defvjp(fwd, bwd)
-    return f
+    return f  # type: ignore[return-value]
 
 
 def _jax_vjp(spec: ImplicitSpec, x: list, theta: Any, x0: list, xbar: list) -> tuple:
@@ -238,7 +238,7 @@ def _jax_vjp(spec: ImplicitSpec, x: list, theta: Any, x0: list, xbar: list) -> t
 # -------------------------------------------------------------------------------------- torch
 
 
-def implicit_torch(spec: ImplicitSpec) -> Callable[[Any, list], list]:
+def implicit_torch(spec: ImplicitSpec) -> Callable[[Any, list], tuple[list, Any]]:
     """``spec.solve`` as a ``torch.autograd.Function``: backward by implicit differentiation
     (module docstring).
 
@@ -301,7 +301,7 @@ def implicit_torch(spec: ImplicitSpec) -> Callable[[Any, list], list]:
 
     def f(theta: Any, x0: list) -> tuple[list, Any]:
         leaves, tree = pytree.tree_flatten(theta)
-        trees = [tree, None]
+        trees: list[Any] = [tree, None]
         out = _Solve.apply(trees, len(x0), *leaves, *x0)
         return list(out[:len(x0)]), pytree.tree_unflatten(list(out[len(x0):]), trees[1])
 
