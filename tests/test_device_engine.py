@@ -7,18 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import _jax, require
 
 from microlie import SE2, SE3
-from microlie.optim import (
-    BetweenFactor,
-    CustomFactor,
-    Diagonal,
-    FactorGraph,
-    PriorFactor,
-    ReprojectionFactor,
-)
+from microlie.optim import (BetweenFactor, CustomFactor, Diagonal, FactorGraph, PriorFactor,
+                            ReprojectionFactor)
 from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
+
+from conftest import _jax, require
 
 
 def _torch():

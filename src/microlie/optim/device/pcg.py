@@ -18,6 +18,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from .problem import DeviceProblem, Linear, add_last, extend
 
 __all__ = ["block_diagonal", "diagonal_of", "pcg", "pcg_step"]
