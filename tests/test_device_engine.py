@@ -7,13 +7,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import _jax, require
 
 from microlie import SE2, SE3
-from microlie.optim import (BetweenFactor, CustomFactor, Diagonal, FactorGraph, PriorFactor,
-                            ReprojectionFactor)
+from microlie.optim import (
+    BetweenFactor,
+    CustomFactor,
+    Diagonal,
+    FactorGraph,
+    PriorFactor,
+    ReprojectionFactor,
+)
 from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
-
-from conftest import _jax, require
 
 
 def _torch():
@@ -224,3 +229,22 @@ def test_errors_name_what_is_wrong():
         LMOptions(max_iter=-1)
     with pytest.raises(ValueError, match="linear"):
         LMOptions(linear="qr")
+
+
+def test_jax_jit_batch_each_equal_to_its_numpy_solve():
+    jax = _jax()
+    import jax.numpy as jnp
+
+    from microlie.optim.device import DeviceProblem, LMOptions, solve, stack
+
+    B = 4
+    probs = [DeviceProblem.from_graph(_chain(jnp.asarray, seed=200 + b, n=6, group=SE2)[0])
+             for b in range(B)]
+    p, opts = probs[0], LMOptions()
+    fn = jax.jit(lambda th, x: solve(p, th, x, opts))
+    xs, info = fn(stack([q.theta() for q in probs]), stack([q.initial() for q in probs]))
+    for b in range(B):
+        gn, xn = _chain(None, seed=200 + b, n=6, group=SE2)
+        ref = gn.optimize()
+        assert int(info.iterations[b]) == ref.iterations and int(info.status[b]) == 1
+        assert np.abs(np.asarray(xs[0][b]) - ref.values[xn].params).max() < 1e-8

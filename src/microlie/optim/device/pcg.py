@@ -18,8 +18,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from .problem import DeviceProblem, Linear, add_last, extend
 
 __all__ = ["block_diagonal", "diagonal_of", "pcg", "pcg_step"]
@@ -178,8 +176,8 @@ def pcg(be: Any, matvec: Any, precond: Any, b: Any, eta: Any, max_iter: int,
     max_iter : int
         Iteration limit.
     fixed : bool
-        Run exactly ``max_iter`` masked iterations (no data-dependent loop: for
-        ``torch.compile``).
+        No data-dependent Python loop: torch's ``while_loop`` operator while
+        ``torch.compile`` traces, else exactly ``max_iter`` masked iterations.
 
     Returns
     -------
@@ -236,6 +234,10 @@ def pcg(be: Any, matvec: Any, precond: Any, b: Any, eta: Any, max_iter: int,
             return s[6].any() & (s[5].max() < max_iter)
 
         state = lax.while_loop(cond, body, state)
+    elif fixed and be.xp.compiler.is_compiling():  # one while_loop op in the graph
+        from .backend import torch_while
+
+        state = torch_while(lambda s: s[6].any() & (s[5].max() < max_iter), body, state)
     elif fixed:
         for _ in range(max_iter):
             state = body(state)

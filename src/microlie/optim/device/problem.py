@@ -126,6 +126,7 @@ class DeviceProblem:
         self.backend = be = backend
         self.size = N = int(prob.size)
         self.variables = list(prob.variables)
+        self.factors = list(prob.factors)
         self.gauge_fixed = list(prob.gauge_fixed)
         held = np.zeros(N + 1, dtype=bool)
         held[prob.held] = True
@@ -270,7 +271,7 @@ class DeviceProblem:
         """
         be = self.backend
         out = []
-        for t, f in zip(self.terms, self.graph.problem().factors, strict=True):
+        for t, f in zip(self.terms, self.factors, strict=True):
             L = np.broadcast_to(np.asarray(f.noise.sqrt_info, dtype=np.float64),
                                 (t.m, t.dim, t.dim))
             d = {"L": be.asarray(np.ascontiguousarray(L))}
