@@ -406,7 +406,9 @@ class FactorGraph:
         Variables given as torch tensors or JAX arrays are solved on that backend and device
         (:func:`microlie.optim.device.optimize_graph`: Levenberg-Marquardt, ``linear_solver``
         ``"auto"``, ``"dense"`` or ``"pcg"``); ``result.values`` are then arrays of that
-        backend, dtype and device.
+        backend, dtype and device. They carry gradients to measurement tensors that require
+        grad (or are traced by ``jax.grad``): option ``differentiate="implicit"`` (default) or
+        ``"unroll"`` (:mod:`microlie.optim.device.implicit`).
 
         Examples
         --------
