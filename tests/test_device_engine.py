@@ -177,8 +177,8 @@ def test_batch_of_pnp_problems_each_equal_to_its_numpy_solve():
 
 def test_pcg_steps_reach_the_numpy_cost():
     torch = _torch()
-    g, x = _chain(lambda a: torch.tensor(np.array(a)), seed=5, n=30)
-    gn, _ = _chain(None, seed=5, n=30)
+    g, x = _chain(lambda a: torch.tensor(np.array(a)), seed=5, n=16)
+    gn, _ = _chain(None, seed=5, n=16)
     tight = dict(rel_tol=1e-12, abs_tol=0.0)
     ref = gn.optimize(**tight)
     res = g.optimize(linear_solver="pcg", **tight)
