@@ -288,6 +288,16 @@ def torch_while(cond: Any, body: Any, st: Any) -> Any:
     def b(*flat: Any) -> tuple:
         out = tree_flatten(body(tree_unflatten(list(flat), spec)))[0]
         ids = {id(a) for a in flat}  # the operator allows no output aliasing an input
-        return tuple(o.clone() if id(o) in ids else o for o in out)
+        res = []
+        for o in out:                # ... nor another output
+            res.append(o.clone() if id(o) in ids else o.contiguous())
+            ids.add(id(o))
+        return tuple(res)
 
+    seen: set[int] = set()
+    fresh = []
+    for a in leaves:  # no two carried tensors may alias; outputs keep the inputs' strides
+        fresh.append(a.clone() if id(a) in seen else a.contiguous())
+        seen.add(id(a))
+    leaves = fresh
     return tree_unflatten(list(while_loop(c, b, tuple(leaves))), spec)
