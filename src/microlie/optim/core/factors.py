@@ -23,9 +23,10 @@ import numpy as np
 
 from ... import _autodiff, _fast
 from ... import groups as _groups
+from ..._array import is_jax, is_torch
 from .noise import NoiseModel, as_noise
 from .robust import RobustLoss, corrected_weights, make_loss
-from .variables import Values, Variables, VectorVariables, element
+from .variables import Values, Variables, VectorVariables, element, host_params
 
 __all__ = ["Factor", "PriorFactor", "BetweenFactor", "CustomFactor", "check_jacobians",
            "JacobianCheck"]
@@ -492,7 +493,7 @@ def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
         except ValueError as e:
             raise ValueError(f"{what}: measurement: {e}") from None
     try:
-        p = np.asarray(var.params_of(Z), dtype=np.float64)
+        p = np.asarray(host_params(var.params_of(Z), var.group), dtype=np.float64)
     except TypeError:
         raise TypeError(f"{what}: measurement must be a {var.group.__name__} (batch of {m} or "
                         f"a single element) or its parameters, got {type(Z).__name__}") from None
@@ -506,6 +507,13 @@ def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
     if isinstance(var, VectorVariables):
         return np.array(p, order="C")  # the factor's own copy
     return var.wrap(p)  # a group element copies the caller's array (from_params)
+
+
+def measurement_source(var: Variables, Z: Any) -> Any:
+    """The torch tensor or JAX array of measurement ``Z``'s parameters (kept for the device
+    engine, which solves with it and differentiates through it), or ``None``."""
+    p = var.params_of(Z)
+    return p if is_torch(p) or is_jax(p) else None
 
 
 class PriorFactor(Factor):
@@ -544,6 +552,7 @@ class PriorFactor(Factor):
                  loss: RobustLoss | str | None = None) -> None:
         super().__init__([(variables, idx)], variables.dof, noise, loss)
         self.Z = _measurement(variables, Z, self.count, self.name)
+        self.Z_source = measurement_source(variables, Z)
         self._Zinv: Any = None  # Z^-1 for the batched path, made on first use
 
     def residual(self, X: Any, jac: bool = False) -> Any:
@@ -646,6 +655,7 @@ class BetweenFactor(Factor):
         if same:
             raise ValueError(f"BetweenFactor {same[0]}: i == j == {int(ii[same[0]])}")
         self.Z = _measurement(variables, Z, self.count, self.name)
+        self.Z_source = measurement_source(variables, Z)
         self._Ad: Any = False  # Ad_(Z^-1) of the batched path, made on first use (_ad_zinv)
 
     def _ad_zinv(self) -> np.ndarray | None:
