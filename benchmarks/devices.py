@@ -1,0 +1,653 @@
+"""Least-squares solves on arrays and devices: microlie (NumPy/C engine; JAX and torch engines
+where they are built) against jaxls, PyPose's ``pp.optim.LM`` and Theseus, in one run,
+interleaved (issue 24).
+
+Run (the peers' environment, ``benchmarks/README.md``; microlie from ``src``):
+
+    PYTHONPATH=src /work/venvs/peers/bin/python benchmarks/devices.py --rounds 5 \
+        --out benchmarks/results/devices-s10.md
+
+The problems, built identically for every contender from one seeded generator:
+
+* ``posegraph``: a batch of ``--batch`` (1000) SE(3) pose graphs of 10 poses (9 odometry edges,
+  3 loop closures at the same poses in every problem, diagonal noise, a prior on pose 0), each
+  started from its ground truth perturbed by about 0.3 m and 0.1 rad;
+* ``pnp``: a batch of ``--batch`` (1000) PnP problems (pinhole camera, ``--pnp-points`` (40)
+  known world points, 1 px noise), each started from its ground-truth pose perturbed by about
+  0.2 m and 0.05 rad;
+* ``bal``: BAL problem-49-7776 (Ladybug-49; ``--bal``), 30 Levenberg-Marquardt iterations as
+  in jaxls's published figure, BAL camera model, points behind a camera evaluated.
+
+Every cost is ``0.5 * sum |W r|^2`` with the same residuals (``Log(Z^-1 X_i^-1 X_j)``,
+translation first, for the pose graphs; ``project(R X + t) - uv`` for the cameras), evaluated
+by one NumPy function in this file on the values each contender returns, so a contender whose
+solve stopped short shows it: the table prints the largest relative excess over the NumPy
+engine's optimum (per problem for the batches).
+
+Each contender is the solve a user of that library would write: its own LM, its default
+linear solver unless it documents a better one (stated in the table), squared loss. Timing:
+``setup`` (building the library's problem objects, analysis) once; ``first call`` (includes
+JIT / ``torch.compile`` compilation) once; then ``--rounds`` interleaved rounds (the order
+rotated each round) of the steady-state solve, reported as median (min-max) with the median
+of the per-round ratios to the microlie rows. All on one thread (``torch.set_num_threads(1)``,
+XLA's CPU thread pool off, BLAS at one thread), float64.
+
+``--device cuda`` places the JAX and torch contenders' arrays on the first GPU and runs the
+same code; it has not been run here (no GPU on this machine): its goals (Ladybug-49 in at most
+0.08 s for 30 iterations, at least 5x over the CPU engine) are unmeasured.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
+                                   "intra_op_parallelism_threads=1")
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import platform  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import traceback  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+DEFAULT_BAL = ROOT / ".." / "shared" / "data" / "bal" / "problem-49-7776-pre.txt"
+
+
+# ------------------------------------------------------------------------------- numpy helpers
+# Independent NumPy formulas (not microlie's kernels) for the shared cost and the conversions.
+
+def hat(w: np.ndarray) -> np.ndarray:
+    """``(..., 3)`` -> ``(..., 3, 3)`` skew matrices."""
+    z = np.zeros(w.shape[:-1])
+    return np.stack([np.stack([z, -w[..., 2], w[..., 1]], -1),
+                     np.stack([w[..., 2], z, -w[..., 0]], -1),
+                     np.stack([-w[..., 1], w[..., 0], z], -1)], -2)
+
+
+def so3_exp(w: np.ndarray) -> np.ndarray:
+    """Rodrigues: ``(..., 3)`` rotation vectors -> ``(..., 3, 3)`` matrices."""
+    t = np.linalg.norm(w, axis=-1)[..., None, None]
+    small = t < 1e-8
+    ts = np.where(small, 1.0, t)
+    a = np.where(small, 1.0 - t**2 / 6, np.sin(ts) / ts)
+    b = np.where(small, 0.5 - t**2 / 24, (1 - np.cos(ts)) / ts**2)
+    K = hat(w)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """``(..., 3, 3)`` -> rotation vectors (angles well below pi here)."""
+    c = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)
+    t = np.arccos(c)
+    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
+                  R[..., 1, 0] - R[..., 0, 1]], -1)
+    s = np.sin(t)
+    f = np.where(t < 1e-6, 0.5 + t**2 / 12, t / (2 * np.where(t < 1e-6, 1.0, s)))
+    return f[..., None] * v
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """``(..., 6)`` tangent ``[rho, phi]`` -> ``(..., 4, 4)`` matrices."""
+    rho, phi = xi[..., :3], xi[..., 3:]
+    t = np.linalg.norm(phi, axis=-1)[..., None, None]
+    small = t < 1e-6
+    ts = np.where(small, 1.0, t)
+    b = np.where(small, 0.5 - t**2 / 24, (1 - np.cos(ts)) / ts**2)
+    c = np.where(small, 1 / 6 - t**2 / 120, (ts - np.sin(ts)) / ts**3)
+    K = hat(phi)
+    V = np.eye(3) + b * K + c * (K @ K)
+    T = np.zeros((*xi.shape[:-1], 4, 4))
+    T[..., :3, :3] = so3_exp(phi)
+    T[..., :3, 3] = (V @ rho[..., None])[..., 0]
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """``(..., 4, 4)`` -> tangent ``[rho, phi]`` (translation first)."""
+    phi = so3_log(T[..., :3, :3])
+    t = np.linalg.norm(phi, axis=-1)[..., None, None]
+    small = t < 1e-6
+    ts = np.where(small, 1.0, t)
+    K = hat(phi)
+    # V^-1 = I - K/2 + (1/t^2)(1 - t sin t / (2 (1 - cos t))) K^2
+    d = np.where(small, 1 / 12 + t**2 / 720,
+                 (1 - ts * np.sin(ts) / (2 * (1 - np.cos(ts)))) / ts**2)
+    Vi = np.eye(3) - 0.5 * K + d * (K @ K)
+    rho = (Vi @ T[..., :3, 3:4])[..., 0]
+    return np.concatenate([rho, phi], -1)
+
+
+def se3_inv(T: np.ndarray) -> np.ndarray:
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(R, -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -(Rt @ t[..., None])[..., 0]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def quat_xyzw_from_matrix(R: np.ndarray) -> np.ndarray:
+    """``(..., 3, 3)`` -> unit quaternions ``(x, y, z, w)``, ``w >= 0`` (Shepperd)."""
+    m = R.reshape(-1, 3, 3)
+    q = np.empty((m.shape[0], 4))
+    tr = np.trace(m, axis1=1, axis2=2)
+    d = np.stack([m[:, 0, 0], m[:, 1, 1], m[:, 2, 2], tr], 1)
+    k = np.argmax(d, 1)
+    for i in range(m.shape[0]):
+        a = m[i]
+        if k[i] == 3:
+            s = 2 * np.sqrt(1 + tr[i])
+            q[i] = [(a[2, 1] - a[1, 2]) / s, (a[0, 2] - a[2, 0]) / s, (a[1, 0] - a[0, 1]) / s,
+                    s / 4]
+        else:
+            j, l_, m_ = k[i], (k[i] + 1) % 3, (k[i] + 2) % 3
+            s = 2 * np.sqrt(1 + a[j, j] - a[l_, l_] - a[m_, m_])
+            v = np.empty(4)
+            v[j] = s / 4
+            v[l_] = (a[l_, j] + a[j, l_]) / s
+            v[m_] = (a[m_, j] + a[j, m_]) / s
+            v[3] = (a[m_, l_] - a[l_, m_]) / s
+            q[i] = v
+    q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
+    return q.reshape(*R.shape[:-2], 4)
+
+
+def matrix_from_quat_xyzw(q: np.ndarray) -> np.ndarray:
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def params_from_matrix(T: np.ndarray) -> np.ndarray:
+    """``(..., 4, 4)`` -> ``(..., 7)`` ``[t, qx, qy, qz, qw]`` (microlie's and PyPose's)."""
+    return np.concatenate([T[..., :3, 3], quat_xyzw_from_matrix(T[..., :3, :3])], -1)
+
+
+def matrix_from_params(p: np.ndarray) -> np.ndarray:
+    T = np.zeros((*p.shape[:-1], 4, 4))
+    T[..., :3, :3] = matrix_from_quat_xyzw(p[..., 3:])
+    T[..., :3, 3] = p[..., :3]
+    T[..., 3, 3] = 1.0
+    return T
+
+
+# ---------------------------------------------------------------------------------- problems
+
+@dataclasses.dataclass
+class PoseGraphBatch:
+    """``B`` SE(3) pose graphs of the same structure (matrices ``(B, n, 4, 4)``)."""
+    edges: np.ndarray          # (E, 2) int: (i, j), the same in every problem
+    Z: np.ndarray              # (B, E, 4, 4) measured X_i^-1 X_j
+    w_edge: np.ndarray         # (6,) sqrt-information diagonal of every edge, [rho, phi]
+    Z0: np.ndarray             # (B, 4, 4) prior on pose 0
+    w_prior: np.ndarray        # (6,)
+    X0: np.ndarray             # (B, n, 4, 4) start
+    truth: np.ndarray          # (B, n, 4, 4)
+
+    @property
+    def batch(self) -> int:
+        return self.Z.shape[0]
+
+    @property
+    def n(self) -> int:
+        return self.X0.shape[1]
+
+
+def make_pose_graphs(batch: int, seed: int, n: int = 10, loops: int = 3) -> PoseGraphBatch:
+    """Random walks of ``n`` poses (1 m steps, turns of about 0.15 rad), odometry plus ``loops``
+    closures between poses at least 3 apart (chosen once: the same structure in every problem),
+    measurements with 5 cm / 0.02 rad noise, a 1 cm / 0.01 rad prior on pose 0, start = truth
+    perturbed by 0.3 m / 0.1 rad (pose 0 too)."""
+    rng = np.random.default_rng(seed)
+    steps = np.concatenate([np.array([1.0, 0, 0]) + 0.2 * rng.standard_normal((batch, n - 1, 3)),
+                            0.15 * rng.standard_normal((batch, n - 1, 3))], -1)
+    truth = np.empty((batch, n, 4, 4))
+    truth[:, 0] = np.eye(4)
+    S = se3_exp(steps)
+    for i in range(1, n):
+        truth[:, i] = truth[:, i - 1] @ S[:, i - 1]
+    pairs = [(i, j) for i in range(n) for j in range(i + 3, n)]
+    pick = rng.choice(len(pairs), size=loops, replace=False)
+    edges = np.array([(i, i + 1) for i in range(n - 1)] + [pairs[k] for k in sorted(pick)])
+    sig = np.array([0.05, 0.05, 0.05, 0.02, 0.02, 0.02])
+    sig0 = np.full(6, 0.01)
+    rel = se3_inv(truth[:, edges[:, 0]]) @ truth[:, edges[:, 1]]
+    Z = rel @ se3_exp(sig * rng.standard_normal((batch, len(edges), 6)))
+    Z0 = truth[:, 0] @ se3_exp(sig0 * rng.standard_normal((batch, 6)))
+    X0 = truth @ se3_exp(np.concatenate([0.3 * rng.standard_normal((batch, n, 3)),
+                                         0.1 * rng.standard_normal((batch, n, 3))], -1))
+    return PoseGraphBatch(edges, Z, 1 / sig, Z0, 1 / sig0, X0, truth)
+
+
+def pose_graph_costs(p: PoseGraphBatch, X: np.ndarray) -> np.ndarray:
+    """``(B,)`` costs ``0.5 sum |W Log(Z^-1 X_i^-1 X_j)|^2 + 0.5 |W0 Log(Z0^-1 X_0)|^2``."""
+    e = se3_log(se3_inv(p.Z) @ se3_inv(X[:, p.edges[:, 0]]) @ X[:, p.edges[:, 1]]) * p.w_edge
+    e0 = se3_log(se3_inv(p.Z0) @ X[:, 0]) * p.w_prior
+    return 0.5 * (np.sum(e**2, axis=(1, 2)) + np.sum(e0**2, axis=1))
+
+
+@dataclasses.dataclass
+class PnPBatch:
+    """``B`` PnP problems: world points, pixels, a pinhole ``K`` and world-to-camera poses."""
+    points: np.ndarray         # (B, m, 3) world points (known)
+    uv: np.ndarray             # (B, m, 2) observed pixels
+    K: np.ndarray              # (4,) fx, fy, cx, cy
+    T0: np.ndarray             # (B, 4, 4) start T_cw
+    truth: np.ndarray          # (B, 4, 4)
+
+    @property
+    def batch(self) -> int:
+        return self.uv.shape[0]
+
+
+def make_pnp(batch: int, seed: int, m: int = 40) -> PnPBatch:
+    """Points at depths 4-10 m inside a 60-degree field of view of a random camera pose,
+    1 px pixel noise; start = truth perturbed by 0.2 m / 0.05 rad."""
+    rng = np.random.default_rng(seed + 1)
+    K = np.array([500.0, 500.0, 320.0, 240.0])
+    z = rng.uniform(4.0, 10.0, (batch, m))
+    xy = rng.uniform(-0.55, 0.55, (batch, m, 2)) * z[..., None]
+    Pc = np.concatenate([xy, z[..., None]], -1)
+    T_wc = se3_exp(np.concatenate([3.0 * rng.standard_normal((batch, 3)),
+                                   rng.uniform(-np.pi, np.pi, (batch, 1))
+                                   * _unit(rng.standard_normal((batch, 3)))], -1))
+    Xw = (T_wc[:, None, :3, :3] @ Pc[..., None])[..., 0] + T_wc[:, None, :3, 3]
+    uv = project_pinhole(Pc, K) + rng.standard_normal((batch, m, 2))
+    truth = se3_inv(T_wc)
+    T0 = truth @ se3_exp(np.concatenate([0.2 * rng.standard_normal((batch, 3)),
+                                         0.05 * rng.standard_normal((batch, 3))], -1))
+    return PnPBatch(Xw, uv, K, T0, truth)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def project_pinhole(P: np.ndarray, K: np.ndarray) -> np.ndarray:
+    return np.stack([K[0] * P[..., 0] / P[..., 2] + K[2], K[1] * P[..., 1] / P[..., 2] + K[3]],
+                    -1)
+
+
+def pnp_costs(p: PnPBatch, T: np.ndarray) -> np.ndarray:
+    P = (T[:, None, :3, :3] @ p.points[..., None])[..., 0] + T[:, None, :3, 3]
+    return 0.5 * np.sum((project_pinhole(P, p.K) - p.uv) ** 2, axis=(1, 2))
+
+
+@dataclasses.dataclass
+class BAL:
+    """A BAL file's arrays (cameras ``[rotvec, t, f, k1, k2]``)."""
+    cameras: np.ndarray        # (nc, 9)
+    points: np.ndarray         # (np, 3)
+    cam: np.ndarray            # (m,) int
+    pt: np.ndarray             # (m,) int
+    uv: np.ndarray             # (m, 2)
+    iterations: int = 30
+
+
+def read_bal_arrays(path: Path) -> BAL:
+    with open(path) as f:
+        nc, npt, m = (int(x) for x in f.readline().split())
+        obs = np.loadtxt(f, max_rows=m)
+        rest = np.loadtxt(f).ravel()
+    return BAL(rest[:9 * nc].reshape(nc, 9).copy(), rest[9 * nc:].reshape(npt, 3).copy(),
+               obs[:, 0].astype(np.int64), obs[:, 1].astype(np.int64), obs[:, 2:4].copy())
+
+
+def bal_residuals(b: BAL, cameras: np.ndarray, points: np.ndarray) -> np.ndarray:
+    c = cameras[b.cam]
+    P = (so3_exp(c[:, :3]) @ points[b.pt][..., None])[..., 0] + c[:, 3:6]
+    x = -P[:, :2] / P[:, 2:3]
+    r2 = np.sum(x**2, -1, keepdims=True)
+    return c[:, 6:7] * (1 + c[:, 7:8] * r2 + c[:, 8:9] * r2**2) * x - b.uv
+
+
+def bal_cost(b: BAL, cameras: np.ndarray, points: np.ndarray) -> float:
+    return float(0.5 * np.sum(bal_residuals(b, cameras, points) ** 2))
+
+
+# ------------------------------------------------------------------------------- contenders
+
+@dataclasses.dataclass
+class Contender:
+    """A prepared solve: ``run()`` returns the solution as NumPy (pose matrices, or BAL
+    ``(cameras, points)``), synchronised with the device."""
+    name: str
+    how: str
+    run: Callable[[], Any]
+    setup_s: float = 0.0
+    scale: float = 1.0          # time multiplier (a contender timed on a subset of the batch)
+    note: str = ""
+    ours: bool = False
+
+
+def _sync_torch(device: str) -> None:
+    import torch
+    if device == "cuda":
+        torch.cuda.synchronize()
+
+
+# ---- microlie, NumPy/C engine
+
+def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
+    from microlie import SE3
+    from microlie.optim import (BetweenFactor, Diagonal, FactorGraph, PriorFactor,
+                                ReprojectionFactor)
+    t0 = time.perf_counter()
+    if kind == "posegraph":
+        B, n = prob.batch, prob.n
+        g = FactorGraph()
+        X = g.add_variables(SE3(params_from_matrix(prob.X0.reshape(-1, 4, 4))))
+        off = (np.arange(B) * n)[:, None]
+        i = (off + prob.edges[:, 0]).ravel()
+        j = (off + prob.edges[:, 1]).ravel()
+        g.add(BetweenFactor(X, i, j, SE3(params_from_matrix(prob.Z.reshape(-1, 4, 4))),
+                            Diagonal(1 / prob.w_edge)))
+        g.add(PriorFactor(X, off[:, 0], SE3(params_from_matrix(prob.Z0)),
+                          Diagonal(1 / prob.w_prior)))
+
+        def run() -> np.ndarray:
+            r = g.optimize(max_iter=100)
+            return matrix_from_params(np.asarray(r.values[X].params)).reshape(B, n, 4, 4)
+        how = "one FactorGraph of all problems, LM (GTSAM rules), sparse Cholesky"
+    elif kind == "pnp":
+        B, m = prob.batch, prob.points.shape[1]
+        g = FactorGraph()
+        T = g.add_variables(SE3(params_from_matrix(prob.T0)))
+        P = g.add_variables(prob.points.reshape(-1, 3), fixed=True)
+        g.add(ReprojectionFactor((T, np.repeat(np.arange(B), m)), (P, np.arange(B * m)),
+                                 prob.uv.reshape(-1, 2), model="pinhole", intrinsics=prob.K))
+
+        def run() -> np.ndarray:
+            r = g.optimize(max_iter=100)
+            return matrix_from_params(np.asarray(r.values[T].params))
+        how = "one FactorGraph of all problems, LM (GTSAM rules), sparse Cholesky"
+    else:
+        from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+        bp = BundleProblem.from_bal(BALProblem(prob.cameras, prob.points, prob.cam, prob.pt,
+                                               prob.uv))
+
+        def run() -> tuple[np.ndarray, np.ndarray]:
+            r = bundle_adjust(bp, max_iter=prob.iterations)
+            out = bp.with_values(r.values).to_bal()
+            return out.cameras, out.points
+        how = f"bundle_adjust, TrustRegion (Ceres rules), Schur, {prob.iterations} tries"
+    return Contender("microlie NumPy/C", how, run, time.perf_counter() - t0, ours=True)
+
+
+# ---- jaxls
+
+def _jax_device(device: str) -> Any:
+    import jax
+    return jax.devices("gpu" if device == "cuda" else "cpu")[0]
+
+
+def jaxls_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
+    import jax
+    import jax.numpy as jnp
+    import jaxlie
+    import jaxls
+
+    dev = _jax_device(device)
+    t0 = time.perf_counter()
+
+    def put(x: np.ndarray) -> Any:
+        return jax.device_put(jnp.asarray(x), dev)
+
+    def wxyz_xyz(T: np.ndarray) -> np.ndarray:
+        p = params_from_matrix(T)
+        return np.concatenate([p[..., 6:7], p[..., 3:6], p[..., :3]], -1)
+
+    if kind == "posegraph":
+        B, n = prob.batch, prob.n
+        E = len(prob.edges)
+        off = (np.arange(B) * n)[:, None]
+        i = put((off + prob.edges[:, 0]).ravel())
+        j = put((off + prob.edges[:, 1]).ravel())
+        w, w0 = put(prob.w_edge), put(prob.w_prior)
+
+        def between(vals: Any, a: Any, b: Any, z: Any) -> Any:
+            return w * (z.inverse() @ vals[a].inverse() @ vals[b]).log()
+
+        def prior(vals: Any, a: Any, z: Any) -> Any:
+            return w0 * (z.inverse() @ vals[a]).log()
+
+        Zb = jaxlie.SE3(put(wxyz_xyz(prob.Z.reshape(B * E, 4, 4))))
+        Z0 = jaxlie.SE3(put(wxyz_xyz(prob.Z0)))
+        costs = [jaxls.Cost(between, (jaxls.SE3Var(i), jaxls.SE3Var(j), Zb)),
+                 jaxls.Cost(prior, (jaxls.SE3Var(put(off[:, 0])), Z0))]
+        ids = put(np.arange(B * n))
+        problem = jaxls.LeastSquaresProblem(costs, [jaxls.SE3Var(ids)]).analyze()
+        init = jaxls.VarValues.make(
+            [jaxls.SE3Var(ids).with_value(jaxlie.SE3(put(wxyz_xyz(prob.X0.reshape(-1, 4, 4)))))])
+
+        def run() -> np.ndarray:
+            sol = problem.solve(init, verbose=False)
+            v = np.asarray(jax.block_until_ready(sol[jaxls.SE3Var(ids)].wxyz_xyz))
+            return matrix_from_params(np.concatenate([v[:, 4:], v[:, 1:4], v[:, :1]], -1)
+                                      ).reshape(B, n, 4, 4)
+        how = "one problem of all graphs, LM, default CG"
+    elif kind == "pnp":
+        B, m = prob.batch, prob.points.shape[1]
+        K = put(prob.K)
+
+        def reproj(vals: Any, a: Any, X: Any, uv: Any) -> Any:
+            P = vals[a] @ X
+            return jnp.stack([K[0] * P[0] / P[2] + K[2], K[1] * P[1] / P[2] + K[3]]) - uv
+
+        cam = put(np.repeat(np.arange(B), m))
+        ids = put(np.arange(B))
+        problem = jaxls.LeastSquaresProblem(
+            [jaxls.Cost(reproj, (jaxls.SE3Var(cam), put(prob.points.reshape(-1, 3)),
+                                 put(prob.uv.reshape(-1, 2))))],
+            [jaxls.SE3Var(ids)]).analyze()
+        init = jaxls.VarValues.make(
+            [jaxls.SE3Var(ids).with_value(jaxlie.SE3(put(wxyz_xyz(prob.T0))))])
+
+        def run() -> np.ndarray:
+            sol = problem.solve(init, verbose=False)
+            v = np.asarray(jax.block_until_ready(sol[jaxls.SE3Var(ids)].wxyz_xyz))
+            return matrix_from_params(np.concatenate([v[:, 4:], v[:, 1:4], v[:, :1]], -1))
+        how = "one problem of all PnPs, LM, default CG"
+    else:
+        class CameraVar(jaxls.Var[jax.Array], default_factory=lambda: jnp.zeros(9)):
+            pass
+
+        class PointVar(jaxls.Var[jax.Array], default_factory=lambda: jnp.zeros(3)):
+            pass
+
+        def rodrigues(aa: Any, x: Any) -> Any:
+            th2 = jnp.dot(aa, aa)
+            safe = th2 > 1e-24
+            th = jnp.sqrt(jnp.where(safe, th2, 1.0))
+            k = aa / th
+            rot = (x * jnp.cos(th) + jnp.cross(k, x) * jnp.sin(th)
+                   + k * jnp.dot(k, x) * (1.0 - jnp.cos(th)))
+            return jnp.where(safe, rot, x + jnp.cross(aa, x))
+
+        def reproj(vals: Any, c: Any, p: Any, uv: Any) -> Any:
+            cam, X = vals[c], vals[p]
+            P = rodrigues(cam[:3], X) + cam[3:6]
+            x = -P[:2] / P[2]
+            r2 = jnp.sum(x**2)
+            return cam[6] * (1.0 + cam[7] * r2 + cam[8] * r2**2) * x - uv
+
+        nc, npt = len(prob.cameras), len(prob.points)
+        problem = jaxls.LeastSquaresProblem(
+            [jaxls.Cost(reproj, (CameraVar(put(prob.cam)), PointVar(put(prob.pt)),
+                                 put(prob.uv)))],
+            [CameraVar(put(np.arange(nc))), PointVar(put(np.arange(npt)))]).analyze()
+        cv, pv = CameraVar(put(np.arange(nc))), PointVar(put(np.arange(npt)))
+        init = jaxls.VarValues.make([cv.with_value(put(prob.cameras)),
+                                     pv.with_value(put(prob.points))])
+        solver = kw.get("jaxls_solver", "dense_cholesky")
+        term = jaxls.TerminationConfig(max_iterations=prob.iterations, early_termination=False)
+
+        def run() -> tuple[np.ndarray, np.ndarray]:
+            sol = problem.solve(init, linear_solver=solver, termination=term, verbose=False)
+            sol = jax.block_until_ready(sol)
+            return np.asarray(sol[cv]), np.asarray(sol[pv])
+        how = (f"LM, Schur elimination + {solver} (its documented best for BA), "
+               f"{prob.iterations} iterations, no early stop")
+    return Contender("jaxls", how, run, time.perf_counter() - t0)
+
+
+# ---- PyPose
+
+def pypose_contender(kind: str, prob: Any, device: str, subset: int = 20, **kw: Any
+                     ) -> Contender:
+    """``pp.optim.LM`` (its TrustRegion strategy, Cholesky solver) with the ``StopOnPlateau``
+    scheduler, one problem at a time (its LM builds one dense Jacobian of the whole model, so a
+    batch of independent problems is a loop), on the first ``subset`` problems; the time is
+    scaled to the whole batch."""
+    import pypose as pp
+    import torch
+
+    dev = torch.device(device)
+    t0 = time.perf_counter()
+    K = min(subset, prob.batch)
+
+    def tt(x: np.ndarray) -> Any:
+        return torch.as_tensor(x, dtype=torch.float64, device=dev)
+
+    if kind == "posegraph":
+        w, w0 = tt(prob.w_edge), tt(prob.w_prior)
+        i, j = (torch.as_tensor(prob.edges[:, c], device=dev) for c in (0, 1))
+
+        class Graph(torch.nn.Module):
+            def __init__(self, X: np.ndarray) -> None:
+                super().__init__()
+                self.X = pp.Parameter(pp.SE3(tt(params_from_matrix(X))))
+
+            def forward(self, Z: Any, Z0: Any) -> Any:
+                e = (Z.Inv() @ self.X[i].Inv() @ self.X[j]).Log().tensor() * w
+                e0 = (Z0.Inv() @ self.X[0]).Log().tensor() * w0
+                return torch.cat([e, e0[None]])
+
+        inputs = [(pp.SE3(tt(params_from_matrix(prob.Z[b]))),
+                   pp.SE3(tt(params_from_matrix(prob.Z0[b])))) for b in range(K)]
+        starts = [prob.X0[b] for b in range(K)]
+    elif kind == "pnp":
+        Kc = tt(prob.K)
+
+        class Graph(torch.nn.Module):   # type: ignore[no-redef]
+            def __init__(self, T: np.ndarray) -> None:
+                super().__init__()
+                self.T = pp.Parameter(pp.SE3(tt(params_from_matrix(T))))
+
+            def forward(self, X: Any, uv: Any) -> Any:
+                P = self.T.unsqueeze(0).Act(X)
+                return torch.stack([Kc[0] * P[:, 0] / P[:, 2] + Kc[2],
+                                    Kc[1] * P[:, 1] / P[:, 2] + Kc[3]], -1) - uv
+
+        inputs = [(tt(prob.points[b]), tt(prob.uv[b])) for b in range(K)]
+        starts = [prob.T0[b] for b in range(K)]
+    else:
+        raise NotImplementedError(
+            "PyPose on BAL: pp.optim.LM builds the dense Jacobian (63,686 x 23,769 float64 = "
+            "12 GB); its sparse mode needs the bae backend, which builds only with CUDA")
+
+    def run() -> np.ndarray:
+        out = []
+        for b in range(K):
+            model = Graph(starts[b]).to(dev)
+            opt = pp.optim.LM(model)
+            sched = pp.optim.scheduler.StopOnPlateau(opt, steps=100, patience=2,
+                                                     decreasing=1e-8)
+            sched.optimize(input=inputs[b])
+            p = next(iter(model.parameters())).detach()
+            out.append(matrix_from_params(p.tensor().cpu().numpy()))
+        _sync_torch(device)
+        return np.stack(out)
+    return Contender("PyPose", f"pp.optim.LM (TrustRegion, Cholesky) + StopOnPlateau, a loop "
+                     f"over problems; timed on {K}, scaled x{prob.batch / K:g}", run,
+                     time.perf_counter() - t0, scale=prob.batch / K,
+                     note=f"first {K} problems")
+
+
+# ---- Theseus
+
+def theseus_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
+    """``th.LevenbergMarquardt`` in a ``th.TheseusLayer`` (vectorised costs), its default
+    dense Cholesky solver, the batch axis of Theseus's variables for the batch of problems."""
+    import theseus as th
+    import torch
+
+    dev = torch.device(device)
+    t0 = time.perf_counter()
+
+    def tt(x: np.ndarray) -> Any:
+        return torch.as_tensor(x, dtype=torch.float64, device=dev)
+
+    if kind == "posegraph":
+        B, n = prob.batch, prob.n
+        X = [th.SE3(tensor=tt(prob.X0[:, k, :3, :]), name=f"x{k}") for k in range(n)]
+        costs: list[Any] = []
+        w = th.DiagonalCostWeight(tt(np.broadcast_to(prob.w_edge, (B, 6)).copy()))
+        for e, (a, b) in enumerate(prob.edges):
+            Z = th.SE3(tensor=tt(prob.Z[:, e, :3, :]), name=f"z{e}")
+            costs.append(th.Between(X[a], X[b], Z, w, name=f"between{e}"))
+        Z0 = th.SE3(tensor=tt(prob.Z0[:, :3, :]), name="z_prior")
+        w0 = th.DiagonalCostWeight(tt(np.broadcast_to(prob.w_prior, (B, 6)).copy()))
+        costs.append(th.Difference(X[0], Z0, w0, name="prior"))
+        start = {f"x{k}": tt(prob.X0[:, k, :3, :]) for k in range(n)}
+        names = [f"x{k}" for k in range(n)]
+    elif kind == "pnp":
+        B, m = prob.batch, prob.points.shape[1]
+        Kc = tt(prob.K)
+        T = th.SE3(tensor=tt(prob.T0[:, :3, :]), name="T")
+        pts = th.Variable(tt(prob.points.reshape(B, -1)), name="points")
+        uv = th.Variable(tt(prob.uv.reshape(B, -1)), name="uv")
+
+        def err(optim_vars: Any, aux_vars: Any) -> Any:
+            Tm = optim_vars[0].tensor                     # (B, 3, 4)
+            Xw = aux_vars[0].tensor.view(-1, m, 3)
+            P = Xw @ Tm[:, :, :3].transpose(1, 2) + Tm[:, None, :, 3]
+            proj = torch.stack([Kc[0] * P[..., 0] / P[..., 2] + Kc[2],
+                                Kc[1] * P[..., 1] / P[..., 2] + Kc[3]], -1)
+            return (proj - aux_vars[1].tensor.view(-1, m, 2)).reshape(-1, 2 * m)
+
+        unit = th.ScaleCostWeight(tt(np.ones(1)))
+        costs = [th.AutoDiffCostFunction([T], err, 2 * m, unit, aux_vars=[pts, uv],
+                                         name="reproj")]
+        start = {"T": tt(prob.T0[:, :3, :])}
+        names = ["T"]
+    else:
+        raise NotImplementedError("Theseus on BAL: see theseus_bal")
+
+    objective = th.Objective(dtype=torch.float64)
+    for c in costs:
+        objective.add(c)
+    objective.to(dev)
+    maxit = kw.get("theseus_iterations", 50)
+    layer = th.TheseusLayer(th.LevenbergMarquardt(objective, max_iterations=maxit))
+    layer.to(dev)
+
+    def run() -> np.ndarray:
+        with torch.no_grad():
+            sol, info = layer.forward(dict(start), optimizer_kwargs={
+                "track_best_solution": False, "verbose": False, "adaptive_damping": True})
+        _sync_torch(device)
+        out = np.stack([sol[k].cpu().numpy() for k in names], 1)   # (B, n, 3, 4)
+        M = np.zeros((*out.shape[:2], 4, 4))
+        M[..., :3, :] = out
+        M[..., 3, 3] = 1.0
+        return M if kind == "posegraph" else M[:, 0]
+    return Contender("Theseus", f"LevenbergMarquardt (adaptive damping, dense Cholesky), "
+                     f"batch axis, <= {maxit} iterations", run, time.perf_counter() - t0)
