@@ -651,3 +651,232 @@ def theseus_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender
         return M if kind == "posegraph" else M[:, 0]
     return Contender("Theseus", f"LevenbergMarquardt (adaptive damping, dense Cholesky), "
                      f"batch axis, <= {maxit} iterations", run, time.perf_counter() - t0)
+
+
+# ---------------------------------------------------------------------------------- runner
+
+PEERS: dict[str, Callable[..., Contender]] = {
+    "numpy": microlie_numpy,
+    "jaxls": jaxls_contender,
+    "pypose": pypose_contender,
+    "theseus": theseus_contender,
+}
+COSTS: dict[str, Callable[[Any, Any], Any]] = {
+    "posegraph": pose_graph_costs,
+    "pnp": pnp_costs,
+}
+
+
+def load() -> str:
+    a, b, c = os.getloadavg()
+    return f"{a:.2f} {b:.2f} {c:.2f} (1/5/15 min; {os.cpu_count()} cores)"
+
+
+def make_problem(kind: str, args: argparse.Namespace) -> Any:
+    if kind == "posegraph":
+        return make_pose_graphs(args.batch, args.seed)
+    if kind == "pnp":
+        return make_pnp(args.batch, args.seed, args.pnp_points)
+    b = read_bal_arrays(Path(args.bal))
+    b.iterations = args.iterations
+    return b
+
+
+def costs_of(kind: str, prob: Any, sol: Any) -> np.ndarray:
+    """Per-problem costs of a solution (the first ``len(sol)`` problems of a batch)."""
+    if kind == "bal":
+        return np.array([bal_cost(prob, *sol)])
+    n = len(sol)
+    sub = dataclasses.replace(prob, **{f.name: getattr(prob, f.name)[:n]
+                                       for f in dataclasses.fields(prob)
+                                       if f.name not in ("edges", "w_edge", "w_prior", "K")})
+    return COSTS[kind](sub, sol)
+
+
+def reference(kind: str, prob: Any) -> np.ndarray:
+    """The NumPy engine's optimum, tight tolerances (per problem for the batches; for BAL
+    the converged cost, not the 30-iteration one)."""
+    from microlie.optim import BALProblem, BundleProblem, bundle_adjust
+    if kind == "bal":
+        bp = BundleProblem.from_bal(BALProblem(prob.cameras, prob.points, prob.cam, prob.pt,
+                                               prob.uv))
+        r = bundle_adjust(bp, max_iter=200)
+        out = bp.with_values(r.values).to_bal()
+        return np.array([bal_cost(prob, out.cameras, out.points)])
+    c = microlie_numpy(kind, prob, "cpu")
+    return costs_of(kind, prob, c.run())
+
+
+@dataclasses.dataclass
+class Row:
+    name: str
+    how: str = ""
+    setup_s: float = float("nan")
+    first_s: float = float("nan")
+    times: list[float] = dataclasses.field(default_factory=list)
+    excess: float = float("nan")      # max relative cost excess over the reference
+    cost: float = float("nan")        # total cost of the solution
+    skipped: str = ""
+    ours: bool = False
+    note: str = ""
+
+
+def run_problem(kind: str, args: argparse.Namespace, out: list[str]) -> list[Row]:
+    prob = make_problem(kind, args)
+    print(f"[{kind}] reference solve (NumPy engine)...", file=sys.stderr, flush=True)
+    ref = reference(kind, prob)
+    rows: dict[str, Row] = {}
+    live: list[tuple[Row, Contender]] = []
+    for name in args.contenders:
+        row = rows.setdefault(name, Row(name))
+        try:
+            c = PEERS[name](kind, prob, args.device, subset=args.pypose_subset,
+                            jaxls_solver=args.jaxls_solver)
+        except NotImplementedError as e:
+            row.skipped = str(e)
+            continue
+        except Exception as e:   # a peer that fails to build its problem is reported, not fatal
+            row.skipped = f"failed to build: {type(e).__name__}: {e}"
+            traceback.print_exc()
+            continue
+        row.name, row.how, row.setup_s, row.ours, row.note = (c.name, c.how, c.setup_s,
+                                                              c.ours, c.note)
+        print(f"[{kind}] {c.name}: first call...", file=sys.stderr, flush=True)
+        try:
+            t0 = time.perf_counter()
+            sol = c.run()
+            row.first_s = (time.perf_counter() - t0) * c.scale
+        except Exception as e:
+            row.skipped = f"failed: {type(e).__name__}: {e}"
+            traceback.print_exc()
+            continue
+        cs = costs_of(kind, prob, sol)
+        row.cost = float(np.sum(cs))
+        row.excess = float(np.max((cs - ref[:len(cs)]) / ref[:len(cs)]))
+        live.append((row, c))
+    for r in range(args.rounds):
+        k = r % max(len(live), 1)
+        for row, c in live[k:] + live[:k]:
+            t0 = time.perf_counter()
+            c.run()
+            row.times.append((time.perf_counter() - t0) * c.scale)
+        print(f"[{kind}] round {r + 1}/{args.rounds}: "
+              + ", ".join(f"{row.name} {row.times[-1]:.3g} s" for row, _ in live),
+              file=sys.stderr, flush=True)
+    out.extend(table(kind, prob, ref, list(rows.values()), args))
+    return list(rows.values())
+
+
+def _fmt(t: float) -> str:
+    return "-" if t != t else (f"{t:.3g}" if t < 100 else f"{t:.0f}")
+
+
+def table(kind: str, prob: Any, ref: np.ndarray, rows: list[Row],
+          args: argparse.Namespace) -> list[str]:
+    title = {"posegraph": f"{args.batch} SE(3) pose graphs of 10 poses (12 edges + a prior)",
+             "pnp": f"{args.batch} PnP problems of {args.pnp_points} points",
+             "bal": f"BAL problem-49-7776 (Ladybug-49), {args.iterations} LM iterations"}[kind]
+    refs = ("optimum (sum) %.10g" % float(np.sum(ref))) if kind != "bal" else \
+        ("converged optimum %.10g" % float(ref[0]))
+    ours = [r for r in rows if r.ours and r.times]
+    lines = [f"### {title}", "",
+             f"Reference: the NumPy engine's {refs}; `excess` = largest relative cost excess "
+             f"over it ({'per problem' if kind != 'bal' else 'after the iterations run'}).", "",
+             "| contender | solve | setup s | first call s | steady s, median (min-max) | "
+             "cost | excess | " + " | ".join(f"/ {o.name}" for o in ours) + " |",
+             "|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(ours)]
+    for r in rows:
+        if r.skipped:
+            lines.append(f"| {r.name} | not run: {r.skipped} | | | | | |" + " |" * len(ours))
+            continue
+        med = statistics.median(r.times) if r.times else float("nan")
+        span = f"{_fmt(med)} ({_fmt(min(r.times))}-{_fmt(max(r.times))})" if r.times else "-"
+        ratios = []
+        for o in ours:
+            per = [a / b for a, b in zip(r.times, o.times)]
+            ratios.append(f"{statistics.median(per):.3g}x" if per else "-")
+        lines.append(f"| {r.name} | {r.how} | {_fmt(r.setup_s)} | {_fmt(r.first_s)} | {span} | "
+                     f"{r.cost:.10g} | {r.excess:.1e} | " + " | ".join(ratios) + " |")
+    lines.append("")
+    return lines
+
+
+def versions() -> str:
+    out = [f"python {platform.python_version()}", f"numpy {np.__version__}"]
+    for mod in ("torch", "jax", "jaxls", "pypose", "theseus"):
+        try:
+            m = __import__(mod)
+            out.append(f"{mod} {getattr(m, '__version__', '?')}")
+        except Exception:
+            out.append(f"{mod} (not installed)")
+    return ", ".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--problems", nargs="+", default=["posegraph", "pnp", "bal"],
+                    choices=["posegraph", "pnp", "bal"])
+    ap.add_argument("--contenders", nargs="+", default=list(PEERS), choices=list(PEERS))
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument("--batch", type=int, default=1000, help="problems per batch (1000)")
+    ap.add_argument("--pnp-points", type=int, default=40, help="points per PnP problem (40)")
+    ap.add_argument("--bal", default=str(DEFAULT_BAL), help="the BAL file (problem-49-7776)")
+    ap.add_argument("--iterations", type=int, default=30, help="LM iterations on BAL (30)")
+    ap.add_argument("--rounds", type=int, default=5, help="interleaved timed rounds (5)")
+    ap.add_argument("--pypose-subset", type=int, default=10,
+                    help="PyPose solves this many problems of a batch, time scaled (10)")
+    ap.add_argument("--jaxls-solver", default="dense_cholesky",
+                    help="jaxls's linear solver on BAL (dense_cholesky: Schur + dense, the one "
+                         "its results.md finds fastest; conjugate_gradient is its default)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", help="also write the markdown report here")
+    args = ap.parse_args(argv)
+    if args.batch < 1 or args.rounds < 1 or args.iterations < 1 or args.pnp_points < 6:
+        ap.error("--batch, --rounds and --iterations must be >= 1 and --pnp-points >= 6")
+    if "bal" in args.problems and not Path(args.bal).is_file():
+        ap.error(f"--bal: {args.bal} not found (the shared BAL data, ../shared/data/bal)")
+
+    try:
+        import torch
+        torch.set_num_threads(1)
+        if args.device == "cuda" and not torch.cuda.is_available():
+            ap.error("--device cuda: torch sees no CUDA device")
+    except ImportError:
+        pass
+    try:
+        import jax
+        jax.config.update("jax_enable_x64", True)     # float64, as every other contender
+        from loguru import logger                      # jaxls logs every analyze() at INFO
+        logger.remove()
+    except ImportError:
+        pass
+
+    head = ["# Solves on arrays and devices: microlie against jaxls, PyPose, Theseus", "",
+            "Command: `PYTHONPATH=src " + " ".join([Path(sys.executable).as_posix(),
+                                                    "benchmarks/devices.py", *sys.argv[1:]])
+            + "`", "",
+            f"Date {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {platform.machine()}, "
+            f"{versions()}; device `{args.device}`; one thread each (torch, XLA, BLAS); "
+            f"float64; seed {args.seed}.", "",
+            f"Load at start: {load()}.", ""]
+    if args.device == "cuda":
+        head += ["**CUDA:** this path runs the same code with the arrays on the GPU; it was "
+                 "written and run on CPU only (no GPU at hand), so treat any CUDA figure as "
+                 "the first of its kind.", ""]
+    else:
+        head += ["CUDA (`--device cuda`): the same code, unmeasured until a GPU is at hand "
+                 "(goals: Ladybug-49 in at most 0.08 s for 30 iterations, at least 5x over "
+                 "the CPU engine).", ""]
+    body: list[str] = []
+    for kind in args.problems:
+        run_problem(kind, args, body)
+    report = "\n".join(head + body + [f"Load at end: {load()}.", ""])
+    print(report)
+    if args.out:
+        Path(args.out).write_text(report)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
