@@ -401,6 +401,13 @@ class FactorGraph:
         -------
         Result
 
+        Notes
+        -----
+        Variables given as torch tensors or JAX arrays are solved on that backend and device
+        (:func:`microlie.optim.device.optimize_graph`: Levenberg-Marquardt, ``linear_solver``
+        ``"auto"``, ``"dense"`` or ``"pcg"``); ``result.values`` are then arrays of that
+        backend, dtype and device.
+
         Examples
         --------
         >>> import numpy as np
@@ -418,6 +425,12 @@ class FactorGraph:
         tols = {"rel_tol": rel_tol, "abs_tol": abs_tol, "cost_tol": cost_tol,
                 "step_tol": step_tol}
         given = {k: v for k, v in tols.items() if v is not None}
+        if any(v.source is not None for v in self.variables):  # torch / JAX variables
+            from ..device import optimize_graph
+
+            return optimize_graph(self, values, solver=solver, linear_solver=linear_solver,
+                                  max_iter=max_iter, gauge=gauge, robust=robust, **given,
+                                  **options)
         strategy = make_strategy(solver, **given, **options)
         if robust is not None:
             from .gnc import gnc_solve, make_gnc

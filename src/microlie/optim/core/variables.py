@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from ..._array import is_jax, is_torch
 from ...groups import LieGroup, R, VectorSpace
 
 __all__ = ["Variables", "VectorVariables", "Values", "element", "new_variables"]
@@ -72,20 +73,34 @@ def new_variables(graph: Any, key: int, values: Any, name: str) -> Variables:
     >>> a.group is b.group is R(3), type(a).__name__
     (True, 'VectorVariables')
     """
+    source = _device_params(values)  # torch / JAX parameters: the device engine's start
     if isinstance(values, LieGroup):
         if len(values.batch_shape) != 1:
             raise ValueError(f"{name}: variables must be a 1-D batch of elements (n,), got "
                              f"batch shape {values.batch_shape}")
         group: type[LieGroup] = type(values)
-        p = np.array(values.params, dtype=np.float64)
+        p = np.array(_host(values.params), dtype=np.float64)
     else:
-        p = np.array(values, dtype=np.float64)
+        p = np.array(_host(values), dtype=np.float64)
         if p.ndim != 2 or p.shape[1] < 1:
             raise ValueError(f"{name}: vector variables must be an (n, d) array with d >= 1, "
                              f"got shape {p.shape}")
         group = R(int(p.shape[1]))
     cls = VectorVariables if issubclass(group, VectorSpace) else Variables
-    return cls(graph, key, group, p, name)
+    v = cls(graph, key, group, p, name)
+    v.source = source
+    return v
+
+
+def _device_params(values: Any) -> Any:
+    """The torch or JAX parameter array of ``values`` (``None`` for anything else)."""
+    p = values.params if isinstance(values, LieGroup) else values
+    return p if is_torch(p) or is_jax(p) else None
+
+
+def _host(x: Any) -> Any:
+    """A NumPy-convertible view of ``x`` (a torch tensor detached and on the host)."""
+    return x.detach().cpu().numpy() if is_torch(x) else x
 
 
 class Variables:
@@ -120,6 +135,9 @@ class Variables:
     held : numpy.ndarray
         ``(n, dof)`` bool: tangent components held at zero in every step
         (:meth:`fix` with ``components``).
+    source : array or None
+        The torch tensor or JAX array the variables were given as (their parameters), kept
+        for the device engine (:mod:`microlie.optim.device`); ``None`` for NumPy input.
 
     Examples
     --------
@@ -132,7 +150,8 @@ class Variables:
     ('SE2', 3, 4)
     """
 
-    __slots__ = ("graph", "key", "group", "dof", "n", "initial", "fixed", "held", "name")
+    __slots__ = ("graph", "key", "group", "dof", "n", "initial", "fixed", "held", "name",
+                 "source")
 
     def __init__(self, graph: Any, key: int, group: type[LieGroup], params: np.ndarray,
                  name: str) -> None:
@@ -147,6 +166,7 @@ class Variables:
         self.n = int(params.shape[0])
         self.fixed = np.zeros(self.n, dtype=bool)
         self.held = np.zeros((self.n, self.dof), dtype=bool)
+        self.source: Any = None  # torch / JAX initial parameters (the device engine's start)
 
     def indices(self, idx: Any, what: str = "index") -> np.ndarray:
         """Validated integer indices into this batch.
@@ -678,7 +698,8 @@ class Values:
 
     def __init__(self, handles: list[Variables], params: list[np.ndarray]) -> None:
         self._handles = list(handles)
-        self._params = [np.asarray(p) for p in params]
+        # torch / JAX arrays (device solves) are kept as they are
+        self._params = [p if is_torch(p) or is_jax(p) else np.asarray(p) for p in params]
 
     def __getitem__(self, var: Variables) -> Any:
         return var.wrap(self._params[self._index(var)])

@@ -1,0 +1,153 @@
+"""Dense normal equations and the damped dense Cholesky step (small problems, and batches of
+them): ``H = sum A_k^T A_l`` and ``g = sum A_k^T e`` summed block by block into
+``(B, size, size)`` and ``(B, size)``, then ``(H + diag(d)) dx = -g`` by a batched Cholesky
+factorisation."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .problem import DeviceProblem, Linear
+
+__all__ = ["normal_equations", "dense_step", "gradient"]
+
+
+def _pairs(problem: DeviceProblem) -> list:
+    """Per factor batch and argument pair ``(k, l)``: the flat positions of ``A_k^T A_l`` in
+    the ``(size + 1)^2`` matrix (cached on the problem)."""
+    cache = problem.__dict__.get("_dense_pairs")
+    if cache is None:
+        n1 = problem.size + 1
+        cache = []
+        for t in problem.terms:
+            per = []
+            for k, ck in enumerate(t.cols):
+                for l_, cl in enumerate(t.cols):
+                    flat = (ck[:, :, None] * n1 + cl[:, None, :]).reshape(-1)
+                    per.append((k, l_, problem.backend.index(flat)))
+            cache.append(per)
+        problem.__dict__["_dense_pairs"] = cache
+    return cache
+
+
+def gradient(problem: DeviceProblem, lin: Linear) -> Any:
+    """``g = J^T e`` ``(B, size)`` (whitened, the gradient of the cost).
+
+    Parameters
+    ----------
+    problem : DeviceProblem
+        The problem.
+    lin : Linear
+        Its linearisation.
+
+    Returns
+    -------
+    array
+
+    Examples
+    --------
+    >>> import torch
+    >>> from microlie.optim import FactorGraph, PriorFactor
+    >>> from microlie.optim.device import DeviceProblem
+    >>> from microlie.optim.device.dense import gradient
+    >>> g = FactorGraph()
+    >>> _ = g.add(PriorFactor(g.add_variables(torch.ones((1, 2)).double()), 0, [0.0, 0.0]))
+    >>> p = DeviceProblem.from_graph(g)
+    >>> th = tuple({k: v[None] for k, v in d.items()} for d in p.theta())
+    >>> gradient(p, p.linearize(th, [a[None] for a in p.initial()])).tolist()
+    [[1.0, 1.0]]
+    """
+    return problem.vjp(lin, lin.e)
+
+
+def normal_equations(problem: DeviceProblem, lin: Linear) -> tuple[Any, Any]:
+    """The dense ``H`` ``(B, size, size)`` and ``g`` ``(B, size)`` of a linearisation.
+
+    Parameters
+    ----------
+    problem : DeviceProblem
+        The problem.
+    lin : Linear
+        Its linearisation.
+
+    Returns
+    -------
+    H, g : arrays
+
+    Examples
+    --------
+    >>> import torch
+    >>> from microlie.optim import FactorGraph, PriorFactor, Isotropic
+    >>> from microlie.optim.device import DeviceProblem
+    >>> from microlie.optim.device.dense import normal_equations
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(torch.ones((1, 2)).double())
+    >>> _ = g.add(PriorFactor(x, 0, [0.0, 0.0], Isotropic(2, 0.5)))
+    >>> p = DeviceProblem.from_graph(g)
+    >>> th = tuple({k: v[None] for k, v in d.items()} for d in p.theta())
+    >>> H, grad = normal_equations(p, p.linearize(th, [a[None] for a in p.initial()]))
+    >>> H.tolist(), grad.tolist()
+    ([[[4.0, 0.0], [0.0, 4.0]]], [[4.0, 4.0]])
+    """
+    be = problem.backend
+    n1 = problem.size + 1
+    B = lin.e[0].shape[0]
+    H = be.zeros((B, n1 * n1), like=lin.e[0])
+    for A, pairs in zip(lin.A, _pairs(problem), strict=True):
+        for k, l_, flat in pairs:
+            blk = A[k].transpose(-1, -2) @ A[l_] if be.name == "torch" else \
+                be.xp.swapaxes(A[k], -1, -2) @ A[l_]
+            if be.name == "torch":
+                H = H.index_add(1, flat, blk.reshape(B, -1))
+            else:
+                H = H.at[:, flat].add(blk.reshape(B, -1))
+    H = H.reshape(B, n1, n1)[:, :-1, :-1]
+    return H, gradient(problem, lin)
+
+
+def dense_step(problem: DeviceProblem, H: Any, g: Any, damping: Any) -> tuple[Any, Any]:
+    """The step of ``(H + diag(damping)) dx = -g`` by Cholesky, per problem of the batch.
+
+    Parameters
+    ----------
+    problem : DeviceProblem
+        The problem (its backend).
+    H : array
+        ``(B, size, size)``.
+    g : array
+        ``(B, size)``.
+    damping : array
+        ``(B, size)`` added to the diagonal.
+
+    Returns
+    -------
+    dx : array
+        ``(B, size)``.
+    ok : array
+        ``(B,)`` bool: the damped matrix was positive definite.
+
+    Examples
+    --------
+    >>> import torch
+    >>> from microlie.optim import FactorGraph, PriorFactor
+    >>> from microlie.optim.device import DeviceProblem
+    >>> from microlie.optim.device.dense import dense_step
+    >>> g = FactorGraph()
+    >>> _ = g.add(PriorFactor(g.add_variables(torch.ones((1, 2)).double()), 0, [0.0, 0.0]))
+    >>> p = DeviceProblem.from_graph(g)
+    >>> H = torch.eye(2, dtype=torch.float64)[None]
+    >>> grad = torch.ones((1, 2)).double()
+    >>> dx, ok = dense_step(p, H, grad, torch.full((1, 2), 3.0))  # (1 + 3) dx = -1
+    >>> dx.tolist(), ok.tolist()
+    ([[-0.25, -0.25]], [True])
+    """
+    be = problem.backend
+    n = H.shape[-1]
+    eye = np.eye(n, dtype=np.float64)
+    if be.name == "torch":
+        Hd = H + be.asarray(eye) * damping.to(H.dtype)[..., None, :]
+    else:
+        Hd = H + be.asarray(eye) * damping[..., None, :]
+    return be.cho_solve(Hd, -g)

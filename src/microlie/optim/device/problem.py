@@ -1,0 +1,673 @@
+"""The least-squares problem of a :class:`~microlie.optim.FactorGraph` on torch or JAX arrays:
+its static structure (:class:`DeviceProblem`), its data ``theta`` (measurements and noise
+arrays of every factor batch) and its variables ``x``, kept apart so that a solve is a pure
+function of ``(theta, x0)``.
+
+Layout. Every free variable gets ``dof`` columns, in the order of the NumPy engine's
+:class:`~microlie.optim.core.problem.Problem` (so the gauge checks and the fixed and held
+variables are the same); column ``size`` is a sink for fixed variables and held components
+(their Jacobian columns are zeroed). Arrays carry one leading batch axis ``B`` (a problem
+batch; ``B = 1`` for one problem): ``x[k]`` is ``(B, n_k, param_dim)``.
+
+Linearisation. Each factor batch evaluates its whitened residuals ``e = L r`` ``(B, m, dim)``
+and whitened right Jacobians ``A_k = L J_k`` ``(B, m, dim, dof_k)`` from the group kernels
+(analytic Jacobians, the same formulas as the NumPy factors), on the backend's arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...groups import SO3
+from ..core.factors import BetweenFactor, Factor, PriorFactor
+from ..core.variables import VectorVariables
+from .backend import Backend, make_backend
+
+__all__ = ["DeviceProblem", "Theta", "Linear"]
+
+#: ``theta``: one dict of arrays per factor batch, in graph order (a JAX pytree).
+Theta = tuple
+
+
+@dataclass
+class _Block:
+    """One variable batch: its group, shape and columns."""
+
+    group: Any
+    n: int
+    dof: int
+    vector: bool
+    cols: np.ndarray        # (n, dof) column of each tangent coordinate (size: fixed or held)
+    free: np.ndarray        # (n,) bool
+
+
+@dataclass
+class _Term:
+    """One factor batch: how to evaluate it, its arguments and columns."""
+
+    kind: str               # "prior", "between", "reprojection"
+    keys: list[int]         # variable batch of each argument
+    idx: list[Any]          # backend int indices of each argument (m,)
+    idx_np: list[np.ndarray]
+    cols: list[np.ndarray]  # (m, dof_k) columns of each argument
+    mask: list[Any]         # backend (m, 1, dof_k) 0/1: the columns that are unknowns
+    dim: int
+    m: int
+    info: dict
+
+
+class Linear:
+    """A linearisation: whitened residuals and Jacobian blocks per factor batch.
+
+    Attributes
+    ----------
+    e : list of arrays
+        ``(B, m, dim)`` whitened residuals per factor batch.
+    A : list of list of arrays
+        ``(B, m, dim, dof_k)`` whitened Jacobians per batch and argument (zero columns for
+        fixed variables and held components).
+    cost : array
+        ``(B,)``: ``0.5 * sum |e|^2``.
+    """
+
+    __slots__ = ("e", "A", "cost")
+
+    def __init__(self, e: list, A: list, cost: Any) -> None:
+        self.e, self.A, self.cost = e, A, cost
+
+
+class DeviceProblem:
+    """The static structure of a graph's least-squares problem on torch or JAX: the variable
+    layout, which factor batch touches which variables, and how each evaluates.
+
+    Build it with :meth:`from_graph`; :meth:`theta` and :meth:`initial` give the arrays a solve
+    (:func:`~microlie.optim.device.solve`) takes. Supported factors: :class:`PriorFactor`,
+    :class:`BetweenFactor` (any group, and vectors) and
+    :class:`~microlie.optim.ReprojectionFactor` (``"bal"`` and ``"pinhole"`` models, SE3 or
+    SO3 x R(3) world-to-camera poses, variable or constant intrinsics); no robust losses.
+
+    Attributes
+    ----------
+    backend : Backend
+        The library, dtype and device.
+    size : int
+        The number of unknowns (free tangent coordinates).
+    blocks : list
+        Per variable batch: group, count, dof, columns.
+    terms : list
+        Per factor batch: kind, arguments, columns.
+    eliminate : list of int
+        The variable batches a Schur PCG step eliminates (landmarks; empty when none).
+
+    Examples
+    --------
+    >>> import torch
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
+    >>> from microlie.optim.device import DeviceProblem
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.from_params(torch.tensor([[0.0, 0, 1, 0]] * 3).double()))
+    >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+    >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
+    >>> p = DeviceProblem.from_graph(g)
+    >>> p.size, p.backend.name, [t.kind for t in p.terms]
+    (9, 'torch', ['prior', 'between'])
+    """
+
+    def __init__(self, graph: Any, backend: Backend, gauge: str = "check") -> None:
+        prob = graph.problem(gauge)
+        self.graph = graph
+        self.backend = be = backend
+        self.size = N = int(prob.size)
+        self.variables = list(prob.variables)
+        self.gauge_fixed = list(prob.gauge_fixed)
+        held = np.zeros(N + 1, dtype=bool)
+        held[prob.held] = True
+        self.blocks: list[_Block] = []
+        for v, nodes in zip(prob.variables, prob.node_of, strict=True):
+            free = nodes >= 0
+            cols = np.full((v.n, v.dof), N, dtype=np.int64)
+            cols[free] = prob.node_off[nodes[free]][:, None] + np.arange(v.dof)
+            cols[held[cols]] = N
+            self.blocks.append(_Block(v.group, v.n, v.dof, isinstance(v, VectorVariables), cols,
+                                      free))
+        self._colmap = [be.index(b.cols) for b in self.blocks]
+        self.terms = [self._term(prob, f) for f in prob.factors]
+        self.rows = int(sum(t.m * t.dim for t in self.terms))
+        self.eliminate = self._landmarks(prob)
+
+    # ------------------------------------------------------------------ building
+    @classmethod
+    def from_graph(cls, graph: Any, *, gauge: str = "check", backend: str | None = None,
+                   dtype: str | None = None, device: Any = None) -> DeviceProblem:
+        """The problem of ``graph``, on the backend of its variables (or the one named).
+
+        Parameters
+        ----------
+        graph : FactorGraph
+            Variables given as torch tensors or JAX arrays (any array with ``backend``).
+        gauge : {"check", "fix_first", "none"}
+            As :meth:`FactorGraph.optimize`.
+        backend : {"torch", "jax"}, optional
+            Default: the library of the variables (a ``ValueError`` when they mix torch and
+            JAX, naming both).
+        dtype : {"float64", "float32"}, optional
+            Default: the variables' dtype.
+        device : optional
+            Default: the variables' device.
+
+        Returns
+        -------
+        DeviceProblem
+
+        Raises
+        ------
+        ValueError
+            Mixed backends, a factor type or robust loss the device engine does not support
+            (the message names it), float64 on JAX without ``jax_enable_x64``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> from microlie.optim.device import DeviceProblem
+        >>> g = FactorGraph()
+        >>> _ = g.add(PriorFactor(g.add_variables(SE2.identity(2)), [0, 1], SE2.identity()))
+        >>> DeviceProblem.from_graph(g, backend="torch", dtype="float32").backend
+        Backend('torch', 'float32', device=device(type='cpu'))
+        """
+        if backend is None:
+            be = make_backend([v.source if v.source is not None else v.initial
+                               for v in graph.variables], dtype, device)
+        else:
+            be = Backend(backend, dtype or "float64", device)
+        return cls(graph, be, gauge)
+
+    def _term(self, prob: Any, f: Factor) -> _Term:
+        be = self.backend
+        if f.loss is not None:
+            raise ValueError(f"{f.name}: the device engine does not apply robust losses yet "
+                             f"(loss {type(f.loss).__name__}); use the NumPy engine")
+        keys = [prob.key(v) for v, _ in f.args]
+        cols = [self.blocks[k].cols[i] for k, (_, i) in zip(keys, f.args, strict=True)]
+        info: dict = {}
+        if type(f) is PriorFactor:
+            kind = "prior"
+        elif type(f) is BetweenFactor:
+            kind = "between"
+        elif type(f).__name__ == "ReprojectionFactor":
+            kind = "reprojection"
+            rf: Any = f
+            model = getattr(rf.model, "name", "")
+            if model not in ("bal", "pinhole") or getattr(rf.model, "distortion", False):
+                raise ValueError(f"ReprojectionFactor: the device engine supports the 'bal' and "
+                                 f"'pinhole' models, got {model!r}")
+            if rf.camera_to_world:
+                raise ValueError("ReprojectionFactor: the device engine supports "
+                                 "world-to-camera poses (camera_to_world=False)")
+            info = {"model": model, "pose": rf.pose_form, "behind": rf.behind,
+                    "const_K": rf.intrinsics is not None}
+        else:
+            raise ValueError(f"{f.name}: the device engine evaluates PriorFactor, BetweenFactor "
+                             f"and ReprojectionFactor; solve graphs with {f.name} with the "
+                             f"NumPy engine (NumPy variables)")
+        mask = [be.asarray((c != self.size).astype(np.float64)[:, None, :]) for c in cols]
+        return _Term(kind, keys, [be.index(i) for _, i in f.args], [i for _, i in f.args], cols,
+                     mask, f.dim, f.count, info)
+
+    def _landmarks(self, prob: Any) -> list[int]:
+        if not any(t.kind == "reprojection" for t in self.terms):
+            return []
+        from ..core.elimination import landmark_batches
+
+        try:
+            return [prob.key(v) for v in landmark_batches(prob)]
+        except ValueError:
+            return []
+
+    # ------------------------------------------------------------------ arrays
+    def theta(self) -> Theta:
+        """The data of every factor batch as backend arrays (no batch axis): per batch a dict
+        with ``"L"`` (``(m, dim, dim)`` square-root information) and ``"Z"`` (prior and
+        between: ``(m, param_dim)`` measurement parameters) or ``"obs"`` (``(m, 2)`` pixels)
+        and ``"K"`` (constant intrinsics ``(m, k)``).
+
+        Returns
+        -------
+        tuple of dict
+            A pytree; stack along a new leading axis for a problem batch
+            (:func:`~microlie.optim.device.stack`).
+
+        Examples
+        --------
+        >>> import torch
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> from microlie.optim.device import DeviceProblem
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.from_params(torch.tensor([[0.0, 0, 1, 0]]).double()))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> th = DeviceProblem.from_graph(g).theta()
+        >>> sorted(th[0]), tuple(th[0]["L"].shape)
+        (['L', 'Z'], (1, 3, 3))
+        """
+        be = self.backend
+        out = []
+        for t, f in zip(self.terms, self.graph.problem().factors, strict=True):
+            L = np.broadcast_to(np.asarray(f.noise.sqrt_info, dtype=np.float64),
+                                (t.m, t.dim, t.dim))
+            d = {"L": be.asarray(np.ascontiguousarray(L))}
+            if t.kind in ("prior", "between"):
+                var = f.args[0][0]
+                d["Z"] = be.asarray(np.asarray(var.params_of(f.Z), dtype=np.float64))
+            else:
+                d["obs"] = be.asarray(f.observations)
+                if t.info["const_K"]:
+                    d["K"] = be.asarray(f.intrinsics)
+            out.append(d)
+        return tuple(out)
+
+    def initial(self, values: Any = None) -> list[Any]:
+        """The starting parameters of every variable batch as backend arrays (no batch
+        axis): ``values`` (a :class:`~microlie.optim.Values`) or the graph's initial values
+        (the arrays given to ``add_variables``, converted to this backend, dtype and device).
+
+        Parameters
+        ----------
+        values : Values, optional
+            The starting point.
+
+        Returns
+        -------
+        list of arrays
+            ``(n_k, param_dim)`` each.
+
+        Examples
+        --------
+        >>> import torch
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> from microlie.optim.device import DeviceProblem
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.from_params(torch.tensor([[0.0, 0, 1, 0]]).double()))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> DeviceProblem.from_graph(g).initial()[0]
+        tensor([[0., 0., 1., 0.]], dtype=torch.float64)
+        """
+        be = self.backend
+        out = []
+        for v in self.variables:
+            if values is not None:
+                p = values.params(v)
+            else:
+                p = v.source if v.source is not None else v.initial
+            out.append(be.asarray(p))
+        return out
+
+    # ------------------------------------------------------------------ evaluation
+    def _gather(self, x: list[Any], t: _Term) -> list[Any]:
+        be = self.backend
+        return [be.take(x[k], i, axis=-2) for k, i in zip(t.keys, t.idx, strict=True)]
+
+    def _evaluate(self, t: _Term, args: list[Any], th: dict, jac: bool) -> Any:
+        """Residuals ``(B, m, dim)`` and, with ``jac``, the Jacobians ``(B, m, dim, dof_k)``
+        (unwhitened)."""
+        if t.kind == "prior":
+            return _prior(self.blocks[t.keys[0]], args[0], th["Z"], jac)
+        if t.kind == "between":
+            return _between(self.blocks[t.keys[0]], args[0], args[1], th["Z"], jac)
+        return _reprojection(self.backend, t.info, args, th, jac)
+
+    def residuals(self, theta: Theta, x: list[Any]) -> list[Any]:
+        """Whitened residuals ``e = L r`` per factor batch.
+
+        Parameters
+        ----------
+        theta : tuple of dict
+            From :meth:`theta` (with the batch axis of ``x``).
+        x : list of arrays
+            ``(B, n_k, param_dim)`` parameters.
+
+        Returns
+        -------
+        list of arrays
+            ``(B, m, dim)`` each.
+
+        Examples
+        --------
+        >>> import torch
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, Isotropic
+        >>> from microlie.optim.device import DeviceProblem
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.from_params(torch.tensor([[1.0, 0, 1, 0]]).double()))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity(), Isotropic(3, 0.5)))
+        >>> p = DeviceProblem.from_graph(g)
+        >>> th = tuple({k: v[None] for k, v in d.items()} for d in p.theta())
+        >>> p.residuals(th, [a[None] for a in p.initial()])[0].tolist()
+        [[[2.0, 0.0, 0.0]]]
+        """
+        out = []
+        for t, th in zip(self.terms, theta, strict=True):
+            r = self._evaluate(t, self._gather(x, t), th, False)
+            out.append(_whiten(th["L"], r))
+        return out
+
+    def cost(self, theta: Theta, x: list[Any]) -> Any:
+        """``0.5 * sum r^T Omega r`` per problem, ``(B,)``.
+
+        Parameters
+        ----------
+        theta : tuple of dict
+            From :meth:`theta` (with the batch axis of ``x``).
+        x : list of arrays
+            ``(B, n_k, param_dim)`` parameters.
+
+        Returns
+        -------
+        array
+            ``(B,)``.
+
+        Examples
+        --------
+        >>> import torch
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor, Isotropic
+        >>> from microlie.optim.device import DeviceProblem
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.from_params(torch.tensor([[1.0, 0, 1, 0]]).double()))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity(), Isotropic(3, 0.5)))
+        >>> p = DeviceProblem.from_graph(g)
+        >>> th = tuple({k: v[None] for k, v in d.items()} for d in p.theta())
+        >>> p.cost(th, [a[None] for a in p.initial()]).tolist()  # 0.5 * (1 / 0.5)^2
+        [2.0]
+        """
+        total = 0.0
+        for e in self.residuals(theta, x):
+            total = total + 0.5 * _sum2(e)
+        return total
+
+    def linearize(self, theta: Theta, x: list[Any]) -> Linear:
+        """Whitened residuals and Jacobians of every factor batch at ``x``.
+
+        Parameters
+        ----------
+        theta : tuple of dict
+            From :meth:`theta` (with the batch axis of ``x``).
+        x : list of arrays
+            ``(B, n_k, param_dim)`` parameters.
+
+        Returns
+        -------
+        Linear
+
+        Examples
+        --------
+        >>> import torch
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> from microlie.optim.device import DeviceProblem
+        >>> g = FactorGraph()
+        >>> x = g.add_variables(SE2.from_params(torch.tensor([[1.0, 0, 1, 0]]).double()))
+        >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
+        >>> p = DeviceProblem.from_graph(g)
+        >>> th = tuple({k: v[None] for k, v in d.items()} for d in p.theta())
+        >>> lin = p.linearize(th, [a[None] for a in p.initial()])
+        >>> lin.A[0][0].shape, lin.cost.tolist()
+        (torch.Size([1, 1, 3, 3]), [0.5])
+        """
+        es, As = [], []
+        cost = 0.0
+        for t, th in zip(self.terms, theta, strict=True):
+            r, Js = self._evaluate(t, self._gather(x, t), th, True)
+            L = th["L"]
+            e = _whiten(L, r)
+            es.append(e)
+            As.append([(L @ J) * mk for J, mk in zip(Js, t.mask, strict=True)])
+            cost = cost + 0.5 * _sum2(e)
+        return Linear(es, As, cost)
+
+    def retract(self, x: list[Any], dx: Any) -> list[Any]:
+        """``X Exp(dx)`` for every free variable (``x + dx`` for vectors); fixed variables and
+        held components do not move.
+
+        Parameters
+        ----------
+        x : list of arrays
+            ``(B, n_k, param_dim)``.
+        dx : array
+            ``(B, size)`` step.
+
+        Returns
+        -------
+        list of arrays
+
+        Examples
+        --------
+        >>> import torch
+        >>> from microlie import SE2
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> from microlie.optim.device import DeviceProblem
+        >>> g = FactorGraph()
+        >>> X = SE2.from_params(torch.tensor([[0.0, 0, 1, 0]] * 2).double())
+        >>> x = g.add_variables(X, fixed=[0])
+        >>> _ = g.add(PriorFactor(x, 1, SE2.identity()))
+        >>> p = DeviceProblem.from_graph(g)
+        >>> x1 = p.retract([a[None] for a in p.initial()], torch.tensor([[1.0, 2.0, 0.0]]).double())
+        >>> x1[0][0].tolist()
+        [[0.0, 0.0, 1.0, 0.0], [1.0, 2.0, 1.0, 0.0]]
+        """
+        be = self.backend
+        ext = extend(be, dx)
+        out = []
+        for b, cm, p in zip(self.blocks, self._colmap, x, strict=True):
+            if not b.free.any():
+                out.append(p)
+                continue
+            d = be.take(ext, cm.reshape(-1), axis=-1).reshape(*ext.shape[:-1], b.n, b.dof)
+            if b.vector:
+                out.append(p + d)
+            else:
+                out.append(b.group.from_params(p, check=False).plus(d).params)
+        return out
+
+    # ------------------------------------------------------------------ products
+    def jvp(self, lin: Linear, v: Any) -> list[Any]:
+        """``J v`` per factor batch (whitened), ``(B, m, dim)`` each, for a step ``v``
+        ``(B, size)``."""
+        be = self.backend
+        ext = extend(be, v)
+        out = []
+        for t, A in zip(self.terms, lin.A, strict=True):
+            acc = 0.0
+            for Ak, c in zip(A, t.cols, strict=True):
+                vk = be.take(ext, be.index(c.reshape(-1)), axis=-1).reshape(
+                    *ext.shape[:-1], t.m, c.shape[1])
+                acc = acc + (Ak @ vk[..., None])[..., 0]
+            out.append(acc)
+        return out
+
+    def vjp(self, lin: Linear, u: list[Any]) -> Any:
+        """``J^T u`` ``(B, size)`` for per-batch ``u`` ``(B, m, dim)``."""
+        be = self.backend
+        B = u[0].shape[0] if u else 1
+        out = be.zeros((B, self.size + 1))
+        for t, A, ut in zip(self.terms, lin.A, u, strict=True):
+            for Ak, c in zip(A, t.cols, strict=True):
+                w = (ut[..., None, :] @ Ak)[..., 0, :]          # (B, m, dof)
+                out = add_last(be, out, be.index(c.reshape(-1)), w.reshape(B, -1))
+        return out[..., :self.size]
+
+
+# ---------------------------------------------------------------------- helpers
+def _sum2(e: Any) -> Any:
+    return (e * e).reshape(e.shape[0], -1).sum(-1)
+
+
+def _whiten(L: Any, r: Any) -> Any:
+    return (L @ r[..., None])[..., 0]
+
+
+def extend(be: Backend, dx: Any) -> Any:
+    """``dx`` with a zero column appended (the sink of fixed and held columns)."""
+    z = be.zeros((*dx.shape[:-1], 1), like=dx)
+    return be.xp.concatenate([dx, z], axis=-1) if be.name == "jax" else be.xp.cat([dx, z], -1)
+
+
+def add_last(be: Backend, out: Any, idx: Any, src: Any) -> Any:
+    """``out[:, idx] += src`` along the last axis, functionally."""
+    if be.name == "torch":
+        return out.index_add(out.ndim - 1, idx, src)
+    return out.at[..., idx].add(src)
+
+
+def _eye(like: Any, d: int, shape: tuple) -> Any:
+    import sys
+
+    if "torch" in type(like).__module__:
+        t = sys.modules["torch"]
+        return t.eye(d, dtype=like.dtype, device=like.device).expand(*shape, d, d)
+    import jax.numpy as jnp
+
+    return jnp.broadcast_to(jnp.eye(d, dtype=like.dtype), (*shape, d, d))
+
+
+def _prior(b: _Block, X: Any, Z: Any, jac: bool) -> Any:
+    if b.vector:
+        r = X - Z
+        return (r, [_eye(r, b.dof, r.shape[:-1])]) if jac else r
+    g = b.group
+    E = g.from_params(Z, check=False).inverse().compose(g.from_params(X, check=False))
+    if not jac:
+        return E.log()
+    r, J = E.log(jac=True)
+    return r, [J]
+
+
+def _between(b: _Block, Xi: Any, Xj: Any, Z: Any, jac: bool) -> Any:
+    if b.vector:
+        r = Xj - Xi - Z
+        if not jac:
+            return r
+        eye = _eye(r, b.dof, r.shape[:-1])
+        return r, [-eye, eye]
+    g = b.group
+    Zg = g.from_params(Z, check=False)
+    XiZ = g.from_params(Xi, check=False).compose(Zg)
+    Yj = g.from_params(Xj, check=False)
+    if not jac:
+        return Yj.minus(XiZ)
+    r, Jj, Jc = Yj.minus(XiZ, jac=True)
+    return r, [Jc @ Zg.inverse().adjoint(), Jj]
+
+
+def _skew_rows(R: Any, X: Any) -> Any:
+    """``R [X]_x`` for ``(..., 3, 3)`` R and ``(..., 3)`` X: column j of ``R [X]_x`` is
+    ``R (X x e_j)``... built from the columns of R: ``[X]_x`` columns are ``(0, X2, -X1)``,
+    ``(-X2, 0, X0)``, ``(X1, -X0, 0)``."""
+    x0, x1, x2 = X[..., 0:1], X[..., 1:2], X[..., 2:3]
+    c0, c1, c2 = R[..., :, 0], R[..., :, 1], R[..., :, 2]
+    col0 = c1 * x2 - c2 * x1
+    col1 = c2 * x0 - c0 * x2
+    col2 = c0 * x1 - c1 * x0
+    return _stack_last([col0, col1, col2])
+
+
+def _stack_last(cols: list[Any]) -> Any:
+    import sys
+
+    if "torch" in type(cols[0]).__module__:
+        return sys.modules["torch"].stack(cols, -1)
+    import jax.numpy as jnp
+
+    return jnp.stack(cols, -1)
+
+
+def _project(model: str, P: Any, K: Any, jac: bool) -> Any:
+    """Pixels ``(..., 2)`` and, with ``jac``, ``d uv / d P`` ``(..., 2, 3)`` and
+    ``d uv / d K`` ``(..., 2, k)`` (the formulas of :mod:`microlie.optim.sfm.camera`)."""
+    if model == "bal":
+        f, k1, k2 = K[..., 0], K[..., 1], K[..., 2]
+        iz = -1.0 / P[..., 2]
+        px, py = P[..., 0] * iz, P[..., 1] * iz
+        r2 = px * px + py * py
+        d = 1.0 + r2 * (k1 + k2 * r2)
+        fd = f * d
+        uv = _stack_last([fd * px, fd * py])
+        if not jac:
+            return uv
+        g = 2.0 * f * (k1 + 2.0 * k2 * r2)
+        a00, a01, a11 = fd + g * px * px, g * px * py, fd + g * py * py
+        row0 = _stack_last([a00 * iz, a01 * iz, (a00 * px + a01 * py) * iz])
+        row1 = _stack_last([a01 * iz, a11 * iz, (a01 * px + a11 * py) * iz])
+        fr2 = f * r2
+        k0 = _stack_last([d * px, fr2 * px, fr2 * r2 * px])
+        k1r = _stack_last([d * py, fr2 * py, fr2 * r2 * py])
+        return uv, _stack_rows([row0, row1]), _stack_rows([k0, k1r])
+    fx, fy, cx, cy = K[..., 0], K[..., 1], K[..., 2], K[..., 3]
+    iz = 1.0 / P[..., 2]
+    x, y = P[..., 0] * iz, P[..., 1] * iz
+    uv = _stack_last([fx * x + cx, fy * y + cy])
+    if not jac:
+        return uv
+    z0 = 0.0 * x
+    row0 = _stack_last([fx * iz, z0, -fx * x * iz])
+    row1 = _stack_last([z0, fy * iz, -fy * y * iz])
+    one = z0 + 1.0
+    k0 = _stack_last([x, z0, one, z0])
+    k1r = _stack_last([z0, y, z0, one])
+    return uv, _stack_rows([row0, row1]), _stack_rows([k0, k1r])
+
+
+def _stack_rows(rows: list[Any]) -> Any:
+    import sys
+
+    if "torch" in type(rows[0]).__module__:
+        return sys.modules["torch"].stack(rows, -2)
+    import jax.numpy as jnp
+
+    return jnp.stack(rows, -2)
+
+
+def _reprojection(be: Backend, info: dict, args: list[Any], th: dict, jac: bool) -> Any:
+    """``r = project(R X + t, K) - obs`` and its right Jacobians (pose, point, intrinsics)."""
+    if info["pose"] == "SE3":
+        p = args[0]
+        R = SO3.from_params(p[..., 3:], check=False).matrix()
+        t = p[..., :3]
+        n = 1
+    else:
+        R = SO3.from_params(args[0], check=False).matrix()
+        t = args[1]
+        n = 2
+    X = args[n]
+    K = th["K"] if info["const_K"] else args[n + 1]
+    P = (R @ X[..., None])[..., 0] + t
+    out = _project(info["model"], P, K, jac)
+    uv = out[0] if jac else out
+    r = uv - th["obs"]
+    keep = None
+    if info["behind"] == "drop":
+        front = P[..., 2] < 0.0 if info["model"] == "bal" else P[..., 2] > 0.0
+        keep = be.where(front, 1.0, 0.0)[..., None]
+        r = r * keep
+    if not jac:
+        return r
+    _, A, JK = out
+    AR = A @ R                                   # d r / d X, and d r / d rho (SE3)
+    Aphi = -(A @ _skew_rows(R, X))               # d r / d phi
+    if info["pose"] == "SE3":
+        cat = be.xp.concatenate if be.name == "jax" else be.xp.cat
+        Js = [cat([AR, Aphi], -1)]
+    else:
+        Js = [Aphi, A]
+    Js.append(AR)
+    if not info["const_K"]:
+        Js.append(JK)
+    if keep is not None:
+        Js = [J * keep[..., None] for J in Js]
+    return r, Js
