@@ -391,6 +391,115 @@ def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
     return Contender("microlie NumPy/C", how, run, time.perf_counter() - t0, ours=True)
 
 
+# ---- microlie on torch and JAX (microlie.optim.device)
+
+def _device_template(kind: str, prob: Any) -> tuple[Any, Any, Any]:
+    """The graph of the batch's first problem (NumPy), and the batch's ``theta`` and ``x0``
+    arrays (NumPy, leading axis ``B``) in the layout of :meth:`DeviceProblem.theta`."""
+    from microlie import SE3
+    from microlie.optim import (BetweenFactor, Diagonal, FactorGraph, PriorFactor,
+                                ReprojectionFactor)
+    g = FactorGraph()
+    if kind == "posegraph":
+        X = g.add_variables(SE3(params_from_matrix(prob.X0[0])))
+        g.add(BetweenFactor(X, prob.edges[:, 0], prob.edges[:, 1],
+                            SE3(params_from_matrix(prob.Z[0])), Diagonal(1 / prob.w_edge)))
+        g.add(PriorFactor(X, 0, SE3(params_from_matrix(prob.Z0[0])),
+                          Diagonal(1 / prob.w_prior)))
+        theta = [{"Z": params_from_matrix(prob.Z)}, {"Z": params_from_matrix(prob.Z0)[:, None]}]
+        x0 = [params_from_matrix(prob.X0)]
+    else:
+        m = prob.points.shape[1]
+        T = g.add_variables(SE3(params_from_matrix(prob.T0[:1])))
+        P = g.add_variables(prob.points[0], fixed=True)
+        g.add(ReprojectionFactor((T, np.zeros(m, dtype=int)), (P, np.arange(m)), prob.uv[0],
+                                 model="pinhole", intrinsics=prob.K))
+        theta = [{"obs": prob.uv}]
+        x0 = [params_from_matrix(prob.T0)[:, None], prob.points]
+    return g, theta, x0
+
+
+def microlie_device(kind: str, prob: Any, device: str, backend: str, compiled: bool = False,
+                    **kw: Any) -> Contender:
+    """The device engine (``microlie.optim.device``): the structure from one graph, the batch
+    as arrays with a leading axis (``solve(problem, theta, x0, options)``); on JAX the solve
+    under ``jax.jit``; on torch eager, or ``torch.compile(fullgraph=True)`` with
+    ``compiled``."""
+    from microlie.optim.device import DeviceProblem, LMOptions, solve
+    t0 = time.perf_counter()
+    if backend == "jax":
+        import jax
+        dev: Any = _jax_device(device)
+
+        def put(x: np.ndarray) -> Any:
+            return jax.device_put(np.asarray(x, dtype=np.float64), dev)
+    else:
+        import torch
+        dev = torch.device(device)
+
+        def put(x: np.ndarray) -> Any:
+            return torch.as_tensor(np.asarray(x, dtype=np.float64), device=dev)
+
+    if kind == "bal":
+        from microlie.optim import BALProblem, BundleProblem
+        from microlie.optim.sfm.bundle import bundle_graph
+        bg = bundle_graph(BundleProblem.from_bal(BALProblem(prob.cameras, prob.points, prob.cam,
+                                                            prob.pt, prob.uv)))
+        problem = DeviceProblem.from_graph(bg.graph, gauge="none", backend=backend,
+                                           dtype="float64", device=dev)
+        theta = problem.theta()
+        x0 = problem.initial()
+        n = prob.iterations
+        opts = LMOptions(max_iter=n, max_tries=n, rel_tol=0.0, abs_tol=0.0, linear="pcg",
+                         loop="fixed" if compiled else "auto")
+        how = f"LM (GTSAM rules), Schur + block-Jacobi PCG, {n} tries"
+    else:
+        g, th_b, x0_b = _device_template(kind, prob)
+        problem = DeviceProblem.from_graph(g, backend=backend, dtype="float64", device=dev)
+        theta = tuple({**{k: v for k, v in d.items()}, **{k: put(v) for k, v in b.items()}}
+                      for d, b in zip(problem.theta(), th_b, strict=True))
+        x0 = [put(v) for v in x0_b]
+        opts = LMOptions(linear="dense", loop="fixed" if compiled else "auto")
+        how = "batch axis, LM (GTSAM rules), batched dense Cholesky"
+
+    if backend == "jax":
+        import jax
+        f = jax.jit(solve, static_argnums=(0, 3))
+
+        def run() -> Any:
+            x, _ = jax.block_until_ready(f(problem, theta, x0, opts))
+            return finish(x)
+        name, how = "microlie JAX", how + ", jax.jit"
+    else:
+        import torch
+        f = torch.compile(solve, fullgraph=True) if compiled else solve
+
+        def run() -> Any:
+            with torch.no_grad():
+                x, _ = f(problem, theta, x0, opts)
+            _sync_torch(device)
+            return finish(x)
+        name = "microlie torch" + (" compiled" if compiled else "")
+        how += ", torch.compile(fullgraph=True)" if compiled else ", eager"
+
+    def finish(x: list[Any]) -> Any:
+        xs = [np.asarray(v.cpu() if hasattr(v, "cpu") else v) for v in x]
+        if kind == "posegraph":
+            return matrix_from_params(xs[0])
+        if kind == "pnp":
+            return matrix_from_params(xs[0][:, 0])
+        vals = {v: xs[k] for k, v in enumerate(problem.variables)}
+        return _bal_arrays(bg, vals)
+    return Contender(name, how, run, time.perf_counter() - t0, ours=True)
+
+
+def _bal_arrays(bg: Any, vals: dict[Any, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """BAL ``(cameras, points)`` from the parameters of a :func:`bundle_graph`'s variables."""
+    rot = so3_log(matrix_from_quat_xyzw(vals[bg.rotations]))
+    cams = np.concatenate([rot, vals[bg.translations], vals[bg.intrinsics]], -1)
+    return cams, vals[bg.points]
+
+
 # ---- jaxls
 
 def _jax_device(device: str) -> Any:
@@ -657,6 +766,9 @@ def theseus_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender
 
 PEERS: dict[str, Callable[..., Contender]] = {
     "numpy": microlie_numpy,
+    "jax": lambda *a, **k: microlie_device(*a, backend="jax", **k),
+    "torch": lambda *a, **k: microlie_device(*a, backend="torch", **k),
+    "torch-compiled": lambda *a, **k: microlie_device(*a, backend="torch", compiled=True, **k),
     "jaxls": jaxls_contender,
     "pypose": pypose_contender,
     "theseus": theseus_contender,
@@ -817,7 +929,9 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--problems", nargs="+", default=["posegraph", "pnp", "bal"],
                     choices=["posegraph", "pnp", "bal"])
-    ap.add_argument("--contenders", nargs="+", default=list(PEERS), choices=list(PEERS))
+    ap.add_argument("--contenders", nargs="+", choices=list(PEERS),
+                    default=[c for c in PEERS if c != "torch-compiled"],
+                    help="default: all but torch-compiled (its compile takes minutes)")
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     ap.add_argument("--batch", type=int, default=1000, help="problems per batch (1000)")
     ap.add_argument("--pnp-points", type=int, default=40, help="points per PnP problem (40)")
