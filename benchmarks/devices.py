@@ -438,7 +438,7 @@ def microlie_device(kind: str, prob: Any, device: str, backend: str, compiled: b
         dev = torch.device(device)
 
         def put(x: np.ndarray) -> Any:
-            return torch.as_tensor(np.asarray(x, dtype=np.float64), device=dev)
+            return torch.as_tensor(np.array(x, dtype=np.float64), device=dev)
 
     if kind == "bal":
         from microlie.optim import BALProblem, BundleProblem
@@ -447,7 +447,11 @@ def microlie_device(kind: str, prob: Any, device: str, backend: str, compiled: b
                                                             prob.pt, prob.uv)))
         problem = DeviceProblem.from_graph(bg.graph, gauge="none", backend=backend,
                                            dtype="float64", device=dev)
-        theta = problem.theta()
+        # theta as DeviceProblem.theta() lays it out (unit noise, the pixels); built here
+        # because theta() re-checks the gauge with the graph's default ("check"), which a BAL
+        # graph (gauge left to the damping, as bundle_adjust does) fails
+        theta = ({"L": put(np.broadcast_to(np.eye(2), (len(prob.uv), 2, 2))),
+                  "obs": put(prob.uv)},)
         x0 = problem.initial()
         n = prob.iterations
         opts = LMOptions(max_iter=n, max_tries=n, rel_tol=0.0, abs_tol=0.0, linear="pcg",
@@ -738,7 +742,7 @@ def theseus_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender
         start = {"T": tt(prob.T0[:, :3, :])}
         names = ["T"]
     else:
-        raise NotImplementedError("Theseus on BAL: see theseus_bal")
+        return theseus_bal(prob, device, **kw)
 
     objective = th.Objective(dtype=torch.float64)
     for c in costs:
@@ -760,6 +764,71 @@ def theseus_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender
         return M if kind == "posegraph" else M[:, 0]
     return Contender("Theseus", f"LevenbergMarquardt (adaptive damping, dense Cholesky), "
                      f"batch axis, <= {maxit} iterations", run, time.perf_counter() - t0)
+
+
+def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
+    """BAL with Theseus: one ``th.SE3`` pose, one ``th.Vector`` of intrinsics per camera and
+    one ``th.Point3`` per point, one ``AutoDiffCostFunction`` per observation (its
+    ``th.eb.Reprojection`` holds the intrinsics constant, BAL optimises them), LM with its
+    default fixed damping (its adaptive damping refuses CHOLMOD) and ``CholmodSparseSolver`` (the dense default would need a 23,769^2
+    matrix), ``prob.iterations`` iterations, no early stop."""
+    import theseus as th
+    import torch
+
+    dev = torch.device(device)
+    t0 = time.perf_counter()
+
+    def tt(x: np.ndarray) -> Any:
+        return torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float64, device=dev)
+
+    R = so3_exp(prob.cameras[:, :3])
+    Rt = np.concatenate([R, prob.cameras[:, 3:6, None]], -1)
+    poses = [th.SE3(tensor=tt(Rt[c:c + 1]), name=f"pose{c}") for c in range(len(Rt))]
+    intr = [th.Vector(tensor=tt(prob.cameras[c:c + 1, 6:]), name=f"K{c}")
+            for c in range(len(Rt))]
+    pts = [th.Point3(tensor=tt(prob.points[k:k + 1]), name=f"p{k}")
+           for k in range(len(prob.points))]
+
+    def err(optim_vars: Any, aux_vars: Any) -> Any:
+        pose, K, X = optim_vars
+        P = pose.transform_from(X).tensor
+        x = -P[:, :2] / P[:, 2:3]
+        r2 = (x * x).sum(1, keepdim=True)
+        k = K.tensor
+        return k[:, :1] * (1 + k[:, 1:2] * r2 + k[:, 2:3] * r2 * r2) * x - aux_vars[0].tensor
+
+    objective = th.Objective(dtype=torch.float64)
+    unit = th.ScaleCostWeight(tt(np.ones(1)))
+    for o in range(len(prob.uv)):
+        c, k = int(prob.cam[o]), int(prob.pt[o])
+        objective.add(th.AutoDiffCostFunction(
+            [poses[c], intr[c], pts[k]], err, 2, unit,
+            aux_vars=[th.Variable(tt(prob.uv[o:o + 1]), name=f"uv{o}")], name=f"r{o}"))
+    objective.to(dev)
+    n = prob.iterations
+    opt = th.LevenbergMarquardt(objective, linear_solver_cls=th.CholmodSparseSolver,
+                                max_iterations=n, abs_err_tolerance=0.0, rel_err_tolerance=0.0)
+    layer = th.TheseusLayer(opt)
+    layer.to(dev)
+    start = {**{f"pose{c}": tt(Rt[c:c + 1]) for c in range(len(Rt))},
+             **{f"K{c}": tt(prob.cameras[c:c + 1, 6:]) for c in range(len(Rt))},
+             **{f"p{k}": tt(prob.points[k:k + 1]) for k in range(len(prob.points))}}
+
+    def run() -> tuple[np.ndarray, np.ndarray]:
+        with torch.no_grad():
+            sol, _ = layer.forward(dict(start), optimizer_kwargs={
+                "track_best_solution": False, "verbose": False})
+        _sync_torch(device)
+        M = np.concatenate([sol[f"pose{c}"].cpu().numpy() for c in range(len(Rt))])
+        cams = np.concatenate([so3_log(M[:, :, :3]), M[:, :, 3],
+                               np.concatenate([sol[f"K{c}"].cpu().numpy()
+                                               for c in range(len(Rt))])], -1)
+        return cams, np.concatenate([sol[f"p{k}"].cpu().numpy()
+                                     for k in range(len(prob.points))])
+    return Contender("Theseus", f"LevenbergMarquardt (fixed damping 1e-3: its adaptive damping "
+                     f"refuses CHOLMOD), CholmodSparseSolver, "
+                     f"AutoDiffCostFunction per observation, {n} iterations", run,
+                     time.perf_counter() - t0)
 
 
 # ---------------------------------------------------------------------------------- runner
@@ -866,13 +935,14 @@ def run_problem(kind: str, args: argparse.Namespace, out: list[str]) -> list[Row
         row.cost = float(np.sum(cs))
         row.excess = float(np.max((cs - ref[:len(cs)]) / ref[:len(cs)]))
         live.append((row, c))
-    for r in range(args.rounds):
+    rounds = args.bal_rounds if kind == "bal" else args.rounds
+    for r in range(rounds):
         k = r % max(len(live), 1)
         for row, c in live[k:] + live[:k]:
             t0 = time.perf_counter()
             c.run()
             row.times.append((time.perf_counter() - t0) * c.scale)
-        print(f"[{kind}] round {r + 1}/{args.rounds}: "
+        print(f"[{kind}] round {r + 1}/{rounds}: "
               + ", ".join(f"{row.name} {row.times[-1]:.3g} s" for row, _ in live),
               file=sys.stderr, flush=True)
     out.extend(table(kind, prob, ref, list(rows.values()), args))
@@ -938,6 +1008,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bal", default=str(DEFAULT_BAL), help="the BAL file (problem-49-7776)")
     ap.add_argument("--iterations", type=int, default=30, help="LM iterations on BAL (30)")
     ap.add_argument("--rounds", type=int, default=5, help="interleaved timed rounds (5)")
+    ap.add_argument("--bal-rounds", type=int, default=3, help="timed rounds on BAL (3)")
     ap.add_argument("--pypose-subset", type=int, default=10,
                     help="PyPose solves this many problems of a batch, time scaled (10)")
     ap.add_argument("--jaxls-solver", default="dense_cholesky",
@@ -946,8 +1017,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="also write the markdown report here")
     args = ap.parse_args(argv)
-    if args.batch < 1 or args.rounds < 1 or args.iterations < 1 or args.pnp_points < 6:
-        ap.error("--batch, --rounds and --iterations must be >= 1 and --pnp-points >= 6")
+    if min(args.batch, args.rounds, args.bal_rounds, args.iterations, args.pypose_subset) < 1 \
+            or args.pnp_points < 6:
+        ap.error("--batch, --rounds, --bal-rounds, --iterations and --pypose-subset must be "
+                 ">= 1, --pnp-points >= 6")
     if "bal" in args.problems and not Path(args.bal).is_file():
         ap.error(f"--bal: {args.bal} not found (the shared BAL data, ../shared/data/bal)")
 
