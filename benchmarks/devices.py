@@ -347,8 +347,7 @@ def _sync_torch(device: str) -> None:
 
 def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
     from microlie import SE3
-    from microlie.optim import (BetweenFactor, Diagonal, FactorGraph, PriorFactor,
-                                ReprojectionFactor)
+    from microlie.optim import BetweenFactor, Diagonal, FactorGraph, PriorFactor, ReprojectionFactor
     t0 = time.perf_counter()
     if kind == "posegraph":
         B, n = prob.batch, prob.n
@@ -397,8 +396,7 @@ def _device_template(kind: str, prob: Any) -> tuple[Any, Any, Any]:
     """The graph of the batch's first problem (NumPy), and the batch's ``theta`` and ``x0``
     arrays (NumPy, leading axis ``B``) in the layout of :meth:`DeviceProblem.theta`."""
     from microlie import SE3
-    from microlie.optim import (BetweenFactor, Diagonal, FactorGraph, PriorFactor,
-                                ReprojectionFactor)
+    from microlie.optim import BetweenFactor, Diagonal, FactorGraph, PriorFactor, ReprojectionFactor
     g = FactorGraph()
     if kind == "posegraph":
         X = g.add_variables(SE3(params_from_matrix(prob.X0[0])))
@@ -770,8 +768,9 @@ def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
     """BAL with Theseus: one ``th.SE3`` pose, one ``th.Vector`` of intrinsics per camera and
     one ``th.Point3`` per point, one ``AutoDiffCostFunction`` per observation (its
     ``th.eb.Reprojection`` holds the intrinsics constant, BAL optimises them), LM with its
-    default fixed damping (its adaptive damping refuses CHOLMOD) and ``CholmodSparseSolver`` (the dense default would need a 23,769^2
-    matrix), ``prob.iterations`` iterations, no early stop."""
+    default fixed damping (its adaptive damping refuses CHOLMOD; ``--theseus-damping``) and
+    ``CholmodSparseSolver`` (the dense default would need a 23,769^2 matrix),
+    ``prob.iterations`` iterations, no early stop."""
     import theseus as th
     import torch
 
@@ -806,6 +805,7 @@ def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
             aux_vars=[th.Variable(tt(prob.uv[o:o + 1]), name=f"uv{o}")], name=f"r{o}"))
     objective.to(dev)
     n = prob.iterations
+    damping = kw.get("theseus_damping", 1e-3)
     opt = th.LevenbergMarquardt(objective, linear_solver_cls=th.CholmodSparseSolver,
                                 max_iterations=n, abs_err_tolerance=0.0, rel_err_tolerance=0.0)
     layer = th.TheseusLayer(opt)
@@ -817,7 +817,7 @@ def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
     def run() -> tuple[np.ndarray, np.ndarray]:
         with torch.no_grad():
             sol, _ = layer.forward(dict(start), optimizer_kwargs={
-                "track_best_solution": False, "verbose": False})
+                "track_best_solution": False, "verbose": False, "damping": damping})
         _sync_torch(device)
         M = np.concatenate([sol[f"pose{c}"].cpu().numpy() for c in range(len(Rt))])
         cams = np.concatenate([so3_log(M[:, :, :3]), M[:, :, 3],
@@ -825,8 +825,8 @@ def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
                                                for c in range(len(Rt))])], -1)
         return cams, np.concatenate([sol[f"p{k}"].cpu().numpy()
                                      for k in range(len(prob.points))])
-    return Contender("Theseus", f"LevenbergMarquardt (fixed damping 1e-3: its adaptive damping "
-                     f"refuses CHOLMOD), CholmodSparseSolver, "
+    return Contender("Theseus", f"LevenbergMarquardt (fixed damping {damping:g}: its adaptive "
+                     f"damping refuses CHOLMOD), CholmodSparseSolver, "
                      f"AutoDiffCostFunction per observation, {n} iterations", run,
                      time.perf_counter() - t0)
 
@@ -912,7 +912,8 @@ def run_problem(kind: str, args: argparse.Namespace, out: list[str]) -> list[Row
         row = rows.setdefault(name, Row(name))
         try:
             c = PEERS[name](kind, prob, args.device, subset=args.pypose_subset,
-                            jaxls_solver=args.jaxls_solver)
+                            jaxls_solver=args.jaxls_solver,
+                            theseus_damping=args.theseus_damping)
         except NotImplementedError as e:
             row.skipped = str(e)
             continue
@@ -958,8 +959,8 @@ def table(kind: str, prob: Any, ref: np.ndarray, rows: list[Row],
     title = {"posegraph": f"{args.batch} SE(3) pose graphs of 10 poses (12 edges + a prior)",
              "pnp": f"{args.batch} PnP problems of {args.pnp_points} points",
              "bal": f"BAL problem-49-7776 (Ladybug-49), {args.iterations} LM iterations"}[kind]
-    refs = ("optimum (sum) %.10g" % float(np.sum(ref))) if kind != "bal" else \
-        ("converged optimum %.10g" % float(ref[0]))
+    refs = (f"optimum (sum) {float(np.sum(ref)):.10g}" if kind != "bal" else
+            f"converged optimum {float(ref[0]):.10g}")
     ours = [r for r in rows if r.ours and r.times]
     lines = [f"### {title}", "",
              f"Reference: the NumPy engine's {refs}; `excess` = largest relative cost excess "
@@ -975,7 +976,7 @@ def table(kind: str, prob: Any, ref: np.ndarray, rows: list[Row],
         span = f"{_fmt(med)} ({_fmt(min(r.times))}-{_fmt(max(r.times))})" if r.times else "-"
         ratios = []
         for o in ours:
-            per = [a / b for a, b in zip(r.times, o.times)]
+            per = [a / b for a, b in zip(r.times, o.times, strict=True)]
             ratios.append(f"{statistics.median(per):.3g}x" if per else "-")
         lines.append(f"| {r.name} | {r.how} | {_fmt(r.setup_s)} | {_fmt(r.first_s)} | {span} | "
                      f"{r.cost:.10g} | {r.excess:.1e} | " + " | ".join(ratios) + " |")
@@ -1014,6 +1015,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jaxls-solver", default="dense_cholesky",
                     help="jaxls's linear solver on BAL (dense_cholesky: Schur + dense, the one "
                          "its results.md finds fastest; conjugate_gradient is its default)")
+    ap.add_argument("--theseus-damping", type=float, default=1e-3,
+                    help="Theseus's fixed LM damping on BAL (its default 1e-3)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="also write the markdown report here")
     args = ap.parse_args(argv)
@@ -1034,7 +1037,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         import jax
         jax.config.update("jax_enable_x64", True)     # float64, as every other contender
-        from loguru import logger                      # jaxls logs every analyze() at INFO
+        from loguru import logger  # jaxls logs every analyze() at INFO
         logger.remove()
     except ImportError:
         pass
