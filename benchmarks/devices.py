@@ -39,26 +39,19 @@ same code; it has not been run here (no GPU on this machine): its goals (Ladybug
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import os
+import platform
+import statistics
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-os.environ.setdefault("MKL_NUM_THREADS", "1")
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
-                                   "intra_op_parallelism_threads=1")
-
-import argparse  # noqa: E402
-import dataclasses  # noqa: E402
-import platform  # noqa: E402
-import statistics  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-import traceback  # noqa: E402
-from collections.abc import Callable  # noqa: E402
-from pathlib import Path  # noqa: E402
-from typing import Any  # noqa: E402
-
-import numpy as np  # noqa: E402
+import numpy as np
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -79,22 +72,23 @@ def hat(w: np.ndarray) -> np.ndarray:
 def so3_exp(w: np.ndarray) -> np.ndarray:
     """Rodrigues: ``(..., 3)`` rotation vectors -> ``(..., 3, 3)`` matrices."""
     t = np.linalg.norm(w, axis=-1)[..., None, None]
-    small = t < 1e-8
+    small = t < 1e-2                                     # Taylor series to t^4
     ts = np.where(small, 1.0, t)
-    a = np.where(small, 1.0 - t**2 / 6, np.sin(ts) / ts)
-    b = np.where(small, 0.5 - t**2 / 24, (1 - np.cos(ts)) / ts**2)
+    a = np.where(small, 1.0 - t**2 / 6 + t**4 / 120, np.sin(ts) / ts)
+    b = np.where(small, 0.5 - t**2 / 24 + t**4 / 720, (1 - np.cos(ts)) / ts**2)
     K = hat(w)
     return np.eye(3) + a * K + b * (K @ K)
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
     """``(..., 3, 3)`` -> rotation vectors (angles well below pi here)."""
-    c = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)
-    t = np.arccos(c)
+    c = (np.trace(R, axis1=-2, axis2=-1) - 1) / 2
     v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
-                  R[..., 1, 0] - R[..., 0, 1]], -1)
-    s = np.sin(t)
-    f = np.where(t < 1e-6, 0.5 + t**2 / 12, t / (2 * np.where(t < 1e-6, 1.0, s)))
+                  R[..., 1, 0] - R[..., 0, 1]], -1)           # 2 sin(t) axis
+    t = np.arctan2(0.5 * np.linalg.norm(v, axis=-1), c)
+    small = t < 1e-2
+    f = np.where(small, 0.5 + t**2 / 12 + 7 * t**4 / 720,
+                 t / (2 * np.sin(np.where(small, 1.0, t))))
     return f[..., None] * v
 
 
@@ -102,10 +96,10 @@ def se3_exp(xi: np.ndarray) -> np.ndarray:
     """``(..., 6)`` tangent ``[rho, phi]`` -> ``(..., 4, 4)`` matrices."""
     rho, phi = xi[..., :3], xi[..., 3:]
     t = np.linalg.norm(phi, axis=-1)[..., None, None]
-    small = t < 1e-6
+    small = t < 1e-2
     ts = np.where(small, 1.0, t)
-    b = np.where(small, 0.5 - t**2 / 24, (1 - np.cos(ts)) / ts**2)
-    c = np.where(small, 1 / 6 - t**2 / 120, (ts - np.sin(ts)) / ts**3)
+    b = np.where(small, 0.5 - t**2 / 24 + t**4 / 720, (1 - np.cos(ts)) / ts**2)
+    c = np.where(small, 1 / 6 - t**2 / 120 + t**4 / 5040, (ts - np.sin(ts)) / ts**3)
     K = hat(phi)
     V = np.eye(3) + b * K + c * (K @ K)
     T = np.zeros((*xi.shape[:-1], 4, 4))
@@ -119,11 +113,11 @@ def se3_log(T: np.ndarray) -> np.ndarray:
     """``(..., 4, 4)`` -> tangent ``[rho, phi]`` (translation first)."""
     phi = so3_log(T[..., :3, :3])
     t = np.linalg.norm(phi, axis=-1)[..., None, None]
-    small = t < 1e-6
+    small = t < 1e-2
     ts = np.where(small, 1.0, t)
     K = hat(phi)
     # V^-1 = I - K/2 + (1/t^2)(1 - t sin t / (2 (1 - cos t))) K^2
-    d = np.where(small, 1 / 12 + t**2 / 720,
+    d = np.where(small, 1 / 12 + t**2 / 720 + t**4 / 30240,
                  (1 - ts * np.sin(ts) / (2 * (1 - np.cos(ts)))) / ts**2)
     Vi = np.eye(3) - 0.5 * K + d * (K @ K)
     rho = (Vi @ T[..., :3, 3:4])[..., 0]
@@ -1038,6 +1032,11 @@ def main(argv: list[str] | None = None) -> int:
     if "bal" in args.problems and not Path(args.bal).is_file():
         ap.error(f"--bal: {args.bal} not found (the shared BAL data, ../shared/data/bal)")
 
+    # one thread each; set here, not at import (tests import this module), before JAX starts
+    os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
+                                       "intra_op_parallelism_threads=1")
+    from threadpoolctl import threadpool_limits
+    blas = threadpool_limits(1, user_api="blas")
     try:
         import torch
         torch.set_num_threads(1)
@@ -1076,6 +1075,7 @@ def main(argv: list[str] | None = None) -> int:
     print(report)
     if args.out:
         Path(args.out).write_text(report)
+    blas.restore_original_limits()
     return 0
 
 
