@@ -762,7 +762,8 @@ def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
     """BAL with Theseus: one ``th.SE3`` pose, one ``th.Vector`` of intrinsics per camera and
     one ``th.Point3`` per point, one ``AutoDiffCostFunction`` per observation (its
     ``th.eb.Reprojection`` holds the intrinsics constant, BAL optimises them), LM with its
-    default fixed damping (its adaptive damping refuses CHOLMOD; ``--theseus-damping``) and
+    fixed damping ``--theseus-damping`` (100: its default 1e-3 fails, CHOLMOD finds the damped
+    system not positive definite; its adaptive damping refuses CHOLMOD) and
     ``CholmodSparseSolver`` (the dense default would need a 23,769^2 matrix),
     ``prob.iterations`` iterations, no early stop."""
     import theseus as th
@@ -799,7 +800,7 @@ def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
             aux_vars=[th.Variable(tt(prob.uv[o:o + 1]), name=f"uv{o}")], name=f"r{o}"))
     objective.to(dev)
     n = prob.iterations
-    damping = kw.get("theseus_damping", 1e-3)
+    damping = kw.get("theseus_damping", 100.0)
     opt = th.LevenbergMarquardt(objective, linear_solver_cls=th.CholmodSparseSolver,
                                 max_iterations=n, abs_err_tolerance=0.0, rel_err_tolerance=0.0)
     layer = th.TheseusLayer(opt)
@@ -819,8 +820,9 @@ def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
                                                for c in range(len(Rt))])], -1)
         return cams, np.concatenate([sol[f"p{k}"].cpu().numpy()
                                      for k in range(len(prob.points))])
-    return Contender("Theseus", f"LevenbergMarquardt (fixed damping {damping:g}: its adaptive "
-                     f"damping refuses CHOLMOD), CholmodSparseSolver, "
+    return Contender("Theseus", f"LevenbergMarquardt, fixed damping {damping:g} (its default "
+                     f"1e-3 fails: CHOLMOD 'not positive definite'; its adaptive damping "
+                     f"refuses CHOLMOD), CholmodSparseSolver, "
                      f"AutoDiffCostFunction per observation, {n} iterations", run,
                      time.perf_counter() - t0)
 
@@ -1018,8 +1020,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jaxls-solver", default="dense_cholesky",
                     help="jaxls's linear solver on BAL (dense_cholesky: Schur + dense, the one "
                          "its results.md finds fastest; conjugate_gradient is its default)")
-    ap.add_argument("--theseus-damping", type=float, default=1e-3,
-                    help="Theseus's fixed LM damping on BAL (its default 1e-3)")
+    ap.add_argument("--theseus-damping", type=float, default=100.0,
+                    help="Theseus's fixed LM damping on BAL (100; its default 1e-3 stops at "
+                         "the first step: CHOLMOD finds the damped system not positive "
+                         "definite)")
     ap.add_argument("--slow", type=float, default=150.0,
                     help="a contender whose first call takes longer is not timed again (150 s)")
     ap.add_argument("--seed", type=int, default=0)
