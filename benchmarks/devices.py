@@ -624,6 +624,10 @@ def pypose_contender(kind: str, prob: Any, device: str, subset: int = 20, **kw: 
     import pypose as pp
     import torch
 
+    if kind == "bal":
+        raise NotImplementedError(
+            "PyPose on BAL: pp.optim.LM builds the dense Jacobian (63,686 x 23,769 float64 = "
+            "12 GB); its sparse mode needs the bae backend, which builds only with CUDA")
     dev = torch.device(device)
     t0 = time.perf_counter()
     K = min(subset, prob.batch)
@@ -648,7 +652,7 @@ def pypose_contender(kind: str, prob: Any, device: str, subset: int = 20, **kw: 
         inputs = [(pp.SE3(tt(params_from_matrix(prob.Z[b]))),
                    pp.SE3(tt(params_from_matrix(prob.Z0[b])))) for b in range(K)]
         starts = [prob.X0[b] for b in range(K)]
-    elif kind == "pnp":
+    else:
         Kc = tt(prob.K)
 
         class Graph(torch.nn.Module):   # type: ignore[no-redef]
@@ -663,10 +667,6 @@ def pypose_contender(kind: str, prob: Any, device: str, subset: int = 20, **kw: 
 
         inputs = [(tt(prob.points[b]), tt(prob.uv[b])) for b in range(K)]
         starts = [prob.T0[b] for b in range(K)]
-    else:
-        raise NotImplementedError(
-            "PyPose on BAL: pp.optim.LM builds the dense Jacobian (63,686 x 23,769 float64 = "
-            "12 GB); its sparse mode needs the bae backend, which builds only with CUDA")
 
     def run() -> np.ndarray:
         out = []
