@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 import platform
 import statistics
@@ -948,6 +949,11 @@ def run_problem(kind: str, args: argparse.Namespace, out: list[str]) -> list[Row
         print(f"[{kind}] round {r + 1}/{rounds}: "
               + ", ".join(f"{row.name} {row.times[-1]:.3g} s" for row, _ in live),
               file=sys.stderr, flush=True)
+    if args.json:
+        raw = {"kind": kind, "reference": ref.tolist(), "load": load(),
+               "rows": [dataclasses.asdict(r) for r in rows.values()]}
+        with open(args.json, "a") as f:
+            f.write(json.dumps(raw) + "\n")
     out.extend(table(kind, prob, ref, list(rows.values()), args))
     return list(rows.values())
 
@@ -978,13 +984,19 @@ def table(kind: str, prob: Any, ref: np.ndarray, rows: list[Row],
         span = f"{_fmt(med)} ({_fmt(min(r.times))}-{_fmt(max(r.times))})" if r.times else "-"
         ratios = []
         for o in ours:
-            per = [a / b for a, b in zip(r.times, o.times, strict=True)]
-            ratios.append(f"{statistics.median(per):.3g}x" if per else "-")
+            if r.times:
+                per = [a / b for a, b in zip(r.times, o.times, strict=True)]
+                ratios.append(f"{statistics.median(per):.3g}x")
+            else:   # timed once: its first call over that row's median (marked)
+                ratios.append(f"{r.first_s / statistics.median(o.times):.3g}x*")
         if not r.times and r.note:
             span = r.note
         lines.append(f"| {r.name} | {r.how} | {_fmt(r.setup_s)} | {_fmt(r.first_s)} | {span} | "
                      f"{r.cost:.10g}{f' ({r.note})' if r.note and r.times else ''} | "
                      f"{r.excess:.1e} | " + " | ".join(ratios) + " |")
+    if any(not r.times and not r.skipped for r in rows):
+        lines += ["", "`*`: a contender timed once (its first call, over `--slow`) over that "
+                  "row's median."]
     lines.append("")
     return lines
 
@@ -1028,6 +1040,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="a contender whose first call takes longer is not timed again (150 s)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="also write the markdown report here")
+    ap.add_argument("--json", help="append each problem's raw rows (JSON lines) here")
     args = ap.parse_args(argv)
     if min(args.batch, args.rounds, args.bal_rounds, args.iterations, args.pypose_subset) < 1 \
             or args.pnp_points < 6:
