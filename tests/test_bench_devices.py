@@ -8,10 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import data_file
 from scipy.linalg import expm, logm
 from scipy.spatial.transform import Rotation
-
-from conftest import data_file
 
 ROOT = Path(__file__).resolve().parents[1]
 
