@@ -87,6 +87,8 @@ def install() -> list[str]:
         for name, fn in one.KERNELS.items():
             if name in K.KERNELS:
                 K.register_single(name, getattr(one, fn))
+        # torch.compile cannot trace C functions: stand-ins for it (microlie._torch_compile)
+        importlib.import_module("microlie._torch_compile").install()
     return list(_installed)
 
 

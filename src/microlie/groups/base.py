@@ -276,8 +276,8 @@ class LieGroup:
         if type(q) is np.ndarray:
             q = q.copy() if q is params else q
             _setflags(q, write=False)
-        _set_params(self, q)
-        _set_floats(self, _owned_floats(q))
+        object.__setattr__(self, "_params", q)
+        object.__setattr__(self, "_floats", _owned_floats(q))
 
     @classmethod
     def from_params(cls, params: Any, check: bool = True) -> Self:
@@ -314,16 +314,16 @@ class LieGroup:
         obj = object.__new__(cls)
         if type(params) is np.ndarray:
             _setflags(params, write=False)
-        _set_params(obj, params)
-        _set_floats(obj, _owned_floats(params))
+        object.__setattr__(obj, "_params", params)
+        object.__setattr__(obj, "_floats", _owned_floats(params))
         return obj
 
     @classmethod
     def _adopt(cls, params: Array) -> Self:
         """Wrap a kernel's output (already read-only)."""
         obj = object.__new__(cls)
-        _set_params(obj, params)
-        _set_floats(obj, _owned_floats(params))
+        object.__setattr__(obj, "_params", params)
+        object.__setattr__(obj, "_floats", _owned_floats(params))
         return obj
 
     @classmethod
@@ -334,8 +334,8 @@ class LieGroup:
         if type(params) is np.ndarray and params.flags.writeable:
             params = params.view()
             _setflags(params, write=False)
-        _set_params(obj, params)
-        _set_floats(obj, None)
+        object.__setattr__(obj, "_params", params)
+        object.__setattr__(obj, "_floats", None)
         return obj
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -1601,10 +1601,13 @@ def _unpickle(cls: type[LieGroup], params: Array) -> LieGroup:
     return cls.from_params(params, check=False)
 
 
+# the constructors write the slots with ``object.__setattr__`` spelled out (``__setattr__``
+# raises: elements are immutable), which torch.compile traces (not a slot descriptor's
+# ``__set__``, nor ``object.__setattr__`` under another name); the descriptor's ``__set__`` is
+# kept for the lazily made ``params`` of single NumPy elements (never traced)
 _set_params = LieGroup.__dict__["_params"].__set__
 _frombuffer = np.frombuffer
 _PACK = {n: struct.Struct(f"{n}d").pack for n in range(1, 33)}
-_set_floats = LieGroup.__dict__["_floats"].__set__
 _F64 = np.dtype(np.float64)
 _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 _setflags = np.ndarray.setflags

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..._array import is_jax, is_torch
 
-__all__ = ["BACKENDS", "backend_of", "Backend", "make_backend"]
+__all__ = ["BACKENDS", "backend_of", "Backend", "make_backend", "torch_while"]
 
 #: The backends a device solve runs on.
 BACKENDS = ("torch", "jax")
@@ -126,7 +126,7 @@ class Backend:
         a = np.asarray(x, dtype=np.int64)
         if self.name == "torch":
             return self.xp.as_tensor(a, device=self.device)
-        return self.xp.asarray(a, dtype=self.int)
+        return a  # JAX: a NumPy constant (never a tracer, whatever trace builds it)
 
     def zeros(self, shape: tuple[int, ...], like: Any = None) -> Any:
         """Zeros of this dtype (of ``like``'s dtype when given)."""
@@ -249,3 +249,45 @@ def make_backend(arrays: list[Any], dtype: str | None = None, device: Any = None
             devs = list(getattr(first, "devices", lambda: [])())
             device = devs[0] if len(devs) == 1 else None
     return Backend(name, dtype, device)
+
+
+def torch_while(cond: Any, body: Any, st: Any) -> Any:
+    """``while cond(st): st = body(st)`` as torch's ``while_loop`` operator (what
+    ``torch.compile(fullgraph=True)`` traces into one graph), on the flattened state (a pytree
+    of tensors whose shapes and dtypes the body keeps).
+
+    Parameters
+    ----------
+    cond : callable
+        ``state -> bool tensor``.
+    body : callable
+        ``state -> state``.
+    st : pytree
+        The initial state.
+
+    Returns
+    -------
+    pytree
+        The final state.
+
+    Examples
+    --------
+    >>> import torch
+    >>> from microlie.optim.device.backend import torch_while
+    >>> torch_while(lambda s: s["i"] < 3, lambda s: {"i": s["i"] + 1}, {"i": torch.tensor(0)})
+    {'i': tensor(3)}
+    """
+    from torch._higher_order_ops import while_loop
+    from torch.utils._pytree import tree_flatten, tree_unflatten
+
+    leaves, spec = tree_flatten(st)
+
+    def c(*flat: Any) -> Any:
+        return cond(tree_unflatten(list(flat), spec))
+
+    def b(*flat: Any) -> tuple:
+        out = tree_flatten(body(tree_unflatten(list(flat), spec)))[0]
+        ids = {id(a) for a in flat}  # the operator allows no output aliasing an input
+        return tuple(o.clone() if id(o) in ids else o for o in out)
+
+    return tree_unflatten(list(while_loop(c, b, tuple(leaves))), spec)

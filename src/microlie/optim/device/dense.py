@@ -7,29 +7,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from .problem import DeviceProblem, Linear
 
 __all__ = ["normal_equations", "dense_step", "gradient"]
-
-
-def _pairs(problem: DeviceProblem) -> list:
-    """Per factor batch and argument pair ``(k, l)``: the flat positions of ``A_k^T A_l`` in
-    the ``(size + 1)^2`` matrix (cached on the problem)."""
-    cache = problem.__dict__.get("_dense_pairs")
-    if cache is None:
-        n1 = problem.size + 1
-        cache = []
-        for t in problem.terms:
-            per = []
-            for k, ck in enumerate(t.cols):
-                for l_, cl in enumerate(t.cols):
-                    flat = (ck[:, :, None] * n1 + cl[:, None, :]).reshape(-1)
-                    per.append((k, l_, problem.backend.index(flat)))
-            cache.append(per)
-        problem.__dict__["_dense_pairs"] = cache
-    return cache
 
 
 def gradient(problem: DeviceProblem, lin: Linear) -> Any:
@@ -95,7 +75,7 @@ def normal_equations(problem: DeviceProblem, lin: Linear) -> tuple[Any, Any]:
     n1 = problem.size + 1
     B = lin.e[0].shape[0]
     H = be.zeros((B, n1 * n1), like=lin.e[0])
-    for A, pairs in zip(lin.A, _pairs(problem), strict=True):
+    for A, pairs in zip(lin.A, problem.dense_pairs(), strict=True):
         for k, l_, flat in pairs:
             blk = A[k].transpose(-1, -2) @ A[l_] if be.name == "torch" else \
                 be.xp.swapaxes(A[k], -1, -2) @ A[l_]
@@ -145,9 +125,9 @@ def dense_step(problem: DeviceProblem, H: Any, g: Any, damping: Any) -> tuple[An
     """
     be = problem.backend
     n = H.shape[-1]
-    eye = np.eye(n, dtype=np.float64)
     if be.name == "torch":
-        Hd = H + be.asarray(eye) * damping.to(H.dtype)[..., None, :]
+        eye = be.xp.eye(n, dtype=H.dtype, device=H.device)
+        Hd = H + eye * damping.to(H.dtype)[..., None, :]
     else:
-        Hd = H + be.asarray(eye) * damping[..., None, :]
+        Hd = H + be.xp.eye(n, dtype=H.dtype) * damping[..., None, :]
     return be.cho_solve(Hd, -g)

@@ -19,17 +19,15 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from .backend import torch_while
 from .dense import dense_step, normal_equations
 from .pcg import block_diagonal, diagonal_of, pcg_step
-from .problem import DeviceProblem, Linear, Theta
+from .problem import DENSE_MAX, DeviceProblem, Linear, Theta
 
 __all__ = ["LMOptions", "SolveInfo", "solve", "STATUS"]
 
 #: ``SolveInfo.status`` codes: running, converged, max_iter reached, failure.
 STATUS = {0: "running", 1: "convergence", 2: "no_convergence", 3: "failure"}
-
-#: Problems up to this many unknowns take dense Cholesky steps with ``linear="auto"``.
-DENSE_MAX = 1500
 
 
 @dataclass(frozen=True)
@@ -62,9 +60,11 @@ class LMOptions:
         Bounds of the forcing term (CG stops at ``|r| <= eta |b|``, ``eta = min(eta_max,
         sqrt(|g| / |g_0|))``, at least ``eta_min``).
     loop : {"auto", "while", "fixed"}
-        ``"fixed"`` runs ``max_tries`` masked tries (and ``cg_max_iter`` masked CG
-        iterations) with no data-dependent control flow, for ``torch.compile(fullgraph=True)``;
-        ``"auto"``: ``"fixed"`` while ``torch.compile`` traces, else ``"while"``.
+        On torch: ``"while"`` is a Python loop in eager mode and torch's ``while_loop``
+        operator while ``torch.compile`` traces (one graph with ``fullgraph=True``);
+        ``"fixed"`` runs exactly ``max_tries`` masked tries (and ``cg_max_iter`` masked CG
+        iterations), unrolled. ``"auto"`` is ``"while"``. JAX always uses
+        ``lax.while_loop``.
     max_tries : int, optional
         Total tries (linear solves) per call (default ``max_iter * 10``; with ``"fixed"``
         exactly this many).
@@ -89,8 +89,8 @@ class LMOptions:
     step_tol: float = 0.0
     linear: str = "auto"
     schur: bool = True
-    cg_max_iter: int = 500
-    eta_max: float = 0.1
+    cg_max_iter: int = 3000
+    eta_max: float = 1e-4
     eta_min: float = 1e-10
     loop: str = "auto"
     max_tries: int | None = None
@@ -201,14 +201,15 @@ class _Engine:
         return {"e": lin.e, "A": lin.A, "blocks": blocks, "g": g,
                 "dg": diagonal_of(self.p, blocks), "cost": lin.cost}
 
-    def step(self, s: dict, damping: Any, eta: Any) -> tuple[Any, Any, Any, Any]:
-        """``dx``, ``ok``, the model decrease ``-(g.dx + dx.H dx / 2)`` and CG iterations."""
+    def step(self, s: dict, damping: Any, eta: Any) -> tuple[Any, Any, Any, Any, Any]:
+        """``dx``, ``ok``, the model decrease ``-(g.dx + dx.H dx / 2)``, CG iterations and
+        whether the step met its tolerance (CG did not stop at ``cg_max_iter``)."""
         g = s["g"]
         if self.dense:
             dx, ok = dense_step(self.p, s["H"], g, damping)
             Hdx = (s["H"] @ dx[..., None])[..., 0]
             pred = -((g * dx).sum(-1) + 0.5 * (dx * Hdx).sum(-1))
-            return dx, ok, pred, g[..., 0] * 0.0
+            return dx, ok, pred, g[..., 0] * 0.0, ok | True
         lin = Linear(s["e"], s["A"], s["cost"])
         dx, ok, it = pcg_step(self.p, lin, g, s["blocks"], damping, eta, self.opts.cg_max_iter,
                               self.opts.schur, self.fixed)
@@ -217,7 +218,7 @@ class _Engine:
         for u in Jdx:
             quad = quad + (u * u).reshape(u.shape[0], -1).sum(-1)
         pred = -((g * dx).sum(-1) + 0.5 * quad)
-        return dx, ok, pred, it
+        return dx, ok, pred, it, it < self.opts.cg_max_iter
 
 
 def _select(be: Any, mask: Any, a: Any, b: Any) -> Any:
@@ -282,7 +283,7 @@ def solve(problem: DeviceProblem, theta: Theta, x0: list[Any],
         xs = [a[None] for a in xs]
     B = xs[0].shape[0]
     th = _batch_theta(problem, theta, B)
-    fixed = opts.loop == "fixed" or (opts.loop == "auto" and _compiling(be))
+    fixed = opts.loop == "fixed" or _compiling(be)  # no data-dependent Python branches
     eng = _Engine(problem, opts, fixed)
     sys0 = eng.system(th, xs)
     cost0 = sys0["cost"]
@@ -310,13 +311,16 @@ def solve(problem: DeviceProblem, theta: Theta, x0: list[Any],
         return _try(problem, eng, opts, th, st)
 
     n_tries = opts.tries()
+
+    def cond(st: dict) -> Any:
+        return (st["status"] == 0).any() & (st["tries"].max() < n_tries)
+
     if be.name == "jax":
         from jax import lax
 
-        def cond(st: dict) -> Any:
-            return (st["status"] == 0).any() & (st["tries"].max() < n_tries)
-
         st = lax.while_loop(cond, body, st)
+    elif fixed and opts.loop != "fixed":  # traced by torch.compile: one while_loop op
+        st = torch_while(cond, body, st)
     elif fixed:
         for _ in range(n_tries):
             st = body(st)
@@ -375,7 +379,7 @@ def _try(problem: DeviceProblem, eng: _Engine, o: LMOptions, th: Theta, st: dict
     eta = (gn / st["g0"]) ** 0.5
     eta = be.where(eta < o.eta_max, eta, o.eta_max)
     eta = be.where(eta > o.eta_min, eta, o.eta_min)
-    dx, ok, pred, cg_it = eng.step(s, lam[:, None] * damp, eta)
+    dx, ok, pred, cg_it, exact = eng.step(s, lam[:, None] * damp, eta)
     dx = be.where(ok[:, None], dx, 0.0 * dx)
     xn = problem.retract(st["x"], dx)
     cn = problem.cost(th, xn)
@@ -390,6 +394,7 @@ def _try(problem: DeviceProblem, eng: _Engine, o: LMOptions, th: Theta, st: dict
     dec = cur - cn
     why = (cn <= o.cost_tol) | ((dec >= 0) & (dec < o.abs_tol)) | \
         ((dec >= 0) & (cur > 0) & (dec < o.rel_tol * cur)) | (_norm(dx) <= o.step_tol)
+    why = why & exact  # a truncated CG step's small decrease says nothing of the minimum
     switch_a = why & stalled_a if o.damping == "auto" else why & ~why
     conv_a = why & ~switch_a
     iters_a = st["iters"] + 1.0

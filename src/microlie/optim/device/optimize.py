@@ -11,7 +11,7 @@ from ..core.solvers import Result
 from ..core.strategies import LevenbergMarquardt
 from ..core.variables import Values
 from .lm import STATUS, LMOptions, solve
-from .problem import DeviceProblem
+from .problem import DENSE_MAX, DeviceProblem
 
 __all__ = ["optimize_graph", "stack", "lm_options"]
 
@@ -127,7 +127,7 @@ def optimize_graph(graph: Any, values: Values | None = None, *, solver: Any = "l
            3: f"lambda exceeded {opts.lambda_max:g} without decreasing the cost",
            0: f"reached max_tries={opts.tries()}"}[status]
     c0, c1 = float(be.to_numpy(info.initial_cost)), float(be.to_numpy(info.cost))
-    dense = opts.linear == "dense" or (opts.linear == "auto" and prob.size <= 1500)
+    dense = opts.linear == "dense" or (opts.linear == "auto" and prob.size <= DENSE_MAX)
     name = f"{be.name}:{'dense' if dense else 'pcg'}"
     return Result(Values(prob.variables, x), c0, c1, c0, c1,
                   int(be.to_numpy(info.iterations)), term == "convergence", msg, term, [],

@@ -18,8 +18,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from .problem import DeviceProblem, Linear, add_last, extend
 
 __all__ = ["block_diagonal", "diagonal_of", "pcg", "pcg_step"]
@@ -123,8 +121,7 @@ def _block_inverses(problem: DeviceProblem, blocks: list[Any], damping: Any) -> 
     ext = extend(be, damping)
     B = damping.shape[0]
     one = be.zeros((B, problem.size + 1), like=damping)
-    one = add_last(be, one, be.index(np.array([problem.size])), be.full((B, 1), 1.0,
-                                                                         dtype=damping.dtype))
+    one = add_last(be, one, problem._sink, be.full((B, 1), 1.0, dtype=damping.dtype))
     ext = ext + one
     out = []
     for k, blk in enumerate(blocks):
@@ -179,8 +176,8 @@ def pcg(be: Any, matvec: Any, precond: Any, b: Any, eta: Any, max_iter: int,
     max_iter : int
         Iteration limit.
     fixed : bool
-        Run exactly ``max_iter`` masked iterations (no data-dependent loop: for
-        ``torch.compile``).
+        No data-dependent Python loop: torch's ``while_loop`` operator while
+        ``torch.compile`` traces, else exactly ``max_iter`` masked iterations.
 
     Returns
     -------
@@ -237,6 +234,10 @@ def pcg(be: Any, matvec: Any, precond: Any, b: Any, eta: Any, max_iter: int,
             return s[6].any() & (s[5].max() < max_iter)
 
         state = lax.while_loop(cond, body, state)
+    elif fixed and be.xp.compiler.is_compiling():  # one while_loop op in the graph
+        from .backend import torch_while
+
+        state = torch_while(lambda s: s[6].any() & (s[5].max() < max_iter), body, state)
     elif fixed:
         for _ in range(max_iter):
             state = body(state)
@@ -313,11 +314,7 @@ def pcg_step(problem: DeviceProblem, lin: Linear, g: Any, blocks: list[Any], dam
     if not elim:
         dx, it = pcg(be, H, lambda v: _apply_blocks(problem, inv, v), b, eta, max_iter, fixed)
     else:
-        cm = np.ones(problem.size + 1)
-        for k in elim:
-            cm[problem.blocks[k].cols.reshape(-1)] = 0.0
-        cm[-1] = 0.0
-        mc = be.asarray(cm[:-1])          # 1 on the reduced (camera) columns
+        mc = problem._keep_mask           # 1 on the reduced (camera) columns
         mp = 1.0 - mc
         keep = [k for k in range(len(problem.blocks)) if k not in elim]
 

@@ -17,7 +17,7 @@ and whitened right Jacobians ``A_k = L J_k`` ``(B, m, dim, dof_k)`` from the gro
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -27,6 +27,9 @@ from ..core.variables import VectorVariables
 from .backend import Backend, make_backend
 
 __all__ = ["DeviceProblem", "Theta", "Linear"]
+
+#: Problems up to this many unknowns take dense Cholesky steps with ``linear="auto"``.
+DENSE_MAX = 1500
 
 #: ``theta``: one dict of arrays per factor batch, in graph order (a JAX pytree).
 Theta = tuple
@@ -53,14 +56,15 @@ class _Term:
     idx: list[Any]          # backend int indices of each argument (m,)
     idx_np: list[np.ndarray]
     cols: list[np.ndarray]  # (m, dof_k) columns of each argument
+    flat: list[Any]         # backend (m * dof_k,) columns of each argument
     mask: list[Any]         # backend (m, 1, dof_k) 0/1: the columns that are unknowns
     dim: int
     m: int
     info: dict
 
 
-class Linear:
-    """A linearisation: whitened residuals and Jacobian blocks per factor batch.
+class Linear(NamedTuple):
+    """A linearisation: whitened residuals and Jacobian blocks per factor batch (a pytree).
 
     Attributes
     ----------
@@ -73,10 +77,9 @@ class Linear:
         ``(B,)``: ``0.5 * sum |e|^2``.
     """
 
-    __slots__ = ("e", "A", "cost")
-
-    def __init__(self, e: list, A: list, cost: Any) -> None:
-        self.e, self.A, self.cost = e, A, cost
+    e: list
+    A: list
+    cost: Any
 
 
 class DeviceProblem:
@@ -123,6 +126,7 @@ class DeviceProblem:
         self.backend = be = backend
         self.size = N = int(prob.size)
         self.variables = list(prob.variables)
+        self.factors = list(prob.factors)
         self.gauge_fixed = list(prob.gauge_fixed)
         held = np.zeros(N + 1, dtype=bool)
         held[prob.held] = True
@@ -135,9 +139,19 @@ class DeviceProblem:
             self.blocks.append(_Block(v.group, v.n, v.dof, isinstance(v, VectorVariables), cols,
                                       free))
         self._colmap = [be.index(b.cols) for b in self.blocks]
+        self._any_free = [bool(b.free.any()) for b in self.blocks]
+        self._sink = be.index(np.array([N]))
         self.terms = [self._term(prob, f) for f in prob.factors]
         self.rows = int(sum(t.m * t.dim for t in self.terms))
         self.eliminate = self._landmarks(prob)
+        cm = np.ones(N)        # 1 on the columns a Schur step keeps (cameras), 0 on landmarks
+        for k in self.eliminate:
+            c = self.blocks[k].cols.reshape(-1)
+            cm[c[c < N]] = 0.0
+        self._keep_mask = be.asarray(cm)
+        self._pairs: list | None = None
+        if N <= DENSE_MAX:
+            self.dense_pairs()  # built here, not inside a traced solve
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -217,7 +231,7 @@ class DeviceProblem:
                              f"NumPy engine (NumPy variables)")
         mask = [be.asarray((c != self.size).astype(np.float64)[:, None, :]) for c in cols]
         return _Term(kind, keys, [be.index(i) for _, i in f.args], [i for _, i in f.args], cols,
-                     mask, f.dim, f.count, info)
+                     [be.index(c.reshape(-1)) for c in cols], mask, f.dim, f.count, info)
 
     def _landmarks(self, prob: Any) -> list[int]:
         if not any(t.kind == "reprojection" for t in self.terms):
@@ -257,7 +271,7 @@ class DeviceProblem:
         """
         be = self.backend
         out = []
-        for t, f in zip(self.terms, self.graph.problem().factors, strict=True):
+        for t, f in zip(self.terms, self.factors, strict=True):
             L = np.broadcast_to(np.asarray(f.noise.sqrt_info, dtype=np.float64),
                                 (t.m, t.dim, t.dim))
             d = {"L": be.asarray(np.ascontiguousarray(L))}
@@ -464,8 +478,8 @@ class DeviceProblem:
         be = self.backend
         ext = extend(be, dx)
         out = []
-        for b, cm, p in zip(self.blocks, self._colmap, x, strict=True):
-            if not b.free.any():
+        for b, cm, p, free in zip(self.blocks, self._colmap, x, self._any_free, strict=True):
+            if not free:
                 out.append(p)
                 continue
             d = be.take(ext, cm.reshape(-1), axis=-1).reshape(*ext.shape[:-1], b.n, b.dof)
@@ -474,6 +488,32 @@ class DeviceProblem:
             else:
                 out.append(b.group.from_params(p, check=False).plus(d).params)
         return out
+
+    def dense_pairs(self) -> list:
+        """Per factor batch, per argument pair ``(k, l)``: the flat positions of
+        ``A_k^T A_l`` in the ``(size + 1)^2`` dense matrix (built once).
+
+        Returns
+        -------
+        list of list of (int, int, index array)
+
+        Examples
+        --------
+        >>> import torch
+        >>> from microlie.optim import FactorGraph, PriorFactor
+        >>> from microlie.optim.device import DeviceProblem
+        >>> g = FactorGraph()
+        >>> _ = g.add(PriorFactor(g.add_variables(torch.ones((1, 2)).double()), 0, [0.0, 0.0]))
+        >>> DeviceProblem.from_graph(g).dense_pairs()[0][0][2].tolist()  # (0,0), (0,1), ...
+        [0, 1, 3, 4]
+        """
+        if self._pairs is None:
+            n1 = self.size + 1
+            self._pairs = [[(k, l_, self.backend.index((ck[:, :, None] * n1
+                                                        + cl[:, None, :]).reshape(-1)))
+                            for k, ck in enumerate(t.cols) for l_, cl in enumerate(t.cols)]
+                           for t in self.terms]
+        return self._pairs
 
     # ------------------------------------------------------------------ products
     def jvp(self, lin: Linear, v: Any) -> list[Any]:
@@ -484,9 +524,8 @@ class DeviceProblem:
         out = []
         for t, A in zip(self.terms, lin.A, strict=True):
             acc = 0.0
-            for Ak, c in zip(A, t.cols, strict=True):
-                vk = be.take(ext, be.index(c.reshape(-1)), axis=-1).reshape(
-                    *ext.shape[:-1], t.m, c.shape[1])
+            for Ak, c in zip(A, t.flat, strict=True):
+                vk = be.take(ext, c, axis=-1).reshape(*ext.shape[:-1], t.m, Ak.shape[-1])
                 acc = acc + (Ak @ vk[..., None])[..., 0]
             out.append(acc)
         return out
@@ -497,9 +536,9 @@ class DeviceProblem:
         B = u[0].shape[0] if u else 1
         out = be.zeros((B, self.size + 1))
         for t, A, ut in zip(self.terms, lin.A, u, strict=True):
-            for Ak, c in zip(A, t.cols, strict=True):
+            for Ak, c in zip(A, t.flat, strict=True):
                 w = (ut[..., None, :] @ Ak)[..., 0, :]          # (B, m, dof)
-                out = add_last(be, out, be.index(c.reshape(-1)), w.reshape(B, -1))
+                out = add_last(be, out, c, w.reshape(B, -1))
         return out[..., :self.size]
 
 

@@ -1,0 +1,106 @@
+"""The device engine (``microlie.optim.device``) on the shared pose graphs and BAL problem:
+final cost against the NumPy engine's (issue 24 acceptance: 1e-8 relative in float64, 1e-4 in
+float32) and time, torch and JAX against the NumPy engine.
+
+Every device solution's cost is evaluated again by the NumPy engine (``FactorGraph.cost`` at
+the returned values, float64). JAX times are given for the first call (tracing and XLA
+compilation included) and a second call of the same jitted function.
+
+Usage::
+
+    PYTHONPATH=src python benchmarks/device_engine.py --cases M3500 sphere2500 \
+        parking-garage problem-49-7776 --backends torch jax --dtypes float64 float32
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+CASES = {"sphere2500": "pose_graph/sphere2500.g2o",
+         "parking-garage": "pose_graph/parking-garage.g2o",
+         "M3500": "pose_graph/input_M3500_g2o.g2o",
+         "problem-49-7776": "bal/problem-49-7776-pre.txt"}
+
+
+def build(case: str):
+    from microlie.optim import from_pose_graph, read_bal, read_g2o
+    from microlie.optim.sfm.bundle import bundle_graph
+
+    path = DATA / CASES[case]
+    if case.startswith("problem"):
+        bg = bundle_graph(read_bal(str(path)))
+        return bg.graph, {"solver": "lm", "linear_solver": "schur", "gauge": "none"}
+    g, _ = from_pose_graph(read_g2o(str(path)))
+    return g, {}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    ap.add_argument("--backends", nargs="+", default=["torch", "jax"])
+    ap.add_argument("--dtypes", nargs="+", default=["float64", "float32"])
+    ap.add_argument("--max-iter", type=int, default=100)
+    ap.add_argument("--cg-max-iter", type=int, default=None)
+    ap.add_argument("--eta-max", type=float, default=None)
+    ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    args = ap.parse_args()
+    if "jax" in args.backends:
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
+    from microlie.optim.core.variables import Values
+    from microlie.optim.device import DeviceProblem, LMOptions, solve
+
+    extra = {k: v for k, v in (("cg_max_iter", args.cg_max_iter),
+                               ("eta_max", args.eta_max)) if v is not None}
+    print(f"load {os.getloadavg()[0]:.1f}")
+    print("| case | engine | dtype | final cost (NumPy cost at the values) | rel. to NumPy | "
+          "iterations | CG iterations | time s (first / second call) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for case in args.cases:
+        g, kw = build(case)
+        t0 = time.perf_counter()
+        ref = g.optimize(max_iter=args.max_iter, **kw)
+        t_np = time.perf_counter() - t0
+        print(f"| {case} | numpy | float64 | {ref.final_cost:.10g} | 0 | {ref.iterations} | - | "
+              f"{t_np:.2f} |", flush=True)
+        gauge = kw.get("gauge", "check")
+        for backend in args.backends:
+            for dtype in args.dtypes:
+                p = DeviceProblem.from_graph(g, gauge=gauge, backend=backend, dtype=dtype)
+                opts = LMOptions(max_iter=args.max_iter, linear="pcg", **extra)
+                th, x0 = p.theta(), p.initial()
+                if backend == "jax":
+                    import jax
+
+                    fn = jax.jit(lambda th, x, p=p, o=opts: solve(p, th, x, o))
+                else:
+                    import torch
+
+                    torch.set_num_threads(args.threads)
+                    fn = lambda th, x, p=p, o=opts: solve(p, th, x, o)  # noqa: E731
+                times = []
+                for _ in range(2 if backend == "jax" else 1):
+                    t0 = time.perf_counter()
+                    x, info = fn(th, x0)
+                    if backend == "jax":
+                        jax.block_until_ready(x)
+                    times.append(time.perf_counter() - t0)
+                vals = Values(p.variables, [np.asarray(p.backend.to_numpy(a), dtype=np.float64)
+                                            for a in x])
+                c = g.cost(vals)
+                rel = (c - ref.final_cost) / ref.final_cost
+                tt = " / ".join(f"{t:.2f}" for t in times)
+                print(f"| {case} | {backend} | {dtype} | {c:.10g} | {rel:.1e} | "
+                      f"{int(p.backend.to_numpy(info.iterations))} | "
+                      f"{int(p.backend.to_numpy(info.cg_iterations))} | {tt} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
