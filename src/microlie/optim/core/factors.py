@@ -512,6 +512,8 @@ def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
 def measurement_source(var: Variables, Z: Any) -> Any:
     """The torch tensor or JAX array of measurement ``Z``'s parameters (kept for the device
     engine, which solves with it and differentiates through it), or ``None``."""
+    if isinstance(Z, np.ndarray):  # NumPy parameters (:func:`_measurement`)
+        return None
     p = var.params_of(Z)
     return p if is_torch(p) or is_jax(p) else None
 
