@@ -286,9 +286,12 @@ def _schur_prior(H: np.ndarray, g: np.ndarray, nm: int, what: Any
     return sq[:, None] * U[:, keep].T, (U[:, keep].T @ gs) / sq
 
 
-class _Window:
+class _FixedLagSmoother:
     """What both fixed-lag smoothers share: the window rule (by time or by count), the keys'
-    timestamps, and the checks of new keys."""
+    timestamps, the checks of new keys, and the public queries (each smoother gives
+    ``_estimate``, ``_covariance``, ``_priors`` and ``_marginalize``)."""
+
+    _records: list[_Record]  # the window's factor functions (each smoother sets it)
 
     def __init__(self, lag: float | None, window: int | None) -> None:
         name = type(self).__name__
@@ -337,6 +340,24 @@ class _Window:
             raise ValueError(f"timestamps: keys {sorted(map(repr, extra))} are not new values")
         return added, stamps
 
+    def _removable(self, drop: list[FactorFn]) -> dict[int, int]:
+        """``id(fn) -> index`` in ``_records`` of the window's factor functions (not its
+        priors); raises when one of ``drop`` is not among them."""
+        ids = {id(rec.fn): n for n, rec in enumerate(self._records) if rec.prior is None}
+        missing = [fn for fn in drop if id(fn) not in ids]
+        if missing:
+            raise ValueError(f"remove: {len(missing)} factor function(s) are not in the window "
+                             f"(never added, or marginalised with their variables)")
+        return ids
+
+    def _slide(self, stamps: dict[Key, float]) -> None:
+        """Move the time to the newest of ``stamps`` and marginalise what left the window."""
+        if stamps:
+            self.time = max(self.time, max(stamps.values()))
+        self.marginalized = self._leaving()
+        if self.marginalized:
+            self._marginalize(self.marginalized)
+
     def _leaving(self) -> list[Key]:
         if self.lag is not None:
             cut = self.time - self.lag
@@ -367,8 +388,113 @@ class _Window:
         """
         return dict(self._stamp)
 
+    def calculate_estimate(self) -> dict[Key, Any]:
+        """The current estimate of every key in the window.
 
-class BatchFixedLagSmoother(_Window):
+        Returns
+        -------
+        dict
+            ``key -> value`` (a group element, or a 1-D array).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> s = BatchFixedLagSmoother(lag=1.0)
+        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.array([3.0]), Isotropic(1, 1.0))],
+        ...              {"p": np.zeros(1)}, {"p": 0.0})
+        >>> np.round(s.calculate_estimate()["p"], 6).tolist()
+        [3.0]
+        """
+        return self._estimate()
+
+    def marginal_covariance(self, key: Key) -> np.ndarray:
+        """The covariance of ``key`` given everything fused so far (the window's factors and
+        marginal priors): the Gauss-Newton information at the current estimate, in the
+        right-perturbation frame (dense over the window for the incremental smoother).
+
+        Parameters
+        ----------
+        key : hashable
+            A key of the window.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(dof, dof)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> s = BatchFixedLagSmoother(window=2)
+        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.zeros(2), Isotropic(2, 0.5))],
+        ...              {"p": np.zeros(2)}, {"p": 0.0})
+        >>> s.marginal_covariance("p").tolist()
+        [[0.25, 0.0], [0.0, 0.25]]
+        """
+        return self.joint_covariance([key])
+
+    def joint_covariance(self, keys: Sequence[Key]) -> np.ndarray:
+        """The joint covariance of several keys of the window (as :meth:`marginal_covariance`).
+
+        Parameters
+        ----------
+        keys : sequence of hashable
+            Keys of the window.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(sum dof, sum dof)`` in the order of ``keys``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie.optim import PriorFactor, Isotropic
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> s = BatchFixedLagSmoother(window=2)
+        >>> _ = s.update([lambda b: PriorFactor(b.var("p"), [b.idx("p"), b.idx("q")],
+        ...                                     np.zeros((2, 1)), Isotropic(1, 1.0))],
+        ...              {"p": np.zeros(1), "q": np.zeros(1)}, {"p": 0.0, "q": 0.0})
+        >>> s.joint_covariance(["p", "q"]).tolist()
+        [[1.0, 0.0], [0.0, 1.0]]
+        """
+        return self._covariance(keys)
+
+    @property
+    def priors(self) -> list[MarginalPrior]:
+        """The marginal priors in the window (what marginalisation left), as built on the
+        current window.
+
+        Returns
+        -------
+        list of MarginalPrior
+
+        Examples
+        --------
+        >>> from microlie.optim.online import BatchFixedLagSmoother
+        >>> BatchFixedLagSmoother(window=1).priors
+        []
+        """
+        return self._priors()
+
+    def _estimate(self) -> dict[Key, Any]:
+        raise NotImplementedError  # each smoother gives its own
+
+    def _covariance(self, keys: Sequence[Key]) -> np.ndarray:
+        raise NotImplementedError  # each smoother gives its own
+
+    def _priors(self) -> list[MarginalPrior]:
+        raise NotImplementedError  # each smoother gives its own
+
+    def _marginalize(self, leaving: list[Key]) -> None:
+        raise NotImplementedError  # each smoother gives its own
+
+
+class BatchFixedLagSmoother(_FixedLagSmoother):
     """A fixed-lag smoother: Levenberg-Marquardt over the variables of a window, the older
     ones marginalised into a :class:`MarginalPrior` with first-estimate Jacobians.
 
@@ -526,11 +652,7 @@ class BatchFixedLagSmoother(_Window):
         fns = list(new_factors)
         added, stamps = self._check_new(self._values, fns, new_values, timestamps)
         drop = list(remove)
-        ids = {id(rec.fn): n for n, rec in enumerate(self._records) if rec.prior is None}
-        missing = [fn for fn in drop if id(fn) not in ids]
-        if missing:
-            raise ValueError(f"remove: {len(missing)} factor function(s) are not in the window "
-                             f"(never added, or marginalised with their variables)")
+        ids = self._removable(drop)
         gone = {ids[id(fn)] for fn in drop}
         saved = (dict(self._values), dict(self._stamp), list(self._records), self._graph)
         res = None
@@ -548,11 +670,7 @@ class BatchFixedLagSmoother(_Window):
             raise
         if res is not None:
             self._store(g, where, res)
-        if stamps:
-            self.time = max(self.time, max(stamps.values()))
-        self.marginalized = self._leaving()
-        if self.marginalized:
-            self._marginalize(set(self.marginalized))
+        self._slide(stamps)
         return res
 
     def _store(self, g: FactorGraph, where: dict, res: Result) -> None:
@@ -563,7 +681,8 @@ class BatchFixedLagSmoother(_Window):
                     self._values[k] = (self._values[k][0], P[i].copy())
         g.set_values(res.values)
 
-    def _marginalize(self, M: set) -> None:
+    def _marginalize(self, leaving: list[Key]) -> None:
+        M = set(leaving)
         g, where, factors = self._build()
         touch = [n for n, rec in enumerate(self._records) if M.intersection(rec.keys)]
         sep = list(dict.fromkeys(k for n in touch for k in self._records[n].keys
@@ -586,82 +705,13 @@ class BatchFixedLagSmoother(_Window):
             self._records.append(_Record(_prior_fn(*prior), prior[0], prior))
         self._graph = None
 
-    def calculate_estimate(self) -> dict[Key, Any]:
-        """The current estimate of every key in the window.
-
-        Returns
-        -------
-        dict
-            ``key -> value`` (a group element, or a 1-D array).
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from microlie.optim import PriorFactor, Isotropic
-        >>> from microlie.optim.online import BatchFixedLagSmoother
-        >>> s = BatchFixedLagSmoother(lag=1.0)
-        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.array([3.0]), Isotropic(1, 1.0))],
-        ...              {"p": np.zeros(1)}, {"p": 0.0})
-        >>> np.round(s.calculate_estimate()["p"], 6).tolist()
-        [3.0]
-        """
+    def _estimate(self) -> dict[Key, Any]:
         out: dict[Key, Any] = {}
         for k, (fam, p) in self._values.items():
             out[k] = p.copy() if isinstance(fam, int) else fam(p.copy())
         return out
 
-    def marginal_covariance(self, key: Key) -> np.ndarray:
-        """The covariance of ``key`` given everything fused so far (the window's factors and
-        its marginal prior), at the current estimate, in the right-perturbation frame.
-
-        Parameters
-        ----------
-        key : hashable
-            A key of the window.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(dof, dof)``.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from microlie.optim import PriorFactor, Isotropic
-        >>> from microlie.optim.online import BatchFixedLagSmoother
-        >>> s = BatchFixedLagSmoother(window=2)
-        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.zeros(2), Isotropic(2, 0.5))],
-        ...              {"p": np.zeros(2)}, {"p": 0.0})
-        >>> s.marginal_covariance("p").tolist()
-        [[0.25, 0.0], [0.0, 0.25]]
-        """
-        return self.joint_covariance([key])
-
-    def joint_covariance(self, keys: Sequence[Key]) -> np.ndarray:
-        """The joint covariance of several keys of the window (as :meth:`marginal_covariance`).
-
-        Parameters
-        ----------
-        keys : sequence of hashable
-            Keys of the window.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(sum dof, sum dof)`` in the order of ``keys``.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from microlie.optim import PriorFactor, Isotropic
-        >>> from microlie.optim.online import BatchFixedLagSmoother
-        >>> s = BatchFixedLagSmoother(window=2)
-        >>> _ = s.update([lambda b: PriorFactor(b.var("p"), [b.idx("p"), b.idx("q")],
-        ...                                     np.zeros((2, 1)), Isotropic(1, 1.0))],
-        ...              {"p": np.zeros(1), "q": np.zeros(1)}, {"p": 0.0, "q": 0.0})
-        >>> s.joint_covariance(["p", "q"]).tolist()
-        [[1.0, 0.0], [0.0, 1.0]]
-        """
+    def _covariance(self, keys: Sequence[Key]) -> np.ndarray:
         missing = [k for k in keys if k not in self._values]
         if missing:
             raise ValueError(f"covariance: keys {missing!r} are not in the window")
@@ -683,21 +733,7 @@ class BatchFixedLagSmoother(_Window):
         C = ls.solve(E)[idx]
         return 0.5 * (C + C.T)
 
-    @property
-    def priors(self) -> list[MarginalPrior]:
-        """The marginal priors in the window (what marginalisation left), as built on the
-        current window graph.
-
-        Returns
-        -------
-        list of MarginalPrior
-
-        Examples
-        --------
-        >>> from microlie.optim.online import BatchFixedLagSmoother
-        >>> BatchFixedLagSmoother(window=1).priors
-        []
-        """
+    def _priors(self) -> list[MarginalPrior]:
         if not any(rec.prior is not None for rec in self._records):
             return []
         _, _, factors = self._build()
@@ -708,7 +744,7 @@ class BatchFixedLagSmoother(_Window):
 _SLOTS = 128  # the smallest variable batch of the incremental smoother (one per family)
 
 
-class IncrementalFixedLagSmoother(_Window):
+class IncrementalFixedLagSmoother(_FixedLagSmoother):
     """A fixed-lag smoother on the incremental smoother: each update is one iSAM2 update of
     :class:`IncrementalSmoother` over the window, and what leaves the window is marginalised
     into a :class:`MarginalPrior` with first-estimate Jacobians, as in
@@ -906,11 +942,7 @@ class IncrementalFixedLagSmoother(_Window):
         fns = list(new_factors)
         added, stamps = self._check_new(self._fam, fns, new_values, timestamps)
         drop = list(remove)
-        ids = {id(rec.fn): rec for rec in self._records if rec.prior is None}
-        missing = [fn for fn in drop if id(fn) not in ids]
-        if missing:
-            raise ValueError(f"remove: {len(missing)} factor function(s) are not in the window "
-                             f"(never added, or marginalised with their variables)")
+        ids = self._removable(drop)
         self._need = {}
         for fam, _ in added.values():
             self._need[fam] = self._need.get(fam, 0) + 1
@@ -947,7 +979,7 @@ class IncrementalFixedLagSmoother(_Window):
             self._count[k] = 0
         self._stamp.update(stamps)
         removing, self._to_remove = self._to_remove, []
-        gone = [ids[id(fn)] for fn in drop]
+        gone = [self._records[ids[id(fn)]] for fn in drop]
         for rec in gone:
             self._records.remove(rec)
             if any(r is rec for r in self._to_add):
@@ -980,11 +1012,7 @@ class IncrementalFixedLagSmoother(_Window):
         record = self.smoother.update(factors, values, removing)
         for _ in range(self.iterations - 1):
             self.smoother.update()
-        if stamps:
-            self.time = max(self.time, max(stamps.values()))
-        self.marginalized = self._leaving()
-        if self.marginalized:
-            self._marginalize(self.marginalized)
+        self._slide(stamps)
         return record
 
     def _marginalize(self, leaving: list[Key]) -> None:
@@ -1028,79 +1056,10 @@ class IncrementalFixedLagSmoother(_Window):
             if self._count[k] == 0:
                 self._park(k, est[k])
 
-    def calculate_estimate(self) -> dict[Key, Any]:
-        """The current estimate of every key in the window.
-
-        Returns
-        -------
-        dict
-            ``key -> value`` (a group element, or a 1-D array).
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from microlie.optim import PriorFactor, Isotropic
-        >>> from microlie.optim.online import IncrementalFixedLagSmoother
-        >>> s = IncrementalFixedLagSmoother(lag=1.0)
-        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.array([3.0]), Isotropic(1, 1.0))],
-        ...              {"p": np.zeros(1)}, {"p": 0.0})
-        >>> np.round(s.calculate_estimate()["p"], 6).tolist()
-        [3.0]
-        """
+    def _estimate(self) -> dict[Key, Any]:
         return {k: self._value(k, p) for k, p in self._params().items()}
 
-    def marginal_covariance(self, key: Key) -> np.ndarray:
-        """The covariance of ``key`` given everything fused so far (the window's factors and
-        marginal priors), the Gauss-Newton information at the current estimate (dense over the
-        window, as :meth:`BatchFixedLagSmoother.marginal_covariance`).
-
-        Parameters
-        ----------
-        key : hashable
-            A key of the window.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(dof, dof)``.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from microlie.optim import PriorFactor, Isotropic
-        >>> from microlie.optim.online import IncrementalFixedLagSmoother
-        >>> s = IncrementalFixedLagSmoother(window=2)
-        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.zeros(2), Isotropic(2, 0.5))],
-        ...              {"p": np.zeros(2)}, {"p": 0.0})
-        >>> s.marginal_covariance("p").tolist()
-        [[0.25, 0.0], [0.0, 0.25]]
-        """
-        return self.joint_covariance([key])
-
-    def joint_covariance(self, keys: Sequence[Key]) -> np.ndarray:
-        """The joint covariance of several keys of the window (as :meth:`marginal_covariance`).
-
-        Parameters
-        ----------
-        keys : sequence of hashable
-            Keys of the window.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(sum dof, sum dof)`` in the order of ``keys``.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from microlie.optim import PriorFactor, Isotropic
-        >>> from microlie.optim.online import IncrementalFixedLagSmoother
-        >>> s = IncrementalFixedLagSmoother(window=2)
-        >>> _ = s.update([lambda b: PriorFactor(*b["p"], np.zeros(1), Isotropic(1, 2.0))],
-        ...              {"p": np.zeros(1)}, {"p": 0.0})
-        >>> s.joint_covariance(["p"]).tolist()
-        [[4.0]]
-        """
+    def _covariance(self, keys: Sequence[Key]) -> np.ndarray:
         missing = [k for k in keys if k not in self._where]
         if missing:
             raise ValueError(f"covariance: keys {missing!r} are not in the window")
@@ -1128,19 +1087,6 @@ class IncrementalFixedLagSmoother(_Window):
                              "no factor or prior determines)") from None
         return 0.5 * (C + C.T)
 
-    @property
-    def priors(self) -> list[MarginalPrior]:
-        """The marginal priors in the window (what marginalisation left).
-
-        Returns
-        -------
-        list of MarginalPrior
-
-        Examples
-        --------
-        >>> from microlie.optim.online import IncrementalFixedLagSmoother
-        >>> IncrementalFixedLagSmoother(window=1).priors
-        []
-        """
+    def _priors(self) -> list[MarginalPrior]:
         return [rec.factor for rec in self._records
                 if rec.prior is not None and isinstance(rec.factor, MarginalPrior)]
