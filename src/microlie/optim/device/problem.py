@@ -567,6 +567,19 @@ def add_last(be: Backend, out: Any, idx: Any, src: Any) -> Any:
     return out.at[..., idx].add(src)
 
 
+def transpose(be: Backend, A: Any) -> Any:
+    """``A`` with its last two axes swapped."""
+    return A.transpose(-1, -2) if be.name == "torch" else be.xp.swapaxes(A, -1, -2)
+
+
+def eye_like(be: Backend, A: Any) -> Any:
+    """The identity of the size of the last axis of ``A``, its dtype (and device)."""
+    n = A.shape[-1]
+    if be.name == "torch":
+        return be.xp.eye(n, dtype=A.dtype, device=A.device)
+    return be.xp.eye(n, dtype=A.dtype)
+
+
 def _eye(like: Any, d: int, shape: tuple) -> Any:
     import sys
 
