@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .problem import DeviceProblem, Linear
+from .problem import DeviceProblem, Linear, add_last, eye_like, transpose
 
 __all__ = ["normal_equations", "dense_step", "gradient"]
 
@@ -77,12 +77,7 @@ def normal_equations(problem: DeviceProblem, lin: Linear) -> tuple[Any, Any]:
     H = be.zeros((B, n1 * n1), like=lin.e[0])
     for A, pairs in zip(lin.A, problem.dense_pairs(), strict=True):
         for k, l_, flat in pairs:
-            blk = A[k].transpose(-1, -2) @ A[l_] if be.name == "torch" else \
-                be.xp.swapaxes(A[k], -1, -2) @ A[l_]
-            if be.name == "torch":
-                H = H.index_add(1, flat, blk.reshape(B, -1))
-            else:
-                H = H.at[:, flat].add(blk.reshape(B, -1))
+            H = add_last(be, H, flat, (transpose(be, A[k]) @ A[l_]).reshape(B, -1))
     H = H.reshape(B, n1, n1)[:, :-1, :-1]
     return H, gradient(problem, lin)
 
@@ -124,10 +119,5 @@ def dense_step(problem: DeviceProblem, H: Any, g: Any, damping: Any) -> tuple[An
     ([[-0.25, -0.25]], [True])
     """
     be = problem.backend
-    n = H.shape[-1]
-    if be.name == "torch":
-        eye = be.xp.eye(n, dtype=H.dtype, device=H.device)
-        Hd = H + eye * damping.to(H.dtype)[..., None, :]
-    else:
-        Hd = H + be.xp.eye(n, dtype=H.dtype) * damping[..., None, :]
-    return be.cho_solve(Hd, -g)
+    d = damping.to(H.dtype) if be.name == "torch" else damping
+    return be.cho_solve(H + eye_like(be, H) * d[..., None, :], -g)

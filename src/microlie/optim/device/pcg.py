@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .problem import DeviceProblem, Linear, add_last, extend
+from .problem import DeviceProblem, Linear, add_last, extend, eye_like, transpose
 
 __all__ = ["block_diagonal", "diagonal_of", "pcg", "pcg_step"]
 
@@ -57,13 +57,9 @@ def block_diagonal(problem: DeviceProblem, lin: Linear) -> list[Any]:
     out = [be.zeros((B, b.n, b.dof * b.dof), like=lin.e[0]) for b in problem.blocks]
     for t, A in zip(problem.terms, lin.A, strict=True):
         for k, Ak, idx in zip(t.keys, A, t.idx, strict=True):
-            blk = _t(be, Ak) @ Ak
+            blk = transpose(be, Ak) @ Ak
             out[k] = be.scatter_add(out[k], idx, blk.reshape(B, t.m, -1))
     return [o.reshape(B, b.n, b.dof, b.dof) for o, b in zip(out, problem.blocks, strict=True)]
-
-
-def _t(be: Any, A: Any) -> Any:
-    return A.transpose(-1, -2) if be.name == "torch" else be.xp.swapaxes(A, -1, -2)
 
 
 def diagonal_of(problem: DeviceProblem, blocks: list[Any]) -> Any:
@@ -126,16 +122,9 @@ def _block_inverses(problem: DeviceProblem, blocks: list[Any], damping: Any) -> 
     out = []
     for k, blk in enumerate(blocks):
         d = _gather_blocks(be, problem, ext, k)             # (B, n, dof)
-        eye = _eye_like(be, blk)
+        eye = eye_like(be, blk)
         out.append(be.inv_spd(blk + eye * d[..., None, :]))
     return out
-
-
-def _eye_like(be: Any, blk: Any) -> Any:
-    n = blk.shape[-1]
-    if be.name == "torch":
-        return be.xp.eye(n, dtype=blk.dtype, device=blk.device)
-    return be.xp.eye(n, dtype=blk.dtype)
 
 
 def _apply_blocks(problem: DeviceProblem, inv: list[Any], v: Any, keys: Any = None) -> Any:
@@ -354,8 +343,8 @@ def _schur_block_inverses(problem: DeviceProblem, lin: Linear, blocks: list[Any]
         for k, Ak, idx in zip(t.keys, A, t.idx, strict=True):
             if k in elim:
                 continue
-            W = _t(be, Ak) @ A[a]                               # (B, m, dof, 3)
-            c = W @ Pi @ _t(be, W)
+            W = transpose(be, Ak) @ A[a]                        # (B, m, dof, 3)
+            c = W @ Pi @ transpose(be, W)
             b = problem.blocks[k]
             flat = sblocks[k].reshape(B, b.n, -1)
             flat = be.scatter_add(flat, idx, -c.reshape(B, t.m, -1))

@@ -567,6 +567,19 @@ def add_last(be: Backend, out: Any, idx: Any, src: Any) -> Any:
     return out.at[..., idx].add(src)
 
 
+def transpose(be: Backend, A: Any) -> Any:
+    """``A`` with its last two axes swapped."""
+    return A.transpose(-1, -2) if be.name == "torch" else be.xp.swapaxes(A, -1, -2)
+
+
+def eye_like(be: Backend, A: Any) -> Any:
+    """The identity of the size of the last axis of ``A``, its dtype (and device)."""
+    n = A.shape[-1]
+    if be.name == "torch":
+        return be.xp.eye(n, dtype=A.dtype, device=A.device)
+    return be.xp.eye(n, dtype=A.dtype)
+
+
 def _eye(like: Any, d: int, shape: tuple) -> Any:
     import sys
 
@@ -616,17 +629,18 @@ def _skew_rows(R: Any, X: Any) -> Any:
     col0 = c1 * x2 - c2 * x1
     col1 = c2 * x0 - c0 * x2
     col2 = c0 * x1 - c1 * x0
-    return _stack_last([col0, col1, col2])
+    return _stack([col0, col1, col2])
 
 
-def _stack_last(cols: list[Any]) -> Any:
+def _stack(xs: list[Any], axis: int = -1) -> Any:
+    """``xs`` stacked along a new ``axis`` (torch or JAX, by the type of ``xs[0]``)."""
     import sys
 
-    if "torch" in type(cols[0]).__module__:
-        return sys.modules["torch"].stack(cols, -1)
+    if "torch" in type(xs[0]).__module__:
+        return sys.modules["torch"].stack(xs, axis)
     import jax.numpy as jnp
 
-    return jnp.stack(cols, -1)
+    return jnp.stack(xs, axis)
 
 
 def _project(model: str, P: Any, K: Any, jac: bool) -> Any:
@@ -639,40 +653,30 @@ def _project(model: str, P: Any, K: Any, jac: bool) -> Any:
         r2 = px * px + py * py
         d = 1.0 + r2 * (k1 + k2 * r2)
         fd = f * d
-        uv = _stack_last([fd * px, fd * py])
+        uv = _stack([fd * px, fd * py])
         if not jac:
             return uv
         g = 2.0 * f * (k1 + 2.0 * k2 * r2)
         a00, a01, a11 = fd + g * px * px, g * px * py, fd + g * py * py
-        row0 = _stack_last([a00 * iz, a01 * iz, (a00 * px + a01 * py) * iz])
-        row1 = _stack_last([a01 * iz, a11 * iz, (a01 * px + a11 * py) * iz])
+        row0 = _stack([a00 * iz, a01 * iz, (a00 * px + a01 * py) * iz])
+        row1 = _stack([a01 * iz, a11 * iz, (a01 * px + a11 * py) * iz])
         fr2 = f * r2
-        k0 = _stack_last([d * px, fr2 * px, fr2 * r2 * px])
-        k1r = _stack_last([d * py, fr2 * py, fr2 * r2 * py])
-        return uv, _stack_rows([row0, row1]), _stack_rows([k0, k1r])
+        k0 = _stack([d * px, fr2 * px, fr2 * r2 * px])
+        k1r = _stack([d * py, fr2 * py, fr2 * r2 * py])
+        return uv, _stack([row0, row1], -2), _stack([k0, k1r], -2)
     fx, fy, cx, cy = K[..., 0], K[..., 1], K[..., 2], K[..., 3]
     iz = 1.0 / P[..., 2]
     x, y = P[..., 0] * iz, P[..., 1] * iz
-    uv = _stack_last([fx * x + cx, fy * y + cy])
+    uv = _stack([fx * x + cx, fy * y + cy])
     if not jac:
         return uv
     z0 = 0.0 * x
-    row0 = _stack_last([fx * iz, z0, -fx * x * iz])
-    row1 = _stack_last([z0, fy * iz, -fy * y * iz])
+    row0 = _stack([fx * iz, z0, -fx * x * iz])
+    row1 = _stack([z0, fy * iz, -fy * y * iz])
     one = z0 + 1.0
-    k0 = _stack_last([x, z0, one, z0])
-    k1r = _stack_last([z0, y, z0, one])
-    return uv, _stack_rows([row0, row1]), _stack_rows([k0, k1r])
-
-
-def _stack_rows(rows: list[Any]) -> Any:
-    import sys
-
-    if "torch" in type(rows[0]).__module__:
-        return sys.modules["torch"].stack(rows, -2)
-    import jax.numpy as jnp
-
-    return jnp.stack(rows, -2)
+    k0 = _stack([x, z0, one, z0])
+    k1r = _stack([z0, y, z0, one])
+    return uv, _stack([row0, row1], -2), _stack([k0, k1r], -2)
 
 
 def _reprojection(be: Backend, info: dict, args: list[Any], th: dict, jac: bool) -> Any:
