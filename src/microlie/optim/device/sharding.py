@@ -96,7 +96,7 @@ def sharded_solve(problem: Any, theta: Any, x0: list, options: Any = None, mesh:
     >>> th = stack([({"Z": jnp.array([[float(b), 1.0]]), "L": p.theta()[0]["L"]},)
     ...             for b in range(3)])
     >>> x, info = sharded_solve(p, th, [jnp.zeros((3, 1, 2))])
-    >>> x[0][:, 0, 0].tolist()
+    >>> [round(v, 6) for v in x[0][:, 0, 0].tolist()]  # LM stops within its tolerances
     [0.0, 1.0, 2.0]
     """
     import jax
