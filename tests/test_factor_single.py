@@ -280,3 +280,23 @@ def test_linearize_of_any_factor_is_the_whitened_evaluate():
         assert np.allclose(e[k], L[k] @ r[k], rtol=1e-14, atol=1e-14)
         assert np.allclose(A[k], L[k] @ np.hstack([J[0][k], J[1][k]]), rtol=1e-14, atol=1e-14)
     assert np.allclose(r, np.sin(P[0]) * P[1], rtol=1e-14)
+
+
+@pytest.mark.parametrize("upper", [False, True])
+def test_small_cholesky_without_scipy_linalg_equals_lapack(monkeypatch, upper):
+    # microlie optimize never imports scipy.linalg: one small matrix then goes through NumPy
+    import sys
+
+    from scipy.linalg.lapack import dpotrf
+
+    from microlie.optim.core import noise
+
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((6, 6))
+    M = A @ A.T + 6 * np.eye(6)
+    want, info = dpotrf(M, lower=0 if upper else 1, clean=1)
+    assert info == 0
+    monkeypatch.delitem(sys.modules, "scipy.linalg.lapack")
+    got = noise._potrf(M, upper)
+    np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-13)
+    assert noise._potrf(M - 20 * np.eye(6), upper) is None  # indefinite

@@ -249,6 +249,17 @@ def is_torch(x: Array) -> bool:
     return type(x).__module__.startswith("torch")
 
 
+def is_device_array(x: Any) -> bool:
+    """True for an array the NumPy engine does not own: a torch tensor or a JAX array (the
+    device engine, :mod:`microlie.optim.device`, solves with it)."""
+    return is_torch(x) or is_jax(x)
+
+
+def is_host_array(x: Any) -> bool:
+    """True for a NumPy array."""
+    return isinstance(x, np.ndarray)
+
+
 def is_traced(x: Array) -> bool:
     """True for a JAX tracer or a torch tensor under ``torch.compile`` or inside a
     ``torch.func`` transform (values unknown: no value checks possible)."""

@@ -23,7 +23,7 @@ import numpy as np
 
 from ... import _autodiff, _fast
 from ... import groups as _groups
-from ..._array import is_jax, is_torch
+from ..._array import is_device_array, is_host_array
 from .noise import NoiseModel, as_noise
 from .robust import RobustLoss, corrected_weights, make_loss
 from .variables import Values, Variables, VectorVariables, element, host_params
@@ -484,7 +484,7 @@ def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
     ``(param_dim,)`` or ``(m, param_dim)``, checked as the group's constructor does (unit
     quaternions, ...)."""
     pd = var.group.param_dim
-    if isinstance(Z, np.ndarray) and not isinstance(var, VectorVariables):
+    if is_host_array(Z) and not isinstance(var, VectorVariables):
         if Z.shape not in ((pd,), (m, pd)):
             raise ValueError(f"{what}: measurement parameters must have shape ({pd},) or "
                              f"({m}, {pd}), got {Z.shape}")
@@ -512,10 +512,10 @@ def _measurement(var: Variables, Z: Any, m: int, what: str) -> Any:
 def measurement_source(var: Variables, Z: Any) -> Any:
     """The torch tensor or JAX array of measurement ``Z``'s parameters (kept for the device
     engine, which solves with it and differentiates through it), or ``None``."""
-    if isinstance(Z, np.ndarray):  # NumPy parameters (:func:`_measurement`)
+    if is_host_array(Z):  # NumPy parameters (:func:`_measurement`)
         return None
     p = var.params_of(Z)
-    return p if is_torch(p) or is_jax(p) else None
+    return p if is_device_array(p) else None
 
 
 class PriorFactor(Factor):

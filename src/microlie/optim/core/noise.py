@@ -15,10 +15,10 @@ True
 from __future__ import annotations
 
 import math
+import sys
 from typing import Any
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf  # type: ignore[import-untyped]
 
 __all__ = ["NoiseModel", "Information", "SqrtInformation", "Covariance", "Diagonal",
            "Isotropic", "Unit", "as_noise"]
@@ -65,11 +65,27 @@ def _cholesky_small(M: np.ndarray, what: str, where: str, upper: bool) -> np.nda
     if not all(abs(v[i][j] - v[j][i]) <= 1e-9 * (1.0 + abs(v[i][j]))
                for i in range(d) for j in range(d) if i != j):
         raise ValueError(f"{what} is not symmetric{where}")
-    c, info = dpotrf(M, lower=0 if upper else 1, clean=1)
-    if info == 0:
-        return np.ascontiguousarray(c)
+    c = _potrf(M, upper)
+    if c is not None:
+        return c
     ev = np.linalg.eigvalsh(M).min()
     raise ValueError(f"{what} is not positive definite{where}: smallest eigenvalue {ev:.3g}")
+
+
+def _potrf(M: np.ndarray, upper: bool) -> np.ndarray | None:
+    """The Cholesky factor of one small matrix, or ``None`` when it is not positive definite:
+    LAPACK's ``dpotrf`` through SciPy when ``scipy.linalg`` is already imported (cheapest), else
+    NumPy's (``microlie optimize`` with the compiled code never imports ``scipy.linalg``: it
+    costs more than all the factors of a file)."""
+    lapack = sys.modules.get("scipy.linalg.lapack")
+    if lapack is not None:
+        c, info = lapack.dpotrf(M, lower=0 if upper else 1, clean=1)
+        return np.ascontiguousarray(c) if info == 0 else None
+    try:
+        L = np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        return None
+    return np.ascontiguousarray(L.T) if upper else L
 
 
 def _cholesky_stack(M: np.ndarray, what: str) -> np.ndarray:

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._array import host_values, is_jax, is_torch
+from ..._array import host_values, is_device_array
 from ...groups import LieGroup, R, VectorSpace
 
 __all__ = ["Variables", "VectorVariables", "Values", "element", "host_params",
@@ -96,7 +96,7 @@ def new_variables(graph: Any, key: int, values: Any, name: str) -> Variables:
 def _device_params(values: Any) -> Any:
     """The torch or JAX parameter array of ``values`` (``None`` for anything else)."""
     p = values.params if isinstance(values, LieGroup) else values
-    return p if is_torch(p) or is_jax(p) else None
+    return p if is_device_array(p) else None
 
 
 def host_params(x: Any, group: Any = None) -> Any:
@@ -124,7 +124,7 @@ def host_params(x: Any, group: Any = None) -> Any:
     >>> host_params(torch.ones(1, 4, requires_grad=True), SE2).tolist()
     [[1.0, 1.0, 1.0, 1.0]]
     """
-    if not (is_torch(x) or is_jax(x)):
+    if not is_device_array(x):
         return x
     v = host_values(x)
     if v is not None:
@@ -738,7 +738,7 @@ class Values:
     def __init__(self, handles: list[Variables], params: list[np.ndarray]) -> None:
         self._handles = list(handles)
         # torch / JAX arrays (device solves) are kept as they are
-        self._params = [p if is_torch(p) or is_jax(p) else np.asarray(p) for p in params]
+        self._params = [p if is_device_array(p) else np.asarray(p) for p in params]
 
     def __getitem__(self, var: Variables) -> Any:
         return var.wrap(self._params[self._index(var)])
