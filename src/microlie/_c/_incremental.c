@@ -10,10 +10,13 @@
  *
  * Elimination is multifrontal by cliques: a node and the nodes after it in its front that come
  * next in the order and add no node of their own (each nested in the next, chain = 1; they keep
- * no Schur complement) are one front: its K frontal columns are factored as one column-major
- * panel (L11, L21), F_22 -= L21 L21^T in one update (SciPy's dsyrk from SYRK_MIN columns),
- * y = L11^-1 g_1, g_2 -= L21 y. Each frontal variable's conditional is then Rinv = L_ii^-T,
- * T = its columns of L below its block (transposed), c = its part of y: the same numbers as the
+ * no Schur complement) are one front of K frontal columns and s separator columns, assembled
+ * column-major (lower triangle) and factored by front_factor: dpotrf, dtrsm, dsyrk, dtrsv and
+ * dgemv of the BLAS/LAPACK SciPy ships from BLAS_MIN entries of the panel (else loops):
+ * L11, L21, F_22 -= L21 L21^T, y = L11^-1 g_1, g_2 -= L21 y. Each frontal variable's
+ * conditional is then Rinv = L_ii^-T, T = its columns of L below its block (transposed),
+ * c = its part of y; the clique root's Schur complement Hs keeps its upper triangle
+ * (row-major; the lower is 0): the same numbers as the
  * NumPy fallback's one-variable fronts (bayes_tree.BayesTree.eliminate) up to rounding. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -25,13 +28,71 @@
 
 typedef npy_int64 i64;
 
-/* dsyrk of the BLAS SciPy links (Fortran convention, 32-bit integers), from the capsule of
- * scipy.linalg.cython_blas that set_blas receives (bayes_tree.py, once); NULL: plain loops */
+/* The BLAS and LAPACK SciPy links (Fortran convention, 32-bit integers, no hidden string
+ * lengths: scipy.linalg.cython_blas / cython_lapack), from the capsules set_blas receives
+ * (bayes_tree.py, once). NULL: the plain loops below. */
+typedef void (*potrf_t)(char *, int *, double *, int *, int *);
+typedef void (*trsm_t)(char *, char *, char *, char *, int *, int *, double *, double *, int *,
+                       double *, int *);
 typedef void (*syrk_t)(char *, char *, int *, int *, double *, double *, int *, double *,
                        double *, int *);
+typedef void (*gemv_t)(char *, int *, int *, double *, double *, int *, double *, int *,
+                       double *, double *, int *);
+typedef void (*trsv_t)(char *, char *, char *, int *, double *, int *, double *, int *);
+static potrf_t g_potrf = NULL;
+static trsm_t g_trsm = NULL;
 static syrk_t g_syrk = NULL;
-/* the Schur complement update goes to dsyrk from this many columns (below, the loops win) */
-#define SYRK_MIN 48
+static gemv_t g_gemv = NULL;
+static trsv_t g_trsv = NULL;
+/* fronts of fewer than this many frontal columns times front width take the loops (the
+ * calls' fixed cost wins below; benchmarks in bayes_tree's tests' kernel timing) */
+#define BLAS_MIN 1024
+
+/* The partial Cholesky of a front of width w with K frontal columns, in place: A (column-major,
+ * leading dimension w, the lower triangle read and written) = [A11 .; A21 A22], g = [g1; g2].
+ * A11 = L11 L11^T, L21 = A21 L11^-T, A22 -= L21 L21^T, y = L11^-1 g1 (in g1), g2 -= L21 y.
+ * use_blas: dpotrf, dtrsm, dsyrk, dtrsv, dgemv when set_blas ran (else the loops).
+ * Returns -1, or the first frontal column whose pivot is not positive (A then partly
+ * overwritten). */
+static i64 front_factor(double *A, double *g, i64 w, i64 K, int use_blas) {
+    i64 s = w - K;
+    if (K <= 0) return -1;
+    if (use_blas && g_potrf && w <= 46340) { /* w * w fits the 32-bit BLAS integers */
+        char cL = 'L', cR = 'R', cT = 'T', cN = 'N';
+        int k_ = (int)K, s_ = (int)s, ld = (int)w, info = 0, inc = 1;
+        double one = 1.0, mone = -1.0;
+        g_potrf(&cL, &k_, A, &ld, &info);
+        if (info != 0) return info > 0 ? (i64)info - 1 : 0;
+        g_trsv(&cL, &cN, &cN, &k_, A, &ld, g, &inc);
+        if (s > 0) {
+            g_trsm(&cR, &cL, &cT, &cN, &s_, &k_, &one, A, &ld, A + K, &ld);
+            g_syrk(&cL, &cN, &s_, &k_, &mone, A + K, &ld, &one, A + K * w + K, &ld);
+            g_gemv(&cN, &s_, &k_, &mone, A + K, &ld, g, &inc, &one, g + K, &inc);
+        }
+        return -1;
+    }
+    /* right-looking by columns: column c scaled, then the frontal columns after it updated
+     * (contiguous), then the trailing block A22 by rank-1 updates of its columns */
+    for (i64 c = 0; c < K; c++) {
+        double *Ac = A + c * w;
+        double dv = Ac[c];
+        if (!(dv > 0.0)) return c;
+        dv = sqrt(dv);
+        Ac[c] = dv;
+        double r = 1.0 / dv;
+        for (i64 a = c + 1; a < w; a++) Ac[a] *= r;
+        g[c] *= r;
+        double y = g[c];
+        for (i64 a = c + 1; a < w; a++) g[a] -= Ac[a] * y;
+        for (i64 c2 = c + 1; c2 < w; c2++) {
+            double *Ad = A + c2 * w;
+            double l = Ac[c2];
+            if (l == 0.0) continue;
+            for (i64 a = c2; a < w; a++) Ad[a] -= l * Ac[a];
+        }
+    }
+    return -1;
+}
 
 /* ------------------------------------------------------------------ helpers */
 
@@ -269,8 +330,8 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
     i64 *head = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64));
     i64 *sepb = malloc((size_t)(N + 1) * sizeof(i64));
     i64 *io = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64)); /* offsets inside an item */
-    double *F = NULL, *g = NULL, *Lm = NULL, *Li = NULL, *P = NULL;
-    i64 fcap = 0, pcap = 0;
+    double *F = NULL, *g = NULL, *Lm = NULL, *Li = NULL;
+    i64 fcap = 0;
     i64 nit = 0, bad = -1;
     int err = 0;
     if (!items || !head || !sepb || !io) {
@@ -362,8 +423,8 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             }
         }
         g = F + w * w;
-        for (i64 r = 0; r < w; r++) /* the lower triangle only is used */
-            memset(F + r * w, 0, (size_t)(r + 1) * sizeof(double));
+        for (i64 c2 = 0; c2 < w; c2++) /* column-major, the lower triangle only is used */
+            memset(F + c2 * w + c2, 0, (size_t)(w - c2) * sizeof(double));
         memset(g, 0, (size_t)w * sizeof(double));
         /* the clique: j and the nodes after it in the front that come next in the order and
          * whose own items add no node (each then nested in the next: one dense front) */
@@ -389,18 +450,25 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                     io[t] = m;
                     m += dof[E->nodes[t]];
                 }
+                /* F(lb + t, la + r) += H(io[a] + r, io[bb] + t) for lb >= la, read from the
+                 * item's row-major upper triangle (the only part of Hs stored) */
                 for (i64 a = 0; a < E->nn; a++) {
                     i64 na = E->nodes[a], da = dof[na], la = loc[na];
                     for (i64 r = 0; r < da; r++) {
-                        double *Fr = F + (la + r) * w;
+                        double *Fc = F + (la + r) * w;
                         const double *Hr = E->H + (io[a] + r) * m;
                         for (i64 bb = 0; bb < E->nn; bb++) {
                             i64 nb = E->nodes[bb], lb = loc[nb];
-                            if (lb > la) continue; /* the upper triangle */
-                            i64 db = lb == la ? r + 1 : dof[nb];
-                            double *dst = Fr + lb;
-                            const double *src = Hr + io[bb];
-                            for (i64 t = 0; t < db; t++) dst[t] += src[t];
+                            if (lb < la) continue; /* the upper triangle */
+                            i64 t0 = lb == la ? r : 0, db = dof[nb];
+                            double *dst = Fc + lb;
+                            if (bb >= a) {
+                                const double *src = Hr + io[bb];
+                                for (i64 t = t0; t < db; t++) dst[t] += src[t];
+                            } else {
+                                const double *src = E->H + io[bb] * m + io[a] + r;
+                                for (i64 t = t0; t < db; t++) dst[t] += src[t * m];
+                            }
                         }
                         g[la + r] += E->b[io[a] + r];
                     }
@@ -412,68 +480,14 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                 }
             }
         }
-        /* the partial Cholesky of the K frontal columns, on a column-major copy P (column c
-         * at P + c w, rows 0 .. w): right-looking, contiguous column updates (as _chol.c's
-         * small panels); then F_22 -= L21 L21^T row by row, y = L11^-1 g_1 (in g),
-         * g_2 -= L21 y */
+        /* the partial Cholesky of the K frontal columns (BLAS-3 from BLAS_MIN) */
         i64 K = loc[sepb[k - 1]] + dof[sepb[k - 1]], s = w - K;
-        if (K * w > pcap) {
-            free(P);
-            pcap = 2 * K * w;
-            P = malloc((size_t)pcap * sizeof(double));
-            if (!P) {
-                err = 1;
-                goto done;
-            }
-        }
-        for (i64 c2 = 0; c2 < K; c2++) {
-            double *Pc = P + c2 * w;
-            for (i64 a = c2; a < w; a++) Pc[a] = F[a * w + c2];
-        }
-        i64 badcol = -1;
-        for (i64 c2 = 0; c2 < K; c2++) {
-            double *Pc = P + c2 * w;
-            double dv = Pc[c2];
-            if (!(dv > 0.0)) {
-                badcol = c2;
-                break;
-            }
-            dv = sqrt(dv);
-            Pc[c2] = dv;
-            double r = 1.0 / dv;
-            for (i64 a = c2 + 1; a < w; a++) Pc[a] *= r;
-            for (i64 c3 = c2 + 1; c3 < K; c3++) {
-                double *Pd = P + c3 * w;
-                double l = Pc[c3];
-                for (i64 a = c3; a < w; a++) Pd[a] -= l * Pc[a];
-            }
-        }
+        i64 badcol = front_factor(F, g, w, K, K * w >= BLAS_MIN);
         if (badcol >= 0) {
             for (i64 f = 0; f < k; f++)
                 if (badcol >= loc[sepb[f]] && badcol < loc[sepb[f]] + dof[sepb[f]]) bad = sepb[f];
             for (i64 a = 0; a < nf; a++) loc[sepb[a]] = -1;
             goto done;
-        }
-        if (g_syrk && s >= SYRK_MIN && s <= 2147483647 / (w > 0 ? w : 1)) {
-            /* F's row-major lower triangle is the column-major upper one */
-            char cU = 'U', cN = 'N';
-            int n_ = (int)s, k_ = (int)K, ld = (int)w;
-            double mone = -1.0, one = 1.0;
-            g_syrk(&cU, &cN, &n_, &k_, &mone, P + K, &ld, &one, F + K * w + K, &ld);
-        } else
-            for (i64 p = 0; p < s; p++) {
-                double *Fp = F + (K + p) * w + K;
-                for (i64 c2 = 0; c2 < K; c2++) {
-                    const double *Pc = P + c2 * w + K;
-                    double v = Pc[p];
-                    for (i64 t = 0; t <= p; t++) Fp[t] -= v * Pc[t];
-                }
-            }
-        for (i64 c2 = 0; c2 < K; c2++) {
-            const double *Pc = P + c2 * w;
-            double y = g[c2] / Pc[c2];
-            g[c2] = y;
-            for (i64 a = c2 + 1; a < w; a++) g[a] -= Pc[a] * y;
         }
         /* each frontal variable's conditional: Rinv = L_ii^-T, T = (its columns of L below
          * its block)^T, c = its part of y */
@@ -489,7 +503,7 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             }
             for (i64 a = 0; a < d; a++)
                 for (i64 bb = 0; bb < d; bb++)
-                    Lm[a * d + bb] = bb <= a ? P[(oi + bb) * w + oi + a] : 0.0;
+                    Lm[a * d + bb] = bb <= a ? F[(oi + bb) * w + oi + a] : 0.0;
             for (i64 a = 0; a < d; a++) { /* Li = L^-1 (lower) by forward substitution */
                 for (i64 bb = 0; bb < d; bb++) Li[a * d + bb] = 0.0;
                 Li[a * d + a] = 1.0 / Lm[a * d + a];
@@ -516,7 +530,7 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             for (i64 a = 0; a < d; a++)
                 for (i64 bb = 0; bb < d; bb++) R[a * d + bb] = Li[bb * d + a]; /* Li^T */
             for (i64 a = 0; a < d; a++)
-                memcpy(T + a * si, P + (oi + a) * w + oi + d, (size_t)si * sizeof(double));
+                memcpy(T + a * si, F + (oi + a) * w + oi + d, (size_t)si * sizeof(double));
             for (i64 a = 0; a < d; a++) c[a] = g[oi + a];
             for (i64 a = 0; a < nsep; a++) sp[a] = sepb[f + 1 + a];
             PyList_SetItem(LRinv, cur, oR); /* steals the references */
@@ -547,9 +561,9 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                 goto done;
             }
             double *Hs = PyArray_DATA((PyArrayObject *)oH), *bs = PyArray_DATA((PyArrayObject *)ob);
-            for (i64 p = 0; p < s; p++) {
-                const double *Fp = F + (K + p) * w + K;
-                for (i64 t = 0; t <= p; t++) Hs[p * s + t] = Hs[t * s + p] = Fp[t];
+            for (i64 p = 0; p < s; p++) { /* row-major upper = column-major lower */
+                memcpy(Hs + p * s + p, F + (K + p) * w + K + p, (size_t)(s - p) * sizeof(double));
+                memset(Hs + p * s, 0, (size_t)p * sizeof(double));
                 bs[p] = g[K + p];
             }
             PyList_SetItem(LHs, cur, oH);
@@ -573,7 +587,6 @@ done:
     free(sepb);
     free(io);
     free(F);
-    free(P);
     free(Lm);
     if (err) {
         if (!PyErr_Occurred()) PyErr_NoMemory();
@@ -775,23 +788,83 @@ static PyObject *adjacency(PyObject *self, PyObject *const *args, Py_ssize_t nar
     return NULL;
 }
 
-static PyObject *set_blas(PyObject *self, PyObject *cap) {
-    (void)self;
-    if (!PyCapsule_CheckExact(cap)) {
-        PyErr_SetString(PyExc_TypeError, "set_blas: expected the dsyrk capsule of "
-                                         "scipy.linalg.cython_blas.__pyx_capi__");
+/* the function pointer of name in a __pyx_capi__ dict, or NULL with an error */
+static void *capi(PyObject *dict, const char *name) {
+    PyObject *cap = PyDict_Check(dict) ? PyDict_GetItemString(dict, name) : NULL;
+    if (!cap || !PyCapsule_CheckExact(cap)) {
+        PyErr_Format(PyExc_TypeError, "set_blas: no capsule %s (expected the __pyx_capi__ of "
+                     "scipy.linalg.cython_blas and cython_lapack)", name);
         return NULL;
     }
-    void *f = PyCapsule_GetPointer(cap, PyCapsule_GetName(cap));
-    if (!f) return NULL;
-    g_syrk = (syrk_t)f;
+    return PyCapsule_GetPointer(cap, PyCapsule_GetName(cap));
+}
+
+static PyObject *set_blas(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "set_blas(blas_capi, lapack_capi)");
+        return NULL;
+    }
+    void *syrk = capi(args[0], "dsyrk"), *trsm = syrk ? capi(args[0], "dtrsm") : NULL;
+    void *gemv = trsm ? capi(args[0], "dgemv") : NULL, *trsv = gemv ? capi(args[0], "dtrsv") : NULL;
+    void *potrf = trsv ? capi(args[1], "dpotrf") : NULL;
+    if (!potrf) return NULL;
+    g_syrk = (syrk_t)syrk;
+    g_trsm = (trsm_t)trsm;
+    g_gemv = (gemv_t)gemv;
+    g_trsv = (trsv_t)trsv;
+    g_potrf = (potrf_t)potrf;
     Py_RETURN_NONE;
 }
 
+static PyObject *factor_front(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "factor_front(A, g, K, blas)");
+        return NULL;
+    }
+    PyObject *oA = args[0], *og = args[1];
+    if (!PyArray_Check(oA) || PyArray_TYPE((PyArrayObject *)oA) != NPY_FLOAT64 ||
+        PyArray_NDIM((PyArrayObject *)oA) != 2 || !PyArray_IS_F_CONTIGUOUS((PyArrayObject *)oA) ||
+        !PyArray_ISWRITEABLE((PyArrayObject *)oA) ||
+        PyArray_DIM((PyArrayObject *)oA, 0) != PyArray_DIM((PyArrayObject *)oA, 1)) {
+        PyErr_SetString(PyExc_ValueError, "A must be a square, writeable, Fortran-ordered "
+                                          "float64 array");
+        return NULL;
+    }
+    i64 w = (i64)PyArray_DIM((PyArrayObject *)oA, 0), ng = 0;
+    double *g = arr(og, NPY_FLOAT64, "g", &ng);
+    if (!g) return NULL;
+    if (ng != w || !PyArray_ISWRITEABLE((PyArrayObject *)og)) {
+        PyErr_SetString(PyExc_ValueError, "g must be writeable with one entry per row of A");
+        return NULL;
+    }
+    i64 K = PyLong_AsLongLong(args[2]);
+    if (K == -1 && PyErr_Occurred()) return NULL;
+    if (K < 1 || K > w) {
+        PyErr_SetString(PyExc_ValueError, "K must be in 1 .. the width of A");
+        return NULL;
+    }
+    int blas = PyObject_IsTrue(args[3]);
+    if (blas < 0) return NULL;
+    if (blas && !g_potrf) {
+        PyErr_SetString(PyExc_ValueError, "blas=True: set_blas has not run");
+        return NULL;
+    }
+    i64 bad = front_factor(PyArray_DATA((PyArrayObject *)oA), g, w, K, blas);
+    return PyLong_FromLongLong((long long)bad);
+}
+
 static PyMethodDef methods[] = {
-    {"set_blas", (PyCFunction)set_blas, METH_O,
-     "set_blas(capsule): dsyrk (scipy.linalg.cython_blas.__pyx_capi__['dsyrk']) for the "
-     "Schur complements of wide fronts"},
+    {"set_blas", (PyCFunction)(void (*)(void))set_blas, METH_FASTCALL,
+     "set_blas(blas_capi, lapack_capi): dsyrk, dtrsm, dgemv, dtrsv and dpotrf from the "
+     "__pyx_capi__ of scipy.linalg.cython_blas and cython_lapack, for the wide fronts"},
+    {"factor_front", (PyCFunction)(void (*)(void))factor_front, METH_FASTCALL,
+     "factor_front(A, g, K, blas) -> -1, or the first column not positive definite: the "
+     "partial Cholesky of eliminate's fronts, in place on the lower triangle of the "
+     "Fortran-ordered A (w x w) and on g: A11 = L11 L11^T, A21 <- L21 = A21 L11^-T, "
+     "A22 -= L21 L21^T, g1 <- y = L11^-1 g1, g2 -= L21 y; blas: SciPy's BLAS/LAPACK, else the "
+     "loops"},
     {"detach", (PyCFunction)(void (*)(void))detach, METH_FASTCALL,
      "detach(marked, parent, child, sib, mark, rseen, node_rows, rnodes) -> (top, orphans, "
      "rows)"},

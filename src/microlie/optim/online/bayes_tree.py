@@ -29,7 +29,7 @@ from ... import _fast
 
 __all__ = ["BayesTree", "NotDetermined"]
 
-_BLAS: list[bool] = []  # the compiled module has SciPy's dsyrk
+_BLAS: list[bool] = []  # the compiled module has SciPy's BLAS and LAPACK
 
 
 class NotDetermined(ValueError):
@@ -81,10 +81,10 @@ class BayesTree:
         if compiled and mod is None:
             raise ValueError("compiled=True: microlie._c._incremental is not available (not "
                              "built, or MICROLIE_FAST=0)")
-        if self.module is not None and not _BLAS:  # SciPy's dsyrk for wide fronts, once
-            from scipy.linalg import cython_blas  # type: ignore[import-untyped]
+        if self.module is not None and not _BLAS:  # SciPy's BLAS/LAPACK for wide fronts, once
+            from scipy.linalg import cython_blas, cython_lapack  # type: ignore[import-untyped]
 
-            self.module.set_blas(cython_blas.__pyx_capi__["dsyrk"])
+            self.module.set_blas(cython_blas.__pyx_capi__, cython_lapack.__pyx_capi__)
             _BLAS.append(True)
         self.n = 0
         cap = 16
