@@ -26,6 +26,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "dispatch.h"
+
 typedef npy_int64 i64;
 
 /* The BLAS and LAPACK SciPy links (Fortran convention, 32-bit integers, no hidden string
@@ -46,7 +48,7 @@ static gemv_t g_gemv = NULL;
 static trsv_t g_trsv = NULL;
 /* fronts of fewer than this many frontal columns times front width take the loops (the
  * calls' fixed cost wins below; benchmarks in bayes_tree's tests' kernel timing) */
-#define BLAS_MIN 1024
+#define BLAS_MIN 640
 
 /* The partial Cholesky of a front of width w with K frontal columns, in place: A (column-major,
  * leading dimension w, the lower triangle read and written) = [A11 .; A21 A22], g = [g1; g2].
@@ -54,7 +56,7 @@ static trsv_t g_trsv = NULL;
  * use_blas: dpotrf, dtrsm, dsyrk, dtrsv, dgemv when set_blas ran (else the loops).
  * Returns -1, or the first frontal column whose pivot is not positive (A then partly
  * overwritten). */
-static i64 front_factor(double *A, double *g, i64 w, i64 K, int use_blas) {
+LM_HOT static i64 front_factor(double *A, double *g, i64 w, i64 K, int use_blas) {
     i64 s = w - K;
     if (K <= 0) return -1;
     if (use_blas && g_potrf && w <= 46340) { /* w * w fits the 32-bit BLAS integers */
@@ -103,7 +105,12 @@ static void *arr(PyObject *o, int type, const char *what, i64 *size) {
                      type == NPY_FLOAT64 ? "float64" : "int64");
         return NULL;
     }
-    if (size) *size = (i64)PyArray_SIZE((PyArrayObject *)o);
+    if (size) { /* the product of the dimensions inline (PyArray_SIZE is a call) */
+        PyArrayObject *a = (PyArrayObject *)o;
+        i64 n = 1;
+        for (int k = 0; k < PyArray_NDIM(a); k++) n *= (i64)PyArray_DIMS(a)[k];
+        *size = n;
+    }
     return PyArray_DATA((PyArrayObject *)o);
 }
 
@@ -294,6 +301,28 @@ static PyObject *new1(i64 n, int type) {
     return PyArray_SimpleNew(1, dims, type);
 }
 
+/* list[k] when it is a C-contiguous array of this type and shape (ndim 1: r entries; 2: r x c)
+ * owning its data and held by the list alone, with a new reference (the caller overwrites it:
+ * no allocation); else a new array */
+static PyObject *reuse(PyObject *list, i64 k, int type, int nd, i64 r, i64 c) {
+    PyObject *o = PyList_GET_ITEM(list, k);
+    if (o && PyArray_CheckExact(o) && Py_REFCNT(o) == 1) {
+        PyArrayObject *a = (PyArrayObject *)o;
+        if (PyArray_TYPE(a) == type && PyArray_NDIM(a) == nd && PyArray_BASE(a) == NULL &&
+            PyArray_CHKFLAGS(a, NPY_ARRAY_OWNDATA | NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_WRITEABLE) &&
+            PyArray_DIMS(a)[0] == (npy_intp)r && (nd == 1 || PyArray_DIMS(a)[1] == (npy_intp)c)) {
+            Py_INCREF(o);
+            return o;
+        }
+    }
+    return nd == 2 ? new2(r, c) : new1(r, type);
+}
+
+/* the front's scratch (w * w + w doubles), grown as needed and kept between calls (the GIL
+ * is held throughout) */
+static double *g_front = NULL;
+static i64 g_front_cap = 0;
+
 static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
     if (nargs != 19) {
@@ -330,8 +359,7 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
     i64 *head = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64));
     i64 *sepb = malloc((size_t)(N + 1) * sizeof(i64));
     i64 *io = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64)); /* offsets inside an item */
-    double *F = NULL, *g = NULL, *Lm = NULL, *Li = NULL;
-    i64 fcap = 0;
+    double *F = g_front, *g = NULL, *Lm = NULL, *Li = NULL;
     i64 nit = 0, bad = -1;
     int err = 0;
     if (!items || !head || !sepb || !io) {
@@ -413,11 +441,12 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             loc[sepb[a]] = w;
             w += dof[sepb[a]];
         }
-        if (w * w + w > fcap) {
-            free(F);
-            fcap = 2 * (w * w + w);
-            F = malloc((size_t)fcap * sizeof(double));
+        if (w * w + w > g_front_cap) { /* kept between calls: no fresh pages per update */
+            free(g_front);
+            g_front_cap = 2 * (w * w + w);
+            F = g_front = malloc((size_t)g_front_cap * sizeof(double));
             if (!F) {
+                g_front_cap = 0;
                 err = 1;
                 goto done;
             }
@@ -513,8 +542,10 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                     Li[a * d + bb] = -v / Lm[a * d + a];
                 }
             }
-            PyObject *oR = new2(d, d), *oT = new2(d, si), *oc = new1(d, NPY_FLOAT64),
-                     *os = new1(nsep, NPY_INT64);
+            PyObject *oR = reuse(LRinv, cur, NPY_FLOAT64, 2, d, d),
+                     *oT = reuse(LT, cur, NPY_FLOAT64, 2, d, si),
+                     *oc = reuse(Lc, cur, NPY_FLOAT64, 1, d, 0),
+                     *os = reuse(Lsep, cur, NPY_INT64, 1, nsep, 0);
             if (!oR || !oT || !oc || !os) {
                 Py_XDECREF(oR);
                 Py_XDECREF(oT);
@@ -553,7 +584,8 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             /* the clique root keeps the Schur complement on its separator */
             chain[cur] = 0;
             parent[cur] = -1;
-            PyObject *oH = new2(s, s), *ob = new1(s, NPY_FLOAT64);
+            PyObject *oH = reuse(LHs, cur, NPY_FLOAT64, 2, s, s),
+                     *ob = reuse(Lbs, cur, NPY_FLOAT64, 1, s, 0);
             if (!oH || !ob) {
                 Py_XDECREF(oH);
                 Py_XDECREF(ob);
@@ -586,7 +618,6 @@ done:
     free(head);
     free(sepb);
     free(io);
-    free(F);
     free(Lm);
     if (err) {
         if (!PyErr_Occurred()) PyErr_NoMemory();
@@ -603,7 +634,16 @@ typedef struct {
     PyObject *sep, *Rinv, *T, *c;
     double *chg;
     ibuf touched;
+    double *xs; /* scratch: the separator's steps */
+    i64 xcap;
 } bctx;
+
+LM_HOT static double dot(const double *a, const double *b, i64 n) {
+    double acc = 0.0;
+#pragma omp simd reduction(+ : acc)
+    for (i64 i = 0; i < n; i++) acc += a[i] * b[i];
+    return acc;
+}
 
 /* x_k = Rinv_k (c_k - T_k x_sep). keep: always keep the new value and mark k changed (a node
  * of the re-eliminated top); else keep it and mark k changed only when a component moved by
@@ -622,17 +662,24 @@ static int back_one(bctx *B, i64 k, int keep, double threshold) {
     double *T = R ? item_f64(B->T, k, "T", d * s) : NULL;
     double *c = T ? item_f64(B->c, k, "c", d) : NULL;
     if (!c) return -1;
-    double v[64], nw[64];
-    for (i64 a = 0; a < d; a++) v[a] = c[a];
-    i64 col = 0;
-    for (i64 a = 0; a < ns; a++) {
-        i64 n = sp[a], dn = B->dof[n];
-        const double *xs = B->dx + B->off[n];
-        for (i64 r = 0; r < dn; r++, col++) {
-            double x = xs[r];
-            for (i64 i = 0; i < d; i++) v[i] -= T[i * s + col] * x;
+    if (s > B->xcap) {
+        free(B->xs);
+        B->xcap = 2 * s;
+        B->xs = malloc((size_t)B->xcap * sizeof(double));
+        if (!B->xs) {
+            B->xcap = 0;
+            PyErr_NoMemory();
+            return -1;
         }
     }
+    double v[64], nw[64], *xs = B->xs;
+    for (i64 a = 0, col = 0; a < ns; a++) { /* the separator's steps, gathered */
+        i64 n = sp[a], dn = B->dof[n];
+        const double *xn = B->dx + B->off[n];
+        for (i64 r = 0; r < dn; r++) xs[col + r] = xn[r];
+        col += dn;
+    }
+    for (i64 a = 0; a < d; a++) v[a] = c[a] - dot(T + a * s, xs, s);
     double big = 0.0, *xk = B->dx + B->off[k];
     for (i64 i = 0; i < d; i++) {
         double t = 0.0;
@@ -670,7 +717,7 @@ static PyObject *backsubstitute(PyObject *self, PyObject *const *args, Py_ssize_
     if (PyErr_Occurred()) return NULL;
     double *chg = arr(args[12], NPY_FLOAT64, "chg", NULL);
     if (!chg) return NULL;
-    bctx B = {dx, off, dof, args[5], args[6], args[7], args[8], chg, {0}};
+    bctx B = {dx, off, dof, args[5], args[6], args[7], args[8], chg, {0}, NULL, 0};
     ibuf stack = {0};
     i64 count = 0;
     int err = 0;
@@ -698,6 +745,7 @@ static PyObject *backsubstitute(PyObject *self, PyObject *const *args, Py_ssize_
     }
     for (i64 q = 0; q < B.touched.n; q++) chg[B.touched.p[q]] = 0.0;
     free(B.touched.p);
+    free(B.xs);
     free(stack.p);
     if (err) {
         if (!PyErr_Occurred()) PyErr_NoMemory();
