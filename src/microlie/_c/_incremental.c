@@ -318,6 +318,27 @@ static PyObject *reuse(PyObject *list, i64 k, int type, int nd, i64 r, i64 c) {
     return nd == 2 ? new2(r, c) : new1(r, type);
 }
 
+/* F += H, g += b for an item whose nodes come in front order: runs (item offset, front
+ * offset, length) of item columns contiguous in the front; F column-major lower (leading
+ * dimension w), H read in its row-major upper triangle */
+LM_HOT static void add_runs(double *F, i64 w, double *g, const double *H, const double *b,
+                            i64 m, const i64 *runs, i64 nr) {
+    for (i64 q = 0; q < nr; q++) {
+        i64 i0 = runs[3 * q], f0 = runs[3 * q + 1], len = runs[3 * q + 2];
+        for (i64 r = 0; r < len; r++) {
+            const double *Hr = H + (i0 + r) * m;
+            double *Fc = F + (f0 + r) * w;
+            for (i64 q2 = q; q2 < nr; q2++) {
+                i64 skip = q2 == q ? r : 0, n = runs[3 * q2 + 2] - skip;
+                double *dst = Fc + runs[3 * q2 + 1] + skip;
+                const double *src = Hr + runs[3 * q2] + skip;
+                for (i64 t = 0; t < n; t++) dst[t] += src[t];
+            }
+            g[f0 + r] += b[i0 + r];
+        }
+    }
+}
+
 /* the front's scratch (w * w + w doubles), grown as needed and kept between calls (the GIL
  * is held throughout) */
 static double *g_front = NULL;
@@ -359,10 +380,11 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
     i64 *head = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64));
     i64 *sepb = malloc((size_t)(N + 1) * sizeof(i64));
     i64 *io = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64)); /* offsets inside an item */
+    i64 *runs = malloc((size_t)(3 * (N > 0 ? N : 1)) * sizeof(i64)); /* add_runs' runs */
     double *F = g_front, *g = NULL, *Lm = NULL, *Li = NULL;
     i64 nit = 0, bad = -1;
     int err = 0;
-    if (!items || !head || !sepb || !io) {
+    if (!items || !head || !sepb || !io || !runs) {
         err = 1;
         goto done;
     }
@@ -474,14 +496,26 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             child[nd] = -1;
             for (i64 it = head[nd]; it >= 0; it = items[it].next) {
                 const item *E = &items[it];
-                i64 m = 0;
+                i64 m = 0, nr = 0;
+                int sorted = 1;
                 for (i64 t = 0; t < E->nn; t++) {
+                    i64 n = E->nodes[t];
                     io[t] = m;
-                    m += dof[E->nodes[t]];
+                    m += dof[n];
+                    if (t && loc[n] <= loc[E->nodes[t - 1]]) sorted = 0;
+                    if (nr && runs[3 * nr - 2] + runs[3 * nr - 1] == loc[n])
+                        runs[3 * nr - 1] += dof[n];
+                    else {
+                        runs[3 * nr] = io[t];
+                        runs[3 * nr + 1] = loc[n];
+                        runs[3 * nr + 2] = dof[n];
+                        nr++;
+                    }
                 }
-                /* F(lb + t, la + r) += H(io[a] + r, io[bb] + t) for lb >= la, read from the
+                if (sorted) add_runs(F, w, g, E->H, E->b, m, runs, nr);
+                /* else F(lb + t, la + r) += H(io[a] + r, io[bb] + t) for lb >= la, read from the
                  * item's row-major upper triangle (the only part of Hs stored) */
-                for (i64 a = 0; a < E->nn; a++) {
+                for (i64 a = 0; a < E->nn && !sorted; a++) {
                     i64 na = E->nodes[a], da = dof[na], la = loc[na];
                     for (i64 r = 0; r < da; r++) {
                         double *Fc = F + (la + r) * w;
@@ -618,6 +652,7 @@ done:
     free(head);
     free(sepb);
     free(io);
+    free(runs);
     free(Lm);
     if (err) {
         if (!PyErr_Occurred()) PyErr_NoMemory();
