@@ -50,33 +50,36 @@ static trsv_t g_trsv = NULL;
  * calls' fixed cost wins below; benchmarks in bayes_tree's tests' kernel timing) */
 #define BLAS_MIN 640
 
-/* The partial Cholesky of a front of width w with K frontal columns, in place: A (column-major,
- * leading dimension w, the lower triangle read and written) = [A11 .; A21 A22], g = [g1; g2].
- * A11 = L11 L11^T, L21 = A21 L11^-T, A22 -= L21 L21^T, y = L11^-1 g1 (in g1), g2 -= L21 y.
- * use_blas: dpotrf, dtrsm, dsyrk, dtrsv, dgemv when set_blas ran (else the loops).
- * Returns -1, or the first frontal column whose pivot is not positive (A then partly
- * overwritten). */
-LM_HOT static i64 front_factor(double *A, double *g, i64 w, i64 K, int use_blas) {
+/* The partial Cholesky of a front of width w with K frontal columns, in place: the front
+ * [A11 .; A21 A22] (lower triangles read and written) is held as the panel P = [A11; A21]
+ * (column-major, w x K, leading dimension w) and the trailing block S = A22 (column-major,
+ * s x s, leading dimension lds, s = w - K); g = [g1; g2]. A11 = L11 L11^T, L21 = A21 L11^-T,
+ * A22 -= L21 L21^T, y = L11^-1 g1 (in g1), g2 -= L21 y. use_blas: dpotrf, dtrsm, dsyrk, dtrsv,
+ * dgemv when set_blas ran (else the loops). Returns -1, or the first frontal column whose
+ * pivot is not positive (the front then partly overwritten). */
+LM_HOT static i64 front_factor(double *P, double *S, i64 lds, double *g, i64 w, i64 K,
+                               int use_blas) {
     i64 s = w - K;
     if (K <= 0) return -1;
-    if (use_blas && g_potrf && w <= 46340) { /* w * w fits the 32-bit BLAS integers */
+    if (use_blas && g_potrf && w <= 46340 && lds <= 46340) { /* 32-bit BLAS integers */
         char cL = 'L', cR = 'R', cT = 'T', cN = 'N';
-        int k_ = (int)K, s_ = (int)s, ld = (int)w, info = 0, inc = 1;
+        int k_ = (int)K, s_ = (int)s, ld = (int)w, ldS = (int)(lds > 0 ? lds : 1), info = 0,
+            inc = 1;
         double one = 1.0, mone = -1.0;
-        g_potrf(&cL, &k_, A, &ld, &info);
+        g_potrf(&cL, &k_, P, &ld, &info);
         if (info != 0) return info > 0 ? (i64)info - 1 : 0;
-        g_trsv(&cL, &cN, &cN, &k_, A, &ld, g, &inc);
+        g_trsv(&cL, &cN, &cN, &k_, P, &ld, g, &inc);
         if (s > 0) {
-            g_trsm(&cR, &cL, &cT, &cN, &s_, &k_, &one, A, &ld, A + K, &ld);
-            g_syrk(&cL, &cN, &s_, &k_, &mone, A + K, &ld, &one, A + K * w + K, &ld);
-            g_gemv(&cN, &s_, &k_, &mone, A + K, &ld, g, &inc, &one, g + K, &inc);
+            g_trsm(&cR, &cL, &cT, &cN, &s_, &k_, &one, P, &ld, P + K, &ld);
+            g_syrk(&cL, &cN, &s_, &k_, &mone, P + K, &ld, &one, S, &ldS);
+            g_gemv(&cN, &s_, &k_, &mone, P + K, &ld, g, &inc, &one, g + K, &inc);
         }
         return -1;
     }
     /* right-looking by columns: column c scaled, then the frontal columns after it updated
-     * (contiguous), then the trailing block A22 by rank-1 updates of its columns */
+     * (contiguous), then the trailing block by a rank-1 update of its columns */
     for (i64 c = 0; c < K; c++) {
-        double *Ac = A + c * w;
+        double *Ac = P + c * w;
         double dv = Ac[c];
         if (!(dv > 0.0)) return c;
         dv = sqrt(dv);
@@ -86,11 +89,16 @@ LM_HOT static i64 front_factor(double *A, double *g, i64 w, i64 K, int use_blas)
         g[c] *= r;
         double y = g[c];
         for (i64 a = c + 1; a < w; a++) g[a] -= Ac[a] * y;
-        for (i64 c2 = c + 1; c2 < w; c2++) {
-            double *Ad = A + c2 * w;
+        for (i64 c2 = c + 1; c2 < K; c2++) {
+            double *Ad = P + c2 * w;
             double l = Ac[c2];
-            if (l == 0.0) continue;
             for (i64 a = c2; a < w; a++) Ad[a] -= l * Ac[a];
+        }
+        const double *Lc = Ac + K;
+        for (i64 c2 = 0; c2 < s; c2++) {
+            double *Sd = S + c2 * lds;
+            double l = Lc[c2];
+            for (i64 a = c2; a < s; a++) Sd[a] -= l * Lc[a];
         }
     }
     return -1;
@@ -318,19 +326,31 @@ static PyObject *reuse(PyObject *list, i64 k, int type, int nd, i64 r, i64 c) {
     return nd == 2 ? new2(r, c) : new1(r, type);
 }
 
-/* F += H, g += b for an item whose nodes come in front order: runs (item offset, front
- * offset, length) of item columns contiguous in the front; F column-major lower (leading
- * dimension w), H read in its row-major upper triangle */
-LM_HOT static void add_runs(double *F, i64 w, double *g, const double *H, const double *b,
-                            i64 m, const i64 *runs, i64 nr) {
+/* the column fc of the front (its rows from shift on): the panel's (fc < K) or the trailing
+ * block's */
+static inline double *front_col(double *P, i64 w, double *S, i64 s, i64 K, i64 fc, i64 *shift) {
+    if (fc < K) {
+        *shift = 0;
+        return P + fc * w;
+    }
+    *shift = K;
+    return S + (fc - K) * s;
+}
+
+/* front += H, g += b for an item whose nodes come in front order: runs (item offset, front
+ * offset, length) of item columns contiguous in the front; the front as front_factor's P
+ * (w x K) and S (s x s), lower triangles; H read in its row-major upper triangle */
+LM_HOT static void add_runs(double *P, i64 w, double *S, i64 s, i64 K, double *g,
+                            const double *H, const double *b, i64 m, const i64 *runs, i64 nr) {
     for (i64 q = 0; q < nr; q++) {
         i64 i0 = runs[3 * q], f0 = runs[3 * q + 1], len = runs[3 * q + 2];
         for (i64 r = 0; r < len; r++) {
             const double *Hr = H + (i0 + r) * m;
-            double *Fc = F + (f0 + r) * w;
+            i64 shift;
+            double *Fc = front_col(P, w, S, s, K, f0 + r, &shift);
             for (i64 q2 = q; q2 < nr; q2++) {
                 i64 skip = q2 == q ? r : 0, n = runs[3 * q2 + 2] - skip;
-                double *dst = Fc + runs[3 * q2 + 1] + skip;
+                double *dst = Fc + runs[3 * q2 + 1] + skip - shift;
                 const double *src = Hr + runs[3 * q2] + skip;
                 for (i64 t = 0; t < n; t++) dst[t] += src[t];
             }
@@ -463,20 +483,6 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             loc[sepb[a]] = w;
             w += dof[sepb[a]];
         }
-        if (w * w + w > g_front_cap) { /* kept between calls: no fresh pages per update */
-            free(g_front);
-            g_front_cap = 2 * (w * w + w);
-            F = g_front = malloc((size_t)g_front_cap * sizeof(double));
-            if (!F) {
-                g_front_cap = 0;
-                err = 1;
-                goto done;
-            }
-        }
-        g = F + w * w;
-        for (i64 c2 = 0; c2 < w; c2++) /* column-major, the lower triangle only is used */
-            memset(F + c2 * w + c2, 0, (size_t)(w - c2) * sizeof(double));
-        memset(g, 0, (size_t)w * sizeof(double));
         /* the clique: j and the nodes after it in the front that come next in the order and
          * whose own items add no node (each then nested in the next: one dense front) */
         i64 k = 1;
@@ -491,6 +497,32 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             if (!inside) break;
             k++;
         }
+        i64 root = sepb[k - 1], K = loc[root] + dof[root], s = w - K;
+        /* the panel (w x K) and g in the scratch, kept between calls (no fresh pages per
+         * update); the trailing block directly in the root's Schur complement Hs (s x s) */
+        if (w * K + w > g_front_cap) {
+            free(g_front);
+            g_front_cap = 2 * (w * K + w);
+            F = g_front = malloc((size_t)g_front_cap * sizeof(double));
+            if (!F) {
+                g_front_cap = 0;
+                err = 1;
+                goto done;
+            }
+        }
+        g = F + w * K;
+        for (i64 c2 = 0; c2 < K; c2++) /* column-major, the lower triangle only is used */
+            memset(F + c2 * w + c2, 0, (size_t)(w - c2) * sizeof(double));
+        memset(g, 0, (size_t)w * sizeof(double));
+        PyObject *oH = reuse(LHs, root, NPY_FLOAT64, 2, s, s),
+                 *ob = oH ? reuse(Lbs, root, NPY_FLOAT64, 1, s, 0) : NULL;
+        if (!ob) {
+            Py_XDECREF(oH);
+            err = 1;
+            goto done;
+        }
+        double *Sm = PyArray_DATA((PyArrayObject *)oH);
+        if (s) memset(Sm, 0, (size_t)(s * s) * sizeof(double));
         for (i64 f = 0; f < k; f++) {
             i64 nd = sepb[f];
             child[nd] = -1;
@@ -512,19 +544,20 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                         nr++;
                     }
                 }
-                if (sorted) add_runs(F, w, g, E->H, E->b, m, runs, nr);
-                /* else F(lb + t, la + r) += H(io[a] + r, io[bb] + t) for lb >= la, read from the
-                 * item's row-major upper triangle (the only part of Hs stored) */
+                if (sorted) add_runs(F, w, Sm, s, K, g, E->H, E->b, m, runs, nr);
+                /* else front(lb + t, la + r) += H(io[a] + r, io[bb] + t) for lb >= la, read
+                 * from the item's row-major upper triangle (the only part of Hs stored) */
                 for (i64 a = 0; a < E->nn && !sorted; a++) {
                     i64 na = E->nodes[a], da = dof[na], la = loc[na];
                     for (i64 r = 0; r < da; r++) {
-                        double *Fc = F + (la + r) * w;
+                        i64 shift;
+                        double *Fc = front_col(F, w, Sm, s, K, la + r, &shift);
                         const double *Hr = E->H + (io[a] + r) * m;
                         for (i64 bb = 0; bb < E->nn; bb++) {
                             i64 nb = E->nodes[bb], lb = loc[nb];
                             if (lb < la) continue; /* the upper triangle */
                             i64 t0 = lb == la ? r : 0, db = dof[nb];
-                            double *dst = Fc + lb;
+                            double *dst = Fc + lb - shift;
                             if (bb >= a) {
                                 const double *src = Hr + io[bb];
                                 for (i64 t = t0; t < db; t++) dst[t] += src[t];
@@ -544,9 +577,10 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             }
         }
         /* the partial Cholesky of the K frontal columns (BLAS-3 from BLAS_MIN) */
-        i64 K = loc[sepb[k - 1]] + dof[sepb[k - 1]], s = w - K;
-        i64 badcol = front_factor(F, g, w, K, K * w >= BLAS_MIN);
+        i64 badcol = front_factor(F, Sm, s, g, w, K, K * w >= BLAS_MIN);
         if (badcol >= 0) {
+            Py_DECREF(oH);
+            Py_DECREF(ob);
             for (i64 f = 0; f < k; f++)
                 if (badcol >= loc[sepb[f]] && badcol < loc[sepb[f]] + dof[sepb[f]]) bad = sepb[f];
             for (i64 a = 0; a < nf; a++) loc[sepb[a]] = -1;
@@ -566,7 +600,7 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             }
             for (i64 a = 0; a < d; a++)
                 for (i64 bb = 0; bb < d; bb++)
-                    Lm[a * d + bb] = bb <= a ? F[(oi + bb) * w + oi + a] : 0.0;
+                    Lm[a * d + bb] = bb <= a ? F[(oi + bb) * w + oi + a] : 0.0; /* oi < K */
             for (i64 a = 0; a < d; a++) { /* Li = L^-1 (lower) by forward substitution */
                 for (i64 bb = 0; bb < d; bb++) Li[a * d + bb] = 0.0;
                 Li[a * d + a] = 1.0 / Lm[a * d + a];
@@ -585,6 +619,8 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                 Py_XDECREF(oT);
                 Py_XDECREF(oc);
                 Py_XDECREF(os);
+                Py_DECREF(oH);
+                Py_DECREF(ob);
                 err = 1;
                 goto done;
             }
@@ -618,21 +654,9 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             /* the clique root keeps the Schur complement on its separator */
             chain[cur] = 0;
             parent[cur] = -1;
-            PyObject *oH = reuse(LHs, cur, NPY_FLOAT64, 2, s, s),
-                     *ob = reuse(Lbs, cur, NPY_FLOAT64, 1, s, 0);
-            if (!oH || !ob) {
-                Py_XDECREF(oH);
-                Py_XDECREF(ob);
-                err = 1;
-                goto done;
-            }
-            double *Hs = PyArray_DATA((PyArrayObject *)oH), *bs = PyArray_DATA((PyArrayObject *)ob);
-            for (i64 p = 0; p < s; p++) { /* row-major upper = column-major lower */
-                memcpy(Hs + p * s + p, F + (K + p) * w + K + p, (size_t)(s - p) * sizeof(double));
-                memset(Hs + p * s, 0, (size_t)p * sizeof(double));
-                bs[p] = g[K + p];
-            }
-            PyList_SetItem(LHs, cur, oH);
+            double *Hs = Sm, *bs = PyArray_DATA((PyArrayObject *)ob);
+            for (i64 p = 0; p < s; p++) bs[p] = g[K + p];
+            PyList_SetItem(LHs, cur, oH); /* its row-major upper triangle = Sm's lower */
             PyList_SetItem(Lbs, cur, ob);
             for (i64 a = k; a < nf; a++) loc[sepb[a]] = -1;
             if (nsep) {
@@ -934,7 +958,8 @@ static PyObject *factor_front(PyObject *self, PyObject *const *args, Py_ssize_t 
         PyErr_SetString(PyExc_ValueError, "blas=True: set_blas has not run");
         return NULL;
     }
-    i64 bad = front_factor(PyArray_DATA((PyArrayObject *)oA), g, w, K, blas);
+    double *A = PyArray_DATA((PyArrayObject *)oA);
+    i64 bad = front_factor(A, A + K * w + K, w, g, w, K, blas);
     return PyLong_FromLongLong((long long)bad);
 }
 
