@@ -337,24 +337,30 @@ static inline double *front_col(double *P, i64 w, double *S, i64 s, i64 K, i64 f
     return S + (fc - K) * s;
 }
 
-/* front += H, g += b for an item whose nodes come in front order: runs (item offset, front
- * offset, length) of item columns contiguous in the front; the front as front_factor's P
- * (w x K) and S (s x s), lower triangles; H read in its row-major upper triangle */
+/* front += H, g += b for an item: runs (item offset, front offset, length), in front order,
+ * of item columns contiguous both in the item and in the front; the front as front_factor's
+ * P (w x K) and S (s x s), lower triangles; H read in its row-major upper triangle only (a
+ * run pair in the item's reverse order by columns of H, strided) */
 LM_HOT static void add_runs(double *P, i64 w, double *S, i64 s, i64 K, double *g,
                             const double *H, const double *b, i64 m, const i64 *runs, i64 nr) {
     for (i64 q = 0; q < nr; q++) {
         i64 i0 = runs[3 * q], f0 = runs[3 * q + 1], len = runs[3 * q + 2];
         for (i64 r = 0; r < len; r++) {
-            const double *Hr = H + (i0 + r) * m;
-            i64 shift;
+            i64 ci = i0 + r, shift;
+            const double *Hr = H + ci * m;
             double *Fc = front_col(P, w, S, s, K, f0 + r, &shift);
             for (i64 q2 = q; q2 < nr; q2++) {
-                i64 skip = q2 == q ? r : 0, n = runs[3 * q2 + 2] - skip;
+                i64 skip = q2 == q ? r : 0, n = runs[3 * q2 + 2] - skip, j0 = runs[3 * q2] + skip;
                 double *dst = Fc + runs[3 * q2 + 1] + skip - shift;
-                const double *src = Hr + runs[3 * q2] + skip;
-                for (i64 t = 0; t < n; t++) dst[t] += src[t];
+                if (j0 >= ci) {
+                    const double *src = Hr + j0;
+                    for (i64 t = 0; t < n; t++) dst[t] += src[t];
+                } else {
+                    const double *src = H + j0 * m + ci;
+                    for (i64 t = 0; t < n; t++) dst[t] += src[t * m];
+                }
             }
-            g[f0 + r] += b[i0 + r];
+            g[f0 + r] += b[ci];
         }
     }
 }
@@ -401,10 +407,11 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
     i64 *sepb = malloc((size_t)(N + 1) * sizeof(i64));
     i64 *io = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64)); /* offsets inside an item */
     i64 *runs = malloc((size_t)(3 * (N > 0 ? N : 1)) * sizeof(i64)); /* add_runs' runs */
+    i64 *perm = malloc((size_t)(N > 0 ? N : 1) * sizeof(i64));       /* an item's nodes by loc */
     double *F = g_front, *g = NULL, *Lm = NULL, *Li = NULL;
     i64 nit = 0, bad = -1;
     int err = 0;
-    if (!items || !head || !sepb || !io || !runs) {
+    if (!items || !head || !sepb || !io || !runs || !perm) {
         err = 1;
         goto done;
     }
@@ -529,13 +536,20 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
             for (i64 it = head[nd]; it >= 0; it = items[it].next) {
                 const item *E = &items[it];
                 i64 m = 0, nr = 0;
-                int sorted = 1;
-                for (i64 t = 0; t < E->nn; t++) {
-                    i64 n = E->nodes[t];
+                for (i64 t = 0; t < E->nn; t++) { /* offsets; perm: the nodes by loc */
+                    i64 n = E->nodes[t], u = t;
                     io[t] = m;
                     m += dof[n];
-                    if (t && loc[n] <= loc[E->nodes[t - 1]]) sorted = 0;
-                    if (nr && runs[3 * nr - 2] + runs[3 * nr - 1] == loc[n])
+                    while (u > 0 && loc[E->nodes[perm[u - 1]]] > loc[n]) {
+                        perm[u] = perm[u - 1];
+                        u--;
+                    }
+                    perm[u] = t;
+                }
+                for (i64 u = 0; u < E->nn; u++) {
+                    i64 t = perm[u], n = E->nodes[t];
+                    if (nr && runs[3 * nr - 2] + runs[3 * nr - 1] == loc[n] &&
+                        runs[3 * nr - 3] + runs[3 * nr - 1] == io[t])
                         runs[3 * nr - 1] += dof[n];
                     else {
                         runs[3 * nr] = io[t];
@@ -544,31 +558,7 @@ static PyObject *eliminate(PyObject *self, PyObject *const *args, Py_ssize_t nar
                         nr++;
                     }
                 }
-                if (sorted) add_runs(F, w, Sm, s, K, g, E->H, E->b, m, runs, nr);
-                /* else front(lb + t, la + r) += H(io[a] + r, io[bb] + t) for lb >= la, read
-                 * from the item's row-major upper triangle (the only part of Hs stored) */
-                for (i64 a = 0; a < E->nn && !sorted; a++) {
-                    i64 na = E->nodes[a], da = dof[na], la = loc[na];
-                    for (i64 r = 0; r < da; r++) {
-                        i64 shift;
-                        double *Fc = front_col(F, w, Sm, s, K, la + r, &shift);
-                        const double *Hr = E->H + (io[a] + r) * m;
-                        for (i64 bb = 0; bb < E->nn; bb++) {
-                            i64 nb = E->nodes[bb], lb = loc[nb];
-                            if (lb < la) continue; /* the upper triangle */
-                            i64 t0 = lb == la ? r : 0, db = dof[nb];
-                            double *dst = Fc + lb - shift;
-                            if (bb >= a) {
-                                const double *src = Hr + io[bb];
-                                for (i64 t = t0; t < db; t++) dst[t] += src[t];
-                            } else {
-                                const double *src = E->H + io[bb] * m + io[a] + r;
-                                for (i64 t = t0; t < db; t++) dst[t] += src[t * m];
-                            }
-                        }
-                        g[la + r] += E->b[io[a] + r];
-                    }
-                }
+                add_runs(F, w, Sm, s, K, g, E->H, E->b, m, runs, nr);
                 if (E->who >= 0) { /* a subtree hangs from nd */
                     parent[E->who] = nd;
                     sib[E->who] = child[nd];
@@ -677,6 +667,7 @@ done:
     free(sepb);
     free(io);
     free(runs);
+    free(perm);
     free(Lm);
     if (err) {
         if (!PyErr_Occurred()) PyErr_NoMemory();
