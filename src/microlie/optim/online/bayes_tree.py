@@ -15,6 +15,10 @@ of node ``j``.
 
 The operations run in one call each of the compiled module ``microlie._c._incremental`` when
 it is built, else in the NumPy functions of this module (the same arithmetic: tested equal).
+The compiled elimination factors one dense front per clique (the chain of nodes each nested in
+the next) with SciPy's BLAS and LAPACK (``dpotrf``, ``dtrsm``, ``dsyrk``; plain loops for small
+fronts) and keeps only the row-major upper triangle of a clique root's ``Hs`` (the lower is 0);
+the NumPy one eliminates one node per front and keeps ``Hs`` whole.
 """
 
 from __future__ import annotations
