@@ -373,8 +373,8 @@ def test_best_estimate_is_the_complete_step():
 
 
 def test_wide_fronts_equal_dense_step():
-    """Many loop closures: separators above 48 columns (the compiled path's dsyrk); forced
-    relinearisation, so the estimate is the dense Gauss-Newton step."""
+    """Many loop closures: separators above 48 columns (the compiled path's BLAS/LAPACK
+    fronts); forced relinearisation, so the estimate is the dense Gauss-Newton step."""
     graph = _synthetic(SE3, 80, 60, seed=21)
     rep = replay_pose_graph(graph, IncrementalSmoother(**FORCED))
     s, x = rep["smoother"], rep["poses"]

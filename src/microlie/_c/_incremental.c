@@ -46,8 +46,9 @@ static trsm_t g_trsm = NULL;
 static syrk_t g_syrk = NULL;
 static gemv_t g_gemv = NULL;
 static trsv_t g_trsv = NULL;
-/* fronts of fewer than this many frontal columns times front width take the loops (the
- * calls' fixed cost wins below; benchmarks in bayes_tree's tests' kernel timing) */
+/* fronts of fewer than this many frontal columns times front width take the loops (the five
+ * calls' fixed cost wins below: factor_front, blas True / False, crosses over near K w = 600
+ * for K = 6 .. 18) */
 #define BLAS_MIN 640
 
 /* The partial Cholesky of a front of width w with K frontal columns, in place: the front
@@ -365,8 +366,8 @@ LM_HOT static void add_runs(double *P, i64 w, double *S, i64 s, i64 K, double *g
     }
 }
 
-/* the front's scratch (w * w + w doubles), grown as needed and kept between calls (the GIL
- * is held throughout) */
+/* the front's scratch (the panel and g: w * K + w doubles), grown as needed and kept between
+ * calls (the GIL is held throughout; at most twice the largest panel stays allocated) */
 static double *g_front = NULL;
 static i64 g_front_cap = 0;
 
