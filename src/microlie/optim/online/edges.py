@@ -56,10 +56,10 @@ class _Store:
             for name in ("ii", "jj", "Z", "L"):
                 a = getattr(self, name)
                 setattr(self, name, np.concatenate([a, np.zeros_like(a)]))
-        sl = np.arange(self.n, self.n + m)
-        self.ii[sl], self.jj[sl], self.Z[sl], self.L[sl] = ii, jj, Z, L
-        self.n += m
-        return sl
+        a, b = self.n, self.n + m
+        self.ii[a:b], self.jj[a:b], self.Z[a:b], self.L[a:b] = ii, jj, Z, L
+        self.n = b
+        return np.arange(a, b)
 
 
 class EdgeRows:
@@ -81,9 +81,11 @@ class EdgeRows:
     >>> f = BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0, 0]), Diagonal([0.5, 0.5, 0.5]))
     >>> e = EdgeRows()
     >>> e.add(f, np.array([10, 11]))
-    >>> rows, H, b = e.linearize(np.array([11, 3]), [x.initial])
-    >>> rows.tolist() == ([11] if e.module is not None else [])
-    True
+    >>> H, b = [None] * 12, [None] * 12
+    >>> left = e.linearize(np.array([11, 3]), [x.initial], H, b)
+    >>> compiled = e.module is not None
+    >>> left == ([1] if compiled else [0, 1]), (H[11] is not None) == compiled
+    (True, True)
     """
 
     def __init__(self, compiled: bool | None = None) -> None:
@@ -97,64 +99,91 @@ class EdgeRows:
         """Register the rows ``rows`` (ids, one per factor of ``f``) of the batch ``f``: kept
         when ``f`` is an SE(2) / SE(3) BetweenFactor without a loss or a fixed end."""
         rows = np.asarray(rows, dtype=np.int64)
+        self._grow(rows)
+        if not self.accepts(f):
+            return
+        (var, ii), (_, jj) = f.args
+        if var.fixed[ii].any() or var.fixed[jj].any():
+            return
+        L = np.broadcast_to(f.noise.sqrt_info, (f.count, var.dof, var.dof))
+        Z = np.asarray(var.params_of(f.Z), dtype=np.float64).reshape(f.count, -1)
+        self.add_raw(var, rows, ii, jj, Z, L)
+
+    def accepts(self, f: Factor) -> bool:
+        """Whether rows of ``f`` can be kept (the compiled module is there, ``f`` is an SE(2) /
+        SE(3) BetweenFactor without a loss; fixed ends are the caller's to check)."""
+        return (self.module is not None and type(f) is BetweenFactor and f.loss is None
+                and f.args[0][0].group.__name__ in _NAMES)
+
+    def _grow(self, rows: np.ndarray) -> None:
         if rows.size and rows.max() >= self._key.size:
             grow = max(int(rows.max()) + 1, 2 * self._key.size)
             self._key = np.concatenate([self._key, np.full(grow - self._key.size, -1,
                                                            dtype=np.int64)])
             self._slot = np.concatenate([self._slot, np.zeros(grow - self._slot.size,
                                                               dtype=np.int64)])
-        if self.module is None or type(f) is not BetweenFactor or f.loss is not None:
-            return
-        (var, ii), (_, jj) = f.args
-        name = _NAMES.get(var.group.__name__)
-        if name is None or var.fixed[ii].any() or var.fixed[jj].any():
-            return
-        fn = getattr(self.module, f"{name}_between_normal", None)
-        if fn is None:
-            return
+
+    def add_raw(self, var: Any, rows: np.ndarray, ii: np.ndarray, jj: np.ndarray,
+                Z: np.ndarray, L: np.ndarray) -> None:
+        """Keep rows ``rows`` of edges ``ii -> jj`` of ``var`` (neither end fixed; the
+        caller checked :meth:`accepts`) with measurement parameters ``Z`` ``(m, P)`` and
+        square-root information ``L`` ``(m, D, D)``."""
+        self._grow(rows)
         store = self._stores.get(var.key)
         if store is None:
+            fn = getattr(self.module, f"{_NAMES[var.group.__name__]}_between_normal")
             store = self._stores[var.key] = _Store(fn, var.initial.shape[-1], var.dof)
-        D = var.dof
-        L = np.broadcast_to(f.noise.sqrt_info, (f.count, D, D))
-        Z = np.asarray(var.params_of(f.Z), dtype=np.float64).reshape(f.count, -1)
         self._slot[rows] = store.add(ii, jj, Z, L)
         self._key[rows] = var.key
 
-    def linearize(self, rows: np.ndarray, lin: list[np.ndarray]
-                  ) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
-        """Linearise the kept rows among ``rows`` at the parameters ``lin`` (per handle key).
+    def linearize(self, rows: np.ndarray, lin: list[np.ndarray], H: list[Any], b: list[Any]
+                  ) -> list[int]:
+        """Linearise the kept rows among ``rows`` at the parameters ``lin`` (per handle key):
+        ``H[r] = A^T A`` ``(2 D, 2 D)`` and ``b[r] = -A^T e`` ``(2 D,)`` over the row's two
+        ends (first, second), for each kept row ``r``.
 
         Returns
         -------
-        done : numpy.ndarray
-            The row ids linearised here (the others take the NumPy path).
-        H, b : list of numpy.ndarray
-            Per row of ``done``: ``A^T A`` ``(2 D, 2 D)`` and ``-A^T e`` ``(2 D,)`` over its
-            two ends (first, second).
+        list of int
+            The positions in ``rows`` of the rows not kept (for the NumPy path).
         """
-        rows = np.asarray(rows, dtype=np.int64)
         keys = self._key[rows]
-        done: list[np.ndarray] = []
-        Hs: list[np.ndarray] = []
-        bs: list[np.ndarray] = []
+        if len(self._stores) == 1:  # one handle: no selection
+            key, store = next(iter(self._stores.items()))
+            kept = keys == key
+            if kept.all():
+                self._run(store, rows, lin[key], H, b)
+                return []
+            self._run(store, rows[kept], lin[key], H, b)
+            return np.flatnonzero(~kept).tolist()
         for key, store in self._stores.items():
             sel = rows[keys == key]
-            if sel.size == 0:
-                continue
-            sl = self._slot[sel]
-            m, D = sel.size, store.D
-            W = 2 * D
-            starts, lens, goff = store.layout(m)
-            data = np.zeros(m * W * W)
-            grad = np.zeros(m * W)
-            s = np.empty(m)
-            X = np.ascontiguousarray(lin[key], dtype=np.float64)
-            store.fn(X, store.ii[sl], store.jj[sl], store.Z[sl], store.L[sl], None, starts,
-                     lens, goff, s, data, grad)
-            np.negative(grad, out=grad)
-            Hs.extend(data.reshape(m, W, W))
-            bs.extend(grad.reshape(m, W))
-            done.append(sel)
-        out = np.concatenate(done) if done else np.zeros(0, dtype=np.int64)
-        return out, Hs, bs
+            if sel.size:
+                self._run(store, sel, lin[key], H, b)
+        return np.flatnonzero(keys < 0).tolist()
+
+    def _run(self, store: _Store, rows: np.ndarray, X: np.ndarray, H: list[Any],
+             b: list[Any]) -> None:
+        """The kernel over ``rows`` (all of ``store``'s handle) into ``H`` and ``b``."""
+        m = rows.size
+        if m == 0:
+            return
+        sl = self._slot[rows]
+        W = 2 * store.D
+        starts, lens, goff = store.layout(m)
+        data = np.zeros((m, W, W))
+        grad = np.zeros((m, W))
+        s = np.empty(m)
+        if not X.flags.c_contiguous or X.dtype != np.float64:
+            X = np.ascontiguousarray(X, dtype=np.float64)
+        store.fn(X, store.ii[sl], store.jj[sl], store.Z[sl], store.L[sl], None, starts, lens,
+                 goff, s, data.reshape(-1), grad.reshape(-1))
+        np.negative(grad, out=grad)
+        if m == 1:
+            r = int(rows[0])
+            H[r] = data[0]
+            b[r] = grad[0]
+            return
+        for r, Hr, br in zip(rows.tolist(), data, grad, strict=True):
+            H[r] = Hr
+            b[r] = br

@@ -41,8 +41,9 @@ from typing import Any
 
 import numpy as np
 
-from ..core.factors import Factor
+from ..core.factors import BetweenFactor, Factor
 from ..core.graph import FactorGraph
+from ..core.noise import SqrtInformation
 from ..core.robust import corrected_weights
 from ..core.solvers import Result
 from ..core.variables import Values, Variables, VectorVariables, element
@@ -51,6 +52,26 @@ from .bayes_tree import BayesTree, NotDetermined
 from .edges import EdgeRows
 
 __all__ = ["IncrementalSmoother", "UpdateRecord"]
+
+_EMPTY = np.zeros(0, dtype=np.int64)
+
+
+class _Stream:
+    """A factor batch whose rows arrive through :meth:`IncrementalSmoother.update_rows`: its
+    ends, measurement parameters and square-root information as arrays, which rows were
+    added, those not yet made factors of the graph (``pending``) and the factors made."""
+
+    def __init__(self, factor: BetweenFactor, fast: bool) -> None:
+        var = factor.args[0][0]
+        self.var = var
+        self.count = factor.count
+        self.ii, self.jj = factor.args[0][1], factor.args[1][1]
+        self.Z = np.ascontiguousarray(var.params_of(factor.Z), dtype=np.float64)
+        self.L = np.broadcast_to(factor.noise.sqrt_info, (factor.count, var.dof, var.dof))
+        self.added = np.zeros(factor.count, dtype=bool)
+        self.pending: list[int] = []
+        self.parts: list[Factor] = []
+        self.fast = fast
 
 
 @dataclass
@@ -154,8 +175,7 @@ class IncrementalSmoother:
         self.relinearize_threshold = float(relinearize_threshold)
         self.relinearize_skip = int(relinearize_skip)
         self.wildfire = float(wildfire)
-        #: The accumulated graph (every variable and factor added, none removed).
-        self.graph = FactorGraph()
+        self._graph = FactorGraph()
         #: One record per :meth:`update`.
         self.records: list[UpdateRecord] = []
         self._lin: list[np.ndarray] = []        # linearisation points per handle
@@ -168,9 +188,11 @@ class IncrementalSmoother:
         self._key: list[int] = []               # per node: handle key and element index
         self._idx: list[int] = []
         self._fids: dict[int, int] = {}         # id(factor) -> its index in self._factors
+        self._streams: dict[int, _Stream] = {}  # id(factor) -> rows given by update_rows
         self._tree = BayesTree()
         self._edges = EdgeRows()
-        self._dx = np.zeros(0)
+        self._dxbuf = np.zeros(64)
+        self._dx = self._dxbuf[:0]
         self._size = 0
         self._next_pos = 0
         self._updates = 0
@@ -202,7 +224,7 @@ class IncrementalSmoother:
         >>> IncrementalSmoother().add_variables(SE3.identity(2), name="x")
         Variables('x', SE3, n=2, fixed=0)
         """
-        return self.graph.add_variables(values, fixed=fixed, name=name)
+        return self._graph.add_variables(values, fixed=fixed, name=name)
 
     # ------------------------------------------------------------------ update
     def update(self, new_factors: Iterable[Factor] = (),
@@ -254,12 +276,12 @@ class IncrementalSmoother:
         for f in new_factors:
             if not isinstance(f, Factor):
                 raise TypeError(f"new_factors: expected Factor objects, got {type(f).__name__}")
-            if id(f) in self._fids:
+            if id(f) in self._fids or id(f) in self._streams:
                 raise ValueError(f"new_factors: {f.name} was already added")
         self._sync()
         for f in new_factors:
             for var, _ in f.args:
-                if var.graph is not self.graph:
+                if var.graph is not self._graph:
                     raise ValueError(f"new_factors: {f.name} refers to {var!r} of another "
                                      f"graph")
         first = len(self._key)
@@ -267,41 +289,181 @@ class IncrementalSmoother:
         for f in new_factors:
             for var, idx in f.args:
                 self._enter(var, idx)
-        rec.variables_added = len(self._key) - first
-        if rec.variables_added:
-            self._dx = np.concatenate([self._dx, np.zeros(self._size - self._dx.size)])
         for f in new_factors:
-            self.graph.add(f)
-        times = rec.times
+            self._graph.add(f)
         ta = time.perf_counter()
-        marked: list[np.ndarray] = [np.arange(first, len(self._key), dtype=np.int64)]
+        marked: list[np.ndarray] = []
         for f in remove:
             rec.factors_removed += self._remove(f, marked)
         new_rows: list[int] = []
         for f in new_factors:
-            rows = self._add_factor(f)
-            new_rows.extend(rows)
-            rec.factors_added += len(rows)
-        relin: np.ndarray = np.zeros(0, dtype=np.int64)
+            new_rows.extend(self._add_factor(f))
+        return self._step(rec, t0, ta, first, new_rows, marked)
+
+    def update_rows(self, factor: BetweenFactor, rows: Any,
+                    new_values: Mapping[Any, Any] | None = None) -> UpdateRecord:
+        """Add some rows (edges) of a :class:`~microlie.optim.BetweenFactor` batch built once
+        for a stream of measurements (every edge of a file, say): the same as
+        ``update([BetweenFactor(...)], new_values)`` with those rows' ends, measurements and
+        noise, without building a factor per update (the rows go to the compiled edge kernel
+        directly when it is built).
+
+        Parameters
+        ----------
+        factor : BetweenFactor
+            The batch over this smoother's variables; it is not added whole: each row enters
+            when named here, once. The accumulated :attr:`graph` holds the rows added so far
+            (as batches of them); ``remove_factors([factor])`` removes every row added.
+        rows : int or array_like of int
+            Indices into the batch (``0 <= row < factor.count``), none added before.
+        new_values : mapping, optional
+            As :meth:`update`.
+
+        Returns
+        -------
+        UpdateRecord
+
+        Raises
+        ------
+        ValueError
+            Not a BetweenFactor of this smoother's graph, the factor already given to
+            :meth:`update`, rows out of range or added before.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, BetweenFactor, PriorFactor, Diagonal
+        >>> s = IncrementalSmoother()
+        >>> x = s.add_variables(SE2.identity(3))
+        >>> sig = Diagonal([0.1, 0.1, 0.1])
+        >>> edges = BetweenFactor(x, [0, 1], [1, 2], SE2.exp([[1.0, 0, 0], [2.0, 0, 0]]), sig)
+        >>> _ = s.update([PriorFactor(x, 0, SE2.identity(), sig)])
+        >>> _ = s.update_rows(edges, 0, {(x, 1): SE2.exp([0.9, 0, 0])})
+        >>> rec = s.update_rows(edges, [1], {(x, 2): SE2.exp([3.2, 0, 0])})
+        >>> np.round(s.calculate_estimate(x).translation()[:, 0], 9).tolist()
+        [0.0, 1.0, 3.0]
+        >>> sum(f.count for f in s.graph.factors), rec.factors_added  # the prior and 2 edges
+        (3, 1)
+        """
+        t0 = time.perf_counter()
+        st = self._streams.get(id(factor))
+        if st is None:
+            st = self._stream(factor)
+        if type(rows) is int and 0 <= rows < st.count:
+            ix = np.array((rows,), dtype=np.int64)
+        else:
+            ix = np.asarray(rows).reshape(-1)
+            if ix.size == 0:
+                raise ValueError("rows: no rows given")
+            if ix.dtype.kind not in "iu" or ix.min() < 0 or ix.max() >= st.count:
+                raise ValueError(f"rows: integer indices into the batch (0 .. {st.count - 1}) "
+                                 f"expected, got {rows!r}")
+            ix = ix.astype(np.int64)
+            if np.unique(ix).size != ix.size:
+                raise ValueError(f"rows: {rows!r} names a row twice")
+        if st.added[ix].any():
+            bad = int(ix[np.flatnonzero(st.added[ix])[0]])
+            raise ValueError(f"rows: row {bad} of {factor.name} was already added")
+        var = st.var
+        ii, jj = st.ii[ix], st.jj[ix]
+        if not st.fast or var.fixed[ii].any() or var.fixed[jj].any():
+            # the general path: a factor of these rows
+            part = BetweenFactor(var, ii, jj, element(var.group, st.Z[ix]),
+                                 SqrtInformation(st.L[ix]), factor.loss)
+            rec = self.update([part], new_values)
+            st.added[ix] = True
+            st.parts.append(part)
+            return rec
+        rec = UpdateRecord()
+        self._sync()
+        first = len(self._key)
+        self._set_values(new_values)
+        self._enter(var, ii)
+        self._enter(var, jj)
+        st.added[ix] = True
+        ta = time.perf_counter()
+        ni, nj = self._node_of[var.key][ii].tolist(), self._node_of[var.key][jj].tolist()
+        tree = self._tree
+        rows_out = [tree.add_row((a, b)) for a, b in zip(ni, nj, strict=True)]
+        self._row_fid.extend([-1] * ix.size)  # set when the rows become a factor (_flush)
+        self._row_k.extend(ix.tolist())
+        r = np.asarray(rows_out, dtype=np.int64)
+        self._edges.add_raw(var, r, ii, jj, st.Z[ix], st.L[ix])
+        st.pending.extend(rows_out)
+        return self._step(rec, t0, ta, first, rows_out, [])
+
+    def _stream(self, factor: Any) -> _Stream:
+        if type(factor) is not BetweenFactor:
+            raise ValueError(f"factor: update_rows takes a BetweenFactor, got "
+                             f"{type(factor).__name__} (give other factors to update)")
+        var = factor.args[0][0]
+        if var.graph is not self._graph:
+            raise ValueError(f"factor: {factor.name} refers to {var!r} of another graph")
+        if id(factor) in self._fids:
+            raise ValueError(f"factor: {factor.name} was given to update (whole) already")
+        self._sync()
+        st = _Stream(factor, self._edges.accepts(factor))
+        self._streams[id(factor)] = st
+        return st
+
+    @property
+    def graph(self) -> FactorGraph:
+        """The accumulated graph: every variable and factor added (the rows given to
+        :meth:`update_rows` as batches of them), none removed."""
+        self._flush()
+        return self._graph
+
+    def _flush(self) -> None:
+        """Make the rows of :meth:`update_rows` added since the last call factors (one batch
+        per stream) of the graph and of the bookkeeping."""
+        for st in self._streams.values():
+            self._flush_one(st)
+
+    def _flush_one(self, st: _Stream) -> None:
+        if st.pending:
+            rows = st.pending
+            ks = np.asarray([self._row_k[r] for r in rows], dtype=np.int64)
+            part = BetweenFactor(st.var, st.ii[ks], st.jj[ks], element(st.var.group, st.Z[ks]),
+                                 SqrtInformation(st.L[ks]))
+            fid = len(self._factors)
+            self._factors.append(part)
+            self._fids[id(part)] = fid
+            self._rows.append(rows)
+            for k, r in enumerate(rows):
+                self._row_fid[r] = fid
+                self._row_k[r] = k
+            self._graph.add(part)
+            st.parts.append(part)
+            st.pending = []
+
+    def _step(self, rec: UpdateRecord, t0: float, ta: float, first: int, new_rows: list[int],
+              marked: list[np.ndarray]) -> UpdateRecord:
+        """The rest of an update once the new rows are in the tree: relinearise, linearise,
+        detach, order, eliminate, back-substitute; fill and keep ``rec``."""
+        rec.variables_added = len(self._key) - first
+        rec.factors_added = len(new_rows)
+        times = rec.times
+        relin: np.ndarray = _EMPTY
         if self._updates % self.relinearize_skip == 0 and self._size:
             relin = self._relinearize()
         rec.relinearized = int(relin.size)
-        redo = self._rows_touching(relin)
-        redo.update(new_rows)
-        self._linearize(redo)
-        # a row's nodes are its first node and that node's ancestors: marking them all
-        # detaches what marking the first would
         rn = self._tree.rnodes
-        new_nodes = [rn[r] for r in new_rows]
+        new = np.arange(first, len(self._key), dtype=np.int64)
+        marked.insert(0, new)
+        redo = self._rows_touching(relin) if relin.size else set()
+        redo.update(new_rows)
         marked.extend(rn[r] for r in redo)
         marked.append(relin)
+        self._linearize(redo if relin.size else new_rows)
+        # a row's nodes are its first node and that node's ancestors: marking them all
+        # detaches what marking the first would
         tb = time.perf_counter()
         times["linearize"] = tb - ta
         top, orphans, pool = self._tree.detach(np.concatenate(marked))
         tc = time.perf_counter()
         times["detach"] = tc - tb
-        last = np.unique(np.concatenate([marked[0]] + new_nodes))
-        order = self._order(top, pool, orphans, last)
+        order = self._order(top, pool, orphans, [new] + [rn[r] for r in new_rows])
         td = time.perf_counter()
         times["order"] = td - tc
         self._eliminate(order, pool, orphans)
@@ -371,7 +533,7 @@ class IncrementalSmoother:
         (2,)
         """
         if variables is None:
-            vs = self.graph.variables
+            vs = self._graph.variables
             return Values(vs, [self._params(v, np.arange(v.n)) for v in vs])
         self._check_handle(variables, "variables")
         one = self._one(variables, idx)
@@ -428,7 +590,7 @@ class IncrementalSmoother:
         order = np.argsort(t.pos[:t.n], kind="stable").astype(np.int64)
         dx = self._dx.copy()
         t.backsubstitute(order, np.zeros(0, dtype=np.int64), dx, 0.0)
-        vs = self.graph.variables
+        vs = self._graph.variables
         return Values(vs, [self._params(v, np.arange(v.n), dx) for v in vs])
 
     def _params(self, var: Variables, ix: np.ndarray, dx: np.ndarray | None = None
@@ -465,7 +627,7 @@ class IncrementalSmoother:
         [[0.0, 0.0, 0.0]]
         """
         self._sync()
-        vs = self.graph.variables
+        vs = self._graph.variables
         return Values(vs, [np.where(seen[:, None], lin, v.initial)
                            for v, lin, seen in zip(vs, self._lin, self._seen, strict=True)])
 
@@ -579,33 +741,34 @@ class IncrementalSmoother:
         True
         """
         self._sync()
-        saved = [v.fixed.copy() for v in self.graph.variables]
+        graph = self.graph  # with the rows of update_rows as factors
+        saved = [v.fixed.copy() for v in graph.variables]
         try:  # elements that have not entered are not part of the accumulated graph
-            for v, seen in zip(self.graph.variables, self._seen, strict=True):
+            for v, seen in zip(self._graph.variables, self._seen, strict=True):
                 v.fixed = v.fixed | ~seen
-            res = self.graph.optimize(self.calculate_estimate(), **options)
+            res = graph.optimize(self.calculate_estimate(), **options)
         finally:
-            for v, fx in zip(self.graph.variables, saved, strict=True):
+            for v, fx in zip(self._graph.variables, saved, strict=True):
                 v.fixed = fx
-        for v in self.graph.variables:
+        for v in self._graph.variables:
             self._lin[v.key] = np.asarray(res.values.params(v), dtype=np.float64).copy()
         self._dx[:] = 0.0
         self._linearize({r for rs in self._rows for r in rs})
         top, orphans, pool = self._tree.detach(np.arange(len(self._key), dtype=np.int64))
-        order = self._order(top, pool, orphans, np.zeros(0, dtype=np.int64))
+        order = self._order(top, pool, orphans, [])
         self._eliminate(order, pool, orphans)
         self._tree.backsubstitute(order, orphans, self._dx, self.wildfire)
         return res
 
     # ------------------------------------------------------------------ internals
     def _check_handle(self, var: Any, what: str) -> None:
-        if not isinstance(var, Variables) or var.graph is not self.graph:
+        if not isinstance(var, Variables) or var.graph is not self._graph:
             raise ValueError(f"{what}: expected a Variables handle of this smoother "
                              f"(IncrementalSmoother.add_variables), got {var!r}")
 
     def _sync(self) -> None:
         """Register the handles added to the graph since the last call."""
-        for v in self.graph.variables[len(self._seen):]:
+        for v in self._graph.variables[len(self._seen):]:
             self._lin.append(np.asarray(v.initial, dtype=np.float64).copy())
             self._node_of.append(np.full(v.n, -1, dtype=np.int64))
             self._seen.append(np.zeros(v.n, dtype=bool))
@@ -654,14 +817,21 @@ class IncrementalSmoother:
         seen[new] = True
         self._lin[var.key][new] = var.initial[new]
         nodes = self._node_of[var.key]
-        for i in new[~var.fixed[new]]:
+        tree = self._tree
+        for i in new[~var.fixed[new]].tolist():
             nodes[i] = len(self._key)
             self._key.append(var.key)
-            self._idx.append(int(i))
-            j = self._tree.add_node(var.dof, self._size)
-            self._tree.pos[j] = self._next_pos
+            self._idx.append(i)
+            j = tree.add_node(var.dof, self._size)
+            tree.pos[j] = self._next_pos
             self._next_pos += 1
             self._size += var.dof
+        if self._size > self._dx.size:  # the step: a view of a buffer grown by doubling
+            if self._size > self._dxbuf.size:
+                buf = np.zeros(max(self._size, 2 * self._dxbuf.size))
+                buf[:self._dx.size] = self._dx
+                self._dxbuf = buf
+            self._dx = self._dxbuf[:self._size]
 
     def _add_factor(self, f: Factor) -> list[int]:
         fid = len(self._factors)
@@ -682,6 +852,10 @@ class IncrementalSmoother:
         return rows
 
     def _remove(self, f: Factor, marked: list[np.ndarray]) -> int:
+        st = self._streams.pop(id(f), None)
+        if st is not None:  # every row given by update_rows, now factors of their own
+            self._flush_one(st)
+            return sum(self._remove(part, marked) for part in st.parts)
         fid = self._fids.pop(id(f), None)
         if fid is None:
             raise ValueError(f"remove: {getattr(f, 'name', f)!r} is not a factor of this "
@@ -692,7 +866,7 @@ class IncrementalSmoother:
             self._tree.remove_row(r)
         self._factors[fid] = None
         self._rows[fid] = []
-        self.graph.remove(f)
+        self._graph.remove(f)
         return len(rows)
 
     def _relinearize(self) -> np.ndarray:
@@ -705,7 +879,7 @@ class IncrementalSmoother:
         keys = np.asarray(self._key)[nodes]
         for key in np.unique(keys):
             sel = nodes[keys == key]
-            var = self.graph.variables[key]
+            var = self._graph.variables[key]
             ix = np.asarray(self._idx)[sel]
             cols = off[sel][:, None] + np.arange(var.dof)
             self._lin[key][ix] = var.retract(self._lin[key][ix], self._dx[cols])
@@ -719,23 +893,21 @@ class IncrementalSmoother:
             out.update(nr[n])
         return out
 
-    def _linearize(self, rows: set[int]) -> None:
-        """Linearise ``rows`` at the linearisation points: the pose-graph edges in one
-        compiled call (:class:`EdgeRows`), the others one evaluation per factor batch."""
+    def _linearize(self, rows: Iterable[int]) -> None:
+        """Linearise ``rows`` (distinct) at the linearisation points: the pose-graph edges in
+        one compiled call (:class:`EdgeRows`), the others one evaluation per factor batch."""
         tree = self._tree
+        rest: Iterable[int] = rows
         if rows:
-            done, Hs, bs = self._edges.linearize(np.fromiter(rows, np.int64, len(rows)),
-                                                 self._lin)
-            if done.size:
-                rH, rb = tree.rH, tree.rb
-                dl = done.tolist()
-                for r, H, b in zip(dl, Hs, bs, strict=True):
-                    rH[r] = H
-                    rb[r] = b
-                rows = rows.difference(dl)
+            rl = rows if type(rows) is list else list(rows)
+            left = self._edges.linearize(np.asarray(rl, dtype=np.int64), self._lin,
+                                         tree.rH, tree.rb)
+            if not left:
+                return
+            rest = [rl[q] for q in left]
         by: dict[int, list[int]] = {}
         fids = self._row_fid
-        for r in rows:
+        for r in rest:
             by.setdefault(fids[r], []).append(r)
         for fid, rs in by.items():
             f = self._factors[fid]
@@ -781,34 +953,41 @@ class IncrementalSmoother:
                 tree.rb[row] = -(Ak.T @ e[k])
 
     def _order(self, top: np.ndarray, pool: np.ndarray, orphans: np.ndarray,
-               last: np.ndarray) -> np.ndarray:
-        """Order ``top``: approximate minimum degree on the others, then ``last`` (the
-        variables of the new factors and the new variables, in arrival order); set the
+               last: list[np.ndarray]) -> np.ndarray:
+        """Order ``top``: approximate minimum degree on the others, then the nodes of
+        ``last`` (the new variables and those of the new factors, in arrival order); set the
         positions."""
         tree = self._tree
         pos = tree.pos
-        flag = tree.mark  # scratch, 0 between calls
-        flag[last] = 1
-        is_last = flag[top] == 1
-        flag[last] = 0
-        tail = top[is_last]
-        tail = tail[np.argsort(pos[tail], kind="stable")]
-        head = top[~is_last]
-        head = head[np.argsort(pos[head], kind="stable")]
-        nb = head.size
-        if nb > 2:
-            indptr, indices = tree.adjacency(pool, orphans, head)
-            head = head[np.asarray(minimum_degree_blocks(indptr, indices, nb), dtype=np.int64)]
-        order = np.concatenate([head, tail]).astype(np.int64)
-        pos[order] = self._next_pos + np.arange(order.size)
-        self._next_pos += int(order.size)
-        return order
+        n = int(top.size)
+        if n == 1:
+            order = top
+        else:
+            flag = tree.mark  # scratch, 0 between calls
+            for a in last:
+                flag[a] = 1
+            is_last = flag[top] == 1
+            for a in last:
+                flag[a] = 0
+            tail = top[is_last]
+            tail = tail[np.argsort(pos[tail], kind="stable")]
+            head = top[~is_last]
+            head = head[np.argsort(pos[head], kind="stable")]
+            nb = head.size
+            if nb > 2:
+                indptr, indices = tree.adjacency(pool, orphans, head)
+                head = head[np.asarray(minimum_degree_blocks(indptr, indices, nb),
+                                       dtype=np.int64)]
+            order = np.concatenate([head, tail])
+        pos[order] = np.arange(self._next_pos, self._next_pos + n)
+        self._next_pos += n
+        return order.astype(np.int64, copy=False)
 
     def _eliminate(self, order: np.ndarray, pool: np.ndarray, orphans: np.ndarray) -> None:
         try:
             self._tree.eliminate(order, pool, orphans)
         except NotDetermined as e:
-            var = self.graph.variables[self._key[e.node]]
+            var = self._graph.variables[self._key[e.node]]
             raise ValueError(f"{var.name}[{self._idx[e.node]}] is not determined by the factors "
                              f"(no prior or fixed variable anchors it, or a direction is "
                              f"unobserved): add a prior or fix a variable") from None
