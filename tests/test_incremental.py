@@ -350,7 +350,7 @@ def test_edge_rows_equal_factor_jacobians(group):
     e.add(f2, np.array([3]))
     H: list = [None] * 4
     b: list = [None] * 4
-    assert e.linearize(np.array([3, 1]), [x.initial], H, b) == []
+    assert e.linearize([3, 1], [x.initial], H, b) == []
     assert H[0] is None and H[2] is None
     for r in (1, 3):
         Hr, br = H[r], b[r]

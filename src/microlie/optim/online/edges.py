@@ -82,7 +82,7 @@ class EdgeRows:
     >>> e = EdgeRows()
     >>> e.add(f, np.array([10, 11]))
     >>> H, b = [None] * 12, [None] * 12
-    >>> left = e.linearize(np.array([11, 3]), [x.initial], H, b)
+    >>> left = e.linearize([11, 3], [x.initial], H, b)
     >>> compiled = e.module is not None
     >>> left == ([1] if compiled else [0, 1]), (H[11] is not None) == compiled
     (True, True)
@@ -136,39 +136,42 @@ class EdgeRows:
         self._slot[rows] = store.add(ii, jj, Z, L)
         self._key[rows] = var.key
 
-    def linearize(self, rows: np.ndarray, lin: list[np.ndarray], H: list[Any], b: list[Any]
+    def linearize(self, rows: list[int], lin: list[np.ndarray], H: list[Any], b: list[Any]
                   ) -> list[int]:
-        """Linearise the kept rows among ``rows`` at the parameters ``lin`` (per handle key):
-        ``H[r] = A^T A`` ``(2 D, 2 D)`` and ``b[r] = -A^T e`` ``(2 D,)`` over the row's two
-        ends (first, second), for each kept row ``r``.
+        """Linearise the kept rows among ``rows`` (distinct row ids) at the parameters ``lin``
+        (per handle key): ``H[r] = A^T A`` ``(2 D, 2 D)`` and ``b[r] = -A^T e`` ``(2 D,)`` over
+        the row's two ends (first, second), for each kept row ``r``.
 
         Returns
         -------
         list of int
             The positions in ``rows`` of the rows not kept (for the NumPy path).
         """
-        keys = self._key[rows]
-        if len(self._stores) == 1:  # one handle: no selection
-            key, store = next(iter(self._stores.items()))
-            kept = keys == key
-            if kept.all():
-                self._run(store, rows, lin[key], H, b)
-                return []
-            self._run(store, rows[kept], lin[key], H, b)
-            return np.flatnonzero(~kept).tolist()
+        if len(rows) == 1:  # one row (a new edge): Python ints and slices, no gathers
+            r = rows[0]
+            key = int(self._key[r])
+            if key < 0:
+                return [0]
+            q = int(self._slot[r])
+            self._run(self._stores[key], rows, slice(q, q + 1), lin[key], H, b)
+            return []
+        ra = np.asarray(rows, dtype=np.int64)
+        keys = self._key[ra]
+        left: list[int] = []
         for key, store in self._stores.items():
-            sel = rows[keys == key]
+            sel = np.flatnonzero(keys == key)
+            if sel.size == len(rows):
+                self._run(store, rows, self._slot[ra], lin[key], H, b)
+                return left
             if sel.size:
-                self._run(store, sel, lin[key], H, b)
+                self._run(store, ra[sel].tolist(), self._slot[ra[sel]], lin[key], H, b)
         return np.flatnonzero(keys < 0).tolist()
 
-    def _run(self, store: _Store, rows: np.ndarray, X: np.ndarray, H: list[Any],
+    def _run(self, store: _Store, rows: list[int], sl: Any, X: np.ndarray, H: list[Any],
              b: list[Any]) -> None:
-        """The kernel over ``rows`` (all of ``store``'s handle) into ``H`` and ``b``."""
-        m = rows.size
-        if m == 0:
-            return
-        sl = self._slot[rows]
+        """The kernel over ``rows`` (all of ``store``'s handle, at its slots ``sl``) into ``H``
+        and ``b``."""
+        m = len(rows)
         W = 2 * store.D
         starts, lens, goff = store.layout(m)
         data = np.zeros((m, W, W))
@@ -179,11 +182,6 @@ class EdgeRows:
         store.fn(X, store.ii[sl], store.jj[sl], store.Z[sl], store.L[sl], None, starts, lens,
                  goff, s, data.reshape(-1), grad.reshape(-1))
         np.negative(grad, out=grad)
-        if m == 1:
-            r = int(rows[0])
-            H[r] = data[0]
-            b[r] = grad[0]
-            return
-        for r, Hr, br in zip(rows.tolist(), data, grad, strict=True):
+        for r, Hr, br in zip(rows, data, grad, strict=True):
             H[r] = Hr
             b[r] = br

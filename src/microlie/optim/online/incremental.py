@@ -350,24 +350,13 @@ class IncrementalSmoother:
         st = self._streams.get(id(factor))
         if st is None:
             st = self._stream(factor)
-        if type(rows) is int and 0 <= rows < st.count:
-            ix = np.array((rows,), dtype=np.int64)
-        else:
-            ix = np.asarray(rows).reshape(-1)
-            if ix.size == 0:
-                raise ValueError("rows: no rows given")
-            if ix.dtype.kind not in "iu" or ix.min() < 0 or ix.max() >= st.count:
-                raise ValueError(f"rows: integer indices into the batch (0 .. {st.count - 1}) "
-                                 f"expected, got {rows!r}")
-            ix = ix.astype(np.int64)
-            if np.unique(ix).size != ix.size:
-                raise ValueError(f"rows: {rows!r} names a row twice")
-        if st.added[ix].any():
-            bad = int(ix[np.flatnonzero(st.added[ix])[0]])
-            raise ValueError(f"rows: row {bad} of {factor.name} was already added")
+        ix = self._stream_rows(st, rows, factor)
         var = st.var
         ii, jj = st.ii[ix], st.jj[ix]
-        if not st.fast or var.fixed[ii].any() or var.fixed[jj].any():
+        fixed = var.fixed
+        lst = ix.tolist()
+        if not st.fast or any(fixed[a] or fixed[b] for a, b in
+                              zip(ii.tolist(), jj.tolist(), strict=True)):
             # the general path: a factor of these rows
             part = BetweenFactor(var, ii, jj, element(var.group, st.Z[ix]),
                                  SqrtInformation(st.L[ix]), factor.loss)
@@ -383,15 +372,35 @@ class IncrementalSmoother:
         self._enter(var, jj)
         st.added[ix] = True
         ta = time.perf_counter()
-        ni, nj = self._node_of[var.key][ii].tolist(), self._node_of[var.key][jj].tolist()
+        nodes = self._node_of[var.key]
         tree = self._tree
-        rows_out = [tree.add_row((a, b)) for a, b in zip(ni, nj, strict=True)]
-        self._row_fid.extend([-1] * ix.size)  # set when the rows become a factor (_flush)
-        self._row_k.extend(ix.tolist())
-        r = np.asarray(rows_out, dtype=np.int64)
-        self._edges.add_raw(var, r, ii, jj, st.Z[ix], st.L[ix])
+        rows_out = [tree.add_row((nodes[a], nodes[b])) for a, b in
+                    zip(ii.tolist(), jj.tolist(), strict=True)]
+        self._row_fid.extend([-1] * len(lst))  # set when the rows become a factor (_flush)
+        self._row_k.extend(lst)
+        self._edges.add_raw(var, np.asarray(rows_out, dtype=np.int64), ii, jj, st.Z[ix],
+                            st.L[ix])
         st.pending.extend(rows_out)
         return self._step(rec, t0, ta, first, rows_out, [])
+
+    @staticmethod
+    def _stream_rows(st: _Stream, rows: Any, factor: Any) -> np.ndarray:
+        """``rows`` of ``st`` validated: int64 indices in range, distinct, not added."""
+        ix = np.asarray(rows)
+        if ix.ndim > 1 or ix.size == 0 or ix.dtype.kind not in "iu":
+            raise ValueError(f"rows: integer indices into the batch (0 .. {st.count - 1}) "
+                             f"expected, got {rows!r}")
+        lst = ix.reshape(-1).tolist()
+        if min(lst) < 0 or max(lst) >= st.count:
+            raise ValueError(f"rows: indices into the batch must be in 0 .. {st.count - 1}, "
+                             f"got {rows!r}")
+        if len(set(lst)) != len(lst):
+            raise ValueError(f"rows: {rows!r} names a row twice")
+        added = st.added
+        for r in lst:
+            if added[r]:
+                raise ValueError(f"rows: row {r} of {factor.name} was already added")
+        return np.asarray(lst, dtype=np.int64)
 
     def _stream(self, factor: Any) -> _Stream:
         if type(factor) is not BetweenFactor:
@@ -782,17 +791,28 @@ class IncrementalSmoother:
         for what, val in new_values.items():
             var, idx = what if isinstance(what, tuple) else (what, None)
             self._check_handle(var, "new_values")
-            if type(idx) is int and -var.n <= idx < var.n:  # one element: no validation pass
-                ix = np.array([idx % var.n])
-            else:
-                ix = np.arange(var.n) if idx is None else var.indices(idx, "new_values index")
+            row = var.initial.shape[1:]
+            if type(idx) is int and -var.n <= idx < var.n:  # one element: no NumPy pass
+                i = idx % var.n
+                if self._seen[var.key][i]:
+                    raise ValueError(f"new_values: {var.name}[{i}] has already entered; its "
+                                     f"value is the estimate's")
+                p = np.asarray(var.params_of(val), dtype=np.float64)
+                if p.size != var.initial[i].size:
+                    raise ValueError(f"new_values: {var.name} takes values of shape "
+                                     f"{(1,) + row}, got {p.shape}")
+                var.initial[i] = p.reshape(row)
+                self._enter_one(var, i)
+                continue
+            ix = np.arange(var.n) if idx is None else var.indices(idx, "new_values index")
             if self._seen[var.key][ix].any():
                 bad = int(ix[np.flatnonzero(self._seen[var.key][ix])[0]])
                 raise ValueError(f"new_values: {var.name}[{bad}] has already entered; its "
                                  f"value is the estimate's")
             p = np.asarray(var.params_of(val), dtype=np.float64)
-            shape = (ix.size,) + var.initial.shape[1:]
-            if p.reshape((-1,) + var.initial.shape[1:]).shape != shape:
+            shape = (ix.size,) + row
+            if p.size % max(1, var.initial[0].size) or \
+                    p.reshape((-1,) + row).shape != shape:
                 raise ValueError(f"new_values: {var.name} takes values of shape {shape}, "
                                  f"got {p.shape}")
             var.initial[ix] = p.reshape(shape)
@@ -802,30 +822,38 @@ class IncrementalSmoother:
         """Make elements ``idx`` of ``var`` enter (once): a node each unless fixed."""
         seen = self._seen[var.key]
         if idx.size == 1:
-            if seen[idx[0]]:
-                return
-            new = idx
-        else:
-            new = np.unique(idx[~seen[idx]])
-            if new.size == 0:
-                return
+            i = int(idx[0])
+            if not seen[i]:
+                self._enter_one(var, i)
+            return
+        new = np.unique(idx[~seen[idx]])
+        if new.size == 0:
+            return
         part = var.held[new].any(1) & ~var.held[new].all(1)
         if part.any():
-            raise ValueError(f"{var.name}[{int(new[np.flatnonzero(part)[0]])}]: held components "
-                             f"are not supported by IncrementalSmoother; fix whole variables "
-                             f"instead")
-        seen[new] = True
-        self._lin[var.key][new] = var.initial[new]
-        nodes = self._node_of[var.key]
+            self._enter_one(var, int(new[np.flatnonzero(part)[0]]))  # raises
+        for i in new.tolist():
+            self._enter_one(var, i, False)
+
+    def _enter_one(self, var: Variables, i: int, check: bool = True) -> None:
+        """Make element ``i`` of ``var`` enter (not entered yet): a node unless fixed."""
+        if check:
+            h = var.held[i]
+            if h.any() and not h.all():
+                raise ValueError(f"{var.name}[{i}]: held components are not supported by "
+                                 f"IncrementalSmoother; fix whole variables instead")
+        self._seen[var.key][i] = True
+        self._lin[var.key][i] = var.initial[i]
+        if var.fixed[i]:
+            return
+        self._node_of[var.key][i] = len(self._key)
+        self._key.append(var.key)
+        self._idx.append(i)
         tree = self._tree
-        for i in new[~var.fixed[new]].tolist():
-            nodes[i] = len(self._key)
-            self._key.append(var.key)
-            self._idx.append(i)
-            j = tree.add_node(var.dof, self._size)
-            tree.pos[j] = self._next_pos
-            self._next_pos += 1
-            self._size += var.dof
+        j = tree.add_node(var.dof, self._size)
+        tree.pos[j] = self._next_pos
+        self._next_pos += 1
+        self._size += var.dof
         if self._size > self._dx.size:  # the step: a view of a buffer grown by doubling
             if self._size > self._dxbuf.size:
                 buf = np.zeros(max(self._size, 2 * self._dxbuf.size))
@@ -900,8 +928,7 @@ class IncrementalSmoother:
         rest: Iterable[int] = rows
         if rows:
             rl = rows if type(rows) is list else list(rows)
-            left = self._edges.linearize(np.asarray(rl, dtype=np.int64), self._lin,
-                                         tree.rH, tree.rb)
+            left = self._edges.linearize(rl, self._lin, tree.rH, tree.rb)
             if not left:
                 return
             rest = [rl[q] for q in left]
