@@ -50,7 +50,8 @@ class _Store:
                                               + np.array([0, D])))
         return self._lay[0][:m], self._lay[1][:m], self._lay[2][:m]
 
-    def add(self, ii: np.ndarray, jj: np.ndarray, Z: np.ndarray, L: np.ndarray) -> np.ndarray:
+    def add(self, ii: np.ndarray, jj: np.ndarray, Z: np.ndarray, L: np.ndarray) -> int:
+        """Append ``m`` rows; return the slot of the first (the others follow)."""
         m = ii.size
         while self.n + m > self.ii.size:
             for name in ("ii", "jj", "Z", "L"):
@@ -59,7 +60,7 @@ class _Store:
         a, b = self.n, self.n + m
         self.ii[a:b], self.jj[a:b], self.Z[a:b], self.L[a:b] = ii, jj, Z, L
         self.n = b
-        return np.arange(a, b)
+        return a
 
 
 class EdgeRows:
@@ -107,7 +108,7 @@ class EdgeRows:
             return
         L = np.broadcast_to(f.noise.sqrt_info, (f.count, var.dof, var.dof))
         Z = np.asarray(var.params_of(f.Z), dtype=np.float64).reshape(f.count, -1)
-        self.add_raw(var, rows, ii, jj, Z, L)
+        self.add_raw(var, rows.tolist(), ii, jj, Z, L)
 
     def accepts(self, f: Factor) -> bool:
         """Whether rows of ``f`` can be kept (the compiled module is there, ``f`` is an SE(2) /
@@ -123,18 +124,24 @@ class EdgeRows:
             self._slot = np.concatenate([self._slot, np.zeros(grow - self._slot.size,
                                                               dtype=np.int64)])
 
-    def add_raw(self, var: Any, rows: np.ndarray, ii: np.ndarray, jj: np.ndarray,
+    def add_raw(self, var: Any, rows: list[int], ii: np.ndarray, jj: np.ndarray,
                 Z: np.ndarray, L: np.ndarray) -> None:
-        """Keep rows ``rows`` of edges ``ii -> jj`` of ``var`` (neither end fixed; the
-        caller checked :meth:`accepts`) with measurement parameters ``Z`` ``(m, P)`` and
-        square-root information ``L`` ``(m, D, D)``."""
-        self._grow(rows)
+        """Keep rows ``rows`` (increasing ids) of edges ``ii -> jj`` of ``var`` (neither end
+        fixed; the caller checked :meth:`accepts`) with measurement parameters ``Z``
+        ``(m, P)`` and square-root information ``L`` ``(m, D, D)``."""
+        if rows[-1] >= self._key.size:
+            self._grow(np.asarray(rows, dtype=np.int64))
         store = self._stores.get(var.key)
         if store is None:
             fn = getattr(self.module, f"{_NAMES[var.group.__name__]}_between_normal")
             store = self._stores[var.key] = _Store(fn, var.initial.shape[-1], var.dof)
-        self._slot[rows] = store.add(ii, jj, Z, L)
-        self._key[rows] = var.key
+        q = store.add(ii, jj, Z, L)
+        if len(rows) == 1:
+            self._slot[rows[0]] = q
+            self._key[rows[0]] = var.key
+        else:
+            self._slot[rows] = np.arange(q, q + len(rows))
+            self._key[rows] = var.key
 
     def linearize(self, rows: list[int], lin: list[np.ndarray], H: list[Any], b: list[Any]
                   ) -> list[int]:
@@ -170,15 +177,13 @@ class EdgeRows:
     def _run(self, store: _Store, rows: list[int], sl: Any, X: np.ndarray, H: list[Any],
              b: list[Any]) -> None:
         """The kernel over ``rows`` (all of ``store``'s handle, at its slots ``sl``) into ``H``
-        and ``b``."""
+        and ``b``, at ``X`` (C-contiguous float64, as the smoother keeps its points)."""
         m = len(rows)
         W = 2 * store.D
         starts, lens, goff = store.layout(m)
         data = np.zeros((m, W, W))
         grad = np.zeros((m, W))
         s = np.empty(m)
-        if not X.flags.c_contiguous or X.dtype != np.float64:
-            X = np.ascontiguousarray(X, dtype=np.float64)
         store.fn(X, store.ii[sl], store.jj[sl], store.Z[sl], store.L[sl], None, starts, lens,
                  goff, s, data.reshape(-1), grad.reshape(-1))
         np.negative(grad, out=grad)

@@ -350,13 +350,13 @@ class IncrementalSmoother:
         st = self._streams.get(id(factor))
         if st is None:
             st = self._stream(factor)
-        ix = self._stream_rows(st, rows, factor)
+        ix, lst = self._stream_rows(st, rows, factor)
         var = st.var
-        ii, jj = st.ii[ix], st.jj[ix]
+        sel = slice(lst[0], lst[0] + 1) if len(lst) == 1 else ix
+        ii, jj = st.ii[sel], st.jj[sel]
+        iil, jjl = ii.tolist(), jj.tolist()
         fixed = var.fixed
-        lst = ix.tolist()
-        if not st.fast or any(fixed[a] or fixed[b] for a, b in
-                              zip(ii.tolist(), jj.tolist(), strict=True)):
+        if not st.fast or any(fixed[a] or fixed[b] for a, b in zip(iil, jjl, strict=True)):
             # the general path: a factor of these rows
             part = BetweenFactor(var, ii, jj, element(var.group, st.Z[ix]),
                                  SqrtInformation(st.L[ix]), factor.loss)
@@ -374,18 +374,17 @@ class IncrementalSmoother:
         ta = time.perf_counter()
         nodes = self._node_of[var.key]
         tree = self._tree
-        rows_out = [tree.add_row((nodes[a], nodes[b])) for a, b in
-                    zip(ii.tolist(), jj.tolist(), strict=True)]
+        rows_out = [tree.add_row((nodes[a], nodes[b])) for a, b in zip(iil, jjl, strict=True)]
         self._row_fid.extend([-1] * len(lst))  # set when the rows become a factor (_flush)
         self._row_k.extend(lst)
-        self._edges.add_raw(var, np.asarray(rows_out, dtype=np.int64), ii, jj, st.Z[ix],
-                            st.L[ix])
+        self._edges.add_raw(var, rows_out, ii, jj, st.Z[sel], st.L[sel])
         st.pending.extend(rows_out)
         return self._step(rec, t0, ta, first, rows_out, [])
 
     @staticmethod
-    def _stream_rows(st: _Stream, rows: Any, factor: Any) -> np.ndarray:
-        """``rows`` of ``st`` validated: int64 indices in range, distinct, not added."""
+    def _stream_rows(st: _Stream, rows: Any, factor: Any) -> tuple[np.ndarray, list[int]]:
+        """``rows`` of ``st`` validated (in range, distinct, not added), as an int64 array and
+        a list."""
         ix = np.asarray(rows)
         if ix.ndim > 1 or ix.size == 0 or ix.dtype.kind not in "iu":
             raise ValueError(f"rows: integer indices into the batch (0 .. {st.count - 1}) "
@@ -400,7 +399,7 @@ class IncrementalSmoother:
         for r in lst:
             if added[r]:
                 raise ValueError(f"rows: row {r} of {factor.name} was already added")
-        return np.asarray(lst, dtype=np.int64)
+        return np.asarray(lst, dtype=np.int64), lst
 
     def _stream(self, factor: Any) -> _Stream:
         if type(factor) is not BetweenFactor:

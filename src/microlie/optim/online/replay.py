@@ -148,9 +148,9 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
     rel = np.array(np.asarray(Zo.params), copy=True)
     if flip.any():
         rel[flip] = np.asarray(Zo[flip].inverse().params)
-    step: list[Any] = [None] * n
+    step: list[Any] = [None] * n  # single elements: the one-element group operations
     for q, k in enumerate(np.flatnonzero(has).tolist()):
-        step[k] = element(group, rel[q:q + 1])
+        step[k] = element(group, rel[q])
     times = np.empty(n)
     t_prev = time.perf_counter()
     for k in range(n):
@@ -159,8 +159,8 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
                      {(x, 0): file_poses[0:1]})
         else:
             Zk = step[k]
-            guess = s.calculate_estimate(x, k - 1) @ Zk if Zk is not None else \
-                file_poses[k:k + 1]
+            guess = element(group, s.calculate_estimate(x, k - 1).params[0]) @ Zk \
+                if Zk is not None else file_poses[k:k + 1]
             e = edges[k]
             if e.size:
                 s.update_rows(batch, e, {(x, k): guess})
