@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from ... import _fast
 from ..core.factors import BetweenFactor, Factor
 from ..core.graph import FactorGraph
 from ..core.noise import SqrtInformation
@@ -191,6 +192,8 @@ class IncrementalSmoother:
         self._streams: dict[int, _Stream] = {}  # id(factor) -> rows given by update_rows
         self._tree = BayesTree()
         self._edges = EdgeRows()
+        self._c: Any = _fast.module("_online")  # the bookkeeping in C (None: NumPy below)
+        self._rmark = np.zeros(64, dtype=np.int64)  # scratch per row: 0 between calls
         self._dxbuf = np.zeros(64)
         self._dx = self._dxbuf[:0]
         self._size = 0
@@ -456,14 +459,12 @@ class IncrementalSmoother:
         if self._updates % self.relinearize_skip == 0 and self._size:
             relin = self._relinearize()
         rec.relinearized = int(relin.size)
-        rn = self._tree.rnodes
         new = np.arange(first, len(self._key), dtype=np.int64)
-        marked.insert(0, new)
-        redo = self._rows_touching(relin) if relin.size else set()
-        redo.update(new_rows)
-        marked.extend(rn[r] for r in redo)
+        redo, touched = self._rows_of(new_rows, relin)
+        marked.append(new)
+        marked.append(touched)
         marked.append(relin)
-        self._linearize(redo if relin.size else new_rows)
+        self._linearize(redo)
         # a row's nodes are its first node and that node's ancestors: marking them all
         # detaches what marking the first would
         tb = time.perf_counter()
@@ -471,7 +472,8 @@ class IncrementalSmoother:
         top, orphans, pool = self._tree.detach(np.concatenate(marked))
         tc = time.perf_counter()
         times["detach"] = tc - tb
-        order = self._order(top, pool, orphans, [new] + [rn[r] for r in new_rows])
+        order = self._order(top, pool, orphans, [new, touched] if not relin.size else
+                            [new] + [self._tree.rnodes[r] for r in new_rows])
         td = time.perf_counter()
         times["order"] = td - tc
         self._eliminate(order, pool, orphans)
@@ -903,22 +905,36 @@ class IncrementalSmoother:
         nodes = np.flatnonzero(big > self.relinearize_threshold)
         if nodes.size == 0:
             return nodes
-        keys = np.asarray(self._key)[nodes]
-        for key in np.unique(keys):
-            sel = nodes[keys == key]
+        nl = nodes.tolist()  # O(relinearised), not O(nodes)
+        keys = np.array([self._key[q] for q in nl], dtype=np.int64)
+        idx = np.array([self._idx[q] for q in nl], dtype=np.int64)
+        for key in np.unique(keys).tolist():
+            one = keys == key
+            sel = nodes[one]
             var = self._graph.variables[key]
-            ix = np.asarray(self._idx)[sel]
+            ix = idx[one]
             cols = off[sel][:, None] + np.arange(var.dof)
             self._lin[key][ix] = var.retract(self._lin[key][ix], self._dx[cols])
             self._dx[cols] = 0.0
         return nodes
 
-    def _rows_touching(self, nodes: np.ndarray) -> set[int]:
-        out: set[int] = set()
-        nr = self._tree.node_rows
-        for n in nodes.tolist():
-            out.update(nr[n])
-        return out
+    def _rows_of(self, new_rows: list[int], relin: np.ndarray) -> tuple[list[int], np.ndarray]:
+        """The rows to linearise: ``new_rows`` and every row of the nodes ``relin``, distinct
+        (first-seen order), and the concatenation of their nodes."""
+        tree = self._tree
+        if self._c is not None:
+            if len(tree.rnodes) > self._rmark.size:
+                self._rmark = np.zeros(max(len(tree.rnodes), 2 * self._rmark.size),
+                                       dtype=np.int64)
+            rows, touched = self._c.rows_of(np.asarray(new_rows, dtype=np.int64), relin,
+                                            tree.node_rows, tree.rnodes, self._rmark)
+            return rows.tolist(), touched
+        redo = dict.fromkeys(new_rows)
+        for n in relin.tolist():
+            redo.update(dict.fromkeys(tree.node_rows[n]))
+        out = list(redo)
+        rn = tree.rnodes
+        return out, (np.concatenate([rn[r] for r in out]) if out else _EMPTY)
 
     def _linearize(self, rows: Iterable[int]) -> None:
         """Linearise ``rows`` (distinct) at the linearisation points: the pose-graph edges in
@@ -986,8 +1002,10 @@ class IncrementalSmoother:
         tree = self._tree
         pos = tree.pos
         n = int(top.size)
-        if n == 1:
-            order = top
+        start = self._next_pos
+        self._next_pos += n
+        if self._c is not None:
+            order, nb = self._c.split_order(top, last, pos, tree.mark, start)
         else:
             flag = tree.mark  # scratch, 0 between calls
             for a in last:
@@ -1000,14 +1018,15 @@ class IncrementalSmoother:
             head = top[~is_last]
             head = head[np.argsort(pos[head], kind="stable")]
             nb = head.size
-            if nb > 2:
-                indptr, indices = tree.adjacency(pool, orphans, head)
-                head = head[np.asarray(minimum_degree_blocks(indptr, indices, nb),
-                                       dtype=np.int64)]
-            order = np.concatenate([head, tail])
-        pos[order] = np.arange(self._next_pos, self._next_pos + n)
-        self._next_pos += n
-        return order.astype(np.int64, copy=False)
+            order = np.concatenate([head, tail]).astype(np.int64, copy=False)
+            pos[order] = np.arange(start, start + n)
+        if nb > 2:
+            head = order[:nb]
+            indptr, indices = tree.adjacency(pool, orphans, head)
+            order[:nb] = head[np.asarray(minimum_degree_blocks(indptr, indices, nb),
+                                         dtype=np.int64)]
+            pos[order[:nb]] = np.arange(start, start + nb)
+        return order
 
     def _eliminate(self, order: np.ndarray, pool: np.ndarray, orphans: np.ndarray) -> None:
         try:
