@@ -101,7 +101,7 @@ class EdgeRows:
         when ``f`` is an SE(2) / SE(3) BetweenFactor without a loss or a fixed end."""
         rows = np.asarray(rows, dtype=np.int64)
         self._grow(rows)
-        if not self.accepts(f):
+        if not self.accepts(f) or not isinstance(f, BetweenFactor):
             return
         (var, ii), (_, jj) = f.args
         if var.fixed[ii].any() or var.fixed[jj].any():
