@@ -154,14 +154,15 @@ class EdgeRows:
         list of int
             The positions in ``rows`` of the rows not kept (for the NumPy path).
         """
-        if len(rows) == 1:  # one row (a new edge): Python ints and slices, no gathers
-            r = rows[0]
-            key = int(self._key[r])
-            if key < 0:
-                return [0]
-            q = int(self._slot[r])
-            self._run(self._stores[key], rows, slice(q, q + 1), lin[key], H, b)
-            return []
+        if len(rows) <= 8:  # the new edges of one update: Python ints, slices if contiguous
+            K, S = self._key, self._slot
+            key = int(K[rows[0]])
+            q = int(S[rows[0]])
+            m = len(rows)
+            if key >= 0 and all(int(K[r]) == key and int(S[r]) == q + k
+                                for k, r in enumerate(rows)):
+                self._run(self._stores[key], rows, slice(q, q + m), lin[key], H, b)
+                return []
         ra = np.asarray(rows, dtype=np.int64)
         keys = self._key[ra]
         left: list[int] = []

@@ -64,6 +64,7 @@ class _Stream:
 
     def __init__(self, factor: BetweenFactor, fast: bool) -> None:
         var = factor.args[0][0]
+        self.factor = factor  # held: the smoother's maps are keyed by id(factor)
         self.var = var
         self.count = factor.count
         self.ii, self.jj = factor.args[0][1], factor.args[1][1]
@@ -822,10 +823,14 @@ class IncrementalSmoother:
     def _enter(self, var: Variables, idx: np.ndarray) -> None:
         """Make elements ``idx`` of ``var`` enter (once): a node each unless fixed."""
         seen = self._seen[var.key]
-        if idx.size == 1:
-            i = int(idx[0])
-            if not seen[i]:
-                self._enter_one(var, i)
+        if idx.size <= 8:  # Python ints: cheaper than NumPy calls on a few elements
+            fresh = sorted({i for i in idx.tolist() if not seen[i]})
+            held = var.held
+            for i in fresh:  # all checked before any enters
+                if held[i].any() and not held[i].all():
+                    self._enter_one(var, i)  # raises
+            for i in fresh:
+                self._enter_one(var, i, False)
             return
         new = np.unique(idx[~seen[idx]])
         if new.size == 0:
