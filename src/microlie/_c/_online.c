@@ -13,24 +13,12 @@
  *       nodes (rnodes: a list of int64 arrays per row). `rmark` is int64 scratch per row, 0
  *       between calls (restored).
  *
- *   backsubstitute_cliques(order, orphans, dx, off, dof, sep, Rinv, T, c, child, sib, chain,
- *                          wildfire, chg) -> count
- *       GTSAM's wildfire by cliques (ISAM2's optimizeWildfire): the step of the re-eliminated
- *       nodes `order` from the root down (all changed), then down the orphan subtrees clique by
- *       clique (a clique: a node with chain 0 and the chain of nested children below it): a
- *       clique is recomputed when a variable of its separator changed; it keeps its new steps,
- *       all marked changed, when one of its frontal components moved by `wildfire` or more,
- *       else it keeps its old steps; the cliques below a recomputed one are visited. The tree
- *       is bayes_tree.BayesTree's (x_j = Rinv_j (c_j - T_j x_sep)); `chg` is float64 scratch
- *       per node, 0 between calls (restored). Returns the number of nodes computed.
- *
- * All arrays are C-contiguous (int64 ids, float64 values); ids are checked against the array
- * lengths. The NumPy fallbacks (incremental.py, wildfire.py) compute the same. */
+ * All arrays are C-contiguous int64; ids are checked against the array lengths. The NumPy
+ * fallback (incremental.py) computes the same. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
 #include <numpy/arrayobject.h>
-#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -222,219 +210,11 @@ static PyObject *rows_of(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     return Py_BuildValue("(NN)", ro, to);
 }
 
-
-/* ------------------------------------------------------------------ wildfire by cliques */
-
-static double *f64(PyObject *o, const char *what, i64 size) {
-    if (!PyArray_Check(o) || PyArray_TYPE((PyArrayObject *)o) != NPY_FLOAT64 ||
-        !PyArray_IS_C_CONTIGUOUS((PyArrayObject *)o) ||
-        (size >= 0 && (i64)PyArray_SIZE((PyArrayObject *)o) != size)) {
-        PyErr_Format(PyExc_ValueError, "%s must be a C-contiguous float64 array of the node's "
-                     "size", what);
-        return NULL;
-    }
-    return (double *)PyArray_DATA((PyArrayObject *)o);
-}
-
-typedef struct {
-    double *dx, *chg;
-    const i64 *off, *dof, *child, *sib, *chain;
-    i64 n, ndx;
-    PyObject *sep, *Rinv, *T, *c;
-    i64 *buf; /* int64 stack / scratch */
-    i64 nbuf, cap;
-} wctx;
-
-static int wpush(wctx *W, i64 v) {
-    if (W->nbuf == W->cap) {
-        i64 cap = W->cap ? 2 * W->cap : 256;
-        i64 *p = (i64 *)realloc(W->buf, sizeof(i64) * (size_t)cap);
-        if (!p) {
-            PyErr_NoMemory();
-            return -1;
-        }
-        W->buf = p;
-        W->cap = cap;
-    }
-    W->buf[W->nbuf++] = v;
-    return 0;
-}
-
-static int node_ok(const wctx *W, i64 k) {
-    if (k < 0 || k >= W->n || W->off[k] < 0 || W->off[k] + W->dof[k] > W->ndx || W->dof[k] > 64) {
-        PyErr_SetString(PyExc_ValueError, "backsubstitute_cliques: bad node");
-        return 0;
-    }
-    return 1;
-}
-
-/* x_k = Rinv_k (c_k - T_k x_sep) into dx; its largest change into *moved. -1 on error */
-static int solve_node(wctx *W, i64 k, double *moved) {
-    if (!node_ok(W, k)) return -1;
-    PyObject *so = PyList_GET_ITEM(W->sep, k);
-    i64 ns, d = W->dof[k];
-    i64 *sp = arr(so, "sep[k]", &ns);
-    if (!sp) return -1;
-    i64 s = 0;
-    for (i64 a = 0; a < ns; a++) {
-        if (!node_ok(W, sp[a])) return -1;
-        s += W->dof[sp[a]];
-    }
-    double *R = f64(PyList_GET_ITEM(W->Rinv, k), "Rinv[k]", d * d);
-    double *T = R ? f64(PyList_GET_ITEM(W->T, k), "T[k]", d * s) : NULL;
-    double *c = T ? f64(PyList_GET_ITEM(W->c, k), "c[k]", d) : NULL;
-    if (!c) return -1;
-    double v[64];
-    for (i64 a = 0; a < d; a++) v[a] = c[a];
-    i64 col = 0;
-    for (i64 a = 0; a < ns; a++) {
-        const double *xs = W->dx + W->off[sp[a]];
-        for (i64 r = 0; r < W->dof[sp[a]]; r++, col++)
-            for (i64 i = 0; i < d; i++) v[i] -= T[i * s + col] * xs[r];
-    }
-    double *xk = W->dx + W->off[k], big = *moved;
-    for (i64 i = 0; i < d; i++) {
-        double t = 0.0;
-        for (i64 a = 0; a < d; a++) t += R[i * d + a] * v[a];
-        double e = fabs(t - xk[i]);
-        if (e > big || e != e) big = e;
-        xk[i] = t;
-    }
-    *moved = big;
-    return 0;
-}
-
-static PyObject *backsubstitute_cliques(PyObject *self, PyObject *const *args,
-                                        Py_ssize_t nargs) {
-    (void)self;
-    if (nargs != 14) {
-        PyErr_SetString(PyExc_TypeError, "backsubstitute_cliques(order, orphans, dx, off, dof, "
-                                         "sep, Rinv, T, c, child, sib, chain, wildfire, chg)");
-        return NULL;
-    }
-    i64 no, nor, ndx, n, n2, n3, n4, n5, n6;
-    i64 *order = arr(args[0], "order", &no);
-    i64 *orph = order ? arr(args[1], "orphans", &nor) : NULL;
-    if (!orph) return NULL;
-    double *dx = f64(args[2], "dx", -1);
-    if (!dx) return NULL;
-    ndx = (i64)PyArray_SIZE((PyArrayObject *)args[2]);
-    i64 *off = arr(args[3], "off", &n);
-    i64 *dof = off ? arr(args[4], "dof", &n2) : NULL;
-    i64 *child = dof ? arr(args[9], "child", &n3) : NULL;
-    i64 *sib = child ? arr(args[10], "sib", &n4) : NULL;
-    i64 *chain = sib ? arr(args[11], "chain", &n5) : NULL;
-    if (!chain) return NULL;
-    for (int k = 5; k < 9; k++)
-        if (!PyList_Check(args[k])) {
-            PyErr_SetString(PyExc_ValueError, "sep, Rinv, T and c must be lists");
-            return NULL;
-        }
-    double wildfire = PyFloat_AsDouble(args[12]);
-    if (wildfire == -1.0 && PyErr_Occurred()) return NULL;
-    double *chg = f64(args[13], "chg", -1);
-    if (!chg) return NULL;
-    n6 = (i64)PyArray_SIZE((PyArrayObject *)args[13]);
-    i64 nn = n;
-    i64 lens[] = {n2, n3, n4, n5, n6, (i64)PyList_GET_SIZE(args[5]),
-                  (i64)PyList_GET_SIZE(args[6]), (i64)PyList_GET_SIZE(args[7]),
-                  (i64)PyList_GET_SIZE(args[8])};
-    for (int k = 0; k < 9; k++)
-        if (lens[k] < nn) nn = lens[k];
-    wctx W = {dx, chg, off, dof, child, sib, chain, nn, ndx, args[5], args[6], args[7], args[8],
-              NULL, 0, 0};
-    i64 count = 0, ntouched = 0;
-    int err = 0;
-    double old[64 * 64];
-    /* the touched nodes (chg set) are kept at the bottom of W.buf; the stack above them */
-    for (i64 q = no - 1; q >= 0 && !err; q--) { /* the re-eliminated: root down, all changed */
-        double moved = 0.0;
-        if (solve_node(&W, order[q], &moved) || wpush(&W, order[q])) err = 1;
-        else chg[order[q]] = 1.0;
-        count++;
-    }
-    ntouched = W.nbuf;
-    for (i64 t = 0; t < nor && !err; t++)
-        if (!node_ok(&W, orph[t]) || wpush(&W, orph[t])) err = 1;
-    while (W.nbuf > ntouched && !err) {
-        i64 r = W.buf[--W.nbuf], ns;
-        i64 *sr = arr(PyList_GET_ITEM(W.sep, r), "sep[k]", &ns);
-        if (!sr) {
-            err = 1;
-            break;
-        }
-        int dirty = 0;
-        for (i64 a = 0; a < ns && !dirty; a++) dirty = sr[a] >= 0 && sr[a] < nn && chg[sr[a]] != 0.0;
-        if (!dirty) continue;
-        /* the clique's frontal nodes: r and its chain of nested children (at most 64 here;
-           a longer chain is split into cliques of 64, each deciding on its own) */
-        i64 F[64], nf = 0;
-        for (i64 j = r; j >= 0 && nf < 64;) {
-            F[nf++] = j;
-            i64 next = -1;
-            for (i64 ch = child[j]; ch >= 0; ch = sib[ch])
-                if (ch < nn && chain[ch]) next = ch;
-            j = next;
-        }
-        double moved = 0.0;
-        i64 o = 0;
-        for (i64 a = 0; a < nf && !err; a++) { /* keep the old steps, then solve root down */
-            const double *x = dx + off[F[a]];
-            for (i64 i = 0; i < dof[F[a]] && o < 64 * 64; i++) old[o++] = x[i];
-            if (o >= 64 * 64) {
-                PyErr_SetString(PyExc_ValueError, "backsubstitute_cliques: clique too wide");
-                err = 1;
-            }
-        }
-        for (i64 a = 0; a < nf && !err; a++)
-            if (solve_node(&W, F[a], &moved)) err = 1;
-        if (err) break;
-        count += nf;
-        /* the stack top is above the touched part: insert the touched frontals below it */
-        i64 above = W.nbuf - ntouched;
-        if (!(moved < wildfire)) { /* changed (NaN too): marked; kept at the bottom */
-            for (i64 a = 0; a < nf && !err; a++) {
-                chg[F[a]] = 1.0;
-                if (wpush(&W, 0)) err = 1;
-            }
-            if (err) break;
-            memmove(W.buf + ntouched + nf, W.buf + ntouched, sizeof(i64) * (size_t)above);
-            for (i64 a = 0; a < nf; a++) W.buf[ntouched + a] = F[a];
-            ntouched += nf;
-        } else { /* restored */
-            o = 0;
-            for (i64 a = 0; a < nf; a++) {
-                double *x = dx + off[F[a]];
-                for (i64 i = 0; i < dof[F[a]]; i++) x[i] = old[o++];
-            }
-        }
-        for (i64 a = 0; a < nf && !err; a++) /* the cliques below: non-chain children */
-            for (i64 ch = child[F[a]]; ch >= 0 && !err; ch = sib[ch]) {
-                if (ch >= nn) {
-                    PyErr_SetString(PyExc_ValueError, "backsubstitute_cliques: bad child");
-                    err = 1;
-                } else if (!(a + 1 < nf && ch == F[a + 1]) && wpush(&W, ch)) {
-                    err = 1; /* every child but the next frontal roots a clique below */
-                }
-            }
-    }
-    for (i64 q = 0; q < ntouched; q++) chg[W.buf[q]] = 0.0;
-    free(W.buf);
-    if (err) {
-        if (!PyErr_Occurred()) PyErr_NoMemory();
-        return NULL;
-    }
-    return PyLong_FromLongLong((long long)count);
-}
-
 static PyMethodDef methods[] = {
     {"split_order", (PyCFunction)(void (*)(void))split_order, METH_FASTCALL,
      "split_order(top, last, pos, mark, start) -> (order, nb)"},
     {"rows_of", (PyCFunction)(void (*)(void))rows_of, METH_FASTCALL,
      "rows_of(extra, nodes, node_rows, rnodes, rmark) -> (rows, touched)"},
-    {"backsubstitute_cliques", (PyCFunction)(void (*)(void))backsubstitute_cliques,
-     METH_FASTCALL, "backsubstitute_cliques(order, orphans, dx, off, dof, sep, Rinv, T, c, "
-     "child, sib, chain, wildfire, chg) -> count"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_online",

@@ -17,10 +17,9 @@ Algorithms 4-6):
    of the new factors constrained last) and eliminated again from their factors and the orphans'
    cached information;
 4. the step is back-substituted from the re-eliminated nodes downwards, then into the orphan
-   subtrees clique by clique as GTSAM's wildfire does (partial back-substitution,
-   :mod:`.wildfire`): a clique is recomputed when a variable of its separator *changed*
-   (re-eliminated, or in a recomputed clique that moved by ``wildfire`` or more); a
-   recomputed clique that moved less keeps its old steps.
+   subtrees as GTSAM's wildfire does (partial back-substitution): a node is recomputed when a
+   variable of its separator *changed* (re-eliminated, or recomputed and moved by
+   ``wildfire`` or more); a recomputed node that moved less keeps its old step.
 
 Why a Bayes tree and not an incremental supernodal Cholesky: re-factoring "the trailing part of
 a fixed ordering" re-eliminates everything after the oldest touched variable (on a loop closure
@@ -52,7 +51,6 @@ from ..core.variables import Values, Variables, VectorVariables, element
 from ..linalg.ordering import minimum_degree_blocks
 from .bayes_tree import BayesTree, NotDetermined
 from .edges import EdgeRows
-from .wildfire import backsubstitute_cliques
 
 __all__ = ["IncrementalSmoother", "UpdateRecord"]
 
@@ -144,9 +142,8 @@ class IncrementalSmoother:
         ``relinearizeSkip``, default 10; the first update checks).
     wildfire : float
         Partial back-substitution (GTSAM's ``wildfireThreshold``, default 0.001): below the
-        re-eliminated nodes, a clique's steps are recomputed only where a separator variable
-        changed, and kept only when one moved by this or more (0: every step below a change
-        is recomputed).
+        re-eliminated nodes, a step is recomputed only where a separator variable changed, and
+        kept only when it moved by this or more (0: every step below a change is recomputed).
 
     Examples
     --------
@@ -198,7 +195,6 @@ class IncrementalSmoother:
         self._edges = EdgeRows()
         self._c: Any = _fast.module("_online")  # the bookkeeping in C (None: NumPy below)
         self._rmark = np.zeros(64, dtype=np.int64)  # scratch per row: 0 between calls
-        self._chg = np.zeros(64)                     # scratch per node: 0 between calls
         self._dxbuf = np.zeros(64)
         self._dx = self._dxbuf[:0]
         self._size = 0
@@ -485,10 +481,7 @@ class IncrementalSmoother:
         te = time.perf_counter()
         times["eliminate"] = te - td
         rec.reeliminated = int(order.size)
-        if self._chg.size < self._tree.n:
-            self._chg = np.zeros(max(self._tree.n, 2 * self._chg.size))
-        rec.backsubstituted = backsubstitute_cliques(self._tree, order, orphans, self._dx,
-                                                     self.wildfire, self._c, self._chg)
+        rec.backsubstituted = self._tree.backsubstitute(order, orphans, self._dx, self.wildfire)
         times["solve"] = time.perf_counter() - te
         self._updates += 1
         rec.time_s = time.perf_counter() - t0
