@@ -56,6 +56,7 @@ EXTENSIONS = {
     "_symbolic": ["_symbolic.c"],  # the supernodal symbolic analysis (linalg.cholesky)
     "_chol": ["_chol.c"],  # the supernodal Cholesky loop on NumPy's or SciPy's BLAS/LAPACK
     "_incremental": ["_incremental.c"],  # the Bayes tree of optim.online (bayes_tree.py)
+    "_online": ["_online.c"],  # IncrementalSmoother's per-update bookkeeping (incremental.py)
     "_text": ["_text.c"],  # the numeric text-table reader (microlie.traj.io)
     "_info": ["_info.c"],  # build and dispatch information (microlie --version)
 }

@@ -131,7 +131,7 @@ def build_record() -> dict[str, Any]:
 
 #: the compiled modules setup.py builds (its EXTENSIONS, but _info, which only describes)
 NAMES = ("_lie", "_one", "_factors", "_graph", "_reproj", "_normal", "_order", "_pattern",
-         "_symbolic", "_chol", "_text", "_incremental")
+         "_symbolic", "_chol", "_text", "_incremental", "_online")
 
 
 def describe() -> str:

@@ -50,16 +50,17 @@ class _Store:
                                               + np.array([0, D])))
         return self._lay[0][:m], self._lay[1][:m], self._lay[2][:m]
 
-    def add(self, ii: np.ndarray, jj: np.ndarray, Z: np.ndarray, L: np.ndarray) -> np.ndarray:
+    def add(self, ii: np.ndarray, jj: np.ndarray, Z: np.ndarray, L: np.ndarray) -> int:
+        """Append ``m`` rows; return the slot of the first (the others follow)."""
         m = ii.size
         while self.n + m > self.ii.size:
             for name in ("ii", "jj", "Z", "L"):
                 a = getattr(self, name)
                 setattr(self, name, np.concatenate([a, np.zeros_like(a)]))
-        sl = np.arange(self.n, self.n + m)
-        self.ii[sl], self.jj[sl], self.Z[sl], self.L[sl] = ii, jj, Z, L
-        self.n += m
-        return sl
+        a, b = self.n, self.n + m
+        self.ii[a:b], self.jj[a:b], self.Z[a:b], self.L[a:b] = ii, jj, Z, L
+        self.n = b
+        return a
 
 
 class EdgeRows:
@@ -81,9 +82,11 @@ class EdgeRows:
     >>> f = BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0, 0]), Diagonal([0.5, 0.5, 0.5]))
     >>> e = EdgeRows()
     >>> e.add(f, np.array([10, 11]))
-    >>> rows, H, b = e.linearize(np.array([11, 3]), [x.initial])
-    >>> rows.tolist() == ([11] if e.module is not None else [])
-    True
+    >>> H, b = [None] * 12, [None] * 12
+    >>> left = e.linearize([11, 3], [x.initial], H, b)
+    >>> compiled = e.module is not None
+    >>> left == ([1] if compiled else [0, 1]), (H[11] is not None) == compiled
+    (True, True)
     """
 
     def __init__(self, compiled: bool | None = None) -> None:
@@ -97,64 +100,94 @@ class EdgeRows:
         """Register the rows ``rows`` (ids, one per factor of ``f``) of the batch ``f``: kept
         when ``f`` is an SE(2) / SE(3) BetweenFactor without a loss or a fixed end."""
         rows = np.asarray(rows, dtype=np.int64)
+        self._grow(rows)
+        if not self.accepts(f) or not isinstance(f, BetweenFactor):
+            return
+        (var, ii), (_, jj) = f.args
+        if var.fixed[ii].any() or var.fixed[jj].any():
+            return
+        L = np.broadcast_to(f.noise.sqrt_info, (f.count, var.dof, var.dof))
+        Z = np.asarray(var.params_of(f.Z), dtype=np.float64).reshape(f.count, -1)
+        self.add_raw(var, rows.tolist(), ii, jj, Z, L)
+
+    def accepts(self, f: Factor) -> bool:
+        """Whether rows of ``f`` can be kept (the compiled module is there, ``f`` is an SE(2) /
+        SE(3) BetweenFactor without a loss; fixed ends are the caller's to check)."""
+        return (self.module is not None and type(f) is BetweenFactor and f.loss is None
+                and f.args[0][0].group.__name__ in _NAMES)
+
+    def _grow(self, rows: np.ndarray) -> None:
         if rows.size and rows.max() >= self._key.size:
             grow = max(int(rows.max()) + 1, 2 * self._key.size)
             self._key = np.concatenate([self._key, np.full(grow - self._key.size, -1,
                                                            dtype=np.int64)])
             self._slot = np.concatenate([self._slot, np.zeros(grow - self._slot.size,
                                                               dtype=np.int64)])
-        if self.module is None or type(f) is not BetweenFactor or f.loss is not None:
-            return
-        (var, ii), (_, jj) = f.args
-        name = _NAMES.get(var.group.__name__)
-        if name is None or var.fixed[ii].any() or var.fixed[jj].any():
-            return
-        fn = getattr(self.module, f"{name}_between_normal", None)
-        if fn is None:
-            return
+
+    def add_raw(self, var: Any, rows: list[int], ii: np.ndarray, jj: np.ndarray,
+                Z: np.ndarray, L: np.ndarray) -> None:
+        """Keep rows ``rows`` (increasing ids) of edges ``ii -> jj`` of ``var`` (neither end
+        fixed; the caller checked :meth:`accepts`) with measurement parameters ``Z``
+        ``(m, P)`` and square-root information ``L`` ``(m, D, D)``."""
+        if rows[-1] >= self._key.size:
+            self._grow(np.asarray(rows, dtype=np.int64))
         store = self._stores.get(var.key)
         if store is None:
+            fn = getattr(self.module, f"{_NAMES[var.group.__name__]}_between_normal")
             store = self._stores[var.key] = _Store(fn, var.initial.shape[-1], var.dof)
-        D = var.dof
-        L = np.broadcast_to(f.noise.sqrt_info, (f.count, D, D))
-        Z = np.asarray(var.params_of(f.Z), dtype=np.float64).reshape(f.count, -1)
-        self._slot[rows] = store.add(ii, jj, Z, L)
-        self._key[rows] = var.key
+        q = store.add(ii, jj, Z, L)
+        if len(rows) == 1:
+            self._slot[rows[0]] = q
+            self._key[rows[0]] = var.key
+        else:
+            self._slot[rows] = np.arange(q, q + len(rows))
+            self._key[rows] = var.key
 
-    def linearize(self, rows: np.ndarray, lin: list[np.ndarray]
-                  ) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
-        """Linearise the kept rows among ``rows`` at the parameters ``lin`` (per handle key).
+    def linearize(self, rows: list[int], lin: list[np.ndarray], H: list[Any], b: list[Any]
+                  ) -> list[int]:
+        """Linearise the kept rows among ``rows`` (distinct row ids) at the parameters ``lin``
+        (per handle key): ``H[r] = A^T A`` ``(2 D, 2 D)`` and ``b[r] = -A^T e`` ``(2 D,)`` over
+        the row's two ends (first, second), for each kept row ``r``.
 
         Returns
         -------
-        done : numpy.ndarray
-            The row ids linearised here (the others take the NumPy path).
-        H, b : list of numpy.ndarray
-            Per row of ``done``: ``A^T A`` ``(2 D, 2 D)`` and ``-A^T e`` ``(2 D,)`` over its
-            two ends (first, second).
+        list of int
+            The positions in ``rows`` of the rows not kept (for the NumPy path).
         """
-        rows = np.asarray(rows, dtype=np.int64)
-        keys = self._key[rows]
-        done: list[np.ndarray] = []
-        Hs: list[np.ndarray] = []
-        bs: list[np.ndarray] = []
+        if len(rows) <= 8:  # the new edges of one update: Python ints, slices if contiguous
+            K, S = self._key, self._slot
+            key = int(K[rows[0]])
+            q = int(S[rows[0]])
+            m = len(rows)
+            if key >= 0 and all(int(K[r]) == key and int(S[r]) == q + k
+                                for k, r in enumerate(rows)):
+                self._run(self._stores[key], rows, slice(q, q + m), lin[key], H, b)
+                return []
+        ra = np.asarray(rows, dtype=np.int64)
+        keys = self._key[ra]
+        left: list[int] = []
         for key, store in self._stores.items():
-            sel = rows[keys == key]
-            if sel.size == 0:
-                continue
-            sl = self._slot[sel]
-            m, D = sel.size, store.D
-            W = 2 * D
-            starts, lens, goff = store.layout(m)
-            data = np.zeros(m * W * W)
-            grad = np.zeros(m * W)
-            s = np.empty(m)
-            X = np.ascontiguousarray(lin[key], dtype=np.float64)
-            store.fn(X, store.ii[sl], store.jj[sl], store.Z[sl], store.L[sl], None, starts,
-                     lens, goff, s, data, grad)
-            np.negative(grad, out=grad)
-            Hs.extend(data.reshape(m, W, W))
-            bs.extend(grad.reshape(m, W))
-            done.append(sel)
-        out = np.concatenate(done) if done else np.zeros(0, dtype=np.int64)
-        return out, Hs, bs
+            sel = np.flatnonzero(keys == key)
+            if sel.size == len(rows):
+                self._run(store, rows, self._slot[ra], lin[key], H, b)
+                return left
+            if sel.size:
+                self._run(store, ra[sel].tolist(), self._slot[ra[sel]], lin[key], H, b)
+        return np.flatnonzero(keys < 0).tolist()
+
+    def _run(self, store: _Store, rows: list[int], sl: Any, X: np.ndarray, H: list[Any],
+             b: list[Any]) -> None:
+        """The kernel over ``rows`` (all of ``store``'s handle, at its slots ``sl``) into ``H``
+        and ``b``, at ``X`` (C-contiguous float64, as the smoother keeps its points)."""
+        m = len(rows)
+        W = 2 * store.D
+        starts, lens, goff = store.layout(m)
+        data = np.zeros((m, W, W))
+        grad = np.zeros((m, W))
+        s = np.empty(m)
+        store.fn(X, store.ii[sl], store.jj[sl], store.Z[sl], store.L[sl], None, starts, lens,
+                 goff, s, data.reshape(-1), grad.reshape(-1))
+        np.negative(grad, out=grad)
+        for r, Hr, br in zip(rows, data, grad, strict=True):
+            H[r] = Hr
+            b[r] = br

@@ -41,8 +41,10 @@ from typing import Any
 
 import numpy as np
 
-from ..core.factors import Factor
+from ... import _fast
+from ..core.factors import BetweenFactor, Factor
 from ..core.graph import FactorGraph
+from ..core.noise import SqrtInformation
 from ..core.robust import corrected_weights
 from ..core.solvers import Result
 from ..core.variables import Values, Variables, VectorVariables, element
@@ -51,6 +53,27 @@ from .bayes_tree import BayesTree, NotDetermined
 from .edges import EdgeRows
 
 __all__ = ["IncrementalSmoother", "UpdateRecord"]
+
+_EMPTY = np.zeros(0, dtype=np.int64)
+
+
+class _Stream:
+    """A factor batch whose rows arrive through :meth:`IncrementalSmoother.update_rows`: its
+    ends, measurement parameters and square-root information as arrays, which rows were
+    added, those not yet made factors of the graph (``pending``) and the factors made."""
+
+    def __init__(self, factor: BetweenFactor, fast: bool) -> None:
+        var = factor.args[0][0]
+        self.factor = factor  # held: the smoother's maps are keyed by id(factor)
+        self.var = var
+        self.count = factor.count
+        self.ii, self.jj = factor.args[0][1], factor.args[1][1]
+        self.Z = np.ascontiguousarray(var.params_of(factor.Z), dtype=np.float64)
+        self.L = np.broadcast_to(factor.noise.sqrt_info, (factor.count, var.dof, var.dof))
+        self.added = np.zeros(factor.count, dtype=bool)
+        self.pending: list[int] = []
+        self.parts: list[Factor] = []
+        self.fast = fast
 
 
 @dataclass
@@ -154,8 +177,7 @@ class IncrementalSmoother:
         self.relinearize_threshold = float(relinearize_threshold)
         self.relinearize_skip = int(relinearize_skip)
         self.wildfire = float(wildfire)
-        #: The accumulated graph (every variable and factor added, none removed).
-        self.graph = FactorGraph()
+        self._graph = FactorGraph()
         #: One record per :meth:`update`.
         self.records: list[UpdateRecord] = []
         self._lin: list[np.ndarray] = []        # linearisation points per handle
@@ -168,9 +190,13 @@ class IncrementalSmoother:
         self._key: list[int] = []               # per node: handle key and element index
         self._idx: list[int] = []
         self._fids: dict[int, int] = {}         # id(factor) -> its index in self._factors
+        self._streams: dict[int, _Stream] = {}  # id(factor) -> rows given by update_rows
         self._tree = BayesTree()
         self._edges = EdgeRows()
-        self._dx = np.zeros(0)
+        self._c: Any = _fast.module("_online")  # the bookkeeping in C (None: NumPy below)
+        self._rmark = np.zeros(64, dtype=np.int64)  # scratch per row: 0 between calls
+        self._dxbuf = np.zeros(64)
+        self._dx = self._dxbuf[:0]
         self._size = 0
         self._next_pos = 0
         self._updates = 0
@@ -202,7 +228,7 @@ class IncrementalSmoother:
         >>> IncrementalSmoother().add_variables(SE3.identity(2), name="x")
         Variables('x', SE3, n=2, fixed=0)
         """
-        return self.graph.add_variables(values, fixed=fixed, name=name)
+        return self._graph.add_variables(values, fixed=fixed, name=name)
 
     # ------------------------------------------------------------------ update
     def update(self, new_factors: Iterable[Factor] = (),
@@ -254,12 +280,12 @@ class IncrementalSmoother:
         for f in new_factors:
             if not isinstance(f, Factor):
                 raise TypeError(f"new_factors: expected Factor objects, got {type(f).__name__}")
-            if id(f) in self._fids:
+            if id(f) in self._fids or id(f) in self._streams:
                 raise ValueError(f"new_factors: {f.name} was already added")
         self._sync()
         for f in new_factors:
             for var, _ in f.args:
-                if var.graph is not self.graph:
+                if var.graph is not self._graph:
                     raise ValueError(f"new_factors: {f.name} refers to {var!r} of another "
                                      f"graph")
         first = len(self._key)
@@ -267,41 +293,188 @@ class IncrementalSmoother:
         for f in new_factors:
             for var, idx in f.args:
                 self._enter(var, idx)
-        rec.variables_added = len(self._key) - first
-        if rec.variables_added:
-            self._dx = np.concatenate([self._dx, np.zeros(self._size - self._dx.size)])
         for f in new_factors:
-            self.graph.add(f)
-        times = rec.times
+            self._graph.add(f)
         ta = time.perf_counter()
-        marked: list[np.ndarray] = [np.arange(first, len(self._key), dtype=np.int64)]
+        marked: list[np.ndarray] = []
         for f in remove:
             rec.factors_removed += self._remove(f, marked)
         new_rows: list[int] = []
         for f in new_factors:
-            rows = self._add_factor(f)
-            new_rows.extend(rows)
-            rec.factors_added += len(rows)
-        relin: np.ndarray = np.zeros(0, dtype=np.int64)
+            new_rows.extend(self._add_factor(f))
+        return self._step(rec, t0, ta, first, new_rows, marked)
+
+    def update_rows(self, factor: BetweenFactor, rows: Any,
+                    new_values: Mapping[Any, Any] | None = None) -> UpdateRecord:
+        """Add some rows (edges) of a :class:`~microlie.optim.BetweenFactor` batch built once
+        for a stream of measurements (every edge of a file, say): the same as
+        ``update([BetweenFactor(...)], new_values)`` with those rows' ends, measurements and
+        noise, without building a factor per update (the rows go to the compiled edge kernel
+        directly when it is built).
+
+        Parameters
+        ----------
+        factor : BetweenFactor
+            The batch over this smoother's variables; it is not added whole: each row enters
+            when named here, once. The accumulated :attr:`graph` holds the rows added so far
+            (as batches of them); ``remove_factors([factor])`` removes every row added.
+        rows : int or array_like of int
+            Indices into the batch (``0 <= row < factor.count``), none added before.
+        new_values : mapping, optional
+            As :meth:`update`.
+
+        Returns
+        -------
+        UpdateRecord
+
+        Raises
+        ------
+        ValueError
+            Not a BetweenFactor of this smoother's graph, the factor already given to
+            :meth:`update`, rows out of range or added before.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> from microlie.optim import IncrementalSmoother, BetweenFactor, PriorFactor, Diagonal
+        >>> s = IncrementalSmoother()
+        >>> x = s.add_variables(SE2.identity(3))
+        >>> sig = Diagonal([0.1, 0.1, 0.1])
+        >>> edges = BetweenFactor(x, [0, 1], [1, 2], SE2.exp([[1.0, 0, 0], [2.0, 0, 0]]), sig)
+        >>> _ = s.update([PriorFactor(x, 0, SE2.identity(), sig)])
+        >>> _ = s.update_rows(edges, 0, {(x, 1): SE2.exp([0.9, 0, 0])})
+        >>> rec = s.update_rows(edges, [1], {(x, 2): SE2.exp([3.2, 0, 0])})
+        >>> np.round(s.calculate_estimate(x).translation()[:, 0], 9).tolist()
+        [0.0, 1.0, 3.0]
+        >>> sum(f.count for f in s.graph.factors), rec.factors_added  # the prior and 2 edges
+        (3, 1)
+        """
+        t0 = time.perf_counter()
+        st = self._streams.get(id(factor))
+        if st is None:
+            st = self._stream(factor)
+        ix, lst = self._stream_rows(st, rows, factor)
+        var = st.var
+        sel = slice(lst[0], lst[0] + 1) if len(lst) == 1 else ix
+        ii, jj = st.ii[sel], st.jj[sel]
+        iil, jjl = ii.tolist(), jj.tolist()
+        fixed = var.fixed
+        if not st.fast or any(fixed[a] or fixed[b] for a, b in zip(iil, jjl, strict=True)):
+            # the general path: a factor of these rows
+            part = BetweenFactor(var, ii, jj, element(var.group, st.Z[ix]),
+                                 SqrtInformation(st.L[ix]), factor.loss)
+            rec = self.update([part], new_values)
+            st.added[ix] = True
+            st.parts.append(part)
+            return rec
+        rec = UpdateRecord()
+        self._sync()
+        first = len(self._key)
+        self._set_values(new_values)
+        self._enter(var, ii)
+        self._enter(var, jj)
+        st.added[ix] = True
+        ta = time.perf_counter()
+        nodes = self._node_of[var.key]
+        tree = self._tree
+        rows_out = [tree.add_row((nodes[a], nodes[b])) for a, b in zip(iil, jjl, strict=True)]
+        self._row_fid.extend([-1] * len(lst))  # set when the rows become a factor (_flush)
+        self._row_k.extend(lst)
+        self._edges.add_raw(var, rows_out, ii, jj, st.Z[sel], st.L[sel])
+        st.pending.extend(rows_out)
+        return self._step(rec, t0, ta, first, rows_out, [])
+
+    @staticmethod
+    def _stream_rows(st: _Stream, rows: Any, factor: Any) -> tuple[np.ndarray, list[int]]:
+        """``rows`` of ``st`` validated (in range, distinct, not added), as an int64 array and
+        a list."""
+        ix = np.asarray(rows)
+        if ix.ndim > 1 or ix.size == 0 or ix.dtype.kind not in "iu":
+            raise ValueError(f"rows: integer indices into the batch (0 .. {st.count - 1}) "
+                             f"expected, got {rows!r}")
+        lst = ix.reshape(-1).tolist()
+        if min(lst) < 0 or max(lst) >= st.count:
+            raise ValueError(f"rows: indices into the batch must be in 0 .. {st.count - 1}, "
+                             f"got {rows!r}")
+        if len(set(lst)) != len(lst):
+            raise ValueError(f"rows: {rows!r} names a row twice")
+        added = st.added
+        for r in lst:
+            if added[r]:
+                raise ValueError(f"rows: row {r} of {factor.name} was already added")
+        return np.asarray(lst, dtype=np.int64), lst
+
+    def _stream(self, factor: Any) -> _Stream:
+        if type(factor) is not BetweenFactor:
+            raise ValueError(f"factor: update_rows takes a BetweenFactor, got "
+                             f"{type(factor).__name__} (give other factors to update)")
+        var = factor.args[0][0]
+        if var.graph is not self._graph:
+            raise ValueError(f"factor: {factor.name} refers to {var!r} of another graph")
+        if id(factor) in self._fids:
+            raise ValueError(f"factor: {factor.name} was given to update (whole) already")
+        self._sync()
+        st = _Stream(factor, self._edges.accepts(factor))
+        self._streams[id(factor)] = st
+        return st
+
+    @property
+    def graph(self) -> FactorGraph:
+        """The accumulated graph: every variable and factor added (the rows given to
+        :meth:`update_rows` as batches of them), none removed."""
+        self._flush()
+        return self._graph
+
+    def _flush(self) -> None:
+        """Make the rows of :meth:`update_rows` added since the last call factors (one batch
+        per stream) of the graph and of the bookkeeping."""
+        for st in self._streams.values():
+            self._flush_one(st)
+
+    def _flush_one(self, st: _Stream) -> None:
+        if st.pending:
+            rows = st.pending
+            ks = np.asarray([self._row_k[r] for r in rows], dtype=np.int64)
+            part = BetweenFactor(st.var, st.ii[ks], st.jj[ks], element(st.var.group, st.Z[ks]),
+                                 SqrtInformation(st.L[ks]))
+            fid = len(self._factors)
+            self._factors.append(part)
+            self._fids[id(part)] = fid
+            self._rows.append(rows)
+            for k, r in enumerate(rows):
+                self._row_fid[r] = fid
+                self._row_k[r] = k
+            self._graph.add(part)
+            st.parts.append(part)
+            st.pending = []
+
+    def _step(self, rec: UpdateRecord, t0: float, ta: float, first: int, new_rows: list[int],
+              marked: list[np.ndarray]) -> UpdateRecord:
+        """The rest of an update once the new rows are in the tree: relinearise, linearise,
+        detach, order, eliminate, back-substitute; fill and keep ``rec``."""
+        rec.variables_added = len(self._key) - first
+        rec.factors_added = len(new_rows)
+        times = rec.times
+        relin: np.ndarray = _EMPTY
         if self._updates % self.relinearize_skip == 0 and self._size:
             relin = self._relinearize()
         rec.relinearized = int(relin.size)
-        redo = self._rows_touching(relin)
-        redo.update(new_rows)
+        new = np.arange(first, len(self._key), dtype=np.int64)
+        redo, touched = self._rows_of(new_rows, relin)
+        marked.append(new)
+        marked.append(touched)
+        marked.append(relin)
         self._linearize(redo)
         # a row's nodes are its first node and that node's ancestors: marking them all
         # detaches what marking the first would
-        rn = self._tree.rnodes
-        new_nodes = [rn[r] for r in new_rows]
-        marked.extend(rn[r] for r in redo)
-        marked.append(relin)
         tb = time.perf_counter()
         times["linearize"] = tb - ta
         top, orphans, pool = self._tree.detach(np.concatenate(marked))
         tc = time.perf_counter()
         times["detach"] = tc - tb
-        last = np.unique(np.concatenate([marked[0]] + new_nodes))
-        order = self._order(top, pool, orphans, last)
+        order = self._order(top, pool, orphans, [new, touched] if not relin.size else
+                            [new] + [self._tree.rnodes[r] for r in new_rows])
         td = time.perf_counter()
         times["order"] = td - tc
         self._eliminate(order, pool, orphans)
@@ -371,7 +544,7 @@ class IncrementalSmoother:
         (2,)
         """
         if variables is None:
-            vs = self.graph.variables
+            vs = self._graph.variables
             return Values(vs, [self._params(v, np.arange(v.n)) for v in vs])
         self._check_handle(variables, "variables")
         one = self._one(variables, idx)
@@ -428,7 +601,7 @@ class IncrementalSmoother:
         order = np.argsort(t.pos[:t.n], kind="stable").astype(np.int64)
         dx = self._dx.copy()
         t.backsubstitute(order, np.zeros(0, dtype=np.int64), dx, 0.0)
-        vs = self.graph.variables
+        vs = self._graph.variables
         return Values(vs, [self._params(v, np.arange(v.n), dx) for v in vs])
 
     def _params(self, var: Variables, ix: np.ndarray, dx: np.ndarray | None = None
@@ -465,7 +638,7 @@ class IncrementalSmoother:
         [[0.0, 0.0, 0.0]]
         """
         self._sync()
-        vs = self.graph.variables
+        vs = self._graph.variables
         return Values(vs, [np.where(seen[:, None], lin, v.initial)
                            for v, lin, seen in zip(vs, self._lin, self._seen, strict=True)])
 
@@ -579,33 +752,34 @@ class IncrementalSmoother:
         True
         """
         self._sync()
-        saved = [v.fixed.copy() for v in self.graph.variables]
+        graph = self.graph  # with the rows of update_rows as factors
+        saved = [v.fixed.copy() for v in graph.variables]
         try:  # elements that have not entered are not part of the accumulated graph
-            for v, seen in zip(self.graph.variables, self._seen, strict=True):
+            for v, seen in zip(self._graph.variables, self._seen, strict=True):
                 v.fixed = v.fixed | ~seen
-            res = self.graph.optimize(self.calculate_estimate(), **options)
+            res = graph.optimize(self.calculate_estimate(), **options)
         finally:
-            for v, fx in zip(self.graph.variables, saved, strict=True):
+            for v, fx in zip(self._graph.variables, saved, strict=True):
                 v.fixed = fx
-        for v in self.graph.variables:
+        for v in self._graph.variables:
             self._lin[v.key] = np.asarray(res.values.params(v), dtype=np.float64).copy()
         self._dx[:] = 0.0
         self._linearize({r for rs in self._rows for r in rs})
         top, orphans, pool = self._tree.detach(np.arange(len(self._key), dtype=np.int64))
-        order = self._order(top, pool, orphans, np.zeros(0, dtype=np.int64))
+        order = self._order(top, pool, orphans, [])
         self._eliminate(order, pool, orphans)
         self._tree.backsubstitute(order, orphans, self._dx, self.wildfire)
         return res
 
     # ------------------------------------------------------------------ internals
     def _check_handle(self, var: Any, what: str) -> None:
-        if not isinstance(var, Variables) or var.graph is not self.graph:
+        if not isinstance(var, Variables) or var.graph is not self._graph:
             raise ValueError(f"{what}: expected a Variables handle of this smoother "
                              f"(IncrementalSmoother.add_variables), got {var!r}")
 
     def _sync(self) -> None:
         """Register the handles added to the graph since the last call."""
-        for v in self.graph.variables[len(self._seen):]:
+        for v in self._graph.variables[len(self._seen):]:
             self._lin.append(np.asarray(v.initial, dtype=np.float64).copy())
             self._node_of.append(np.full(v.n, -1, dtype=np.int64))
             self._seen.append(np.zeros(v.n, dtype=bool))
@@ -619,17 +793,28 @@ class IncrementalSmoother:
         for what, val in new_values.items():
             var, idx = what if isinstance(what, tuple) else (what, None)
             self._check_handle(var, "new_values")
-            if type(idx) is int and -var.n <= idx < var.n:  # one element: no validation pass
-                ix = np.array([idx % var.n])
-            else:
-                ix = np.arange(var.n) if idx is None else var.indices(idx, "new_values index")
+            row = var.initial.shape[1:]
+            if type(idx) is int and -var.n <= idx < var.n:  # one element: no NumPy pass
+                i = idx % var.n
+                if self._seen[var.key][i]:
+                    raise ValueError(f"new_values: {var.name}[{i}] has already entered; its "
+                                     f"value is the estimate's")
+                p = np.asarray(var.params_of(val), dtype=np.float64)
+                if p.size != var.initial[i].size:
+                    raise ValueError(f"new_values: {var.name} takes values of shape "
+                                     f"{(1,) + row}, got {p.shape}")
+                var.initial[i] = p.reshape(row)
+                self._enter_one(var, i)
+                continue
+            ix = np.arange(var.n) if idx is None else var.indices(idx, "new_values index")
             if self._seen[var.key][ix].any():
                 bad = int(ix[np.flatnonzero(self._seen[var.key][ix])[0]])
                 raise ValueError(f"new_values: {var.name}[{bad}] has already entered; its "
                                  f"value is the estimate's")
             p = np.asarray(var.params_of(val), dtype=np.float64)
-            shape = (ix.size,) + var.initial.shape[1:]
-            if p.reshape((-1,) + var.initial.shape[1:]).shape != shape:
+            shape = (ix.size,) + row
+            if p.size % max(1, var.initial[0].size) or \
+                    p.reshape((-1,) + row).shape != shape:
                 raise ValueError(f"new_values: {var.name} takes values of shape {shape}, "
                                  f"got {p.shape}")
             var.initial[ix] = p.reshape(shape)
@@ -638,30 +823,49 @@ class IncrementalSmoother:
     def _enter(self, var: Variables, idx: np.ndarray) -> None:
         """Make elements ``idx`` of ``var`` enter (once): a node each unless fixed."""
         seen = self._seen[var.key]
-        if idx.size == 1:
-            if seen[idx[0]]:
-                return
-            new = idx
-        else:
-            new = np.unique(idx[~seen[idx]])
-            if new.size == 0:
-                return
+        if idx.size <= 8:  # Python ints: cheaper than NumPy calls on a few elements
+            fresh = sorted({i for i in idx.tolist() if not seen[i]})
+            held = var.held
+            for i in fresh:  # all checked before any enters
+                if held[i].any() and not held[i].all():
+                    self._enter_one(var, i)  # raises
+            for i in fresh:
+                self._enter_one(var, i, False)
+            return
+        new = np.unique(idx[~seen[idx]])
+        if new.size == 0:
+            return
         part = var.held[new].any(1) & ~var.held[new].all(1)
         if part.any():
-            raise ValueError(f"{var.name}[{int(new[np.flatnonzero(part)[0]])}]: held components "
-                             f"are not supported by IncrementalSmoother; fix whole variables "
-                             f"instead")
-        seen[new] = True
-        self._lin[var.key][new] = var.initial[new]
-        nodes = self._node_of[var.key]
-        for i in new[~var.fixed[new]]:
-            nodes[i] = len(self._key)
-            self._key.append(var.key)
-            self._idx.append(int(i))
-            j = self._tree.add_node(var.dof, self._size)
-            self._tree.pos[j] = self._next_pos
-            self._next_pos += 1
-            self._size += var.dof
+            self._enter_one(var, int(new[np.flatnonzero(part)[0]]))  # raises
+        for i in new.tolist():
+            self._enter_one(var, i, False)
+
+    def _enter_one(self, var: Variables, i: int, check: bool = True) -> None:
+        """Make element ``i`` of ``var`` enter (not entered yet): a node unless fixed."""
+        if check:
+            h = var.held[i]
+            if h.any() and not h.all():
+                raise ValueError(f"{var.name}[{i}]: held components are not supported by "
+                                 f"IncrementalSmoother; fix whole variables instead")
+        self._seen[var.key][i] = True
+        self._lin[var.key][i] = var.initial[i]
+        if var.fixed[i]:
+            return
+        self._node_of[var.key][i] = len(self._key)
+        self._key.append(var.key)
+        self._idx.append(i)
+        tree = self._tree
+        j = tree.add_node(var.dof, self._size)
+        tree.pos[j] = self._next_pos
+        self._next_pos += 1
+        self._size += var.dof
+        if self._size > self._dx.size:  # the step: a view of a buffer grown by doubling
+            if self._size > self._dxbuf.size:
+                buf = np.zeros(max(self._size, 2 * self._dxbuf.size))
+                buf[:self._dx.size] = self._dx
+                self._dxbuf = buf
+            self._dx = self._dxbuf[:self._size]
 
     def _add_factor(self, f: Factor) -> list[int]:
         fid = len(self._factors)
@@ -682,6 +886,10 @@ class IncrementalSmoother:
         return rows
 
     def _remove(self, f: Factor, marked: list[np.ndarray]) -> int:
+        st = self._streams.pop(id(f), None)
+        if st is not None:  # every row given by update_rows, now factors of their own
+            self._flush_one(st)
+            return sum(self._remove(part, marked) for part in st.parts)
         fid = self._fids.pop(id(f), None)
         if fid is None:
             raise ValueError(f"remove: {getattr(f, 'name', f)!r} is not a factor of this "
@@ -692,7 +900,7 @@ class IncrementalSmoother:
             self._tree.remove_row(r)
         self._factors[fid] = None
         self._rows[fid] = []
-        self.graph.remove(f)
+        self._graph.remove(f)
         return len(rows)
 
     def _relinearize(self) -> np.ndarray:
@@ -702,40 +910,51 @@ class IncrementalSmoother:
         nodes = np.flatnonzero(big > self.relinearize_threshold)
         if nodes.size == 0:
             return nodes
-        keys = np.asarray(self._key)[nodes]
-        for key in np.unique(keys):
-            sel = nodes[keys == key]
-            var = self.graph.variables[key]
-            ix = np.asarray(self._idx)[sel]
+        nl = nodes.tolist()  # O(relinearised), not O(nodes)
+        keys = np.array([self._key[q] for q in nl], dtype=np.int64)
+        idx = np.array([self._idx[q] for q in nl], dtype=np.int64)
+        for key in np.unique(keys).tolist():
+            one = keys == key
+            sel = nodes[one]
+            var = self._graph.variables[key]
+            ix = idx[one]
             cols = off[sel][:, None] + np.arange(var.dof)
             self._lin[key][ix] = var.retract(self._lin[key][ix], self._dx[cols])
             self._dx[cols] = 0.0
         return nodes
 
-    def _rows_touching(self, nodes: np.ndarray) -> set[int]:
-        out: set[int] = set()
-        nr = self._tree.node_rows
-        for n in nodes.tolist():
-            out.update(nr[n])
-        return out
-
-    def _linearize(self, rows: set[int]) -> None:
-        """Linearise ``rows`` at the linearisation points: the pose-graph edges in one
-        compiled call (:class:`EdgeRows`), the others one evaluation per factor batch."""
+    def _rows_of(self, new_rows: list[int], relin: np.ndarray) -> tuple[list[int], np.ndarray]:
+        """The rows to linearise: ``new_rows`` and every row of the nodes ``relin``, distinct
+        (first-seen order), and the concatenation of their nodes."""
         tree = self._tree
+        if self._c is not None:
+            if len(tree.rnodes) > self._rmark.size:
+                self._rmark = np.zeros(max(len(tree.rnodes), 2 * self._rmark.size),
+                                       dtype=np.int64)
+            rows, touched = self._c.rows_of(np.asarray(new_rows, dtype=np.int64), relin,
+                                            tree.node_rows, tree.rnodes, self._rmark)
+            return rows.tolist(), touched
+        redo = dict.fromkeys(new_rows)
+        for n in relin.tolist():
+            redo.update(dict.fromkeys(tree.node_rows[n]))
+        out = list(redo)
+        rn = tree.rnodes
+        return out, (np.concatenate([rn[r] for r in out]) if out else _EMPTY)
+
+    def _linearize(self, rows: Iterable[int]) -> None:
+        """Linearise ``rows`` (distinct) at the linearisation points: the pose-graph edges in
+        one compiled call (:class:`EdgeRows`), the others one evaluation per factor batch."""
+        tree = self._tree
+        rest: Iterable[int] = rows
         if rows:
-            done, Hs, bs = self._edges.linearize(np.fromiter(rows, np.int64, len(rows)),
-                                                 self._lin)
-            if done.size:
-                rH, rb = tree.rH, tree.rb
-                dl = done.tolist()
-                for r, H, b in zip(dl, Hs, bs, strict=True):
-                    rH[r] = H
-                    rb[r] = b
-                rows = rows.difference(dl)
+            rl = rows if type(rows) is list else list(rows)
+            left = self._edges.linearize(rl, self._lin, tree.rH, tree.rb)
+            if not left:
+                return
+            rest = [rl[q] for q in left]
         by: dict[int, list[int]] = {}
         fids = self._row_fid
-        for r in rows:
+        for r in rest:
             by.setdefault(fids[r], []).append(r)
         for fid, rs in by.items():
             f = self._factors[fid]
@@ -781,34 +1000,44 @@ class IncrementalSmoother:
                 tree.rb[row] = -(Ak.T @ e[k])
 
     def _order(self, top: np.ndarray, pool: np.ndarray, orphans: np.ndarray,
-               last: np.ndarray) -> np.ndarray:
-        """Order ``top``: approximate minimum degree on the others, then ``last`` (the
-        variables of the new factors and the new variables, in arrival order); set the
+               last: list[np.ndarray]) -> np.ndarray:
+        """Order ``top``: approximate minimum degree on the others, then the nodes of
+        ``last`` (the new variables and those of the new factors, in arrival order); set the
         positions."""
         tree = self._tree
         pos = tree.pos
-        flag = tree.mark  # scratch, 0 between calls
-        flag[last] = 1
-        is_last = flag[top] == 1
-        flag[last] = 0
-        tail = top[is_last]
-        tail = tail[np.argsort(pos[tail], kind="stable")]
-        head = top[~is_last]
-        head = head[np.argsort(pos[head], kind="stable")]
-        nb = head.size
+        n = int(top.size)
+        start = self._next_pos
+        self._next_pos += n
+        if self._c is not None:
+            order, nb = self._c.split_order(top, last, pos, tree.mark, start)
+        else:
+            flag = tree.mark  # scratch, 0 between calls
+            for a in last:
+                flag[a] = 1
+            is_last = flag[top] == 1
+            for a in last:
+                flag[a] = 0
+            tail = top[is_last]
+            tail = tail[np.argsort(pos[tail], kind="stable")]
+            head = top[~is_last]
+            head = head[np.argsort(pos[head], kind="stable")]
+            nb = head.size
+            order = np.concatenate([head, tail]).astype(np.int64, copy=False)
+            pos[order] = np.arange(start, start + n)
         if nb > 2:
+            head = order[:nb]
             indptr, indices = tree.adjacency(pool, orphans, head)
-            head = head[np.asarray(minimum_degree_blocks(indptr, indices, nb), dtype=np.int64)]
-        order = np.concatenate([head, tail]).astype(np.int64)
-        pos[order] = self._next_pos + np.arange(order.size)
-        self._next_pos += int(order.size)
+            order[:nb] = head[np.asarray(minimum_degree_blocks(indptr, indices, nb),
+                                         dtype=np.int64)]
+            pos[order[:nb]] = np.arange(start, start + nb)
         return order
 
     def _eliminate(self, order: np.ndarray, pool: np.ndarray, orphans: np.ndarray) -> None:
         try:
             self._tree.eliminate(order, pool, orphans)
         except NotDetermined as e:
-            var = self.graph.variables[self._key[e.node]]
+            var = self._graph.variables[self._key[e.node]]
             raise ValueError(f"{var.name}[{self._idx[e.node]}] is not determined by the factors "
                              f"(no prior or fixed variable anchors it, or a direction is "
                              f"unobserved): add a prior or fix a variable") from None

@@ -126,7 +126,6 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
     ii, jj = graph.edge_index()
     _, edges, odometry = replay_schedule(graph)
     Zs = graph.measurements
-    Zp = np.asarray(Zs.params)
     group = graph.group
     info = graph.information
     file_poses = graph.poses
@@ -138,28 +137,41 @@ def replay_pose_graph(graph: PoseGraph, smoother: IncrementalSmoother | None = N
                              f"to start it from")
         file_poses = graph.group.identity(V)
     x = s.add_variables(file_poses, name="poses")
-    times = np.empty(n)
     t_start = time.perf_counter()
+    # every edge of the file in one batch, its rows given to the smoother as they arrive
+    batch = BetweenFactor(x, ii, jj, Zs, Information(info))
+    # the relative pose that predicts vertex k from k - 1 (its odometry edge, or its inverse)
+    has = odometry[:n] >= 0
+    o = odometry[:n][has]
+    Zo = Zs[o]
+    flip = ii[o] != np.flatnonzero(has) - 1
+    rel = np.array(np.asarray(Zo.params), copy=True)
+    if flip.any():
+        rel[flip] = np.asarray(Zo[flip].inverse().params)
+    step: list[Any] = [None] * n  # single elements: the one-element group operations
+    for q, k in enumerate(np.flatnonzero(has).tolist()):
+        step[k] = element(group, rel[q])
+    times = np.empty(n)
+    t_prev = time.perf_counter()
     for k in range(n):
-        t0 = time.perf_counter()
         if k == 0:
-            factors: list[Any] = [PriorFactor(x, 0, file_poses[0:1],
-                                              Isotropic(graph.group.dof, prior_sigma))]
-            guess = None
+            s.update([PriorFactor(x, 0, file_poses[0:1], Isotropic(group.dof, prior_sigma))],
+                     {(x, 0): file_poses[0:1]})
         else:
+            Zk = step[k]
+            guess = element(group, s.calculate_estimate(x, k - 1).params[0]) @ Zk \
+                if Zk is not None else file_poses[k:k + 1]
             e = edges[k]
-            factors = [BetweenFactor(x, ii[e], jj[e], Zs[e], Information(info[e]))] \
-                if e.size else []
-            o = int(odometry[k])
-            guess = None
-            if o >= 0:  # single elements: the one-element group operations
-                prev = element(group, s.calculate_estimate(x, k - 1).params[0])
-                Zo = element(group, Zp[o])
-                guess = prev @ Zo if ii[o] == k - 1 else prev @ Zo.inverse()
-        s.update(factors, {(x, k): guess} if guess is not None else {(x, k): file_poses[k:k + 1]})
-        times[k] = time.perf_counter() - t0
+            if e.size:
+                s.update_rows(batch, e, {(x, k): guess})
+            else:
+                s.update((), {(x, k): guess})
+        t = time.perf_counter()
+        times[k] = t - t_prev
         if callback is not None:
             callback(k, s)
+            t = time.perf_counter()
+        t_prev = t
     X = s.calculate_best_estimate()[x][:n]  # the complete step (GTSAM's calculateBestEstimate)
     total = time.perf_counter() - t_start
     sub = graph if n == V else _prefix(graph, n)
