@@ -447,9 +447,9 @@ def microlie_device(kind: str, prob: Any, device: str, backend: str, compiled: b
                   "obs": put(prob.uv)},)
         x0 = problem.initial()
         n = prob.iterations
-        opts = LMOptions(max_iter=n, max_tries=n, rel_tol=0.0, abs_tol=0.0, linear="pcg",
+        opts = LMOptions(max_iter=n, max_tries=n, rel_tol=0.0, abs_tol=0.0, linear="schur",
                          loop="fixed" if compiled else "auto")
-        how = f"LM (GTSAM rules), Schur + block-Jacobi PCG, {n} tries"
+        how = f"LM (GTSAM rules), Schur + dense Cholesky of the reduced camera system, {n} tries"
     else:
         g, th_b, x0_b = _device_template(kind, prob)
         problem = DeviceProblem.from_graph(g, backend=backend, dtype="float64", device=dev)
