@@ -44,8 +44,8 @@ __all__ = ["consistent_edges", "mark_consistent"]
 
 
 def consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
-                     info: np.ndarray, *, max_length: int = 6, quantile: float = 0.99,
-                     max_visits: int = 4000) -> np.ndarray:
+                     info: np.ndarray, *, max_length: int = 5, quantile: float = 0.99,
+                     chunk: int = 256) -> np.ndarray:
     """Edges that lie on a short cycle that closes within its noise (module docstring).
 
     Parameters
@@ -60,13 +60,12 @@ def consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieG
         ``(E,)`` measurements.
     info : numpy.ndarray
         ``(E, D, D)`` information matrices (positive definite, the group's tangent order).
-    max_length : int
-        Longest cycle tried, in edges (>= 3).
+    max_length : {3, 4, 5}
+        Longest cycle tried, in edges.
     quantile : float
         Chi-square quantile of the cycle test, ``0 < quantile < 1``.
-    max_visits : int
-        Vertices visited at most by the search of one edge (bounds the time on dense
-        graphs), >= 1.
+    chunk : int
+        Edges tested together (bounds the memory), >= 1.
 
     Returns
     -------
@@ -86,88 +85,81 @@ def consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieG
 
     if group not in (SE2, SE3):
         raise ValueError(f"consistent_edges: group must be SE2 or SE3, got {group!r}")
-    if isinstance(max_length, bool) or not isinstance(max_length, (int, np.integer)) or \
-            max_length < 3:
-        raise ValueError(f"consistent_edges: max_length must be an integer >= 3, got "
-                         f"{max_length!r}")
+    if max_length not in (3, 4, 5) or isinstance(max_length, bool):
+        raise ValueError(f"consistent_edges: max_length must be 3, 4 or 5, got {max_length!r}")
     if not 0.0 < quantile < 1.0:
         raise ValueError(f"consistent_edges: quantile must be strictly between 0 and 1, got "
                          f"{quantile!r}")
-    if isinstance(max_visits, bool) or not isinstance(max_visits, (int, np.integer)) or \
-            max_visits < 1:
-        raise ValueError(f"consistent_edges: max_visits must be an integer >= 1, got "
-                         f"{max_visits!r}")
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"consistent_edges: chunk must be an integer >= 1, got {chunk!r}")
     ii = np.asarray(ii, dtype=np.int64)
     jj = np.asarray(jj, dtype=np.int64)
     E = ii.size
-    D = int(info.shape[-1])
-    M = np.asarray(Z.matrix(), dtype=np.float64)  # (E, d+1, d+1)
-    Minv = np.asarray(Z.inverse().matrix(), dtype=np.float64)
-    Ad = np.asarray(Z.adjoint(), dtype=np.float64)  # Ad(Z)
-    Adinv = np.asarray(Z.inverse().adjoint(), dtype=np.float64)  # Ad(Z^-1)
     cov = np.linalg.inv(info)
-    # walking edge e forwards (i -> j): step Z, covariance Sigma; backwards: Z^-1, Ad(Z) S Ad^T
-    step = np.concatenate([M, Minv])
-    step_cov = np.concatenate([cov, Ad @ cov @ np.swapaxes(Ad, 1, 2)])
-    step_adinv = np.concatenate([Adinv, Ad])  # Ad(step^-1)
-    heads = np.concatenate([jj, ii])
-    tails = np.concatenate([ii, jj])
-    order = np.argsort(tails, kind="stable")
-    start = np.searchsorted(tails[order], np.arange(n + 1))
-    out_nodes = heads[order].tolist()
-    out_steps = order.tolist()
-    start_l = start.tolist()
-    c2 = float(chi2.ppf(quantile, D))
-    # candidate cycles, tested together: (edge, composed pose i -> j, its covariance)
-    cand_e: list[int] = []
-    cand_T: list[np.ndarray] = []
-    cand_S: list[np.ndarray] = []
-    eye_T = np.eye(M.shape[-1])
-    zero_S = np.zeros((D, D))
-    for e in range(E):
-        i, j = int(ii[e]), int(jj[e])
-        if i == j:
-            continue
-        T = {i: eye_T}
-        S = {i: zero_S}
-        front = [i]
-        visits = 1
-        for length in range(1, max_length):
-            nxt = []
-            last = length == max_length - 1
-            for u in front:
-                for k in range(start_l[u], start_l[u + 1]):
-                    s = out_steps[k]
-                    if s % E == e:
-                        continue
-                    v = out_nodes[k]
-                    if v == j:  # a path into j closes a cycle of length + 1 edges
-                        cand_e.append(e)
-                        cand_T.append(T[u] @ step[s])
-                        A = step_adinv[s]
-                        cand_S.append(A @ S[u] @ A.T + step_cov[s])
-                        continue
-                    if last or v in T or visits >= max_visits:
-                        continue
-                    A = step_adinv[s]
-                    T[v] = T[u] @ step[s]
-                    S[v] = A @ S[u] @ A.T + step_cov[s]
-                    nxt.append(v)
-                    visits += 1
-            front = nxt
-            if not front:
-                break
+    # directed steps: s < E walks edge s forwards (Z, Sigma), s >= E backwards (Z^-1,
+    # Ad(Z) Sigma Ad(Z)^T); Ad(step^-1) transports a path's covariance past the step
+    M = np.asarray(Z.matrix(), dtype=np.float64)
+    Ad = np.asarray(Z.adjoint(), dtype=np.float64)
+    Adinv = np.asarray(Z.inverse().adjoint(), dtype=np.float64)
+    tail, head = np.concatenate([ii, jj]), np.concatenate([jj, ii])
+    edge = np.concatenate([np.arange(E), np.arange(E)])
+    T1 = np.concatenate([M, np.asarray(Z.inverse().matrix(), dtype=np.float64)])
+    S1 = np.concatenate([cov, Ad @ cov @ np.swapaxes(Ad, 1, 2)])
+    A1 = np.concatenate([Adinv, Ad])
+    # two-step paths a -> v -> b (b != a, two different edges)
+    order = np.argsort(tail, kind="stable")
+    first = np.searchsorted(tail[order], np.arange(n + 1))
+    cnt = first[head + 1] - first[head]
+    p1 = np.repeat(np.arange(2 * E), cnt)
+    p2 = order[np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) +
+               np.repeat(first[head], cnt)]
+    keep = (edge[p1] != edge[p2]) & (head[p2] != tail[p1])
+    p1, p2 = p1[keep], p2[keep]
+    # half-paths: one or two steps; first edge, last edge, pose, covariance, Ad(pose^-1)
+    h_tail = np.concatenate([tail, tail[p1]])
+    h_head = np.concatenate([head, head[p2]])
+    h_len = np.concatenate([np.ones(2 * E, np.int64), np.full(p1.size, 2)])
+    h_e1 = np.concatenate([edge, edge[p1]])
+    h_e2 = np.concatenate([edge, edge[p2]])
+    h_T = np.concatenate([T1, T1[p1] @ T1[p2]])
+    h_S = np.concatenate([S1, A1[p2] @ S1[p1] @ np.swapaxes(A1[p2], 1, 2) + S1[p2]])
+    h_A = np.concatenate([A1, A1[p2] @ A1[p1]])
+    by_tail = np.argsort(h_tail, kind="stable")
+    t_first = np.searchsorted(h_tail[by_tail], np.arange(n + 1))
+    key = h_tail * n + h_head
+    by_key = np.argsort(key, kind="stable")
+    skey = key[by_key]
+    c2 = float(chi2.ppf(quantile, info.shape[-1]))
     ok = np.zeros(E, dtype=bool)
-    if not cand_e:
-        return ok
-    ce = np.asarray(cand_e)
-    err = Z[ce].inverse().compose(group.from_matrix(np.stack(cand_T)))  # type: ignore[call-overload]
-    r = np.asarray(err.log(), dtype=np.float64)
-    Sig = np.stack(cand_S) + cov[ce]
-    s2 = np.einsum("ca,ca->c", r, np.linalg.solve(Sig, r[:, :, None])[:, :, 0])
-    ok[ce[s2 <= c2]] = True
+    for lo in range(0, E, chunk):
+        es = np.arange(lo, min(E, lo + chunk))
+        # A: half-paths from i; B: half-paths from A's end to j
+        na = t_first[ii[es] + 1] - t_first[ii[es]]
+        ea = np.repeat(es, na)
+        a = by_tail[np.arange(na.sum()) - np.repeat(np.cumsum(na) - na, na) +
+                    np.repeat(t_first[ii[es]], na)]
+        use = (h_e1[a] != ea) & (h_e2[a] != ea) & (h_head[a] != jj[ea])
+        ea, a = ea[use], a[use]
+        q = h_head[a] * n + jj[ea]
+        b_lo = np.searchsorted(skey, q, "left")
+        nb = np.searchsorted(skey, q, "right") - b_lo
+        ec = np.repeat(ea, nb)
+        ac = np.repeat(a, nb)
+        bc = by_key[np.arange(nb.sum()) - np.repeat(np.cumsum(nb) - nb, nb) +
+                    np.repeat(b_lo, nb)]
+        use = (h_len[ac] >= h_len[bc]) & (h_len[ac] + h_len[bc] < max_length) & \
+            (h_e1[bc] != ec) & (h_e2[bc] != ec) & (h_e1[bc] != h_e2[ac]) & \
+            (h_e2[bc] != h_e1[ac]) & (h_e2[bc] != h_e2[ac])  # no edge walked twice
+        ec, ac, bc = ec[use], ac[use], bc[use]
+        if not ec.size:
+            continue
+        T = h_T[ac] @ h_T[bc]
+        S = h_A[bc] @ h_S[ac] @ np.swapaxes(h_A[bc], 1, 2) + h_S[bc] + cov[ec]
+        r = np.asarray(Z[ec].inverse().compose(group.from_matrix(T)).log(),  # type: ignore[call-overload]
+                       dtype=np.float64)
+        s2 = np.einsum("ca,ca->c", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
+        ok[ec[s2 <= c2]] = True
     return ok
-
 
 
 def mark_consistent(edges: Any, known: list[np.ndarray], quantile: float) -> list[np.ndarray]:
@@ -191,13 +183,13 @@ def mark_consistent(edges: Any, known: list[np.ndarray], quantile: float) -> lis
     --------
     >>> import numpy as np
     >>> from microlie import SE2
-    >>> from microlie.optim import FactorGraph, BetweenFactor
+    >>> from microlie.optim import FactorGraph, BetweenFactor, Isotropic
     >>> from microlie.optim.core.gnc_chordal import pose_graph_edges
     >>> from microlie.optim.core.gnc_cycles import mark_consistent
     >>> g = FactorGraph()
     >>> x = g.add_variables(SE2.identity(3), fixed=[0])
     >>> Z = SE2.from_xy_theta([1.0, 1.0, 2.0, 5.0], [0.0, 0.0, 0.0, 5.0], [0.0, 0.0, 0.0, 2.0])
-    >>> f = g.add(BetweenFactor(x, [0, 1, 0, 0], [1, 2, 2, 2], Z))
+    >>> f = g.add(BetweenFactor(x, [0, 1, 0, 0], [1, 2, 2, 2], Z, Isotropic(3, 0.1)))
     >>> [m.tolist() for m in mark_consistent(pose_graph_edges(g.problem()),
     ...                                      [np.zeros(4, bool)], 0.99)]
     [[True, True, True, False]]
