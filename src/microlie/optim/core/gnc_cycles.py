@@ -114,6 +114,8 @@ def consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieG
     p2 = order[np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) +
                np.repeat(first[head], cnt)]
     keep = (edge[p1] != edge[p2]) & (head[p2] != tail[p1])
+    if max_length == 3:  # triangles: one-step half-paths only
+        keep[:] = False
     p1, p2 = p1[keep], p2[keep]
     # half-paths: one or two steps; first edge, last edge, pose, covariance, Ad(pose^-1)
     h_tail = np.concatenate([tail, tail[p1]])
