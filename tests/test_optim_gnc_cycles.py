@@ -23,9 +23,10 @@ from microlie.optim.core.gnc_cycles import consistent_edges
 
 def _grid_graph(G, rows=4, cols=8, frac_bad=0.3, seed=0, sigma=0.01):
     """A snake through a rows x cols grid (odometry) with loop closures between vertically
-    and diagonally adjacent cells; ``frac_bad`` of the loop closures replaced by wild measurements between
-    random vertices, drawn again until no inlier is a bridge of the inlier graph (an inlier
-    that is the only one across a cut is indistinguishable from a wrong edge across it).
+    and diagonally adjacent cells; ``frac_bad`` of the loop closures replaced by wild
+    measurements between random vertices, drawn again until no inlier is a bridge of the
+    inlier graph (an inlier that is the only one across a cut is indistinguishable from a
+    wrong edge across it).
     Returns (i, j, Z, outlier mask, n)."""
     rng = np.random.default_rng(seed)
     n = rows * cols
