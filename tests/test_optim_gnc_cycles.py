@@ -4,7 +4,10 @@ The cycle test is checked against its closed form on a triangle of pure rotation
 composed covariance is then the sum of the three, so the chi-square boundary is known); GNC
 with ``first="cycles"`` and no known inliers on grid-like SE2/SE3 pose graphs with 30-50% of
 the loop closures replaced by wild measurements: every wrong loop closure found, the answer
-the least-squares optimum of a graph built without them.
+the least-squares optimum of a graph built without them. Over seeds 0-9 of these graphs
+(quantile 0.9999) ``first="cycles"`` finds the outliers exactly in 10, 8, 10, 7 of 10 cases
+(SE2 30%, SE2 50%, SE3 30%, SE3 50%; ``"chordal"``: 8, 3, 4, 0; ``"values"`` from the
+identity: 10, 4, 10, 8); the misses reject an odometry edge and accept a wrong closure.
 """
 
 from __future__ import annotations
@@ -144,3 +147,31 @@ def test_cycles_first_without_known_inliers(G, frac_bad, seed):
     ref = g2.optimize(rel_tol=1e-12, abs_tol=1e-14).values[x2]
     err = np.abs(np.asarray(res.values[x].matrix()) - np.asarray(ref.matrix())).max()
     assert err < 1e-6
+
+
+def test_command_gnc_first_cycles(tmp_path):
+    # `microlie optimize --robust gnc-tls --gnc-first cycles` reports the planted outliers
+    import argparse
+    import io
+    import json
+
+    from microlie.optim.command import register, run
+
+    ii, jj, Z, out, n = _grid_graph(SE2, frac_bad=0.5, seed=3)
+    g, x, _ = _graph(SE2, ii, jj, Z, n)
+    X0 = g.optimize().values[x]  # any start: the chordal stage does not use it
+    p, z = np.asarray(X0.params).tolist(), np.asarray(Z.params).tolist()
+    th = np.arctan2(np.asarray(X0.params)[:, 3], np.asarray(X0.params)[:, 2]).tolist()
+    tz = np.arctan2(np.asarray(Z.params)[:, 3], np.asarray(Z.params)[:, 2]).tolist()
+    lines = [f"VERTEX_SE2 {k} {p[k][0]!r} {p[k][1]!r} {th[k]!r}" for k in range(n)]
+    lines += [f"EDGE_SE2 {a} {b} {z[e][0]!r} {z[e][1]!r} {tz[e]!r} 10000 0 0 10000 0 10000"
+              for e, (a, b) in enumerate(zip(ii, jj, strict=True))]
+    path = tmp_path / "grid.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    parser = argparse.ArgumentParser(prog="microlie")
+    register(parser.add_subparsers())
+    buf = io.StringIO()
+    args = parser.parse_args(["optimize", str(path), "--robust", "gnc-tls", "--gnc-first",
+                              "cycles", "--gnc-quantile", "0.9999", "--json"])
+    assert run(args, buf, io.StringIO()) == 0
+    assert json.loads(buf.getvalue())["gnc"]["outlier_edges"] == np.flatnonzero(out).tolist()
