@@ -522,6 +522,13 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                     break
                 prev = cost
                 mu = mu * gnc.mu_step if gnc.surrogate == "tls" else max(1.0, mu / gnc.mu_step)
+        if edges is not None and gnc.first == "cycles" and runs:
+            from .gnc_bridges import repair_stage
+
+            moved = repair_stage(cur, edges, known, weights, c2)
+            if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
+                cur = inner(moved)
+                s = squared_norms(problem, cur)
         if not runs:  # least squares is the answer: every weight 1
             cur = inner(cur)
             s = squared_norms(problem, cur)
