@@ -103,7 +103,9 @@ class GNC:
         ``"values"`` (the relaxation is not the maximum-likelihood estimate).
         ``"cycles"``: as ``"chordal"``, with every edge that closes a short cycle within its
         noise (:func:`~microlie.optim.core.gnc_cycles.consistent_edges`) added to the known
-        inliers first (for graphs without known odometry; see that module).
+        inliers first, and after GNC the pieces held by one accepted edge moved where most
+        edges across it agree (:func:`~microlie.optim.core.gnc_bridges.repair_bridges`),
+        then the inliers solved once more (for graphs without known odometry).
 
     Examples
     --------
