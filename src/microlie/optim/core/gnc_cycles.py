@@ -12,14 +12,17 @@ compose, from ``i`` to ``j``, to a pose ``T`` with
 
 ``Sigma_path`` the first-order covariance of the composed path (right perturbations: along a
 path ``T_v = T_u Z_uv``, ``Sigma_v = Ad(Z_uv^-1) Sigma_u Ad(Z_uv^-1)^T + Sigma_uv``; an edge
-walked backwards contributes ``Z^-1`` with covariance ``Ad(Z) Sigma Ad(Z)^T``). The paths are
-those of a breadth-first search from ``i`` that does not use ``e`` (one path per vertex, the
-first found, and every last step into ``j``), so a consistent cycle can be missed (the edge is
-then simply not marked) but a marked edge has closed a cycle: with random wrong edges a false
-mark needs a path whose composition agrees with the wrong measurement within its noise.
+walked backwards contributes ``Z^-1`` with covariance ``Ad(Z) Sigma Ad(Z)^T``). Every path
+from ``i`` to ``j`` of up to four steps that walks no edge twice and not ``e`` is tried (two
+half-paths of one or two steps joined at a common vertex; cycles of 3-5 edges), vectorised
+in chunks of edges. A marked edge has closed a cycle: with random wrong edges a false mark
+needs a path whose composition agrees with the wrong measurement within its noise; an edge on
+no short cycle (a long chain, or cycles broken by wrong edges) is simply not marked.
 :func:`~microlie.optim.core.gnc.gnc_solve` with ``GNC(first="cycles")`` takes the marked edges
 as known inliers of the chordal GNC stage (:mod:`microlie.optim.core.gnc_chordal`) and of the
-nonlinear GNC after it.
+nonlinear GNC after it. Measured in ``benchmarks/results/robust-s11.md`` (0 wrong edges marked
+on M3500 and sphere2500 with 30% random loop closures; about half of M3500's inliers and 79%
+of sphere2500's marked).
 
 Examples
 --------
