@@ -184,7 +184,7 @@ def main(argv: list[str] | None = None) -> None:
                     choices=["none", "odometry"], help="runs without / with known inliers")
     ap.add_argument("--quantile", type=float, default=0.99,
                     help="chi-square quantile of the inlier threshold (GNC and GTSAM)")
-    ap.add_argument("--first", default="chordal", choices=["chordal", "values",
+    ap.add_argument("--first", default="chordal", choices=["chordal", "cycles", "values",
                                                            "least-squares"],
                     help="GNC(first=...): where the first weights come from")
     ap.add_argument("--gtsam-cases", nargs="*", default=[],

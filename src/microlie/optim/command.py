@@ -4,7 +4,7 @@
 
     microlie optimize (IN.g2o | --example) [-o OUT.g2o] [--solver lm|gn|dogleg|trust-region]
                      [--robust huber:1.0|gnc-tls|gnc-gm] [--known-inliers odometry]
-                     [--gnc-quantile P] [--gnc-first values|least-squares|chordal]
+                     [--gnc-quantile P] [--gnc-first values|least-squares|chordal|cycles]
                      [--init auto|file|odometry|chordal|certified]
                      [--certify]
                      [--linear-solver auto|cholesky|schur|...]
@@ -54,7 +54,8 @@ prints the reason on stderr, writes no ``-o`` file and exits with status 1.
 (:mod:`microlie.optim.core.gnc`) instead of a loss: the gauge prior and, with
 ``--known-inliers odometry``, the edges between consecutive vertex ids keep weight 1, the inlier
 threshold is the ``--gnc-quantile`` (default 0.99) chi-square quantile, ``--gnc-first chordal``
-runs GNC-TLS on the chordal relaxation first (see ``GNC(first=...)``), and the report lists the
+runs GNC-TLS on the chordal relaxation first (``cycles``: with the edges that close a short
+cycle within their noise kept as inliers; see ``GNC(first=...)``), and the report lists the
 edges judged outliers (``gnc.outlier_edges``, in file order).
 
 Formats come from the registry :data:`microlie.optim.io.formats.FORMATS`: its handler is called
@@ -145,10 +146,11 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="with --robust gnc-*: the chi-square quantile of the inlier threshold "
                         "(default 0.99; lower it when the file's information overstates the "
                         "noise)")
-    p.add_argument("--gnc-first", choices=("values", "least-squares", "chordal"),
+    p.add_argument("--gnc-first", choices=("values", "least-squares", "chordal", "cycles"),
                    default=None,
                    help="with --robust gnc-*: where GNC's first weights come from (default "
-                        "values; chordal: GNC-TLS on the chordal relaxation first, see "
+                        "values; chordal: GNC-TLS on the chordal relaxation first; cycles: "
+                        "chordal with the edges on consistent short cycles kept, see "
                         "microlie.optim.core.gnc.GNC)")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, chordal, or "

@@ -61,7 +61,7 @@ __all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initia
            "inlier_thresholds", "squared_norms", "gnc_solve"]
 
 SURROGATES = ("tls", "gm")
-FIRST = ("values", "least-squares", "chordal")
+FIRST = ("values", "least-squares", "chordal", "cycles")
 
 
 class GNC:
@@ -101,6 +101,11 @@ class GNC:
         loop closures in most cases where ``"values"`` ends 0.5-47 m off; on small graphs
         with calibrated information and no known inliers it misjudges more edges than
         ``"values"`` (the relaxation is not the maximum-likelihood estimate).
+        ``"cycles"``: as ``"chordal"``, with every edge that closes a short cycle within its
+        noise (:func:`~microlie.optim.core.gnc_cycles.consistent_edges`) added to the known
+        inliers first, and after GNC the pieces held by one accepted edge moved where most
+        edges across it agree (:func:`~microlie.optim.core.gnc_bridges.repair_bridges`),
+        then the inliers solved once more (for graphs without known odometry).
 
     Examples
     --------
@@ -428,17 +433,21 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
     known = gnc.known_masks(factors)
     c2 = inlier_thresholds(factors, gnc.quantile)
     edges = None
-    if gnc.first == "chordal" and gnc.surrogate != "tls":
-        raise ValueError("GNC first='chordal' is a TLS stage; use surrogate='tls' or another "
-                         "first")
-    if gnc.first == "chordal":
+    if gnc.first in ("chordal", "cycles") and gnc.surrogate != "tls":
+        raise ValueError(f"GNC first={gnc.first!r} is a TLS stage; use surrogate='tls' or "
+                         f"another first")
+    if gnc.first in ("chordal", "cycles"):
         from .gnc_chordal import pose_graph_edges
 
         edges = pose_graph_edges(problem)
         if edges is None:
-            raise ValueError("GNC first='chordal' needs a pose graph: one SE2 or SE3 variable "
-                             "batch with only BetweenFactor and PriorFactor batches and a "
-                             "fixed vertex or a prior; use first='values'")
+            raise ValueError(f"GNC first={gnc.first!r} needs a pose graph: one SE2 or SE3 "
+                             f"variable batch with only BetweenFactor and PriorFactor batches "
+                             f"and a fixed vertex or a prior; use first='values'")
+        if gnc.first == "cycles":
+            from .gnc_cycles import mark_consistent
+
+            known = mark_consistent(edges, known, gnc.quantile)
     show = bool(verbose) if verbose is not None else sys.stderr.isatty()
     weights = [np.ones(f.count) for f in factors]
     judged = [~kk for kk in known]
@@ -515,6 +524,13 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                     break
                 prev = cost
                 mu = mu * gnc.mu_step if gnc.surrogate == "tls" else max(1.0, mu / gnc.mu_step)
+        if edges is not None and gnc.first == "cycles" and runs:
+            from .gnc_bridges import repair_stage
+
+            moved = repair_stage(cur, edges, known, weights, c2)
+            if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
+                cur = inner(moved)
+                s = squared_norms(problem, cur)
         if not runs:  # least squares is the answer: every weight 1
             cur = inner(cur)
             s = squared_norms(problem, cur)

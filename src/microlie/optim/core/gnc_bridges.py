@@ -1,0 +1,212 @@
+"""Pieces of a pose graph held by one accepted edge: move them where most edges agree.
+
+After GNC on a pose graph with many wrong loop closures, a piece of the graph can end up
+held to the rest by a single accepted edge (a bridge of the accepted edges) while the good
+edges that should hold it were rejected: the bridge, wrong or not, fits exactly (residual 0)
+and the rejected edges do not fit at all, so no weight update can tell them apart. Measured on
+sphere2500 with 30% random loop closures and no known inliers: 14 wrong closures accepted, each
+with residual 0, and 64 good edges rejected. :func:`repair_bridges` looks at every accepted
+judged edge with a zero residual that is a bridge of the accepted edges: every edge across
+its cut (the bridge and the rejected ones) proposes a rigid motion ``D`` of the smaller piece
+``P`` (``X_v <- D X_v`` for ``v`` in ``P``) that makes it fit exactly; the motion that the most
+cut edges fit within their threshold (whitened squared residual ``<= c^2``) wins, and it is
+applied, with those edges accepted and the others across the cut rejected, only when it has
+more support than leaving the bridge alone (the TLS objective then falls by ``c^2/2`` per extra
+edge). Known inliers keep weight 1 and count as support.
+
+Examples
+--------
+>>> import numpy as np
+>>> from microlie import SE2
+>>> from microlie.optim.core.gnc_bridges import repair_bridges
+>>> # vertices 0-1-2 (a triangle) and 3-4: the piece {3, 4} hangs on a wrong edge 0-3
+>>> # (accepted, weight 1) while the two good edges 2-3 and 1-4 were rejected
+>>> Z = SE2.from_xy_theta([1.0, 1.0, 1.0, 5.0, 1.0, 3.0, 2.0],
+...                       [0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0], [0.0] * 7)
+>>> ii, jj = np.array([0, 1, 3, 0, 2, 1, 0]), np.array([1, 2, 4, 3, 3, 4, 2])
+>>> X = SE2.from_xy_theta([0.0, 1.0, 2.0, 5.0, 6.0], [0.0, 0.0, 0.0, 5.0, 5.0], [0.0] * 5)
+>>> w = np.array([1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 1.0])
+>>> X2, w2 = repair_bridges(SE2, 5, ii, jj, Z, np.tile(np.eye(3) * 100.0, (7, 1, 1)), X, w,
+...                         np.ones(7, bool), 11.34)
+>>> np.round(X2.translation(), 6).tolist(), w2.tolist()
+([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0], [4.0, 0.0]], [1.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0])
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ...groups import SE2, SE3, LieGroup
+
+__all__ = ["repair_bridges", "repair_stage"]
+
+
+def _whitened(group: Any, X: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: LieGroup,
+              info: np.ndarray) -> np.ndarray:
+    """``r^T Omega r`` with ``r = Log(Z^-1 X_i^-1 X_j)``, poses as matrices."""
+    rel = np.linalg.inv(X[ii]) @ X[jj]
+    r = np.asarray(Zinv.compose(group.from_matrix(rel)).log(), dtype=np.float64)
+    return np.einsum("ea,eab,eb->e", r, info, r)
+
+
+def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
+                   info: np.ndarray, X: LieGroup, w: np.ndarray, judged: np.ndarray,
+                   c2: float, *, zero: float = 1e-6, max_passes: int = 5
+                   ) -> tuple[LieGroup, np.ndarray]:
+    """Move pieces held by one accepted edge where most cut edges agree (module docstring).
+
+    Parameters
+    ----------
+    group : type
+        SE2 or SE3.
+    n : int
+        Number of vertices.
+    ii, jj : numpy.ndarray
+        ``(E,)`` vertex indices of the edges ``X_i^-1 X_j = Z``.
+    Z : LieGroup
+        ``(E,)`` measurements.
+    info : numpy.ndarray
+        ``(E, D, D)`` information matrices.
+    X : LieGroup
+        ``(n,)`` the poses after GNC.
+    w : numpy.ndarray
+        ``(E,)`` GNC's weights, 0 or 1 (not modified).
+    judged : numpy.ndarray
+        ``(E,)`` booleans: False for known inliers (never rejected).
+    c2 : float
+        The inlier threshold on the whitened squared residual.
+    zero : float
+        A bridge is a candidate when its whitened squared residual is below ``zero * c2``.
+    max_passes : int
+        Passes over the bridges at most (each pass recomputes them), >= 1.
+
+    Returns
+    -------
+    poses : LieGroup
+        ``(n,)`` the poses with the pieces moved (the rest unchanged).
+    weights : numpy.ndarray
+        ``(E,)`` the new weights.
+
+    Raises
+    ------
+    ValueError
+        A group other than SE2/SE3.
+
+    Examples
+    --------
+    See the module docstring.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if group not in (SE2, SE3):
+        raise ValueError(f"repair_bridges: group must be SE2 or SE3, got {group!r}")
+    ii = np.asarray(ii, dtype=np.int64)
+    jj = np.asarray(jj, dtype=np.int64)
+    w = np.array(w, dtype=np.float64)
+    P = np.array(X.matrix(), dtype=np.float64)
+    Zinv = Z.inverse()
+    M = np.asarray(Z.matrix(), dtype=np.float64)
+    Minv = np.asarray(Zinv.matrix(), dtype=np.float64)
+    for _ in range(max_passes):
+        s = _whitened(group, P, ii, jj, Zinv, info)
+        acc = w > 0.5
+        cand = np.flatnonzero(acc & judged & (s <= zero * c2))
+        changed = False
+        for b in cand[np.argsort(s[cand])]:
+            keep = np.flatnonzero(acc)
+            keep = keep[keep != b]
+            _, lab = connected_components(coo_matrix((np.ones(keep.size), (ii[keep], jj[keep])),
+                                                     shape=(n, n)), directed=False)
+            la, lb = lab[ii[b]], lab[jj[b]]
+            if la == lb:
+                continue  # not a bridge
+            side = lb if np.sum(lab == lb) <= np.sum(lab == la) else la
+            inP = lab == side
+            cut = np.flatnonzero(inP[ii] != inP[jj])
+            if cut.size < 2:
+                continue
+            # the motion D of P that makes cut edge k fit exactly
+            a, c = ii[cut], jj[cut]
+            fwd = inP[c]  # i outside, j in P: D = X_i Z X_j^-1; else D = X_j Z^-1 X_i^-1
+            D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[c]),
+                         P[c] @ Minv[cut] @ np.linalg.inv(P[a]))
+            support = np.zeros(cut.size, dtype=np.int64)
+            fits = []
+            for k in range(cut.size):
+                Pa, Pc = P[a].copy(), P[c].copy()
+                Pa[~fwd] = D[k] @ Pa[~fwd]
+                Pc[fwd] = D[k] @ Pc[fwd]
+                rel = np.linalg.inv(Pa) @ Pc
+                r = np.asarray(Zinv[cut].compose(group.from_matrix(rel)).log(),  # type: ignore[call-overload]
+                               dtype=np.float64)
+                ok = np.einsum("ea,eab,eb->e", r, info[cut], r) <= c2
+                ok &= ~(~judged[cut] & ~ok).any()  # a motion that breaks a known inlier: none
+                fits.append(ok)
+                support[k] = int(ok.sum())
+            now = acc[cut] | ~judged[cut]
+            best = int(np.argmax(support))
+            if support[best] <= int(now.sum()) or not fits[best].any():
+                continue
+            P[inP] = D[best] @ P[inP]
+            w[cut[judged[cut]]] = fits[best][judged[cut]].astype(np.float64)
+            acc = w > 0.5
+            changed = True
+        if not changed:
+            break
+    return group.from_matrix(P), w
+
+
+def repair_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
+                 weights: list[np.ndarray], c2: list[float]) -> list[np.ndarray] | None:
+    """:func:`repair_bridges` on a problem's pose graph after GNC: the new states (the
+    BetweenFactor weights updated in place), or ``None`` when nothing moved.
+
+    Parameters
+    ----------
+    states : list of numpy.ndarray
+        The parameters of the one pose batch (a list of one array).
+    edges : PoseGraphEdges
+        :func:`~microlie.optim.core.gnc_chordal.pose_graph_edges` of the problem.
+    known : list of numpy.ndarray
+        Known-inlier masks per factor batch.
+    weights : list of numpy.ndarray
+        GNC's weights per factor batch (0 or 1), updated in place.
+    c2 : list of float
+        Thresholds per factor batch.
+
+    Returns
+    -------
+    list of numpy.ndarray or None
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, BetweenFactor
+    >>> from microlie.optim.core.gnc_chordal import pose_graph_edges
+    >>> from microlie.optim.core.gnc_bridges import repair_stage
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(2), fixed=[0])
+    >>> _ = g.add(BetweenFactor(x, [0], [1], SE2.identity(1)))
+    >>> e = pose_graph_edges(g.problem())
+    >>> repair_stage([np.asarray(SE2.identity(2).params)], e, [np.zeros(1, bool)],
+    ...              [np.ones(1)], [11.34]) is None  # one edge: nothing to decide
+    True
+    """
+    kn = np.concatenate([known[k] for k, _ in edges.rows])
+    w = np.concatenate([weights[k] for k, _ in edges.rows])
+    c = float(c2[edges.rows[0][0]])
+    var = edges.variables
+    X = var.group.from_params(np.asarray(states[0], dtype=np.float64))
+    X2, w2 = repair_bridges(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info, X,
+                            w, ~kn, c)
+    if np.array_equal(w2, w):
+        return None
+    for k, sl in edges.rows:
+        weights[k][:] = w2[sl]
+    P = np.array(X2.params, dtype=np.float64)
+    P[var.fixed] = np.asarray(states[0], dtype=np.float64)[var.fixed]
+    return [P]
