@@ -25,7 +25,9 @@ solve stopped short shows it: the table prints the largest relative excess over 
 engine's optimum (per problem for the batches).
 
 Each contender is the solve a user of that library would write: its own LM, its default
-linear solver unless it documents a better one (stated in the table), squared loss. Timing:
+linear solver unless it documents a better one (stated in the table), squared loss; the batch
+rows share one stop rule (``--max-iter``, ``--rel-tol``, ``--abs-tol``: GTSAM's defaults) given
+to every contender that has the knob, and each row reports the iterations it ran. Timing:
 ``setup`` (building the library's problem objects, analysis) once; ``first call`` (includes
 JIT / ``torch.compile`` compilation) once; then ``--rounds`` interleaved rounds (the order
 rotated each round) of the steady-state solve, reported as median (min-max) with the median
