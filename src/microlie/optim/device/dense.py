@@ -81,8 +81,12 @@ def normal_equations(problem: DeviceProblem, lin: Linear) -> tuple[Any, Any]:
     for A in lin.A:
         J = A[0] if len(A) == 1 else be.xp.concatenate(A, axis=-1)
         src.append((transpose(be, J) @ J).reshape(B, -1))
-    H = add_last(be, be.zeros((B, n1 * n1), like=lin.e[0]), problem.dense_index(),
-                 src[0] if len(src) == 1 else be.xp.concatenate(src, axis=-1))
+    H = be.zeros((B, n1 * n1), like=lin.e[0])
+    src = src[0] if len(src) == 1 else be.xp.concatenate(src, axis=-1)
+    if be.name == "torch":   # into the fresh zeros in place (no copy of H; compile-safe)
+        H = H.index_add_(1, problem.dense_index(), src)
+    else:
+        H = add_last(be, H, problem.dense_index(), src)
     H = H.reshape(B, n1, n1)[:, :-1, :-1]
     return H, gradient(problem, lin)
 
