@@ -111,7 +111,9 @@ def test_bal_cost_is_the_published_initial_cost(dev):
 @pytest.mark.parametrize("argv, word", [(["--batch", "0"], "--batch"),
                                         (["--pnp-points", "3"], "--pnp-points"),
                                         (["--bal", "/nonexistent.txt"], "--bal"),
-                                        (["--device", "tpu"], "--device")])
+                                        (["--device", "tpu"], "--device"),
+                                        (["--max-iter", "0"], "--max-iter"),
+                                        (["--rel-tol", "-1"], "--rel-tol")])
 def test_bad_arguments_name_the_option(dev, argv, word, capsys):
     with pytest.raises(SystemExit):
         dev.main(argv)
