@@ -356,23 +356,38 @@ def _sync_torch(device: str) -> None:
 
 # ---- microlie, NumPy/C engine
 
-def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
+def build_graph(kind: str, prob: Any, count: int) -> tuple[Any, Any]:
+    """The first ``count`` problems of a batch as one microlie ``FactorGraph`` (disconnected
+    components) and the handle of their poses: the NumPy engine's graph (all problems) and
+    the device engine's structure (one problem)."""
     from microlie import SE3
     from microlie.optim import BetweenFactor, Diagonal, FactorGraph, PriorFactor, ReprojectionFactor
+    g = FactorGraph()
+    if kind == "posegraph":
+        n = prob.n
+        X = g.add_variables(SE3(params_from_matrix(prob.X0[:count].reshape(-1, 4, 4))))
+        off = (np.arange(count) * n)[:, None]
+        g.add(BetweenFactor(X, (off + prob.edges[:, 0]).ravel(), (off + prob.edges[:, 1]).ravel(),
+                            SE3(params_from_matrix(prob.Z[:count].reshape(-1, 4, 4))),
+                            Diagonal(1 / prob.w_edge)))
+        g.add(PriorFactor(X, off[:, 0], SE3(params_from_matrix(prob.Z0[:count])),
+                          Diagonal(1 / prob.w_prior)))
+        return g, X
+    m = prob.points.shape[1]
+    T = g.add_variables(SE3(params_from_matrix(prob.T0[:count])))
+    P = g.add_variables(prob.points[:count].reshape(-1, 3), fixed=True)
+    g.add(ReprojectionFactor((T, np.repeat(np.arange(count), m)), (P, np.arange(count * m)),
+                             prob.uv[:count].reshape(-1, 2), model="pinhole", intrinsics=prob.K))
+    return g, T
+
+
+def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
     t0 = time.perf_counter()
     stats: dict[str, str] = {}
     max_iter, rel_tol, abs_tol = _stop(kw)
     if kind == "posegraph":
         B, n = prob.batch, prob.n
-        g = FactorGraph()
-        X = g.add_variables(SE3(params_from_matrix(prob.X0.reshape(-1, 4, 4))))
-        off = (np.arange(B) * n)[:, None]
-        i = (off + prob.edges[:, 0]).ravel()
-        j = (off + prob.edges[:, 1]).ravel()
-        g.add(BetweenFactor(X, i, j, SE3(params_from_matrix(prob.Z.reshape(-1, 4, 4))),
-                            Diagonal(1 / prob.w_edge)))
-        g.add(PriorFactor(X, off[:, 0], SE3(params_from_matrix(prob.Z0)),
-                          Diagonal(1 / prob.w_prior)))
+        g, X = build_graph(kind, prob, B)
 
         def run() -> np.ndarray:
             r = g.optimize(max_iter=max_iter, rel_tol=rel_tol, abs_tol=abs_tol)
@@ -380,12 +395,7 @@ def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
             return matrix_from_params(np.asarray(r.values[X].params)).reshape(B, n, 4, 4)
         how = "one FactorGraph of all problems, LM (GTSAM rules), sparse Cholesky"
     elif kind == "pnp":
-        B, m = prob.batch, prob.points.shape[1]
-        g = FactorGraph()
-        T = g.add_variables(SE3(params_from_matrix(prob.T0)))
-        P = g.add_variables(prob.points.reshape(-1, 3), fixed=True)
-        g.add(ReprojectionFactor((T, np.repeat(np.arange(B), m)), (P, np.arange(B * m)),
-                                 prob.uv.reshape(-1, 2), model="pinhole", intrinsics=prob.K))
+        g, T = build_graph(kind, prob, prob.batch)
 
         def run() -> np.ndarray:
             r = g.optimize(max_iter=max_iter, rel_tol=rel_tol, abs_tol=abs_tol)
@@ -412,23 +422,11 @@ def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
 def _device_template(kind: str, prob: Any) -> tuple[Any, Any, Any]:
     """The graph of the batch's first problem (NumPy), and the batch's ``theta`` and ``x0``
     arrays (NumPy, leading axis ``B``) in the layout of :meth:`DeviceProblem.theta`."""
-    from microlie import SE3
-    from microlie.optim import BetweenFactor, Diagonal, FactorGraph, PriorFactor, ReprojectionFactor
-    g = FactorGraph()
+    g, _ = build_graph(kind, prob, 1)
     if kind == "posegraph":
-        X = g.add_variables(SE3(params_from_matrix(prob.X0[0])))
-        g.add(BetweenFactor(X, prob.edges[:, 0], prob.edges[:, 1],
-                            SE3(params_from_matrix(prob.Z[0])), Diagonal(1 / prob.w_edge)))
-        g.add(PriorFactor(X, 0, SE3(params_from_matrix(prob.Z0[0])),
-                          Diagonal(1 / prob.w_prior)))
         theta = [{"Z": params_from_matrix(prob.Z)}, {"Z": params_from_matrix(prob.Z0)[:, None]}]
         x0 = [params_from_matrix(prob.X0)]
     else:
-        m = prob.points.shape[1]
-        T = g.add_variables(SE3(params_from_matrix(prob.T0[:1])))
-        P = g.add_variables(prob.points[0], fixed=True)
-        g.add(ReprojectionFactor((T, np.zeros(m, dtype=int)), (P, np.arange(m)), prob.uv[0],
-                                 model="pinhole", intrinsics=prob.K))
         theta = [{"obs": prob.uv}]
         x0 = [params_from_matrix(prob.T0)[:, None], prob.points]
     return g, theta, x0
