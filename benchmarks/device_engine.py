@@ -10,6 +10,8 @@ Usage::
 
     PYTHONPATH=src python benchmarks/device_engine.py --cases M3500 sphere2500 \
         parking-garage problem-49-7776 --backends torch jax --dtypes float64 float32
+    PYTHONPATH=src python benchmarks/device_engine.py --cases problem-49-7776 --linear schur \
+        --rel-tol 1e-10 --abs-tol 0
 """
 
 from __future__ import annotations
@@ -49,7 +51,21 @@ def main() -> None:
     ap.add_argument("--cg-max-iter", type=int, default=None)
     ap.add_argument("--eta-max", type=float, default=None)
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    ap.add_argument("--linear", default="pcg", choices=["auto", "dense", "schur", "pcg"],
+                    help="the device step solve (LMOptions.linear)")
+    ap.add_argument("--rel-tol", type=float, default=None,
+                    help="rel_tol of both engines (default GTSAM's 1e-5)")
+    ap.add_argument("--abs-tol", type=float, default=None,
+                    help="abs_tol of both engines (default GTSAM's 1e-5)")
+    ap.add_argument("--damping", default=None, choices=["auto", "identity", "diagonal"],
+                    help="the LM damping of both engines (default 'auto')")
     args = ap.parse_args()
+    # one BLAS/XLA thread (several threads on 2 shared cores made JAX's LAPACK Cholesky of a
+    # 441 x 441 matrix take 0.2-1.8 s instead of 5 ms); set before JAX or BLAS start
+    for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(k, str(args.threads))
+    os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
+                                       "intra_op_parallelism_threads=1")
     if "jax" in args.backends:
         import jax
 
@@ -57,24 +73,28 @@ def main() -> None:
     from microlie.optim.core.variables import Values
     from microlie.optim.device import DeviceProblem, LMOptions, solve
 
+    tols = {k: v for k, v in (("rel_tol", args.rel_tol), ("abs_tol", args.abs_tol),
+                              ("damping", args.damping)) if v is not None}
     extra = {k: v for k, v in (("cg_max_iter", args.cg_max_iter),
                                ("eta_max", args.eta_max)) if v is not None}
-    print(f"load {os.getloadavg()[0]:.1f}")
+    extra.update(tols)
+    print(f"load {os.getloadavg()[0]:.1f}; device step {args.linear}; "
+          f"tolerances {tols or 'default'}")
     print("| case | engine | dtype | final cost (NumPy cost at the values) | rel. to NumPy | "
           "iterations | CG iterations | time s (first / second call) |")
     print("|---|---|---|---|---|---|---|---|")
     for case in args.cases:
         g, kw = build(case)
         t0 = time.perf_counter()
-        ref = g.optimize(max_iter=args.max_iter, **kw)
+        ref = g.optimize(max_iter=args.max_iter, **kw, **tols)
         t_np = time.perf_counter() - t0
-        print(f"| {case} | numpy | float64 | {ref.final_cost:.10g} | 0 | {ref.iterations} | - | "
+        print(f"| {case} | numpy | float64 | {ref.final_cost:.13g} | 0 | {ref.iterations} | - | "
               f"{t_np:.2f} |", flush=True)
         gauge = kw.get("gauge", "check")
         for backend in args.backends:
             for dtype in args.dtypes:
                 p = DeviceProblem.from_graph(g, gauge=gauge, backend=backend, dtype=dtype)
-                opts = LMOptions(max_iter=args.max_iter, linear="pcg", **extra)
+                opts = LMOptions(max_iter=args.max_iter, linear=args.linear, **extra)
                 th, x0 = p.theta(), p.initial()
                 if backend == "jax":
                     import jax
@@ -97,7 +117,7 @@ def main() -> None:
                 c = g.cost(vals)
                 rel = (c - ref.final_cost) / ref.final_cost
                 tt = " / ".join(f"{t:.2f}" for t in times)
-                print(f"| {case} | {backend} | {dtype} | {c:.10g} | {rel:.1e} | "
+                print(f"| {case} | {backend} | {dtype} | {c:.13g} | {rel:.1e} | "
                       f"{int(p.backend.to_numpy(info.iterations))} | "
                       f"{int(p.backend.to_numpy(info.cg_iterations))} | {tt} |", flush=True)
 

@@ -467,9 +467,12 @@ def microlie_device(kind: str, prob: Any, device: str, backend: str, compiled: b
                   "obs": put(prob.uv)},)
         x0 = problem.initial()
         n = prob.iterations
-        opts = LMOptions(max_iter=n, max_tries=n, rel_tol=0.0, abs_tol=0.0, linear="pcg",
-                         loop="fixed" if compiled else "auto")
-        how = f"LM (GTSAM rules), Schur + block-Jacobi PCG, {n} tries"
+        # damping by diag(H) (Marquardt's; jaxls scales the Jacobian's columns, Ceres too):
+        # with "auto" (identity first) 30 tries reach 13999.96, with diag(H) 13368.08
+        opts = LMOptions(max_iter=n, max_tries=n, rel_tol=0.0, abs_tol=0.0, linear="schur",
+                         damping="diagonal", loop="fixed" if compiled else "auto")
+        how = (f"LM (GTSAM rules, damping diag(H)), Schur + dense Cholesky of the reduced "
+               f"camera system, {n} tries")
     else:
         g, th_b, x0_b = _device_template(kind, prob)
         problem = DeviceProblem.from_graph(g, backend=backend, dtype="float64", device=dev)

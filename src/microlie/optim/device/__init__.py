@@ -1,5 +1,6 @@
 """The estimator on PyTorch and JAX arrays (issue 24): Levenberg-Marquardt with the NumPy
-engine's rules, dense Cholesky or preconditioned-CG steps, and a batch axis over whole problems.
+engine's rules, dense Cholesky, exact Schur (bundle adjustment) or preconditioned-CG steps,
+and a batch axis over whole problems.
 
 Two ways in:
 

@@ -23,8 +23,9 @@ from .backend import torch_while
 from .dense import dense_step, normal_equations
 from .pcg import block_diagonal, diagonal_of, pcg_step
 from .problem import DENSE_MAX, DeviceProblem, Linear, Theta
+from .schur import schur_fits, schur_plan, schur_step
 
-__all__ = ["LMOptions", "SolveInfo", "solve", "STATUS"]
+__all__ = ["LMOptions", "SolveInfo", "linear_kind", "solve", "STATUS"]
 
 #: ``SolveInfo.status`` codes: running, converged, max_iter reached, failure.
 STATUS = {0: "running", 1: "convergence", 2: "no_convergence", 3: "failure"}
@@ -48,10 +49,14 @@ class LMOptions:
         ``"auto"``'s bound on ``lambda / H_kk`` for the identity.
     rel_tol, abs_tol, cost_tol, step_tol : float
         GTSAM's convergence tests.
-    linear : {"auto", "dense", "pcg"}
-        The step solve: dense Cholesky (batched), or preconditioned conjugate gradients
+    linear : {"auto", "dense", "schur", "pcg"}
+        The step solve: dense Cholesky (batched); ``"schur"``: landmarks eliminated exactly
+        and the reduced camera system factored densely (:mod:`microlie.optim.device.schur`,
+        Ceres' ``DENSE_SCHUR``; needs landmarks); or preconditioned conjugate gradients
         (:mod:`microlie.optim.device.pcg`; Schur elimination of landmarks for bundle
-        adjustment). ``"auto"``: dense up to :data:`DENSE_MAX` unknowns.
+        adjustment). ``"auto"``: dense up to :data:`DENSE_MAX` unknowns, else ``"schur"``
+        when there are landmarks and the reduced system is small
+        (:func:`~microlie.optim.device.schur.schur_fits`), else ``"pcg"``.
     schur : bool
         PCG eliminates landmarks (variables that share no factor) when there are some.
     cg_max_iter : int
@@ -102,8 +107,9 @@ class LMOptions:
         if self.damping not in ("auto", "identity", "diagonal"):
             raise ValueError(f"damping must be 'auto', 'identity' or 'diagonal', got "
                              f"{self.damping!r}")
-        if self.linear not in ("auto", "dense", "pcg"):
-            raise ValueError(f"linear must be 'auto', 'dense' or 'pcg', got {self.linear!r}")
+        if self.linear not in ("auto", "dense", "schur", "pcg"):
+            raise ValueError(f"linear must be 'auto', 'dense', 'schur' or 'pcg', got "
+                             f"{self.linear!r}")
         if self.loop not in ("auto", "while", "fixed"):
             raise ValueError(f"loop must be 'auto', 'while' or 'fixed', got {self.loop!r}")
         if not self.lambda_factor > 1.0:
@@ -183,10 +189,10 @@ class _Engine:
 
     def __init__(self, problem: DeviceProblem, opts: LMOptions, fixed: bool) -> None:
         self.p, self.opts, self.fixed = problem, opts, fixed
-        lin = opts.linear
-        if lin == "auto":
-            lin = "dense" if problem.size <= DENSE_MAX else "pcg"
+        self.kind = lin = linear_kind(problem, opts.linear)
         self.dense = lin == "dense"
+        if lin == "schur":
+            schur_plan(problem)  # built here (host), not inside a traced solve
 
     def system(self, theta: Theta, x: list[Any]) -> dict:
         lin = self.p.linearize(theta, x)
@@ -211,7 +217,11 @@ class _Engine:
             pred = -((g * dx).sum(-1) + 0.5 * (dx * Hdx).sum(-1))
             return dx, ok, pred, g[..., 0] * 0.0, ok | True
         lin = Linear(s["e"], s["A"], s["cost"])
-        dx, ok, it = pcg_step(self.p, lin, g, s["blocks"], damping, eta, self.opts.cg_max_iter,
+        if self.kind == "schur":
+            dx, ok = schur_step(self.p, lin, g, s["blocks"], damping)
+            it = g[..., 0] * 0.0
+        else:
+            dx, ok, it = pcg_step(self.p, lin, g, s["blocks"], damping, eta, self.opts.cg_max_iter,
                               self.opts.schur, self.fixed)
         Jdx = self.p.jvp(lin, dx)
         quad = 0.0
@@ -219,6 +229,47 @@ class _Engine:
             quad = quad + (u * u).reshape(u.shape[0], -1).sum(-1)
         pred = -((g * dx).sum(-1) + 0.5 * quad)
         return dx, ok, pred, it, it < self.opts.cg_max_iter
+
+
+def linear_kind(problem: DeviceProblem, linear: str) -> str:
+    """The step solve ``linear`` (an :class:`LMOptions` value) resolves to for ``problem``:
+    ``"dense"``, ``"schur"`` or ``"pcg"``.
+
+    Parameters
+    ----------
+    problem : DeviceProblem
+        The problem.
+    linear : {"auto", "dense", "schur", "pcg"}
+        The requested step solve.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ValueError
+        ``"schur"`` on a problem without landmarks.
+
+    Examples
+    --------
+    >>> import torch
+    >>> from microlie.optim import FactorGraph, PriorFactor
+    >>> from microlie.optim.device import DeviceProblem
+    >>> from microlie.optim.device.lm import linear_kind
+    >>> g = FactorGraph()
+    >>> _ = g.add(PriorFactor(g.add_variables(torch.ones((1, 2)).double()), 0, [0.0, 0.0]))
+    >>> linear_kind(DeviceProblem.from_graph(g), "auto")
+    'dense'
+    """
+    if linear == "auto":
+        if problem.size <= DENSE_MAX:
+            return "dense"
+        return "schur" if problem.eliminate and schur_fits(problem) else "pcg"
+    if linear == "schur" and not problem.eliminate:
+        raise ValueError("linear='schur': the problem has no landmarks to eliminate (variable "
+                         "batches that share no factor); use linear='dense' or 'pcg'")
+    return linear
 
 
 def _select(be: Any, mask: Any, a: Any, b: Any) -> Any:

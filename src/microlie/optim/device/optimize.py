@@ -12,8 +12,8 @@ from ..core.solvers import Result
 from ..core.strategies import LevenbergMarquardt
 from ..core.variables import Values
 from .implicit import solve_differentiable, traced_result
-from .lm import STATUS, LMOptions
-from .problem import DENSE_MAX, DeviceProblem
+from .lm import STATUS, LMOptions, linear_kind
+from .problem import DeviceProblem
 
 __all__ = ["optimize_graph", "stack", "lm_options"]
 
@@ -29,8 +29,8 @@ def lm_options(solver: Any = "lm", linear_solver: Any = "auto", max_iter: int = 
     ----------
     solver : "lm" or LevenbergMarquardt
         The strategy (only Levenberg-Marquardt runs on devices).
-    linear_solver : {"auto", "dense", "pcg"}
-        The step solve.
+    linear_solver : {"auto", "dense", "schur", "pcg"}
+        The step solve (:class:`LMOptions` ``linear``).
     max_iter : int
         Iteration limit.
     **options
@@ -58,9 +58,10 @@ def lm_options(solver: Any = "lm", linear_solver: Any = "auto", max_iter: int = 
         raise ValueError(f"solver: graphs on torch or JAX arrays are solved by Levenberg-"
                          f"Marquardt ('lm' or a LevenbergMarquardt), got {solver!r}; use NumPy "
                          f"variables for the other strategies")
-    if linear_solver not in ("auto", "dense", "pcg"):
-        raise ValueError(f"linear_solver: graphs on torch or JAX arrays take 'auto', 'dense' or "
-                         f"'pcg' (preconditioned conjugate gradients), got {linear_solver!r}")
+    if linear_solver not in ("auto", "dense", "schur", "pcg"):
+        raise ValueError(f"linear_solver: graphs on torch or JAX arrays take 'auto', 'dense', "
+                         f"'schur' (landmarks eliminated, dense reduced system) or 'pcg' "
+                         f"(preconditioned conjugate gradients), got {linear_solver!r}")
     fields.update({k: v for k, v in options.items() if v is not None})
     return LMOptions(max_iter=max_iter, linear=linear_solver, **fields)
 
@@ -80,8 +81,9 @@ def optimize_graph(graph: Any, values: Values | None = None, *, solver: Any = "l
         The starting point (default: the variables' initial arrays).
     solver : "lm" or LevenbergMarquardt
         Levenberg-Marquardt with GTSAM's rules.
-    linear_solver : {"auto", "dense", "pcg"}
-        Dense Cholesky or preconditioned conjugate gradients (Schur for bundle adjustment).
+    linear_solver : {"auto", "dense", "schur", "pcg"}
+        Dense Cholesky, exact Schur elimination of landmarks with a dense reduced camera
+        system, or preconditioned conjugate gradients (Schur for bundle adjustment).
     max_iter : int
         Iteration limit.
     gauge : {"check", "fix_first", "none"}
@@ -134,8 +136,7 @@ def optimize_graph(graph: Any, values: Values | None = None, *, solver: Any = "l
            3: f"lambda exceeded {opts.lambda_max:g} without decreasing the cost",
            0: f"reached max_tries={opts.tries()}"}[status]
     c0, c1 = float(be.to_numpy(info.initial_cost)), float(be.to_numpy(info.cost))
-    dense = opts.linear == "dense" or (opts.linear == "auto" and prob.size <= DENSE_MAX)
-    name = f"{be.name}:{'dense' if dense else 'pcg'}"
+    name = f"{be.name}:{linear_kind(prob, opts.linear)}"
     return Result(Values(prob.variables, x), c0, c1, c0, c1,
                   int(be.to_numpy(info.iterations)), term == "convergence", msg, term, [],
                   total, "lm", name, {}, list(prob.gauge_fixed),

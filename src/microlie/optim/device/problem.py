@@ -150,6 +150,7 @@ class DeviceProblem:
             cm[c[c < N]] = 0.0
         self._keep_mask = be.asarray(cm)
         self._dense: Any = None
+        self._schur_plan: Any = None   # schur.schur_plan, built on first use
         if N <= DENSE_MAX:
             self.dense_index()  # built here, not inside a traced solve
 
