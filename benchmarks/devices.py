@@ -5,7 +5,7 @@ interleaved (issue 24).
 Run (the peers' environment, ``benchmarks/README.md``; microlie from ``src``):
 
     PYTHONPATH=src /work/venvs/peers/bin/python benchmarks/devices.py --rounds 5 \
-        --out benchmarks/results/devices-s10.md
+        --out benchmarks/results/devices-s11.md
 
 The problems, built identically for every contender from one seeded generator:
 
