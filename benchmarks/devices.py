@@ -5,7 +5,7 @@ interleaved (issue 24).
 Run (the peers' environment, ``benchmarks/README.md``; microlie from ``src``):
 
     PYTHONPATH=src /work/venvs/peers/bin/python benchmarks/devices.py --rounds 5 \
-        --out benchmarks/results/devices-s10.md
+        --out benchmarks/results/devices-s11.md
 
 The problems, built identically for every contender from one seeded generator:
 
@@ -25,7 +25,9 @@ solve stopped short shows it: the table prints the largest relative excess over 
 engine's optimum (per problem for the batches).
 
 Each contender is the solve a user of that library would write: its own LM, its default
-linear solver unless it documents a better one (stated in the table), squared loss. Timing:
+linear solver unless it documents a better one (stated in the table), squared loss; the batch
+rows share one stop rule (``--max-iter``, ``--rel-tol``, ``--abs-tol``: GTSAM's defaults) given
+to every contender that has the knob, and each row reports the iterations it ran. Timing:
 ``setup`` (building the library's problem objects, analysis) once; ``first call`` (includes
 JIT / ``torch.compile`` compilation) once; then ``--rounds`` interleaved rounds (the order
 rotated each round) of the steady-state solve, reported as median (min-max) with the median
@@ -330,6 +332,20 @@ class Contender:
     scale: float = 1.0          # time multiplier (a contender timed on a subset of the batch)
     note: str = ""
     ours: bool = False
+    stats: dict[str, str] = dataclasses.field(default_factory=dict)   # "iterations" of the last run
+
+
+def _spread(v: Any) -> str:
+    """Per-problem counts as ``median (min-max)``, or the one count."""
+    a = np.asarray(v).ravel()
+    if a.size == 1:
+        return f"{int(a[0])}"
+    return f"{np.median(a):g} ({int(a.min())}-{int(a.max())})"
+
+
+def _stop(kw: dict[str, Any]) -> tuple[int, float | None, float | None]:
+    """The shared stop rule of the batch rows: ``(max_iter, rel_tol, abs_tol)``."""
+    return kw.get("max_iter", 100), kw.get("rel_tol"), kw.get("abs_tol")
 
 
 def _sync_torch(device: str) -> None:
@@ -340,36 +356,50 @@ def _sync_torch(device: str) -> None:
 
 # ---- microlie, NumPy/C engine
 
-def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
+def build_graph(kind: str, prob: Any, count: int) -> tuple[Any, Any]:
+    """The first ``count`` problems of a batch as one microlie ``FactorGraph`` (disconnected
+    components) and the handle of their poses: the NumPy engine's graph (all problems) and
+    the device engine's structure (one problem)."""
     from microlie import SE3
     from microlie.optim import BetweenFactor, Diagonal, FactorGraph, PriorFactor, ReprojectionFactor
+    g = FactorGraph()
+    if kind == "posegraph":
+        n = prob.n
+        X = g.add_variables(SE3(params_from_matrix(prob.X0[:count].reshape(-1, 4, 4))))
+        off = (np.arange(count) * n)[:, None]
+        g.add(BetweenFactor(X, (off + prob.edges[:, 0]).ravel(), (off + prob.edges[:, 1]).ravel(),
+                            SE3(params_from_matrix(prob.Z[:count].reshape(-1, 4, 4))),
+                            Diagonal(1 / prob.w_edge)))
+        g.add(PriorFactor(X, off[:, 0], SE3(params_from_matrix(prob.Z0[:count])),
+                          Diagonal(1 / prob.w_prior)))
+        return g, X
+    m = prob.points.shape[1]
+    T = g.add_variables(SE3(params_from_matrix(prob.T0[:count])))
+    P = g.add_variables(prob.points[:count].reshape(-1, 3), fixed=True)
+    g.add(ReprojectionFactor((T, np.repeat(np.arange(count), m)), (P, np.arange(count * m)),
+                             prob.uv[:count].reshape(-1, 2), model="pinhole", intrinsics=prob.K))
+    return g, T
+
+
+def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
     t0 = time.perf_counter()
+    stats: dict[str, str] = {}
+    max_iter, rel_tol, abs_tol = _stop(kw)
     if kind == "posegraph":
         B, n = prob.batch, prob.n
-        g = FactorGraph()
-        X = g.add_variables(SE3(params_from_matrix(prob.X0.reshape(-1, 4, 4))))
-        off = (np.arange(B) * n)[:, None]
-        i = (off + prob.edges[:, 0]).ravel()
-        j = (off + prob.edges[:, 1]).ravel()
-        g.add(BetweenFactor(X, i, j, SE3(params_from_matrix(prob.Z.reshape(-1, 4, 4))),
-                            Diagonal(1 / prob.w_edge)))
-        g.add(PriorFactor(X, off[:, 0], SE3(params_from_matrix(prob.Z0)),
-                          Diagonal(1 / prob.w_prior)))
+        g, X = build_graph(kind, prob, B)
 
         def run() -> np.ndarray:
-            r = g.optimize(max_iter=100)
+            r = g.optimize(max_iter=max_iter, rel_tol=rel_tol, abs_tol=abs_tol)
+            stats["iterations"] = f"{r.iterations} (all problems at once)"
             return matrix_from_params(np.asarray(r.values[X].params)).reshape(B, n, 4, 4)
         how = "one FactorGraph of all problems, LM (GTSAM rules), sparse Cholesky"
     elif kind == "pnp":
-        B, m = prob.batch, prob.points.shape[1]
-        g = FactorGraph()
-        T = g.add_variables(SE3(params_from_matrix(prob.T0)))
-        P = g.add_variables(prob.points.reshape(-1, 3), fixed=True)
-        g.add(ReprojectionFactor((T, np.repeat(np.arange(B), m)), (P, np.arange(B * m)),
-                                 prob.uv.reshape(-1, 2), model="pinhole", intrinsics=prob.K))
+        g, T = build_graph(kind, prob, prob.batch)
 
         def run() -> np.ndarray:
-            r = g.optimize(max_iter=100)
+            r = g.optimize(max_iter=max_iter, rel_tol=rel_tol, abs_tol=abs_tol)
+            stats["iterations"] = f"{r.iterations} (all problems at once)"
             return matrix_from_params(np.asarray(r.values[T].params))
         how = "one FactorGraph of all problems, LM (GTSAM rules), sparse Cholesky"
     else:
@@ -379,10 +409,12 @@ def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
 
         def run() -> tuple[np.ndarray, np.ndarray]:
             r = bundle_adjust(bp, max_iter=prob.iterations)
+            stats["iterations"] = f"{r.iterations}"
             out = bp.with_values(r.values).to_bal()
             return out.cameras, out.points
         how = f"bundle_adjust, TrustRegion (Ceres rules), Schur, {prob.iterations} tries"
-    return Contender("microlie NumPy/C", how, run, time.perf_counter() - t0, ours=True)
+    return Contender("microlie NumPy/C", how, run, time.perf_counter() - t0, ours=True,
+                     stats=stats)
 
 
 # ---- microlie on torch and JAX (microlie.optim.device)
@@ -390,23 +422,11 @@ def microlie_numpy(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
 def _device_template(kind: str, prob: Any) -> tuple[Any, Any, Any]:
     """The graph of the batch's first problem (NumPy), and the batch's ``theta`` and ``x0``
     arrays (NumPy, leading axis ``B``) in the layout of :meth:`DeviceProblem.theta`."""
-    from microlie import SE3
-    from microlie.optim import BetweenFactor, Diagonal, FactorGraph, PriorFactor, ReprojectionFactor
-    g = FactorGraph()
+    g, _ = build_graph(kind, prob, 1)
     if kind == "posegraph":
-        X = g.add_variables(SE3(params_from_matrix(prob.X0[0])))
-        g.add(BetweenFactor(X, prob.edges[:, 0], prob.edges[:, 1],
-                            SE3(params_from_matrix(prob.Z[0])), Diagonal(1 / prob.w_edge)))
-        g.add(PriorFactor(X, 0, SE3(params_from_matrix(prob.Z0[0])),
-                          Diagonal(1 / prob.w_prior)))
         theta = [{"Z": params_from_matrix(prob.Z)}, {"Z": params_from_matrix(prob.Z0)[:, None]}]
         x0 = [params_from_matrix(prob.X0)]
     else:
-        m = prob.points.shape[1]
-        T = g.add_variables(SE3(params_from_matrix(prob.T0[:1])))
-        P = g.add_variables(prob.points[0], fixed=True)
-        g.add(ReprojectionFactor((T, np.zeros(m, dtype=int)), (P, np.arange(m)), prob.uv[0],
-                                 model="pinhole", intrinsics=prob.K))
         theta = [{"obs": prob.uv}]
         x0 = [params_from_matrix(prob.T0)[:, None], prob.points]
     return g, theta, x0
@@ -447,16 +467,22 @@ def microlie_device(kind: str, prob: Any, device: str, backend: str, compiled: b
                   "obs": put(prob.uv)},)
         x0 = problem.initial()
         n = prob.iterations
+        # damping by diag(H) (Marquardt's; jaxls scales the Jacobian's columns, Ceres too):
+        # with "auto" (identity first) 30 tries reach 13999.96, with diag(H) 13368.08
         opts = LMOptions(max_iter=n, max_tries=n, rel_tol=0.0, abs_tol=0.0, linear="schur",
-                         loop="fixed" if compiled else "auto")
-        how = f"LM (GTSAM rules), Schur + dense Cholesky of the reduced camera system, {n} tries"
+                         damping="diagonal", loop="fixed" if compiled else "auto")
+        how = (f"LM (GTSAM rules, damping diag(H)), Schur + dense Cholesky of the reduced "
+               f"camera system, {n} tries")
     else:
         g, th_b, x0_b = _device_template(kind, prob)
         problem = DeviceProblem.from_graph(g, backend=backend, dtype="float64", device=dev)
         theta = tuple({**{k: v for k, v in d.items()}, **{k: put(v) for k, v in b.items()}}
                       for d, b in zip(problem.theta(), th_b, strict=True))
         x0 = [put(v) for v in x0_b]
-        opts = LMOptions(linear="dense", loop="fixed" if compiled else "auto")
+        max_iter, rel_tol, abs_tol = _stop(kw)
+        opts = LMOptions(max_iter=max_iter, linear="dense", loop="fixed" if compiled else "auto",
+                         **({} if rel_tol is None else {"rel_tol": rel_tol}),
+                         **({} if abs_tol is None else {"abs_tol": abs_tol}))
         how = "batch axis, LM (GTSAM rules), batched dense Cholesky"
 
     if backend == "jax":
@@ -464,8 +490,8 @@ def microlie_device(kind: str, prob: Any, device: str, backend: str, compiled: b
         f = jax.jit(solve, static_argnums=(0, 3))
 
         def run() -> Any:
-            x, _ = jax.block_until_ready(f(problem, theta, x0, opts))
-            return finish(x)
+            x, info = jax.block_until_ready(f(problem, theta, x0, opts))
+            return finish(x, info)
         name, how = "microlie JAX", how + ", jax.jit"
     else:
         import torch
@@ -473,21 +499,27 @@ def microlie_device(kind: str, prob: Any, device: str, backend: str, compiled: b
 
         def run() -> Any:
             with torch.no_grad():
-                x, _ = f(problem, theta, x0, opts)
+                x, info = f(problem, theta, x0, opts)
             _sync_torch(device)
-            return finish(x)
+            return finish(x, info)
         name = "microlie torch" + (" compiled" if compiled else "")
         how += ", torch.compile(fullgraph=True)" if compiled else ", eager"
 
-    def finish(x: list[Any]) -> Any:
+    stats: dict[str, str] = {}
+
+    def finish(x: list[Any], info: Any) -> Any:
         xs = [np.asarray(v.cpu() if hasattr(v, "cpu") else v) for v in x]
+        it = np.asarray(info.iterations.cpu() if hasattr(info.iterations, "cpu")
+                        else info.iterations)
+        tr = np.asarray(info.tries.cpu() if hasattr(info.tries, "cpu") else info.tries)
+        stats["iterations"] = f"{_spread(it)}; tries {_spread(tr)}"
         if kind == "posegraph":
             return matrix_from_params(xs[0])
         if kind == "pnp":
             return matrix_from_params(xs[0][:, 0])
         vals = {v: xs[k] for k, v in enumerate(problem.variables)}
         return _bal_arrays(bg, vals)
-    return Contender(name, how, run, time.perf_counter() - t0, ours=True)
+    return Contender(name, how, run, time.perf_counter() - t0, ours=True, stats=stats)
 
 
 def _bal_arrays(bg: Any, vals: dict[Any, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -512,9 +544,22 @@ def jaxls_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
 
     dev = _jax_device(device)
     t0 = time.perf_counter()
+    stats: dict[str, str] = {}
+    max_iter, rel_tol, _ = _stop(kw)
+    term = jaxls.TerminationConfig(max_iterations=max_iter,
+                                   **({} if rel_tol is None else {"cost_tolerance": rel_tol}))
 
     def put(x: np.ndarray) -> Any:
         return jax.device_put(jnp.asarray(x), dev)
+
+    def solved(problem: Any, init: Any, **opts: Any) -> Any:
+        sol, summary = problem.solve(init, verbose=False, return_summary=True, **opts)
+        sol = jax.block_until_ready(sol)
+        crit = [n for n, f in zip(("cost", "gradient", "parameter"),
+                                  np.asarray(summary.termination_criteria), strict=True) if f]
+        stats["iterations"] = (f"{int(summary.iterations)} "
+                               f"({'stopped on ' + '+'.join(crit) if crit else 'cap'})")
+        return sol
 
     def wxyz_xyz(T: np.ndarray) -> np.ndarray:
         p = params_from_matrix(T)
@@ -544,8 +589,8 @@ def jaxls_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
             [jaxls.SE3Var(ids).with_value(jaxlie.SE3(put(wxyz_xyz(prob.X0.reshape(-1, 4, 4)))))])
 
         def run() -> np.ndarray:
-            sol = problem.solve(init, verbose=False)
-            v = np.asarray(jax.block_until_ready(sol[jaxls.SE3Var(ids)].wxyz_xyz))
+            sol = solved(problem, init, termination=term)
+            v = np.asarray(sol[jaxls.SE3Var(ids)].wxyz_xyz)
             return matrix_from_params(np.concatenate([v[:, 4:], v[:, 1:4], v[:, :1]], -1)
                                       ).reshape(B, n, 4, 4)
         how = "one problem of all graphs, LM, default CG"
@@ -567,8 +612,8 @@ def jaxls_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
             [jaxls.SE3Var(ids).with_value(jaxlie.SE3(put(wxyz_xyz(prob.T0))))])
 
         def run() -> np.ndarray:
-            sol = problem.solve(init, verbose=False)
-            v = np.asarray(jax.block_until_ready(sol[jaxls.SE3Var(ids)].wxyz_xyz))
+            sol = solved(problem, init, termination=term)
+            v = np.asarray(sol[jaxls.SE3Var(ids)].wxyz_xyz)
             return matrix_from_params(np.concatenate([v[:, 4:], v[:, 1:4], v[:, :1]], -1))
         how = "one problem of all PnPs, LM, default CG"
     else:
@@ -603,15 +648,19 @@ def jaxls_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender:
         init = jaxls.VarValues.make([cv.with_value(put(prob.cameras)),
                                      pv.with_value(put(prob.points))])
         solver = kw.get("jaxls_solver", "dense_cholesky")
-        term = jaxls.TerminationConfig(max_iterations=prob.iterations, early_termination=False)
+        early = not kw.get("jaxls_no_early_stop", False)
+        bterm = jaxls.TerminationConfig(max_iterations=prob.iterations, early_termination=early)
 
         def run() -> tuple[np.ndarray, np.ndarray]:
-            sol = problem.solve(init, linear_solver=solver, termination=term, verbose=False)
-            sol = jax.block_until_ready(sol)
+            sol = solved(problem, init, linear_solver=solver, termination=bterm)
             return np.asarray(sol[cv]), np.asarray(sol[pv])
         how = (f"LM, Schur elimination + {solver} (its documented best for BA), "
-               f"{prob.iterations} iterations, no early stop")
-    return Contender("jaxls", how, run, time.perf_counter() - t0)
+               f"at most {prob.iterations} iterations, "
+               + ("its own stop rule (default tolerances)" if early else "no early stop"))
+    if kind != "bal":
+        how += (f"; its stop rule: relative cost change < "
+                f"{term.cost_tolerance:g}, <= {max_iter} iterations")
+    return Contender("jaxls", how, run, time.perf_counter() - t0, stats=stats)
 
 
 # ---- PyPose
@@ -632,6 +681,7 @@ def pypose_contender(kind: str, prob: Any, device: str, subset: int = 20, **kw: 
     dev = torch.device(device)
     t0 = time.perf_counter()
     K = min(subset, prob.batch)
+    max_iter = _stop(kw)[0]
 
     def tt(x: np.ndarray) -> Any:
         return torch.as_tensor(x, dtype=torch.float64, device=dev)
@@ -674,7 +724,7 @@ def pypose_contender(kind: str, prob: Any, device: str, subset: int = 20, **kw: 
         for b in range(K):
             model = Graph(starts[b]).to(dev)
             opt = pp.optim.LM(model)
-            sched = pp.optim.scheduler.StopOnPlateau(opt, steps=100, patience=2,
+            sched = pp.optim.scheduler.StopOnPlateau(opt, steps=max_iter, patience=2,
                                                      decreasing=1e-8)
             sched.optimize(input=inputs[b])
             p = next(iter(model.parameters())).detach()
@@ -741,22 +791,29 @@ def theseus_contender(kind: str, prob: Any, device: str, **kw: Any) -> Contender
     for c in costs:
         objective.add(c)
     objective.to(dev)
-    maxit = kw.get("theseus_iterations", 50)
-    layer = th.TheseusLayer(th.LevenbergMarquardt(objective, max_iterations=maxit))
+    maxit, rel_tol, abs_tol = _stop(kw)
+    tol = {**({} if rel_tol is None else {"rel_err_tolerance": rel_tol}),
+           **({} if abs_tol is None else {"abs_err_tolerance": abs_tol})}
+    lm = th.LevenbergMarquardt(objective, max_iterations=maxit, **tol)
+    layer = th.TheseusLayer(lm)
     layer.to(dev)
+    stats: dict[str, str] = {}
 
     def run() -> np.ndarray:
         with torch.no_grad():
             sol, info = layer.forward(dict(start), optimizer_kwargs={
                 "track_best_solution": False, "verbose": False, "adaptive_damping": True})
         _sync_torch(device)
+        stats["iterations"] = f"{_spread(info.converged_iter.cpu().numpy())} (tries)"
         out = np.stack([sol[k].cpu().numpy() for k in names], 1)   # (B, n, 3, 4)
         M = np.zeros((*out.shape[:2], 4, 4))
         M[..., :3, :] = out
         M[..., 3, 3] = 1.0
         return M if kind == "posegraph" else M[:, 0]
     return Contender("Theseus", f"LevenbergMarquardt (adaptive damping, dense Cholesky), "
-                     f"batch axis, <= {maxit} iterations", run, time.perf_counter() - t0)
+                     f"batch axis, <= {maxit} iterations, relative / absolute cost change < "
+                     f"{lm.params.rel_err_tolerance:g} / {lm.params.abs_err_tolerance:g}",
+                     run, time.perf_counter() - t0, stats=stats)
 
 
 def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
@@ -897,6 +954,7 @@ class Row:
     skipped: str = ""
     ours: bool = False
     note: str = ""
+    iterations: str = ""              # as the contender counts them, its last run
 
 
 def run_problem(kind: str, args: argparse.Namespace, out: list[str]) -> list[Row]:
@@ -910,7 +968,9 @@ def run_problem(kind: str, args: argparse.Namespace, out: list[str]) -> list[Row
         try:
             c = PEERS[name](kind, prob, args.device, subset=args.pypose_subset,
                             jaxls_solver=args.jaxls_solver,
-                            theseus_damping=args.theseus_damping)
+                            jaxls_no_early_stop=args.jaxls_no_early_stop,
+                            theseus_damping=args.theseus_damping, max_iter=args.max_iter,
+                            rel_tol=args.rel_tol, abs_tol=args.abs_tol)
         except NotImplementedError as e:
             row.skipped = str(e)
             continue
@@ -929,6 +989,7 @@ def run_problem(kind: str, args: argparse.Namespace, out: list[str]) -> list[Row
             row.skipped = f"failed: {type(e).__name__}: {e}"
             traceback.print_exc()
             continue
+        row.iterations = c.stats.get("iterations", "")
         cs = costs_of(kind, prob, sol)
         row.cost = float(np.sum(cs))
         row.excess = float(np.max((cs - ref[:len(cs)]) / ref[:len(cs)]))
@@ -974,11 +1035,11 @@ def table(kind: str, prob: Any, ref: np.ndarray, rows: list[Row],
              f"Reference: the NumPy engine's {refs}; `excess` = largest relative cost excess "
              f"over it ({'per problem' if kind != 'bal' else 'after the iterations run'}).", "",
              "| contender | solve | setup s | first call s | steady s, median (min-max) | "
-             "cost | excess | " + " | ".join(f"/ {o.name}" for o in ours) + " |",
-             "|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(ours)]
+             "cost | excess | iterations | " + " | ".join(f"/ {o.name}" for o in ours) + " |",
+             "|---|---|---:|---:|---:|---:|---:|---|" + "---:|" * len(ours)]
     for r in rows:
         if r.skipped:
-            lines.append(f"| {r.name} | not run: {r.skipped} | | | | | |" + " |" * len(ours))
+            lines.append(f"| {r.name} | not run: {r.skipped} | | | | | | |" + " |" * len(ours))
             continue
         med = statistics.median(r.times) if r.times else float("nan")
         span = f"{_fmt(med)} ({_fmt(min(r.times))}-{_fmt(max(r.times))})" if r.times else "-"
@@ -993,7 +1054,7 @@ def table(kind: str, prob: Any, ref: np.ndarray, rows: list[Row],
             span = r.note
         lines.append(f"| {r.name} | {r.how} | {_fmt(r.setup_s)} | {_fmt(r.first_s)} | {span} | "
                      f"{r.cost:.10g}{f' ({r.note})' if r.note and r.times else ''} | "
-                     f"{r.excess:.1e} | " + " | ".join(ratios) + " |")
+                     f"{r.excess:.1e} | {r.iterations or '-'} | " + " | ".join(ratios) + " |")
     if any(not r.times and not r.skipped for r in rows):
         lines += ["", "`*`: a contender timed once (its first call, over `--slow`) over that "
                   "row's median."]
@@ -1036,16 +1097,29 @@ def main(argv: list[str] | None = None) -> int:
                     help="Theseus's fixed LM damping on BAL (100; its default 1e-3 stops at "
                          "the first step: CHOLMOD finds the damped system not positive "
                          "definite)")
+    ap.add_argument("--max-iter", type=int, default=100,
+                    help="iteration cap of the batch rows, for every contender that has one "
+                         "(100)")
+    ap.add_argument("--rel-tol", type=float, default=1e-5,
+                    help="relative cost-change stop of the batch rows (microlie, Theseus, "
+                         "jaxls's cost_tolerance; 1e-5)")
+    ap.add_argument("--abs-tol", type=float, default=1e-5,
+                    help="absolute cost-change stop of the batch rows (microlie, Theseus; "
+                         "1e-5)")
+    ap.add_argument("--jaxls-no-early-stop", action="store_true",
+                    help="BAL: jaxls runs exactly --iterations (default: its own stop rule)")
     ap.add_argument("--slow", type=float, default=150.0,
                     help="a contender whose first call takes longer is not timed again (150 s)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="also write the markdown report here")
     ap.add_argument("--json", help="append each problem's raw rows (JSON lines) here")
     args = ap.parse_args(argv)
-    if min(args.batch, args.rounds, args.bal_rounds, args.iterations, args.pypose_subset) < 1 \
-            or args.pnp_points < 6:
-        ap.error("--batch, --rounds, --bal-rounds, --iterations and --pypose-subset must be "
-                 ">= 1, --pnp-points >= 6")
+    if min(args.batch, args.rounds, args.bal_rounds, args.iterations, args.pypose_subset,
+           args.max_iter) < 1 or args.pnp_points < 6:
+        ap.error("--batch, --rounds, --bal-rounds, --iterations, --pypose-subset and "
+                 "--max-iter must be >= 1, --pnp-points >= 6")
+    if not (args.rel_tol >= 0 and args.abs_tol >= 0):
+        ap.error("--rel-tol and --abs-tol must be >= 0")
     if "bal" in args.problems and not Path(args.bal).is_file():
         ap.error(f"--bal: {args.bal} not found (the shared BAL data, ../shared/data/bal)")
 
@@ -1076,7 +1150,11 @@ def main(argv: list[str] | None = None) -> int:
             f"Date {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {platform.machine()}, "
             f"{versions()}; device `{args.device}`; one thread each (torch, XLA, BLAS); "
             f"float64; seed {args.seed}.", "",
-            f"Load at start: {load()}.", ""]
+            f"Load at start: {load()}.", "",
+            f"Stop rule of the batch rows, for every contender with the knob: at most "
+            f"{args.max_iter} iterations, relative / absolute cost change below "
+            f"{args.rel_tol:g} / {args.abs_tol:g} (GTSAM's and Theseus's meaning; jaxls has the "
+            f"relative one only, PyPose neither). BAL: {args.iterations} iterations.", ""]
     if args.device == "cuda":
         head += ["**CUDA:** this path runs the same code with the arrays on the GPU; it was "
                  "written and run on CPU only (no GPU at hand), so treat any CUDA figure as "

@@ -84,6 +84,9 @@ def test_pose_graph_cost_equals_microlie_graph_cost(dev):
         g.add(PriorFactor(X, 0, SE3(dev.params_from_matrix(p.Z0[b])), Diagonal(1 / p.w_prior)))
         r = g.optimize(max_iter=0)
         assert costs[b] == pytest.approx(r.initial_cost, rel=1e-12)
+    # the benchmark's own graph of the batch (the NumPy engine's contender) has the same cost
+    g3, _ = dev.build_graph("posegraph", p, 3)
+    assert g3.optimize(max_iter=0).initial_cost == pytest.approx(costs.sum(), rel=1e-12)
     # the truth is near the optimum: its cost is about half the number of residuals
     assert np.all(dev.pose_graph_costs(p, p.truth) < 0.5 * (12 * 6 + 6) * 3)
 
@@ -98,6 +101,9 @@ def test_pnp_cost_equals_a_direct_projection(dev):
     uv = np.column_stack([500 * P[:, 0] / P[:, 2] + 320, 500 * P[:, 1] / P[:, 2] + 240])
     assert dev.pnp_costs(p, p.truth)[b] == pytest.approx(0.5 * np.sum((uv - p.uv[b]) ** 2),
                                                           rel=1e-12)
+    g, _ = dev.build_graph("pnp", p, 4)
+    assert g.optimize(max_iter=0).initial_cost == pytest.approx(dev.pnp_costs(p, p.T0).sum(),
+                                                                rel=1e-12)
 
 
 def test_bal_cost_is_the_published_initial_cost(dev):
@@ -111,7 +117,9 @@ def test_bal_cost_is_the_published_initial_cost(dev):
 @pytest.mark.parametrize("argv, word", [(["--batch", "0"], "--batch"),
                                         (["--pnp-points", "3"], "--pnp-points"),
                                         (["--bal", "/nonexistent.txt"], "--bal"),
-                                        (["--device", "tpu"], "--device")])
+                                        (["--device", "tpu"], "--device"),
+                                        (["--max-iter", "0"], "--max-iter"),
+                                        (["--rel-tol", "-1"], "--rel-tol")])
 def test_bad_arguments_name_the_option(dev, argv, word, capsys):
     with pytest.raises(SystemExit):
         dev.main(argv)

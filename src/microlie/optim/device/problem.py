@@ -149,10 +149,10 @@ class DeviceProblem:
             c = self.blocks[k].cols.reshape(-1)
             cm[c[c < N]] = 0.0
         self._keep_mask = be.asarray(cm)
-        self._pairs: list | None = None
+        self._dense: Any = None
         self._schur_plan: Any = None   # schur.schur_plan, built on first use
         if N <= DENSE_MAX:
-            self.dense_pairs()  # built here, not inside a traced solve
+            self.dense_index()  # built here, not inside a traced solve
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -493,13 +493,15 @@ class DeviceProblem:
                 out.append(b.group.from_params(p, check=False).plus(d).params)
         return out
 
-    def dense_pairs(self) -> list:
-        """Per factor batch, per argument pair ``(k, l)``: the flat positions of
-        ``A_k^T A_l`` in the ``(size + 1)^2`` dense matrix (built once).
+    def dense_index(self) -> Any:
+        """The flat positions in the ``(size + 1)^2`` dense matrix of every factor's
+        ``J^T J``, ``J = [A_1 ... A_k]`` its Jacobian blocks side by side (``(m, D, D)`` per
+        factor batch, raveled, the factor batches one after the other; built once; fixed
+        columns land in the extra last row and column).
 
         Returns
         -------
-        list of list of (int, int, index array)
+        index array
 
         Examples
         --------
@@ -508,16 +510,15 @@ class DeviceProblem:
         >>> from microlie.optim.device import DeviceProblem
         >>> g = FactorGraph()
         >>> _ = g.add(PriorFactor(g.add_variables(torch.ones((1, 2)).double()), 0, [0.0, 0.0]))
-        >>> DeviceProblem.from_graph(g).dense_pairs()[0][0][2].tolist()  # (0,0), (0,1), ...
+        >>> DeviceProblem.from_graph(g).dense_index().tolist()  # (0,0), (0,1), ...
         [0, 1, 3, 4]
         """
-        if self._pairs is None:
+        if self._dense is None:
             n1 = self.size + 1
-            self._pairs = [[(k, l_, self.backend.index((ck[:, :, None] * n1
-                                                        + cl[:, None, :]).reshape(-1)))
-                            for k, ck in enumerate(t.cols) for l_, cl in enumerate(t.cols)]
-                           for t in self.terms]
-        return self._pairs
+            cols = [np.concatenate(t.cols, axis=1) for t in self.terms]
+            self._dense = self.backend.index(np.concatenate(
+                [(c[:, :, None] * n1 + c[:, None, :]).reshape(-1) for c in cols]))
+        return self._dense
 
     # ------------------------------------------------------------------ products
     def jvp(self, lin: Linear, v: Any) -> list[Any]:
