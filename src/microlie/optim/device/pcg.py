@@ -239,8 +239,8 @@ def pcg(be: Any, matvec: Any, precond: Any, b: Any, eta: Any, max_iter: int,
 
 
 def pcg_step(problem: DeviceProblem, lin: Linear, g: Any, blocks: list[Any], damping: Any,
-             eta: Any, max_iter: int, schur: bool = True, fixed: bool = False
-             ) -> tuple[Any, Any, Any]:
+             eta: Any, max_iter: int, schur: bool = True, fixed: bool = False,
+             precond: Any = None) -> tuple[Any, Any, Any]:
     """The inexact step of ``(H + diag(damping)) dx = -g`` by PCG (Schur-complement PCG over
     the non-eliminated variables when the problem has landmarks and ``schur``).
 
@@ -264,6 +264,10 @@ def pcg_step(problem: DeviceProblem, lin: Linear, g: Any, blocks: list[Any], dam
         Eliminate the landmarks (``problem.eliminate``) when there are some.
     fixed : bool
         Fixed-length loops (see :func:`pcg`).
+    precond : callable, optional
+        ``(damping, jacobi) -> (v -> M^-1 v)`` given the damping and the block-Jacobi
+        product: a preconditioner built on block-Jacobi
+        (:mod:`~microlie.optim.device.precondition`) for steps without landmarks.
 
     Returns
     -------
@@ -300,7 +304,10 @@ def pcg_step(problem: DeviceProblem, lin: Linear, g: Any, blocks: list[Any], dam
 
     elim = problem.eliminate if schur else []
     b = -g
-    if not elim:
+    if not elim and precond is not None:
+        M = precond(damping, lambda v, keys=None: _apply_blocks(problem, inv, v, keys))
+        dx, it = pcg(be, H, M, b, eta, max_iter, fixed)
+    elif not elim:
         dx, it = pcg(be, H, lambda v: _apply_blocks(problem, inv, v), b, eta, max_iter, fixed)
     else:
         mc = problem._keep_mask           # 1 on the reduced (camera) columns

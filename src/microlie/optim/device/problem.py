@@ -150,6 +150,8 @@ class DeviceProblem:
             cm[c[c < N]] = 0.0
         self._keep_mask = be.asarray(cm)
         self._pairs: list | None = None
+        #: host-built plans of the step solvers (static index arrays), cached by name
+        self.plans: dict = {}
         if N <= DENSE_MAX:
             self.dense_pairs()  # built here, not inside a traced solve
 
