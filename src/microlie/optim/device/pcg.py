@@ -4,7 +4,8 @@ matrix-free products ``H v = J^T (J v)`` and a block-Jacobi preconditioner (the 
 ``dof x dof`` diagonal blocks of the damped ``H``, one per variable), or, for bundle adjustment,
 on the Schur complement of the landmarks (eliminated exactly, block by block:
 ``S = H_cc - H_cp H_pp^-1 H_pc``, applied matrix-free, preconditioned by the inverse diagonal
-blocks of ``S``).
+blocks of ``S``). On pose graphs the block-Jacobi preconditioner gets a coarse level, or a
+spanning tree (:mod:`microlie.optim.device.precondition`).
 
 Inexact-step rules: CG stops when ``|r_k| <= eta |b|`` (``b`` the right-hand side) with the
 forcing term ``eta = min(eta_max, sqrt(|g| / |g_0|))`` (``g_0`` the gradient at the start:

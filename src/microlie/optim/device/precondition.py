@@ -111,7 +111,7 @@ def _spanning_tree(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     return e[np.lexsort((e[:, 1], e[:, 0]))]
 
 
-def _levels(n: int, edges: np.ndarray) -> list[tuple]:
+def _levels(n: int, edges: np.ndarray) -> tuple[list[np.ndarray], int]:
     """Rake-and-compress levels: per level ``(v, a, b, slot_a, slot_b, fill)`` with ``-1``
     for a missing neighbour (and the fill slots numbered after the tree's)."""
     nbr: list[dict[int, int]] = [dict() for _ in range(n)]
@@ -125,9 +125,9 @@ def _levels(n: int, edges: np.ndarray) -> list[tuple]:
     while remaining:
         taken = np.zeros(n, dtype=bool)
         blocked = np.zeros(n, dtype=bool)
-        rows = []
-        for v in np.flatnonzero(alive):
-            v = int(v)
+        rows: list[list[int]] = []
+        for vv in np.flatnonzero(alive):
+            v = int(vv)
             if len(nbr[v]) > 2 or blocked[v]:
                 continue
             taken[v] = True
@@ -135,7 +135,7 @@ def _levels(n: int, edges: np.ndarray) -> list[tuple]:
                 blocked[u] = True
             ns = sorted(nbr[v].items())
             a, sa = ns[0] if ns else (-1, -1)
-            b, sb = ns[1] if len(ns) > 1 else (-1, -1)
+            b, sb = ns[1] if len(ns) > 1 else (-1, -1)  # a < b
             rows.append([v, a, b, sa, sb, -1])
         for r in rows:
             v, a, b = r[0], r[1], r[2]
@@ -151,7 +151,7 @@ def _levels(n: int, edges: np.ndarray) -> list[tuple]:
             alive[v] = False
         remaining -= len(rows)
         out.append(np.array(rows, dtype=np.int64).reshape(-1, 6))
-    return out + [nslot]
+    return out, nslot
 
 
 def tree_plan(problem: DeviceProblem) -> TreePlan | None:
@@ -208,13 +208,13 @@ def tree_plan(problem: DeviceProblem) -> TreePlan | None:
             continue
         i = np.asarray(t.idx_np[0], dtype=np.int64).reshape(-1)
         j = np.asarray(t.idx_np[1], dtype=np.int64).reshape(-1)
-        s = np.array([slot_of.get((min(a, b), max(a, b)), -1) for a, b in zip(i, j, strict=True)],
-                     dtype=np.int64)
+        s = np.array([slot_of.get((int(min(a, b)), int(max(a, b))), -1)
+                      for a, b in zip(i, j, strict=True)], dtype=np.int64)
         on = np.flatnonzero(s >= 0)
         rows.append(None if not len(on) else
                     (be.index(on), be.index(s[on]), be.asarray((i[on] > j[on])[:, None, None]
                                                                .astype(np.float64))))
-    *lv, slots = _levels(n, edges)
+    lv, slots = _levels(n, edges)
     levels = []
     for r in lv:
         v, a, b, sa, sb, fill = (r[:, c] for c in range(6))
@@ -267,7 +267,7 @@ def tree_edges(problem: DeviceProblem, plan: TreePlan, lin: Linear) -> Any:
     B = lin.e[0].shape[0]
     d = plan.dof
     out = be.zeros((B, plan.slots + 1, d * d), like=lin.e[0])
-    for t, A, r in zip(problem.terms, lin.A, plan.rows, strict=True):
+    for A, r in zip(lin.A, plan.rows, strict=True):
         if r is None:
             continue
         on, slot, swap = r
