@@ -48,6 +48,9 @@ def main() -> None:
     ap.add_argument("--max-iter", type=int, default=100)
     ap.add_argument("--cg-max-iter", type=int, default=None)
     ap.add_argument("--eta-max", type=float, default=None)
+    ap.add_argument("--precondition", default=None, choices=["auto", "jacobi", "tree"])
+    ap.add_argument("--coarse", type=int, default=None,
+                    help="aggregate size of the coarse level (-1 automatic, 0 none)")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     args = ap.parse_args()
     if "jax" in args.backends:
@@ -58,7 +61,9 @@ def main() -> None:
     from microlie.optim.device import DeviceProblem, LMOptions, solve
 
     extra = {k: v for k, v in (("cg_max_iter", args.cg_max_iter),
-                               ("eta_max", args.eta_max)) if v is not None}
+                               ("eta_max", args.eta_max),
+                               ("precondition", args.precondition),
+                               ("coarse", args.coarse)) if v is not None}
     print(f"load {os.getloadavg()[0]:.1f}")
     print("| case | engine | dtype | final cost (NumPy cost at the values) | rel. to NumPy | "
           "iterations | CG iterations | time s (first / second call) |")
