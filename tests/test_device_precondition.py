@@ -165,3 +165,22 @@ def test_preconditioner_options_are_checked():
         solve(p, p.theta(), p.initial(), LMOptions(linear="pcg", precondition="tree"))
     _, info = solve(p, p.theta(), p.initial(), LMOptions(linear="pcg"))   # no pose batch
     assert float(info.cost) < 1e-20
+
+
+def test_batched_pcg_with_the_coarse_level_equals_the_dense_solves():
+    """Two starts of one chain in one batch: each PCG solve equals the batched dense-Cholesky
+    solve of the same problem (each problem its own coarse matrix and damping)."""
+    torch = require("torch")
+    from microlie.optim.device import DeviceProblem, LMOptions, solve, stack
+
+    g, _ = _chain(SE2, 60, torch.tensor)
+    p = DeviceProblem.from_graph(g)
+    x0 = p.initial()
+    kick = torch.tensor(np.random.default_rng(3).normal(size=(60, 3)) * 0.05)
+    x1 = [SE2.from_params(x0[0]).plus(kick).params]
+    th, xs = stack([p.theta(), p.theta()]), stack([x0, x1])
+    tight = dict(max_iter=30, rel_tol=1e-12, abs_tol=0.0)
+    _, info = solve(p, th, xs, LMOptions(linear="pcg", **tight))
+    _, ref = solve(p, th, xs, LMOptions(linear="dense", **tight))
+    assert (info.status == 1).all()
+    assert ((info.cost - ref.cost).abs() <= 1e-10 * ref.cost).all()
