@@ -50,6 +50,9 @@ def main() -> None:
     ap.add_argument("--max-iter", type=int, default=100)
     ap.add_argument("--cg-max-iter", type=int, default=None)
     ap.add_argument("--eta-max", type=float, default=None)
+    ap.add_argument("--precondition", default=None, choices=["auto", "jacobi", "tree"])
+    ap.add_argument("--coarse", type=int, default=None,
+                    help="aggregate size of the coarse level (-1 automatic, 0 none)")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     ap.add_argument("--linear", default="pcg", choices=["auto", "dense", "schur", "pcg"],
                     help="the device step solve (LMOptions.linear)")
@@ -76,7 +79,9 @@ def main() -> None:
     tols = {k: v for k, v in (("rel_tol", args.rel_tol), ("abs_tol", args.abs_tol),
                               ("damping", args.damping)) if v is not None}
     extra = {k: v for k, v in (("cg_max_iter", args.cg_max_iter),
-                               ("eta_max", args.eta_max)) if v is not None}
+                               ("eta_max", args.eta_max),
+                               ("precondition", args.precondition),
+                               ("coarse", args.coarse)) if v is not None}
     extra.update(tols)
     print(f"load {os.getloadavg()[0]:.1f}; device step {args.linear}; "
           f"tolerances {tols or 'default'}")

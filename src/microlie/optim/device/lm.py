@@ -22,6 +22,15 @@ from typing import Any, NamedTuple
 from .backend import torch_while
 from .dense import dense_step, normal_equations
 from .pcg import block_diagonal, diagonal_of, pcg_step
+from .precondition import (
+    coarse_basis,
+    coarse_matrix,
+    coarse_plan,
+    tree_edges,
+    tree_plan,
+    tree_preconditioner,
+    two_level,
+)
 from .problem import DENSE_MAX, DeviceProblem, Linear, Theta
 from .schur import schur_fits, schur_plan, schur_step
 
@@ -59,6 +68,15 @@ class LMOptions:
         (:func:`~microlie.optim.device.schur.schur_fits`), else ``"pcg"``.
     schur : bool
         PCG eliminates landmarks (variables that share no factor) when there are some.
+    precondition : {"auto", "jacobi", "tree"}
+        PCG's local preconditioner on problems without landmarks: ``"jacobi"`` the
+        diagonal blocks, ``"tree"`` also the off-diagonal blocks of a spanning tree of the
+        pose graph, solved by tree elimination (:mod:`microlie.optim.device.precondition`).
+        ``"auto"``: ``"jacobi"``.
+    coarse : int
+        The coarse level added to it (pose graphs: a variable batch with between factors,
+        no landmarks): aggregates of ``coarse`` consecutive variables moved rigidly, solved
+        exactly (dense). ``-1``: automatic size; ``0``: none.
     cg_max_iter : int
         CG iterations per step at most.
     eta_max, eta_min : float
@@ -94,6 +112,8 @@ class LMOptions:
     step_tol: float = 0.0
     linear: str = "auto"
     schur: bool = True
+    precondition: str = "auto"
+    coarse: int = -1
     cg_max_iter: int = 3000
     eta_max: float = 1e-4
     eta_min: float = 1e-10
@@ -110,6 +130,13 @@ class LMOptions:
         if self.linear not in ("auto", "dense", "schur", "pcg"):
             raise ValueError(f"linear must be 'auto', 'dense', 'schur' or 'pcg', got "
                              f"{self.linear!r}")
+        if self.precondition not in ("auto", "tree", "jacobi"):
+            raise ValueError(f"precondition must be 'auto', 'tree' or 'jacobi', got "
+                             f"{self.precondition!r}")
+        if isinstance(self.coarse, bool) or not isinstance(self.coarse, int) or \
+                self.coarse < -1:
+            raise ValueError(f"coarse must be an integer >= -1 (-1 automatic, 0 none), got "
+                             f"{self.coarse!r}")
         if self.loop not in ("auto", "while", "fixed"):
             raise ValueError(f"loop must be 'auto', 'while' or 'fixed', got {self.loop!r}")
         if not self.lambda_factor > 1.0:
@@ -193,6 +220,14 @@ class _Engine:
         self.dense = lin == "dense"
         if lin == "schur":
             schur_plan(problem)  # built here (host), not inside a traced solve
+        self.tree = self.coarse = None
+        if lin == "pcg" and opts.precondition == "tree":
+            self.tree = tree_plan(problem)
+            if self.tree is None:
+                raise ValueError("precondition='tree' needs a variable batch with between "
+                                 "factors and no landmarks; use 'jacobi' or 'auto'")
+        if lin == "pcg" and opts.coarse != 0:
+            self.coarse = coarse_plan(problem, max(opts.coarse, 0))
 
     def system(self, theta: Theta, x: list[Any]) -> dict:
         lin = self.p.linearize(theta, x)
@@ -204,8 +239,32 @@ class _Engine:
             return {"H": H, "g": g, "dg": dg, "cost": lin.cost}
         blocks = block_diagonal(self.p, lin)
         g = self.p.vjp(lin, lin.e)
-        return {"e": lin.e, "A": lin.A, "blocks": blocks, "g": g,
-                "dg": diagonal_of(self.p, blocks), "cost": lin.cost}
+        out = {"e": lin.e, "A": lin.A, "blocks": blocks, "g": g,
+               "dg": diagonal_of(self.p, blocks), "cost": lin.cost}
+        if self.tree is not None:
+            out["tree"] = tree_edges(self.p, self.tree, lin)
+        if self.coarse is not None:
+            out["P"] = coarse_basis(self.p, self.coarse, x)
+            out["Ac"] = coarse_matrix(self.p, self.coarse, lin, out["P"])
+        return out
+
+    def preconditioner(self, s: dict, blocks: list[Any]) -> Any:
+        """``(damping, jacobi) -> M^-1`` for :func:`pcg_step` (``None``: block-Jacobi)."""
+        if self.tree is None and self.coarse is None:
+            return None
+        p, tree, coarse = self.p, self.tree, self.coarse
+
+        def build(damping: Any, jacobi: Any) -> Any:
+            M = jacobi
+            if tree is not None:
+                rest = [k for k in range(len(p.blocks)) if k != tree.key]
+                M = tree_preconditioner(p, tree, blocks, s["tree"], damping,
+                                        lambda v: jacobi(v, rest))
+            if coarse is not None:
+                M = two_level(p, coarse, s["P"], s["Ac"], damping, M)
+            return M
+
+        return build
 
     def step(self, s: dict, damping: Any, eta: Any) -> tuple[Any, Any, Any, Any, Any]:
         """``dx``, ``ok``, the model decrease ``-(g.dx + dx.H dx / 2)``, CG iterations and
@@ -221,8 +280,9 @@ class _Engine:
             dx, ok = schur_step(self.p, lin, g, s["blocks"], damping)
             it = g[..., 0] * 0.0
         else:
-            dx, ok, it = pcg_step(self.p, lin, g, s["blocks"], damping, eta, self.opts.cg_max_iter,
-                              self.opts.schur, self.fixed)
+            dx, ok, it = pcg_step(self.p, lin, g, s["blocks"], damping, eta,
+                                  self.opts.cg_max_iter, self.opts.schur, self.fixed,
+                                  self.preconditioner(s, s["blocks"]))
         Jdx = self.p.jvp(lin, dx)
         quad = 0.0
         for u in Jdx:

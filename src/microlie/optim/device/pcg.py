@@ -4,7 +4,8 @@ matrix-free products ``H v = J^T (J v)`` and a block-Jacobi preconditioner (the 
 ``dof x dof`` diagonal blocks of the damped ``H``, one per variable), or, for bundle adjustment,
 on the Schur complement of the landmarks (eliminated exactly, block by block:
 ``S = H_cc - H_cp H_pp^-1 H_pc``, applied matrix-free, preconditioned by the inverse diagonal
-blocks of ``S``).
+blocks of ``S``). On pose graphs the block-Jacobi preconditioner gets a coarse level, or a
+spanning tree (:mod:`microlie.optim.device.precondition`).
 
 Inexact-step rules: CG stops when ``|r_k| <= eta |b|`` (``b`` the right-hand side) with the
 forcing term ``eta = min(eta_max, sqrt(|g| / |g_0|))`` (``g_0`` the gradient at the start:
@@ -239,8 +240,8 @@ def pcg(be: Any, matvec: Any, precond: Any, b: Any, eta: Any, max_iter: int,
 
 
 def pcg_step(problem: DeviceProblem, lin: Linear, g: Any, blocks: list[Any], damping: Any,
-             eta: Any, max_iter: int, schur: bool = True, fixed: bool = False
-             ) -> tuple[Any, Any, Any]:
+             eta: Any, max_iter: int, schur: bool = True, fixed: bool = False,
+             precond: Any = None) -> tuple[Any, Any, Any]:
     """The inexact step of ``(H + diag(damping)) dx = -g`` by PCG (Schur-complement PCG over
     the non-eliminated variables when the problem has landmarks and ``schur``).
 
@@ -264,6 +265,10 @@ def pcg_step(problem: DeviceProblem, lin: Linear, g: Any, blocks: list[Any], dam
         Eliminate the landmarks (``problem.eliminate``) when there are some.
     fixed : bool
         Fixed-length loops (see :func:`pcg`).
+    precond : callable, optional
+        ``(damping, jacobi) -> (v -> M^-1 v)`` given the damping and the block-Jacobi
+        product: a preconditioner built on block-Jacobi
+        (:mod:`~microlie.optim.device.precondition`) for steps without landmarks.
 
     Returns
     -------
@@ -300,7 +305,10 @@ def pcg_step(problem: DeviceProblem, lin: Linear, g: Any, blocks: list[Any], dam
 
     elim = problem.eliminate if schur else []
     b = -g
-    if not elim:
+    if not elim and precond is not None:
+        M = precond(damping, lambda v, keys=None: _apply_blocks(problem, inv, v, keys))
+        dx, it = pcg(be, H, M, b, eta, max_iter, fixed)
+    elif not elim:
         dx, it = pcg(be, H, lambda v: _apply_blocks(problem, inv, v), b, eta, max_iter, fixed)
     else:
         mc = problem._keep_mask           # 1 on the reduced (camera) columns

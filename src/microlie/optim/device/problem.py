@@ -151,6 +151,8 @@ class DeviceProblem:
         self._keep_mask = be.asarray(cm)
         self._dense: Any = None
         self._schur_plan: Any = None   # schur.schur_plan, built on first use
+        #: host-built plans of the step solvers (static index arrays), cached by name
+        self.plans: dict = {}
         if N <= DENSE_MAX:
             self.dense_index()  # built here, not inside a traced solve
 
