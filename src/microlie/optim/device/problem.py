@@ -142,6 +142,7 @@ class DeviceProblem:
         self._any_free = [bool(b.free.any()) for b in self.blocks]
         self._sink = be.index(np.array([N]))
         self.terms = [self._term(prob, f) for f in prob.factors]
+        self._stacks = self._stack_terms()
         self.rows = int(sum(t.m * t.dim for t in self.terms))
         self.eliminate = self._landmarks(prob)
         cm = np.ones(N)        # 1 on the columns a Schur step keeps (cameras), 0 on landmarks
@@ -232,6 +233,54 @@ class DeviceProblem:
         mask = [be.asarray((c != self.size).astype(np.float64)[:, None, :]) for c in cols]
         return _Term(kind, keys, [be.index(i) for _, i in f.args], [i for _, i in f.args], cols,
                      [be.index(c.reshape(-1)) for c in cols], mask, f.dim, f.count, info)
+
+    def _stack_terms(self) -> list[tuple[list[int], list[Any], list[Any]]]:
+        """Factor batches evaluated together: the same kind, variable batches, dimension and
+        model, in graph order. Per stack: the batches, the joined indices of each argument
+        and the joined column masks (one residual/Jacobian evaluation per stack)."""
+        groups: dict[tuple, list[int]] = {}
+        for i, t in enumerate(self.terms):
+            key = (t.kind, tuple(t.keys), t.dim, tuple(sorted(t.info.items())))
+            groups.setdefault(key, []).append(i)
+        be = self.backend
+        out = []
+        for ids in groups.values():
+            ts = [self.terms[i] for i in ids]
+            if len(ids) == 1:
+                out.append((ids, ts[0].idx, ts[0].mask))
+                continue
+            idx = [be.index(np.concatenate([t.idx_np[a] for t in ts]))
+                   for a in range(len(ts[0].keys))]
+            mask = [be.asarray(np.concatenate([(t.cols[a] != self.size).astype(np.float64)
+                                               for t in ts])[:, None, :])
+                    for a in range(len(ts[0].keys))]
+            out.append((ids, idx, mask))
+        return out
+
+    def _whitened(self, theta: Theta, x: list[Any], jac: bool) -> list[Any]:
+        """Per factor batch ``e`` ``(B, m, dim)`` or, with ``jac``, ``(e, [A_k])``: each stack
+        of batches (:meth:`_stack_terms`) evaluated once, then split."""
+        be = self.backend
+        out: list[Any] = [None] * len(self.terms)
+        for ids, idx, mask in self._stacks:
+            t = self.terms[ids[0]]
+            args = [be.take(x[k], i, axis=-2) for k, i in zip(t.keys, idx, strict=True)]
+            th = theta[ids[0]] if len(ids) == 1 else \
+                {k: _cat(be, [theta[i][k] for i in ids], 1) for k in theta[ids[0]]}
+            res = self._evaluate(t, args, th, jac)
+            r, Js = res if jac else (res, None)
+            L = th["L"]
+            e = _whiten(L, r)
+            A = [(L @ J) * mk for J, mk in zip(Js, mask, strict=True)] if jac else None
+            if len(ids) == 1:
+                out[ids[0]] = (e, A) if jac else e
+                continue
+            sizes = [self.terms[i].m for i in ids]
+            es = _split(be, e, sizes)
+            As = [_split(be, a, sizes) for a in A] if A is not None else None
+            for j, i in enumerate(ids):
+                out[i] = (es[j], [a[j] for a in As]) if As is not None else es[j]
+        return out
 
     def _landmarks(self, prob: Any) -> list[int]:
         if not any(t.kind == "reprojection" for t in self.terms):
@@ -326,10 +375,6 @@ class DeviceProblem:
         return out
 
     # ------------------------------------------------------------------ evaluation
-    def _gather(self, x: list[Any], t: _Term) -> list[Any]:
-        be = self.backend
-        return [be.take(x[k], i, axis=-2) for k, i in zip(t.keys, t.idx, strict=True)]
-
     def _evaluate(self, t: _Term, args: list[Any], th: dict, jac: bool) -> Any:
         """Residuals ``(B, m, dim)`` and, with ``jac``, the Jacobians ``(B, m, dim, dof_k)``
         (unwhitened)."""
@@ -368,11 +413,7 @@ class DeviceProblem:
         >>> p.residuals(th, [a[None] for a in p.initial()])[0].tolist()
         [[[2.0, 0.0, 0.0]]]
         """
-        out = []
-        for t, th in zip(self.terms, theta, strict=True):
-            r = self._evaluate(t, self._gather(x, t), th, False)
-            out.append(_whiten(th["L"], r))
-        return out
+        return self._whitened(theta, x, False)
 
     def cost(self, theta: Theta, x: list[Any]) -> Any:
         """``0.5 * sum r^T Omega r`` per problem, ``(B,)``.
@@ -439,12 +480,9 @@ class DeviceProblem:
         """
         es, As = [], []
         cost = 0.0
-        for t, th in zip(self.terms, theta, strict=True):
-            r, Js = self._evaluate(t, self._gather(x, t), th, True)
-            L = th["L"]
-            e = _whiten(L, r)
+        for e, A in self._whitened(theta, x, True):
             es.append(e)
-            As.append([(L @ J) * mk for J, mk in zip(Js, t.mask, strict=True)])
+            As.append(A)
             cost = cost + 0.5 * _sum2(e)
         return Linear(es, As, cost)
 
@@ -552,6 +590,18 @@ def _sum2(e: Any) -> Any:
 
 def _whiten(L: Any, r: Any) -> Any:
     return (L @ r[..., None])[..., 0]
+
+
+def _cat(be: Backend, xs: list[Any], axis: int) -> Any:
+    return be.xp.concatenate(xs, axis=axis) if be.name == "jax" else be.xp.cat(xs, axis)
+
+
+def _split(be: Backend, a: Any, sizes: list[int]) -> list[Any]:
+    """``a`` cut along axis 1 into pieces of ``sizes``."""
+    if be.name == "torch":
+        return list(a.split(sizes, 1))
+    cuts = np.cumsum(sizes)[:-1].tolist()
+    return list(be.xp.split(a, cuts, axis=1))
 
 
 def extend(be: Backend, dx: Any) -> Any:
