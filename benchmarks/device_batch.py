@@ -98,6 +98,9 @@ def main() -> None:
             elif eng == "torch-compile":
                 opts = LMOptions(max_tries=args.max_tries)
                 torch._dynamo.reset()
+                from torch._dynamo.utils import compilation_time_metrics
+
+                compilation_time_metrics.clear()
                 fn = torch.compile(lambda th, x, p=p, o=opts: solve(p, th, x, o),
                                    fullgraph=True, dynamic=False,
                                    backend=args.compile_backend)

@@ -63,6 +63,19 @@ class _Term:
     info: dict
 
 
+@dataclass
+class _Stack:
+    """Factor batches evaluated as one (:meth:`DeviceProblem._stack_terms`)."""
+
+    ids: list[int]          # the factor batches, in order
+    kind: str               # how the stack evaluates
+    keys: list[int]         # variable batch of each argument
+    idx: list[Any]          # backend joined indices of each argument
+    mask: list[Any]         # backend (M, 1, dof_k) 0/1 columns that are unknowns
+    prior: Any              # backend (M, 1) 1.0 on prior rows (between from the identity)
+    one: Any                # backend identity parameters (with prior rows)
+
+
 class Linear(NamedTuple):
     """A linearisation: whitened residuals and Jacobian blocks per factor batch (a pytree).
 
@@ -234,52 +247,82 @@ class DeviceProblem:
         return _Term(kind, keys, [be.index(i) for _, i in f.args], [i for _, i in f.args], cols,
                      [be.index(c.reshape(-1)) for c in cols], mask, f.dim, f.count, info)
 
-    def _stack_terms(self) -> list[tuple[list[int], list[Any], list[Any]]]:
-        """Factor batches evaluated together: the same kind, variable batches, dimension and
-        model, in graph order. Per stack: the batches, the joined indices of each argument
-        and the joined column masks (one residual/Jacobian evaluation per stack)."""
+    def _stack_terms(self) -> list[_Stack]:
+        """Factor batches evaluated together, in graph order: reprojections of one model and
+        variable batches; priors and betweens of one variable batch, a prior being a between
+        from the identity (``Log(Z^-1 X) = Log((I Z)^-1 X)``). One residual/Jacobian evaluation
+        per stack: fewer, larger array operations (what a compiled graph pays for)."""
         groups: dict[tuple, list[int]] = {}
         for i, t in enumerate(self.terms):
-            key = (t.kind, tuple(t.keys), t.dim, tuple(sorted(t.info.items())))
+            if t.kind == "reprojection":
+                key: tuple = (t.kind, tuple(t.keys), t.dim, tuple(sorted(t.info.items())))
+            else:
+                ks = t.keys if t.kind == "between" else [t.keys[0], t.keys[0]]
+                key = ("relative", tuple(ks), t.dim)
             groups.setdefault(key, []).append(i)
         be = self.backend
         out = []
         for ids in groups.values():
             ts = [self.terms[i] for i in ids]
-            if len(ids) == 1:
-                out.append((ids, ts[0].idx, ts[0].mask))
+            if len({t.kind for t in ts}) == 1:  # one kind: its own evaluation
+                nargs = len(ts[0].keys)
+                idx = [be.index(np.concatenate([t.idx_np[a] for t in ts])) for a in range(nargs)]
+                cols = [np.concatenate([t.cols[a] for t in ts]) for a in range(nargs)]
+                out.append(_Stack(ids, ts[0].kind, list(ts[0].keys), idx,
+                                  [self._mask(c) for c in cols], None, None))
                 continue
-            idx = [be.index(np.concatenate([t.idx_np[a] for t in ts]))
-                   for a in range(len(ts[0].keys))]
-            mask = [be.asarray(np.concatenate([(t.cols[a] != self.size).astype(np.float64)
-                                               for t in ts])[:, None, :])
-                    for a in range(len(ts[0].keys))]
-            out.append((ids, idx, mask))
+            k = ts[0].keys[-1]
+            dof = self.blocks[k].dof
+            first, cols0, prior = [], [], []
+            for t in ts:   # a prior's first argument: the identity, no columns
+                p = t.kind == "prior"
+                first.append(np.zeros(t.m, np.int64) if p else t.idx_np[0])
+                cols0.append(np.full((t.m, dof), self.size) if p else t.cols[0])
+                prior.append(np.full(t.m, p))
+            idx = [be.index(np.concatenate(first)),
+                   be.index(np.concatenate([t.idx_np[-1] for t in ts]))]
+            mask = [self._mask(np.concatenate(cols0)),
+                    self._mask(np.concatenate([t.cols[-1] for t in ts]))]
+            b = self.blocks[k]
+            one = np.zeros(b.dof) if b.vector else np.asarray(b.group.identity().params)
+            out.append(_Stack(ids, "between", [k, k], idx, mask,
+                              be.asarray(np.concatenate(prior)[:, None].astype(np.float64)),
+                              be.asarray(one.astype(np.float64))))
         return out
+
+    def _mask(self, cols: np.ndarray) -> Any:
+        """``(m, 1, dof)`` 0/1: the columns that are unknowns."""
+        return self.backend.asarray((cols != self.size).astype(np.float64)[:, None, :])
 
     def _whitened(self, theta: Theta, x: list[Any], jac: bool) -> list[Any]:
         """Per factor batch ``e`` ``(B, m, dim)`` or, with ``jac``, ``(e, [A_k])``: each stack
         of batches (:meth:`_stack_terms`) evaluated once, then split."""
         be = self.backend
         out: list[Any] = [None] * len(self.terms)
-        for ids, idx, mask in self._stacks:
-            t = self.terms[ids[0]]
-            args = [be.take(x[k], i, axis=-2) for k, i in zip(t.keys, idx, strict=True)]
+        for st in self._stacks:
+            ids = st.ids
+            args = [be.take(x[k], i, axis=-2) for k, i in zip(st.keys, st.idx, strict=True)]
+            if st.prior is not None:  # priors start from the identity
+                args[0] = args[0] * (1.0 - st.prior) + st.one * st.prior
             th = theta[ids[0]] if len(ids) == 1 else \
                 {k: _cat(be, [theta[i][k] for i in ids], 1) for k in theta[ids[0]]}
+            t = _Term(st.kind, st.keys, [], [], [], [], [], 0, 0, self.terms[ids[0]].info)
             res = self._evaluate(t, args, th, jac)
             r, Js = res if jac else (res, None)
             L = th["L"]
             e = _whiten(L, r)
-            A = [(L @ J) * mk for J, mk in zip(Js, mask, strict=True)] if jac else None
-            if len(ids) == 1:
-                out[ids[0]] = (e, A) if jac else e
-                continue
+            A = [(L @ J) * mk for J, mk in zip(Js, st.mask, strict=True)] if jac else None
             sizes = [self.terms[i].m for i in ids]
-            es = _split(be, e, sizes)
-            As = [_split(be, a, sizes) for a in A] if A is not None else None
+            es = _split(be, e, sizes) if len(ids) > 1 else [e]
+            As = [_split(be, a, sizes) if len(ids) > 1 else [a] for a in A] \
+                if A is not None else None
             for j, i in enumerate(ids):
-                out[i] = (es[j], [a[j] for a in As]) if As is not None else es[j]
+                if As is None:
+                    out[i] = es[j]
+                    continue
+                Ai = [a[j] for a in As]
+                out[i] = (es[j], Ai[1:] if self.terms[i].kind == "prior" and
+                          st.prior is not None else Ai)
         return out
 
     def _landmarks(self, prob: Any) -> list[int]:
