@@ -9,8 +9,10 @@ tries again from the same point, until ``lambda > lambda_max``. The damping matr
 ``damping="auto"`` (identity where negligible, else ``diag(H)``, with the switch of the NumPy
 engine). A problem that has stopped (converged, ``max_iter`` reached or failed) keeps its values
 while the others go on. On JAX the loop is a ``lax.while_loop`` (``jax.jit`` and ``jax.vmap``
-compile it); on torch a Python loop, or with ``loop="fixed"`` a fixed number of masked tries
-(no data-dependent control flow: ``torch.compile(fullgraph=True)`` traces it).
+compile it); on torch a Python loop, torch's ``while_loop`` operator while ``torch.compile``
+traces (one graph with ``fullgraph=True``: its body holds one linearisation, of the candidate,
+and the first pass linearises the start), or with ``loop="fixed"`` a fixed number of masked
+tries.
 """
 
 from __future__ import annotations

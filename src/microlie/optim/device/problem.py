@@ -308,7 +308,7 @@ class DeviceProblem:
                 {k: _cat(be, [theta[i][k] for i in ids], 1) for k in theta[ids[0]]}
             t = _Term(st.kind, st.keys, [], [], [], [], [], 0, 0, self.terms[ids[0]].info)
             res = self._evaluate(t, args, th, jac)
-            r, Js = res if jac else (res, None)
+            r, Js = res if jac else (res, [])
             L = th["L"]
             e = _whiten(L, r)
             A = [(L @ J) * mk for J, mk in zip(Js, st.mask, strict=True)] if jac else None
