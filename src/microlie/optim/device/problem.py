@@ -305,7 +305,7 @@ class DeviceProblem:
             if st.prior is not None:  # priors start from the identity
                 args[0] = args[0] * (1.0 - st.prior) + st.one * st.prior
             th = theta[ids[0]] if len(ids) == 1 else \
-                {k: _cat(be, [theta[i][k] for i in ids], 1) for k in theta[ids[0]]}
+                {k: _join(be, k, [theta[i][k] for i in ids]) for k in theta[ids[0]]}
             t = _Term(st.kind, st.keys, [], [], [], [], [], 0, 0, self.terms[ids[0]].info)
             res = self._evaluate(t, args, th, jac)
             r, Js = res if jac else (res, [])
@@ -637,6 +637,22 @@ def _whiten(L: Any, r: Any) -> Any:
 
 def _cat(be: Backend, xs: list[Any], axis: int) -> Any:
     return be.xp.concatenate(xs, axis=axis) if be.name == "jax" else be.xp.cat(xs, axis)
+
+
+#: ``theta`` arrays' dimensions without a batch axis.
+_BASE_NDIM = {"L": 3, "Z": 2, "obs": 2, "K": 2}
+
+
+def _join(be: Backend, key: str, xs: list[Any]) -> Any:
+    """``theta[key]`` arrays of stacked factor batches joined along the factor axis, each with
+    the batch axis (shared arrays broadcast to the batch)."""
+    xs = [a[None] if a.ndim == _BASE_NDIM[key] else a for a in xs]
+    B = max(int(a.shape[0]) for a in xs)
+    if be.name == "torch":
+        xs = [a.expand(B, *a.shape[1:]) if a.shape[0] != B else a for a in xs]
+    else:
+        xs = [be.xp.broadcast_to(a, (B, *a.shape[1:])) if a.shape[0] != B else a for a in xs]
+    return _cat(be, xs, 1)
 
 
 def _split(be: Backend, a: Any, sizes: list[int]) -> list[Any]:
