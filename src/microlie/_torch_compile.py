@@ -72,6 +72,12 @@ def register() -> int:
         _done.add(id(fn))
         _keep.append(fn)
         new += 1
+    # The group operations look up their array operations in a cache keyed by namespace; a
+    # first entry made while Dynamo traces is a guard the next call fails (a recompile of the
+    # whole function on its second call): the torch entry is made here, before any trace.
+    from ._array import ops_for
+
+    ops_for(torch.zeros(()))
     return new
 
 

@@ -9,8 +9,10 @@ tries again from the same point, until ``lambda > lambda_max``. The damping matr
 ``damping="auto"`` (identity where negligible, else ``diag(H)``, with the switch of the NumPy
 engine). A problem that has stopped (converged, ``max_iter`` reached or failed) keeps its values
 while the others go on. On JAX the loop is a ``lax.while_loop`` (``jax.jit`` and ``jax.vmap``
-compile it); on torch a Python loop, or with ``loop="fixed"`` a fixed number of masked tries
-(no data-dependent control flow: ``torch.compile(fullgraph=True)`` traces it).
+compile it); on torch a Python loop, torch's ``while_loop`` operator while ``torch.compile``
+traces (one graph with ``fullgraph=True``: its body holds one linearisation, of the candidate,
+and the first pass linearises the start), or with ``loop="fixed"`` a fixed number of masked
+tries.
 """
 
 from __future__ import annotations
@@ -228,6 +230,10 @@ class _Engine:
                                  "factors and no landmarks; use 'jacobi' or 'auto'")
         if lin == "pcg" and opts.coarse != 0:
             self.coarse = coarse_plan(problem, max(opts.coarse, 0))
+        # torch without data-dependent branches linearises every candidate (masked): the
+        # cost test reads that linearisation (one evaluation per try, not two)
+        self.fused = fixed and problem.backend.name == "torch"
+        self.start_in_loop = False  # the loop's first pass linearises the start (solve sets)
 
     def system(self, theta: Theta, x: list[Any]) -> dict:
         lin = self.p.linearize(theta, x)
@@ -396,27 +402,24 @@ def solve(problem: DeviceProblem, theta: Theta, x0: list[Any],
     th = _batch_theta(problem, theta, B)
     fixed = opts.loop == "fixed" or _compiling(be)  # no data-dependent Python branches
     eng = _Engine(problem, opts, fixed)
-    sys0 = eng.system(th, xs)
-    cost0 = sys0["cost"]
-    zero = cost0 * 0.0
-    dg = sys0["dg"]
-    if opts.damping == "auto":
-        lam_id = opts.lambda_initial if opts.lambda_initial is not None else 1e-5
-        diag = be.where(lam_id < opts.stall_ratio * _smallest_positive(be, dg), 0.0, 1.0) \
-            + zero
-    else:
-        diag = zero + (1.0 if opts.damping == "diagonal" else 0.0)
-    lam = _first_lambda(opts, diag)
-    status = be.where(zero == 0, 0.0, 0.0)
+    status = be.zeros((B,), like=xs[0])
     if problem.size == 0:
         status = status + 1.0
     elif opts.max_iter == 0:
         status = status + 2.0
-    g0n = _norm(sys0["g"])
-    st = {"x": xs, "sys": sys0, "cost": cost0, "lam": lam, "diag": diag, "stalled": zero,
-          "lam0": lam, "first_set": zero, "first_cost": zero, "first_pred": zero,
-          "status": status, "iters": zero, "tries": zero, "cg": zero,
-          "g0": be.where(g0n > 0, g0n, 1.0)}
+    # Traced by torch.compile: the first pass of the loop linearises the start (its try is
+    # skipped), so the graph holds one linearisation, in the loop body.
+    eng.start_in_loop = in_loop = (be.name == "torch" and fixed and opts.loop != "fixed"
+                                   and eng.dense and problem.size > 0 and opts.max_iter > 0)
+    if in_loop:
+        N = problem.size
+        z = be.zeros((B, N), like=xs[0])
+        sys0 = {"H": be.zeros((B, N, N), like=xs[0]), "g": z, "dg": z, "cost": status}
+        st = _start(be, opts, xs, sys0, status)
+        st["started"] = status
+    else:
+        st = _start(be, opts, xs, eng.system(th, xs), status)
+    cost0 = st["cost"]
 
     def body(st: dict) -> dict:
         return _try(problem, eng, opts, th, st)
@@ -444,6 +447,8 @@ def solve(problem: DeviceProblem, theta: Theta, x0: list[Any],
         while k < n_tries and bool((st["status"] == 0).any()):
             st = body(st)
             k += 1
+    if in_loop:
+        cost0 = st["cost0"]
     info = SolveInfo(cost0, st["cost"], st["iters"], st["tries"], st["lam"], st["status"],
                      st["cg"])
     x = st["x"]
@@ -451,6 +456,25 @@ def solve(problem: DeviceProblem, theta: Theta, x0: list[Any],
         x = [a[0] for a in x]
         info = SolveInfo(*(v[0] for v in info))
     return x, info
+
+
+def _start(be: Any, opts: LMOptions, xs: list[Any], sys0: dict, status: Any) -> dict:
+    """The loop state at ``xs`` linearised as ``sys0``: damping chosen, nothing tried."""
+    cost0 = sys0["cost"]
+    zero = cost0 * 0.0
+    dg = sys0["dg"]
+    if opts.damping == "auto":
+        lam_id = opts.lambda_initial if opts.lambda_initial is not None else 1e-5
+        diag = be.where(lam_id < opts.stall_ratio * _smallest_positive(be, dg), 0.0, 1.0) \
+            + zero
+    else:
+        diag = zero + (1.0 if opts.damping == "diagonal" else 0.0)
+    lam = _first_lambda(opts, diag)
+    g0n = _norm(sys0["g"])
+    return {"x": xs, "sys": sys0, "cost": cost0, "cost0": cost0, "lam": lam, "diag": diag,
+            "stalled": zero, "lam0": lam, "first_set": zero, "first_cost": zero,
+            "first_pred": zero, "status": status, "iters": zero, "tries": zero, "cg": zero,
+            "g0": be.where(g0n > 0, g0n, 1.0)}
 
 
 def _compiling(be: Any) -> bool:
@@ -485,6 +509,9 @@ def _try(problem: DeviceProblem, eng: _Engine, o: LMOptions, th: Theta, st: dict
     be = problem.backend
     s = st["sys"]
     active = st["status"] == 0
+    started = st["started"] > 0.5 if eng.start_in_loop else None
+    if started is not None:
+        active = active & started
     dg = s["dg"]
     diag = st["diag"] > 0.5
     lam = st["lam"]
@@ -497,7 +524,13 @@ def _try(problem: DeviceProblem, eng: _Engine, o: LMOptions, th: Theta, st: dict
     dx, ok, pred, cg_it, _ = eng.step(s, lam[:, None] * damp, eta)
     dx = be.where(ok[:, None], dx, 0.0 * dx)
     xn = problem.retract(st["x"], dx)
-    cn = problem.cost(th, xn)
+    if started is not None:  # not started: linearise the start itself
+        xn = _select(be, started, xn, st["x"])
+    if eng.fused:  # the candidate's linearisation is made anyway: its cost is the test's
+        sys_n = eng.system(th, xn)
+        cn = sys_n["cost"]
+    else:
+        cn = problem.cost(th, xn)
     cn = be.where(ok & (cn == cn) & (cn < float("inf")), cn, float("inf"))
     accept = active & (cn < cur)
     # ---- accepted: GTSAM's tests, then the "auto" switch
@@ -562,6 +595,13 @@ def _try(problem: DeviceProblem, eng: _Engine, o: LMOptions, th: Theta, st: dict
 
         out["sys"] = lax.cond(relin.any(), lambda: _select(be, accept, eng.system(th, x_new), s),
                               lambda: s)
-    elif eng.fixed or bool(relin.any()):
+    elif eng.fused:
+        out["sys"] = _select(be, accept, sys_n, s)
+    elif bool(relin.any()):
         out["sys"] = _select(be, accept, eng.system(th, x_new), s)
+    if started is not None:
+        init = _start(be, o, st["x"], sys_n, st["status"])
+        init["started"] = st["started"] * 0.0 + 1.0
+        out["started"] = init["started"]
+        out = _select(be, ~started, init, out)
     return out

@@ -63,6 +63,19 @@ class _Term:
     info: dict
 
 
+@dataclass
+class _Stack:
+    """Factor batches evaluated as one (:meth:`DeviceProblem._stack_terms`)."""
+
+    ids: list[int]          # the factor batches, in order
+    kind: str               # how the stack evaluates
+    keys: list[int]         # variable batch of each argument
+    idx: list[Any]          # backend joined indices of each argument
+    mask: list[Any]         # backend (M, 1, dof_k) 0/1 columns that are unknowns
+    prior: Any              # backend (M, 1) 1.0 on prior rows (between from the identity)
+    one: Any                # backend identity parameters (with prior rows)
+
+
 class Linear(NamedTuple):
     """A linearisation: whitened residuals and Jacobian blocks per factor batch (a pytree).
 
@@ -142,6 +155,7 @@ class DeviceProblem:
         self._any_free = [bool(b.free.any()) for b in self.blocks]
         self._sink = be.index(np.array([N]))
         self.terms = [self._term(prob, f) for f in prob.factors]
+        self._stacks = self._stack_terms()
         self.rows = int(sum(t.m * t.dim for t in self.terms))
         self.eliminate = self._landmarks(prob)
         cm = np.ones(N)        # 1 on the columns a Schur step keeps (cameras), 0 on landmarks
@@ -236,6 +250,84 @@ class DeviceProblem:
         return _Term(kind, keys, [be.index(i) for _, i in f.args], [i for _, i in f.args], cols,
                      [be.index(c.reshape(-1)) for c in cols], mask, f.dim, f.count, info)
 
+    def _stack_terms(self) -> list[_Stack]:
+        """Factor batches evaluated together, in graph order: reprojections of one model and
+        variable batches; priors and betweens of one variable batch, a prior being a between
+        from the identity (``Log(Z^-1 X) = Log((I Z)^-1 X)``). One residual/Jacobian evaluation
+        per stack: fewer, larger array operations (what a compiled graph pays for)."""
+        groups: dict[tuple, list[int]] = {}
+        for i, t in enumerate(self.terms):
+            if t.kind == "reprojection":
+                key: tuple = (t.kind, tuple(t.keys), t.dim, tuple(sorted(t.info.items())))
+            else:
+                ks = t.keys if t.kind == "between" else [t.keys[0], t.keys[0]]
+                key = ("relative", tuple(ks), t.dim)
+            groups.setdefault(key, []).append(i)
+        be = self.backend
+        out = []
+        for ids in groups.values():
+            ts = [self.terms[i] for i in ids]
+            if len({t.kind for t in ts}) == 1:  # one kind: its own evaluation
+                nargs = len(ts[0].keys)
+                idx = [be.index(np.concatenate([t.idx_np[a] for t in ts])) for a in range(nargs)]
+                cols = [np.concatenate([t.cols[a] for t in ts]) for a in range(nargs)]
+                out.append(_Stack(ids, ts[0].kind, list(ts[0].keys), idx,
+                                  [self._mask(c) for c in cols], None, None))
+                continue
+            k = ts[0].keys[-1]
+            dof = self.blocks[k].dof
+            first, cols0, prior = [], [], []
+            for t in ts:   # a prior's first argument: the identity, no columns
+                p = t.kind == "prior"
+                first.append(np.zeros(t.m, np.int64) if p else t.idx_np[0])
+                cols0.append(np.full((t.m, dof), self.size) if p else t.cols[0])
+                prior.append(np.full(t.m, p))
+            idx = [be.index(np.concatenate(first)),
+                   be.index(np.concatenate([t.idx_np[-1] for t in ts]))]
+            mask = [self._mask(np.concatenate(cols0)),
+                    self._mask(np.concatenate([t.cols[-1] for t in ts]))]
+            b = self.blocks[k]
+            one = np.zeros(b.dof) if b.vector else np.asarray(b.group.identity().params)
+            out.append(_Stack(ids, "between", [k, k], idx, mask,
+                              be.asarray(np.concatenate(prior)[:, None].astype(np.float64)),
+                              be.asarray(one.astype(np.float64))))
+        return out
+
+    def _mask(self, cols: np.ndarray) -> Any:
+        """``(m, 1, dof)`` 0/1: the columns that are unknowns."""
+        return self.backend.asarray((cols != self.size).astype(np.float64)[:, None, :])
+
+    def _whitened(self, theta: Theta, x: list[Any], jac: bool) -> list[Any]:
+        """Per factor batch ``e`` ``(B, m, dim)`` or, with ``jac``, ``(e, [A_k])``: each stack
+        of batches (:meth:`_stack_terms`) evaluated once, then split."""
+        be = self.backend
+        out: list[Any] = [None] * len(self.terms)
+        for st in self._stacks:
+            ids = st.ids
+            args = [be.take(x[k], i, axis=-2) for k, i in zip(st.keys, st.idx, strict=True)]
+            if st.prior is not None:  # priors start from the identity
+                args[0] = args[0] * (1.0 - st.prior) + st.one * st.prior
+            th = theta[ids[0]] if len(ids) == 1 else \
+                {k: _join(be, k, [theta[i][k] for i in ids]) for k in theta[ids[0]]}
+            t = _Term(st.kind, st.keys, [], [], [], [], [], 0, 0, self.terms[ids[0]].info)
+            res = self._evaluate(t, args, th, jac)
+            r, Js = res if jac else (res, [])
+            L = th["L"]
+            e = _whiten(L, r)
+            A = [(L @ J) * mk for J, mk in zip(Js, st.mask, strict=True)] if jac else None
+            sizes = [self.terms[i].m for i in ids]
+            es = _split(be, e, sizes) if len(ids) > 1 else [e]
+            As = [_split(be, a, sizes) if len(ids) > 1 else [a] for a in A] \
+                if A is not None else None
+            for j, i in enumerate(ids):
+                if As is None:
+                    out[i] = es[j]
+                    continue
+                Ai = [a[j] for a in As]
+                out[i] = (es[j], Ai[1:] if self.terms[i].kind == "prior" and
+                          st.prior is not None else Ai)
+        return out
+
     def _landmarks(self, prob: Any) -> list[int]:
         if not any(t.kind == "reprojection" for t in self.terms):
             return []
@@ -329,10 +421,6 @@ class DeviceProblem:
         return out
 
     # ------------------------------------------------------------------ evaluation
-    def _gather(self, x: list[Any], t: _Term) -> list[Any]:
-        be = self.backend
-        return [be.take(x[k], i, axis=-2) for k, i in zip(t.keys, t.idx, strict=True)]
-
     def _evaluate(self, t: _Term, args: list[Any], th: dict, jac: bool) -> Any:
         """Residuals ``(B, m, dim)`` and, with ``jac``, the Jacobians ``(B, m, dim, dof_k)``
         (unwhitened)."""
@@ -371,11 +459,7 @@ class DeviceProblem:
         >>> p.residuals(th, [a[None] for a in p.initial()])[0].tolist()
         [[[2.0, 0.0, 0.0]]]
         """
-        out = []
-        for t, th in zip(self.terms, theta, strict=True):
-            r = self._evaluate(t, self._gather(x, t), th, False)
-            out.append(_whiten(th["L"], r))
-        return out
+        return self._whitened(theta, x, False)
 
     def cost(self, theta: Theta, x: list[Any]) -> Any:
         """``0.5 * sum r^T Omega r`` per problem, ``(B,)``.
@@ -442,12 +526,9 @@ class DeviceProblem:
         """
         es, As = [], []
         cost = 0.0
-        for t, th in zip(self.terms, theta, strict=True):
-            r, Js = self._evaluate(t, self._gather(x, t), th, True)
-            L = th["L"]
-            e = _whiten(L, r)
+        for e, A in self._whitened(theta, x, True):
             es.append(e)
-            As.append([(L @ J) * mk for J, mk in zip(Js, t.mask, strict=True)])
+            As.append(A)
             cost = cost + 0.5 * _sum2(e)
         return Linear(es, As, cost)
 
@@ -556,6 +637,34 @@ def _sum2(e: Any) -> Any:
 
 def _whiten(L: Any, r: Any) -> Any:
     return (L @ r[..., None])[..., 0]
+
+
+def _cat(be: Backend, xs: list[Any], axis: int) -> Any:
+    return be.xp.concatenate(xs, axis=axis) if be.name == "jax" else be.xp.cat(xs, axis)
+
+
+#: ``theta`` arrays' dimensions without a batch axis.
+_BASE_NDIM = {"L": 3, "Z": 2, "obs": 2, "K": 2}
+
+
+def _join(be: Backend, key: str, xs: list[Any]) -> Any:
+    """``theta[key]`` arrays of stacked factor batches joined along the factor axis, each with
+    the batch axis (shared arrays broadcast to the batch)."""
+    xs = [a[None] if a.ndim == _BASE_NDIM[key] else a for a in xs]
+    B = max(int(a.shape[0]) for a in xs)
+    if be.name == "torch":
+        xs = [a.expand(B, *a.shape[1:]) if a.shape[0] != B else a for a in xs]
+    else:
+        xs = [be.xp.broadcast_to(a, (B, *a.shape[1:])) if a.shape[0] != B else a for a in xs]
+    return _cat(be, xs, 1)
+
+
+def _split(be: Backend, a: Any, sizes: list[int]) -> list[Any]:
+    """``a`` cut along axis 1 into pieces of ``sizes``."""
+    if be.name == "torch":
+        return list(a.split(sizes, 1))
+    cuts = np.cumsum(sizes)[:-1].tolist()
+    return list(be.xp.split(a, cuts, axis=1))
 
 
 def extend(be: Backend, dx: Any) -> Any:
