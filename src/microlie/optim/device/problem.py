@@ -622,7 +622,7 @@ class DeviceProblem:
         """``J^T u`` ``(B, size)`` for per-batch ``u`` ``(B, m, dim)``."""
         be = self.backend
         B = u[0].shape[0] if u else 1
-        out = be.zeros((B, self.size + 1))
+        out = be.zeros((B, self.size + 1), like=u[0] if u else None)
         for t, A, ut in zip(self.terms, lin.A, u, strict=True):
             for Ak, c in zip(A, t.flat, strict=True):
                 w = (ut[..., None, :] @ Ak)[..., 0, :]          # (B, m, dof)
