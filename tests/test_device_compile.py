@@ -48,7 +48,9 @@ def test_compiled_batch_each_equal_to_its_numpy_solve(kind):
     counters.clear()
     (xs, info), (xs2, _) = _compiled_solve(make, B)
     assert counters["stats"]["unique_graphs"] == 1  # one graph, compiled once
-    assert torch.equal(xs[0], xs2[0])
+    # the second call reuses the graph; Inductor's CPU reductions may sum in another order,
+    # so equal to rounding, not bit for bit (the fresh-clone CI saw a difference once)
+    assert (xs[0] - xs2[0]).abs().max() <= 1e-12
     for b in range(B):
         gn, xn = make(None, b)
         ref = gn.optimize()
