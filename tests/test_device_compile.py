@@ -35,7 +35,7 @@ def _compiled_solve(make, B):
 
 @pytest.mark.parametrize("kind", ["chain", "pnp"])
 def test_compiled_batch_each_equal_to_its_numpy_solve(kind):
-    torch = require("torch")
+    require("torch")
     from torch._dynamo.utils import counters
 
     if kind == "chain":
