@@ -2,10 +2,11 @@
 where they are built) against jaxls, PyPose's ``pp.optim.LM`` and Theseus, in one run,
 interleaved (issue 24).
 
-Run (the peers' environment, ``benchmarks/README.md``; microlie from ``src``):
+Run (the peers' environment ``$PEERS_VENV``, built as ``benchmarks/README.md`` says;
+microlie from ``src``):
 
-    PYTHONPATH=src /work/venvs/peers/bin/python benchmarks/devices.py --rounds 5 \
-        --out benchmarks/results/devices-s11.md
+    PYTHONPATH=src "$PEERS_VENV"/bin/python benchmarks/devices.py --rounds 5 \
+        --out benchmarks/results/devices-s12.md
 
 The problems, built identically for every contender from one seeded generator:
 
@@ -867,11 +868,18 @@ def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
              **{f"K{c}": tt(prob.cameras[c:c + 1, 6:]) for c in range(len(Rt))},
              **{f"p{k}": tt(prob.points[k:k + 1]) for k in range(len(prob.points))}}
 
+    stats: dict[str, str] = {}
+
     def run() -> tuple[np.ndarray, np.ndarray]:
         with torch.no_grad():
-            sol, _ = layer.forward(dict(start), optimizer_kwargs={
+            sol, info = layer.forward(dict(start), optimizer_kwargs={
                 "track_best_solution": False, "verbose": False, "damping": damping})
         _sync_torch(device)
+        # fixed damping: every step is taken (no rejection), one linear solve per iteration;
+        # with both tolerances 0 it stops only at the cap (status MAX_ITERATIONS)
+        done = info.status[0] == th.NonlinearOptimizerStatus.MAX_ITERATIONS
+        stats["iterations"] = (f"{n} (cap); solves {n}" if done
+                               else f"{int(info.converged_iter[0])}")
         M = np.concatenate([sol[f"pose{c}"].cpu().numpy() for c in range(len(Rt))])
         cams = np.concatenate([so3_log(M[:, :, :3]), M[:, :, 3],
                                np.concatenate([sol[f"K{c}"].cpu().numpy()
@@ -882,7 +890,7 @@ def theseus_bal(prob: BAL, device: str, **kw: Any) -> Contender:
                      f"1e-3 fails: CHOLMOD 'not positive definite'; its adaptive damping "
                      f"refuses CHOLMOD), CholmodSparseSolver, "
                      f"AutoDiffCostFunction per observation, {n} iterations", run,
-                     time.perf_counter() - t0)
+                     time.perf_counter() - t0, stats=stats)
 
 
 # ---------------------------------------------------------------------------------- runner

@@ -128,5 +128,9 @@ def dense_step(problem: DeviceProblem, H: Any, g: Any, damping: Any) -> tuple[An
     ([[-0.25, -0.25]], [True])
     """
     be = problem.backend
-    d = damping.to(H.dtype) if be.name == "torch" else damping
-    return be.cho_solve(H + eye_like(be, H) * d[..., None, :], -g)
+    if be.name == "torch":  # one new (B, n, n) array, not an identity product and a sum
+        t = be.xp
+        A = t.diagonal_scatter(H, H.diagonal(dim1=-2, dim2=-1) + damping.to(H.dtype),
+                               dim1=-2, dim2=-1)
+        return be.cho_solve(A, -g)
+    return be.cho_solve(H + eye_like(be, H) * damping[..., None, :], -g)

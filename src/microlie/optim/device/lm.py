@@ -597,8 +597,9 @@ def _try(problem: DeviceProblem, eng: _Engine, o: LMOptions, th: Theta, st: dict
                               lambda: s)
     elif eng.fused:
         out["sys"] = _select(be, accept, sys_n, s)
-    elif bool(relin.any()):
-        out["sys"] = _select(be, accept, eng.system(th, x_new), s)
+    elif bool(relin.any()):  # eager: no select (a copy of every H) when all accepted
+        sys_a = eng.system(th, x_new)
+        out["sys"] = sys_a if bool(accept.all()) else _select(be, accept, sys_a, s)
     if started is not None:
         init = _start(be, o, st["x"], sys_n, st["status"])
         init["started"] = st["started"] * 0.0 + 1.0
