@@ -6,9 +6,9 @@ The loop runs one *try* per pass: solve ``(H + lambda D) dx = -g`` at the curren
 the cost at ``X Exp(dx)``; a decrease is accepted (``lambda /= lambda_factor``, GTSAM's tests,
 then the new point is linearised), anything else raises ``lambda`` (``*= lambda_factor``) and
 tries again from the same point, until ``lambda > lambda_max``. The damping matrix ``D`` follows
-``damping="auto"`` (identity where negligible, else ``diag(H)``, with the switch of the NumPy
-engine). A problem that has stopped (converged, ``max_iter`` reached or failed) keeps its values
-while the others go on. On JAX the loop is a ``lax.while_loop`` (``jax.jit`` and ``jax.vmap``
+``damping="auto"`` as the NumPy engine (bundle adjustment: ``diag(H)``; else the identity where
+negligible, else ``diag(H)``, with its switch). A problem that has stopped (converged,
+``max_iter`` reached or failed) keeps its values while the others go on. On JAX the loop is a ``lax.while_loop`` (``jax.jit`` and ``jax.vmap``
 compile it); on torch a Python loop, torch's ``while_loop`` operator while ``torch.compile``
 traces (one graph with ``fullgraph=True``: its body holds one linearisation, of the candidate,
 and the first pass linearises the start), or with ``loop="fixed"`` a fixed number of masked
@@ -415,10 +415,10 @@ def solve(problem: DeviceProblem, theta: Theta, x0: list[Any],
         N = problem.size
         z = be.zeros((B, N), like=xs[0])
         sys0 = {"H": be.zeros((B, N, N), like=xs[0]), "g": z, "dg": z, "cost": status}
-        st = _start(be, opts, xs, sys0, status)
+        st = _start(be, opts, xs, sys0, status, bool(problem.eliminate))
         st["started"] = status
     else:
-        st = _start(be, opts, xs, eng.system(th, xs), status)
+        st = _start(be, opts, xs, eng.system(th, xs), status, bool(problem.eliminate))
     cost0 = st["cost"]
 
     def body(st: dict) -> dict:
@@ -458,12 +458,16 @@ def solve(problem: DeviceProblem, theta: Theta, x0: list[Any],
     return x, info
 
 
-def _start(be: Any, opts: LMOptions, xs: list[Any], sys0: dict, status: Any) -> dict:
-    """The loop state at ``xs`` linearised as ``sys0``: damping chosen, nothing tried."""
+def _start(be: Any, opts: LMOptions, xs: list[Any], sys0: dict, status: Any,
+           landmarks: bool) -> dict:
+    """The loop state at ``xs`` linearised as ``sys0``: damping chosen, nothing tried
+    (``"auto"`` with ``landmarks``, a bundle adjustment: ``diag(H)``, as the NumPy engine)."""
     cost0 = sys0["cost"]
     zero = cost0 * 0.0
     dg = sys0["dg"]
-    if opts.damping == "auto":
+    if opts.damping == "auto" and landmarks:
+        diag = zero + 1.0
+    elif opts.damping == "auto":
         lam_id = opts.lambda_initial if opts.lambda_initial is not None else 1e-5
         diag = be.where(lam_id < opts.stall_ratio * _smallest_positive(be, dg), 0.0, 1.0) \
             + zero
@@ -600,7 +604,7 @@ def _try(problem: DeviceProblem, eng: _Engine, o: LMOptions, th: Theta, st: dict
     elif bool(relin.any()):
         out["sys"] = _select(be, accept, eng.system(th, x_new), s)
     if started is not None:
-        init = _start(be, o, st["x"], sys_n, st["status"])
+        init = _start(be, o, st["x"], sys_n, st["status"], bool(problem.eliminate))
         init["started"] = st["started"] * 0.0 + 1.0
         out["started"] = init["started"]
         out = _select(be, ~started, init, out)

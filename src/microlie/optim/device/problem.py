@@ -329,14 +329,9 @@ class DeviceProblem:
         return out
 
     def _landmarks(self, prob: Any) -> list[int]:
-        if not any(t.kind == "reprojection" for t in self.terms):
-            return []
-        from ..core.elimination import landmark_batches
+        from ..core.elimination import bundle_landmarks
 
-        try:
-            return [prob.key(v) for v in landmark_batches(prob)]
-        except ValueError:
-            return []
+        return [prob.key(v) for v in bundle_landmarks(prob)]
 
     # ------------------------------------------------------------------ arrays
     def theta(self) -> Theta:
