@@ -6,7 +6,8 @@ too damped) a bundle adjustment stopped in a flat valley at an iteration that ro
 problem-49 ended 9.2e-4 apart between the NumPy and the device engines. The scene below is a
 small one where the old rule made them differ too (measured at 75878d8: NumPy 123.9896366 in 9
 iterations, torch 123.9896391 in 8, 2.0e-8 relative). ``"auto"`` now damps every problem with
-reprojection factors and landmarks by ``diag(H)``, in both engines."""
+reprojection factors and landmarks by ``diag(H)`` from ``lambda = 1e-4`` (Ceres'), in both
+engines."""
 
 from __future__ import annotations
 
@@ -14,8 +15,16 @@ import numpy as np
 import pytest
 from conftest import _jax, require
 
-from microlie.optim import LevenbergMarquardt
+from microlie import SE2
+from microlie.optim import (
+    BetweenFactor,
+    CustomFactor,
+    FactorGraph,
+    LevenbergMarquardt,
+    PriorFactor,
+)
 from microlie.optim.core.elimination import bundle_landmarks, landmark_batches
+from microlie.optim.core.strategies import BUNDLE_LAMBDA
 from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
 
 
@@ -33,7 +42,8 @@ def test_auto_damps_bundle_adjustment_by_the_diagonal_in_the_numpy_engine():
     g = _scene()
     kw = dict(solver="lm", linear_solver="schur", gauge="none")
     auto = g.optimize(**kw)
-    diag = g.optimize(damping="diagonal", **kw)
+    diag = g.optimize(damping="diagonal", lambda_initial=1e-4, **kw)  # Ceres' first lambda
+    assert BUNDLE_LAMBDA == 1e-4
     assert "diag(H), as the problem has landmarks" in auto.message
     assert [h.cost for h in auto.history] == [h.cost for h in diag.history]
     assert [h.damping for h in auto.history] == [h.damping for h in diag.history]
@@ -42,8 +52,20 @@ def test_auto_damps_bundle_adjustment_by_the_diagonal_in_the_numpy_engine():
         [v.name for v in landmark_batches(p)]
     # the identity where asked
     assert "diag" not in g.optimize(damping="identity", **kw).message
-    # no reprojection factors: no landmarks for the rule (the pose-graph rule applies)
-    assert LevenbergMarquardt().damping == "auto"
+    # landmark-like points without reprojection factors: not a bundle adjustment, the
+    # identity where negligible (GTSAM's iterates) as before
+    h = FactorGraph()
+    x = h.add_variables(SE2.identity(2))
+    q = h.add_variables(np.array([[1.0, 0.5], [2.0, -0.5], [0.5, 1.0]]))
+    h.add(PriorFactor(x, 0, SE2.identity()))
+    h.add(BetweenFactor(x, 0, 1, SE2.exp([1.0, 0.1, 0.2])))
+    h.add(CustomFactor(lambda a, b: b - a.translation(), [(x, [0, 1, 1]), (q, [0, 1, 2])], 2))
+    hp = h.problem()
+    assert bundle_landmarks(hp) == [] and [v.name for v in landmark_batches(hp)] == [q.name]
+    res = h.optimize(solver=LevenbergMarquardt())
+    ident = h.optimize(solver=LevenbergMarquardt(damping="identity"))
+    assert "diag" not in res.message
+    assert [r.cost for r in res.history] == [r.cost for r in ident.history]
 
 
 @pytest.mark.parametrize("backend", ["torch", "jax"])

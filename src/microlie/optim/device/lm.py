@@ -8,11 +8,11 @@ then the new point is linearised), anything else raises ``lambda`` (``*= lambda_
 tries again from the same point, until ``lambda > lambda_max``. The damping matrix ``D`` follows
 ``damping="auto"`` as the NumPy engine (bundle adjustment: ``diag(H)``; else the identity where
 negligible, else ``diag(H)``, with its switch). A problem that has stopped (converged,
-``max_iter`` reached or failed) keeps its values while the others go on. On JAX the loop is a ``lax.while_loop`` (``jax.jit`` and ``jax.vmap``
-compile it); on torch a Python loop, torch's ``while_loop`` operator while ``torch.compile``
-traces (one graph with ``fullgraph=True``: its body holds one linearisation, of the candidate,
-and the first pass linearises the start), or with ``loop="fixed"`` a fixed number of masked
-tries.
+``max_iter`` reached or failed) keeps its values while the others go on. On JAX the loop is a
+``lax.while_loop`` (``jax.jit`` and ``jax.vmap`` compile it); on torch a Python loop, torch's
+``while_loop`` operator while ``torch.compile`` traces (one graph with ``fullgraph=True``: its
+body holds one linearisation, of the candidate, and the first pass linearises the start), or
+with ``loop="fixed"`` a fixed number of masked tries.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from ..core.strategies import BUNDLE_LAMBDA
 from .backend import torch_while
 from .dense import dense_step, normal_equations
 from .pcg import block_diagonal, diagonal_of, pcg_step
@@ -51,7 +52,8 @@ class LMOptions:
     max_iter : int
         Accepted iterations allowed per problem (as :meth:`FactorGraph.optimize`).
     lambda_initial : float, optional
-        Initial damping (default ``1e-5`` with the identity, ``1e-12`` with ``diag(H)``).
+        Initial damping (default ``1e-5`` with the identity, ``1e-12`` with ``diag(H)``,
+        ``1e-4`` with ``"auto"`` on a bundle adjustment, as the NumPy engine).
     lambda_factor, lambda_max, lambda_min : float
         As :class:`~microlie.optim.LevenbergMarquardt`.
     damping : {"auto", "identity", "diagonal"}
@@ -465,15 +467,17 @@ def _start(be: Any, opts: LMOptions, xs: list[Any], sys0: dict, status: Any,
     cost0 = sys0["cost"]
     zero = cost0 * 0.0
     dg = sys0["dg"]
+    first = None
     if opts.damping == "auto" and landmarks:
         diag = zero + 1.0
+        first = zero + (BUNDLE_LAMBDA if opts.lambda_initial is None else opts.lambda_initial)
     elif opts.damping == "auto":
         lam_id = opts.lambda_initial if opts.lambda_initial is not None else 1e-5
         diag = be.where(lam_id < opts.stall_ratio * _smallest_positive(be, dg), 0.0, 1.0) \
             + zero
     else:
         diag = zero + (1.0 if opts.damping == "diagonal" else 0.0)
-    lam = _first_lambda(opts, diag)
+    lam = _first_lambda(opts, diag) if first is None else first
     g0n = _norm(sys0["g"])
     return {"x": xs, "sys": sys0, "cost": cost0, "cost0": cost0, "lam": lam, "diag": diag,
             "stalled": zero, "lam0": lam, "first_set": zero, "first_cost": zero,
