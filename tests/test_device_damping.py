@@ -126,3 +126,39 @@ def test_a_singular_landmark_block_fails_the_step_without_raising(backend):
     _, ok = schur_step(p, lin, grad, list(block_diagonal(p, lin)),
                        be.asarray(np.full((1, p.size), 1e-3)))
     assert bool(_np(ok)[0])
+
+
+def test_a_failed_landmark_factorisation_fails_the_try_and_lm_goes_on(monkeypatch):
+    """torch eager: the first try's landmark inverses fail (NaN, as ``inv_spd`` returns for a
+    matrix that is not positive definite); the try is rejected, ``lambda`` raised tenfold, and
+    the run is the NumPy engine's from that ``lambda`` (``diag(H)``, ``lambda_initial=1e-3``)."""
+    require("torch")
+    from microlie.optim.core.variables import Values
+    from microlie.optim.device import LMOptions, solve
+    from microlie.optim.device.backend import Backend
+
+    g = _scene()
+    ref = g.optimize(solver="lm", linear_solver="schur", gauge="none", damping="diagonal",
+                     lambda_initial=1e-3)
+    p = _device_problem(g)
+    calls = []
+    inv = Backend.inv_spd
+
+    def failing_first(self, A):
+        calls.append(1)
+        out = inv(self, A)
+        return out * float("nan") if len(calls) == 1 else out
+
+    monkeypatch.setattr(Backend, "inv_spd", failing_first)
+    x, info = solve(p, p.theta(), p.initial(), LMOptions(linear="schur"))
+    assert len(calls) > 1 and int(info.status) == 1
+    assert int(info.iterations) == ref.iterations
+    assert int(info.tries) == sum(h.solves for h in ref.history) + 1
+    cost = g.cost(Values(p.variables, [_np(a) for a in x]))
+    assert abs(cost - ref.final_cost) <= 1e-8 * ref.final_cost
+
+
+def _device_problem(g):
+    from microlie.optim.device import DeviceProblem
+
+    return DeviceProblem.from_graph(g, gauge="none", backend="torch", dtype="float64")

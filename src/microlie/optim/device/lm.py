@@ -530,7 +530,7 @@ def _try(problem: DeviceProblem, eng: _Engine, o: LMOptions, th: Theta, st: dict
     eta = be.where(eta < o.eta_max, eta, o.eta_max)
     eta = be.where(eta > o.eta_min, eta, o.eta_min)
     dx, ok, pred, cg_it, _ = eng.step(s, lam[:, None] * damp, eta)
-    dx = be.where(ok[:, None], dx, 0.0 * dx)
+    dx = be.where(ok[:, None], dx, 0.0)  # a failed step (NaN where a factorisation failed): none
     xn = problem.retract(st["x"], dx)
     if started is not None:  # not started: linearise the start itself
         xn = _select(be, started, xn, st["x"])
