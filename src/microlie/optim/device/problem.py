@@ -116,7 +116,9 @@ class DeviceProblem:
     terms : list
         Per factor batch: kind, arguments, columns.
     eliminate : list of int
-        The variable batches a Schur PCG step eliminates (landmarks; empty when none).
+        The variable batches a Schur step eliminates (landmarks,
+        :func:`~microlie.optim.core.elimination.bundle_landmarks`; empty when none): a bundle
+        adjustment, which ``damping="auto"`` damps by ``diag(H)``.
 
     Examples
     --------
