@@ -210,8 +210,8 @@ def _add_policy_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--damping", choices=DAMPINGS, default=None,
                    help="--solver lm's damping matrix: auto (default: the identity, as GTSAM, "
                         "where it is negligible against every coordinate's curvature, else "
-                        "diag(H); the answer does not depend on the units), identity, or "
-                        "diagonal (Marquardt's diag(H))")
+                        "diag(H), and diag(H) for bundle adjustment; the answer does not "
+                        "depend on the units), identity, or diagonal (Marquardt's diag(H))")
     p.add_argument("--information", choices=INFORMATION_POLICIES, default=None,
                    help="pose graphs: information matrices that are not positive definite are "
                         "refused with FILE:LINE and their count (strict, default), replaced by "

@@ -17,7 +17,7 @@ from .variables import Variables
 # a Problem is passed in, not imported: problem.py calls this module (no import cycle)
 Problem = Any
 
-__all__ = ["schur_solver", "landmark_batches"]
+__all__ = ["schur_solver", "landmark_batches", "bundle_landmarks"]
 
 
 def schur_solver(problem: Problem, eliminate: Any = None, reduced: str = "auto") -> SchurSolver:
@@ -141,6 +141,36 @@ def landmark_batches(problem: Problem) -> list[Variables]:
                 chosen.append(k)
         best = tuple(sorted(chosen))
     return [problem.variables[k] for k in best]
+
+
+def bundle_landmarks(problem: Problem) -> list[Variables]:
+    """The landmarks of a bundle adjustment: :func:`landmark_batches` of a problem with
+    reprojection factors (:class:`~microlie.optim.sfm.reprojection.ReprojectionFactor`), else
+    none. ``LevenbergMarquardt(damping="auto")`` and the device engine damp such a problem with
+    ``diag(H)``; the device engine eliminates them in its Schur step.
+
+    Parameters
+    ----------
+    problem : Problem
+        The problem.
+
+    Returns
+    -------
+    list of Variables
+        In graph order; empty without reprojection factors or landmark-like batches.
+
+    Examples
+    --------
+    >>> from microlie.optim.core.elimination import bundle_landmarks
+    >>> from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
+    >>> _, start = synthetic_scene(n_cameras=3, n_points=20, seed=0)
+    >>> bg = bundle_graph(start)
+    >>> [v.name for v in bundle_landmarks(bg.graph.problem("none"))]
+    ['points']
+    """
+    if not any(type(f).__name__ == "ReprojectionFactor" for f in problem.factors):
+        return []  # no import of sfm here: sfm builds on core
+    return landmark_batches(problem)
 
 
 def _chosen(problem: Problem, eliminate: Any) -> list[Variables]:

@@ -176,11 +176,15 @@ class Backend:
         return x, self.xp.isfinite(x).all(-1)
 
     def inv_spd(self, A: Any) -> Any:
-        """Inverses of a batch of small SPD matrices (block-Jacobi blocks)."""
+        """Inverses of a batch of small SPD matrices (block-Jacobi blocks, landmark blocks);
+        NaN where a matrix is not positive definite (its Cholesky factorisation fails), so that
+        the step that needs it fails, as in the NumPy engine, and nothing raises."""
         if self.name == "torch":
             t = self.xp
-            L, _ = t.linalg.cholesky_ex(A)
-            return t.cholesky_inverse(L)
+            L, info = t.linalg.cholesky_ex(A)
+            bad = (info != 0)[..., None, None]
+            eye = t.eye(A.shape[-1], dtype=A.dtype, device=A.device)
+            return t.where(bad, t.nan, t.cholesky_inverse(t.where(bad, eye, L)))
         import jax
 
         L = jax.numpy.linalg.cholesky(A)

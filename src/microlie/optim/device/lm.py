@@ -6,13 +6,13 @@ The loop runs one *try* per pass: solve ``(H + lambda D) dx = -g`` at the curren
 the cost at ``X Exp(dx)``; a decrease is accepted (``lambda /= lambda_factor``, GTSAM's tests,
 then the new point is linearised), anything else raises ``lambda`` (``*= lambda_factor``) and
 tries again from the same point, until ``lambda > lambda_max``. The damping matrix ``D`` follows
-``damping="auto"`` (identity where negligible, else ``diag(H)``, with the switch of the NumPy
-engine). A problem that has stopped (converged, ``max_iter`` reached or failed) keeps its values
-while the others go on. On JAX the loop is a ``lax.while_loop`` (``jax.jit`` and ``jax.vmap``
-compile it); on torch a Python loop, torch's ``while_loop`` operator while ``torch.compile``
-traces (one graph with ``fullgraph=True``: its body holds one linearisation, of the candidate,
-and the first pass linearises the start), or with ``loop="fixed"`` a fixed number of masked
-tries.
+``damping="auto"`` as the NumPy engine (bundle adjustment: ``diag(H)``; else the identity where
+negligible, else ``diag(H)``, with its switch). A problem that has stopped (converged,
+``max_iter`` reached or failed) keeps its values while the others go on. On JAX the loop is a
+``lax.while_loop`` (``jax.jit`` and ``jax.vmap`` compile it); on torch a Python loop, torch's
+``while_loop`` operator while ``torch.compile`` traces (one graph with ``fullgraph=True``: its
+body holds one linearisation, of the candidate, and the first pass linearises the start), or
+with ``loop="fixed"`` a fixed number of masked tries.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from ..core.strategies import BUNDLE_LAMBDA
 from .backend import torch_while
 from .dense import dense_step, normal_equations
 from .pcg import block_diagonal, diagonal_of, pcg_step
@@ -51,7 +52,8 @@ class LMOptions:
     max_iter : int
         Accepted iterations allowed per problem (as :meth:`FactorGraph.optimize`).
     lambda_initial : float, optional
-        Initial damping (default ``1e-5`` with the identity, ``1e-12`` with ``diag(H)``).
+        Initial damping (default ``1e-5`` with the identity, ``1e-12`` with ``diag(H)``,
+        ``1e-4`` with ``"auto"`` on a bundle adjustment, as the NumPy engine).
     lambda_factor, lambda_max, lambda_min : float
         As :class:`~microlie.optim.LevenbergMarquardt`.
     damping : {"auto", "identity", "diagonal"}
@@ -415,10 +417,10 @@ def solve(problem: DeviceProblem, theta: Theta, x0: list[Any],
         N = problem.size
         z = be.zeros((B, N), like=xs[0])
         sys0 = {"H": be.zeros((B, N, N), like=xs[0]), "g": z, "dg": z, "cost": status}
-        st = _start(be, opts, xs, sys0, status)
+        st = _start(be, opts, xs, sys0, status, bool(problem.eliminate))
         st["started"] = status
     else:
-        st = _start(be, opts, xs, eng.system(th, xs), status)
+        st = _start(be, opts, xs, eng.system(th, xs), status, bool(problem.eliminate))
     cost0 = st["cost"]
 
     def body(st: dict) -> dict:
@@ -458,18 +460,24 @@ def solve(problem: DeviceProblem, theta: Theta, x0: list[Any],
     return x, info
 
 
-def _start(be: Any, opts: LMOptions, xs: list[Any], sys0: dict, status: Any) -> dict:
-    """The loop state at ``xs`` linearised as ``sys0``: damping chosen, nothing tried."""
+def _start(be: Any, opts: LMOptions, xs: list[Any], sys0: dict, status: Any,
+           landmarks: bool) -> dict:
+    """The loop state at ``xs`` linearised as ``sys0``: damping chosen, nothing tried
+    (``"auto"`` with ``landmarks``, a bundle adjustment: ``diag(H)``, as the NumPy engine)."""
     cost0 = sys0["cost"]
     zero = cost0 * 0.0
     dg = sys0["dg"]
-    if opts.damping == "auto":
+    first = None
+    if opts.damping == "auto" and landmarks:
+        diag = zero + 1.0
+        first = zero + (BUNDLE_LAMBDA if opts.lambda_initial is None else opts.lambda_initial)
+    elif opts.damping == "auto":
         lam_id = opts.lambda_initial if opts.lambda_initial is not None else 1e-5
         diag = be.where(lam_id < opts.stall_ratio * _smallest_positive(be, dg), 0.0, 1.0) \
             + zero
     else:
         diag = zero + (1.0 if opts.damping == "diagonal" else 0.0)
-    lam = _first_lambda(opts, diag)
+    lam = _first_lambda(opts, diag) if first is None else first
     g0n = _norm(sys0["g"])
     return {"x": xs, "sys": sys0, "cost": cost0, "cost0": cost0, "lam": lam, "diag": diag,
             "stalled": zero, "lam0": lam, "first_set": zero, "first_cost": zero,
@@ -522,7 +530,7 @@ def _try(problem: DeviceProblem, eng: _Engine, o: LMOptions, th: Theta, st: dict
     eta = be.where(eta < o.eta_max, eta, o.eta_max)
     eta = be.where(eta > o.eta_min, eta, o.eta_min)
     dx, ok, pred, cg_it, _ = eng.step(s, lam[:, None] * damp, eta)
-    dx = be.where(ok[:, None], dx, 0.0 * dx)
+    dx = be.where(ok[:, None], dx, 0.0)  # a failed step (NaN where a factorisation failed): none
     xn = problem.retract(st["x"], dx)
     if started is not None:  # not started: linearise the start itself
         xn = _select(be, started, xn, st["x"])
@@ -601,7 +609,7 @@ def _try(problem: DeviceProblem, eng: _Engine, o: LMOptions, th: Theta, st: dict
         sys_a = eng.system(th, x_new)
         out["sys"] = sys_a if bool(accept.all()) else _select(be, accept, sys_a, s)
     if started is not None:
-        init = _start(be, o, st["x"], sys_n, st["status"])
+        init = _start(be, o, st["x"], sys_n, st["status"], bool(problem.eliminate))
         init["started"] = st["started"] * 0.0 + 1.0
         out["started"] = init["started"]
         out = _select(be, ~started, init, out)

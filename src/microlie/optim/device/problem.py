@@ -116,7 +116,9 @@ class DeviceProblem:
     terms : list
         Per factor batch: kind, arguments, columns.
     eliminate : list of int
-        The variable batches a Schur PCG step eliminates (landmarks; empty when none).
+        The variable batches a Schur step eliminates (landmarks,
+        :func:`~microlie.optim.core.elimination.bundle_landmarks`; empty when none): a bundle
+        adjustment, which ``damping="auto"`` damps by ``diag(H)``.
 
     Examples
     --------
@@ -329,14 +331,9 @@ class DeviceProblem:
         return out
 
     def _landmarks(self, prob: Any) -> list[int]:
-        if not any(t.kind == "reprojection" for t in self.terms):
-            return []
-        from ..core.elimination import landmark_batches
+        from ..core.elimination import bundle_landmarks
 
-        try:
-            return [prob.key(v) for v in landmark_batches(prob)]
-        except ValueError:
-            return []
+        return [prob.key(v) for v in bundle_landmarks(prob)]
 
     # ------------------------------------------------------------------ arrays
     def theta(self) -> Theta:
