@@ -108,11 +108,14 @@ class GNC:
         then the inliers solved once more (for graphs without known odometry).
     retest : int
         With ``first="chordal"`` or ``"cycles"``: passes of data snooping after GNC, >= 0
-        (default 3; 0: off). Each pass tests every judged edge at the inlier solve against
-        ``v c^2`` (``v`` the a posteriori variance factor of the accepted edges, at most 1):
-        an accepted edge by its standardised residual, a rejected one by its innovation
-        (:mod:`microlie.optim.core.gnc_retest`); the edges whose verdict changes are flipped
-        and the inliers solved again, until nothing flips.
+        (default 3; 0: off; :mod:`microlie.optim.core.gnc_retest`). With ``v`` the a
+        posteriori variance factor of the accepted edges (at most 1), each pass accepts the
+        rejected judged edges whose innovation is within ``v c^2`` and rejects the accepted
+        ones whose standardised residual exceeds ``v`` times the Bonferroni bound of the
+        family; after flips the inliers are solved again from their chordal relaxation,
+        until nothing flips. Measured: fixes the three M3500 cases GNC-TLS missed with the
+        odometry known (a wrong closure within the file's overstated noise; a good closure
+        rejected at a drifted estimate).
 
     Examples
     --------
