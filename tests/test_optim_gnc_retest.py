@@ -101,6 +101,15 @@ def test_statistics_against_dense(G):
     np.testing.assert_allclose(s, np.einsum("ea,eab,eb->e", r, info, r), rtol=1e-12)
     red = accepted.sum() * G.dof - (n - 1) * G.dof
     assert v == pytest.approx(s[accepted].sum() / red, rel=1e-12)
+    # the screen: a lower bound of each rejected edge's innovation, exact when not needed
+    _, lo, _ = retest_edges(G, Xe, ii, jj, Z, info, accepted, judged, 0,
+                            above=np.zeros(E))
+    rej = judged & ~accepted
+    assert np.all(lo[rej] <= ref[rej] * (1 + 1e-9)) and np.all(lo[rej] > 0)
+    np.testing.assert_allclose(lo[judged & accepted], ref[judged & accepted], rtol=1e-6)
+    _, same, _ = retest_edges(G, Xe, ii, jj, Z, info, accepted, judged, 0,
+                              above=np.full(E, np.inf))
+    np.testing.assert_allclose(same[judged], ref[judged], rtol=1e-6)
     # accepted: t >= s; rejected: t <= s (the prediction's covariance adds or is removed)
     assert np.all(t[judged & accepted] >= s[judged & accepted])
     assert np.all(t[judged & ~accepted] <= s[judged & ~accepted])
@@ -203,6 +212,22 @@ def test_inlier_start_is_the_chordal_solve_of_the_inliers():
     w[0][:] = 0.0  # nothing accepted: the vertices are not connected, the states come back
     same = inlier_start([np.asarray(truth.params)], e, w)
     np.testing.assert_array_equal(same[0], np.asarray(truth.params))
+
+
+def test_nothing_tested_across_pieces():
+    """An odometry edge rejected (no known inliers): the accepted edges leave two pieces,
+    no covariance joins them, nothing flips."""
+    X, ii, jj, Z, n = _grid(SE2, rows=2, cols=4, seed=1, sigma=0.01)
+    g = FactorGraph()
+    x = g.add_variables(X, fixed=[0])
+    g.add(BetweenFactor(x, ii, jj, Z, Isotropic(3, 0.01)))
+    e = pose_graph_edges(g.problem())
+    w = [np.ones(ii.size)]
+    w[0][3] = 0.0  # the odometry edge 3 -> 4 between the rows, and the closures across:
+    w[0][(ii < 4) & (jj >= 4)] = 0.0
+    flipped, _ = retest_stage([np.asarray(X.params)], e, [np.zeros(ii.size, bool)], w,
+                              [float(chi2.ppf(0.99, 3))])
+    assert flipped == 0 and w[0][3] == 0.0
 
 
 @pytest.mark.parametrize("bad", [-1, 1.5, True, "3"])

@@ -33,7 +33,12 @@ to ``[V_MIN, 1]``: it only tightens) as the noise scale:
   solves are the cost of the pass);
 - a rejected judged edge is accepted when its innovation ``t <= v c^2``.
 
-GNC then solves the inliers again and repeats with the same ``v`` until nothing flips.
+GNC then solves the inliers again (from their chordal relaxation, :func:`inlier_start`) and
+repeats with the same ``v`` until nothing flips. Nothing is tested when the accepted edges do
+not connect every vertex. The covariance solves are the cost (one per tested edge and
+dimension); a rejected edge whose innovation is surely beyond its level by the bound
+``t >= s / (1 + l (|L^T J_i|^2 + |L^T J_j|^2))`` (``l`` the largest eigenvalue of ``P``,
+doubled) is not solved for.
 
 Examples
 --------
@@ -58,6 +63,7 @@ from typing import Any
 import numpy as np
 
 from ...groups import LieGroup
+from ..linalg.base import SingularSystemError
 
 __all__ = ["retest_edges", "retest_stage"]
 
@@ -79,9 +85,20 @@ def _jacobians(X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
             Jr @ np.asarray(Aj, dtype=np.float64))
 
 
+def _connected(edges: Any, w: np.ndarray) -> bool:
+    """Whether the edges ``w`` connect every vertex."""
+    import scipy.sparse as sp  # type: ignore[import-untyped]
+    from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
+
+    A = sp.coo_matrix((np.ones(int(w.sum())), (edges.ii[w], edges.jj[w])),
+                      shape=(edges.n, edges.n))
+    return bool(connected_components(A, directed=False)[0] == 1)
+
+
 def retest_edges(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                  info: np.ndarray, accepted: np.ndarray, judged: np.ndarray, anchor: int, *,
-                 chunk: int = 100) -> tuple[np.ndarray, np.ndarray, float]:
+                 chunk: int = 100, above: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Data-snooping statistics of the judged edges of a pose graph (module docstring).
 
     Parameters
@@ -105,6 +122,11 @@ def retest_edges(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: Lie
     chunk : int
         Edges per block of right-hand sides of the covariance solves (memory
         ``n D * chunk D`` doubles).
+    above : numpy.ndarray, optional
+        ``(E,)`` levels: a judged rejected edge whose innovation is surely above its level
+        gets that lower bound instead of the exact value (no solve): ``t >= s / (1 + l
+        (|L^T J_i|^2 + |L^T J_j|^2))`` with ``l`` twice the largest eigenvalue of ``P``
+        (Lanczos, relative tolerance 1e-3).
 
     Returns
     -------
@@ -167,8 +189,26 @@ def retest_edges(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: Lie
     solver = make_solver("auto", N, D)
     solver.analyse(H.indptr, H.indices, N, D)
     solver.factorize(H.data)
-    # J P J^T per judged edge: P J^T from one block of right-hand sides per chunk of edges
+    L = np.linalg.cholesky(info)  # Omega = L L^T: whitened covariances
     test = np.flatnonzero(judged)
+    t = np.zeros(E)
+    if above is not None and test.size:
+        # screen rejected edges: L^T J P J^T L <= lam_P (|L^T J_i|^2 + |L^T J_j|^2) I, so
+        # t >= s / (1 + that); lam_P = max eig of P by Lanczos, doubled for safety
+        from scipy.sparse.linalg import LinearOperator, eigsh  # type: ignore[import-untyped]
+
+        op = LinearOperator((N, N), matvec=lambda x: solver.solve(np.ravel(x)),
+                            dtype=np.float64)
+        lam_p = 2.0 * float(eigsh(op, k=1, which="LM", tol=1e-3,
+                                  return_eigenvectors=False)[0])
+        LT = np.swapaxes(L, 1, 2)
+        ni = np.where(col[ii] >= 0, np.linalg.norm(LT @ Ji, 2, axis=(1, 2)), 0.0)
+        nj = np.where(col[jj] >= 0, np.linalg.norm(LT @ Jj, 2, axis=(1, 2)), 0.0)
+        low = s / (1.0 + lam_p * (ni ** 2 + nj ** 2))
+        far = judged & ~accepted & (low > above)
+        t[far] = low[far]
+        test = np.flatnonzero(judged & ~far)
+    # J P J^T per judged edge: P J^T from one block of right-hand sides per chunk of edges
     S = np.zeros((E, D, D))
     ends = ((ii, Ji), (jj, Jj))
     for c0 in range(0, test.size, chunk):
@@ -190,11 +230,10 @@ def retest_edges(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: Lie
             G = Y[R[:, :, None], cols[ok][:, None, :]]  # (m', D, D): rows of P J^T
             S[e[ok]] += np.einsum("eab,ebc->eac", Jp[e[ok]], G)
     sign = np.where(accepted, -1.0, 1.0)[test]
-    L = np.linalg.cholesky(info[test])  # Omega = L L^T: whitened covariances
-    W = np.eye(D) + sign[:, None, None] * (np.swapaxes(L, 1, 2) @ S[test] @ L)
-    u = np.einsum("eba,eb->ea", L, r[test])  # L^T r
+    Lt = L[test]
+    W = np.eye(D) + sign[:, None, None] * (np.swapaxes(Lt, 1, 2) @ S[test] @ Lt)
+    u = np.einsum("eba,eb->ea", Lt, r[test])  # L^T r
     lam = np.linalg.eigvalsh(W)
-    t = np.zeros(E)
     good = lam[:, 0] > _UNCHECKED
     tt = np.full(test.size, np.nan)
     tt[good] = np.einsum("ea,ea->e", u[good], np.linalg.solve(W[good], u[good][:, :, None])[
@@ -259,6 +298,8 @@ def retest_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         return 0, 1.0 if v is None else v
     X = edges.group.from_params(np.asarray(states[0], dtype=np.float64))
     acc = w >= 0.5
+    if not _connected(edges, acc):  # no covariance across the pieces: nothing to test
+        return 0, 1.0 if v is None else v
     r, _, _ = _jacobians(X, edges.ii, edges.jj, edges.Z)
     s = np.einsum("ea,eab,eb->e", r, edges.info, r)
     if v is None:
@@ -268,8 +309,11 @@ def retest_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     # removal candidates: accepted edges beyond their own quantile (t >= s)
     cand = judged & acc & (s > v * cc)
     rejected = judged & ~acc
-    _, t, _ = retest_edges(edges.group, X, edges.ii, edges.jj, edges.Z, edges.info, acc,
-                           rejected | cand, edges.anchor)
+    try:
+        _, t, _ = retest_edges(edges.group, X, edges.ii, edges.jj, edges.Z, edges.info, acc,
+                               rejected | cand, edges.anchor, above=v * cc)
+    except SingularSystemError:  # the accepted edges leave a direction free
+        return 0, v
     m = int((judged & acc).sum())
     D = edges.info.shape[1]
     q = 1.0 - chi2.sf(cc, D)  # each edge's quantile, from its threshold
@@ -323,15 +367,10 @@ def inlier_start(states: list[np.ndarray], edges: Any, weights: list[np.ndarray]
     >>> np.round(SE2.from_params(P[0]).translation(), 9).tolist()  # the second edge ignored
     [[0.0, 0.0], [1.0, 0.0]]
     """
-    import scipy.sparse as sp  # type: ignore[import-untyped]
-    from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
-
     from .gnc_chordal import chordal_gnc
 
     w = np.concatenate([weights[k] for k, _ in edges.rows]) >= 0.5
-    A = sp.coo_matrix((np.ones(int(w.sum())), (edges.ii[w], edges.jj[w])),
-                      shape=(edges.n, edges.n))
-    if connected_components(A, directed=False)[0] > 1:
+    if not _connected(edges, w):
         return [np.asarray(states[0], dtype=np.float64)]  # no relaxation of every vertex
     var = edges.variables
     P0 = np.asarray(states[0], dtype=np.float64)
