@@ -101,15 +101,6 @@ def test_statistics_against_dense(G):
     np.testing.assert_allclose(s, np.einsum("ea,eab,eb->e", r, info, r), rtol=1e-12)
     red = accepted.sum() * G.dof - (n - 1) * G.dof
     assert v == pytest.approx(s[accepted].sum() / red, rel=1e-12)
-    # the screen: a lower bound of each rejected edge's innovation, exact when not needed
-    _, lo, _ = retest_edges(G, Xe, ii, jj, Z, info, accepted, judged, 0,
-                            above=np.zeros(E))
-    rej = judged & ~accepted
-    assert np.all(lo[rej] <= ref[rej] * (1 + 1e-9)) and np.all(lo[rej] > 0)
-    np.testing.assert_allclose(lo[judged & accepted], ref[judged & accepted], rtol=1e-6)
-    _, same, _ = retest_edges(G, Xe, ii, jj, Z, info, accepted, judged, 0,
-                              above=np.full(E, np.inf))
-    np.testing.assert_allclose(same[judged], ref[judged], rtol=1e-6)
     # accepted: t >= s; rejected: t <= s (the prediction's covariance adds or is removed)
     assert np.all(t[judged & accepted] >= s[judged & accepted])
     assert np.all(t[judged & ~accepted] <= s[judged & ~accepted])

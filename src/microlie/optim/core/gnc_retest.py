@@ -35,10 +35,11 @@ to ``[V_MIN, 1]``: it only tightens) as the noise scale:
 
 GNC then solves the inliers again (from their chordal relaxation, :func:`inlier_start`) and
 repeats with the same ``v`` until nothing flips. Nothing is tested when the accepted edges do
-not connect every vertex. The covariance solves are the cost (one per tested edge and
-dimension); a rejected edge whose innovation is surely beyond its level by the bound
-``t >= s / (1 + l (|L^T J_i|^2 + |L^T J_j|^2))`` (``l`` the largest eigenvalue of ``P``,
-doubled) is not solved for.
+not connect every vertex. The cost is one sparse factorisation and a solve per tested edge
+and dimension (``P J^T``, in blocks of right-hand sides). A cheap lower bound of the
+innovations, ``s / (1 + l (|L^T J_i|^2 + |L^T J_j|^2))`` with ``l`` the largest eigenvalue of
+``P``, screened out none of the 1715 rejected edges of sphere2500 at 70% (``l`` is the loosest
+global mode), so every rejected edge is solved for.
 
 Examples
 --------
@@ -97,8 +98,7 @@ def _connected(edges: Any, w: np.ndarray) -> bool:
 
 def retest_edges(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                  info: np.ndarray, accepted: np.ndarray, judged: np.ndarray, anchor: int, *,
-                 chunk: int = 100, above: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, float]:
+                 chunk: int = 100) -> tuple[np.ndarray, np.ndarray, float]:
     """Data-snooping statistics of the judged edges of a pose graph (module docstring).
 
     Parameters
@@ -122,12 +122,6 @@ def retest_edges(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: Lie
     chunk : int
         Edges per block of right-hand sides of the covariance solves (memory
         ``n D * chunk D`` doubles).
-    above : numpy.ndarray, optional
-        ``(E,)`` levels: a judged rejected edge whose innovation is surely above its level
-        gets that lower bound instead of the exact value (no solve): ``t >= s / (1 + l
-        (|L^T J_i|^2 + |L^T J_j|^2))`` with ``l`` twice the largest eigenvalue of ``P``
-        (Lanczos, relative tolerance 1e-3).
-
     Returns
     -------
     s : numpy.ndarray
@@ -192,22 +186,6 @@ def retest_edges(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: Lie
     L = np.linalg.cholesky(info)  # Omega = L L^T: whitened covariances
     test = np.flatnonzero(judged)
     t = np.zeros(E)
-    if above is not None and test.size:
-        # screen rejected edges: L^T J P J^T L <= lam_P (|L^T J_i|^2 + |L^T J_j|^2) I, so
-        # t >= s / (1 + that); lam_P = max eig of P by Lanczos, doubled for safety
-        from scipy.sparse.linalg import LinearOperator, eigsh  # type: ignore[import-untyped]
-
-        op = LinearOperator((N, N), matvec=lambda x: solver.solve(np.ravel(x)),
-                            dtype=np.float64)
-        lam_p = 2.0 * float(eigsh(op, k=1, which="LM", tol=1e-3,
-                                  return_eigenvectors=False)[0])
-        LT = np.swapaxes(L, 1, 2)
-        ni = np.where(col[ii] >= 0, np.linalg.norm(LT @ Ji, 2, axis=(1, 2)), 0.0)
-        nj = np.where(col[jj] >= 0, np.linalg.norm(LT @ Jj, 2, axis=(1, 2)), 0.0)
-        low = s / (1.0 + lam_p * (ni ** 2 + nj ** 2))
-        far = judged & ~accepted & (low > above)
-        t[far] = low[far]
-        test = np.flatnonzero(judged & ~far)
     # J P J^T per judged edge: P J^T from one block of right-hand sides per chunk of edges
     S = np.zeros((E, D, D))
     ends = ((ii, Ji), (jj, Jj))
@@ -311,7 +289,7 @@ def retest_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     rejected = judged & ~acc
     try:
         _, t, _ = retest_edges(edges.group, X, edges.ii, edges.jj, edges.Z, edges.info, acc,
-                               rejected | cand, edges.anchor, above=v * cc)
+                               rejected | cand, edges.anchor)
     except SingularSystemError:  # the accepted edges leave a direction free
         return 0, v
     m = int((judged & acc).sum())
