@@ -5,7 +5,8 @@ non-consecutive vertices) is replaced by random ones (random endpoints two or mo
 apart, translation uniform in [-10, 10] m per axis, uniformly random rotation, the replaced
 edge's information). The reference is the outlier-free optimum: LM from the chordal start on
 the graph without the replaced edges. GNC-TLS (``FactorGraph.optimize(robust=GNC(...))``, with
-``first="chordal"`` unless ``--first`` says otherwise) runs from the odometry or the chordal
+``first="chordal"`` unless ``--first`` says otherwise, and its default data-snooping re-test
+unless ``--retest 0``) runs from the odometry or the chordal
 start of the corrupted graph, without and with the odometry as known inliers; the table gives
 the APE (RMS position difference to the reference, same gauge: the first vertex held at the
 same pose, no alignment), the precision and recall of
