@@ -106,6 +106,16 @@ class GNC:
         inliers first, and after GNC the pieces held by one accepted edge moved where most
         edges across it agree (:func:`~microlie.optim.core.gnc_bridges.repair_bridges`),
         then the inliers solved once more (for graphs without known odometry).
+    retest : int
+        With ``first="chordal"`` or ``"cycles"``: passes of data snooping after GNC, >= 0
+        (default 3; 0: off; :mod:`microlie.optim.core.gnc_retest`). With ``v`` the a
+        posteriori variance factor of the accepted edges (at most 1), each pass accepts the
+        rejected judged edges whose innovation is within ``v c^2`` and rejects the accepted
+        ones whose standardised residual exceeds ``v`` times the Bonferroni bound of the
+        family; after flips the inliers are solved again from their chordal relaxation,
+        until nothing flips. Measured: fixes the three M3500 cases GNC-TLS missed with the
+        odometry known (a wrong closure within the file's overstated noise; a good closure
+        rejected at a drifted estimate).
 
     Examples
     --------
@@ -117,7 +127,7 @@ class GNC:
     def __init__(self, surrogate: str = "tls", *, quantile: float = 0.99,
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
-                 first: str = "values") -> None:
+                 first: str = "values", retest: int = 3) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
@@ -147,6 +157,10 @@ class GNC:
         self.cost_tol = float(cost_tol)
         self.weights_tol = float(weights_tol)
         self.first = first
+        if isinstance(retest, bool) or not isinstance(retest, (int, np.integer)) or retest < 0:
+            raise ValueError(f"GNC retest must be an integer >= 0 (passes; 0: off), got "
+                             f"{retest!r}")
+        self.retest = int(retest)
 
     def __repr__(self) -> str:
         return (f"GNC({self.surrogate!r}, quantile={self.quantile}, "
@@ -530,6 +544,16 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             moved = repair_stage(cur, edges, known, weights, c2)
             if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
                 cur = inner(moved)
+                s = squared_norms(problem, cur)
+        if edges is not None and gnc.retest and runs:
+            from .gnc_retest import inlier_start, retest_stage
+
+            v = None  # every pass tests against the first pass's variance factor
+            for _ in range(gnc.retest):
+                flipped, v = retest_stage(cur, edges, known, weights, c2, v)
+                if not flipped:
+                    break
+                cur = inner(inlier_start(cur, edges, weights))  # the inliers after the flips
                 s = squared_norms(problem, cur)
         if not runs:  # least squares is the answer: every weight 1
             cur = inner(cur)
