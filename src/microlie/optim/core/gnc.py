@@ -448,6 +448,9 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_cycles import mark_consistent
 
             known = mark_consistent(edges, known, gnc.quantile)
+            from .gnc_merge import merge_known
+
+            known = merge_known(edges, known, gnc.quantile)  # pieces joined by a vote
     show = bool(verbose) if verbose is not None else sys.stderr.isatty()
     weights = [np.ones(f.count) for f in factors]
     judged = [~kk for kk in known]
@@ -531,6 +534,11 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
                 cur = inner(moved)
                 s = squared_norms(problem, cur)
+            from .gnc_merge import merge_stage
+
+            cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
+                                        lambda st: squared_norms(problem, st))
+            s = squared_norms(problem, cur)
         if not runs:  # least squares is the answer: every weight 1
             cur = inner(cur)
             s = squared_norms(problem, cur)
