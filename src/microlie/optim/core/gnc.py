@@ -537,7 +537,8 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_merge import merge_stage
 
             cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
-                                        lambda st: squared_norms(problem, st))
+                                        lambda st: squared_norms(problem, st),
+                                        mu_step=gnc.mu_step, weights_tol=gnc.weights_tol)
             s = squared_norms(problem, cur)
         if not runs:  # least squares is the answer: every weight 1
             cur = inner(cur)
