@@ -105,7 +105,9 @@ class GNC:
         noise (:func:`~microlie.optim.core.gnc_cycles.consistent_edges`) added to the known
         inliers first, and after GNC the pieces held by one accepted edge moved where most
         edges across it agree (:func:`~microlie.optim.core.gnc_bridges.repair_bridges`),
-        then the inliers solved once more (for graphs without known odometry).
+        then the inliers solved once more (for graphs without known odometry); pieces are
+        also merged by a rigid-motion vote over the edges between them
+        (:mod:`microlie.optim.core.gnc_merge`), before the chordal stage and after GNC.
 
     Examples
     --------
