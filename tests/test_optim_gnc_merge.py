@@ -191,3 +191,25 @@ def test_gnc_cycles_without_known_inliers_on_pieces():
                            [np.asarray(G.from_matrix(T).params)])
     np.testing.assert_allclose(np.asarray(res.values[x].matrix()),
                                np.asarray(G.from_params(clean[0]).matrix()), atol=1e-6)
+
+
+def test_bad_options_of_the_stages():
+    from microlie.optim.core.gnc_merge import merge_known
+
+    g = FactorGraph()
+    x = g.add_variables(SE2.identity(2), fixed=[0])
+    g.add(BetweenFactor(x, [0], [1], SE2.identity(1)))
+    e = pose_graph_edges(g.problem())
+    st = [np.asarray(SE2.identity(2).params)]
+    args = (st, e, [np.zeros(1, bool)], [np.ones(1)], [11.34], lambda s: s,
+            lambda s: [np.zeros(1)])
+    for kw, match in (({"max_rounds": 0}, "max_rounds"), ({"max_reweight": 1.5}, "max_reweight"),
+                      ({"mu_step": 1.0}, "mu_step"), ({"weights_tol": 0.5}, "weights_tol")):
+        with pytest.raises(ValueError, match=match):
+            merge_stage(*args, **kw)
+    with pytest.raises(ValueError, match="quantile"):
+        merge_known(e, [np.zeros(1, bool)], 1.0)
+    n, ii, jj, Z, info, T, kind = _pieces(SE2, 1, noise=False)
+    with pytest.raises(ValueError, match="max_rounds"):
+        merge_components(SE2, n, ii, jj, Z, info, SE2.from_matrix(T), kind == 0, 11.3, 0,
+                         max_rounds=0)

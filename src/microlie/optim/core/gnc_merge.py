@@ -66,7 +66,7 @@ import numpy as np
 from ...groups import SE2, SE3, LieGroup
 from .gnc_weights import tls_weights
 
-__all__ = ["agreeing_set", "merge_components", "merge_stage"]
+__all__ = ["agreeing_set", "merge_components", "merge_known", "merge_stage"]
 
 
 def agreeing_set(agree: np.ndarray) -> np.ndarray:
@@ -211,6 +211,10 @@ def merge_components(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieG
                          f"{min_support!r}")
     if not 0 <= anchor < n:
         raise ValueError(f"merge_components: anchor must be a vertex in [0, {n}), got {anchor}")
+    if isinstance(max_rounds, bool) or not isinstance(max_rounds, (int, np.integer)) or \
+            max_rounds < 1:
+        raise ValueError(f"merge_components: max_rounds must be an integer >= 1, got "
+                         f"{max_rounds!r}")
     base = np.asarray(base, dtype=bool)
     merged = np.zeros(E, dtype=bool)  # accepted by a vote
     joined = np.zeros(E, dtype=bool)  # components joined along their only cut edges
@@ -363,6 +367,11 @@ def merge_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     left : int
         Components of the accepted edges besides the anchor's after the last round.
 
+    Raises
+    ------
+    ValueError
+        An option out of range.
+
     Examples
     --------
     >>> import numpy as np
@@ -379,6 +388,13 @@ def merge_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     ...             lambda s: [np.zeros(1)])[2]  # one component: nothing to merge
     0
     """
+    for name, val in (("max_rounds", max_rounds), ("max_reweight", max_reweight)):
+        if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < 1:
+            raise ValueError(f"merge_stage: {name} must be an integer >= 1, got {val!r}")
+    if not (isinstance(mu_step, (float, int)) and np.isfinite(mu_step) and mu_step > 1.0):
+        raise ValueError(f"merge_stage: mu_step must be a finite number > 1, got {mu_step!r}")
+    if not (isinstance(weights_tol, (float, int)) and 0.0 <= weights_tol < 0.5):
+        raise ValueError(f"merge_stage: weights_tol must be in [0, 0.5), got {weights_tol!r}")
     var = edges.variables
     known = [np.array(k, dtype=bool) for k in known]
     left = 0
@@ -433,6 +449,11 @@ def merge_known(edges: Any, known: list[np.ndarray], quantile: float) -> list[np
     -------
     list of numpy.ndarray
         New masks: ``known`` or, on the BetweenFactor rows, merged by the vote.
+
+    Raises
+    ------
+    ValueError
+        ``quantile`` out of range.
 
     Examples
     --------
