@@ -105,7 +105,9 @@ class GNC:
         noise (:func:`~microlie.optim.core.gnc_cycles.consistent_edges`) added to the known
         inliers first, and after GNC the pieces held by one accepted edge moved where most
         edges across it agree (:func:`~microlie.optim.core.gnc_bridges.repair_bridges`),
-        then the inliers solved once more (for graphs without known odometry).
+        then the inliers solved once more (for graphs without known odometry); pieces are
+        also merged by a rigid-motion vote over the edges between them
+        (:mod:`microlie.optim.core.gnc_merge`), before the chordal stage and after GNC.
     retest : int
         With ``first="chordal"`` or ``"cycles"``: passes of data snooping after GNC, >= 0
         (default 3; 0: off; :mod:`microlie.optim.core.gnc_retest`). With ``v`` the a
@@ -462,6 +464,9 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_cycles import mark_consistent
 
             known = mark_consistent(edges, known, gnc.quantile)
+            from .gnc_merge import merge_known
+
+            known = merge_known(edges, known, gnc.quantile)  # pieces joined by a vote
     show = bool(verbose) if verbose is not None else sys.stderr.isatty()
     weights = [np.ones(f.count) for f in factors]
     judged = [~kk for kk in known]
@@ -545,6 +550,12 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
                 cur = inner(moved)
                 s = squared_norms(problem, cur)
+            from .gnc_merge import merge_stage
+
+            cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
+                                        lambda st: squared_norms(problem, st),
+                                        mu_step=gnc.mu_step, weights_tol=gnc.weights_tol)
+            s = squared_norms(problem, cur)
         if edges is not None and gnc.retest and runs:
             from .gnc_retest import inlier_start, retest_stage
 

@@ -133,19 +133,23 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
             fwd = inP[c]  # i outside, j in P: D = X_i Z X_j^-1; else D = X_j Z^-1 X_i^-1
             D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[c]),
                          P[c] @ Minv[cut] @ np.linalg.inv(P[a]))
-            support = np.zeros(cut.size, dtype=np.int64)
-            fits = []
-            for k in range(cut.size):
-                Pa, Pc = P[a].copy(), P[c].copy()
-                Pa[~fwd] = D[k] @ Pa[~fwd]
-                Pc[fwd] = D[k] @ Pc[fwd]
-                rel = np.linalg.inv(Pa) @ Pc
-                r = np.asarray(Zinv[cut].compose(group.from_matrix(rel)).log(),  # type: ignore[call-overload]
-                               dtype=np.float64)
-                ok = np.einsum("ea,eab,eb->e", r, info[cut], r) <= c2
-                ok &= ~(~judged[cut] & ~ok).any()  # a motion that breaks a known inlier: none
-                fits.append(ok)
-                support[k] = int(ok.sum())
+            K = cut.size
+            fits = np.zeros((K, K), dtype=bool)  # fits[k]: the cut edges that D_k fits
+            Pa, Pc = P[a], P[c]
+            info_c = info[cut]
+            for lo in range(0, K, 256):  # all motions at once, in chunks
+                Dk = D[lo:lo + 256, None]
+                A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
+                C_ = np.where(fwd[None, :, None, None], Dk @ Pc[None], Pc[None])
+                rel = (np.linalg.inv(A_) @ C_).reshape(-1, *P.shape[1:])
+                e = np.tile(cut, Dk.shape[0])
+                r = np.asarray(Zinv[e].compose(group.from_matrix(rel)).log(),  # type: ignore[call-overload]
+                               dtype=np.float64).reshape(Dk.shape[0], K, -1)
+                fits[lo:lo + 256] = np.einsum("kea,eab,keb->ke", r, info_c, r) <= c2
+            # a motion that breaks a known inlier: none
+            broken = np.any(~judged[cut][None, :] & ~fits, axis=1)
+            fits &= ~broken[:, None]
+            support = fits.sum(axis=1)
             now = acc[cut] | ~judged[cut]
             best = int(np.argmax(support))
             if support[best] <= int(now.sum()) or not fits[best].any():
