@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from .pcg import cast
+from .schur import step_dtype
 from .problem import DeviceProblem, Linear, add_last, extend, eye_like, transpose
 
 __all__ = ["CoarsePlan", "TreePlan", "coarse_basis", "coarse_matrix", "coarse_plan",
@@ -266,13 +268,14 @@ def tree_edges(problem: DeviceProblem, plan: TreePlan, lin: Linear) -> Any:
     be = problem.backend
     B = lin.e[0].shape[0]
     d = plan.dof
-    out = be.zeros((B, plan.slots + 1, d * d), like=lin.e[0])
+    wide = step_dtype(be, lin.e[0].dtype)
+    out = be.zeros((B, plan.slots + 1, d * d), like=cast(be, lin.e[0][:, :1, :1], wide))
     for A, r in zip(lin.A, plan.rows, strict=True):
         if r is None:
             continue
         on, slot, swap = r
-        Ai = be.take(A[0], on, axis=1)
-        Aj = be.take(A[1], on, axis=1)
+        Ai = cast(be, be.take(A[0], on, axis=1), wide)
+        Aj = cast(be, be.take(A[1], on, axis=1), wide)
         C = transpose(be, Ai) @ Aj                              # H[i, j]
         C = swap * transpose(be, C) + (1.0 - swap) * C          # H[lo, hi]
         out = be.scatter_add(out, slot, C.reshape(B, -1, d * d))
@@ -385,8 +388,9 @@ def tree_preconditioner(problem: DeviceProblem, plan: TreePlan, blocks: list[Any
     [1.0, 1.0, 1.0]
     """
     be = problem.backend
-    D = damped_tree_blocks(problem, plan, blocks, damping)
-    fac = _factor(problem, plan, D, edges)
+    dt = damping.dtype
+    D = damped_tree_blocks(problem, plan, [cast(be, b, dt) for b in blocks], damping)
+    fac = _factor(problem, plan, D, cast(be, edges, dt))
     cm = problem._colmap[plan.key].reshape(-1)
     B = damping.shape[0]
     zero = be.zeros((B, 1, plan.dof), like=damping)
@@ -531,7 +535,7 @@ def coarse_basis(problem: DeviceProblem, plan: CoarsePlan, x: list[Any]) -> Any:
     """
     be = problem.backend
     blk = problem.blocks[plan.key]
-    X = x[plan.key]
+    X = cast(be, x[plan.key], step_dtype(be, x[plan.key].dtype))
     ref = be.take(X, plan.ref, axis=-2)
     if blk.vector:
         P = be.zeros((*X.shape[:-1], blk.dof, blk.dof), like=X) + eye_like(
@@ -565,14 +569,16 @@ def coarse_matrix(problem: DeviceProblem, plan: CoarsePlan, lin: Linear, P: Any)
     be = problem.backend
     B = lin.e[0].shape[0]
     nc = plan.aggregates * plan.dof
-    out = be.zeros((B, nc * nc), like=lin.e[0])
+    wide = step_dtype(be, lin.e[0].dtype)
+    P = cast(be, P, wide)
+    out = be.zeros((B, nc * nc), like=P)
     for t, A, tp in zip(problem.terms, lin.A, plan.pairs, strict=True):
         if not tp:
             continue
         AP = {}
         for a, _, _ in tp:
             if a not in AP:
-                AP[a] = A[a] @ be.take(P, t.idx[a], axis=1)          # (B, m, dim, dof)
+                AP[a] = cast(be, A[a], wide) @ be.take(P, t.idx[a], axis=1)  # (B, m, dim, dof)
         for a, b, pos in tp:
             C = transpose(be, AP[a]) @ AP[b]
             out = add_last(be, out, pos, C.reshape(B, -1))
@@ -605,7 +611,8 @@ def _coarse_inverse(problem: DeviceProblem, plan: CoarsePlan, Ac: Any, P: Any,
         be.xp.diagonal(A, axis1=-2, axis2=-1)
     scale = diag.max(-1)
     scale = scale.values if be.name == "torch" and hasattr(scale, "values") else scale
-    jitter = 10.0 * be.eps * nc * scale
+    eps = float(np.finfo(np.float64 if A.dtype.itemsize == 8 else np.float32).eps)
+    jitter = 10.0 * eps * nc * scale
     A = A + eye * (jitter[:, None, None] + be.where(diag == 0, 1.0, 0.0)[..., None])
     return be.inv_spd(A)
 
@@ -670,6 +677,8 @@ def two_level(problem: DeviceProblem, plan: CoarsePlan, P: Any, Ac: Any, damping
     >>> [round(v, 9) for v in M(torch.ones((1, 4)).double())[0].tolist()]
     [4.0, 4.0, 4.0, 4.0]
     """
+    be = problem.backend
+    P, Ac = cast(be, P, damping.dtype), cast(be, Ac, damping.dtype)
     Ainv = _coarse_inverse(problem, plan, Ac, P, damping)
 
     def apply(v: Any) -> Any:
