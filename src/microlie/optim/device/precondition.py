@@ -19,6 +19,15 @@ neighbours ``a <= b``: ``D_a -= E_va^T D_v^-1 E_va``, ``D_b -= ...``, ``E_ab -= 
 E_vb``; a solve is one forward sweep over the levels and one back sweep in reverse. Missing
 neighbours point at a dummy node and a zero edge slot, so every index array is static (host
 built: ``jax.jit`` and ``torch.compile`` see constants).
+
+Precision. The preconditioners are built and applied in the dtype of the damping they are
+given: :func:`~microlie.optim.device.pcg.pcg_step` passes float64 for float32 problems too
+(:func:`~microlie.optim.device.schur.step_dtype`), and :func:`coarse_basis`,
+:func:`coarse_matrix` and :func:`tree_edges` accumulate in that dtype from the float32
+linearisation. The coarse matrix holds the slow modes beside a gauge prior of information
+``1e12`` (GTSAM's on every g2o graph): factored in float32, with a jitter of a few float32
+``eps`` times its largest diagonal entry, it ignores every slow mode, and float32 LM on
+parking-garage stopped 3.2e-4 above the optimum after 21,000 CG iterations.
 """
 
 from __future__ import annotations
@@ -29,8 +38,8 @@ from typing import Any
 import numpy as np
 
 from .pcg import cast
-from .schur import step_dtype
 from .problem import DeviceProblem, Linear, add_last, extend, eye_like, transpose
+from .schur import step_dtype
 
 __all__ = ["CoarsePlan", "TreePlan", "coarse_basis", "coarse_matrix", "coarse_plan",
            "tree_edges", "tree_plan", "tree_preconditioner", "two_level"]
@@ -249,6 +258,8 @@ def tree_edges(problem: DeviceProblem, plan: TreePlan, lin: Linear) -> Any:
     Returns
     -------
     array
+        Accumulated in :func:`~microlie.optim.device.schur.step_dtype` of the linearisation
+        (float64 for float32 problems).
 
     Examples
     --------
@@ -363,7 +374,8 @@ def tree_preconditioner(problem: DeviceProblem, plan: TreePlan, blocks: list[Any
     Returns
     -------
     callable
-        ``(B, size) -> (B, size)``.
+        ``(B, size) -> (B, size)``, in ``damping``'s dtype (``blocks`` and ``edges`` are
+        cast to it).
 
     Examples
     --------
@@ -516,6 +528,8 @@ def coarse_basis(problem: DeviceProblem, plan: CoarsePlan, x: list[Any]) -> Any:
     Returns
     -------
     array
+        In :func:`~microlie.optim.device.schur.step_dtype` of ``x`` (float64 for float32
+        problems).
 
     Examples
     --------
@@ -565,6 +579,8 @@ def coarse_matrix(problem: DeviceProblem, plan: CoarsePlan, lin: Linear, P: Any)
     Returns
     -------
     array
+        Accumulated in :func:`~microlie.optim.device.schur.step_dtype` of the linearisation
+        (float64 for float32 problems).
     """
     be = problem.backend
     B = lin.e[0].shape[0]
@@ -587,8 +603,8 @@ def coarse_matrix(problem: DeviceProblem, plan: CoarsePlan, lin: Linear, P: Any)
 
 def _coarse_inverse(problem: DeviceProblem, plan: CoarsePlan, Ac: Any, P: Any,
                     damping: Any) -> Any:
-    """``(P^T (H + diag(d)) P)^-1`` ``(B, nc, nc)`` (a relative jitter of a few ``eps`` on
-    its diagonal keeps the Cholesky of a gauge-free problem defined)."""
+    """``(P^T (H + diag(d)) P)^-1`` ``(B, nc, nc)`` (a relative jitter of a few ``eps`` of
+    its dtype on its diagonal keeps the Cholesky of a gauge-free problem defined)."""
     be = problem.backend
     B, d = damping.shape[0], plan.dof
     nc = plan.aggregates * d
@@ -655,6 +671,7 @@ def two_level(problem: DeviceProblem, plan: CoarsePlan, P: Any, Ac: Any, damping
     Returns
     -------
     callable
+        In ``damping``'s dtype (``P`` and ``Ac`` are cast to it).
 
     Examples
     --------
