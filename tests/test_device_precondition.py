@@ -215,11 +215,12 @@ def _garage(n, conv=None, seed=0):
 
 @pytest.mark.parametrize("backend", ["torch", "jax"])
 def test_float32_pcg_with_a_strong_prior_reaches_the_numpy_cost(backend):
-    """float32 PCG on a pose graph whose gauge prior has information 1e12 (as GTSAM's and
-    parking-garage's): the preconditioner's coarse level is accumulated and factored in
-    float64 (a float32 one, with its jitter of a few float32 ``eps`` times the largest
-    diagonal entry, ignores every slow mode: that solve ended 1.3e-3 above the optimum);
-    the float32 LM reaches the NumPy engine's float64 cost to 1e-4."""
+    """float32 PCG on a pose graph whose gauge prior has information 1e12 (GTSAM's, as
+    ``PoseGraph.to_factor_graph`` adds it to files without FIX lines): the preconditioner's
+    coarse level is accumulated and factored in float64 (a float32 one, with its jitter of a
+    few float32 ``eps`` times the largest diagonal entry, ignores every slow mode: that solve
+    ended 1.3e-3 above the optimum); the float32 LM reaches the NumPy engine's float64 cost to
+    1e-4."""
     from microlie.optim.core.variables import Values
     from microlie.optim.device import DeviceProblem, LMOptions, solve
 

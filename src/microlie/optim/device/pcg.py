@@ -22,7 +22,7 @@ float64 (:func:`~microlie.optim.device.schur.step_dtype`), and the step is retur
 Found by promoting one piece at a time on parking-garage (condition number of ``H`` about
 ``1e11``): a float32 preconditioner (its coarse solve: a float32 Cholesky with a jitter of a
 few float32 ``eps`` flattens the slow modes it exists for) leaves the float32 LM 3.2e-4 above
-the optimum after 21,000 CG iterations; a float64 one alone reaches 2e-6; float64 products or
+the optimum after 21,000 CG iterations; a float64 one alone reaches 2e-6; float64 products and
 vectors without it do not (3.6e-4). On JAX this needs ``jax_enable_x64`` (otherwise every
 piece stays float32).
 """
