@@ -184,3 +184,59 @@ def test_batched_pcg_with_the_coarse_level_equals_the_dense_solves():
     _, ref = solve(p, th, xs, LMOptions(linear="dense", **tight))
     assert (info.status == 1).all()
     assert ((info.cost - ref.cost).abs() <= 1e-10 * ref.cost).all()
+
+
+def _garage(n, conv=None, seed=0):
+    """A parking-garage-like SE3 graph: a two-turn helix of ``n`` poses (0.5 m steps,
+    climbing), closures between the turns, unit-information edges whose measurements agree to
+    1% of their noise (a small optimal cost), and GTSAM's gauge prior on the first pose at the
+    identity with standard deviation 1e-6 (information 1e12)."""
+    rng = np.random.default_rng(seed)
+    steps = np.zeros((n - 1, 6))
+    steps[:, 0], steps[:, 2], steps[:, 5] = 0.5, 0.0125, 4 * np.pi / n
+    steps += rng.normal(size=steps.shape) * 0.01
+    Z = SE3.exp(steps)
+    X = [SE3.identity()]
+    for k in range(n - 1):
+        X.append(X[-1].compose(Z[k]))
+    Xt = SE3.from_params(np.stack([x.params for x in X]))
+    X0 = Xt.plus(rng.normal(size=(n, 6)) * 0.02)
+    g = FactorGraph()
+    x = g.add_variables(SE3.from_params(conv(X0.params), check=False) if conv else X0)
+    g.add(PriorFactor(x, 0, Xt[0], Diagonal([1e-6] * 6)))
+    g.add(BetweenFactor(x, np.arange(n - 1), np.arange(1, n),
+                        Z.compose(SE3.exp(rng.normal(size=(n - 1, 6)) * 0.01))))
+    i = np.arange(8) * 3 + 1
+    j = i + n // 2
+    Zc = Xt[i].inverse().compose(Xt[j]).compose(SE3.exp(rng.normal(size=(8, 6)) * 0.01))
+    g.add(BetweenFactor(x, i, j, Zc))
+    return g
+
+
+@pytest.mark.parametrize("backend", ["torch", "jax"])
+def test_float32_pcg_with_a_strong_prior_reaches_the_numpy_cost(backend):
+    """float32 PCG on a pose graph whose gauge prior has information 1e12 (GTSAM's, as
+    ``PoseGraph.to_factor_graph`` adds it to files without FIX lines): the preconditioner's
+    coarse level is accumulated and factored in float64 (a float32 one, with its jitter of a
+    few float32 ``eps`` times the largest diagonal entry, ignores every slow mode: that solve
+    ended 1.3e-3 above the optimum); the float32 LM reaches the NumPy engine's float64 cost to
+    1e-4."""
+    from microlie.optim.core.variables import Values
+    from microlie.optim.device import DeviceProblem, LMOptions, solve
+
+    ref = _garage(200).optimize(rel_tol=1e-12, abs_tol=0.0)
+    g = _garage(200, _conv(backend, "float32"))
+    p = DeviceProblem.from_graph(g)
+    assert p.backend.dtype_name == "float32"
+    opts = LMOptions(linear="pcg", max_iter=30, cg_max_iter=500)
+    if backend == "jax":
+        import jax
+
+        x, info = jax.jit(lambda th, x0: solve(p, th, x0, opts))(p.theta(), p.initial())
+    else:
+        x, info = solve(p, p.theta(), p.initial(), opts)
+    assert all(str(a.dtype).endswith("float32") for a in x)
+    vals = Values(p.variables, [np.asarray(p.backend.to_numpy(a), dtype=np.float64) for a in x])
+    rel = (g.cost(vals) - ref.final_cost) / ref.final_cost     # evaluated by NumPy
+    assert int(info.status) == 1
+    assert abs(rel) <= 1e-4
