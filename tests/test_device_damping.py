@@ -23,7 +23,7 @@ from microlie.optim import (
     LevenbergMarquardt,
     PriorFactor,
 )
-from microlie.optim.core.elimination import bundle_landmarks, landmark_batches
+from microlie.optim.core.landmarks import bundle_landmarks, landmark_batches
 from microlie.optim.core.strategies import BUNDLE_LAMBDA
 from microlie.optim.sfm.bundle import bundle_graph, synthetic_scene
 

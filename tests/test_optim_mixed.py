@@ -45,7 +45,7 @@ from microlie.optim import (
     ReprojectionFactor,
     check_jacobians,
 )
-from microlie.optim.core.elimination import landmark_batches
+from microlie.optim.core.landmarks import landmark_batches
 
 FIXTURE = Path(__file__).parent / "fixtures" / "optim" / "mixed_gtsam.json"
 FORMS = ("T_cw", "T_wc")

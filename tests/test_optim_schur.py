@@ -22,7 +22,7 @@ from microlie.optim import (
     SingularSystemError,
     check_jacobians,
 )
-from microlie.optim.core.elimination import landmark_batches
+from microlie.optim.core.landmarks import landmark_batches
 from microlie.optim.linalg.cholesky import SupernodalSolver
 from microlie.optim.linalg.schur_solver import SchurSolver
 

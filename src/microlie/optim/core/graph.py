@@ -363,7 +363,7 @@ class FactorGraph:
             With ``linear_solver="schur"``: the batches to eliminate (their free variables may
             share no factor with each other nor with the other named batches); default: the
             landmark-like batches with the most unknowns
-            (:func:`~microlie.optim.core.elimination.landmark_batches`).
+            (:func:`~microlie.optim.core.landmarks.landmark_batches`).
         max_iter : int
             Iteration limit (as the strategy counts them, :attr:`Result.iterations`).
         rel_tol, abs_tol, cost_tol, step_tol : float, optional

@@ -33,6 +33,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..linalg.linear import LinearSolver, SingularSystemError
+from .landmarks import bundle_landmarks
 from .problem import Linearization, Problem
 
 __all__ = ["Strategy", "LevenbergMarquardt", "GaussNewton", "Dogleg", "TrustRegion",
@@ -770,7 +771,7 @@ class LevenbergMarquardt(_GTSAMRules):
       them (manhattan: 21 iterations against 5).
     * ``"auto"`` (default): the identity where it is negligible, else ``diag(H)``. A problem
       with reprojection factors and landmarks (bundle adjustment:
-      :func:`~microlie.optim.core.elimination.bundle_landmarks`) uses ``diag(H)`` throughout
+      :func:`~microlie.optim.core.landmarks.bundle_landmarks`) uses ``diag(H)`` throughout
       from ``lambda = 1e-4``, as Ceres does (:data:`BUNDLE_LAMBDA`): with the identity first a
       run stopped in a flat valley (the free gauge, camera coordinates scaled orders of
       magnitude apart) at an iteration that rounding decided (problem-49: 13344.62 or 13356.5,
@@ -855,7 +856,7 @@ class LevenbergMarquardt(_GTSAMRules):
 
     def start(self, s: SolveState) -> None:
         self._diagonal, self._why, self._stalled = self.damping == "diagonal", None, False
-        self._bundle = self.damping == "auto" and _has_landmarks(s.problem)
+        self._bundle = self.damping == "auto" and bool(bundle_landmarks(s.problem))
         if self._bundle:
             self._diagonal = True
             self._why = "damping auto: diag(H), as the problem has landmarks (bundle adjustment)"
@@ -934,18 +935,6 @@ class LevenbergMarquardt(_GTSAMRules):
                            stop + " (the damped system was singular at every lambda)")
                 return Outcome(False, solves, self._lam, self.tr_radius(), stop=end,
                                bad_trial=bad)
-
-
-def _has_landmarks(problem: Any) -> bool:
-    """Whether ``problem`` is a bundle adjustment
-    (:func:`~microlie.optim.core.elimination.bundle_landmarks` is not empty); a graph without
-    reprojection factors never imports the elimination module (``microlie optimize`` on a
-    pose graph imports only what it uses)."""
-    if not any(type(f).__name__ == "ReprojectionFactor" for f in problem.factors):
-        return False
-    from .elimination import bundle_landmarks
-
-    return bool(bundle_landmarks(problem))
 
 
 def _smallest_positive(d: np.ndarray) -> float:

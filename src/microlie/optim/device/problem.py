@@ -23,6 +23,7 @@ import numpy as np
 
 from ...groups import SO3
 from ..core.factors import BetweenFactor, Factor, PriorFactor
+from ..core.landmarks import bundle_landmarks
 from ..core.variables import VectorVariables
 from .backend import Backend, make_backend
 
@@ -117,7 +118,7 @@ class DeviceProblem:
         Per factor batch: kind, arguments, columns.
     eliminate : list of int
         The variable batches a Schur step eliminates (landmarks,
-        :func:`~microlie.optim.core.elimination.bundle_landmarks`; empty when none): a bundle
+        :func:`~microlie.optim.core.landmarks.bundle_landmarks`; empty when none): a bundle
         adjustment, which ``damping="auto"`` damps by ``diag(H)``.
 
     Examples
@@ -331,8 +332,6 @@ class DeviceProblem:
         return out
 
     def _landmarks(self, prob: Any) -> list[int]:
-        from ..core.elimination import bundle_landmarks
-
         return [prob.key(v) for v in bundle_landmarks(prob)]
 
     # ------------------------------------------------------------------ arrays
