@@ -220,8 +220,12 @@ class Factor:
         *values : LieGroup or numpy.ndarray
             One value per argument, in the order of ``args``: a batch of ``m`` elements of the
             argument's group, or an ``(m, d)`` array for vector variables.
-        jac : bool, keyword
-            Also return the Jacobians (default ``False``).
+
+        Other Parameters
+        ----------------
+        jac : bool
+            Keyword (the one ``**kwargs`` takes; a subclass declares it ``jac=False``): also
+            return the Jacobians (default ``False``).
 
         Returns
         -------
