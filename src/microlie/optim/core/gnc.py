@@ -406,8 +406,13 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
     -------
     Result
         ``weights`` and ``inliers`` hold one array per factor batch (graph order): the last
-        weights and whether the factor's final ``s`` is within its threshold ``c^2`` (known
-        inliers: always True); ``outer_iterations`` counts the weight updates (each followed
+        weights and the verdict (known inliers, also those the vote of ``first="cycles"``
+        merged: always True). With TLS the verdict is the last weight rounded (``w >= 0.5``;
+        the re-test decides by the weights and flips them): once the weights converged to 0
+        or 1 the estimate is the least-squares optimum of the factors judged inliers, also
+        where a rejected factor's final ``s`` is within ``c^2`` or an accepted one's beyond
+        it. With GM (weights never 0 or 1) it is whether the factor's final ``s`` is within
+        its threshold ``c^2``. ``outer_iterations`` counts the weight updates (each followed
         by a weighted solve); ``iterations`` and ``history`` are the inner solves'
         together; ``initial_robust_cost`` / ``final_robust_cost`` are ``0.5 * sum rho(s)``
         with TLS ``min(s, c^2)`` or GM ``c^2 s / (c^2 + s)`` (plain on known inliers);
@@ -572,7 +577,11 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
     finally:
         for f, loss in zip(factors, saved, strict=True):
             f.loss = loss
-    inliers = [kk | (sk <= ck) for kk, sk, ck in zip(known, s, c2, strict=True)]
+    # the verdict: TLS the final weights rounded (after the re-test, which decides by them);
+    # GM's weights are never 0 or 1, so its verdict is the final s within c^2
+    inliers = [kk | (w >= 0.5) for kk, w in zip(known, weights, strict=True)] \
+        if gnc.surrogate == "tls" else \
+        [kk | (sk <= ck) for kk, sk, ck in zip(known, s, c2, strict=True)]
     history: list[Any] = []
     offset = 0.0
     for r in runs:
