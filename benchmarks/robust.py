@@ -11,7 +11,14 @@ start of the corrupted graph, without and with the odometry as known inliers; th
 the APE (RMS position difference to the reference, same gauge: the first vertex held at the
 same pose, no alignment), the precision and recall of
 ``result.inliers`` over the loop closures (inlier sense), the outer and inner iterations and
-the time. GTSAM's ``GncOptimizer`` (TLS, LM inner solver, the same known inliers and threshold
+the time. Whether a miss is the solver's fault or the problem's: ``TLS - ref`` is our TLS
+objective ``0.5 sum min(s, c^2)`` over every edge of the corrupted graph minus the reference's
+(its poses on the corrupted graph), in units of ``c^2/2`` (one edge; above 0: GNC stopped in a
+local minimum); ``ties`` counts the bridges of the true inlier graph (not known inliers) that a
+wrong edge also crosses (largest smaller side in brackets), and the swap witness (the reference
+with that side moved so that the wrong edge fits, ``microlie.optim.core.gnc_ties``) gives its
+``TLS - ref`` (~0: an exact tie) and APE. A summary per graph ends the output.
+GTSAM's ``GncOptimizer`` (TLS, LM inner solver, the same known inliers and threshold
 probability, a prior on the first pose) runs in a child process on the ``--gtsam-cases``
 subset with a timeout; its APE and our time over its time are printed. GTSAM's runs are long:
 ``--gtsam-only FILE`` runs only them (beside a microlie run) and saves each result to FILE as it
