@@ -103,23 +103,25 @@ def corrupt(pg, rate: float, seed: int):
     return pg.replace(i=i2, j=j2, measurements=pg.group.from_params(meas)), bad
 
 
-def reference(pg, bad):
-    """The outlier-free optimum: LM from chordal on the graph without the replaced edges."""
+def _reference_result(pg, bad):
     keep = np.setdiff1d(np.arange(pg.i.size), bad)
     clean = pg.replace(i=pg.i[keep], j=pg.j[keep], measurements=pg.measurements[keep],
                        information=pg.information[keep])
     fg, x = clean.to_factor_graph(initialize(clean, "chordal"), gauge="fix")
-    res = fg.optimize()
+    return fg.optimize(), x
+
+
+def reference(pg, bad):
+    """The outlier-free optimum: LM from chordal on the graph without the replaced edges
+    (positions and cost)."""
+    res, x = _reference_result(pg, bad)
     return np.asarray(res.values[x].translation()), res.final_cost
 
 
 def reference_poses(pg, bad):
     """The outlier-free optimum's poses (see :func:`reference`)."""
-    keep = np.setdiff1d(np.arange(pg.i.size), bad)
-    clean = pg.replace(i=pg.i[keep], j=pg.j[keep], measurements=pg.measurements[keep],
-                       information=pg.information[keep])
-    fg, x = clean.to_factor_graph(initialize(clean, "chordal"), gauge="fix")
-    return fg.optimize().values[x]
+    res, x = _reference_result(pg, bad)
+    return res.values[x]
 
 
 def tls_objective(problem, X, c2: float) -> float:
