@@ -11,7 +11,14 @@ start of the corrupted graph, without and with the odometry as known inliers; th
 the APE (RMS position difference to the reference, same gauge: the first vertex held at the
 same pose, no alignment), the precision and recall of
 ``result.inliers`` over the loop closures (inlier sense), the outer and inner iterations and
-the time. GTSAM's ``GncOptimizer`` (TLS, LM inner solver, the same known inliers and threshold
+the time. Whether a miss is the solver's fault or the problem's: ``TLS - ref`` is our TLS
+objective ``0.5 sum min(s, c^2)`` over every edge of the corrupted graph minus the reference's
+(its poses on the corrupted graph), in units of ``c^2/2`` (one edge; above 0: GNC stopped in a
+local minimum); ``ties`` counts the bridges of the true inlier graph (not known inliers) that a
+wrong edge also crosses (largest smaller side in brackets), and the swap witness (the reference
+with that side moved so that the wrong edge fits, ``microlie.optim.core.gnc_ties``) gives its
+``TLS - ref`` (~0: an exact tie) and APE. A summary per graph ends the output.
+GTSAM's ``GncOptimizer`` (TLS, LM inner solver, the same known inliers and threshold
 probability, a prior on the first pose) runs in a child process on the ``--gtsam-cases``
 subset with a timeout; its APE and our time over its time are printed. GTSAM's runs are long:
 ``--gtsam-only FILE`` runs only them (beside a microlie run) and saves each result to FILE as it
@@ -37,7 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from microlie import SE2, SO2, SO3
-from microlie.optim.core.gnc import GNC
+from microlie.optim.core.gnc import GNC, inlier_thresholds, squared_norms
+from microlie.optim.core.gnc_ties import swap_witness, tie_bridges
 from microlie.optim.init import initialize
 from microlie.optim.io.g2o import read_g2o, write_g2o
 
@@ -95,14 +103,61 @@ def corrupt(pg, rate: float, seed: int):
     return pg.replace(i=i2, j=j2, measurements=pg.group.from_params(meas)), bad
 
 
-def reference(pg, bad):
-    """The outlier-free optimum: LM from chordal on the graph without the replaced edges."""
+def _reference_result(pg, bad):
     keep = np.setdiff1d(np.arange(pg.i.size), bad)
     clean = pg.replace(i=pg.i[keep], j=pg.j[keep], measurements=pg.measurements[keep],
                        information=pg.information[keep])
     fg, x = clean.to_factor_graph(initialize(clean, "chordal"), gauge="fix")
-    res = fg.optimize()
+    return fg.optimize(), x
+
+
+def reference(pg, bad):
+    """The outlier-free optimum: LM from chordal on the graph without the replaced edges
+    (positions and cost)."""
+    res, x = _reference_result(pg, bad)
     return np.asarray(res.values[x].translation()), res.final_cost
+
+
+def reference_poses(pg, bad):
+    """The outlier-free optimum's poses (see :func:`reference`)."""
+    res, x = _reference_result(pg, bad)
+    return res.values[x]
+
+
+def tls_objective(problem, X, c2: float) -> float:
+    """``0.5 * sum min(s, c^2)`` over every edge of a pose graph's problem at poses ``X``."""
+    s = squared_norms(problem, [np.asarray(X.params, dtype=np.float64)])[0]
+    return 0.5 * float(np.minimum(s, c2).sum())
+
+
+class Ties:
+    """Whether a miss can be the problem's: the tie-capable bridges of the true inlier graph
+    and the swap witness (module docstring of ``microlie.optim.core.gnc_ties``)."""
+
+    def __init__(self, pg2, bad, Xref, quantile: float, odo: np.ndarray):
+        self.fg, _ = pg2.to_factor_graph(Xref, gauge="fix")
+        self.problem = self.fg.problem()
+        self.c2 = inlier_thresholds(self.problem.factors, quantile)[0]
+        self.ref = tls_objective(self.problem, Xref, self.c2)
+        ii, jj = pg2.edge_index()
+        good = np.ones(ii.size, bool)
+        good[bad] = False
+        P0 = np.asarray(Xref.translation())
+        self.cells: dict[str, tuple[str, bool]] = {}
+        for known, judged in (("none", None), ("odometry", ~odo)):
+            tb = tie_bridges(pg2.ids.size, ii, jj, good, judged)
+            if not tb:
+                self.cells[known] = (" 0 | | |", False)
+                continue
+            W = swap_witness(Xref, ii, jj, pg2.measurements, tb[0].side, int(tb[0].wrong[0]),
+                             fixed=0)
+            dw = (tls_objective(self.problem, W, self.c2) - self.ref) / (self.c2 / 2)
+            self.cells[known] = (f" {len(tb)} ({tb[0].side.size}) | {dw:.2e} | "
+                                 f"{ape(W.translation(), P0):.2e} |", True)
+
+    def delta(self, X) -> float:
+        """Our TLS objective minus the reference's, in units of ``c^2/2`` (edges)."""
+        return (tls_objective(self.problem, X, self.c2) - self.ref) / (self.c2 / 2)
 
 
 def scores(pred_in, bad, loops):
@@ -212,9 +267,16 @@ def main(argv: list[str] | None = None) -> None:
     print(f"quantile {args.quantile}, first weights from {args.first}, retest "
           f"{args.retest}; APE in m against the "
           f"outlier-free optimum; P/R: precision/recall of result.inliers over loop closures")
+    print("TLS - ref: our TLS objective 0.5 sum min(s, c^2) over every edge of the corrupted "
+          "graph minus the outlier-free optimum's, in units of c^2/2 (1 = one edge); ties: "
+          "bridges of the true inlier graph (not known inliers) crossed by a wrong edge "
+          "(largest smaller side); swap: the reference with that side moved so that a wrong "
+          "edge across fits exactly, its TLS - ref (edges) and APE to the reference (m)")
     print("| graph | outliers | seed | start | known inliers | APE (m) | P | R | outer | "
-          "inner | time (s) | GTSAM APE (m) | GTSAM P / R | GTSAM time (s) | ratio |")
-    print("|" + " --- |" * 15)
+          "inner | time (s) | GTSAM APE (m) | GTSAM P / R | GTSAM time (s) | ratio | "
+          "TLS - ref (edges) | ties (side) | swap TLS - ref (edges) | swap APE (m) |")
+    print("|" + " --- |" * 19)
+    summary: dict[tuple[str, str], list[int]] = {}
     for gname in args.graphs:
         pg = read_g2o(DATA / GRAPHS[gname])
         ii, jj = pg.edge_index()
@@ -223,7 +285,9 @@ def main(argv: list[str] | None = None) -> None:
         for rate in args.rates:
             for seed in args.seeds:
                 pg2, bad = corrupt(pg, rate, seed)
-                P0, _ = reference(pg2, bad)
+                Xref = reference_poses(pg2, bad)
+                P0 = np.asarray(Xref.translation())
+                ties = Ties(pg2, bad, Xref, args.quantile, odo)
                 for start in args.starts:
                     X0 = initialize(pg2, start)
                     for known in args.known:
@@ -235,8 +299,16 @@ def main(argv: list[str] | None = None) -> None:
                         res = fg.optimize(robust=gnc, verbose=False)
                         dt = time.perf_counter() - t0
                         p, r = scores(res.inliers[0], bad, loops)
+                        err = ape(res.values[x].translation(), P0)
+                        dtls = ties.delta(res.values[x])
+                        tcell, tied = ties.cells[known]
+                        tally = summary.setdefault((gname, known), [0, 0, 0, 0])
+                        tally[0] += 1
+                        tally[1] += err <= 0.01
+                        tally[2] += dtls <= 1e-3
+                        tally[3] += tied
                         row = (f"| {gname} | {rate:.0%} | {seed} | {start} | {known} | "
-                               f"{ape(res.values[x].translation(), P0):.2e} | {p:.4f} | "
+                               f"{err:.2e} | {p:.4f} | "
                                f"{r:.4f} | {res.outer_iterations} | {res.iterations} | "
                                f"{dt:.2f} |")
                         key = (gname, f"{rate:g}", str(seed), start,
@@ -251,7 +323,11 @@ def main(argv: list[str] | None = None) -> None:
                                                             args.gtsam_timeout), dt)
                         else:
                             row += " | | | |"
-                        print(row, flush=True)
+                        print(row + f" {dtls:.3g} |" + tcell, flush=True)
+    print()
+    for (gname, known), (n, met, opt, tied) in summary.items():
+        print(f"{gname}, known inliers {known}: {n} cases; within 0.01 m: {met}; TLS-optimal "
+              f"(TLS - ref <= 1e-3 edges): {opt}; with ties: {tied}")
 
 
 if __name__ == "__main__":
