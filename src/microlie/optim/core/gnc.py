@@ -546,7 +546,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         if edges is not None and gnc.first == "cycles" and runs:
             from .gnc_bridges import repair_stage
 
-            moved = repair_stage(cur, edges, known, weights, c2)
+            moved = repair_stage(cur, edges, known, weights, c2, s_start)
             if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
                 cur = inner(moved)
                 s = squared_norms(problem, cur)

@@ -51,9 +51,16 @@ def _whitened(group: Any, X: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: L
     return np.einsum("ea,eab,eb->e", r, info, r)
 
 
+def _start_key(s0: np.ndarray, c2: float) -> tuple[int, float]:
+    """How well a set of edges fits the start values (smaller is better): minus the number
+    whose whitened squared residual at the start is within ``c2``, then their sum."""
+    return -int(np.sum(s0 <= c2)), float(np.sum(s0))
+
+
 def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                    info: np.ndarray, X: LieGroup, w: np.ndarray, judged: np.ndarray,
-                   c2: float, *, zero: float = 1e-6, max_passes: int = 5
+                   c2: float, *, zero: float = 1e-6, max_passes: int = 5,
+                   start: np.ndarray | None = None, anchor: int | None = None
                    ) -> tuple[LieGroup, np.ndarray]:
     """Move pieces held by one accepted edge where most cut edges agree (module docstring).
 
@@ -81,6 +88,16 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
         A bridge is a candidate when its whitened squared residual is below ``zero * c2``.
     max_passes : int
         Passes over the bridges at most (each pass recomputes them), >= 1.
+    start : numpy.ndarray, optional
+        ``(E,)`` whitened squared residuals at the start values (the user's information):
+        breaks ties. Among motions of equal support the one whose fitting edges fit the
+        start best wins (more of them within ``c2`` at the start, then the smaller sum), and
+        a motion whose support only equals the bridge's is applied when its edges fit the
+        start strictly better than the accepted ones (an exact tie of the TLS objective:
+        one edge rejected, one accepted). Without it ties are left alone.
+    anchor : int, optional
+        A vertex that must not move (the gauge): when it lies in the piece, the rest of the
+        graph is moved by the inverse motion instead (the same relative poses).
 
     Returns
     -------
@@ -105,6 +122,14 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
         raise ValueError(f"repair_bridges: group must be SE2 or SE3, got {group!r}")
     ii = np.asarray(ii, dtype=np.int64)
     jj = np.asarray(jj, dtype=np.int64)
+    s0 = None
+    if start is not None:
+        s0 = np.asarray(start, dtype=np.float64)
+        if s0.shape != ii.shape or not np.all(s0 >= 0):
+            raise ValueError(f"repair_bridges: start must hold one squared residual >= 0 per "
+                             f"edge, shape {ii.shape}, got shape {s0.shape}")
+    if anchor is not None and not 0 <= anchor < n:
+        raise ValueError(f"repair_bridges: anchor must be a vertex in [0, {n}), got {anchor}")
     w = np.array(w, dtype=np.float64)
     P = np.array(X.matrix(), dtype=np.float64)
     Zinv = Z.inverse()
@@ -151,10 +176,24 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
             fits &= ~broken[:, None]
             support = fits.sum(axis=1)
             now = acc[cut] | ~judged[cut]
-            best = int(np.argmax(support))
-            if support[best] <= int(now.sum()) or not fits[best].any():
+            top = int(support.max())
+            if top < int(now.sum()) or top == 0:
                 continue
-            P[inP] = D[best] @ P[inP]
+            tied = np.flatnonzero(support == top)
+            if s0 is None:
+                best = int(tied[0])
+            else:  # equal support: the motion whose edges fit the start best
+                keys = [_start_key(s0[cut][fits[k]], c2) for k in tied]
+                best = int(tied[min(range(tied.size), key=keys.__getitem__)])
+            if top == int(now.sum()):  # a tie with leaving the bridge alone
+                if s0 is None or np.array_equal(fits[best], now) or \
+                        not _start_key(s0[cut][fits[best]], c2) < \
+                        _start_key(s0[cut][now], c2):
+                    continue
+            if anchor is not None and inP[anchor]:  # the anchor stays: move the rest
+                P[~inP] = np.linalg.inv(D[best]) @ P[~inP]
+            else:
+                P[inP] = D[best] @ P[inP]
             w[cut[judged[cut]]] = fits[best][judged[cut]].astype(np.float64)
             acc = w > 0.5
             changed = True
@@ -164,9 +203,11 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
 
 
 def repair_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
-                 weights: list[np.ndarray], c2: list[float]) -> list[np.ndarray] | None:
+                 weights: list[np.ndarray], c2: list[float],
+                 start: list[np.ndarray] | None = None) -> list[np.ndarray] | None:
     """:func:`repair_bridges` on a problem's pose graph after GNC: the new states (the
-    BetweenFactor weights updated in place), or ``None`` when nothing moved.
+    BetweenFactor weights updated in place), or ``None`` when nothing moved. The anchor
+    vertex never moves; ties are broken by the start values when ``start`` is given.
 
     Parameters
     ----------
@@ -180,6 +221,9 @@ def repair_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         GNC's weights per factor batch (0 or 1), updated in place.
     c2 : list of float
         Thresholds per factor batch.
+    start : list of numpy.ndarray, optional
+        Whitened squared residuals at the start values per factor batch (ties: see
+        :func:`repair_bridges`; non-finite values count as not fitting).
 
     Returns
     -------
@@ -205,8 +249,12 @@ def repair_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     c = float(c2[edges.rows[0][0]])
     var = edges.variables
     X = var.group.from_params(np.asarray(states[0], dtype=np.float64))
+    s0 = None
+    if start is not None:
+        s0 = np.concatenate([np.asarray(start[k], dtype=np.float64) for k, _ in edges.rows])
+        s0 = np.where(np.isfinite(s0), np.abs(s0), np.inf)
     X2, w2 = repair_bridges(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info, X,
-                            w, ~kn, c)
+                            w, ~kn, c, start=s0, anchor=edges.anchor)
     if np.array_equal(w2, w):
         return None
     for k, sl in edges.rows:
