@@ -555,6 +555,8 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
                                         lambda st: squared_norms(problem, st),
                                         mu_step=gnc.mu_step, weights_tol=gnc.weights_tol)
+            moved = repair_stage(cur, edges, known, weights, c2, s_start)
+            cur = inner(moved) if moved is not None else cur  # pieces the merge left on a tie
             s = squared_norms(problem, cur)
         if edges is not None and gnc.retest and runs:
             from .gnc_retest import inlier_start, retest_stage
