@@ -448,6 +448,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                              f"loss {f.loss!r}; build it without a loss")
     known = gnc.known_masks(factors)
     c2 = inlier_thresholds(factors, gnc.quantile)
+    s_start = squared_norms(problem, states)  # also what breaks exact ties (first="cycles")
     edges = None
     if gnc.first in ("chordal", "cycles") and gnc.surrogate != "tls":
         raise ValueError(f"GNC first={gnc.first!r} is a TLS stage; use surrogate='tls' or "
@@ -466,7 +467,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             known = mark_consistent(edges, known, gnc.quantile)
             from .gnc_merge import merge_known
 
-            known = merge_known(edges, known, gnc.quantile)  # pieces joined by a vote
+            known = merge_known(edges, known, gnc.quantile, s_start)  # joined by a vote
     show = bool(verbose) if verbose is not None else sys.stderr.isatty()
     weights = [np.ones(f.count) for f in factors]
     judged = [~kk for kk in known]
@@ -483,7 +484,6 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         for f, w, jk in zip(factors, weights, judged, strict=True):
             if jk.any():
                 f.loss = _Weighted(w)  # weighted least squares, weights updated in place
-        s_start = squared_norms(problem, states)
         mu: float | None
         if edges is not None:
             cur, mu = _chordal_stage(problem, states, gnc, edges, known, weights)
@@ -554,7 +554,8 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
 
             cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
                                         lambda st: squared_norms(problem, st),
-                                        mu_step=gnc.mu_step, weights_tol=gnc.weights_tol)
+                                        mu_step=gnc.mu_step, weights_tol=gnc.weights_tol,
+                                        start=s_start)
             moved = repair_stage(cur, edges, known, weights, c2, s_start)
             cur = inner(moved) if moved is not None else cur  # pieces the merge left on a tie
             s = squared_norms(problem, cur)
