@@ -556,8 +556,8 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                                         lambda st: squared_norms(problem, st),
                                         mu_step=gnc.mu_step, weights_tol=gnc.weights_tol,
                                         start=s_start)
-            moved = repair_stage(cur, edges, known, weights, c2, s_start)
-            cur = inner(moved) if moved is not None else cur  # pieces the merge left on a tie
+            moved = repair_stage(cur, edges, known, weights, c2, s_start, components=True)
+            cur = inner(moved) if moved is not None else cur  # pieces the merge left
             s = squared_norms(problem, cur)
         if edges is not None and gnc.retest and runs:
             from .gnc_retest import inlier_start, retest_stage

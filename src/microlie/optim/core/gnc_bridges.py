@@ -57,11 +57,52 @@ def _start_key(s0: np.ndarray, c2: float) -> tuple[int, float]:
     return -int(np.sum(s0 <= c2)), float(np.sum(s0))
 
 
+def _cut_motions(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, inP: np.ndarray,
+                 cut: np.ndarray, M: np.ndarray, Minv: np.ndarray, Zinv: LieGroup,
+                 info: np.ndarray, judged: np.ndarray, c2: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The motions ``D_k`` of the piece ``inP`` that make cut edge ``k`` fit exactly, and
+    ``fits[k]``: the cut edges within ``c2`` once the piece is moved by ``D_k`` (none for a
+    motion that breaks a known inlier)."""
+    a, c = ii[cut], jj[cut]
+    fwd = inP[c]  # i outside, j in P: D = X_i Z X_j^-1; else D = X_j Z^-1 X_i^-1
+    D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[c]),
+                 P[c] @ Minv[cut] @ np.linalg.inv(P[a]))
+    K = cut.size
+    fits = np.zeros((K, K), dtype=bool)  # fits[k]: the cut edges that D_k fits
+    Pa, Pc = P[a], P[c]
+    info_c = info[cut]
+    for lo in range(0, K, 256):  # all motions at once, in chunks
+        Dk = D[lo:lo + 256, None]
+        A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
+        C_ = np.where(fwd[None, :, None, None], Dk @ Pc[None], Pc[None])
+        rel = (np.linalg.inv(A_) @ C_).reshape(-1, *P.shape[1:])
+        e = np.tile(cut, Dk.shape[0])
+        r = np.asarray(Zinv[e].compose(group.from_matrix(rel)).log(),  # type: ignore[call-overload]
+                       dtype=np.float64).reshape(Dk.shape[0], K, -1)
+        fits[lo:lo + 256] = np.einsum("kea,eab,keb->ke", r, info_c, r) <= c2
+    # a motion that breaks a known inlier: none
+    broken = np.any(~judged[cut][None, :] & ~fits, axis=1)
+    fits &= ~broken[:, None]
+    return D, fits
+
+
+def _choose(fits: np.ndarray, support: np.ndarray, cut: np.ndarray, s0: np.ndarray | None,
+            c2: float) -> int:
+    """The motion of most support; among equal support the one whose edges fit the start
+    best (:func:`_start_key`), else the first."""
+    tied = np.flatnonzero(support == support.max())
+    if s0 is None:
+        return int(tied[0])
+    keys = [_start_key(s0[cut][fits[k]], c2) for k in tied]
+    return int(tied[min(range(tied.size), key=keys.__getitem__)])
+
+
 def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                    info: np.ndarray, X: LieGroup, w: np.ndarray, judged: np.ndarray,
                    c2: float, *, zero: float = 1e-6, max_passes: int = 5,
-                   start: np.ndarray | None = None, anchor: int | None = None
-                   ) -> tuple[LieGroup, np.ndarray]:
+                   start: np.ndarray | None = None, anchor: int | None = None,
+                   components: bool = False) -> tuple[LieGroup, np.ndarray]:
     """Move pieces held by one accepted edge where most cut edges agree (module docstring).
 
     Parameters
@@ -98,6 +139,11 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
     anchor : int, optional
         A vertex that must not move (the gauge): when it lies in the piece, the rest of the
         graph is moved by the inverse motion instead (the same relative poses).
+    components : bool
+        Also attach every component of the accepted edges that no accepted edge joins to
+        the anchor's (else the largest) component: it is moved by the motion of its cut
+        edges with the most support (>= 1: the TLS objective falls by ``c^2/2`` per edge
+        accepted; ties broken by ``start``), largest component first, one at a time.
 
     Returns
     -------
@@ -153,38 +199,14 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
             cut = np.flatnonzero(inP[ii] != inP[jj])
             if cut.size < 2:
                 continue
-            # the motion D of P that makes cut edge k fit exactly
-            a, c = ii[cut], jj[cut]
-            fwd = inP[c]  # i outside, j in P: D = X_i Z X_j^-1; else D = X_j Z^-1 X_i^-1
-            D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[c]),
-                         P[c] @ Minv[cut] @ np.linalg.inv(P[a]))
-            K = cut.size
-            fits = np.zeros((K, K), dtype=bool)  # fits[k]: the cut edges that D_k fits
-            Pa, Pc = P[a], P[c]
-            info_c = info[cut]
-            for lo in range(0, K, 256):  # all motions at once, in chunks
-                Dk = D[lo:lo + 256, None]
-                A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
-                C_ = np.where(fwd[None, :, None, None], Dk @ Pc[None], Pc[None])
-                rel = (np.linalg.inv(A_) @ C_).reshape(-1, *P.shape[1:])
-                e = np.tile(cut, Dk.shape[0])
-                r = np.asarray(Zinv[e].compose(group.from_matrix(rel)).log(),  # type: ignore[call-overload]
-                               dtype=np.float64).reshape(Dk.shape[0], K, -1)
-                fits[lo:lo + 256] = np.einsum("kea,eab,keb->ke", r, info_c, r) <= c2
-            # a motion that breaks a known inlier: none
-            broken = np.any(~judged[cut][None, :] & ~fits, axis=1)
-            fits &= ~broken[:, None]
+            D, fits = _cut_motions(group, P, ii, jj, inP, cut, M, Minv, Zinv, info, judged,
+                                   c2)
             support = fits.sum(axis=1)
             now = acc[cut] | ~judged[cut]
             top = int(support.max())
             if top < int(now.sum()) or top == 0:
                 continue
-            tied = np.flatnonzero(support == top)
-            if s0 is None:
-                best = int(tied[0])
-            else:  # equal support: the motion whose edges fit the start best
-                keys = [_start_key(s0[cut][fits[k]], c2) for k in tied]
-                best = int(tied[min(range(tied.size), key=keys.__getitem__)])
+            best = _choose(fits, support, cut, s0, c2)
             if top == int(now.sum()):  # a tie with leaving the bridge alone
                 if s0 is None or np.array_equal(fits[best], now) or \
                         not _start_key(s0[cut][fits[best]], c2) < \
@@ -197,6 +219,31 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
             w[cut[judged[cut]]] = fits[best][judged[cut]].astype(np.float64)
             acc = w > 0.5
             changed = True
+        while components:  # pieces no accepted edge holds: attach one at a time
+            keep = np.flatnonzero(w > 0.5)
+            ncomp, lab = connected_components(coo_matrix((np.ones(keep.size),
+                                                          (ii[keep], jj[keep])), shape=(n, n)),
+                                              directed=False)
+            size = np.bincount(lab, minlength=ncomp)
+            root = lab[anchor] if anchor is not None else int(np.argmax(size))
+            attached = False
+            for comp in np.argsort(-size, kind="stable"):
+                inP = lab == comp
+                cut = np.flatnonzero(inP[ii] != inP[jj])
+                if comp == root or not cut.size:
+                    continue
+                D, fits = _cut_motions(group, P, ii, jj, inP, cut, M, Minv, Zinv, info,
+                                       judged, c2)
+                support = fits.sum(axis=1)
+                if support.max() == 0:
+                    continue
+                best = _choose(fits, support, cut, s0, c2)
+                P[inP] = D[best] @ P[inP]
+                w[cut[judged[cut]]] = fits[best][judged[cut]].astype(np.float64)
+                attached = changed = True
+                break
+            if not attached:
+                break
         if not changed:
             break
     return group.from_matrix(P), w
@@ -204,7 +251,8 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
 
 def repair_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
                  weights: list[np.ndarray], c2: list[float],
-                 start: list[np.ndarray] | None = None) -> list[np.ndarray] | None:
+                 start: list[np.ndarray] | None = None, components: bool = False
+                 ) -> list[np.ndarray] | None:
     """:func:`repair_bridges` on a problem's pose graph after GNC: the new states (the
     BetweenFactor weights updated in place), or ``None`` when nothing moved. The anchor
     vertex never moves; ties are broken by the start values when ``start`` is given.
@@ -224,6 +272,8 @@ def repair_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     start : list of numpy.ndarray, optional
         Whitened squared residuals at the start values per factor batch (ties: see
         :func:`repair_bridges`; non-finite values count as not fitting).
+    components : bool
+        Also attach the components no accepted edge holds (:func:`repair_bridges`).
 
     Returns
     -------
@@ -254,7 +304,7 @@ def repair_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         s0 = np.concatenate([np.asarray(start[k], dtype=np.float64) for k, _ in edges.rows])
         s0 = np.where(np.isfinite(s0), np.abs(s0), np.inf)
     X2, w2 = repair_bridges(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info, X,
-                            w, ~kn, c, start=s0, anchor=edges.anchor)
+                            w, ~kn, c, start=s0, anchor=edges.anchor, components=components)
     if np.array_equal(w2, w):
         return None
     for k, sl in edges.rows:
