@@ -64,7 +64,7 @@ def test_gnc_cycles_tie_decided_by_the_start(G, seed, fits):
     rng = np.random.default_rng(100 + seed)
     dim = 3 if G is SE2 else 6
     X0 = T if fits == "good" else other
-    X0 = np.asarray(G.from_matrix(X0).compose(G.exp(rng.normal(0, 0.02, (7, dim)))).matrix())
+    X0 = np.asarray(G.from_matrix(X0).compose(G.exp(rng.normal(0, 1e-3, (7, dim)))).matrix())
     X0[0] = T[0]
     g, x, f = _graph(G, ii, jj, Zm, X0)
     res = g.optimize(robust=GNC("tls", first="cycles"))

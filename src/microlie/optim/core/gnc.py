@@ -107,7 +107,14 @@ class GNC:
         edges across it agree (:func:`~microlie.optim.core.gnc_bridges.repair_bridges`),
         then the inliers solved once more (for graphs without known odometry); pieces are
         also merged by a rigid-motion vote over the edges between them
-        (:mod:`microlie.optim.core.gnc_merge`), before the chordal stage and after GNC.
+        (:mod:`microlie.optim.core.gnc_merge`), before the chordal stage and after GNC,
+        then the pieces no accepted edge holds attached by their best-supported edge.
+        Exact ties of the TLS objective (a piece that either of two edges can hold alone:
+        one rejected, the other accepted, the same ``0.5 * sum min(s, c^2)``) are broken by
+        the start values, the user's information: the choice with more edges that fit
+        the start (whitened squared residual within ``c^2`` there) is kept; when neither
+        fits the start the tie is left as GNC found it. Such answers therefore depend on
+        the start; where the support differs it does not.
     retest : int
         With ``first="chordal"`` or ``"cycles"``: passes of data snooping after GNC, >= 0
         (default 3; 0: off; :mod:`microlie.optim.core.gnc_retest`). With ``v`` the a

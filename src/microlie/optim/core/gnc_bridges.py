@@ -51,10 +51,13 @@ def _whitened(group: Any, X: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: L
     return np.einsum("ea,eab,eb->e", r, info, r)
 
 
-def _start_key(s0: np.ndarray, c2: float) -> tuple[int, float]:
+def _start_key(s0: np.ndarray, c2: float) -> int:
     """How well a set of edges fits the start values (smaller is better): minus the number
-    whose whitened squared residual at the start is within ``c2``, then their sum."""
-    return -int(np.sum(s0 <= c2)), float(np.sum(s0))
+    whose whitened squared residual at the start is within ``c2``. (Comparing the residuals
+    themselves when none is within ``c2``, or the distance of the moved vertices to their
+    start positions, was measured worse: a start bent by the outliers, e.g. the chordal
+    relaxation of the corrupted graph, fits some wrong edges better than the good ones.)"""
+    return -int(np.sum(s0 <= c2))
 
 
 def _cut_motions(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, inP: np.ndarray,
@@ -131,11 +134,12 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
         Passes over the bridges at most (each pass recomputes them), >= 1.
     start : numpy.ndarray, optional
         ``(E,)`` whitened squared residuals at the start values (the user's information):
-        breaks ties. Among motions of equal support the one whose fitting edges fit the
-        start best wins (more of them within ``c2`` at the start, then the smaller sum), and
-        a motion whose support only equals the bridge's is applied when its edges fit the
-        start strictly better than the accepted ones (an exact tie of the TLS objective:
-        one edge rejected, one accepted). Without it ties are left alone.
+        breaks ties. Among motions of equal support the one with the most fitting edges
+        that also fit the start (within ``c2`` there) wins (else the first), and a motion
+        whose support only equals the bridge's is applied when more of its edges fit the
+        start than of the accepted ones (an exact tie of the TLS objective: one edge
+        rejected, one accepted). Without it, or when the start does not separate the
+        choices, ties are left alone.
     anchor : int, optional
         A vertex that must not move (the gauge): when it lies in the piece, the rest of the
         graph is moved by the inverse motion instead (the same relative poses).

@@ -22,7 +22,7 @@ least ``min_support`` = 2 edges (a single edge across a cut cannot be told from 
 joins a component that has only one or two cut edges in all (and no anchor) to its neighbour of
 higher degree across one of them (nothing can confirm or contradict such an edge yet: joining
 lets later rounds vote with the larger piece; the edge itself is left to GNC's judgement; with
-the start values given, the edge that fits them best, else the first), and
+the start values given, an edge that fits them within its threshold, else the first), and
 moves the components rigidly so that a spanning forest of those edges fits exactly (the
 anchor's component, else the largest, stays). Rounds repeat on the larger components until no
 cut has support; a component never merged stays where it was, and the count is returned.
@@ -176,8 +176,8 @@ def merge_components(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieG
         Rounds at most, >= 1.
     start : numpy.ndarray, optional
         ``(E,)`` whitened squared residuals at the start values: a component with one or two
-        cut edges is joined along the one that fits the start best (the smallest), not the
-        first in edge order (a tie: each edge alone has support 1).
+        cut edges is joined along one that fits the start (within ``c2``) when there is one,
+        else along the first in edge order (a tie: each edge alone has support 1).
 
     Returns
     -------
@@ -248,8 +248,8 @@ def merge_components(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieG
         series = np.zeros(ncomp, dtype=bool)
         series[lab[anchor]] = True
         join = np.zeros(E, dtype=bool)
-        by = np.argsort(start[cross], kind="stable") if start is not None else \
-            np.arange(cross.size)  # the edge that fits the start best is tried first
+        by = np.argsort(start[cross] > c2, kind="stable") if start is not None else \
+            np.arange(cross.size)  # the edges that fit the start are tried first
         for e, la, lb in zip(cross[by], a[by], b[by], strict=True):
             for me, other in ((la, lb), (lb, la)):
                 if deg[me] <= 2 and not series[me] and not vote[e] and \
