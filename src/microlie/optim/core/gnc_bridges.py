@@ -12,7 +12,13 @@ its cut (the bridge and the rejected ones) proposes a rigid motion ``D`` of the 
 cut edges fit within their threshold (whitened squared residual ``<= c^2``) wins, and it is
 applied, with those edges accepted and the others across the cut rejected, only when it has
 more support than leaving the bridge alone (the TLS objective then falls by ``c^2/2`` per extra
-edge). Known inliers keep weight 1 and count as support.
+edge). Known inliers keep weight 1 and count as support. Equal support is an exact tie of
+the TLS objective (one edge accepted, one rejected, either way): with the whitened squared
+residuals at the start values given (``start``), the choice with more edges within ``c^2`` at
+the start wins (the start is the user's information; e.g. from an odometry start the odometry
+edges fit exactly); otherwise the bridge is left alone. The anchor vertex never moves (when it
+lies in the piece, the rest moves by the inverse motion), and with ``components=True`` the
+pieces that no accepted edge holds are attached too.
 
 Examples
 --------
