@@ -107,7 +107,14 @@ class GNC:
         edges across it agree (:func:`~microlie.optim.core.gnc_bridges.repair_bridges`),
         then the inliers solved once more (for graphs without known odometry); pieces are
         also merged by a rigid-motion vote over the edges between them
-        (:mod:`microlie.optim.core.gnc_merge`), before the chordal stage and after GNC.
+        (:mod:`microlie.optim.core.gnc_merge`), before the chordal stage and after GNC,
+        then the pieces no accepted edge holds attached by their best-supported edge.
+        Exact ties of the TLS objective (a piece that either of two edges can hold alone:
+        one rejected, the other accepted, the same ``0.5 * sum min(s, c^2)``) are broken by
+        the start values, the user's information: the choice with more edges that fit
+        the start (whitened squared residual within ``c^2`` there) is kept; when neither
+        fits the start the tie is left as GNC found it. Such answers therefore depend on
+        the start; where the support differs it does not.
     retest : int
         With ``first="chordal"`` or ``"cycles"``: passes of data snooping after GNC, >= 0
         (default 3; 0: off; :mod:`microlie.optim.core.gnc_retest`). With ``v`` the a
@@ -453,6 +460,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                              f"loss {f.loss!r}; build it without a loss")
     known = gnc.known_masks(factors)
     c2 = inlier_thresholds(factors, gnc.quantile)
+    s_start = squared_norms(problem, states)  # also what breaks exact ties (first="cycles")
     edges = None
     if gnc.first in ("chordal", "cycles") and gnc.surrogate != "tls":
         raise ValueError(f"GNC first={gnc.first!r} is a TLS stage; use surrogate='tls' or "
@@ -471,7 +479,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             known = mark_consistent(edges, known, gnc.quantile)
             from .gnc_merge import merge_known
 
-            known = merge_known(edges, known, gnc.quantile)  # pieces joined by a vote
+            known = merge_known(edges, known, gnc.quantile, s_start)  # joined by a vote
     show = bool(verbose) if verbose is not None else sys.stderr.isatty()
     weights = [np.ones(f.count) for f in factors]
     judged = [~kk for kk in known]
@@ -488,7 +496,6 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         for f, w, jk in zip(factors, weights, judged, strict=True):
             if jk.any():
                 f.loss = _Weighted(w)  # weighted least squares, weights updated in place
-        s_start = squared_norms(problem, states)
         mu: float | None
         if edges is not None:
             cur, mu = _chordal_stage(problem, states, gnc, edges, known, weights)
@@ -551,7 +558,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         if edges is not None and gnc.first == "cycles" and runs:
             from .gnc_bridges import repair_stage
 
-            moved = repair_stage(cur, edges, known, weights, c2)
+            moved = repair_stage(cur, edges, known, weights, c2, s_start)
             if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
                 cur = inner(moved)
                 s = squared_norms(problem, cur)
@@ -559,7 +566,10 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
 
             cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
                                         lambda st: squared_norms(problem, st),
-                                        mu_step=gnc.mu_step, weights_tol=gnc.weights_tol)
+                                        mu_step=gnc.mu_step, weights_tol=gnc.weights_tol,
+                                        start=s_start)
+            moved = repair_stage(cur, edges, known, weights, c2, s_start, components=True)
+            cur = inner(moved) if moved is not None else cur  # pieces the merge left
             s = squared_norms(problem, cur)
         if edges is not None and gnc.retest and runs:
             from .gnc_retest import inlier_start, retest_stage

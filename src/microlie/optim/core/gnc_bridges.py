@@ -12,7 +12,13 @@ its cut (the bridge and the rejected ones) proposes a rigid motion ``D`` of the 
 cut edges fit within their threshold (whitened squared residual ``<= c^2``) wins, and it is
 applied, with those edges accepted and the others across the cut rejected, only when it has
 more support than leaving the bridge alone (the TLS objective then falls by ``c^2/2`` per extra
-edge). Known inliers keep weight 1 and count as support.
+edge). Known inliers keep weight 1 and count as support. Equal support is an exact tie of
+the TLS objective (one edge accepted, one rejected, either way): with the whitened squared
+residuals at the start values given (``start``), the choice with more edges within ``c^2`` at
+the start wins (the start is the user's information; e.g. from an odometry start the odometry
+edges fit exactly); otherwise the bridge is left alone. The anchor vertex never moves (when it
+lies in the piece, the rest moves by the inverse motion), and with ``components=True`` the
+pieces that no accepted edge holds are attached too.
 
 Examples
 --------
@@ -51,10 +57,61 @@ def _whitened(group: Any, X: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: L
     return np.einsum("ea,eab,eb->e", r, info, r)
 
 
+def _start_key(s0: np.ndarray, c2: float) -> int:
+    """How well a set of edges fits the start values (smaller is better): minus the number
+    whose whitened squared residual at the start is within ``c2``. (Comparing the residuals
+    themselves when none is within ``c2``, or the distance of the moved vertices to their
+    start positions, was measured worse: a start bent by the outliers, e.g. the chordal
+    relaxation of the corrupted graph, fits some wrong edges better than the good ones.)"""
+    return -int(np.sum(s0 <= c2))
+
+
+def _cut_motions(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, inP: np.ndarray,
+                 cut: np.ndarray, M: np.ndarray, Minv: np.ndarray, Zinv: LieGroup,
+                 info: np.ndarray, judged: np.ndarray, c2: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The motions ``D_k`` of the piece ``inP`` that make cut edge ``k`` fit exactly, and
+    ``fits[k]``: the cut edges within ``c2`` once the piece is moved by ``D_k`` (none for a
+    motion that breaks a known inlier)."""
+    a, c = ii[cut], jj[cut]
+    fwd = inP[c]  # i outside, j in P: D = X_i Z X_j^-1; else D = X_j Z^-1 X_i^-1
+    D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[c]),
+                 P[c] @ Minv[cut] @ np.linalg.inv(P[a]))
+    K = cut.size
+    fits = np.zeros((K, K), dtype=bool)  # fits[k]: the cut edges that D_k fits
+    Pa, Pc = P[a], P[c]
+    info_c = info[cut]
+    for lo in range(0, K, 256):  # all motions at once, in chunks
+        Dk = D[lo:lo + 256, None]
+        A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
+        C_ = np.where(fwd[None, :, None, None], Dk @ Pc[None], Pc[None])
+        rel = (np.linalg.inv(A_) @ C_).reshape(-1, *P.shape[1:])
+        e = np.tile(cut, Dk.shape[0])
+        r = np.asarray(Zinv[e].compose(group.from_matrix(rel)).log(),  # type: ignore[call-overload]
+                       dtype=np.float64).reshape(Dk.shape[0], K, -1)
+        fits[lo:lo + 256] = np.einsum("kea,eab,keb->ke", r, info_c, r) <= c2
+    # a motion that breaks a known inlier: none
+    broken = np.any(~judged[cut][None, :] & ~fits, axis=1)
+    fits &= ~broken[:, None]
+    return D, fits
+
+
+def _choose(fits: np.ndarray, support: np.ndarray, cut: np.ndarray, s0: np.ndarray | None,
+            c2: float) -> int:
+    """The motion of most support; among equal support the one whose edges fit the start
+    best (:func:`_start_key`), else the first."""
+    tied = np.flatnonzero(support == support.max())
+    if s0 is None:
+        return int(tied[0])
+    keys = [_start_key(s0[cut][fits[k]], c2) for k in tied]
+    return int(tied[min(range(tied.size), key=keys.__getitem__)])
+
+
 def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                    info: np.ndarray, X: LieGroup, w: np.ndarray, judged: np.ndarray,
-                   c2: float, *, zero: float = 1e-6, max_passes: int = 5
-                   ) -> tuple[LieGroup, np.ndarray]:
+                   c2: float, *, zero: float = 1e-6, max_passes: int = 5,
+                   start: np.ndarray | None = None, anchor: int | None = None,
+                   components: bool = False) -> tuple[LieGroup, np.ndarray]:
     """Move pieces held by one accepted edge where most cut edges agree (module docstring).
 
     Parameters
@@ -81,6 +138,22 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
         A bridge is a candidate when its whitened squared residual is below ``zero * c2``.
     max_passes : int
         Passes over the bridges at most (each pass recomputes them), >= 1.
+    start : numpy.ndarray, optional
+        ``(E,)`` whitened squared residuals at the start values (the user's information):
+        breaks ties. Among motions of equal support the one with the most fitting edges
+        that also fit the start (within ``c2`` there) wins (else the first), and a motion
+        whose support only equals the bridge's is applied when more of its edges fit the
+        start than of the accepted ones (an exact tie of the TLS objective: one edge
+        rejected, one accepted). Without it, or when the start does not separate the
+        choices, ties are left alone.
+    anchor : int, optional
+        A vertex that must not move (the gauge): when it lies in the piece, the rest of the
+        graph is moved by the inverse motion instead (the same relative poses).
+    components : bool
+        Also attach every component of the accepted edges that no accepted edge joins to
+        the anchor's (else the largest) component: it is moved by the motion of its cut
+        edges with the most support (>= 1: the TLS objective falls by ``c^2/2`` per edge
+        accepted; ties broken by ``start``), largest component first, one at a time.
 
     Returns
     -------
@@ -105,6 +178,14 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
         raise ValueError(f"repair_bridges: group must be SE2 or SE3, got {group!r}")
     ii = np.asarray(ii, dtype=np.int64)
     jj = np.asarray(jj, dtype=np.int64)
+    s0 = None
+    if start is not None:
+        s0 = np.asarray(start, dtype=np.float64)
+        if s0.shape != ii.shape or not np.all(s0 >= 0):
+            raise ValueError(f"repair_bridges: start must hold one squared residual >= 0 per "
+                             f"edge, shape {ii.shape}, got shape {s0.shape}")
+    if anchor is not None and not 0 <= anchor < n:
+        raise ValueError(f"repair_bridges: anchor must be a vertex in [0, {n}), got {anchor}")
     w = np.array(w, dtype=np.float64)
     P = np.array(X.matrix(), dtype=np.float64)
     Zinv = Z.inverse()
@@ -128,45 +209,63 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
             cut = np.flatnonzero(inP[ii] != inP[jj])
             if cut.size < 2:
                 continue
-            # the motion D of P that makes cut edge k fit exactly
-            a, c = ii[cut], jj[cut]
-            fwd = inP[c]  # i outside, j in P: D = X_i Z X_j^-1; else D = X_j Z^-1 X_i^-1
-            D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[c]),
-                         P[c] @ Minv[cut] @ np.linalg.inv(P[a]))
-            K = cut.size
-            fits = np.zeros((K, K), dtype=bool)  # fits[k]: the cut edges that D_k fits
-            Pa, Pc = P[a], P[c]
-            info_c = info[cut]
-            for lo in range(0, K, 256):  # all motions at once, in chunks
-                Dk = D[lo:lo + 256, None]
-                A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
-                C_ = np.where(fwd[None, :, None, None], Dk @ Pc[None], Pc[None])
-                rel = (np.linalg.inv(A_) @ C_).reshape(-1, *P.shape[1:])
-                e = np.tile(cut, Dk.shape[0])
-                r = np.asarray(Zinv[e].compose(group.from_matrix(rel)).log(),  # type: ignore[call-overload]
-                               dtype=np.float64).reshape(Dk.shape[0], K, -1)
-                fits[lo:lo + 256] = np.einsum("kea,eab,keb->ke", r, info_c, r) <= c2
-            # a motion that breaks a known inlier: none
-            broken = np.any(~judged[cut][None, :] & ~fits, axis=1)
-            fits &= ~broken[:, None]
+            D, fits = _cut_motions(group, P, ii, jj, inP, cut, M, Minv, Zinv, info, judged,
+                                   c2)
             support = fits.sum(axis=1)
             now = acc[cut] | ~judged[cut]
-            best = int(np.argmax(support))
-            if support[best] <= int(now.sum()) or not fits[best].any():
+            top = int(support.max())
+            if top < int(now.sum()) or top == 0:
                 continue
-            P[inP] = D[best] @ P[inP]
+            best = _choose(fits, support, cut, s0, c2)
+            if top == int(now.sum()):  # a tie with leaving the bridge alone
+                if s0 is None or np.array_equal(fits[best], now) or \
+                        not _start_key(s0[cut][fits[best]], c2) < \
+                        _start_key(s0[cut][now], c2):
+                    continue
+            if anchor is not None and inP[anchor]:  # the anchor stays: move the rest
+                P[~inP] = np.linalg.inv(D[best]) @ P[~inP]
+            else:
+                P[inP] = D[best] @ P[inP]
             w[cut[judged[cut]]] = fits[best][judged[cut]].astype(np.float64)
             acc = w > 0.5
             changed = True
+        while components:  # pieces no accepted edge holds: attach one at a time
+            keep = np.flatnonzero(w > 0.5)
+            ncomp, lab = connected_components(coo_matrix((np.ones(keep.size),
+                                                          (ii[keep], jj[keep])), shape=(n, n)),
+                                              directed=False)
+            size = np.bincount(lab, minlength=ncomp)
+            root = lab[anchor] if anchor is not None else int(np.argmax(size))
+            attached = False
+            for comp in np.argsort(-size, kind="stable"):
+                inP = lab == comp
+                cut = np.flatnonzero(inP[ii] != inP[jj])
+                if comp == root or not cut.size:
+                    continue
+                D, fits = _cut_motions(group, P, ii, jj, inP, cut, M, Minv, Zinv, info,
+                                       judged, c2)
+                support = fits.sum(axis=1)
+                if support.max() == 0:
+                    continue
+                best = _choose(fits, support, cut, s0, c2)
+                P[inP] = D[best] @ P[inP]
+                w[cut[judged[cut]]] = fits[best][judged[cut]].astype(np.float64)
+                attached = changed = True
+                break
+            if not attached:
+                break
         if not changed:
             break
     return group.from_matrix(P), w
 
 
 def repair_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
-                 weights: list[np.ndarray], c2: list[float]) -> list[np.ndarray] | None:
+                 weights: list[np.ndarray], c2: list[float],
+                 start: list[np.ndarray] | None = None, components: bool = False
+                 ) -> list[np.ndarray] | None:
     """:func:`repair_bridges` on a problem's pose graph after GNC: the new states (the
-    BetweenFactor weights updated in place), or ``None`` when nothing moved.
+    BetweenFactor weights updated in place), or ``None`` when nothing moved. The anchor
+    vertex never moves; ties are broken by the start values when ``start`` is given.
 
     Parameters
     ----------
@@ -180,6 +279,11 @@ def repair_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         GNC's weights per factor batch (0 or 1), updated in place.
     c2 : list of float
         Thresholds per factor batch.
+    start : list of numpy.ndarray, optional
+        Whitened squared residuals at the start values per factor batch (ties: see
+        :func:`repair_bridges`; non-finite values count as not fitting).
+    components : bool
+        Also attach the components no accepted edge holds (:func:`repair_bridges`).
 
     Returns
     -------
@@ -205,8 +309,12 @@ def repair_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     c = float(c2[edges.rows[0][0]])
     var = edges.variables
     X = var.group.from_params(np.asarray(states[0], dtype=np.float64))
+    s0 = None
+    if start is not None:
+        s0 = np.concatenate([np.asarray(start[k], dtype=np.float64) for k, _ in edges.rows])
+        s0 = np.where(np.isfinite(s0), np.abs(s0), np.inf)
     X2, w2 = repair_bridges(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info, X,
-                            w, ~kn, c)
+                            w, ~kn, c, start=s0, anchor=edges.anchor, components=components)
     if np.array_equal(w2, w):
         return None
     for k, sl in edges.rows:

@@ -21,7 +21,8 @@ dropped until all agree). Each round (:func:`merge_components`) accepts every su
 least ``min_support`` = 2 edges (a single edge across a cut cannot be told from a random one),
 joins a component that has only one or two cut edges in all (and no anchor) to its neighbour of
 higher degree across one of them (nothing can confirm or contradict such an edge yet: joining
-lets later rounds vote with the larger piece; the edge itself is left to GNC's judgement), and
+lets later rounds vote with the larger piece; the edge itself is left to GNC's judgement; with
+the start values given, an edge that fits them within its threshold, else the first), and
 moves the components rigidly so that a spanning forest of those edges fits exactly (the
 anchor's component, else the largest, stays). Rounds repeat on the larger components until no
 cut has support; a component never merged stays where it was, and the count is returned.
@@ -142,8 +143,8 @@ def _agreement(group: Any, P: np.ndarray, a: np.ndarray, b: np.ndarray, Mo: np.n
 
 def merge_components(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                      info: np.ndarray, X: LieGroup, base: np.ndarray, c2: float, anchor: int,
-                     *, min_support: int = 2,
-                     max_rounds: int = 100) -> tuple[LieGroup, np.ndarray, int]:
+                     *, min_support: int = 2, max_rounds: int = 100,
+                     start: np.ndarray | None = None) -> tuple[LieGroup, np.ndarray, int]:
     """Merge the components of the ``base`` edges by a rigid-motion vote (module docstring).
 
     The agreeing set of each cut comes from :func:`agreeing_set` on the pairwise agreement;
@@ -173,6 +174,10 @@ def merge_components(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieG
         Fewest agreeing edges that merge a cut by the vote, >= 2.
     max_rounds : int
         Rounds at most, >= 1.
+    start : numpy.ndarray, optional
+        ``(E,)`` whitened squared residuals at the start values: a component with one or two
+        cut edges is joined along one that fits the start (within ``c2``) when there is one,
+        else along the first in edge order (a tie: each edge alone has support 1).
 
     Returns
     -------
@@ -215,6 +220,11 @@ def merge_components(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieG
             max_rounds < 1:
         raise ValueError(f"merge_components: max_rounds must be an integer >= 1, got "
                          f"{max_rounds!r}")
+    if start is not None:
+        start = np.asarray(start, dtype=np.float64)
+        if start.shape != (E,) or not np.all(start >= 0):
+            raise ValueError(f"merge_components: start must hold one squared residual >= 0 "
+                             f"per edge, shape ({E},), got shape {start.shape}")
     base = np.asarray(base, dtype=bool)
     merged = np.zeros(E, dtype=bool)  # accepted by a vote
     joined = np.zeros(E, dtype=bool)  # components joined along their only cut edges
@@ -238,7 +248,9 @@ def merge_components(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieG
         series = np.zeros(ncomp, dtype=bool)
         series[lab[anchor]] = True
         join = np.zeros(E, dtype=bool)
-        for e, la, lb in zip(cross, a, b, strict=True):
+        by = np.argsort(start[cross] > c2, kind="stable") if start is not None else \
+            np.arange(cross.size)  # the edges that fit the start are tried first
+        for e, la, lb in zip(cross[by], a[by], b[by], strict=True):
             for me, other in ((la, lb), (lb, la)):
                 if deg[me] <= 2 and not series[me] and not vote[e] and \
                         (deg[other] > deg[me] or (deg[other] == deg[me] and other < me)):
@@ -322,7 +334,7 @@ def merge_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
                 solve: Callable[[list[np.ndarray]], list[np.ndarray]],
                 norms: Callable[[list[np.ndarray]], list[np.ndarray]], *,
                 max_rounds: int = 10, max_reweight: int = 100, mu_step: float = 1.4,
-                weights_tol: float = 1e-4
+                weights_tol: float = 1e-4, start: list[np.ndarray] | None = None
                 ) -> tuple[list[np.ndarray], list[np.ndarray], int]:
     """:func:`merge_components` on a problem's pose graph after GNC, then GNC-TLS once more.
 
@@ -357,6 +369,9 @@ def merge_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         Factor ``mu`` grows by per GNC iteration, > 1.
     weights_tol : float
         GNC stops when every weight is within this of 0 or 1.
+    start : list of numpy.ndarray, optional
+        Whitened squared residuals at the start values per factor batch: ties of
+        :func:`merge_components` (``start``) are broken by them.
 
     Returns
     -------
@@ -397,6 +412,7 @@ def merge_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         raise ValueError(f"merge_stage: weights_tol must be in [0, 0.5), got {weights_tol!r}")
     var = edges.variables
     known = [np.array(k, dtype=bool) for k in known]
+    s0 = _edge_start(edges, start)
     left = 0
     for _ in range(max_rounds):
         kn = np.concatenate([known[k] for k, _ in edges.rows])
@@ -404,7 +420,8 @@ def merge_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         c = float(c2[edges.rows[0][0]])
         X = var.group.from_params(np.asarray(states[0], dtype=np.float64))
         X2, merged, left = merge_components(edges.group, edges.n, edges.ii, edges.jj, edges.Z,
-                                            edges.info, X, kn | (w >= 0.5), c, edges.anchor)
+                                            edges.info, X, kn | (w >= 0.5), c, edges.anchor,
+                                            start=s0)
         if not (merged & ~kn).any():
             break
         for k, sl in edges.rows:
@@ -428,7 +445,16 @@ def merge_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     return states, known, left
 
 
-def merge_known(edges: Any, known: list[np.ndarray], quantile: float) -> list[np.ndarray]:
+def _edge_start(edges: Any, start: list[np.ndarray] | None) -> np.ndarray | None:
+    """The start residuals of the pose graph's edges (non-finite: +inf), or ``None``."""
+    if start is None:
+        return None
+    s0 = np.concatenate([np.asarray(start[k], dtype=np.float64) for k, _ in edges.rows])
+    return np.where(np.isfinite(s0), np.abs(s0), np.inf)
+
+
+def merge_known(edges: Any, known: list[np.ndarray], quantile: float,
+                start: list[np.ndarray] | None = None) -> list[np.ndarray]:
     """The known-inlier masks with the edges of a vote between their pieces added.
 
     The pieces are the components of the known edges, each posed by composing the
@@ -444,6 +470,9 @@ def merge_known(edges: Any, known: list[np.ndarray], quantile: float) -> list[np
         not modified.
     quantile : float
         Chi-square quantile of the agreement test, ``0 < quantile < 1``.
+    start : list of numpy.ndarray, optional
+        Whitened squared residuals at the start values per factor batch (see
+        :func:`merge_components`).
 
     Returns
     -------
@@ -483,7 +512,8 @@ def merge_known(edges: Any, known: list[np.ndarray], quantile: float) -> list[np
                np.flatnonzero(kn), edges.anchor)
     c2 = float(chi2.ppf(quantile, edges.info.shape[-1]))
     _, merged, _ = merge_components(edges.group, n, ii, jj, edges.Z, edges.info,
-                                    edges.group.from_matrix(P), kn, c2, edges.anchor)
+                                    edges.group.from_matrix(P), kn, c2, edges.anchor,
+                                    start=_edge_start(edges, start))
     out = [np.array(k, dtype=bool) for k in known]
     for k, sl in edges.rows:
         out[k] |= merged[sl]
