@@ -211,3 +211,78 @@ def test_bad_input():
         tie_bridges(3, [0, 1], [1, 2], [True])
     with pytest.raises(ValueError, match="out of range"):
         swap_witness(SE2.identity(2), [0], [1], SE2.identity(1), [1], 3)
+
+
+@pytest.mark.parametrize("first", ["values", "cycles"])
+def test_gnc_reports_the_ties_of_its_answer(first):
+    """GNC-TLS without known inliers on the block-and-chain scene: ``result.ties`` names the
+    accepted edge that holds the chain and the rejected one that could hold it instead, and
+    swapping them (the chain moved rigidly) gives the same TLS objective, by hand."""
+    from microlie.optim.core.gnc import GNC
+
+    X, ii, jj, Z, n = _block_and_chain()
+    E = ii.size
+    g = FactorGraph()
+    x = g.add_variables(X, fixed=[0])
+    g.add(BetweenFactor(x, ii, jj, Z, Isotropic(3, SIGMA)))
+    res = g.optimize(robust=GNC("tls", first=first), verbose=False)
+    assert res.ties, res.message
+    assert "not unique" in res.message
+    t = res.ties[0]
+    assert t.held_by[0] == 0 and t.alternatives and all(b == 0 for b, _ in t.alternatives)
+    held, alt = t.held_by[1], t.alternatives[0][1]
+    assert {held, alt} <= set(range(E - 5, E)) and E - 1 in {held, alt}  # chain or wrong edge
+    assert res.inliers[0][held] and not res.inliers[0][alt]
+    assert set(t.poses.tolist()) <= set(range(9, n))  # a part of the chain
+    ans = res.values[x]
+    c2 = float(chi2.ppf(0.99, 3))
+    W = swap_witness(ans, ii, jj, Z, t.poses, alt, fixed=0)
+    t_ans, s_ans = _tls(_xyt(ans), ii, jj, _xyt(Z), c2)
+    t_w, s_w = _tls(_xyt(W), ii, jj, _xyt(Z), c2)
+    assert s_ans[held] < 1e-10 and s_w[alt] < 1e-10 and s_w[held] > c2
+    assert t_w == pytest.approx(t_ans, rel=1e-9)
+
+
+def test_gnc_ties_empty_with_known_inliers_and_none_for_gm():
+    from microlie.optim.core.gnc import GNC
+
+    X, ii, jj, Z, n = _block_and_chain()
+    E = ii.size
+    g = FactorGraph()
+    x = g.add_variables(X, fixed=[0])
+    f = g.add(BetweenFactor(x, ii, jj, Z, Isotropic(3, SIGMA)))
+    res = g.optimize(robust=GNC("tls", known_inliers=[(f, np.arange(E - 1))]), verbose=False)
+    assert res.ties == [] and "not unique" not in res.message
+    assert not res.inliers[0][E - 1]
+    assert g.optimize(robust=GNC("gm"), verbose=False).ties is None
+
+
+def test_command_reports_the_ties(tmp_path):
+    import argparse
+    import io
+    import json
+
+    from microlie.optim.command import register, run
+
+    X, ii, jj, Z, n = _block_and_chain()
+    E = ii.size
+    P, Q = _xyt(X).tolist(), _xyt(Z).tolist()
+    info = f"{1 / SIGMA**2!r} 0 0 {1 / SIGMA**2!r} 0 {1 / SIGMA**2!r}"
+    lines = [f"VERTEX_SE2 {k} {P[k][0]!r} {P[k][1]!r} {P[k][2]!r}" for k in range(n)]
+    lines += [f"EDGE_SE2 {a} {b} {Q[e][0]!r} {Q[e][1]!r} {Q[e][2]!r} {info}"
+              for e, (a, b) in enumerate(zip(ii, jj, strict=True))]
+    path = tmp_path / "tie.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    parser = argparse.ArgumentParser(prog="microlie")
+    register(parser.add_subparsers())
+    reps = []
+    for extra in ([], ["--known-inliers", "odometry"]):  # odometry: the chain's edges known
+        out = io.StringIO()
+        args = parser.parse_args(["optimize", str(path), "--robust", "gnc-tls", "--json",
+                                  *extra])
+        assert run(args, out, io.StringIO()) == 0
+        reps.append(json.loads(out.getvalue())["gnc"])
+    ties = reps[0]["ties"]
+    assert ties and ties[0]["poses"] >= 1
+    assert {ties[0]["held_by"], *ties[0]["alternatives"]} <= set(range(E - 5, E))
+    assert reps[1]["ties"] == [] and reps[1]["outlier_edges"] == [E - 1]

@@ -567,6 +567,13 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
                          "known_inliers": args.known_inliers,
                          "quantile": robust.quantile,
                          "outliers": len(bad), "outlier_edges": bad}
+        if res.ties is not None:  # pieces that another edge could hold at the same cost
+            def edge(bk: tuple[int, int]) -> int | str:
+                return bk[1] if bk[0] == 0 else "prior"
+
+            report["gnc"]["ties"] = [
+                {"held_by": edge(t.held_by), "poses": int(t.poses.size),
+                 "alternatives": [edge(a) for a in t.alternatives]} for t in res.ties]
     if truth is not None:  # the example: how far the start and the result are from the truth
         report["ground_truth"] = {
             "cost": graph.cost(truth),

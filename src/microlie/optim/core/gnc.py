@@ -459,6 +459,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             raise ValueError(f"GNC replaces robust losses: factor batch {k} ({f.name}) has "
                              f"loss {f.loss!r}; build it without a loss")
     known = gnc.known_masks(factors)
+    judged_by_caller = [~kk for kk in known]
     c2 = inlier_thresholds(factors, gnc.quantile)
     s_start = squared_norms(problem, states)  # also what breaks exact ties (first="cycles")
     edges = None
@@ -592,6 +593,13 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
     inliers = [kk | (w >= 0.5) for kk, w in zip(known, weights, strict=True)] \
         if gnc.surrogate == "tls" else \
         [kk | (sk <= ck) for kk, sk, ck in zip(known, s, c2, strict=True)]
+    ties = _ties(problem, edges, gnc, inliers, judged_by_caller)
+    note = ""
+    if ties:
+        note = (f"; not unique: {len(ties)} piece(s) of the answer (the largest "
+                f"{ties[0].poses.size} poses) held by one accepted edge that a rejected edge "
+                f"could replace at the same TLS cost (result.ties): known inliers or a start "
+                f"that fits the right edges decide it")
     history: list[Any] = []
     offset = 0.0
     for r in runs:
@@ -612,7 +620,24 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                   _objective(gnc.surrogate, s_start, c2, known),
                   _objective(gnc.surrogate, s, c2, known),
                   sum(r.iterations for r in runs), termination == "convergence",
-                  f"{name}: {message} after {outer} outer iterations ({len(runs)} solves)",
+                  f"{name}: {message} after {outer} outer iterations ({len(runs)} solves){note}",
                   termination, history, total, f"{name} + {last.solver}", last.linear_solver,
                   timings, list(problem.gauge_fixed), sum(r.accepted_steps for r in runs),
-                  last.strategy, weights=weights, inliers=inliers, outer_iterations=outer)
+                  last.strategy, weights=weights, inliers=inliers, outer_iterations=outer,
+                  ties=ties)
+
+
+def _ties(problem: Problem, edges: Any, gnc: GNC, inliers: list[np.ndarray],
+          judged: list[np.ndarray]) -> list[Any] | None:
+    """GNC-TLS on a pose graph: :func:`~microlie.optim.core.gnc_ties.answer_ties`; else None."""
+    if gnc.surrogate != "tls":
+        return None
+    if edges is None:
+        from .gnc_chordal import pose_graph_edges
+
+        edges = pose_graph_edges(problem)
+        if edges is None:
+            return None
+    from .gnc_ties import answer_ties
+
+    return answer_ties(problem, edges, inliers, judged)

@@ -38,7 +38,7 @@ import numpy as np
 
 from ...groups import LieGroup
 
-__all__ = ["TieBridge", "bridges", "swap_witness", "tie_bridges"]
+__all__ = ["AnswerTie", "TieBridge", "answer_ties", "bridges", "swap_witness", "tie_bridges"]
 
 
 def _edges(n: int, ii: Any, jj: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -306,3 +306,102 @@ def swap_witness(X: LieGroup, ii: Any, jj: Any, Z: LieGroup, side: Any, edge: in
     P = np.array(X.params, dtype=np.float64)
     P[idx] = np.asarray(D.compose(X[idx]).params, dtype=np.float64)
     return type(X).from_params(P, check=False)
+
+
+@dataclass(frozen=True)
+class AnswerTie:
+    """A piece of GNC's answer that another edge could hold at the same TLS objective.
+
+    Attributes
+    ----------
+    held_by : tuple of int
+        ``(factor batch, row)`` of the accepted edge that alone joins the piece to the rest.
+    poses : numpy.ndarray
+        Sorted vertex indices of the piece (the smaller side of the cut).
+    alternatives : list of tuple of int
+        ``(factor batch, row)`` of the rejected edges across the same cut: moving the piece
+        rigidly until one of them fits and rejecting ``held_by`` gives the same objective.
+    """
+
+    held_by: tuple[int, int]
+    poses: np.ndarray
+    alternatives: list[tuple[int, int]]
+
+
+def answer_ties(problem: Any, edges: Any, inliers: list[np.ndarray],
+                judged: list[np.ndarray]) -> list[AnswerTie]:
+    """The exact ties of a GNC-TLS answer on a pose graph: accepted judged edges that are
+    bridges of the accepted edges while a rejected judged edge joins the same two sides.
+
+    At a least-squares optimum of the accepted edges such a bridge has residual 0 (nothing
+    else holds its piece); swapping it for a rejected edge across its cut (the piece moved
+    rigidly until that edge fits, :func:`swap_witness`) changes no other residual, so the TLS
+    objective stays the same (or falls, if more rejected edges then fit): the answer is one of
+    several optima, which the data alone cannot tell apart. Priors count as edges to the
+    anchor, fixed vertices as known edges to it.
+
+    Parameters
+    ----------
+    problem : Problem
+        The pose-graph problem.
+    edges : PoseGraphEdges
+        Its edges (:func:`~microlie.optim.core.gnc_chordal.pose_graph_edges`).
+    inliers : list of numpy.ndarray
+        GNC's verdict per factor batch.
+    judged : list of numpy.ndarray
+        Per factor batch, False for the caller's known inliers.
+
+    Returns
+    -------
+    list of AnswerTie
+        Largest piece first.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, BetweenFactor
+    >>> from microlie.optim.core.gnc_chordal import pose_graph_edges
+    >>> from microlie.optim.core.gnc_ties import answer_ties
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(4), fixed=[0])
+    >>> # a triangle 0-1-2, vertex 3 held by edge 3 (2-3); edge 4 (0-3) was rejected
+    >>> _ = g.add(BetweenFactor(x, [0, 1, 2, 2, 0], [1, 2, 0, 3, 3], SE2.identity(5)))
+    >>> p = g.problem()
+    >>> t = answer_ties(p, pose_graph_edges(p), [np.array([1, 1, 1, 1, 0], bool)],
+    ...                 [np.ones(5, bool)])
+    >>> [(a.held_by, a.poses.tolist(), a.alternatives) for a in t]
+    [((0, 3), [3], [(0, 4)])]
+    """
+    from .factors import PriorFactor
+
+    where = np.empty((edges.ii.size, 2), dtype=np.int64)
+    for k, sl in edges.rows:
+        where[sl, 0] = k
+        where[sl, 1] = np.arange(sl.stop - sl.start)
+    ii, jj = [edges.ii], [edges.jj]
+    acc = [np.concatenate([inliers[k] for k, _ in edges.rows])]
+    jud = [np.concatenate([judged[k] for k, _ in edges.rows])]
+    wh = [where]
+    var, a = edges.variables, edges.anchor
+    for k, f in enumerate(problem.factors):
+        if isinstance(f, PriorFactor):
+            v = np.asarray(f.args[0][1], dtype=np.int64).reshape(-1)
+            ii.append(np.full(v.size, a))
+            jj.append(v)
+            acc.append(np.asarray(inliers[k], dtype=bool))
+            jud.append(np.asarray(judged[k], dtype=bool))
+            wh.append(np.stack([np.full(v.size, k), np.arange(v.size)], axis=1))
+    held = np.flatnonzero(np.asarray(var.fixed, dtype=bool))
+    ii.append(np.full(held.size, a))
+    jj.append(held)
+    acc.append(np.ones(held.size, dtype=bool))
+    jud.append(np.zeros(held.size, dtype=bool))
+    wh.append(np.full((held.size, 2), -1, dtype=np.int64))
+    W = np.concatenate(wh)
+    # a rejected edge is judged (known inliers are always accepted): each one across the cut
+    # of an accepted judged bridge is an alternative
+    return [AnswerTie((int(W[t.edge, 0]), int(W[t.edge, 1])), t.side,
+                      [(int(W[e, 0]), int(W[e, 1])) for e in t.wrong])
+            for t in tie_bridges(edges.n, np.concatenate(ii), np.concatenate(jj),
+                                 np.concatenate(acc), np.concatenate(jud))]

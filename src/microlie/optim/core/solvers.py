@@ -153,6 +153,11 @@ class Result:
         in ``[0, 1]`` and whether each factor was judged an inlier; ``None`` otherwise.
     outer_iterations : int
         GNC's weight updates, each followed by a weighted solve (0 without GNC).
+    ties : list of AnswerTie or None
+        GNC-TLS on a pose graph: the pieces of the answer that a rejected edge could hold
+        instead of the accepted one at the same TLS objective
+        (:func:`~microlie.optim.core.gnc_ties.answer_ties`; empty: the answer is the only
+        optimum of its kind); ``None`` otherwise.
 
     Examples
     --------
@@ -186,6 +191,7 @@ class Result:
     weights: list[np.ndarray] | None = field(default=None, repr=False)
     inliers: list[np.ndarray] | None = field(default=None, repr=False)
     outer_iterations: int = 0
+    ties: list | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
         n = sum(len(h) for h in self.values)
