@@ -62,6 +62,10 @@ __all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initia
 
 SURROGATES = ("tls", "gm")
 FIRST = ("values", "least-squares", "chordal", "cycles")
+# first="cycles": rounds of bridge repair and merge vote after GNC (until neither changes)
+_REPAIR_ROUNDS = 4
+# search=True: rounds of the region search (each one solve when it moves something)
+_SEARCH_ROUNDS = 3
 
 
 class GNC:
@@ -129,7 +133,7 @@ class GNC:
     def __init__(self, surrogate: str = "tls", *, quantile: float = 0.99,
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
-                 first: str = "values", retest: int = 3) -> None:
+                 first: str = "values", retest: int = 3, search: bool = True) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
@@ -163,6 +167,9 @@ class GNC:
             raise ValueError(f"GNC retest must be an integer >= 0 (passes; 0: off), got "
                              f"{retest!r}")
         self.retest = int(retest)
+        if not isinstance(search, bool):
+            raise ValueError(f"GNC search must be True or False, got {search!r}")
+        self.search = search
 
     def __repr__(self) -> str:
         return (f"GNC({self.surrogate!r}, quantile={self.quantile}, "
@@ -447,6 +454,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             raise ValueError(f"GNC replaces robust losses: factor batch {k} ({f.name}) has "
                              f"loss {f.loss!r}; build it without a loss")
     known = gnc.known_masks(factors)
+    user_known = known
     c2 = inlier_thresholds(factors, gnc.quantile)
     edges = None
     if gnc.first in ("chordal", "cycles") and gnc.surrogate != "tls":
@@ -467,6 +475,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_merge import merge_known
 
             known = merge_known(edges, known, gnc.quantile)  # pieces joined by a vote
+    pieces = known
     show = bool(verbose) if verbose is not None else sys.stderr.isatty()
     weights = [np.ones(f.count) for f in factors]
     judged = [~kk for kk in known]
@@ -546,15 +555,29 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         if edges is not None and gnc.first == "cycles" and runs:
             from .gnc_bridges import repair_stage
 
-            moved = repair_stage(cur, edges, known, weights, c2)
-            if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
-                cur = inner(moved)
-                s = squared_norms(problem, cur)
             from .gnc_merge import merge_stage
 
-            cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
-                                        lambda st: squared_norms(problem, st),
-                                        mu_step=gnc.mu_step, weights_tol=gnc.weights_tol)
+            for _ in range(_REPAIR_ROUNDS):
+                moved = repair_stage(cur, edges, known, weights, c2)
+                if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
+                    cur = inner(moved)
+                    s = squared_norms(problem, cur)
+                n_known = sum(int(kk.sum()) for kk in known)
+                cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
+                                            lambda st: squared_norms(problem, st),
+                                            mu_step=gnc.mu_step, weights_tol=gnc.weights_tol)
+                s = squared_norms(problem, cur)
+                if moved is None and sum(int(kk.sum()) for kk in known) == n_known:
+                    break
+        if edges is not None and gnc.first == "cycles" and gnc.search and runs:
+            from .gnc_search import search_stage
+
+            for _ in range(_SEARCH_ROUNDS):
+                cur, moves = search_stage(
+                    cur, edges, pieces, user_known, weights, c2, inner,
+                    lambda st: _objective("tls", squared_norms(problem, st), c2, user_known))
+                if not moves:
+                    break
             s = squared_norms(problem, cur)
         if edges is not None and gnc.retest and runs:
             from .gnc_retest import inlier_start, retest_stage
