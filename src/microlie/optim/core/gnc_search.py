@@ -51,7 +51,7 @@ import numpy as np
 
 from ...groups import SE2, SE3, LieGroup
 
-__all__ = ["best_region_move", "region_moves", "search_stage"]
+__all__ = ["best_region_move", "refine_motion", "region_moves", "search_stage"]
 
 
 def _log(group: Any, E: np.ndarray) -> np.ndarray:
@@ -104,6 +104,78 @@ def _costs(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: LieG
     r = _log(group, np.asarray(Zinv.matrix(), dtype=np.float64) @ np.linalg.inv(P[ii]) @ P[jj])
     s = np.einsum("ea,eab,eb->e", r, info, r)
     return np.where(judged, np.minimum(s, c2), s)
+
+
+def refine_motion(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, M: np.ndarray,
+                  info: np.ndarray, c2: float, judged: np.ndarray, inR: np.ndarray
+                  ) -> tuple[float, np.ndarray]:
+    """The best motion of a region among those that make one edge across it fit exactly.
+
+    Parameters
+    ----------
+    group : type
+        SE2 or SE3.
+    P : numpy.ndarray
+        ``(n, k, k)`` the poses as homogeneous matrices.
+    ii, jj : numpy.ndarray
+        ``(E,)`` vertex indices of the edges.
+    M : numpy.ndarray
+        ``(E, k, k)`` the measurements as matrices.
+    info : numpy.ndarray
+        ``(E, D, D)`` information matrices.
+    c2 : float
+        The threshold.
+    judged : numpy.ndarray
+        ``(E,)`` False for known inliers (cost ``s``).
+    inR : numpy.ndarray
+        ``(n,)`` booleans: the region.
+
+    Returns
+    -------
+    gain : float
+        The change of ``sum min(s, c^2)`` with the best motion (``inf`` without edges across).
+    D : numpy.ndarray
+        That motion (``X_v <- D X_v`` on the region).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim.core.gnc_search import refine_motion
+    >>> P = np.asarray(SE2.from_xy_theta([0.0, 5.0], [0.0, 0.0], [0.0, 0.0]).matrix())
+    >>> M = np.asarray(SE2.from_xy_theta([1.0], [0.0], [0.0]).matrix())
+    >>> gain, D = refine_motion(SE2, P, np.array([0]), np.array([1]), M,
+    ...                         np.eye(3)[None] * 100.0, 11.34, np.ones(1, bool),
+    ...                         np.array([False, True]))
+    >>> round(gain, 6), np.round(D[:2, 2], 6).tolist()  # vertex 1 pulled 4 m back: fits
+    (-11.34, [-4.0, 0.0])
+    """
+    cut = np.flatnonzero(inR[ii] != inR[jj])
+    if not cut.size:
+        return float("inf"), np.eye(P.shape[-1])
+    a, b = ii[cut], jj[cut]
+    fwd = inR[b]  # j in the region: D = X_i Z X_j^-1; else D = X_j Z^-1 X_i^-1
+    Minv = np.linalg.inv(M[cut])
+    D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[b]),
+                 P[b] @ Minv @ np.linalg.inv(P[a]))
+    Pa, Pb = P[a], P[b]
+    K = cut.size
+    rel0 = np.linalg.inv(Pa) @ Pb
+    r0 = _log(group, Minv @ rel0)
+    s0 = np.einsum("ea,eab,eb->e", r0, info[cut], r0)
+    now = np.where(judged[cut], np.minimum(s0, c2), s0).sum()
+    gains = np.empty(K)
+    for lo in range(0, K, 64):
+        Dk = D[lo:lo + 64, None]
+        A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
+        B_ = np.where(fwd[None, :, None, None], Dk @ Pb[None], Pb[None])
+        rel = (np.linalg.inv(A_) @ B_).reshape(-1, *P.shape[1:])
+        r = _log(group, np.tile(Minv, (Dk.shape[0], 1, 1)) @ rel)
+        sv = np.einsum("ea,eab,eb->e", r, np.tile(info[cut], (Dk.shape[0], 1, 1)), r)
+        cv = np.where(np.tile(judged[cut], Dk.shape[0]), np.minimum(sv, c2), sv)
+        gains[lo:lo + 64] = cv.reshape(Dk.shape[0], K).sum(axis=1) - now
+    best = int(np.argmin(gains))
+    return float(gains[best]), D[best]
 
 
 def best_region_move(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
@@ -173,10 +245,12 @@ def best_region_move(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z:
 def region_moves(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                  info: np.ndarray, lab: np.ndarray, judged: np.ndarray, c2: float,
                  anchor: int, *, tol: float = 0.25, margin: float = 6.0, max_steps: int = 500,
-                 patience: int = 20) -> list[tuple[float, np.ndarray, np.ndarray]]:
+                 patience: int = 20, refine: float = 2.0) -> list[tuple[float, np.ndarray, np.ndarray]]:
     """Every rejected edge's best region move that lowers the objective, best first.
 
-    Parameters and the search as :func:`best_region_move`.
+    Parameters and the search as :func:`best_region_move`; with ``refine > 0`` every region
+    whose change with the proposing edge's motion is below ``(refine - tol) * c2`` is tried
+    with the motion of each edge across it (:func:`refine_motion`) and the best kept.
 
     Returns
     -------
@@ -257,8 +331,14 @@ def region_moves(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: Lie
             fj, fi = cv[:cross.size].tolist(), cv[cross.size:].tolist()
             gain, region = _grow(seed, stay, a_piece, inc, start, ca, cb, fi, fj,
                                  max_steps, margin * c2, patience)
-            if gain < -tol * c2:
+            if gain < -tol * c2 + refine * c2:
                 out.append((gain, np.sort(np.asarray(region, dtype=np.int64)), D))
+    if refine > 0:  # each region with the best motion of the edges across it
+        done = []
+        for gain, region, D in out:
+            g2, D2 = refine_motion(group, P, ii, jj, M, info, c2, judged, np.isin(lab, region))
+            done.append((g2, region, D2) if g2 < gain else (gain, region, D))
+        out = [t for t in done if t[0] < -tol * c2]
     out.sort(key=lambda t: t[0])
     return out
 
