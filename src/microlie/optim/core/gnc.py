@@ -554,7 +554,6 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                 mu = mu * gnc.mu_step if gnc.surrogate == "tls" else max(1.0, mu / gnc.mu_step)
         if edges is not None and gnc.first == "cycles" and runs:
             from .gnc_bridges import repair_stage
-
             from .gnc_merge import merge_stage
 
             for _ in range(_REPAIR_ROUNDS):

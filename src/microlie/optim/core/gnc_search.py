@@ -245,7 +245,8 @@ def best_region_move(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z:
 def region_moves(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                  info: np.ndarray, lab: np.ndarray, judged: np.ndarray, c2: float,
                  anchor: int, *, tol: float = 0.25, margin: float = 6.0, max_steps: int = 500,
-                 patience: int = 20, refine: float = 2.0) -> list[tuple[float, np.ndarray, np.ndarray]]:
+                 patience: int = 20, refine: float = 2.0
+                 ) -> list[tuple[float, np.ndarray, np.ndarray]]:
     """Every rejected edge's best region move that lowers the objective, best first.
 
     Parameters and the search as :func:`best_region_move`; with ``refine > 0`` every region
@@ -334,17 +335,18 @@ def region_moves(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: Lie
             if gain < -tol * c2 + refine * c2:
                 out.append((gain, np.sort(np.asarray(region, dtype=np.int64)), D))
     if refine > 0:  # each region with the best motion of the edges across it
-        done = []
-        for gain, region, D in out:
-            g2, D2 = refine_motion(group, P, ii, jj, M, info, c2, judged, np.isin(lab, region))
-            done.append((g2, region, D2) if g2 < gain else (gain, region, D))
+        done: list[tuple[float, np.ndarray, np.ndarray]] = []
+        for g1, reg, D1 in out:
+            g2, D2 = refine_motion(group, P, ii, jj, M, info, c2, judged, np.isin(lab, reg))
+            done.append((g2, reg, D2) if g2 < g1 else (g1, reg, D1))
         out = [t for t in done if t[0] < -tol * c2]
     out.sort(key=lambda t: t[0])
     return out
 
 
 def _grow(seed: int, stay: int, a_piece: int, inc: list[int], start: list[int], ca: list[int],
-          cb: list[int], fi: list[float], fj: list[float], steps: int, margin: float, patience: int) -> tuple[float, list[int]]:
+          cb: list[int], fi: list[float], fj: list[float], steps: int, margin: float,
+          patience: int) -> tuple[float, list[int]]:
     """Greedy region growth from ``seed``: the best objective change along it and its pieces.
 
     ``fi[k]`` / ``fj[k]``: the change of inter-piece edge ``k`` when only its i / j end moves.
@@ -497,7 +499,7 @@ def search_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         found = region_moves(G, G.from_matrix(P), ii, jj, edges.Z, edges.info, lab, ~uk, c,
                              edges.anchor)
         applied = 0
-        for gain, region, D in found:
+        for _gain, region, D in found:
             if moves >= max_moves:
                 break
             inR = np.isin(lab, region)
