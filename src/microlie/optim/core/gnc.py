@@ -122,6 +122,15 @@ class GNC:
         until nothing flips. Measured: fixes the three M3500 cases GNC-TLS missed with the
         odometry known (a wrong closure within the file's overstated noise; a good closure
         rejected at a drifted estimate).
+    search : bool
+        With ``first="cycles"``: after the repair and the vote, a local search on the TLS
+        objective (default True; :mod:`microlie.optim.core.gnc_search`): rigid moves of
+        unions of pieces (components of the cycle-consistent and voted edges) proposed by the
+        rejected edges, kept only when the objective falls after the inlier solve. Measured
+        on M3500 with 30% wrong closures and no known inliers: the excess of the objective
+        over the outlier-free optimum's falls from 4.5-33 to 1.5-22 edges; no change where
+        it was already optimal or with the odometry known. Only ``known_inliers`` are never
+        rejected by it.
 
     Examples
     --------
