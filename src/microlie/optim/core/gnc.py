@@ -593,6 +593,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                     break
             moved = repair_stage(cur, edges, known, weights, c2, s_start, components=True)
             cur = inner(moved) if moved is not None else cur  # pieces the merge left
+            s = squared_norms(problem, cur)
         if edges is not None and gnc.first == "cycles" and gnc.search and runs:
             from .gnc_search import search_stage
 
