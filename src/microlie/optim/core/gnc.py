@@ -63,7 +63,7 @@ __all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initia
 SURROGATES = ("tls", "gm")
 FIRST = ("values", "least-squares", "chordal", "cycles")
 # first="cycles": rounds of bridge repair and merge vote after GNC (until neither changes)
-_REPAIR_ROUNDS = 10
+_REPAIR_ROUNDS = 1
 # search=True: rounds of the region search (each one solve when it moves something)
 _SEARCH_ROUNDS = 3
 
