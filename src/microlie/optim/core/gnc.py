@@ -129,7 +129,7 @@ class GNC:
     def __init__(self, surrogate: str = "tls", *, quantile: float = 0.99,
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
-                 first: str = "values", retest: int = 3) -> None:
+                 first: str = "values", retest: int = 3, cycle_length: int = 5) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
@@ -163,6 +163,11 @@ class GNC:
             raise ValueError(f"GNC retest must be an integer >= 0 (passes; 0: off), got "
                              f"{retest!r}")
         self.retest = int(retest)
+        if isinstance(cycle_length, bool) or not isinstance(cycle_length, (int, np.integer)) \
+                or not 2 <= cycle_length <= 9:
+            raise ValueError(f"GNC cycle_length must be an integer from 2 to 9, got "
+                             f"{cycle_length!r}")
+        self.cycle_length = int(cycle_length)
 
     def __repr__(self) -> str:
         return (f"GNC({self.surrogate!r}, quantile={self.quantile}, "
@@ -460,7 +465,11 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             raise ValueError(f"GNC first={gnc.first!r} needs a pose graph: one SE2 or SE3 "
                              f"variable batch with only BetweenFactor and PriorFactor batches "
                              f"and a fixed vertex or a prior; use first='values'")
-        if gnc.first == "cycles":
+        if gnc.first == "cycles" and gnc.cycle_length != 5:
+            from .gnc_loops import mark_loops
+
+            known = mark_loops(edges, known, gnc.quantile, gnc.cycle_length)
+        elif gnc.first == "cycles":
             from .gnc_cycles import mark_consistent
 
             known = mark_consistent(edges, known, gnc.quantile)
