@@ -42,7 +42,7 @@ import numpy as np
 
 from ...groups import SE2, SE3, LieGroup
 
-__all__ = ["cycle_consistent_edges", "mark_loops"]
+__all__ = ["cycle_consistent_edges", "mark_loops", "search_pieces", "search_stage"]
 
 
 def _ranges(first: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -57,7 +57,7 @@ def _ranges(first: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 def cycle_consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                            info: np.ndarray, *, max_length: int = 7, quantile: float = 0.99,
-                           chunk: int = 128) -> np.ndarray:
+                           chunk: int = 128, support: int = 1) -> np.ndarray:
     """Edges that lie on a cycle of at most ``max_length`` edges that closes within its noise
     (module docstring).
 
@@ -185,10 +185,12 @@ def cycle_consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z
             np.repeat(b_lo, nb)
         ec, ac, bc = ea[own], a[own], by_key[pos]
         eb = edges[bc]
-        use = (lens[ac] >= lens[bc]) & (lens[ac] + lens[bc] <= max_length - 1) & \
+        use = ((lens[ac] == lens[bc]) | (lens[ac] == lens[bc] + 1)) & \
+            (lens[ac] + lens[bc] <= max_length - 1) & \
             ~np.any(eb == ec[:, None], 1) & \
             ~np.any((eb[:, :, None] == edges[ac][:, None, :]) & (eb[:, :, None] >= 0), (1, 2))
-        ec, ac, bc = ec[use & ~ok[ec]], ac[use & ~ok[ec]], bc[use & ~ok[ec]]
+        use &= ~ok[ec]
+        ec, ac, bc = ec[use], ac[use], bc[use]
         if not ec.size:
             continue
         Tc = T[ac] @ T[bc]
@@ -196,7 +198,11 @@ def cycle_consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z
         r = np.asarray(Z[ec].inverse().compose(group.from_matrix(Tc)).log(),  # type: ignore[call-overload]
                        dtype=np.float64)
         s2 = np.einsum("ca,ca->c", r, np.linalg.solve(Sc, r[:, :, None])[:, :, 0])
-        ok[ec[s2 <= c2]] = True
+        good = s2 <= c2
+        short = good & (lens[ac] + lens[bc] <= 4)  # a cycle of at most 5 edges: enough
+        ok[ec[short]] = True
+        cnt = np.bincount(ec[good] - lo, minlength=es.size)
+        ok[es[cnt >= support]] = True
     return ok
 
 
@@ -242,15 +248,14 @@ def mark_loops(edges: Any, known: list[np.ndarray], quantile: float, max_length:
     >>> from microlie.optim.core.gnc_chordal import pose_graph_edges
     >>> from microlie.optim.core.gnc_loops import mark_loops
     >>> g = FactorGraph()
-    >>> x = g.add_variables(SE2.identity(8), fixed=[0])
-    >>> # two hexagons 0-5 and 2-3-6-7 sharing the edge 2-3, and a random chord 0-6
-    >>> a = np.pi / 3
-    >>> Z = SE2.from_xy_theta([1.0] * 6 + [1.0] * 3 + [4.0], [0.0] * 9 + [1.0],
-    ...                       [a] * 6 + [-a] * 3 + [0.5])
-    >>> f = g.add(BetweenFactor(x, [0, 1, 2, 3, 4, 5, 3, 6, 7, 0],
-    ...                         [1, 2, 3, 4, 5, 0, 6, 7, 2, 6], Z, Isotropic(3, 0.1)))
-    >>> mark_loops(pose_graph_edges(g.problem()), [np.zeros(10, bool)], 0.99)[0].tolist()
-    [True, True, True, True, True, True, False, False, False, False]
+    >>> x = g.add_variables(SE2.identity(6), fixed=[0])
+    >>> # a ladder of two unit squares (rails 0-1-2 and 3-4-5) and a random chord 0-5
+    >>> ii, jj = [0, 1, 3, 4, 0, 1, 2, 0], [1, 2, 4, 5, 3, 4, 5, 5]
+    >>> Z = SE2.from_xy_theta([1.0] * 4 + [0.0] * 3 + [4.0], [0.0] * 4 + [1.0] * 3 + [3.0],
+    ...                       [0.0] * 7 + [1.0])
+    >>> f = g.add(BetweenFactor(x, ii, jj, Z, Isotropic(3, 0.1)))
+    >>> mark_loops(pose_graph_edges(g.problem()), [np.zeros(8, bool)], 0.99)[0].tolist()
+    [True, True, True, True, True, True, True, False]
     """
     from scipy.stats import chi2  # type: ignore[import-untyped]
 
@@ -260,8 +265,9 @@ def mark_loops(edges: Any, known: list[np.ndarray], quantile: float, max_length:
     if not 0.0 < quantile < 1.0:
         raise ValueError(f"mark_loops: quantile must be strictly between 0 and 1, got "
                          f"{quantile!r}")
+    support = 1 if edges.info.shape[-1] >= 6 else 2  # module docstring: SE2 needs two cycles
     ok = cycle_consistent_edges(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info,
-                                max_length=max_length, quantile=quantile)
+                                max_length=max_length, quantile=quantile, support=support)
     kn = np.concatenate([known[k] for k, _ in edges.rows]) | ok
     X, _, _ = chordal_gnc(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info,
                           edges.anchor, edges.group.identity(), kn, rejected=~kn)
@@ -272,3 +278,231 @@ def mark_loops(edges: Any, known: list[np.ndarray], quantile: float, max_length:
     for k, sl in edges.rows:
         out[k] |= (ok | merged)[sl]
     return out
+
+
+def _tls_fit(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: LieGroup,
+             info: np.ndarray) -> np.ndarray:
+    """``r^T Omega r`` with ``r = Log(Z^-1 X_i^-1 X_j)``, poses ``(..., E)`` as matrices."""
+    rel = np.linalg.inv(P[..., ii, :, :]) @ P[..., jj, :, :]
+    shape = rel.shape[:-2]
+    r = np.asarray(Zinv.compose(group.from_matrix(rel.reshape(-1, *rel.shape[-2:]))).log(),
+                   dtype=np.float64).reshape(*shape, -1)
+    return np.einsum("...a,...ab,...b->...", r, info, r)
+
+
+def search_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
+                  info: np.ndarray, X: LieGroup, known: np.ndarray, c2: float, anchor: int, *,
+                  max_passes: int = 5) -> tuple[LieGroup, bool]:
+    """Local search on the TLS objective: move each piece of the known edges rigidly where
+    its edges to the rest fit best.
+
+    The pieces are the components of the ``known`` edges (rigid: their edges are never
+    rejected). For each piece ``P`` without the anchor, smallest first, every edge ``k``
+    across its cut proposes the rigid motion ``D_k`` of ``P`` (``X_v <- D_k X_v`` for ``v`` in
+    ``P``) that makes ``k`` fit exactly; the motion with the lowest TLS cost of the cut,
+    ``0.5 * sum min(s, c^2)`` over the cut edges, replaces the current pose when it lowers
+    that cost by more than ``c^2 / 4`` (the rest of the objective does not change: only
+    ``P`` moves). Passes repeat until no piece moves. GNC ends where no weight update can
+    leave: a piece held by a wrong edge fits it, its good edges do not fit and are
+    rejected; one move here replaces that configuration with a better one.
+
+    Parameters
+    ----------
+    group : type
+        SE2 or SE3.
+    n : int
+        Number of vertices.
+    ii, jj : numpy.ndarray
+        ``(E,)`` vertex indices of the edges ``X_i^-1 X_j = Z``.
+    Z : LieGroup
+        ``(E,)`` measurements.
+    info : numpy.ndarray
+        ``(E, D, D)`` information matrices.
+    X : LieGroup
+        ``(n,)`` the poses.
+    known : numpy.ndarray
+        ``(E,)`` booleans: the known inliers (the pieces' edges).
+    c2 : float
+        The inlier threshold on the whitened squared residual (> 0).
+    anchor : int
+        The vertex held: its piece never moves.
+    max_passes : int
+        Passes over the pieces at most, >= 1.
+
+    Returns
+    -------
+    poses : LieGroup
+        ``(n,)`` the poses, pieces moved.
+    moved : bool
+        Whether a piece moved.
+
+    Raises
+    ------
+    ValueError
+        A group other than SE2/SE3 or bad options.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim.core.gnc_loops import search_pieces
+    >>> # vertices 0-1-2 known; vertex 3 sits where the wrong edge 0-3 puts it, while the
+    >>> # good edges 2-3 and 1-3 (unit steps along x) do not fit
+    >>> ii, jj = np.array([0, 1, 0, 2, 1]), np.array([1, 2, 3, 3, 3])
+    >>> Z = SE2.from_xy_theta([1.0, 1.0, 5.0, 1.0, 2.0], [0.0, 0.0, 5.0, 0.0, 0.0], [0.0] * 5)
+    >>> X = SE2.from_xy_theta([0.0, 1.0, 2.0, 5.0], [0.0, 0.0, 0.0, 5.0], [0.0] * 4)
+    >>> X2, moved = search_pieces(SE2, 4, ii, jj, Z, np.tile(np.eye(3) * 100.0, (5, 1, 1)), X,
+    ...                           np.array([True, True, False, False, False]), 11.34, 0)
+    >>> moved, np.round(X2.translation()[3], 9).tolist()
+    (True, [3.0, 0.0])
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if group not in (SE2, SE3):
+        raise ValueError(f"search_pieces: group must be SE2 or SE3, got {group!r}")
+    if not (np.isfinite(c2) and c2 > 0):
+        raise ValueError(f"search_pieces: c2 must be a positive number, got {c2!r}")
+    if not 0 <= anchor < n:
+        raise ValueError(f"search_pieces: anchor must be a vertex in [0, {n}), got {anchor}")
+    if isinstance(max_passes, bool) or not isinstance(max_passes, (int, np.integer)) or \
+            max_passes < 1:
+        raise ValueError(f"search_pieces: max_passes must be an integer >= 1, got "
+                         f"{max_passes!r}")
+    ii = np.asarray(ii, dtype=np.int64)
+    jj = np.asarray(jj, dtype=np.int64)
+    known = np.asarray(known, dtype=bool)
+    P = np.array(X.matrix(), dtype=np.float64)
+    M = np.asarray(Z.matrix(), dtype=np.float64)
+    Zinv = Z.inverse()
+    Minv = np.asarray(Zinv.matrix(), dtype=np.float64)
+    ncomp, lab = connected_components(
+        coo_matrix((np.ones(int(known.sum())), (ii[known], jj[known])), shape=(n, n)),
+        directed=False)
+    size = np.bincount(lab, minlength=ncomp)
+    la, lb = lab[ii], lab[jj]
+    cross = np.flatnonzero(la != lb)
+    # the cut edges of every piece, grouped
+    owner = np.concatenate([la[cross], lb[cross]])
+    cut_of = np.concatenate([cross, cross])
+    order = np.argsort(owner, kind="stable")
+    first = np.searchsorted(owner[order], np.arange(ncomp + 1))
+    moved = False
+    for _ in range(max_passes):
+        changed = False
+        for c in np.argsort(size, kind="stable"):
+            if c == lab[anchor] or first[c + 1] == first[c]:
+                continue
+            cut = cut_of[order[first[c]:first[c + 1]]]
+            inP = lab == c
+            fwd = inP[jj[cut]]  # i outside, j in P: D = X_i Z X_j^-1; else X_j Z^-1 X_i^-1
+            a, b = ii[cut], jj[cut]
+            D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[b]),
+                         P[b] @ Minv[cut] @ np.linalg.inv(P[a]))
+            Pa, Pb = P[a], P[b]
+            K = cut.size
+            cost = np.empty(K)
+            for lo in range(0, K, 256):
+                Dk = D[lo:lo + 256, None]
+                A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
+                B_ = np.where(fwd[None, :, None, None], Dk @ Pb[None], Pb[None])
+                rel = np.linalg.inv(A_) @ B_
+                e = np.tile(cut, Dk.shape[0])
+                r = np.asarray(Zinv[e].compose(group.from_matrix(  # type: ignore[call-overload]
+                    rel.reshape(-1, *P.shape[1:]))).log(), dtype=np.float64)
+                s = np.einsum("ea,eab,eb->e", r, info[e], r).reshape(Dk.shape[0], K)
+                cost[lo:lo + 256] = 0.5 * np.minimum(s, c2).sum(axis=1)
+            now = 0.5 * float(np.minimum(_tls_fit(group, P, a, b, Zinv[cut],  # type: ignore[call-overload]
+                                                  info[cut]), c2).sum())
+            best = int(np.argmin(cost))
+            if cost[best] < now - 0.25 * c2:
+                P[inP] = D[best] @ P[inP]
+                changed = moved = True
+        if not changed:
+            break
+    return group.from_matrix(P), moved
+
+
+def search_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
+                 weights: list[np.ndarray], c2: list[float], *, max_passes: int = 5
+                 ) -> list[np.ndarray] | None:
+    """Pieces moved after GNC on a problem's pose graph: the new states with the
+    BetweenFactor weights set to ``s <= c^2`` there (judged rows; updated in place), or
+    ``None`` when nothing moved.
+
+    Each pass runs :func:`search_pieces` on the pieces of the known edges, then on the pieces
+    of the accepted edges (weights >= 0.5 and the known ones: a pair of vertices whose
+    edge is accepted moves together), then
+    :func:`~microlie.optim.core.gnc_bridges.repair_bridges` (the smaller side of every
+    accepted judged bridge moved where most cut edges fit), with the weights set to
+    ``s <= c^2`` after every move; passes repeat until nothing moves. Every move lowers the
+    TLS objective at the rigidly moved poses.
+
+    Parameters
+    ----------
+    states : list of numpy.ndarray
+        The parameters of the one pose batch (a list of one array).
+    edges : PoseGraphEdges
+        :func:`~microlie.optim.core.gnc_chordal.pose_graph_edges` of the problem.
+    known : list of numpy.ndarray
+        Known-inlier masks per factor batch.
+    weights : list of numpy.ndarray
+        GNC's weights per factor batch (0 or 1), updated in place.
+    c2 : list of float
+        Thresholds per factor batch.
+    max_passes : int
+        Passes at most, >= 1.
+
+    Returns
+    -------
+    list of numpy.ndarray or None
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, BetweenFactor
+    >>> from microlie.optim.core.gnc_chordal import pose_graph_edges
+    >>> from microlie.optim.core.gnc_loops import search_stage
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(2), fixed=[0])
+    >>> _ = g.add(BetweenFactor(x, [0], [1], SE2.identity(1)))
+    >>> e = pose_graph_edges(g.problem())
+    >>> search_stage([np.asarray(SE2.identity(2).params)], e, [np.zeros(1, bool)],
+    ...              [np.ones(1)], [11.34]) is None  # it fits: nothing moves
+    True
+    """
+    from .gnc_bridges import repair_bridges
+
+    kn = np.concatenate([known[k] for k, _ in edges.rows])
+    w = np.concatenate([weights[k] for k, _ in edges.rows])
+    c = float(c2[edges.rows[0][0]])
+    var, group = edges.variables, edges.group
+    X = group.from_params(np.asarray(states[0], dtype=np.float64))
+    Zinv = edges.Z.inverse()
+    args = (group, edges.n, edges.ii, edges.jj, edges.Z, edges.info)
+    moved = False
+
+    def fits(X: LieGroup) -> np.ndarray:
+        s = _tls_fit(group, np.asarray(X.matrix(), dtype=np.float64), edges.ii, edges.jj,
+                     Zinv, edges.info)
+        return kn | (s <= c)
+
+    for _ in range(max_passes):
+        X, m1 = search_pieces(*args, X, kn, c, edges.anchor)
+        acc = fits(X) if m1 else kn | (w >= 0.5)
+        X, m2 = search_pieces(*args, X, acc, c, edges.anchor)
+        acc = fits(X) if m2 else acc
+        X, w2 = repair_bridges(*args, X, acc.astype(np.float64), ~kn, c)
+        m3 = not np.array_equal(w2 >= 0.5, acc)
+        w = w2 if m3 else acc.astype(np.float64)
+        if not (m1 or m2 or m3):
+            break
+        moved = True
+    if not moved:
+        return None
+    for k, sl in edges.rows:
+        weights[k][~known[k]] = w[sl][~known[k]]
+    P = np.array(X.params, dtype=np.float64)
+    P[var.fixed] = np.asarray(states[0], dtype=np.float64)[var.fixed]
+    return [P]
