@@ -130,7 +130,7 @@ class GNC:
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
                  first: str = "values", retest: int = 3, cycle_length: int = 5,
-                 search: bool = False) -> None:
+                 moves: bool = False) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
@@ -169,9 +169,9 @@ class GNC:
             raise ValueError(f"GNC cycle_length must be an integer from 2 to 9, got "
                              f"{cycle_length!r}")
         self.cycle_length = int(cycle_length)
-        if not isinstance(search, bool):
-            raise ValueError(f"GNC search must be True or False, got {search!r}")
-        self.search = search
+        if not isinstance(moves, bool):
+            raise ValueError(f"GNC moves must be True or False, got {moves!r}")
+        self.moves = moves
 
     def __repr__(self) -> str:
         return (f"GNC({self.surrogate!r}, quantile={self.quantile}, "
@@ -569,11 +569,11 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                                         lambda st: squared_norms(problem, st),
                                         mu_step=gnc.mu_step, weights_tol=gnc.weights_tol)
             s = squared_norms(problem, cur)
-        if edges is not None and gnc.first == "cycles" and gnc.search and runs:
-            from .gnc_loops import search_stage
+        if edges is not None and gnc.first == "cycles" and gnc.moves and runs:
+            from .gnc_loops import move_stage
 
             for _ in range(5):  # pieces moved where their cut edges fit best, then solved
-                moved = search_stage(cur, edges, known, weights, c2)
+                moved = move_stage(cur, edges, known, weights, c2)
                 if moved is None:
                     break
                 cur = inner(moved)

@@ -42,7 +42,8 @@ import numpy as np
 
 from ...groups import SE2, SE3, LieGroup
 
-__all__ = ["cycle_consistent_edges", "mark_loops", "search_pieces", "search_stage"]
+__all__ = ["cycle_consistent_edges", "mark_loops", "move_pieces", "move_regions",
+           "move_stage"]
 
 
 def _ranges(first: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -290,7 +291,173 @@ def _tls_fit(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: Li
     return np.einsum("...a,...ab,...b->...", r, info, r)
 
 
-def search_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
+def _motions(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, M: np.ndarray,
+             Minv: np.ndarray, Zinv: LieGroup, info: np.ndarray, cut: np.ndarray,
+             inP: np.ndarray, c2: float) -> tuple[np.ndarray, np.ndarray]:
+    """The rigid motions ``D_k`` of the vertices ``inP`` that make each cut edge ``k`` fit
+    exactly, and the TLS cost ``0.5 * sum min(s, c^2)`` of the cut edges after each."""
+    fwd = inP[jj[cut]]  # i outside, j in P: D = X_i Z X_j^-1; else D = X_j Z^-1 X_i^-1
+    a, b = ii[cut], jj[cut]
+    D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[b]),
+                 P[b] @ Minv[cut] @ np.linalg.inv(P[a]))
+    Pa, Pb = P[a], P[b]
+    K = cut.size
+    cost = np.empty(K)
+    for lo in range(0, K, 256):
+        Dk = D[lo:lo + 256, None]
+        A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
+        B_ = np.where(fwd[None, :, None, None], Dk @ Pb[None], Pb[None])
+        rel = np.linalg.inv(A_) @ B_
+        e = np.tile(cut, Dk.shape[0])
+        r = np.asarray(Zinv[e].compose(group.from_matrix(  # type: ignore[call-overload]
+            rel.reshape(-1, *P.shape[1:]))).log(), dtype=np.float64)
+        s = np.einsum("ea,eab,eb->e", r, info[e], r).reshape(Dk.shape[0], K)
+        cost[lo:lo + 256] = 0.5 * np.minimum(s, c2).sum(axis=1)
+    return D, cost
+
+
+def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
+                   info: np.ndarray, X: LieGroup, known: np.ndarray, accepted: np.ndarray,
+                   c2: float, anchor: int, *, max_size: int = 50) -> tuple[LieGroup, bool]:
+    """Local search on the TLS objective: re-pose each small region outside the core.
+
+    The core is the largest component of the ``known`` edges; the regions are the
+    components of all edges between the other vertices (a chain of vertices each held by
+    its own wrong edge is one region, although no edge of it is accepted). Each region of
+    at most ``max_size`` vertices without the anchor is posed inside by composing the
+    measurements along a spanning tree of its edges (known edges first, then accepted, then
+    rejected ones), then moved rigidly by each of the motions that make one of its cut edges
+    fit exactly; the best replaces the current poses when the TLS cost of the region's edges
+    (inside and cut; plain ``s`` for the known ones) falls by more than ``c^2 / 4``.
+
+    Parameters
+    ----------
+    group : type
+        SE2 or SE3.
+    n : int
+        Number of vertices.
+    ii, jj : numpy.ndarray
+        ``(E,)`` vertex indices of the edges ``X_i^-1 X_j = Z``.
+    Z : LieGroup
+        ``(E,)`` measurements.
+    info : numpy.ndarray
+        ``(E, D, D)`` information matrices.
+    X : LieGroup
+        ``(n,)`` the poses.
+    known : numpy.ndarray
+        ``(E,)`` booleans: the known inliers.
+    accepted : numpy.ndarray
+        ``(E,)`` booleans: the judged edges accepted now (preferred in the trees).
+    c2 : float
+        The inlier threshold on the whitened squared residual (> 0).
+    anchor : int
+        The vertex held: its region never moves.
+    max_size : int
+        Largest region tried, in vertices.
+
+    Returns
+    -------
+    poses : LieGroup
+        ``(n,)`` the poses, regions moved.
+    moved : bool
+        Whether a region moved.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim.core.gnc_loops import move_regions
+    >>> # a known square 0-1-2-3 (the core) and the chain 1-4-5-2 of unit steps; 4 and 5
+    >>> # each sit where a wrong edge from 0 puts them (8, 9): the chain's edges do not fit
+    >>> ii = np.array([0, 1, 2, 3, 1, 4, 5, 0, 0])
+    >>> jj = np.array([1, 2, 3, 0, 4, 5, 2, 4, 5])
+    >>> Z = SE2.from_xy_theta([1.0, 0.0, -1.0, 0.0, 1.0, 0.0, -1.0, 5.0, 6.0],
+    ...                       [0.0, 1.0, 0.0, -1.0, 0.0, 1.0, 0.0, 5.0, 5.0], [0.0] * 9)
+    >>> X = SE2.from_xy_theta([0.0, 1.0, 1.0, 0.0, 5.0, 6.0], [0.0, 0.0, 1.0, 1.0, 5.0, 5.0],
+    ...                       [0.0] * 6)
+    >>> kn = np.array([True] * 4 + [False] * 5)
+    >>> X2, moved = move_regions(SE2, 6, ii, jj, Z, np.tile(np.eye(3) * 100.0, (9, 1, 1)),
+    ...                            X, kn, ~kn & np.array([0, 0, 0, 0, 0, 0, 0, 1, 1], bool),
+    ...                            11.34, 0)
+    >>> moved, np.round(X2.translation()[4:], 9).tolist()
+    (True, [[2.0, 0.0], [2.0, 1.0]])
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import (
+        breadth_first_order,
+        connected_components,
+        minimum_spanning_tree,
+    )
+
+    ii = np.asarray(ii, dtype=np.int64)
+    jj = np.asarray(jj, dtype=np.int64)
+    known = np.asarray(known, dtype=bool)
+    P = np.array(X.matrix(), dtype=np.float64)
+    M = np.asarray(Z.matrix(), dtype=np.float64)
+    Zinv = Z.inverse()
+    Minv = np.asarray(Zinv.matrix(), dtype=np.float64)
+    _, lab = connected_components(
+        coo_matrix((np.ones(int(known.sum())), (ii[known], jj[known])), shape=(n, n)),
+        directed=False)
+    core = lab == np.argmax(np.bincount(lab))
+    inner = ~core[ii] & ~core[jj]
+    _, reg = connected_components(
+        coo_matrix((np.ones(int(inner.sum())), (ii[inner], jj[inner])), shape=(n, n)),
+        directed=False)
+    reg = np.where(core, -1, reg)
+    size = np.bincount(reg[~core], minlength=n)
+    prio = np.where(known, 1.0, np.where(accepted, 2.0, 3.0))
+    moved = False
+    for r in np.flatnonzero((size > 0) & (size <= max_size)):
+        inR = reg == r
+        if inR[anchor]:
+            continue
+        touch = np.flatnonzero(inR[ii] | inR[jj])
+        cut = touch[inR[ii[touch]] != inR[jj[touch]]]
+        if not cut.size:
+            continue
+        verts = np.flatnonzero(inR)
+        local = np.full(n, -1)
+        local[verts] = np.arange(verts.size)
+        ins = touch[inR[ii[touch]] & inR[jj[touch]] & (ii[touch] != jj[touch])]
+        Q = P.copy()
+        if ins.size:  # pose the region along a spanning tree of its edges, by priority
+            order = ins[np.argsort(prio[ins], kind="stable")]
+            a, b = local[ii[order]], local[jj[order]]
+            _, first = np.unique(np.minimum(a, b) * verts.size + np.maximum(a, b),
+                                 return_index=True)
+            order = order[first]
+            W = coo_matrix((prio[order], (local[ii[order]], local[jj[order]])),
+                           shape=(verts.size, verts.size)).tocsr()
+            T = minimum_spanning_tree(W)
+            T = (T + T.T).tocsr()
+            ncomp, sub = connected_components(T, directed=False)
+            pick = {(int(min(local[ii[e]], local[jj[e]])), int(max(local[ii[e]], local[jj[e]]))): e
+                    for e in order}
+            for c in range(ncomp):
+                root = int(np.flatnonzero(sub == c)[0])
+                seq, pred = breadth_first_order(T, root, directed=False)
+                for v in seq[1:]:
+                    u = int(pred[v])
+                    e = pick[(min(u, int(v)), max(u, int(v)))]
+                    if local[ii[e]] == u:
+                        Q[verts[v]] = Q[verts[u]] @ M[e]
+                    else:
+                        Q[verts[v]] = Q[verts[u]] @ Minv[e]
+        s_in = _tls_fit(group, Q, ii[ins], jj[ins], Zinv[ins], info[ins]) if ins.size \
+            else np.zeros(0)
+        new_in = 0.5 * float(np.where(known[ins], s_in, np.minimum(s_in, c2)).sum())
+        D, cost = _motions(group, Q, ii, jj, M, Minv, Zinv, info, cut, inR, c2)
+        s_now = _tls_fit(group, P, ii[touch], jj[touch], Zinv[touch], info[touch])
+        now = 0.5 * float(np.where(known[touch], s_now, np.minimum(s_now, c2)).sum())
+        best = int(np.argmin(cost))
+        if new_in + cost[best] < now - 0.25 * c2:
+            P[inR] = D[best] @ Q[inR]
+            moved = True
+    return group.from_matrix(P), moved
+
+
+def move_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                   info: np.ndarray, X: LieGroup, known: np.ndarray, c2: float, anchor: int, *,
                   max_passes: int = 5) -> tuple[LieGroup, bool]:
     """Local search on the TLS objective: move each piece of the known edges rigidly where
@@ -345,13 +512,13 @@ def search_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGrou
     --------
     >>> import numpy as np
     >>> from microlie import SE2
-    >>> from microlie.optim.core.gnc_loops import search_pieces
+    >>> from microlie.optim.core.gnc_loops import move_pieces
     >>> # vertices 0-1-2 known; vertex 3 sits where the wrong edge 0-3 puts it, while the
     >>> # good edges 2-3 and 1-3 (unit steps along x) do not fit
     >>> ii, jj = np.array([0, 1, 0, 2, 1]), np.array([1, 2, 3, 3, 3])
     >>> Z = SE2.from_xy_theta([1.0, 1.0, 5.0, 1.0, 2.0], [0.0, 0.0, 5.0, 0.0, 0.0], [0.0] * 5)
     >>> X = SE2.from_xy_theta([0.0, 1.0, 2.0, 5.0], [0.0, 0.0, 0.0, 5.0], [0.0] * 4)
-    >>> X2, moved = search_pieces(SE2, 4, ii, jj, Z, np.tile(np.eye(3) * 100.0, (5, 1, 1)), X,
+    >>> X2, moved = move_pieces(SE2, 4, ii, jj, Z, np.tile(np.eye(3) * 100.0, (5, 1, 1)), X,
     ...                           np.array([True, True, False, False, False]), 11.34, 0)
     >>> moved, np.round(X2.translation()[3], 9).tolist()
     (True, [3.0, 0.0])
@@ -360,14 +527,14 @@ def search_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGrou
     from scipy.sparse.csgraph import connected_components
 
     if group not in (SE2, SE3):
-        raise ValueError(f"search_pieces: group must be SE2 or SE3, got {group!r}")
+        raise ValueError(f"move_pieces: group must be SE2 or SE3, got {group!r}")
     if not (np.isfinite(c2) and c2 > 0):
-        raise ValueError(f"search_pieces: c2 must be a positive number, got {c2!r}")
+        raise ValueError(f"move_pieces: c2 must be a positive number, got {c2!r}")
     if not 0 <= anchor < n:
-        raise ValueError(f"search_pieces: anchor must be a vertex in [0, {n}), got {anchor}")
+        raise ValueError(f"move_pieces: anchor must be a vertex in [0, {n}), got {anchor}")
     if isinstance(max_passes, bool) or not isinstance(max_passes, (int, np.integer)) or \
             max_passes < 1:
-        raise ValueError(f"search_pieces: max_passes must be an integer >= 1, got "
+        raise ValueError(f"move_pieces: max_passes must be an integer >= 1, got "
                          f"{max_passes!r}")
     ii = np.asarray(ii, dtype=np.int64)
     jj = np.asarray(jj, dtype=np.int64)
@@ -395,25 +562,9 @@ def search_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGrou
                 continue
             cut = cut_of[order[first[c]:first[c + 1]]]
             inP = lab == c
-            fwd = inP[jj[cut]]  # i outside, j in P: D = X_i Z X_j^-1; else X_j Z^-1 X_i^-1
-            a, b = ii[cut], jj[cut]
-            D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[b]),
-                         P[b] @ Minv[cut] @ np.linalg.inv(P[a]))
-            Pa, Pb = P[a], P[b]
-            K = cut.size
-            cost = np.empty(K)
-            for lo in range(0, K, 256):
-                Dk = D[lo:lo + 256, None]
-                A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
-                B_ = np.where(fwd[None, :, None, None], Dk @ Pb[None], Pb[None])
-                rel = np.linalg.inv(A_) @ B_
-                e = np.tile(cut, Dk.shape[0])
-                r = np.asarray(Zinv[e].compose(group.from_matrix(  # type: ignore[call-overload]
-                    rel.reshape(-1, *P.shape[1:]))).log(), dtype=np.float64)
-                s = np.einsum("ea,eab,eb->e", r, info[e], r).reshape(Dk.shape[0], K)
-                cost[lo:lo + 256] = 0.5 * np.minimum(s, c2).sum(axis=1)
-            now = 0.5 * float(np.minimum(_tls_fit(group, P, a, b, Zinv[cut],  # type: ignore[call-overload]
-                                                  info[cut]), c2).sum())
+            D, cost = _motions(group, P, ii, jj, M, Minv, Zinv, info, cut, inP, c2)
+            now = 0.5 * float(np.minimum(_tls_fit(group, P, ii[cut], jj[cut],
+                                                  Zinv[cut], info[cut]), c2).sum())
             best = int(np.argmin(cost))
             if cost[best] < now - 0.25 * c2:
                 P[inP] = D[best] @ P[inP]
@@ -423,14 +574,14 @@ def search_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGrou
     return group.from_matrix(P), moved
 
 
-def search_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
+def move_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
                  weights: list[np.ndarray], c2: list[float], *, max_passes: int = 5
                  ) -> list[np.ndarray] | None:
     """Pieces moved after GNC on a problem's pose graph: the new states with the
     BetweenFactor weights set to ``s <= c^2`` there (judged rows; updated in place), or
     ``None`` when nothing moved.
 
-    Each pass runs :func:`search_pieces` on the pieces of the known edges, then on the pieces
+    Each pass runs :func:`move_pieces` on the pieces of the known edges, then on the pieces
     of the accepted edges (weights >= 0.5 and the known ones: a pair of vertices whose
     edge is accepted moves together), then
     :func:`~microlie.optim.core.gnc_bridges.repair_bridges` (the smaller side of every
@@ -463,12 +614,12 @@ def search_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     >>> from microlie import SE2
     >>> from microlie.optim import FactorGraph, BetweenFactor
     >>> from microlie.optim.core.gnc_chordal import pose_graph_edges
-    >>> from microlie.optim.core.gnc_loops import search_stage
+    >>> from microlie.optim.core.gnc_loops import move_stage
     >>> g = FactorGraph()
     >>> x = g.add_variables(SE2.identity(2), fixed=[0])
     >>> _ = g.add(BetweenFactor(x, [0], [1], SE2.identity(1)))
     >>> e = pose_graph_edges(g.problem())
-    >>> search_stage([np.asarray(SE2.identity(2).params)], e, [np.zeros(1, bool)],
+    >>> move_stage([np.asarray(SE2.identity(2).params)], e, [np.zeros(1, bool)],
     ...              [np.ones(1)], [11.34]) is None  # it fits: nothing moves
     True
     """
@@ -489,14 +640,16 @@ def search_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         return kn | (s <= c)
 
     for _ in range(max_passes):
-        X, m1 = search_pieces(*args, X, kn, c, edges.anchor)
+        X, m1 = move_pieces(*args, X, kn, c, edges.anchor)
         acc = fits(X) if m1 else kn | (w >= 0.5)
-        X, m2 = search_pieces(*args, X, acc, c, edges.anchor)
+        X, m2 = move_pieces(*args, X, acc, c, edges.anchor)
         acc = fits(X) if m2 else acc
+        X, m4 = move_regions(*args, X, kn, acc & ~kn, c, edges.anchor)
+        acc = fits(X) if m4 else acc
         X, w2 = repair_bridges(*args, X, acc.astype(np.float64), ~kn, c)
         m3 = not np.array_equal(w2 >= 0.5, acc)
         w = w2 if m3 else acc.astype(np.float64)
-        if not (m1 or m2 or m3):
+        if not (m1 or m2 or m3 or m4):
             break
         moved = True
     if not moved:
