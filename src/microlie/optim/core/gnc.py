@@ -573,10 +573,21 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_loops import move_stage
 
             for _ in range(5):  # pieces moved where their cut edges fit best, then solved
+                before = _objective("tls", squared_norms(problem, cur), c2, known)
+                saved_w = [w.copy() for w in weights]
                 moved = move_stage(cur, edges, known, weights, c2)
                 if moved is None:
                     break
-                cur = inner(moved)
+                new = inner(moved)
+                for w, sk, ck, kk in zip(weights, squared_norms(problem, new), c2, known,
+                                         strict=True):
+                    w[~kk] = (sk[~kk] <= ck).astype(np.float64)
+                new = inner(new)
+                if _objective("tls", squared_norms(problem, new), c2, known) >= before:
+                    for w, a in zip(weights, saved_w, strict=True):
+                        w[:] = a  # no better: keep the answer before the moves
+                    break
+                cur = new
             s = squared_norms(problem, cur)
         if edges is not None and gnc.retest and runs:
             from .gnc_retest import inlier_start, retest_stage

@@ -291,11 +291,17 @@ def _tls_fit(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: Li
     return np.einsum("...a,...ab,...b->...", r, info, r)
 
 
+def _misfit(s: np.ndarray, c2: float, slack: float) -> np.ndarray:
+    """``c^2 / 2`` per edge that does not fit within ``slack c^2``, else 0: the TLS cost
+    of a rigid placement, whose residuals the least-squares solve after it shares out."""
+    return np.where(s <= slack * c2, 0.0, 0.5 * c2)
+
+
 def _motions(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, M: np.ndarray,
              Minv: np.ndarray, Zinv: LieGroup, info: np.ndarray, cut: np.ndarray,
-             inP: np.ndarray, c2: float) -> tuple[np.ndarray, np.ndarray]:
+             inP: np.ndarray, c2: float, slack: float) -> tuple[np.ndarray, np.ndarray]:
     """The rigid motions ``D_k`` of the vertices ``inP`` that make each cut edge ``k`` fit
-    exactly, and the TLS cost ``0.5 * sum min(s, c^2)`` of the cut edges after each."""
+    exactly, and the cost (:func:`_misfit`) of the cut edges after each."""
     fwd = inP[jj[cut]]  # i outside, j in P: D = X_i Z X_j^-1; else D = X_j Z^-1 X_i^-1
     a, b = ii[cut], jj[cut]
     D = np.where(fwd[:, None, None], P[a] @ M[cut] @ np.linalg.inv(P[b]),
@@ -312,13 +318,14 @@ def _motions(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, M: np.nd
         r = np.asarray(Zinv[e].compose(group.from_matrix(  # type: ignore[call-overload]
             rel.reshape(-1, *P.shape[1:]))).log(), dtype=np.float64)
         s = np.einsum("ea,eab,eb->e", r, info[e], r).reshape(Dk.shape[0], K)
-        cost[lo:lo + 256] = 0.5 * np.minimum(s, c2).sum(axis=1)
+        cost[lo:lo + 256] = _misfit(s, c2, slack).sum(axis=1)
     return D, cost
 
 
 def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                    info: np.ndarray, X: LieGroup, known: np.ndarray, accepted: np.ndarray,
-                   c2: float, anchor: int, *, max_size: int = 50) -> tuple[LieGroup, bool]:
+                   c2: float, anchor: int, *, max_size: int = 50, slack: float = 4.0
+                   ) -> tuple[LieGroup, bool]:
     """Local search on the TLS objective: re-pose each small region outside the core.
 
     The core is the largest component of the ``known`` edges; the regions are the
@@ -327,8 +334,10 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
     at most ``max_size`` vertices without the anchor is posed inside by composing the
     measurements along a spanning tree of its edges (known edges first, then accepted, then
     rejected ones), then moved rigidly by each of the motions that make one of its cut edges
-    fit exactly; the best replaces the current poses when the TLS cost of the region's edges
-    (inside and cut; plain ``s`` for the known ones) falls by more than ``c^2 / 4``.
+    fit exactly; the best replaces the current poses when more of the region's edges (inside
+    and cut) fit then than now, an edge fitting when its whitened squared residual is within
+    ``slack c^2`` (a rigid placement puts the noise of a chain into its last edge; the
+    least-squares solve after the move shares it out).
 
     Parameters
     ----------
@@ -354,6 +363,8 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
         The vertex held: its region never moves.
     max_size : int
         Largest region tried, in vertices.
+    slack : float
+        An edge fits a rigid placement within ``slack c^2``.
 
     Returns
     -------
@@ -446,10 +457,10 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
                         Q[verts[v]] = Q[verts[u]] @ Minv[e]
         s_in = _tls_fit(group, Q, ii[ins], jj[ins], Zinv[ins], info[ins]) if ins.size \
             else np.zeros(0)
-        new_in = 0.5 * float(np.where(known[ins], s_in, np.minimum(s_in, c2)).sum())
-        D, cost = _motions(group, Q, ii, jj, M, Minv, Zinv, info, cut, inR, c2)
-        s_now = _tls_fit(group, P, ii[touch], jj[touch], Zinv[touch], info[touch])
-        now = 0.5 * float(np.where(known[touch], s_now, np.minimum(s_now, c2)).sum())
+        new_in = float(_misfit(s_in, c2, slack).sum())
+        D, cost = _motions(group, Q, ii, jj, M, Minv, Zinv, info, cut, inR, c2, slack)
+        now = float(_misfit(_tls_fit(group, P, ii[touch], jj[touch], Zinv[touch],
+                                     info[touch]), c2, slack).sum())
         best = int(np.argmin(cost))
         if new_in + cost[best] < now - 0.25 * c2:
             P[inR] = D[best] @ Q[inR]
@@ -459,19 +470,20 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
 
 def move_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                   info: np.ndarray, X: LieGroup, known: np.ndarray, c2: float, anchor: int, *,
-                  max_passes: int = 5) -> tuple[LieGroup, bool]:
+                  max_passes: int = 5, slack: float = 4.0) -> tuple[LieGroup, bool]:
     """Local search on the TLS objective: move each piece of the known edges rigidly where
     its edges to the rest fit best.
 
     The pieces are the components of the ``known`` edges (rigid: their edges are never
     rejected). For each piece ``P`` without the anchor, smallest first, every edge ``k``
     across its cut proposes the rigid motion ``D_k`` of ``P`` (``X_v <- D_k X_v`` for ``v`` in
-    ``P``) that makes ``k`` fit exactly; the motion with the lowest TLS cost of the cut,
-    ``0.5 * sum min(s, c^2)`` over the cut edges, replaces the current pose when it lowers
-    that cost by more than ``c^2 / 4`` (the rest of the objective does not change: only
-    ``P`` moves). Passes repeat until no piece moves. GNC ends where no weight update can
-    leave: a piece held by a wrong edge fits it, its good edges do not fit and are
-    rejected; one move here replaces that configuration with a better one.
+    ``P``) that makes ``k`` fit exactly; the motion that makes the most cut edges fit
+    (whitened squared residual within ``slack c^2``: a rigid placement puts the noise of a
+    chain into its last edge; the least-squares solve after the move shares it out) replaces
+    the current pose when more cut edges fit then than now (the rest of the objective does
+    not change: only ``P`` moves). Passes repeat until no piece moves. GNC ends where no
+    weight update can leave: a piece held by a wrong edge fits it, its good edges do not fit
+    and are rejected; one move here replaces that configuration with a better one.
 
     Parameters
     ----------
@@ -495,6 +507,8 @@ def move_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
         The vertex held: its piece never moves.
     max_passes : int
         Passes over the pieces at most, >= 1.
+    slack : float
+        An edge fits a rigid placement within ``slack c^2``.
 
     Returns
     -------
@@ -562,9 +576,9 @@ def move_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                 continue
             cut = cut_of[order[first[c]:first[c + 1]]]
             inP = lab == c
-            D, cost = _motions(group, P, ii, jj, M, Minv, Zinv, info, cut, inP, c2)
-            now = 0.5 * float(np.minimum(_tls_fit(group, P, ii[cut], jj[cut],
-                                                  Zinv[cut], info[cut]), c2).sum())
+            D, cost = _motions(group, P, ii, jj, M, Minv, Zinv, info, cut, inP, c2, slack)
+            now = float(_misfit(_tls_fit(group, P, ii[cut], jj[cut], Zinv[cut], info[cut]),
+                                c2, slack).sum())
             best = int(np.argmin(cost))
             if cost[best] < now - 0.25 * c2:
                 P[inP] = D[best] @ P[inP]
@@ -575,10 +589,10 @@ def move_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
 
 
 def move_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
-                 weights: list[np.ndarray], c2: list[float], *, max_passes: int = 5
-                 ) -> list[np.ndarray] | None:
+                 weights: list[np.ndarray], c2: list[float], *, max_passes: int = 5,
+                 slack: float = 4.0) -> list[np.ndarray] | None:
     """Pieces moved after GNC on a problem's pose graph: the new states with the
-    BetweenFactor weights set to ``s <= c^2`` there (judged rows; updated in place), or
+    BetweenFactor weights set to ``s <= slack c^2`` there (judged rows; updated in place), or
     ``None`` when nothing moved.
 
     Each pass runs :func:`move_pieces` on the pieces of the known edges, then on the pieces
@@ -586,8 +600,10 @@ def move_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     edge is accepted moves together), then
     :func:`~microlie.optim.core.gnc_bridges.repair_bridges` (the smaller side of every
     accepted judged bridge moved where most cut edges fit), with the weights set to
-    ``s <= c^2`` after every move; passes repeat until nothing moves. Every move lowers the
-    TLS objective at the rigidly moved poses.
+    ``s <= slack c^2`` after every move; passes repeat until nothing moves. Every move makes
+    more edges fit the rigidly moved poses; :func:`~microlie.optim.core.gnc.gnc_solve` keeps
+    the result only when the TLS objective after the least-squares solve of the accepted
+    edges is lower than before.
 
     Parameters
     ----------
@@ -603,6 +619,8 @@ def move_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         Thresholds per factor batch.
     max_passes : int
         Passes at most, >= 1.
+    slack : float
+        An edge fits a rigid placement within ``slack c^2`` (:func:`move_pieces`).
 
     Returns
     -------
@@ -637,7 +655,7 @@ def move_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     def fits(X: LieGroup) -> np.ndarray:
         s = _tls_fit(group, np.asarray(X.matrix(), dtype=np.float64), edges.ii, edges.jj,
                      Zinv, edges.info)
-        return kn | (s <= c)
+        return kn | (s <= slack * c)
 
     for _ in range(max_passes):
         X, m1 = move_pieces(*args, X, kn, c, edges.anchor)
