@@ -323,9 +323,9 @@ def _motions(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, M: np.nd
 
 
 def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
-                   info: np.ndarray, X: LieGroup, known: np.ndarray, accepted: np.ndarray,
-                   c2: float, anchor: int, *, max_size: int = 50, slack: float = 4.0
-                   ) -> tuple[LieGroup, bool]:
+                 info: np.ndarray, X: LieGroup, known: np.ndarray, accepted: np.ndarray,
+                 c2: float, anchor: int, *, max_size: int = 50, slack: float = 4.0
+                 ) -> tuple[LieGroup, bool]:
     """Local search on the TLS objective: re-pose each small region outside the core.
 
     The core is the largest component of the ``known`` edges; the regions are the
@@ -334,8 +334,10 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
     at most ``max_size`` vertices without the anchor is posed inside by composing the
     measurements along a spanning tree of its edges (known edges first, then accepted, then
     rejected ones), then moved rigidly by each of the motions that make one of its cut edges
-    fit exactly; the best replaces the current poses when more of the region's edges (inside
-    and cut) fit then than now, an edge fitting when its whitened squared residual is within
+    fit exactly; so is each part of the region that one of its edges alone holds to the rest
+    of it (a wrong edge inside a region, for one, gets its own chance to be cut). The best
+    move replaces the current poses when more of the set's edges (inside and cut) fit then
+    than now, an edge fitting when its whitened squared residual is within
     ``slack c^2`` (a rigid placement puts the noise of a chain into its last edge; the
     least-squares solve after the move shares it out).
 
@@ -419,20 +421,18 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
     size = np.bincount(reg[~core], minlength=n)
     prio = np.where(known, 1.0, np.where(accepted, 2.0, 3.0))
     moved = False
-    for r in np.flatnonzero((size > 0) & (size <= max_size)):
-        inR = reg == r
-        if inR[anchor]:
-            continue
+    def attempt(inR: np.ndarray) -> tuple[float, np.ndarray | None]:
+        """The gain of the best rigid move of the vertices ``inR`` and their new poses."""
         touch = np.flatnonzero(inR[ii] | inR[jj])
         cut = touch[inR[ii[touch]] != inR[jj[touch]]]
         if not cut.size:
-            continue
+            return 0.0, None
         verts = np.flatnonzero(inR)
         local = np.full(n, -1)
         local[verts] = np.arange(verts.size)
         ins = touch[inR[ii[touch]] & inR[jj[touch]] & (ii[touch] != jj[touch])]
         Q = P.copy()
-        if ins.size:  # pose the region along a spanning tree of its edges, by priority
+        if ins.size:  # pose the set along a spanning tree of its edges, by priority
             order = ins[np.argsort(prio[ins], kind="stable")]
             a, b = local[ii[order]], local[jj[order]]
             _, first = np.unique(np.minimum(a, b) * verts.size + np.maximum(a, b),
@@ -443,18 +443,18 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
             T = minimum_spanning_tree(W)
             T = (T + T.T).tocsr()
             ncomp, sub = connected_components(T, directed=False)
-            pick = {(int(min(local[ii[e]], local[jj[e]])), int(max(local[ii[e]], local[jj[e]]))): e
-                    for e in order}
+            pick = {(int(min(local[ii[k]], local[jj[k]])),
+                     int(max(local[ii[k]], local[jj[k]]))): k for k in order}
             for c in range(ncomp):
                 root = int(np.flatnonzero(sub == c)[0])
                 seq, pred = breadth_first_order(T, root, directed=False)
                 for v in seq[1:]:
                     u = int(pred[v])
-                    e = pick[(min(u, int(v)), max(u, int(v)))]
-                    if local[ii[e]] == u:
-                        Q[verts[v]] = Q[verts[u]] @ M[e]
+                    k = pick[(min(u, int(v)), max(u, int(v)))]
+                    if local[ii[k]] == u:
+                        Q[verts[v]] = Q[verts[u]] @ M[k]
                     else:
-                        Q[verts[v]] = Q[verts[u]] @ Minv[e]
+                        Q[verts[v]] = Q[verts[u]] @ Minv[k]
         s_in = _tls_fit(group, Q, ii[ins], jj[ins], Zinv[ins], info[ins]) if ins.size \
             else np.zeros(0)
         new_in = float(_misfit(s_in, c2, slack).sum())
@@ -462,15 +462,43 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
         now = float(_misfit(_tls_fit(group, P, ii[touch], jj[touch], Zinv[touch],
                                      info[touch]), c2, slack).sum())
         best = int(np.argmin(cost))
-        if new_in + cost[best] < now - 0.25 * c2:
-            P[inR] = D[best] @ Q[inR]
+        return now - new_in - float(cost[best]), D[best] @ Q[inR]
+
+    for r in np.flatnonzero((size > 0) & (size <= max_size)):
+        inR = reg == r
+        if inR[anchor]:
+            continue
+        # the region, and each part of it that one of its edges alone holds to the rest
+        sets = [inR]
+        ins = np.flatnonzero(inR[ii] & inR[jj] & (ii != jj))
+        verts = np.flatnonzero(inR)
+        local = np.full(n, -1)
+        local[verts] = np.arange(verts.size)
+        for k in ins:
+            keep = ins[ins != k]
+            parts, lab_r = connected_components(
+                coo_matrix((np.ones(keep.size), (local[ii[keep]], local[jj[keep]])),
+                           shape=(verts.size, verts.size)), directed=False)
+            if parts > 1:
+                for q in range(parts):
+                    part = np.zeros(n, dtype=bool)
+                    part[verts[lab_r == q]] = True
+                    if not part[anchor]:
+                        sets.append(part)
+        best_gain, best_set, best_pose = 0.25 * c2, None, None
+        for cand in sets:
+            gain, pose = attempt(cand)
+            if gain > best_gain:
+                best_gain, best_set, best_pose = gain, cand, pose
+        if best_set is not None:
+            P[best_set] = best_pose
             moved = True
     return group.from_matrix(P), moved
 
 
 def move_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
-                  info: np.ndarray, X: LieGroup, known: np.ndarray, c2: float, anchor: int, *,
-                  max_passes: int = 5, slack: float = 4.0) -> tuple[LieGroup, bool]:
+                info: np.ndarray, X: LieGroup, known: np.ndarray, c2: float, anchor: int, *,
+                max_passes: int = 5, slack: float = 4.0) -> tuple[LieGroup, bool]:
     """Local search on the TLS objective: move each piece of the known edges rigidly where
     its edges to the rest fit best.
 
@@ -589,8 +617,8 @@ def move_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
 
 
 def move_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
-                 weights: list[np.ndarray], c2: list[float], *, max_passes: int = 5,
-                 slack: float = 4.0) -> list[np.ndarray] | None:
+               weights: list[np.ndarray], c2: list[float], *, max_passes: int = 5,
+               slack: float = 4.0) -> list[np.ndarray] | None:
     """Pieces moved after GNC on a problem's pose graph: the new states with the
     BetweenFactor weights set to ``s <= slack c^2`` there (judged rows; updated in place), or
     ``None`` when nothing moved.
