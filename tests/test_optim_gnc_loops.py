@@ -135,7 +135,7 @@ def _graph(G, ii, jj, Z, n, sigma):
 
 
 def test_mark_loops_marks_no_wrong_edge():
-    ii, jj, Z, bad, n, _ = _ladder(SE3, length=16, gap=3, n_bad=8, seed=5, sigma=0.01)
+    ii, jj, Z, bad, n, _ = _ladder(SE3, length=16, gap=2, n_bad=8, seed=5, sigma=0.01)
     g, _ = _graph(SE3, ii, jj, Z, n, 0.01)
     kn = mark_loops(pose_graph_edges(g.problem()), [np.zeros(ii.size, bool)], 0.99)[0]
     assert not kn[bad].any()

@@ -58,7 +58,8 @@ def _ranges(first: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 def cycle_consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                            info: np.ndarray, *, max_length: int = 7, quantile: float = 0.99,
-                           chunk: int = 128, support: int = 1) -> np.ndarray:
+                           chunk: int = 128, support: int = 1, single: int = 5
+                           ) -> np.ndarray:
     """Edges that lie on a cycle of at most ``max_length`` edges that closes within its noise
     (module docstring).
 
@@ -80,6 +81,11 @@ def cycle_consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z
         Chi-square quantile of the cycle test, ``0 < quantile < 1``.
     chunk : int
         Edges tested together (bounds the memory), >= 1.
+    support : int
+        An edge whose consistent cycles are all longer than ``single`` edges needs at least
+        this many of them, >= 1.
+    single : int
+        Cycles of at most this many edges mark an edge alone.
 
     Returns
     -------
@@ -106,9 +112,10 @@ def cycle_consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z
     if not 0.0 < quantile < 1.0:
         raise ValueError(f"cycle_consistent_edges: quantile must be strictly between 0 and 1, "
                          f"got {quantile!r}")
-    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
-        raise ValueError(f"cycle_consistent_edges: chunk must be an integer >= 1, got "
-                         f"{chunk!r}")
+    for name, val in (("chunk", chunk), ("support", support), ("single", single)):
+        if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < 1:
+            raise ValueError(f"cycle_consistent_edges: {name} must be an integer >= 1, got "
+                             f"{val!r}")
     ii = np.asarray(ii, dtype=np.int64)
     jj = np.asarray(jj, dtype=np.int64)
     E = ii.size
@@ -200,7 +207,7 @@ def cycle_consistent_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z
                        dtype=np.float64)
         s2 = np.einsum("ca,ca->c", r, np.linalg.solve(Sc, r[:, :, None])[:, :, 0])
         good = s2 <= c2
-        short = good & (lens[ac] + lens[bc] <= 4)  # a cycle of at most 5 edges: enough
+        short = good & (lens[ac] + lens[bc] <= single - 1)  # one short cycle: enough
         ok[ec[short]] = True
         cnt = np.bincount(ec[good] - lo, minlength=es.size)
         ok[es[cnt >= support]] = True
@@ -266,9 +273,10 @@ def mark_loops(edges: Any, known: list[np.ndarray], quantile: float, max_length:
     if not 0.0 < quantile < 1.0:
         raise ValueError(f"mark_loops: quantile must be strictly between 0 and 1, got "
                          f"{quantile!r}")
-    support = 1 if edges.info.shape[-1] >= 6 else 2  # module docstring: SE2 needs two cycles
+    single = 6 if edges.info.shape[-1] >= 6 else 5  # longer cycles: two needed (module doc)
     ok = cycle_consistent_edges(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info,
-                                max_length=max_length, quantile=quantile, support=support)
+                                max_length=max_length, quantile=quantile, support=2,
+                                single=single)
     kn = np.concatenate([known[k] for k, _ in edges.rows]) | ok
     X, _, _ = chordal_gnc(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info,
                           edges.anchor, edges.group.identity(), kn, rejected=~kn)
