@@ -694,11 +694,11 @@ def move_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         return kn | (s <= slack * c)
 
     for _ in range(max_passes):
-        X, m1 = move_pieces(*args, X, kn, c, edges.anchor)
+        X, m1 = move_pieces(*args, X, kn, c, edges.anchor, slack=slack)
         acc = fits(X) if m1 else kn | (w >= 0.5)
-        X, m2 = move_pieces(*args, X, acc, c, edges.anchor)
+        X, m2 = move_pieces(*args, X, acc, c, edges.anchor, slack=slack)
         acc = fits(X) if m2 else acc
-        X, m4 = move_regions(*args, X, kn, acc & ~kn, c, edges.anchor)
+        X, m4 = move_regions(*args, X, kn, acc & ~kn, c, edges.anchor, slack=slack)
         acc = fits(X) if m4 else acc
         X, w2 = repair_bridges(*args, X, acc.astype(np.float64), ~kn, c)
         m3 = not np.array_equal(w2 >= 0.5, acc)
