@@ -332,8 +332,8 @@ def _motions(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, M: np.nd
 
 def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                  info: np.ndarray, X: LieGroup, known: np.ndarray, accepted: np.ndarray,
-                 c2: float, anchor: int, *, max_size: int = 50, slack: float = 4.0
-                 ) -> tuple[LieGroup, bool]:
+                 c2: float, anchor: int, *, max_size: int = 50, slack: float = 4.0,
+                 grow: int = 12) -> tuple[LieGroup, bool]:
     """Local search on the TLS objective: re-pose each small region outside the core.
 
     The core is the largest component of the ``known`` edges; the regions are the
@@ -375,6 +375,11 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
         Largest region tried, in vertices.
     slack : float
         An edge fits a rigid placement within ``slack c^2``.
+    grow : int
+        When neither the region nor a part of it moves: sets grown from each unit of the
+        region (a component of its known and accepted edges, accepted bridges cut) that
+        touches an edge beyond ``c^2``, one neighbouring unit at a time (the one whose
+        addition gains most), at most this many steps; the best set met moves (0: off).
 
     Returns
     -------
@@ -498,10 +503,67 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
             gain, pose = attempt(cand)
             if gain > best_gain:
                 best_gain, best_set, best_pose = gain, cand, pose
+        if best_set is None and grow:
+            best_gain, best_set, best_pose = _grow(attempt, n, ii, jj, known, accepted, inR,
+                                                   ins, verts, local, P, Zinv, info, c2,
+                                                   anchor, grow, group)
         if best_set is not None:
             P[best_set] = best_pose
             moved = True
     return group.from_matrix(P), moved
+
+
+def _grow(attempt: Any, n: int, ii: np.ndarray, jj: np.ndarray, known: np.ndarray,
+          accepted: np.ndarray, inR: np.ndarray, ins: np.ndarray, verts: np.ndarray,
+          local: np.ndarray, P: np.ndarray, Zinv: LieGroup, info: np.ndarray, c2: float,
+          anchor: int, steps: int, group: Any) -> tuple[float, Any, Any]:
+    """Sets of units of a region grown greedily (:func:`move_regions`' ``grow``): the best
+    gain, set and poses met (set ``None`` when nothing gains more than ``c^2 / 4``)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = verts.size
+
+    def comps(edges: np.ndarray) -> tuple[int, np.ndarray]:
+        c, lab = connected_components(coo_matrix((np.ones(edges.size), (local[ii[edges]],
+                                                 local[jj[edges]])), shape=(m, m)),
+                                      directed=False)
+        return int(c), lab
+
+    held = ins[known[ins] | accepted[ins]]
+    base, _ = comps(held)
+    unit_edges = [k for k in held if known[k] or comps(held[held != k])[0] == base]
+    _, unit = comps(np.array(unit_edges, dtype=np.int64))
+    touch = np.flatnonzero(inR[ii] | inR[jj])
+    s = np.zeros(touch.size) if not touch.size else _tls_fit(group, P, ii[touch], jj[touch],
+                                                             Zinv[touch], info[touch])
+    bad_v = np.concatenate([ii[touch][s > c2], jj[touch][s > c2]])
+    seeds = np.unique(unit[local[bad_v[inR[bad_v]]]])
+    adj_a, adj_b = unit[local[ii[ins]]], unit[local[jj[ins]]]
+    best_gain, best_set, best_pose = 0.25 * c2, None, None
+    for seed in seeds:
+        have = {int(seed)}
+        for _ in range(steps):
+            nbr = set(adj_b[np.isin(adj_a, list(have))].tolist()) | \
+                set(adj_a[np.isin(adj_b, list(have))].tolist())
+            nbr -= have
+            if not nbr:
+                break
+            step_best = None
+            for u in sorted(nbr):
+                cand = np.zeros(n, dtype=bool)
+                cand[verts[np.isin(unit, list(have | {u}))]] = True
+                if cand[anchor]:
+                    continue
+                gain, pose = attempt(cand)
+                if step_best is None or gain > step_best[0]:
+                    step_best = (gain, u, cand, pose)
+            if step_best is None:
+                break
+            have.add(step_best[1])
+            if step_best[0] > best_gain:
+                best_gain, best_set, best_pose = step_best[0], step_best[2], step_best[3]
+    return best_gain, best_set, best_pose
 
 
 def move_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
