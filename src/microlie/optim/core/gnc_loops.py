@@ -372,14 +372,15 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
     anchor : int
         The vertex held: its region never moves.
     max_size : int
-        Largest region tried, in vertices.
+        Largest region tried whole (and split at each edge), in vertices.
     slack : float
         An edge fits a rigid placement within ``slack c^2``.
     grow : int
-        When neither the region nor a part of it moves: sets grown from each unit of the
-        region (a component of its known and accepted edges, accepted bridges cut) that
-        touches an edge beyond ``c^2``, one neighbouring unit at a time (the one whose
-        addition gains most), at most this many steps; the best set met moves (0: off).
+        When neither the region nor a part of it moves (or the region is larger than
+        ``max_size``): sets grown from each unit of the region (a component of its known
+        and accepted edges, accepted bridges cut) that touches an edge beyond ``c^2``, one
+        neighbouring unit at a time (the one whose addition gains most), at most this many
+        steps; the best set met moves (0: off).
 
     Returns
     -------
@@ -477,17 +478,18 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
         best = int(np.argmin(cost))
         return now - new_in - float(cost[best]), D[best] @ Q[inR]
 
-    for r in np.flatnonzero((size > 0) & (size <= max_size)):
+    for r in np.flatnonzero(size > 0):
         inR = reg == r
         if inR[anchor]:
             continue
         # the region, and each part of it that one of its edges alone holds to the rest
-        sets = [inR]
+        small = size[r] <= max_size
+        sets = [inR] if small else []
         ins = np.flatnonzero(inR[ii] & inR[jj] & (ii != jj))
         verts = np.flatnonzero(inR)
         local = np.full(n, -1)
         local[verts] = np.arange(verts.size)
-        for k in ins:
+        for k in ins if small else ():
             keep = ins[ins != k]
             parts, lab_r = connected_components(
                 coo_matrix((np.ones(keep.size), (local[ii[keep]], local[jj[keep]])),
