@@ -171,7 +171,8 @@ def test_move_pieces_puts_a_piece_back():
     assert after < before - c2 / 4
 
 
-def test_move_regions_moves_a_chain():
+@pytest.mark.parametrize("max_size", [50, 2])  # 2: the region is too large, grown instead
+def test_move_regions_moves_a_chain(max_size):
     # core: the squares of columns 0-5 of a ladder known; beyond it every edge judged, and
     # the vertices 6, 7 (bottom) and 16, 17 (top) each moved where a wrong edge from vertex
     # 0 holds it
@@ -199,12 +200,16 @@ def test_move_regions_moves_a_chain():
     r = np.asarray(Z.inverse().compose(Xs[ii].between(Xs[jj])).log())
     acc = ~known & (np.einsum("ea,eab,eb->e", r, info, r) <= c2)
     before = _tls(SE3, Xs, ii, jj, Z, info, c2, known)
-    X2, moved = move_regions(SE3, n, ii, jj, Z, info, Xs, known, acc, c2, 0)
+    X2, moved = move_regions(SE3, n, ii, jj, Z, info, Xs, known, acc, c2, 0,
+                             max_size=max_size)
     assert moved
     after = _tls(SE3, X2, ii, jj, Z, info, c2, known)
     assert after < before - c2 / 4
     np.testing.assert_allclose(np.asarray(X2.matrix())[moved_v], np.asarray(X.matrix())[moved_v],
                                atol=1e-9)
+    if max_size == 2:  # without growing, a region too large is left alone
+        assert not move_regions(SE3, n, ii, jj, Z, info, Xs, known, acc, c2, 0, max_size=2,
+                                grow=0)[1]
 
 
 def test_gnc_cycle_length_and_moves_on_a_ladder():
