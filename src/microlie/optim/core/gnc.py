@@ -125,8 +125,8 @@ class GNC:
         :func:`~microlie.optim.core.gnc_loops.mark_loops`: cycles up to that length (in 2-D
         an edge needs two consistent cycles longer than five edges) and the vote between the
         pieces posed by their chordal relaxation. Measured on sphere2500 without known
-        inliers (``benchmarks/results/robust-sph-s13.md``): 8 marks 3417 of the 3724 good
-        edges at 50% (seed 0; 5: 2255 after the vote) and no wrong one.
+        inliers (``benchmarks/results/robust-sph-s13.md``): 8 marks 3140 of the 3724 good
+        edges at 50% (seed 0, with the vote; 5: 2255) and no wrong one.
     moves : bool
         With ``first="cycles"``: after GNC (and the vote), move pieces of the graph rigidly
         where more of their edges fit (:func:`~microlie.optim.core.gnc_loops.move_stage`:
