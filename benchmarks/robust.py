@@ -245,6 +245,10 @@ def main(argv: list[str] | None = None) -> None:
                     help="GNC(first=...): where the first weights come from")
     ap.add_argument("--retest", type=int, default=3,
                     help="GNC(retest=...): data-snooping passes after GNC (0: off)")
+    ap.add_argument("--cycle-length", type=int, default=5,
+                    help="GNC(cycle_length=...): longest cycle of the first='cycles' marking")
+    ap.add_argument("--moves", action="store_true",
+                    help="GNC(moves=True): pieces moved where their cut edges fit best")
     ap.add_argument("--gtsam-cases", nargs="*", default=[],
                     help="GRAPH:RATE:SEED:START:KNOWN cases GTSAM's GncOptimizer also runs "
                          "(KNOWN: none or known)")
@@ -265,7 +269,8 @@ def main(argv: list[str] | None = None) -> None:
         run_gtsam_only(args, gcases)
         return
     print(f"quantile {args.quantile}, first weights from {args.first}, retest "
-          f"{args.retest}; APE in m against the "
+          f"{args.retest}, cycle_length {args.cycle_length}, moves {args.moves}; APE in m "
+          f"against the "
           f"outlier-free optimum; P/R: precision/recall of result.inliers over loop closures")
     print("TLS - ref: our TLS objective 0.5 sum min(s, c^2) over every edge of the corrupted "
           "graph minus the outlier-free optimum's, in units of c^2/2 (1 = one edge); ties: "
@@ -297,7 +302,8 @@ def main(argv: list[str] | None = None) -> None:
                         fg, x = pg2.to_factor_graph(X0, gauge="fix")
                         ki = [(fg.factors[0], odo)] if known == "odometry" else None
                         gnc = GNC("tls", known_inliers=ki, quantile=args.quantile,
-                                  first=args.first, retest=args.retest)
+                                  first=args.first, retest=args.retest,
+                                  cycle_length=args.cycle_length, moves=args.moves)
                         t0 = time.perf_counter()
                         res = fg.optimize(robust=gnc, verbose=False)
                         dt = time.perf_counter() - t0

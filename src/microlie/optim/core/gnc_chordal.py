@@ -219,7 +219,8 @@ def _graduate(solve_fn: Any, resid_fn: Any, w: np.ndarray, judged: np.ndarray, c
 def chordal_gnc(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                 info: np.ndarray, anchor: int, anchor_pose: LieGroup, known: np.ndarray, *,
                 quantile: float = 0.99, mu_step: float = 1.4, max_iter: int = 100,
-                weights_tol: float = 1e-4) -> tuple[LieGroup, np.ndarray, float]:
+                weights_tol: float = 1e-4, rejected: np.ndarray | None = None
+                ) -> tuple[LieGroup, np.ndarray, float]:
     """GNC-TLS with the chordal relaxation as the inner solver (see the module docstring).
 
     Parameters
@@ -248,6 +249,9 @@ def chordal_gnc(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
         Outer iterations at most.
     weights_tol : float
         Stop when every weight is within this of 0 or 1.
+    rejected : numpy.ndarray, optional
+        ``(E,)`` booleans: edges held at weight 0 (not judged; ``known`` wins where both are
+        set). With every edge known or rejected this is one relaxation of the known edges.
 
     Returns
     -------
@@ -312,6 +316,10 @@ def chordal_gnc(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
     Zinv = Z.inverse()
     w = np.ones(E)
     judged = ~np.asarray(known, dtype=bool)
+    if rejected is not None:
+        out = judged & np.asarray(rejected, dtype=bool)
+        w[out] = 0.0
+        judged &= ~out
     X, mu, _ = _graduate(relax, resid, w, judged, float(chi2.ppf(quantile, D)),
                          mu_step, max_iter, weights_tol)
     return anchor_pose.compose(X), w, mu
