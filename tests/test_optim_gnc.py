@@ -335,3 +335,33 @@ def test_chordal_first_needs_a_pose_graph():
     with pytest.raises(ValueError, match="is a TLS stage"):
         g2.optimize(robust=GNC("gm", first="chordal"))
     assert g2.optimize(robust=GNC("tls", first="chordal")).converged
+
+
+def test_command_cycle_length_and_moves(tmp_path):
+    """``--gnc-cycle-length`` and ``--gnc-moves`` reach ``GNC(cycle_length=, moves=)``: the
+    planted outliers are found, and the flags are refused without ``--gnc-first cycles``."""
+    import argparse
+    import io
+    import json
+
+    from microlie.optim.command import register, run
+
+    path = tmp_path / "out.g2o"
+    planted = _g2o_with_outliers(path)
+    parser = argparse.ArgumentParser(prog="microlie")
+    register(parser.add_subparsers())
+    out = io.StringIO()
+    args = parser.parse_args(["optimize", str(path), "--robust", "gnc-tls", "--json",
+                              "--gnc-first", "cycles", "--gnc-cycle-length", "7",
+                              "--gnc-moves"])
+    assert run(args, out, io.StringIO()) == 0
+    assert json.loads(out.getvalue())["gnc"]["outlier_edges"] == planted
+    for bad, match in ((["--robust", "gnc-tls", "--gnc-moves"], "cycles only"),
+                       (["--robust", "gnc-tls", "--gnc-first", "chordal",
+                         "--gnc-cycle-length", "7"], "cycles only"),
+                       (["--robust", "gnc-tls", "--gnc-first", "cycles",
+                         "--gnc-cycle-length", "12"], "cycle_length"),
+                       (["--gnc-moves"], "applies to --robust")):
+        with pytest.raises(ValueError, match=match):
+            run(parser.parse_args(["optimize", str(path), *bad]), io.StringIO(),
+                io.StringIO())
