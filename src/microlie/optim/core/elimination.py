@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..linalg.schur_solver import SchurSolver
-from .landmarks import _conflicts, landmark_batches
+from .landmarks import batch_conflicts, landmark_batches
 from .variables import Variables
 
 # a Problem is passed in, not imported: problem.py calls this module (no import cycle)
@@ -82,7 +82,7 @@ def _chosen(problem: Problem, eliminate: Any) -> list[Variables]:
     items = [eliminate] if isinstance(eliminate, Variables) else list(eliminate)
     if not items:
         raise ValueError("eliminate is empty: pass variable handles, or None for the default")
-    conflict, why = _conflicts(problem)
+    conflict, why = batch_conflicts(problem)
     keys: list[int] = []
     for i, v in enumerate(items):
         if not isinstance(v, Variables) or id(v) not in {id(u) for u in problem.variables}:

@@ -19,13 +19,39 @@ from .variables import Variables
 # a Problem is passed in, not imported: problem.py calls this module (no import cycle)
 Problem = Any
 
-__all__ = ["landmark_batches", "bundle_landmarks"]
+__all__ = ["batch_conflicts", "bundle_landmarks", "landmark_batches"]
 
 
-def _conflicts(problem: Problem) -> tuple[np.ndarray, list[list[str]]]:
-    """Which variable batches share a factor (both arguments free in some row): a boolean
-    matrix over the problem's batches (the diagonal: two variables of one batch), and the
-    first factor batch responsible for each entry, for messages."""
+def batch_conflicts(problem: Problem) -> tuple[np.ndarray, list[list[str]]]:
+    """Which variable batches share a factor (both arguments free in some row).
+
+    Parameters
+    ----------
+    problem : Problem
+        The problem.
+
+    Returns
+    -------
+    conflict : numpy.ndarray
+        ``(B, B)`` booleans over the problem's variable batches (the diagonal: two variables
+        of one batch share a factor).
+    why : list of list of str
+        The first factor batch responsible for each entry, for messages.
+
+    Examples
+    --------
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, BetweenFactor, PriorFactor
+    >>> from microlie.optim.core.landmarks import batch_conflicts
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(3), fixed=[0])
+    >>> y = g.add_variables(SE2.identity(1))
+    >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.identity(2)))
+    >>> _ = g.add(PriorFactor(y, 0, SE2.identity()))
+    >>> conflict, why = batch_conflicts(g.problem())
+    >>> conflict.tolist(), why[0][0]
+    ([[True, False], [False, False]], 'factor batch 0 (BetweenFactor)')
+    """
     nb = len(problem.variables)
     conflict = np.zeros((nb, nb), dtype=bool)
     why: list[list[str]] = [[""] * nb for _ in range(nb)]
@@ -72,7 +98,7 @@ def landmark_batches(problem: Problem) -> list[Variables]:
     >>> [v.name for v in landmark_batches(g.problem())]
     ['p']
     """
-    conflict, _ = _conflicts(problem)
+    conflict, _ = batch_conflicts(problem)
     nvar = len(problem.variables)
     unknowns = np.array([int((problem.node_of[k] >= 0).sum()) * problem.variables[k].dof
                          for k in range(nvar)])
