@@ -46,15 +46,48 @@ import numpy as np
 
 from ...groups import SE2, SE3, LieGroup
 
-__all__ = ["repair_bridges", "repair_stage"]
+__all__ = ["repair_bridges", "repair_stage", "whitened_residuals"]
 
 
-def _whitened(group: Any, X: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: LieGroup,
-              info: np.ndarray) -> np.ndarray:
-    """``r^T Omega r`` with ``r = Log(Z^-1 X_i^-1 X_j)``, poses as matrices."""
-    rel = np.linalg.inv(X[ii]) @ X[jj]
-    r = np.asarray(Zinv.compose(group.from_matrix(rel)).log(), dtype=np.float64)
-    return np.einsum("ea,eab,eb->e", r, info, r)
+def whitened_residuals(group: Any, X: np.ndarray, ii: np.ndarray, jj: np.ndarray,
+                       Zinv: LieGroup, info: np.ndarray) -> np.ndarray:
+    """``r^T Omega r`` of pose-graph edges, ``r = Log(Z^-1 X_i^-1 X_j)`` (right-perturbation
+    residual, the group's tangent order), poses as homogeneous matrices.
+
+    Parameters
+    ----------
+    group : type
+        SE2 or SE3.
+    X : numpy.ndarray
+        ``(..., n, k, k)`` pose matrices (leading axes: several placements at once).
+    ii, jj : numpy.ndarray
+        ``(E,)`` vertex indices of the edges.
+    Zinv : LieGroup
+        ``(E,)`` inverse measurements.
+    info : numpy.ndarray
+        ``(E, D, D)`` information matrices.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(..., E)`` whitened squared residuals.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim.core.gnc_bridges import whitened_residuals
+    >>> X = np.asarray(SE2.from_xy_theta([0.0, 1.0], [0.0, 0.0], [0.0, 0.0]).matrix())
+    >>> Z = SE2.from_xy_theta([3.0], [0.0], [0.0])  # measured 3 m, the poses are 1 m apart
+    >>> whitened_residuals(SE2, X, np.array([0]), np.array([1]), Z.inverse(),
+    ...                    np.eye(3)[None] * 4.0).round(12).tolist()  # (1 - 3)^2 * 4
+    [16.0]
+    """
+    rel = np.linalg.inv(X[..., ii, :, :]) @ X[..., jj, :, :]
+    shape = rel.shape[:-2]
+    r = np.asarray(Zinv.compose(group.from_matrix(rel.reshape(-1, *rel.shape[-2:]))).log(),
+                   dtype=np.float64).reshape(*shape, -1)
+    return np.einsum("...a,...ab,...b->...", r, info, r)
 
 
 def _start_key(s0: np.ndarray, c2: float) -> int:
@@ -192,7 +225,7 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
     M = np.asarray(Z.matrix(), dtype=np.float64)
     Minv = np.asarray(Zinv.matrix(), dtype=np.float64)
     for _ in range(max_passes):
-        s = _whitened(group, P, ii, jj, Zinv, info)
+        s = whitened_residuals(group, P, ii, jj, Zinv, info)
         acc = w > 0.5
         cand = np.flatnonzero(acc & judged & (s <= zero * c2))
         changed = False

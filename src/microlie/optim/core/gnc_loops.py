@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from ...groups import SE2, SE3, LieGroup
+from .gnc_bridges import whitened_residuals
 
 __all__ = ["cycle_consistent_edges", "mark_loops", "move_pieces", "move_regions",
            "move_stage"]
@@ -289,16 +290,6 @@ def mark_loops(edges: Any, known: list[np.ndarray], quantile: float, max_length:
     return out
 
 
-def _tls_fit(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: LieGroup,
-             info: np.ndarray) -> np.ndarray:
-    """``r^T Omega r`` with ``r = Log(Z^-1 X_i^-1 X_j)``, poses ``(..., E)`` as matrices."""
-    rel = np.linalg.inv(P[..., ii, :, :]) @ P[..., jj, :, :]
-    shape = rel.shape[:-2]
-    r = np.asarray(Zinv.compose(group.from_matrix(rel.reshape(-1, *rel.shape[-2:]))).log(),
-                   dtype=np.float64).reshape(*shape, -1)
-    return np.einsum("...a,...ab,...b->...", r, info, r)
-
-
 def _misfit(s: np.ndarray, c2: float, slack: float) -> np.ndarray:
     """``c^2 / 2`` per edge that does not fit within ``slack c^2``, else 0: the TLS cost
     of a rigid placement, whose residuals the least-squares solve after it shares out."""
@@ -469,11 +460,11 @@ def move_regions(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup
                         Q[verts[v]] = Q[verts[u]] @ M[k]
                     else:
                         Q[verts[v]] = Q[verts[u]] @ Minv[k]
-        s_in = _tls_fit(group, Q, ii[ins], jj[ins], Zinv[ins], info[ins]) if ins.size \
+        s_in = whitened_residuals(group, Q, ii[ins], jj[ins], Zinv[ins], info[ins]) if ins.size \
             else np.zeros(0)
         new_in = float(_misfit(s_in, c2, slack).sum())
         D, cost = _motions(group, Q, ii, jj, M, Minv, Zinv, info, cut, inR, c2, slack)
-        now = float(_misfit(_tls_fit(group, P, ii[touch], jj[touch], Zinv[touch],
+        now = float(_misfit(whitened_residuals(group, P, ii[touch], jj[touch], Zinv[touch],
                                      info[touch]), c2, slack).sum())
         best = int(np.argmin(cost))
         return now - new_in - float(cost[best]), D[best] @ Q[inR]
@@ -537,8 +528,8 @@ def _grow(attempt: Any, n: int, ii: np.ndarray, jj: np.ndarray, known: np.ndarra
     unit_edges = [k for k in held if known[k] or comps(held[held != k])[0] == base]
     _, unit = comps(np.array(unit_edges, dtype=np.int64))
     touch = np.flatnonzero(inR[ii] | inR[jj])
-    s = np.zeros(touch.size) if not touch.size else _tls_fit(group, P, ii[touch], jj[touch],
-                                                             Zinv[touch], info[touch])
+    s = np.zeros(touch.size) if not touch.size else \
+        whitened_residuals(group, P, ii[touch], jj[touch], Zinv[touch], info[touch])
     bad_v = np.concatenate([ii[touch][s > c2], jj[touch][s > c2]])
     seeds = np.unique(unit[local[bad_v[inR[bad_v]]]])
     adj_a, adj_b = unit[local[ii[ins]]], unit[local[jj[ins]]]
@@ -677,8 +668,8 @@ def move_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
             cut = cut_of[order[first[c]:first[c + 1]]]
             inP = lab == c
             D, cost = _motions(group, P, ii, jj, M, Minv, Zinv, info, cut, inP, c2, slack)
-            now = float(_misfit(_tls_fit(group, P, ii[cut], jj[cut], Zinv[cut], info[cut]),
-                                c2, slack).sum())
+            s_cut = whitened_residuals(group, P, ii[cut], jj[cut], Zinv[cut], info[cut])
+            now = float(_misfit(s_cut, c2, slack).sum())
             best = int(np.argmin(cost))
             if cost[best] < now - 0.25 * c2:
                 P[inP] = D[best] @ P[inP]
@@ -753,7 +744,7 @@ def move_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
     moved = False
 
     def fits(X: LieGroup) -> np.ndarray:
-        s = _tls_fit(group, np.asarray(X.matrix(), dtype=np.float64), edges.ii, edges.jj,
+        s = whitened_residuals(group, np.asarray(X.matrix(), dtype=np.float64), edges.ii, edges.jj,
                      Zinv, edges.info)
         return kn | (s <= slack * c)
 
