@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -55,13 +56,35 @@ def data_file(rel: str) -> Path:
     return p
 
 
-def _jax():
+def _jax(x64: bool = True):
+    """The ``jax`` module, with float64 (``jax_enable_x64``) on, or off with ``x64=False``,
+    for the running test only (:func:`_jax_precision` turns it off after every test)."""
     jax = require("jax")
-    jax.config.update("jax_enable_x64", True)
+    jax.config.update("jax_enable_x64", x64)
     return jax
 
 
+def _x64_off() -> None:
+    jax = sys.modules.get("jax")
+    if jax is not None:  # never imports JAX for a test that does not use it
+        jax.config.update("jax_enable_x64", False)
+
+
+@pytest.fixture(autouse=True)
+def _jax_precision():
+    """Every test starts and ends with JAX in its default precision, as users run it:
+    ``jax_enable_x64`` off (float32 arrays, float64 requests silently float32). A test that
+    needs float64 JAX turns x64 on for itself (:func:`_jax`, or :func:`to_backend` with
+    float64); float32 JAX tests run with it off (``to_backend(..., "jax", np.float32)``,
+    ``_jax(x64=False)``), so the float32 paths are tested as they run outside the tests."""
+    _x64_off()
+    yield
+    _x64_off()
+
+
 def to_backend(x: np.ndarray, backend: str, dtype=np.float64):
+    """``x`` as an array of ``backend`` and ``dtype``; on JAX x64 is turned on for float64 and
+    off for float32 (the mode a user of that dtype runs in), for the rest of the test."""
     x = np.asarray(x, dtype=dtype)
     if backend == "numpy":
         return x
@@ -69,7 +92,7 @@ def to_backend(x: np.ndarray, backend: str, dtype=np.float64):
         torch = require("torch")
         return torch.tensor(x)
     if backend == "jax":
-        _jax()
+        _jax(x64=x.dtype == np.float64)
         import jax.numpy as jnp
 
         return jnp.asarray(x)

@@ -54,11 +54,14 @@ def _sparse_scene(seed=3, n_cameras=5, n_points=40, keep=0.6, split=False, prior
 def _device(g, backend, dtype="float64"):
     from microlie.optim.device import DeviceProblem
 
-    if backend == "jax":
-        _jax()
+    if backend.startswith("jax"):
+        # float32: JAX's default mode, as users run it ("jax+x64": float32 arrays with x64
+        # on, the Schur step in float64)
+        _jax(x64=dtype == "float64" or backend == "jax+x64")
     else:
         require("torch")
-    return DeviceProblem.from_graph(g, gauge="none", backend=backend, dtype=dtype)
+    return DeviceProblem.from_graph(g, gauge="none", backend=backend.partition("+")[0],
+                                    dtype=dtype)
 
 
 def _np(a):
@@ -112,7 +115,7 @@ def test_schur_lm_reaches_the_numpy_engine(backend):
         assert np.abs(_np(x[k]) - ref.values.params(v)).max() < 1e-6
 
 
-@pytest.mark.parametrize("backend", ["torch", "jax"])
+@pytest.mark.parametrize("backend", ["torch", "jax", "jax+x64"])
 def test_schur_float32_reaches_the_numpy_cost(backend):
     from microlie.optim.device import LMOptions, solve
 
@@ -120,7 +123,7 @@ def test_schur_float32_reaches_the_numpy_cost(backend):
     ref = g.optimize(solver="lm", linear_solver="schur", gauge="none")
     p = _device(g, backend, "float32")
     f = solve
-    if backend == "jax":
+    if backend.startswith("jax"):
         import jax
 
         f = jax.jit(solve, static_argnums=(0, 3))
@@ -144,7 +147,7 @@ def test_schur_float32_step_is_solved_in_float64(backend):
 
     g = _sparse_scene(split=True, priors=True)
     p = _device(g, backend, "float32")
-    p64 = _device(g, backend, "float64")
+    p64 = _device(g, backend, "float64")  # on JAX: x64 on from here (float64 must exist)
     th = tuple({k: v[None] for k, v in d.items()} for d in p.theta())
     lin = p.linearize(th, [a[None] for a in p.initial()])
     _, grad = normal_equations(p, lin)

@@ -9,6 +9,7 @@ import importlib.util
 
 import numpy as np
 import pytest
+from conftest import _jax
 from scipy.optimize import least_squares
 
 from microlie import SE3, R
@@ -56,6 +57,8 @@ def _vector_problem(seed: int = 0):
 
 
 def _build_vector_graph(mode: str, as_batch: bool = False, seed: int = 0):
+    if mode == "jax":
+        _jax()  # jac="jax" needs float64 JAX (x64 on, for this test only)
     x0, y0, z, yp, b = _vector_problem(seed)
     n = len(x0)
     g = FactorGraph()

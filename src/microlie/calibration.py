@@ -39,12 +39,6 @@ def _check_pairs(A: Any, B: Any, what: str) -> tuple[SE3, SE3]:
     return A, B
 
 
-def _project_so3(M: np.ndarray) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
-
-
 def motions_from_poses(gripper2base: SE3, target2cam: SE3, pairs: str = "all"
                        ) -> tuple[SE3, SE3]:
     """Relative motions ``A_ij = G_j^-1 G_i``, ``B_ij = C_j C_i^-1`` of pose pairs, as OpenCV's
@@ -100,13 +94,13 @@ def _closed_form_axxb(A: SE3, B: SE3) -> SE3:
     if np.min(w) <= 1e-12 * max(np.max(w), 1e-300):
         raise ValueError("hand_eye: the motions are degenerate (need at least two rotations "
                          "about non-parallel axes)")
-    Rx = _project_so3((V @ np.diag(w**-0.5) @ V.T) @ M.T)
+    Rx = SO3.from_matrix((V @ np.diag(w**-0.5) @ V.T) @ M.T, normalize=True)  # nearest rotation
     RA = np.asarray(A.rotation().matrix())
     tA, tB = np.asarray(A.translation()), np.asarray(B.translation())
     lhs = (RA - np.eye(3)).reshape(-1, 3)
-    rhs = (tB @ Rx.T - tA).reshape(-1)
+    rhs = (tB @ np.asarray(Rx.matrix()).T - tA).reshape(-1)
     tx = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
-    return SE3.from_rotation_translation(SO3.from_matrix(Rx), tx)  # type: ignore[return-value]
+    return SE3.from_rotation_translation(Rx, tx)  # type: ignore[return-value]
 
 
 def _residual(A: SE3, B: SE3, X: SE3, Y: SE3 | None, jac: bool) -> Any:
@@ -206,13 +200,13 @@ def _closed_form_axyb(A: SE3, B: SE3) -> tuple[SE3, SE3]:
     Rx = v[:9].reshape(3, 3, order="F")
     Ry = v[9:].reshape(3, 3, order="F")
     c = np.cbrt(np.linalg.det(Rx))
-    Rx, Ry = _project_so3(Rx / c), _project_so3(Ry / c)
+    RX, RY = (SO3.from_matrix(R / c, normalize=True) for R in (Rx, Ry))  # nearest rotations
     tA, tB = np.asarray(A.translation()), np.asarray(B.translation())
     lhs = np.concatenate([RA, -np.broadcast_to(eye, (n, 3, 3))], -1).reshape(-1, 6)
-    rhs = (tB @ Ry.T - tA).reshape(-1)
+    rhs = (tB @ np.asarray(RY.matrix()).T - tA).reshape(-1)
     t = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
-    X = SE3.from_rotation_translation(SO3.from_matrix(Rx), t[:3])
-    Y = SE3.from_rotation_translation(SO3.from_matrix(Ry), t[3:])
+    X = SE3.from_rotation_translation(RX, t[:3])
+    Y = SE3.from_rotation_translation(RY, t[3:])
     return X, Y  # type: ignore[return-value]
 
 

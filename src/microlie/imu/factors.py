@@ -27,14 +27,16 @@ from .residual import ERRORS, Deltas, imu_residual
 __all__ = ["ImuFactor", "BiasRandomWalkFactor", "PositionFactor"]
 
 
-def _groups(factors: Sequence[Factor], extra: Any = None) -> list[list[Any]]:
-    """``factors`` grouped by what one batch must share: variable handles, loss and
-    ``extra(f)``, in first-appearance order."""
+def _stacked(factors: Sequence[Any], merge: Any, extra: Any = None) -> list[Any]:
+    """``factors`` (batches of one factor class) as few batches, the ``stack`` of every factor
+    of this module: grouped by what one batch must share (variable handles, loss and
+    ``extra(f)``), in first-appearance order; a group of one batch is kept as it is, a larger
+    one becomes ``merge(group)``, one batch with the group's rows in the order given."""
     out: dict[Any, list[Any]] = {}
     for f in factors:
         key = (tuple(id(v) for v, _ in f.args), id(f.loss), None if extra is None else extra(f))
         out.setdefault(key, []).append(f)
-    return list(out.values())
+    return [grp[0] if len(grp) == 1 else merge(grp) for grp in out.values()]
 
 
 def _indices(group: Sequence[Factor], a: int) -> np.ndarray:
@@ -130,13 +132,10 @@ class ImuFactor(Factor):
         ...                                    ImuFactor(x, b, [1], [2], [pim])])]
         [2]
         """
-        out = []
-        for grp in _groups(factors, lambda f: f.error):
-            f0 = grp[0]
-            out.append(f0 if len(grp) == 1 else
-                       cls(f0.args[0][0], f0.args[2][0], _indices(grp, 0), _indices(grp, 1),
-                           [p for f in grp for p in f.pims], error=f0.error, loss=f0.loss))
-        return out
+        return _stacked(factors, lambda grp: cls(
+            grp[0].args[0][0], grp[0].args[2][0], _indices(grp, 0), _indices(grp, 1),
+            [p for f in grp for p in f.pims], error=grp[0].error, loss=grp[0].loss),
+            extra=lambda f: f.error)
 
     @staticmethod
     def _logmap_cov(d: Deltas) -> np.ndarray:
@@ -282,16 +281,14 @@ class BiasRandomWalkFactor(Factor):
         >>> [f.count for f in BiasRandomWalkFactor.stack(fs)]
         [2]
         """
-        out = []
-        for grp in _groups(factors):
-            f = grp[0]
-            if len(grp) > 1:
-                f = cls.__new__(cls)
-                Factor.__init__(f, [(grp[0].args[0][0], _indices(grp, 0)),
-                                    (grp[0].args[1][0], _indices(grp, 1))], 6, _noise(grp),
-                                grp[0].loss)
-            out.append(f)
-        return out
+        def merge(grp: list[BiasRandomWalkFactor]) -> BiasRandomWalkFactor:
+            f = cls.__new__(cls)  # the rows keep their own noise: no (walks, dt) to rebuild
+            Factor.__init__(f, [(grp[0].args[0][0], _indices(grp, 0)),
+                                (grp[0].args[1][0], _indices(grp, 1))], 6, _noise(grp),
+                            grp[0].loss)
+            return f
+
+        return _stacked(factors, merge)
 
 
 class PositionFactor(Factor):
@@ -394,11 +391,7 @@ class PositionFactor(Factor):
         >>> [f.count for f in PositionFactor.stack(fs)]
         [2]
         """
-        out = []
-        for grp in _groups(factors):
-            f = grp[0]
-            if len(grp) > 1:
-                z = np.concatenate([np.broadcast_to(g.z, (g.count, 3)) for g in grp])
-                f = cls(grp[0].args[0][0], _indices(grp, 0), z, _noise(grp), grp[0].loss)
-            out.append(f)
-        return out
+        return _stacked(factors, lambda grp: cls(
+            grp[0].args[0][0], _indices(grp, 0),
+            np.concatenate([np.broadcast_to(g.z, (g.count, 3)) for g in grp]), _noise(grp),
+            grp[0].loss))

@@ -381,14 +381,6 @@ def read_timestamps(path: PathLike) -> np.ndarray:
     return _read_matrix(path, 1, what="timestamp")[1][:, 0]
 
 
-def _nearest_rotation(m: np.ndarray) -> np.ndarray:
-    """Project a batch of 3x3 matrices onto SO(3) (closest in the Frobenius norm)."""
-    u, _, vt = np.linalg.svd(m)
-    d = np.sign(np.linalg.det(u @ vt))
-    u[..., :, 2] *= d[..., None]
-    return u @ vt
-
-
 def read_kitti(
     path: PathLike,
     timestamps: PathLike | np.ndarray | None = None,
@@ -454,8 +446,8 @@ def read_kitti(
             raise ValueError(
                 f"{src}: {stamps.shape[0]} timestamps for {len(mat)} poses in {path}"
             )
-    return Trajectory.from_rotation_matrices(
-        t, _nearest_rotation(r), timestamps=stamps, name=name or str(path)
+    return Trajectory.from_rotation_matrices(  # projects onto SO(3) (SO3.from_matrix)
+        t, r, timestamps=stamps, name=name or str(path)
     )
 
 

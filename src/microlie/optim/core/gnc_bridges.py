@@ -140,6 +140,114 @@ def _choose(fits: np.ndarray, support: np.ndarray, cut: np.ndarray, s0: np.ndarr
     return int(tied[min(range(tied.size), key=keys.__getitem__)])
 
 
+def _attach_components(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, P: np.ndarray,
+                       w: np.ndarray, M: np.ndarray, Minv: np.ndarray, Zinv: LieGroup,
+                       info: np.ndarray, judged: np.ndarray, c2: float, s0: np.ndarray | None,
+                       anchor: int | None) -> bool:
+    """The ``components=True`` pass of :func:`repair_bridges`: attach the components of the
+    accepted edges (``w > 0.5``) that no accepted edge joins to the root (the anchor's
+    component, else the largest), one at a time, ``P`` and ``w`` updated in place; True when
+    one was attached.
+
+    The rule: scan the components other than the root, largest first (equal sizes: the one
+    with the lowest vertex first); the first whose cut motions (:func:`_cut_motions`) have any
+    support is moved by the motion :func:`_choose` picks, its cut edges re-weighted (those
+    within ``c2`` accepted), and the scan starts again on the new components. A component's
+    support depends only on its vertices and on the poses at the ends of its cut edges, and an
+    attachment moves only the attached component's vertices: so a component found without
+    support is not evaluated again until it is merged or a neighbour across its cut moves.
+    The decisions are those of rescanning every component after each attachment, with each
+    component evaluated about once, not once per attachment (quadratic in the number of
+    floating components); the components are kept by union-find, not recomputed. (Known
+    inliers, ``judged`` False, are accepted edges, as GNC keeps them; a piece whose chosen
+    motion accepts no edge, only a rejected known inlier fitting, is moved once and left,
+    where the rescanning rule would move it again forever.)"""
+    import heapq
+
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    keep = np.flatnonzero(w > 0.5)
+    ncomp, lab = connected_components(coo_matrix((np.ones(keep.size), (ii[keep], jj[keep])),
+                                                 shape=(n, n)), directed=False)
+    if ncomp < 2:
+        return False
+    order = np.argsort(lab, kind="stable")
+    # the vertices of each component, as a list of arrays (merged small into large)
+    members = [[m] for m in np.split(order, np.cumsum(np.bincount(lab, minlength=ncomp))[:-1])]
+    size = [int(m[0].size) for m in members]
+    low = [int(m[0][0]) for m in members]  # the lowest vertex (scipy numbers components by it)
+    # edges incident to each vertex (CSR), self-loops once
+    loop = ii == jj
+    ends = np.concatenate([ii, jj[~loop]])
+    eid = np.concatenate([np.arange(ii.size), np.flatnonzero(~loop)])
+    by = np.argsort(ends, kind="stable")
+    inc_ptr = np.concatenate([[0], np.cumsum(np.bincount(ends, minlength=n))])
+    inc = eid[by]
+    version = [0] * ncomp
+    dead = [False] * ncomp
+    alive = [True] * ncomp
+
+    def key(c: int) -> tuple[int, int]:
+        return -size[c], low[c]
+
+    root = int(lab[anchor]) if anchor is not None else min(range(ncomp), key=key)
+    heap = [(*key(c), c, 0) for c in range(ncomp) if c != root]
+    heapq.heapify(heap)
+    inP = np.zeros(n, dtype=bool)
+    attached = False
+    while heap:
+        _, _, c, ver = heapq.heappop(heap)
+        if not alive[c] or ver != version[c] or dead[c] or c == root:
+            continue
+        verts = np.sort(np.concatenate(members[c]))
+        first, count = inc_ptr[verts], inc_ptr[verts + 1] - inc_ptr[verts]
+        e = inc[np.arange(count.sum()) + np.repeat(first - (np.cumsum(count) - count), count)]
+        e = e[(lab[ii[e]] == c) != (lab[jj[e]] == c)]
+        cut = np.unique(e)
+        if not cut.size:
+            dead[c] = True
+            continue
+        inP[verts] = True
+        D, fits = _cut_motions(group, P, ii, jj, inP, cut, M, Minv, Zinv, info, judged, c2)
+        support = fits.sum(axis=1)
+        if support.max() == 0:
+            inP[verts] = False
+            dead[c] = True
+            continue
+        best = _choose(fits, support, cut, s0, c2)
+        P[inP] = D[best] @ P[inP]
+        inP[verts] = False
+        w[cut[judged[cut]]] = fits[best][judged[cut]].astype(np.float64)
+        attached = True
+        # the components across the cut: those joined by a newly accepted edge merge with c,
+        # the others have a moved neighbour (their support may change)
+        other = np.where(lab[ii[cut]] == c, jj[cut], ii[cut])
+        near = set(lab[other].tolist())
+        joined = set(lab[other[w[cut] > 0.5]].tolist()) | {c}
+        base = max(joined, key=lambda k: size[k])  # relabel the smaller ones into it
+        for k in joined - {base}:
+            for m in members[k]:
+                lab[m] = base
+            members[base].extend(members[k])
+            alive[k] = False
+        size[base] = sum(size[k] for k in joined)
+        low[base] = min(low[k] for k in joined)
+        if root in joined:
+            root = base
+        elif anchor is None and key(base) < key(root):
+            near.add(root)  # the old root is scanned as any other component now
+            root = base
+        for k in (near - joined) | {base}:
+            version[k] += 1
+            dead[k] = False
+            if k != root:
+                heapq.heappush(heap, (*key(k), k, version[k]))
+        if joined == {c}:  # only a rejected known inlier fits: it would move forever
+            dead[c] = True
+    return attached
+
+
 def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                    info: np.ndarray, X: LieGroup, w: np.ndarray, judged: np.ndarray,
                    c2: float, *, zero: float = 1e-6, max_passes: int = 5,
@@ -262,31 +370,9 @@ def repair_bridges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
             w[cut[judged[cut]]] = fits[best][judged[cut]].astype(np.float64)
             acc = w > 0.5
             changed = True
-        while components:  # pieces no accepted edge holds: attach one at a time
-            keep = np.flatnonzero(w > 0.5)
-            ncomp, lab = connected_components(coo_matrix((np.ones(keep.size),
-                                                          (ii[keep], jj[keep])), shape=(n, n)),
-                                              directed=False)
-            size = np.bincount(lab, minlength=ncomp)
-            root = lab[anchor] if anchor is not None else int(np.argmax(size))
-            attached = False
-            for comp in np.argsort(-size, kind="stable"):
-                inP = lab == comp
-                cut = np.flatnonzero(inP[ii] != inP[jj])
-                if comp == root or not cut.size:
-                    continue
-                D, fits = _cut_motions(group, P, ii, jj, inP, cut, M, Minv, Zinv, info,
-                                       judged, c2)
-                support = fits.sum(axis=1)
-                if support.max() == 0:
-                    continue
-                best = _choose(fits, support, cut, s0, c2)
-                P[inP] = D[best] @ P[inP]
-                w[cut[judged[cut]]] = fits[best][judged[cut]].astype(np.float64)
-                attached = changed = True
-                break
-            if not attached:
-                break
+        if components and _attach_components(group, n, ii, jj, P, w, M, Minv, Zinv, info,
+                                             judged, c2, s0, anchor):
+            changed = True
         if not changed:
             break
     return group.from_matrix(P), w

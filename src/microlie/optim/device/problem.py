@@ -123,17 +123,17 @@ class DeviceProblem:
 
     Examples
     --------
-    >>> import torch
+    >>> import jax.numpy as jnp  # float32: JAX's default, no jax_enable_x64 needed
     >>> from microlie import SE2
     >>> from microlie.optim import FactorGraph, PriorFactor, BetweenFactor
     >>> from microlie.optim.device import DeviceProblem
     >>> g = FactorGraph()
-    >>> x = g.add_variables(SE2.from_params(torch.tensor([[0.0, 0, 1, 0]] * 3).double()))
+    >>> x = g.add_variables(SE2.from_params(jnp.array([[0.0, 0, 1, 0]] * 3, dtype=jnp.float32)))
     >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
     >>> _ = g.add(BetweenFactor(x, [0, 1], [1, 2], SE2.exp([1.0, 0.0, 0.0])))
     >>> p = DeviceProblem.from_graph(g)
     >>> p.size, p.backend.name, [t.kind for t in p.terms]
-    (9, 'torch', ['prior', 'between'])
+    (9, 'jax', ['prior', 'between'])
     """
 
     def __init__(self, graph: Any, backend: Backend, gauge: str = "check") -> None:
@@ -211,8 +211,8 @@ class DeviceProblem:
         >>> from microlie.optim.device import DeviceProblem
         >>> g = FactorGraph()
         >>> _ = g.add(PriorFactor(g.add_variables(SE2.identity(2)), [0, 1], SE2.identity()))
-        >>> DeviceProblem.from_graph(g, backend="torch", dtype="float32").backend
-        Backend('torch', 'float32', device=device(type='cpu'))
+        >>> DeviceProblem.from_graph(g, backend="jax", dtype="float32").backend
+        Backend('jax', 'float32', device=None)
         """
         if backend is None:
             be = make_backend([v.source if v.source is not None else v.initial
@@ -349,12 +349,12 @@ class DeviceProblem:
 
         Examples
         --------
-        >>> import torch
+        >>> import jax.numpy as jnp
         >>> from microlie import SE2
         >>> from microlie.optim import FactorGraph, PriorFactor
         >>> from microlie.optim.device import DeviceProblem
         >>> g = FactorGraph()
-        >>> x = g.add_variables(SE2.from_params(torch.tensor([[0.0, 0, 1, 0]]).double()))
+        >>> x = g.add_variables(SE2.from_params(jnp.array([[0.0, 0, 1, 0]], dtype=jnp.float32)))
         >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
         >>> th = DeviceProblem.from_graph(g).theta()
         >>> sorted(th[0]), tuple(th[0]["L"].shape)
@@ -396,15 +396,15 @@ class DeviceProblem:
 
         Examples
         --------
-        >>> import torch
+        >>> import jax.numpy as jnp
         >>> from microlie import SE2
         >>> from microlie.optim import FactorGraph, PriorFactor
         >>> from microlie.optim.device import DeviceProblem
         >>> g = FactorGraph()
-        >>> x = g.add_variables(SE2.from_params(torch.tensor([[0.0, 0, 1, 0]]).double()))
+        >>> x = g.add_variables(SE2.from_params(jnp.array([[0.0, 0, 1, 0]], dtype=jnp.float32)))
         >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
         >>> DeviceProblem.from_graph(g).initial()[0]
-        tensor([[0., 0., 1., 0.]], dtype=torch.float64)
+        Array([[0., 0., 1., 0.]], dtype=float32)
         """
         be = self.backend
         out = []
@@ -443,12 +443,12 @@ class DeviceProblem:
 
         Examples
         --------
-        >>> import torch
+        >>> import jax.numpy as jnp
         >>> from microlie import SE2
         >>> from microlie.optim import FactorGraph, PriorFactor, Isotropic
         >>> from microlie.optim.device import DeviceProblem
         >>> g = FactorGraph()
-        >>> x = g.add_variables(SE2.from_params(torch.tensor([[1.0, 0, 1, 0]]).double()))
+        >>> x = g.add_variables(SE2.from_params(jnp.array([[1.0, 0, 1, 0]], dtype=jnp.float32)))
         >>> _ = g.add(PriorFactor(x, 0, SE2.identity(), Isotropic(3, 0.5)))
         >>> p = DeviceProblem.from_graph(g)
         >>> th = tuple({k: v[None] for k, v in d.items()} for d in p.theta())
@@ -474,12 +474,12 @@ class DeviceProblem:
 
         Examples
         --------
-        >>> import torch
+        >>> import jax.numpy as jnp
         >>> from microlie import SE2
         >>> from microlie.optim import FactorGraph, PriorFactor, Isotropic
         >>> from microlie.optim.device import DeviceProblem
         >>> g = FactorGraph()
-        >>> x = g.add_variables(SE2.from_params(torch.tensor([[1.0, 0, 1, 0]]).double()))
+        >>> x = g.add_variables(SE2.from_params(jnp.array([[1.0, 0, 1, 0]], dtype=jnp.float32)))
         >>> _ = g.add(PriorFactor(x, 0, SE2.identity(), Isotropic(3, 0.5)))
         >>> p = DeviceProblem.from_graph(g)
         >>> th = tuple({k: v[None] for k, v in d.items()} for d in p.theta())
@@ -507,18 +507,18 @@ class DeviceProblem:
 
         Examples
         --------
-        >>> import torch
+        >>> import jax.numpy as jnp
         >>> from microlie import SE2
         >>> from microlie.optim import FactorGraph, PriorFactor
         >>> from microlie.optim.device import DeviceProblem
         >>> g = FactorGraph()
-        >>> x = g.add_variables(SE2.from_params(torch.tensor([[1.0, 0, 1, 0]]).double()))
+        >>> x = g.add_variables(SE2.from_params(jnp.array([[1.0, 0, 1, 0]], dtype=jnp.float32)))
         >>> _ = g.add(PriorFactor(x, 0, SE2.identity()))
         >>> p = DeviceProblem.from_graph(g)
         >>> th = tuple({k: v[None] for k, v in d.items()} for d in p.theta())
         >>> lin = p.linearize(th, [a[None] for a in p.initial()])
         >>> lin.A[0][0].shape, lin.cost.tolist()
-        (torch.Size([1, 1, 3, 3]), [0.5])
+        ((1, 1, 3, 3), [0.5])
         """
         es, As = [], []
         cost = 0.0
@@ -545,16 +545,17 @@ class DeviceProblem:
 
         Examples
         --------
-        >>> import torch
+        >>> import jax.numpy as jnp
         >>> from microlie import SE2
         >>> from microlie.optim import FactorGraph, PriorFactor
         >>> from microlie.optim.device import DeviceProblem
         >>> g = FactorGraph()
-        >>> X = SE2.from_params(torch.tensor([[0.0, 0, 1, 0]] * 2).double())
+        >>> X = SE2.from_params(jnp.array([[0.0, 0, 1, 0]] * 2, dtype=jnp.float32))
         >>> x = g.add_variables(X, fixed=[0])
         >>> _ = g.add(PriorFactor(x, 1, SE2.identity()))
         >>> p = DeviceProblem.from_graph(g)
-        >>> x1 = p.retract([a[None] for a in p.initial()], torch.tensor([[1.0, 2.0, 0.0]]).double())
+        >>> dx = jnp.array([[1.0, 2.0, 0.0]], dtype=jnp.float32)
+        >>> x1 = p.retract([a[None] for a in p.initial()], dx)
         >>> x1[0][0].tolist()
         [[0.0, 0.0, 1.0, 0.0], [1.0, 2.0, 1.0, 0.0]]
         """
@@ -584,11 +585,12 @@ class DeviceProblem:
 
         Examples
         --------
-        >>> import torch
+        >>> import jax.numpy as jnp
         >>> from microlie.optim import FactorGraph, PriorFactor
         >>> from microlie.optim.device import DeviceProblem
         >>> g = FactorGraph()
-        >>> _ = g.add(PriorFactor(g.add_variables(torch.ones((1, 2)).double()), 0, [0.0, 0.0]))
+        >>> x = g.add_variables(jnp.ones((1, 2), dtype=jnp.float32))
+        >>> _ = g.add(PriorFactor(x, 0, [0.0, 0.0]))
         >>> DeviceProblem.from_graph(g).dense_index().tolist()  # (0,0), (0,1), ...
         [0, 1, 3, 4]
         """
