@@ -40,6 +40,7 @@ Examples
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import sys
@@ -49,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from ...groups import SE3
 from .factors import Factor
 from .gnc_weights import gm_weights, initial_mu, tls_weights
 from .problem import Problem
@@ -61,9 +63,7 @@ __all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initia
            "inlier_thresholds", "squared_norms", "gnc_solve"]
 
 SURROGATES = ("tls", "gm")
-FIRST = ("values", "least-squares", "chordal", "cycles")
-# first="cycles": rounds of bridge repair and merge vote after GNC (until neither changes)
-_REPAIR_ROUNDS = 1
+FIRST = ("auto", "values", "least-squares", "chordal", "cycles")
 # search=True: rounds of the region search (each one solve when it moves something)
 _SEARCH_ROUNDS = 3
 
@@ -166,7 +166,7 @@ class GNC:
     def __init__(self, surrogate: str = "tls", *, quantile: float = 0.99,
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
-                 first: str = "values", retest: int = 3, cycle_length: int = 5,
+                 first: str = "auto", retest: int = 3, cycle_length: int | None = None,
                  moves: bool = False, search: bool = False) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
@@ -204,18 +204,65 @@ class GNC:
         if not isinstance(search, bool):
             raise ValueError(f"GNC search must be True or False, got {search!r}")
         self.search = search
-        if isinstance(cycle_length, bool) or not isinstance(cycle_length, (int, np.integer)) \
-                or not 2 <= cycle_length <= 9:
-            raise ValueError(f"GNC cycle_length must be an integer from 2 to 9, got "
-                             f"{cycle_length!r}")
-        self.cycle_length = int(cycle_length)
+        if cycle_length is not None and (
+                isinstance(cycle_length, bool) or
+                not isinstance(cycle_length, (int, np.integer)) or not 2 <= cycle_length <= 9):
+            raise ValueError(f"GNC cycle_length must be an integer from 2 to 9 or None (8 for "
+                             f"SE3, 5 for SE2), got {cycle_length!r}")
+        self.cycle_length = None if cycle_length is None else int(cycle_length)
         if not isinstance(moves, bool):
             raise ValueError(f"GNC moves must be True or False, got {moves!r}")
         self.moves = moves
 
     def __repr__(self) -> str:
-        return (f"GNC({self.surrogate!r}, quantile={self.quantile}, "
+        return (f"GNC({self.surrogate!r}, quantile={self.quantile}, first={self.first!r}, "
                 f"known_inliers={len(self.known_inliers)} batches)")
+
+    def resolved(self, problem: Problem) -> GNC:
+        """These options with ``first="auto"`` and ``cycle_length=None`` decided for ``problem``.
+
+        ``first="auto"``: ``"cycles"`` for TLS on a pose graph
+        (:func:`~microlie.optim.core.gnc_chordal.pose_graph_edges` is not None), else
+        ``"values"``. ``cycle_length=None``: 8 on an SE3 pose graph, 5 otherwise (SE2).
+
+        Parameters
+        ----------
+        problem : Problem
+            The problem GNC will solve.
+
+        Returns
+        -------
+        GNC
+            A copy with ``first`` and ``cycle_length`` set (``self`` when nothing was left to
+            decide).
+
+        Examples
+        --------
+        >>> from microlie import SE2, SE3
+        >>> from microlie.optim import FactorGraph, BetweenFactor
+        >>> from microlie.optim.core.gnc import GNC
+        >>> def chain(group):
+        ...     g = FactorGraph()
+        ...     x = g.add_variables(group.identity(3), fixed=[0])
+        ...     _ = g.add(BetweenFactor(x, [0, 1], [1, 2], group.identity(2)))
+        ...     return g.problem()
+        >>> [(o.first, o.cycle_length) for o in (GNC().resolved(chain(SE2)),
+        ...                                      GNC().resolved(chain(SE3)),
+        ...                                      GNC("gm").resolved(chain(SE3)))]
+        [('cycles', 5), ('cycles', 8), ('values', 8)]
+        """
+        if self.first != "auto" and self.cycle_length is not None:
+            return self
+        from .gnc_chordal import pose_graph_edges
+
+        edges = pose_graph_edges(problem)
+        out = copy.copy(self)
+        out.known_inliers = list(self.known_inliers)
+        if self.first == "auto":
+            out.first = "cycles" if edges is not None and self.surrogate == "tls" else "values"
+        if self.cycle_length is None:
+            out.cycle_length = 8 if edges is not None and edges.group is SE3 else 5
+        return out
 
     def known_masks(self, factors: Sequence[Factor]) -> list[np.ndarray]:
         """Boolean masks of the known inliers, one per factor batch of ``factors``.
@@ -500,6 +547,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         if f.loss is not None:
             raise ValueError(f"GNC replaces robust losses: factor batch {k} ({f.name}) has "
                              f"loss {f.loss!r}; build it without a loss")
+    gnc = gnc.resolved(problem)  # first="auto", cycle_length=None: decided for this problem
     known = gnc.known_masks(factors)
     user_known = known  # the caller's (the stages below add their own known inliers)
     c2 = inlier_thresholds(factors, gnc.quantile)
@@ -563,7 +611,10 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         outer = 0
         message, termination = "", "convergence"
         if mu is None:
-            message = ("every residual of the least-squares estimate is within its threshold"
+            where = ("at the start values" if gnc.first == "values" else
+                     "at the least-squares estimate from the start values")
+            message = (f"GNC skipped: no residual {where} exceeds half its threshold; "
+                       f"solved by plain least squares (every weight 1)"
                        if sj.size else "every factor is a known inlier")
         else:
             prev = 0.5 * sum(float(sk.sum()) for sk in s)
@@ -607,19 +658,13 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_bridges import repair_stage
             from .gnc_merge import merge_stage
 
-            for _ in range(_REPAIR_ROUNDS):
-                moved = repair_stage(cur, edges, known, weights, c2, s_start)
-                if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
-                    cur = inner(moved)
-                    s = squared_norms(problem, cur)
-                n_known = sum(int(kk.sum()) for kk in known)
-                cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
-                                            lambda st: squared_norms(problem, st),
-                                            mu_step=gnc.mu_step, weights_tol=gnc.weights_tol,
-                                            start=s_start)
-                s = squared_norms(problem, cur)
-                if moved is None and sum(int(kk.sum()) for kk in known) == n_known:
-                    break
+            moved = repair_stage(cur, edges, known, weights, c2, s_start)
+            if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
+                cur = inner(moved)
+            cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
+                                        lambda st: squared_norms(problem, st),
+                                        mu_step=gnc.mu_step, weights_tol=gnc.weights_tol,
+                                        start=s_start)
             moved = repair_stage(cur, edges, known, weights, c2, s_start, components=True)
             cur = inner(moved) if moved is not None else cur  # pieces the merge left
             s = squared_norms(problem, cur)
