@@ -7,10 +7,10 @@ edge's information). The reference is the outlier-free optimum: LM from the chor
 the graph without the replaced edges. GNC-TLS (``FactorGraph.optimize(robust=GNC(...))``, with
 the library's defaults (``first="auto"``: the cycle marking on these pose graphs, with cycles
 up to 8 edges on SE3 and 5 on SE2) unless ``--first``, ``--cycle-length``, ``--moves`` or
-``--search`` say otherwise, and its default data-snooping re-test unless ``--retest 0``) runs from the odometry or the chordal
-start of the corrupted graph, without and with the odometry as known inliers; the table gives
-the APE (RMS position difference to the reference, same gauge: the first vertex held at the
-same pose, no alignment), the precision and recall of
+``--search`` say otherwise, and its default data-snooping re-test unless ``--retest 0``) runs
+from the odometry or the chordal start of the corrupted graph, without and with the odometry as
+known inliers; the table gives the APE (RMS position difference to the reference, same gauge:
+the first vertex held at the same pose, no alignment), the precision and recall of
 ``result.inliers`` over the loop closures (inlier sense), the outer and inner iterations and
 the time. Whether a miss is the solver's fault or the problem's: ``TLS - ref`` is our TLS
 objective ``0.5 sum min(s, c^2)`` over every edge of the corrupted graph minus the reference's

@@ -19,9 +19,11 @@ The threshold ``c^2`` of each factor is the ``quantile`` of the chi-square distr
 factor's dimension degrees of freedom (:func:`inlier_thresholds`): an inlier's ``s_k`` is below
 it with that probability (this assumes calibrated information matrices: with information far
 larger or smaller than the real noise, choose ``quantile`` accordingly). The first weights come
-from the start values (``first="values"``, the default), as in the paper from the plain
-least-squares estimate (``first="least-squares"``), or, on pose graphs, from GNC-TLS run first
-on the chordal relaxation (``first="chordal"``, :mod:`microlie.optim.core.gnc_chordal`);
+from the start values (``first="values"``), as in the paper from the plain least-squares
+estimate (``first="least-squares"``), or, on pose graphs, from GNC-TLS run first on the
+chordal relaxation (``first="chordal"``, :mod:`microlie.optim.core.gnc_chordal`; ``"cycles"``
+with a cycle-consistency marking first); the default ``first="auto"`` is ``"cycles"`` for TLS on
+a pose graph and ``"values"`` otherwise (:meth:`GNC.resolved`);
 ``mu`` starts as the paper's Remark 5 (:func:`initial_mu`) from the largest residual there (or
 where the chordal stage left it). The outer
 loop stops when every TLS weight is within ``weights_tol`` of 0 or 1 (they are then rounded and
@@ -93,9 +95,13 @@ class GNC:
     weights_tol : float
         TLS: stop when every weight is within this of 0 or 1, ``0 <= weights_tol < 0.5``
         (default 1e-4).
-    first : {"values", "least-squares", "chordal"}
-        Where the first weights and ``mu`` come from: the residuals at the start values
-        (default); as in the paper and GTSAM, at the plain least-squares estimate from the
+    first : {"auto", "values", "least-squares", "chordal", "cycles"}
+        Where the first weights and ``mu`` come from. ``"auto"`` (default): ``"cycles"`` for
+        TLS on a pose graph (:func:`~microlie.optim.core.gnc_chordal.pose_graph_edges` is not
+        None), else ``"values"`` (:meth:`resolved`): the best measured on the pose graphs of
+        ``benchmarks/robust.py`` (``benchmarks/results/robust-defaults-s14.md``). Otherwise:
+        the residuals at the start values (``"values"``, the default until session 14);
+        as in the paper and GTSAM, at the plain least-squares estimate from the
         start (one more solve; the outliers pull it); or, for TLS on a pose graph (one SE2/SE3
         batch, only BetweenFactor and PriorFactor, a fixed vertex or a prior), GNC-TLS first
         on the chordal relaxation (:mod:`microlie.optim.core.gnc_chordal`: linear inner
@@ -139,10 +145,11 @@ class GNC:
         unchanged, 41-51 m); nothing changes where it was already optimal, at 10% or with the
         odometry known; GNC takes 2.5-3.4 times as long on M3500 30-50%. Only
         ``known_inliers`` are never rejected by it.
-    cycle_length : int
-        With ``first="cycles"``: the longest cycle of the consistency marking, 2 to 9 edges
-        (default 5: :func:`~microlie.optim.core.gnc_cycles.consistent_edges` and the vote of
-        :func:`~microlie.optim.core.gnc_merge.merge_known`). Any other value uses
+    cycle_length : int or None
+        With ``first="cycles"``: the longest cycle of the consistency marking, 2 to 9 edges;
+        ``None`` (default): 8 on an SE3 pose graph, 5 otherwise (SE2). 5:
+        :func:`~microlie.optim.core.gnc_cycles.consistent_edges` and the vote of
+        :func:`~microlie.optim.core.gnc_merge.merge_known`. Any other value uses
         :func:`~microlie.optim.core.gnc_loops.mark_loops`: cycles up to that length (in 2-D
         an edge needs two consistent cycles longer than five edges) and the vote between the
         pieces posed by their chordal relaxation. Measured on sphere2500 without known
@@ -160,7 +167,7 @@ class GNC:
     --------
     >>> from microlie.optim.core.gnc import GNC
     >>> GNC("gm", quantile=0.95)
-    GNC('gm', quantile=0.95, known_inliers=0 batches)
+    GNC('gm', quantile=0.95, first='auto', known_inliers=0 batches)
     """
 
     def __init__(self, surrogate: str = "tls", *, quantile: float = 0.99,
@@ -567,7 +574,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         if gnc.first == "cycles" and gnc.cycle_length != 5:
             from .gnc_loops import mark_loops
 
-            known = mark_loops(edges, known, gnc.quantile, gnc.cycle_length)
+            known = mark_loops(edges, known, gnc.quantile, gnc.cycle_length or 5)
         elif gnc.first == "cycles":
             from .gnc_cycles import mark_consistent
 
