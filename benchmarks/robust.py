@@ -5,11 +5,12 @@ non-consecutive vertices) is replaced by random ones (random endpoints two or mo
 apart, translation uniform in [-10, 10] m per axis, uniformly random rotation, the replaced
 edge's information). The reference is the outlier-free optimum: LM from the chordal start on
 the graph without the replaced edges. GNC-TLS (``FactorGraph.optimize(robust=GNC(...))``, with
-``first="chordal"`` unless ``--first`` says otherwise, and its default data-snooping re-test
-unless ``--retest 0``) runs from the odometry or the chordal
-start of the corrupted graph, without and with the odometry as known inliers; the table gives
-the APE (RMS position difference to the reference, same gauge: the first vertex held at the
-same pose, no alignment), the precision and recall of
+the library's defaults (``first="auto"``: the cycle marking on these pose graphs, with cycles
+up to 8 edges on SE3 and 5 on SE2) unless ``--first``, ``--cycle-length``, ``--moves`` or
+``--search`` say otherwise, and its default data-snooping re-test unless ``--retest 0``) runs
+from the odometry or the chordal start of the corrupted graph, without and with the odometry as
+known inliers; the table gives the APE (RMS position difference to the reference, same gauge:
+the first vertex held at the same pose, no alignment), the precision and recall of
 ``result.inliers`` over the loop closures (inlier sense), the outer and inner iterations and
 the time. Whether a miss is the solver's fault or the problem's: ``TLS - ref`` is our TLS
 objective ``0.5 sum min(s, c^2)`` over every edge of the corrupted graph minus the reference's
@@ -240,17 +241,22 @@ def main(argv: list[str] | None = None) -> None:
                     choices=["none", "odometry"], help="runs without / with known inliers")
     ap.add_argument("--quantile", type=float, default=0.99,
                     help="chi-square quantile of the inlier threshold (GNC and GTSAM)")
-    ap.add_argument("--first", default="chordal", choices=["chordal", "cycles", "values",
-                                                           "least-squares"],
-                    help="GNC(first=...): where the first weights come from")
-    ap.add_argument("--retest", type=int, default=3,
-                    help="GNC(retest=...): data-snooping passes after GNC (0: off)")
-    ap.add_argument("--cycle-length", type=int, default=5,
-                    help="GNC(cycle_length=...): longest cycle of the first='cycles' marking")
-    ap.add_argument("--moves", action="store_true",
-                    help="GNC(moves=True): pieces moved where their cut edges fit best")
-    ap.add_argument("--search", action="store_true",
-                    help="GNC(search=True): the local search of core/gnc_search.py after GNC")
+    ap.add_argument("--first", default=None, choices=["auto", "chordal", "cycles", "values",
+                                                      "least-squares"],
+                    help="GNC(first=...): where the first weights come from (default: GNC's, "
+                         "auto: cycles on these pose graphs)")
+    ap.add_argument("--retest", type=int, default=None,
+                    help="GNC(retest=...): data-snooping passes after GNC (0: off; default: "
+                         "GNC's, 3)")
+    ap.add_argument("--cycle-length", type=int, default=None,
+                    help="GNC(cycle_length=...): longest cycle of the first='cycles' marking "
+                         "(default: GNC's, 8 on SE3 and 5 on SE2)")
+    ap.add_argument("--moves", action=argparse.BooleanOptionalAction, default=None,
+                    help="GNC(moves=...): pieces moved where their cut edges fit best (default: "
+                         "GNC's)")
+    ap.add_argument("--search", action=argparse.BooleanOptionalAction, default=None,
+                    help="GNC(search=...): the local search of core/gnc_search.py after GNC "
+                         "(default: GNC's)")
     ap.add_argument("--gtsam-cases", nargs="*", default=[],
                     help="GRAPH:RATE:SEED:START:KNOWN cases GTSAM's GncOptimizer also runs "
                          "(KNOWN: none or known)")
@@ -270,9 +276,14 @@ def main(argv: list[str] | None = None) -> None:
     if args.gtsam_only:
         run_gtsam_only(args, gcases)
         return
-    print(f"quantile {args.quantile}, first weights from {args.first}, retest "
-          f"{args.retest}, cycle_length {args.cycle_length}, moves {args.moves}, search "
-          f"{args.search}; APE in m "
+    opts = {k: v for k, v in (("first", args.first), ("retest", args.retest),
+                              ("cycle_length", args.cycle_length), ("moves", args.moves),
+                              ("search", args.search)) if v is not None}
+    shown = GNC("tls", **opts)  # type: ignore[arg-type]
+    print(f"quantile {args.quantile}, first weights from {shown.first}, retest "
+          f"{shown.retest}, cycle_length {shown.cycle_length} (None: 8 on SE3, 5 on SE2), "
+          f"moves {shown.moves}, search {shown.search} (GNC's defaults unless given: "
+          f"{opts or 'none given'}); APE in m "
           f"against the "
           f"outlier-free optimum; P/R: precision/recall of result.inliers over loop closures")
     print("TLS - ref: our TLS objective 0.5 sum min(s, c^2) over every edge of the corrupted "
@@ -305,9 +316,7 @@ def main(argv: list[str] | None = None) -> None:
                         fg, x = pg2.to_factor_graph(X0, gauge="fix")
                         ki = [(fg.factors[0], odo)] if known == "odometry" else None
                         gnc = GNC("tls", known_inliers=ki, quantile=args.quantile,
-                                  first=args.first, retest=args.retest,
-                                  cycle_length=args.cycle_length, moves=args.moves,
-                                  search=args.search)
+                                  **opts)  # type: ignore[arg-type]
                         t0 = time.perf_counter()
                         res = fg.optimize(robust=gnc, verbose=False)
                         dt = time.perf_counter() - t0

@@ -161,7 +161,7 @@ def test_first_weights_follow_the_closed_form():
     X0 = _odometry(SE2, ii, jj, Z, truth, 40)
     g, x, f = _graph(SE2, ii, jj, Z, X0)
     for surrogate, fn in (("tls", tls_weights), ("gm", gm_weights)):
-        res = g.optimize(robust=GNC(surrogate, max_iter=1))
+        res = g.optimize(robust=GNC(surrogate, max_iter=1, first="values"))
         # residuals at the start computed directly: log(Z^-1 X_i^-1 X_j) / sigma
         r = Z.inverse().compose(X0[ii].between(X0[jj])).log() / 0.01
         s = (r ** 2).sum(1)
@@ -274,7 +274,7 @@ def test_symbolic_analysis_once_for_all_outer_iterations(backend, monkeypatch):
     orig = cls.analyse
     monkeypatch.setattr(cls, "analyse", lambda self, *a, **k: (calls.append(1),
                                                                orig(self, *a, **k))[1])
-    res = g.optimize(robust="gnc-tls", linear_solver=backend)
+    res = g.optimize(robust=GNC("tls", first="values"), linear_solver=backend)
     assert res.outer_iterations > 5 and len(calls) == 1
 
 
@@ -339,7 +339,8 @@ def test_chordal_first_needs_a_pose_graph():
 
 def test_command_cycle_length_and_moves(tmp_path):
     """``--gnc-cycle-length`` and ``--gnc-moves`` reach ``GNC(cycle_length=, moves=)``: the
-    planted outliers are found, and the flags are refused without ``--gnc-first cycles``."""
+    planted outliers are found, and the flags are refused where no cycle marking runs
+    (``--gnc-first`` other than cycles or auto, or auto with gnc-gm)."""
     import argparse
     import io
     import json
@@ -356,9 +357,11 @@ def test_command_cycle_length_and_moves(tmp_path):
                               "--gnc-moves"])
     assert run(args, out, io.StringIO()) == 0
     assert json.loads(out.getvalue())["gnc"]["outlier_edges"] == planted
-    for bad, match in ((["--robust", "gnc-tls", "--gnc-moves"], "cycles only"),
+    for bad, match in ((["--robust", "gnc-gm", "--gnc-moves"], "cycle marking only"),
                        (["--robust", "gnc-tls", "--gnc-first", "chordal",
-                         "--gnc-cycle-length", "7"], "cycles only"),
+                         "--gnc-cycle-length", "7"], "cycle marking only"),
+                       (["--robust", "gnc-tls", "--gnc-first", "values",
+                         "--no-gnc-moves"], "cycle marking only"),
                        (["--robust", "gnc-tls", "--gnc-first", "cycles",
                          "--gnc-cycle-length", "12"], "cycle_length"),
                        (["--gnc-moves"], "applies to --robust")):

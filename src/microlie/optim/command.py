@@ -4,8 +4,9 @@
 
     microlie optimize (IN.g2o | --example) [-o OUT.g2o] [--solver lm|gn|dogleg|trust-region]
                      [--robust huber:1.0|gnc-tls|gnc-gm] [--known-inliers odometry]
-                     [--gnc-quantile P] [--gnc-first values|least-squares|chordal|cycles]
-                     [--gnc-cycle-length N] [--gnc-moves]
+                     [--gnc-quantile P]
+                     [--gnc-first auto|values|least-squares|chordal|cycles]
+                     [--gnc-cycle-length N] [--gnc-moves | --no-gnc-moves]
                      [--init auto|file|odometry|chordal|certified]
                      [--certify]
                      [--linear-solver auto|cholesky|schur|...]
@@ -54,12 +55,15 @@ prints the reason on stderr, writes no ``-o`` file and exits with status 1.
 ``--robust gnc-tls`` (or ``gnc-gm``) runs graduated non-convexity
 (:mod:`microlie.optim.core.gnc`) instead of a loss: the gauge prior and, with
 ``--known-inliers odometry``, the edges between consecutive vertex ids keep weight 1, the inlier
-threshold is the ``--gnc-quantile`` (default 0.99) chi-square quantile, ``--gnc-first chordal``
-runs GNC-TLS on the chordal relaxation first (``cycles``: with the edges that close a short
-cycle within their noise kept as inliers; see ``GNC(first=...)``; with it
-``--gnc-cycle-length N`` and ``--gnc-moves`` set ``GNC(cycle_length=N, moves=True)``), and the
-report lists the edges judged outliers (``gnc.outlier_edges``, in file order) and the pieces
-of the answer that another edge could hold at the same cost (``gnc.ties``).
+threshold is the ``--gnc-quantile`` (default 0.99) chi-square quantile, ``--gnc-first`` is
+``GNC(first=...)``: by default ``auto``, which for ``gnc-tls`` on a pose graph is ``cycles``
+(GNC-TLS on the chordal relaxation first, with the edges that close a short cycle within their
+noise kept as inliers: cycles of up to 8 edges in 3-D, 5 in 2-D) and otherwise ``values``
+(``chordal``: without the cycle marking; ``values``: plain GNC from the start);
+``--gnc-cycle-length N`` and ``--gnc-moves`` / ``--no-gnc-moves`` override
+``GNC(cycle_length=N, moves=...)`` of the cycle marking, and the report lists the edges judged
+outliers (``gnc.outlier_edges``, in file order) and the pieces of the answer that another edge
+could hold at the same cost (``gnc.ties``).
 
 Formats come from the registry :data:`microlie.optim.io.formats.FORMATS`: its handler is called
 as ``handler(args, err) -> dict`` and returns the JSON report; a new format is one entry there.
@@ -149,19 +153,21 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="with --robust gnc-*: the chi-square quantile of the inlier threshold "
                         "(default 0.99; lower it when the file's information overstates the "
                         "noise)")
-    p.add_argument("--gnc-first", choices=("values", "least-squares", "chordal", "cycles"),
+    p.add_argument("--gnc-first", choices=("auto", "values", "least-squares", "chordal",
+                                           "cycles"),
                    default=None,
                    help="with --robust gnc-*: where GNC's first weights come from (default "
-                        "values; chordal: GNC-TLS on the chordal relaxation first; cycles: "
+                        "auto: cycles with gnc-tls on a pose graph, else values; values: the "
+                        "start; chordal: GNC-TLS on the chordal relaxation first; cycles: "
                         "chordal with the edges on consistent short cycles kept, see "
                         "microlie.optim.core.gnc.GNC)")
     p.add_argument("--gnc-cycle-length", type=int, default=None, metavar="N",
-                   help="with --gnc-first cycles: the longest cycle of the consistency marking, "
-                        "2-9 edges (default 5; 8 reached sphere2500 with half of its loop "
-                        "closures wrong)")
-    p.add_argument("--gnc-moves", action="store_true", default=None,
-                   help="with --gnc-first cycles: after GNC, move pieces rigidly where more "
-                        "of their edges fit, kept when the TLS objective falls")
+                   help="with the cycle marking (--gnc-first cycles, or auto with gnc-tls): "
+                        "the longest cycle, 2-9 edges (default 8 for SE3, 5 for SE2)")
+    p.add_argument("--gnc-moves", action=argparse.BooleanOptionalAction, default=None,
+                   help="with the cycle marking (--gnc-first cycles, or auto with gnc-tls): "
+                        "after GNC, move pieces rigidly where more of their edges fit, kept "
+                        "when the TLS objective falls (default off)")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, chordal, or "
                         "certified (the certified global optimum of SE-Sync's isotropic "
@@ -659,13 +665,16 @@ def _gnc_for(graph: Any, fg: Any, spec: str, args: argparse.Namespace) -> Any:
         ii, jj = graph.edge_index()
         known.append((fg.factors[0], abs(jj - ii) == 1))
     quantile = 0.99 if args.gnc_quantile is None else args.gnc_quantile
-    first = getattr(args, "gnc_first", None) or "values"
+    first = getattr(args, "gnc_first", None) or "auto"
     length = getattr(args, "gnc_cycle_length", None)
-    moves = bool(getattr(args, "gnc_moves", None))
-    if (length is not None or moves) and first != "cycles":
-        raise ValueError("--gnc-cycle-length and --gnc-moves apply to --gnc-first cycles only")
-    return GNC(name, known_inliers=known, quantile=quantile, first=first,
-               cycle_length=5 if length is None else length, moves=moves)
+    moves = getattr(args, "gnc_moves", None)
+    cycles = first == "cycles" or (first == "auto" and name == "tls")
+    if (length is not None or moves is not None) and not cycles:
+        raise ValueError("--gnc-cycle-length and --gnc-moves apply to the cycle marking only "
+                         "(--gnc-first cycles, or auto with gnc-tls)")
+    opts: dict[str, Any] = {} if moves is None else {"moves": bool(moves)}
+    return GNC(name, known_inliers=known, quantile=quantile, first=first, cycle_length=length,
+               **opts)
 
 
 def _position_rmse(X: Any, truth: Any) -> float:

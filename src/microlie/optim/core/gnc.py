@@ -19,9 +19,11 @@ The threshold ``c^2`` of each factor is the ``quantile`` of the chi-square distr
 factor's dimension degrees of freedom (:func:`inlier_thresholds`): an inlier's ``s_k`` is below
 it with that probability (this assumes calibrated information matrices: with information far
 larger or smaller than the real noise, choose ``quantile`` accordingly). The first weights come
-from the start values (``first="values"``, the default), as in the paper from the plain
-least-squares estimate (``first="least-squares"``), or, on pose graphs, from GNC-TLS run first
-on the chordal relaxation (``first="chordal"``, :mod:`microlie.optim.core.gnc_chordal`);
+from the start values (``first="values"``), as in the paper from the plain least-squares
+estimate (``first="least-squares"``), or, on pose graphs, from GNC-TLS run first on the
+chordal relaxation (``first="chordal"``, :mod:`microlie.optim.core.gnc_chordal`; ``"cycles"``
+with a cycle-consistency marking first); the default ``first="auto"`` is ``"cycles"`` for TLS on
+a pose graph and ``"values"`` otherwise (:meth:`GNC.resolved`);
 ``mu`` starts as the paper's Remark 5 (:func:`initial_mu`) from the largest residual there (or
 where the chordal stage left it). The outer
 loop stops when every TLS weight is within ``weights_tol`` of 0 or 1 (they are then rounded and
@@ -40,6 +42,7 @@ Examples
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import sys
@@ -49,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from ...groups import SE3
 from .factors import Factor
 from .gnc_weights import gm_weights, initial_mu, tls_weights
 from .problem import Problem
@@ -61,9 +65,7 @@ __all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initia
            "inlier_thresholds", "squared_norms", "gnc_solve"]
 
 SURROGATES = ("tls", "gm")
-FIRST = ("values", "least-squares", "chordal", "cycles")
-# first="cycles": rounds of bridge repair and merge vote after GNC (until neither changes)
-_REPAIR_ROUNDS = 1
+FIRST = ("auto", "values", "least-squares", "chordal", "cycles")
 # search=True: rounds of the region search (each one solve when it moves something)
 _SEARCH_ROUNDS = 3
 
@@ -93,9 +95,13 @@ class GNC:
     weights_tol : float
         TLS: stop when every weight is within this of 0 or 1, ``0 <= weights_tol < 0.5``
         (default 1e-4).
-    first : {"values", "least-squares", "chordal"}
-        Where the first weights and ``mu`` come from: the residuals at the start values
-        (default); as in the paper and GTSAM, at the plain least-squares estimate from the
+    first : {"auto", "values", "least-squares", "chordal", "cycles"}
+        Where the first weights and ``mu`` come from. ``"auto"`` (default): ``"cycles"`` for
+        TLS on a pose graph (:func:`~microlie.optim.core.gnc_chordal.pose_graph_edges` is not
+        None), else ``"values"`` (:meth:`resolved`): the best measured on the pose graphs of
+        ``benchmarks/robust.py`` (``benchmarks/results/robust-defaults-s14.md``). Otherwise:
+        the residuals at the start values (``"values"``, the default until session 14);
+        as in the paper and GTSAM, at the plain least-squares estimate from the
         start (one more solve; the outliers pull it); or, for TLS on a pose graph (one SE2/SE3
         batch, only BetweenFactor and PriorFactor, a fixed vertex or a prior), GNC-TLS first
         on the chordal relaxation (:mod:`microlie.optim.core.gnc_chordal`: linear inner
@@ -139,10 +145,11 @@ class GNC:
         unchanged, 41-51 m); nothing changes where it was already optimal, at 10% or with the
         odometry known; GNC takes 2.5-3.4 times as long on M3500 30-50%. Only
         ``known_inliers`` are never rejected by it.
-    cycle_length : int
-        With ``first="cycles"``: the longest cycle of the consistency marking, 2 to 9 edges
-        (default 5: :func:`~microlie.optim.core.gnc_cycles.consistent_edges` and the vote of
-        :func:`~microlie.optim.core.gnc_merge.merge_known`). Any other value uses
+    cycle_length : int or None
+        With ``first="cycles"``: the longest cycle of the consistency marking, 2 to 9 edges;
+        ``None`` (default): 8 on an SE3 pose graph, 5 otherwise (SE2). 5:
+        :func:`~microlie.optim.core.gnc_cycles.consistent_edges` and the vote of
+        :func:`~microlie.optim.core.gnc_merge.merge_known`. Any other value uses
         :func:`~microlie.optim.core.gnc_loops.mark_loops`: cycles up to that length (in 2-D
         an edge needs two consistent cycles longer than five edges) and the vote between the
         pieces posed by their chordal relaxation. Measured on sphere2500 without known
@@ -154,19 +161,23 @@ class GNC:
         where more of their edges fit (:func:`~microlie.optim.core.gnc_loops.move_stage`:
         pieces of the known edges, of the accepted edges, small regions outside the largest
         known piece, the sides of accepted bridges), solve the accepted edges, and keep the
-        result only when the TLS objective fell (default False).
+        result only when the TLS objective fell (default False). Measured
+        (``benchmarks/results/robust-defaults-s14.md``, no known inliers): on sphere2500 it
+        brings the chordal start's answers at 30% seed 2 and 50% to the outlier-free
+        optimum (0.96-9.7 m off without it), but took up to 7 times as long (50% seed 0);
+        on M3500 it changed no verdict. Hence off by default: turn it on for hard 3-D cases.
 
     Examples
     --------
     >>> from microlie.optim.core.gnc import GNC
     >>> GNC("gm", quantile=0.95)
-    GNC('gm', quantile=0.95, known_inliers=0 batches)
+    GNC('gm', quantile=0.95, first='auto', known_inliers=0 batches)
     """
 
     def __init__(self, surrogate: str = "tls", *, quantile: float = 0.99,
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
-                 first: str = "values", retest: int = 3, cycle_length: int = 5,
+                 first: str = "auto", retest: int = 3, cycle_length: int | None = None,
                  moves: bool = False, search: bool = False) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
@@ -204,18 +215,65 @@ class GNC:
         if not isinstance(search, bool):
             raise ValueError(f"GNC search must be True or False, got {search!r}")
         self.search = search
-        if isinstance(cycle_length, bool) or not isinstance(cycle_length, (int, np.integer)) \
-                or not 2 <= cycle_length <= 9:
-            raise ValueError(f"GNC cycle_length must be an integer from 2 to 9, got "
-                             f"{cycle_length!r}")
-        self.cycle_length = int(cycle_length)
+        if cycle_length is not None and (
+                isinstance(cycle_length, bool) or
+                not isinstance(cycle_length, (int, np.integer)) or not 2 <= cycle_length <= 9):
+            raise ValueError(f"GNC cycle_length must be an integer from 2 to 9 or None (8 for "
+                             f"SE3, 5 for SE2), got {cycle_length!r}")
+        self.cycle_length = None if cycle_length is None else int(cycle_length)
         if not isinstance(moves, bool):
             raise ValueError(f"GNC moves must be True or False, got {moves!r}")
         self.moves = moves
 
     def __repr__(self) -> str:
-        return (f"GNC({self.surrogate!r}, quantile={self.quantile}, "
+        return (f"GNC({self.surrogate!r}, quantile={self.quantile}, first={self.first!r}, "
                 f"known_inliers={len(self.known_inliers)} batches)")
+
+    def resolved(self, problem: Problem) -> GNC:
+        """These options with ``first="auto"`` and ``cycle_length=None`` decided for ``problem``.
+
+        ``first="auto"``: ``"cycles"`` for TLS on a pose graph
+        (:func:`~microlie.optim.core.gnc_chordal.pose_graph_edges` is not None), else
+        ``"values"``. ``cycle_length=None``: 8 on an SE3 pose graph, 5 otherwise (SE2).
+
+        Parameters
+        ----------
+        problem : Problem
+            The problem GNC will solve.
+
+        Returns
+        -------
+        GNC
+            A copy with ``first`` and ``cycle_length`` set (``self`` when nothing was left to
+            decide).
+
+        Examples
+        --------
+        >>> from microlie import SE2, SE3
+        >>> from microlie.optim import FactorGraph, BetweenFactor
+        >>> from microlie.optim.core.gnc import GNC
+        >>> def chain(group):
+        ...     g = FactorGraph()
+        ...     x = g.add_variables(group.identity(3), fixed=[0])
+        ...     _ = g.add(BetweenFactor(x, [0, 1], [1, 2], group.identity(2)))
+        ...     return g.problem()
+        >>> [(o.first, o.cycle_length) for o in (GNC().resolved(chain(SE2)),
+        ...                                      GNC().resolved(chain(SE3)),
+        ...                                      GNC("gm").resolved(chain(SE3)))]
+        [('cycles', 5), ('cycles', 8), ('values', 8)]
+        """
+        if self.first != "auto" and self.cycle_length is not None:
+            return self
+        from .gnc_chordal import pose_graph_edges
+
+        edges = pose_graph_edges(problem)
+        out = copy.copy(self)
+        out.known_inliers = list(self.known_inliers)
+        if self.first == "auto":
+            out.first = "cycles" if edges is not None and self.surrogate == "tls" else "values"
+        if self.cycle_length is None:
+            out.cycle_length = 8 if edges is not None and edges.group is SE3 else 5
+        return out
 
     def known_masks(self, factors: Sequence[Factor]) -> list[np.ndarray]:
         """Boolean masks of the known inliers, one per factor batch of ``factors``.
@@ -500,6 +558,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         if f.loss is not None:
             raise ValueError(f"GNC replaces robust losses: factor batch {k} ({f.name}) has "
                              f"loss {f.loss!r}; build it without a loss")
+    gnc = gnc.resolved(problem)  # first="auto", cycle_length=None: decided for this problem
     known = gnc.known_masks(factors)
     user_known = known  # the caller's (the stages below add their own known inliers)
     c2 = inlier_thresholds(factors, gnc.quantile)
@@ -519,7 +578,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         if gnc.first == "cycles" and gnc.cycle_length != 5:
             from .gnc_loops import mark_loops
 
-            known = mark_loops(edges, known, gnc.quantile, gnc.cycle_length)
+            known = mark_loops(edges, known, gnc.quantile, gnc.cycle_length or 5)
         elif gnc.first == "cycles":
             from .gnc_cycles import mark_consistent
 
@@ -563,7 +622,10 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         outer = 0
         message, termination = "", "convergence"
         if mu is None:
-            message = ("every residual of the least-squares estimate is within its threshold"
+            where = ("at the start values" if gnc.first == "values" else
+                     "at the least-squares estimate from the start values")
+            message = (f"GNC skipped: no residual {where} exceeds half its threshold; "
+                       f"solved by plain least squares (every weight 1)"
                        if sj.size else "every factor is a known inlier")
         else:
             prev = 0.5 * sum(float(sk.sum()) for sk in s)
@@ -607,19 +669,13 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_bridges import repair_stage
             from .gnc_merge import merge_stage
 
-            for _ in range(_REPAIR_ROUNDS):
-                moved = repair_stage(cur, edges, known, weights, c2, s_start)
-                if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
-                    cur = inner(moved)
-                    s = squared_norms(problem, cur)
-                n_known = sum(int(kk.sum()) for kk in known)
-                cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
-                                            lambda st: squared_norms(problem, st),
-                                            mu_step=gnc.mu_step, weights_tol=gnc.weights_tol,
-                                            start=s_start)
-                s = squared_norms(problem, cur)
-                if moved is None and sum(int(kk.sum()) for kk in known) == n_known:
-                    break
+            moved = repair_stage(cur, edges, known, weights, c2, s_start)
+            if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
+                cur = inner(moved)
+            cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
+                                        lambda st: squared_norms(problem, st),
+                                        mu_step=gnc.mu_step, weights_tol=gnc.weights_tol,
+                                        start=s_start)
             moved = repair_stage(cur, edges, known, weights, c2, s_start, components=True)
             cur = inner(moved) if moved is not None else cur  # pieces the merge left
             s = squared_norms(problem, cur)
