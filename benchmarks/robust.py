@@ -6,19 +6,20 @@ apart, translation uniform in [-10, 10] m per axis, uniformly random rotation, t
 edge's information). The reference is the outlier-free optimum: LM from the chordal start on
 the graph without the replaced edges. GNC-TLS (``FactorGraph.optimize(robust=GNC(...))``, with
 the library's defaults (``first="auto"``: the cycle marking on these pose graphs, with cycles
-up to 8 edges on SE3 and 5 on SE2) unless ``--first``, ``--cycle-length``, ``--moves`` or
-``--search`` say otherwise, and its default data-snooping re-test unless ``--retest 0``) runs
-from the odometry or the chordal start of the corrupted graph, without and with the odometry as
-known inliers; the table gives the APE (RMS position difference to the reference, same gauge:
-the first vertex held at the same pose, no alignment), the precision and recall of
-``result.inliers`` over the loop closures (inlier sense), the outer and inner iterations and
-the time. Whether a miss is the solver's fault or the problem's: ``TLS - ref`` is our TLS
-objective ``0.5 sum min(s, c^2)`` over every edge of the corrupted graph minus the reference's
-(its poses on the corrupted graph), in units of ``c^2/2`` (one edge; above 0: GNC stopped in a
-local minimum); ``ties`` counts the bridges of the true inlier graph (not known inliers) that a
-wrong edge also crosses (largest smaller side in brackets), and the swap witness (the reference
-with that side moved so that the wrong edge fits, ``microlie.optim.core.gnc_ties``) gives its
-``TLS - ref`` (~0: an exact tie) and APE. A summary per graph ends the output.
+up to 8 edges and the moves on SE3, 5 and no moves on SE2) unless ``--first``,
+``--cycle-length``, ``--moves`` or ``--search`` say otherwise, and its default data-snooping
+re-test unless ``--retest 0``) runs from the odometry or the chordal start of the corrupted
+graph, without and with the odometry as known inliers; the table gives the APE (RMS position
+difference to the reference, same gauge: the first vertex held at the same pose, no alignment),
+the precision and recall of ``result.inliers`` over the loop closures (inlier sense), the outer
+and inner iterations and the time. Whether a miss is the solver's fault or the problem's:
+``TLS - ref`` is our TLS objective ``0.5 sum min(s, c^2)`` over every edge of the corrupted graph
+minus the reference's (its poses on the corrupted graph), in units of ``c^2/2`` (one edge;
+above 0: GNC stopped in a local minimum); ``ties`` counts the bridges of the true inlier graph
+(not known inliers) that a wrong edge also crosses (largest smaller side in brackets), and the
+swap witness (the reference with that side moved so that the wrong edge fits,
+``microlie.optim.core.gnc_ties``) gives its ``TLS - ref`` (~0: an exact tie) and APE. A summary
+per graph ends the output.
 GTSAM's ``GncOptimizer`` (TLS, LM inner solver, the same known inliers and threshold
 probability, a prior on the first pose) runs in a child process on the ``--gtsam-cases``
 subset with a timeout; its APE and our time over its time are printed. GTSAM's runs are long:
@@ -253,7 +254,7 @@ def main(argv: list[str] | None = None) -> None:
                          "(default: GNC's, 8 on SE3 and 5 on SE2)")
     ap.add_argument("--moves", action=argparse.BooleanOptionalAction, default=None,
                     help="GNC(moves=...): pieces moved where their cut edges fit best (default: "
-                         "GNC's)")
+                         "GNC's, on for SE3 and off for SE2)")
     ap.add_argument("--search", action=argparse.BooleanOptionalAction, default=None,
                     help="GNC(search=...): the local search of core/gnc_search.py after GNC "
                          "(default: GNC's)")
@@ -282,9 +283,8 @@ def main(argv: list[str] | None = None) -> None:
     shown = GNC("tls", **opts)  # type: ignore[arg-type]
     print(f"quantile {args.quantile}, first weights from {shown.first}, retest "
           f"{shown.retest}, cycle_length {shown.cycle_length} (None: 8 on SE3, 5 on SE2), "
-          f"moves {shown.moves}, search {shown.search} (GNC's defaults unless given: "
-          f"{opts or 'none given'}); APE in m "
-          f"against the "
+          f"moves {shown.moves} (None: on for SE3, off for SE2), search {shown.search} "
+          f"(GNC's defaults unless given: {opts or 'none given'}); APE in m against the "
           f"outlier-free optimum; P/R: precision/recall of result.inliers over loop closures")
     print("TLS - ref: our TLS objective 0.5 sum min(s, c^2) over every edge of the corrupted "
           "graph minus the outlier-free optimum's, in units of c^2/2 (1 = one edge); ties: "

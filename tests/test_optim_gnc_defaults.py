@@ -1,9 +1,11 @@
-"""GNC's defaults (``GNC(first="auto", cycle_length=None)``) and the command's flags.
+"""GNC's defaults (``GNC(first="auto", cycle_length=None, moves=None)``) and the command's
+flags.
 
 ``first="auto"`` is ``"cycles"`` for TLS on a pose graph and ``"values"`` otherwise;
-``cycle_length=None`` is 8 on SE3 and 5 on SE2. Checked: the resolution itself, that the
-defaults give exactly what the explicit options give, the checks of bad values, the message
-when GNC is skipped, and that ``microlie optimize``'s flags reach the options.
+``cycle_length=None`` is 8 on SE3 and 5 on SE2; ``moves=None`` is on for SE3, off for SE2.
+Checked: the resolution itself, that the defaults give exactly what the explicit options
+give, the checks of bad values, the message when GNC is skipped, and that ``microlie
+optimize``'s flags reach the options.
 """
 
 from __future__ import annotations
@@ -49,23 +51,23 @@ def _grid(G, rows=3, cols=6, n_bad=3, seed=0, sigma=0.01):
 
 
 def test_auto_resolves_as_documented():
-    for G, length in ((SE2, 5), (SE3, 8)):
+    for G, length, moves in ((SE2, 5, False), (SE3, 8, True)):
         g = _grid(G)[0]
         p = g.problem()
         tls = GNC().resolved(p)
-        assert (tls.first, tls.cycle_length) == ("cycles", length)
+        assert (tls.first, tls.cycle_length, tls.moves) == ("cycles", length, moves)
         gm = GNC("gm").resolved(p)  # the cycle marking is a TLS stage
         assert (gm.first, gm.cycle_length) == ("values", length)
-        explicit = GNC(first="chordal", cycle_length=6)
+        explicit = GNC(first="chordal", cycle_length=6, moves=not moves)
         assert explicit.resolved(p) is explicit  # nothing left to decide
-        kept = GNC(first="values").resolved(p)
-        assert (kept.first, kept.cycle_length) == ("values", length)
+        kept = GNC(first="values", moves=not moves).resolved(p)
+        assert (kept.first, kept.cycle_length, kept.moves) == ("values", length, not moves)
     # not pose graphs: priors only (no BetweenFactor), and an SO3 batch
     g = FactorGraph()
     x = g.add_variables(SE2.identity(1))
     g.add(PriorFactor(x, [0, 0], SE2.identity(2)))
     r = GNC().resolved(g.problem())
-    assert (r.first, r.cycle_length) == ("values", 5)
+    assert (r.first, r.cycle_length, r.moves) == ("values", 5, False)
     g = FactorGraph()
     y = g.add_variables(SO3.identity(3), fixed=[0])
     g.add(BetweenFactor(y, [0, 1], [1, 2], SO3.identity(2)))
@@ -73,18 +75,18 @@ def test_auto_resolves_as_documented():
     # the options themselves are not changed by resolving
     opts = GNC()
     opts.resolved(_grid(SE3)[0].problem())
-    assert (opts.first, opts.cycle_length) == ("auto", None)
+    assert (opts.first, opts.cycle_length, opts.moves) == ("auto", None, None)
     assert repr(opts) == "GNC('tls', quantile=0.99, first='auto', known_inliers=0 batches)"
 
 
-@pytest.mark.parametrize("G, length", [(SE2, 5), (SE3, 8)])
-def test_defaults_are_the_explicit_options(G, length):
-    # GNC("tls") gives exactly GNC("tls", first="cycles", cycle_length=8 or 5); the wrong
-    # closures are found, and the answer is the least-squares optimum without them
+@pytest.mark.parametrize("G, length, moves", [(SE2, 5, False), (SE3, 8, True)])
+def test_defaults_are_the_explicit_options(G, length, moves):
+    # GNC("tls") gives exactly GNC("tls", first="cycles", cycle_length=8 or 5, moves=SE3);
+    # the wrong closures are found, and the answer is the least-squares optimum without them
     g, x, f, out, X0, ii, jj, Zp = _grid(G)
     res = g.optimize(robust=GNC("tls", quantile=0.9999), verbose=False)
-    ref = g.optimize(robust=GNC("tls", quantile=0.9999, first="cycles", cycle_length=length),
-                     verbose=False)
+    ref = g.optimize(robust=GNC("tls", quantile=0.9999, first="cycles", cycle_length=length,
+                                moves=moves), verbose=False)
     assert np.array_equal(res.inliers[0], ref.inliers[0])
     assert np.array_equal(np.asarray(res.values[x].params), np.asarray(ref.values[x].params))
     assert np.array_equal(res.inliers[0], ~out)
@@ -104,7 +106,8 @@ def test_bad_options_are_refused():
                     ({"cycle_length": 1}, "cycle_length"), ({"cycle_length": 10}, "cycle_length"),
                     ({"cycle_length": True}, "cycle_length"),
                     ({"cycle_length": 8.0}, "cycle_length"), ({"cycle_length": "8"},
-                                                              "cycle_length")):
+                                                              "cycle_length"),
+                    ({"moves": 1}, "moves"), ({"moves": "yes"}, "moves")):
         with pytest.raises(ValueError, match=msg):
             GNC(**kw)
     # first="auto" is a TLS choice on pose graphs; "cycles" with GM is still an error

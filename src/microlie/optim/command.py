@@ -58,7 +58,8 @@ prints the reason on stderr, writes no ``-o`` file and exits with status 1.
 threshold is the ``--gnc-quantile`` (default 0.99) chi-square quantile, ``--gnc-first`` is
 ``GNC(first=...)``: by default ``auto``, which for ``gnc-tls`` on a pose graph is ``cycles``
 (GNC-TLS on the chordal relaxation first, with the edges that close a short cycle within their
-noise kept as inliers: cycles of up to 8 edges in 3-D, 5 in 2-D) and otherwise ``values``
+noise kept as inliers: cycles of up to 8 edges and the rigid moves after GNC in 3-D, cycles
+of up to 5 edges and no moves in 2-D) and otherwise ``values``
 (``chordal``: without the cycle marking; ``values``: plain GNC from the start);
 ``--gnc-cycle-length N`` and ``--gnc-moves`` / ``--no-gnc-moves`` override
 ``GNC(cycle_length=N, moves=...)`` of the cycle marking, and the report lists the edges judged
@@ -167,7 +168,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--gnc-moves", action=argparse.BooleanOptionalAction, default=None,
                    help="with the cycle marking (--gnc-first cycles, or auto with gnc-tls): "
                         "after GNC, move pieces rigidly where more of their edges fit, kept "
-                        "when the TLS objective falls (default off)")
+                        "when the TLS objective falls (default: on for SE3, off for SE2)")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, chordal, or "
                         "certified (the certified global optimum of SE-Sync's isotropic "

@@ -156,16 +156,17 @@ class GNC:
         inliers (``benchmarks/results/robust-sph-s13.md``): 8 marks 3140 of the 3724 good
         edges at 50% (seed 0, with the vote; 5: 2255) and no wrong one; on M3500 (2-D) it
         made 70% seed 0 with the odometry known worse (1.91 m instead of 5.6e-13 m).
-    moves : bool
+    moves : bool or None
         With ``first="cycles"``: after GNC (and the vote), move pieces of the graph rigidly
         where more of their edges fit (:func:`~microlie.optim.core.gnc_loops.move_stage`:
         pieces of the known edges, of the accepted edges, small regions outside the largest
         known piece, the sides of accepted bridges), solve the accepted edges, and keep the
-        result only when the TLS objective fell (default False). Measured
-        (``benchmarks/results/robust-defaults-s14.md``, no known inliers): on sphere2500 it
-        brings the chordal start's answers at 30% seed 2 and 50% to the outlier-free
-        optimum (0.96-9.7 m off without it), but took up to 7 times as long (50% seed 0);
-        on M3500 it changed no verdict. Hence off by default: turn it on for hard 3-D cases.
+        result only when the TLS objective fell. ``None`` (default): on for an SE3 pose
+        graph, off otherwise (SE2). Measured (``benchmarks/results/robust-defaults-s14.md``,
+        no known inliers): on sphere2500 (SE3) it brings the chordal start's answers at 30%
+        seed 2 and 50% (all seeds) to the outlier-free optimum (0.96-9.7 m without), at 2.0
+        times GNC's time over the 18 rows and up to 7 times on one (50% seed 0, chordal
+        start); on M3500 (SE2) it changed no verdict at 1.5 times the time.
 
     Examples
     --------
@@ -178,7 +179,7 @@ class GNC:
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
                  first: str = "auto", retest: int = 3, cycle_length: int | None = None,
-                 moves: bool = False, search: bool = False) -> None:
+                 moves: bool | None = None, search: bool = False) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
@@ -221,8 +222,9 @@ class GNC:
             raise ValueError(f"GNC cycle_length must be an integer from 2 to 9 or None (8 for "
                              f"SE3, 5 for SE2), got {cycle_length!r}")
         self.cycle_length = None if cycle_length is None else int(cycle_length)
-        if not isinstance(moves, bool):
-            raise ValueError(f"GNC moves must be True or False, got {moves!r}")
+        if moves is not None and not isinstance(moves, bool):
+            raise ValueError(f"GNC moves must be True, False or None (on for SE3, off for "
+                             f"SE2), got {moves!r}")
         self.moves = moves
 
     def __repr__(self) -> str:
@@ -230,11 +232,13 @@ class GNC:
                 f"known_inliers={len(self.known_inliers)} batches)")
 
     def resolved(self, problem: Problem) -> GNC:
-        """These options with ``first="auto"`` and ``cycle_length=None`` decided for ``problem``.
+        """These options with ``first="auto"``, ``cycle_length=None`` and ``moves=None`` decided
+        for ``problem``.
 
         ``first="auto"``: ``"cycles"`` for TLS on a pose graph
         (:func:`~microlie.optim.core.gnc_chordal.pose_graph_edges` is not None), else
         ``"values"``. ``cycle_length=None``: 8 on an SE3 pose graph, 5 otherwise (SE2).
+        ``moves=None``: True on an SE3 pose graph, False otherwise.
 
         Parameters
         ----------
@@ -244,8 +248,8 @@ class GNC:
         Returns
         -------
         GNC
-            A copy with ``first`` and ``cycle_length`` set (``self`` when nothing was left to
-            decide).
+            A copy with ``first``, ``cycle_length`` and ``moves`` set (``self`` when nothing
+            was left to decide).
 
         Examples
         --------
@@ -257,12 +261,12 @@ class GNC:
         ...     x = g.add_variables(group.identity(3), fixed=[0])
         ...     _ = g.add(BetweenFactor(x, [0, 1], [1, 2], group.identity(2)))
         ...     return g.problem()
-        >>> [(o.first, o.cycle_length) for o in (GNC().resolved(chain(SE2)),
-        ...                                      GNC().resolved(chain(SE3)),
-        ...                                      GNC("gm").resolved(chain(SE3)))]
-        [('cycles', 5), ('cycles', 8), ('values', 8)]
+        >>> [(o.first, o.cycle_length, o.moves) for o in (GNC().resolved(chain(SE2)),
+        ...                                               GNC().resolved(chain(SE3)),
+        ...                                               GNC("gm").resolved(chain(SE3)))]
+        [('cycles', 5, False), ('cycles', 8, True), ('values', 8, True)]
         """
-        if self.first != "auto" and self.cycle_length is not None:
+        if self.first != "auto" and self.cycle_length is not None and self.moves is not None:
             return self
         from .gnc_chordal import pose_graph_edges
 
@@ -271,8 +275,11 @@ class GNC:
         out.known_inliers = list(self.known_inliers)
         if self.first == "auto":
             out.first = "cycles" if edges is not None and self.surrogate == "tls" else "values"
+        se3 = edges is not None and edges.group is SE3
         if self.cycle_length is None:
-            out.cycle_length = 8 if edges is not None and edges.group is SE3 else 5
+            out.cycle_length = 8 if se3 else 5
+        if self.moves is None:
+            out.moves = se3
         return out
 
     def known_masks(self, factors: Sequence[Factor]) -> list[np.ndarray]:
