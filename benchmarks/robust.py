@@ -249,8 +249,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="GNC(cycle_length=...): longest cycle of the first='cycles' marking")
     ap.add_argument("--moves", action="store_true",
                     help="GNC(moves=True): pieces moved where their cut edges fit best")
-    ap.add_argument("--search", action="store_true",
-                    help="GNC(search=True): the local search of core/gnc_search.py after GNC")
+    ap.add_argument("--search", nargs="?", const=True, default=False, choices=[True, "chain"],
+                    help="GNC(search=True): the local search of core/gnc_search.py after GNC; "
+                         "--search chain: with its chained moves (GNC(search='chain'))")
     ap.add_argument("--gtsam-cases", nargs="*", default=[],
                     help="GRAPH:RATE:SEED:START:KNOWN cases GTSAM's GncOptimizer also runs "
                          "(KNOWN: none or known)")

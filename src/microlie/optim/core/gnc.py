@@ -167,7 +167,7 @@ class GNC:
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
                  first: str = "values", retest: int = 3, cycle_length: int = 5,
-                 moves: bool = False, search: bool = False) -> None:
+                 moves: bool = False, search: bool | str = False) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
@@ -201,8 +201,8 @@ class GNC:
             raise ValueError(f"GNC retest must be an integer >= 0 (passes; 0: off), got "
                              f"{retest!r}")
         self.retest = int(retest)
-        if not isinstance(search, bool):
-            raise ValueError(f"GNC search must be True or False, got {search!r}")
+        if not (isinstance(search, bool) or search == "chain"):
+            raise ValueError(f"GNC search must be True, False or 'chain', got {search!r}")
         self.search = search
         if isinstance(cycle_length, bool) or not isinstance(cycle_length, (int, np.integer)) \
                 or not 2 <= cycle_length <= 9:
@@ -629,7 +629,8 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             for _ in range(_SEARCH_ROUNDS):
                 cur, moves = search_stage(
                     cur, edges, pieces, user_known, weights, c2, inner,
-                    lambda st: _objective("tls", squared_norms(problem, st), c2, user_known))
+                    lambda st: _objective("tls", squared_norms(problem, st), c2, user_known),
+                    chain=gnc.search == "chain")
                 if not moves:
                     break
             s = squared_norms(problem, cur)
