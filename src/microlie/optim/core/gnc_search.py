@@ -526,31 +526,34 @@ class _Pieces:
         return best, region[:best_len]
 
     def apply(self, region: list[int], D: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
         """Move the region by ``D``; returns what :meth:`undo` needs and the exact change."""
         verts = np.concatenate([self.members[p] for p in region])
-        self.P[verts] = D @ self.P[verts]
+        was = self.P[verts]
+        self.P[verts] = D @ was
         ks = np.unique(np.concatenate([self.nbrs(p)[0] for p in region]))
         old = self.cc[ks].copy()
         self.cc[ks] = self.costs(ks)
-        return verts, ks, old, float((self.cc[ks] - old).sum())
+        return verts, was, ks, old, float((self.cc[ks] - old).sum())
 
-    def undo(self, verts: np.ndarray, D: np.ndarray, ks: np.ndarray, old: np.ndarray) -> None:
-        self.P[verts] = np.linalg.inv(D) @ self.P[verts]
+    def undo(self, verts: np.ndarray, was: np.ndarray, ks: np.ndarray, old: np.ndarray
+             ) -> None:
+        self.P[verts] = was
         self.cc[ks] = old
 
     def chain(self, first: tuple[float, list[int], np.ndarray, int], length: int,
               uphill: float, width: int) -> tuple[float, list[tuple[list[int], np.ndarray]]]:
         """A chain of moves from ``first`` (module docstring); the poses are left unchanged.
         Returns the best prefix's exact change and its moves (empty when no prefix < 0)."""
-        hist: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int]]] = []
+        hist: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int],
+                         np.ndarray]] = []
         locked: set[int] = set()
         cum, best, best_len = 0.0, 0.0, 0
         move = first
         while True:
             _, region, D, _ = move
-            verts, ks, old, change = self.apply(region, D)
-            hist.append((verts, D, ks, old, region))
+            verts, was, ks, old, change = self.apply(region, D)
+            hist.append((verts, was, ks, old, region, D))
             cum += change
             locked.update(region)
             if cum < best - 1e-9 * self.c2:
@@ -576,7 +579,7 @@ class _Pieces:
             if nxt is None or nxt[0] > uphill * self.c2 or cum + nxt[0] > 2 * uphill * self.c2:
                 break
             move = nxt
-        moves = [(h[4], h[1]) for h in hist[:best_len]]
+        moves = [(h[4], h[5]) for h in hist[:best_len]]
         for h in reversed(hist):
             self.undo(h[0], h[1], h[2], h[3])
         return best, moves
@@ -834,8 +837,12 @@ def search_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         _, Xc, moved, kept = chain_moves(G, G.from_matrix(P), ii, jj, edges.Z, edges.info, lab,
                                          ~uk, c, edges.anchor, tol=tol)
         if kept:
-            P = np.array(Xc.matrix(), dtype=np.float64)
-            touched |= moved[ii] != moved[jj]
+            Pc = np.array(Xc.matrix(), dtype=np.float64)
+            e = np.flatnonzero(moved[ii] | moved[jj])  # the edges whose relative pose changed
+            rel0 = np.linalg.inv(P[ii[e]]) @ P[jj[e]]
+            rel1 = np.linalg.inv(Pc[ii[e]]) @ Pc[jj[e]]
+            touched[e[np.abs(rel1 - rel0).max(axis=(1, 2)) > 1e-9]] = True
+            P = Pc
             moves += kept
     if not moves:
         return states, 0
