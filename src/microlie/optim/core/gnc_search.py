@@ -55,54 +55,10 @@ __all__ = ["best_region_move", "chain_moves", "refine_motion", "region_moves",
            "search_stage"]
 
 
-def _log(group: Any, E: np.ndarray) -> np.ndarray:
-    """``Log`` of SE2/SE3 homogeneous matrices ``(m, k, k)`` in the group's tangent order
-    (translation, then rotation), in plain numpy (the group constructors check their input,
-    too slow for the many small batches of the search)."""
-    if group is SE2:
-        th = np.arctan2(E[:, 1, 0], E[:, 0, 0])
-        small = np.abs(th) < 1e-8
-        ts = np.where(small, 1.0, th)
-        a = np.where(small, 1.0 - th * th / 6.0, np.sin(ts) / ts)
-        b = np.where(small, th / 2.0, (1.0 - np.cos(ts)) / ts)
-        x, y = E[:, 0, 2], E[:, 1, 2]
-        d = a * a + b * b
-        return np.stack([(a * x + b * y) / d, (a * y - b * x) / d, th], axis=1)
-    R, t = E[:, :3, :3], E[:, :3, 3]
-    cos = np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    th = np.arccos(cos)
-    v = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]],
-                 axis=1)
-    sin = np.sin(th)
-    small = th < 1e-6
-    near_pi = (np.pi - th) < 1e-4
-    f = np.where(small, 0.5 + th * th / 12.0, th / (2.0 * np.where(small | near_pi, 1.0, sin)))
-    w = f[:, None] * v
-    if near_pi.any():  # the axis from the diagonal: R = 2 a a^T - I at theta = pi
-        Rp = R[near_pi]
-        diag = np.clip((np.diagonal(Rp, axis1=1, axis2=2) + 1.0) / 2.0, 0.0, None)
-        ax = np.sqrt(diag)
-        k = np.argmax(diag, axis=1)
-        sgn = np.sign(Rp[np.arange(k.size), k, :] + Rp[np.arange(k.size), :, k])
-        sgn[sgn == 0] = 1.0
-        ax = ax * sgn
-        ax /= np.linalg.norm(ax, axis=1, keepdims=True)
-        w[near_pi] = th[near_pi, None] * ax
-    W = np.zeros((th.size, 3, 3))
-    W[:, 0, 1], W[:, 0, 2], W[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
-    W = W - np.swapaxes(W, 1, 2)
-    th2 = np.where(small, 1.0, th * th)
-    c = np.where(small, 1.0 / 12.0,
-                 (1.0 - th * sin / (2.0 * np.where(small, 1.0, 1.0 - cos))) / th2)
-    Vinv = np.eye(3) - 0.5 * W + c[:, None, None] * (W @ W)
-    rho = np.einsum("eab,eb->ea", Vinv, t)
-    return np.concatenate([rho, w], axis=1)
-
-
 def _costs(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: LieGroup,
            info: np.ndarray, c2: float, judged: np.ndarray) -> np.ndarray:
     """``min(s, c^2)`` of the judged edges, ``s`` of the others, poses as matrices."""
-    r = _log(group, np.asarray(Zinv.matrix(), dtype=np.float64) @ np.linalg.inv(P[ii]) @ P[jj])
+    r = group.log_matrix(np.asarray(Zinv.matrix(), dtype=np.float64) @ np.linalg.inv(P[ii]) @ P[jj])
     s = np.einsum("ea,eab,eb->e", r, info, r)
     return np.where(judged, np.minimum(s, c2), s)
 
@@ -162,7 +118,7 @@ def refine_motion(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, M: 
     Pa, Pb = P[a], P[b]
     K = cut.size
     rel0 = np.linalg.inv(Pa) @ Pb
-    r0 = _log(group, Minv @ rel0)
+    r0 = group.log_matrix(Minv @ rel0)
     s0 = np.einsum("ea,eab,eb->e", r0, info[cut], r0)
     now = np.where(judged[cut], np.minimum(s0, c2), s0).sum()
     gains = np.empty(K)
@@ -171,7 +127,7 @@ def refine_motion(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, M: 
         A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
         B_ = np.where(fwd[None, :, None, None], Dk @ Pb[None], Pb[None])
         rel = (np.linalg.inv(A_) @ B_).reshape(-1, *P.shape[1:])
-        r = _log(group, np.tile(Minv, (Dk.shape[0], 1, 1)) @ rel)
+        r = group.log_matrix(np.tile(Minv, (Dk.shape[0], 1, 1)) @ rel)
         sv = np.einsum("ea,eab,eb->e", r, np.tile(info[cut], (Dk.shape[0], 1, 1)), r)
         cv = np.where(np.tile(judged[cut], Dk.shape[0]), np.minimum(sv, c2), sv)
         gains[lo:lo + 64] = cv.reshape(Dk.shape[0], K).sum(axis=1) - now
@@ -327,7 +283,7 @@ def region_moves(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: Lie
             # the change of every inter-piece edge with its j end moved (fj) or its i end
             # moved (fi)
             rel = np.concatenate([Pi_inv @ D @ Pj, Pi_inv @ np.linalg.inv(D) @ Pj])
-            r = _log(group, Minv_cc @ rel)
+            r = group.log_matrix(Minv_cc @ rel)
             sv = np.einsum("ea,eab,eb->e", r, info_cc, r)
             cv = np.where(judged_cc, np.minimum(sv, c2), sv) - base_cc
             fj, fi = cv[:cross.size].tolist(), cv[cross.size:].tolist()
@@ -439,7 +395,8 @@ class _Pieces:
     def costs(self, ks: np.ndarray) -> np.ndarray:
         """The costs of the inter-piece edges ``ks`` at the current poses."""
         e = self.cross[ks]
-        r = _log(self.group, self.Minv[e] @ np.linalg.inv(self.P[self.ii[e]]) @ self.P[self.jj[e]])
+        r = self.group.log_matrix(self.Minv[e] @ np.linalg.inv(self.P[self.ii[e]]) @
+                                  self.P[self.jj[e]])
         s = np.einsum("ea,eab,eb->e", r, self.info[e], r)
         return np.where(self.judged[e], np.minimum(s, self.c2), s)
 
@@ -479,12 +436,12 @@ class _Pieces:
         Pi_inv = np.linalg.inv(P[self.ii[e2]])
         Pj = P[self.jj[e2]]
         rel = np.concatenate([Pi_inv @ D @ Pj, Pi_inv @ np.linalg.inv(D) @ Pj])
-        r = _log(self.group, np.concatenate([self.Minv[e2]] * 2) @ rel)
+        r = self.group.log_matrix(np.concatenate([self.Minv[e2]] * 2) @ rel)
         s = np.einsum("ea,eab,eb->e", r, np.concatenate([self.info[e2]] * 2), r)
         jd = np.concatenate([self.judged[e2]] * 2)
         f = np.where(jd, np.minimum(s, self.c2), s) - np.concatenate([self.cc[ks]] * 2)
-        fj = dict(zip(ks.tolist(), f[:ks.size].tolist()))
-        fi = dict(zip(ks.tolist(), f[ks.size:].tolist()))
+        fj = dict(zip(ks.tolist(), f[:ks.size].tolist(), strict=True))
+        fi = dict(zip(ks.tolist(), f[ks.size:].tolist(), strict=True))
         gain, region = self._grow(seed, seen, fi, fj)
         return gain, region, D, k
 
@@ -500,7 +457,7 @@ class _Pieces:
         def join_gain(q: int) -> float:
             ks, os_ = self.nbrs(q)
             return sum(-change(k, o) if o in inS else change(k, q)
-                       for k, o in zip(ks.tolist(), os_.tolist()))
+                       for k, o in zip(ks.tolist(), os_.tolist(), strict=True))
 
         ks, os_ = self.nbrs(seed)
         cur = sum(change(k, seed) for k in ks.tolist())
@@ -564,7 +521,7 @@ class _Pieces:
             tried = 0
             for p in region:
                 kk, oo = self.nbrs(p)
-                for k, o in zip(kk.tolist(), oo.tolist()):
+                for k, o in zip(kk.tolist(), oo.tolist(), strict=True):
                     if o in locked or o == self.a_piece or not self.judged[self.cross[k]] \
                             or self.cc[k] < self.c2 * (1.0 - 1e-12):
                         continue
