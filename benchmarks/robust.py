@@ -255,9 +255,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--moves", action=argparse.BooleanOptionalAction, default=None,
                     help="GNC(moves=...): pieces moved where their cut edges fit best (default: "
                          "GNC's, on for SE3 and off for SE2)")
-    ap.add_argument("--search", action=argparse.BooleanOptionalAction, default=None,
-                    help="GNC(search=...): the local search of core/gnc_search.py after GNC "
-                         "(default: GNC's)")
+    ap.add_argument("--search", nargs="?", const=True, default=None, choices=[True, "chain"],
+                    help="GNC(search=True): the local search of core/gnc_search.py after GNC; "
+                         "--search chain: with its chained moves (GNC(search='chain')); "
+                         "default: GNC's (off)")
     ap.add_argument("--gtsam-cases", nargs="*", default=[],
                     help="GRAPH:RATE:SEED:START:KNOWN cases GTSAM's GncOptimizer also runs "
                          "(KNOWN: none or known)")

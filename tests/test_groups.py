@@ -696,3 +696,28 @@ def test_from_euler_validated_like_scipy():
             Rotation.from_euler(seq, ang)  # SciPy rejects it too
         with pytest.raises(ValueError, match="Euler"):
             SO3.from_euler(seq, ang)
+
+
+@pytest.mark.parametrize("G", [SE2, SE3])
+@pytest.mark.parametrize("theta", [0.0, 1e-12, 1e-3, 1.0, np.pi - 1e-6, np.pi - 1e-12, np.pi])
+def test_log_matrix_unchecked(G, theta):
+    # the unchecked Log of homogeneous matrices agrees with the checked path (from the
+    # group's element) and its Exp gives the matrix back; away from pi also with SciPy's logm
+    rng = np.random.default_rng(5)
+    dim = G.dof
+    tau = rng.normal(size=(20, dim))
+    rot = slice(2, 3) if G is SE2 else slice(3, 6)
+    ax = tau[:, rot] / np.linalg.norm(tau[:, rot], axis=1, keepdims=True)
+    tau[:, rot] = ax * theta
+    if theta == np.pi:  # exactly pi: pure translations times an element rotated by pi
+        tau[:, rot] = 0.0
+        X = G.exp(tau) @ G._exact_pi_element()
+    else:
+        X = G.exp(tau)
+    M = np.asarray(X.matrix())
+    got = G.log_matrix(M)
+    np.testing.assert_allclose(got, np.asarray(X.log()), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(G.exp(got).matrix()), M, atol=1e-12)
+    if theta < 3.0:
+        for k in range(3):
+            np.testing.assert_allclose(np.asarray(G.hat(got[k])), logm(M[k]).real, atol=1e-9)

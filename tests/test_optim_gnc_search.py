@@ -10,7 +10,12 @@ from microlie import SE2, SE3, SO2, SO3
 from microlie.optim import BetweenFactor, FactorGraph, Isotropic
 from microlie.optim.core.gnc import GNC
 from microlie.optim.core.gnc_chordal import pose_graph_edges
-from microlie.optim.core.gnc_search import _log, best_region_move, region_moves, search_stage
+from microlie.optim.core.gnc_search import (
+    best_region_move,
+    chain_moves,
+    region_moves,
+    search_stage,
+)
 
 SIGMA = 0.01
 
@@ -62,16 +67,6 @@ def _tls_sum(G, X, ii, jj, Z, info, c2):
     Xg = G.from_matrix(X)
     r = np.asarray(Z.inverse().compose(Xg[ii].inverse().compose(Xg[jj])).log())
     return float(np.minimum(np.einsum("ea,eab,eb->e", r, info, r), c2).sum())
-
-
-@pytest.mark.parametrize("G", [SE2, SE3])
-def test_log_matches_the_group(G):
-    rng = np.random.default_rng(1)
-    dim = 3 if G is SE2 else 6
-    for scale in (1e-10, 1e-3, 0.5, 2.0):
-        X = G.exp(rng.normal(size=(200, dim)) * scale)
-        np.testing.assert_allclose(_log(G, np.asarray(X.matrix())), np.asarray(X.log()),
-                                   atol=1e-9)
 
 
 @pytest.mark.parametrize("G", [SE2, SE3])
@@ -174,18 +169,147 @@ def test_bad_input():
                      11.3, 0, max_steps=0)
     with pytest.raises(ValueError, match="one entry per edge"):
         region_moves(SE2, SE2.from_matrix(X), ii, jj, Z, info, lab, np.ones(3, bool), 11.3, 0)
-    with pytest.raises(ValueError, match="search must be True or False"):
+    with pytest.raises(ValueError, match="search must be True, False or 'chain'"):
         GNC("tls", first="cycles", search="yes")  # type: ignore[arg-type]
 
 
-def test_gnc_with_search_on_a_pose_graph():
+@pytest.mark.parametrize("search", [True, "chain"])
+def test_gnc_with_search_on_a_pose_graph(search):
     # the whole pipeline (first="cycles", search=True) from the displaced poses: the wrong
     # closures rejected, the good ones kept, the poses at the truth
     n, ii, jj, Z, info, T, X, kind = _scene(SE2, 8)
     g = FactorGraph()
     x = g.add_variables(SE2.from_matrix(X), fixed=[0])
     g.add(BetweenFactor(x, ii, jj, Z, Isotropic(3, SIGMA)))
-    res = g.optimize(robust=GNC("tls", first="cycles", search=True), verbose=False)
+    res = g.optimize(robust=GNC("tls", first="cycles", search=search), verbose=False)
     assert res.inliers[0].tolist() == (kind != 2).tolist()
     P = np.asarray(res.values[x].translation())
     assert np.abs(P - T[:, :2, 2]).max() < 0.01
+
+
+def _chain_scene(G, seed, noise=False):
+    """Three pieces of four poses (chains): A = 0-3 (the anchor's), B = 4-7, C = 8-11. The
+    good edges across them, 3-4 and 7-8 (odometry) and the closure 1-9, are rejected: B sits
+    displaced by one rigid motion, held there by the wrong edge 0-5 that fits it, and C by
+    another, held by the wrong edge 2-10. Moving B alone to the truth brings 3-4 in and 0-5
+    out (7-8 stays out: C is displaced), moving C alone brings 1-9 in and 2-10 out: ties.
+    Moving C and then B brings 3-4, 7-8 and 1-9 in and both wrong edges out: one edge less.
+    Returns the edges, the truth ``T``, the displaced poses ``X`` and the piece labels."""
+    rng = np.random.default_rng(seed)
+    d = 2 if G is SE2 else 3
+    dim = 3 if G is SE2 else 6
+    R = SO2 if G is SE2 else SO3
+    n = 12
+    step = G.from_rotation_translation(R.exp(rng.normal(0, 0.3, (n - 1, 1 if G is SE2 else 3))),
+                                       rng.uniform(0.5, 1.5, (n - 1, d)))
+    T = [np.eye(d + 1)]
+    for k in range(n - 1):
+        T.append(T[-1] @ np.asarray(step[k].matrix()))
+    T = np.array(T)
+    ii = np.array([0, 1, 2, 4, 5, 6, 8, 9, 10, 3, 7, 1, 0, 2])
+    jj = np.array([1, 2, 3, 5, 6, 7, 9, 10, 11, 4, 8, 9, 5, 10])
+    kind = np.array([0] * 9 + [1] * 3 + [2] * 2)  # inside a piece, good across, wrong
+    Zm = np.linalg.inv(T[ii]) @ T[jj]
+    if noise:
+        Zm = Zm @ np.asarray(G.exp(rng.normal(0, SIGMA / 10, (ii.size, dim))).matrix())
+    X = T.copy()
+    for lo, hi in ((4, 8), (8, 12)):  # B and C displaced by different rigid motions
+        D = np.asarray(G.from_rotation_translation(R.random(1, rng=rng),
+                                                   rng.uniform(-20, 20, (1, d))).matrix())[0]
+        X[lo:hi] = D @ T[lo:hi]
+    bad = kind == 2
+    Zm[bad] = np.linalg.inv(X[ii[bad]]) @ X[jj[bad]]
+    info = np.tile(np.eye(dim) / SIGMA ** 2, (ii.size, 1, 1))
+    lab = np.repeat([0, 1, 2], 4)
+    return n, ii, jj, G.from_matrix(Zm), info, T, X, kind, lab
+
+
+@pytest.mark.parametrize("G", [SE2, SE3])
+def test_single_moves_are_ties_and_the_chain_lowers(G):
+    n, ii, jj, Z, info, T, X, kind, lab = _chain_scene(G, 0)
+    c2 = float(chi2.ppf(0.99, info.shape[-1]))
+    judged = np.ones(ii.size, bool)
+    before = _tls_sum(G, X, ii, jj, Z, info, c2)
+    assert before == pytest.approx(3 * c2, rel=1e-9)  # the three good edges across rejected
+    # every rigid move of B, C or both that makes one edge across fit, from scratch: none lowers
+    Xg = G.from_matrix(X)
+    for e in np.flatnonzero(kind > 0):
+        for region in ([1], [2], [1, 2]):
+            m = np.isin(lab, region)
+            if m[ii[e]] == m[jj[e]]:
+                continue
+            Zm = np.asarray(Z.matrix())[e]
+            D = X[ii[e]] @ Zm @ np.linalg.inv(X[jj[e]]) if m[jj[e]] else \
+                X[jj[e]] @ np.linalg.inv(Zm) @ np.linalg.inv(X[ii[e]])
+            X2 = X.copy()
+            X2[m] = D @ X[m]
+            assert _tls_sum(G, X2, ii, jj, Z, info, c2) >= before - 1e-6 * c2
+    assert region_moves(G, Xg, ii, jj, Z, info, lab, judged, c2, 0) == []
+    gain, X2, moved, chains = chain_moves(G, Xg, ii, jj, Z, info, lab, judged, c2, 0, length=1)
+    assert (gain, chains, moved.any()) == (0.0, 0, False)  # single moves: nothing
+    gain, X2, moved, chains = chain_moves(G, Xg, ii, jj, Z, info, lab, judged, c2, 0)
+    assert chains == 1
+    assert gain == pytest.approx(-c2, rel=1e-9)  # one edge less
+    P2 = np.asarray(X2.matrix())
+    assert _tls_sum(G, P2, ii, jj, Z, info, c2) - before == pytest.approx(gain, rel=1e-9)
+    np.testing.assert_allclose(P2, T, atol=1e-9)  # both pieces back at the truth
+    assert moved.tolist() == [False] * 4 + [True] * 8
+
+
+@pytest.mark.parametrize("G", [SE2, SE3])
+@pytest.mark.parametrize("seed", [1, 2])
+def test_chain_gain_is_the_exact_change(G, seed):
+    # noisy measurements, finer pieces (C cut in two): the gain equals the change of
+    # sum min(s, c^2) recomputed from scratch by the group's operations
+    n, ii, jj, Z, info, T, X, kind, lab = _chain_scene(G, seed, noise=True)
+    c2 = float(chi2.ppf(0.99, info.shape[-1]))
+    lab = np.repeat([0, 1, 2, 3], [4, 4, 2, 2])
+    gain, X2, moved, chains = chain_moves(G, G.from_matrix(X), ii, jj, Z, info, lab,
+                                          np.ones(ii.size, bool), c2, 0)
+    assert chains >= 1 and gain < -0.25 * c2
+    after = _tls_sum(G, np.asarray(X2.matrix()), ii, jj, Z, info, c2)
+    assert after - _tls_sum(G, X, ii, jj, Z, info, c2) == pytest.approx(gain, abs=1e-6 * c2)
+    assert not moved[:4].any()  # the anchor's piece never moves
+
+
+def test_search_stage_with_chains():
+    n, ii, jj, Z, info, T, X, kind, lab = _chain_scene(SE2, 3, noise=True)
+    c2 = float(chi2.ppf(0.99, 3))
+    g = FactorGraph()
+    x = g.add_variables(SE2.from_matrix(X), fixed=[0])
+    g.add(BetweenFactor(x, ii, jj, Z, Isotropic(3, SIGMA)))
+    edges = pose_graph_edges(g.problem())
+    states = [np.asarray(SE2.from_matrix(X).params)]
+
+    def objective(st):
+        return 0.5 * _tls_sum(SE2, np.asarray(SE2.from_params(st[0]).matrix()), ii, jj, Z,
+                              info, c2)
+
+    for chain in (False, True):
+        w = [(kind != 1).astype(np.float64)]  # GNC's verdict in the local minimum
+        new, moves = search_stage(states, edges, [kind == 0], [np.zeros(ii.size, bool)], w,
+                                  [c2], lambda st: st, objective, chain=chain)
+        assert moves == int(chain)  # the region moves alone find nothing
+    P = np.asarray(SE2.from_params(new[0]).matrix())
+    assert np.abs(P[:, :2, 2] - T[:, :2, 2]).max() < 10 * SIGMA * n  # at the truth
+    assert w[0].tolist() == (kind != 2).astype(float).tolist()  # wrong out, good in
+    assert objective(new) < objective(states)
+
+
+def test_chain_bad_input():
+    n, ii, jj, Z, info, T, X, kind, lab = _chain_scene(SE2, 4)
+    Xg = SE2.from_matrix(X)
+    judged = np.ones(ii.size, bool)
+    with pytest.raises(ValueError, match="SE2 or SE3"):
+        chain_moves(SO2, Xg, ii, jj, Z, info, lab, judged, 11.3, 0)
+    for kw in ({"length": 0}, {"hood": 0}, {"width": 1.5}, {"max_scans": True}):
+        with pytest.raises(ValueError, match="integer >= 1"):
+            chain_moves(SE2, Xg, ii, jj, Z, info, lab, judged, 11.3, 0, **kw)
+    for kw in ({"first": -0.1}, {"uphill": float("nan")}, {"tol": "1"}):
+        with pytest.raises(ValueError, match="finite number >= 0"):
+            chain_moves(SE2, Xg, ii, jj, Z, info, lab, judged, 11.3, 0, **kw)
+    with pytest.raises(ValueError, match="one entry per edge"):
+        chain_moves(SE2, Xg, ii, jj, Z, info, lab, judged[:3], 11.3, 0)
+    with pytest.raises(ValueError, match="chain must be True or False"):
+        search_stage([np.asarray(Xg.params)], None, [], [], [], [11.3], lambda st: st,
+                     lambda st: 0.0, chain="yes")  # type: ignore[arg-type]

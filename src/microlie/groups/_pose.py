@@ -8,6 +8,7 @@ import numpy as np
 
 from .. import _array as A
 from .._array import Array
+from .._kernels import run
 from .base import LieGroup
 
 if TYPE_CHECKING:
@@ -38,6 +39,41 @@ class Pose(LieGroup):
         tau = np.linspace(0.3, 1.1, cls.dof) * (-1.0) ** np.arange(cls.dof)
         tau[cls._rotation_slice] = 0.0
         return cls.exp(tau) @ cls(p)  # type: ignore[return-value]
+
+    @classmethod
+    def log_matrix(cls, matrix: Any) -> np.ndarray:
+        """``Log`` of homogeneous matrices ``[[R, t], [0, 1]]`` as a NumPy array, **unchecked**.
+
+        The fast path for callers whose matrices are products of the group's own matrices
+        (many small batches, e.g. residuals in a search): unlike
+        ``from_matrix(matrix).log()`` nothing is validated (``R`` is read as a rotation, the
+        last row is ignored), so garbage in is garbage out. The result is the group's own
+        ``log`` kernel on the parameters read from the matrix: the same values as
+        ``log()``, also at and near a rotation by pi.
+
+        Parameters
+        ----------
+        matrix : array_like
+            ``(..., n + 1, n + 1)`` float64 rigid motions.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(..., dof)``: translation part, then rotation part.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from microlie import SE2
+        >>> X = SE2.from_xy_theta([1.0], [2.0], [np.pi])
+        >>> bool(np.allclose(SE2.log_matrix(X.matrix()), X.log()))
+        True
+        """
+        m = np.asarray(matrix, dtype=np.float64)
+        n = cls._rotation.point_dim
+        rot = cls._rotation._params_of_matrix(m[..., :n, :n])
+        p = np.concatenate([m[..., :n, n], rot], axis=-1)
+        return np.asarray(run(cls._K["log"], p))
 
     @classmethod
     def _dims(cls) -> tuple[int, int]:

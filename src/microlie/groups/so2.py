@@ -52,6 +52,11 @@ class SO2(LieGroup):
         return checked_unit_quat(p, normalize, "SO2", kind="complex number (cos, sin)")
 
     @classmethod
+    def _params_of_matrix(cls, R: np.ndarray) -> np.ndarray:
+        """``(cos, sin)`` of rotation matrices ``(..., 2, 2)``, unchecked (first column)."""
+        return np.ascontiguousarray(R[..., :, 0])
+
+    @classmethod
     def _random_params(cls, rng: np.random.Generator, batch_shape: tuple) -> np.ndarray:
         a = rng.uniform(-np.pi, np.pi, batch_shape)
         return np.stack([np.cos(a), np.sin(a)], -1)

@@ -434,6 +434,11 @@ class SO3(LieGroup):
 
     # ------------------------------------------------------------------ constructors
     @classmethod
+    def _params_of_matrix(cls, R: np.ndarray) -> np.ndarray:
+        """Unit quaternions of rotation matrices ``(..., 3, 3)``, unchecked (Shepperd)."""
+        return np.asarray(_quat_from_matrix_array(np.ascontiguousarray(R)))
+
+    @classmethod
     def from_matrix(cls, matrix: Any, normalize: bool = False) -> SO3:
         """From rotation matrices.
 

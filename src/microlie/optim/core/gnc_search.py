@@ -51,57 +51,14 @@ import numpy as np
 
 from ...groups import SE2, SE3, LieGroup
 
-__all__ = ["best_region_move", "refine_motion", "region_moves", "search_stage"]
-
-
-def _log(group: Any, E: np.ndarray) -> np.ndarray:
-    """``Log`` of SE2/SE3 homogeneous matrices ``(m, k, k)`` in the group's tangent order
-    (translation, then rotation), in plain numpy (the group constructors check their input,
-    too slow for the many small batches of the search)."""
-    if group is SE2:
-        th = np.arctan2(E[:, 1, 0], E[:, 0, 0])
-        small = np.abs(th) < 1e-8
-        ts = np.where(small, 1.0, th)
-        a = np.where(small, 1.0 - th * th / 6.0, np.sin(ts) / ts)
-        b = np.where(small, th / 2.0, (1.0 - np.cos(ts)) / ts)
-        x, y = E[:, 0, 2], E[:, 1, 2]
-        d = a * a + b * b
-        return np.stack([(a * x + b * y) / d, (a * y - b * x) / d, th], axis=1)
-    R, t = E[:, :3, :3], E[:, :3, 3]
-    cos = np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    th = np.arccos(cos)
-    v = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]],
-                 axis=1)
-    sin = np.sin(th)
-    small = th < 1e-6
-    near_pi = (np.pi - th) < 1e-4
-    f = np.where(small, 0.5 + th * th / 12.0, th / (2.0 * np.where(small | near_pi, 1.0, sin)))
-    w = f[:, None] * v
-    if near_pi.any():  # the axis from the diagonal: R = 2 a a^T - I at theta = pi
-        Rp = R[near_pi]
-        diag = np.clip((np.diagonal(Rp, axis1=1, axis2=2) + 1.0) / 2.0, 0.0, None)
-        ax = np.sqrt(diag)
-        k = np.argmax(diag, axis=1)
-        sgn = np.sign(Rp[np.arange(k.size), k, :] + Rp[np.arange(k.size), :, k])
-        sgn[sgn == 0] = 1.0
-        ax = ax * sgn
-        ax /= np.linalg.norm(ax, axis=1, keepdims=True)
-        w[near_pi] = th[near_pi, None] * ax
-    W = np.zeros((th.size, 3, 3))
-    W[:, 0, 1], W[:, 0, 2], W[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
-    W = W - np.swapaxes(W, 1, 2)
-    th2 = np.where(small, 1.0, th * th)
-    c = np.where(small, 1.0 / 12.0,
-                 (1.0 - th * sin / (2.0 * np.where(small, 1.0, 1.0 - cos))) / th2)
-    Vinv = np.eye(3) - 0.5 * W + c[:, None, None] * (W @ W)
-    rho = np.einsum("eab,eb->ea", Vinv, t)
-    return np.concatenate([rho, w], axis=1)
+__all__ = ["best_region_move", "chain_moves", "refine_motion", "region_moves",
+           "search_stage"]
 
 
 def _costs(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, Zinv: LieGroup,
            info: np.ndarray, c2: float, judged: np.ndarray) -> np.ndarray:
     """``min(s, c^2)`` of the judged edges, ``s`` of the others, poses as matrices."""
-    r = _log(group, np.asarray(Zinv.matrix(), dtype=np.float64) @ np.linalg.inv(P[ii]) @ P[jj])
+    r = group.log_matrix(np.asarray(Zinv.matrix(), dtype=np.float64) @ np.linalg.inv(P[ii]) @ P[jj])
     s = np.einsum("ea,eab,eb->e", r, info, r)
     return np.where(judged, np.minimum(s, c2), s)
 
@@ -161,7 +118,7 @@ def refine_motion(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, M: 
     Pa, Pb = P[a], P[b]
     K = cut.size
     rel0 = np.linalg.inv(Pa) @ Pb
-    r0 = _log(group, Minv @ rel0)
+    r0 = group.log_matrix(Minv @ rel0)
     s0 = np.einsum("ea,eab,eb->e", r0, info[cut], r0)
     now = np.where(judged[cut], np.minimum(s0, c2), s0).sum()
     gains = np.empty(K)
@@ -170,7 +127,7 @@ def refine_motion(group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray, M: 
         A_ = np.where(~fwd[None, :, None, None], Dk @ Pa[None], Pa[None])
         B_ = np.where(fwd[None, :, None, None], Dk @ Pb[None], Pb[None])
         rel = (np.linalg.inv(A_) @ B_).reshape(-1, *P.shape[1:])
-        r = _log(group, np.tile(Minv, (Dk.shape[0], 1, 1)) @ rel)
+        r = group.log_matrix(np.tile(Minv, (Dk.shape[0], 1, 1)) @ rel)
         sv = np.einsum("ea,eab,eb->e", r, np.tile(info[cut], (Dk.shape[0], 1, 1)), r)
         cv = np.where(np.tile(judged[cut], Dk.shape[0]), np.minimum(sv, c2), sv)
         gains[lo:lo + 64] = cv.reshape(Dk.shape[0], K).sum(axis=1) - now
@@ -326,7 +283,7 @@ def region_moves(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: Lie
             # the change of every inter-piece edge with its j end moved (fj) or its i end
             # moved (fi)
             rel = np.concatenate([Pi_inv @ D @ Pj, Pi_inv @ np.linalg.inv(D) @ Pj])
-            r = _log(group, Minv_cc @ rel)
+            r = group.log_matrix(Minv_cc @ rel)
             sv = np.einsum("ea,eab,eb->e", r, info_cc, r)
             cv = np.where(judged_cc, np.minimum(sv, c2), sv) - base_cc
             fj, fi = cv[:cross.size].tolist(), cv[cross.size:].tolist()
@@ -409,11 +366,323 @@ def _grow(seed: int, stay: int, a_piece: int, inc: list[int], start: list[int], 
     return best, region[:best_len]
 
 
+class _Pieces:
+    """Rigid pieces of a pose graph under tentative moves: the current poses, the pieces'
+    inter-piece edges and their costs ``min(s, c^2)`` (``s`` for known inliers), kept exact
+    under :meth:`apply` / :meth:`undo` (only the edges across a moved region change)."""
+
+    def __init__(self, group: Any, P: np.ndarray, ii: np.ndarray, jj: np.ndarray,
+                 M: np.ndarray, info: np.ndarray, lab: np.ndarray, judged: np.ndarray,
+                 c2: float, anchor: int, hood: int) -> None:
+        self.group, self.P, self.c2, self.hood = group, P, c2, hood
+        self.ii, self.jj, self.M, self.info, self.judged = ii, jj, M, info, judged
+        self.Minv = np.linalg.inv(M)
+        la, lb = lab[ii], lab[jj]
+        self.cross = np.flatnonzero(la != lb)
+        self.ca, self.cb = la[self.cross], lb[self.cross]
+        m = int(lab.max()) + 1
+        ends = np.concatenate([self.ca, self.cb])
+        order = np.argsort(ends, kind="stable")
+        self.start = np.searchsorted(ends[order], np.arange(m + 1))
+        self.inc = np.concatenate([np.arange(self.cross.size)] * 2)[order]
+        self.other = np.concatenate([self.cb, self.ca])[order]  # the far end's piece
+        vorder = np.argsort(lab, kind="stable")
+        vstart = np.searchsorted(lab[vorder], np.arange(m + 1))
+        self.members = [vorder[vstart[p]:vstart[p + 1]] for p in range(m)]
+        self.a_piece = int(lab[anchor])
+        self.cc = self.costs(np.arange(self.cross.size))
+
+    def costs(self, ks: np.ndarray) -> np.ndarray:
+        """The costs of the inter-piece edges ``ks`` at the current poses."""
+        e = self.cross[ks]
+        r = self.group.log_matrix(self.Minv[e] @ np.linalg.inv(self.P[self.ii[e]]) @
+                                  self.P[self.jj[e]])
+        s = np.einsum("ea,eab,eb->e", r, self.info[e], r)
+        return np.where(self.judged[e], np.minimum(s, self.c2), s)
+
+    def nbrs(self, p: int) -> tuple[np.ndarray, np.ndarray]:
+        """The inter-piece edges of piece ``p`` and their far ends' pieces."""
+        lo, hi = self.start[p], self.start[p + 1]
+        return self.inc[lo:hi], self.other[lo:hi]
+
+    def propose(self, k: int, side: int, locked: set[int]
+                ) -> tuple[float, list[int], np.ndarray, int] | None:
+        """The region move that makes inter-piece edge ``k`` fit by moving its j end's piece
+        (``side`` 0) or its i end's (1), grown greedily within ``hood`` pieces of it (never into
+        ``locked``, the anchor's piece or the other end's): ``(gain, pieces, D, k)``."""
+        e = int(self.cross[k])
+        seed = int(self.cb[k] if side == 0 else self.ca[k])
+        stay = int(self.ca[k] if side == 0 else self.cb[k])
+        if seed == self.a_piece or seed in locked:
+            return None
+        P = self.P
+        if side == 0:
+            D = P[self.ii[e]] @ self.M[e] @ np.linalg.inv(P[self.jj[e]])
+        else:
+            D = P[self.jj[e]] @ self.Minv[e] @ np.linalg.inv(P[self.ii[e]])
+        blocked = locked | {stay, self.a_piece}
+        hood, seen = [seed], {seed}
+        at = 0
+        while at < len(hood) < self.hood:  # breadth first from the seed, up to hood pieces
+            for o in self.nbrs(hood[at])[1].tolist():
+                if o not in seen and o not in blocked:
+                    seen.add(o)
+                    hood.append(o)
+                    if len(hood) >= self.hood:
+                        break
+            at += 1
+        ks = np.unique(np.concatenate([self.nbrs(p)[0] for p in hood]))
+        e2 = self.cross[ks]
+        Pi_inv = np.linalg.inv(P[self.ii[e2]])
+        Pj = P[self.jj[e2]]
+        rel = np.concatenate([Pi_inv @ D @ Pj, Pi_inv @ np.linalg.inv(D) @ Pj])
+        r = self.group.log_matrix(np.concatenate([self.Minv[e2]] * 2) @ rel)
+        s = np.einsum("ea,eab,eb->e", r, np.concatenate([self.info[e2]] * 2), r)
+        jd = np.concatenate([self.judged[e2]] * 2)
+        f = np.where(jd, np.minimum(s, self.c2), s) - np.concatenate([self.cc[ks]] * 2)
+        fj = dict(zip(ks.tolist(), f[:ks.size].tolist(), strict=True))
+        fi = dict(zip(ks.tolist(), f[ks.size:].tolist(), strict=True))
+        gain, region = self._grow(seed, seen, fi, fj)
+        return gain, region, D, k
+
+    def _grow(self, seed: int, allowed: set[int], fi: dict[int, float], fj: dict[int, float],
+              margin: float = 6.0, patience: int = 20) -> tuple[float, list[int]]:
+        """Greedy growth from ``seed`` within ``allowed`` (as :func:`_grow`)."""
+        cb = self.cb
+        inS, region = {seed}, [seed]
+
+        def change(k: int, p: int) -> float:  # edge k across the boundary, p its end moved
+            return fj[k] if cb[k] == p else fi[k]
+
+        def join_gain(q: int) -> float:
+            ks, os_ = self.nbrs(q)
+            return sum(-change(k, o) if o in inS else change(k, q)
+                       for k, o in zip(ks.tolist(), os_.tolist(), strict=True))
+
+        ks, os_ = self.nbrs(seed)
+        cur = sum(change(k, seed) for k in ks.tolist())
+        gains = {q: join_gain(q) for q in set(os_.tolist()) if q in allowed and q != seed}
+        heap = [(g, q) for q, g in gains.items()]
+        heapq.heapify(heap)
+        best, best_len = cur, 1
+        while heap:
+            g, q = heapq.heappop(heap)
+            if q in inS or gains.get(q) != g:
+                continue
+            inS.add(q)
+            region.append(q)
+            cur += g
+            if cur < best - 1e-12:
+                best, best_len = cur, len(region)
+            elif cur > best + margin * self.c2 or len(region) - best_len > patience:
+                break
+            for o in set(self.nbrs(q)[1].tolist()):
+                if o not in inS and o in allowed:
+                    gains[o] = join_gain(o)
+                    heapq.heappush(heap, (gains[o], o))
+        return best, region[:best_len]
+
+    def apply(self, region: list[int], D: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+        """Move the region by ``D``; returns what :meth:`undo` needs and the exact change."""
+        verts = np.concatenate([self.members[p] for p in region])
+        was = self.P[verts]
+        self.P[verts] = D @ was
+        ks = np.unique(np.concatenate([self.nbrs(p)[0] for p in region]))
+        old = self.cc[ks].copy()
+        self.cc[ks] = self.costs(ks)
+        return verts, was, ks, old, float((self.cc[ks] - old).sum())
+
+    def undo(self, verts: np.ndarray, was: np.ndarray, ks: np.ndarray, old: np.ndarray
+             ) -> None:
+        self.P[verts] = was
+        self.cc[ks] = old
+
+    def chain(self, first: tuple[float, list[int], np.ndarray, int], length: int,
+              uphill: float, width: int) -> tuple[float, list[tuple[list[int], np.ndarray]]]:
+        """A chain of moves from ``first`` (module docstring); the poses are left unchanged.
+        Returns the best prefix's exact change and its moves (empty when no prefix < 0)."""
+        hist: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int],
+                         np.ndarray]] = []
+        locked: set[int] = set()
+        cum, best, best_len = 0.0, 0.0, 0
+        move = first
+        while True:
+            _, region, D, _ = move
+            verts, was, ks, old, change = self.apply(region, D)
+            hist.append((verts, was, ks, old, region, D))
+            cum += change
+            locked.update(region)
+            if cum < best - 1e-9 * self.c2:
+                best, best_len = cum, len(hist)
+            if len(hist) >= length:
+                break
+            nxt = None  # the best move that makes a rejected edge of this region fit
+            tried = 0
+            for p in region:
+                kk, oo = self.nbrs(p)
+                for k, o in zip(kk.tolist(), oo.tolist(), strict=True):
+                    if o in locked or o == self.a_piece or not self.judged[self.cross[k]] \
+                            or self.cc[k] < self.c2 * (1.0 - 1e-12):
+                        continue
+                    prop = self.propose(k, 0 if self.cb[k] == o else 1, locked)
+                    tried += 1
+                    if prop is not None and (nxt is None or prop[0] < nxt[0]):
+                        nxt = prop
+                    if tried >= width:
+                        break
+                if tried >= width:
+                    break
+            if nxt is None or nxt[0] > uphill * self.c2 or cum + nxt[0] > 2 * uphill * self.c2:
+                break
+            move = nxt
+        moves = [(h[4], h[5]) for h in hist[:best_len]]
+        for h in reversed(hist):
+            self.undo(h[0], h[1], h[2], h[3])
+        return best, moves
+
+
+def chain_moves(group: Any, X: LieGroup, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
+                info: np.ndarray, lab: np.ndarray, judged: np.ndarray, c2: float,
+                anchor: int, *, length: int = 6, first: float = 0.3, uphill: float = 1.0,
+                tol: float = 0.25, hood: int = 30, width: int = 40, max_scans: int = 5
+                ) -> tuple[float, LieGroup, np.ndarray, int]:
+    """Chained rigid region moves (Kernighan-Lin style) that lower ``sum min(s, c^2)``.
+
+    A single rigid move of a region (:func:`region_moves`) can be an exact tie: it makes one
+    rejected edge fit and breaks one accepted edge, and only a *further* move of another region
+    lowers the objective. A chain starts with every move whose change is at most ``first *
+    c2`` (ties and improvements), proposed by a rejected inter-piece edge for either of its
+    ends' pieces and grown greedily within ``hood`` pieces of it. It applies the move
+    tentatively, locks the moved pieces, and continues with the best move that makes a
+    rejected edge of the region just moved fit (its other end's region moves; ``width``
+    such edges tried), while each step's change is at most ``uphill * c2`` and the running
+    sum at most ``2 * uphill * c2``, for at most ``length`` moves. The running change is exact
+    (pieces are rigid: only the edges across a moved region change). The best prefix is kept
+    when it lowers the objective by more than ``tol * c2``; the chains of a scan are applied in
+    turn, each recomputed from its first move at the poses the earlier ones left; scans repeat
+    until one keeps nothing (``max_scans`` at most).
+
+    Parameters
+    ----------
+    group, X, ii, jj, Z, info, lab, judged, c2, anchor
+        As :func:`best_region_move`.
+    length : int
+        Moves in a chain at most, >= 1 (1: single moves).
+    first, uphill, tol : float
+        In units of ``c2``: the largest change of a chain's first move, of a later move, and
+        the least decrease kept.
+    hood : int
+        Pieces a move's region may be grown from, >= 1 (the nearest by breadth-first order).
+    width : int
+        Rejected edges tried for the next move of a chain, >= 1.
+    max_scans : int
+        Scans at most, >= 1.
+
+    Returns
+    -------
+    gain : float
+        The change of ``sum min(s, c^2)`` (<= 0; 0 when nothing kept).
+    X : LieGroup
+        The poses after the kept chains.
+    moved : numpy.ndarray
+        ``(n,)`` booleans: the vertices moved.
+    chains : int
+        Chains kept.
+
+    Raises
+    ------
+    ValueError
+        A group other than SE2/SE3, bad shapes or bad options.
+
+    Examples
+    --------
+    A line of nine poses, truth ``x_v = (v, 0)``; the pieces ``{0, 1, 2}`` (anchor),
+    ``{3, 4, 5}`` and ``{6, 7, 8}``; the second sits 5 m off, held by the wrong edge 0-4, and
+    the third 4 m off the other way, held by the wrong edge 0-8, while the good edges 2-3, 5-6
+    and 1-7 are rejected. Moving either piece alone is a tie (one good edge in, one wrong
+    out); moving the third to 1-7 and then the second to 5-6 (which brings 2-3 in too) lowers
+    the objective by one edge:
+
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim.core.gnc_search import chain_moves, region_moves
+    >>> ii = np.array([0, 1, 3, 4, 6, 7, 2, 5, 1, 0, 0])
+    >>> jj = np.array([1, 2, 4, 5, 7, 8, 3, 6, 7, 4, 8])
+    >>> Z = SE2.from_xy_theta([1.0] * 8 + [6.0, 4.0, 11.0], [0.0] * 9 + [5.0, -4.0], [0.0] * 11)
+    >>> X = SE2.from_xy_theta([0.0, 1, 2, 3, 4, 5, 9, 10, 11], [0.0] * 3 + [5.0] * 3 +
+    ...                       [-4.0] * 3, [0.0] * 9)
+    >>> lab = np.array([0, 0, 0, 1, 1, 1, 2, 2, 2])
+    >>> info = np.tile(np.eye(3) * 100.0, (11, 1, 1))
+    >>> region_moves(SE2, X, ii, jj, Z, info, lab, np.ones(11, bool), 11.34, 0)
+    []
+    >>> gain, X2, moved, chains = chain_moves(SE2, X, ii, jj, Z, info, lab,
+    ...                                       np.ones(11, bool), 11.34, 0)
+    >>> round(gain / 11.34, 6), chains, np.round(X2.translation()[:, 1], 9).tolist()
+    (-1.0, 1, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    """
+    if group not in (SE2, SE3):
+        raise ValueError(f"chain_moves: group must be SE2 or SE3, got {group!r}")
+    for name, val in (("length", length), ("hood", hood), ("width", width),
+                      ("max_scans", max_scans)):
+        if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < 1:
+            raise ValueError(f"chain_moves: {name} must be an integer >= 1, got {val!r}")
+    for name, x in (("first", first), ("uphill", uphill), ("tol", tol)):
+        if isinstance(x, bool) or not isinstance(x, (float, int)) or not np.isfinite(x) \
+                or x < 0:
+            raise ValueError(f"chain_moves: {name} must be a finite number >= 0, got {x!r}")
+    ii = np.asarray(ii, dtype=np.int64)
+    jj = np.asarray(jj, dtype=np.int64)
+    lab = np.asarray(lab, dtype=np.int64)
+    judged = np.asarray(judged, dtype=bool)
+    info = np.asarray(info, dtype=np.float64)
+    E = ii.size
+    P = np.array(X.matrix(), dtype=np.float64)
+    n = P.shape[0]
+    if jj.shape != (E,) or judged.shape != (E,) or info.shape[0] != E or lab.shape != (n,):
+        raise ValueError("chain_moves: ii, jj, judged, info need one entry per edge and lab "
+                         "one per vertex")
+    P0 = P.copy()
+    if not np.any(lab[ii] != lab[jj]):
+        return 0.0, X, np.zeros(n, dtype=bool), 0
+    pcs = _Pieces(group, P, ii, jj, np.asarray(Z.matrix(), dtype=np.float64), info, lab,
+                  judged, c2, anchor, int(hood))
+    total, kept = 0.0, 0
+    for _ in range(max_scans):
+        rej = np.flatnonzero(judged[pcs.cross] & (pcs.cc >= c2 * (1.0 - 1e-12)))
+        starts = []
+        for k in rej.tolist():
+            for side in (0, 1):
+                prop = pcs.propose(k, side, set())
+                if prop is not None and prop[0] <= first * c2:
+                    starts.append((prop[0], k, side))
+        starts.sort()
+        applied = 0
+        for _g, k, side in starts:
+            if pcs.cc[k] < c2 * (1.0 - 1e-12):
+                continue  # an earlier chain made it fit
+            prop = pcs.propose(k, side, set())  # again, at the current poses
+            if prop is None or prop[0] > first * c2:
+                continue
+            gain, moves = pcs.chain(prop, int(length), uphill, int(width))
+            if gain < -tol * c2:
+                for region, D in moves:
+                    pcs.apply(region, D)
+                total += gain
+                applied += 1
+        kept += applied
+        if not applied:
+            break
+    moved = np.any(np.abs(pcs.P - P0) > 0.0, axis=(1, 2))
+    return total, group.from_matrix(pcs.P), moved, kept
+
+
 def search_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
                  user_known: list[np.ndarray], weights: list[np.ndarray], c2: list[float],
                  solve: Callable[[list[np.ndarray]], list[np.ndarray]],
                  objective: Callable[[list[np.ndarray]], float], *, max_moves: int = 200,
-                 max_scans: int = 5, tol: float = 0.25) -> tuple[list[np.ndarray], int]:
+                 max_scans: int = 5, tol: float = 0.25, chain: bool = False
+                 ) -> tuple[list[np.ndarray], int]:
     """Region moves (:func:`best_region_move`) after GNC, kept when the TLS objective falls.
 
     The pieces are the components of the ``known`` edges (e.g. the cycle-consistent ones);
@@ -450,13 +719,16 @@ def search_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
         at the poses it finds), >= 1.
     tol : float
         A move must lower ``sum min(s, c^2)`` by more than ``tol * c^2``.
+    chain : bool
+        After the scans, chained moves (:func:`chain_moves`, its defaults) from the poses they
+        left, before the one solve.
 
     Returns
     -------
     states : list of numpy.ndarray
         The new states (``states`` when nothing was kept).
     moves : int
-        Moves kept (0 when none or when the solve did not lower the objective).
+        Moves and chains kept (0 when none or when the solve did not lower the objective).
 
     Examples
     --------
@@ -482,6 +754,8 @@ def search_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
             raise ValueError(f"search_stage: {name} must be an integer >= 1, got {val!r}")
     if not (isinstance(tol, (float, int)) and np.isfinite(tol) and tol >= 0):
         raise ValueError(f"search_stage: tol must be a finite number >= 0, got {tol!r}")
+    if not isinstance(chain, bool):
+        raise ValueError(f"search_stage: chain must be True or False, got {chain!r}")
     var = edges.variables
     kn = np.concatenate([known[k] for k, _ in edges.rows])
     uk = np.concatenate([user_known[k] for k, _ in edges.rows])
@@ -516,6 +790,17 @@ def search_stage(states: list[np.ndarray], edges: Any, known: list[np.ndarray],
                 applied += 1
         if not applied or moves >= max_moves:
             break
+    if chain:
+        _, Xc, moved, kept = chain_moves(G, G.from_matrix(P), ii, jj, edges.Z, edges.info, lab,
+                                         ~uk, c, edges.anchor, tol=tol)
+        if kept:
+            Pc = np.array(Xc.matrix(), dtype=np.float64)
+            e = np.flatnonzero(moved[ii] | moved[jj])  # the edges whose relative pose changed
+            rel0 = np.linalg.inv(P[ii[e]]) @ P[jj[e]]
+            rel1 = np.linalg.inv(Pc[ii[e]]) @ Pc[jj[e]]
+            touched[e[np.abs(rel1 - rel0).max(axis=(1, 2)) > 1e-9]] = True
+            P = Pc
+            moves += kept
     if not moves:
         return states, 0
     before = objective(states)
