@@ -251,6 +251,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="GNC(moves=True): pieces moved where their cut edges fit best")
     ap.add_argument("--search", action="store_true",
                     help="GNC(search=True): the local search of core/gnc_search.py after GNC")
+    ap.add_argument("--assemble", action="store_true",
+                    help="GNC(assemble=True): pieces joined by cycles of pieces before the "
+                         "chordal stage (core/gnc_assemble.py)")
     ap.add_argument("--gtsam-cases", nargs="*", default=[],
                     help="GRAPH:RATE:SEED:START:KNOWN cases GTSAM's GncOptimizer also runs "
                          "(KNOWN: none or known)")
@@ -272,7 +275,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     print(f"quantile {args.quantile}, first weights from {args.first}, retest "
           f"{args.retest}, cycle_length {args.cycle_length}, moves {args.moves}, search "
-          f"{args.search}; APE in m "
+          f"{args.search}, assemble {args.assemble}; APE in m "
           f"against the "
           f"outlier-free optimum; P/R: precision/recall of result.inliers over loop closures")
     print("TLS - ref: our TLS objective 0.5 sum min(s, c^2) over every edge of the corrupted "
@@ -307,7 +310,7 @@ def main(argv: list[str] | None = None) -> None:
                         gnc = GNC("tls", known_inliers=ki, quantile=args.quantile,
                                   first=args.first, retest=args.retest,
                                   cycle_length=args.cycle_length, moves=args.moves,
-                                  search=args.search)
+                                  search=args.search, assemble=args.assemble)
                         t0 = time.perf_counter()
                         res = fg.optimize(robust=gnc, verbose=False)
                         dt = time.perf_counter() - t0

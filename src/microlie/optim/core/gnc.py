@@ -155,6 +155,12 @@ class GNC:
         pieces of the known edges, of the accepted edges, small regions outside the largest
         known piece, the sides of accepted bridges), solve the accepted edges, and keep the
         result only when the TLS objective fell (default False).
+    assemble : bool
+        With ``first="cycles"``: before the chordal stage, join the pieces of the known edges
+        where cycles of pieces close (:mod:`microlie.optim.core.gnc_assemble`: chains of
+        pieces composed into one link, the cycle test and the vote with the covariances
+        scaled by the variance factor of the known edges); the joined edges become known
+        inliers (default False).
 
     Examples
     --------
@@ -167,7 +173,7 @@ class GNC:
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
                  first: str = "values", retest: int = 3, cycle_length: int = 5,
-                 moves: bool = False, search: bool = False) -> None:
+                 moves: bool = False, search: bool = False, assemble: bool = False) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
@@ -212,6 +218,9 @@ class GNC:
         if not isinstance(moves, bool):
             raise ValueError(f"GNC moves must be True or False, got {moves!r}")
         self.moves = moves
+        if not isinstance(assemble, bool):
+            raise ValueError(f"GNC assemble must be True or False, got {assemble!r}")
+        self.assemble = assemble
 
     def __repr__(self) -> str:
         return (f"GNC({self.surrogate!r}, quantile={self.quantile}, "
@@ -527,6 +536,10 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_merge import merge_known
 
             known = merge_known(edges, known, gnc.quantile, s_start)  # joined by a vote
+        if gnc.first == "cycles" and gnc.assemble:
+            from .gnc_assemble import assemble_known
+
+            known = assemble_known(edges, known, gnc.quantile)  # cycles of pieces
     pieces = known
     show = bool(verbose) if verbose is not None else sys.stderr.isatty()
     weights = [np.ones(f.count) for f in factors]
