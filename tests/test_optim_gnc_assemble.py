@@ -8,8 +8,14 @@ import pytest
 from microlie import SE2, SE3, SO2, SO3
 from microlie.optim import BetweenFactor, FactorGraph, Information
 from microlie.optim.core.gnc import GNC
-from microlie.optim.core.gnc_assemble import (assemble_edges, join_pieces, parallel_links,
-                                              pose_pieces, reduce_series, variance_factor)
+from microlie.optim.core.gnc_assemble import (
+    assemble_edges,
+    join_pieces,
+    parallel_links,
+    pose_pieces,
+    reduce_series,
+    variance_factor,
+)
 
 SIGMA = 0.01
 C2 = {SE2: 11.344867, SE3: 16.811894}  # chi2.ppf(0.99, 3), chi2.ppf(0.99, 6)
@@ -109,7 +115,7 @@ def test_parallel_links_majority_and_deferred_ties(G):
     # the same links walked the other way are the same votes
     Dr = np.linalg.inv(D)
     Sr = np.array([np.asarray(G.from_matrix(Dk).adjoint()) @ Sk @
-                   np.asarray(G.from_matrix(Dk).adjoint()).T for Dk, Sk in zip(D, S)])
+                   np.asarray(G.from_matrix(Dk).adjoint()).T for Dk, Sk in zip(D, S, strict=True)])
     assert parallel_links(G, b, a, Dr, Sr, C2[G]).tolist() == [0, 1, 2]
     # one against one, two against two: deferred
     assert parallel_links(G, a[:2], b[:2], D[[0, 3]], S[:2], C2[G]).size == 0
@@ -180,7 +186,7 @@ def _deferred(G, rng):
 def test_deferred_tie_resolved_by_the_larger_piece(G):
     rng = np.random.default_rng(3)
     T, ii, jj, Z, info, known = _deferred(G, rng)
-    g, w, h = 14, 15, 16
+    g, w = 14, 15  # and h = 16
     # between the first pieces A and B: g against w, one link each: no choice
     X = pose_pieces(G, 11, ii, jj, Z, info, known, G.from_matrix(T))
     lab = np.array([0] * 4 + [1] * 4 + [2] * 3)
