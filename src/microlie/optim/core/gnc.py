@@ -160,7 +160,11 @@ class GNC:
         where cycles of pieces close (:mod:`microlie.optim.core.gnc_assemble`: chains of
         pieces composed into one link, the cycle test and the vote with the covariances
         scaled by the variance factor of the known edges); the joined edges become known
-        inliers (default False).
+        inliers (default False). Measured on M3500 without known inliers: the chordal stage
+        rejects 11-12 odometry edges at 10% instead of 51; the excess of the objective over
+        the outlier-free optimum's at 30% from the chordal start falls from 26-31 to -0.7-5
+        edges, at 50% from 86-105 to -0.9-52; two rows got worse (by 1-3 edges); GNC time
+        0.8-1.3 times.
 
     Examples
     --------
