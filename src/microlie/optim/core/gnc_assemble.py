@@ -427,8 +427,10 @@ def pose_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
     from scipy.sparse.csgraph import connected_components
 
     from .factors import BetweenFactor
-    from .graph import FactorGraph
     from .noise import Information
+    from .problem import Problem
+    from .solvers import solve
+    from .variables import new_variables
 
     known = np.asarray(known, dtype=bool)
     if not known.any():
@@ -438,11 +440,12 @@ def pose_pieces(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
         directed=False)
     rep = np.zeros(nc, dtype=np.int64)
     rep[lab[::-1]] = np.arange(n)[::-1]
-    fg = FactorGraph()
-    x = fg.add_variables(X, fixed=rep)
-    fg.add(BetweenFactor(x, ii[known], jj[known], Z[known],  # type: ignore[call-overload]
-                         Information(info[known])))
-    res = fg.optimize(max_iter=max_iter, verbose=False)
+    x = new_variables(None, 0, X, "pieces")  # a problem of its own (no graph: no cycle)
+    x.fix(rep)
+    f = BetweenFactor(x, ii[known], jj[known], Z[known],  # type: ignore[call-overload]
+                      Information(info[known]))
+    res = solve(Problem([x], [f]), [np.asarray(X.params, dtype=np.float64)], "lm",
+                max_iter=max_iter, verbose=False)
     return np.asarray(res.values[x].matrix(), dtype=np.float64)
 
 
