@@ -37,9 +37,8 @@ Measured on M3500 (``benchmarks/results/robust-assemble-s14.md``): 10% seed 0, 3
 before, 4871 after (of 5258 good), none wrong; 30% seeds 0/1: 1947/2032 before, 4524/4549 after,
 none wrong; 50% seed 0: 1090 before, 3441 after, 2 wrong (asking two cycles of every link
 longer than four: 3013, none wrong, but the answers at 50% were 15-50 edges worse). A rigid
-piece ignores the
-uncertainty of its own shape, so good links between a large piece and a small one can disagree
-under the measured noise; they are then left to GNC, not joined wrongly.
+piece ignores the uncertainty of its own shape, so good links between a large piece and a small
+one can disagree under the measured noise; they are then left to GNC, not joined wrongly.
 
 Examples
 --------
