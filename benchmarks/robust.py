@@ -259,6 +259,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="GNC(search=True): the local search of core/gnc_search.py after GNC; "
                          "--search chain: with its chained moves (GNC(search='chain')); "
                          "default: GNC's (off)")
+    ap.add_argument("--assemble", action=argparse.BooleanOptionalAction, default=None,
+                    help="GNC(assemble=True): pieces joined by cycles of pieces before the "
+                         "chordal stage (core/gnc_assemble.py; default: GNC's, off)")
     ap.add_argument("--gtsam-cases", nargs="*", default=[],
                     help="GRAPH:RATE:SEED:START:KNOWN cases GTSAM's GncOptimizer also runs "
                          "(KNOWN: none or known)")
@@ -280,13 +283,15 @@ def main(argv: list[str] | None = None) -> None:
         return
     opts = {k: v for k, v in (("first", args.first), ("retest", args.retest),
                               ("cycle_length", args.cycle_length), ("moves", args.moves),
-                              ("search", args.search)) if v is not None}
+                              ("search", args.search),
+                              ("assemble", args.assemble)) if v is not None}
     shown = GNC("tls", **opts)  # type: ignore[arg-type]
     print(f"quantile {args.quantile}, first weights from {shown.first}, retest "
           f"{shown.retest}, cycle_length {shown.cycle_length} (None: 8 on SE3, 5 on SE2), "
-          f"moves {shown.moves} (None: on for SE3, off for SE2), search {shown.search} "
-          f"(GNC's defaults unless given: {opts or 'none given'}); APE in m against the "
-          f"outlier-free optimum; P/R: precision/recall of result.inliers over loop closures")
+          f"moves {shown.moves} (None: on for SE3, off for SE2), search {shown.search}, "
+          f"assemble {shown.assemble} (GNC's defaults unless given: {opts or 'none given'}); "
+          f"APE in m against the outlier-free optimum; P/R: precision/recall of result.inliers "
+          f"over loop closures")
     print("TLS - ref: our TLS objective 0.5 sum min(s, c^2) over every edge of the corrupted "
           "graph minus the outlier-free optimum's, in units of c^2/2 (1 = one edge); ties: "
           "bridges of the true inlier graph (not known inliers) crossed by a wrong edge "
