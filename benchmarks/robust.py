@@ -255,10 +255,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--moves", action=argparse.BooleanOptionalAction, default=None,
                     help="GNC(moves=...): pieces moved where their cut edges fit best (default: "
                          "GNC's, on for SE3 and off for SE2)")
-    ap.add_argument("--search", nargs="?", const=True, default=None, choices=[True, "chain"],
-                    help="GNC(search=True): the local search of core/gnc_search.py after GNC; "
-                         "--search chain: with its chained moves (GNC(search='chain')); "
-                         "default: GNC's (off)")
+    ap.add_argument("--search", action=argparse.BooleanOptionalAction, default=None,
+                    help="GNC(search=...): the local search of core/gnc_search.py after GNC, "
+                         "region moves and their chains (default: GNC's, off)")
     ap.add_argument("--assemble", action=argparse.BooleanOptionalAction, default=None,
                     help="GNC(assemble=True): pieces joined by cycles of pieces before the "
                          "chordal stage (core/gnc_assemble.py; default: GNC's, off)")

@@ -357,7 +357,17 @@ def test_command_cycle_length_and_moves(tmp_path):
                               "--gnc-moves"])
     assert run(args, out, io.StringIO()) == 0
     assert json.loads(out.getvalue())["gnc"]["outlier_edges"] == planted
+    out = io.StringIO()  # the search and the assembly on the same file find the same edges
+    args = parser.parse_args(["optimize", str(path), "--robust", "gnc-tls", "--json",
+                              "--gnc-search", "--gnc-assemble"])
+    assert (args.gnc_search, args.gnc_assemble) == (True, True)
+    assert run(args, out, io.StringIO()) == 0
+    assert json.loads(out.getvalue())["gnc"]["outlier_edges"] == planted
     for bad, match in ((["--robust", "gnc-gm", "--gnc-moves"], "cycle marking only"),
+                       (["--robust", "gnc-gm", "--gnc-search"], "cycle marking only"),
+                       (["--robust", "gnc-tls", "--gnc-first", "values",
+                         "--gnc-assemble"], "cycle marking only"),
+                       (["--gnc-search"], "applies to --robust"),
                        (["--robust", "gnc-tls", "--gnc-first", "chordal",
                          "--gnc-cycle-length", "7"], "cycle marking only"),
                        (["--robust", "gnc-tls", "--gnc-first", "values",

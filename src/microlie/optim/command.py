@@ -61,8 +61,9 @@ threshold is the ``--gnc-quantile`` (default 0.99) chi-square quantile, ``--gnc-
 noise kept as inliers: cycles of up to 8 edges and the rigid moves after GNC in 3-D, cycles
 of up to 5 edges and no moves in 2-D) and otherwise ``values``
 (``chordal``: without the cycle marking; ``values``: plain GNC from the start);
-``--gnc-cycle-length N`` and ``--gnc-moves`` / ``--no-gnc-moves`` override
-``GNC(cycle_length=N, moves=...)`` of the cycle marking, and the report lists the edges judged
+``--gnc-cycle-length N``, ``--gnc-moves`` / ``--no-gnc-moves``, ``--gnc-search`` and
+``--gnc-assemble`` set ``GNC(cycle_length=N, moves=..., search=True, assemble=True)`` of the
+cycle marking, and the report lists the edges judged
 outliers (``gnc.outlier_edges``, in file order) and the pieces of the answer that another edge
 could hold at the same cost (``gnc.ties``).
 
@@ -169,6 +170,13 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="with the cycle marking (--gnc-first cycles, or auto with gnc-tls): "
                         "after GNC, move pieces rigidly where more of their edges fit, kept "
                         "when the TLS objective falls (default: on for SE3, off for SE2)")
+    p.add_argument("--gnc-search", action="store_true",
+                   help="with the cycle marking: after GNC, the local search on the TLS "
+                        "objective (rigid region moves and their chains; slower, off by "
+                        "default)")
+    p.add_argument("--gnc-assemble", action="store_true",
+                   help="with the cycle marking: join the pieces by cycles of pieces before "
+                        "the chordal stage (off by default)")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, chordal, or "
                         "certified (the certified global optimum of SE-Sync's isotropic "
@@ -647,7 +655,9 @@ def _gnc_options(args: argparse.Namespace) -> str | None:
                         ("--gnc-quantile", getattr(args, "gnc_quantile", None)),
                         ("--gnc-first", getattr(args, "gnc_first", None)),
                         ("--gnc-cycle-length", getattr(args, "gnc_cycle_length", None)),
-                        ("--gnc-moves", getattr(args, "gnc_moves", None))):
+                        ("--gnc-moves", getattr(args, "gnc_moves", None)),
+                        ("--gnc-search", getattr(args, "gnc_search", None) or None),
+                        ("--gnc-assemble", getattr(args, "gnc_assemble", None) or None)):
         if value is not None:
             raise ValueError(f"{flag} applies to --robust gnc-tls or gnc-gm only")
     return None
@@ -669,13 +679,16 @@ def _gnc_for(graph: Any, fg: Any, spec: str, args: argparse.Namespace) -> Any:
     first = getattr(args, "gnc_first", None) or "auto"
     length = getattr(args, "gnc_cycle_length", None)
     moves = getattr(args, "gnc_moves", None)
+    search = bool(getattr(args, "gnc_search", False))
+    assemble = bool(getattr(args, "gnc_assemble", False))
     cycles = first == "cycles" or (first == "auto" and name == "tls")
-    if (length is not None or moves is not None) and not cycles:
-        raise ValueError("--gnc-cycle-length and --gnc-moves apply to the cycle marking only "
-                         "(--gnc-first cycles, or auto with gnc-tls)")
+    if (length is not None or moves is not None or search or assemble) and not cycles:
+        raise ValueError("--gnc-cycle-length, --gnc-moves, --gnc-search and --gnc-assemble "
+                         "apply to the cycle marking only (--gnc-first cycles, or auto with "
+                         "gnc-tls)")
     opts: dict[str, Any] = {} if moves is None else {"moves": bool(moves)}
     return GNC(name, known_inliers=known, quantile=quantile, first=first, cycle_length=length,
-               **opts)
+               search=search, assemble=assemble, **opts)
 
 
 def _position_rmse(X: Any, truth: Any) -> float:

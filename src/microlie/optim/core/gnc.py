@@ -135,21 +135,19 @@ class GNC:
         until nothing flips. Measured: fixes the three M3500 cases GNC-TLS missed with the
         odometry known (a wrong closure within the file's overstated noise; a good closure
         rejected at a drifted estimate).
-    search : bool or str
+    search : bool
         With ``first="cycles"``: after the repair and the vote, a local search on the TLS
         objective (default False; :mod:`microlie.optim.core.gnc_search`): rigid moves of
         unions of pieces (components of the cycle-consistent and voted edges) proposed by the
-        rejected edges, kept only when the objective falls after the inlier solve. Measured
-        on M3500 with 30% wrong closures and no known inliers: the excess of the objective
-        over the outlier-free optimum's falls from 3.5/13.5/29.8 to 1.5/8.0/22.4 edges (APE
-        unchanged, 41-51 m); nothing changes where it was already optimal, at 10% or with the
-        odometry known; GNC takes 2.5-3.4 times as long on M3500 30-50%. Only
-        ``known_inliers`` are never rejected by it. ``"chain"``: the same, and after the
-        region moves chains of them (:func:`~microlie.optim.core.gnc_search.chain_moves`:
-        moves that are exact ties accepted tentatively until a later move lowers the
-        objective) before the solve; on M3500 30% from the chordal start it lowers the
-        excess by 1.9-4.9 edges more, at 50% by 5-22 edges against the default; GNC took
-        1.1x (30%) to 1.7x (50%) as long as with ``True`` (docs/optim.md).
+        rejected edges, then chains of such moves
+        (:func:`~microlie.optim.core.gnc_search.chain_moves`: moves that are exact ties
+        accepted tentatively until a later move lowers the objective), kept only when the
+        objective falls after the inlier solve. Only ``known_inliers`` are never rejected by
+        it. Measured on M3500 without known inliers (docs/optim.md): the excess of the
+        objective over the outlier-free optimum's at 30% from the chordal start falls from
+        26-31 to 15-21 edges, at 50% from 86-105 to 67-92 (APE unchanged, 38-48 m); nothing
+        changes at 10% or with the odometry known; GNC takes 3-10 times as long on M3500
+        30-50%.
     cycle_length : int or None
         With ``first="cycles"``: the longest cycle of the consistency marking, 2 to 9 edges;
         ``None`` (default): 8 on an SE3 pose graph, 5 otherwise (SE2). 5:
@@ -194,7 +192,7 @@ class GNC:
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
                  first: str = "auto", retest: int = 3, cycle_length: int | None = None,
-                 moves: bool | None = None, search: bool | str = False,
+                 moves: bool | None = None, search: bool = False,
                  assemble: bool = False) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
@@ -229,8 +227,8 @@ class GNC:
             raise ValueError(f"GNC retest must be an integer >= 0 (passes; 0: off), got "
                              f"{retest!r}")
         self.retest = int(retest)
-        if not (isinstance(search, bool) or search == "chain"):
-            raise ValueError(f"GNC search must be True, False or 'chain', got {search!r}")
+        if not isinstance(search, bool):
+            raise ValueError(f"GNC search must be True or False, got {search!r}")
         self.search = search
         if cycle_length is not None and (
                 isinstance(cycle_length, bool) or
@@ -716,7 +714,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                 cur, moves = search_stage(
                     cur, edges, pieces, user_known, weights, c2, inner,
                     lambda st: _objective("tls", squared_norms(problem, st), c2, user_known),
-                    chain=gnc.search == "chain")
+                    chain=True)
                 if not moves:
                     break
             s = squared_norms(problem, cur)
