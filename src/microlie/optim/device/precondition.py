@@ -27,11 +27,13 @@ given: :func:`~microlie.optim.device.pcg.pcg_step` passes float64 for float32 pr
 linearisation. The coarse matrix holds the slow modes: on parking-garage its eigenvalues
 span 2e-7 to 3e4; factored in float32, with a jitter of a few float32 ``eps`` times its
 largest diagonal entry (50 there), it ignores every slow mode, and float32 LM stopped 3.2e-4
-above the optimum after 21,000 CG iterations. The coarse matrix is now factored with unit
-diagonal (Jacobi scaling, the jitter relative to each diagonal entry): JAX without
-``jax_enable_x64`` has no float64, and there a gauge prior of information 1e12 (a jitter
-relative to the largest entry then hid every slow mode) left float32 LM 1.3e-3 above the
-optimum; with the scaling 4.5e-7 (``tests/test_device_precondition.py``).
+above the optimum after 21,000 CG iterations. Where no float64 exists (JAX without
+``jax_enable_x64``) the coarse matrix is factored with unit diagonal (Jacobi scaling, the
+jitter relative to each diagonal entry): with the jitter relative to the largest entry a
+gauge prior of information 1e12 hid every slow mode and float32 LM stopped 1.3e-3 above the
+optimum; with the scaling 4.5e-7 (``tests/test_device_precondition.py``). In float64 the
+scaling measured worse on sphere2500 (twice to four times the CG iterations) and is not
+used.
 """
 
 from __future__ import annotations
@@ -607,9 +609,9 @@ def coarse_matrix(problem: DeviceProblem, plan: CoarsePlan, lin: Linear, P: Any)
 
 def _coarse_inverse(problem: DeviceProblem, plan: CoarsePlan, Ac: Any, P: Any,
                     damping: Any) -> Any:
-    """``(P^T (H + diag(d)) P)^-1`` ``(B, nc, nc)`` (factored with unit diagonal, by Jacobi
-    scaling, plus a jitter of a few ``eps`` of its dtype: keeps the Cholesky of a gauge-free
-    problem defined)."""
+    """``(P^T (H + diag(d)) P)^-1`` ``(B, nc, nc)`` (a jitter of a few ``eps`` of its dtype,
+    relative to the largest diagonal entry in float64 and to each entry (Jacobi scaling) in
+    float32, keeps the Cholesky of a gauge-free problem defined)."""
     be = problem.backend
     B, d = damping.shape[0], plan.dof
     nc = plan.aggregates * d
@@ -630,13 +632,23 @@ def _coarse_inverse(problem: DeviceProblem, plan: CoarsePlan, Ac: Any, P: Any,
     A = A + bd
     diag = A.diagonal(dim1=-2, dim2=-1) if be.name == "torch" else \
         be.xp.diagonal(A, axis1=-2, axis2=-1)
-    # Jacobi scaling A = D S D, D = diag(A)^1/2: the jitter is relative to each entry's own
-    # scale, not to the largest (a gauge prior of information 1e12 on one aggregate set a
-    # jitter that, in float32, hid every slow mode: JAX float32 without jax_enable_x64 has no
-    # float64 to factor in, and its solve ended 1.3e-3 above the optimum)
+    eps = float(np.finfo(np.float64 if A.dtype.itemsize == 8 else np.float32).eps)
+    if A.dtype.itemsize == 8:
+        # float64 (the float32 problems' preconditioner too, where float64 exists): a jitter
+        # relative to the largest diagonal entry. Measured better than the scaling below on
+        # sphere2500 float32 (222 CG iterations on torch and 332 on JAX against 422 and
+        # 1479; parking-garage 1067 / 1626 against 591 / 462; benchmarks/device_engine.py)
+        scale = diag.max(-1)
+        scale = scale.values if be.name == "torch" and hasattr(scale, "values") else scale
+        jitter = 10.0 * eps * nc * scale
+        A = A + eye * (jitter[:, None, None] + be.where(diag == 0, 1.0, 0.0)[..., None])
+        return be.inv_spd(A)
+    # float32 only (JAX without jax_enable_x64): factored with unit diagonal (Jacobi scaling
+    # A = D S D, D = diag(A)^1/2), the jitter relative to each entry's own scale: relative to
+    # the largest, a gauge prior of information 1e12 hid every slow mode and the solve ended
+    # 1.3e-3 above the optimum (tests/test_device_precondition.py)
     sc = 1.0 / be.xp.sqrt(be.where(diag > 0, diag, 1.0))
     S = A * sc[..., :, None] * sc[..., None, :]
-    eps = float(np.finfo(np.float64 if A.dtype.itemsize == 8 else np.float32).eps)
     S = S + eye * (10.0 * eps * nc + be.where(diag == 0, 1.0, 0.0)[..., None])
     return be.inv_spd(S) * sc[..., :, None] * sc[..., None, :]
 
