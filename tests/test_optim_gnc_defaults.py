@@ -135,6 +135,7 @@ def test_skip_message_says_where_the_residuals_were_small():
 def test_command_flags_reach_the_options(tmp_path, monkeypatch):
     import argparse
     import io
+    import json
 
     from microlie.optim.command import register, run
     from microlie.optim.core import gnc as gnc_module
@@ -168,8 +169,12 @@ def test_command_flags_reach_the_options(tmp_path, monkeypatch):
         seen.clear()
         args = parser.parse_args(["optimize", str(path), "--robust", "gnc-tls", "--json",
                                   *extra])
-        assert run(args, io.StringIO(), io.StringIO()) == 0
-        assert seen == [want], extra
+        out = io.StringIO()
+        assert run(args, out, io.StringIO()) == 0
+        assert seen[0] == want, extra  # gnc_solve's, then the report's
+        opts = json.loads(out.getvalue())["gnc"]["options"]
+        assert (opts["first"], opts["cycle_length"], opts["moves"]) == want, extra
+        assert (opts["search"], opts["assemble"]) == (False, False)
     seen.clear()
     args = parser.parse_args(["optimize", str(path), "--robust", "gnc-gm", "--json"])
     assert run(args, io.StringIO(), io.StringIO()) == 0

@@ -63,7 +63,8 @@ of up to 5 edges and no moves in 2-D) and otherwise ``values``
 (``chordal``: without the cycle marking; ``values``: plain GNC from the start);
 ``--gnc-cycle-length N``, ``--gnc-moves`` / ``--no-gnc-moves``, ``--gnc-search`` and
 ``--gnc-assemble`` set ``GNC(cycle_length=N, moves=..., search=True, assemble=True)`` of the
-cycle marking, and the report lists the edges judged
+cycle marking (``gnc.options`` in the JSON report: what ``auto`` and the per-group defaults
+became), and the report lists the edges judged
 outliers (``gnc.outlier_edges``, in file order) and the pieces of the answer that another edge
 could hold at the same cost (``gnc.ties``).
 
@@ -592,6 +593,10 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
                          "known_inliers": args.known_inliers,
                          "quantile": robust.quantile,
                          "outliers": len(bad), "outlier_edges": bad}
+        used = robust.resolved(fg.problem(gauge))  # what "auto" / None became (cached problem)
+        report["gnc"]["options"] = {
+            "first": used.first, "cycle_length": used.cycle_length, "moves": used.moves,
+            "search": used.search, "assemble": used.assemble, "retest": used.retest}
         if res.ties is not None:  # pieces that another edge could hold at the same cost
             def edge(bk: tuple[int, int]) -> int | str:
                 return bk[1] if bk[0] == 0 else "prior"
