@@ -20,6 +20,19 @@ from microlie.optim.core.gnc_search import (
 SIGMA = 0.01
 
 
+def _true_chain(G, rng, n):
+    """``(n, k, k)`` true pose matrices of a random chain from the identity (steps: rotation
+    angles ~ N(0, 0.3), translations uniform in [0.5, 1.5] per axis)."""
+    d = 2 if G is SE2 else 3
+    R = SO2 if G is SE2 else SO3
+    step = G.from_rotation_translation(R.exp(rng.normal(0, 0.3, (n - 1, 1 if G is SE2 else 3))),
+                                       rng.uniform(0.5, 1.5, (n - 1, d)))
+    T = [np.eye(d + 1)]
+    for k in range(n - 1):
+        T.append(T[-1] @ np.asarray(step[k].matrix()))
+    return np.array(T)
+
+
 def _scene(G, seed, noise=True):
     """Two pieces of ten poses (chains with internal loop closures); across them the odometry
     edge 9-10 and three good closures (noise a tenth of what the information says, so that
@@ -31,12 +44,7 @@ def _scene(G, seed, noise=True):
     dim = 3 if G is SE2 else 6
     R = SO2 if G is SE2 else SO3
     n = 20
-    step = G.from_rotation_translation(R.exp(rng.normal(0, 0.3, (n - 1, 1 if G is SE2 else 3))),
-                                       rng.uniform(0.5, 1.5, (n - 1, d)))
-    T = [np.eye(d + 1)]
-    for k in range(n - 1):
-        T.append(T[-1] @ np.asarray(step[k].matrix()))
-    T = np.array(T)
+    T = _true_chain(G, rng, n)
     ii, jj, kind = [], [], []  # 0 inside a piece, 1 good across, 2 wrong across
     for p in range(2):
         for v in range(10 * p, 10 * p + 9):
@@ -199,12 +207,7 @@ def _chain_scene(G, seed, noise=False):
     dim = 3 if G is SE2 else 6
     R = SO2 if G is SE2 else SO3
     n = 12
-    step = G.from_rotation_translation(R.exp(rng.normal(0, 0.3, (n - 1, 1 if G is SE2 else 3))),
-                                       rng.uniform(0.5, 1.5, (n - 1, d)))
-    T = [np.eye(d + 1)]
-    for k in range(n - 1):
-        T.append(T[-1] @ np.asarray(step[k].matrix()))
-    T = np.array(T)
+    T = _true_chain(G, rng, n)
     ii = np.array([0, 1, 2, 4, 5, 6, 8, 9, 10, 3, 7, 1, 0, 2])
     jj = np.array([1, 2, 3, 5, 6, 7, 9, 10, 11, 4, 8, 9, 5, 10])
     kind = np.array([0] * 9 + [1] * 3 + [2] * 2)  # inside a piece, good across, wrong
