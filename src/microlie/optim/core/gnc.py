@@ -66,6 +66,7 @@ __all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initia
 
 SURROGATES = ("tls", "gm")
 FIRST = ("auto", "values", "least-squares", "chordal", "cycles")
+TIE_BREAKS = ("start", "chain")
 # search=True: rounds of the region search (each one solve when it moves something)
 _SEARCH_ROUNDS = 3
 
@@ -180,6 +181,26 @@ class GNC:
         the outlier-free optimum's at 30% from the chordal start falls from 26-31 to -0.7-5
         edges, at 50% from 86-105 to -0.9-52; two rows got worse (by 1-3 edges); GNC time
         0.8-1.3 times.
+    variance_factor : float, "estimate" or None
+        The factor the factors' covariances are multiplied by before the thresholds apply
+        (every ``c^2`` becomes ``v c^2``; the least-squares solves do not change). ``None``
+        (default): 1, the information as given. ``"estimate"`` (a pose graph with
+        ``first="cycles"``): the a posteriori variance factor of the edges the cycle test
+        marked (:func:`~microlie.optim.core.gnc_assemble.known_variance`, clipped to
+        ``[1e-3, 1]``), then the marking is done again with the scaled covariances; the
+        value is in the result's message. For files whose information overstates the noise,
+        where wrong edges then pass as inliers: M3500's covariances are about 40 times the
+        scatter of its edges (``v = 0.024``). With the noise right the quantile is a test per
+        edge; over thousands of good edges a family-wise quantile (e.g. 0.999999) keeps them
+        all (measured in ``benchmarks/results/robust-variance-s15.md``).
+    tie_break : {"start", "chain"}
+        With ``first="cycles"``: the poses whose residuals break exact ties of the TLS
+        objective (see ``first``). ``"start"`` (default): the start values. ``"chain"``: the
+        poses composed from the anchor along the spanning tree of the edges between the
+        nearest vertex indices (:func:`~microlie.optim.core.gnc_chordal.chain_poses`: the
+        odometry chain of a file whose vertices are numbered in time order), so that the
+        answer does not depend on the start and ties go to the odometry; the data cannot
+        decide them (:mod:`microlie.optim.core.gnc_ties`).
 
     Examples
     --------
@@ -193,7 +214,8 @@ class GNC:
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
                  first: str = "auto", retest: int = 3, cycle_length: int | None = None,
                  moves: bool | None = None, search: bool = False,
-                 assemble: bool = False) -> None:
+                 assemble: bool = False, variance_factor: float | str | None = None,
+                 tie_break: str = "start") -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
@@ -243,6 +265,18 @@ class GNC:
         if not isinstance(assemble, bool):
             raise ValueError(f"GNC assemble must be True or False, got {assemble!r}")
         self.assemble = assemble
+        if not (variance_factor is None or variance_factor == "estimate" or (
+                isinstance(variance_factor, (float, int)) and
+                not isinstance(variance_factor, bool) and math.isfinite(variance_factor) and
+                variance_factor > 0)):
+            raise ValueError(f"GNC variance_factor must be a finite number > 0, 'estimate' or "
+                             f"None, got {variance_factor!r}")
+        self.variance_factor = variance_factor if variance_factor in (None, "estimate") \
+            else float(variance_factor)  # type: ignore[arg-type]
+        if tie_break not in TIE_BREAKS:
+            raise ValueError(f"GNC tie_break must be one of {', '.join(TIE_BREAKS)}, got "
+                             f"{tie_break!r}")
+        self.tie_break = tie_break
 
     def __repr__(self) -> str:
         return (f"GNC({self.surrogate!r}, quantile={self.quantile}, first={self.first!r}, "
@@ -484,6 +518,31 @@ def _objective(surrogate: str, s: list[np.ndarray], c2: list[float],
     return total
 
 
+def _count(masks: list[np.ndarray]) -> int:
+    return sum(int(m.sum()) for m in masks)
+
+
+def _mark_cycles(edges: Any, known: list[np.ndarray], gnc: GNC, s_start: list[np.ndarray]
+                 ) -> list[np.ndarray]:
+    """``first="cycles"``: the known-inlier masks with the edges of consistent cycles (and,
+    with ``assemble``, of consistent cycles of pieces) added."""
+    if gnc.cycle_length != 5:
+        from .gnc_loops import mark_loops
+
+        known = mark_loops(edges, known, gnc.quantile, gnc.cycle_length or 5)
+    else:
+        from .gnc_cycles import mark_consistent
+        from .gnc_merge import merge_known
+
+        known = mark_consistent(edges, known, gnc.quantile)
+        known = merge_known(edges, known, gnc.quantile, s_start)  # joined by a vote
+    if gnc.assemble:
+        from .gnc_assemble import assemble_known
+
+        known = assemble_known(edges, known, gnc.quantile)  # cycles of pieces
+    return known
+
+
 def _chordal_stage(problem: Problem, states: list[np.ndarray], gnc: GNC, edges: Any,
                    known: list[np.ndarray], weights: list[np.ndarray]
                    ) -> tuple[list[np.ndarray], float]:
@@ -591,6 +650,12 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
     if gnc.first in ("chordal", "cycles") and gnc.surrogate != "tls":
         raise ValueError(f"GNC first={gnc.first!r} is a TLS stage; use surrogate='tls' or "
                          f"another first")
+    if gnc.variance_factor == "estimate" and gnc.first != "cycles":
+        raise ValueError(f"GNC variance_factor='estimate' comes from the cycle-consistent "
+                         f"edges of a pose graph: use first='cycles' (or 'auto' on a pose "
+                         f"graph), not {gnc.first!r}, or give the factor as a number")
+    vf = gnc.variance_factor if isinstance(gnc.variance_factor, float) else 1.0
+    note_v = f"; variance factor {vf:.6g} (given)" if vf != 1.0 else ""
     if gnc.first in ("chordal", "cycles"):
         from .gnc_chordal import pose_graph_edges
 
@@ -599,21 +664,32 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             raise ValueError(f"GNC first={gnc.first!r} needs a pose graph: one SE2 or SE3 "
                              f"variable batch with only BetweenFactor and PriorFactor batches "
                              f"and a fixed vertex or a prior; use first='values'")
-        if gnc.first == "cycles" and gnc.cycle_length != 5:
-            from .gnc_loops import mark_loops
+        if gnc.first == "cycles" and gnc.variance_factor == "estimate":
+            from .gnc_assemble import known_variance
 
-            known = mark_loops(edges, known, gnc.quantile, gnc.cycle_length or 5)
-        elif gnc.first == "cycles":
-            from .gnc_cycles import mark_consistent
+            marked = _mark_cycles(edges, known, gnc, s_start)
+            vf = known_variance(edges, marked)
+            note_v = f"; variance factor {vf:.6g} (estimated from {_count(marked):d} " \
+                     f"cycle-consistent edges)"
+    # the covariances scaled by vf: every squared norm below is s / vf (in the stages' edge
+    # information too), the thresholds stay c^2; the least-squares solves do not change
+    s_start = [sk / vf for sk in s_start]
+    s_tie = s_start  # the squared norms that break exact ties
+    if edges is not None:
+        edges.info = edges.info / vf
+        if gnc.first == "cycles" and gnc.tie_break == "chain":
+            from .gnc_chordal import chain_poses
 
-            known = mark_consistent(edges, known, gnc.quantile)
-            from .gnc_merge import merge_known
+            P = np.array(states[0], dtype=np.float64)
+            P[:] = np.asarray(chain_poses(edges, edges.group.from_params(
+                P[edges.anchor])).params, dtype=np.float64)
+            s_tie = [sk / vf for sk in squared_norms(problem, [P])]
+        if gnc.first == "cycles":
+            known = _mark_cycles(edges, known, gnc, s_tie)
 
-            known = merge_known(edges, known, gnc.quantile, s_start)  # joined by a vote
-        if gnc.first == "cycles" and gnc.assemble:
-            from .gnc_assemble import assemble_known
+    def norms(st: list[np.ndarray]) -> list[np.ndarray]:
+        return [sk / vf for sk in squared_norms(problem, st)]
 
-            known = assemble_known(edges, known, gnc.quantile)  # cycles of pieces
     pieces = known
     show = bool(verbose) if verbose is not None else sys.stderr.isatty()
     weights = [np.ones(f.count) for f in factors]
@@ -635,13 +711,13 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         if edges is not None:
             cur, mu = _chordal_stage(problem, states, gnc, edges, known, weights)
             cur = inner(cur)  # least squares on the inliers of the chordal stage
-            s = squared_norms(problem, cur)
+            s = norms(cur)
         elif gnc.first == "values":
             cur = [np.asarray(st, dtype=np.float64) for st in states]
             s = s_start
         else:
             cur = inner(states)
-            s = squared_norms(problem, cur)
+            s = norms(cur)
         sj = np.concatenate([sk[jk] for sk, jk in zip(s, judged, strict=True)])
         cj = np.concatenate([np.full(int(jk.sum()), ck) for ck, jk in zip(c2, judged,
                                                                            strict=True)])
@@ -668,7 +744,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                 for w, sk, ck, jk in zip(weights, s, c2, judged, strict=True):
                     w[jk] = weight_fn(sk[jk], ck, mu)
                 cur = inner(cur)
-                s = squared_norms(problem, cur)
+                s = norms(cur)
                 cost = 0.5 * sum(float((w * sk).sum()) for w, sk in zip(weights, s,
                                                                          strict=True))
                 if show:
@@ -685,7 +761,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                         for a, w in zip(snapped, weights, strict=True):
                             w[:] = a  # the TLS solution: least squares on the inliers
                         cur = inner(cur)
-                        s = squared_norms(problem, cur)
+                        s = norms(cur)
                     break
                 if abs(cost - prev) / max(prev, 1e-7) < gnc.cost_tol and \
                         (gnc.surrogate == "tls" or mu == 1.0):
@@ -697,47 +773,47 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_bridges import repair_stage
             from .gnc_merge import merge_stage
 
-            moved = repair_stage(cur, edges, known, weights, c2, s_start)
+            moved = repair_stage(cur, edges, known, weights, c2, s_tie)
             if moved is not None:  # pieces held by one wrong edge moved: solve the inliers
                 cur = inner(moved)
             cur, known, _ = merge_stage(cur, edges, known, weights, c2, inner,
-                                        lambda st: squared_norms(problem, st),
+                                        lambda st: norms(st),
                                         mu_step=gnc.mu_step, weights_tol=gnc.weights_tol,
-                                        start=s_start)
-            moved = repair_stage(cur, edges, known, weights, c2, s_start, components=True)
+                                        start=s_tie)
+            moved = repair_stage(cur, edges, known, weights, c2, s_tie, components=True)
             cur = inner(moved) if moved is not None else cur  # pieces the merge left
-            s = squared_norms(problem, cur)
+            s = norms(cur)
         if edges is not None and gnc.first == "cycles" and gnc.search and runs:
             from .gnc_search import search_stage
 
             for _ in range(_SEARCH_ROUNDS):
                 cur, moves = search_stage(
                     cur, edges, pieces, user_known, weights, c2, inner,
-                    lambda st: _objective("tls", squared_norms(problem, st), c2, user_known),
+                    lambda st: _objective("tls", norms(st), c2, user_known),
                     chain=True)
                 if not moves:
                     break
-            s = squared_norms(problem, cur)
+            s = norms(cur)
         if edges is not None and gnc.first == "cycles" and gnc.moves and runs:
             from .gnc_loops import move_stage
 
             for _ in range(5):  # pieces moved where their cut edges fit best, then solved
-                before = _objective("tls", squared_norms(problem, cur), c2, known)
+                before = _objective("tls", norms(cur), c2, known)
                 saved_w = [w.copy() for w in weights]
                 moved = move_stage(cur, edges, known, weights, c2)
                 if moved is None:
                     break
                 new = inner(moved)
-                for w, sk, ck, kk in zip(weights, squared_norms(problem, new), c2, known,
+                for w, sk, ck, kk in zip(weights, norms(new), c2, known,
                                          strict=True):
                     w[~kk] = (sk[~kk] <= ck).astype(np.float64)
                 new = inner(new)
-                if _objective("tls", squared_norms(problem, new), c2, known) >= before:
+                if _objective("tls", norms(new), c2, known) >= before:
                     for w, a in zip(weights, saved_w, strict=True):
                         w[:] = a  # no better: keep the answer before the moves
                     break
                 cur = new
-            s = squared_norms(problem, cur)
+            s = norms(cur)
         if edges is not None and gnc.retest and runs:
             from .gnc_retest import inlier_start, retest_stage
 
@@ -747,10 +823,10 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                 if not flipped:
                     break
                 cur = inner(inlier_start(cur, edges, weights))  # the inliers after the flips
-                s = squared_norms(problem, cur)
+                s = norms(cur)
         if not runs:  # least squares is the answer: every weight 1
             cur = inner(cur)
-            s = squared_norms(problem, cur)
+            s = norms(cur)
     finally:
         for f, loss in zip(factors, saved, strict=True):
             f.loss = loss
@@ -781,12 +857,14 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
     timings["other"] = timings.get("other", 0.0) + total - sum(r.time_s for r in runs)
     last = runs[-1]
     name = f"GNC-{gnc.surrogate.upper()}"
-    return Result(Values(problem.variables, cur), 0.5 * sum(float(v.sum()) for v in s_start),
-                  0.5 * sum(float(v.sum()) for v in s),
-                  _objective(gnc.surrogate, s_start, c2, known),
-                  _objective(gnc.surrogate, s, c2, known),
+    return Result(Values(problem.variables, cur),  # costs in the problem's units (times vf)
+                  0.5 * vf * sum(float(v.sum()) for v in s_start),
+                  0.5 * vf * sum(float(v.sum()) for v in s),
+                  vf * _objective(gnc.surrogate, s_start, c2, known),
+                  vf * _objective(gnc.surrogate, s, c2, known),
                   sum(r.iterations for r in runs), termination == "convergence",
-                  f"{name}: {message} after {outer} outer iterations ({len(runs)} solves){note}",
+                  f"{name}: {message} after {outer} outer iterations ({len(runs)} "
+                  f"solves){note_v}{note}",
                   termination, history, total, f"{name} + {last.solver}", last.linear_solver,
                   timings, list(problem.gauge_fixed), sum(r.accepted_steps for r in runs),
                   last.strategy, weights=weights, inliers=inliers, outer_iterations=outer,

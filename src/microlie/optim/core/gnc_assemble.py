@@ -64,7 +64,7 @@ import numpy as np
 from ...groups import SE2, SE3, LieGroup
 
 __all__ = ["reduce_series", "parallel_links", "assemble_edges", "assemble_known",
-           "variance_factor", "pose_pieces", "join_pieces"]
+           "variance_factor", "known_variance", "pose_pieces", "join_pieces"]
 
 _V_MIN = 1e-3  # the variance factor is clipped to [_V_MIN, 1]
 
@@ -507,6 +507,63 @@ def variance_factor(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGr
     return float(s.sum()) / red
 
 
+def _pose_known(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
+                info: np.ndarray, known: np.ndarray, anchor: int) -> np.ndarray:
+    """``(n, k, k)`` poses with each piece of the known edges at its own least-squares optimum
+    (one chordal relaxation of the known edges, then :func:`pose_pieces`)."""
+    from ..linalg.base import SingularSystemError
+    from .gnc_chordal import chordal_gnc
+
+    try:
+        X, _, _ = chordal_gnc(group, n, ii, jj, Z, info, anchor, group.identity(), known,
+                              rejected=~known)
+        P = np.asarray(X.matrix(), dtype=np.float64)
+    except SingularSystemError:  # pieces held by the floor weights only: walk their edges
+        M = np.asarray(Z.matrix(), dtype=np.float64)
+        P = join_pieces(np.tile(np.eye(M.shape[-1]), (n, 1, 1)), M, ii, jj,
+                        np.zeros(ii.size, dtype=bool), known, anchor)
+    return pose_pieces(group, n, ii, jj, Z, info, known, group.from_matrix(P))
+
+
+def known_variance(edges: Any, known: list[np.ndarray]) -> float:
+    """The a posteriori variance factor of a pose graph's known edges (:func:`variance_factor`
+    with each piece at its least-squares optimum), clipped to ``[1e-3, 1]``: what
+    ``GNC(variance_factor="estimate")`` scales the thresholds by.
+
+    Parameters
+    ----------
+    edges : PoseGraphEdges
+        :func:`~microlie.optim.core.gnc_chordal.pose_graph_edges` of the problem.
+    known : list of numpy.ndarray
+        Known-inlier masks per factor batch (e.g. the cycle-consistent edges).
+
+    Returns
+    -------
+    float
+        ``1.0`` when the known edges have no redundancy.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from microlie import SE2
+    >>> from microlie.optim import FactorGraph, BetweenFactor, Isotropic
+    >>> from microlie.optim.core.gnc_chordal import pose_graph_edges
+    >>> from microlie.optim.core.gnc_assemble import known_variance
+    >>> g = FactorGraph()
+    >>> x = g.add_variables(SE2.identity(3), fixed=[0])
+    >>> # a triangle 0.3 m short of closing in x; noise sigma 1 m: s = 0.3^2 / 3, one cycle
+    >>> Z = SE2.from_xy_theta([1.0, 1.0, -2.3], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    >>> _ = g.add(BetweenFactor(x, [0, 1, 2], [1, 2, 0], Z, Isotropic(3, 1.0)))
+    >>> round(known_variance(pose_graph_edges(g.problem()), [np.ones(3, bool)]), 6)
+    0.01
+    """
+    kn = np.concatenate([known[k] for k, _ in edges.rows])
+    P = _pose_known(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info, kn,
+                    edges.anchor)
+    v = variance_factor(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info, P, kn)
+    return min(1.0, max(_V_MIN, v))
+
+
 def assemble_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
                    info: np.ndarray, known: np.ndarray, anchor: int, *,
                    quantile: float = 0.99, max_length: int = 5, max_rounds: int = 10,
@@ -563,8 +620,6 @@ def assemble_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
     from scipy.sparse.csgraph import connected_components
     from scipy.stats import chi2  # type: ignore[import-untyped]
 
-    from ..linalg.base import SingularSystemError
-    from .gnc_chordal import chordal_gnc
     from .gnc_loops import cycle_consistent_edges
 
     if group not in (SE2, SE3):
@@ -599,15 +654,7 @@ def assemble_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
     M = np.asarray(Z.matrix(), dtype=np.float64)
     c2 = float(chi2.ppf(quantile, info.shape[-1]))
 
-    def relax(P: np.ndarray | None, old: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        if P is None:  # the first poses: one chordal relaxation of the known edges
-            try:
-                X, _, _ = chordal_gnc(group, n, ii, jj, Z, info, anchor, group.identity(),
-                                      mask, rejected=~mask)
-                P = np.asarray(X.matrix(), dtype=np.float64)
-            except SingularSystemError:  # pieces held by the floor weights only
-                P = np.tile(np.eye(M.shape[-1]), (n, 1, 1))
-                old = np.zeros(E, dtype=bool)
+    def relax(P: np.ndarray, old: np.ndarray, mask: np.ndarray) -> np.ndarray:
         P = join_pieces(P, M, ii, jj, old, mask & ~old, anchor)
         return pose_pieces(group, n, ii, jj, Z, info, mask, group.from_matrix(P))
 
@@ -615,7 +662,7 @@ def assemble_edges(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGro
         coo_matrix((np.ones(int(kn.sum())), (ii[kn], jj[kn])), shape=(n, n)), directed=False)
     if ncomp == 1:
         return kn  # one piece: nothing to join
-    P = relax(None, kn, kn)
+    P = _pose_known(group, n, ii, jj, Z, info, kn, anchor)
     if variance is None:
         variance = min(1.0, max(_V_MIN, variance_factor(group, n, ii, jj, Z, info, P, kn)))
     info_v = info / variance
