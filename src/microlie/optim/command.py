@@ -7,6 +7,8 @@
                      [--gnc-quantile P]
                      [--gnc-first auto|values|least-squares|chordal|cycles]
                      [--gnc-cycle-length N] [--gnc-moves | --no-gnc-moves]
+                     [--gnc-search] [--gnc-assemble] [--gnc-chain]
+                     [--gnc-variance-factor V|estimate]
                      [--init auto|file|odometry|chordal|certified]
                      [--certify]
                      [--linear-solver auto|cholesky|schur|...]
@@ -64,7 +66,10 @@ of up to 5 edges and no moves in 2-D) and otherwise ``values``
 ``--gnc-cycle-length N``, ``--gnc-moves`` / ``--no-gnc-moves``, ``--gnc-search`` and
 ``--gnc-assemble`` set ``GNC(cycle_length=N, moves=..., search=True, assemble=True)`` of the
 cycle marking (``gnc.options`` in the JSON report: what ``auto`` and the per-group defaults
-became), and the report lists the edges judged
+became), ``--gnc-chain`` and ``--gnc-variance-factor V|estimate`` set ``GNC(chain=True,
+variance_factor=...)`` (for files whose information overstates the noise, e.g. M3500:
+``--gnc-variance-factor estimate --gnc-quantile 0.999999 --gnc-chain``), and the report
+lists the edges judged
 outliers (``gnc.outlier_edges``, in file order) and the pieces of the answer that another edge
 could hold at the same cost (``gnc.ties``).
 
@@ -178,6 +183,16 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--gnc-assemble", action="store_true",
                    help="with the cycle marking: join the pieces by cycles of pieces before "
                         "the chordal stage (off by default)")
+    p.add_argument("--gnc-variance-factor", type=_variance_factor, default=None,
+                   metavar="V|estimate",
+                   help="with --robust gnc-*: multiply the file's covariances by V before the "
+                        "inlier thresholds apply, or estimate it from the cycle-consistent "
+                        "edges (with the cycle marking; default 1: the file's information)")
+    p.add_argument("--gnc-chain", action="store_true",
+                   help="with the cycle marking: the spanning tree of the edges between the "
+                        "nearest vertex ids (the odometry) breaks exact ties and is tried as "
+                        "known inliers, kept when the TLS objective is no higher (off by "
+                        "default)")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, chordal, or "
                         "certified (the certified global optimum of SE-Sync's isotropic "
@@ -596,7 +611,8 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         used = robust.resolved(fg.problem(gauge))  # what "auto" / None became (cached problem)
         report["gnc"]["options"] = {
             "first": used.first, "cycle_length": used.cycle_length, "moves": used.moves,
-            "search": used.search, "assemble": used.assemble, "retest": used.retest}
+            "search": used.search, "assemble": used.assemble, "retest": used.retest,
+            "chain": used.chain, "variance_factor": used.variance_factor}
         if res.ties is not None:  # pieces that another edge could hold at the same cost
             def edge(bk: tuple[int, int]) -> int | str:
                 return bk[1] if bk[0] == 0 else "prior"
@@ -662,7 +678,9 @@ def _gnc_options(args: argparse.Namespace) -> str | None:
                         ("--gnc-cycle-length", getattr(args, "gnc_cycle_length", None)),
                         ("--gnc-moves", getattr(args, "gnc_moves", None)),
                         ("--gnc-search", getattr(args, "gnc_search", None) or None),
-                        ("--gnc-assemble", getattr(args, "gnc_assemble", None) or None)):
+                        ("--gnc-assemble", getattr(args, "gnc_assemble", None) or None),
+                        ("--gnc-variance-factor", getattr(args, "gnc_variance_factor", None)),
+                        ("--gnc-chain", getattr(args, "gnc_chain", None) or None)):
         if value is not None:
             raise ValueError(f"{flag} applies to --robust gnc-tls or gnc-gm only")
     return None
@@ -686,14 +704,31 @@ def _gnc_for(graph: Any, fg: Any, spec: str, args: argparse.Namespace) -> Any:
     moves = getattr(args, "gnc_moves", None)
     search = bool(getattr(args, "gnc_search", False))
     assemble = bool(getattr(args, "gnc_assemble", False))
+    chain = bool(getattr(args, "gnc_chain", False))
+    variance = getattr(args, "gnc_variance_factor", None)
     cycles = first == "cycles" or (first == "auto" and name == "tls")
-    if (length is not None or moves is not None or search or assemble) and not cycles:
-        raise ValueError("--gnc-cycle-length, --gnc-moves, --gnc-search and --gnc-assemble "
-                         "apply to the cycle marking only (--gnc-first cycles, or auto with "
-                         "gnc-tls)")
+    if (length is not None or moves is not None or search or assemble or chain or
+            variance == "estimate") and not cycles:
+        raise ValueError("--gnc-cycle-length, --gnc-moves, --gnc-search, --gnc-assemble, "
+                         "--gnc-chain and --gnc-variance-factor estimate apply to the cycle "
+                         "marking only (--gnc-first cycles, or auto with gnc-tls)")
     opts: dict[str, Any] = {} if moves is None else {"moves": bool(moves)}
     return GNC(name, known_inliers=known, quantile=quantile, first=first, cycle_length=length,
-               search=search, assemble=assemble, **opts)
+               search=search, assemble=assemble, chain=chain, variance_factor=variance, **opts)
+
+
+def _variance_factor(text: str) -> float | str:
+    """``--gnc-variance-factor``: ``estimate`` or a number > 0."""
+    if text == "estimate":
+        return text
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not v > 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0 or 'estimate', got "
+                                         f"{text!r}")
+    return v
 
 
 def _position_rmse(X: Any, truth: Any) -> float:

@@ -66,7 +66,6 @@ __all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initia
 
 SURROGATES = ("tls", "gm")
 FIRST = ("auto", "values", "least-squares", "chordal", "cycles")
-TIE_BREAKS = ("start", "chain")
 # search=True: rounds of the region search (each one solve when it moves something)
 _SEARCH_ROUNDS = 3
 
@@ -193,14 +192,17 @@ class GNC:
         scatter of its edges (``v = 0.024``). With the noise right the quantile is a test per
         edge; over thousands of good edges a family-wise quantile (e.g. 0.999999) keeps them
         all (measured in ``benchmarks/results/robust-variance-s15.md``).
-    tie_break : {"start", "chain"}
-        With ``first="cycles"``: the poses whose residuals break exact ties of the TLS
-        objective (see ``first``). ``"start"`` (default): the start values. ``"chain"``: the
-        poses composed from the anchor along the spanning tree of the edges between the
-        nearest vertex indices (:func:`~microlie.optim.core.gnc_chordal.chain_poses`: the
-        odometry chain of a file whose vertices are numbered in time order), so that the
-        answer does not depend on the start and ties go to the odometry; the data cannot
-        decide them (:mod:`microlie.optim.core.gnc_ties`).
+    chain : bool
+        With ``first="cycles"``: the spanning tree of the edges between the nearest vertex
+        indices (:func:`~microlie.optim.core.gnc_chordal.chain_edges`; the odometry of a file
+        whose vertices are numbered in time order) is GNC's hypothesis where the data cannot
+        decide (default False). Exact ties of the TLS objective (see ``first``) are broken by
+        the poses composed along it instead of the start values, so the answer does not
+        depend on the start; and GNC solves a second time with its edges held as inliers
+        (from those poses) and keeps that answer when its TLS objective over every edge,
+        the tree's included, is no higher and every tree edge fits there within its
+        threshold (a wrong odometry edge makes it lose). Measured on M3500 without known
+        inliers (``benchmarks/results/robust-variance-s15.md``).
 
     Examples
     --------
@@ -215,7 +217,7 @@ class GNC:
                  first: str = "auto", retest: int = 3, cycle_length: int | None = None,
                  moves: bool | None = None, search: bool = False,
                  assemble: bool = False, variance_factor: float | str | None = None,
-                 tie_break: str = "start") -> None:
+                 chain: bool = False) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
@@ -273,10 +275,10 @@ class GNC:
                              f"None, got {variance_factor!r}")
         self.variance_factor = variance_factor if variance_factor in (None, "estimate") \
             else float(variance_factor)  # type: ignore[arg-type]
-        if tie_break not in TIE_BREAKS:
-            raise ValueError(f"GNC tie_break must be one of {', '.join(TIE_BREAKS)}, got "
-                             f"{tie_break!r}")
-        self.tie_break = tie_break
+        if not isinstance(chain, bool):
+            raise ValueError(f"GNC chain must be True or False, got {chain!r}")
+        self.chain = chain
+        self._hypothesis = False  # set on the copies that chain=True solves with
 
     def __repr__(self) -> str:
         return (f"GNC({self.surrogate!r}, quantile={self.quantile}, first={self.first!r}, "
@@ -543,6 +545,69 @@ def _mark_cycles(edges: Any, known: list[np.ndarray], gnc: GNC, s_start: list[np
     return known
 
 
+def _chain_states(edges: Any, states: list[np.ndarray]) -> list[np.ndarray]:
+    """The start values with the poses composed along the chain from the anchor's."""
+    from .gnc_chordal import chain_poses
+
+    P = np.array(states[0], dtype=np.float64)
+    P[:] = np.asarray(chain_poses(edges, edges.group.from_params(P[edges.anchor])).params,
+                      dtype=np.float64)
+    return [P]
+
+
+def _chain_hypothesis(problem: Problem, states: list[np.ndarray], gnc: GNC, strategy: Any,
+                      **kw: Any) -> Result:
+    """``GNC(chain=True)``: GNC with ties broken by the chain, and GNC with the chain's edges
+    held as inliers; the answer of lower TLS objective over every edge (the second on a tie,
+    when every chain edge fits there)."""
+    from .gnc_assemble import known_variance
+    from .gnc_chordal import chain_edges, pose_graph_edges
+
+    t0 = time.perf_counter()
+    edges = pose_graph_edges(problem)
+    if edges is None:
+        raise ValueError("GNC chain=True needs a pose graph: one SE2 or SE3 variable batch "
+                         "with only BetweenFactor and PriorFactor batches and a fixed vertex "
+                         "or a prior")
+    user_known = gnc.known_masks(problem.factors)
+    note_v = ""
+    base = copy.copy(gnc)
+    base._hypothesis = True
+    if gnc.variance_factor == "estimate":  # one estimate for both answers (one objective)
+        marked = _mark_cycles(edges, user_known, gnc, squared_norms(problem, states))
+        base.variance_factor = known_variance(edges, marked)
+        note_v = f"; variance factor {base.variance_factor:.6g} (estimated from " \
+                 f"{_count(marked):d} cycle-consistent edges)"
+    vf = base.variance_factor if isinstance(base.variance_factor, float) else 1.0
+    a = gnc_solve(problem, states, base, strategy, **kw)
+    tree = chain_edges(edges)
+    held = copy.copy(base)
+    held.known_inliers = list(gnc.known_inliers) + [
+        (problem.factors[k], tree[sl]) for k, sl in edges.rows]
+    b = gnc_solve(problem, _chain_states(edges, states), held, strategy, **kw)
+    c2 = inlier_thresholds(problem.factors, gnc.quantile)
+
+    def objective(r: Result) -> float:
+        s = [sk / vf for sk in squared_norms(problem, [np.asarray(
+            r.values.params(v), dtype=np.float64) for v in problem.variables])]
+        return _objective("tls", s, c2, user_known)
+
+    oa, ob = objective(a), objective(b)
+    sb = squared_norms(problem, [np.asarray(b.values.params(v), dtype=np.float64)
+                                 for v in problem.variables])
+    fits = all(bool(np.all(sb[k][tree[sl]] / vf <= c2[k])) for k, sl in edges.rows)
+    pick, other = (b, a) if ob <= oa and fits else (a, b)
+    what = ("held the chain's edges" if pick is b else "broke ties by the chain")
+    msg = pick.message.replace(f"; variance factor {vf:.6g} (given)", note_v) if note_v \
+        else pick.message
+    ties = _ties(problem, edges, gnc, pick.inliers or [], [~kk for kk in user_known])
+    return dataclasses.replace(
+        pick, message=f"{msg}; chain hypothesis: kept the answer that {what} (TLS objective "
+                      f"{vf * min(oa, ob):.6g} against {vf * max(oa, ob):.6g})",
+        iterations=a.iterations + b.iterations, time_s=time.perf_counter() - t0,
+        ties=ties, outer_iterations=(a.outer_iterations or 0) + (b.outer_iterations or 0))
+
+
 def _chordal_stage(problem: Problem, states: list[np.ndarray], gnc: GNC, edges: Any,
                    known: list[np.ndarray], weights: list[np.ndarray]
                    ) -> tuple[list[np.ndarray], float]:
@@ -642,6 +707,9 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             raise ValueError(f"GNC replaces robust losses: factor batch {k} ({f.name}) has "
                              f"loss {f.loss!r}; build it without a loss")
     gnc = gnc.resolved(problem)  # first="auto", cycle_length=None: decided for this problem
+    if gnc.chain and gnc.first == "cycles" and not gnc._hypothesis:
+        return _chain_hypothesis(problem, states, gnc, strategy, linear_solver=linear_solver,
+                                 eliminate=eliminate, max_iter=max_iter, verbose=verbose)
     known = gnc.known_masks(factors)
     user_known = known  # the caller's (the stages below add their own known inliers)
     c2 = inlier_thresholds(factors, gnc.quantile)
@@ -677,13 +745,8 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
     s_tie = s_start  # the squared norms that break exact ties
     if edges is not None:
         edges.info = edges.info / vf
-        if gnc.first == "cycles" and gnc.tie_break == "chain":
-            from .gnc_chordal import chain_poses
-
-            P = np.array(states[0], dtype=np.float64)
-            P[:] = np.asarray(chain_poses(edges, edges.group.from_params(
-                P[edges.anchor])).params, dtype=np.float64)
-            s_tie = [sk / vf for sk in squared_norms(problem, [P])]
+        if gnc.first == "cycles" and gnc.chain:
+            s_tie = [sk / vf for sk in squared_norms(problem, _chain_states(edges, states))]
         if gnc.first == "cycles":
             known = _mark_cycles(edges, known, gnc, s_tie)
 
