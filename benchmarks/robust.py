@@ -137,34 +137,37 @@ class Ties:
     """Whether a miss can be the problem's: the tie-capable bridges of the true inlier graph
     and the swap witness (module docstring of ``microlie.optim.core.gnc_ties``)."""
 
-    def __init__(self, pg2, bad, Xref, quantile: float, odo: np.ndarray):
+    def __init__(self, pg2, bad, Xref, odo: np.ndarray):
         self.fg, _ = pg2.to_factor_graph(Xref, gauge="fix")
         self.problem = self.fg.problem()
-        self.c2 = inlier_thresholds(self.problem.factors, quantile)[0]
-        self.ref = tls_objective(self.problem, Xref, self.c2)
         self.Xref = Xref
         ii, jj = pg2.edge_index()
         good = np.ones(ii.size, bool)
         good[bad] = False
         P0 = np.asarray(Xref.translation())
-        self.cells: dict[str, tuple[str, bool]] = {}
+        self.swaps: dict[str, tuple[int, int, object, float] | None] = {}
         for known, judged in (("none", None), ("odometry", ~odo)):
             tb = tie_bridges(pg2.ids.size, ii, jj, good, judged)
             if not tb:
-                self.cells[known] = (" 0 | | |", False)
+                self.swaps[known] = None
                 continue
             W = swap_witness(Xref, ii, jj, pg2.measurements, tb[0].side, int(tb[0].wrong[0]),
                              fixed=0)
-            dw = (tls_objective(self.problem, W, self.c2) - self.ref) / (self.c2 / 2)
-            self.cells[known] = (f" {len(tb)} ({tb[0].side.size}) | {dw:.2e} | "
-                                 f"{ape(W.translation(), P0):.2e} |", True)
+            self.swaps[known] = (len(tb), tb[0].side.size, W, ape(W.translation(), P0))
 
-    def delta(self, X, vf: float = 1.0) -> float:
-        """Our TLS objective minus the reference's, in units of ``c^2/2`` (edges), with the
-        threshold ``vf c^2`` GNC used (``variance_factor``)."""
-        c2 = self.c2 * vf
-        ref = self.ref if vf == 1.0 else tls_objective(self.problem, self.Xref, c2)
+    def delta(self, X, c2: float) -> float:
+        """Our TLS objective minus the reference's with the threshold ``c2`` GNC used
+        (its quantile times its variance factor), in units of ``c^2/2`` (edges)."""
+        ref = tls_objective(self.problem, self.Xref, c2)
         return (tls_objective(self.problem, X, c2) - ref) / (c2 / 2)
+
+    def cell(self, known: str, c2: float) -> tuple[str, bool]:
+        """The ``ties``, ``swap TLS - ref`` and ``swap APE`` cells, and whether ties exist."""
+        sw = self.swaps[known]
+        if sw is None:
+            return " 0 | | |", False
+        n, side, W, err = sw
+        return f" {n} ({side}) | {self.delta(W, c2):.2e} | {err:.2e} |", True
 
 
 def scores(pred_in, bad, loops):
@@ -230,7 +233,7 @@ def run_gtsam_only(args, gcases) -> None:
         P0, _ = reference(pg2, bad)
         X0 = initialize(pg2, start)
         kidx = np.flatnonzero(np.abs(ii - jj) == 1) if known == "known" else []
-        got = run_gtsam(pg2, X0, kidx, args.quantile, args.gtsam_timeout, args.python)
+        got = run_gtsam(pg2, X0, kidx, args.quantile or 0.99, args.gtsam_timeout, args.python)
         out[key] = gtsam_record(got, bad, loops, P0, args.gtsam_timeout)
         print(key, out[key], flush=True)
         path.write_text(json.dumps(out, indent=1))
@@ -255,8 +258,9 @@ def main(argv: list[str] | None = None) -> None:
                     choices=["odometry", "chordal"])
     ap.add_argument("--known", nargs="+", default=["none", "odometry"],
                     choices=["none", "odometry"], help="runs without / with known inliers")
-    ap.add_argument("--quantile", type=float, default=0.99,
-                    help="chi-square quantile of the inlier threshold (GNC and GTSAM)")
+    ap.add_argument("--quantile", type=float, default=None,
+                    help="chi-square quantile of the inlier threshold (default: GNC's, 0.99 "
+                         "or 1 - 1e-6 with the estimated variance factor; GTSAM: 0.99)")
     ap.add_argument("--first", default=None, choices=["auto", "chordal", "cycles", "values",
                                                       "least-squares"],
                     help="GNC(first=...): where the first weights come from (default: GNC's, "
@@ -300,19 +304,20 @@ def main(argv: list[str] | None = None) -> None:
     if args.gtsam_only:
         run_gtsam_only(args, gcases)
         return
-    opts = {k: v for k, v in (("first", args.first), ("retest", args.retest),
-                              ("cycle_length", args.cycle_length), ("moves", args.moves),
-                              ("search", args.search),
+    opts = {k: v for k, v in (("quantile", args.quantile), ("first", args.first),
+                              ("retest", args.retest), ("cycle_length", args.cycle_length),
+                              ("moves", args.moves), ("search", args.search),
                               ("assemble", args.assemble),
                               ("variance_factor", args.variance_factor),
                               ("chain", args.chain)) if v is not None}
     shown = GNC("tls", **opts)  # type: ignore[arg-type]
-    print(f"quantile {args.quantile}, first weights from {shown.first}, retest "
-          f"{shown.retest}, cycle_length {shown.cycle_length} (None: 8 on SE3, 5 on SE2), "
-          f"moves {shown.moves} (None: on for SE3, off for SE2), search {shown.search}, "
-          f"assemble {shown.assemble}, variance factor {shown.variance_factor}, chain "
-          f"{shown.chain} (GNC's "
-          f"defaults unless given: {opts or 'none given'}); "
+    print(f"quantile {shown.quantile} (None: 1 - 1e-6 with the estimated variance factor, "
+          f"else 0.99), first weights from {shown.first}, retest {shown.retest}, cycle_length "
+          f"{shown.cycle_length} (None: 8 on SE3, 5 on SE2), moves {shown.moves} (None: on for "
+          f"SE3, off for SE2), search {shown.search}, assemble {shown.assemble}, variance "
+          f"factor {shown.variance_factor} (None: estimate with the cycle marking), chain "
+          f"{shown.chain} (None: on with the cycle marking) (GNC's defaults unless given: "
+          f"{opts or 'none given'}); "
           f"APE in m against the outlier-free optimum; P/R: precision/recall of result.inliers "
           f"over loop closures")
     print("TLS - ref: our TLS objective 0.5 sum min(s, c^2) over every edge of the corrupted "
@@ -338,21 +343,23 @@ def main(argv: list[str] | None = None) -> None:
                 pg2, bad = corrupt(pg, rate, seed)
                 Xref = reference_poses(pg2, bad)
                 P0 = np.asarray(Xref.translation())
-                ties = Ties(pg2, bad, Xref, args.quantile, odo)
+                ties = Ties(pg2, bad, Xref, odo)
                 for start in args.starts:
                     X0 = initialize(pg2, start)
                     for known in args.known:
                         fg, x = pg2.to_factor_graph(X0, gauge="fix")
                         ki = [(fg.factors[0], odo)] if known == "odometry" else None
-                        gnc = GNC("tls", known_inliers=ki, quantile=args.quantile,
-                                  **opts)  # type: ignore[arg-type]
+                        gnc = GNC("tls", known_inliers=ki, **opts)  # type: ignore[arg-type]
                         t0 = time.perf_counter()
                         res = fg.optimize(robust=gnc, verbose=False)
                         dt = time.perf_counter() - t0
                         p, r = scores(res.inliers[0], bad, loops)
                         err = ape(res.values[x].translation(), P0)
-                        dtls = ties.delta(res.values[x], used_variance(res.message))
-                        tcell, tied = ties.cells[known]
+                        used = gnc.resolved(fg.problem())
+                        c2 = inlier_thresholds(fg.problem().factors, used.quantile)[0] * \
+                            used_variance(res.message)
+                        dtls = ties.delta(res.values[x], c2)
+                        tcell, tied = ties.cell(known, c2)
                         tally = summary.setdefault((gname, known), [0, 0, 0, 0, 0, 0, 0])
                         tally[0] += 1
                         tally[1] += err <= 0.01
@@ -372,8 +379,8 @@ def main(argv: list[str] | None = None) -> None:
                             row += gtsam_cells(saved[":".join(key)], dt)
                         elif key in gcases:
                             kidx = np.flatnonzero(odo) if known == "odometry" else []
-                            got = run_gtsam(pg2, X0, kidx, args.quantile, args.gtsam_timeout,
-                                            args.python)
+                            got = run_gtsam(pg2, X0, kidx, args.quantile or 0.99,
+                                            args.gtsam_timeout, args.python)
                             row += gtsam_cells(gtsam_record(got, bad, loops, P0,
                                                             args.gtsam_timeout), dt)
                         else:
@@ -384,7 +391,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{gname}, known inliers {known}: {n} cases; within 0.01 m: {met}; TLS-optimal "
               f"(TLS - ref <= 1e-3 edges): {opt}; with ties: {tied}; answers flagged not "
               f"unique: {flag}; misses not flagged: {silent}"
-              + (f"; chain hypothesis kept: {held}" if shown.chain else ""))
+              + f"; chain hypothesis kept: {held}")
 
 
 if __name__ == "__main__":

@@ -123,15 +123,17 @@ def test_wrong_closure_within_file_noise(G, first):
     ref = _solve_clean(G, X0, ii, jj, Z, sigma_file)
     lm = LevenbergMarquardt(abs_tol=0.0, rel_tol=1e-14)
 
-    def run(retest):
+    def run(retest, variance_factor=1.0):
         g = FactorGraph()
         x = g.add_variables(X0, fixed=[0])
         f = g.add(BetweenFactor(x, ii2, jj2, Z2, Isotropic(G.dof, sigma_file)))
         # cycle_length=5 (the SE2 default; SE3's is 8): the subject is the re-test. Longer
         # cycles (6-9) mark this closure consistent (the 6-edge cycle through it closes
-        # within the overstated noise), and the re-test never judges marked edges.
+        # within the overstated noise), and the re-test never judges marked edges. The
+        # file's information as given (variance_factor=1): the estimated factor of the
+        # cycle marking's default catches the closure before the re-test (checked last).
         res = g.optimize(robust=GNC(known_inliers=[(f, odo)], first=first, retest=retest,
-                                    cycle_length=5),
+                                    cycle_length=5, variance_factor=variance_factor),
                          solver=lm, max_iter=200, verbose=False)
         return res, np.asarray(res.values[x].params)
 
@@ -142,6 +144,10 @@ def test_wrong_closure_within_file_noise(G, first):
     w = res.weights[0]
     assert w[-1] == 0.0 and np.all(w[:-1] == 1.0)
     np.testing.assert_allclose(P, ref, atol=1e-6)
+    if first == "cycles":  # the estimated variance factor (the default) alone rejects it
+        res, P = run(0, None)
+        assert res.weights[0][-1] == 0.0 and np.all(res.weights[0][:-1] == 1.0)
+        np.testing.assert_allclose(P, ref, atol=1e-6)
 
 
 def test_readmit_drifted_closure():

@@ -56,22 +56,23 @@ prints the reason on stderr, writes no ``-o`` file and exits with status 1.
 
 ``--robust gnc-tls`` (or ``gnc-gm``) runs graduated non-convexity
 (:mod:`microlie.optim.core.gnc`) instead of a loss: the gauge prior and, with
-``--known-inliers odometry``, the edges between consecutive vertex ids keep weight 1, the inlier
-threshold is the ``--gnc-quantile`` (default 0.99) chi-square quantile, ``--gnc-first`` is
-``GNC(first=...)``: by default ``auto``, which for ``gnc-tls`` on a pose graph is ``cycles``
-(GNC-TLS on the chordal relaxation first, with the edges that close a short cycle within their
-noise kept as inliers: cycles of up to 8 edges and the rigid moves after GNC in 3-D, cycles
-of up to 5 edges and no moves in 2-D) and otherwise ``values``
-(``chordal``: without the cycle marking; ``values``: plain GNC from the start);
-``--gnc-cycle-length N``, ``--gnc-moves`` / ``--no-gnc-moves``, ``--gnc-search`` and
-``--gnc-assemble`` set ``GNC(cycle_length=N, moves=..., search=True, assemble=True)`` of the
-cycle marking (``gnc.options`` in the JSON report: what ``auto`` and the per-group defaults
-became), ``--gnc-chain`` and ``--gnc-variance-factor V|estimate`` set ``GNC(chain=True,
-variance_factor=...)`` (for files whose information overstates the noise, e.g. M3500:
-``--gnc-variance-factor estimate --gnc-quantile 0.999999 --gnc-chain``), and the report
-lists the edges judged
-outliers (``gnc.outlier_edges``, in file order) and the pieces of the answer that another edge
-could hold at the same cost (``gnc.ties``).
+``--known-inliers odometry``, the edges between consecutive vertex ids keep weight 1.
+``--gnc-first`` is ``GNC(first=...)``: by default ``auto``, which for ``gnc-tls`` on a pose
+graph is ``cycles`` (GNC-TLS on the chordal relaxation first, with the edges that close a short
+cycle within their noise kept as inliers: cycles of up to 8 edges and the rigid moves after GNC
+in 3-D, cycles of up to 5 edges and no moves in 2-D) and otherwise ``values`` (``chordal``:
+without the cycle marking; ``values``: plain GNC from the start). With the cycle marking the
+file's covariances are scaled by the variance factor of the cycle-consistent edges
+(``--gnc-variance-factor``, default ``estimate``; a number sets it, 1 keeps the file's), the
+inlier threshold is then the ``--gnc-quantile`` chi-square quantile (default 1 - 1e-6 with
+the estimate, family-wise; 0.99 otherwise), and the spanning tree of the edges between the
+nearest vertex ids (the odometry) breaks exact ties and is tried as known inliers
+(``--gnc-chain`` / ``--no-gnc-chain``). ``--gnc-cycle-length N``, ``--gnc-moves`` /
+``--no-gnc-moves``, ``--gnc-search`` and ``--gnc-assemble`` set ``GNC(cycle_length=N,
+moves=..., search=True, assemble=True)`` (``gnc.options`` in the JSON report: what ``auto``
+and the defaults became), and the report lists the edges judged outliers
+(``gnc.outlier_edges``, in file order) and the pieces of the answer that another edge could
+hold at the same cost (``gnc.ties``).
 
 Formats come from the registry :data:`microlie.optim.io.formats.FORMATS`: its handler is called
 as ``handler(args, err) -> dict`` and returns the JSON report; a new format is one entry there.
@@ -187,12 +188,12 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    metavar="V|estimate",
                    help="with --robust gnc-*: multiply the file's covariances by V before the "
                         "inlier thresholds apply, or estimate it from the cycle-consistent "
-                        "edges (with the cycle marking; default 1: the file's information)")
-    p.add_argument("--gnc-chain", action="store_true",
+                        "edges (default: estimate with the cycle marking, else 1)")
+    p.add_argument("--gnc-chain", action=argparse.BooleanOptionalAction, default=None,
                    help="with the cycle marking: the spanning tree of the edges between the "
                         "nearest vertex ids (the odometry) breaks exact ties and is tried as "
-                        "known inliers, kept when the TLS objective is no higher (off by "
-                        "default)")
+                        "known inliers, kept when the TLS objective is no higher (default: on "
+                        "with the cycle marking)")
     p.add_argument("--init", choices=INITS, default="auto",
                    help="initial guess: the file's vertices, the odometry chain, chordal, or "
                         "certified (the certified global optimum of SE-Sync's isotropic "
@@ -606,7 +607,7 @@ def run_pose_graph(args: argparse.Namespace, err: TextIO) -> dict:
         bad = [int(k) for k, ok in enumerate(res.inliers[0]) if not ok]
         report["gnc"] = {"outer_iterations": res.outer_iterations,
                          "known_inliers": args.known_inliers,
-                         "quantile": robust.quantile,
+                         "quantile": robust.resolved(fg.problem(gauge)).quantile,
                          "outliers": len(bad), "outlier_edges": bad}
         used = robust.resolved(fg.problem(gauge))  # what "auto" / None became (cached problem)
         report["gnc"]["options"] = {
@@ -680,7 +681,7 @@ def _gnc_options(args: argparse.Namespace) -> str | None:
                         ("--gnc-search", getattr(args, "gnc_search", None) or None),
                         ("--gnc-assemble", getattr(args, "gnc_assemble", None) or None),
                         ("--gnc-variance-factor", getattr(args, "gnc_variance_factor", None)),
-                        ("--gnc-chain", getattr(args, "gnc_chain", None) or None)):
+                        ("--gnc-chain", getattr(args, "gnc_chain", None))):
         if value is not None:
             raise ValueError(f"{flag} applies to --robust gnc-tls or gnc-gm only")
     return None
@@ -698,16 +699,16 @@ def _gnc_for(graph: Any, fg: Any, spec: str, args: argparse.Namespace) -> Any:
     if args.known_inliers == "odometry":
         ii, jj = graph.edge_index()
         known.append((fg.factors[0], abs(jj - ii) == 1))
-    quantile = 0.99 if args.gnc_quantile is None else args.gnc_quantile
+    quantile = args.gnc_quantile  # None: GNC's (0.99, or 1 - 1e-6 with the estimate)
     first = getattr(args, "gnc_first", None) or "auto"
     length = getattr(args, "gnc_cycle_length", None)
     moves = getattr(args, "gnc_moves", None)
     search = bool(getattr(args, "gnc_search", False))
     assemble = bool(getattr(args, "gnc_assemble", False))
-    chain = bool(getattr(args, "gnc_chain", False))
+    chain = getattr(args, "gnc_chain", None)
     variance = getattr(args, "gnc_variance_factor", None)
     cycles = first == "cycles" or (first == "auto" and name == "tls")
-    if (length is not None or moves is not None or search or assemble or chain or
+    if (length is not None or moves is not None or search or assemble or chain is not None or
             variance == "estimate") and not cycles:
         raise ValueError("--gnc-cycle-length, --gnc-moves, --gnc-search, --gnc-assemble, "
                          "--gnc-chain and --gnc-variance-factor estimate apply to the cycle "

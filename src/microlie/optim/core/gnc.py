@@ -66,6 +66,8 @@ __all__ = ["GNC", "SURROGATES", "make_gnc", "tls_weights", "gm_weights", "initia
 
 SURROGATES = ("tls", "gm")
 FIRST = ("auto", "values", "least-squares", "chordal", "cycles")
+# quantile=None with an estimated variance factor: 1% over 10,000 edges (Bonferroni)
+FAMILY_QUANTILE = 1.0 - 1e-6
 # search=True: rounds of the region search (each one solve when it moves something)
 _SEARCH_ROUNDS = 3
 
@@ -77,10 +79,13 @@ class GNC:
     ----------
     surrogate : {"tls", "gm"}
         Truncated least squares (the paper's GNC-TLS, the default) or Geman-McClure.
-    quantile : float
+    quantile : float or None
         ``0 < quantile < 1``: the inlier threshold of a factor of dimension ``d`` is
-        ``c^2 = chi2.ppf(quantile, d)`` on its whitened squared residual (default 0.99, as
-        GTSAM's ``GncOptimizer``).
+        ``c^2 = chi2.ppf(quantile, d)`` on its whitened squared residual (times the variance
+        factor). ``None`` (default): 0.99, as GTSAM's ``GncOptimizer``, with the information
+        as given; ``1 - 1e-6`` with an estimated variance factor (``FAMILY_QUANTILE``: with the
+        noise estimated the test is family-wise, 1% over up to 10,000 good edges, Bonferroni;
+        0.99 per edge rejects a few dozen good edges of M3500 and moves its answer 0.04-0.17 m).
     known_inliers : sequence, optional
         Factors that keep weight 1 (never judged): each item a factor batch of the graph (all
         its rows) or ``(factor, rows)`` with row indices or a boolean mask of that batch.
@@ -183,47 +188,52 @@ class GNC:
     variance_factor : float, "estimate" or None
         The factor the factors' covariances are multiplied by before the thresholds apply
         (every ``c^2`` becomes ``v c^2``; the least-squares solves do not change). ``None``
-        (default): 1, the information as given. ``"estimate"`` (a pose graph with
-        ``first="cycles"``): the a posteriori variance factor of the edges the cycle test
-        marked (:func:`~microlie.optim.core.gnc_assemble.known_variance`, clipped to
-        ``[1e-3, 1]``), then the marking is done again with the scaled covariances; the
-        value is in the result's message. For files whose information overstates the noise,
-        where wrong edges then pass as inliers: M3500's covariances are about 40 times the
-        scatter of its edges (``v = 0.024``). With the noise right the quantile is a test per
-        edge; over thousands of good edges a family-wise quantile (e.g. 0.999999) keeps them
-        all (measured in ``benchmarks/results/robust-variance-s15.md``).
-    chain : bool
+        (default): ``"estimate"`` with ``first="cycles"``, else 1 (the information as given).
+        ``"estimate"`` (a pose graph with ``first="cycles"``): the a posteriori variance
+        factor of the edges the cycle test marks
+        (:func:`~microlie.optim.core.gnc_assemble.known_variance`, clipped to ``[1e-3, 1]``),
+        then the marking is done again with the scaled covariances; the value is in the
+        result's message. For files whose information overstates the noise, where wrong edges
+        then pass as inliers: M3500's covariances are about 40 times the scatter of its edges
+        (``v = 0.024``). Measured in ``benchmarks/results/robust-s15.md``.
+    chain : bool or None
         With ``first="cycles"``: the spanning tree of the edges between the nearest vertex
-        indices (:func:`~microlie.optim.core.gnc_chordal.chain_edges`; the odometry of a file
+        indices (:func:`~microlie.optim.core.gnc_chain.chain_edges`; the odometry of a file
         whose vertices are numbered in time order) is GNC's hypothesis where the data cannot
-        decide (default False). Exact ties of the TLS objective (see ``first``) are broken by
-        the poses composed along it instead of the start values, so the answer does not
-        depend on the start; and GNC solves a second time with its edges held as inliers
-        (from those poses) and keeps that answer when its TLS objective over every edge,
-        the tree's included, is no higher and every tree edge fits there within its
-        threshold (a wrong odometry edge makes it lose). Measured on M3500 without known
-        inliers (``benchmarks/results/robust-variance-s15.md``).
+        decide. ``None`` (default): True with ``first="cycles"``, else False. Exact ties of
+        the TLS objective (see ``first``) are broken by the poses composed along the tree
+        instead of the start values, so the answer does not depend on the start; and GNC
+        solves a second time with the tree's edges held as inliers (from those poses) and
+        keeps that answer when its TLS objective over every edge, the tree's included, is no
+        higher and every tree edge fits there within its threshold (a wrong odometry edge
+        makes it lose). Measured on M3500 without known inliers
+        (``benchmarks/results/robust-s15.md``): 18 of 18 rows within 0.01 m at 10-50% wrong
+        loop closures, with the estimated variance factor (2 of 18 before).
 
     Examples
     --------
     >>> from microlie.optim.core.gnc import GNC
     >>> GNC("gm", quantile=0.95)
     GNC('gm', quantile=0.95, first='auto', known_inliers=0 batches)
+    >>> GNC()
+    GNC('tls', quantile=None, first='auto', known_inliers=0 batches)
     """
 
-    def __init__(self, surrogate: str = "tls", *, quantile: float = 0.99,
+    def __init__(self, surrogate: str = "tls", *, quantile: float | None = None,
                  known_inliers: Sequence[Any] | None = None, mu_step: float = 1.4,
                  max_iter: int = 100, cost_tol: float = 1e-5, weights_tol: float = 1e-4,
                  first: str = "auto", retest: int = 3, cycle_length: int | None = None,
                  moves: bool | None = None, search: bool = False,
                  assemble: bool = False, variance_factor: float | str | None = None,
-                 chain: bool = False) -> None:
+                 chain: bool | None = None) -> None:
         if surrogate not in SURROGATES:
             raise ValueError(f"GNC surrogate must be one of {', '.join(SURROGATES)}, got "
                              f"{surrogate!r}")
-        if not (isinstance(quantile, (float, int)) and 0.0 < quantile < 1.0):
-            raise ValueError(f"GNC quantile must be a probability strictly between 0 and 1, got "
-                             f"{quantile!r}")
+        if quantile is not None and not (isinstance(quantile, (float, int)) and
+                                         not isinstance(quantile, bool) and
+                                         0.0 < quantile < 1.0):
+            raise ValueError(f"GNC quantile must be a probability strictly between 0 and 1 or "
+                             f"None, got {quantile!r}")
         if not (isinstance(mu_step, (float, int)) and math.isfinite(mu_step) and mu_step > 1.0):
             raise ValueError(f"GNC mu_step must be a finite number > 1, got {mu_step!r}")
         if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or \
@@ -240,7 +250,7 @@ class GNC:
             raise ValueError("GNC known_inliers must be a sequence of factor batches or "
                              "(factor, rows) pairs, e.g. [odometry]")
         self.surrogate = surrogate
-        self.quantile = float(quantile)
+        self.quantile = None if quantile is None else float(quantile)
         self.known_inliers = list(known_inliers or [])
         self.mu_step = float(mu_step)
         self.max_iter = int(max_iter)
@@ -275,8 +285,9 @@ class GNC:
                              f"None, got {variance_factor!r}")
         self.variance_factor = variance_factor if variance_factor in (None, "estimate") \
             else float(variance_factor)  # type: ignore[arg-type]
-        if not isinstance(chain, bool):
-            raise ValueError(f"GNC chain must be True or False, got {chain!r}")
+        if chain is not None and not isinstance(chain, bool):
+            raise ValueError(f"GNC chain must be True, False or None (with first='cycles'), "
+                             f"got {chain!r}")
         self.chain = chain
         self._hypothesis = False  # set on the copies that chain=True solves with
 
@@ -285,13 +296,15 @@ class GNC:
                 f"known_inliers={len(self.known_inliers)} batches)")
 
     def resolved(self, problem: Problem) -> GNC:
-        """These options with ``first="auto"``, ``cycle_length=None`` and ``moves=None`` decided
-        for ``problem``.
+        """These options with ``first="auto"`` and every ``None`` decided for ``problem``.
 
         ``first="auto"``: ``"cycles"`` for TLS on a pose graph
         (:func:`~microlie.optim.core.gnc_chordal.pose_graph_edges` is not None), else
         ``"values"``. ``cycle_length=None``: 8 on an SE3 pose graph, 5 otherwise (SE2).
-        ``moves=None``: True on an SE3 pose graph, False otherwise.
+        ``moves=None``: True on an SE3 pose graph, False otherwise. ``variance_factor=None``:
+        ``"estimate"`` with ``first="cycles"``, else 1.0; ``chain=None``: whether
+        ``first="cycles"``; ``quantile=None``: ``FAMILY_QUANTILE`` with ``"estimate"``, else
+        0.99.
 
         Parameters
         ----------
@@ -301,8 +314,7 @@ class GNC:
         Returns
         -------
         GNC
-            A copy with ``first``, ``cycle_length`` and ``moves`` set (``self`` when nothing
-            was left to decide).
+            A copy with those options set (``self`` when nothing was left to decide).
 
         Examples
         --------
@@ -318,8 +330,13 @@ class GNC:
         ...                                               GNC().resolved(chain(SE3)),
         ...                                               GNC("gm").resolved(chain(SE3)))]
         [('cycles', 5, False), ('cycles', 8, True), ('values', 8, True)]
+        >>> [(o.variance_factor, o.chain, o.quantile) for o in (GNC().resolved(chain(SE2)),
+        ...                                                     GNC("gm").resolved(chain(SE2)))]
+        [('estimate', True, 0.999999), (1.0, False, 0.99)]
         """
-        if self.first != "auto" and self.cycle_length is not None and self.moves is not None:
+        if self.first != "auto" and self.cycle_length is not None and self.moves is not None \
+                and self.variance_factor is not None and self.chain is not None and \
+                self.quantile is not None:
             return self
         from .gnc_chordal import pose_graph_edges
 
@@ -333,6 +350,13 @@ class GNC:
             out.cycle_length = 8 if se3 else 5
         if self.moves is None:
             out.moves = se3
+        cycles = out.first == "cycles"
+        if self.variance_factor is None:
+            out.variance_factor = "estimate" if cycles else 1.0
+        if self.chain is None:
+            out.chain = cycles
+        if self.quantile is None:
+            out.quantile = FAMILY_QUANTILE if out.variance_factor == "estimate" else 0.99
         return out
 
     def known_masks(self, factors: Sequence[Factor]) -> list[np.ndarray]:
@@ -547,7 +571,7 @@ def _mark_cycles(edges: Any, known: list[np.ndarray], gnc: GNC, s_start: list[np
 
 def _chain_states(edges: Any, states: list[np.ndarray]) -> list[np.ndarray]:
     """The start values with the poses composed along the chain from the anchor's."""
-    from .gnc_chordal import chain_poses
+    from .gnc_chain import chain_poses
 
     P = np.array(states[0], dtype=np.float64)
     P[:] = np.asarray(chain_poses(edges, edges.group.from_params(P[edges.anchor])).params,
@@ -561,7 +585,8 @@ def _chain_hypothesis(problem: Problem, states: list[np.ndarray], gnc: GNC, stra
     held as inliers; the answer of lower TLS objective over every edge (the second on a tie,
     when every chain edge fits there)."""
     from .gnc_assemble import known_variance
-    from .gnc_chordal import chain_edges, pose_graph_edges
+    from .gnc_chain import chain_edges
+    from .gnc_chordal import pose_graph_edges
 
     t0 = time.perf_counter()
     edges = pose_graph_edges(problem)
@@ -575,35 +600,39 @@ def _chain_hypothesis(problem: Problem, states: list[np.ndarray], gnc: GNC, stra
     base._hypothesis = True
     if gnc.variance_factor == "estimate":  # one estimate for both answers (one objective)
         marked = _mark_cycles(edges, user_known, gnc, squared_norms(problem, states))
-        base.variance_factor = known_variance(edges, marked)
+        base.variance_factor = known_variance(edges, marked, gnc.quantile)
         note_v = f"; variance factor {base.variance_factor:.6g} (estimated from " \
                  f"{_count(marked):d} cycle-consistent edges)"
     vf = base.variance_factor if isinstance(base.variance_factor, float) else 1.0
+
+    def message(r: Result) -> str:  # the estimate, not the value handed to the passes
+        return r.message.replace(f"; variance factor {vf:.6g} (given)", note_v) if note_v \
+            else r.message
+
     a = gnc_solve(problem, states, base, strategy, **kw)
     tree = chain_edges(edges)
+    if all(bool(np.all(user_known[k][tree[sl]])) for k, sl in edges.rows):
+        # the tree's edges are known inliers already: nothing to try
+        return dataclasses.replace(a, message=message(a), time_s=time.perf_counter() - t0)
     held = copy.copy(base)
     held.known_inliers = list(gnc.known_inliers) + [
         (problem.factors[k], tree[sl]) for k, sl in edges.rows]
     b = gnc_solve(problem, _chain_states(edges, states), held, strategy, **kw)
     c2 = inlier_thresholds(problem.factors, gnc.quantile)
 
-    def objective(r: Result) -> float:
-        s = [sk / vf for sk in squared_norms(problem, [np.asarray(
+    def norms(r: Result) -> list[np.ndarray]:
+        return [sk / vf for sk in squared_norms(problem, [np.asarray(
             r.values.params(v), dtype=np.float64) for v in problem.variables])]
-        return _objective("tls", s, c2, user_known)
 
-    oa, ob = objective(a), objective(b)
-    sb = squared_norms(problem, [np.asarray(b.values.params(v), dtype=np.float64)
-                                 for v in problem.variables])
-    fits = all(bool(np.all(sb[k][tree[sl]] / vf <= c2[k])) for k, sl in edges.rows)
-    pick, other = (b, a) if ob <= oa and fits else (a, b)
-    what = ("held the chain's edges" if pick is b else "broke ties by the chain")
-    msg = pick.message.replace(f"; variance factor {vf:.6g} (given)", note_v) if note_v \
-        else pick.message
+    sa, sb = norms(a), norms(b)
+    oa, ob = _objective("tls", sa, c2, user_known), _objective("tls", sb, c2, user_known)
+    fits = all(bool(np.all(sb[k][tree[sl]] <= c2[k])) for k, sl in edges.rows)
+    pick = b if ob <= oa and fits else a
+    what = "held the chain's edges" if pick is b else "broke ties by the chain"
     ties = _ties(problem, edges, gnc, pick.inliers or [], [~kk for kk in user_known])
     return dataclasses.replace(
-        pick, message=f"{msg}; chain hypothesis: kept the answer that {what} (TLS objective "
-                      f"{vf * min(oa, ob):.6g} against {vf * max(oa, ob):.6g})",
+        pick, message=f"{message(pick)}; chain hypothesis: kept the answer that {what} (TLS "
+                      f"objective {vf * min(oa, ob):.6g} against {vf * max(oa, ob):.6g})",
         iterations=a.iterations + b.iterations, time_s=time.perf_counter() - t0,
         ties=ties, outer_iterations=(a.outer_iterations or 0) + (b.outer_iterations or 0))
 
@@ -706,7 +735,11 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
         if f.loss is not None:
             raise ValueError(f"GNC replaces robust losses: factor batch {k} ({f.name}) has "
                              f"loss {f.loss!r}; build it without a loss")
+    explicit_chain = gnc.chain
     gnc = gnc.resolved(problem)  # first="auto", cycle_length=None: decided for this problem
+    if explicit_chain and gnc.first != "cycles":
+        raise ValueError(f"GNC chain=True needs first='cycles' (or 'auto' with TLS on a pose "
+                         f"graph), not {gnc.first!r}")
     if gnc.chain and gnc.first == "cycles" and not gnc._hypothesis:
         return _chain_hypothesis(problem, states, gnc, strategy, linear_solver=linear_solver,
                                  eliminate=eliminate, max_iter=max_iter, verbose=verbose)
@@ -736,7 +769,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_assemble import known_variance
 
             marked = _mark_cycles(edges, known, gnc, s_start)
-            vf = known_variance(edges, marked)
+            vf = known_variance(edges, marked, gnc.quantile)
             note_v = f"; variance factor {vf:.6g} (estimated from {_count(marked):d} " \
                      f"cycle-consistent edges)"
     # the covariances scaled by vf: every squared norm below is s / vf (in the stages' edge
@@ -903,8 +936,9 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
     if ties:
         note = (f"; not unique: {len(ties)} piece(s) of the answer (the largest "
                 f"{ties[0].poses.size} poses) held by one accepted edge that a rejected edge "
-                f"could replace at the same TLS cost (result.ties): known inliers or a start "
-                f"that fits the right edges decide it")
+                f"could replace at the same TLS cost (result.ties): the data cannot decide, "
+                f"{'the chain of nearest-index edges' if gnc.chain else 'the start values'} "
+                f"did; known inliers decide otherwise")
     history: list[Any] = []
     offset = 0.0
     for r in runs:

@@ -525,10 +525,16 @@ def _pose_known(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
     return pose_pieces(group, n, ii, jj, Z, info, known, group.from_matrix(P))
 
 
-def known_variance(edges: Any, known: list[np.ndarray]) -> float:
-    """The a posteriori variance factor of a pose graph's known edges (:func:`variance_factor`
-    with each piece at its least-squares optimum), clipped to ``[1e-3, 1]``: what
-    ``GNC(variance_factor="estimate")`` scales the thresholds by.
+def known_variance(edges: Any, known: list[np.ndarray], quantile: float) -> float:
+    """The a posteriori variance factor of a pose graph's known edges, each piece at its
+    least-squares optimum, trimmed of the edges it makes outliers; clipped to ``[1e-3, 1]``:
+    what ``GNC(variance_factor="estimate")`` scales the thresholds by.
+
+    :func:`variance_factor` of the kept edges with the pieces posed on them, then the known
+    edges with ``s > v chi2.ppf(quantile, dof)`` there dropped, until nothing changes (10
+    rounds at most): one wrong edge among the known ones (a wrong closure within the file's
+    overstated noise closes its cycles) would otherwise inflate ``v`` several times on a
+    small graph.
 
     Parameters
     ----------
@@ -536,6 +542,8 @@ def known_variance(edges: Any, known: list[np.ndarray]) -> float:
         :func:`~microlie.optim.core.gnc_chordal.pose_graph_edges` of the problem.
     known : list of numpy.ndarray
         Known-inlier masks per factor batch (e.g. the cycle-consistent edges).
+    quantile : float
+        Chi-square quantile of the trimming test, ``0 < quantile < 1``.
 
     Returns
     -------
@@ -554,13 +562,30 @@ def known_variance(edges: Any, known: list[np.ndarray]) -> float:
     >>> # a triangle 0.3 m short of closing in x; noise sigma 1 m: s = 0.3^2 / 3, one cycle
     >>> Z = SE2.from_xy_theta([1.0, 1.0, -2.3], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
     >>> _ = g.add(BetweenFactor(x, [0, 1, 2], [1, 2, 0], Z, Isotropic(3, 1.0)))
-    >>> round(known_variance(pose_graph_edges(g.problem()), [np.ones(3, bool)]), 6)
+    >>> round(known_variance(pose_graph_edges(g.problem()), [np.ones(3, bool)], 0.99), 6)
     0.01
     """
+    from scipy.stats import chi2  # type: ignore[import-untyped]
+
+    from .gnc_bridges import whitened_residuals
+
     kn = np.concatenate([known[k] for k, _ in edges.rows])
-    P = _pose_known(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info, kn,
-                    edges.anchor)
-    v = variance_factor(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info, P, kn)
+    if not kn.any():
+        return 1.0
+    c2 = float(chi2.ppf(quantile, edges.info.shape[-1]))
+    keep = kn.copy()
+    v = 1.0
+    for _ in range(10):
+        P = _pose_known(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info, keep,
+                        edges.anchor)
+        v = variance_factor(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info, P,
+                            keep)
+        s = whitened_residuals(edges.group, P, edges.ii, edges.jj, edges.Z.inverse(),
+                               edges.info)
+        new = kn & (s <= c2 * v)  # a dropped edge that fits the poses without it comes back
+        if np.array_equal(new, keep):
+            break
+        keep = new
     return min(1.0, max(_V_MIN, v))
 
 

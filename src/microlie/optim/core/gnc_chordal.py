@@ -44,7 +44,7 @@ from .factors import BetweenFactor, PriorFactor
 from .gnc_weights import initial_mu, tls_weights
 from .problem import Problem
 
-__all__ = ["chordal_gnc", "pose_graph_edges", "PoseGraphEdges", "chain_edges", "chain_poses"]
+__all__ = ["chordal_gnc", "pose_graph_edges", "PoseGraphEdges"]
 
 # a weight-0 edge keeps this fraction of its weight in the linear solves, so that a vertex
 # whose every edge is judged an outlier keeps a defined (if meaningless) estimate
@@ -325,90 +325,3 @@ def chordal_gnc(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
     return anchor_pose.compose(X), w, mu
 
 
-
-def chain_edges(edges: PoseGraphEdges) -> np.ndarray:
-    """The spanning tree (forest) of a pose graph by the nearest vertex indices: a minimum
-    spanning tree with weights ``|i - j|`` (the odometry chain when vertices are numbered in
-    time order and consecutive ones are joined); of parallel edges the first is used.
-
-    Parameters
-    ----------
-    edges : PoseGraphEdges
-        The pose graph (:func:`pose_graph_edges`).
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(E,)`` booleans: the tree's edges.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from microlie import SE2
-    >>> from microlie.optim import FactorGraph, BetweenFactor
-    >>> from microlie.optim.core.gnc_chordal import pose_graph_edges, chain_edges
-    >>> g = FactorGraph()
-    >>> x = g.add_variables(SE2.identity(4), fixed=[0])
-    >>> # a closure 0-2, the chain 0-1-2-3 stored out of order, 2-1 twice
-    >>> _ = g.add(BetweenFactor(x, [0, 2, 2, 0, 3], [2, 1, 1, 1, 2], SE2.identity(5)))
-    >>> chain_edges(pose_graph_edges(g.problem())).tolist()
-    [False, True, False, True, True]
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import minimum_spanning_tree
-
-    n, ii, jj = edges.n, edges.ii, edges.jj
-    lo, hi = np.minimum(ii, jj), np.maximum(ii, jj)
-    links = np.unique(np.stack([lo, hi], axis=1), axis=0).reshape(-1, 2)
-    W = coo_matrix(((links[:, 1] - links[:, 0]).astype(np.float64), (links[:, 0], links[:, 1])),
-                   shape=(n, n)).tocsr()
-    T = minimum_spanning_tree(W).tocoo()
-    tree = set(zip(np.minimum(T.row, T.col).tolist(), np.maximum(T.row, T.col).tolist(),
-                   strict=True))
-    in_tree = np.zeros(ii.size, dtype=bool)
-    for e in range(ii.size):
-        key = (int(lo[e]), int(hi[e]))
-        if key in tree:  # the first edge of each tree link
-            in_tree[e] = True
-            tree.discard(key)
-    return in_tree
-
-
-def chain_poses(edges: PoseGraphEdges, anchor_pose: LieGroup) -> LieGroup:
-    """Poses composed from the anchor along :func:`chain_edges`.
-
-    Parameters
-    ----------
-    edges : PoseGraphEdges
-        The pose graph (:func:`pose_graph_edges`).
-    anchor_pose : LieGroup
-        The pose of ``edges.anchor``.
-
-    Returns
-    -------
-    LieGroup
-        ``(n,)`` poses; a vertex that no edge joins to the anchor keeps ``anchor_pose``
-        composed along its own tree (rooted at its lowest vertex).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from microlie import SE2
-    >>> from microlie.optim import FactorGraph, BetweenFactor
-    >>> from microlie.optim.core.gnc_chordal import pose_graph_edges, chain_poses
-    >>> g = FactorGraph()
-    >>> x = g.add_variables(SE2.identity(3), fixed=[0])
-    >>> # the chain 0-1-2 (1 m steps) and a closure 0-2 that disagrees: the chain wins
-    >>> Z = SE2.from_xy_theta([1.0, 1.0, 5.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
-    >>> _ = g.add(BetweenFactor(x, [0, 1, 0], [1, 2, 2], Z))
-    >>> np.round(chain_poses(pose_graph_edges(g.problem()), SE2.identity()).translation(),
-    ...          12).tolist()
-    [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]]
-    """
-    from .gnc_assemble import join_pieces
-
-    A = np.asarray(anchor_pose.matrix(), dtype=np.float64)
-    P = join_pieces(np.tile(A, (edges.n, 1, 1)), np.asarray(edges.Z.matrix(), dtype=np.float64),
-                    edges.ii, edges.jj, np.zeros(edges.ii.size, dtype=bool), chain_edges(edges),
-                    edges.anchor)
-    return edges.group.from_matrix(P)
