@@ -56,10 +56,20 @@ def test_auto_resolves_as_documented():
         p = g.problem()
         tls = GNC().resolved(p)
         assert (tls.first, tls.cycle_length, tls.moves) == ("cycles", length, moves)
+        # with the cycle marking: the estimated variance factor, its family-wise quantile,
+        # the chain
+        assert (tls.variance_factor, tls.quantile, tls.chain) == ("estimate", 1 - 1e-6, True)
         gm = GNC("gm").resolved(p)  # the cycle marking is a TLS stage
         assert (gm.first, gm.cycle_length) == ("values", length)
-        explicit = GNC(first="chordal", cycle_length=6, moves=not moves)
+        assert (gm.variance_factor, gm.quantile, gm.chain) == (1.0, 0.99, False)
+        given = GNC(quantile=0.95).resolved(p)  # a given quantile stays
+        assert (given.variance_factor, given.quantile) == ("estimate", 0.95)
+        file_info = GNC(variance_factor=1.0).resolved(p)  # the file's information: 0.99
+        assert (file_info.quantile, file_info.chain) == (0.99, True)
+        explicit = GNC(first="chordal", cycle_length=6, moves=not moves, quantile=0.99,
+                       variance_factor=1.0, chain=False)
         assert explicit.resolved(p) is explicit  # nothing left to decide
+        assert GNC(first="chordal").resolved(p).chain is False  # no cycle marking
         kept = GNC(first="values", moves=not moves).resolved(p)
         assert (kept.first, kept.cycle_length, kept.moves) == ("values", length, not moves)
     # not pose graphs: priors only (no BetweenFactor), and an SO3 batch
@@ -76,7 +86,7 @@ def test_auto_resolves_as_documented():
     opts = GNC()
     opts.resolved(_grid(SE3)[0].problem())
     assert (opts.first, opts.cycle_length, opts.moves) == ("auto", None, None)
-    assert repr(opts) == "GNC('tls', quantile=0.99, first='auto', known_inliers=0 batches)"
+    assert repr(opts) == "GNC('tls', quantile=None, first='auto', known_inliers=0 batches)"
 
 
 @pytest.mark.parametrize("G, length, moves", [(SE2, 5, False), (SE3, 8, True)])

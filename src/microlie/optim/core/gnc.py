@@ -17,8 +17,10 @@ ends at ``rho``. Each outer iteration alternates
 
 The threshold ``c^2`` of each factor is the ``quantile`` of the chi-square distribution with the
 factor's dimension degrees of freedom (:func:`inlier_thresholds`): an inlier's ``s_k`` is below
-it with that probability (this assumes calibrated information matrices: with information far
-larger or smaller than the real noise, choose ``quantile`` accordingly). The first weights come
+it with that probability when the information matrices match the noise; with the cycle marking
+(the default on pose graphs) the covariances are first scaled by their variance factor
+estimated from the cycle-consistent edges and the quantile is family-wise
+(``variance_factor``, ``quantile``). The first weights come
 from the start values (``first="values"``), as in the paper from the plain least-squares
 estimate (``first="least-squares"``), or, on pose graphs, from GNC-TLS run first on the
 chordal relaxation (``first="chordal"``, :mod:`microlie.optim.core.gnc_chordal`; ``"cycles"``
@@ -126,7 +128,8 @@ class GNC:
         then the pieces no accepted edge holds attached by their best-supported edge.
         Exact ties of the TLS objective (a piece that either of two edges can hold alone:
         one rejected, the other accepted, the same ``0.5 * sum min(s, c^2)``) are broken by
-        the start values, the user's information: the choice with more edges that fit
+        the chain's poses (``chain``, the default) or, with ``chain=False``, by the start
+        values, the user's information: the choice with more edges that fit
         the start (whitened squared residual within ``c^2`` there) is kept; when neither
         fits the start the tie is left as GNC found it. Such answers therefore depend on
         the start; where the support differs it does not.
@@ -544,6 +547,13 @@ def _objective(surrogate: str, s: list[np.ndarray], c2: list[float],
     return total
 
 
+def _q(gnc: GNC) -> float:
+    """The quantile of resolved options (:meth:`GNC.resolved` decides ``None``)."""
+    if gnc.quantile is None:
+        raise ValueError("GNC options not resolved: call GNC.resolved(problem) first")
+    return gnc.quantile
+
+
 def _count(masks: list[np.ndarray]) -> int:
     return sum(int(m.sum()) for m in masks)
 
@@ -555,17 +565,17 @@ def _mark_cycles(edges: Any, known: list[np.ndarray], gnc: GNC, s_start: list[np
     if gnc.cycle_length != 5:
         from .gnc_loops import mark_loops
 
-        known = mark_loops(edges, known, gnc.quantile, gnc.cycle_length or 5)
+        known = mark_loops(edges, known, _q(gnc), gnc.cycle_length or 5)
     else:
         from .gnc_cycles import mark_consistent
         from .gnc_merge import merge_known
 
-        known = mark_consistent(edges, known, gnc.quantile)
-        known = merge_known(edges, known, gnc.quantile, s_start)  # joined by a vote
+        known = mark_consistent(edges, known, _q(gnc))
+        known = merge_known(edges, known, _q(gnc), s_start)  # joined by a vote
     if gnc.assemble:
         from .gnc_assemble import assemble_known
 
-        known = assemble_known(edges, known, gnc.quantile)  # cycles of pieces
+        known = assemble_known(edges, known, _q(gnc))  # cycles of pieces
     return known
 
 
@@ -600,7 +610,7 @@ def _chain_hypothesis(problem: Problem, states: list[np.ndarray], gnc: GNC, stra
     base._hypothesis = True
     if gnc.variance_factor == "estimate":  # one estimate for both answers (one objective)
         marked = _mark_cycles(edges, user_known, gnc, squared_norms(problem, states))
-        base.variance_factor = known_variance(edges, marked, gnc.quantile)
+        base.variance_factor = known_variance(edges, marked, _q(gnc))
         note_v = f"; variance factor {base.variance_factor:.6g} (estimated from " \
                  f"{_count(marked):d} cycle-consistent edges)"
     vf = base.variance_factor if isinstance(base.variance_factor, float) else 1.0
@@ -618,7 +628,7 @@ def _chain_hypothesis(problem: Problem, states: list[np.ndarray], gnc: GNC, stra
     held.known_inliers = list(gnc.known_inliers) + [
         (problem.factors[k], tree[sl]) for k, sl in edges.rows]
     b = gnc_solve(problem, _chain_states(edges, states), held, strategy, **kw)
-    c2 = inlier_thresholds(problem.factors, gnc.quantile)
+    c2 = inlier_thresholds(problem.factors, _q(gnc))
 
     def norms(r: Result) -> list[np.ndarray]:
         return [sk / vf for sk in squared_norms(problem, [np.asarray(
@@ -648,7 +658,7 @@ def _chordal_stage(problem: Problem, states: list[np.ndarray], gnc: GNC, edges: 
     kn = np.concatenate([known[k] for k, _ in edges.rows])
     X0 = var.group.from_params(np.asarray(states[0][edges.anchor]))
     X, w, mu = chordal_gnc(edges.group, edges.n, edges.ii, edges.jj, edges.Z, edges.info,
-                           edges.anchor, X0, kn, quantile=gnc.quantile,
+                           edges.anchor, X0, kn, quantile=_q(gnc),
                            mu_step=gnc.mu_step, max_iter=gnc.max_iter,
                            weights_tol=gnc.weights_tol)
     for k, sl in edges.rows:
@@ -745,7 +755,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                                  eliminate=eliminate, max_iter=max_iter, verbose=verbose)
     known = gnc.known_masks(factors)
     user_known = known  # the caller's (the stages below add their own known inliers)
-    c2 = inlier_thresholds(factors, gnc.quantile)
+    c2 = inlier_thresholds(factors, _q(gnc))
     s_start = squared_norms(problem, states)  # also what breaks exact ties (first="cycles")
     edges = None
     if gnc.first in ("chordal", "cycles") and gnc.surrogate != "tls":
@@ -769,7 +779,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
             from .gnc_assemble import known_variance
 
             marked = _mark_cycles(edges, known, gnc, s_start)
-            vf = known_variance(edges, marked, gnc.quantile)
+            vf = known_variance(edges, marked, _q(gnc))
             note_v = f"; variance factor {vf:.6g} (estimated from {_count(marked):d} " \
                      f"cycle-consistent edges)"
     # the covariances scaled by vf: every squared norm below is s / vf (in the stages' edge
