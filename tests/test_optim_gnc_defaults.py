@@ -69,6 +69,12 @@ def test_auto_resolves_as_documented():
         explicit = GNC(first="chordal", cycle_length=6, moves=not moves, quantile=0.99,
                        variance_factor=1.0, chain=False)
         assert explicit.resolved(p) is explicit  # nothing left to decide
+        g, x, f = _grid(G)[:3]  # the odometry known: the file's information, per edge 0.99
+        odo = GNC(known_inliers=[(f, np.abs(_grid(G)[5] - _grid(G)[6]) == 1)]).resolved(
+            g.problem())
+        assert (odo.variance_factor, odo.quantile, odo.chain) == (1.0, 0.99, True)
+        some = GNC(known_inliers=[(f, [0, 1, 2])]).resolved(g.problem())  # not the whole chain
+        assert some.variance_factor == "estimate"
         assert GNC(first="chordal").resolved(p).chain is False  # no cycle marking
         kept = GNC(first="values", moves=not moves).resolved(p)
         assert (kept.first, kept.cycle_length, kept.moves) == ("values", length, not moves)
