@@ -239,8 +239,10 @@ def test_command_reports_the_outlier_edges(tmp_path):
         assert run(args, out, io.StringIO()) == 0
         rep = json.loads(out.getvalue())
         assert rep["gnc"]["outlier_edges"] == planted
-        # the default with the cycle marking's estimated variance factor: 1 - 1e-6
-        assert rep["gnc"]["quantile"] == (0.9999 if "--gnc-quantile" in extra else 1 - 1e-6)
+        # the default: 1 - 1e-6 with the cycle marking's estimated variance factor, 0.99
+        # with the odometry known (the file's information)
+        assert rep["gnc"]["quantile"] == (0.9999 if "--gnc-quantile" in extra else
+                                          0.99 if "--known-inliers" in extra else 1 - 1e-6)
     for bad in (["--known-inliers", "odometry"], ["--gnc-quantile", "0.9"],
                 ["--gnc-first", "chordal"],
                 ["--robust", "gnc-huber"], ["--robust", "gnc-tls", "--gnc-quantile", "1.5"]):

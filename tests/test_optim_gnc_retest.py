@@ -130,8 +130,8 @@ def test_wrong_closure_within_file_noise(G, first):
         # cycle_length=5 (the SE2 default; SE3's is 8): the subject is the re-test. Longer
         # cycles (6-9) mark this closure consistent (the 6-edge cycle through it closes
         # within the overstated noise), and the re-test never judges marked edges. The
-        # file's information as given (variance_factor=1): the estimated factor of the
-        # cycle marking's default catches the closure before the re-test (checked last).
+        # file's information as given (variance_factor=1, the default with the odometry
+        # known): an estimated factor catches the closure before the re-test (checked last).
         res = g.optimize(robust=GNC(known_inliers=[(f, odo)], first=first, retest=retest,
                                     cycle_length=5, variance_factor=variance_factor),
                          solver=lm, max_iter=200, verbose=False)
@@ -144,8 +144,8 @@ def test_wrong_closure_within_file_noise(G, first):
     w = res.weights[0]
     assert w[-1] == 0.0 and np.all(w[:-1] == 1.0)
     np.testing.assert_allclose(P, ref, atol=1e-6)
-    if first == "cycles":  # the estimated variance factor (the default) alone rejects it
-        res, P = run(0, None)
+    if first == "cycles":  # the estimated variance factor alone rejects it (not the default
+        res, P = run(0, "estimate")  # with the odometry known)
         assert res.weights[0][-1] == 0.0 and np.all(res.weights[0][:-1] == 1.0)
         np.testing.assert_allclose(P, ref, atol=1e-6)
 
