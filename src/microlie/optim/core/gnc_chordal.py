@@ -323,5 +323,3 @@ def chordal_gnc(group: Any, n: int, ii: np.ndarray, jj: np.ndarray, Z: LieGroup,
     X, mu, _ = _graduate(relax, resid, w, judged, float(chi2.ppf(quantile, D)),
                          mu_step, max_iter, weights_tol)
     return anchor_pose.compose(X), w, mu
-
-
