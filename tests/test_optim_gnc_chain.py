@@ -262,7 +262,7 @@ def test_chain_breaks_the_tie_for_the_odometry_from_any_start():
         res = g.optimize(robust=GNC("tls", chain=True), verbose=False)
         np.testing.assert_array_equal(res.inliers[0], ~out)
         np.testing.assert_allclose(np.asarray(res.values[x].params), want, atol=1e-8)
-        assert "chain hypothesis: kept the answer that" in res.message
+        assert "chain hypothesis: " in res.message
         assert res.ties  # still reported: the data alone cannot decide
     # without the chain the start decides: from the swapped start the wrong closure holds
     g, x, f = _graph(SE2, swapped, ii, jj, Zp, sf)
