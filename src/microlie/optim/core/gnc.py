@@ -605,9 +605,10 @@ def _chain_states(edges: Any, states: list[np.ndarray]) -> list[np.ndarray]:
 
 def _chain_hypothesis(problem: Problem, states: list[np.ndarray], gnc: GNC, strategy: Any,
                       **kw: Any) -> Result:
-    """``GNC(chain=True)``: GNC with ties broken by the chain, and GNC with the chain's edges
-    held as inliers; the answer of lower TLS objective over every edge (the second on a tie,
-    when every chain edge fits there)."""
+    """``GNC(chain=True)``: GNC with ties broken by the chain, then, unless that answer accepts
+    every chain edge (or the known inliers hold them), GNC with the chain's edges held as
+    inliers; the answer of lower TLS objective over every edge (the second on a tie, when
+    every chain edge fits there)."""
     from .gnc_assemble import known_variance
     from .gnc_chain import chain_edges
     from .gnc_chordal import pose_graph_edges
