@@ -297,6 +297,7 @@ class GNC:
                              f"got {chain!r}")
         self.chain = chain
         self._hypothesis = False  # set on the copies that chain=True solves with
+        self._variance_note = ""  # how those copies' variance factor was estimated
 
     def __repr__(self) -> str:
         return (f"GNC({self.surrogate!r}, quantile={self.quantile}, first={self.first!r}, "
@@ -372,9 +373,7 @@ class GNC:
         """Whether the known inliers hold every edge of the chain (e.g. the odometry)."""
         from .gnc_chain import chain_edges
 
-        masks = self.known_masks(problem.factors)
-        tree = chain_edges(edges)
-        return all(bool(np.all(masks[k][tree[sl]])) for k, sl in edges.rows)
+        return _on_tree(self.known_masks(problem.factors), chain_edges(edges), edges)
 
     def known_masks(self, factors: Sequence[Factor]) -> list[np.ndarray]:
         """Boolean masks of the known inliers, one per factor batch of ``factors``.
@@ -593,6 +592,23 @@ def _mark_cycles(edges: Any, known: list[np.ndarray], gnc: GNC, s_start: list[np
     return known
 
 
+def _on_tree(masks: list[np.ndarray], tree: np.ndarray, edges: Any) -> bool:
+    """Whether per-batch boolean ``masks`` hold every edge of ``tree`` (an edge mask)."""
+    return all(bool(np.all(masks[k][tree[sl]])) for k, sl in edges.rows)
+
+
+def _estimate_variance(edges: Any, known: list[np.ndarray], gnc: GNC,
+                       s_start: list[np.ndarray]) -> tuple[float, str]:
+    """``variance_factor="estimate"``: the factor of the cycle-consistent edges and the note
+    for the result's message."""
+    from .gnc_assemble import known_variance
+
+    marked = _mark_cycles(edges, known, gnc, s_start)
+    v = known_variance(edges, marked, _q(gnc))
+    return v, f"; variance factor {v:.6g} (estimated from {_count(marked):d} cycle-consistent " \
+              f"edges)"
+
+
 def _chain_states(edges: Any, states: list[np.ndarray]) -> list[np.ndarray]:
     """The start values with the poses composed along the chain from the anchor's."""
     from .gnc_chain import chain_poses
@@ -609,7 +625,6 @@ def _chain_hypothesis(problem: Problem, states: list[np.ndarray], gnc: GNC, stra
     every chain edge (or the known inliers hold them), GNC with the chain's edges held as
     inliers; the answer of lower TLS objective over every edge (the second on a tie, when
     every chain edge fits there)."""
-    from .gnc_assemble import known_variance
     from .gnc_chain import chain_edges
     from .gnc_chordal import pose_graph_edges
 
@@ -620,30 +635,21 @@ def _chain_hypothesis(problem: Problem, states: list[np.ndarray], gnc: GNC, stra
                          "with only BetweenFactor and PriorFactor batches and a fixed vertex "
                          "or a prior")
     user_known = gnc.known_masks(problem.factors)
-    note_v = ""
     base = copy.copy(gnc)
     base._hypothesis = True
     if gnc.variance_factor == "estimate":  # one estimate for both answers (one objective)
-        marked = _mark_cycles(edges, user_known, gnc, squared_norms(problem, states))
-        base.variance_factor = known_variance(edges, marked, _q(gnc))
-        note_v = f"; variance factor {base.variance_factor:.6g} (estimated from " \
-                 f"{_count(marked):d} cycle-consistent edges)"
+        base.variance_factor, base._variance_note = _estimate_variance(
+            edges, user_known, gnc, squared_norms(problem, states))
     vf = base.variance_factor if isinstance(base.variance_factor, float) else 1.0
-
-    def message(r: Result) -> str:  # the estimate, not the value handed to the passes
-        return r.message.replace(f"; variance factor {vf:.6g} (given)", note_v) if note_v \
-            else r.message
-
     a = gnc_solve(problem, states, base, strategy, **kw)
     tree = chain_edges(edges)
-    if gnc._chain_known(problem, edges):
+    if _on_tree(user_known, tree, edges):
         # the tree's edges are known inliers already: nothing to try
-        return dataclasses.replace(a, message=message(a), time_s=time.perf_counter() - t0)
-    if a.inliers is not None and all(bool(np.all(a.inliers[k][tree[sl]]))
-                                      for k, sl in edges.rows):
+        return dataclasses.replace(a, time_s=time.perf_counter() - t0)
+    if a.inliers is not None and _on_tree(a.inliers, tree, edges):
         # GNC's answer accepts every tree edge already: the second pass, which holds them,
         # is skipped (measured: the same answers on benchmarks/robust.py's rows)
-        return dataclasses.replace(a, message=f"{message(a)}; chain hypothesis: every edge of "
+        return dataclasses.replace(a, message=f"{a.message}; chain hypothesis: every edge of "
                                               f"the chain accepted, no second pass",
                                    time_s=time.perf_counter() - t0)
     held = copy.copy(base)
@@ -658,12 +664,12 @@ def _chain_hypothesis(problem: Problem, states: list[np.ndarray], gnc: GNC, stra
 
     sa, sb = norms(a), norms(b)
     oa, ob = _objective("tls", sa, c2, user_known), _objective("tls", sb, c2, user_known)
-    fits = all(bool(np.all(sb[k][tree[sl]] <= c2[k])) for k, sl in edges.rows)
+    fits = _on_tree([sk <= ck for sk, ck in zip(sb, c2, strict=True)], tree, edges)
     pick = b if ob <= oa and fits else a
     what = "held the chain's edges" if pick is b else "broke ties by the chain"
     ties = _ties(problem, edges, gnc, pick.inliers or [], [~kk for kk in user_known])
     return dataclasses.replace(
-        pick, message=f"{message(pick)}; chain hypothesis: kept the answer that {what} (TLS "
+        pick, message=f"{pick.message}; chain hypothesis: kept the answer that {what} (TLS "
                       f"objective {vf * min(oa, ob):.6g} against {vf * max(oa, ob):.6g})",
         iterations=a.iterations + b.iterations, time_s=time.perf_counter() - t0,
         ties=ties, outer_iterations=(a.outer_iterations or 0) + (b.outer_iterations or 0))
@@ -788,7 +794,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                          f"edges of a pose graph: use first='cycles' (or 'auto' on a pose "
                          f"graph), not {gnc.first!r}, or give the factor as a number")
     vf = gnc.variance_factor if isinstance(gnc.variance_factor, float) else 1.0
-    note_v = f"; variance factor {vf:.6g} (given)" if vf != 1.0 else ""
+    note_v = gnc._variance_note or (f"; variance factor {vf:.6g} (given)" if vf != 1.0 else "")
     if gnc.first in ("chordal", "cycles"):
         from .gnc_chordal import pose_graph_edges
 
@@ -798,12 +804,7 @@ def gnc_solve(problem: Problem, states: list[np.ndarray], gnc: GNC,
                              f"variable batch with only BetweenFactor and PriorFactor batches "
                              f"and a fixed vertex or a prior; use first='values'")
         if gnc.first == "cycles" and gnc.variance_factor == "estimate":
-            from .gnc_assemble import known_variance
-
-            marked = _mark_cycles(edges, known, gnc, s_start)
-            vf = known_variance(edges, marked, _q(gnc))
-            note_v = f"; variance factor {vf:.6g} (estimated from {_count(marked):d} " \
-                     f"cycle-consistent edges)"
+            vf, note_v = _estimate_variance(edges, known, gnc, s_start)
     # the covariances scaled by vf: every squared norm below is s / vf (in the stages' edge
     # information too), the thresholds stay c^2; the least-squares solves do not change
     s_start = [sk / vf for sk in s_start]
